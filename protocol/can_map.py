@@ -1,0 +1,343 @@
+"""The CAN map of the rig: CANopen (CiA 301) framing with the CiA 401 analog
+I/O profile, and the volts <-> counts scaling of the ±10 V converters.
+
+Frames (node id ``n``, default :data:`DEFAULT_NODE_ID`):
+
+=========  ============  =====  =============================================
+frame      COB-ID        DLC    payload
+=========  ============  =====  =============================================
+NMT        0x000         2      command, node id (0 = all)
+SYNC       0x080         1      counter 1..240 (CiA 301 SYNC counter)
+EMCY       0x080 + n     8      error code (u16), error register, 5 vendor bytes
+TPDO1      0x180 + n     8      analog inputs 1-4, 0x6401 sub 1-4 (INT16 LE)
+TPDO2      0x280 + n     8      analog inputs 1-2, 0x6402 sub 1-2 (INT32 LE)
+TPDO3      0x380 + n     8      analog inputs 3-4, 0x6402 sub 3-4 (INT32 LE)
+RPDO1      0x200 + n     4      analog outputs 1-2, 0x6411 sub 1-2 (INT16 LE)
+SDO tx     0x580 + n     8      server -> client
+SDO rx     0x600 + n     8      client -> server
+heartbeat  0x700 + n     1      NMT state
+=========  ============  =====  =============================================
+
+CiA 401 carries converter values *left-justified*: a 12-bit value ``c`` in
+``[-2048, 2047]`` travels as the INT16 ``c << 4``, so every consumer can read
+volts as ``raw16 * 10 V / 32768`` whatever the converter's resolution.
+Resolutions above 16 bits (the thesis's 20-bit future work) travel in the
+32-bit objects 0x6402 on TPDO2/TPDO3, left-justified in INT32.
+
+Analog inputs (channel -> signal), see docs for the volts per unit:
+
+1. cylinder 1 extension, 2. cylinder 2 extension,
+3. link 1 tip deflection, 4. link 2 tip deflection.
+
+Analog outputs: 1. valve 1 voltage, 2. valve 2 voltage.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from protocol.errors import FrameError
+
+DEFAULT_NODE_ID: Final[int] = 1
+
+NMT_COB_ID: Final[int] = 0x000
+SYNC_COB_ID: Final[int] = 0x080
+EMCY_BASE: Final[int] = 0x080
+TPDO1_BASE: Final[int] = 0x180
+RPDO1_BASE: Final[int] = 0x200
+TPDO2_BASE: Final[int] = 0x280
+TPDO3_BASE: Final[int] = 0x380
+SDO_TX_BASE: Final[int] = 0x580
+SDO_RX_BASE: Final[int] = 0x600
+HEARTBEAT_BASE: Final[int] = 0x700
+
+SYNC_COUNTER_OVERFLOW: Final[int] = 240
+"""CiA 301 object 0x1019: the SYNC counter runs 1..240 and wraps to 1."""
+
+N_ANALOG_INPUTS: Final[int] = 4
+N_ANALOG_OUTPUTS: Final[int] = 2
+FULL_SCALE_V: Final[float] = 10.0
+"""Both converters span ±10 V."""
+
+OD_ANALOG_INPUT_16: Final[int] = 0x6401
+OD_ANALOG_INPUT_32: Final[int] = 0x6402
+OD_ANALOG_OUTPUT_16: Final[int] = 0x6411
+
+
+class NmtCommand(enum.IntEnum):
+    """CiA 301 NMT node-control commands."""
+
+    START = 0x01
+    STOP = 0x02
+    ENTER_PRE_OPERATIONAL = 0x80
+    RESET_NODE = 0x81
+    RESET_COMMUNICATION = 0x82
+
+
+class NmtState(enum.IntEnum):
+    """States as the heartbeat reports them."""
+
+    BOOT_UP = 0x00
+    STOPPED = 0x04
+    OPERATIONAL = 0x05
+    PRE_OPERATIONAL = 0x7F
+
+
+class EmcyCode(enum.IntEnum):
+    """Emergency error codes used by the plant node (CiA 301 / 401)."""
+
+    NO_ERROR = 0x0000
+    OUTPUT_CLIPPED = 0x2310
+    """An analog output command outside ±full scale was clipped (current/voltage range)."""
+    INPUT_SATURATED = 0x5010
+    """An analog input reached full scale (saturation is flagged, never wrapped)."""
+    PDO_LENGTH = 0x8210
+    """A PDO with the wrong length was received and ignored."""
+    SYNC_TIMEOUT = 0x8250
+    """No SYNC for the watchdog time: valves held at zero (vendor use of the RPDO-timeout class)."""
+    JOINT_LIMIT = 0xFF01
+    """A joint reached a hard stop (manufacturer specific)."""
+
+
+def cob_ids(node_id: int = DEFAULT_NODE_ID) -> dict[str, int]:
+    """All COB-IDs of a node, by frame name."""
+    if not 1 <= node_id <= 127:
+        raise ValueError(f"CANopen node id must be 1..127, got {node_id}")
+    return {
+        "nmt": NMT_COB_ID,
+        "sync": SYNC_COB_ID,
+        "emcy": EMCY_BASE + node_id,
+        "tpdo1": TPDO1_BASE + node_id,
+        "tpdo2": TPDO2_BASE + node_id,
+        "tpdo3": TPDO3_BASE + node_id,
+        "rpdo1": RPDO1_BASE + node_id,
+        "sdo_tx": SDO_TX_BASE + node_id,
+        "sdo_rx": SDO_RX_BASE + node_id,
+        "heartbeat": HEARTBEAT_BASE + node_id,
+    }
+
+
+# --- converter scaling ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Quantized:
+    """Converter codes and which channels hit full scale."""
+
+    counts: npt.NDArray[np.int64]
+    saturated: npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class ConverterScale:
+    """A bipolar converter of ``bits`` resolution over ±``full_scale_v``.
+
+    Codes run from ``-2**(bits-1)`` to ``2**(bits-1) - 1``; one LSB is
+    ``2 * full_scale_v / 2**bits`` (4.883 mV at 12 bits and ±10 V).
+    """
+
+    bits: int = 12
+    full_scale_v: float = FULL_SCALE_V
+
+    def __post_init__(self) -> None:
+        if not 8 <= self.bits <= 32:
+            raise ValueError(f"converter resolution must be 8..32 bits, got {self.bits}")
+        if self.full_scale_v <= 0:
+            raise ValueError("full scale must be positive")
+
+    @property
+    def lsb_v(self) -> float:
+        return 2.0 * self.full_scale_v / (1 << self.bits)
+
+    @property
+    def code_min(self) -> int:
+        return -(1 << (self.bits - 1))
+
+    @property
+    def code_max(self) -> int:
+        return (1 << (self.bits - 1)) - 1
+
+    def quantize(self, volts: npt.ArrayLike) -> Quantized:
+        """Round to the nearest code (error at most half an LSB inside the
+        range); values beyond full scale are clipped to the end codes and
+        flagged, never wrapped. NaN is treated as out of range (flagged, 0)."""
+        v = np.asarray(volts, dtype=np.float64)
+        finite = np.isfinite(v)
+        codes = np.rint(np.where(finite, v, 0.0) / self.lsb_v)
+        saturated = (codes < self.code_min) | (codes > self.code_max) | ~finite
+        codes = np.clip(codes, self.code_min, self.code_max).astype(np.int64)
+        return Quantized(counts=codes, saturated=np.asarray(saturated))
+
+    def to_volts(self, counts: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        return np.asarray(counts, dtype=np.float64) * self.lsb_v
+
+    def shift(self, word_bits: int) -> int:
+        if self.bits > word_bits:
+            raise ValueError(f"a {self.bits}-bit value does not fit a {word_bits}-bit word")
+        return word_bits - self.bits
+
+    def left_justify(self, counts: npt.ArrayLike, word_bits: int = 16) -> npt.NDArray[np.int64]:
+        """CiA 401 left-justified word of a code (``code << (word_bits - bits)``)."""
+        return np.asarray(counts, dtype=np.int64) << self.shift(word_bits)
+
+    def from_left_justified(self, words: npt.ArrayLike, word_bits: int = 16) -> npt.NDArray[np.int64]:
+        """Code from a left-justified word; the padding bits are discarded."""
+        return np.asarray(words, dtype=np.int64) >> self.shift(word_bits)
+
+
+ADC12: Final[ConverterScale] = ConverterScale(12)
+DAC12: Final[ConverterScale] = ConverterScale(12)
+WORD16_VOLTS_PER_LSB: Final[float] = FULL_SCALE_V / 32768.0
+"""Volts per unit of any left-justified INT16 analog value (used in the DBC)."""
+WORD32_VOLTS_PER_LSB: Final[float] = FULL_SCALE_V / 2147483648.0
+
+
+# --- frame packing -------------------------------------------------------------
+
+_INT16X4 = struct.Struct("<4h")
+_INT16X2 = struct.Struct("<2h")
+_INT32X2 = struct.Struct("<2i")
+_EMCY = struct.Struct("<HB5s")
+
+
+def _check_len(data: bytes | bytearray, expected: int, what: str) -> None:
+    if len(data) != expected:
+        raise FrameError(f"{what}: expected {expected} data bytes, got {len(data)}")
+
+
+def encode_sync(counter: int) -> bytes:
+    """SYNC payload: the counter byte 1..240."""
+    if not 1 <= counter <= SYNC_COUNTER_OVERFLOW:
+        raise ValueError(f"SYNC counter must be 1..{SYNC_COUNTER_OVERFLOW}, got {counter}")
+    return bytes([counter])
+
+
+def decode_sync(data: bytes | bytearray) -> int:
+    _check_len(data, 1, "SYNC")
+    counter = data[0]
+    if not 1 <= counter <= SYNC_COUNTER_OVERFLOW:
+        raise FrameError(f"SYNC counter {counter} outside 1..{SYNC_COUNTER_OVERFLOW}")
+    return counter
+
+
+def next_sync_counter(counter: int) -> int:
+    """The counter after ``counter`` (wraps 240 -> 1)."""
+    return counter % SYNC_COUNTER_OVERFLOW + 1
+
+
+def sync_gap(previous: int, current: int) -> int:
+    """How many SYNCs were missed between two received counters (0 = none)."""
+    return (current - previous - 1) % SYNC_COUNTER_OVERFLOW
+
+
+def encode_analog_inputs_16(words: npt.ArrayLike) -> bytes:
+    """TPDO1 payload from four left-justified INT16 words."""
+    w = np.asarray(words, dtype=np.int64)
+    if w.shape != (N_ANALOG_INPUTS,):
+        raise ValueError(f"TPDO1 carries {N_ANALOG_INPUTS} inputs, got shape {w.shape}")
+    return _INT16X4.pack(*(int(x) for x in w))
+
+
+def decode_analog_inputs_16(data: bytes | bytearray) -> npt.NDArray[np.int64]:
+    _check_len(data, 8, "TPDO1")
+    return np.array(_INT16X4.unpack(bytes(data)), dtype=np.int64)
+
+
+def encode_analog_inputs_32(words: npt.ArrayLike) -> tuple[bytes, bytes]:
+    """TPDO2 and TPDO3 payloads from four left-justified INT32 words."""
+    w = np.asarray(words, dtype=np.int64)
+    if w.shape != (N_ANALOG_INPUTS,):
+        raise ValueError(f"TPDO2/3 carry {N_ANALOG_INPUTS} inputs, got shape {w.shape}")
+    return _INT32X2.pack(int(w[0]), int(w[1])), _INT32X2.pack(int(w[2]), int(w[3]))
+
+
+def decode_analog_inputs_32(data: bytes | bytearray) -> npt.NDArray[np.int64]:
+    _check_len(data, 8, "TPDO2/3")
+    return np.array(_INT32X2.unpack(bytes(data)), dtype=np.int64)
+
+
+def encode_analog_outputs(words: npt.ArrayLike) -> bytes:
+    """RPDO1 payload from two left-justified INT16 words."""
+    w = np.asarray(words, dtype=np.int64)
+    if w.shape != (N_ANALOG_OUTPUTS,):
+        raise ValueError(f"RPDO1 carries {N_ANALOG_OUTPUTS} outputs, got shape {w.shape}")
+    return _INT16X2.pack(*(int(x) for x in w))
+
+
+def decode_analog_outputs(data: bytes | bytearray) -> npt.NDArray[np.int64]:
+    _check_len(data, 4, "RPDO1")
+    return np.array(_INT16X2.unpack(bytes(data)), dtype=np.int64)
+
+
+def volts_to_output_frame(volts: npt.ArrayLike, scale: ConverterScale = DAC12) -> tuple[bytes, npt.NDArray[np.bool_]]:
+    """Quantize two valve voltages and pack RPDO1; returns (payload, clipped flags)."""
+    q = scale.quantize(volts)
+    return encode_analog_outputs(scale.left_justify(q.counts)), q.saturated
+
+
+def output_frame_to_volts(data: bytes | bytearray, scale: ConverterScale = DAC12) -> npt.NDArray[np.float64]:
+    return scale.to_volts(scale.from_left_justified(decode_analog_outputs(data)))
+
+
+def encode_nmt(command: NmtCommand, node_id: int) -> bytes:
+    if not 0 <= node_id <= 127:
+        raise ValueError(f"NMT node id must be 0..127, got {node_id}")
+    return bytes([int(command), node_id])
+
+
+def decode_nmt(data: bytes | bytearray) -> tuple[NmtCommand, int]:
+    _check_len(data, 2, "NMT")
+    try:
+        command = NmtCommand(data[0])
+    except ValueError:
+        raise FrameError(f"unknown NMT command 0x{data[0]:02x}") from None
+    if data[1] > 127:
+        raise FrameError(f"NMT node id {data[1]} outside 0..127")
+    return command, data[1]
+
+
+def encode_heartbeat(state: NmtState) -> bytes:
+    return bytes([int(state)])
+
+
+def decode_heartbeat(data: bytes | bytearray) -> NmtState:
+    _check_len(data, 1, "heartbeat")
+    try:
+        return NmtState(data[0] & 0x7F)
+    except ValueError:
+        raise FrameError(f"unknown heartbeat state 0x{data[0]:02x}") from None
+
+
+@dataclass(frozen=True)
+class Emergency:
+    """A decoded EMCY frame."""
+
+    code: int
+    register: int
+    vendor: bytes
+
+    @property
+    def name(self) -> str:
+        try:
+            return EmcyCode(self.code).name
+        except ValueError:
+            return f"0x{self.code:04x}"
+
+
+def encode_emcy(code: EmcyCode | int, register: int = 0x01, vendor: bytes = b"") -> bytes:
+    """EMCY payload: code, error register (bit 0 = generic error), 5 vendor bytes."""
+    if len(vendor) > 5:
+        raise ValueError("EMCY carries at most 5 vendor bytes")
+    return _EMCY.pack(int(code), register & 0xFF, vendor.ljust(5, b"\x00"))
+
+
+def decode_emcy(data: bytes | bytearray) -> Emergency:
+    _check_len(data, 8, "EMCY")
+    code, register, vendor = _EMCY.unpack(bytes(data))
+    return Emergency(code=code, register=register, vendor=vendor)
