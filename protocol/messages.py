@@ -1,0 +1,212 @@
+"""Control messages exchanged over zenoh, as pydantic v2 models in JSON.
+
+Every message that crosses a process carries a sequence number, the
+simulated time and the sender's wall-clock time (design.md, Conventions),
+so receivers can detect gaps, duplicates and reordering and measure
+latencies.  Decoding validates everything; a bad payload raises
+:class:`~protocol.errors.ProtocolError` with the reason.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Literal, TypeVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from protocol.errors import ProtocolError
+
+NonNegFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Seq = Annotated[int, Field(ge=0, lt=2**63)]
+
+
+class Message(BaseModel):
+    """Base of every control message: strict, immutable, finite numbers."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    seq: Seq = Field(description="Sender's sequence number for this message type, from 0")
+    sim_time_s: NonNegFloat = Field(description="Simulated time the message refers to")
+    wall_time_s: NonNegFloat = Field(default_factory=time.time, description="Sender's wall clock at sending (Unix s)")
+
+
+class BlockFlag(Message):
+    """The DSP's batch memory block state (thesis §3.2.3, Fig. 3.5 steps 1 and 4).
+
+    ``empty`` invites the next batch; ``full`` acknowledges a batch being
+    processed. ``next_batch_seq`` is the batch sequence number the DSP
+    expects next.
+    """
+
+    state: Literal["empty", "full"]
+    next_batch_seq: Seq
+    fft_width: Annotated[int, Field(ge=16, le=65536)]
+    batch_size: Annotated[int, Field(ge=1, le=65536)]
+
+
+class PoleParameters(BaseModel):
+    """One identified vibration mode: the parameters the OATF is built from."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    frequency_hz: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+    damping_ratio: Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+    magnitude: NonNegFloat = 0.0
+    source: str = Field(default="tot", description="Transfer function the peak was found on: tot, 11, 12, 21, 22")
+
+
+class Interrupt(Message):
+    """The DSP's interrupt after processing a batch (Fig. 3.5 step 4)."""
+
+    batch_seq: Seq
+    poles: tuple[PoleParameters, ...] = ()
+    confidence: Annotated[float, Field(ge=0.0, le=1.0)]
+    compute_time_s: NonNegFloat = Field(description="Measured wall time of the identification step")
+    emulated_latency_s: NonNegFloat = Field(default=0.0, description="C40 compute latency emulated on top")
+    samples_in_history: Annotated[int, Field(ge=0)] = 0
+    valid_fraction: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    deadline_missed: bool = False
+
+
+class ConfigChange(Message):
+    """Run-time change of the DSP's configuration (thesis §3.2.3).
+
+    Changing ``fft_width`` zeroes the history (as on the C40); changing
+    ``batch_size`` keeps it.
+    """
+
+    fft_width: Annotated[int, Field(ge=16, le=65536)] | None = None
+    batch_size: Annotated[int, Field(ge=1, le=65536)] | None = None
+    alpha: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    emulated_latency_s: NonNegFloat | None = None
+
+    @model_validator(mode="after")
+    def _power_of_two(self) -> "ConfigChange":
+        if self.fft_width is not None and self.fft_width & (self.fft_width - 1):
+            raise ValueError(f"fft_width must be a power of two, got {self.fft_width}")
+        return self
+
+
+class TransferFunction(BaseModel):
+    """Magnitude and phase of one estimate over the frequency grid."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    magnitude: tuple[FiniteFloat, ...]
+    phase_rad: tuple[FiniteFloat, ...]
+
+
+class TfSnapshot(Message):
+    """The DSP's current transfer-function estimates, for spectrograms."""
+
+    batch_seq: Seq
+    freqs_hz: tuple[FiniteFloat, ...]
+    valid: tuple[bool, ...]
+    estimates: dict[Literal["H11", "H12", "H21", "H22", "Htot"], TransferFunction]
+
+    @model_validator(mode="after")
+    def _lengths(self) -> "TfSnapshot":
+        n = len(self.freqs_hz)
+        if len(self.valid) != n:
+            raise ValueError("valid mask length differs from the frequency grid")
+        for name, tf in self.estimates.items():
+            if len(tf.magnitude) != n or len(tf.phase_rad) != n:
+                raise ValueError(f"{name} length differs from the frequency grid")
+        return self
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        """Complex arrays by name, plus ``freqs_hz`` and ``valid``."""
+        out: dict[str, np.ndarray] = {"freqs_hz": np.asarray(self.freqs_hz), "valid": np.asarray(self.valid)}
+        for name, tf in self.estimates.items():
+            out[name] = np.asarray(tf.magnitude) * np.exp(1j * np.asarray(tf.phase_rad))
+        return out
+
+
+class LatencyStats(BaseModel):
+    """Percentiles of one measured latency, in seconds."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    count: Annotated[int, Field(ge=0)]
+    p50: NonNegFloat
+    p99: NonNegFloat
+    p999: NonNegFloat
+    max: NonNegFloat
+
+
+class Health(Message):
+    """A service's health: counters, latency percentiles and the last miss."""
+
+    service: str
+    state: Literal["starting", "running", "degraded", "stopping", "failed"] = "running"
+    counters: dict[str, int] = Field(default_factory=dict)
+    latencies: dict[str, LatencyStats] = Field(default_factory=dict)
+    last_miss: str | None = None
+
+
+class ControllerStatus(Message):
+    """The controller's running state, for the live status line."""
+
+    ticks: Annotated[int, Field(ge=0)]
+    loop_rate_hz: NonNegFloat
+    batches_sent: Annotated[int, Field(ge=0)]
+    interrupts: Annotated[int, Field(ge=0)]
+    latest_frequency_hz: NonNegFloat | None = None
+    deadline_misses: Annotated[int, Field(ge=0)] = 0
+    overruns: Annotated[int, Field(ge=0)] = 0
+    finished: bool = False
+
+
+class GroundTruth(Message):
+    """The plant's true state on the test port (never used by the controller)."""
+
+    modal_frequencies_hz: tuple[FiniteFloat, ...]
+    damping_ratios: tuple[FiniteFloat, ...]
+    deflections_in: tuple[FiniteFloat, FiniteFloat]
+    theta_rad: tuple[FiniteFloat, FiniteFloat]
+    tip_in: tuple[FiniteFloat, FiniteFloat]
+    payload_attached: bool
+    valves_held: bool = False
+
+
+class ScenarioCommand(Message):
+    """A scenario input on the plant's test port, applied at ``at_sim_time_s``
+    (or at once if that time has passed)."""
+
+    kind: Literal["payload", "seed", "adc_bits"]
+    at_sim_time_s: NonNegFloat = 0.0
+    payload_attached: bool | None = None
+    seed: Annotated[int, Field(ge=0)] | None = None
+    adc_bits: Literal[12, 16, 20] | None = None
+
+    @model_validator(mode="after")
+    def _value_present(self) -> "ScenarioCommand":
+        needed = {"payload": self.payload_attached, "seed": self.seed, "adc_bits": self.adc_bits}[self.kind]
+        if needed is None:
+            raise ValueError(f"scenario command {self.kind!r} needs its value")
+        return self
+
+
+class PlantEvent(Message):
+    """Something that happened in the plant: a hard stop, a watchdog trip, a scenario applied."""
+
+    kind: str
+    detail: str = ""
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def encode(message: BaseModel) -> bytes:
+    """JSON bytes of a message."""
+    return message.model_dump_json().encode()
+
+
+def decode(model: type[M], payload: bytes | bytearray | memoryview) -> M:
+    """Validate a JSON payload into ``model``; raises :class:`ProtocolError`."""
+    try:
+        return model.model_validate_json(bytes(payload))
+    except ValidationError as exc:
+        raise ProtocolError(f"invalid {model.__name__}: {exc.error_count()} error(s): {exc.errors()[0]['msg']}") from exc

@@ -1,0 +1,126 @@
+"""Configuration of each program: one pydantic-settings model per program,
+read from ``RALF_*`` environment variables (and ``--set NAME=VALUE`` on the
+command line, which takes precedence). Every field is documented; each
+program's ``--help`` prints them.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from protocol.errors import ConfigError
+from protocol.keys import validate_rig_id
+
+
+class CommonSettings(BaseSettings):
+    """Settings every program reads."""
+
+    model_config = SettingsConfigDict(env_prefix="RALF_", extra="forbid", validate_default=True)
+
+    rig_id: str = Field("default", description="Namespace of this rig on zenoh: keys live under ralf/<rig_id>/")
+    zenoh_mode: Literal["peer", "client", "router"] = Field("peer", description="zenoh session mode")
+    zenoh_connect: str = Field("", description="Comma-separated zenoh endpoints to connect to, e.g. tcp/127.0.0.1:7447")
+    zenoh_listen: str = Field("", description="Comma-separated zenoh endpoints to listen on")
+    zenoh_multicast_scouting: bool = Field(False, description="Discover peers by UDP multicast (off: explicit endpoints)")
+    can_interface: str = Field("udp_multicast", description="python-can interface: udp_multicast, virtual, socketcan, ...")
+    can_channel: str = Field("239.74.163.2", description="python-can channel (multicast group, vcan0, ...)")
+    can_port: int = Field(43113, ge=1, le=65535, description="UDP port of the udp_multicast interface (one per rig)")
+    node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
+    clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
+    sample_rate_hz: float = Field(200.0, gt=0, le=5000, description="Control and identification sample rate")
+    health_period_s: float = Field(1.0, gt=0, description="Period of health messages on ralf/<rig>/health/<service>")
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
+
+    @field_validator("rig_id")
+    @classmethod
+    def _rig_id(cls, value: str) -> str:
+        return validate_rig_id(value)
+
+    @property
+    def sample_period_s(self) -> float:
+        return 1.0 / self.sample_rate_hz
+
+    def endpoints(self, which: Literal["connect", "listen"]) -> list[str]:
+        raw = self.zenoh_connect if which == "connect" else self.zenoh_listen
+        return [e.strip() for e in raw.split(",") if e.strip()]
+
+
+class PlantSettings(CommonSettings):
+    """The plant emulator (``ralf-plant``)."""
+
+    seed: int = Field(0, ge=0, description="Seed of the sensor-noise generator")
+    payload_attached: bool = Field(False, description="Start with the 15.65 lb payload at the tip")
+    adc_bits: Literal[12, 16, 20] = Field(12, description="A/D resolution (the thesis's rig: 12 bits)")
+    valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve-to-cylinder-velocity lag")
+    truth_rate_hz: float = Field(20.0, ge=0, description="Rate of ground truth on the test port (0 = off)")
+    watchdog_periods: int = Field(5, ge=1, description="SYNC periods without SYNC before the valves are held")
+    heartbeat_ms: int = Field(100, ge=0, description="CANopen heartbeat producer period (0 = off)")
+
+
+class ControllerSettings(CommonSettings):
+    """The controller (``ralf-controller``), the emulated MVME CPU."""
+
+    duration_s: float | None = Field(None, gt=0, description="Stop after this much simulated time (default: one pass of the trajectory)")
+    trajectory: str = Field("", description="Trajectory way-point JSON file (default: the thesis's inspection loop)")
+    tip_speed_in_s: float = Field(5.0, gt=0, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
+    repeats: int = Field(1, ge=1, description="Passes around the trajectory")
+    batch_size: int = Field(20, ge=1, le=4096, description="Samples per batch sent to the DSP (l)")
+    oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
+    oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
+    oatf_frequency_hz: float = Field(4.4, gt=0, description="OATF design frequency (initial value when adaptive)")
+    oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
+    oatf_delay_s: float | None = Field(None, gt=0, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
+    oatf_band_hz: tuple[float, float] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
+    oatf_min_confidence: float = Field(0.5, ge=0, le=1, description="Ignore estimates less confident than this")
+    dsp_deadline_s: float | None = Field(None, gt=0, description="Interrupt deadline after a batch (default: the batch period)")
+    stale_after_s: float = Field(2.0, gt=0, description="Parameters older than this are stale")
+    tf_download_samples: int = Field(1000, ge=0, description="Download transfer functions every this many samples (0 = never)")
+    lockstep_timeout_s: float = Field(10.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault")
+    plant_heartbeat_timeout_s: float = Field(1.0, gt=0, description="Plant heartbeat older than this is a fault")
+    record: str = Field("", description="Write the run record (npz + JSON) to this path")
+
+
+class DspSettings(CommonSettings):
+    """The DSP service (``ralf-dsp``), the emulated C40 board."""
+
+    fft_width: int = Field(2048, ge=16, le=65536, description="FFT width N (history length per channel)")
+    batch_size: int = Field(20, ge=1, le=4096, description="Expected batch size l (informational; any size is accepted)")
+    alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
+    averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
+    solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
+    smoothing_window: int = Field(17, ge=0, description="Savitzky-Golay window in bins (0 = off)")
+    smoothing_order: int = Field(2, ge=0, description="Savitzky-Golay polynomial order")
+    emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
+    budget_s: float | None = Field(None, gt=0, description="Compute-time budget per batch (default: the batch period)")
+    search_min_hz: float = Field(0.5, ge=0, description="Lower edge of the peak search")
+    search_max_hz: float = Field(40.0, gt=0, description="Upper edge of the peak search")
+
+    @model_validator(mode="after")
+    def _checks(self) -> "DspSettings":
+        if self.fft_width & (self.fft_width - 1):
+            raise ValueError(f"fft_width must be a power of two, got {self.fft_width}")
+        if self.search_max_hz <= self.search_min_hz:
+            raise ValueError("search_max_hz must exceed search_min_hz")
+        return self
+
+
+def load_settings(model: type[CommonSettings], overrides: dict[str, Any] | None = None) -> Any:
+    """Read settings from the environment plus ``overrides``; a bad value
+    raises :class:`ConfigError` naming the field."""
+    try:
+        return model(**(overrides or {}))
+    except ValidationError as exc:
+        lines = [f"  RALF_{'_'.join(str(p) for p in err['loc']).upper()}: {err['msg']}" for err in exc.errors()]
+        raise ConfigError("invalid configuration:\n" + "\n".join(lines)) from None
+
+
+def describe(model: type[CommonSettings]) -> list[tuple[str, str, str]]:
+    """(environment variable, default, description) for every field."""
+    rows = []
+    for name, field in model.model_fields.items():
+        default = field.default if field.default is not None else "-"
+        rows.append((f"RALF_{name.upper()}", str(default), field.description or ""))
+    return rows
