@@ -44,6 +44,7 @@ class BlockFlag(Message):
     next_batch_seq: Seq
     fft_width: Annotated[int, Field(ge=16, le=65536)]
     batch_size: Annotated[int, Field(ge=1, le=65536)]
+    emulated_latency_s: NonNegFloat = Field(0.0, description="When the interrupt for the next batch is due, in simulated time after it is sent")
 
 
 class PoleParameters(BaseModel):

@@ -98,10 +98,15 @@ class DspSettings(CommonSettings):
     search_min_hz: float = Field(0.5, ge=0, description="Lower edge of the peak search")
     search_max_hz: float = Field(40.0, gt=0, description="Upper edge of the peak search")
 
+    @field_validator("fft_width")
+    @classmethod
+    def _power_of_two(cls, value: int) -> int:
+        if value & (value - 1):
+            raise ValueError(f"fft_width must be a power of two, got {value}")
+        return value
+
     @model_validator(mode="after")
     def _checks(self) -> "DspSettings":
-        if self.fft_width & (self.fft_width - 1):
-            raise ValueError(f"fft_width must be a power of two, got {self.fft_width}")
         if self.search_max_hz <= self.search_min_hz:
             raise ValueError("search_max_hz must exceed search_min_hz")
         return self
@@ -113,7 +118,10 @@ def load_settings(model: type[CommonSettings], overrides: dict[str, Any] | None 
     try:
         return model(**(overrides or {}))
     except ValidationError as exc:
-        lines = [f"  RALF_{'_'.join(str(p) for p in err['loc']).upper()}: {err['msg']}" for err in exc.errors()]
+        lines = [
+            f"  {'RALF_' + '_'.join(str(p) for p in err['loc']).upper() if err['loc'] else model.__name__}: {err['msg']}"
+            for err in exc.errors()
+        ]
         raise ConfigError("invalid configuration:\n" + "\n".join(lines)) from None
 
 
