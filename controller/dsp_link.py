@@ -1,0 +1,181 @@
+"""The CPU side of the CPU-DSP handshake (thesis §3.2.3, Fig. 3.5), as a
+pure state machine: the service feeds it samples, block flags and
+interrupts, and asks it for the next batch to send.
+
+Batching and back-pressure
+    Every control tick adds one sample (the two D/A commands as inputs, the
+    two link deflections as outputs) to a pending FIFO. When the DSP has
+    flagged its block empty and at least ``batch_size`` samples are pending,
+    *all* pending samples up to ``max_pending`` go out as one batch: while
+    the DSP is busy, samples wait for the next batch instead of being lost.
+    The FIFO is bounded by ``max_pending`` (default: the FFT width N, since
+    the DSP's rolling history keeps only the last N samples anyway). Past
+    that bound the oldest samples are dropped, counted, and the next batch
+    says how many (``dropped_before``), so the DSP restarts its history
+    rather than splice across the gap.
+
+Timing
+    Each batch's interrupt is due ``deadline_s`` after the batch was sent
+    (default: the batch period, the thesis's deadline). In lockstep the
+    answer is due at a defined simulated time (the DSP's emulated latency,
+    announced in its flag) and the service waits for it at that tick.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol.batch_codec import SampleBatch
+from protocol.messages import BlockFlag, Interrupt
+
+
+@dataclass
+class LinkCounters:
+    samples_added: int = 0
+    samples_sent: int = 0
+    samples_dropped: int = 0
+    batches_sent: int = 0
+    interrupts: int = 0
+    interrupts_unexpected: int = 0
+    deadline_misses: int = 0
+    flags_stale: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(vars(self))
+
+
+@dataclass(frozen=True)
+class SentBatch:
+    seq: int
+    tick: int
+    """Control tick at which it was sent."""
+    sim_time_s: float
+    due_tick: int
+    """Lockstep: the tick at which its interrupt is applied."""
+    deadline_tick: int
+    """The tick after which a missing interrupt is a deadline miss."""
+
+
+@dataclass
+class DspLink:
+    """Batches out, flags and interrupts in."""
+
+    sample_rate_hz: float
+    batch_size: int = 20
+    max_pending: int = 2048
+    deadline_s: float | None = None
+    counters: LinkCounters = field(default_factory=LinkCounters)
+    block_empty: bool = False
+    dsp_latency_s: float = 0.0
+    next_seq: int = 0
+    in_flight: SentBatch | None = None
+    _pending_ticks: deque[int] = field(default_factory=deque)
+    _pending: deque[np.ndarray] = field(default_factory=deque)
+    _dropped_since_last: int = 0
+    missed_current: bool = False
+
+    @property
+    def sample_period_s(self) -> float:
+        return 1.0 / self.sample_rate_hz
+
+    @property
+    def deadline(self) -> float:
+        """The interrupt deadline after sending a batch (default: the batch period)."""
+        return self.deadline_s if self.deadline_s is not None else self.batch_size * self.sample_period_s
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def add_sample(self, tick: int, commands: np.ndarray, deflections: np.ndarray) -> None:
+        """Queue one tick's sample: inputs = D/A commands, outputs = deflections."""
+        if self._pending_ticks and tick != self._pending_ticks[-1] + 1:
+            raise ValueError(f"ticks must be consecutive: {self._pending_ticks[-1]} then {tick}")
+        self._pending_ticks.append(tick)
+        self._pending.append(np.concatenate([np.asarray(commands, float), np.asarray(deflections, float)]))
+        self.counters.samples_added += 1
+        while len(self._pending) > self.max_pending:
+            self._pending.popleft()
+            self._pending_ticks.popleft()
+            self.counters.samples_dropped += 1
+            self._dropped_since_last += 1
+
+    def on_flag(self, flag: BlockFlag) -> None:
+        """A block flag from the DSP. A flag that does not expect our next
+        batch (stale or from before a restart) is counted and ignored,
+        unless the DSP restarted (it expects 0): then we follow it."""
+        self.dsp_latency_s = flag.emulated_latency_s
+        if flag.state != "empty":
+            self.block_empty = False
+            return
+        if flag.next_batch_seq == self.next_seq:
+            self.block_empty = True  # the batch in flight (if any) stays so until its interrupt arrives
+        elif flag.next_batch_seq == 0 and self.next_seq > 0:
+            # The DSP restarted: resynchronise sequence numbers with it.
+            self.next_seq = 0
+            self.in_flight = None
+            self.block_empty = True
+        else:
+            self.counters.flags_stale += 1
+
+    def ready(self) -> bool:
+        return self.block_empty and len(self._pending) >= self.batch_size
+
+    def take_batch(self, tick: int, sim_time_s: float) -> tuple[SentBatch, SampleBatch] | None:
+        """If the block is empty and a batch is ready, build it and mark the
+        block full. Returns ``(sent, batch)`` or ``None``."""
+        if not self.ready():
+            return None
+        data = np.array(self._pending, dtype=float).T
+        first_tick = self._pending_ticks[0]
+        self._pending.clear()
+        self._pending_ticks.clear()
+        batch = SampleBatch(
+            seq=self.next_seq,
+            first_tick=first_tick,
+            sample_rate_hz=self.sample_rate_hz,
+            sim_time_s=first_tick * self.sample_period_s,
+            wall_time_s=0.0,
+            inputs=data[:2],
+            outputs=data[2:],
+            dropped_before=self._dropped_since_last,
+        )
+        self._dropped_since_last = 0
+        latency_ticks = math.ceil(round(self.dsp_latency_s * self.sample_rate_hz, 9))
+        sent = SentBatch(
+            seq=self.next_seq,
+            tick=tick,
+            sim_time_s=sim_time_s,
+            due_tick=tick + latency_ticks,
+            deadline_tick=tick + max(1, math.ceil(round(self.deadline * self.sample_rate_hz, 9))),
+        )
+        self.in_flight = sent
+        self.missed_current = False
+        self.next_seq += 1
+        self.block_empty = False
+        self.counters.batches_sent += 1
+        self.counters.samples_sent += batch.n_samples
+        return sent, batch
+
+    def on_interrupt(self, interrupt: Interrupt) -> SentBatch | None:
+        """Match an interrupt to the batch in flight; returns that batch."""
+        sent = self.in_flight
+        if sent is None or interrupt.batch_seq != sent.seq:
+            self.counters.interrupts_unexpected += 1
+            return None
+        self.in_flight = None
+        self.counters.interrupts += 1
+        return sent
+
+    def check_deadline(self, tick: int) -> bool:
+        """True once per batch when its interrupt is overdue at ``tick``."""
+        sent = self.in_flight
+        if sent is None or self.missed_current or tick <= sent.deadline_tick:
+            return False
+        self.missed_current = True
+        self.counters.deadline_misses += 1
+        return True

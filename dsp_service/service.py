@@ -1,0 +1,269 @@
+"""The DSP service: the emulated C40 board on zenoh.
+
+Subscribes to sample batches and run-time configuration, runs one
+identification step per batch, and answers with the block flag and the
+interrupt carrying the pole parameters (thesis §3.2.3, Fig. 3.5). Heavy
+work happens on the service's own thread, never in zenoh callbacks.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import zenoh
+
+from dsp_service.board import BatchBlock
+from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
+from protocol.batch_codec import SampleBatch, decode_batch
+from protocol.errors import ProtocolError
+from protocol.keys import Keys
+from protocol.messages import (
+    BlockFlag,
+    ConfigChange,
+    Health,
+    Interrupt,
+    PoleParameters,
+    TfSnapshot,
+    TransferFunction,
+    decode,
+    encode,
+)
+from protocol.settings import DspSettings
+from rig.runtime import HealthPublisher, LatencyTracker
+
+log = logging.getLogger(__name__)
+
+_TF_NAMES = ("H11", "H12", "H21", "H22", "Htot")
+
+
+def identifier_config(settings: DspSettings) -> IdentifierConfig:
+    """The identifier's configuration from the service settings."""
+    return IdentifierConfig(
+        sample_rate_hz=settings.sample_rate_hz,
+        fft_width=settings.fft_width,
+        averaging=settings.averaging,
+        alpha=settings.alpha,
+        rls_forgetting=1.0 - settings.alpha,
+        solver=settings.solver,
+        smoothing_window=settings.smoothing_window,
+        smoothing_order=settings.smoothing_order,
+        search_min_hz=settings.search_min_hz,
+        search_max_hz=min(settings.search_max_hz, settings.sample_rate_hz / 2),
+    )
+
+
+@dataclass
+class _Event:
+    kind: str
+    payload: bytes
+
+
+class DspService:
+    """The board: batch block, identifier, publishers, health."""
+
+    def __init__(self, settings: DspSettings, session: zenoh.Session, extra_delay_s: float = 0.0) -> None:
+        self.settings = settings
+        self.session = session
+        self.keys = Keys(settings.rig_id)
+        self.identifier = Identifier(identifier_config(settings))
+        self.block = BatchBlock()
+        self.batch_size = settings.batch_size
+        self.emulated_latency_s = settings.emulated_latency_s
+        self.extra_delay_s = extra_delay_s
+        self.compute_time = LatencyTracker()
+        self.turnaround = LatencyTracker()
+        self.interrupt_seq = 0
+        self.flag_seq = 0
+        self.tf_seq = 0
+        self.last_batch_seq = 0
+        self.last_sim_time = 0.0
+        self.last_result: IdentificationResult | None = None
+        self._events: queue.Queue[_Event] = queue.Queue()
+        self._tf_lock = threading.Lock()
+        block = zenoh.CongestionControl.BLOCK
+        self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._subs = [
+            session.declare_subscriber(self.keys.batch, lambda s: self._events.put(_Event("batch", s.payload.to_bytes()))),
+            session.declare_subscriber(self.keys.dsp_config, lambda s: self._events.put(_Event("config", s.payload.to_bytes()))),
+        ]
+        self._queryable = session.declare_queryable(self.keys.tf, self._on_tf_query)
+        self._token = session.liveliness().declare_token(self.keys.alive("dsp"))
+        self._health = HealthPublisher(session, self.keys.health("dsp"), settings.health_period_s, self._build_health)
+
+    # -- budget ---------------------------------------------------------------------
+    @property
+    def budget_s(self) -> float:
+        """Compute budget per batch: configured, else the batch period (the deadline the thesis names)."""
+        return self.settings.budget_s or self.batch_size / self.settings.sample_rate_hz
+
+    # -- messages out -----------------------------------------------------------------
+    def _publish_flag(self, state: str) -> None:
+        flag = BlockFlag(
+            seq=self.flag_seq,
+            sim_time_s=self.last_sim_time,
+            state=state,  # type: ignore[arg-type]
+            next_batch_seq=self.block.next_seq,
+            fft_width=self.identifier.fft_width,
+            batch_size=self.batch_size,
+            emulated_latency_s=self.emulated_latency_s,
+        )
+        self.flag_seq += 1
+        self._flag_pub.put(encode(flag))
+
+    def _build_health(self, seq: int) -> Health:
+        counters = self.block.counters.as_dict()
+        counters["interrupts"] = self.interrupt_seq
+        state = "degraded" if counters["budget_misses"] or counters["block_full_violations"] else "running"
+        return Health(
+            seq=seq,
+            sim_time_s=self.last_sim_time,
+            service="dsp",
+            state=state,  # type: ignore[arg-type]
+            counters=counters,
+            latencies={"compute": self.compute_time.stats(), "batch_to_interrupt": self.turnaround.stats()},
+            last_miss=self.block.last_violation,
+        )
+
+    # -- handlers -----------------------------------------------------------------------
+    def _on_tf_query(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.keys.tf, encode(self.snapshot()))
+        except Exception as exc:  # never let a query kill zenoh's thread
+            log.exception("TF query failed")
+            query.reply_err(str(exc).encode())
+
+    def snapshot(self) -> TfSnapshot:
+        """The current transfer-function estimates (magnitude and phase)."""
+        with self._tf_lock:
+            tf = self.identifier.transfer_functions()
+            estimates = {}
+            for name in _TF_NAMES:
+                h = np.nan_to_num(np.asarray(getattr(tf, name)), nan=0.0, posinf=0.0, neginf=0.0)
+                estimates[name] = TransferFunction(magnitude=tuple(np.abs(h).tolist()), phase_rad=tuple(np.angle(h).tolist()))
+            snap = TfSnapshot(
+                seq=self.tf_seq,
+                sim_time_s=self.last_sim_time,
+                batch_seq=self.last_batch_seq,
+                freqs_hz=tuple(np.asarray(tf.freqs_hz, dtype=float).tolist()),
+                valid=tuple(bool(v) for v in np.asarray(tf.valid)),
+                estimates=estimates,  # type: ignore[arg-type]
+            )
+            self.tf_seq += 1
+            return snap
+
+    def apply_config(self, change: ConfigChange) -> None:
+        with self._tf_lock:
+            if change.fft_width is not None and change.fft_width != self.identifier.fft_width:
+                log.info("FFT width %d -> %d: history zeroed", self.identifier.fft_width, change.fft_width)
+                self.identifier.set_fft_width(change.fft_width)
+            if change.batch_size is not None:
+                self.batch_size = change.batch_size
+            if change.alpha is not None:
+                self.identifier.set_alpha(change.alpha)
+            if change.emulated_latency_s is not None:
+                self.emulated_latency_s = change.emulated_latency_s
+        self.block.note_config(change)
+
+    def process_batch(self, batch: SampleBatch) -> Interrupt | None:
+        """One pass of Fig. 3.5 steps 3-4 for an admitted batch."""
+        admission = self.block.admit(batch)
+        if not admission.accepted:
+            return None
+        received = time.monotonic()
+        self.last_sim_time = batch.sim_time_s + batch.n_samples / batch.sample_rate_hz
+        self.last_batch_seq = batch.seq
+        started = time.perf_counter()
+        with self._tf_lock:
+            if admission.restart_history:
+                self.identifier.restart_history()
+            self.identifier.push(batch.inputs, batch.outputs)
+            result = self.identifier.step()
+        if self.extra_delay_s > 0:  # fault injection: a slowed board
+            time.sleep(self.extra_delay_s)
+        compute = time.perf_counter() - started
+        self.compute_time.add(compute)
+        missed = compute > self.budget_s
+        if missed:
+            self.block.counters.budget_misses += 1
+            self.block.last_violation = f"batch {batch.seq}: compute {compute * 1e3:.1f} ms over budget {self.budget_s * 1e3:.1f} ms"
+            log.warning("deadline: %s", self.block.last_violation)
+        self.last_result = result
+        if self.settings.clock == "realtime":
+            remaining = self.emulated_latency_s - (time.monotonic() - received)
+            if remaining > 0:
+                time.sleep(remaining)
+        interrupt = Interrupt(
+            seq=self.interrupt_seq,
+            sim_time_s=self.last_sim_time,
+            batch_seq=batch.seq,
+            poles=tuple(
+                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source)
+                for p in result.poles
+                if np.isfinite(p.frequency_hz) and p.frequency_hz > 0 and np.isfinite(p.damping_ratio) and np.isfinite(p.magnitude)
+            ),
+            confidence=float(np.clip(result.confidence, 0.0, 1.0)),
+            compute_time_s=compute,
+            emulated_latency_s=self.emulated_latency_s,
+            samples_in_history=result.samples_in_history,
+            valid_fraction=float(np.clip(result.valid_fraction, 0.0, 1.0)),
+            deadline_missed=missed,
+        )
+        self.interrupt_seq += 1
+        self.block.release()
+        self._publish_flag("empty")
+        self._irq_pub.put(encode(interrupt))
+        self.turnaround.add(time.monotonic() - received)
+        return interrupt
+
+    def _handle(self, event: _Event) -> None:
+        if event.kind == "batch":
+            try:
+                batch = decode_batch(event.payload)
+            except ProtocolError as exc:
+                self.block.counters.decode_errors += 1
+                self.block.last_violation = f"undecodable batch: {exc}"
+                log.warning("dropped an undecodable batch: %s", exc)
+                return
+            self.process_batch(batch)
+        elif event.kind == "config":
+            try:
+                change = decode(ConfigChange, event.payload)
+            except ProtocolError as exc:
+                self.block.counters.decode_errors += 1
+                log.warning("dropped an invalid config change: %s", exc)
+                return
+            self.apply_config(change)
+            self._publish_flag("empty" if not self.block.full else "full")
+
+    def run(self, stop: threading.Event) -> None:
+        """Serve until ``stop`` is set."""
+        self._health.start()
+        self._publish_flag("empty")  # Fig. 3.5 step 1: the block starts empty
+        last_flag = time.monotonic()
+        while not stop.is_set():
+            try:
+                event = self._events.get(timeout=0.05)
+            except queue.Empty:
+                # Re-announce an empty block now and then, so a controller that
+                # starts after us (or missed the first flag) learns it.
+                if not self.block.full and time.monotonic() - last_flag > 0.5:
+                    self._publish_flag("empty")
+                    last_flag = time.monotonic()
+                continue
+            self._handle(event)
+            last_flag = time.monotonic()
+
+    def close(self) -> None:
+        self._health.stop()
+        for sub in self._subs:
+            sub.undeclare()
+        self._queryable.undeclare()
+        self._token.undeclare()
+        self._flag_pub.undeclare()
+        self._irq_pub.undeclare()

@@ -1,0 +1,162 @@
+"""``ralf-hil``: the umbrella command (up, and the tools built on the rig)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
+
+console = Console(stderr=True)
+
+
+def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
+    """``service.name=value`` (or ``name=value`` for all services) -> env per service."""
+    out: dict[str, dict[str, str]] = {"dsp": {}, "plant": {}, "controller": {}}
+    for item in items:
+        target, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"ralf-hil: --set {item!r}: expected [service.]NAME=VALUE")
+        service, dot, name = target.rpartition(".")
+        services = [service] if dot else list(out)
+        for svc in services:
+            if svc not in out:
+                raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {svc!r} (dsp, plant, controller)")
+            out[svc][f"RALF_{name.upper()}"] = value
+    return out
+
+
+def status_line(observer: RigObserver, elapsed: float) -> Text:
+    s = observer.status
+    alive = " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
+    if s is None:
+        return Text(f"[{elapsed:6.1f} s] waiting for the controller…  {alive}")
+    freq = f"{s.latest_frequency_hz:.2f} Hz" if s.latest_frequency_hz else "–"
+    return Text(
+        f"[{elapsed:6.1f} s] sim {s.sim_time_s:8.2f} s | loop {s.loop_rate_hz:6.1f} Hz | batches {s.batches_sent} | "
+        f"interrupts {s.interrupts} | f1 {freq} | misses {s.deadline_misses} | overruns {s.overruns} | {alive}"
+    )
+
+
+def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float) -> dict[str, Any]:
+    s = observer.status
+    summary: dict[str, Any] = {
+        "wall_time_s": round(elapsed, 3),
+        "exit_codes": exit_codes,
+        "controller": s.model_dump(exclude={"wall_time_s"}) if s else None,
+        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in observer.health.items()},
+        "liveliness_events": observer.events,
+        "undecodable_messages": observer.bad_messages,
+    }
+    return summary
+
+
+def print_summary(summary: dict[str, Any]) -> None:
+    table = Table(title="ralf-hil run summary", show_header=True)
+    table.add_column("item")
+    table.add_column("value", justify="right")
+    table.add_row("wall time", f"{summary['wall_time_s']:.1f} s")
+    c = summary["controller"]
+    if c:
+        table.add_row("simulated time", f"{c['sim_time_s']:.2f} s")
+        table.add_row("control ticks", str(c["ticks"]))
+        table.add_row("loop rate", f"{c['loop_rate_hz']:.1f} Hz")
+        table.add_row("batches sent", str(c["batches_sent"]))
+        table.add_row("interrupts", str(c["interrupts"]))
+        f = c["latest_frequency_hz"]
+        table.add_row("latest identified f1", f"{f:.3f} Hz" if f else "–")
+        table.add_row("deadline misses", str(c["deadline_misses"]))
+        table.add_row("overruns", str(c["overruns"]))
+    for name, health in summary["health"].items():
+        for lname, stats in health["latencies"].items():
+            if stats["count"]:
+                table.add_row(
+                    f"{name} {lname}",
+                    f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
+                )
+    table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
+    console.print(table)
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    overrides = _parse_overrides(args.set)
+    plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
+    log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    observer = RigObserver(plan)
+    procs: dict[str, ServiceProcess] = {}
+    started = time.monotonic()
+    failure = ""
+    try:
+        for name in START_ORDER:
+            procs[name] = start_service(plan, name, log_dir)
+        console.print(f"rig {plan.rig_id!r} up: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}")
+        with Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal) as live:
+            while not stop.is_set():
+                elapsed = time.monotonic() - started
+                live.update(status_line(observer, elapsed))
+                if args.duration is not None and elapsed >= args.duration:
+                    break
+                dead = [p for p in procs.values() if p.returncode is not None]
+                if dead:
+                    if all(p.name == "controller" and p.returncode == 0 for p in dead):
+                        break  # the controller finished its run
+                    failure = ", ".join(f"{p.name} exited with {p.returncode}" for p in dead)
+                    break
+                stop.wait(0.25)
+        if not console.is_terminal:
+            console.print(status_line(observer, time.monotonic() - started))
+    finally:
+        exit_codes = {name: stop_service(procs[name]) for name in STOP_ORDER if name in procs}
+        time.sleep(0.2)  # let the last health messages arrive
+        elapsed = time.monotonic() - started
+        summary = summarize(observer, exit_codes, elapsed)
+        observer.close()
+    print_summary(summary)
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2))
+    if failure:
+        console.print(f"[red]rig failed: {failure}[/red]")
+    bad = {k: v for k, v in exit_codes.items() if v != 0}
+    for name in bad:
+        console.print(f"[red]{name} exited with {bad[name]}; last log lines:[/red]\n{tail(procs[name].log_path)}")
+    return 1 if (failure or bad) else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
+    up.add_argument("--duration", type=float, default=None, help="stop after this many wall-clock seconds (default: until Ctrl-C)")
+    up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
+    up.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime", help="clock mode (default: realtime)")
+    up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
+    up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
+    up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
+    up.set_defaults(func=cmd_up)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,192 @@
+"""Starting, watching and stopping the three services as local processes.
+
+The embedded default of ``ralf-hil up``: zenoh peer-to-peer on loopback
+(the launcher's own session listens on a free port, each service connects
+to it and gossip lets them reach each other directly; no router), CAN over
+python-can's ``udp_multicast`` on a UDP port of the rig's own, so several
+rigs can run side by side.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zenoh
+
+from protocol.keys import Keys
+from protocol.messages import ControllerStatus, Health, decode
+from protocol.errors import ProtocolError
+
+SERVICE_MODULES: dict[str, str] = {"dsp": "dsp_service", "plant": "plant_emulator", "controller": "controller"}
+START_ORDER = ("dsp", "plant", "controller")
+STOP_ORDER = ("controller", "plant", "dsp")
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def can_port_for(rig_id: str) -> int:
+    """A udp_multicast port of the rig's own (43113 is python-can's default)."""
+    return 43200 + zlib.crc32(rig_id.encode()) % 20000
+
+
+@dataclass
+class RigPlan:
+    """Everything needed to start one rig as local processes."""
+
+    rig_id: str
+    zenoh_port: int
+    can_port: int
+    common_env: dict[str, str]
+    service_env: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    @classmethod
+    def local(
+        cls,
+        rig_id: str = "default",
+        clock: str = "realtime",
+        overrides: Mapping[str, Mapping[str, str]] | None = None,
+        common: Mapping[str, str] | None = None,
+    ) -> "RigPlan":
+        port = free_tcp_port()
+        env = {
+            "RALF_RIG_ID": rig_id,
+            "RALF_ZENOH_MODE": "peer",
+            "RALF_ZENOH_CONNECT": f"tcp/127.0.0.1:{port}",
+            "RALF_ZENOH_LISTEN": "tcp/127.0.0.1:0",
+            "RALF_CAN_INTERFACE": "udp_multicast",
+            "RALF_CAN_CHANNEL": "239.74.163.2",
+            "RALF_CAN_PORT": str(can_port_for(rig_id)),
+            "RALF_CLOCK": clock,
+        }
+        env.update(common or {})
+        plan = cls(rig_id=rig_id, zenoh_port=port, can_port=int(env["RALF_CAN_PORT"]), common_env=env)
+        for name in SERVICE_MODULES:
+            plan.service_env[name] = dict((overrides or {}).get(name, {}))
+        return plan
+
+    def env_for(self, service: str) -> dict[str, str]:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
+        env.update(self.common_env)
+        env.update(self.service_env.get(service, {}))
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        return env
+
+    def command_for(self, service: str) -> list[str]:
+        return [sys.executable, "-m", SERVICE_MODULES[service]]
+
+
+@dataclass
+class RigObserver:
+    """The launcher's own zenoh peer: the listener the services connect to,
+    and the collector of status, health and liveliness for the status line."""
+
+    plan: RigPlan
+    status: ControllerStatus | None = None
+    health: dict[str, Health] = field(default_factory=dict)
+    alive: dict[str, bool] = field(default_factory=dict)
+    events: list[str] = field(default_factory=list)
+    bad_messages: int = 0
+
+    def __post_init__(self) -> None:
+        keys = Keys(self.plan.rig_id)
+        config = zenoh.Config()
+        config.insert_json5("mode", '"peer"')
+        config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{self.plan.zenoh_port}"]')
+        zenoh.init_log_from_env_or("error")
+        self.session = zenoh.open(config)
+        self._lock = threading.Lock()
+        self._subs = [
+            self.session.declare_subscriber(keys.controller_status, self._on_status),
+            self.session.declare_subscriber(keys.health_all, self._on_health),
+            self.session.liveliness().declare_subscriber(keys.alive_all, self._on_alive, history=True),
+        ]
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = decode(ControllerStatus, sample.payload.to_bytes())
+        except ProtocolError:
+            self.bad_messages += 1
+            return
+        with self._lock:
+            self.status = status
+
+    def _on_health(self, sample: zenoh.Sample) -> None:
+        try:
+            health = decode(Health, sample.payload.to_bytes())
+        except ProtocolError:
+            self.bad_messages += 1
+            return
+        with self._lock:
+            self.health[health.service] = health
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        service = str(sample.key_expr).rsplit("/", 1)[-1]
+        up = sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            if self.alive.get(service) != up:
+                self.events.append(f"{time.strftime('%H:%M:%S')} {service} {'up' if up else 'lost'}")
+            self.alive[service] = up
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+        self.session.close()
+
+
+@dataclass
+class ServiceProcess:
+    name: str
+    popen: subprocess.Popen[bytes]
+    log_path: Path
+
+    @property
+    def returncode(self) -> int | None:
+        return self.popen.poll()
+
+
+def start_service(plan: RigPlan, name: str, log_dir: Path) -> ServiceProcess:
+    log_dir.mkdir(parents=True, exist_ok=True)
+    log_path = log_dir / f"{name}.log"
+    with open(log_path, "wb") as log_file:
+        popen = subprocess.Popen(
+            plan.command_for(name),
+            env=plan.env_for(name),
+            stdout=log_file,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+        )
+    return ServiceProcess(name=name, popen=popen, log_path=log_path)
+
+
+def stop_service(proc: ServiceProcess, timeout_s: float = 10.0) -> int:
+    """SIGTERM, wait, then SIGKILL if it does not stop; returns the exit code."""
+    if proc.popen.poll() is None:
+        proc.popen.send_signal(signal.SIGTERM)
+        try:
+            proc.popen.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.popen.kill()
+            proc.popen.wait()
+    return int(proc.popen.returncode)
+
+
+def tail(path: Path, lines: int = 15) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return ""
