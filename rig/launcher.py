@@ -1,8 +1,9 @@
 """Starting, watching and stopping the three services as local processes.
 
 The embedded default of ``ralf-hil up``: zenoh peer-to-peer on loopback
-(the launcher's own session listens on a free port, each service connects
-to it and gossip lets them reach each other directly; no router), CAN over
+(the launcher's own session and each service listen on a free loopback
+port and every service connects to all the others explicitly, since zenoh
+1.9+ peers do not relay for each other; no router), CAN over
 python-can's ``udp_multicast`` on a UDP port of the rig's own, so several
 rigs can run side by side.
 """
@@ -50,6 +51,7 @@ class RigPlan:
     rig_id: str
     zenoh_port: int
     can_port: int
+    service_ports: dict[str, int]
     common_env: dict[str, str]
     service_env: dict[str, dict[str, str]] = field(default_factory=dict)
 
@@ -62,20 +64,24 @@ class RigPlan:
         common: Mapping[str, str] | None = None,
     ) -> "RigPlan":
         port = free_tcp_port()
+        service_ports = {name: free_tcp_port() for name in SERVICE_MODULES}
         env = {
             "RALF_RIG_ID": rig_id,
             "RALF_ZENOH_MODE": "peer",
-            "RALF_ZENOH_CONNECT": f"tcp/127.0.0.1:{port}",
-            "RALF_ZENOH_LISTEN": "tcp/127.0.0.1:0",
             "RALF_CAN_INTERFACE": "udp_multicast",
             "RALF_CAN_CHANNEL": "239.74.163.2",
             "RALF_CAN_PORT": str(can_port_for(rig_id)),
             "RALF_CLOCK": clock,
         }
         env.update(common or {})
-        plan = cls(rig_id=rig_id, zenoh_port=port, can_port=int(env["RALF_CAN_PORT"]), common_env=env)
+        plan = cls(rig_id=rig_id, zenoh_port=port, can_port=int(env["RALF_CAN_PORT"]), common_env=env, service_ports=service_ports)
         for name in SERVICE_MODULES:
-            plan.service_env[name] = dict((overrides or {}).get(name, {}))
+            peers = [port] + [p for other, p in service_ports.items() if other != name]
+            plan.service_env[name] = {
+                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{service_ports[name]}",
+                "RALF_ZENOH_CONNECT": ",".join(f"tcp/127.0.0.1:{p}" for p in peers),
+                **dict((overrides or {}).get(name, {})),
+            }
         return plan
 
     def env_for(self, service: str) -> dict[str, str]:

@@ -1,0 +1,20 @@
+# One image for the three services of the rig; docker-compose.yml picks the command.
+FROM python:3.11-slim
+
+ENV PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+
+WORKDIR /opt/ralf-hil
+COPY pyproject.toml README.md ./
+COPY protocol ./protocol
+COPY plant_emulator ./plant_emulator
+COPY controller ./controller
+COPY dsp_service ./dsp_service
+COPY rig ./rig
+RUN pip install . && useradd --create-home ralf
+USER ralf
+WORKDIR /home/ralf
+
+# Services are configured only through RALF_* environment variables.
+CMD ["ralf-hil", "--help"]

@@ -1,0 +1,146 @@
+"""One control tick of the MVME CPU, pure and deterministic (thesis §4):
+
+A/D words -> engineering values -> set-point from the trajectory -> OATF
+(outer, on the set-points) -> PI -> OATF (inner, on the commands) -> D/A.
+
+No I/O and no clocks here: the service feeds words and gets volts, so the
+same law runs over CAN in three processes or directly against the plant
+model in one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from controller.engineering import Measurement, measure
+from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
+from controller.pi import PIConfig, PIController
+from controller.trajectory import DEFAULT_TRAJECTORY_PATH, SampledTrajectory, load_trajectory, sample_trajectory
+from protocol.can_map import DAC12
+from protocol.messages import Interrupt
+from protocol.settings import ControllerSettings
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def build_trajectory(settings: ControllerSettings) -> SampledTrajectory:
+    """One lap of the configured trajectory at the configured speed and rate."""
+    traj = load_trajectory(settings.trajectory or DEFAULT_TRAJECTORY_PATH)
+    return sample_trajectory(traj, settings.sample_period_s, speed_in_per_s=settings.tip_speed_in_s)
+
+
+def run_ticks(settings: ControllerSettings, lap_ticks: int) -> int | None:
+    """How many ticks the run lasts (None: until stopped)."""
+    if settings.duration_s is not None:
+        return int(round(settings.duration_s * settings.sample_rate_hz))
+    if settings.repeats > 0:
+        return settings.repeats * lap_ticks
+    return None
+
+
+@dataclass(frozen=True)
+class TickOutput:
+    """What one tick commands and what it records."""
+
+    volts: FloatArray
+    """Valve voltages after D/A quantization (what the plant receives)."""
+    clipped: npt.NDArray[np.bool_]
+    measurement: Measurement
+    setpoint_rad: FloatArray
+    shaped_setpoint_rad: FloatArray
+    pi_output_v: FloatArray
+
+
+class ControlLaw:
+    """Trajectory, OATF and PI for the two joints."""
+
+    def __init__(self, settings: ControllerSettings, trajectory: SampledTrajectory | None = None) -> None:
+        self.settings = settings
+        self.trajectory = trajectory or build_trajectory(settings)
+        self.setpoints = self.trajectory.joints.phi
+        self.lap_ticks = len(self.setpoints)
+        ts = settings.sample_period_s
+        self.pi = PIController(PIConfig(sample_period_s=ts))
+        self.oatf: OatfFilter | None = None
+        self.supervisor: OatfSupervisor | None = None
+        if settings.oatf_mode != "off":
+            config = OatfConfig(
+                sample_period_s=ts,
+                design_zeta=settings.oatf_damping,
+                delay_mode="fixed" if settings.oatf_delay_s else "robust",
+                fixed_delay_s=settings.oatf_delay_s or 0.05,
+                plausible_band_hz=settings.oatf_band_hz,
+                min_confidence=settings.oatf_min_confidence,
+            )
+            initial = self.setpoints[0] if settings.oatf_location == "outer" else 0.0
+            self.oatf = OatfFilter([settings.oatf_frequency_hz], n_channels=2, config=config, initial=initial)
+            self.supervisor = OatfSupervisor(self.oatf)
+
+    @property
+    def oatf_frequency_hz(self) -> float:
+        """The OATF's current design frequency (NaN when off)."""
+        if self.oatf is None or not self.oatf.stages:
+            return float("nan")
+        return float(self.oatf.stages[0].frequency_hz)
+
+    def setpoint(self, tick: int) -> FloatArray:
+        """phi set-points at ``tick``; the closed loop repeats lap after lap."""
+        return np.asarray(self.setpoints[tick % self.lap_ticks], dtype=np.float64)
+
+    def step(self, tick: int, words: npt.ArrayLike) -> TickOutput:
+        m = measure(words)
+        ref = self.setpoint(tick)
+        shaped = ref
+        if self.oatf is not None and self.settings.oatf_location == "outer":
+            shaped = self.oatf.step(ref)
+        u = self.pi.update(shaped, m.phi_rad)
+        if self.oatf is not None and self.settings.oatf_location == "inner":
+            u = np.clip(self.oatf.step(u), -DAC12.full_scale_v, DAC12.full_scale_v)
+        q = DAC12.quantize(u)
+        return TickOutput(
+            volts=DAC12.to_volts(q.counts),
+            clipped=q.saturated,
+            measurement=m,
+            setpoint_rad=ref,
+            shaped_setpoint_rad=np.asarray(shaped, dtype=np.float64),
+            pi_output_v=np.asarray(u, dtype=np.float64),
+        )
+
+    def apply_interrupt(self, interrupt: Interrupt) -> bool:
+        """Adaptive OATF: offer the identified first mode; True if the filter changed."""
+        if self.supervisor is None or self.settings.oatf_mode != "adaptive" or not interrupt.poles:
+            return False
+        pole = interrupt.poles[0]
+        return self.supervisor.offer([pole.frequency_hz], confidence=interrupt.confidence)
+
+    def record_row(self, tick: int, out: TickOutput) -> dict[str, Any]:
+        m = out.measurement
+        return {
+            "tick": tick,
+            "t_s": tick * self.settings.sample_period_s,
+            "phi_ref1": out.setpoint_rad[0],
+            "phi_ref2": out.setpoint_rad[1],
+            "phi_shaped1": out.shaped_setpoint_rad[0],
+            "phi_shaped2": out.shaped_setpoint_rad[1],
+            "phi1": m.phi_rad[0],
+            "phi2": m.phi_rad[1],
+            "theta1": m.theta_rad[0],
+            "theta2": m.theta_rad[1],
+            "ext1_in": m.extension_in[0],
+            "ext2_in": m.extension_in[1],
+            "defl1_in": m.deflection_in[0],
+            "defl2_in": m.deflection_in[1],
+            "ai1_v": m.volts[0],
+            "ai2_v": m.volts[1],
+            "ai3_v": m.volts[2],
+            "ai4_v": m.volts[3],
+            "u1_v": out.volts[0],
+            "u2_v": out.volts[1],
+            "pi1_v": out.pi_output_v[0],
+            "pi2_v": out.pi_output_v[1],
+            "oatf_hz": self.oatf_frequency_hz,
+        }

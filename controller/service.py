@@ -1,0 +1,400 @@
+"""The controller service: the emulated MVME CPU at the edge of CAN and zenoh.
+
+Each tick (thesis §4, design.md "Time"):
+
+1. SYNC -> the plant samples -> TPDO1 (A/D words);
+2. flags and interrupts from the DSP are taken in; in lockstep the
+   interrupt of the batch in flight is waited for at its due tick (the
+   DSP's emulated latency in simulated time), so results do not depend on
+   the host's load;
+3. set-point -> OATF -> PI -> RPDO1 (D/A);
+4. the sample joins the DSP link; a batch goes out when the block is empty;
+5. transfer functions are downloaded every ``tf_download_samples``.
+
+Real time: SYNC at absolute deadlines ``t0 + k Ts`` (no drift). Lockstep:
+the next SYNC as soon as the tick is done.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from controller.dsp_link import DspLink
+from controller.loop import ControlLaw, run_ticks
+from controller.plant_link import PlantFault, PlantLink
+from controller.record import ColumnBuffer, save_record
+from protocol.batch_codec import encode_batch
+from protocol.errors import ProtocolError
+from protocol.keys import Keys
+from protocol.messages import BlockFlag, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
+from protocol.settings import ControllerSettings
+from rig.runtime import HealthPublisher, LatencyTracker
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TimingCounters:
+    overruns: int = 0
+    stale_ticks: int = 0
+    stale_episodes: int = 0
+    interrupts_applied: int = 0
+    oatf_updates: int = 0
+    undecodable: int = 0
+    tf_downloads: int = 0
+    tf_download_failures: int = 0
+    dsp_lost: int = 0
+    dsp_found: int = 0
+    lockstep_waits: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(vars(self))
+
+
+@dataclass
+class RunResult:
+    ticks: int
+    sim_time_s: float
+    counters: dict[str, int]
+    error: str | None = None
+    liveliness: list[tuple[float, str, bool]] = field(default_factory=list)
+
+
+class ControllerService:
+    """Runs the loop against the plant (CAN) and the DSP (zenoh)."""
+
+    def __init__(self, settings: ControllerSettings, session: zenoh.Session, plant: PlantLink, law: ControlLaw | None = None) -> None:
+        self.settings = settings
+        self.session = session
+        self.plant = plant
+        self.keys = Keys(settings.rig_id)
+        self.law = law or ControlLaw(settings)
+        self.link = DspLink(
+            sample_rate_hz=settings.sample_rate_hz,
+            batch_size=settings.batch_size,
+            max_pending=4096,
+            deadline_s=settings.dsp_deadline_s,
+        )
+        self.timing = TimingCounters()
+        self.tet = LatencyTracker()
+        self.jitter = LatencyTracker()
+        self.irq_latency = LatencyTracker()
+        self.tick = 0
+        self.latest_frequency_hz: float | None = None
+        self.last_fresh_tick = 0
+        self.stale = False
+        self.last_miss: str | None = None
+        self.dsp_alive = False
+        self.liveliness: list[tuple[float, str, bool]] = []
+        self.tf_snapshots: list[TfSnapshot] = []
+        self._last_words = np.zeros(4, dtype=np.int64)
+        self._events: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self._held_interrupts: list[Interrupt] = []
+        self._batch_sent_wall: dict[int, float] = {}
+        self._status_seq = 0
+        self._last_status = 0.0
+        self._rate_window: list[float] = []
+        self.record = ColumnBuffer(
+            {**{name: np.float64 for name in self._record_names()}, "tick": np.int64},
+            capacity=4096,
+        )
+        self.timing_record = ColumnBuffer({"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}, capacity=4096)
+        block = zenoh.CongestionControl.BLOCK
+        self._batch_pub = session.declare_publisher(self.keys.batch, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
+        self._status_pub = session.declare_publisher(self.keys.controller_status)
+        self._subs = [
+            session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes()))),
+            session.declare_subscriber(self.keys.interrupt, lambda s: self._events.put(("interrupt", s.payload.to_bytes()))),
+            session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
+        ]
+        self._token = session.liveliness().declare_token(self.keys.alive("controller"))
+        self._health = HealthPublisher(session, self.keys.health("controller"), settings.health_period_s, self._build_health)
+
+    # -- bookkeeping --------------------------------------------------------------------
+    def _record_names(self) -> list[str]:
+        probe = self.law.record_row(0, self.law.step(0, np.zeros(4)))
+        self.law.pi.reset()
+        if self.law.oatf is not None:
+            self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
+        return [k for k in probe if k != "tick"] + ["irq_applied", "stale"]
+
+    def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
+        up = sample.kind == zenoh.SampleKind.PUT
+        self._events.put(("alive", b"1" if up else b"0"))
+
+    def _build_health(self, seq: int) -> Health:
+        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict()}
+        if self.law.supervisor is not None:
+            counts = self.law.supervisor.counts
+            counters.update(oatf_out_of_band=counts.out_of_band, oatf_low_confidence=counts.low_confidence, oatf_rejected=counts.design_rejected)
+        degraded = self.stale or not self.dsp_alive or self.link.counters.deadline_misses > 0
+        return Health(
+            seq=seq,
+            sim_time_s=self.tick * self.settings.sample_period_s,
+            service="controller",
+            state="degraded" if degraded else "running",
+            counters=counters,
+            latencies={"tet": self.tet.stats(), "sync_jitter": self.jitter.stats(), "batch_to_interrupt": self.irq_latency.stats()},
+            last_miss=self.last_miss,
+        )
+
+    def _publish_status(self, finished: bool = False) -> None:
+        now = time.monotonic()
+        if not finished and now - self._last_status < 0.25:
+            return
+        rate = 0.0
+        if len(self._rate_window) >= 2:
+            span = self._rate_window[-1] - self._rate_window[0]
+            rate = (len(self._rate_window) - 1) / span if span > 0 else 0.0
+        status = ControllerStatus(
+            seq=self._status_seq,
+            sim_time_s=self.tick * self.settings.sample_period_s,
+            ticks=self.tick,
+            loop_rate_hz=rate,
+            batches_sent=self.link.counters.batches_sent,
+            interrupts=self.link.counters.interrupts,
+            latest_frequency_hz=self.latest_frequency_hz,
+            deadline_misses=self.link.counters.deadline_misses,
+            overruns=self.timing.overruns,
+            finished=finished,
+        )
+        self._status_seq += 1
+        self._last_status = now
+        self._status_pub.put(encode(status))
+
+    # -- DSP side -----------------------------------------------------------------------
+    def _take_event(self, kind: str, payload: bytes) -> None:
+        try:
+            if kind == "flag":
+                self.link.on_flag(decode(BlockFlag, payload))
+            elif kind == "interrupt":
+                self._held_interrupts.append(decode(Interrupt, payload))
+            elif kind == "alive":
+                up = payload == b"1"
+                if up != self.dsp_alive:
+                    self.liveliness.append((self.tick * self.settings.sample_period_s, "dsp", up))
+                    if up:
+                        self.timing.dsp_found += 1
+                        log.info("DSP present at tick %d", self.tick)
+                    else:
+                        self.timing.dsp_lost += 1
+                        self.last_miss = f"DSP lost at tick {self.tick}"
+                        log.warning("DSP lost at tick %d: controlling on with the last parameters", self.tick)
+                        self.link.in_flight = None
+                        self.link.block_empty = False
+                self.dsp_alive = up
+        except ProtocolError as exc:
+            self.timing.undecodable += 1
+            log.warning("dropped an invalid %s: %s", kind, exc)
+
+    def _drain_events(self) -> None:
+        while True:
+            try:
+                kind, payload = self._events.get_nowait()
+            except queue.Empty:
+                return
+            self._take_event(kind, payload)
+
+    def _wait_for_interrupt(self, seq: int) -> None:
+        """Lockstep: block until the interrupt of batch ``seq`` is in (or time out)."""
+        deadline = time.monotonic() + self.settings.lockstep_timeout_s
+        self.timing.lockstep_waits += 1
+        while not any(irq.batch_seq == seq for irq in self._held_interrupts):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not self.dsp_alive and self.timing.dsp_found:
+                return
+            try:
+                kind, payload = self._events.get(timeout=min(remaining, 0.1))
+            except queue.Empty:
+                continue
+            self._take_event(kind, payload)
+
+    def _apply_interrupts(self) -> bool:
+        """Apply held interrupts that are due; True if one was applied this tick."""
+        lockstep = self.settings.clock == "lockstep"
+        sent = self.link.in_flight
+        if lockstep and sent is not None and self.tick >= sent.due_tick and self.dsp_alive:
+            self._wait_for_interrupt(sent.seq)
+        applied = False
+        keep: list[Interrupt] = []
+        for irq in self._held_interrupts:
+            sent = self.link.in_flight
+            if lockstep and sent is not None and irq.batch_seq == sent.seq and self.tick < sent.due_tick:
+                keep.append(irq)  # not due yet in simulated time
+                continue
+            matched = self.link.on_interrupt(irq)
+            if matched is None:
+                continue
+            sent_wall = self._batch_sent_wall.pop(irq.batch_seq, None)
+            if sent_wall is not None:
+                self.irq_latency.add(time.monotonic() - sent_wall)
+            self.timing.interrupts_applied += 1
+            applied = True
+            if irq.poles:
+                self.latest_frequency_hz = irq.poles[0].frequency_hz
+            if irq.poles and irq.confidence >= self.settings.oatf_min_confidence:
+                self.last_fresh_tick = self.tick
+            if self.law.apply_interrupt(irq):
+                self.timing.oatf_updates += 1
+        self._held_interrupts = keep
+        return applied
+
+    def _maybe_send_batch(self) -> None:
+        taken = self.link.take_batch(self.tick, self.tick * self.settings.sample_period_s)
+        if taken is None:
+            return
+        sent, batch = taken
+        batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
+        self._batch_sent_wall[sent.seq] = time.monotonic()
+        self._batch_pub.put(encode_batch(batch))
+
+    def _download_tf(self) -> None:
+        try:
+            replies = list(self.session.get(self.keys.tf, timeout=2.0))
+        except Exception as exc:  # a dying session must not end the run
+            self.timing.tf_download_failures += 1
+            log.warning("TF download failed: %s", exc)
+            return
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                self.tf_snapshots.append(decode(TfSnapshot, reply.ok.payload.to_bytes()))
+                self.timing.tf_downloads += 1
+                return
+            except ProtocolError as exc:
+                self.timing.undecodable += 1
+                log.warning("bad TF snapshot: %s", exc)
+        self.timing.tf_download_failures += 1
+
+    def _check_stale(self) -> None:
+        age = (self.tick - self.last_fresh_tick) * self.settings.sample_period_s
+        stale = age > self.settings.stale_after_s
+        if stale and not self.stale:
+            self.timing.stale_episodes += 1
+            self.last_miss = f"parameters stale at tick {self.tick} ({age:.2f} s without a fresh estimate)"
+            log.warning(self.last_miss)
+        self.stale = stale
+        self.timing.stale_ticks += int(stale)
+
+    # -- the loop -----------------------------------------------------------------------
+    def _tick(self, words: np.ndarray) -> None:
+        self._drain_events()
+        applied = self._apply_interrupts()
+        out = self.law.step(self.tick, words)
+        self.plant.send_outputs(out.volts)
+        self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
+        if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0 and self.dsp_alive:
+            self._download_tf()
+        self._maybe_send_batch()
+        if self.link.check_deadline(self.tick):
+            self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms"
+            log.debug(self.last_miss)
+        self._check_stale()
+        row = self.law.record_row(self.tick, out)
+        row["irq_applied"] = float(applied)
+        row["stale"] = float(self.stale)
+        self.record.append(row)
+
+    def run(self, stop: threading.Event) -> RunResult:
+        """Start the plant node and run until the duration, the trajectory's
+        end, ``stop``, or a plant fault."""
+        s = self.settings
+        self._health.start()
+        error: str | None = None
+        n_ticks = run_ticks(s, self.law.lap_ticks)
+        ts = s.sample_period_s
+        lockstep = s.clock == "lockstep"
+        try:
+            self.plant.start_node(timeout=s.lockstep_timeout_s)
+            self._wait_for_dsp(stop, timeout=3.0)
+            t0 = time.monotonic()
+            while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
+                scheduled = t0 + self.tick * ts
+                if not lockstep:
+                    delay = scheduled - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                start = time.monotonic()
+                self.plant.send_sync()
+                if not lockstep:
+                    self.jitter.add(abs(start - scheduled))
+                words = self.plant.wait_tpdo(s.lockstep_timeout_s if lockstep else 0.8 * ts)
+                if words is None:
+                    if lockstep or self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
+                        raise PlantFault(f"plant did not answer SYNC at tick {self.tick} (heartbeat age {self.plant.heartbeat_age():.2f} s)")
+                    words = self._last_words  # hold the last sample for a missed TPDO
+                self._last_words = words
+                self._tick(words)
+                end = time.monotonic()
+                self.tet.add(end - start)
+                self.timing_record.append(tick=self.tick, sync_wall_s=start - t0, tet_s=end - start)
+                if not lockstep and end > scheduled + ts:
+                    self.timing.overruns += 1
+                self.tick += 1
+                self._rate_window.append(end)
+                if len(self._rate_window) > 200:
+                    del self._rate_window[0]
+                if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
+                    raise PlantFault(f"plant heartbeat lost for {self.plant.heartbeat_age():.2f} s")
+                self._publish_status()
+        except PlantFault as exc:
+            error = str(exc)
+            log.error("plant fault: %s; valves to zero", error)
+        finally:
+            try:
+                self.plant.send_outputs(np.zeros(2))
+            except Exception:
+                log.debug("could not zero the valves", exc_info=True)
+            self._publish_status(finished=True)
+        return RunResult(
+            ticks=self.tick,
+            sim_time_s=self.tick * ts,
+            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict()},
+            error=error,
+            liveliness=self.liveliness,
+        )
+
+    def _wait_for_dsp(self, stop: threading.Event, timeout: float) -> None:
+        """Give the DSP a moment to announce its empty block before the first tick."""
+        deadline = time.monotonic() + timeout
+        while not self.link.block_empty and time.monotonic() < deadline and not stop.is_set():
+            try:
+                kind, payload = self._events.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            self._take_event(kind, payload)
+        if not self.link.block_empty:
+            log.warning("no DSP answered within %.1f s; controlling without identification until it does", timeout)
+
+    def save(self, path: str, result: RunResult) -> None:
+        """Write the run record (deterministic columns), timing and TF downloads."""
+        metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
+        save_record(path, self.record.to_columns(), self.settings.model_dump(), metadata)
+        save_record(path + ".timing", self.timing_record.to_columns(), None, {"note": "wall-clock timing; differs run to run"})
+        if self.tf_snapshots:
+            freqs = np.asarray(self.tf_snapshots[-1].freqs_hz)
+            same = [s for s in self.tf_snapshots if len(s.freqs_hz) == freqs.size]
+            columns: dict[str, np.ndarray] = {"sim_time_s": np.array([s.sim_time_s for s in same])}
+            for name in ("H11", "H12", "H21", "H22", "Htot"):
+                columns[f"{name}_mag"] = np.array([s.estimates[name].magnitude for s in same])  # type: ignore[index]
+            arrays = {k: v for k, v in columns.items()}
+            np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)
+
+    def close(self) -> None:
+        self._health.stop()
+        for sub in self._subs:
+            sub.undeclare()
+        self._token.undeclare()
+        for pub in (self._batch_pub, self._config_pub, self._status_pub):
+            pub.undeclare()
+
