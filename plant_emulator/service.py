@@ -1,0 +1,238 @@
+"""The plant service: RALF's model behind the CANopen analog I/O node, and
+its out-of-band test port on zenoh (ground truth, scenario commands,
+events) that the controller never uses.
+
+Clock modes (design.md "Time"):
+
+* real time: the model integrates on the wall clock; on every SYNC, RPDO
+  or watchdog event it first catches up to ``now`` (in fixed internal
+  steps, so the old valve command acted until this instant), then samples
+  or applies the command;
+* lockstep: the model advances exactly one sample period per SYNC.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+import zenoh
+
+from plant_emulator.model import PlantConfig, RalfArm
+from plant_emulator.node import CanopenNode, NodeConfig
+from protocol.errors import ProtocolError
+from protocol.keys import Keys
+from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
+from protocol.settings import PlantSettings
+
+log = logging.getLogger(__name__)
+
+
+def plant_config(settings: PlantSettings) -> PlantConfig:
+    return PlantConfig(
+        seed=settings.seed,
+        payload_attached=settings.payload_attached,
+        valve_time_constant_s=settings.valve_time_constant_s,
+        adc_bits=settings.adc_bits,
+    )
+
+
+def node_config(settings: PlantSettings) -> NodeConfig:
+    return NodeConfig(
+        node_id=settings.node_id,
+        heartbeat_ms=settings.heartbeat_ms,
+        sample_period_s=settings.sample_period_s,
+        watchdog_periods=settings.watchdog_periods,
+        adc_bits=settings.adc_bits,
+    )
+
+
+class PlantApplication:
+    """The node's application: the arm, its clock, scenario commands and the test port."""
+
+    def __init__(
+        self,
+        settings: PlantSettings,
+        arm: RalfArm | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        publish_truth: Callable[[GroundTruth], None] | None = None,
+        publish_event: Callable[[PlantEvent], None] | None = None,
+    ) -> None:
+        self.settings = settings
+        self.arm = arm or RalfArm(plant_config(settings))
+        self.clock = clock
+        self.t0: float | None = None
+        self.held = False
+        self.syncs = 0
+        self.scenario: list[ScenarioCommand] = []
+        self.scenario_inbox: queue.Queue[ScenarioCommand] = queue.Queue()
+        self.publish_truth = publish_truth
+        self.publish_event = publish_event
+        self._truth_seq = 0
+        self._event_seq = 0
+        self._next_truth_s = 0.0
+        self._hard_stops_seen = 0
+
+    # -- time ----------------------------------------------------------------------------
+    def _catch_up(self) -> None:
+        """Real time: integrate the model up to the wall clock."""
+        if self.settings.clock != "realtime":
+            return
+        now = self.clock()
+        if self.t0 is None:
+            self.t0 = now - self.arm.time_s
+        dt = (now - self.t0) - self.arm.time_s
+        if dt > 0:
+            self.arm.advance(dt)
+
+    # -- NodeApplication ---------------------------------------------------------------------
+    def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        if self.settings.clock == "lockstep":
+            self.arm.advance(self.settings.sample_period_s)
+        else:
+            self._catch_up()
+        self.syncs += 1
+        self._apply_scenario()
+        reading = self.arm.sample()
+        self._publish_side_channels()
+        return reading.codes, reading.saturated
+
+    def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
+        self._catch_up()
+        if not self.held:
+            self.arm.set_valve_voltages(np.asarray(volts, dtype=np.float64))
+
+    def on_watchdog(self, tripped: bool) -> None:
+        self._catch_up()
+        self.held = tripped
+        if tripped:
+            self.arm.set_valve_voltages(np.zeros(2))
+            self._event("watchdog", "SYNC lost: valves held at zero")
+        else:
+            self._event("watchdog_cleared", "SYNC back: valves follow the RPDO again")
+
+    def on_adc_bits(self, bits: int) -> None:
+        self.arm.set_adc_bits(bits)
+        self._event("adc_bits", f"A/D resolution set to {bits} bits by SDO")
+
+    # -- scenario and test port ------------------------------------------------------------
+    def _apply_scenario(self) -> None:
+        while True:
+            try:
+                self.scenario.append(self.scenario_inbox.get_nowait())
+            except queue.Empty:
+                break
+        due = [c for c in self.scenario if c.at_sim_time_s <= self.arm.time_s + 1e-12]
+        if not due:
+            return
+        self.scenario = [c for c in self.scenario if c not in due]
+        for cmd in sorted(due, key=lambda c: (c.at_sim_time_s, c.seq)):
+            if cmd.kind == "payload":
+                self.arm.attach_payload(bool(cmd.payload_attached))
+                self._event("payload", f"payload {'attached' if cmd.payload_attached else 'released'} at {self.arm.time_s:.3f} s")
+            elif cmd.kind == "seed":
+                self.arm.reseed(int(cmd.seed or 0))
+                self._event("seed", f"noise reseeded with {cmd.seed}")
+            elif cmd.kind == "adc_bits":
+                self.arm.set_adc_bits(int(cmd.adc_bits or 12))
+                self._event("adc_bits", f"A/D resolution set to {cmd.adc_bits} bits")
+
+    def _event(self, kind: str, detail: str) -> None:
+        log.info("plant event %s: %s", kind, detail)
+        if self.publish_event is not None:
+            self.publish_event(PlantEvent(seq=self._event_seq, sim_time_s=self.arm.time_s, kind=kind, detail=detail))
+        self._event_seq += 1
+
+    def _publish_side_channels(self) -> None:
+        stops = self.arm.hard_stop_count
+        if stops != self._hard_stops_seen:
+            self._event("hard_stop", f"{stops - self._hard_stops_seen} joint hard stop(s); total {stops}")
+            self._hard_stops_seen = stops
+        rate = self.settings.truth_rate_hz
+        if self.publish_truth is None or rate <= 0 or self.arm.time_s + 1e-12 < self._next_truth_s:
+            return
+        self._next_truth_s = self.arm.time_s + 1.0 / rate
+        truth = self.arm.truth()
+        self.publish_truth(
+            GroundTruth(
+                seq=self._truth_seq,
+                sim_time_s=self.arm.time_s,
+                modal_frequencies_hz=tuple(float(f) for f in truth.modal_frequencies_hz),
+                damping_ratios=tuple(float(z) for z in truth.damping_ratios),
+                deflections_in=(float(truth.deflections_in[0]), float(truth.deflections_in[1])),
+                theta_rad=(float(truth.theta_rad[0]), float(truth.theta_rad[1])),
+                tip_in=(float(truth.tip_in[0]), float(truth.tip_in[1])),
+                payload_attached=bool(truth.payload_attached),
+                valves_held=self.held,
+            )
+        )
+        self._truth_seq += 1
+
+
+class PlantTestPort:
+    """zenoh side of the plant: truth and events out, scenario commands in, health."""
+
+    def __init__(self, settings: PlantSettings, session: zenoh.Session) -> None:
+        self.keys = Keys(settings.rig_id)
+        self.session = session
+        self.bad_scenarios = 0
+        self._truth_pub = session.declare_publisher(self.keys.truth)
+        self._event_pub = session.declare_publisher(self.keys.plant_events, congestion_control=zenoh.CongestionControl.BLOCK)
+        self.inbox: queue.Queue[ScenarioCommand] = queue.Queue()
+        self._sub = session.declare_subscriber(self.keys.scenario, self._on_scenario)
+        self._token = session.liveliness().declare_token(self.keys.alive("plant"))
+
+    def _on_scenario(self, sample: zenoh.Sample) -> None:
+        try:
+            self.inbox.put(decode(ScenarioCommand, sample.payload.to_bytes()))
+        except ProtocolError as exc:
+            self.bad_scenarios += 1
+            log.warning("dropped an invalid scenario command: %s", exc)
+
+    def publish_truth(self, truth: GroundTruth) -> None:
+        self._truth_pub.put(encode(truth))
+
+    def publish_event(self, event: PlantEvent) -> None:
+        self._event_pub.put(encode(event))
+
+    def close(self) -> None:
+        self._sub.undeclare()
+        self._token.undeclare()
+        self._truth_pub.undeclare()
+        self._event_pub.undeclare()
+
+
+def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort) -> Health:
+    counters = {k: int(v) for k, v in node.counters.as_dict().items()}
+    counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=port.bad_scenarios)
+    return Health(
+        seq=seq,
+        sim_time_s=app.arm.time_s,
+        service="plant",
+        state="degraded" if app.held else "running",
+        counters=counters,
+        last_miss="valves held: SYNC watchdog" if app.held else None,
+    )
+
+
+def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: threading.Event) -> None:
+    """Run the node on ``bus`` until ``stop``; the test port on ``session``."""
+    from plant_emulator.node import run_node
+    from rig.runtime import HealthPublisher
+
+    port = PlantTestPort(settings, session)
+    app = PlantApplication(settings, publish_truth=port.publish_truth, publish_event=port.publish_event)
+    app.scenario_inbox = port.inbox
+    node = CanopenNode(app, node_config(settings))
+    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port)).start()
+    try:
+        run_node(bus, node, stop)  # type: ignore[arg-type]
+    finally:
+        health.stop()
+        port.close()
+        log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())

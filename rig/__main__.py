@@ -1,0 +1,5 @@
+"""``python -m rig`` is ``ralf-hil``."""
+
+from rig.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,131 @@
+"""docker-compose.yml, tested as far as a machine without a Docker engine
+allows: it parses, names real commands and valid settings, and the three
+services started as local processes with exactly the compose environment
+(router host mapped to a local zenoh router) run the rig and stop cleanly."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+import yaml
+import zenoh
+
+from protocol.keys import Keys
+from protocol.messages import ControllerStatus, decode
+from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+
+ROOT = Path(__file__).resolve().parents[2]
+MODELS = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
+COMMANDS = {"ralf-dsp": "dsp_service", "ralf-plant": "plant_emulator", "ralf-controller": "controller"}
+
+
+def _compose() -> dict:
+    return yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_compose_file_describes_router_and_three_services() -> None:
+    doc = _compose()
+    services = doc["services"]
+    assert set(services) == {"zenoh-router", "dsp", "plant", "controller"}
+    router = services["zenoh-router"]
+    assert router["image"].startswith("eclipse/zenoh")
+    assert "tcp/0.0.0.0:7447" in router["command"]
+    for name, model in MODELS.items():
+        svc = services[name]
+        assert svc["command"][0] in COMMANDS
+        assert COMMANDS[svc["command"][0]] == {"dsp": "dsp_service", "plant": "plant_emulator", "controller": "controller"}[name]
+        env = svc["environment"]
+        assert env["RALF_ZENOH_MODE"] == "client"
+        assert env["RALF_ZENOH_CONNECT"] == "tcp/zenoh-router:7447"
+        for var, value in env.items():
+            field = var.removeprefix("RALF_").lower()
+            assert field in model.model_fields, f"{name}: {var} is not a setting of {model.__name__}"
+        model(**{k.removeprefix("RALF_").lower(): v for k, v in env.items()})  # values validate
+        assert "zenoh-router" in svc["depends_on"]
+
+
+def test_dockerfile_installs_the_package_and_copies_every_package() -> None:
+    text = (ROOT / "Dockerfile").read_text()
+    assert "FROM python:3.11" in text
+    for pkg in ("protocol", "plant_emulator", "controller", "dsp_service", "rig"):
+        assert f"COPY {pkg} " in text
+    assert "pip install ." in text
+
+
+def test_console_scripts_are_declared() -> None:
+    import tomllib
+
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    for command, module in COMMANDS.items():
+        assert scripts[command] == f"{module}.__main__:main"
+
+
+@pytest.mark.timeout(120)
+def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
+    doc = _compose()
+    port = _free_port()
+    rig_id = f"compose-{uuid.uuid4().hex[:6]}"
+    router_cfg = zenoh.Config()
+    router_cfg.insert_json5("mode", '"router"')
+    router_cfg.insert_json5("scouting/multicast/enabled", "false")
+    router_cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    router = zenoh.open(router_cfg)
+    statuses: queue.Queue[ControllerStatus] = queue.Queue()
+    sub = router.declare_subscriber(Keys(rig_id).controller_status, lambda s: statuses.put(decode(ControllerStatus, s.payload.to_bytes())))
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    can_port = str(40000 + uuid.uuid4().int % 20000)  # this rig's own CAN "wire"
+    try:
+        for name in ("dsp", "plant", "controller"):
+            svc = doc["services"][name]
+            env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
+            env.update({k: str(v) for k, v in svc["environment"].items()})
+            env["RALF_ZENOH_CONNECT"] = env["RALF_ZENOH_CONNECT"].replace("zenoh-router:7447", f"127.0.0.1:{port}")
+            env["RALF_RIG_ID"] = rig_id
+            env["RALF_CAN_PORT"] = can_port
+            cmd = svc["command"]
+            exe = shutil.which(cmd[0]) or ""
+            argv = [exe, *cmd[1:]] if exe else [sys.executable, "-m", COMMANDS[cmd[0]], *cmd[1:]]
+            log = open(tmp_path / f"{name}.log", "wb")
+            procs[name] = subprocess.Popen(argv, env=env, stdout=log, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 60
+        last = None
+        while time.monotonic() < deadline:
+            try:
+                last = statuses.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            if last.interrupts >= 5:
+                break
+        logs = {n: (tmp_path / f"{n}.log").read_text(errors="replace") for n in procs}
+        assert last is not None and last.interrupts >= 5, logs
+    finally:
+        for name in ("controller", "plant", "dsp"):
+            if name in procs and procs[name].poll() is None:
+                procs[name].send_signal(signal.SIGTERM)
+        codes = {}
+        for name, p in procs.items():
+            try:
+                codes[name] = p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes[name] = "killed"
+        sub.undeclare()
+        router.close()
+    assert codes == {"dsp": 0, "plant": 0, "controller": 0}, {n: (tmp_path / f"{n}.log").read_text(errors="replace")[-2000:] for n in procs}
