@@ -1,0 +1,215 @@
+"""The run record: per-tick columns in a compressed ``.npz`` plus a JSON sidecar.
+
+A record is any set of equal-length 1-D arrays (time, set-points, commands,
+raw counts, engineering values, the active OATF parameters, ...) and two
+JSON-able dictionaries: the run's configuration and free-form metadata.
+``save_record("runs/x", ...)`` writes ``runs/x.npz`` (``numpy.savez_compressed``,
+loaded without pickle) and ``runs/x.json`` (format tag, version, column
+names, dtypes, length, configuration, metadata).  Both files are written to
+a temporary name and renamed, so a reader never sees half a record.
+
+:class:`ColumnBuffer` collects one tick at a time for the loop: every column
+is a preallocated array that doubles when full, so an append is a few scalar
+stores and the whole run is never re-copied more than ``log2(n)`` times.
+This module is the only one of the controller's core that does I/O.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["RECORD_FORMAT", "RECORD_VERSION", "ColumnBuffer", "RunRecord", "load_record", "save_record", "to_jsonable"]
+
+RECORD_FORMAT = "ralf-hil-run-record"
+RECORD_VERSION = 1
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
+
+
+@dataclass
+class RunRecord:
+    """A loaded run: columns by name, configuration and metadata as stored."""
+
+    columns: dict[str, npt.NDArray[Any]]
+    config: dict[str, Any] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return 0 if not self.columns else int(next(iter(self.columns.values())).shape[0])
+
+    def __getitem__(self, name: str) -> npt.NDArray[Any]:
+        return self.columns[name]
+
+
+def _paths(path: str | Path) -> tuple[Path, Path]:
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix in (".npz", ".json") else p
+    return stem.with_name(stem.name + ".npz"), stem.with_name(stem.name + ".json")
+
+
+def _validate_columns(columns: Mapping[str, npt.ArrayLike]) -> dict[str, npt.NDArray[Any]]:
+    out: dict[str, npt.NDArray[Any]] = {}
+    length: int | None = None
+    for name, values in columns.items():
+        if not isinstance(name, str) or not _NAME.match(name):
+            raise ValueError(f"column name {name!r} must match {_NAME.pattern}")
+        arr = np.asarray(values)
+        if arr.ndim != 1:
+            raise ValueError(f"column {name!r} must be 1-D, got shape {arr.shape}")
+        if arr.dtype == object:
+            raise ValueError(f"column {name!r} has dtype object; use numeric or boolean arrays")
+        if length is None:
+            length = arr.shape[0]
+        elif arr.shape[0] != length:
+            raise ValueError(f"column {name!r} has {arr.shape[0]} rows, expected {length}")
+        out[name] = arr
+    return out
+
+
+def to_jsonable(value: Any) -> Any:
+    """Turn configuration objects (pydantic models, dataclasses, numpy values, paths) into JSON types.
+
+    Non-finite floats become the strings ``"nan"``, ``"inf"``, ``"-inf"`` so the file stays strict JSON.
+    """
+    if hasattr(value, "model_dump"):
+        return to_jsonable(value.model_dump(mode="python"))
+    if hasattr(value, "__dataclass_fields__"):
+        return {k: to_jsonable(getattr(value, k)) for k in value.__dataclass_fields__}
+    if isinstance(value, Mapping):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return [to_jsonable(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        return to_jsonable(value.item())
+    if isinstance(value, float):
+        return value if math.isfinite(value) else ("nan" if math.isnan(value) else ("inf" if value > 0 else "-inf"))
+    if isinstance(value, (str, int, bool)) or value is None:
+        return value
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, Iterable):
+        return [to_jsonable(v) for v in value]
+    return str(value)
+
+
+def save_record(
+    path: str | Path,
+    columns: Mapping[str, npt.ArrayLike],
+    config: Any = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> tuple[Path, Path]:
+    """Write ``<path>.npz`` and ``<path>.json`` (a ``.npz``/``.json`` suffix on ``path`` is ignored).
+
+    ``config`` may be a pydantic model, a dataclass or a dict; it is stored as JSON.
+    Returns the two paths written.
+    """
+    cols = _validate_columns(columns)
+    npz_path, json_path = _paths(path)
+    npz_path.parent.mkdir(parents=True, exist_ok=True)
+    sidecar = {
+        "format": RECORD_FORMAT,
+        "version": RECORD_VERSION,
+        "n_samples": len(next(iter(cols.values()))) if cols else 0,
+        "columns": {name: str(arr.dtype) for name, arr in cols.items()},
+        "config": to_jsonable(config) if config is not None else {},
+        "metadata": to_jsonable(dict(metadata or {})),
+    }
+    tmp_npz = npz_path.with_name(npz_path.name + ".tmp.npz")
+    tmp_json = json_path.with_name(json_path.name + ".tmp")
+    with open(tmp_npz, "wb") as fh:
+        np.savez_compressed(fh, **cols)
+    tmp_json.write_text(json.dumps(sidecar, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    os.replace(tmp_npz, npz_path)
+    os.replace(tmp_json, json_path)
+    return npz_path, json_path
+
+
+def load_record(path: str | Path) -> RunRecord:
+    """Read a record written by :func:`save_record` (either file's path, or the common stem)."""
+    npz_path, json_path = _paths(path)
+    sidecar = json.loads(json_path.read_text(encoding="utf-8"))
+    if sidecar.get("format") != RECORD_FORMAT:
+        raise ValueError(f"{json_path} is not a {RECORD_FORMAT} sidecar")
+    if int(sidecar.get("version", -1)) > RECORD_VERSION:
+        raise ValueError(f"{json_path} has record version {sidecar['version']}, newer than {RECORD_VERSION}")
+    with np.load(npz_path, allow_pickle=False) as data:
+        order = list(sidecar.get("columns", {})) or list(data.files)
+        columns = {name: data[name] for name in order}
+    return RunRecord(columns=columns, config=sidecar.get("config", {}), metadata=sidecar.get("metadata", {}))
+
+
+class ColumnBuffer:
+    """Append-one-tick-at-a-time columnar storage: preallocated, grows by doubling.
+
+    Columns are declared up front (``names`` or ``{name: dtype}``); every
+    :meth:`append` must give every column (a missing or unknown name is an
+    error, so a record never has ragged columns).
+    """
+
+    def __init__(self, columns: Iterable[str] | Mapping[str, npt.DTypeLike], capacity: int = 1024) -> None:
+        spec = dict(columns) if isinstance(columns, Mapping) else {name: np.float64 for name in columns}
+        _validate_columns({name: np.zeros(0, dtype=dt) for name, dt in spec.items()})
+        if not spec:
+            raise ValueError("a ColumnBuffer needs at least one column")
+        self._capacity = max(1, int(capacity))
+        self._data: dict[str, npt.NDArray[Any]] = {n: np.zeros(self._capacity, dtype=dt) for n, dt in spec.items()}
+        self._n = 0
+
+    @property
+    def names(self) -> list[str]:
+        return list(self._data)
+
+    @property
+    def capacity(self) -> int:
+        return self._capacity
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
+        """Store one tick: a mapping and/or keywords giving one scalar per column."""
+        vals = {**row, **values} if row is not None else values
+        if vals.keys() != self._data.keys():
+            missing = sorted(set(self._data) - set(vals))
+            unknown = sorted(set(vals) - set(self._data))
+            raise KeyError(f"append needs exactly the buffer's columns; missing {missing}, unknown {unknown}")
+        if self._n == self._capacity:
+            self._grow()
+        i = self._n
+        for name, v in vals.items():
+            self._data[name][i] = v
+        self._n = i + 1
+
+    def _grow(self) -> None:
+        self._capacity *= 2
+        for name, arr in self._data.items():
+            new = np.zeros(self._capacity, dtype=arr.dtype)
+            new[: self._n] = arr[: self._n]
+            self._data[name] = new
+
+    def column(self, name: str) -> npt.NDArray[Any]:
+        """A read-only view of the filled part of one column."""
+        view = self._data[name][: self._n]
+        view.flags.writeable = False
+        return view
+
+    def to_columns(self) -> dict[str, npt.NDArray[Any]]:
+        """Copies of the filled part of every column (safe to keep after further appends)."""
+        return {name: arr[: self._n].copy() for name, arr in self._data.items()}
+
+    def clear(self) -> None:
+        """Forget the rows; keep the allocated capacity."""
+        self._n = 0
+
+    def save(self, path: str | Path, config: Any = None, metadata: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
+        """:func:`save_record` of the filled rows."""
+        return save_record(path, self.to_columns(), config, metadata)
