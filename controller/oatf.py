@@ -503,7 +503,7 @@ class OatfSupervisor:
             conf = [float(confidence)] * n_est
         else:
             conf = [float(x) for x in confidence]
-            if len(conf) != n_est:
+            if len(conf) != n_est:  # an estimate without a confidence counts as low confidence
                 conf = (conf + [-math.inf] * n_est)[:n_est]
         used = 0
         for i, f in enumerate(frequencies_hz):

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 from scipy import signal
@@ -56,8 +56,7 @@ def test_unit_dc_gain_and_zero_at_design_mode_for_any_integer_delay(f: float, ze
     try:
         stage = design_stage(f, zeta, TS, delay_samples=n1)
     except OatfDesignError:
-        assume(False)
-        raise
+        reject()  # w_d n1 Ts a multiple of 2 pi with no damping: 0/0
     assert sum(stage.coefficients) == pytest.approx(1.0, abs=1e-12)
     assert abs(transfer_function(1.0, [stage])) == pytest.approx(1.0, abs=1e-9)
     scale = stage.abs_coefficient_sum
