@@ -435,6 +435,8 @@ class OatfFilter:
         """Filter a block ``(n_samples, n_channels)`` (or 1-D for one channel) with the current design."""
         xb = np.asarray(block, dtype=float)
         one_d = xb.ndim == 1
+        if (one_d and self.n_channels != 1) or (not one_d and (xb.ndim != 2 or xb.shape[1] != self.n_channels)):
+            raise ValueError(f"block must be (n_samples, {self.n_channels}) (1-D only for one channel), got {xb.shape}")
         xb = xb.reshape(-1, self.n_channels)
         n = xb.shape[0]
         past = self._capacity - 1
