@@ -49,7 +49,7 @@ def test_duration_is_length_over_speed_plus_pauses(loop: WaypointTrajectory, spe
     expected = path_length(loop) / speed + 6.0
     assert trajectory_duration_s(loop, speed) == pytest.approx(expected, abs=1e-9)
     assert trajectory_duration_s(loop, speed, repeat=3) == pytest.approx(3 * expected, abs=1e-9)
-    assert expected == pytest.approx({4.0: 56.0, 5.0: 46.0}[speed], abs=1e-4)
+    assert expected == pytest.approx({4.0: 51.0, 5.0: 42.0}[speed], abs=1e-4)
     st = sample_trajectory(loop, TS, speed_in_per_s=speed)
     assert st.path.duration_s == pytest.approx(math.ceil(expected / TS) * TS)
     assert len(st.path) == math.ceil(expected / TS - 1e-9) + 1
