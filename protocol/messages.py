@@ -46,6 +46,12 @@ class BlockFlag(Message):
     batch_size: Annotated[int, Field(ge=1, le=65536)]
     emulated_latency_s: NonNegFloat = Field(0.0, description="When the interrupt for the next batch is due, in simulated time after it is sent")
 
+    @model_validator(mode="after")
+    def _power_of_two(self) -> "BlockFlag":
+        if self.fft_width & (self.fft_width - 1):
+            raise ValueError(f"fft_width must be a power of two, got {self.fft_width}")
+        return self
+
 
 class PoleParameters(BaseModel):
     """One identified vibration mode: the parameters the OATF is built from."""
@@ -206,8 +212,16 @@ def encode(message: BaseModel) -> bytes:
 
 
 def decode(model: type[M], payload: bytes | bytearray | memoryview) -> M:
-    """Validate a JSON payload into ``model``; raises :class:`ProtocolError`."""
+    """Validate a JSON payload into ``model``; raises :class:`ProtocolError`.
+
+    Decoding is strict: a wire value of the wrong JSON type (``"1"`` or
+    ``true`` for a sequence number, ``1.0`` for a count) is rejected
+    rather than coerced. The error names the offending field.
+    """
     try:
-        return model.model_validate_json(bytes(payload))
+        return model.model_validate_json(bytes(payload), strict=True)
     except ValidationError as exc:
-        raise ProtocolError(f"invalid {model.__name__}: {exc.error_count()} error(s): {exc.errors()[0]['msg']}") from exc
+        first = exc.errors()[0]
+        where = ".".join(str(part) for part in first["loc"])
+        detail = f"{where}: {first['msg']}" if where else first["msg"]
+        raise ProtocolError(f"invalid {model.__name__}: {exc.error_count()} error(s): {detail}") from exc
