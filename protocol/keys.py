@@ -24,13 +24,14 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-_RIG_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_RIG_ID = re.compile(r"[A-Za-z0-9_-]{1,64}")
 SERVICES = ("plant", "controller", "dsp")
 
 
 def validate_rig_id(rig_id: str) -> str:
     """A rig id is one key chunk: letters, digits, ``-`` and ``_`` only."""
-    if not _RIG_ID.match(rig_id):
+    # fullmatch, not match: "$" would also accept a trailing newline.
+    if not isinstance(rig_id, str) or not _RIG_ID.fullmatch(rig_id):
         raise ValueError(f"rig id {rig_id!r} must be 1-64 characters of [A-Za-z0-9_-]")
     return rig_id
 
