@@ -76,6 +76,12 @@ def encode_batch(batch: SampleBatch) -> bytes:
         raise ValueError("batch samples must be finite")
     if batch.sample_rate_hz <= 0 or not math.isfinite(batch.sample_rate_hz):
         raise ValueError("sample rate must be positive")
+    # Reject here what decode_batch would reject (or struct.pack would fail on).
+    if not (math.isfinite(batch.sim_time_s) and batch.sim_time_s >= 0 and math.isfinite(batch.wall_time_s)):
+        raise ValueError("time stamps must be finite and sim time non-negative")
+    for name, value, bits in (("seq", batch.seq, 64), ("first_tick", batch.first_tick, 64), ("dropped_before", batch.dropped_before, 32)):
+        if not 0 <= value < (1 << bits):
+            raise ValueError(f"{name} must be 0..2**{bits}-1, got {value}")
     header = HEADER.pack(
         MAGIC,
         VERSION,
