@@ -6,10 +6,11 @@ program's ``--help`` prints them.
 
 from __future__ import annotations
 
+import re
 from typing import Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
 from protocol.keys import validate_rig_id
@@ -59,6 +60,14 @@ class PlantSettings(CommonSettings):
     watchdog_periods: int = Field(5, ge=1, description="SYNC periods without SYNC before the valves are held")
     heartbeat_ms: int = Field(100, ge=0, description="CANopen heartbeat producer period (0 = off)")
 
+    @field_validator("adc_bits", mode="before")
+    @classmethod
+    def _adc_bits_text(cls, value: Any) -> Any:
+        # RALF_ADC_BITS and --set adc_bits=16 arrive as text; an int Literal does not coerce it.
+        if isinstance(value, str) and value.strip().isdigit():
+            return int(value.strip())
+        return value
+
 
 class ControllerSettings(CommonSettings):
     """The controller (``ralf-controller``), the emulated MVME CPU."""
@@ -81,6 +90,18 @@ class ControllerSettings(CommonSettings):
     lockstep_timeout_s: float = Field(10.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault")
     plant_heartbeat_timeout_s: float = Field(1.0, gt=0, description="Plant heartbeat older than this is a fault")
     record: str = Field("", description="Write the run record (npz + JSON) to this path")
+
+    @field_validator("oatf_band_hz", mode="before")
+    @classmethod
+    def _band_text(cls, value: Any) -> Any:
+        # --set oatf_band_hz=... arrives as text (the env source JSON-decodes it
+        # already): accept a JSON array "[1, 20]" or a plain pair "1,20".
+        if isinstance(value, str):
+            text = value.strip()
+            if text.startswith("[") or text.startswith("("):
+                text = text[1:-1] if text[-1:] in "])" else text[1:]
+            return tuple(part.strip() for part in text.split(","))
+        return value
 
 
 class DspSettings(CommonSettings):
@@ -118,11 +139,22 @@ def load_settings(model: type[CommonSettings], overrides: dict[str, Any] | None 
     try:
         return model(**(overrides or {}))
     except ValidationError as exc:
-        lines = [
-            f"  {'RALF_' + '_'.join(str(p) for p in err['loc']).upper() if err['loc'] else model.__name__}: {err['msg']}"
-            for err in exc.errors()
-        ]
+        lines = [f"  {_where(model, err['loc'])}: {err['msg']}" for err in exc.errors()]
         raise ConfigError("invalid configuration:\n" + "\n".join(lines)) from None
+    except SettingsError as exc:
+        # pydantic-settings fails before validation when a complex value
+        # (e.g. the tuple oatf_band_hz) is not JSON.
+        match = re.search(r'field "(\w+)"', str(exc))
+        name = f"RALF_{match.group(1).upper()}" if match else model.__name__
+        raise ConfigError(f"invalid configuration:\n  {name}: cannot parse the value (expected JSON, e.g. [1.0, 20.0]): {exc}") from None
+
+
+def _where(model: type[CommonSettings], loc: tuple[Any, ...]) -> str:
+    """The variable an error location refers to: ``RALF_FIELD``, with any
+    item index as a suffix (``RALF_OATF_BAND_HZ[1]``), never a made-up name."""
+    if not loc:
+        return model.__name__
+    return f"RALF_{str(loc[0]).upper()}" + "".join(f"[{part}]" for part in loc[1:])
 
 
 def describe(model: type[CommonSettings]) -> list[tuple[str, str, str]]:
