@@ -1,0 +1,368 @@
+"""Per-program settings (protocol.settings) from RALF_* variables and
+overrides, and the zenoh key expressions of a rig (protocol.keys)."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from protocol.errors import ConfigError
+from protocol.keys import SERVICES, Keys, validate_rig_id
+from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings
+
+MODELS = [CommonSettings, PlantSettings, ControllerSettings, DspSettings]
+
+
+@pytest.fixture(autouse=True)
+def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
+    """No RALF_* variable of the developer's shell leaks into a test."""
+    for name in list(os.environ):
+        if name.upper().startswith("RALF_"):
+            monkeypatch.delenv(name)
+    return monkeypatch
+
+
+def _config_error(model: type[CommonSettings], overrides: dict[str, Any] | None = None) -> str:
+    with pytest.raises(ConfigError) as info:
+        load_settings(model, overrides)
+    return str(info.value)
+
+
+# --- defaults ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)
+def test_defaults_are_valid(model: type[CommonSettings]) -> None:
+    s = load_settings(model)
+    assert isinstance(s, model)
+    assert s.rig_id == "default"
+    assert s.zenoh_mode == "peer" and s.zenoh_multicast_scouting is False
+    assert s.node_id == 1 and s.can_port == 43113
+    assert s.sample_rate_hz == 200.0 and s.sample_period_s == pytest.approx(0.005)
+    assert s.endpoints("connect") == [] and s.endpoints("listen") == []
+    assert model() == s  # the same without load_settings
+
+
+def test_program_defaults() -> None:
+    plant = load_settings(PlantSettings)
+    assert (plant.adc_bits, plant.seed, plant.payload_attached, plant.watchdog_periods) == (12, 0, False, 5)
+    ctrl = load_settings(ControllerSettings)
+    assert ctrl.oatf_band_hz == (1.0, 20.0) and ctrl.duration_s is None and ctrl.oatf_mode == "off"
+    assert ctrl.batch_size == 20 and ctrl.tip_speed_in_s == 5.0
+    dsp = load_settings(DspSettings)
+    assert dsp.fft_width == 2048 and dsp.alpha == 0.1 and dsp.search_min_hz < dsp.search_max_hz
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)
+def test_describe_lists_every_field(model: type[CommonSettings]) -> None:
+    rows = describe(model)
+    assert [var for var, _, _ in rows] == [f"RALF_{name.upper()}" for name in model.model_fields]
+    assert all(text for _, _, text in rows), "every field is documented"
+    assert dict((var, default) for var, default, _ in rows)["RALF_RIG_ID"] == "default"
+
+
+# --- environment ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "model,var,raw,field,expected",
+    [
+        (CommonSettings, "RALF_RIG_ID", "lab-2_b", "rig_id", "lab-2_b"),
+        (CommonSettings, "RALF_ZENOH_MODE", "client", "zenoh_mode", "client"),
+        (CommonSettings, "RALF_CAN_PORT", "50000", "can_port", 50000),
+        (CommonSettings, "RALF_NODE_ID", "127", "node_id", 127),
+        (CommonSettings, "RALF_CLOCK", "lockstep", "clock", "lockstep"),
+        (CommonSettings, "RALF_SAMPLE_RATE_HZ", "1000.5", "sample_rate_hz", 1000.5),
+        (CommonSettings, "RALF_SAMPLE_RATE_HZ", "5e3", "sample_rate_hz", 5000.0),
+        (CommonSettings, "RALF_LOG_LEVEL", "DEBUG", "log_level", "DEBUG"),
+        (CommonSettings, "RALF_CAN_INTERFACE", "virtual", "can_interface", "virtual"),
+        (CommonSettings, "ralf_can_channel", "vcan0", "can_channel", "vcan0"),
+        (PlantSettings, "RALF_SEED", "42", "seed", 42),
+        (PlantSettings, "RALF_ADC_BITS", "16", "adc_bits", 16),
+        (PlantSettings, "RALF_ADC_BITS", "20", "adc_bits", 20),
+        (PlantSettings, "RALF_ADC_BITS", "12", "adc_bits", 12),
+        (PlantSettings, "RALF_TRUTH_RATE_HZ", "0", "truth_rate_hz", 0.0),
+        (ControllerSettings, "RALF_OATF_BAND_HZ", "[2, 15.5]", "oatf_band_hz", (2.0, 15.5)),
+        (ControllerSettings, "RALF_DURATION_S", "12.5", "duration_s", 12.5),
+        (ControllerSettings, "RALF_OATF_DELAY_S", "0.1", "oatf_delay_s", 0.1),
+        (ControllerSettings, "RALF_OATF_MODE", "adaptive", "oatf_mode", "adaptive"),
+        (ControllerSettings, "RALF_TRAJECTORY", "/tmp/loop.json", "trajectory", "/tmp/loop.json"),
+        (DspSettings, "RALF_FFT_WIDTH", "4096", "fft_width", 4096),
+        (DspSettings, "RALF_SOLVER", "uncorrelated", "solver", "uncorrelated"),
+        (DspSettings, "RALF_BUDGET_S", "0.02", "budget_s", 0.02),
+    ],
+)
+def test_environment_values_are_parsed(
+    clean_env: pytest.MonkeyPatch, model: type[CommonSettings], var: str, raw: str, field: str, expected: Any
+) -> None:
+    clean_env.setenv(var, raw)
+    value = getattr(load_settings(model), field)
+    assert value == expected and type(value) is type(expected)
+
+
+@pytest.mark.parametrize(
+    "raw,expected",
+    [("true", True), ("True", True), ("1", True), ("yes", True), ("on", True), ("false", False), ("FALSE", False), ("0", False), ("no", False), ("off", False)],
+)
+def test_environment_booleans(clean_env: pytest.MonkeyPatch, raw: str, expected: bool) -> None:
+    clean_env.setenv("RALF_ZENOH_MULTICAST_SCOUTING", raw)
+    clean_env.setenv("RALF_PAYLOAD_ATTACHED", raw)
+    s = load_settings(PlantSettings)
+    assert s.zenoh_multicast_scouting is expected and s.payload_attached is expected
+
+
+def test_overrides_take_precedence_over_the_environment(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_CLOCK", "lockstep")
+    clean_env.setenv("RALF_SEED", "1")
+    s = load_settings(PlantSettings, {"seed": "2", "adc_bits": "20"})
+    assert (s.clock, s.seed, s.adc_bits) == ("lockstep", 2, 20)
+
+
+@pytest.mark.parametrize("raw", ["1,20", " 1 , 20 ", "[1, 20]", "(1,20)", "[1.0,20.0]"])
+def test_band_override_as_text(raw: str) -> None:
+    # --set oatf_band_hz=... arrives as a string
+    assert load_settings(ControllerSettings, {"oatf_band_hz": raw}).oatf_band_hz == (1.0, 20.0)
+
+
+# --- bad values ----------------------------------------------------------------------
+
+BAD_ENV = [
+    (CommonSettings, "RALF_RIG_ID", "a/b"),
+    (CommonSettings, "RALF_RIG_ID", "ralf*"),
+    (CommonSettings, "RALF_RIG_ID", "rig\n"),
+    (CommonSettings, "RALF_ZENOH_MODE", "mesh"),
+    (CommonSettings, "RALF_ZENOH_MULTICAST_SCOUTING", "maybe"),
+    (CommonSettings, "RALF_CAN_PORT", "0"),
+    (CommonSettings, "RALF_CAN_PORT", "65536"),
+    (CommonSettings, "RALF_CAN_PORT", "http"),
+    (CommonSettings, "RALF_NODE_ID", "0"),
+    (CommonSettings, "RALF_NODE_ID", "128"),
+    (CommonSettings, "RALF_CLOCK", "fast"),
+    (CommonSettings, "RALF_SAMPLE_RATE_HZ", "0"),
+    (CommonSettings, "RALF_SAMPLE_RATE_HZ", "-200"),
+    (CommonSettings, "RALF_SAMPLE_RATE_HZ", "5001"),
+    (CommonSettings, "RALF_SAMPLE_RATE_HZ", "fast"),
+    (CommonSettings, "RALF_HEALTH_PERIOD_S", "0"),
+    (CommonSettings, "RALF_LOG_LEVEL", "CHATTY"),
+    (PlantSettings, "RALF_SEED", "-1"),
+    (PlantSettings, "RALF_SEED", "1.5"),
+    (PlantSettings, "RALF_ADC_BITS", "14"),
+    (PlantSettings, "RALF_ADC_BITS", "twelve"),
+    (PlantSettings, "RALF_PAYLOAD_ATTACHED", "sometimes"),
+    (PlantSettings, "RALF_VALVE_TIME_CONSTANT_S", "0.1"),
+    (PlantSettings, "RALF_WATCHDOG_PERIODS", "0"),
+    (PlantSettings, "RALF_HEARTBEAT_MS", "-5"),
+    (ControllerSettings, "RALF_DURATION_S", "0"),
+    (ControllerSettings, "RALF_DURATION_S", "abc"),
+    (ControllerSettings, "RALF_TIP_SPEED_IN_S", "25"),
+    (ControllerSettings, "RALF_BATCH_SIZE", "0"),
+    (ControllerSettings, "RALF_BATCH_SIZE", "4097"),
+    (ControllerSettings, "RALF_OATF_MODE", "on"),
+    (ControllerSettings, "RALF_OATF_LOCATION", "middle"),
+    (ControllerSettings, "RALF_OATF_DAMPING", "1"),
+    (ControllerSettings, "RALF_OATF_MIN_CONFIDENCE", "1.5"),
+    (ControllerSettings, "RALF_OATF_BAND_HZ", "[1, 2, 3]"),
+    (ControllerSettings, "RALF_OATF_BAND_HZ", '[1, "x"]'),
+    (ControllerSettings, "RALF_OATF_BAND_HZ", "1,20"),
+    (ControllerSettings, "RALF_OATF_BAND_HZ", "wide"),
+    (ControllerSettings, "RALF_REPEATS", "-1"),
+    (DspSettings, "RALF_FFT_WIDTH", "1000"),
+    (DspSettings, "RALF_FFT_WIDTH", "8"),
+    (DspSettings, "RALF_FFT_WIDTH", "131072"),
+    (DspSettings, "RALF_ALPHA", "0"),
+    (DspSettings, "RALF_ALPHA", "1.01"),
+    (DspSettings, "RALF_AVERAGING", "median"),
+    (DspSettings, "RALF_SOLVER", "siso"),
+    (DspSettings, "RALF_EMULATED_LATENCY_S", "11"),
+    (DspSettings, "RALF_SMOOTHING_WINDOW", "-1"),
+]
+
+
+@pytest.mark.parametrize("model,var,raw", BAD_ENV, ids=lambda x: x if isinstance(x, str) else x.__name__)
+def test_bad_environment_values_name_the_variable(clean_env: pytest.MonkeyPatch, model: type[CommonSettings], var: str, raw: str) -> None:
+    clean_env.setenv(var, raw)
+    text = _config_error(model)
+    assert text.startswith("invalid configuration:")
+    assert var in text
+    # the name given is the real variable, not a made-up one like RALF_OATF_BAND_HZ_1
+    named = [line.strip().split(":")[0] for line in text.splitlines()[1:]]
+    assert all(n.split("[")[0] == var for n in named), named
+
+
+@pytest.mark.parametrize("model,var,raw", BAD_ENV[:12], ids=lambda x: x if isinstance(x, str) else x.__name__)
+def test_bad_override_values_name_the_variable(model: type[CommonSettings], var: str, raw: str) -> None:
+    assert var in _config_error(model, {var.removeprefix("RALF_").lower(): raw})
+
+
+def test_config_error_is_a_value_error_without_a_chained_traceback(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_CAN_PORT", "x")
+    with pytest.raises(ConfigError) as info:
+        load_settings(CommonSettings)
+    assert isinstance(info.value, ValueError)
+    assert info.value.__cause__ is None and info.value.__suppress_context__
+
+
+def test_every_bad_value_is_listed(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_NODE_ID", "500")
+    clean_env.setenv("RALF_CLOCK", "sometimes")
+    text = _config_error(CommonSettings, {"log_level": "LOUD"})
+    for var in ("RALF_NODE_ID", "RALF_CLOCK", "RALF_LOG_LEVEL"):
+        assert var in text
+
+
+def test_unknown_override_is_rejected() -> None:
+    text = _config_error(CommonSettings, {"sample_rate": 100})
+    assert "RALF_SAMPLE_RATE" in text and "Extra inputs are not permitted" in text
+
+
+def test_program_settings_do_not_mix() -> None:
+    assert "RALF_FFT_WIDTH" in _config_error(PlantSettings, {"fft_width": 1024})
+    assert "RALF_ADC_BITS" in _config_error(DspSettings, {"adc_bits": 16})
+
+
+def test_search_band_must_be_ordered(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_SEARCH_MIN_HZ", "50")
+    text = _config_error(DspSettings)
+    assert "DspSettings" in text and "search_max_hz must exceed search_min_hz" in text
+    assert load_settings(DspSettings, {"search_min_hz": 1.0, "search_max_hz": 2.0}).search_max_hz == 2.0
+
+
+def test_element_error_names_the_item() -> None:
+    text = _config_error(ControllerSettings, {"oatf_band_hz": "1,x"})
+    assert "RALF_OATF_BAND_HZ[1]" in text and "RALF_OATF_BAND_HZ_1" not in text
+
+
+# --- endpoints -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "raw,expected",
+    [
+        ("", []),
+        (" ", []),
+        (",,", []),
+        ("tcp/127.0.0.1:7447", ["tcp/127.0.0.1:7447"]),
+        (" tcp/a:1 , ,tcp/b:2, ", ["tcp/a:1", "tcp/b:2"]),
+        ("udp/[::1]:7447,tcp/h:1", ["udp/[::1]:7447", "tcp/h:1"]),
+    ],
+)
+def test_endpoints(clean_env: pytest.MonkeyPatch, raw: str, expected: list[str]) -> None:
+    clean_env.setenv("RALF_ZENOH_CONNECT", raw)
+    clean_env.setenv("RALF_ZENOH_LISTEN", "tcp/0.0.0.0:7447")
+    s = load_settings(CommonSettings)
+    assert s.endpoints("connect") == expected
+    assert s.endpoints("listen") == ["tcp/0.0.0.0:7447"]
+
+
+# --- rig ids and keys ----------------------------------------------------------------
+
+rig_ids = st.from_regex(r"\A[A-Za-z0-9_-]{1,64}\Z")
+
+
+@settings(max_examples=100, deadline=None)
+@given(rig_id=rig_ids)
+def test_valid_rig_ids(rig_id: str) -> None:
+    assert validate_rig_id(rig_id) == rig_id
+    assert Keys(rig_id).root == f"ralf/{rig_id}"
+    assert load_settings(CommonSettings, {"rig_id": rig_id}).rig_id == rig_id
+
+
+BAD_RIG_IDS = ["", "a" * 65, "a/b", "a b", "*", "**", "a*", "$", "rig.1", "rig\n", "\nrig", "rig\r\n", "rïg", "rig#1", "a?b", "/"]
+
+
+@pytest.mark.parametrize("rig_id", BAD_RIG_IDS, ids=repr)
+def test_bad_rig_ids(rig_id: str) -> None:
+    with pytest.raises(ValueError, match="rig id"):
+        validate_rig_id(rig_id)
+    with pytest.raises(ValueError, match="rig id"):
+        Keys(rig_id)
+    assert "RALF_RIG_ID" in _config_error(CommonSettings, {"rig_id": rig_id})
+
+
+@settings(max_examples=150, deadline=None)
+@given(rig_id=st.text(max_size=70))
+def test_rig_id_validation_matches_the_rule(rig_id: str) -> None:
+    ok = 1 <= len(rig_id) <= 64 and all(c.isascii() and (c.isalnum() or c in "-_") for c in rig_id)
+    try:
+        validate_rig_id(rig_id)
+    except ValueError:
+        assert not ok
+    else:
+        assert ok
+
+
+@pytest.mark.parametrize("rig_id", [None, 5, b"rig"], ids=repr)
+def test_non_string_rig_ids(rig_id: Any) -> None:
+    with pytest.raises(ValueError):
+        validate_rig_id(rig_id)
+    with pytest.raises(ValueError):
+        Keys(rig_id)
+
+
+def test_key_expressions() -> None:
+    keys = Keys("lab1")
+    assert keys.root == "ralf/lab1"
+    assert keys.batch == "ralf/lab1/dsp/batch"
+    assert keys.flag == "ralf/lab1/dsp/flag"
+    assert keys.interrupt == "ralf/lab1/dsp/interrupt"
+    assert keys.dsp_config == "ralf/lab1/dsp/config"
+    assert keys.tf == "ralf/lab1/dsp/tf"
+    assert keys.truth == "ralf/lab1/plant/truth"
+    assert keys.scenario == "ralf/lab1/plant/scenario"
+    assert keys.plant_events == "ralf/lab1/plant/events"
+    assert keys.controller_status == "ralf/lab1/controller/status"
+    assert keys.tf_downloads == "ralf/lab1/controller/tf"
+    assert keys.health("dsp") == "ralf/lab1/health/dsp"
+    assert keys.health_all == "ralf/lab1/health/*"
+    assert keys.alive("plant") == "ralf/lab1/alive/plant"
+    assert keys.alive_all == "ralf/lab1/alive/*"
+    assert Keys().root == "ralf/default"
+    assert SERVICES == ("plant", "controller", "dsp")
+
+
+def _all_keys(keys: Keys) -> list[str]:
+    props = [name for name, value in vars(Keys).items() if isinstance(value, property) and not name.endswith("_all") and name != "root"]
+    return [getattr(keys, name) for name in props] + [keys.health(s) for s in SERVICES] + [keys.alive(s) for s in SERVICES]
+
+
+@settings(max_examples=50, deadline=None)
+@given(rig_id=rig_ids)
+def test_keys_are_distinct_and_live_under_the_rig(rig_id: str) -> None:
+    keys = Keys(rig_id)
+    exprs = _all_keys(keys)
+    assert len(exprs) == len(set(exprs)) == 10 + 2 * len(SERVICES)
+    for expr in exprs:
+        assert expr.startswith(f"ralf/{rig_id}/")
+        assert "*" not in expr and "//" not in expr and not expr.endswith("/")
+
+
+def test_keys_of_two_rigs_never_collide() -> None:
+    a, b = _all_keys(Keys("a")), _all_keys(Keys("a-b"))
+    assert not set(a) & set(b)
+    assert not any(x.startswith(Keys("a").root + "/") for x in b)
+
+
+def test_keys_are_valid_zenoh_key_expressions() -> None:
+    zenoh = pytest.importorskip("zenoh")
+    keys = Keys("lab_1-x")
+    for expr in [*_all_keys(keys), keys.health_all, keys.alive_all]:
+        assert str(zenoh.KeyExpr(expr)) == expr  # already canonical
+    wildcard = zenoh.KeyExpr(keys.health_all)
+    assert wildcard.intersects(zenoh.KeyExpr(keys.health("dsp")))
+    assert not wildcard.intersects(zenoh.KeyExpr(Keys("other").health("dsp")))
+
+
+def test_keys_are_frozen_and_hashable() -> None:
+    keys = Keys("r")
+    with pytest.raises(AttributeError):
+        keys.rig_id = "s"  # type: ignore[misc]
+    assert Keys("r") == keys and hash(Keys("r")) == hash(keys)
+
+
+def test_settings_rig_id_feeds_keys(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_RIG_ID", "bench-3")
+    assert Keys(load_settings(CommonSettings).rig_id).batch == "ralf/bench-3/dsp/batch"
