@@ -305,14 +305,13 @@ def test_valid_fixtures_decode() -> None:
         assert isinstance(m.decode(model, _payload(doc)), model)
 
 
-@pytest.mark.parametrize(
-    "payload",
-    [b"", b" ", b"{", b"}", b"{}}", b'{"seq": 1,}', b"[]", b"null", b"true", b"1", b'"text"', b"\xff\xfe\x00", b"\x00", b"{'seq': 1}", b"[" * 10_000, b'{"a":' * 10_000],
-    ids=repr,
-)
+MALFORMED = [b"", b" ", b"{", b"}", b"{}}", b'{"seq": 1,}', b"[]", b"null", b"true", b"1", b'"text"', b"\xff\xfe\x00", b"\x00", b"{'seq': 1}", b"[" * 10_000, b'{"a":' * 10_000]
+
+
 @pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)
-def test_malformed_json(model: type[BaseModel], payload: bytes) -> None:
-    _rejects(model, payload)
+def test_malformed_json(model: type[BaseModel]) -> None:
+    for payload in MALFORMED:
+        _rejects(model, payload)
 
 
 def test_truncated_payloads() -> None:
@@ -390,14 +389,13 @@ FLOAT_FIELDS = [
 ]
 
 
-@pytest.mark.parametrize("bad", ["NaN", "Infinity", "-Infinity", "1e400", "-1e400"])
 @pytest.mark.parametrize("model,field", FLOAT_FIELDS, ids=lambda x: getattr(x, "__name__", x))
-def test_non_finite_numbers_are_rejected(model: type[BaseModel], field: str, bad: str) -> None:
-    payload = _with(model, **{field: "__BAD__"}).replace(b'"__BAD__"', bad.encode())
-    _rejects(model, payload, field)
+def test_non_finite_numbers_are_rejected(model: type[BaseModel], field: str) -> None:
+    for bad in ("NaN", "Infinity", "-Infinity", "1e400", "-1e400"):
+        payload = _with(model, **{field: "__BAD__"}).replace(b'"__BAD__"', bad.encode())
+        _rejects(model, payload, field)
 
 
-@pytest.mark.parametrize("bad", ["NaN", "Infinity", "-Infinity", "1e999"])
 @pytest.mark.parametrize(
     "model,path",
     [
@@ -413,13 +411,14 @@ def test_non_finite_numbers_are_rejected(model: type[BaseModel], field: str, bad
     ],
     ids=lambda x: getattr(x, "__name__", "-".join(map(str, x)) if isinstance(x, tuple) else x),
 )
-def test_non_finite_numbers_inside_sequences_are_rejected(model: type[BaseModel], path: tuple[Any, ...], bad: str) -> None:
+def test_non_finite_numbers_inside_sequences_are_rejected(model: type[BaseModel], path: tuple[Any, ...]) -> None:
     doc = json.loads(json.dumps(VALID[model]))
     target = doc
     for key in path[:-1]:
         target = target[key]
     target[path[-1]] = "__BAD__"
-    _rejects(model, _payload(doc).replace(b'"__BAD__"', bad.encode()), str(path[0]))
+    for bad in ("NaN", "Infinity", "-Infinity", "1e999"):
+        _rejects(model, _payload(doc).replace(b'"__BAD__"', bad.encode()), ".".join(map(str, path)))
 
 
 @pytest.mark.parametrize("field", ["seq", "sim_time_s", "wall_time_s"])
