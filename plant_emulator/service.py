@@ -14,6 +14,7 @@ Clock modes (design.md "Time"):
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -42,12 +43,21 @@ def plant_config(settings: PlantSettings) -> PlantConfig:
     )
 
 
+LOCKSTEP_WATCHDOG_S = 2.0
+"""In lockstep SYNC pauses while the controller waits for the DSP or writes a
+download, so the watchdog there guards against a dead controller only: it
+trips after at least this much wall time."""
+
+
 def node_config(settings: PlantSettings) -> NodeConfig:
+    periods = settings.watchdog_periods
+    if settings.clock == "lockstep":
+        periods = max(periods, math.ceil(LOCKSTEP_WATCHDOG_S / settings.sample_period_s))
     return NodeConfig(
         node_id=settings.node_id,
         heartbeat_ms=settings.heartbeat_ms,
         sample_period_s=settings.sample_period_s,
-        watchdog_periods=settings.watchdog_periods,
+        watchdog_periods=periods,
         adc_bits=settings.adc_bits,
     )
 
