@@ -1,0 +1,109 @@
+"""Timing of one identification step against the bare numpy floor (thesis §2, C40 ≈ 100 ms).
+
+:func:`bench_identifier` times, interleaved in the same run so both see the
+same machine state:
+
+* **step**: one :meth:`Identifier.step` (FFTs, averaging, solve, smoothing,
+  peak search, FWHM and VRM damping) with the default configuration at FFT
+  width ``n``, after appending a batch of 20 new samples (not timed), once
+  30 half-overlapping snapshots have built up the averages;
+* **floor**: the bare numpy minimum of the same FFT/spectra work — one
+  ``np.fft.rfft`` of the four ``(4, n)`` channels and the eight products
+  ``conj(X_a)·X_b`` (P11, P22, P12, P21, P1y1, P1y2, P2y1, P2y2).
+
+The data are seeded random inputs, and outputs made of the inputs through
+two lightly damped resonances plus noise, so the peak and damping stages do
+real work (on pure noise they would often find no peak and return early).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.signal
+
+from .identifier import Identifier, IdentifierConfig
+
+C40_STEP_US = 100_000.0  #: the C40's ≈ 100 ms per 2×2 iteration (§2)
+_BATCH = 20
+_WARMUP_SNAPSHOTS = 30
+_PAIRS = ((0, 0), (1, 1), (0, 1), (1, 0), (0, 2), (0, 3), (1, 2), (1, 3))
+
+
+def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    total = (_WARMUP_SNAPSHOTS + 1) * (n // 2) + (repeats + 10) * _BATCH
+    u = rng.standard_normal((2, total))
+    y = np.zeros_like(u)
+    for fn, zeta, gain in ((3.6, 0.09, 1.0), (9.0, 0.05, 0.4)):
+        wn = 2 * np.pi * fn
+        b, a, _ = scipy.signal.cont2discrete(
+            ([gain * wn * wn], [1.0, 2 * zeta * wn, wn * wn]), 1.0 / fs, method="zoh"
+        )
+        b = np.ravel(b)
+        y[0] += scipy.signal.lfilter(b, a, u[0] + 0.5 * u[1])
+        y[1] += scipy.signal.lfilter(b, a, 0.3 * u[0] + u[1])
+    y += 0.01 * y.std() * rng.standard_normal(y.shape)
+    return u, y
+
+
+def bench_identifier(n: int = 2048, repeats: int = 200) -> dict[str, float | int]:
+    """p50/p99 (µs) of one identification step and of the numpy floor, and their ratios.
+
+    Returns keys: ``n``, ``repeats``, ``step_p50_us``, ``step_p99_us``,
+    ``floor_p50_us``, ``floor_p99_us``, ``ratio_p50`` (step/floor),
+    ``ratio_p99``, ``c40_fraction`` (step p50 / 100 ms), ``poles_found``
+    (poles in the last step, to show the damping stages ran).
+    """
+    if repeats < 1:
+        raise ValueError("repeats must be >= 1")
+    cfg = IdentifierConfig(fft_width=n)
+    idf = Identifier(cfg)
+    u, y = _bench_data(n, repeats, cfg.sample_rate_hz)
+    # warm-up: 30 half-overlapping snapshots build independent averages, so the
+    # timed steps find valid bins and peaks and run the damping estimators
+    half = n // 2
+    idf.push(u[:, :half], y[:, :half])
+    pos = half
+    for _ in range(_WARMUP_SNAPSHOTS):
+        idf.push(u[:, pos : pos + half], y[:, pos : pos + half])
+        pos += half
+        idf.step()
+    data = np.vstack([u[:, :n], y[:, :n]])  # the floor's input (contents do not matter)
+    perf = time.perf_counter
+    step_t = np.empty(repeats)
+    floor_t = np.empty(repeats)
+    result = None
+    for i in range(repeats):
+        idf.push(u[:, pos : pos + _BATCH], y[:, pos : pos + _BATCH])
+        pos += _BATCH
+        t0 = perf()
+        result = idf.step()
+        t1 = perf()
+        X = np.fft.rfft(data, axis=-1)
+        products = [np.conj(X[a]) * X[b] for a, b in _PAIRS]
+        t2 = perf()
+        step_t[i] = t1 - t0
+        floor_t[i] = t2 - t1
+        del products
+    s50, s99 = (float(v) * 1e6 for v in np.percentile(step_t, [50, 99]))
+    f50, f99 = (float(v) * 1e6 for v in np.percentile(floor_t, [50, 99]))
+    return {
+        "n": int(n),
+        "repeats": int(repeats),
+        "step_p50_us": s50,
+        "step_p99_us": s99,
+        "floor_p50_us": f50,
+        "floor_p99_us": f99,
+        "ratio_p50": s50 / f50,
+        "ratio_p99": s99 / f99,
+        "c40_fraction": s50 / C40_STEP_US,
+        "poles_found": len(result.poles) if result is not None else 0,
+    }
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+
+    print(json.dumps(bench_identifier(), indent=2))

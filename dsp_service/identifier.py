@@ -1,0 +1,438 @@
+"""The C40 identifier's façade: one call per batch, as in thesis §3.2.3 (the service calls this).
+
+One :meth:`Identifier.step` is one C40 iteration on the current history:
+
+1. detrended, windowed FFTs of the four channels (:mod:`.spectra`);
+2. the seven raw auto/cross spectra, averaged *before* the solve —
+   exponential [2-9], equal-weight (Welch) or, with ``averaging='rls'``,
+   per-bin RLS of the transfer functions ([1-9, 1-10], [D.15–D.29]);
+3. the 2×2 solve, corrected [2-21 … 2-24] or uncorrelated [2-25 … 2-28],
+   with masking of ill-conditioned bins (:mod:`.mimo`); ``H_tot`` = mean;
+4. Savitzky–Golay smoothing across frequency (§2.4.1, :mod:`.smoothing`)
+   of the searched spectrum, over the search range only;
+5. peak search (log-weighted global maximum, up to ``max_peaks`` peaks),
+   damping by VRM [C-12 … C-14] and FWHM [B.1]/exact (:mod:`.modal`).
+
+Confidence ∈ [0, 1] is the product of four factors (each in [0, 1]):
+
+* ``valid_fraction`` — the fraction of search-range bins whose smoothed
+  estimate is valid (no masked raw bin in its smoothing window);
+* ``1 − 1/n_eff`` — ``n_eff`` the effective number of averages (see
+  :class:`.spectra.SpectralAverager`): 0 for a single snapshot, whose MIMO
+  solve is undefined; 0.9 at 10 averages;
+* history fill — ``samples_in_history / N`` (zero-padded history early on);
+* peak prominence — ``p / (p + p₀)`` with ``p`` the primary peak's
+  prominence in dB on the weighted magnitude and ``p₀ =
+  confidence_prominence_db`` (0.5 at ``p = p₀``); 0 when no peak.
+
+No NaN or inf ever leaves this module: masked bins are exactly 0, undefined
+damping values are ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import pydantic
+from numpy.typing import NDArray
+
+from .history import HistoryBuffer
+from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
+from .modal import (
+    Peak,
+    PeakRefiner,
+    VrmEstimator,
+    find_modal_peaks,
+    half_power_bandwidth,
+    log_weights_db,
+    refine_peak,
+    zeta_fwhm_approx,
+    zeta_from_fwhm_exact,
+)
+from .smoothing import FrequencySmoother
+from .spectra import SPECTRA_NAMES, SpectralAverager, SpectralEstimator, scale_spectra
+
+_TINY = float(np.finfo(np.float64).tiny)
+_EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
+PeakSource = Literal["tot", "11", "12", "21", "22"]
+
+
+class IdentifierConfig(pydantic.BaseModel):
+    """Run-time parameters of the identifier (all validated; the model is immutable)."""
+
+    model_config = pydantic.ConfigDict(frozen=True, extra="forbid")
+
+    sample_rate_hz: float = pydantic.Field(200.0, gt=0, description="Sample rate of the batches (Hz).")
+    fft_width: int = pydantic.Field(
+        2048, ge=32, le=1 << 20, description="FFT width N = history length (even)."
+    )
+    window: str = pydantic.Field("hann", description="scipy.signal.get_window name (periodic).")
+    averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
+        "exponential",
+        description="Spectra averaging: exponential [2-9], linear (equal weights, Welch), "
+        "or per-bin RLS of the transfer functions [D.28, D.29] (forgetting rls_forgetting).",
+    )
+    alpha: float = pydantic.Field(0.1, gt=0, le=1, description="Exponential averaging weight α [2-9].")
+    rls_forgetting: float = pydantic.Field(0.9, gt=0, le=1, description="RLS forgetting factor λ (≈ 1 − α).")
+    rls_init_scale: float = pydantic.Field(
+        1e8, gt=0, description="RLS initial inverse power, × 1/(mean input power of the first snapshot)."
+    )
+    wait_for_full_history: bool = pydantic.Field(
+        True,
+        description="Average nothing until N samples have arrived since the last reset. The C40 "
+        "ran on its zero-filled history from the start; a zero-to-signal step (e.g. joint "
+        "angles of ~1 rad) then pollutes the averages for ~1/α iterations. False emulates the C40.",
+    )
+    solver: Literal["mimo", "uncorrelated"] = pydantic.Field(
+        "mimo", description="Corrected 2×2 solve [2-21…2-24] or H_ij = P_iyj/P_ii [2-25…2-28]."
+    )
+    det_threshold: float = pydantic.Field(
+        1e-3, ge=0, lt=1, description="Mask bins with (P11P22−|P12|²)/(P11P22) below this."
+    )
+    power_floor: float = pydantic.Field(
+        1e-12, ge=0, description="Mask bins whose input power is below this × mean input power."
+    )
+    smoothing_window: int = pydantic.Field(17, ge=0, description="Savitzky–Golay window in bins (odd; 0 or 1 = off).")
+    smoothing_order: int = pydantic.Field(2, ge=0, description="Savitzky–Golay polynomial order.")
+    peak_source: PeakSource = pydantic.Field("tot", description="Spectrum searched: H_tot or one H_ij.")
+    log_weighting: bool = pydantic.Field(True, description="Rank peaks by |H|·(f/f_lo)^−γ (prefers low poles).")
+    log_weight_exponent: float = pydantic.Field(
+        0.5, ge=0, description="γ of the log weighting (−20γ dB/decade)."
+    )
+    search_min_hz: float = pydantic.Field(0.5, ge=0, description="Lower edge of the peak search range (Hz).")
+    search_max_hz: float = pydantic.Field(40.0, gt=0, description="Upper edge of the peak search range (Hz).")
+    max_peaks: int = pydantic.Field(2, ge=1, le=16, description="Peaks reported (e.g. the two split poles).")
+    min_peak_prominence_db: float = pydantic.Field(
+        3.0, ge=0, description="Minimum prominence (dB, weighted magnitude) of a reported peak."
+    )
+    damping_method: Literal["vrm", "fwhm"] = pydantic.Field(
+        "vrm", description="Which estimate PoleEstimate.damping_ratio reports (the other is the fallback)."
+    )
+    estimate_on_smoothed: bool = pydantic.Field(
+        False,
+        description="Refine peak frequency/magnitude and estimate damping on the smoothed "
+        "spectrum (smoothing widens peaks: ζ biased up) instead of the averaged, unsmoothed one "
+        "near the smoothed spectrum's peak.",
+    )
+    fwhm_exact: bool = pydantic.Field(
+        True, description="FWHM: exact half-power inversion instead of ζ ≈ Δω/(2ω_p) [B.1]."
+    )
+    vrm_model: Literal["viscous", "hysteretic"] = pydantic.Field(
+        "viscous", description="VRM reading of λ: viscous ζ = tan(arg λ/2), or [C-13, C-14]."
+    )
+    vrm_band_factor: float = pydantic.Field(
+        1.5, gt=0, description="VRM band half-width in half-power half-widths."
+    )
+    vrm_points_per_side: int = pydantic.Field(
+        5, ge=1, le=10, description="At most this many VRM points each side of the peak (bounds the cost)."
+    )
+    confidence_prominence_db: float = pydantic.Field(
+        6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> IdentifierConfig:
+        if self.fft_width % 2:
+            raise ValueError("fft_width must be even")
+        nyq = self.sample_rate_hz / 2.0
+        if self.search_max_hz > nyq:
+            raise ValueError(f"search_max_hz {self.search_max_hz} exceeds Nyquist {nyq}")
+        if self.search_min_hz >= self.search_max_hz:
+            raise ValueError("search_min_hz must be below search_max_hz")
+        if (self.search_max_hz - self.search_min_hz) * self.fft_width / self.sample_rate_hz < 3:
+            raise ValueError("search range spans fewer than 3 bins")
+        if self.smoothing_window > 1:
+            if self.smoothing_window % 2 == 0:
+                raise ValueError("smoothing_window must be odd (or 0 = off)")
+            if self.smoothing_order >= self.smoothing_window:
+                raise ValueError("smoothing_order must be below smoothing_window")
+            if self.smoothing_window > self.fft_width // 2 + 1:
+                raise ValueError("smoothing_window exceeds the number of bins")
+        return self
+
+
+@dataclass(frozen=True)
+class PoleEstimate:
+    """One identified resonance."""
+
+    frequency_hz: float  #: refined peak frequency (on the estimation spectrum, see estimate_on_smoothed)
+    damping_ratio: float | None  #: the configured method's ζ, else the other's, else None
+    damping_fwhm: float | None  #: half-power width (exact or [B.1]); None if no crossings in range
+    damping_vrm: float | None  #: VRM median ζ; None if no physical triplet
+    natural_frequency_vrm_hz: float | None  #: VRM ω_n/2π
+    magnitude: float  #: |H| at the refined peak
+    prominence_db: float  #: prominence on the weighted magnitude
+    source: str  #: "tot", "11", "12", "21" or "22"
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Output of one C40 iteration."""
+
+    poles: tuple[PoleEstimate, ...]  #: best (weighted) first
+    confidence: float  #: in [0, 1], see module doc
+    valid_fraction: float  #: valid smoothed bins in the search range
+    samples_in_history: int
+    effective_averages: float
+
+
+@dataclass(frozen=True)
+class TransferFunctionEstimate:
+    """Current (smoothed unless requested raw) transfer-function estimates; arrays are read-only."""
+
+    freqs_hz: NDArray[np.float64]
+    h11: NDArray[np.complex128]
+    h12: NDArray[np.complex128]
+    h21: NDArray[np.complex128]
+    h22: NDArray[np.complex128]
+    htot: NDArray[np.complex128]
+    valid: NDArray[np.bool_]
+
+
+def _readonly(a: NDArray[np.generic]) -> NDArray[np.generic]:
+    a.flags.writeable = False
+    return a
+
+
+class Identifier:
+    """Pure, synchronous 2-input 2-output on-line identifier (the emulated C40)."""
+
+    def __init__(self, cfg: IdentifierConfig | None = None) -> None:
+        self.cfg = cfg if cfg is not None else IdentifierConfig()
+        self._build()
+
+    # ------------------------------------------------------------ configure
+    def _build(self) -> None:
+        """(Re)allocate everything that depends only on the configuration."""
+        c = self.cfg
+        n = c.fft_width
+        self.history = HistoryBuffer(n)
+        self._est = SpectralEstimator(n, c.sample_rate_hz, c.window)
+        k = self._est.n_bins
+        self.freqs = self._est.freqs
+        if c.averaging == "rls":
+            # input spectra for the mask, with the RLS's own weighting (α = 1 − λ)
+            lam = c.rls_forgetting
+            self._avg = SpectralAverager(
+                (7, k), n, "linear" if lam >= 1.0 else "exponential", min(1.0, 1.0 - lam) or 1.0
+            )
+            cls = VectorRLS if c.solver == "mimo" else ScalarRLS
+            self._rls: ScalarRLS | VectorRLS | None = cls(k, c.rls_forgetting, c.rls_init_scale)
+        else:
+            self._avg = SpectralAverager((7, k), n, c.averaging, c.alpha)
+            self._rls = None
+        self._solver = MimoSolver(k, c.solver, c.det_threshold, c.power_floor)
+        self._smoother = FrequencySmoother(k, c.smoothing_window, c.smoothing_order)
+        df = c.sample_rate_hz / n
+        self._lo = max(1, math.ceil(c.search_min_hz / df - 1e-9))
+        self._hi = min(k, math.floor(c.search_max_hz / df + 1e-9) + 1)
+        self._f_range = self.freqs[self._lo : self._hi]
+        f_ref = max(c.search_min_hz, df)
+        self._w_range = (
+            log_weights_db(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
+        )
+        self._vrm = VrmEstimator(c.vrm_points_per_side, c.vrm_band_factor, model=c.vrm_model)
+        self._refiner = PeakRefiner()
+        h = self._smoother.half
+        self._relocate = max(1, h // 2)
+        # bins solved each step: the search range plus a margin for the smoothing
+        # windows and the damping estimators (FWHM crossings, VRM band)
+        margin = max(2 * h + 1, _EST_MARGIN_BINS)
+        self._sl = slice(max(0, self._lo - margin), min(k, self._hi + margin))
+        self._f_sl = self.freqs[self._sl]
+        self._rls_src = np.zeros(k, dtype=np.complex128)
+        self._pending = 0
+
+    def set_fft_width(self, n: int) -> None:
+        """Change N: zeroes the history and every average (as on the C40)."""
+        self.cfg = IdentifierConfig.model_validate({**self.cfg.model_dump(), "fft_width": n})
+        self._build()
+
+    def reset(self) -> None:
+        """Zero the history and the averages, keeping the configuration."""
+        self._build()
+
+    # ----------------------------------------------------------------- data
+    def push(self, inputs: NDArray[np.float64], outputs: NDArray[np.float64]) -> None:
+        """Append a batch: ``inputs`` (u1, u2) and ``outputs`` (y1, y2), each ``(2, l)``."""
+        before = self.history.samples_seen
+        self.history.append(inputs, outputs)
+        self._pending += self.history.samples_seen - before
+
+    @property
+    def samples_in_history(self) -> int:
+        return self.history.samples_in_history
+
+    # ----------------------------------------------------------------- step
+    def step(self) -> IdentificationResult:
+        """One C40 iteration on the current history (see module doc).
+
+        With an empty history (nothing pushed since the last reset), or with
+        ``wait_for_full_history`` before N samples have arrived, nothing is
+        averaged; until the first average an empty result is returned.
+        """
+        c = self.cfg
+        avg = self._avg
+        hist = self.history
+        if hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history):
+            weight = avg.next_weight()
+            avg.add(self._est.snapshot(self.history.view(), weight), self._pending)
+            if self._rls is not None:
+                self._rls.update(self._est.ffts)
+            self._pending = 0
+        if avg.updates == 0:
+            return IdentificationResult((), 0.0, 0.0, self.history.samples_in_history, 0.0)
+        sl = self._sl
+        solver = self._solver
+        if self._rls is None:
+            src_sl, valid_sl = solver.solve_source(avg.state, c.peak_source, sl)
+            src = solver.source if c.peak_source == "tot" else solver.H[H_NAMES.index(c.peak_source)]
+        else:
+            valid_sl = solver.mask(avg.state, sl)
+            Hr = self._rls.H[:, sl]
+            src_sl = self._rls_src[sl]
+            if c.peak_source == "tot":
+                np.mean(Hr, axis=0, out=src_sl)
+            else:
+                src_sl[...] = Hr[H_NAMES.index(c.peak_source)]
+            src_sl *= valid_sl
+            src = self._rls_src
+        valid = solver.valid
+        lo, hi = self._lo, self._hi
+        sm = self._smoother
+        hs = sm.smooth_range(src, lo, hi)
+        vs = sm.valid_range(valid, lo, hi)
+        n_eff = avg.effective_averages
+        mag = np.abs(hs)
+        n_valid = int(np.count_nonzero(vs))
+        peaks = find_modal_peaks(
+            mag, self._f_range, self._w_range, vs, c.max_peaks, c.min_peak_prominence_db, n_valid
+        )
+        if not peaks:
+            poles: tuple[PoleEstimate, ...] = ()
+        elif c.estimate_on_smoothed:
+            poles = tuple(self._pole(p, hs, mag, vs, self._f_range, 0) for p in peaks)
+        else:
+            mag_sl = np.abs(src_sl)
+            off = lo - sl.start
+            poles = tuple(self._pole(p, src_sl, mag_sl, valid_sl, self._f_sl, off) for p in peaks)
+        valid_fraction = n_valid / vs.size
+        fill = self.history.samples_in_history / self.history.n
+        conf = 0.0
+        if peaks and n_eff > 1.0:
+            prom = peaks[0].prominence_db
+            conf = valid_fraction * (1.0 - 1.0 / n_eff) * fill * prom / (prom + c.confidence_prominence_db)
+        return IdentificationResult(
+            poles=poles,
+            confidence=float(min(1.0, max(0.0, conf))),
+            valid_fraction=valid_fraction,
+            samples_in_history=self.history.samples_in_history,
+            effective_averages=float(n_eff),
+        )
+
+    def _pole(
+        self,
+        peak: Peak,
+        hd: NDArray[np.complex128],
+        magd: NDArray[np.float64],
+        vd: NDArray[np.bool_],
+        fd: NDArray[np.float64],
+        offset: int,
+    ) -> PoleEstimate:
+        """Refined frequency, FWHM and VRM damping of one peak on the estimation spectrum ``hd``.
+
+        ``offset`` maps the search-range index of ``peak`` into ``hd``. The
+        peak is re-located as the maximum of ``|hd|`` within ``±r`` bins of the
+        smoothed peak (``r`` = a quarter of the smoothing window, ≥ 1); a
+        three-point parabola on ``ln |hd|`` gives the half-power level; FWHM
+        gives the half-power half-width ``h``; the reported frequency and
+        magnitude come from a least-squares parabola on ``ln |hd|`` over
+        ``±h/2`` bins (:class:`.modal.PeakRefiner`); VRM uses a band of
+        ``±vrm_band_factor·h`` bins.
+        """
+        c = self.cfg
+        df = float(fd[1] - fd[0])
+        k = peak.index + offset
+        r = self._relocate
+        a, b = max(k - r, 0), min(k + r + 1, magd.size)
+        k = a + int(magd[a:b].argmax())
+        d, lv = refine_peak(magd, k)  # three-point vertex: the level for FWHM
+        f_peak, m_peak = float(fd[k]) + d * df, math.exp(lv)
+        zeta_fwhm: float | None = None
+        half_bins = 2.0
+        ok = bool(vd[k])
+        if ok:
+            band = half_power_bandwidth(magd, fd, k, m_peak, vd)
+            if band is not None:
+                bw = band[1] - band[0]
+                zeta_fwhm = zeta_from_fwhm_exact(bw, f_peak) if c.fwhm_exact else zeta_fwhm_approx(bw, f_peak)
+                half_bins = 0.5 * bw / df
+                # least-squares parabola over about half the half-power band
+                d, lv = self._refiner.refine(magd, k, int(round(0.5 * half_bins)))
+                f_peak, m_peak = float(fd[k]) + d * df, math.exp(lv)
+        vrm = self._vrm.estimate(hd, fd, k, half_bins, vd) if ok else None
+        zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
+        first, second = (zeta_vrm, zeta_fwhm) if c.damping_method == "vrm" else (zeta_fwhm, zeta_vrm)
+        return PoleEstimate(
+            frequency_hz=f_peak,
+            damping_ratio=first if first is not None else second,
+            damping_fwhm=zeta_fwhm,
+            damping_vrm=zeta_vrm,
+            natural_frequency_vrm_hz=fn_vrm,
+            magnitude=m_peak,
+            prominence_db=peak.prominence_db,
+            source=c.peak_source,
+        )
+
+    # ----------------------------------------------------------- downloads
+    def transfer_functions(self, smoothed: bool = True) -> TransferFunctionEstimate:
+        """H11, H12, H21, H22 and H_tot (all bins) from the current averages (zeros before any step).
+
+        Computed on demand (the step itself solves only what it searches).
+        ``smoothed=False`` gives the averaged, unsmoothed estimates.
+        """
+        k = self._est.n_bins
+        if self._avg.updates == 0:
+            H = np.zeros((4, k), dtype=np.complex128)
+            valid = np.zeros(k, dtype=bool)
+        elif self._rls is not None:
+            valid = self._solver.mask(self._avg.state).copy()
+            H = self._rls.H * valid
+        else:
+            Hv, vv = self._solver.solve(self._avg.state)
+            H, valid = Hv.copy(), vv.copy()
+        if smoothed:
+            sm = self._smoother
+            H = sm.smooth(H)
+            valid = sm.valid(valid)
+            H *= valid
+        htot = H.mean(axis=0)
+        return TransferFunctionEstimate(
+            freqs_hz=_readonly(self.freqs.copy()),
+            h11=_readonly(H[0]),
+            h12=_readonly(H[1]),
+            h21=_readonly(H[2]),
+            h22=_readonly(H[3]),
+            htot=_readonly(htot),
+            valid=_readonly(valid),
+        )
+
+    def spectra(self, scaling: Literal["density", "spectrum", "raw"] = "density") -> dict[str, NDArray[np.complex128]]:
+        """Averaged auto/cross spectra (P11 … P2y2, plus P21), scaled like scipy.signal.csd.
+
+        ``'raw'`` returns the unscaled averaged ``conj(X)·Y`` (two-sided-style
+        bins, no doubling). Averages are bias-corrected (divided by Σw).
+        """
+        mean = self._avg.mean()
+        if scaling != "raw":
+            mean = scale_spectra(mean, self._est.scale_factor(scaling), self._est.n)
+        out = {name: mean[i].copy() for i, name in enumerate(SPECTRA_NAMES)}
+        out["P21"] = np.conj(out["P12"])
+        return out
+
+    @property
+    def effective_averages(self) -> float:
+        return self._avg.effective_averages

@@ -1,0 +1,371 @@
+"""2-input, 2-output transfer-function solve (thesis [2-10 … 2-28], §5).
+
+``H_ij`` is the transfer function from input ``i`` to output ``j``. With
+``P_ij = E[U_i* U_j]``, ``P_iyj = E[U_i* Y_j]`` (``P21 = conj(P12)``), the
+least-squares (H1) solution of ``Y_j = H_1j U_1 + H_2j U_2`` per bin is
+
+* ``H1j = (P1yj P22 − P12 P2yj) / (P11 P22 − |P12|²)``   [2-21, 2-22]
+* ``H2j = (P2yj P11 − P21 P1yj) / (P11 P22 − |P12|²)``   [2-23, 2-24] *corrected*:
+  the thesis prints ``P12`` where ``P21`` belongs; the printed form is
+  kept as :func:`solve_printed` for the test that shows it is wrong.
+
+Uncorrelated shortcut [2-25 … 2-28]: ``H_ij = P_iyj / P_ii`` (biased when
+the inputs are correlated). ``H_tot`` = the unweighted mean of the four.
+
+Validity (never NaN/inf): a bin is solved only if both input powers exceed a
+floor (``power_floor`` × the mean input power over all bins and both
+inputs, plus the smallest normal float) and, for the MIMO solve, the
+normalised determinant ``(P11 P22 − |P12|²) / (P11 P22) = 1 − γ²₁₂`` (one
+minus the inputs' coherence) is at least ``det_threshold``. Invalid bins are
+set to exactly 0 and flagged in the mask. A single snapshot has ``γ² = 1``
+at every bin, hence a zero determinant: everything is masked until the
+averaged spectra hold independent data.
+
+The module also holds the per-bin recursive least-squares estimators
+(TTFE, [1-9, 1-10], [D.15–D.29]) selectable instead of spectral averaging.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .spectra import P11, P12, P1Y1, P1Y2, P22, P2Y1, P2Y2
+
+#: Row order of transfer-function arrays ``(4, K)``.
+H11, H12, H21, H22 = range(4)
+H_NAMES: tuple[str, ...] = ("11", "12", "21", "22")
+
+_TINY = float(np.finfo(np.float64).tiny)
+
+
+def normalised_determinant(S: NDArray[np.complex128]) -> NDArray[np.float64]:
+    """``(P11 P22 − |P12|²) / (P11 P22)`` (= 1 − coherence² of the inputs); 0 where undefined."""
+    p11 = S[P11].real
+    p22 = S[P22].real
+    prod = p11 * p22
+    den = prod - (S[P12].real ** 2 + S[P12].imag ** 2)
+    out = np.zeros_like(prod)
+    np.divide(den, prod, out=out, where=prod > _TINY)
+    return out
+
+
+class MimoSolver:
+    """Solves transfer functions from (averaged) spectra, on a bin slice, with preallocated buffers.
+
+    ``solver='mimo'`` uses the corrected [2-21 … 2-24]; ``'uncorrelated'``
+    the shortcut [2-25 … 2-28]. Spectra may be unnormalised (any common
+    positive scale: the solve is a ratio). All outputs are full-length
+    internal buffers of which only the requested slice is written; they are
+    overwritten by the next call.
+    """
+
+    def __init__(
+        self,
+        n_bins: int,
+        solver: str = "mimo",
+        det_threshold: float = 1e-3,
+        power_floor: float = 1e-12,
+    ) -> None:
+        if solver not in ("mimo", "uncorrelated"):
+            raise ValueError(f"unknown solver {solver!r}")
+        self.solver = solver
+        self.det_threshold = float(det_threshold)
+        self.power_floor = float(power_floor)
+        k = int(n_bins)
+        self.n_bins = k
+        self.H = np.zeros((4, k), dtype=np.complex128)
+        self.source = np.zeros(k, dtype=np.complex128)
+        self.valid = np.zeros(k, dtype=bool)
+        self._b1 = np.empty(k, dtype=bool)
+        self._r1 = np.empty(k)
+        self._r2 = np.empty(k)
+        self._inv = np.zeros(k)
+        self._inv2 = np.zeros(k)
+        self._c1 = np.empty(k, dtype=np.complex128)
+        self._c2 = np.empty((2, k), dtype=np.complex128)
+        self._p21 = np.empty(k, dtype=np.complex128)
+
+    # ---------------------------------------------------------------- masks
+    def _mask(self, S: NDArray[np.complex128], sl: slice) -> NDArray[np.bool_]:
+        """Mask (input powers, and for 'mimo' the normalised determinant) and 1/den into ``_inv``.
+
+        For 'mimo' ``_inv = 1/det``; for 'uncorrelated' ``_inv = 1/P11`` and
+        ``_inv2 = 1/P22``; both exactly 0 on invalid bins.
+        """
+        p11_all = S[P11].real
+        p22_all = S[P22].real
+        mean_power = float(np.add.reduce(p11_all) + np.add.reduce(p22_all)) / (2 * self.n_bins)
+        floor = self.power_floor * mean_power + _TINY
+        p11, p22 = p11_all[sl], p22_all[sl]
+        valid = np.greater(p11, floor, out=self.valid[sl])
+        b1 = self._b1[sl]
+        valid &= np.greater(p22, floor, out=b1)
+        inv = self._inv[sl]
+        inv.fill(0.0)
+        if self.solver == "uncorrelated":
+            inv2 = self._inv2[sl]
+            inv2.fill(0.0)
+            np.divide(1.0, p11, out=inv, where=valid)
+            np.divide(1.0, p22, out=inv2, where=valid)
+            return valid
+        prod = np.multiply(p11, p22, out=self._r1[sl])
+        p12 = S[P12, sl]
+        det = np.square(np.abs(p12, out=self._r2[sl]), out=self._r2[sl])
+        np.subtract(prod, det, out=det)
+        # normalised determinant det/prod >= thr  <=>  det >= thr·prod  (prod > 0 on valid bins)
+        prod *= self.det_threshold
+        valid &= np.greater_equal(det, prod, out=b1)
+        np.divide(1.0, det, out=inv, where=valid)
+        return valid
+
+    def mask(self, S: NDArray[np.complex128], sl: slice = slice(None)) -> NDArray[np.bool_]:
+        """Valid-bin mask on ``sl`` (a view into the full-length :attr:`valid`)."""
+        return self._mask(S, sl)
+
+    # --------------------------------------------------------------- solves
+    def solve(
+        self, S: NDArray[np.complex128], sl: slice = slice(None)
+    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+        """All four transfer functions on ``sl``: ``(H[:, sl], valid[sl])`` (views)."""
+        valid = self._mask(S, sl)
+        H = self.H[:, sl]
+        inv = self._inv[sl]
+        p11, p22 = S[P11, sl].real, S[P22, sl].real
+        if self.solver == "uncorrelated":
+            np.multiply(S[P1Y1 : P1Y2 + 1, sl], inv, out=H[H11 : H12 + 1])
+            np.multiply(S[P2Y1:, sl], self._inv2[sl], out=H[H21:])
+            return H, valid
+        c2 = self._c2[:, sl]
+        p12 = S[P12, sl]
+        # H1j = (P1yj P22 − P12 P2yj) / det            [2-21, 2-22]
+        np.multiply(S[P1Y1 : P1Y2 + 1, sl], p22, out=H[H11 : H12 + 1])
+        np.multiply(S[P2Y1:, sl], p12, out=c2)
+        np.subtract(H[H11 : H12 + 1], c2, out=H[H11 : H12 + 1])
+        # H2j = (P2yj P11 − P21 P1yj) / det, P21 = conj(P12)   [2-23, 2-24] corrected
+        np.multiply(S[P2Y1:, sl], p11, out=H[H21:])
+        p21 = np.conjugate(p12, out=self._p21[sl])
+        np.multiply(S[P1Y1 : P1Y2 + 1, sl], p21, out=c2)
+        np.subtract(H[H21:], c2, out=H[H21:])
+        H *= inv  # invalid bins: inv = 0 → H = 0 exactly
+        return H, valid
+
+    def solve_source(
+        self, S: NDArray[np.complex128], source: str = "tot", sl: slice = slice(None)
+    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+        """Only the searched spectrum on ``sl``: ``H_tot`` or one ``H_ij`` (views).
+
+        ``H_tot`` in one pass: with ``A = P1y1 + P1y2``, ``B = P2y1 + P2y2`` the
+        four numerators sum to ``A (P22 − P21) + B (P11 − P12)``, so
+        ``H_tot = [A (P22 − P21) + B (P11 − P12)] / (4 det)``; uncorrelated:
+        ``(A/P11 + B/P22)/4``.
+        """
+        if source != "tot":
+            H, valid = self.solve(S, sl)
+            return H[H_NAMES.index(source)], valid
+        valid = self._mask(S, sl)
+        out = self.source[sl]
+        inv = self._inv[sl]
+        a = np.add(S[P1Y1, sl], S[P1Y2, sl], out=out)
+        b = np.add(S[P2Y1, sl], S[P2Y2, sl], out=self._c1[sl])
+        if self.solver == "uncorrelated":
+            a *= inv
+            b *= self._inv2[sl]
+            a += b
+            a *= 0.25
+            return out, valid
+        p12 = S[P12, sl]
+        t = self._c2[0, sl]
+        np.subtract(S[P22, sl], np.conjugate(p12, out=self._p21[sl]), out=t)  # P22 − P21
+        a *= t
+        np.subtract(S[P11, sl], p12, out=t)  # P11 − P12
+        b *= t
+        a += b
+        np.multiply(inv, 0.25, out=self._r1[sl])
+        a *= self._r1[sl]
+        return out, valid
+
+
+def solve_mimo(
+    S: NDArray[np.complex128], det_threshold: float = 1e-3, power_floor: float = 1e-12
+) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+    """Corrected MIMO solve [2-21 … 2-24] (copy of the result; see :class:`MimoSolver`)."""
+    solver = MimoSolver(S.shape[-1], "mimo", det_threshold, power_floor)
+    H, valid = solver.solve(S)
+    return H.copy(), valid.copy()
+
+
+def solve_uncorrelated(
+    S: NDArray[np.complex128], power_floor: float = 1e-12
+) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+    """Uncorrelated-input shortcut ``H_ij = P_iyj / P_ii`` [2-25 … 2-28]."""
+    solver = MimoSolver(S.shape[-1], "uncorrelated", power_floor=power_floor)
+    H, valid = solver.solve(S)
+    return H.copy(), valid.copy()
+
+
+def solve_printed(S: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """The thesis's formulas *as printed* (P12 in H21/H22): kept only to test that they are wrong.
+
+    No masking; do not use for estimation.
+    """
+    den = S[P11].real * S[P22].real - np.abs(S[P12]) ** 2
+    den = np.where(np.abs(den) > _TINY, den, np.inf)
+    h11 = (S[P1Y1] * S[P22].real - S[P12] * S[P2Y1]) / den
+    h12 = (S[P1Y2] * S[P22].real - S[P12] * S[P2Y2]) / den
+    h21 = (S[P2Y1] * S[P11].real - S[P12] * S[P1Y1]) / den  # printed [2-23]
+    h22 = (S[P2Y2] * S[P11].real - S[P12] * S[P1Y2]) / den  # printed [2-24]
+    return np.stack([h11, h12, h21, h22])
+
+
+def h_total(H: NDArray[np.complex128], out: NDArray[np.complex128] | None = None) -> NDArray[np.complex128]:
+    """``H_tot``: unweighted mean of H11, H12, H21, H22 (§5)."""
+    return np.mean(H, axis=0, out=out)
+
+
+# ---------------------------------------------------------------------------
+# Per-bin recursive least squares (TTFE, [1-9, 1-10], [D.15–D.29])
+# ---------------------------------------------------------------------------
+def _initial_inverse_power(power: NDArray[np.float64], init_scale: float) -> NDArray[np.float64]:
+    """Per-bin initial RLS inverse power ``init_scale / |x|²`` of the first snapshot.
+
+    Scaling per bin keeps the regularisation ``λ^k / p_0`` the same *relative*
+    size (``λ^k / init_scale``) at every bin, including weakly excited ones;
+    bins with (near) zero power use the mean power instead.
+    """
+    mean = float(np.mean(power))
+    floor = max(mean * 1e-12, float(np.finfo(np.float64).tiny))
+    ref = np.where(power > floor, power, mean if mean > 0.0 else 1.0)
+    return init_scale / ref
+
+
+class ScalarRLS:
+    """Four independent per-bin scalar RLS estimators ``H_ij`` from ``U_i`` to ``Y_j``.
+
+    Complex form of [D.28, D.29] with forgetting factor ``λ`` (the thesis's
+    ``α`` in D.28)::
+
+        w_k = w_{k−1} + p_{k−1} x_k* (d_k − x_k w_{k−1}) / (λ + |x_k|² p_{k−1})
+        p_k = p_{k−1} / (λ + |x_k|² p_{k−1})        (i.e. p_k⁻¹ = λ p_{k−1}⁻¹ + |x_k|²)
+
+    (The restated D.29, ``p_k⁻¹ = p_{k−1}⁻¹ / (α + p_{k−1}⁻¹ x_k²)``, has its
+    inverses misplaced; the line above is the exponentially weighted LS
+    recursion.) The estimate is ``Σ λ^{k−i} x_i* d_i / (Σ λ^{k−i} |x_i|² + λ^k/p_0)``:
+    the uncorrelated shortcut on exponentially averaged spectra with
+    ``α = 1 − λ`` plus a vanishing regularisation ``λ^k / p_0``.
+
+    ``p`` starts at ``p_0 = init_scale / |x_1|²`` per bin (first snapshot) and
+    is clipped at ``p_0`` so a silent input cannot wind it up to overflow.
+    """
+
+    def __init__(self, n_bins: int, forgetting: float, init_scale: float = 1e8) -> None:
+        if not 0.0 < forgetting <= 1.0:
+            raise ValueError(f"forgetting factor must be in (0, 1], got {forgetting}")
+        self.lam = float(forgetting)
+        self.init_scale = float(init_scale)
+        self.n_bins = int(n_bins)
+        self.H = np.zeros((4, self.n_bins), dtype=np.complex128)
+        self.p = np.zeros((2, self.n_bins))
+        self.p0: NDArray[np.float64] | float = 0.0
+        self.updates = 0
+
+    def reset(self) -> None:
+        self.H.fill(0.0)
+        self.p.fill(0.0)
+        self.p0 = 0.0
+        self.updates = 0
+
+    def update(self, X: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        """One step with FFTs ``X`` (rows U1, U2, Y1, Y2); returns H (rows H11, H12, H21, H22)."""
+        pw = X[0:2].real ** 2 + X[0:2].imag ** 2  # |U_i|², (2, K)
+        if self.updates == 0:
+            self.p0 = _initial_inverse_power(pw, self.init_scale)
+            self.p[...] = self.p0
+        self.updates += 1
+        p = self.p
+        den = self.lam + pw * p  # (2, K), > 0
+        gain = p / den  # p_k, the new inverse "power"
+        for i in range(2):
+            x = X[i]
+            for j in range(2):
+                h = self.H[2 * i + j]
+                err = X[2 + j] - x * h
+                h += gain[i] * np.conj(x) * err
+        np.minimum(gain, self.p0, out=p)
+        return self.H
+
+
+class VectorRLS:
+    """Per-bin two-input RLS: ``Y_j = H_1j U_1 + H_2j U_2``, matrix form [D.15–D.27] per bin.
+
+    With ``v = conj([U1, U2])`` and ``R_k = λ R_{k−1} + v vᴴ`` (so
+    ``R_ab = Σ λ^{k−i} conj(U_a) U_b`` = exponentially weighted P_ab), the
+    recursion tracks ``Q = R⁻¹`` (Hermitian 2×2, stored as q11, q12, q22)::
+
+        g = Q v / (λ + vᴴ Q v),   h_j ← h_j + g (Y_j − uᵀ h_j),   Q ← (Q − g vᴴ Q) / λ
+
+    Algebraically it equals the corrected MIMO solve on exponentially averaged
+    spectra with ``α = 1 − λ`` (plus a vanishing ``λ^k Q_0⁻¹`` regularisation).
+    ``Q`` is scaled down wherever its trace exceeds its initial value
+    (anti-windup for a silent or collinear input; uniform scaling keeps it
+    positive semi-definite).
+    """
+
+    def __init__(self, n_bins: int, forgetting: float, init_scale: float = 1e8) -> None:
+        if not 0.0 < forgetting <= 1.0:
+            raise ValueError(f"forgetting factor must be in (0, 1], got {forgetting}")
+        self.lam = float(forgetting)
+        self.init_scale = float(init_scale)
+        self.n_bins = int(n_bins)
+        self.H = np.zeros((4, self.n_bins), dtype=np.complex128)
+        self.q11 = np.zeros(self.n_bins)
+        self.q22 = np.zeros(self.n_bins)
+        self.q12 = np.zeros(self.n_bins, dtype=np.complex128)
+        self.q0: NDArray[np.float64] | float = 0.0
+        self.updates = 0
+
+    def reset(self) -> None:
+        self.H.fill(0.0)
+        self.q11.fill(0.0)
+        self.q22.fill(0.0)
+        self.q12.fill(0.0)
+        self.q0 = 0.0
+        self.updates = 0
+
+    def update(self, X: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        """One step with FFTs ``X`` (rows U1, U2, Y1, Y2); returns H (rows H11, H12, H21, H22)."""
+        u1, u2 = X[0], X[1]
+        if self.updates == 0:
+            pw = np.abs(u1) ** 2 + np.abs(u2) ** 2
+            self.q0 = _initial_inverse_power(0.5 * pw, self.init_scale)
+            self.q11[...] = self.q0
+            self.q22[...] = self.q0
+            self.q12.fill(0.0)
+        self.updates += 1
+        lam = self.lam
+        v1, v2 = np.conj(u1), np.conj(u2)
+        q11, q12, q22 = self.q11, self.q12, self.q22
+        # Q v  (Q Hermitian: q21 = conj(q12))
+        a1 = q11 * v1 + q12 * v2
+        a2 = np.conj(q12) * v1 + q22 * v2
+        # vᴴ Q v (real, ≥ 0)
+        quad = (np.conj(v1) * a1 + np.conj(v2) * a2).real
+        den = lam + quad
+        g1 = a1 / den
+        g2 = a2 / den
+        H = self.H
+        for j in range(2):
+            err = X[2 + j] - u1 * H[j] - u2 * H[2 + j]  # rows: H1j at j, H2j at 2+j
+            H[j] += g1 * err
+            H[2 + j] += g2 * err
+        # Q ← (Q − g (Qv)ᴴ) / λ   (vᴴ Q = (Q v)ᴴ)
+        n11 = (q11 - (g1 * np.conj(a1)).real) / lam
+        n22 = (q22 - (g2 * np.conj(a2)).real) / lam
+        n12 = (q12 - g1 * np.conj(a2)) / lam
+        # anti-windup: shrink Q uniformly (keeps it positive semi-definite)
+        # wherever its trace exceeds the initial 2 q0
+        shrink = np.minimum(1.0, 2.0 * self.q0 / np.maximum(n11 + n22, _TINY))
+        np.multiply(n11, shrink, out=q11)
+        np.multiply(n22, shrink, out=q22)
+        np.multiply(n12, shrink, out=q12)
+        return H

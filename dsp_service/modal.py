@@ -1,0 +1,539 @@
+"""Modal parameters from a transfer-function estimate: peaks, FWHM damping, VRM (§5, App. B, C).
+
+Peak search
+-----------
+Global maximum of ``|H|`` over a search range, optionally weighted toward low
+frequencies (to prefer the lower of two split poles, §5). The weight is a
+power law, i.e. a straight line on the log–log (Bode) plot::
+
+    w(f) = (f / f_lo) ** (−γ)      (a tilt of −20 γ dB/decade, γ = log_weight_exponent)
+
+It only *ranks* candidate peaks; frequencies and magnitudes are refined on
+the unweighted ``|H|``. Candidates are local maxima found by
+``scipy.signal.find_peaks`` on the weighted magnitude in dB with a minimum
+prominence; up to ``max_peaks`` are kept, best weighted magnitude first.
+Sub-bin refinement: a parabola through the log magnitudes of the three bins
+around the maximum (vertex offset ``δ = ½(ln a − ln c)/(ln a − 2 ln b + ln c)``).
+
+FWHM damping (Appendix B)
+-------------------------
+For the displacement power spectrum ``P(r) = a / ((1 − r²)² + 4ζ² r²)``,
+``r = ω/ω_n`` [B.2]: the peak is at ``r_p = √(1 − 2ζ²)`` (not ``r = 1``; the
+thesis's B.3 slips here) with ``P(r_p) = a / (4ζ²(1 − ζ²))``; the half-power
+points (``P = P(r_p)/2``, i.e. ``|H|/√2``) solve ``(1 − r²)² + 4ζ² r² =
+8ζ²(1 − ζ²)``::
+
+    r₁,₂² = 1 − 2ζ² ∓ 2ζ √(1 − ζ²)                  (real for ζ < 0.3827)
+
+The measurable ratio is the width over the *peak* frequency,
+``ρ = Δω/ω_p = (r₂ − r₁)/√(1 − 2ζ²)``, whence
+``ρ² = 2 − 2√(1 − 8ζ² + 8ζ⁴)/(1 − 2ζ²)``, inverted exactly as::
+
+    c = 1 − ρ²/2,      ζ² = ½ (1 − 1/√(2 − c²))
+
+(:func:`zeta_from_fwhm_exact`). [B.1], ``ζ ≈ Δω/(2ω_n)``, overestimates ζ
+by about ζ² when ω_n is the true natural frequency (+0.83 % at ζ = 0.09,
++1.04 % at ζ = 0.1, +4.7 % at 0.2) and by about 2ζ² when ω_n is taken as the
+peak frequency as the thesis does (+2.1 % at ζ = 0.1). Half-power crossings
+are interpolated linearly in power between bins.
+
+Variable Residue Method (Appendix C, Lin, Lim & Liew 1995)
+----------------------------------------------------------
+Local model ``H(ω) = C / (λ − ω²) + D`` (one mode plus a constant residual
+that may differ from triplet to triplet). Three bins a, b, c give, with
+``Δba = H_b − H_a`` etc., after eliminating ``D`` and the quadratic term::
+
+    [Δba Δca (ωc² − ωb²),   Δba(ωc² − ωa²) − Δca(ωb² − ωa²)] [λ]   [Δca Δba ωa² (ωc² − ωb²)]
+    [Δba Δcb (ωc² − ωa²),   Δba(ωc² − ωb²) − Δcb(ωb² − ωa²)] [C] = [Δcb Δba ωb² (ωc² − ωa²)]
+
+The matrix printed as [C-12] has these two *columns swapped*: solved as
+printed for ``[λ; C]`` its first unknown is in fact the modal constant C
+(checked on a synthetic single-mode FRF: the printed reading returns
+"ω_r" = √C). Read as ``[C; λ]`` it is correct.
+
+[C-13, C-14] give ``ω_r = √(Re λ)``, ``η = Im λ / ω_r²`` (hysteretic
+damping, ζ ≈ η/2), exact for ``C/(ω_r²(1 + iη) − ω²)``. For the viscous modes of
+the plant model, ``1/(ω_n² − ω² + 2iζω_nω)``, linearising ``ω`` in ``ω²`` at
+resonance gives ``λ ≈ ω_n² (1 + iζ)²/(1 + ζ²)``, hence the *viscous*
+reading used by default: ``ω_n = √|λ|``, ``ζ = tan(arg λ / 2)``
+(residual bias +0.12 % at ζ = 0.05, +0.4 % at 0.09; the hysteretic reading
+is −ζ² low in frequency and +1.5ζ²… high in damping).
+
+Robustness (:class:`VrmEstimator`): triplets are taken from up to 11 points
+spread over ``±1.5`` half-power half-widths around the peak, keeping those
+whose outer points are at least half the band apart (adjacent-bin triplets
+are dominated by noise: in a Monte-Carlo at 3 % complex noise their ζ error
+is 4–10× larger); non-physical triplets (``Re λ ≤ 0``, ``ζ ∉ (0,
+zeta_max]``, ``f_n`` off the band) are discarded and the λ of the rest
+averaged with weights ``|den_t|``. The fast path :func:`vrm_lambda`
+solves for λ alone (C eliminated); :func:`vrm_solve` is the full corrected
+2×2 system (tested to agree).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from itertools import combinations
+from typing import Literal
+
+import numpy as np
+import scipy.signal
+from numpy.typing import NDArray
+
+_TINY = float(np.finfo(np.float64).tiny)
+_SQRT_HALF = math.sqrt(0.5)
+TWO_PI = 2.0 * math.pi
+
+
+# ---------------------------------------------------------------------------
+# Peak search
+# ---------------------------------------------------------------------------
+def log_weights(freqs: NDArray[np.float64], f_ref: float, exponent: float) -> NDArray[np.float64]:
+    """Low-frequency weight ``(f / f_ref) ** (−exponent)`` (1 where ``f ≤ 0``)."""
+    f = np.asarray(freqs, dtype=np.float64)
+    w = (np.maximum(f, _TINY) / f_ref) ** (-exponent)
+    w[f <= 0.0] = 1.0
+    return w
+
+
+def log_weights_db(freqs: NDArray[np.float64], f_ref: float, exponent: float) -> NDArray[np.float64]:
+    """The same weight in dB, ``−20 γ log10(f / f_ref)``, to add to ``20 log10 |H|``."""
+    return 20.0 * np.log10(log_weights(freqs, f_ref, exponent))
+
+
+def parabolic_peak(log_mag: NDArray[np.float64], k: int) -> tuple[float, float]:
+    """Vertex ``(δ, value)`` of the parabola through ``log_mag[k−1 : k+2]``; ``δ ∈ [−½, ½]``.
+
+    Returns ``(0, log_mag[k])`` at an array edge or for a non-concave triple.
+    """
+    if k <= 0 or k >= len(log_mag) - 1:
+        return 0.0, float(log_mag[k])
+    a, b, c = float(log_mag[k - 1]), float(log_mag[k]), float(log_mag[k + 1])
+    curv = a - 2.0 * b + c
+    if not curv < 0.0:
+        return 0.0, b
+    d = 0.5 * (a - c) / curv
+    d = min(0.5, max(-0.5, d))
+    return d, b - 0.25 * (a - c) * d
+
+
+@dataclass(frozen=True)
+class Peak:
+    """A located resonance peak (bin index into the full spectrum)."""
+
+    index: int
+    frequency_hz: float  #: refined (parabolic on log |H|)
+    magnitude: float  #: refined |H| at the vertex
+    prominence_db: float  #: of the weighted magnitude
+
+
+def find_modal_peaks(
+    mag: NDArray[np.float64],
+    freqs: NDArray[np.float64],
+    weights_db: NDArray[np.float64] | None = None,
+    valid: NDArray[np.bool_] | None = None,
+    max_peaks: int = 2,
+    min_prominence_db: float = 3.0,
+    n_valid: int | None = None,
+) -> list[Peak]:
+    """Up to ``max_peaks`` resonance peaks of ``mag`` (already cut to the search range).
+
+    Candidates are ranked by ``20 log10 |H| + weights_db`` (see
+    :func:`log_weights_db`); masked bins (``valid`` False) are set to the
+    range's minimum. ``n_valid`` (the count of valid bins, if the caller has
+    it) saves a pass. Indices in the result refer to the given arrays. If no
+    local maximum has the required prominence, the global maximum is
+    returned alone with its (small) prominence, unless it lies on the range's
+    edge (not a true peak): then the list is empty.
+    """
+    size = mag.size
+    if size < 3:
+        return []
+    wdb = np.log10(np.maximum(mag, _TINY))
+    wdb *= 20.0
+    if weights_db is not None:
+        wdb += weights_db
+    if valid is not None:
+        nv = int(np.count_nonzero(valid)) if n_valid is None else n_valid
+        if nv == 0:
+            return []
+        if nv < size:
+            wdb[~valid] = wdb[valid].min()
+    idx, props = scipy.signal.find_peaks(wdb, prominence=min_prominence_db)
+    if idx.size == 0:
+        g = int(np.argmax(wdb))
+        if g == 0 or g == size - 1:
+            return []
+        prom = float(scipy.signal.peak_prominences(wdb, [g])[0][0])
+        idx, proms = np.array([g]), np.array([prom])
+    else:
+        proms = props["prominences"]
+    order = np.argsort(wdb[idx])[::-1][:max_peaks] if idx.size > 1 else (0,)
+    df = float(freqs[1] - freqs[0])
+    peaks = []
+    for o in order:
+        k = int(idx[o])
+        d, lv = refine_peak(mag, k)
+        peaks.append(Peak(k, float(freqs[k]) + d * df, math.exp(lv), float(proms[o])))
+    return peaks
+
+
+def refine_peak(mag: NDArray[np.float64], k: int) -> tuple[float, float]:
+    """Parabolic vertex on ``ln |H|`` around bin ``k`` of a magnitude array: ``(δ, ln peak)``."""
+    if 0 < k < mag.size - 1:
+        a, b, c = (math.log(max(float(v), _TINY)) for v in mag[k - 1 : k + 2])
+        curv = a - 2.0 * b + c
+        if curv < 0.0:
+            d = min(0.5, max(-0.5, 0.5 * (a - c) / curv))
+            return d, b - 0.25 * (a - c) * d
+        return 0.0, b
+    return 0.0, math.log(max(float(mag[k]), _TINY))
+
+
+class PeakRefiner:
+    """Least-squares parabola on ``ln |H|`` over ``±r`` bins around a peak bin (precomputed fits).
+
+    With ``r = 1`` it is the classic three-point vertex; wider fits
+    (the identifier uses ``r ≈`` half the half-power half-width) average the
+    noise of a raw estimate down: in a Monte-Carlo at 3 % complex noise the
+    90th-percentile frequency error fell from 0.76 to 0.37 bins for a
+    ζ = 0.05 mode at 9 Hz.
+    """
+
+    def __init__(self, r_max: int = 8) -> None:
+        self.r_max = int(r_max)
+        self._pinv: dict[int, NDArray[np.float64]] = {}
+        for r in range(1, self.r_max + 1):
+            j = np.arange(-r, r + 1, dtype=np.float64)
+            self._pinv[r] = np.linalg.pinv(np.vstack([np.ones_like(j), j, j * j]).T)
+
+    def refine(self, mag: NDArray[np.float64], k: int, r: int) -> tuple[float, float]:
+        """``(δ, ln peak)``: vertex offset in bins (|δ| ≤ r) and its log magnitude.
+
+        ``r`` is clipped to ``[1, r_max]`` and to the array; a non-concave fit
+        returns ``(0, ln mag[k])``.
+        """
+        r = max(1, min(int(r), self.r_max, k, mag.size - 1 - k))
+        if r < 1:
+            return 0.0, math.log(max(float(mag[k]), _TINY))
+        y = np.log(np.maximum(mag[k - r : k + r + 1], _TINY))
+        c0, c1, c2 = (float(v) for v in self._pinv[r] @ y)
+        if not c2 < 0.0:
+            return 0.0, math.log(max(float(mag[k]), _TINY))
+        d = min(float(r), max(-float(r), -0.5 * c1 / c2))
+        return d, c0 + c1 * d + c2 * d * d
+
+
+# ---------------------------------------------------------------------------
+# FWHM, Appendix B
+# ---------------------------------------------------------------------------
+def half_power_points(zeta: float) -> tuple[float, float]:
+    """Exact half-power frequency ratios ``(r₁, r₂)`` of ``P(r)`` [B.2] (derived, see module doc)."""
+    z2 = zeta * zeta
+    root = 2.0 * zeta * math.sqrt(1.0 - z2)
+    lo2 = 1.0 - 2.0 * z2 - root
+    if lo2 <= 0.0:
+        raise ValueError(f"no lower half-power point for zeta={zeta} (needs zeta < 0.3827)")
+    return math.sqrt(lo2), math.sqrt(1.0 - 2.0 * z2 + root)
+
+
+def fwhm_ratio(zeta: float) -> float:
+    """``ρ = Δω / ω_peak`` of the exact ``P(r)`` for damping ``zeta``."""
+    r1, r2 = half_power_points(zeta)
+    return (r2 - r1) / math.sqrt(1.0 - 2.0 * zeta * zeta)
+
+
+def zeta_fwhm_approx(bandwidth_hz: float, natural_frequency_hz: float) -> float:
+    """[B.1]: ``ζ ≈ Δω / (2 ω_n)``."""
+    return bandwidth_hz / (2.0 * natural_frequency_hz)
+
+
+def zeta_from_fwhm_exact(bandwidth_hz: float, peak_frequency_hz: float) -> float:
+    """Exact inversion of the half-power width measured about the *peak* frequency.
+
+    ``ρ = Δf/f_p``, ``c = 1 − ρ²/2``, ``ζ² = ½(1 − 1/√(2 − c²))`` (module doc).
+    Valid for ``ρ`` up to ``√2`` (ζ → 0.3827).
+    """
+    rho = bandwidth_hz / peak_frequency_hz
+    c = 1.0 - 0.5 * rho * rho
+    inner = 2.0 - c * c
+    if not 1.0 <= inner:
+        return 0.0 if rho <= 0.0 else math.sqrt(0.5)
+    return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(inner))))
+
+
+def half_power_bandwidth(
+    mag: NDArray[np.float64],
+    freqs: NDArray[np.float64],
+    k: int,
+    peak_mag: float,
+    valid: NDArray[np.bool_] | None = None,
+    max_bins: int = 64,
+) -> tuple[float, float] | None:
+    """Frequencies ``(f_left, f_right)`` where ``|H| = peak_mag/√2`` (half power) nearest bin ``k``.
+
+    Looks at most ``max_bins`` bins each side; the crossings are
+    interpolated linearly in power (``|H|²``) between the two straddling
+    bins. ``None`` if a side does not drop below half power in reach, or a
+    straddling bin is masked (``valid`` False).
+    """
+    thr = peak_mag * _SQRT_HALF
+    a = max(0, k - max_bins)
+    below_left = np.flatnonzero(mag[a:k] < thr)
+    below_right = np.flatnonzero(mag[k + 1 : k + 1 + max_bins] < thr)
+    if below_left.size == 0 or below_right.size == 0:
+        return None
+    i0 = a + int(below_left[-1])  # nearest bin below half power on the left
+    j1 = k + 1 + int(below_right[0])  # nearest on the right
+    if valid is not None and not (valid[i0] and valid[i0 + 1] and valid[j1 - 1] and valid[j1]):
+        return None
+    half = thr * thr
+    df = float(freqs[1] - freqs[0])
+    f0 = float(freqs[0])
+
+    def cross(i_lo: int) -> float:
+        pa, pb = float(mag[i_lo]) ** 2, float(mag[i_lo + 1]) ** 2
+        t = (half - pa) / (pb - pa) if pb != pa else 0.5
+        return f0 + (i_lo + t) * df
+
+    return cross(i0), cross(j1 - 1)
+
+
+# ---------------------------------------------------------------------------
+# Variable Residue Method, Appendix C
+# ---------------------------------------------------------------------------
+def vrm_solve(
+    ha: NDArray[np.complex128] | complex,
+    hb: NDArray[np.complex128] | complex,
+    hc: NDArray[np.complex128] | complex,
+    wa: NDArray[np.float64] | float,
+    wb: NDArray[np.float64] | float,
+    wc: NDArray[np.float64] | float,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.bool_]]:
+    """Corrected [C-12] for ``(λ, C)`` of every triplet (vectorised, Cramer's rule).
+
+    ``w*`` in rad/s. Returns ``(λ, C, ok)``; ``ok`` is False where the
+    system is singular (λ and C are then 0).
+    """
+    wa2, wb2, wc2 = np.square(wa), np.square(wb), np.square(wc)
+    dba = np.subtract(hb, ha)
+    dca = np.subtract(hc, ha)
+    dcb = np.subtract(hc, hb)
+    # corrected matrix: columns [λ, C]
+    m11 = dba * dca * (wc2 - wb2)
+    m12 = dba * (wc2 - wa2) - dca * (wb2 - wa2)
+    m21 = dba * dcb * (wc2 - wa2)
+    m22 = dba * (wc2 - wb2) - dcb * (wb2 - wa2)
+    r1 = m11 * wa2  # Δca Δba ωa² (ωc² − ωb²)
+    r2 = m21 * wb2  # Δcb Δba ωb² (ωc² − ωa²)
+    det = m11 * m22 - m12 * m21
+    scale = np.abs(m11 * m22) + np.abs(m12 * m21)
+    ok = np.abs(det) > 1e-12 * scale
+    safe = np.where(ok, det, 1.0)
+    lam = np.where(ok, (r1 * m22 - m12 * r2) / safe, 0.0)
+    cc = np.where(ok, (m11 * r2 - r1 * m21) / safe, 0.0)
+    return np.asarray(lam), np.asarray(cc), np.asarray(ok)
+
+
+def vrm_solve_printed(
+    ha: complex, hb: complex, hc: complex, wa: float, wb: float, wc: float
+) -> tuple[complex, complex]:
+    """[C-12] exactly as printed, solved for ``[λ; C]`` (wrong: returns ``(C, λ)`` in truth)."""
+    wa2, wb2, wc2 = wa * wa, wb * wb, wc * wc
+    dba, dca, dcb = hb - ha, hc - ha, hc - hb
+    m = np.array(
+        [
+            [dba * (wc2 - wa2) - dca * (wb2 - wa2), dca * dba * (wc2 - wb2)],
+            [dba * (wc2 - wb2) - dcb * (wb2 - wa2), dcb * dba * (wc2 - wa2)],
+        ]
+    )
+    r = np.array([dca * dba * wa2 * (wc2 - wb2), dcb * dba * wb2 * (wc2 - wa2)])
+    lam, c = np.linalg.solve(m, r)
+    return complex(lam), complex(c)
+
+
+def vrm_modal(
+    lam: NDArray[np.complex128] | complex,
+    model: Literal["viscous", "hysteretic"] = "viscous",
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(ω_n [rad/s], ζ)`` from the eigenvalue λ.
+
+    ``'hysteretic'``: [C-13, C-14], ``ω_r = √Re λ``, ``ζ = η/2 = Im λ / (2 Re λ)``.
+    ``'viscous'`` (default): ``ω_n = √|λ|``, ``ζ = tan(arg λ / 2)``.
+    Non-physical λ (``Re λ ≤ 0``) give ``ω = 0``.
+    """
+    lam = np.asarray(lam)
+    re = lam.real
+    if model == "hysteretic":
+        w = np.sqrt(np.maximum(re, 0.0))
+        z = np.where(re > 0.0, 0.5 * lam.imag / np.where(re > 0.0, re, 1.0), 0.0)
+        return w, z
+    if model == "viscous":
+        w = np.where(re > 0.0, np.sqrt(np.abs(lam)), 0.0)
+        z = np.tan(0.5 * np.angle(lam))
+        return w, z
+    raise ValueError(f"unknown damping model {model!r}")
+
+
+def vrm_lambda(
+    ha: NDArray[np.complex128],
+    hb: NDArray[np.complex128],
+    hc: NDArray[np.complex128],
+    wa2: NDArray[np.float64],
+    wb2: NDArray[np.float64],
+    wc2: NDArray[np.float64],
+) -> NDArray[np.complex128]:
+    """λ of every triplet from the first row pair of [C-12] with C eliminated (fast path).
+
+    Dividing the a–b and a–c difference equations eliminates C and the
+    quadratic term, leaving one linear equation::
+
+        λ [Δba(ωc² − ωa²) − Δca(ωb² − ωa²)] = Δba ωb² (ωc² − ωa²) − Δca ωc² (ωb² − ωa²)
+
+    whose root is the λ of the corrected 2×2 system (tested against
+    :func:`vrm_solve`). Takes squared angular frequencies. Singular triplets
+    give λ = 0 (rejected as non-physical downstream).
+    """
+    dba = hb - ha
+    dca = hc - ha
+    cab = wc2 - wa2
+    bab = wb2 - wa2
+    den = dba * cab - dca * bab
+    num = dba * (wb2 * cab) - dca * (wc2 * bab)
+    ok = np.abs(den) > 1e-300
+    return np.divide(num, den, out=np.zeros_like(num), where=ok)
+
+
+class VrmEstimator:
+    """Robust VRM over bin triplets of a band around a peak (Appendix C).
+
+    The band is ``±h`` bins around the peak with ``h = band_factor ×`` the
+    half-power half-width (from FWHM, or a default), at least 1 bin. To bound
+    the cost, at most ``2 m_max + 1`` points are used: ``m = min(h, m_max)``
+    points each side with a stride ``s = round(h/m)`` bins. Every triplet of
+    those points whose outer points are at least ``m`` points apart is solved
+    with :func:`vrm_lambda` (wide triplets resist noise far better than
+    adjacent bins, whose differences are noise-dominated). Non-physical
+    triplets are discarded (``Re λ ≤ 0``, ``ζ ∉ (0, zeta_max]``, ``f_n`` more
+    than two bins outside the band); the rest are averaged with weights
+    ``|den_t|`` (the magnitude of the triplet's λ coefficient, small when
+    the triplet's differences are small and noise-dominated); ``f_n`` and ``ζ``
+    come from the averaged λ. (Weighted mean and median were compared in a
+    Monte-Carlo at 3–12 % complex noise: the weighted mean was as good or
+    slightly better, and cheaper.)
+
+    The difference and selection operators for each ``m`` are precomputed
+    as small matrices, so an estimate is two mat-vec products and a dozen
+    vector operations on ~100 triplets.
+    """
+
+    def __init__(
+        self,
+        m_max: int = 5,
+        band_factor: float = 1.5,
+        zeta_max: float = 0.5,
+        model: Literal["viscous", "hysteretic"] = "viscous",
+    ) -> None:
+        if m_max < 1:
+            raise ValueError("m_max must be >= 1")
+        if model not in ("viscous", "hysteretic"):
+            raise ValueError(f"unknown damping model {model!r}")
+        self.m_max = int(m_max)
+        self.band_factor = float(band_factor)
+        self.zeta_max = float(zeta_max)
+        self.model = model
+        self._ops: dict[int, tuple[NDArray[np.complex128], NDArray[np.float64], int]] = {}
+        for m in range(1, self.m_max + 1):
+            tri = [c for c in combinations(range(2 * m + 1), 3) if c[2] - c[0] >= max(m, 2)]
+            t = len(tri)
+            dc = np.zeros((2 * t, 2 * m + 1), dtype=np.complex128)  # Δba, Δca
+            dr = np.zeros((4 * t, 2 * m + 1))  # ωc²−ωa², ωb²−ωa², ωb², ωc²
+            for i, (a, b, c) in enumerate(tri):
+                dc[i, b] += 1.0
+                dc[i, a] -= 1.0
+                dc[t + i, c] += 1.0
+                dc[t + i, a] -= 1.0
+                dr[i, c] += 1.0
+                dr[i, a] -= 1.0
+                dr[t + i, b] += 1.0
+                dr[t + i, a] -= 1.0
+                dr[2 * t + i, b] = 1.0
+                dr[3 * t + i, c] = 1.0
+            self._ops[m] = (dc, dr, t)
+
+    def estimate(
+        self,
+        H: NDArray[np.complex128],
+        freqs: NDArray[np.float64],
+        k: int,
+        half_width_bins: float,
+        valid: NDArray[np.bool_] | None = None,
+    ) -> tuple[float, float, int] | None:
+        """``(f_n [Hz], ζ, triplets used)`` around bin ``k`` of ``H``, or ``None``.
+
+        ``half_width_bins`` is the half-power half-width; ``valid`` the bin
+        mask (masked bins are never used; the band shrinks to avoid them and
+        the array's ends). Works in Hz² (λ's units cancel in ζ).
+        """
+        n = H.shape[-1]
+        h = max(1, int(round(self.band_factor * half_width_bins)))
+        h = min(h, k, n - 1 - k)
+        if h >= 1 and valid is not None:
+            seg = valid[k - h : k + h + 1]
+            if np.count_nonzero(seg) < seg.size:
+                bad = np.flatnonzero(~seg) - h
+                h = min(h, int(np.min(np.abs(bad))) - 1)
+        if h < 1:
+            return None
+        m = min(h, self.m_max)
+        stride = max(1, int(round(h / m)))
+        if m * stride > h:  # keep the points inside the usable band
+            m = h // stride
+        band = slice(k - m * stride, k + m * stride + 1, stride)
+        hh = H[band]
+        fb = freqs[band]
+        dc, dr, t = self._ops[m]
+        dd = dc @ hh
+        rr = dr @ (fb * fb)
+        dba, dca = dd[:t], dd[t:]
+        cab, bab, xb, xc = rr[:t], rr[t : 2 * t], rr[2 * t : 3 * t], rr[3 * t :]
+        den = dba * cab
+        den -= dca * bab
+        num = dba * (xb * cab)
+        num -= dca * (xc * bab)
+        w = np.abs(den)
+        lam = np.divide(num, den, out=np.zeros_like(num), where=w > 0.0)
+        re, im = lam.real, lam.imag
+        mod = np.abs(lam)
+        df = float(freqs[1] - freqs[0])
+        f_lo = max(float(fb[0]) - 2.0 * df, 0.0)
+        f_hi = float(fb[-1]) + 2.0 * df
+        if self.model == "viscous":  # f_n² = |λ|, ζ = Im λ / (|λ| + Re λ) = tan(arg λ / 2)
+            f2 = mod
+            zeta_ok = im <= self.zeta_max * (mod + re)
+        else:  # f_r² = Re λ, ζ = Im λ / (2 Re λ)
+            f2 = re
+            zeta_ok = im <= 2.0 * self.zeta_max * re
+        good = (re > 0.0) & (im > 0.0) & zeta_ok & (f2 >= f_lo * f_lo) & (f2 <= f_hi * f_hi)
+        w *= good
+        wsum = float(np.add.reduce(w))
+        used = int(np.count_nonzero(good))
+        if used == 0 or not wsum > 0.0:
+            return None
+        lam_avg = complex(np.dot(w, lam)) / wsum
+        fn, zeta = vrm_modal_scalar(lam_avg, self.model)
+        if not (fn > 0.0 and 0.0 < zeta <= self.zeta_max):
+            return None
+        return fn, zeta, used
+
+
+def vrm_modal_scalar(lam: complex, model: Literal["viscous", "hysteretic"] = "viscous") -> tuple[float, float]:
+    """Scalar :func:`vrm_modal` with λ in (units)²: returns ``(√|λ| or √Re λ, ζ)``."""
+    re, im = lam.real, lam.imag
+    if re <= 0.0:
+        return 0.0, 0.0
+    if model == "viscous":
+        mod = abs(lam)
+        return math.sqrt(mod), im / (mod + re)
+    return math.sqrt(re), 0.5 * im / re

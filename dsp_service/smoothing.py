@@ -1,0 +1,131 @@
+"""Frequency smoothing of transfer-function estimates (thesis §2.4.1, §5).
+
+A fixed-width, fixed-order local polynomial regression across frequency
+bins, precomputed once as a linear filter: a Savitzky–Golay filter
+(``scipy.signal.savgol_coeffs``). Window ``w = 2h + 1`` bins (17 in the
+thesis's example), order ``p``.
+
+* Complex input: the real coefficients are applied to the real and
+  imaginary parts separately (``scipy.signal.savgol_filter`` would drop the
+  imaginary part with a ComplexWarning).
+* Edges: the ``h`` bins at either end use the *off-centre* coefficients of
+  the polynomial fitted to the first (last) ``w`` bins (``pos=k``), i.e.
+  scipy's ``mode='interp'``; no padding, no bias toward zero.
+* Validity: a smoothed bin is valid only if every raw bin in its window is
+  valid (invalid raw bins are 0 and would pull the fit down).
+
+Smoothing is linear, so ``smooth(mean(H_ij)) = mean(smooth(H_ij))``; the
+identifier smooths only the spectrum it searches, and only over the search
+range (:meth:`FrequencySmoother.smooth_range`). Smoothing biases damping
+estimates upward (§2.4.1); see the identifier's ``damping_on_smoothed``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.signal
+from numpy.typing import NDArray
+
+
+class FrequencySmoother:
+    """Savitzky–Golay smoother over ``n_bins`` bins; ``window <= 1`` means off (identity)."""
+
+    def __init__(self, n_bins: int, window: int = 17, order: int = 2) -> None:
+        self.n_bins = int(n_bins)
+        self.window = int(window)
+        self.order = int(order)
+        self.enabled = self.window > 1
+        if not self.enabled:
+            self.half = 0
+            return
+        if self.window % 2 == 0:
+            raise ValueError(f"smoothing window must be odd, got {self.window}")
+        if not 0 <= self.order < self.window:
+            raise ValueError(f"smoothing order must be in [0, window), got {self.order}")
+        if self.window > self.n_bins:
+            raise ValueError(f"smoothing window {self.window} exceeds {self.n_bins} bins")
+        w, h = self.window, self.window // 2
+        self.half = h
+        # 'dot' coefficients: estimate at window position pos = Σ c[j] x[start + j]
+        self.centre = scipy.signal.savgol_coeffs(w, self.order, pos=h, use="dot")
+        self._conv = np.ascontiguousarray(self.centre[::-1])  # for np.convolve 'valid'
+        self._conv2 = np.zeros(2 * w - 1)  # the same, for interleaved (re, im) samples
+        self._conv2[::2] = self._conv
+        self._all_valid = np.ones(self.n_bins, dtype=bool)
+        self.edge_lo = np.stack(
+            [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]
+        ) if h else np.zeros((0, w))
+        self.edge_hi = np.stack(
+            [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h + 1, w)]
+        ) if h else np.zeros((0, w))
+        # first bin of the fitting window used for each output bin
+        self._starts = np.clip(np.arange(self.n_bins) - h, 0, self.n_bins - w)
+
+    # ------------------------------------------------------------------ values
+    def _interior(self, x: NDArray[np.generic], out: NDArray[np.generic]) -> None:
+        """``out[m] = Σ c[j] x[m + j]`` ('valid' correlation), real or complex ``x``.
+
+        Complex input is convolved as its interleaved (re, im) float view with
+        the kernel upsampled by two (zeros between taps): one real
+        convolution yields the interleaved real and imaginary results, i.e.
+        the real coefficients applied to both parts separately.
+        """
+        if np.iscomplexobj(x):
+            xv = np.ascontiguousarray(x, dtype=np.complex128).view(np.float64)
+            out[...] = np.convolve(xv, self._conv2, mode="valid").view(np.complex128)
+        else:
+            out[...] = np.convolve(x, self._conv, mode="valid")
+
+    def smooth_range(self, x: NDArray[np.generic], lo: int, hi: int) -> NDArray[np.generic]:
+        """Smoothed values of the 1-D spectrum ``x`` at bins ``lo … hi−1`` (a new array)."""
+        k = self.n_bins
+        if x.shape != (k,):
+            raise ValueError(f"expected shape ({k},), got {x.shape}")
+        lo, hi = max(0, int(lo)), min(k, int(hi))
+        out = np.empty(max(hi - lo, 0), dtype=np.result_type(x.dtype, np.float64))
+        if hi <= lo:
+            return out
+        if not self.enabled:
+            out[...] = x[lo:hi]
+            return out
+        h, w = self.half, self.window
+        a, b = max(lo, h), min(hi, k - h)  # interior bins [a, b)
+        if b > a:
+            self._interior(x[a - h : b + h], out[a - lo : b - lo])
+        if lo < h:  # low edge: polynomial through the first w bins
+            e = min(h, hi)
+            out[0 : e - lo] = self.edge_lo[lo:e] @ x[:w]
+        if hi > k - h:  # high edge: polynomial through the last w bins
+            s = max(lo, k - h)
+            out[s - lo :] = self.edge_hi[s - (k - h) : hi - (k - h)] @ x[k - w :]
+        return out
+
+    def smooth(self, x: NDArray[np.generic]) -> NDArray[np.generic]:
+        """Smooth every bin of ``x`` (shape ``(K,)`` or ``(m, K)``); returns a new array."""
+        if x.ndim == 1:
+            return self.smooth_range(x, 0, self.n_bins)
+        return np.stack([self.smooth_range(row, 0, self.n_bins) for row in x])
+
+    # -------------------------------------------------------------------- mask
+    def valid_range(self, valid: NDArray[np.bool_], lo: int, hi: int) -> NDArray[np.bool_]:
+        """Validity of smoothed bins ``lo … hi−1``: all raw bins of each fitting window valid.
+
+        ``valid`` is full-length; only the raw bins the range's windows use are read.
+        """
+        lo, hi = max(0, int(lo)), min(self.n_bins, int(hi))
+        if not self.enabled:
+            return valid[lo:hi].copy()
+        if hi <= lo:
+            return np.zeros(0, dtype=bool)
+        starts = self._starts[lo:hi]
+        a, b = int(starts[0]), int(starts[-1]) + self.window  # raw bins read
+        if np.count_nonzero(valid[a:b]) == b - a:  # the usual case: nothing masked
+            return self._all_valid[: hi - lo].copy()
+        bad = np.zeros(b - a + 1, dtype=np.intp)
+        np.cumsum(~valid[a:b], out=bad[1:])
+        s = starts - a
+        return bad[s + self.window] == bad[s]
+
+    def valid(self, valid: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Validity of every smoothed bin."""
+        return self.valid_range(valid, 0, self.n_bins)
