@@ -168,9 +168,11 @@ class ConverterScale:
         range); values beyond full scale are clipped to the end codes and
         flagged, never wrapped. NaN is treated as out of range (flagged, 0)."""
         v = np.asarray(volts, dtype=np.float64)
-        finite = np.isfinite(v)
-        codes = np.rint(np.where(finite, v, 0.0) / self.lsb_v)
-        saturated = (codes < self.code_min) | (codes > self.code_max) | ~finite
+        nan = np.isnan(v)
+        # Bounding first keeps infinities (-> end codes) and huge values from overflowing.
+        bounded = np.clip(np.where(nan, 0.0, v), -2.0 * self.full_scale_v, 2.0 * self.full_scale_v)
+        codes = np.rint(bounded / self.lsb_v)
+        saturated = (codes < self.code_min) | (codes > self.code_max) | nan
         codes = np.clip(codes, self.code_min, self.code_max).astype(np.int64)
         return Quantized(counts=codes, saturated=np.asarray(saturated))
 
@@ -206,6 +208,13 @@ _INT32X2 = struct.Struct("<2i")
 _EMCY = struct.Struct("<HB5s")
 
 
+def _pack(fmt: struct.Struct, what: str, *values: int) -> bytes:
+    try:
+        return fmt.pack(*values)
+    except struct.error as exc:
+        raise ValueError(f"{what}: value out of range for the frame: {exc}") from None
+
+
 def _check_len(data: bytes | bytearray, expected: int, what: str) -> None:
     if len(data) != expected:
         raise FrameError(f"{what}: expected {expected} data bytes, got {len(data)}")
@@ -232,7 +241,10 @@ def next_sync_counter(counter: int) -> int:
 
 
 def sync_gap(previous: int, current: int) -> int:
-    """How many SYNCs were missed between two received counters (0 = none)."""
+    """How many SYNCs were missed between two received counters (0 = none;
+    a repeated counter is a duplicate, not 239 missed SYNCs)."""
+    if current == previous:
+        return 0
     return (current - previous - 1) % SYNC_COUNTER_OVERFLOW
 
 
@@ -241,7 +253,7 @@ def encode_analog_inputs_16(words: npt.ArrayLike) -> bytes:
     w = np.asarray(words, dtype=np.int64)
     if w.shape != (N_ANALOG_INPUTS,):
         raise ValueError(f"TPDO1 carries {N_ANALOG_INPUTS} inputs, got shape {w.shape}")
-    return _INT16X4.pack(*(int(x) for x in w))
+    return _pack(_INT16X4, "TPDO1", *(int(x) for x in w))
 
 
 def decode_analog_inputs_16(data: bytes | bytearray) -> npt.NDArray[np.int64]:
@@ -254,7 +266,7 @@ def encode_analog_inputs_32(words: npt.ArrayLike) -> tuple[bytes, bytes]:
     w = np.asarray(words, dtype=np.int64)
     if w.shape != (N_ANALOG_INPUTS,):
         raise ValueError(f"TPDO2/3 carry {N_ANALOG_INPUTS} inputs, got shape {w.shape}")
-    return _INT32X2.pack(int(w[0]), int(w[1])), _INT32X2.pack(int(w[2]), int(w[3]))
+    return _pack(_INT32X2, "TPDO2", int(w[0]), int(w[1])), _pack(_INT32X2, "TPDO3", int(w[2]), int(w[3]))
 
 
 def decode_analog_inputs_32(data: bytes | bytearray) -> npt.NDArray[np.int64]:
@@ -267,7 +279,7 @@ def encode_analog_outputs(words: npt.ArrayLike) -> bytes:
     w = np.asarray(words, dtype=np.int64)
     if w.shape != (N_ANALOG_OUTPUTS,):
         raise ValueError(f"RPDO1 carries {N_ANALOG_OUTPUTS} outputs, got shape {w.shape}")
-    return _INT16X2.pack(*(int(x) for x in w))
+    return _pack(_INT16X2, "RPDO1", *(int(x) for x in w))
 
 
 def decode_analog_outputs(data: bytes | bytearray) -> npt.NDArray[np.int64]:
@@ -334,7 +346,7 @@ def encode_emcy(code: EmcyCode | int, register: int = 0x01, vendor: bytes = b"")
     """EMCY payload: code, error register (bit 0 = generic error), 5 vendor bytes."""
     if len(vendor) > 5:
         raise ValueError("EMCY carries at most 5 vendor bytes")
-    return _EMCY.pack(int(code), register & 0xFF, vendor.ljust(5, b"\x00"))
+    return _pack(_EMCY, "EMCY", int(code), register & 0xFF, vendor.ljust(5, b"\x00"))
 
 
 def decode_emcy(data: bytes | bytearray) -> Emergency:

@@ -72,10 +72,10 @@ class PlantSettings(CommonSettings):
 class ControllerSettings(CommonSettings):
     """The controller (``ralf-controller``), the emulated MVME CPU."""
 
-    duration_s: float | None = Field(None, gt=0, description="Stop after this much simulated time (default: one pass of the trajectory)")
+    duration_s: float | None = Field(None, gt=0, description="Stop after this much simulated time (default: after `repeats` passes)")
     trajectory: str = Field("", description="Trajectory way-point JSON file (default: the thesis's inspection loop)")
     tip_speed_in_s: float = Field(5.0, gt=0, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
-    repeats: int = Field(1, ge=1, description="Passes around the trajectory")
+    repeats: int = Field(0, ge=0, description="Passes around the trajectory before stopping (0 = until stopped)")
     batch_size: int = Field(20, ge=1, le=4096, description="Samples per batch sent to the DSP (l)")
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
     oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")

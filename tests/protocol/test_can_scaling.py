@@ -126,11 +126,6 @@ def test_infinities_are_flagged(bits: int) -> None:
     np.testing.assert_array_equal(q.saturated, [True, True])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG in protocol/can_map.py ConverterScale.quantize: +/-inf is masked to 0 V with NaN and comes out as code 0 "
-    "instead of being clipped to the end codes like any other value beyond full scale",
-)
 @pytest.mark.parametrize("bits", BITS)
 def test_infinities_clip_to_the_end_codes(bits: int) -> None:
     scale = _scale(bits)
