@@ -159,13 +159,14 @@ class PoleEstimate:
     """One identified resonance."""
 
     frequency_hz: float  #: refined peak frequency (on the estimation spectrum, see estimate_on_smoothed)
-    damping_ratio: float | None  #: the configured method's ζ, else the other's, else None
+    damping_ratio: float  #: the configured method's ζ, else the other's, else 0.0 (see damping_defined)
     damping_fwhm: float | None  #: half-power width (exact or [B.1]); None if no crossings in range
     damping_vrm: float | None  #: VRM median ζ; None if no physical triplet
     natural_frequency_vrm_hz: float | None  #: VRM ω_n/2π
     magnitude: float  #: |H| at the refined peak
     prominence_db: float  #: prominence on the weighted magnitude
     source: str  #: "tot", "11", "12", "21" or "22"
+    damping_defined: bool = True  #: False when neither FWHM nor VRM gave a value (damping_ratio = 0.0)
 
 
 @dataclass(frozen=True)
@@ -190,6 +191,27 @@ class TransferFunctionEstimate:
     h22: NDArray[np.complex128]
     htot: NDArray[np.complex128]
     valid: NDArray[np.bool_]
+
+    # the names used on the wire (TfSnapshot): H11 … Htot
+    @property
+    def H11(self) -> NDArray[np.complex128]:  # noqa: N802
+        return self.h11
+
+    @property
+    def H12(self) -> NDArray[np.complex128]:  # noqa: N802
+        return self.h12
+
+    @property
+    def H21(self) -> NDArray[np.complex128]:  # noqa: N802
+        return self.h21
+
+    @property
+    def H22(self) -> NDArray[np.complex128]:  # noqa: N802
+        return self.h22
+
+    @property
+    def Htot(self) -> NDArray[np.complex128]:  # noqa: N802
+        return self.htot
 
 
 def _readonly(a: NDArray[np.generic]) -> NDArray[np.generic]:
@@ -254,6 +276,40 @@ class Identifier:
     def reset(self) -> None:
         """Zero the history and the averages, keeping the configuration."""
         self._build()
+
+    def restart_history(self) -> None:
+        """Zero the history only (e.g. after lost batches); the averages are kept.
+
+        With ``wait_for_full_history`` nothing new is averaged until ``N``
+        contiguous samples have arrived again, so the gap never enters a snapshot.
+        """
+        self.history.clear()
+        self._pending = 0
+
+    def set_alpha(self, alpha: float) -> None:
+        """Change the averaging weight α at run time without disturbing history or averages.
+
+        With ``averaging='rls'`` this sets the forgetting factor λ = 1 − α.
+        """
+        upd: dict[str, float] = {"alpha": alpha}
+        if self.cfg.averaging == "rls":
+            upd["rls_forgetting"] = 1.0 - alpha
+        self.cfg = IdentifierConfig.model_validate({**self.cfg.model_dump(), **upd})
+        if self.cfg.averaging == "exponential":
+            self._avg.alpha = self.cfg.alpha
+        elif self.cfg.averaging == "rls":
+            lam = self.cfg.rls_forgetting
+            assert self._rls is not None
+            self._rls.lam = lam
+            if lam < 1.0:  # the mask's input spectra keep the RLS's weighting
+                self._avg.method, self._avg.alpha = "exponential", 1.0 - lam
+            else:
+                self._avg.method = "linear"
+
+    @property
+    def fft_width(self) -> int:
+        """Current FFT width N (= history length)."""
+        return self.cfg.fft_width
 
     # ----------------------------------------------------------------- data
     def push(self, inputs: NDArray[np.float64], outputs: NDArray[np.float64]) -> None:
@@ -376,15 +432,17 @@ class Identifier:
         vrm = self._vrm.estimate(hd, fd, k, half_bins, vd) if ok else None
         zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
         first, second = (zeta_vrm, zeta_fwhm) if c.damping_method == "vrm" else (zeta_fwhm, zeta_vrm)
+        chosen = first if first is not None else second
         return PoleEstimate(
             frequency_hz=f_peak,
-            damping_ratio=first if first is not None else second,
+            damping_ratio=chosen if chosen is not None else 0.0,
             damping_fwhm=zeta_fwhm,
             damping_vrm=zeta_vrm,
             natural_frequency_vrm_hz=fn_vrm,
             magnitude=m_peak,
             prominence_db=peak.prominence_db,
             source=c.peak_source,
+            damping_defined=chosen is not None,
         )
 
     # ----------------------------------------------------------- downloads

@@ -17,7 +17,7 @@ thesis's example), order ``p``.
 Smoothing is linear, so ``smooth(mean(H_ij)) = mean(smooth(H_ij))``; the
 identifier smooths only the spectrum it searches, and only over the search
 range (:meth:`FrequencySmoother.smooth_range`). Smoothing biases damping
-estimates upward (§2.4.1); see the identifier's ``damping_on_smoothed``.
+estimates upward (§2.4.1); see the identifier's ``estimate_on_smoothed``.
 """
 
 from __future__ import annotations

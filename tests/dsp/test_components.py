@@ -224,3 +224,29 @@ def test_bench_returns_the_documented_structure() -> None:
         assert isinstance(out[key], float) and out[key] > 0, key
     assert out["n"] == 256 and out["repeats"] == 5
     assert isinstance(out["poles_found"], int)
+
+
+# ------------------------------------------------------------ service-facing API
+def test_run_time_alpha_change_and_history_restart() -> None:
+    _, u, y = dataset(20 * N, seed=6)
+    idf = Identifier(IdentifierConfig(fft_width=N))
+    for s in range(0, 10 * N, N // 2):
+        idf.push(u[:, s : s + N // 2], y[:, s : s + N // 2])
+        idf.step()
+    before = idf.effective_averages
+    idf.set_alpha(0.05)
+    assert idf.cfg.alpha == 0.05 and idf.samples_in_history == N
+    assert idf.effective_averages == before  # nothing lost
+    idf.restart_history()
+    assert idf.samples_in_history == 0 and idf.effective_averages == before
+    idf.push(u[:, 10 * N : 10 * N + N // 2], y[:, 10 * N : 10 * N + N // 2])
+    idf.step()  # history not full again yet: nothing averaged
+    assert idf.effective_averages == before
+    assert idf.fft_width == N
+    tf = idf.transfer_functions()
+    assert tf.H11 is tf.h11 and tf.Htot is tf.htot
+    rls = Identifier(IdentifierConfig(fft_width=N, averaging="rls"))
+    rls.set_alpha(0.2)
+    assert rls.cfg.rls_forgetting == pytest.approx(0.8)
+    with pytest.raises(pydantic.ValidationError):
+        idf.set_alpha(0.0)
