@@ -1,0 +1,535 @@
+"""The bench items. Each fills a result dict progressively, so what was
+measured before a failure is still reported; each cleans up (sessions,
+buses, child processes) whatever happens.
+
+Result of an item::
+
+    {"status": "ok" | "partial" | "failed" | "skipped",
+     "measurements": {name: measurement, ...},   # in display order
+     "config": {...}, "notes": [...], "errors": [...], "skipped": [...]}
+
+A measurement is either a latency summary (``kind: "latency"``, µs:
+``n, p50_us, p99_us, p999_us, max_us`` ...) or a scalar (``kind: "scalar"``,
+``value``, ``unit``); either may name its ``floor`` (another measurement of
+the same item, or a fixed reference given as ``floor_value``) and carry the
+``ratio`` measured/floor (a dict by percentile for latencies).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rig.bench.pingers import (
+    CanPinger,
+    DspPinger,
+    PlantPinger,
+    UdpPinger,
+    ZenohPinger,
+    batch_size_bytes,
+    can_bus,
+    interleave,
+    zenoh_session,
+)
+from rig.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_can_port, private_rig_id, tail
+from rig.bench.stats import from_latency_stats, ratio, ratios, summarize
+
+CAN_GROUP = "239.74.163.2"
+DSP_FFT_WIDTH = 2048
+BATCH_SAMPLES = 20
+
+
+class Skip(Exception):
+    """A measurement cannot run yet (a module it needs is missing)."""
+
+
+@dataclass
+class BenchContext:
+    quick: bool = False
+    duration_s: float = 10.0
+    iterations: int = 2000
+    warmup: int = 100
+    log_dir: Path = field(default_factory=lambda: Path("/tmp"))
+    floors_only: bool = False
+    say: Callable[[str], None] = lambda text: None
+
+
+def new_result() -> dict[str, Any]:
+    return {"status": "ok", "measurements": {}, "config": {}, "notes": [], "errors": [], "skipped": []}
+
+
+def requires(*modules: str) -> None:
+    """Raise :class:`Skip` naming the first module that does not import."""
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            raise Skip(f"{module} does not import yet ({type(exc).__name__}: {exc})") from None
+
+
+def latency(summary: Mapping[str, Any], floor: str | None = None, floor_summary: Mapping[str, Any] | None = None, **extra: Any) -> dict[str, Any]:
+    entry: dict[str, Any] = {"kind": "latency", **summary}
+    if floor is not None:
+        entry["floor"] = floor
+        entry["ratio"] = ratios(summary, floor_summary) if floor_summary is not None else None
+    entry.update(extra)
+    return entry
+
+
+def latency_vs_value(summary: Mapping[str, Any], floor: str, floor_value_us: float, **extra: Any) -> dict[str, Any]:
+    entry: dict[str, Any] = {"kind": "latency", **summary, "floor": floor, "floor_value_us": floor_value_us}
+    entry["ratio"] = {key[:-3]: ratio(summary.get(key), floor_value_us) for key in ("p50_us", "p99_us", "p999_us", "max_us")}
+    entry.update(extra)
+    return entry
+
+
+def scalar(value: float | int | None, unit: str, floor: str | None = None, floor_value: float | None = None, **extra: Any) -> dict[str, Any]:
+    entry: dict[str, Any] = {"kind": "scalar", "value": value, "unit": unit}
+    if floor is not None:
+        entry["floor"] = floor
+        entry["floor_value"] = floor_value
+        entry["ratio"] = ratio(value, floor_value) if value is not None else None
+    entry.update(extra)
+    return entry
+
+
+def _measure_pingers(ctx: BenchContext, pingers: list[Any]) -> dict[str, list[float]]:
+    ctx.say(f"  {ctx.iterations} round trips each of {', '.join(p.name for p in pingers)}")
+    return interleave(pingers, ctx.iterations, ctx.warmup)
+
+
+# --- 1. zenoh -------------------------------------------------------------------------------------
+
+
+def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Batch -> interrupt through the real DSP service vs bare zenoh and bare UDP ping-pong."""
+    size = batch_size_bytes(BATCH_SAMPLES)
+    rig_id = private_rig_id("zenoh")
+    echo_port, dsp_port = free_tcp_port(), free_tcp_port()
+    ping, pong = f"ralf/{rig_id}/bench/ping", f"ralf/{rig_id}/bench/pong"
+    result["config"] = {
+        "rig_id": rig_id,
+        "payload_bytes": size,
+        "batch": f"{BATCH_SAMPLES} samples, 2 inputs, 2 outputs, float64",
+        "dsp": {"RALF_EMULATED_LATENCY_S": "0", "fft_width": DSP_FFT_WIDTH},
+        "qos": "express=True, congestion_control=BLOCK, priority=REAL_TIME",
+        "iterations": ctx.iterations,
+        "warmup": ctx.warmup,
+    }
+    with ExitStack() as stack:
+        udp = stack.enter_context(Child.peer("udp-echo", log_dir=ctx.log_dir))
+        zecho = stack.enter_context(
+            Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{echo_port}", "--ping", ping, "--pong", pong, log_dir=ctx.log_dir)
+        )
+        dsp: Child | None = None
+        if ctx.floors_only:
+            result["notes"].append("--floors-only: the DSP service was not started")
+        else:
+            try:
+                requires("dsp_service.service")
+                env = clean_env(
+                    {
+                        "RALF_RIG_ID": rig_id,
+                        "RALF_ZENOH_MODE": "peer",
+                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{dsp_port}",
+                        "RALF_EMULATED_LATENCY_S": "0",
+                        "RALF_FFT_WIDTH": str(DSP_FFT_WIDTH),
+                        "RALF_BATCH_SIZE": str(BATCH_SAMPLES),
+                        "RALF_LOG_LEVEL": "WARNING",
+                    }
+                )
+                dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp", log_dir=ctx.log_dir))
+            except Skip as exc:
+                result["skipped"].append(f"dsp_batch_to_interrupt: {exc}")
+        udp_port = int(udp.read_tagged("READY", 30)["port"])
+        zecho.read_tagged("READY", 30)
+        endpoints = [f"tcp/127.0.0.1:{echo_port}"] + ([f"tcp/127.0.0.1:{dsp_port}"] if dsp else [])
+        session = zenoh_session(connect=endpoints)
+        stack.callback(session.close)
+        zp = ZenohPinger(session, ping, pong, size)
+        stack.callback(zp.close)
+        up = UdpPinger(udp_port, size)
+        stack.callback(up.close)
+        zp.connect()
+        pingers: list[Any] = [zp, up]
+        dp: DspPinger | None = None
+        if dsp is not None:
+            dp = DspPinger(session, rig_id, samples=BATCH_SAMPLES)
+            stack.callback(dp.close)
+            try:
+                ctx.say("  waiting for the DSP service's empty flag")
+                dp.wait_empty(60.0, alive=dsp.alive)
+                # fill the DSP's history once (N / l batches) so every timed step is a full one
+                for _ in range(math.ceil(DSP_FFT_WIDTH / BATCH_SAMPLES) + 10):
+                    dp.once()
+                dp.compute_s.clear()
+                dp.flag_wait_s.clear()
+                pingers.insert(0, dp)
+            except BenchError as exc:
+                result["errors"].append(f"dsp_batch_to_interrupt: {exc}; {dsp.describe_failure()}")
+                dp = None
+        samples = _measure_pingers(ctx, pingers)
+    m = result["measurements"]
+    udp_s = summarize(samples["udp_pingpong"])
+    zen_s = summarize(samples["zenoh_pingpong"])
+    if dp is not None:
+        rtt = samples[dp.name]
+        dsp_s = summarize(rtt)
+        m["dsp_batch_to_interrupt"] = latency(dsp_s, "zenoh_pingpong", zen_s, vs_udp=ratios(dsp_s, udp_s))
+        compute = dp.compute_s[-len(rtt) :]
+        m["dsp_compute"] = latency(summarize(compute), note="Interrupt.compute_time_s: the identifier step inside the service")
+        overhead = [max(r - c, 0.0) for r, c in zip(rtt, compute)]
+        m["dsp_rtt_minus_compute"] = latency(summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead")
+        if dp.bad:
+            result["notes"].append(f"{dp.bad} undecodable flag/interrupt payloads")
+    m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)
+    m["udp_pingpong"] = latency(udp_s)
+    result["notes"].append("Round trips interleaved in blocks of 50 so a figure and its floors see the same machine state.")
+
+
+# --- 2. CAN ---------------------------------------------------------------------------------------
+
+
+def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """SYNC -> TPDO1 through the plant node (lockstep) vs bare udp_multicast ping-pong."""
+    rig_id = private_rig_id("can")
+    floor_port = private_can_port(rig_id + "-floor")
+    plant_port = private_can_port(rig_id)
+    if plant_port == floor_port:
+        plant_port += 1
+    result["config"] = {
+        "rig_id": rig_id,
+        "interface": f"udp_multicast {CAN_GROUP}",
+        "floor_port": floor_port,
+        "plant_port": plant_port,
+        "frames": "SYNC (1 byte) -> TPDO1 (8 bytes); floor: 8-byte request -> 8-byte reply",
+        "plant": {"RALF_CLOCK": "lockstep", "RALF_WATCHDOG_PERIODS": "200"},
+        "iterations": ctx.iterations,
+        "warmup": ctx.warmup,
+    }
+    with ExitStack() as stack:
+        echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(floor_port), log_dir=ctx.log_dir))
+        plant: Child | None = None
+        if ctx.floors_only:
+            result["notes"].append("--floors-only: the plant service was not started")
+        else:
+            try:
+                requires("plant_emulator.service")
+                env = clean_env(
+                    {
+                        "RALF_RIG_ID": rig_id,
+                        "RALF_ZENOH_MODE": "peer",
+                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{free_tcp_port()}",
+                        "RALF_CAN_INTERFACE": "udp_multicast",
+                        "RALF_CAN_CHANNEL": CAN_GROUP,
+                        "RALF_CAN_PORT": str(plant_port),
+                        "RALF_CLOCK": "lockstep",
+                        "RALF_WATCHDOG_PERIODS": "200",
+                        "RALF_LOG_LEVEL": "WARNING",
+                    }
+                )
+                plant = stack.enter_context(Child([sys.executable, "-m", "plant_emulator"], env=env, name="plant", log_dir=ctx.log_dir))
+            except Skip as exc:
+                result["skipped"].append(f"plant_sync_to_tpdo: {exc}")
+        echo.read_tagged("READY", 30)
+        floor_bus = can_bus(floor_port, [0x181], CAN_GROUP)
+        stack.callback(floor_bus.shutdown)
+        cp = CanPinger(floor_bus)
+        cp.connect()
+        pingers: list[Any] = [cp]
+        if plant is not None:
+            from protocol import can_map
+
+            ids = can_map.cob_ids(can_map.DEFAULT_NODE_ID)
+            plant_bus = can_bus(plant_port, [ids["tpdo1"], ids["heartbeat"]], CAN_GROUP)
+            stack.callback(plant_bus.shutdown)
+            pp = PlantPinger(plant_bus)
+            try:
+                ctx.say("  waiting for the plant node's heartbeat")
+                pp.start(60.0, alive=plant.alive)
+                pingers.insert(0, pp)
+            except BenchError as exc:
+                result["errors"].append(f"plant_sync_to_tpdo: {exc}; {plant.describe_failure()}")
+        samples = _measure_pingers(ctx, pingers)
+    m = result["measurements"]
+    floor = summarize(samples["can_pingpong"])
+    if "plant_sync_to_tpdo" in samples:
+        m["plant_sync_to_tpdo"] = latency(summarize(samples["plant_sync_to_tpdo"]), "can_pingpong", floor, note="includes one lockstep model step per SYNC")
+    m["can_pingpong"] = latency(floor)
+    result["notes"].append("Own frames come back on udp_multicast; both masters filter them (can_filters) and read them off the socket.")
+
+
+# --- shared: short floors and a whole rig ------------------------------------------------------------
+
+
+def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
+    """A short bare udp_multicast ping-pong (the floor of one control tick)."""
+    port = private_can_port(private_rig_id("canfloor"))
+    with ExitStack() as stack:
+        echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(port), log_dir=ctx.log_dir))
+        echo.read_tagged("READY", 30)
+        bus = can_bus(port, [0x181], CAN_GROUP)
+        stack.callback(bus.shutdown)
+        cp = CanPinger(bus)
+        cp.connect()
+        return summarize(interleave([cp], iterations, min(ctx.warmup, 50))["can_pingpong"])
+
+
+def sleep_floor(ctx: BenchContext, rate_hz: float, seconds: float) -> dict[str, Any]:
+    with Child.peer("sleep-jitter", "--rate", str(rate_hz), "--seconds", str(seconds), name=f"sleep-jitter-{rate_hz:g}", log_dir=ctx.log_dir) as child:
+        return child.read_tagged("RESULT", seconds + 30)
+
+
+def listen_config(port: int) -> Any:
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    return config
+
+
+def run_rig(
+    ctx: BenchContext,
+    rig_id: str,
+    clock: str,
+    common: Mapping[str, str],
+    overrides: Mapping[str, Mapping[str, str]],
+    stop_after_running_s: float | None,
+    timeout_s: float,
+) -> dict[str, Any]:
+    """The three services as local processes (rig.launcher), watched on zenoh.
+
+    Ends when the controller exits, or ``stop_after_running_s`` after its
+    first tick; always stops every service. Returns the statuses with their
+    arrival times, the last snapshot (health, liveliness) and exit codes.
+    """
+    from rig.launcher import START_ORDER, STOP_ORDER, RigPlan, start_service, stop_service
+    from rig.monitor import RigWatch
+
+    plan = RigPlan.local(rig_id=rig_id, clock=clock, overrides=overrides, common=common)
+    log_dir = ctx.log_dir / rig_id
+    procs: dict[str, Any] = {}
+    out: dict[str, Any] = {"failure": None, "exit_codes": {}, "log_dir": str(log_dir)}
+    watch = RigWatch(rig_id, listen_config(plan.zenoh_port), history=True)
+    try:
+        for name in START_ORDER:
+            procs[name] = start_service(plan, name, log_dir)
+        started = time.monotonic()
+        first_tick_at: float | None = None
+        while True:
+            time.sleep(0.1)
+            now = time.monotonic()
+            if first_tick_at is None:
+                running = [t for t, s in watch.history() if s.ticks > 0]
+                first_tick_at = running[0] if running else None
+            dead = {n: p.returncode for n, p in procs.items() if p.returncode is not None}
+            if "controller" in dead:
+                if dead["controller"] != 0:
+                    out["failure"] = f"controller exited with {dead['controller']}"
+                break
+            if dead:
+                out["failure"] = ", ".join(f"{n} exited with {c}" for n, c in dead.items())
+                break
+            if stop_after_running_s is not None and first_tick_at is not None and now - first_tick_at >= stop_after_running_s:
+                break
+            if now - started > timeout_s:
+                out["failure"] = f"timed out after {timeout_s:.0f} s ({'running' if first_tick_at else 'no controller tick seen'})"
+                break
+    finally:
+        for name in STOP_ORDER:
+            if name in procs:
+                out["exit_codes"][name] = stop_service(procs[name])
+                if name == "controller":
+                    time.sleep(0.3)  # the controller's final status and health
+        time.sleep(0.3)
+        out["snapshot"] = watch.snapshot()
+        out["history"] = watch.history()
+        watch.close()
+    if out["failure"]:
+        out["logs"] = {name: tail(p.log_path, 6) for name, p in procs.items()}
+    return out
+
+
+def _progress(history: list[tuple[float, Any]]) -> dict[str, float] | None:
+    """Ticks per wall second and simulated seconds per wall second between
+    the first status after the first tick and the last status."""
+    running = [(t, s) for t, s in history if s.ticks > 0]
+    if len(running) < 2:
+        return None
+    (t0, s0), (t1, s1) = running[0], running[-1]
+    span = t1 - t0
+    if span <= 0:
+        return None
+    return {"ticks_per_s": (s1.ticks - s0.ticks) / span, "sim_per_wall": (s1.sim_time_s - s0.sim_time_s) / span, "wall_s": span, "ticks": s1.ticks}
+
+
+# --- 3. real time -------------------------------------------------------------------------------------
+
+
+def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float, ...] = (200.0, 1000.0)) -> None:
+    """The whole rig in real time at each rate for ``duration_s``."""
+    requires("plant_emulator.service", "controller.service", "dsp_service.service")
+    m = result["measurements"]
+    result["config"] = {"duration_s": ctx.duration_s, "rates_hz": list(rates), "runs": {}}
+    for rate in rates:
+        tag = f"{rate:g}Hz"
+        batch = max(1, round(0.1 * rate))  # keep the batch period at 100 ms = the DSP's default emulated latency
+        latency_s = 0.1
+        rig_id = private_rig_id(f"rt{rate:g}")
+        common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
+        overrides = {
+            "controller": {"RALF_DURATION_S": str(ctx.duration_s), "RALF_BATCH_SIZE": str(batch)},
+            "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
+        }
+        result["config"]["runs"][tag] = {"rig_id": rig_id, "batch_size": batch, "batch_period_s": batch / rate, "emulated_latency_s": latency_s, "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}}}
+        try:
+            ctx.say(f"  {tag}: floors (sleep-to-deadline loop, bare CAN ping-pong)")
+            sleep = sleep_floor(ctx, rate, min(ctx.duration_s, 5.0))
+            canf = can_floor(ctx, max(200, ctx.iterations // 2))
+            ctx.say(f"  {tag}: three-process rig for {ctx.duration_s:g} s")
+            run = run_rig(ctx, rig_id, "realtime", common, overrides, None, ctx.duration_s + 90)
+        except BenchError as exc:
+            result["errors"].append(f"{tag}: {exc}")
+            continue
+        result["config"]["runs"][tag].update(exit_codes=run["exit_codes"], log_dir=run["log_dir"])
+        if run["failure"]:
+            result["errors"].append(f"{tag}: {run['failure']}; logs: {run.get('logs')}")
+        ctrl = run["snapshot"]["services"]["controller"]["health"]
+        progress = _progress(run["history"])
+        if progress is None or ctrl is None:
+            result["errors"].append(f"{tag}: no controller status/health received")
+            continue
+        status = run["history"][-1][1]
+        lat, counters = ctrl["latencies"], ctrl["counters"]
+        m[f"{tag} loop_rate"] = scalar(progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz)
+        m[f"{tag} sleep_jitter (floor)"] = latency(sleep["jitter"], note="a process that only sleeps to t0 + k/rate")
+        m[f"{tag} sync_jitter"] = latency(from_latency_stats(lat["sync_jitter"]), f"{tag} sleep_jitter (floor)", sleep["jitter"])
+        m[f"{tag} can_pingpong (floor)"] = latency(canf)
+        m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
+        if lat["batch_to_interrupt"]["count"]:
+            m[f"{tag} batch_to_interrupt"] = latency_vs_value(from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6)
+        else:
+            result["errors"].append(f"{tag}: no interrupt came back from the DSP")
+        ticks = max(int(status.ticks), 1)
+        m[f"{tag} overruns"] = scalar(int(counters.get("overruns", status.overruns)), "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=counters.get("overruns", status.overruns) / ticks)
+        m[f"{tag} deadline_misses"] = scalar(int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts)
+        dsp_h = run["snapshot"]["services"]["dsp"]["health"]
+        if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
+            m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
+        result["config"]["runs"][tag]["controller_counters"] = counters
+    if not m:
+        result["status"] = "failed"
+
+
+# --- 4. lockstep --------------------------------------------------------------------------------------
+
+
+def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Simulated seconds per wall second: three processes, and one process if rig.composition exists."""
+    requires("plant_emulator.service", "controller.service", "dsp_service.service")
+    m = result["measurements"]
+    rate = 200.0
+    ctx.say("  floor: bare CAN ping-pong (a lockstep tick needs at least one)")
+    canf = can_floor(ctx, max(200, ctx.iterations // 2))
+    ceiling = (1.0 / rate) / (canf["p50_us"] * 1e-6)
+    rig_id = private_rig_id("lock")
+    overrides = {"controller": {"RALF_DURATION_S": "3600"}}
+    result["config"] = {"rig_id": rig_id, "rate_hz": rate, "wall_s": ctx.duration_s, "controller": {"RALF_DURATION_S": "3600 (stopped after the wall time)"}, "dsp_emulated_latency_s": "default (0.1 s simulated)"}
+    ctx.say(f"  three-process rig in lockstep for {ctx.duration_s:g} s")
+    run = run_rig(ctx, rig_id, "lockstep", {"RALF_HEALTH_PERIOD_S": "0.5"}, overrides, ctx.duration_s, ctx.duration_s + 90)
+    result["config"]["exit_codes"] = run["exit_codes"]
+    if run["failure"]:
+        result["errors"].append(f"three-process: {run['failure']}; logs: {run.get('logs')}")
+    progress = _progress(run["history"])
+    three: float | None = None
+    m["can_pingpong (floor)"] = latency(canf)
+    if progress is None:
+        result["errors"].append("three-process: no controller progress seen")
+    else:
+        three = progress["sim_per_wall"]
+        m["three_process sim_s/wall_s"] = scalar(three, "x", "CAN-bound ceiling (one bare round trip per tick)", ceiling, ticks_per_s=progress["ticks_per_s"], over_wall_s=progress["wall_s"])
+        ctrl = run["snapshot"]["services"]["controller"]["health"]
+        if ctrl:
+            m["three_process tet"] = latency(from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick")
+    try:
+        requires("rig.composition")
+    except Skip as exc:
+        result["skipped"].append(f"one_process: {exc}")
+        return
+    comp = importlib.import_module("rig.composition")
+    if not hasattr(comp, "run_in_process"):
+        result["skipped"].append("one_process: rig.composition has no run_in_process yet")
+        return
+    sim_s = max(2.0, min(600.0, (three or 5.0) * ctx.duration_s))
+    ctx.say(f"  one-process composition: {sim_s:.0f} s simulated")
+    try:
+        with Child.peer("composition", "--sim-s", f"{sim_s:.3f}", log_dir=ctx.log_dir) as child:
+            out = child.read_tagged("RESULT", ctx.duration_s * 10 + 120)
+    except BenchError as exc:
+        result["errors"].append(f"one_process: {exc}")
+        return
+    if out.get("error"):
+        result["errors"].append(f"one_process: run ended with {out['error']}")
+    one = out["sim_time_s"] / out["wall_time_s"] if out["wall_time_s"] > 0 else None
+    m["one_process sim_s/wall_s"] = scalar(one, "x", "three-process", three, sim_time_s=out["sim_time_s"], wall_time_s=out["wall_time_s"], note="wall time includes the run's start-up")
+    m["one_process tet"] = latency(from_latency_stats(out["tet"]), "can_pingpong (floor)", canf, note="virtual bus in one process: no socket round trip")
+
+
+# --- 5. DSP -------------------------------------------------------------------------------------------
+
+
+def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """dsp_service.bench.bench_identifier(n=2048) against its numpy floor and the C40's 100 ms."""
+    requires("dsp_service.bench")
+    module = importlib.import_module("dsp_service.bench")
+    repeats = 30 if ctx.quick else 200
+    ctx.say(f"  bench_identifier(n=2048, repeats={repeats})")
+    raw = module.bench_identifier(n=2048, repeats=repeats)
+    result["raw"] = raw
+    result["config"] = {"n": 2048, "repeats": repeats}
+    step = {"n": raw["repeats"], "p50_us": raw["step_p50_us"], "p99_us": raw["step_p99_us"]}
+    floor = {"n": raw["repeats"], "p50_us": raw["floor_p50_us"], "p99_us": raw["floor_p99_us"]}
+    m = result["measurements"]
+    m["identifier_step"] = latency(step, "numpy_floor", floor, poles_found=raw.get("poles_found"))
+    m["numpy_floor"] = latency(floor, note="4 rfft + 8 cross-spectra, bare numpy")
+    m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
+
+
+ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
+    "zenoh": bench_zenoh,
+    "can": bench_can,
+    "realtime": bench_realtime,
+    "lockstep": bench_lockstep,
+    "dsp": bench_dsp,
+}
+FLOOR_ITEMS = ("zenoh", "can")
+
+
+def run_item(name: str, ctx: BenchContext) -> dict[str, Any]:
+    """Run one item; a failure or a missing dependency is reported, never raised."""
+    result = new_result()
+    started = time.monotonic()
+    try:
+        ITEMS[name](ctx, result)
+    except Skip as exc:
+        result["status"] = "skipped"
+        result["skipped"].append(str(exc))
+    except Exception as exc:  # report, keep going with the next item
+        result["errors"].append(f"{type(exc).__name__}: {exc}")
+    if result["status"] != "skipped":
+        if result["errors"]:
+            result["status"] = "failed"
+        elif result["skipped"]:
+            result["status"] = "partial"
+    result["wall_s"] = round(time.monotonic() - started, 3)
+    return result

@@ -1,0 +1,142 @@
+"""``ralf-hil bench``: argument parsing, the report's structure and the
+floors in quick mode. No timing thresholds: only that numbers are measured
+(positive, finite) and reported where the JSON says."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+from rich.console import Console
+
+from rig import bench
+from rig.bench import items as bench_items
+from rig.bench.stats import machine_info, ratios, summarize
+from rig.cli import build_parser
+
+LATENCY_KEYS = ("n", "p50_us", "p99_us", "p999_us", "max_us")
+
+
+def _parse(*argv: str) -> argparse.Namespace:
+    return build_parser().parse_args(["bench", *argv])
+
+
+def test_defaults_and_quick() -> None:
+    full = bench.options_from_args(_parse())
+    assert full["items"] == ["zenoh", "can", "realtime", "lockstep", "dsp"]
+    assert full["quick"] is False and full["duration_s"] == 10.0 and full["iterations"] == 2000
+    quick = bench.options_from_args(_parse("--quick"))
+    assert quick["duration_s"] < full["duration_s"] and quick["iterations"] < full["iterations"]
+    args = _parse("--quick", "--duration", "4.5", "--iterations", "7", "--json", "x.json")
+    opts = bench.options_from_args(args)
+    assert (opts["duration_s"], opts["iterations"]) == (4.5, 7)  # explicit values win over --quick
+    assert args.json == "x.json" and args.func is bench.cmd_bench
+
+
+def test_only_selects_items_in_order_without_duplicates() -> None:
+    opts = bench.options_from_args(_parse("--only", "dsp", "zenoh", "--only", "dsp"))
+    assert opts["items"] == ["dsp", "zenoh"]
+    assert bench.options_from_args(_parse("--floors-only"))["items"] == ["zenoh", "can"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--only", "nonsense"],
+        ["--only"],
+        ["--duration", "0"],
+        ["--duration", "-3"],
+        ["--duration", "nan"],
+        ["--duration", "soon"],
+        ["--iterations", "0"],
+        ["--iterations", "1.5"],
+    ],
+)
+def test_bad_arguments_exit_with_usage(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        _parse(*argv)
+    assert exc.value.code == 2
+    assert "usage:" in capsys.readouterr().err
+
+
+def test_summaries_and_ratios() -> None:
+    s = summarize([0.001, 0.002, 0.003, 0.004])
+    assert s["n"] == 4 and s["min_us"] == pytest.approx(1000) and s["max_us"] == pytest.approx(4000)
+    assert s["p50_us"] == pytest.approx(2500)
+    r = ratios(s, summarize([0.0005] * 4))
+    assert r["p50"] == pytest.approx(5.0) and r["max"] == pytest.approx(8.0)
+    with pytest.raises(ValueError):
+        summarize([])
+    with pytest.raises(ValueError):
+        summarize([0.001, float("nan")])
+    info = machine_info()
+    for key in ("platform", "cpu_model", "cores", "python", "packages", "date"):
+        assert info[key]
+    assert info["packages"]["eclipse-zenoh"]
+
+
+def test_a_failing_or_missing_item_is_reported_not_raised(monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(ctx: Any, result: dict[str, Any]) -> None:
+        result["measurements"]["half"] = bench_items.latency(summarize([0.001]))
+        raise RuntimeError("the service fell over")
+
+    def missing(ctx: Any, result: dict[str, Any]) -> None:
+        bench_items.requires("no_such_module_for_bench_tests")
+
+    monkeypatch.setitem(bench_items.ITEMS, "broken", broken)
+    monkeypatch.setitem(bench_items.ITEMS, "missing", missing)
+    ctx = bench_items.BenchContext()
+    failed = bench_items.run_item("broken", ctx)
+    assert failed["status"] == "failed"
+    assert "half" in failed["measurements"]  # what was measured before the failure is kept
+    assert "the service fell over" in failed["errors"][0]
+    skipped = bench_items.run_item("missing", ctx)
+    assert skipped["status"] == "skipped" and "no_such_module_for_bench_tests" in skipped["skipped"][0]
+    report = {"machine": machine_info(), "items": {"broken": failed, "missing": skipped}}
+    report["machine"]["load_average_at_end"] = None
+    buf = io.StringIO()
+    Console(file=buf, width=200).print(bench.render(report))
+    text = buf.getvalue()
+    assert "broken (failed)" in text and "the service fell over" in text
+    assert "missing (skipped)" in text and "no_such_module_for_bench_tests" in text
+
+
+def _check_latency(m: dict[str, Any]) -> None:
+    assert m["kind"] == "latency"
+    for key in LATENCY_KEYS:
+        assert isinstance(m[key], (int, float)) and math.isfinite(m[key]) and m[key] > 0, (key, m)
+    assert m["p50_us"] <= m["p99_us"] <= m["p999_us"] <= m["max_us"]
+
+
+@pytest.mark.timeout(120)
+def test_quick_floors_write_a_complete_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rig.cli import main
+
+    out = tmp_path / "bench.json"
+    code = main(["bench", "--quick", "--floors-only", "--iterations", "30", "--json", str(out), "--log-dir", str(tmp_path / "logs")])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    report = json.loads(out.read_text())
+    assert report["schema"] == bench.SCHEMA
+    assert report["options"]["quick"] is True and report["options"]["iterations"] == 30
+    for key in ("date", "platform", "cpu_model", "cores", "python", "packages", "load_average_at_start", "load_average_at_end"):
+        assert key in report["machine"]
+    assert set(report["items"]) == {"zenoh", "can"}
+    zen = report["items"]["zenoh"]
+    assert zen["status"] == "ok", zen
+    assert zen["config"]["payload_bytes"] == 56 + 8 * 4 * 20  # the 20-sample 2-in/2-out batch
+    _check_latency(zen["measurements"]["udp_pingpong"])
+    z = zen["measurements"]["zenoh_pingpong"]
+    _check_latency(z)
+    assert z["n"] == 30 and z["floor"] == "udp_pingpong"
+    assert all(math.isfinite(v) and v > 0 for v in z["ratio"].values())
+    can_item = report["items"]["can"]
+    assert can_item["status"] == "ok", can_item
+    _check_latency(can_item["measurements"]["can_pingpong"])
+    assert report["wall_s"] > 0
+    assert "zenoh_pingpong" in printed.out and "can_pingpong" in printed.out  # the table
