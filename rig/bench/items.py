@@ -193,6 +193,7 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
     m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)
     m["udp_pingpong"] = latency(udp_s)
     result["notes"].append("Round trips interleaved in blocks of 50 so a figure and its floors see the same machine state.")
+    result["notes"].append("zenoh arrivals are stamped in the subscriber callback (decoding and the hand-off to the measuring thread are not timed); UDP after recv().")
 
 
 # --- 2. CAN ---------------------------------------------------------------------------------------

@@ -111,9 +111,10 @@ class ZenohPinger:
     def __init__(self, session: zenoh.Session, ping: str, pong: str, size: int, timeout_s: float = 2.0) -> None:
         self.size = max(size, _SEQ.size)
         self.timeout_s = timeout_s
-        self.inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+        # arrival is stamped in zenoh's callback: the figure is the transport's, not our thread hand-off's
+        self.inbox: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
         self.pub = _publisher(session, ping)
-        self.sub = session.declare_subscriber(pong, lambda s: self.inbox.put(s.payload.to_bytes()))
+        self.sub = session.declare_subscriber(pong, lambda s: self.inbox.put((s.payload.to_bytes(), _perf())))
         self.seq = 0
 
     def connect(self, within_s: float = 15.0) -> None:
@@ -124,7 +125,7 @@ class ZenohPinger:
             self.pub.put(_SEQ.pack(self.seq) + bytes(self.size - _SEQ.size))
             try:
                 while True:
-                    data = self.inbox.get(timeout=0.1)
+                    data, _ = self.inbox.get(timeout=0.1)
                     if data[: _SEQ.size] == _SEQ.pack(self.seq):
                         return
             except queue.Empty:
@@ -139,11 +140,11 @@ class ZenohPinger:
         self.pub.put(payload)
         while True:
             try:
-                data = self.inbox.get(timeout=self.timeout_s)
+                data, arrived = self.inbox.get(timeout=self.timeout_s)
             except queue.Empty:
                 raise BenchError(f"zenoh echo did not answer ping {self.seq}") from None
             if data[: _SEQ.size] == head:
-                return _perf() - t0
+                return arrived - t0
 
     def close(self) -> None:
         self.sub.undeclare()
@@ -235,11 +236,12 @@ class DspPinger:
         self.samples = samples
         self.rate_hz = rate_hz
         self.timeout_s = timeout_s
-        self.events: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        # arrival is stamped in zenoh's callback, as for ZenohPinger (decoding is not timed)
+        self.events: queue.SimpleQueue[tuple[str, bytes, float]] = queue.SimpleQueue()
         self.pub = _publisher(session, keys.batch)
         self.subs = [
-            session.declare_subscriber(keys.flag, lambda s: self.events.put(("flag", s.payload.to_bytes()))),
-            session.declare_subscriber(keys.interrupt, lambda s: self.events.put(("irq", s.payload.to_bytes()))),
+            session.declare_subscriber(keys.flag, lambda s: self.events.put(("flag", s.payload.to_bytes(), _perf()))),
+            session.declare_subscriber(keys.interrupt, lambda s: self.events.put(("irq", s.payload.to_bytes(), _perf()))),
         ]
         self.seq = 0
         self.empty_for: int | None = None  # next_batch_seq of the latest empty flag seen
@@ -247,19 +249,19 @@ class DspPinger:
         self.flag_wait_s: list[float] = []
         self.bad = 0
 
-    def _next(self, deadline: float) -> tuple[str, Any] | None:
+    def _next(self, deadline: float) -> tuple[str, Any, float] | None:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
             return None
         try:
-            kind, payload = self.events.get(timeout=remaining)
+            kind, payload, arrived = self.events.get(timeout=remaining)
         except queue.Empty:
             return None
         try:
-            return (kind, decode(BlockFlag, payload) if kind == "flag" else decode(Interrupt, payload))
+            return (kind, decode(BlockFlag, payload) if kind == "flag" else decode(Interrupt, payload), arrived)
         except ProtocolError:
             self.bad += 1
-            return ("bad", None)
+            return ("bad", None, arrived)
 
     def wait_empty(self, timeout_s: float, alive: Callable[[], bool] | None = None) -> None:
         """Wait for the empty flag inviting our next batch (``alive``: give up
@@ -273,7 +275,7 @@ class DspPinger:
                 if time.monotonic() < deadline:
                     continue
                 raise BenchError(f"DSP flagged no empty block for batch {self.seq} within {timeout_s:.0f} s")
-            kind, msg = event
+            kind, msg, _ = event
             if kind == "flag" and msg.state == "empty":
                 self.empty_for = msg.next_batch_seq
                 if msg.next_batch_seq > self.seq:
@@ -293,9 +295,9 @@ class DspPinger:
             event = self._next(deadline)
             if event is None:
                 raise BenchError(f"no interrupt for batch {seq} within {self.timeout_s:.0f} s")
-            kind, msg = event
+            kind, msg, arrived = event
             if kind == "irq" and msg.batch_seq == seq:
-                rtt = _perf() - t0
+                rtt = arrived - t0
                 self.compute_s.append(msg.compute_time_s)
                 self.seq = seq + 1
                 return rtt
