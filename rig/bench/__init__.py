@@ -126,6 +126,7 @@ def render(report: dict[str, Any]) -> RenderableType:
     for col, just in (("item", "left"), ("measurement", "left"), ("n", "right"), ("p50", "right"), ("p99", "right"), ("p99.9", "right"), ("max", "right"), ("floor", "left"), ("×p50", "right"), ("×p99", "right")):
         table.add_column(col, justify=just, overflow="fold")
     problems: list[Text] = []
+    notes: list[Text] = []
     for name, item in report["items"].items():
         status = Text(f"{name} ({item['status']})", style=_STATUS.get(item["status"], ""))
         first = True
@@ -146,7 +147,8 @@ def render(report: dict[str, Any]) -> RenderableType:
         table.add_section()
         problems += [Text(f"{name}: {e}", style="red") for e in item["errors"]]
         problems += [Text(f"{name}: skipped {s}", style="yellow") for s in item["skipped"]]
-    return Group(table, *problems)
+        notes += [Text(f"{name}: {n}", style="dim") for n in item["notes"]]
+    return Group(table, *problems, *notes)
 
 
 def write_json(report: dict[str, Any], path: Path) -> None:

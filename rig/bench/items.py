@@ -423,11 +423,20 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
             result["errors"].append(f"{tag}: no interrupt came back from the DSP")
         ticks = max(int(status.ticks), 1)
         m[f"{tag} overruns"] = scalar(int(counters.get("overruns", status.overruns)), "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=counters.get("overruns", status.overruns) / ticks)
+        m[f"{tag} tpdo_timeouts"] = scalar(int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held")
         m[f"{tag} deadline_misses"] = scalar(int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts)
         dsp_h = run["snapshot"]["services"]["dsp"]["health"]
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
         result["config"]["runs"][tag]["controller_counters"] = counters
+        if progress["ticks_per_s"] < 0.98 * rate:
+            result["notes"].append(
+                f"{tag}: the loop fell behind its absolute schedule t0 + k*Ts ({progress['ticks_per_s']:.0f} of {rate:g} ticks/s); "
+                "sync_jitter then measures accumulated lateness, not per-tick jitter"
+            )
+    result["notes"].append(
+        "batch_to_interrupt is the controller's own figure: it takes an interrupt in at the start of a tick, so it includes up to one sample period of waiting."
+    )
     if not m:
         result["status"] = "failed"
 
