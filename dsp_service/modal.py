@@ -13,7 +13,9 @@ the unweighted ``|H|``. Candidates are local maxima found by
 ``scipy.signal.find_peaks`` on the weighted magnitude in dB with a minimum
 prominence; up to ``max_peaks`` are kept, best weighted magnitude first.
 Sub-bin refinement: a parabola through the log magnitudes of the three bins
-around the maximum (vertex offset ``δ = ½(ln a − ln c)/(ln a − 2 ln b + ln c)``).
+around the maximum (vertex offset ``δ = ½(ln a − ln c)/(ln a − 2 ln b + ln c)``,
+:func:`refine_peak`), or a least-squares parabola over more bins for noisy
+raw estimates (:class:`PeakRefiner`).
 
 FWHM damping (Appendix B)
 -------------------------
@@ -64,8 +66,8 @@ spread over ``±1.5`` half-power half-widths around the peak, keeping those
 whose outer points are at least half the band apart (adjacent-bin triplets
 are dominated by noise: in a Monte-Carlo at 3 % complex noise their ζ error
 is 4–10× larger); non-physical triplets (``Re λ ≤ 0``, ``ζ ∉ (0,
-zeta_max]``, ``f_n`` off the band) are discarded and the λ of the rest
-averaged with weights ``|den_t|``. The fast path :func:`vrm_lambda`
+zeta_max]``) are discarded and the λ of the rest averaged with weights
+``|den_t|``; the averaged mode must lie within two bins of the band. The fast path :func:`vrm_lambda`
 solves for λ alone (C eliminated); :func:`vrm_solve` is the full corrected
 2×2 system (tested to agree).
 """
@@ -84,6 +86,8 @@ from numpy.typing import NDArray
 _TINY = float(np.finfo(np.float64).tiny)
 _SQRT_HALF = math.sqrt(0.5)
 TWO_PI = 2.0 * math.pi
+#: Largest ζ with two half-power points: 1 − 2ζ² = 2ζ√(1 − ζ²) ⇔ ζ² = (2 − √2)/4.
+ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
 
 
 # ---------------------------------------------------------------------------
@@ -102,25 +106,9 @@ def log_weights_db(freqs: NDArray[np.float64], f_ref: float, exponent: float) ->
     return 20.0 * np.log10(log_weights(freqs, f_ref, exponent))
 
 
-def parabolic_peak(log_mag: NDArray[np.float64], k: int) -> tuple[float, float]:
-    """Vertex ``(δ, value)`` of the parabola through ``log_mag[k−1 : k+2]``; ``δ ∈ [−½, ½]``.
-
-    Returns ``(0, log_mag[k])`` at an array edge or for a non-concave triple.
-    """
-    if k <= 0 or k >= len(log_mag) - 1:
-        return 0.0, float(log_mag[k])
-    a, b, c = float(log_mag[k - 1]), float(log_mag[k]), float(log_mag[k + 1])
-    curv = a - 2.0 * b + c
-    if not curv < 0.0:
-        return 0.0, b
-    d = 0.5 * (a - c) / curv
-    d = min(0.5, max(-0.5, d))
-    return d, b - 0.25 * (a - c) * d
-
-
 @dataclass(frozen=True)
 class Peak:
-    """A located resonance peak (bin index into the full spectrum)."""
+    """A located resonance peak (``index`` refers to the arrays it was found in)."""
 
     index: int
     frequency_hz: float  #: refined (parabolic on log |H|)
@@ -136,13 +124,15 @@ def find_modal_peaks(
     max_peaks: int = 2,
     min_prominence_db: float = 3.0,
     n_valid: int | None = None,
+    refine: bool = True,
 ) -> list[Peak]:
     """Up to ``max_peaks`` resonance peaks of ``mag`` (already cut to the search range).
 
     Candidates are ranked by ``20 log10 |H| + weights_db`` (see
     :func:`log_weights_db`); masked bins (``valid`` False) are set to the
     range's minimum. ``n_valid`` (the count of valid bins, if the caller has
-    it) saves a pass. Indices in the result refer to the given arrays. If no
+    it) saves a pass; ``refine=False`` skips the parabolic refinement (for
+    callers that refine elsewhere). Indices in the result refer to the given arrays. If no
     local maximum has the required prominence, the global maximum is
     returned alone with its (small) prominence, unless it lies on the range's
     edge (not a true peak): then the list is empty.
@@ -174,7 +164,7 @@ def find_modal_peaks(
     peaks = []
     for o in order:
         k = int(idx[o])
-        d, lv = refine_peak(mag, k)
+        d, lv = refine_peak(mag, k) if refine else (0.0, math.log(max(float(mag[k]), _TINY)))
         peaks.append(Peak(k, float(freqs[k]) + d * df, math.exp(lv), float(proms[o])))
     return peaks
 
@@ -253,14 +243,15 @@ def zeta_from_fwhm_exact(bandwidth_hz: float, peak_frequency_hz: float) -> float
     """Exact inversion of the half-power width measured about the *peak* frequency.
 
     ``ρ = Δf/f_p``, ``c = 1 − ρ²/2``, ``ζ² = ½(1 − 1/√(2 − c²))`` (module doc).
-    Valid for ``ρ`` up to ``√2`` (ζ → 0.3827).
+    Valid for ``ρ`` up to ``√2`` (ζ → 0.3827, :data:`ZETA_MAX_HALF_POWER`, returned beyond).
     """
     rho = bandwidth_hz / peak_frequency_hz
+    if not rho > 0.0:
+        return 0.0
+    if rho >= math.sqrt(2.0):  # beyond the largest width a half-power pair can have
+        return ZETA_MAX_HALF_POWER
     c = 1.0 - 0.5 * rho * rho
-    inner = 2.0 - c * c
-    if not 1.0 <= inner:
-        return 0.0 if rho <= 0.0 else math.sqrt(0.5)
-    return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(inner))))
+    return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(2.0 - c * c))))
 
 
 def half_power_bandwidth(
@@ -279,13 +270,15 @@ def half_power_bandwidth(
     straddling bin is masked (``valid`` False).
     """
     thr = peak_mag * _SQRT_HALF
-    a = max(0, k - max_bins)
-    below_left = np.flatnonzero(mag[a:k] < thr)
-    below_right = np.flatnonzero(mag[k + 1 : k + 1 + max_bins] < thr)
-    if below_left.size == 0 or below_right.size == 0:
+    if k < 1 or k >= mag.size - 1:
         return None
-    i0 = a + int(below_left[-1])  # nearest bin below half power on the left
-    j1 = k + 1 + int(below_right[0])  # nearest on the right
+    left = mag[k - 1 : max(0, k - max_bins) - 1 if k > max_bins else None : -1] < thr  # outward
+    right = mag[k + 1 : k + 1 + max_bins] < thr
+    jl, jr = int(left.argmax()), int(right.argmax())
+    if not (left[jl] and right[jr]):
+        return None
+    i0 = k - 1 - jl  # nearest bin below half power on the left
+    j1 = k + 1 + jr  # nearest on the right
     if valid is not None and not (valid[i0] and valid[i0 + 1] and valid[j1 - 1] and valid[j1]):
         return None
     half = thr * thr
@@ -415,11 +408,12 @@ class VrmEstimator:
     those points whose outer points are at least ``m`` points apart is solved
     with :func:`vrm_lambda` (wide triplets resist noise far better than
     adjacent bins, whose differences are noise-dominated). Non-physical
-    triplets are discarded (``Re λ ≤ 0``, ``ζ ∉ (0, zeta_max]``, ``f_n`` more
-    than two bins outside the band); the rest are averaged with weights
+    triplets are discarded (``Re λ ≤ 0``, ``ζ ∉ (0, zeta_max]``, a singular
+    system); the rest are averaged with weights
     ``|den_t|`` (the magnitude of the triplet's λ coefficient, small when
     the triplet's differences are small and noise-dominated); ``f_n`` and ``ζ``
-    come from the averaged λ. (Weighted mean and median were compared in a
+    come from the averaged λ, which must lie within two bins of the band.
+    (Weighted mean and median were compared in a
     Monte-Carlo at 3–12 % complex noise: the weighted mean was as good or
     slightly better, and cheaper.)
 
@@ -443,7 +437,11 @@ class VrmEstimator:
         self.band_factor = float(band_factor)
         self.zeta_max = float(zeta_max)
         self.model = model
-        self._ops: dict[int, tuple[NDArray[np.complex128], NDArray[np.float64], int]] = {}
+        zm = self.zeta_max
+        self._im_over_re_max = (
+            math.tan(2.0 * math.atan(zm)) if model == "viscous" and zm < 1.0 else (2.0 * zm if model == "hysteretic" else math.inf)
+        )
+        self._ops: dict[int, tuple[NDArray[np.complex128], NDArray[np.float64], int, NDArray[np.intp]]] = {}
         for m in range(1, self.m_max + 1):
             tri = [c for c in combinations(range(2 * m + 1), 3) if c[2] - c[0] >= max(m, 2)]
             t = len(tri)
@@ -460,7 +458,8 @@ class VrmEstimator:
                 dr[t + i, a] -= 1.0
                 dr[2 * t + i, b] = 1.0
                 dr[3 * t + i, c] = 1.0
-            self._ops[m] = (dc, dr, t)
+            offsets = np.arange(-m, m + 1)
+            self._ops[m] = (np.ascontiguousarray(dc.T), np.ascontiguousarray(dr.T), t, offsets)
 
     def estimate(
         self,
@@ -476,7 +475,12 @@ class VrmEstimator:
         mask (masked bins are never used; the band shrinks to avoid them and
         the array's ends). Works in Hz² (λ's units cancel in ζ).
         """
-        n = H.shape[-1]
+        return self.estimate_many(H, freqs, [k], [half_width_bins], valid)[0]
+
+    def _plan(
+        self, n: int, k: int, half_width_bins: float, valid: NDArray[np.bool_] | None
+    ) -> tuple[int, int] | None:
+        """Points per side ``m`` and stride for a peak at ``k``, or ``None`` if no band fits."""
         h = max(1, int(round(self.band_factor * half_width_bins)))
         h = min(h, k, n - 1 - k)
         if h >= 1 and valid is not None:
@@ -490,42 +494,79 @@ class VrmEstimator:
         stride = max(1, int(round(h / m)))
         if m * stride > h:  # keep the points inside the usable band
             m = h // stride
-        band = slice(k - m * stride, k + m * stride + 1, stride)
-        hh = H[band]
-        fb = freqs[band]
-        dc, dr, t = self._ops[m]
-        dd = dc @ hh
-        rr = dr @ (fb * fb)
-        dba, dca = dd[:t], dd[t:]
-        cab, bab, xb, xc = rr[:t], rr[t : 2 * t], rr[2 * t : 3 * t], rr[3 * t :]
+        return m, stride
+
+    def estimate_many(
+        self,
+        H: NDArray[np.complex128],
+        freqs: NDArray[np.float64],
+        ks: list[int],
+        half_widths: list[float],
+        valid: NDArray[np.bool_] | None = None,
+    ) -> list[tuple[float, float, int] | None]:
+        """:meth:`estimate` for several peaks, vectorised over peaks with the same band size."""
+        out: list[tuple[float, float, int] | None] = [None] * len(ks)
+        groups: dict[int, list[tuple[int, int, int]]] = {}
+        for i, (k, hw) in enumerate(zip(ks, half_widths)):
+            plan = self._plan(H.shape[-1], k, hw, valid)
+            if plan is not None:
+                groups.setdefault(plan[0], []).append((i, k, plan[1]))
+        df = float(freqs[1] - freqs[0])
+        for m, members in groups.items():
+            idx = [mb[0] for mb in members]
+            kk = np.array([mb[1] for mb in members])
+            st = np.array([mb[2] for mb in members])
+            for i, res in zip(idx, self._solve(H, freqs, kk, st, m, df)):
+                out[i] = res
+        return out
+
+    def _solve(
+        self,
+        H: NDArray[np.complex128],
+        freqs: NDArray[np.float64],
+        ks: NDArray[np.intp],
+        strides: NDArray[np.intp],
+        m: int,
+        df: float,
+    ) -> list[tuple[float, float, int] | None]:
+        """All triplets of ``g`` peaks sharing ``m`` at once: arrays are ``(g, T)``."""
+        dct, drt, t, offsets = self._ops[m]
+        pts = ks[:, None] + strides[:, None] * offsets  # (g, 2m+1)
+        hh = H[pts]
+        fb = freqs[pts]
+        dd = hh @ dct  # (g, 2T): Δba, Δca
+        rr = (fb * fb) @ drt  # (g, 4T): ωc²−ωa², ωb²−ωa², ωb², ωc² (in Hz²)
+        dba, dca = dd[:, :t], dd[:, t:]
+        cab, bab, xb, xc = rr[:, :t], rr[:, t : 2 * t], rr[:, 2 * t : 3 * t], rr[:, 3 * t :]
         den = dba * cab
         den -= dca * bab
         num = dba * (xb * cab)
         num -= dca * (xc * bab)
         w = np.abs(den)
-        lam = np.divide(num, den, out=np.zeros_like(num), where=w > 0.0)
+        den += w == 0.0  # singular triplet: divide by 1 instead (its weight is 0)
+        lam = np.divide(num, den, out=num)
         re, im = lam.real, lam.imag
-        mod = np.abs(lam)
-        df = float(freqs[1] - freqs[0])
-        f_lo = max(float(fb[0]) - 2.0 * df, 0.0)
-        f_hi = float(fb[-1]) + 2.0 * df
-        if self.model == "viscous":  # f_n² = |λ|, ζ = Im λ / (|λ| + Re λ) = tan(arg λ / 2)
-            f2 = mod
-            zeta_ok = im <= self.zeta_max * (mod + re)
-        else:  # f_r² = Re λ, ζ = Im λ / (2 Re λ)
-            f2 = re
-            zeta_ok = im <= 2.0 * self.zeta_max * re
-        good = (re > 0.0) & (im > 0.0) & zeta_ok & (f2 >= f_lo * f_lo) & (f2 <= f_hi * f_hi)
+        # physical: Re λ > 0 and 0 < ζ ≤ zeta_max, i.e. 0 < Im λ ≤ c·Re λ with
+        # c = tan(2 atan ζmax) (viscous, ζ = tan(arg λ / 2)) or 2 ζmax (hysteretic)
+        good = im <= self._im_over_re_max * re
+        good &= im > 0.0
+        good &= re > 0.0
+        good &= w > 0.0
         w *= good
-        wsum = float(np.add.reduce(w))
-        used = int(np.count_nonzero(good))
-        if used == 0 or not wsum > 0.0:
-            return None
-        lam_avg = complex(np.dot(w, lam)) / wsum
-        fn, zeta = vrm_modal_scalar(lam_avg, self.model)
-        if not (fn > 0.0 and 0.0 < zeta <= self.zeta_max):
-            return None
-        return fn, zeta, used
+        wsum = np.add.reduce(w, axis=1)
+        used = np.add.reduce(good, axis=1, dtype=np.intp)
+        lam_avg = np.add.reduce(w * lam, axis=1)
+        results: list[tuple[float, float, int] | None] = []
+        for g in range(ks.size):
+            if used[g] == 0 or not wsum[g] > 0.0:
+                results.append(None)
+                continue
+            fn, zeta = vrm_modal_scalar(complex(lam_avg[g]) / float(wsum[g]), self.model)
+            # the averaged mode must lie within two bins of the band it came from
+            f_lo, f_hi = float(fb[g, 0]) - 2.0 * df, float(fb[g, -1]) + 2.0 * df
+            ok = f_lo <= fn <= f_hi and 0.0 < zeta <= self.zeta_max
+            results.append((fn, zeta, int(used[g])) if ok else None)
+        return results
 
 
 def vrm_modal_scalar(lam: complex, model: Literal["viscous", "hysteretic"] = "viscous") -> tuple[float, float]:

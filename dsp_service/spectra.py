@@ -57,8 +57,8 @@ def rfft_frequencies(n: int, sample_rate_hz: float) -> NDArray[np.float64]:
 class SpectralEstimator:
     """FFTs of one history snapshot and its seven raw auto/cross spectra.
 
-    Everything that does not depend on the data (window, its FFT, the frequency
-    grid, output buffers) is computed once here. :meth:`snapshot` overwrites
+    Everything that does not depend on the data (window, frequency grid,
+    output buffers) is computed once here. :meth:`snapshot` overwrites
     and returns internal buffers: copy them if you need to keep them.
     """
 
