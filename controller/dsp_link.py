@@ -33,6 +33,10 @@ from protocol.batch_codec import SampleBatch
 from protocol.messages import BlockFlag, Interrupt
 
 
+LOST_AFTER_DEADLINES = 10
+"""An interrupt this many deadlines late is taken as lost."""
+
+
 @dataclass
 class LinkCounters:
     samples_added: int = 0
@@ -42,6 +46,7 @@ class LinkCounters:
     interrupts: int = 0
     interrupts_unexpected: int = 0
     deadline_misses: int = 0
+    interrupts_lost: int = 0
     flags_stale: int = 0
 
     def as_dict(self) -> dict[str, int]:
@@ -123,7 +128,10 @@ class DspLink:
             self.counters.flags_stale += 1
 
     def ready(self) -> bool:
-        return self.block_empty and len(self._pending) >= self.batch_size
+        """A batch may go: the block is empty, the last batch's interrupt is in
+        (the CPU reads the parameters immediately before sending new data, and
+        zenoh does not order the flag and the interrupt), and enough samples wait."""
+        return self.block_empty and self.in_flight is None and len(self._pending) >= self.batch_size
 
     def take_batch(self, tick: int, sim_time_s: float) -> tuple[SentBatch, SampleBatch] | None:
         """If the block is empty and a batch is ready, build it and mark the
@@ -172,9 +180,18 @@ class DspLink:
         return sent
 
     def check_deadline(self, tick: int) -> bool:
-        """True once per batch when its interrupt is overdue at ``tick``."""
+        """True once per batch when its interrupt is overdue at ``tick``.
+
+        An interrupt still missing ``LOST_AFTER_DEADLINES`` deadlines after
+        the batch is declared lost (counted) so batching can resume."""
         sent = self.in_flight
-        if sent is None or self.missed_current or tick <= sent.deadline_tick:
+        if sent is None:
+            return False
+        if tick > sent.tick + LOST_AFTER_DEADLINES * (sent.deadline_tick - sent.tick):
+            self.in_flight = None
+            self.counters.interrupts_lost += 1
+            return False
+        if self.missed_current or tick <= sent.deadline_tick:
             return False
         self.missed_current = True
         self.counters.deadline_misses += 1
