@@ -1,0 +1,126 @@
+"""The CPU side of the handshake against a fake DSP: batches in order, no
+sample lost while the DSP is busy, the bound past which samples drop,
+deadline misses and lost interrupts."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from controller.dsp_link import LOST_AFTER_DEADLINES, DspLink
+from protocol.batch_codec import SampleBatch, decode_batch, encode_batch
+from protocol.messages import BlockFlag, Interrupt
+
+
+def flag(next_seq: int, latency: float = 0.0) -> BlockFlag:
+    return BlockFlag(seq=0, sim_time_s=0.0, state="empty", next_batch_seq=next_seq, fft_width=2048, batch_size=20, emulated_latency_s=latency)
+
+
+def irq(batch_seq: int) -> Interrupt:
+    return Interrupt(seq=batch_seq, sim_time_s=0.0, batch_seq=batch_seq, confidence=0.5, compute_time_s=1e-4)
+
+
+class FakeDsp:
+    """Takes a batch, answers ``busy_ticks`` later with flag then interrupt."""
+
+    def __init__(self, busy_ticks: int) -> None:
+        self.busy_ticks = busy_ticks
+        self.received: list[SampleBatch] = []
+        self.answer_at: int | None = None
+
+    def receive(self, payload: bytes, tick: int) -> None:
+        self.received.append(decode_batch(payload))
+        self.answer_at = tick + self.busy_ticks
+
+    def maybe_answer(self, tick: int, link: DspLink) -> None:
+        if self.answer_at is not None and tick >= self.answer_at:
+            last = self.received[-1].seq
+            link.on_flag(flag(last + 1))
+            link.on_interrupt(irq(last))
+            self.answer_at = None
+
+
+def drive(link: DspLink, dsp: FakeDsp, ticks: int) -> None:
+    link.on_flag(flag(0))
+    for tick in range(ticks):
+        dsp.maybe_answer(tick, link)
+        link.add_sample(tick, np.array([tick, -tick], float), np.array([0.5 * tick, 2.0 * tick]))
+        taken = link.take_batch(tick, tick / 200.0)
+        if taken is not None:
+            dsp.receive(encode_batch(taken[1]), tick)
+        link.check_deadline(tick)
+
+
+def test_batches_in_order_and_every_sample_delivered_once() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=20)
+    dsp = FakeDsp(busy_ticks=5)
+    drive(link, dsp, 1000)
+    seqs = [b.seq for b in dsp.received]
+    assert seqs == list(range(len(seqs)))
+    ticks = np.concatenate([b.inputs[0] for b in dsp.received])
+    assert np.array_equal(ticks, np.arange(ticks.size))  # contiguous, no loss, no duplicate
+    firsts = [b.first_tick for b in dsp.received]
+    assert all(b.first_tick == int(b.inputs[0, 0]) for b in dsp.received)
+    assert firsts == sorted(firsts)
+    out = np.concatenate([b.outputs for b in dsp.received], axis=1)
+    assert np.array_equal(out[1], 2.0 * ticks)
+    assert link.counters.samples_dropped == 0 and link.counters.deadline_misses == 0
+
+
+def test_a_busy_dsp_gets_larger_batches_and_nothing_is_lost() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=20)
+    dsp = FakeDsp(busy_ticks=50)  # 250 ms: longer than the 100 ms batch period
+    drive(link, dsp, 2000)
+    sizes = [b.n_samples for b in dsp.received]
+    assert max(sizes) > 20  # samples waited for the next batch
+    ticks = np.concatenate([b.inputs[0] for b in dsp.received])
+    assert np.array_equal(ticks, np.arange(ticks.size))
+    assert link.counters.samples_dropped == 0
+    assert link.counters.deadline_misses == len(dsp.received) - (dsp.answer_at is None)  # every batch overran its deadline
+
+
+def test_past_the_bound_the_oldest_samples_drop_and_the_batch_says_so() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=20, max_pending=100)
+    link.on_flag(flag(0))
+    for tick in range(20):
+        link.add_sample(tick, np.zeros(2), np.zeros(2))
+    first = link.take_batch(19, 0.095)
+    assert first is not None
+    # the DSP never answers: samples pile up past the bound
+    for tick in range(20, 400):
+        link.add_sample(tick, np.array([tick, 0.0]), np.zeros(2))
+    assert link.pending == 100
+    assert link.counters.samples_dropped == 280
+    link.on_interrupt(irq(0))
+    link.on_flag(flag(1))
+    sent, batch = link.take_batch(400, 2.0)  # type: ignore[misc]
+    assert batch.dropped_before == 280 and batch.first_tick == 300 and batch.n_samples == 100
+
+
+def test_missing_interrupt_counts_a_miss_then_is_declared_lost() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=20)
+    link.on_flag(flag(0))
+    for tick in range(20):
+        link.add_sample(tick, np.zeros(2), np.zeros(2))
+    sent, _ = link.take_batch(19, 0.095)  # type: ignore[misc]
+    assert not link.check_deadline(sent.deadline_tick)
+    assert link.check_deadline(sent.deadline_tick + 1)
+    assert not link.check_deadline(sent.deadline_tick + 2)  # one miss per batch
+    assert link.counters.deadline_misses == 1
+    link.check_deadline(sent.tick + LOST_AFTER_DEADLINES * 20 + 1)
+    assert link.in_flight is None and link.counters.interrupts_lost == 1
+
+
+def test_stale_flags_and_unexpected_interrupts_are_counted() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=1)
+    link.on_flag(flag(5))
+    assert not link.block_empty and link.counters.flags_stale == 1
+    assert link.on_interrupt(irq(3)) is None and link.counters.interrupts_unexpected == 1
+
+
+def test_lockstep_due_tick_follows_the_announced_latency() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=20)
+    link.on_flag(flag(0, latency=0.1))
+    for tick in range(20):
+        link.add_sample(tick, np.zeros(2), np.zeros(2))
+    sent, _ = link.take_batch(19, 0.095)  # type: ignore[misc]
+    assert sent.due_tick == 39 and sent.deadline_tick == 39
