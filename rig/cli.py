@@ -150,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
     up.set_defaults(func=cmd_up)
-    for module in ("rig.bench", "rig.monitor"):
+    for module in ("rig.bench", "rig.monitor", "rig.experiments"):
         try:
             importlib.import_module(module).register(sub)
         except ModuleNotFoundError as exc:
