@@ -12,6 +12,7 @@ from protocol.transport import open_can_bus, open_zenoh
 from rig.runtime import configure_logging, install_stop_handlers, parse_service_args
 
 EXIT_PLANT_FAULT = 3
+EXIT_MONITOR_STOP = 4
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -40,7 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         session.close()
     if result.error:
         log.error("run ended with a fault: %s", result.error)
-        return EXIT_PLANT_FAULT
+        return EXIT_MONITOR_STOP if result.error.startswith("stopped by monitor") else EXIT_PLANT_FAULT
     return 0
 
 

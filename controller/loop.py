@@ -65,6 +65,7 @@ class ControlLaw:
         self.lap_ticks = len(self.setpoints)
         ts = settings.sample_period_s
         self.pi = PIController(PIConfig(sample_period_s=ts))
+        self.degraded = False
         self.oatf: OatfFilter | None = None
         self.supervisor: OatfSupervisor | None = None
         if settings.oatf_mode != "off":
@@ -110,9 +111,16 @@ class ControlLaw:
             pi_output_v=np.asarray(u, dtype=np.float64),
         )
 
+    def set_degraded(self, degraded: bool) -> None:
+        """While degraded the OATF stops adapting; with the ``fixed`` fallback
+        it also returns to the configured design frequency."""
+        if degraded and not self.degraded and self.oatf is not None and self.settings.oatf_fallback == "fixed":
+            self.oatf.update_modes([self.settings.oatf_frequency_hz])
+        self.degraded = degraded
+
     def apply_interrupt(self, interrupt: Interrupt) -> bool:
         """Adaptive OATF: offer the identified first mode; True if the filter changed."""
-        if self.supervisor is None or self.settings.oatf_mode != "adaptive" or not interrupt.poles:
+        if self.supervisor is None or self.settings.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:
             return False
         pole = interrupt.poles[0]
         return self.supervisor.offer([pole.frequency_hz], confidence=interrupt.confidence)

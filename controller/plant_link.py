@@ -76,6 +76,10 @@ class PlantLink:
         self.counters.syncs_sent += 1
         return self.sync_counter
 
+    def skip_sync(self) -> None:
+        """Fault injection: advance the SYNC counter without sending the frame."""
+        self.sync_counter = can_map.next_sync_counter(self.sync_counter)
+
     def send_outputs(self, volts: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """RPDO1 with two valve voltages; returns which were clipped to the D/A range."""
         data, clipped = can_map.volts_to_output_frame(volts)

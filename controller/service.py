@@ -29,6 +29,7 @@ import zenoh
 
 from controller.dsp_link import DspLink
 from controller.loop import ControlLaw, run_ticks
+from controller.monitors import MonitorStop, Monitors
 from controller.plant_link import PlantFault, PlantLink
 from controller.record import ColumnBuffer, save_record
 from protocol.batch_codec import encode_batch
@@ -54,6 +55,7 @@ class TimingCounters:
     dsp_lost: int = 0
     dsp_found: int = 0
     lockstep_waits: int = 0
+    syncs_dropped: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -84,6 +86,9 @@ class ControllerService:
             deadline_s=settings.dsp_deadline_s,
         )
         self.timing = TimingCounters()
+        self.monitors = Monitors(
+            {"deadline": settings.policy_deadline, "stale": settings.policy_stale, "dsp_lost": settings.policy_dsp_lost, "overrun": settings.policy_overrun}
+        )
         self.tet = LatencyTracker()
         self.jitter = LatencyTracker()
         self.irq_latency = LatencyTracker()
@@ -133,10 +138,11 @@ class ControllerService:
 
     def _build_health(self, seq: int) -> Health:
         counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict()}
+        counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
             counters.update(oatf_out_of_band=counts.out_of_band, oatf_low_confidence=counts.low_confidence, oatf_rejected=counts.design_rejected)
-        degraded = self.stale or not self.dsp_alive or self.link.counters.deadline_misses > 0
+        degraded = self.monitors.degraded or not self.dsp_alive
         return Health(
             seq=seq,
             sim_time_s=self.tick * self.settings.sample_period_s,
@@ -144,7 +150,7 @@ class ControllerService:
             state="degraded" if degraded else "running",
             counters=counters,
             latencies={"tet": self.tet.stats(), "sync_jitter": self.jitter.stats(), "batch_to_interrupt": self.irq_latency.stats()},
-            last_miss=self.last_miss,
+            last_miss=self.monitors.last or self.last_miss,
         )
 
     def _publish_status(self, finished: bool = False) -> None:
@@ -184,13 +190,14 @@ class ControllerService:
                     self.liveliness.append((self.tick * self.settings.sample_period_s, "dsp", up))
                     if up:
                         self.timing.dsp_found += 1
+                        self.monitors.clear("dsp_lost")
                         log.info("DSP present at tick %d", self.tick)
                     else:
                         self.timing.dsp_lost += 1
                         self.last_miss = f"DSP lost at tick {self.tick}"
-                        log.warning("DSP lost at tick %d: controlling on with the last parameters", self.tick)
                         self.link.in_flight = None
                         self.link.block_empty = False
+                        self.monitors.fire("dsp_lost", f"DSP lost at tick {self.tick}; controlling on with the fallback parameters")
                 self.dsp_alive = up
         except ProtocolError as exc:
             self.timing.undecodable += 1
@@ -239,6 +246,8 @@ class ControllerService:
                 self.irq_latency.add(time.monotonic() - sent_wall)
             self.timing.interrupts_applied += 1
             applied = True
+            if not self.link.missed_current:
+                self.monitors.clear("deadline")
             if irq.poles:
                 self.latest_frequency_hz = irq.poles[0].frequency_hz
             if irq.poles and irq.confidence >= self.settings.oatf_min_confidence:
@@ -282,7 +291,9 @@ class ControllerService:
         if stale and not self.stale:
             self.timing.stale_episodes += 1
             self.last_miss = f"parameters stale at tick {self.tick} ({age:.2f} s without a fresh estimate)"
-            log.warning(self.last_miss)
+            self.monitors.fire("stale", self.last_miss)
+        elif self.stale and not stale:
+            self.monitors.clear("stale")
         self.stale = stale
         self.timing.stale_ticks += int(stale)
 
@@ -298,8 +309,9 @@ class ControllerService:
         self._maybe_send_batch()
         if self.link.check_deadline(self.tick):
             self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms"
-            log.debug(self.last_miss)
+            self.monitors.fire("deadline", self.last_miss)
         self._check_stale()
+        self.law.set_degraded(self.monitors.degraded)
         row = self.law.record_row(self.tick, out)
         row["irq_applied"] = float(applied)
         row["stale"] = float(self.stale)
@@ -324,7 +336,15 @@ class ControllerService:
                     delay = scheduled - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
+                if s.inject_stall_at_s is not None and self.tick == int(round(s.inject_stall_at_s * s.sample_rate_hz)):
+                    log.warning("fault injection: the loop stalls for %.2f s", s.inject_stall_s)
+                    time.sleep(s.inject_stall_s)
+                    t0 += s.inject_stall_s  # the schedule resumes after the stall
+                    scheduled += s.inject_stall_s
                 start = time.monotonic()
+                if s.inject_sync_drop_every and self.tick % s.inject_sync_drop_every == s.inject_sync_drop_every - 1:
+                    self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
+                    self.timing.syncs_dropped += 1
                 self.plant.send_sync()
                 if not lockstep:
                     self.jitter.add(abs(start - scheduled))
@@ -340,6 +360,9 @@ class ControllerService:
                 self.timing_record.append(tick=self.tick, sync_wall_s=start - t0, tet_s=end - start)
                 if not lockstep and end > scheduled + ts:
                     self.timing.overruns += 1
+                    self.monitors.fire("overrun", f"tick {self.tick} took {(end - start) * 1e3:.2f} ms, past the next SYNC")
+                elif "overrun" in self.monitors.active:
+                    self.monitors.clear("overrun")
                 self.tick += 1
                 self._rate_window.append(end)
                 if len(self._rate_window) > 200:
@@ -350,6 +373,9 @@ class ControllerService:
         except PlantFault as exc:
             error = str(exc)
             log.error("plant fault: %s; valves to zero", error)
+        except MonitorStop as exc:
+            error = f"stopped by monitor policy: {exc}"
+            log.error(error)
         finally:
             try:
                 self.plant.send_outputs(np.zeros(2))

@@ -66,7 +66,7 @@ class _Event:
 class DspService:
     """The board: batch block, identifier, publishers, health."""
 
-    def __init__(self, settings: DspSettings, session: zenoh.Session, extra_delay_s: float = 0.0) -> None:
+    def __init__(self, settings: DspSettings, session: zenoh.Session) -> None:
         self.settings = settings
         self.session = session
         self.keys = Keys(settings.rig_id)
@@ -74,7 +74,7 @@ class DspService:
         self.block = BatchBlock()
         self.batch_size = settings.batch_size
         self.emulated_latency_s = settings.emulated_latency_s
-        self.extra_delay_s = extra_delay_s
+        self.extra_delay_s = settings.inject_delay_s
         self.compute_time = LatencyTracker()
         self.turnaround = LatencyTracker()
         self.interrupt_seq = 0

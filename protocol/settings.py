@@ -90,6 +90,14 @@ class ControllerSettings(CommonSettings):
     lockstep_timeout_s: float = Field(10.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault")
     plant_heartbeat_timeout_s: float = Field(1.0, gt=0, description="Plant heartbeat older than this is a fault")
     record: str = Field("", description="Write the run record (npz + JSON) to this path")
+    policy_deadline: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On an interrupt past its deadline")
+    policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
+    policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
+    policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
+    inject_stall_at_s: float | None = Field(None, ge=0, description="Fault injection: freeze the loop at this simulated time...")
+    inject_stall_s: float = Field(0.0, ge=0, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
+    inject_sync_drop_every: int = Field(0, ge=0, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
+    oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
 
     @field_validator("oatf_band_hz", mode="before")
     @classmethod
@@ -116,6 +124,7 @@ class DspSettings(CommonSettings):
     smoothing_order: int = Field(2, ge=0, description="Savitzky-Golay polynomial order")
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
     budget_s: float | None = Field(None, gt=0, description="Compute-time budget per batch (default: the batch period)")
+    inject_delay_s: float = Field(0.0, ge=0, description="Fault injection: extra compute time per batch (a slowed board)")
     search_min_hz: float = Field(0.5, ge=0, description="Lower edge of the peak search")
     search_max_hz: float = Field(40.0, gt=0, description="Upper edge of the peak search")
 

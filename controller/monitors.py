@@ -1,0 +1,66 @@
+"""What the controller does when a timing monitor fires.
+
+Each monitor (``deadline``: an interrupt later than its deadline;
+``stale``: no fresh estimate for ``stale_after_s``; ``dsp_lost``: the DSP's
+liveliness token vanished; ``overrun``: a tick finished after the next was
+due) has a policy:
+
+* ``count``: count it, nothing else;
+* ``warn``: count it and log a warning (once per episode);
+* ``degrade``: as warn, and run on the fallback parameters until the
+  condition clears (``oatf_fallback``: keep the last good design frozen,
+  or return to the fixed design frequency);
+* ``stop``: end the run with an error.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Literal
+
+Policy = Literal["count", "warn", "degrade", "stop"]
+MONITORS = ("deadline", "stale", "dsp_lost", "overrun")
+
+log = logging.getLogger(__name__)
+
+
+class MonitorStop(RuntimeError):
+    """A monitor whose policy is ``stop`` fired."""
+
+
+@dataclass
+class Monitors:
+    """Counts episodes per monitor and applies its policy."""
+
+    policies: dict[str, Policy]
+    episodes: dict[str, int] = field(default_factory=lambda: {m: 0 for m in MONITORS})
+    active: set[str] = field(default_factory=set)
+    last: str | None = None
+
+    def __post_init__(self) -> None:
+        unknown = set(self.policies) - set(MONITORS)
+        if unknown:
+            raise ValueError(f"unknown monitors {sorted(unknown)}; known: {MONITORS}")
+
+    @property
+    def degraded(self) -> bool:
+        """True while a monitor with policy ``degrade`` is firing."""
+        return any(self.policies.get(m) == "degrade" for m in self.active)
+
+    def fire(self, monitor: str, detail: str) -> None:
+        """A new episode of ``monitor``; raises :class:`MonitorStop` under ``stop``."""
+        policy = self.policies.get(monitor, "count")
+        self.episodes[monitor] += 1
+        self.last = f"{monitor}: {detail}"
+        if policy in ("warn", "degrade", "stop") and monitor not in self.active:
+            log.warning("%s (policy %s)", self.last, policy)
+        self.active.add(monitor)
+        if policy == "stop":
+            raise MonitorStop(self.last)
+
+    def clear(self, monitor: str) -> None:
+        if monitor in self.active:
+            self.active.discard(monitor)
+            if self.policies.get(monitor) in ("warn", "degrade"):
+                log.info("%s cleared", monitor)
