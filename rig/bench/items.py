@@ -512,6 +512,8 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
     m = result["measurements"]
     m["identifier_step"] = latency(step, "numpy_floor", floor, poles_found=raw.get("poles_found"))
     m["numpy_floor"] = latency(floor, note="4 rfft + 8 cross-spectra, bare numpy")
+    if raw.get("floor_unbatched_p50_us"):
+        m["numpy_floor_unbatched"] = latency({"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see dsp_service.bench)")
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
 
 
