@@ -1,0 +1,258 @@
+"""The report builder: ``report.md``, PNG figures and ``results.json`` in one directory.
+
+Build the Markdown in order with :meth:`Report.heading`, :meth:`Report.text`,
+:meth:`Report.table`, :meth:`Report.figure`; put every number worth keeping
+in :attr:`Report.results` (a nested dict, written to ``results.json``);
+record pass/fail physics checks with :meth:`Report.check` and the comparison
+with the thesis with :meth:`Report.thesis`.  :meth:`Report.write` adds the
+"Checks" and "Comparison with the thesis" sections at the end and writes
+the files.  Figures are drawn on :class:`matplotlib.figure.Figure` with the
+Agg canvas (no pyplot state, no display).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from controller.record import to_jsonable
+
+__all__ = ["Check", "Report", "fmt", "new_figure"]
+
+
+def new_figure(width_in: float = 7.5, height_in: float = 4.5, dpi: int = 110) -> Figure:
+    """A matplotlib Figure on the Agg canvas (use ``fig.add_subplot``/``fig.subplots``)."""
+    fig = Figure(figsize=(width_in, height_in), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def fmt(value: Any, digits: int = 4) -> str:
+    """A number for a Markdown table: ``digits`` significant digits, '–' for None/NaN."""
+    if value is None:
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if math.isnan(v):
+        return "–"
+    if math.isinf(v):
+        return "∞" if v > 0 else "−∞"
+    if v == 0.0:
+        return "0"
+    if 1e-3 <= abs(v) < 1e5:
+        return f"{v:.{digits}g}"
+    return f"{v:.{max(1, digits - 1)}e}"
+
+
+@dataclass(frozen=True)
+class Check:
+    """A pass/fail statement the experiment's numbers must satisfy."""
+
+    name: str
+    passed: bool
+    detail: str = ""
+
+
+@dataclass(frozen=True)
+class ThesisComparison:
+    """One line of "what the thesis reports" against what this run found."""
+
+    claim: str
+    observed: str
+    agrees: bool | str | None = None
+    """True/False, a word such as ``"partly"``, or None where the comparison is not a yes/no."""
+
+
+class Report:
+    """Collects Markdown, figures, results and checks; :meth:`write` puts them in ``out_dir``."""
+
+    def __init__(self, out_dir: str | Path, title: str, name: str = "", section: str = "", description: str = "") -> None:
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.title = title
+        self.name = name
+        self.section = section
+        self.description = description
+        self.results: dict[str, Any] = {}
+        """Everything numeric worth keeping; written to ``results.json`` under ``"results"``."""
+        self.checks: list[Check] = []
+        self.comparisons: list[ThesisComparison] = []
+        self.figures: list[str] = []
+        self.attachments: list[dict[str, str]] = []
+        self.meta: dict[str, Any] = {}
+        self._body: list[str] = []
+
+    # -- content --------------------------------------------------------------------------
+    def heading(self, text: str, level: int = 2) -> "Report":
+        """A Markdown heading (level 2 by default; the title is the only level 1)."""
+        if not 1 <= level <= 6:
+            raise ValueError("heading level must be 1..6")
+        self._body += ["", "#" * level + " " + text, ""]
+        return self
+
+    def text(self, *paragraphs: str) -> "Report":
+        """Paragraphs of Markdown."""
+        for p in paragraphs:
+            self._body += [p.strip(), ""]
+        return self
+
+    def bullets(self, items: Sequence[str]) -> "Report":
+        self._body += [f"- {item}" for item in items] + [""]
+        return self
+
+    def code(self, text: str, lang: str = "") -> "Report":
+        self._body += [f"```{lang}", text.rstrip("\n"), "```", ""]
+        return self
+
+    def table(
+        self,
+        headers: Sequence[str],
+        rows: Sequence[Sequence[Any]],
+        caption: str | None = None,
+        align: str | None = None,
+        digits: int = 4,
+    ) -> "Report":
+        """A Markdown table; numbers are formatted with :func:`fmt` (strings are kept as given).
+
+        ``align``: one of 'l', 'r', 'c' per column (default: right for numeric columns, left otherwise).
+        """
+        if any(len(r) != len(headers) for r in rows):
+            raise ValueError("every row needs one cell per header")
+        if align is None:  # numbers right, text left
+            align = "".join(
+                "r" if rows and all(not isinstance(r[i], str) or r[i] in ("–", "") for r in rows) else "l"
+                for i in range(len(headers))
+            )
+        marks = {"l": "---", "r": "---:", "c": ":---:"}
+        if caption:
+            self._body += [f"*{caption}*", ""]
+        self._body.append("| " + " | ".join(_cell(str(h)) for h in headers) + " |")
+        self._body.append("| " + " | ".join(marks[a] for a in align) + " |")
+        for r in rows:
+            cells = [_cell(c) if isinstance(c, str) else fmt(c, digits) for c in r]
+            self._body.append("| " + " | ".join(cells) + " |")
+        self._body.append("")
+        return self
+
+    def figure(self, fig: Figure, filename: str, caption: str = "") -> Path:
+        """Save ``fig`` as ``out_dir/filename`` (PNG) and embed it in the report."""
+        if not filename.endswith(".png"):
+            filename += ".png"
+        path = self.out_dir / filename
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, format="png", metadata={"Software": None})
+        self.figures.append(filename)
+        alt = caption.rstrip(".").replace("[", "(").replace("]", ")") if caption else filename
+        self._body += [f"![{alt}]({filename})", ""]
+        if caption:
+            self._body += [f"*{caption}*", ""]
+        return path
+
+    def attach(self, path: str | Path, description: str) -> "Report":
+        """List a file the experiment wrote (a run record, raw data) in the report and results.json."""
+        p = Path(path)
+        rel = p.relative_to(self.out_dir) if p.is_absolute() and p.is_relative_to(self.out_dir) else p
+        self.attachments.append({"path": str(rel), "description": description})
+        return self
+
+    def check(self, name: str, passed: bool, detail: str = "") -> bool:
+        """Record a physics/consistency check; returns ``passed``."""
+        self.checks.append(Check(name, bool(passed), detail))
+        return bool(passed)
+
+    def thesis(self, claim: str, observed: str, agrees: bool | str | None = None) -> "Report":
+        """One row of the comparison with what the thesis reports (qualitatively)."""
+        self.comparisons.append(ThesisComparison(claim, observed, agrees))
+        return self
+
+    def set_meta(self, **meta: Any) -> None:
+        """Run metadata (the runner sets seed, mode, quick, runtime)."""
+        self.meta.update(meta)
+
+    # -- output ---------------------------------------------------------------------------
+    def markdown(self) -> str:
+        m = self.meta
+        lines = [f"# {self.title}", ""]
+        info = []
+        if self.name:
+            info.append(f"`ralf-hil experiment {self.name}`")
+        if self.section:
+            info.append(f"thesis {self.section}")
+        if m:
+            info.append(
+                f"seed {m.get('seed', '–')}, {'quick' if m.get('quick') else 'full'} run"
+                + (f", mode {m['mode']}" if m.get("needs_rig") else "")
+                + (f", {m['runtime_s']:.1f} s" if "runtime_s" in m else "")
+            )
+        if info:
+            lines += [" · ".join(info), ""]
+        if self.description:
+            lines += [f"> {self.description}", ""]
+        lines += self._body
+        if self.comparisons:
+            lines += ["", "## Comparison with the thesis", ""]
+            lines += ["| the thesis reports | this run | agrees |", "| --- | --- | :---: |"]
+            for c in self.comparisons:
+                if isinstance(c.agrees, str):
+                    mark = c.agrees
+                else:
+                    mark = "–" if c.agrees is None else ("yes" if c.agrees else "**no**")
+                lines.append(f"| {_cell(c.claim)} | {_cell(c.observed)} | {mark} |")
+            lines.append("")
+        if self.checks:
+            passed = sum(c.passed for c in self.checks)
+            lines += ["", "## Checks", "", f"{passed} of {len(self.checks)} passed.", ""]
+            lines += ["| check | result | detail |", "| --- | :---: | --- |"]
+            for c in self.checks:
+                lines.append(f"| {_cell(c.name)} | {'pass' if c.passed else '**FAIL**'} | {_cell(c.detail)} |")
+            lines.append("")
+        if self.attachments:
+            lines += ["", "## Files", ""]
+            lines += [f"- [`{a['path']}`]({a['path']}): {a['description']}" for a in self.attachments]
+            lines.append("")
+        text = "\n".join(lines)
+        while "\n\n\n" in text:
+            text = text.replace("\n\n\n", "\n\n")
+        return text.strip() + "\n"
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "experiment": self.name,
+            "title": self.title,
+            "section": self.section,
+            "meta": to_jsonable(self.meta),
+            "results": to_jsonable(self.results),
+            "checks": [{"name": c.name, "passed": c.passed, "detail": c.detail} for c in self.checks],
+            "thesis_comparison": [
+                {"claim": c.claim, "observed": c.observed, "agrees": c.agrees} for c in self.comparisons
+            ],
+            "figures": list(self.figures),
+            "attachments": list(self.attachments),
+        }
+
+    def write(self) -> tuple[Path, Path]:
+        """Write ``report.md`` and ``results.json``; returns their paths."""
+        report = self.out_dir / "report.md"
+        results = self.out_dir / "results.json"
+        report.write_text(self.markdown(), encoding="utf-8")
+        results.write_text(json.dumps(self.as_json(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        return report, results
+
+
+def _cell(text: str) -> str:
+    """Text safe inside a Markdown table cell: pipes escaped (once), no newlines."""
+    return re.sub(r"(?<!\\)\|", r"\\|", text).replace("\n", " ")
