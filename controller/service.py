@@ -41,6 +41,9 @@ from rig.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
 
+LOCKSTEP_RETRY_S = 0.05
+"""Lockstep: resend a SYNC that got no TPDO after this long (a lost frame)."""
+
 
 @dataclass
 class TimingCounters:
@@ -56,6 +59,7 @@ class TimingCounters:
     dsp_found: int = 0
     lockstep_waits: int = 0
     syncs_dropped: int = 0
+    sync_retries: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -348,11 +352,11 @@ class ControllerService:
                 self.plant.send_sync()
                 if not lockstep:
                     self.jitter.add(abs(start - scheduled))
-                words = self.plant.wait_tpdo(s.lockstep_timeout_s if lockstep else 0.8 * ts)
+                words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(0.8 * ts)
                 if words is None:
-                    if lockstep or self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
+                    if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
                         raise PlantFault(f"plant did not answer SYNC at tick {self.tick} (heartbeat age {self.plant.heartbeat_age():.2f} s)")
-                    words = self._last_words  # hold the last sample for a missed TPDO
+                    words = self._last_words  # real time: hold the last sample for a missed TPDO
                 self._last_words = words
                 self._tick(words)
                 end = time.monotonic()
@@ -389,6 +393,20 @@ class ControllerService:
             error=error,
             liveliness=self.liveliness,
         )
+
+    def _lockstep_sample(self) -> np.ndarray:
+        """Lockstep: the TPDO for this tick. A SYNC lost on the bus gets no
+        answer; after ``LOCKSTEP_RETRY_S`` the SYNC is sent again (the node
+        sees a counter gap and steps once), until ``lockstep_timeout_s``."""
+        deadline = time.monotonic() + self.settings.lockstep_timeout_s
+        while True:
+            words = self.plant.wait_tpdo(min(LOCKSTEP_RETRY_S, max(0.0, deadline - time.monotonic())))
+            if words is not None:
+                return words
+            if time.monotonic() >= deadline:
+                raise PlantFault(f"plant did not answer SYNC at tick {self.tick} within {self.settings.lockstep_timeout_s:.1f} s")
+            self.timing.sync_retries += 1
+            self.plant.send_sync()
 
     def _wait_for_dsp(self, stop: threading.Event, timeout: float) -> None:
         """Give the DSP a moment to announce its empty block before the first tick."""

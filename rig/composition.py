@@ -20,6 +20,8 @@ from controller.plant_link import PlantLink
 from controller.service import ControllerService, RunResult
 from dsp_service.service import DspService
 from plant_emulator.service import serve as serve_plant
+from protocol.keys import Keys
+from protocol.messages import Health, decode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 
 
@@ -31,6 +33,8 @@ class InProcessRun:
     controller: ControllerService
     dsp: DspService
     wall_time_s: float
+    health: dict[str, Health]
+    """The last health message of each service (their final one, sent on stop)."""
 
 
 def _local_session() -> zenoh.Session:
@@ -61,6 +65,13 @@ def run_in_process(
     own_session = session is None
     sess = session or _local_session()
     stop = threading.Event()
+    health: dict[str, Health] = {}
+
+    def keep_health(sample: zenoh.Sample) -> None:
+        msg = decode(Health, sample.payload.to_bytes())
+        health[msg.service] = msg
+
+    health_sub = sess.declare_subscriber(Keys(cs.rig_id).health_all, keep_health)
     plant_bus = can.Bus(interface="virtual", channel=channel)
     ctrl_bus = can.Bus(interface="virtual", channel=channel)
     dsp_service = DspService(ds, sess)
@@ -80,8 +91,10 @@ def run_in_process(
             t.join(timeout=10)
         ctrl.close()
         dsp_service.close()
+        time.sleep(0.05)
+        health_sub.undeclare()
         plant_bus.shutdown()
         ctrl_bus.shutdown()
         if own_session:
             sess.close()
-    return InProcessRun(result=result, controller=ctrl, dsp=dsp_service, wall_time_s=time.monotonic() - started)
+    return InProcessRun(result=result, controller=ctrl, dsp=dsp_service, wall_time_s=time.monotonic() - started, health=dict(health))
