@@ -1,0 +1,103 @@
+"""Deadline behaviour, tested deterministically by injecting faults: a slowed
+DSP, a DSP killed and restarted, a stalled controller, SYNC frames lost on
+the bus. Margins are wide (an injected delay of several deadlines), so the
+outcome does not depend on the machine's load."""
+
+from __future__ import annotations
+
+import signal
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from protocol.can_map import EmcyCode
+from rig.composition import run_in_process
+from rig.launcher import RigObserver, RigPlan, start_service, stop_service
+
+
+@pytest.mark.timeout(120)
+def test_slowed_dsp_misses_are_counted_and_no_sample_is_lost() -> None:
+    run = run_in_process(
+        controller={"duration_s": 4.0, "policy_deadline": "degrade", "oatf_mode": "adaptive", "tf_download_samples": 0},
+        dsp={"inject_delay_s": 0.35, "fft_width": 256, "emulated_latency_s": 0.0},
+        common={"clock": "realtime"},
+    )
+    ctrl = run.controller
+    counters = run.result.counters
+    # the loop kept its rate: every tick of the 4 s ran (no plant fault, no stop)
+    assert run.result.error is None and run.result.ticks == 800
+    assert counters["deadline_misses"] >= 3
+    assert ctrl.monitors.episodes["deadline"] >= 3
+    # batches grew while the board was busy: samples waited, none dropped
+    assert counters["samples_dropped"] == 0
+    dsp = run.dsp.block.counters
+    assert dsp.budget_misses >= 3 and dsp.samples_missing == 0 and dsp.sequence_gaps == 0
+    assert ctrl.link.counters.samples_sent + ctrl.link.pending == run.result.ticks  # every sample sent or still waiting
+    assert dsp.samples_accepted <= ctrl.link.counters.samples_sent
+    assert run.health["dsp"].counters["budget_misses"] >= 3
+
+
+@pytest.mark.timeout(120)
+def test_dsp_deadline_policy_stop_ends_the_run_with_a_clear_error() -> None:
+    run = run_in_process(
+        controller={"duration_s": 4.0, "policy_deadline": "stop", "tf_download_samples": 0},
+        dsp={"inject_delay_s": 0.35, "fft_width": 256, "emulated_latency_s": 0.0},
+        common={"clock": "realtime"},
+    )
+    assert run.result.error is not None and "deadline" in run.result.error
+    assert run.result.ticks < 800
+
+
+@pytest.mark.timeout(120)
+def test_controller_stall_trips_the_plant_watchdog_which_holds_valves_and_sends_emcy() -> None:
+    run = run_in_process(
+        controller={"duration_s": 2.0, "inject_stall_at_s": 1.0, "inject_stall_s": 0.4, "plant_heartbeat_timeout_s": 5.0, "tf_download_samples": 0},
+        plant={"watchdog_periods": 5},
+        common={"clock": "realtime"},
+    )
+    codes = [e.code for e in run.controller.plant.emergencies]
+    assert EmcyCode.SYNC_TIMEOUT in codes
+    assert 0x0000 in codes[codes.index(EmcyCode.SYNC_TIMEOUT) :]  # cleared when SYNC came back
+    plant = run.health["plant"].counters
+    assert plant["watchdog_trips"] == 1 and plant["watchdog_recoveries"] == 1
+    assert run.result.error is None and run.result.ticks == 400
+
+
+@pytest.mark.timeout(120)
+def test_sync_frames_lost_on_the_bus_are_seen_as_counter_gaps() -> None:
+    run = run_in_process(controller={"duration_s": 2.0, "inject_sync_drop_every": 50, "tf_download_samples": 0})
+    assert run.result.error is None and run.result.ticks == 400
+    assert run.result.counters["syncs_dropped"] == 8
+    assert run.result.counters["sync_retries"] == 0  # the dropped SYNC is replaced by the next one
+    assert run.health["plant"].counters["sync_gaps"] == 8
+
+
+@pytest.mark.timeout(180)
+def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_again(tmp_path: Path) -> None:
+    plan = RigPlan.local(rig_id=f"kill-{uuid.uuid4().hex[:6]}", overrides={"dsp": {"RALF_FFT_WIDTH": "256"}})
+    observer = RigObserver(plan)
+    procs = {name: start_service(plan, name, tmp_path) for name in ("dsp", "plant", "controller")}
+    try:
+        def wait_for(cond, timeout: float = 30.0) -> None:  # type: ignore[no-untyped-def]
+            deadline = time.monotonic() + timeout
+            while not cond():
+                assert time.monotonic() < deadline, {n: p.log_path.read_text()[-1500:] for n, p in procs.items()}
+                time.sleep(0.05)
+
+        wait_for(lambda: observer.status is not None and observer.status.interrupts >= 10)
+        procs["dsp"].popen.send_signal(signal.SIGKILL)
+        procs["dsp"].popen.wait()
+        wait_for(lambda: observer.health.get("controller") is not None and observer.health["controller"].counters.get("dsp_lost", 0) >= 1, 10)
+        ticks_at_loss = observer.status.ticks  # type: ignore[union-attr]
+        wait_for(lambda: observer.status.ticks > ticks_at_loss + 200, 10)  # type: ignore[union-attr]
+        irq_before = observer.status.interrupts  # type: ignore[union-attr]
+        procs["dsp"] = start_service(plan, "dsp", tmp_path / "restart")
+        wait_for(lambda: observer.status.interrupts >= irq_before + 10)  # type: ignore[union-attr]
+        counters = observer.health["controller"].counters
+        assert counters["dsp_found"] >= 2 and counters["dsp_lost"] == 1
+    finally:
+        codes = {name: stop_service(procs[name]) for name in ("controller", "plant", "dsp")}
+        observer.close()
+    assert codes == {"controller": 0, "plant": 0, "dsp": 0}
