@@ -3,33 +3,31 @@
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Sequence
+
+import zenoh
 
 from dsp_service.service import DspService
 from protocol.settings import DspSettings
-from protocol.transport import open_zenoh
-from rig.runtime import configure_logging, install_stop_handlers, parse_service_args
+from rig.runtime import run_service
+
+log = logging.getLogger("dsp")
+
+
+def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) -> int:
+    service = DspService(settings, session)
+    log.info("DSP board up on rig %r: N=%d, alpha=%.3g, emulated latency %.0f ms", settings.rig_id, settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
+    try:
+        service.run(stop)
+    finally:
+        service.close()
+        log.info("DSP board stopped: %s", service.block.counters.as_dict())
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = parse_service_args(
-        "ralf-dsp", "The emulated TI C40 DSP board: on-line FFT identification of RALF's transfer functions.", DspSettings, argv
-    )
-    configure_logging(settings.log_level, "dsp")
-    stop = install_stop_handlers()
-    log = logging.getLogger("dsp")
-    session = open_zenoh(settings)
-    try:
-        service = DspService(settings, session)
-        log.info("DSP board up on rig %r: N=%d, alpha=%.3g, emulated latency %.0f ms", settings.rig_id, settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
-        try:
-            service.run(stop)
-        finally:
-            service.close()
-            log.info("DSP board stopped: %s", service.block.counters.as_dict())
-    finally:
-        session.close()
-    return 0
+    return run_service("ralf-dsp", "The emulated TI C40 DSP board: on-line FFT identification of RALF's transfer functions.", DspSettings, serve, argv)
 
 
 if __name__ == "__main__":

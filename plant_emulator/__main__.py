@@ -3,32 +3,33 @@
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Sequence
+
+import zenoh
 
 from plant_emulator.service import serve
 from protocol.settings import PlantSettings
-from protocol.transport import open_can_bus, open_zenoh
-from rig.runtime import configure_logging, install_stop_handlers, parse_service_args
+from protocol.transport import open_can_bus
+from rig.runtime import run_service
+
+log = logging.getLogger("plant")
+
+
+def serve_on_bus(settings: PlantSettings, session: zenoh.Session, stop: threading.Event) -> int:
+    bus = open_can_bus(settings)
+    try:
+        log.info("plant up on rig %r: node %d on %s:%s, %s clock", settings.rig_id, settings.node_id, settings.can_interface, settings.can_channel, settings.clock)
+        serve(settings, session, bus, stop)
+    finally:
+        bus.shutdown()
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = parse_service_args(
-        "ralf-plant", "RALF, the flexible two-link hydraulic arm, with its sensors and 12-bit A/D and D/A on a CANopen node.", PlantSettings, argv
+    return run_service(
+        "ralf-plant", "RALF, the flexible two-link hydraulic arm, with its sensors and 12-bit A/D and D/A on a CANopen node.", PlantSettings, serve_on_bus, argv
     )
-    configure_logging(settings.log_level, "plant")
-    stop = install_stop_handlers()
-    log = logging.getLogger("plant")
-    session = open_zenoh(settings)
-    try:
-        bus = open_can_bus(settings)
-        try:
-            log.info("plant up on rig %r: node %d on %s:%s, %s clock", settings.rig_id, settings.node_id, settings.can_interface, settings.can_channel, settings.clock)
-            serve(settings, session, bus, stop)
-        finally:
-            bus.shutdown()
-    finally:
-        session.close()
-    return 0
 
 
 if __name__ == "__main__":

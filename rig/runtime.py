@@ -145,3 +145,25 @@ class HealthPublisher:
 
 def wall_time() -> float:
     return time.time()
+
+
+def run_service(
+    prog: str,
+    summary: str,
+    model: type[S],
+    body: Callable[[S, zenoh.Session, threading.Event], int],
+    argv: Sequence[str] | None = None,
+) -> int:
+    """The life of a service process: settings, logging, SIGINT/SIGTERM, a
+    zenoh session closed on every path, and ``body``'s exit code."""
+    # Imported here so that parsing --help does not need a network stack.
+    from protocol.transport import open_zenoh
+
+    settings = parse_service_args(prog, summary, model, argv)
+    configure_logging(settings.log_level, prog.removeprefix("ralf-"))
+    stop = install_stop_handlers()
+    session = open_zenoh(settings)
+    try:
+        return body(settings, session, stop)
+    finally:
+        session.close()
