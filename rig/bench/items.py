@@ -388,8 +388,9 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
         latency_s = 0.1
         rig_id = private_rig_id(f"rt{rate:g}")
         common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
+        record = ctx.log_dir / rig_id / "controller-record"
         overrides = {
-            "controller": {"RALF_DURATION_S": str(ctx.duration_s), "RALF_BATCH_SIZE": str(batch)},
+            "controller": {"RALF_DURATION_S": str(ctx.duration_s), "RALF_BATCH_SIZE": str(batch), "RALF_RECORD": str(record)},
             "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
         }
         result["config"]["runs"][tag] = {"rig_id": rig_id, "batch_size": batch, "batch_period_s": batch / rate, "emulated_latency_s": latency_s, "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}}}
@@ -415,6 +416,11 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
         m[f"{tag} loop_rate"] = scalar(progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz)
         m[f"{tag} sleep_jitter (floor)"] = latency(sleep["jitter"], note="a process that only sleeps to t0 + k/rate")
         m[f"{tag} sync_jitter"] = latency(from_latency_stats(lat["sync_jitter"]), f"{tag} sleep_jitter (floor)", sleep["jitter"])
+        timing = _timing_record(record)
+        if timing is not None:
+            _timing_measurements(m, result["notes"], tag, timing, 1.0 / rate, sleep)
+        else:
+            result["notes"].append(f"{tag}: no controller timing record at {record}.timing.npz (SYNC period jitter not computed)")
         m[f"{tag} can_pingpong (floor)"] = latency(canf)
         m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
         if lat["batch_to_interrupt"]["count"]:
@@ -439,6 +445,46 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
     )
     if not m:
         result["status"] = "failed"
+
+
+def _timing_record(record: Path) -> dict[str, Any] | None:
+    """The controller's per-tick timing (RALF_RECORD): tick, sync_wall_s, tet_s, and its settings."""
+    import numpy as np
+
+    npz = Path(str(record) + ".timing.npz")
+    if not npz.exists():
+        return None
+    with np.load(npz, allow_pickle=False) as data:
+        out: dict[str, Any] = {name: np.asarray(data[name]) for name in ("tick", "sync_wall_s", "tet_s")}
+    try:
+        out["config"] = json.loads(Path(str(record) + ".json").read_text())["config"]
+    except (OSError, ValueError, KeyError):
+        out["config"] = {}
+    return out
+
+
+def _timing_measurements(m: dict[str, Any], notes: list[str], tag: str, timing: Mapping[str, Any], ts: float, sleep: Mapping[str, Any]) -> None:
+    """SYNC period jitter (|interval - Ts|, the CANopen sense) beside the sleep loop's,
+    the worst SYNC intervals, and the TET of the ticks that download transfer functions."""
+    import numpy as np
+
+    starts, tet, ticks = timing["sync_wall_s"], timing["tet_s"], timing["tick"]
+    if starts.size < 3:
+        return
+    intervals = np.diff(starts)
+    m[f"{tag} sync_period_jitter"] = latency(
+        summarize(np.abs(intervals - ts)), f"{tag} sleep_period_jitter (floor)", sleep["period_jitter"], note="|SYNC interval - Ts| from the controller's timing record"
+    )
+    m[f"{tag} sleep_period_jitter (floor)"] = latency(sleep["period_jitter"])
+    worst = np.argsort(intervals)[-3:][::-1]
+    notes.append(f"{tag}: longest SYNC intervals " + ", ".join(f"{intervals[i] * 1e3:.1f} ms before tick {int(ticks[i + 1])}" for i in worst))
+    every = int(timing["config"].get("tf_download_samples") or 0)
+    if every:
+        at = (ticks > 0) & (ticks % every == 0)
+        if at.any():
+            m[f"{tag} tet at TF-download ticks"] = latency(
+                summarize(tet[at]), "tet of the other ticks", summarize(tet[~at]), note=f"ticks that also download transfer functions (every {every} samples)"
+            )
 
 
 # --- 4. lockstep --------------------------------------------------------------------------------------

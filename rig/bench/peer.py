@@ -116,6 +116,7 @@ def sleep_jitter(args: argparse.Namespace) -> int:
     period = 1.0 / args.rate
     n = max(1, int(round(args.seconds * args.rate)))
     jitter = []
+    starts = []
     overruns = 0
     t0 = time.monotonic() + 0.01
     for k in range(n):
@@ -124,11 +125,22 @@ def sleep_jitter(args: argparse.Namespace) -> int:
         if delay > 0:
             time.sleep(delay)
         start = time.monotonic()
+        starts.append(start)
         jitter.append(abs(start - scheduled))
         if start > scheduled + period:
             overruns += 1
     wall = time.monotonic() - t0
-    _say("RESULT", {"jitter": summarize(jitter), "overruns": overruns, "ticks": n, "loop_rate_hz": n / wall if wall > 0 else 0.0})
+    period_jitter = [abs(b - a - period) for a, b in zip(starts, starts[1:])] or [0.0]
+    _say(
+        "RESULT",
+        {
+            "jitter": summarize(jitter),
+            "period_jitter": summarize(period_jitter),
+            "overruns": overruns,
+            "ticks": n,
+            "loop_rate_hz": n / wall if wall > 0 else 0.0,
+        },
+    )
     return 0
 
 
