@@ -219,32 +219,37 @@ _STATE_STYLE = {"running": "green", "degraded": "yellow", "starting": "cyan", "s
 def render(snap: dict[str, Any]) -> RenderableType:
     """The snapshot as rich tables: services, latencies, controller status, recent events."""
     services = Table(title=f"rig {snap['rig_id']}  ({_clock(snap['taken_at'])})", expand=False)
-    for col in ("service", "liveliness", "since", "state", "health", "sim time", "counters", "last miss"):
-        services.add_column(col, overflow="fold")
+    for col in ("service", "alive since", "state", "health", "sim time"):
+        services.add_column(col, no_wrap=True)
+    services.add_column("last miss", overflow="fold", min_width=12)
+    counters = Table(title="counters", show_header=False)
+    counters.add_column("service", no_wrap=True)
+    counters.add_column("counters", overflow="fold")
     latencies = Table(title="latencies (ms)")
     for col in ("service", "latency", "n", "p50", "p99", "p99.9", "max"):
-        latencies.add_column(col, justify="left" if col in ("service", "latency") else "right")
+        latencies.add_column(col, justify="left" if col in ("service", "latency") else "right", no_wrap=True)
     for name, svc in snap["services"].items():
         alive = svc["alive"]
-        alive_text = Text(alive, style={"up": "green", "lost": "red"}.get(alive, "dim"))
+        alive_text = Text(alive + (f" {_clock(svc['alive_since'])}" if svc["alive_since"] else ""), style={"up": "green", "lost": "red"}.get(alive, "dim"))
         health = svc["health"]
         if health is None:
-            services.add_row(name, alive_text, _clock(svc["alive_since"]), Text("no health yet", style="dim"), "–", "–", "–", "–")
+            services.add_row(name, alive_text, Text("no health yet", style="dim"), "–", "–", "–")
             continue
         age = svc["health_age_s"]
         services.add_row(
             name,
             alive_text,
-            _clock(svc["alive_since"]),
             Text(health["state"], style=_STATE_STYLE.get(health["state"], "")),
-            f"#{health['seq']}, {age:.1f} s ago" if age is not None else f"#{health['seq']}",
+            f"#{health['seq']} ({age:.1f} s)" if age is not None else f"#{health['seq']}",
             f"{health['sim_time_s']:.2f} s",
-            _counters(health["counters"]),
             health["last_miss"] or "–",
         )
+        counters.add_row(name, _counters(health["counters"]))
         for lname, stats in health["latencies"].items():
             latencies.add_row(name, lname, str(stats["count"]), _ms(stats["p50"]), _ms(stats["p99"]), _ms(stats["p999"]), _ms(stats["max"]))
     parts: list[RenderableType] = [services]
+    if counters.row_count:
+        parts.append(counters)
     if latencies.row_count:
         parts.append(latencies)
     c = snap["controller"]
