@@ -435,7 +435,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
         result["config"]["runs"][tag]["controller_counters"] = counters
-        if progress["ticks_per_s"] < 0.98 * rate:
+        if progress["ticks_per_s"] < 0.98 * rate or lat["sync_jitter"]["p50"] > 1.0 / rate:
             result["notes"].append(
                 f"{tag}: the loop fell behind its absolute schedule t0 + k*Ts ({progress['ticks_per_s']:.0f} of {rate:g} ticks/s); "
                 "sync_jitter then measures accumulated lateness, not per-tick jitter"
