@@ -1,0 +1,420 @@
+"""The integrated plant: hydraulics, flexible links, sensors, on one clock.
+
+:class:`RalfArm` is pure and deterministic: no I/O, no wall clock, no global
+state.  The same seed and the same sequence of calls give bit-identical
+readings and ground truth.
+
+Time.  The state lives on a fixed grid of internal steps (default 1 ms).
+:meth:`RalfArm.advance` takes any ``dt >= 0``: it converts ``dt`` to integer
+nanoseconds, adds it to the remainder carried from earlier calls and runs
+as many whole steps as that covers, so ``advance(a); advance(b)`` runs
+exactly the same steps as ``advance(a + b)`` (real time: the wall-clock
+interval between SYNCs; lockstep: one sample period, 5 internal steps).
+Readings and truth describe the state at the latest grid point (at most one
+internal step old).
+
+One internal step of length ``h``, with the valve voltages held:
+
+1. each cylinder: exact solution of the lag with flow saturation; hard stops
+   clamp the extension, zero the velocity and are counted
+   (:mod:`.hydraulics`);
+2. joint angles from the extensions (law of cosines), joint rates from the
+   lever arms; the joint acceleration over the step is
+   ``(theta'(t+h) - theta'(t)) / h`` (so a hard stop delivers its velocity
+   change to the links as one impulse);
+3. the flexible links (:mod:`.modes`) with ``M, K, E, G`` frozen at the
+   step's mid configuration: projected onto the mass-normalised modes and
+   advanced with the exact solution of each damped mode under the constant
+   load ``G - E theta''``, then mapped back to the physical coordinates;
+4. the anti-alias filters of the deflection channels (exact ZOH
+   discretisation) with the deflection sensor noise at their input.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from plant_emulator.model import kinematics as kin
+from plant_emulator.model.hydraulics import CylinderAxis, HardStop
+from plant_emulator.model.modes import (
+    DEFAULT_STRUCTURE,
+    L1_M,
+    L2_M,
+    Structure,
+    coefficients_scalar,
+    consts,
+    eig2_scalar,
+    modal_parameters,
+)
+from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
+from protocol.can_map import FULL_SCALE_V, ConverterScale
+
+__all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm", "modal_parameters"]
+
+NS_PER_S = 1_000_000_000
+MAX_EVENTS = 256
+"""Hard-stop events kept in the truth (the counters never forget)."""
+
+
+class PlantConfig(BaseModel):
+    """Everything that makes one plant differ from another (all defaults are
+    the thesis's rig as calibrated in docs/plant-model.md)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    seed: int = Field(0, ge=0, description="Seed of the sensor-noise generators")
+    payload_attached: bool = Field(False, description="Start with the 15.65 lb payload at the tip")
+    valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve command to cylinder velocity lag (thesis: steady within 20 ms)")
+    valve_gain_in_per_s_per_v: tuple[float, float] = Field(
+        (10.0, 4.0), description="Cylinder velocity per valve volt, cylinders 1 and 2 (sets the PI loop crossover)"
+    )
+    max_cylinder_speed_in_per_s: tuple[float, float] = Field((6.0, 6.0), description="Flow saturation: the fastest each cylinder moves")
+    internal_step_s: float = Field(0.001, gt=0, le=0.005, description="Fixed internal integration step")
+    adc_bits: int = Field(12, ge=8, le=24, description="A/D resolution (thesis: 12; future work: 16, 20)")
+    home_theta_rad: tuple[float, float] | None = Field(None, description="Start configuration (default: the inspection loop's first way-point)")
+    antialias_cutoff_hz: float = Field(40.0, gt=0, lt=100, description="Deflection anti-alias filter (2nd-order Butterworth) cutoff")
+    extension_noise_std_in: tuple[float, float] = Field((5.4e-3, 4.6e-3), description="Extension noise std at 12 bits (thesis)")
+    deflection_noise_std_in: tuple[float, float] = Field((2.1e-3, 3.8e-4), description="Deflection background noise std at 12 bits (thesis)")
+    noise_reference_bits: int = Field(12, ge=8, le=24, description="Resolution at which the noise stds above were measured")
+    sensor_noise: bool = Field(True, description="False: noiseless sensors (quantization stays)")
+    deflection_zero_in: tuple[float, float] | None = Field(
+        None, description="Deflection read as zero by the sensors (default: the static deflection at home)"
+    )
+    structure: Structure = Field(DEFAULT_STRUCTURE, description="The flexible structure's physical parameters")
+
+    @field_validator("valve_gain_in_per_s_per_v", "max_cylinder_speed_in_per_s")
+    @classmethod
+    def _positive(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not all(math.isfinite(x) and x > 0 for x in v):
+            raise ValueError("must be two positive numbers")
+        return v
+
+    @field_validator("extension_noise_std_in", "deflection_noise_std_in")
+    @classmethod
+    def _non_negative(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not all(math.isfinite(x) and x >= 0 for x in v):
+            raise ValueError("noise stds must be non-negative")
+        return v
+
+    @model_validator(mode="after")
+    def _home_inside(self) -> "PlantConfig":
+        if self.home_theta_rad is not None and not bool(kin.within_limits(*self.home_theta_rad)):
+            raise ValueError("home configuration outside the joint limits")
+        if self.antialias_cutoff_hz >= 0.5 / self.internal_step_s:
+            raise ValueError("anti-alias cutoff must be below the internal step's Nyquist frequency")
+        return self
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """The plant's true state at ``time_s`` (test port only; never the controller's)."""
+
+    time_s: float
+    theta_rad: tuple[float, float]
+    phi_rad: tuple[float, float]
+    """Controlled joint variables, ``phi1 = theta1 - delta``, ``phi2 = theta2 + delta``."""
+    theta_dot_rad_s: tuple[float, float]
+    extensions_in: tuple[float, float]
+    cylinder_velocities_in_s: tuple[float, float]
+    valve_volts: tuple[float, float]
+    deflections_in: tuple[float, float]
+    """True tip deflections of links 1 and 2 (perpendicular to each link)."""
+    deflection_rates_in_s: tuple[float, float]
+    static_deflections_in: tuple[float, float]
+    """Where the deflections would settle at this configuration at rest."""
+    sensed_deflections_in: tuple[float, float]
+    """What the deflection channels carry now: filtered, noisy, relative to the sensor zero."""
+    modal_frequencies_hz: tuple[float, ...]
+    damping_ratios: tuple[float, ...]
+    tip_in: tuple[float, float]
+    """True tip position, deflections included."""
+    rigid_tip_in: tuple[float, float]
+    """Tip position of the rigid arm at the joint angles (forward kinematics)."""
+    payload_attached: bool
+    at_stop: tuple[int, int]
+    """Per joint: -1 resting on the lower stop, +1 on the upper, 0 free."""
+    hard_stop_counts: tuple[int, int]
+    hard_stop_events: tuple[HardStop, ...] = field(default_factory=tuple)
+    """The most recent arrivals at a stop (up to 256)."""
+    adc_bits: int = 12
+
+    @property
+    def hard_stop_count(self) -> int:
+        return sum(self.hard_stop_counts)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data."""
+        d = asdict(self)
+        d["hard_stop_events"] = [asdict(e) for e in self.hard_stop_events]
+        d["hard_stop_count"] = self.hard_stop_count
+        return d
+
+
+class RalfArm:
+    """RALF with its sensors: ``set_valve_voltages`` / ``advance`` / ``sample``.
+
+    Starts at rest at the home configuration, pre-deflected to its static
+    equilibrium, valves at 0 V, so a run starts without a transient."""
+
+    modal_parameters = staticmethod(modal_parameters)
+
+    def __init__(self, cfg: PlantConfig | None = None) -> None:
+        self.cfg = cfg = cfg or PlantConfig()
+        self._h_ns = int(round(cfg.internal_step_s * NS_PER_S))
+        if self._h_ns <= 0:
+            raise ValueError("internal step too small")
+        self._h = self._h_ns / NS_PER_S
+        self._steps = 0
+        self._pending_ns = 0
+        self._consts = (consts(cfg.structure, False), consts(cfg.structure, True))
+        self._zetas = cfg.structure.damping_ratios
+        self._payload = bool(cfg.payload_attached)
+        th = cfg.home_theta_rad if cfg.home_theta_rad is not None else kin.home_theta()
+        self._axes = tuple(
+            CylinderAxis(
+                j,
+                cfg.valve_gain_in_per_s_per_v[j],
+                cfg.valve_time_constant_s,
+                cfg.max_cylinder_speed_in_per_s[j],
+                float(kin.CYLINDERS[j].extension(th[j])),
+            )
+            for j in (0, 1)
+        )
+        self._volts = [0.0, 0.0]
+        self._theta = [self._angle(0), self._angle(1)]
+        self._theta_dot = [0.0, 0.0]
+        self._events: deque[HardStop] = deque(maxlen=MAX_EVENTS)
+        self._stop_counts = [0, 0]
+        self._cache_key: tuple[float, float, bool] | None = None
+        self._cache: tuple[Any, ...] = ()
+        # flexible state at static equilibrium
+        self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
+        self._beta_dot = [0.0, 0.0]
+        # sensors
+        self._noise = NoiseSources(cfg.seed)
+        self._aa = AntiAliasFilter(cfg.antialias_cutoff_hz, self._h)
+        self._scale = ConverterScale(cfg.adc_bits)
+        ref = cfg.noise_reference_bits
+        on = cfg.sensor_noise
+        self._ext_noise = tuple(analog_noise_std(cfg.extension_noise_std_in[j], channel_lsb_in(j, ref)) if on else 0.0 for j in (0, 1))
+        self._defl_noise_in = tuple(
+            self._aa.input_std_for_output_std(analog_noise_std(cfg.deflection_noise_std_in[j], channel_lsb_in(2 + j, ref))) if on else 0.0
+            for j in (0, 1)
+        )
+        w = self._deflections()
+        self._zero = tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else w
+        self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
+
+    # -- public API ---------------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """Simulated time (s): the grid time plus the carried remainder."""
+        return (self._steps * self._h_ns + self._pending_ns) / NS_PER_S
+
+    @property
+    def payload_attached(self) -> bool:
+        return self._payload
+
+    @property
+    def adc_bits(self) -> int:
+        return self._scale.bits
+
+    @property
+    def hard_stop_count(self) -> int:
+        """Arrivals at a hard stop since the start, both joints."""
+        return self._stop_counts[0] + self._stop_counts[1]
+
+    def set_valve_voltages(self, volts: npt.ArrayLike) -> None:
+        """The two valve voltages (V), held until the next call. The node
+        hands them already quantized by the 12-bit D/A; beyond +-10 V they
+        are clipped like the D/A's output."""
+        v = np.asarray(volts, dtype=np.float64)
+        if v.shape != (2,):
+            raise ValueError(f"two valve voltages expected, got shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ValueError("valve voltages must be finite")
+        v = np.clip(v, -FULL_SCALE_V, FULL_SCALE_V)
+        self._volts = [float(v[0]), float(v[1])]
+
+    def advance(self, dt: float) -> None:
+        """Integrate ``dt`` seconds (``dt >= 0``) in fixed internal steps,
+        carrying the remainder to the next call."""
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"advance needs a finite dt >= 0, got {dt!r}")
+        total = self._pending_ns + int(round(dt * NS_PER_S))
+        n, self._pending_ns = divmod(total, self._h_ns)
+        for _ in range(n):
+            self._step()
+
+    def sample(self) -> SensorReading:
+        """A/D conversion of the four inputs now (on SYNC)."""
+        ext = (self._axes[0].extension_in, self._axes[1].extension_in)
+        rng = self._noise.sample if self.cfg.sensor_noise else None
+        return read_inputs(self.time_s, ext, self._aa.outputs(), self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
+
+    def truth(self) -> GroundTruth:
+        t1, t2 = self._theta
+        p1, p2 = kin.theta_to_phi(t1, t2)
+        w = self._deflections()
+        wd = (L1_M * self._beta_dot[0] / kin.INCH, L2_M * self._beta_dot[1] / kin.INCH)
+        ws = self._static_beta(t1, t2)
+        f, z = modal_parameters(t1, t2, self._payload, self.cfg.structure)
+        xr, yr = kin.forward(t1, t2)
+        tip = self._tip(t1, t2)
+        fo = self._aa.outputs()
+        return GroundTruth(
+            time_s=self.time_s,
+            theta_rad=(t1, t2),
+            phi_rad=(float(p1), float(p2)),
+            theta_dot_rad_s=(self._theta_dot[0], self._theta_dot[1]),
+            extensions_in=(self._axes[0].extension_in, self._axes[1].extension_in),
+            cylinder_velocities_in_s=(self._axes[0].velocity_in_s, self._axes[1].velocity_in_s),
+            valve_volts=(self._volts[0], self._volts[1]),
+            deflections_in=w,
+            deflection_rates_in_s=wd,
+            static_deflections_in=(L1_M * ws[0] / kin.INCH, L2_M * ws[1] / kin.INCH),
+            sensed_deflections_in=(fo[0], fo[1]),
+            modal_frequencies_hz=tuple(float(x) for x in f),
+            damping_ratios=tuple(float(x) for x in z),
+            tip_in=tip,
+            rigid_tip_in=(float(xr), float(yr)),
+            payload_attached=self._payload,
+            at_stop=(self._axes[0].stop_side, self._axes[1].stop_side),
+            hard_stop_counts=(self._stop_counts[0], self._stop_counts[1]),
+            hard_stop_events=tuple(self._events),
+            adc_bits=self._scale.bits,
+        )
+
+    def attach_payload(self, attached: bool) -> None:
+        """Pick up (True) or release (False) the payload now: the mass,
+        modes and static load change at once; positions and velocities of the
+        links are continuous, so the arm rings about its new equilibrium."""
+        self._payload = bool(attached)
+        self._cache_key = None
+
+    def set_adc_bits(self, bits: int) -> None:
+        """Change the A/D resolution (12, 16, 20 ...); the analog noise stays."""
+        self._scale = ConverterScale(int(bits))
+
+    def reseed(self, seed: int) -> None:
+        """Restart both noise generators from ``seed``."""
+        if int(seed) < 0:
+            raise ValueError("seed must be non-negative")
+        self._noise.reseed(int(seed))
+
+    # -- internals ----------------------------------------------------------------------
+    def _angle(self, j: int) -> float:
+        cyl = kin.CYLINDERS[j]
+        length = self._axes[j].extension_in + cyl.retracted_length_in
+        cg = (cyl.p_in**2 + cyl.q_in**2 - length * length) / (2.0 * cyl.p_in * cyl.q_in)
+        return math.acos(min(1.0, max(-1.0, cg))) - cyl.offset_rad
+
+    @staticmethod
+    def _lever(j: int, theta: float) -> float:
+        cyl = kin.CYLINDERS[j]
+        g = theta + cyl.offset_rad
+        pq = cyl.p_in * cyl.q_in
+        return pq * math.sin(g) / math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(g))
+
+    def _static_beta(self, t1: float, t2: float) -> tuple[float, float]:
+        co = coefficients_scalar(self._consts[self._payload], t1, t2)
+        K11, K12, K22, G1, G2 = co[3], co[4], co[5], co[10], co[11]
+        det = K11 * K22 - K12 * K12
+        return (K22 * G1 - K12 * G2) / det, (K11 * G2 - K12 * G1) / det
+
+    def _deflections(self) -> tuple[float, float]:
+        return L1_M * self._beta[0] / kin.INCH, L2_M * self._beta[1] / kin.INCH
+
+    def _tip(self, t1: float, t2: float) -> tuple[float, float]:
+        """Tip position (in) with the flexing: link 1 turns by beta1 about
+        joint 1, link 2 by kappa*beta1 + beta2 about the elbow."""
+        b1, b2 = self._beta
+        kap = self.cfg.structure.slope_transmission
+        a1 = t1 + b1
+        a12 = t1 + t2 + kap * b1 + b2
+        return (kin.A1_IN * math.cos(a1) + kin.A2_IN * math.cos(a12), kin.A1_IN * math.sin(a1) + kin.A2_IN * math.sin(a12))
+
+    def _modal(self, tm1: float, tm2: float) -> tuple[Any, ...]:
+        key = (tm1, tm2, self._payload)
+        if key != self._cache_key:
+            co = coefficients_scalar(self._consts[self._payload], tm1, tm2)
+            M11, M12, M22, K11, K12, K22 = co[:6]
+            l1, l2, (p11, p21, p12, p22) = eig2_scalar(M11, M12, M22, K11, K12, K22)
+            h = self._h
+            steps = []
+            for lam, zeta in ((l1, self._zetas[0]), (l2, self._zetas[1])):
+                w = math.sqrt(lam)
+                sig = zeta * w
+                wd = w * math.sqrt(1.0 - zeta * zeta)
+                e = math.exp(-sig * h)
+                c = e * math.cos(wd * h)
+                s = e * math.sin(wd * h) / wd
+                # x1 = c x0 + s (v0 + sig x0);  v1 = c v0 - s (sig v0 + w^2 x0)
+                steps.append((w * w, sig, c, s))
+            self._cache_key = key
+            self._cache = (co, (p11, p21, p12, p22), steps)
+        return self._cache
+
+    def _step(self) -> None:
+        h = self._h
+        t_end = (self._steps + 1) * self._h_ns / NS_PER_S
+        th0 = self._theta
+        thd0 = self._theta_dot
+        # 1. hydraulics
+        new_theta = [0.0, 0.0]
+        new_rate = [0.0, 0.0]
+        for j in (0, 1):
+            ax = self._axes[j]
+            r = ax.step(self._volts[j], h)
+            if r.arrived:
+                self._stop_counts[j] += 1
+                self._events.append(HardStop(time_s=t_end, joint=j, side=r.stop_side, speed_in_s=r.speed_before_in_s))
+            th = self._angle(j)
+            new_theta[j] = th
+            new_rate[j] = r.velocity_in_s / self._lever(j, th)
+        # 2. joint acceleration over the step
+        acc0 = (new_rate[0] - thd0[0]) / h
+        acc1 = (new_rate[1] - thd0[1]) / h
+        # 3. flexible links at the mid configuration
+        co, (p11, p21, p12, p22), steps = self._modal(0.5 * (th0[0] + new_theta[0]), 0.5 * (th0[1] + new_theta[1]))
+        M11, M12, M22 = co[0], co[1], co[2]
+        E11, E12, E21, E22, G1, G2 = co[6], co[7], co[8], co[9], co[10], co[11]
+        f1 = G1 - E11 * acc0 - E12 * acc1
+        f2 = G2 - E21 * acc0 - E22 * acc1
+        b1, b2 = self._beta
+        v1, v2 = self._beta_dot
+        mb1, mb2 = M11 * b1 + M12 * b2, M12 * b1 + M22 * b2
+        mv1, mv2 = M11 * v1 + M12 * v2, M12 * v1 + M22 * v2
+        w_old = self._deflections()
+        nb1 = nb2 = nv1 = nv2 = 0.0
+        for (pa, pb), (w2, sig, c, s) in zip(((p11, p21), (p12, p22)), steps, strict=True):
+            eta = pa * mb1 + pb * mb2
+            eta_d = pa * mv1 + pb * mv2
+            xs = (pa * f1 + pb * f2) / w2
+            x0 = eta - xs
+            x1 = c * x0 + s * (eta_d + sig * x0) + xs
+            vv = c * eta_d - s * (sig * eta_d + w2 * x0)
+            nb1 += pa * x1
+            nb2 += pb * x1
+            nv1 += pa * vv
+            nv2 += pb * vv
+        self._beta = [nb1, nb2]
+        self._beta_dot = [nv1, nv2]
+        self._theta = new_theta
+        self._theta_dot = new_rate
+        # 4. anti-alias filters with the deflection noise at their input
+        w_new = self._deflections()
+        z0, z1 = self._zero
+        n0, n1 = self._noise.step_pair() if self.cfg.sensor_noise else (0.0, 0.0)
+        self._aa.step(
+            0.5 * (w_old[0] + w_new[0]) - z0 + self._defl_noise_in[0] * n0,
+            0.5 * (w_old[1] + w_new[1]) - z1 + self._defl_noise_in[1] * n1,
+        )
+        self._steps += 1

@@ -1,0 +1,126 @@
+"""RALF's hydraulic joints: valve voltage -> cylinder velocity -> extension.
+
+Thesis §3.1: cylinders at 1000 psi, the valve voltage commands the cylinder
+velocity, and a voltage step reaches steady velocity in under 20 ms.  The
+hydraulics overpower the light structure, so each joint is a velocity
+source: the flexible links do not load it (their reaction is not fed back).
+
+Per cylinder ``i``::
+
+    u_i   = clip(K_v,i * V_i, -v_max,i, +v_max,i)     flow saturation
+    tau v_i' = u_i - v_i                               valve/flow first-order lag
+    e_i'  = v_i                                        extension (in)
+
+integrated *exactly* over a step of length ``h`` for a constant command
+(``v(h) = u + (v0 - u) a``, ``e(h) = e0 + u h + (v0 - u) tau (1 - a)``,
+``a = exp(-h / tau)``), so the step size does not change the answer.
+
+Hard stops: the joint limits (theta1 60-100 deg, theta2 10-120 deg) are
+extension limits of the pin triangles.  A cylinder that reaches one is
+clamped to it and its velocity zeroed; pushing further into the stop keeps
+it there (pressure builds, no flow).  Each arrival at a stop is an event.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from plant_emulator.model.kinematics import CYLINDERS, extension_limits_in
+
+__all__ = ["CylinderAxis", "HardStop", "StepResult"]
+
+
+@dataclass(frozen=True)
+class HardStop:
+    """One arrival of a joint at a limit."""
+
+    time_s: float
+    joint: int
+    """0 = joint 1 (theta1), 1 = joint 2 (theta2)."""
+    side: int
+    """-1 = lower limit, +1 = upper limit."""
+    speed_in_s: float
+    """Cylinder speed just before the stop."""
+
+
+@dataclass(frozen=True)
+class StepResult:
+    extension_in: float
+    velocity_in_s: float
+    stop_side: int
+    """-1, 0 or +1: at the lower stop, free, at the upper stop."""
+    arrived: bool
+    """True when this step brought the cylinder onto a stop."""
+    speed_before_in_s: float
+
+
+class CylinderAxis:
+    """One valve + cylinder: the lag, flow saturation and the hard stops.
+
+    State: extension (in), lagged velocity (in/s), which stop it rests on.
+    """
+
+    def __init__(
+        self,
+        joint: int,
+        gain_in_s_per_v: float,
+        time_constant_s: float,
+        max_speed_in_s: float,
+        extension_in: float,
+    ) -> None:
+        if gain_in_s_per_v <= 0 or time_constant_s <= 0 or max_speed_in_s <= 0:
+            raise ValueError("valve gain, time constant and speed limit must be positive")
+        self.joint = joint
+        self.cylinder = CYLINDERS[joint]
+        self.gain = float(gain_in_s_per_v)
+        self.tau = float(time_constant_s)
+        self.vmax = float(max_speed_in_s)
+        self.ext_lo, self.ext_hi = extension_limits_in(joint)
+        self.extension_in = min(max(float(extension_in), self.ext_lo), self.ext_hi)
+        self.velocity_in_s = 0.0
+        self.stop_side = self._side(self.extension_in)
+        self._decay_h = -1.0
+        self._decay = 0.0
+
+    def _side(self, ext: float) -> int:
+        if ext <= self.ext_lo:
+            return -1
+        if ext >= self.ext_hi:
+            return 1
+        return 0
+
+    def commanded_velocity(self, volts: float) -> float:
+        """Steady cylinder velocity (in/s) for a valve voltage, flow-saturated."""
+        u = self.gain * volts
+        return self.vmax if u > self.vmax else (-self.vmax if u < -self.vmax else u)
+
+    def step(self, volts: float, h: float) -> StepResult:
+        """Advance ``h`` seconds with a constant valve voltage."""
+        if h != self._decay_h:
+            self._decay_h = h
+            self._decay = math.exp(-h / self.tau)
+        a = self._decay
+        u = self.commanded_velocity(volts)
+        v0 = self.velocity_in_s
+        e0 = self.extension_in
+        side = self.stop_side
+        # Resting on a stop and still pushed into it: nothing moves.
+        if (side > 0 and u >= 0.0) or (side < 0 and u <= 0.0):
+            self.velocity_in_s = 0.0
+            return StepResult(e0, 0.0, side, False, 0.0)
+        v1 = u + (v0 - u) * a
+        e1 = e0 + u * h + (v0 - u) * self.tau * (1.0 - a)
+        arrived = False
+        new_side = 0
+        v_free = v1
+        if e1 >= self.ext_hi:
+            e1, v1, new_side = self.ext_hi, 0.0, 1
+            arrived = side != 1
+        elif e1 <= self.ext_lo:
+            e1, v1, new_side = self.ext_lo, 0.0, -1
+            arrived = side != -1
+        self.extension_in = e1
+        self.velocity_in_s = v1
+        self.stop_side = new_side
+        return StepResult(e1, v1, new_side, arrived, abs(v_free) if arrived else 0.0)

@@ -1,0 +1,348 @@
+"""RALF's flexibility: a configuration-dependent two-mode model.
+
+The model (docs/plant-model.md has the derivation and the calibration)
+-----------------------------------------------------------------------
+Each link is a rigid body on a torsional spring at its root: "lumped
+flexibility".  The flexible coordinates are small rotations on top of the
+rigid joint angles that the hydraulics impose:
+
+* ``beta1``: link 1 rotating about joint 1; its tip deflects ``w1 = L1 beta1``
+  perpendicular to the link;
+* ``beta2``: link 2 rotating about the elbow relative to its base tangent;
+  its tip deflects ``w2 = L2 beta2`` relative to that tangent.
+
+Link 2's base tangent follows link 1's flexing by ``kappa * beta1`` (the
+*slope transmission*: 0 for an ideal parallelogram that holds link 2's
+absolute orientation, 1 for a link clamped to link 1's tip).
+
+Masses: link 1 (uniform, ``m1``), the elbow hardware (``me``, a point mass at
+the elbow), link 2 (uniform, ``m2``), the tip hardware (``mt``) and the
+payload (15.65 lb) at the tip.  The kinetic energy of the flexing, with the
+joints held, gives the configuration-dependent mass matrix
+
+    M11 = I1 + Mt L1^2 + 2 kappa L1 S c2 + kappa^2 Ia
+    M12 = L1 S c2 + kappa Ia
+    M22 = Ia
+
+with ``I1 = m1 L1^2/3``, ``Mt = me + m2 + mt``, ``S = m2 L2/2 + mt L2``
+(first moment of link 2 and tip about the elbow), ``Ia = m2 L2^2/3 + mt L2^2``
+and ``c2 = cos(theta2)``.  The cross terms with the rigid motion give the
+input matrix ``E = M_beta,theta``: the joint accelerations drive the
+flexible subsystem as base excitation, ``f = -E theta''``.
+
+Springs.  Joint 1's chain is the cylinder's oil column (stiffness
+``k_c1`` N/m) seen through the pin-triangle lever ``r1(theta1)`` in series
+with link 1's root bending ``k_r1``.  Joint 2's chain is the parallel bar (axial
+stiffness ``k_bar``, cylinder 2's oil column lumped in) acting on the elbow
+crank of radius ``r_c``: its lever about the elbow is ``r_c sin(theta2 + beta_c)``,
+which shrinks towards the parallelogram's dead point as the arm stretches
+towards the top of the workspace, in series with link 2's root bending
+``k_r2``::
+
+    k1 = 1 / (1/k_r1 + 1/(k_c1 r1^2)),   k2 = 1 / (1/k_r2 + 1/(k_bar r_c^2 sin^2(theta2 + beta_c)))
+
+Gravity loads the links (static deflection ``beta_s = K^-1 G``) and
+stiffens or softens them (the second-order potential: an inverted double
+pendulum when the arm points up).  Damping is modal: every mode keeps its
+damping ratio (``zeta1 = 0.09`` from the thesis).
+
+Everything here is pure and vectorised over configurations (broadcasting
+``theta1``, ``theta2``), apart from the ``*_scalar`` helpers, which do the same
+arithmetic on Python floats for the integrator's inner loop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field
+
+from plant_emulator.model.kinematics import A1_IN, A2_IN, CYLINDER1, INCH, PAYLOAD_LB, POUND
+
+FloatArray = npt.NDArray[np.float64]
+
+G_M_S2: Final[float] = 9.80665
+L1_M: Final[float] = A1_IN * INCH
+L2_M: Final[float] = A2_IN * INCH
+N_MODES: Final[int] = 2
+
+
+class Structure(BaseModel):
+    """Physical parameters of the flexible structure (calibrated defaults;
+    docs/plant-model.md explains each one and how it was fitted)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    link1_mass_lb: float = Field(30.0, gt=0, description="Link 1 (L-shaped aluminium beam with the parallel bar), uniform")
+    elbow_mass_lb: float = Field(80.0, ge=0, description="Elbow hardware (joint 2 bearing, crank, link-2 camera) at the elbow")
+    link2_mass_lb: float = Field(15.0, gt=0, description="Link 2, uniform")
+    tip_mass_lb: float = Field(2.0, ge=0, description="Tip hardware (photodiode, plate mount) without the payload")
+    payload_lb: float = Field(PAYLOAD_LB, ge=0, description="The thesis's steel plate at the tip")
+    slope_transmission: float = Field(0.0, ge=0, le=1.5, description="kappa: how much link 2's base turns with link 1's flexing")
+    link1_root_stiffness_nm_per_rad: float = Field(4.37e5, gt=0, description="k_r1: link 1's bending as a root spring")
+    cylinder1_stiffness_n_per_m: float = Field(5.0e6, gt=0, description="k_c1: cylinder 1's oil column")
+    link2_root_stiffness_nm_per_rad: float = Field(1.665e5, gt=0, description="k_r2: link 2's bending as a root spring")
+    bar_stiffness_n_per_m: float = Field(7.80e6, gt=0, description="k_bar: parallel bar (with cylinder 2's oil) along the bar")
+    crank_radius_in: float = Field(8.0, gt=0, description="r_c: elbow crank radius of the parallel bar")
+    crank_offset_deg: float = Field(0.0, ge=-9.0, le=59.0, description="beta_c: crank angle past link 2 (dead point at theta2 = -beta_c)")
+    damping_ratios: tuple[float, float] = Field((0.09, 0.06), description="Modal damping ratios, mode 1 and 2")
+    gravity_m_s2: float = Field(G_M_S2, ge=0, description="Gravity (0 switches it off)")
+
+
+DEFAULT_STRUCTURE: Final[Structure] = Structure()
+
+
+@dataclass(frozen=True)
+class _Consts:
+    """SI constants derived from a :class:`Structure` (payload in or out)."""
+
+    I1: float
+    Mt: float
+    S: float
+    Ia: float
+    A1: float
+    kappa: float
+    kr1: float
+    kc1: float
+    kr2: float
+    kbar_r2: float
+    beta_c: float
+    g: float
+    z1: float
+    z2: float
+
+
+def consts(structure: Structure, payload: bool) -> _Consts:
+    m1 = structure.link1_mass_lb * POUND
+    me = structure.elbow_mass_lb * POUND
+    m2 = structure.link2_mass_lb * POUND
+    mt = (structure.tip_mass_lb + (structure.payload_lb if payload else 0.0)) * POUND
+    Mt = me + m2 + mt
+    return _Consts(
+        I1=m1 * L1_M**2 / 3.0,
+        Mt=Mt,
+        S=m2 * L2_M / 2.0 + mt * L2_M,
+        Ia=m2 * L2_M**2 / 3.0 + mt * L2_M**2,
+        A1=m1 * L1_M / 2.0 + Mt * L1_M,
+        kappa=structure.slope_transmission,
+        kr1=structure.link1_root_stiffness_nm_per_rad,
+        kc1=structure.cylinder1_stiffness_n_per_m,
+        kr2=structure.link2_root_stiffness_nm_per_rad,
+        kbar_r2=structure.bar_stiffness_n_per_m * (structure.crank_radius_in * INCH) ** 2,
+        beta_c=math.radians(structure.crank_offset_deg),
+        g=structure.gravity_m_s2,
+        z1=structure.damping_ratios[0],
+        z2=structure.damping_ratios[1],
+    )
+
+
+# --- the matrices: plain arithmetic, so floats and arrays both work ----------------------
+
+
+def _coefficients(k: _Consts, c1, s1, c12, s12, c2, lever1_m, sbar):  # type: ignore[no-untyped-def]
+    """Mass, stiffness (elastic + gravity), input and gravity-load terms.
+
+    Returns ``(M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2)``
+    in SI (kg m^2, N m/rad, N m); ``E`` maps joint accelerations (rad/s^2)
+    to generalised inertial loads (``f = -E theta''``)."""
+    LS = L1_M * k.S
+    kap = k.kappa
+    base = k.I1 + k.Mt * L1_M * L1_M
+    M11 = base + 2.0 * kap * LS * c2 + kap * kap * k.Ia
+    M12 = LS * c2 + kap * k.Ia
+    M22 = k.Ia + 0.0 * c2
+    E11 = base + (1.0 + kap) * LS * c2 + kap * k.Ia
+    E12 = LS * c2 + kap * k.Ia
+    E21 = LS * c2 + k.Ia
+    E22 = k.Ia + 0.0 * c2
+    k1 = 1.0 / (1.0 / k.kr1 + 1.0 / (k.kc1 * lever1_m * lever1_m))
+    k2 = 1.0 / (1.0 / k.kr2 + 1.0 / (k.kbar_r2 * sbar * sbar))
+    g = k.g
+    gs = g * k.S * s12
+    K11 = k1 - g * k.A1 * s1 - kap * kap * gs
+    K12 = -kap * gs
+    K22 = k2 - gs
+    G1 = -g * (k.A1 * c1 + kap * k.S * c12)
+    G2 = -g * k.S * c12
+    return M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2
+
+
+def coefficients(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE):  # type: ignore[no-untyped-def]
+    """Vectorised :func:`_coefficients` at joint angles (rad)."""
+    t1 = np.asarray(theta1, dtype=float)
+    t2 = np.asarray(theta2, dtype=float)
+    k = consts(structure, bool(payload))
+    gamma = t1 + CYLINDER1.offset_rad
+    lever1_m = CYLINDER1.p_in * CYLINDER1.q_in * np.sin(gamma) / np.asarray(CYLINDER1.length(t1)) * INCH
+    return _coefficients(k, np.cos(t1), np.sin(t1), np.cos(t1 + t2), np.sin(t1 + t2), np.cos(t2), lever1_m, np.sin(t2 + k.beta_c))
+
+
+def coefficients_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[float, ...]:
+    """The same as :func:`coefficients` for one configuration, on floats."""
+    cyl = CYLINDER1
+    gamma = theta1 + cyl.offset_rad
+    pq = cyl.p_in * cyl.q_in
+    length = math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(gamma))
+    lever1_m = pq * math.sin(gamma) / length * INCH
+    t12 = theta1 + theta2
+    return _coefficients(
+        k, math.cos(theta1), math.sin(theta1), math.cos(t12), math.sin(t12), math.cos(theta2), lever1_m, math.sin(theta2 + k.beta_c)
+    )
+
+
+# --- the 2x2 symmetric generalised eigenproblem, closed form ----------------------------
+
+
+def eig2(M11, M12, M22, K11, K12, K22):  # type: ignore[no-untyped-def]
+    """Solve ``K phi = w^2 M phi`` for every configuration (arrays).
+
+    Returns ``(w2, phi)``: ``w2`` shape (..., 2) ascending, ``phi`` shape
+    (..., 2, 2) with mass-normalised columns (``phi^T M phi = I``)."""
+    a = M11 * M22 - M12 * M12
+    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
+    c = K11 * K22 - K12 * K12
+    disc = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
+    lam = np.stack([(-b - disc) / (2.0 * a), (-b + disc) / (2.0 * a)], axis=-1)
+    cols = []
+    for r in range(2):
+        lr = lam[..., r]
+        r11, r12, r22 = K11 - lr * M11, K12 - lr * M12, K22 - lr * M22
+        # null vector of [[r11, r12], [r12, r22]] from the larger row
+        use1 = (r11 * r11 + r12 * r12) >= (r12 * r12 + r22 * r22)
+        x = np.where(use1, -r12, r22)
+        y = np.where(use1, r11, -r12)
+        degenerate = (x * x + y * y) == 0.0
+        x = np.where(degenerate, 1.0 if r == 0 else 0.0, x)
+        y = np.where(degenerate, 0.0 if r == 0 else 1.0, y)
+        norm = np.sqrt(x * x * M11 + 2.0 * x * y * M12 + y * y * M22)
+        cols.append(np.stack([x / norm, y / norm], axis=-1))
+    phi = np.stack(cols, axis=-1)
+    return lam, phi
+
+
+def eig2_scalar(M11: float, M12: float, M22: float, K11: float, K12: float, K22: float) -> tuple[float, float, tuple[float, float, float, float]]:
+    """:func:`eig2` for one configuration on floats: ``(w2_1, w2_2, (p11, p21, p12, p22))``
+    with mode ``r`` in column ``r`` of ``phi``."""
+    a = M11 * M22 - M12 * M12
+    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
+    c = K11 * K22 - K12 * K12
+    d = b * b - 4.0 * a * c
+    disc = math.sqrt(d) if d > 0.0 else 0.0
+    lams = ((-b - disc) / (2.0 * a), (-b + disc) / (2.0 * a))
+    out: list[float] = []
+    for r, lr in enumerate(lams):
+        r11, r12, r22 = K11 - lr * M11, K12 - lr * M12, K22 - lr * M22
+        if r11 * r11 + r12 * r12 >= r12 * r12 + r22 * r22:
+            x, y = -r12, r11
+        else:
+            x, y = r22, -r12
+        if x == 0.0 and y == 0.0:
+            x, y = (1.0, 0.0) if r == 0 else (0.0, 1.0)
+        norm = math.sqrt(x * x * M11 + 2.0 * x * y * M12 + y * y * M22)
+        out.extend((x / norm, y / norm))
+    return lams[0], lams[1], (out[0], out[1], out[2], out[3])
+
+
+# --- public, vectorised views -------------------------------------------------------------
+
+
+def modal_parameters(
+    theta1: float | npt.ArrayLike,
+    theta2: float | npt.ArrayLike,
+    payload: bool = False,
+    structure: Structure = DEFAULT_STRUCTURE,
+) -> tuple[FloatArray, FloatArray]:
+    """True natural frequencies (Hz) and damping ratios of the two modes.
+
+    Broadcasts over ``theta1``/``theta2`` (rad); returns arrays of shape
+    ``(..., 2)``, modes in ascending frequency."""
+    co = coefficients(theta1, theta2, payload, structure)
+    w2, _ = eig2(*co[:6])
+    freqs = np.sqrt(np.maximum(w2, 0.0)) / (2.0 * np.pi)
+    zetas = np.broadcast_to(np.asarray(structure.damping_ratios, dtype=float), freqs.shape).copy()
+    return freqs, zetas
+
+
+def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:  # type: ignore[no-untyped-def]
+    """Mode shapes as tip deflections (in) per unit modal coordinate, shape
+    (..., 2 links, 2 modes), each column scaled to unit largest entry."""
+    co = coefficients(theta1, theta2, payload, structure)
+    _, phi = eig2(*co[:6])
+    defl = phi * np.array([L1_M, L2_M])[:, None] / INCH
+    scale = np.max(np.abs(defl), axis=-2, keepdims=True)
+    return defl / scale
+
+
+def static_deflection_in(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:  # type: ignore[no-untyped-def]
+    """Tip deflections (in) of the two links at rest under gravity, (..., 2)."""
+    M11, M12, M22, K11, K12, K22, *_, G1, G2 = coefficients(theta1, theta2, payload, structure)
+    det = K11 * K22 - K12 * K12
+    b1 = (K22 * G1 - K12 * G2) / det
+    b2 = (K11 * G2 - K12 * G1) / det
+    return np.stack([b1 * L1_M / INCH, b2 * L2_M / INCH], axis=-1)
+
+
+def frequency_response(
+    theta1: float,
+    theta2: float,
+    freqs_hz: npt.ArrayLike,
+    payload: bool = False,
+    structure: Structure = DEFAULT_STRUCTURE,
+    valve_gain_in_s_per_v: tuple[float, float] = (10.0, 4.0),
+    valve_time_constant_s: float = 0.01,
+) -> npt.NDArray[np.complex128]:
+    """Linearised transfer functions from valve volts to tip deflections (in)
+    at one configuration, shape (n_freqs, 2 inputs, 2 outputs): ``H[:, i, j]``
+    is the thesis's ``H_ij`` (valve ``i`` to the deflection of link ``j``).
+
+    Chain: valve -> lag -> cylinder velocity -> joint rate (``1/lever``) ->
+    joint acceleration (``s``) -> flexible links -> deflection."""
+    from plant_emulator.model.kinematics import CYLINDER2
+
+    co = coefficients(theta1, theta2, payload, structure)
+    M = np.array([[co[0], co[1]], [co[1], co[2]]], dtype=float)
+    K = np.array([[co[3], co[4]], [co[4], co[5]]], dtype=float)
+    E = np.array([[co[6], co[7]], [co[8], co[9]]], dtype=float)
+    D = damping_matrix(M, K, structure.damping_ratios)
+    levers = np.array([float(CYLINDER1.lever_in_per_rad(theta1)), float(CYLINDER2.lever_in_per_rad(theta2))])
+    rate_gain = np.asarray(valve_gain_in_s_per_v, dtype=float) / levers  # rad/s per V
+    out = np.diag([L1_M / INCH, L2_M / INCH])
+    s = 2j * np.pi * np.asarray(freqs_hz, dtype=float)
+    H = np.empty((s.size, 2, 2), dtype=complex)
+    for n, sn in enumerate(s):
+        Z = M * sn * sn + D * sn + K
+        # theta'' per volt = s * rate_gain / (tau s + 1)
+        acc = np.diag(sn * rate_gain / (valve_time_constant_s * sn + 1.0))
+        Hn = out @ np.linalg.solve(Z, -E @ acc)  # rows: link j, columns: valve i
+        H[n] = Hn.T
+    return H
+
+
+def damping_matrix(M: FloatArray, K: FloatArray, zetas: tuple[float, float]) -> FloatArray:
+    """Modal damping: ``D = M Phi diag(2 zeta w) Phi^T M``."""
+    w2, phi = eig2(M[0, 0], M[0, 1], M[1, 1], K[0, 0], K[0, 1], K[1, 1])
+    w = np.sqrt(np.maximum(w2, 0.0))
+    Z = np.diag(2.0 * np.asarray(zetas) * w)
+    return M @ phi @ Z @ phi.T @ M
+
+
+# --- exact step of a damped oscillator under a constant force ---------------------------
+
+
+def oscillator_step(x: float, v: float, force: float, w: float, zeta: float, h: float) -> tuple[float, float]:
+    """Exact solution after ``h`` s of ``x'' + 2 zeta w x' + w^2 x = force``
+    (force constant over the step, ``0 < zeta < 1``)."""
+    xs = force / (w * w)
+    x0 = x - xs
+    sig = zeta * w
+    wd = w * math.sqrt(1.0 - zeta * zeta)
+    e = math.exp(-sig * h)
+    c = math.cos(wd * h)
+    s = math.sin(wd * h)
+    x1 = e * (x0 * c + (v + sig * x0) / wd * s)
+    v1 = e * (v * c - (sig * v + w * w * x0) / wd * s)
+    return x1 + xs, v1

@@ -1,0 +1,195 @@
+"""RALF's sensors and A/D converter (thesis §3.1.1).
+
+Four analog inputs, in TPDO order (protocol.signals.ANALOG_INPUTS):
+
+1. cylinder 1 extension, 2. cylinder 2 extension: Temposonics linear
+   transducers, 0-20 in -> -10..+10 V (1 V/in);
+3. link 1 tip deflection, 4. link 2 tip deflection: an infrared photodiode at
+   the end of each link seen by a camera at its base, amplified and passed
+   through an anti-alias filter; +-0.575 in and +-0.555 in -> +-10 V.
+
+Chain per channel: engineering value (in) -> [deflections: anti-alias
+filter, whose state the plant integrates every internal step, with the
+sensor's broadband noise at its input] -> + noise -> volts
+(protocol.signals) -> ``ConverterScale(bits).quantize`` (rounding, clipping
+at full scale flagged as saturation, never wrapped).
+
+Noise levels are the thesis's *measured* standard deviations at 12 bits,
+which include the A/D's own quantization; the analog part is what remains,
+``sigma_a = sqrt(sigma^2 - LSB^2/12)``, so a 12-bit reading at rest has the
+thesis's standard deviation and a finer converter removes only the
+quantization part:
+
+=================  ===========  ==========  ===================
+channel            thesis std   12-bit LSB  analog std (model)
+=================  ===========  ==========  ===================
+extension 1        5.4e-3 in    4.88e-3 in  5.21e-3 in
+extension 2        4.6e-3 in    4.88e-3 in  4.38e-3 in
+deflection 1       2.1e-3 in    2.81e-4 in  2.098e-3 in
+deflection 2       3.8e-4 in    2.71e-4 in  3.72e-4 in
+=================  ===========  ==========  ===================
+
+(The thesis calls the extension noise "binary (quantization) noise"; a
+rounding error alone cannot exceed half an LSB, 2.4e-3 in, so most of the
+5.4e-3 in must be the transducer's own count jitter: that is what the
+analog term models.)
+
+The anti-alias filter is a 2nd-order Butterworth low-pass (default cutoff
+40 Hz: -16 dB at the 100 Hz Nyquist frequency of 200 Hz sampling, 1 %
+magnitude error and 10 deg of lag at 5 Hz), discretised exactly (zero-order
+hold) for the plant's internal step.  The deflection noise enters before the
+filter, so it is band-limited like a real amplifier's; its input level is
+solved (discrete Lyapunov equation) so that the filtered output has the
+analog std above.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import scipy.linalg
+
+from protocol.can_map import ConverterScale
+from protocol.signals import ANALOG_INPUTS
+
+__all__ = ["AntiAliasFilter", "NoiseSources", "SensorReading", "analog_noise_std", "channel_lsb_in", "read_inputs"]
+
+NOISE_BLOCK = 512
+_VPU = np.array([ch.volts_per_unit for ch in ANALOG_INPUTS], dtype=np.float64)
+_CENTRE = np.array([ch.centre for ch in ANALOG_INPUTS], dtype=np.float64)
+"""protocol.signals' linear maps as arrays (``volts = (value - centre) * volts_per_unit``)."""
+"""Normal deviates drawn at a time for the per-step deflection noise."""
+
+
+@dataclass(frozen=True)
+class SensorReading:
+    """One A/D conversion of the four analog inputs (TPDO1 order)."""
+
+    time_s: float
+    codes: npt.NDArray[np.int64]
+    """Converter codes, ``-2**(bits-1) .. 2**(bits-1)-1``."""
+    saturated: npt.NDArray[np.bool_]
+    """Channels clipped at full scale."""
+    volts: npt.NDArray[np.float64]
+    """The quantized voltages, ``codes * LSB``: what a receiver reconstructs."""
+    analog_volts: npt.NDArray[np.float64]
+    """The voltages at the converter's input (noise included, before rounding)."""
+    values_in: npt.NDArray[np.float64]
+    """``volts`` in engineering units (in): extensions 1-2, deflections 1-2."""
+    bits: int
+
+
+def analog_noise_std(total_std: float, lsb: float) -> float:
+    """The analog part of a noise std measured through a converter of step ``lsb``."""
+    q2 = lsb * lsb / 12.0
+    return math.sqrt(total_std * total_std - q2) if total_std * total_std > q2 else 0.0
+
+
+def channel_lsb_in(channel: int, bits: int) -> float:
+    """One LSB of ``bits`` resolution on input ``channel`` (0..3), in inches."""
+    return ConverterScale(bits).lsb_v / ANALOG_INPUTS[channel].volts_per_unit
+
+
+class AntiAliasFilter:
+    """Two independent 2nd-order Butterworth low-passes (the two deflection
+    channels), discretised exactly for a fixed step with zero-order-hold input."""
+
+    def __init__(self, cutoff_hz: float, step_s: float) -> None:
+        if not 0 < cutoff_hz:
+            raise ValueError("anti-alias cutoff must be positive")
+        self.cutoff_hz = float(cutoff_hz)
+        self.step_s = float(step_s)
+        wc = 2.0 * math.pi * cutoff_hz
+        A = np.array([[0.0, 1.0], [-wc * wc, -math.sqrt(2.0) * wc]])
+        B = np.array([[0.0], [wc * wc]])
+        # exact ZOH: expm of the augmented matrix [[A, B], [0, 0]] h
+        aug = np.zeros((3, 3))
+        aug[:2, :2] = A
+        aug[:2, 2:] = B
+        ed = scipy.linalg.expm(aug * step_s)
+        self.Ad = ed[:2, :2]
+        self.Bd = ed[:2, 2]
+        a = self.Ad
+        b = self.Bd
+        self._c = (float(a[0, 0]), float(a[0, 1]), float(a[1, 0]), float(a[1, 1]), float(b[0]), float(b[1]))
+        # output (x1) variance per unit-variance white input held over each step
+        P = scipy.linalg.solve_discrete_lyapunov(self.Ad, np.outer(self.Bd, self.Bd))
+        self.output_var_per_input_var = float(P[0, 0])
+        self.state = [[0.0, 0.0], [0.0, 0.0]]
+
+    def reset(self, outputs: tuple[float, float]) -> None:
+        """Steady state at constant inputs ``outputs`` (DC gain 1)."""
+        self.state = [[float(outputs[0]), 0.0], [float(outputs[1]), 0.0]]
+
+    def step(self, u0: float, u1: float) -> None:
+        a11, a12, a21, a22, b1, b2 = self._c
+        for x, u in ((self.state[0], u0), (self.state[1], u1)):
+            x1, x2 = x
+            x[0] = a11 * x1 + a12 * x2 + b1 * u
+            x[1] = a21 * x1 + a22 * x2 + b2 * u
+
+    def outputs(self) -> tuple[float, float]:
+        return self.state[0][0], self.state[1][0]
+
+    def input_std_for_output_std(self, output_std: float) -> float:
+        return output_std / math.sqrt(self.output_var_per_input_var)
+
+
+class NoiseSources:
+    """The seeded generators: one for the per-step deflection noise (part of
+    the integrated state), one for the per-sample extension noise, so how
+    often the plant is sampled never changes its dynamics."""
+
+    def __init__(self, seed: int) -> None:
+        self.reseed(seed)
+
+    def reseed(self, seed: int) -> None:
+        process, sample = np.random.SeedSequence(int(seed)).spawn(2)
+        self.process = np.random.Generator(np.random.PCG64(process))
+        self.sample = np.random.Generator(np.random.PCG64(sample))
+        self._block: list[float] = []
+        self._next = 0
+
+    def step_pair(self) -> tuple[float, float]:
+        """Two standard normal deviates for one internal step."""
+        if self._next + 2 > len(self._block):
+            self._block = self.process.standard_normal(NOISE_BLOCK).tolist()
+            self._next = 0
+        i = self._next
+        self._next = i + 2
+        return self._block[i], self._block[i + 1]
+
+
+def read_inputs(
+    time_s: float,
+    extensions_in: tuple[float, float],
+    deflections_in: tuple[float, float],
+    extension_noise_std_in: tuple[float, float],
+    scale: ConverterScale,
+    rng: np.random.Generator | None,
+) -> SensorReading:
+    """Convert the four engineering values (in) to a :class:`SensorReading`.
+
+    ``deflections_in`` are the anti-alias filter outputs (their noise is
+    already in them); the extensions get their per-sample noise here."""
+    values = np.array([extensions_in[0], extensions_in[1], deflections_in[0], deflections_in[1]], dtype=np.float64)
+    if rng is not None:
+        n = rng.standard_normal(2)
+        values[0] += extension_noise_std_in[0] * n[0]
+        values[1] += extension_noise_std_in[1] * n[1]
+    analog = (values - _CENTRE) * _VPU
+    q = scale.quantize(analog)
+    volts = scale.to_volts(q.counts)
+    vals = volts / _VPU + _CENTRE
+    return SensorReading(
+        time_s=time_s,
+        codes=q.counts,
+        saturated=q.saturated,
+        volts=volts,
+        analog_volts=analog,
+        values_in=vals,
+        bits=scale.bits,
+    )

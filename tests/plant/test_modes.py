@@ -1,0 +1,139 @@
+"""The modal map meets the thesis's facts (§3 "Dynamics")."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from plant_emulator.model import kinematics as kin
+from plant_emulator.model import modes
+from plant_emulator.model.calibration import APEX_RAD, BOTTOM_RAD, metrics
+
+
+@pytest.fixture(scope="module")
+def loop() -> kin.TrajectorySamples:
+    return kin.sample_trajectory(dt_s=0.005)  # 200 Hz, 5 in/s, pauses included
+
+
+def test_mean_first_mode_over_the_loop(loop: kin.TrajectorySamples) -> None:
+    f, _ = modes.modal_parameters(loop.theta1_rad, loop.theta2_rad, payload=False)
+    fp, _ = modes.modal_parameters(loop.theta1_rad, loop.theta2_rad, payload=True)
+    assert f[:, 0].mean() == pytest.approx(4.4, abs=0.2)
+    assert fp[:, 0].mean() == pytest.approx(3.6, abs=0.2)
+    # the payload lowers both modes everywhere on the loop
+    assert np.all(fp < f)
+
+
+def test_first_mode_varies_about_fifty_percent_over_the_workspace() -> None:
+    g1, g2 = kin.workspace_grid(41, 111)
+    f1 = modes.modal_parameters(g1, g2)[0][:, 0]
+    variation = (f1.max() - f1.min()) / f1.mean()
+    assert 0.35 <= variation <= 0.65
+    # lowest at the stretched-out top, not on an arbitrary edge
+    assert math.degrees(g2[np.argmin(f1)]) < 15.0
+
+
+def test_modes_approach_and_split_near_the_top(loop: kin.TrajectorySamples) -> None:
+    f_apex = modes.modal_parameters(*APEX_RAD)[0]
+    f_bottom = modes.modal_parameters(*BOTTOM_RAD)[0]
+    assert f_apex[1] / f_apex[0] < 1.5  # close together at the apex
+    assert f_bottom[1] / f_bottom[0] > 1.8  # well apart at the bottom of the loop
+    # approach: along the loop's radial first section (bottom-right corner up to
+    # the apex) the gap shrinks steadily as theta2 falls towards the singularity
+    first = (loop.t_s > 3.0) & (loop.t_s < 3.0 + 40.0 / 5.0)
+    f, _ = modes.modal_parameters(loop.theta1_rad[first], loop.theta2_rad[first])
+    ratio = f[:, 1] / f[:, 0]
+    assert ratio[-1] < ratio[0] - 0.4
+    n = int(0.9 * ratio.size)  # the closest approach sits within a degree of the apex
+    assert np.all(np.diff(ratio[:n]) < 0.0)
+    assert np.argmin(ratio) >= n
+    # ... the closest approach on the whole loop is at its top
+    fl, _ = modes.modal_parameters(loop.theta1_rad, loop.theta2_rad)
+    r_all = fl[:, 1] / fl[:, 0]
+    assert math.degrees(loop.theta2_rad[np.argmin(r_all)]) < 20.0
+    # split: two distinct peaks (not one), each visible on both links
+    assert f_apex[1] / f_apex[0] > 1.2
+    shapes = modes.mode_shapes(*APEX_RAD)
+    assert np.all(np.abs(shapes) > 0.1)
+    # and it is a veering, not a crossing: beyond the apex (theta2 -> 10 deg)
+    # the lower mode keeps falling while the upper stays near the old first mode
+    f_top = modes.modal_parameters(APEX_RAD[0], math.radians(10.0))[0]
+    assert f_top[0] < f_apex[0] and f_top[1] / f_top[0] > f_apex[1] / f_apex[0]
+
+
+def test_first_mode_damping_is_the_thesis_value() -> None:
+    _, z = modes.modal_parameters(np.radians([60, 80, 100]), np.radians([10, 60, 120]))
+    assert np.allclose(z[:, 0], 0.09)
+    assert np.all((z[:, 1] > 0) & (z[:, 1] < 0.2))
+
+
+def test_closed_form_eigen_solution_matches_scipy() -> None:
+    g1, g2 = kin.workspace_grid(9, 12)
+    for payload in (False, True):
+        co = modes.coefficients(g1, g2, payload)
+        w2, phi = modes.eig2(*co[:6])
+        k = modes.consts(modes.DEFAULT_STRUCTURE, payload)
+        for n in range(0, g1.size, 7):
+            M = np.array([[co[0][n], co[1][n]], [co[1][n], co[2][n]]])
+            K = np.array([[co[3][n], co[4][n]], [co[4][n], co[5][n]]])
+            ref = scipy.linalg.eigh(K, M, eigvals_only=True)
+            assert np.allclose(w2[n], ref, rtol=1e-10)
+            assert np.allclose(phi[n].T @ M @ phi[n], np.eye(2), atol=1e-10)
+            assert np.allclose(K @ phi[n], M @ phi[n] * w2[n], rtol=1e-8, atol=1e-6)
+            l1, l2, p = modes.eig2_scalar(*(float(c[n]) for c in co[:6]))
+            assert (l1, l2) == pytest.approx(tuple(w2[n]), rel=1e-12)
+            cs = modes.coefficients_scalar(k, float(g1[n]), float(g2[n]))
+            assert np.allclose(cs, [c[n] for c in co], rtol=1e-12)
+
+
+def test_static_deflection_is_a_few_millimetres(loop: kin.TrajectorySamples) -> None:
+    mm = np.abs(modes.static_deflection_in(loop.theta1_rad, loop.theta2_rad)) * 25.4
+    larger = mm.max(axis=1)
+    assert larger.min() > 1.0 and larger.max() < 10.0
+    assert 2.0 < np.median(larger) < 8.0
+    g1, g2 = kin.workspace_grid(21, 56)
+    ws = np.abs(modes.static_deflection_in(g1, g2)).max(axis=1) * 25.4
+    assert ws.min() > 1.0 and ws.max() < 15.0
+    # with the payload it sags more; relative to the sensors' zero (the static
+    # deflection at home, with or without the payload) it stays inside their
+    # ranges (+-0.575 in, +-0.555 in) on the loop
+    mp = modes.static_deflection_in(loop.theta1_rad, loop.theta2_rad, payload=True)
+    assert np.all(np.abs(mp).max(axis=1) > larger / 25.4)
+    for zero_payload in (False, True):
+        zero = modes.static_deflection_in(*kin.home_theta(), payload=zero_payload)
+        for p in (False, True):
+            rel = np.abs(modes.static_deflection_in(loop.theta1_rad, loop.theta2_rad, payload=p) - zero)
+            assert np.all(rel[:, 0] < 0.575 - 0.05) and np.all(rel[:, 1] < 0.555 - 0.05)
+
+
+def test_gravity_stiffness_is_physical_but_small() -> None:
+    """An upright link is an inverted pendulum on its spring: gravity lowers
+    the frequencies, a little (a 4 Hz structure, g/L ~ (0.3 Hz)^2)."""
+    t = (math.radians(90.0), math.radians(10.0))
+    f = modes.modal_parameters(*t)[0]
+    f0 = modes.modal_parameters(*t, structure=modes.DEFAULT_STRUCTURE.model_copy(update={"gravity_m_s2": 0.0}))[0]
+    assert np.all(f < f0) and np.all(f > 0.97 * f0)
+
+
+def test_frequency_response_peaks_at_the_modes() -> None:
+    th = (math.radians(85.0), math.radians(25.0))
+    f_modes = modes.modal_parameters(*th)[0]
+    fr = np.linspace(1.0, 12.0, 4401)
+    H = modes.frequency_response(*th, fr)
+    assert H.shape == (fr.size, 2, 2)
+    assert np.all(np.abs(H).max(axis=0) > 0.05 * np.abs(H).max())  # a true 2x2 plant
+    mag = np.abs(H[:, 0, 0])
+    peaks = [i for i in range(1, fr.size - 1) if mag[i] > mag[i - 1] and mag[i] > mag[i + 1]]
+    assert fr[peaks[0]] == pytest.approx(f_modes[0], rel=0.02)
+    mag2 = np.abs(H[:, 1, 1])
+    assert fr[np.argmax(mag2)] == pytest.approx(f_modes[1], rel=0.02)
+
+
+def test_calibration_report_is_consistent() -> None:
+    m = metrics(dt_s=0.05)
+    assert m.mean_f1_hz == pytest.approx(4.4, abs=0.05)
+    assert m.mean_f1_payload_hz == pytest.approx(3.6, abs=0.05)
+    assert m.apex_ratio < m.bottom_ratio
