@@ -51,12 +51,12 @@ from numpy.typing import NDArray
 from .history import HistoryBuffer
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
-    Peak,
     PeakRefiner,
     VrmEstimator,
-    find_modal_peaks,
     half_power_bandwidth,
-    log_weights_db,
+    local_maxima,
+    log_weights,
+    prominence_bases,
     refine_peak,
     zeta_fwhm_approx,
     zeta_from_fwhm_exact,
@@ -262,9 +262,14 @@ class Identifier:
         self._hi = min(k, math.floor(c.search_max_hz / df + 1e-9) + 1)
         self._f_range = self.freqs[self._lo : self._hi]
         f_ref = max(c.search_min_hz, df)
-        self._w_range = (
-            log_weights_db(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
-        )
+        # the peak search ranks |H|·w on a linear scale (the same order and the same
+        # peaks as 20 log10|H| + 20 log10 w in dB); prominences become ratios
+        self._w_lin = log_weights(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
+        self._prom_ratio = 10.0 ** (c.min_peak_prominence_db / 20.0)
+        n_range = self._hi - self._lo
+        self._v_pad = np.empty(n_range + 1)  # weighted magnitude and a +inf sentinel
+        self._v_pad[n_range] = np.inf
+        self._v = self._v_pad[:n_range]
         self._vrm = VrmEstimator(c.vrm_points_per_side, c.vrm_band_factor, model=c.vrm_model)
         self._refiner = PeakRefiner()
         h = self._smoother.half
@@ -274,7 +279,18 @@ class Identifier:
         margin = max(2 * h + 1, _EST_MARGIN_BINS)
         self._sl = slice(max(0, self._lo - margin), min(k, self._hi + margin))
         self._f_sl = self.freqs[self._sl]
+        self._n_sl = self._sl.stop - self._sl.start
         self._rls_src = np.zeros(k, dtype=np.complex128)
+        if self._rls is not None:
+            src = self._rls_src
+        elif c.peak_source == "tot":
+            src = self._solver.source
+        else:
+            src = self._solver.H[H_NAMES.index(c.peak_source)]
+        self._src = src
+        self._smooth = self._smoother.range_plan(src, self._lo, self._hi)
+        self._all_valid_range = np.ones(n_range, dtype=bool)
+        self._all_valid_range.flags.writeable = False
         self._pending = 0
 
     def set_fft_width(self, n: int) -> None:
@@ -354,7 +370,6 @@ class Identifier:
         solver = self._solver
         if self._rls is None:
             src_sl, valid_sl = solver.solve_source(avg.state, c.peak_source, sl)
-            src = solver.source if c.peak_source == "tot" else solver.H[H_NAMES.index(c.peak_source)]
         else:
             valid_sl = solver.mask(avg.state, sl)
             Hr = self._rls.H[:, sl]
@@ -364,51 +379,101 @@ class Identifier:
             else:
                 src_sl[...] = Hr[H_NAMES.index(c.peak_source)]
             src_sl *= valid_sl
-            src = self._rls_src
-        valid = solver.valid
         lo, hi = self._lo, self._hi
-        sm = self._smoother
-        hs = sm.smooth_range(src, lo, hi)
-        vs = sm.valid_range(valid, lo, hi)
+        hs = self._smooth()
+        # every bin solved is valid (the usual case): so is every smoothed bin of the range
+        all_valid = int(np.count_nonzero(valid_sl)) == self._n_sl
+        if all_valid:
+            vs = self._all_valid_range
+            n_valid = vs.size
+        else:
+            vs = self._smoother.valid_range(solver.valid, lo, hi)
+            n_valid = int(np.count_nonzero(vs))
         n_eff = avg.effective_averages
-        mag = np.abs(hs)
-        n_valid = int(np.count_nonzero(vs))
-        peaks = find_modal_peaks(
-            mag, self._f_range, self._w_range, vs, c.max_peaks, c.min_peak_prominence_db, n_valid,
-            refine=False,  # _poles refines on the estimation spectrum
-        )
+        peaks = self._find_peaks(hs, vs, n_valid)
         if not peaks:
             poles: tuple[PoleEstimate, ...] = ()
         elif c.estimate_on_smoothed:
-            poles = self._poles(peaks, hs, mag, vs, self._f_range, 0)
+            poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == vs.size)
         else:
-            poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start)
+            poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
         valid_fraction = n_valid / vs.size
-        fill = self.history.samples_in_history / self.history.n
+        hist = self.history
+        in_history = hist.samples_in_history
+        fill = in_history / hist.n
         conf = 0.0
         if peaks and n_eff > 1.0:
-            prom = peaks[0].prominence_db
+            prom = peaks[0][1]
             conf = valid_fraction * (1.0 - 1.0 / n_eff) * fill * prom / (prom + c.confidence_prominence_db)
         return IdentificationResult(
             poles=poles,
             confidence=float(min(1.0, max(0.0, conf))),
             valid_fraction=valid_fraction,
-            samples_in_history=self.history.samples_in_history,
+            samples_in_history=in_history,
             effective_averages=float(n_eff),
         )
 
+    def _find_peaks(
+        self, hs: NDArray[np.complex128], vs: NDArray[np.bool_], n_valid: int
+    ) -> list[tuple[int, float]]:
+        """Up to ``max_peaks`` ``(index in the search range, prominence in dB)``, best weighted first.
+
+        :func:`.modal.find_modal_peaks` on the smoothed spectrum (local maxima
+        of the weighted magnitude with at least ``min_peak_prominence_db`` of
+        prominence, masked bins set to the valid minimum; else the global
+        maximum unless on an edge), computed on the linear weighted magnitude
+        ``max(|H|, tiny)·w``: the same maxima, bases and order as on its dB
+        values, with the prominence test as a ratio and the dB read only for
+        the peaks kept.
+        """
+        c = self.cfg
+        v = self._v
+        size = v.size
+        if size < 3 or n_valid == 0:
+            return []
+        np.abs(hs, out=v)
+        np.maximum(v, _TINY, out=v)
+        if self._w_lin is not None:
+            v *= self._w_lin
+        if n_valid < size:
+            v[~vs] = v[vs].min()
+        idx = local_maxima(v)
+        if idx.size:
+            base = prominence_bases(self._v_pad, size, idx)
+            height = v[idx]
+            keep = height >= base * self._prom_ratio
+            if not keep.all():
+                idx, height, base = idx[keep], height[keep], base[keep]
+        if idx.size == 0:
+            g = int(np.argmax(v))
+            if g == 0 or g == size - 1:
+                return []
+            # the global maximum: no higher sample on either side
+            b = max(float(np.min(v[: g + 1])), float(np.min(v[g:])))
+            return [(g, 20.0 * math.log10(float(v[g]) / b))]
+        if idx.size == 1:
+            order: list[int] = [0]
+        else:
+            order = np.argsort(height)[::-1][: c.max_peaks].tolist()
+        il, hl, bl = idx.tolist(), height.tolist(), base.tolist()
+        log10 = math.log10
+        return [(il[o], 20.0 * log10(hl[o] / bl[o])) for o in order]
+
     def _poles(
         self,
-        peaks: list[Peak],
+        peaks: list[tuple[int, float]],
         hd: NDArray[np.complex128],
         magd: NDArray[np.float64],
         vd: NDArray[np.bool_],
         fd: NDArray[np.float64],
         offset: int,
+        all_valid: bool = False,
     ) -> tuple[PoleEstimate, ...]:
         """Refined frequency, FWHM and VRM damping of the peaks on the estimation spectrum ``hd``.
 
-        ``offset`` maps the search-range index of a peak into ``hd``. Each
+        ``peaks`` are ``(index, prominence dB)``; ``offset`` maps the
+        search-range index of a peak into ``hd``; ``all_valid`` says that
+        every bin of ``vd`` is (so the per-bin checks are skipped). Each
         peak is re-located as the maximum of ``|hd|`` within ``±r`` bins of the
         smoothed peak (``r`` = a quarter of the smoothing window, ≥ 1); a
         three-point parabola on ``ln |hd|`` gives the half-power level; FWHM
@@ -418,40 +483,47 @@ class Identifier:
         vectorised call) uses a band of ``±vrm_band_factor·h`` bins.
         """
         c = self.cfg
-        df = float(fd[1] - fd[0])
+        f0, f1 = fd[0:2].tolist()
+        df = f1 - f0
         r = self._relocate
-        located = []  # (peak, k, f_peak, m_peak, zeta_fwhm, half_bins, ok)
-        for peak in peaks:
-            k = peak.index + offset
-            a, b = max(k - r, 0), min(k + r + 1, magd.size)
+        size = magd.size
+        vmask = None if all_valid else vd
+        exp = math.exp
+        located = []  # (prominence, k, f_peak, m_peak, zeta_fwhm, half_bins, ok)
+        for index, prom in peaks:
+            k = index + offset
+            a, b = max(k - r, 0), min(k + r + 1, size)
             k = a + int(magd[a:b].argmax())
             d, lv = refine_peak(magd, k)  # three-point vertex: the level for FWHM
-            f_peak, m_peak = float(fd[k]) + d * df, math.exp(lv)
+            fk = fd.item(k)
+            f_peak, m_peak = fk + d * df, exp(lv)
             zeta_fwhm: float | None = None
             half_bins = 2.0
-            ok = bool(vd[k])
+            ok = all_valid or bool(vd[k])
             if ok:
-                band = half_power_bandwidth(magd, fd, k, m_peak, vd)
+                band = half_power_bandwidth(magd, fd, k, m_peak, vmask)
                 if band is not None:
                     bw = band[1] - band[0]
                     zeta_fwhm = zeta_from_fwhm_exact(bw, f_peak) if c.fwhm_exact else zeta_fwhm_approx(bw, f_peak)
                     half_bins = 0.5 * bw / df
                     # least-squares parabola over about half the half-power band
                     d, lv = self._refiner.refine(magd, k, int(round(0.5 * half_bins)))
-                    f_peak, m_peak = float(fd[k]) + d * df, math.exp(lv)
-            located.append((peak, k, f_peak, m_peak, zeta_fwhm, half_bins, ok))
+                    f_peak, m_peak = fk + d * df, exp(lv)
+            located.append((prom, k, f_peak, m_peak, zeta_fwhm, half_bins, ok))
         todo = [i for i, loc in enumerate(located) if loc[6]]
         vrms: list[tuple[float, float, int] | None] = [None] * len(located)
         if todo:
             found = self._vrm.estimate_many(
-                hd, fd, [located[i][1] for i in todo], [located[i][5] for i in todo], vd
+                hd, fd, [located[i][1] for i in todo], [located[i][5] for i in todo], vmask
             )
             for i, v in zip(todo, found):
                 vrms[i] = v
+        vrm_first = c.damping_method == "vrm"
+        source = c.peak_source
         poles = []
-        for (peak, _, f_peak, m_peak, zeta_fwhm, _, _), vrm in zip(located, vrms):
+        for (prom, _, f_peak, m_peak, zeta_fwhm, _, _), vrm in zip(located, vrms):
             zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
-            first, second = (zeta_vrm, zeta_fwhm) if c.damping_method == "vrm" else (zeta_fwhm, zeta_vrm)
+            first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
             poles.append(
                 PoleEstimate(
@@ -461,8 +533,8 @@ class Identifier:
                     damping_vrm=zeta_vrm,
                     natural_frequency_vrm_hz=fn_vrm,
                     magnitude=m_peak,
-                    prominence_db=peak.prominence_db,
-                    source=c.peak_source,
+                    prominence_db=prom,
+                    source=source,
                     damping_defined=chosen is not None,
                 )
             )

@@ -106,6 +106,73 @@ def log_weights_db(freqs: NDArray[np.float64], f_ref: float, exponent: float) ->
     return 20.0 * np.log10(log_weights(freqs, f_ref, exponent))
 
 
+def local_maxima(x: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Indices of the local maxima of a 1-D array, exactly as ``scipy.signal.find_peaks(x)[0]``.
+
+    A maximum is a sample (or the middle of a run of equal samples, rounded
+    down) whose neighbours on both sides are lower; the first and last
+    samples never are. Vectorised: the strict maxima come from one
+    comparison with the larger neighbour; runs of equal samples (plateaus)
+    are resolved only when a sample equals its larger neighbour.
+    """
+    n = x.size
+    if n < 3:
+        return np.zeros(0, dtype=np.intp)
+    mid = x[1:-1]
+    nb = np.maximum(x[:-2], x[2:])
+    peaks = np.greater(mid, nb).nonzero()[0]
+    if np.count_nonzero(np.greater_equal(mid, nb)) == peaks.size:
+        peaks += 1  # no sample equals its larger neighbour: no plateau can be a peak
+        return peaks
+    # plateaus: compress runs of equal samples; a run is a peak if both neighbouring runs are lower
+    # (the first and last runs touch the ends and never are)
+    change = (x[1:] != x[:-1]).nonzero()[0] + 1
+    starts = np.concatenate(([0], change))
+    ends = np.concatenate((change - 1, [n - 1]))
+    vals = x[starts]
+    r = ((vals[1:-1] > vals[:-2]) & (vals[1:-1] > vals[2:])).nonzero()[0] + 1
+    return (starts[r] + ends[r]) // 2
+
+
+_PROM_VECTOR_MAX = 64  #: beyond this many peaks the pairwise comparison gives way to scipy's loop
+_LOWER = np.tri(_PROM_VECTOR_MAX, k=-1, dtype=bool)  # [k, i]: i < k
+_UPPER = np.ascontiguousarray(_LOWER.T)  # [k, i]: i > k
+
+
+def prominence_bases(xp: NDArray[np.float64], n: int, peaks: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Base level of each peak's prominence in ``xp[:n]``, as ``scipy.signal.peak_prominences`` (``wlen=None``).
+
+    The prominence is ``x[p] − base`` with ``base = max(left_min, right_min)``:
+    the lowest samples between the peak and the nearest strictly higher
+    sample on either side (or the end of the array). ``peaks`` must be the
+    local maxima of ``xp[:n]`` in increasing order (:func:`local_maxima`);
+    ``xp`` must hold one more sample, ``xp[n] = +inf``, as a sentinel.
+
+    Between two neighbouring maxima the samples fall then rise, so the
+    nearest strictly higher *sample* lies on the flank of the nearest
+    strictly higher *peak* (or is an end of the array): the minima are
+    ``min(x[L:p])`` and ``min(x[p:R])`` with ``L``, ``R`` the positions of
+    those peaks (``0``, ``n`` if none), found by one pairwise comparison of
+    the peak heights and read with one ``np.minimum.reduceat``. Identical
+    values to scipy's (the same samples, compared).
+    """
+    count = peaks.size
+    if count == 0:
+        return np.zeros(0)
+    if count > _PROM_VECTOR_MAX:
+        _, left_bases, right_bases = scipy.signal.peak_prominences(xp[:n], peaks)
+        return np.maximum(xp[left_bases], xp[right_bases])
+    h = xp[peaks]
+    higher = np.less.outer(h, h)  # [k, i]: peak i strictly higher than peak k
+    bounds = np.empty((count, 4), dtype=np.intp)  # [L, p, p, R] per peak
+    np.where(higher & _LOWER[:count, :count], peaks, 0).max(axis=1, out=bounds[:, 0])
+    bounds[:, 1] = peaks
+    bounds[:, 2] = peaks
+    np.where(higher & _UPPER[:count, :count], peaks, n).min(axis=1, out=bounds[:, 3])
+    mins = np.minimum.reduceat(xp, bounds.reshape(-1))
+    return np.maximum(mins[0::4], mins[2::4])
+
+
 @dataclass(frozen=True)
 class Peak:
     """A located resonance peak (``index`` refers to the arrays it was found in)."""
@@ -150,15 +217,21 @@ def find_modal_peaks(
             return []
         if nv < size:
             wdb[~valid] = wdb[valid].min()
-    idx, props = scipy.signal.find_peaks(wdb, prominence=min_prominence_db)
+    # scipy.signal.find_peaks(wdb, prominence=min_prominence_db), vectorised (same peaks, same values)
+    wp = np.empty(size + 1)
+    wp[:size] = wdb
+    wp[size] = np.inf
+    idx = local_maxima(wdb)
+    proms = wdb[idx] - prominence_bases(wp, size, idx)
+    keep = proms >= min_prominence_db
+    idx, proms = idx[keep], proms[keep]
     if idx.size == 0:
         g = int(np.argmax(wdb))
         if g == 0 or g == size - 1:
             return []
-        prom = float(scipy.signal.peak_prominences(wdb, [g])[0][0])
-        idx, proms = np.array([g]), np.array([prom])
-    else:
-        proms = props["prominences"]
+        # the global maximum: no higher sample on either side
+        base = max(float(np.min(wdb[: g + 1])), float(np.min(wdb[g:])))
+        idx, proms = np.array([g]), np.array([float(wdb[g]) - base])
     order = np.argsort(wdb[idx])[::-1][:max_peaks] if idx.size > 1 else (0,)
     df = float(freqs[1] - freqs[0])
     peaks = []
@@ -172,7 +245,9 @@ def find_modal_peaks(
 def refine_peak(mag: NDArray[np.float64], k: int) -> tuple[float, float]:
     """Parabolic vertex on ``ln |H|`` around bin ``k`` of a magnitude array: ``(δ, ln peak)``."""
     if 0 < k < mag.size - 1:
-        a, b, c = (math.log(max(float(v), _TINY)) for v in mag[k - 1 : k + 2])
+        va, vb, vc = mag[k - 1 : k + 2].tolist()
+        log = math.log
+        a, b, c = log(max(va, _TINY)), log(max(vb, _TINY)), log(max(vc, _TINY))
         curv = a - 2.0 * b + c
         if curv < 0.0:
             d = min(0.5, max(-0.5, 0.5 * (a - c) / curv))
@@ -208,7 +283,7 @@ class PeakRefiner:
         if r < 1:
             return 0.0, math.log(max(float(mag[k]), _TINY))
         y = np.log(np.maximum(mag[k - r : k + r + 1], _TINY))
-        c0, c1, c2 = (float(v) for v in self._pinv[r] @ y)
+        c0, c1, c2 = (self._pinv[r] @ y).tolist()
         if not c2 < 0.0:
             return 0.0, math.log(max(float(mag[k]), _TINY))
         d = min(float(r), max(-float(r), -0.5 * c1 / c2))
@@ -272,8 +347,10 @@ def half_power_bandwidth(
     thr = peak_mag * _SQRT_HALF
     if k < 1 or k >= mag.size - 1:
         return None
-    left = mag[k - 1 : max(0, k - max_bins) - 1 if k > max_bins else None : -1] < thr  # outward
-    right = mag[k + 1 : k + 1 + max_bins] < thr
+    lo = max(0, k - max_bins)
+    below = mag[lo : k + 1 + max_bins] < thr  # one comparison for both sides
+    left = below[k - 1 - lo :: -1] if k - 1 - lo >= 0 else below[:0]  # outward from k − 1
+    right = below[k + 1 - lo :]
     jl, jr = int(left.argmax()), int(right.argmax())
     if not (left[jl] and right[jr]):
         return None
@@ -282,11 +359,12 @@ def half_power_bandwidth(
     if valid is not None and not (valid[i0] and valid[i0 + 1] and valid[j1 - 1] and valid[j1]):
         return None
     half = thr * thr
-    df = float(freqs[1] - freqs[0])
-    f0 = float(freqs[0])
+    f0, f1 = freqs[0:2].tolist()
+    df = f1 - f0
+    item = mag.item
 
     def cross(i_lo: int) -> float:
-        pa, pb = float(mag[i_lo]) ** 2, float(mag[i_lo + 1]) ** 2
+        pa, pb = item(i_lo) ** 2, item(i_lo + 1) ** 2
         t = (half - pa) / (pb - pa) if pb != pa else 0.5
         return f0 + (i_lo + t) * df
 
@@ -417,9 +495,12 @@ class VrmEstimator:
     Monte-Carlo at 3–12 % complex noise: the weighted mean was as good or
     slightly better, and cheaper.)
 
-    The difference and selection operators for each ``m`` are precomputed
-    as small matrices, so an estimate is two mat-vec products and a dozen
-    vector operations on ~100 triplets.
+    Vectorised over peaks and triplets: every peak is laid on the same
+    ``2 m_max + 1`` point offsets (clipped to its own ``±m``) and all
+    ``C(2 m_max + 1, 3)`` triplets are solved at once, a precomputed mask
+    per ``m`` keeping the triplets that belong to that peak's set; so any
+    number of peaks costs one pass of about twenty array operations on
+    ``(peaks, 165)`` arrays.
     """
 
     def __init__(
@@ -441,25 +522,29 @@ class VrmEstimator:
         self._im_over_re_max = (
             math.tan(2.0 * math.atan(zm)) if model == "viscous" and zm < 1.0 else (2.0 * zm if model == "hysteretic" else math.inf)
         )
-        self._ops: dict[int, tuple[NDArray[np.complex128], NDArray[np.float64], int, NDArray[np.intp]]] = {}
-        for m in range(1, self.m_max + 1):
-            tri = [c for c in combinations(range(2 * m + 1), 3) if c[2] - c[0] >= max(m, 2)]
-            t = len(tri)
-            dc = np.zeros((2 * t, 2 * m + 1), dtype=np.complex128)  # Δba, Δca
-            dr = np.zeros((4 * t, 2 * m + 1))  # ωc²−ωa², ωb²−ωa², ωb², ωc²
-            for i, (a, b, c) in enumerate(tri):
-                dc[i, b] += 1.0
-                dc[i, a] -= 1.0
-                dc[t + i, c] += 1.0
-                dc[t + i, a] -= 1.0
-                dr[i, c] += 1.0
-                dr[i, a] -= 1.0
-                dr[t + i, b] += 1.0
-                dr[t + i, a] -= 1.0
-                dr[2 * t + i, b] = 1.0
-                dr[3 * t + i, c] = 1.0
-            offsets = np.arange(-m, m + 1)
-            self._ops[m] = (np.ascontiguousarray(dc.T), np.ascontiguousarray(dr.T), t, offsets)
+        mm = self.m_max
+        tri = np.array(list(combinations(range(2 * mm + 1), 3)), dtype=np.intp).reshape(-1, 3)
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        t = tri.shape[0]
+        self._t = t
+        # gathers: [H_b | H_c | H_a | H_a] → Δba, Δca as one subtraction of halves
+        self._bcaa = np.concatenate([b, c, a, a])
+        # real operator on squared frequencies: [ωc²−ωa², ωb²−ωa², ωb², ωc²] (exact ±1 selections)
+        dr = np.zeros((2 * mm + 1, 4 * t))
+        cols = np.arange(t)
+        dr[c, cols] += 1.0
+        dr[a, cols] -= 1.0
+        dr[b, t + cols] += 1.0
+        dr[a, t + cols] -= 1.0
+        dr[b, 2 * t + cols] = 1.0
+        dr[c, 3 * t + cols] = 1.0
+        self._dr = dr
+        offsets = np.arange(-mm, mm + 1)
+        #: per m: the point offsets (clipped to ±m) and the triplets of that m's set
+        self._offsets = np.stack([np.clip(offsets, -m, m) for m in range(mm + 1)])
+        self._member = np.stack(
+            [(a >= mm - m) & (c <= mm + m) & (c - a >= max(m, 2)) for m in range(mm + 1)]
+        )
 
     def estimate(
         self,
@@ -504,66 +589,76 @@ class VrmEstimator:
         half_widths: list[float],
         valid: NDArray[np.bool_] | None = None,
     ) -> list[tuple[float, float, int] | None]:
-        """:meth:`estimate` for several peaks, vectorised over peaks with the same band size."""
+        """:meth:`estimate` for several peaks at once (one vectorised pass over all their triplets)."""
         out: list[tuple[float, float, int] | None] = [None] * len(ks)
-        groups: dict[int, list[tuple[int, int, int]]] = {}
+        rows, plans = [], []
+        n = H.shape[-1]
         for i, (k, hw) in enumerate(zip(ks, half_widths)):
-            plan = self._plan(H.shape[-1], k, hw, valid)
+            plan = self._plan(n, k, hw, valid)
             if plan is not None:
-                groups.setdefault(plan[0], []).append((i, k, plan[1]))
-        df = float(freqs[1] - freqs[0])
-        for m, members in groups.items():
-            idx = [mb[0] for mb in members]
-            kk = np.array([mb[1] for mb in members])
-            st = np.array([mb[2] for mb in members])
-            for i, res in zip(idx, self._solve(H, freqs, kk, st, m, df)):
-                out[i] = res
+                rows.append(i)
+                plans.append((k, plan[1], plan[0]))
+        if not plans:
+            return out
+        f0, f1 = freqs[0:2].tolist()
+        for i, res in zip(rows, self._solve(H, freqs, np.array(plans, dtype=np.intp), f1 - f0)):
+            out[i] = res
         return out
 
     def _solve(
         self,
         H: NDArray[np.complex128],
         freqs: NDArray[np.float64],
-        ks: NDArray[np.intp],
-        strides: NDArray[np.intp],
-        m: int,
+        plans: NDArray[np.intp],
         df: float,
     ) -> list[tuple[float, float, int] | None]:
-        """All triplets of ``g`` peaks sharing ``m`` at once: arrays are ``(g, T)``."""
-        dct, drt, t, offsets = self._ops[m]
-        pts = ks[:, None] + strides[:, None] * offsets  # (g, 2m+1)
+        """All triplets of all peaks; ``plans`` rows are ``(k, stride, m)``; arrays are ``(peaks, T)``."""
+        t = self._t
+        ms = plans[:, 2]
+        pts = self._offsets[ms]  # (g, 2 m_max + 1) offsets, clipped to each peak's ±m
+        pts *= plans[:, 1:2]
+        pts += plans[:, 0:1]
         hh = H[pts]
         fb = freqs[pts]
-        dd = hh @ dct  # (g, 2T): Δba, Δca
-        rr = (fb * fb) @ drt  # (g, 4T): ωc²−ωa², ωb²−ωa², ωb², ωc² (in Hz²)
-        dba, dca = dd[:, :t], dd[:, t:]
-        cab, bab, xb, xc = rr[:, :t], rr[:, t : 2 * t], rr[:, 2 * t : 3 * t], rr[:, 3 * t :]
-        den = dba * cab
-        den -= dca * bab
-        num = dba * (xb * cab)
-        num -= dca * (xc * bab)
+        g4 = hh[:, self._bcaa]
+        dd = np.subtract(g4[:, : 2 * t], g4[:, 2 * t :])  # [Δba | Δca]
+        rr = np.matmul(fb * fb, self._dr)  # [ωc²−ωa² | ωb²−ωa² | ωb² | ωc²] (in Hz²)
+        rr[:, 2 * t :] *= rr[:, : 2 * t]  # [… | ωb²(ωc²−ωa²) | ωc²(ωb²−ωa²)]
+        q = dd[:, None, :] * rr.reshape(-1, 2, 2 * t)
+        dn = np.subtract(q[:, :, :t], q[:, :, t:])  # [den, num], see vrm_lambda
+        den, num = dn[:, 0], dn[:, 1]
         w = np.abs(den)
-        den += w == 0.0  # singular triplet: divide by 1 instead (its weight is 0)
+        singular = np.count_nonzero(w) < w.size
+        if singular:
+            den += w == 0.0  # singular triplet: divide by 1 instead (its weight is 0)
         lam = np.divide(num, den, out=num)
         re, im = lam.real, lam.imag
         # physical: Re λ > 0 and 0 < ζ ≤ zeta_max, i.e. 0 < Im λ ≤ c·Re λ with
-        # c = tan(2 atan ζmax) (viscous, ζ = tan(arg λ / 2)) or 2 ζmax (hysteretic)
-        good = im <= self._im_over_re_max * re
+        # c = tan(2 atan ζmax) (viscous, ζ = tan(arg λ / 2)) or 2 ζmax (hysteretic);
+        # for a finite c > 0 the two inequalities already imply Re λ > 0
+        c = self._im_over_re_max
+        if 0.0 < c < math.inf:
+            good = np.less_equal(im, np.multiply(re, c))
+        else:
+            good = re > 0.0
         good &= im > 0.0
-        good &= re > 0.0
-        good &= w > 0.0
+        good &= self._member[ms]
+        if singular:
+            good &= w > 0.0
         w *= good
-        wsum = np.add.reduce(w, axis=1)
-        used = np.add.reduce(good, axis=1, dtype=np.intp)
-        lam_avg = np.add.reduce(w * lam, axis=1)
+        wsum = np.add.reduce(w, axis=1).tolist()
+        used = np.count_nonzero(good, axis=1).tolist()
+        lam *= w
+        lam_avg = np.add.reduce(lam, axis=1).tolist()
+        edges = fb[:, 0 :: fb.shape[1] - 1].tolist()  # outermost points (offsets ±m)
         results: list[tuple[float, float, int] | None] = []
-        for g in range(ks.size):
+        for g in range(len(used)):
             if used[g] == 0 or not wsum[g] > 0.0:
                 results.append(None)
                 continue
-            fn, zeta = vrm_modal_scalar(complex(lam_avg[g]) / float(wsum[g]), self.model)
+            fn, zeta = vrm_modal_scalar(lam_avg[g] / wsum[g], self.model)
             # the averaged mode must lie within two bins of the band it came from
-            f_lo, f_hi = float(fb[g, 0]) - 2.0 * df, float(fb[g, -1]) + 2.0 * df
+            f_lo, f_hi = edges[g][0] - 2.0 * df, edges[g][1] + 2.0 * df
             ok = f_lo <= fn <= f_hi and 0.0 < zeta <= self.zeta_max
             results.append((fn, zeta, int(used[g])) if ok else None)
         return results

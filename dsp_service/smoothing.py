@@ -22,9 +22,35 @@ estimates upward (§2.4.1); see the identifier's ``estimate_on_smoothed``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.signal
+from numpy.lib.stride_tricks import as_strided
 from numpy.typing import NDArray
+
+
+def _windows(x: NDArray[np.generic], start: int, count: int, width: int) -> NDArray[np.float64]:
+    """Read-only ``(rows, width)`` float view: row ``m`` holds ``x[start + m : start + m + width]``.
+
+    Complex ``x`` is viewed as interleaved (re, im) floats with two rows per
+    output bin (its real and imaginary parts), so a single real product with
+    the coefficients smooths both parts; ``x`` must be contiguous.
+    """
+    if np.iscomplexobj(x):
+        xf = x.view(np.float64)
+        step = xf.strides[0]
+        w = as_strided(xf[2 * start :], shape=(2 * count, width), strides=(step, 2 * step))
+    else:
+        step = x.strides[0]
+        w = as_strided(x[start:], shape=(count, width), strides=(step, step))
+    w.flags.writeable = False
+    return w
+
+
+def _as_float(a: NDArray[np.generic]) -> NDArray[np.float64]:
+    """``a`` as float rows: complex ``(m,)`` → ``(m, 2)`` (re, im); real unchanged."""
+    return a.view(np.float64).reshape(-1, 2) if np.iscomplexobj(a) else a
 
 
 class FrequencySmoother:
@@ -48,9 +74,6 @@ class FrequencySmoother:
         self.half = h
         # 'dot' coefficients: estimate at window position pos = Σ c[j] x[start + j]
         self.centre = scipy.signal.savgol_coeffs(w, self.order, pos=h, use="dot")
-        self._conv = np.ascontiguousarray(self.centre[::-1])  # for np.convolve 'valid'
-        self._conv2 = np.zeros(2 * w - 1)  # the same, for interleaved (re, im) samples
-        self._conv2[::2] = self._conv
         self._all_valid = np.ones(self.n_bins, dtype=bool)
         self.edge_lo = np.stack(
             [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]
@@ -62,43 +85,71 @@ class FrequencySmoother:
         self._starts = np.clip(np.arange(self.n_bins) - h, 0, self.n_bins - w)
 
     # ------------------------------------------------------------------ values
-    def _interior(self, x: NDArray[np.generic], out: NDArray[np.generic]) -> None:
-        """``out[m] = Σ c[j] x[m + j]`` ('valid' correlation), real or complex ``x``.
+    def range_plan(
+        self, x: NDArray[np.generic], lo: int, hi: int
+    ) -> Callable[[], NDArray[np.generic]]:
+        """A prepared :meth:`smooth_range` of the buffer ``x`` (contiguous, shape ``(K,)``) over ``lo … hi−1``.
 
-        Complex input is convolved as its interleaved (re, im) float view with
-        the kernel upsampled by two (zeros between taps): one real
-        convolution yields the interleaved real and imaginary results, i.e.
-        the real coefficients applied to both parts separately.
+        Calling the plan smooths the *current* contents of ``x`` into an
+        output array owned by the plan (overwritten by the next call) and
+        returns it. Everything that depends only on the configuration (the
+        sliding-window views, the edge coefficients) is set up here once.
         """
-        if np.iscomplexobj(x):
-            xv = np.ascontiguousarray(x, dtype=np.complex128).view(np.float64)
-            out[...] = np.convolve(xv, self._conv2, mode="valid").view(np.complex128)
-        else:
-            out[...] = np.convolve(x, self._conv, mode="valid")
+        k = self.n_bins
+        if x.shape != (k,):
+            raise ValueError(f"expected shape ({k},), got {x.shape}")
+        if not x.flags.c_contiguous:
+            raise ValueError("range_plan needs a contiguous buffer")
+        lo, hi = max(0, int(lo)), min(k, int(hi))
+        out = np.empty(max(hi - lo, 0), dtype=np.result_type(x.dtype, np.float64))
+        if hi <= lo:
+            return lambda: out
+        if not self.enabled:
+            src = x[lo:hi]
+
+            def copy() -> NDArray[np.generic]:
+                np.copyto(out, src)
+                return out
+
+            return copy
+        h, w = self.half, self.window
+        einsum, matmul = np.einsum, np.matmul
+        parts: list[Callable[[], object]] = []
+        a, b = max(lo, h), min(hi, k - h)  # interior bins [a, b)
+        if b > a:
+            win, coef = _windows(x, a - h, b - a, w), self.centre
+            res = _as_float(out[a - lo : b - lo]).reshape(-1)
+            parts.append(lambda: einsum("ij,j->i", win, coef, out=res))
+        if lo < h:  # low edge: polynomial through the first w bins
+            e = min(h, hi)
+            elo, xlo, olo = self.edge_lo[lo:e], _as_float(x[:w]), _as_float(out[0 : e - lo])
+            parts.append(lambda: matmul(elo, xlo, out=olo))
+        if hi > k - h:  # high edge: polynomial through the last w bins
+            s = max(lo, k - h)
+            ehi, xhi, ohi = self.edge_hi[s - (k - h) : hi - (k - h)], _as_float(x[k - w :]), _as_float(out[s - lo :])
+            parts.append(lambda: matmul(ehi, xhi, out=ohi))
+        if len(parts) == 1:
+            only = parts[0]
+
+            def run1() -> NDArray[np.generic]:
+                only()
+                return out
+
+            return run1
+
+        def run() -> NDArray[np.generic]:
+            for part in parts:
+                part()
+            return out
+
+        return run
 
     def smooth_range(self, x: NDArray[np.generic], lo: int, hi: int) -> NDArray[np.generic]:
         """Smoothed values of the 1-D spectrum ``x`` at bins ``lo … hi−1`` (a new array)."""
         k = self.n_bins
         if x.shape != (k,):
             raise ValueError(f"expected shape ({k},), got {x.shape}")
-        lo, hi = max(0, int(lo)), min(k, int(hi))
-        out = np.empty(max(hi - lo, 0), dtype=np.result_type(x.dtype, np.float64))
-        if hi <= lo:
-            return out
-        if not self.enabled:
-            out[...] = x[lo:hi]
-            return out
-        h, w = self.half, self.window
-        a, b = max(lo, h), min(hi, k - h)  # interior bins [a, b)
-        if b > a:
-            self._interior(x[a - h : b + h], out[a - lo : b - lo])
-        if lo < h:  # low edge: polynomial through the first w bins
-            e = min(h, hi)
-            out[0 : e - lo] = self.edge_lo[lo:e] @ x[:w]
-        if hi > k - h:  # high edge: polynomial through the last w bins
-            s = max(lo, k - h)
-            out[s - lo :] = self.edge_hi[s - (k - h) : hi - (k - h)] @ x[k - w :]
-        return out
+        return self.range_plan(np.ascontiguousarray(x), lo, hi)().copy()
 
     def smooth(self, x: NDArray[np.generic]) -> NDArray[np.generic]:
         """Smooth every bin of ``x`` (shape ``(K,)`` or ``(m, K)``); returns a new array."""

@@ -1,0 +1,186 @@
+"""The identifier's fast paths equal their direct definitions (the step's hot path, see dsp_service.bench)."""
+
+from __future__ import annotations
+
+import math
+from itertools import combinations
+
+import numpy as np
+import pytest
+import scipy.signal
+
+import dsp_service.spectra as spectra
+from dsp_service.identifier import Identifier, IdentifierConfig
+from dsp_service.mimo import MimoSolver, solve_mimo
+from dsp_service.modal import VrmEstimator, find_modal_peaks, log_weights_db, vrm_lambda, vrm_modal_scalar
+from dsp_service.smoothing import FrequencySmoother
+from dsp_service.spectra import SpectralEstimator, rfft_rows
+
+from .synth import dataset
+
+FS, N = 200.0, 2048
+FREQS = np.fft.rfftfreq(N, 1.0 / FS)
+
+
+# ------------------------------------------------------------------- spectra
+@pytest.mark.parametrize("use_pocketfft", [True, False])
+def test_rfft_rows_is_numpys_rfft(monkeypatch: pytest.MonkeyPatch, use_pocketfft: bool) -> None:
+    if not use_pocketfft:
+        monkeypatch.setattr(spectra, "_r2c", None)
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((4, 512))
+    np.testing.assert_array_equal(rfft_rows(x), np.fft.rfft(x, axis=-1))
+    out = np.empty((4, 257), dtype=np.complex128)
+    assert rfft_rows(x, out) is out
+    np.testing.assert_array_equal(out, np.fft.rfft(x, axis=-1))
+    np.testing.assert_array_equal(rfft_rows(x[1]), np.fft.rfft(x[1]))
+
+
+def test_snapshot_products_are_the_seven_cross_spectra() -> None:
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((4, 256)) + rng.standard_normal((4, 1))
+    est = SpectralEstimator(256, FS)
+    S = est.snapshot(x, 2.5)
+    xd = (x - x.mean(axis=1, keepdims=True)) * est.window
+    X = np.fft.rfft(xd, axis=-1)
+    pairs = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]  # SPECTRA_NAMES order
+    for row, (i, j) in enumerate(pairs):
+        np.testing.assert_allclose(S[row], np.conj(X[i]) * 2.5 * X[j], rtol=1e-12, atol=1e-12 * np.abs(S[row]).max())
+    assert S.shape == (7, 129) and S.flags.c_contiguous
+
+
+# ------------------------------------------------------------------- solver
+def _spectra_with_masked_bins(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    k = 300
+    u = rng.standard_normal((2, 40, k)) + 1j * rng.standard_normal((2, 40, k))
+    u[1, :, 50:70] = 0.7j * u[0, :, 50:70]  # collinear inputs: masked by the determinant
+    u[0, :, 120:125] *= 1e-9  # input 1 below the power floor
+    u[1, :, 200:204] = 0.0  # input 2 silent
+    y = rng.standard_normal((2, 40, k)) + 1j * rng.standard_normal((2, 40, k))
+    X = np.concatenate([u, y])
+    pairs = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]
+    return np.array([(np.conj(X[i]) * X[j]).mean(axis=0) for i, j in pairs])
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("sl", [slice(None), slice(10, 260), slice(52, 68)])
+def test_htot_fast_path_equals_the_mean_of_the_four_solves(seed: int, sl: slice) -> None:
+    S = _spectra_with_masked_bins(seed)
+    H, valid = solve_mimo(S, power_floor=1e-12)
+    solver = MimoSolver(S.shape[1], "mimo", 1e-3, 1e-12)
+    for _ in range(2):  # the second call reuses the cached views
+        htot, v = solver.solve_source(S, "tot", sl)
+        np.testing.assert_array_equal(v, valid[sl])
+        np.testing.assert_allclose(htot, H.mean(axis=0)[sl], rtol=1e-12, atol=0)
+        assert np.all(htot[~v] == 0)
+    if sl == slice(None):
+        assert not valid[50:70].any() and not valid[120:125].any() and not valid[200:204].any()
+        assert valid.sum() > 250
+
+
+# ---------------------------------------------------------------- smoothing
+@pytest.mark.parametrize("lo,hi", [(0, 300), (6, 290), (20, 40), (295, 300), (0, 3)])
+@pytest.mark.parametrize("complex_", [True, False])
+def test_range_plan_tracks_its_buffer(lo: int, hi: int, complex_: bool) -> None:
+    rng = np.random.default_rng(lo + hi)
+    sm = FrequencySmoother(300, 17, 2)
+    buf = np.zeros(300, dtype=np.complex128 if complex_ else np.float64)
+    plan = sm.range_plan(buf, lo, hi)
+    for _ in range(3):
+        x = rng.standard_normal(300) + (1j * rng.standard_normal(300) if complex_ else 0.0)
+        buf[...] = x
+        ref_re = scipy.signal.savgol_filter(np.real(x), 17, 2, mode="interp")
+        ref = ref_re + 1j * scipy.signal.savgol_filter(np.imag(x), 17, 2, mode="interp") if complex_ else ref_re
+        np.testing.assert_allclose(plan(), ref[lo:hi], rtol=1e-10, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- VRM
+def _vrm_reference(est: VrmEstimator, H, freqs, k, half_width, valid):
+    """The estimator's definition, one triplet at a time (Python loops; for the test only)."""
+    plan = est._plan(H.size, k, half_width, valid)
+    if plan is None:
+        return None
+    m, stride = plan
+    pts = [k + stride * j for j in range(-m, m + 1)]
+    lam_sum, w_sum, used = 0j, 0.0, 0
+    for a, b, c in combinations(range(2 * m + 1), 3):
+        if c - a < max(m, 2):
+            continue
+        pa, pb, pc = pts[a], pts[b], pts[c]
+        f2 = [float(freqs[p]) ** 2 for p in (pa, pb, pc)]
+        dba, dca = H[pb] - H[pa], H[pc] - H[pa]
+        den = dba * (f2[2] - f2[0]) - dca * (f2[1] - f2[0])
+        lam = complex(vrm_lambda(*(np.array([H[p]]) for p in (pa, pb, pc)), *(np.array([v]) for v in f2))[0])
+        if abs(den) == 0.0 or not lam.real > 0.0 or not lam.imag > 0.0:
+            continue
+        if lam.imag > est._im_over_re_max * lam.real:
+            continue
+        lam_sum += abs(den) * lam
+        w_sum += abs(den)
+        used += 1
+    if used == 0:
+        return None
+    fn, zeta = vrm_modal_scalar(lam_sum / w_sum, est.model)
+    df = float(freqs[1] - freqs[0])
+    if not (float(freqs[pts[0]]) - 2 * df <= fn <= float(freqs[pts[-1]]) + 2 * df and 0.0 < zeta <= est.zeta_max):
+        return None
+    return fn, zeta, used
+
+
+@pytest.mark.parametrize("model", ["viscous", "hysteretic"])
+@pytest.mark.parametrize("m_max", [2, 5, 10])
+def test_vrm_all_peaks_at_once_equals_the_triplet_by_triplet_definition(model: str, m_max: int) -> None:
+    rng = np.random.default_rng(m_max)
+    wn1, wn2 = 2 * np.pi * 3.6, 2 * np.pi * 9.0
+    w = 2 * np.pi * FREQS
+    H = 4e3 / (wn1**2 - w**2 + 2j * 0.09 * wn1 * w) + 1e3 / (wn2**2 - w**2 + 2j * 0.05 * wn2 * w)
+    H = H * (1 + 0.05 * (rng.standard_normal(H.size) + 1j * rng.standard_normal(H.size)))
+    valid = np.ones(H.size, dtype=bool)
+    valid[[30, 101, 102]] = False
+    est = VrmEstimator(m_max=m_max, model=model)
+    ks = [36, 92, 0, 3, 37, 100, 1020, 500]
+    hws = [3.2, 2.3, 2.0, 5.0, 0.4, 1.0, 8.0, 30.0]  # different m and strides, edges, masked bins
+    for mask in (None, valid):
+        got = est.estimate_many(H, FREQS, ks, hws, mask)
+        assert got == [est.estimate(H, FREQS, k, hw, mask) for k, hw in zip(ks, hws)]
+        ref = [_vrm_reference(est, H, FREQS, k, hw, mask) for k, hw in zip(ks, hws)]
+        assert [g is None for g in got] == [r is None for r in ref]
+        assert sum(g is not None for g in got) >= 4
+        for g, r in zip(got, ref):
+            if g is not None:
+                assert g[2] == r[2]
+                assert g[0] == pytest.approx(r[0], rel=1e-12) and g[1] == pytest.approx(r[1], rel=1e-9)
+
+
+def test_vrm_degenerate_spectra_give_none_without_warnings() -> None:
+    est = VrmEstimator()
+    with np.errstate(all="raise"):
+        assert est.estimate(np.zeros(FREQS.size, dtype=complex), FREQS, 40, 3.0) is None
+        assert est.estimate(np.ones(FREQS.size, dtype=complex), FREQS, 40, 3.0) is None
+
+
+# ----------------------------------------------------------------- peaks
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize(
+    "kw",
+    [{}, {"log_weighting": False}, {"max_peaks": 5, "min_peak_prominence_db": 0.0}, {"min_peak_prominence_db": 12.0}],
+)
+def test_identifier_peak_search_equals_find_modal_peaks(seed: int, kw: dict) -> None:
+    """The step ranks on the linear weighted magnitude; find_modal_peaks on dB: the same peaks."""
+    n = 512
+    _, u, y = dataset(30 * n, seed=seed)
+    idf = Identifier(IdentifierConfig(fft_width=n, **kw))
+    cfg = idf.cfg
+    for s in range(0, u.shape[1], n // 4):
+        idf.push(u[:, s : s + n // 4], y[:, s : s + n // 4])
+        idf.step()
+        hs = idf._smooth()
+        vs = idf._smoother.valid_range(idf._solver.valid, idf._lo, idf._hi)
+        ours = idf._find_peaks(hs, vs, int(np.count_nonzero(vs)))
+        f = idf._f_range
+        wdb = log_weights_db(f, max(cfg.search_min_hz, FS / n), cfg.log_weight_exponent) if cfg.log_weighting else None
+        ref = find_modal_peaks(np.abs(hs), f, wdb, vs, cfg.max_peaks, cfg.min_peak_prominence_db, refine=False)
+        assert [p[0] for p in ours] == [p.index for p in ref]
+        for p, r in zip(ours, ref):
+            assert math.isclose(p[1], r.prominence_db, rel_tol=1e-9, abs_tol=1e-9)
