@@ -98,6 +98,7 @@ class ControllerService:
         self.irq_latency = LatencyTracker()
         self.tick = 0
         self.latest_frequency_hz: float | None = None
+        self.latest_interrupt: Interrupt | None = None
         self.last_fresh_tick = 0
         self.stale = False
         self.last_miss: str | None = None
@@ -134,7 +135,7 @@ class ControllerService:
         self.law.pi.reset()
         if self.law.oatf is not None:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
-        return [k for k in probe if k != "tick"] + ["irq_applied", "stale"]
+        return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
     def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
         up = sample.kind == zenoh.SampleKind.PUT
@@ -252,6 +253,7 @@ class ControllerService:
             applied = True
             if not self.link.missed_current:
                 self.monitors.clear("deadline")
+            self.latest_interrupt = irq
             if irq.poles:
                 self.latest_frequency_hz = irq.poles[0].frequency_hz
             if irq.poles and irq.confidence >= self.settings.oatf_min_confidence:
@@ -319,6 +321,12 @@ class ControllerService:
         row = self.law.record_row(self.tick, out)
         row["irq_applied"] = float(applied)
         row["stale"] = float(self.stale)
+        irq = self.latest_interrupt
+        poles = irq.poles if irq is not None else ()
+        row["f_id_hz"] = poles[0].frequency_hz if poles else float("nan")
+        row["f_id2_hz"] = poles[1].frequency_hz if len(poles) > 1 else float("nan")
+        row["zeta_id"] = poles[0].damping_ratio if poles else float("nan")
+        row["id_confidence"] = irq.confidence if irq is not None else 0.0
         self.record.append(row)
 
     def run(self, stop: threading.Event) -> RunResult:

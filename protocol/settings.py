@@ -83,7 +83,7 @@ class ControllerSettings(CommonSettings):
     oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
     oatf_delay_s: float | None = Field(None, gt=0, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
     oatf_band_hz: tuple[float, float] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
-    oatf_min_confidence: float = Field(0.5, ge=0, le=1, description="Ignore estimates less confident than this")
+    oatf_min_confidence: float = Field(0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)")
     dsp_deadline_s: float | None = Field(None, gt=0, description="Interrupt deadline after a batch (default: the batch period)")
     stale_after_s: float = Field(2.0, gt=0, description="Parameters older than this are stale")
     tf_download_samples: int = Field(1000, ge=0, description="Download transfer functions every this many samples (0 = never)")
