@@ -13,6 +13,7 @@ Clock modes (design.md "Time"):
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import queue
@@ -26,7 +27,7 @@ import zenoh
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.node import CanopenNode, NodeConfig
-from protocol.errors import ProtocolError
+from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
@@ -62,6 +63,25 @@ def node_config(settings: PlantSettings) -> NodeConfig:
     )
 
 
+def parse_scenario(text: str) -> list[ScenarioCommand]:
+    """Scenario commands from the ``scenario`` setting (a JSON list)."""
+    if not text.strip():
+        return []
+    try:
+        items = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"RALF_SCENARIO is not JSON: {exc}") from None
+    if not isinstance(items, list):
+        raise ConfigError("RALF_SCENARIO must be a JSON list of commands")
+    commands = []
+    for seq, item in enumerate(items):
+        try:
+            commands.append(ScenarioCommand.model_validate({"seq": seq, "sim_time_s": 0.0, **item}))
+        except Exception as exc:
+            raise ConfigError(f"RALF_SCENARIO item {seq}: {exc}") from None
+    return commands
+
+
 class PlantApplication:
     """The node's application: the arm, its clock, scenario commands and the test port."""
 
@@ -79,11 +99,12 @@ class PlantApplication:
         self.t0: float | None = None
         self.held = False
         self.syncs = 0
-        self.scenario: list[ScenarioCommand] = []
         self.scenario_inbox: queue.Queue[ScenarioCommand] = queue.Queue()
         self.publish_truth = publish_truth
         self.publish_event = publish_event
         self._truth_seq = 0
+        self.truth_log: list[GroundTruth] = []
+        self.scenario = parse_scenario(settings.scenario)
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -164,24 +185,45 @@ class PlantApplication:
             self._event("hard_stop", f"{stops - self._hard_stops_seen} joint hard stop(s); total {stops}")
             self._hard_stops_seen = stops
         rate = self.settings.truth_rate_hz
-        if self.publish_truth is None or rate <= 0 or self.arm.time_s + 1e-12 < self._next_truth_s:
+        wanted = self.publish_truth is not None or self.settings.record
+        if not wanted or rate <= 0 or self.arm.time_s + 1e-12 < self._next_truth_s:
             return
         self._next_truth_s = self.arm.time_s + 1.0 / rate
         truth = self.arm.truth()
-        self.publish_truth(
-            GroundTruth(
-                seq=self._truth_seq,
-                sim_time_s=self.arm.time_s,
-                modal_frequencies_hz=tuple(float(f) for f in truth.modal_frequencies_hz),
-                damping_ratios=tuple(float(z) for z in truth.damping_ratios),
-                deflections_in=(float(truth.deflections_in[0]), float(truth.deflections_in[1])),
-                theta_rad=(float(truth.theta_rad[0]), float(truth.theta_rad[1])),
-                tip_in=(float(truth.tip_in[0]), float(truth.tip_in[1])),
-                payload_attached=bool(truth.payload_attached),
-                valves_held=self.held,
-            )
+        message = GroundTruth(
+            seq=self._truth_seq,
+            sim_time_s=self.arm.time_s,
+            modal_frequencies_hz=tuple(float(f) for f in truth.modal_frequencies_hz),
+            damping_ratios=tuple(float(z) for z in truth.damping_ratios),
+            deflections_in=(float(truth.deflections_in[0]), float(truth.deflections_in[1])),
+            theta_rad=(float(truth.theta_rad[0]), float(truth.theta_rad[1])),
+            tip_in=(float(truth.tip_in[0]), float(truth.tip_in[1])),
+            payload_attached=bool(truth.payload_attached),
+            valves_held=self.held,
         )
+        if self.publish_truth is not None:
+            self.publish_truth(message)
+        if self.settings.record:
+            self.truth_log.append(message)
         self._truth_seq += 1
+
+    def save_truth(self, path: str) -> None:
+        """The ground truth recorded during the run, one row per truth sample."""
+        log_ = self.truth_log
+        if not log_:
+            return
+        n_modes = min(len(t.modal_frequencies_hz) for t in log_)
+        np.savez_compressed(
+            path,
+            sim_time_s=np.array([t.sim_time_s for t in log_]),
+            modal_frequencies_hz=np.array([t.modal_frequencies_hz[:n_modes] for t in log_]),
+            damping_ratios=np.array([t.damping_ratios[:n_modes] for t in log_]),
+            deflections_in=np.array([t.deflections_in for t in log_]),
+            theta_rad=np.array([t.theta_rad for t in log_]),
+            tip_in=np.array([t.tip_in for t in log_]),
+            payload_attached=np.array([t.payload_attached for t in log_]),
+            valves_held=np.array([t.valves_held for t in log_]),
+        )
 
 
 class PlantTestPort:
@@ -243,6 +285,8 @@ def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: th
     try:
         run_node(bus, node, stop)  # type: ignore[arg-type]
     finally:
+        if settings.record:
+            app.save_truth(settings.record)
         health.stop()
         port.close()
         log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())

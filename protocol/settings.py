@@ -59,6 +59,8 @@ class PlantSettings(CommonSettings):
     truth_rate_hz: float = Field(20.0, ge=0, description="Rate of ground truth on the test port (0 = off)")
     watchdog_periods: int = Field(5, ge=1, description="SYNC periods without SYNC before the valves are held")
     heartbeat_ms: int = Field(100, ge=0, description="CANopen heartbeat producer period (0 = off)")
+    scenario: str = Field("", description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]')
+    record: str = Field("", description="Write the ground truth at truth_rate_hz to this .npz file when the plant stops")
 
     @field_validator("adc_bits", mode="before")
     @classmethod

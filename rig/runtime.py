@@ -165,5 +165,8 @@ def run_service(
     session = open_zenoh(settings)
     try:
         return body(settings, session, stop)
+    except ConfigError as exc:
+        logging.getLogger(prog).error("%s", exc)
+        return 2
     finally:
         session.close()
