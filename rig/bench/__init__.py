@@ -206,7 +206,7 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "bench",
         help="measure the rig's latencies and speeds beside their floors",
-        description=__doc__.split("\n\n")[0] + " Items: " + ", ".join(ITEMS) + ".",
+        description=__doc__.split("\n\n")[0].replace("``", "") + " Items: " + ", ".join(ITEMS) + ".",
     )
     add_arguments(p)
     p.set_defaults(func=cmd_bench)
@@ -214,7 +214,7 @@ def register(subparsers: Any) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """A stand-alone parser (``python -m rig.bench``) with the same options."""
-    parser = argparse.ArgumentParser(prog="python -m rig.bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m rig.bench", description=__doc__.split("\n\n")[0].replace("``", ""))
     add_arguments(parser)
     parser.set_defaults(func=cmd_bench)
     return parser

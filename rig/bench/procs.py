@@ -33,8 +33,9 @@ def private_rig_id(prefix: str) -> str:
 
 
 def private_can_port(rig_id: str) -> int:
-    """A udp_multicast port of this run's own, away from the launcher's 43200-63199 range."""
-    return 30000 + zlib.crc32(rig_id.encode()) % 10000
+    """A udp_multicast port of this run's own: 20000-29999, away from the launcher's
+    43200-63199 and below Linux's ephemeral range (32768-60999)."""
+    return 20000 + zlib.crc32(rig_id.encode()) % 10000
 
 
 def clean_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
