@@ -41,6 +41,8 @@ from rig.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
 
+RESYNC_AFTER_PERIODS = 20
+"""Real time: a loop this many periods late re-bases its schedule."""
 LOCKSTEP_RETRY_S = 0.05
 """Lockstep: resend a SYNC that got no TPDO after this long (a lost frame)."""
 
@@ -60,6 +62,8 @@ class TimingCounters:
     lockstep_waits: int = 0
     syncs_dropped: int = 0
     sync_retries: int = 0
+    schedule_resyncs: int = 0
+    periods_skipped: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -106,7 +110,9 @@ class ControllerService:
         self.liveliness: list[tuple[float, str, bool]] = []
         self.tf_snapshots: list[TfSnapshot] = []
         self._last_words = np.zeros(4, dtype=np.int64)
-        self._events: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self._tf_thread: threading.Thread | None = None
+        self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
         self._status_seq = 0
@@ -122,8 +128,8 @@ class ControllerService:
         self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
         self._status_pub = session.declare_publisher(self.keys.controller_status)
         self._subs = [
-            session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes()))),
-            session.declare_subscriber(self.keys.interrupt, lambda s: self._events.put(("interrupt", s.payload.to_bytes()))),
+            session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes(), time.monotonic()))),
+            session.declare_subscriber(self.keys.interrupt, self._on_interrupt_sample),
             session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
         ]
         self._token = session.liveliness().declare_token(self.keys.alive("controller"))
@@ -137,9 +143,14 @@ class ControllerService:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
+    def _on_interrupt_sample(self, sample: zenoh.Sample) -> None:
+        """Stamp the interrupt's arrival here: the MVME took it as a hardware
+        interrupt, not at the next tick."""
+        self._events.put(("interrupt", sample.payload.to_bytes(), time.monotonic()))
+
     def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
         up = sample.kind == zenoh.SampleKind.PUT
-        self._events.put(("alive", b"1" if up else b"0"))
+        self._events.put(("alive", b"1" if up else b"0", time.monotonic()))
 
     def _build_health(self, seq: int) -> Health:
         counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict()}
@@ -183,12 +194,14 @@ class ControllerService:
         self._status_pub.put(encode(status))
 
     # -- DSP side -----------------------------------------------------------------------
-    def _take_event(self, kind: str, payload: bytes) -> None:
+    def _take_event(self, kind: str, payload: bytes, arrival: float) -> None:
         try:
             if kind == "flag":
                 self.link.on_flag(decode(BlockFlag, payload))
             elif kind == "interrupt":
-                self._held_interrupts.append(decode(Interrupt, payload))
+                irq = decode(Interrupt, payload)
+                self._irq_arrival[irq.batch_seq] = arrival
+                self._held_interrupts.append(irq)
             elif kind == "alive":
                 up = payload == b"1"
                 if up != self.dsp_alive:
@@ -211,10 +224,10 @@ class ControllerService:
     def _drain_events(self) -> None:
         while True:
             try:
-                kind, payload = self._events.get_nowait()
+                kind, payload, arrival = self._events.get_nowait()
             except queue.Empty:
                 return
-            self._take_event(kind, payload)
+            self._take_event(kind, payload, arrival)
 
     def _wait_for_interrupt(self, seq: int) -> None:
         """Lockstep: block until the interrupt of batch ``seq`` is in (or time out)."""
@@ -225,10 +238,10 @@ class ControllerService:
             if remaining <= 0 or not self.dsp_alive and self.timing.dsp_found:
                 return
             try:
-                kind, payload = self._events.get(timeout=min(remaining, 0.1))
+                kind, payload, arrival = self._events.get(timeout=min(remaining, 0.1))
             except queue.Empty:
                 continue
-            self._take_event(kind, payload)
+            self._take_event(kind, payload, arrival)
 
     def _apply_interrupts(self) -> bool:
         """Apply held interrupts that are due; True if one was applied this tick."""
@@ -247,8 +260,9 @@ class ControllerService:
             if matched is None:
                 continue
             sent_wall = self._batch_sent_wall.pop(irq.batch_seq, None)
+            arrived = self._irq_arrival.pop(irq.batch_seq, time.monotonic())
             if sent_wall is not None:
-                self.irq_latency.add(time.monotonic() - sent_wall)
+                self.irq_latency.add(arrived - sent_wall)
             self.timing.interrupts_applied += 1
             applied = True
             if not self.link.missed_current:
@@ -311,7 +325,14 @@ class ControllerService:
         self.plant.send_outputs(out.volts)
         self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
         if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0 and self.dsp_alive:
-            self._download_tf()
+            if self.settings.clock == "lockstep":
+                self._download_tf()  # the DSP is idle here: the snapshot is deterministic
+            elif self._tf_thread is None or not self._tf_thread.is_alive():
+                # real time: the query must not hold up the loop
+                self._tf_thread = threading.Thread(target=self._download_tf, name="tf-download", daemon=True)
+                self._tf_thread.start()
+            else:
+                self.timing.tf_download_failures += 1  # the previous download is still under way
         self._maybe_send_batch()
         if self.link.check_deadline(self.tick):
             self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms"
@@ -344,6 +365,14 @@ class ControllerService:
             t0 = time.monotonic()
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
                 scheduled = t0 + self.tick * ts
+                if not lockstep and time.monotonic() - scheduled > RESYNC_AFTER_PERIODS * ts:
+                    # Hopelessly behind (a stall or a rate the host cannot hold): drop the
+                    # backlog instead of running ticks back to back; counted.
+                    behind = int((time.monotonic() - scheduled) / ts)
+                    t0 += behind * ts
+                    scheduled += behind * ts
+                    self.timing.schedule_resyncs += 1
+                    self.timing.periods_skipped += behind
                 if not lockstep:
                     delay = scheduled - time.monotonic()
                     if delay > 0:
@@ -421,10 +450,10 @@ class ControllerService:
         deadline = time.monotonic() + timeout
         while not self.link.block_empty and time.monotonic() < deadline and not stop.is_set():
             try:
-                kind, payload = self._events.get(timeout=0.05)
+                kind, payload, arrival = self._events.get(timeout=0.05)
             except queue.Empty:
                 continue
-            self._take_event(kind, payload)
+            self._take_event(kind, payload, arrival)
         if not self.link.block_empty:
             log.warning("no DSP answered within %.1f s; controlling without identification until it does", timeout)
 
@@ -443,6 +472,8 @@ class ControllerService:
             np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)
 
     def close(self) -> None:
+        if self._tf_thread is not None:
+            self._tf_thread.join(timeout=3.0)
         self._health.stop()
         for sub in self._subs:
             sub.undeclare()

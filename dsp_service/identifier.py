@@ -40,6 +40,7 @@ by ~80 % and shifts it by ~1.5 bins; VRM reads λ as a viscous mode
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -66,6 +67,7 @@ from .spectra import SPECTRA_NAMES, SpectralAverager, SpectralEstimator, scale_s
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
+_PEAK_RANKS = 8  #: maxima whose prominence is read one by one before the rest are done at once
 PeakSource = Literal["tot", "11", "12", "21", "22"]
 
 
@@ -425,6 +427,13 @@ class Identifier:
         ``max(|H|, tiny)·w``: the same maxima, bases and order as on its dB
         values, with the prominence test as a ratio and the dB read only for
         the peaks kept.
+
+        Only the best peaks are wanted, so the maxima are taken highest
+        first and each one's prominence read as it comes: a maximum's base
+        depends only on the strictly higher maxima (the nearest on either
+        side bound its two minima, see :func:`.modal.prominence_bases`),
+        which have all been seen by then. After a few rejections the bases
+        of all the rest are computed at once instead.
         """
         c = self.cfg
         v = self._v
@@ -438,26 +447,52 @@ class Identifier:
         if n_valid < size:
             v[~vs] = v[vs].min()
         idx = local_maxima(v)
+        found: list[tuple[int, float]] = []
         if idx.size:
-            base = prominence_bases(self._v_pad, size, idx)
             height = v[idx]
-            keep = height >= base * self._prom_ratio
-            if not keep.all():
-                idx, height, base = idx[keep], height[keep], base[keep]
-        if idx.size == 0:
-            g = int(np.argmax(v))
-            if g == 0 or g == size - 1:
-                return []
-            # the global maximum: no higher sample on either side
-            b = max(float(np.min(v[: g + 1])), float(np.min(v[g:])))
-            return [(g, 20.0 * math.log10(float(v[g]) / b))]
-        if idx.size == 1:
-            order: list[int] = [0]
-        else:
-            order = np.argsort(height)[::-1][: c.max_peaks].tolist()
-        il, hl, bl = idx.tolist(), height.tolist(), base.tolist()
-        log10 = math.log10
-        return [(il[o], 20.0 * log10(hl[o] / bl[o])) for o in order]
+            # highest first; among equal heights the later one first, as argsort()[::-1]
+            order = np.argsort(height, kind="stable")[::-1].tolist()
+            il, hl = idx.tolist(), height.tolist()
+            vp, ratio, want, log10 = self._v_pad, self._prom_ratio, c.max_peaks, math.log10
+            reduceat = np.minimum.reduceat
+            seen: list[int] = []  # positions of the maxima taken so far (all at least as high), sorted
+            seen_h: dict[int, float] = {}
+            for rank, o in enumerate(order):
+                if rank == _PEAK_RANKS:  # many low-prominence maxima: bases of all the rest at once
+                    rest = order[rank:]
+                    bases = prominence_bases(vp, size, idx).tolist()
+                    for o2 in rest:
+                        if hl[o2] >= bases[o2] * ratio:
+                            found.append((il[o2], 20.0 * log10(hl[o2] / bases[o2])))
+                            if len(found) == want:
+                                break
+                    break
+                p, hp = il[o], hl[o]
+                j = bisect.bisect_left(seen, p)
+                i = j - 1
+                while i >= 0 and seen_h[seen[i]] <= hp:  # only strictly higher maxima bound the walk
+                    i -= 1
+                left = seen[i] if i >= 0 else 0
+                i = j
+                while i < len(seen) and seen_h[seen[i]] <= hp:
+                    i += 1
+                right = seen[i] if i < len(seen) else size
+                mins = reduceat(vp, (left, p, p, right)).tolist()
+                base = max(mins[0], mins[2])
+                if hp >= base * ratio:
+                    found.append((p, 20.0 * log10(hp / base)))
+                    if len(found) == want:
+                        break
+                seen.insert(j, p)
+                seen_h[p] = hp
+        if found:
+            return found
+        g = int(np.argmax(v))
+        if g == 0 or g == size - 1:
+            return []
+        # the global maximum: no higher sample on either side
+        b = max(float(np.min(v[: g + 1])), float(np.min(v[g:])))
+        return [(g, 20.0 * math.log10(float(v[g]) / b))]
 
     def _poles(
         self,

@@ -495,13 +495,15 @@ class VrmEstimator:
     Monte-Carlo at 3–12 % complex noise: the weighted mean was as good or
     slightly better, and cheaper.)
 
-    Vectorised over peaks and triplets: every peak is laid on the same
-    ``2 m_max + 1`` point offsets (clipped to its own ``±m``) and all
-    ``C(2 m_max + 1, 3)`` triplets are solved at once, a precomputed mask
-    per ``m`` keeping the triplets that belong to that peak's set; so any
-    number of peaks costs one pass of about twenty array operations on
-    ``(peaks, 165)`` arrays.
+    Vectorised over peaks and triplets: the triplets of all peaks are laid
+    end to end and solved in one pass of about fifteen operations on flat
+    arrays. Their bin indices and frequency factors depend only on each
+    peak's ``(k, stride, m)`` and the frequency grid, so they are kept in a
+    small cache (peaks move by a bin now and then; most steps reuse them):
+    the ``freqs`` array must not be modified in place between calls.
     """
+
+    _CACHE_MAX = 256  #: cached peak layouts (each a few kB)
 
     def __init__(
         self,
@@ -522,29 +524,13 @@ class VrmEstimator:
         self._im_over_re_max = (
             math.tan(2.0 * math.atan(zm)) if model == "viscous" and zm < 1.0 else (2.0 * zm if model == "hysteretic" else math.inf)
         )
-        mm = self.m_max
-        tri = np.array(list(combinations(range(2 * mm + 1), 3)), dtype=np.intp).reshape(-1, 3)
-        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-        t = tri.shape[0]
-        self._t = t
-        # gathers: [H_b | H_c | H_a | H_a] → Δba, Δca as one subtraction of halves
-        self._bcaa = np.concatenate([b, c, a, a])
-        # real operator on squared frequencies: [ωc²−ωa², ωb²−ωa², ωb², ωc²] (exact ±1 selections)
-        dr = np.zeros((2 * mm + 1, 4 * t))
-        cols = np.arange(t)
-        dr[c, cols] += 1.0
-        dr[a, cols] -= 1.0
-        dr[b, t + cols] += 1.0
-        dr[a, t + cols] -= 1.0
-        dr[b, 2 * t + cols] = 1.0
-        dr[c, 3 * t + cols] = 1.0
-        self._dr = dr
-        offsets = np.arange(-mm, mm + 1)
-        #: per m: the point offsets (clipped to ±m) and the triplets of that m's set
-        self._offsets = np.stack([np.clip(offsets, -m, m) for m in range(mm + 1)])
-        self._member = np.stack(
-            [(a >= mm - m) & (c <= mm + m) & (c - a >= max(m, 2)) for m in range(mm + 1)]
-        )
+        #: per m: the triplets (a, b, c) of the 2m + 1 points, as offsets −m … m in strides
+        self._triplets = [np.zeros((0, 3), dtype=np.intp)]
+        for m in range(1, self.m_max + 1):
+            tri = [c for c in combinations(range(2 * m + 1), 3) if c[2] - c[0] >= max(m, 2)]
+            self._triplets.append(np.array(tri, dtype=np.intp).reshape(-1, 3) - m)
+        self._layouts: dict[tuple[int, tuple[tuple[int, int, int], ...]], tuple] = {}
+        self._layout_freqs: NDArray[np.float64] | None = None
 
     def estimate(
         self,
@@ -597,41 +583,69 @@ class VrmEstimator:
             plan = self._plan(n, k, hw, valid)
             if plan is not None:
                 rows.append(i)
-                plans.append((k, plan[1], plan[0]))
+                plans.append((int(k), plan[1], plan[0]))
         if not plans:
             return out
-        f0, f1 = freqs[0:2].tolist()
-        for i, res in zip(rows, self._solve(H, freqs, np.array(plans, dtype=np.intp), f1 - f0)):
+        for i, res in zip(rows, self._solve(H, freqs, tuple(plans))):
             out[i] = res
         return out
+
+    def _layout(self, n: int, freqs: NDArray[np.float64], plans: tuple[tuple[int, int, int], ...]) -> tuple:
+        """Bin indices and frequency factors of all triplets of ``plans`` (``(k, stride, m)`` rows), cached."""
+        if freqs is not self._layout_freqs:
+            self._layouts.clear()
+            self._layout_freqs = freqs  # held, so its id cannot be reused while cached
+        key = (n, plans)
+        lay = self._layouts.get(key)
+        if lay is not None:
+            return lay
+        if len(self._layouts) >= self._CACHE_MAX:
+            self._layouts.clear()
+        tri = np.concatenate([k + s * self._triplets[m] for k, s, m in plans])  # (T, 3) bins a, b, c
+        t = tri.shape[0]
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        hidx = np.stack([np.concatenate([b, c]), np.concatenate([a, a])])  # H_b, H_c minus H_a, H_a
+        fa, fb, fc = freqs[a], freqs[b], freqs[c]
+        f2a, f2b, f2c = fa * fa, fb * fb, fc * fc
+        cab, bab = f2c - f2a, f2b - f2a  # ωc² − ωa², ωb² − ωa² (in Hz²)
+        factors = np.stack([np.concatenate([cab, bab]), np.concatenate([f2b * cab, f2c * bab])])
+        factors = np.repeat(factors, 2, axis=1)  # each twice, against the (re, im) of the differences
+        sizes = [self._triplets[m].shape[0] for _, _, m in plans]
+        ends = np.cumsum(sizes)
+        member = np.zeros((2, len(plans), t))  # per peak: its triplets (for the sums)
+        for j, (e, size) in enumerate(zip(ends, sizes)):
+            member[:, j, e - size : e] = 1.0
+        sums = np.ones((t, 3))  # [Re λ, Im λ, 1] per triplet
+        lam = np.ndarray((t,), dtype=np.complex128, buffer=sums, strides=(sums.strides[0],))
+        weights = np.empty((2, 1, t))
+        edges = [(float(freqs[k - s * m]), float(freqs[k + s * m])) for k, s, m in plans]
+        lay = (hidx, factors, member, sums, lam, weights, edges, t)
+        self._layouts[key] = lay
+        return lay
 
     def _solve(
         self,
         H: NDArray[np.complex128],
         freqs: NDArray[np.float64],
-        plans: NDArray[np.intp],
-        df: float,
+        plans: tuple[tuple[int, int, int], ...],
     ) -> list[tuple[float, float, int] | None]:
-        """All triplets of all peaks; ``plans`` rows are ``(k, stride, m)``; arrays are ``(peaks, T)``."""
-        t = self._t
-        ms = plans[:, 2]
-        pts = self._offsets[ms]  # (g, 2 m_max + 1) offsets, clipped to each peak's ±m
-        pts *= plans[:, 1:2]
-        pts += plans[:, 0:1]
-        hh = H[pts]
-        fb = freqs[pts]
-        g4 = hh[:, self._bcaa]
-        dd = np.subtract(g4[:, : 2 * t], g4[:, 2 * t :])  # [Δba | Δca]
-        rr = np.matmul(fb * fb, self._dr)  # [ωc²−ωa² | ωb²−ωa² | ωb² | ωc²] (in Hz²)
-        rr[:, 2 * t :] *= rr[:, : 2 * t]  # [… | ωb²(ωc²−ωa²) | ωc²(ωb²−ωa²)]
-        q = dd[:, None, :] * rr.reshape(-1, 2, 2 * t)
-        dn = np.subtract(q[:, :, :t], q[:, :, t:])  # [den, num], see vrm_lambda
-        den, num = dn[:, 0], dn[:, 1]
+        """All triplets of all peaks (``plans`` rows ``(k, stride, m)``) in one pass over flat arrays.
+
+        The arithmetic is :func:`vrm_lambda`'s, per triplet, on float views
+        (complex differences as (re, im) pairs, the real frequency factors
+        duplicated to match) so that no operation mixes types.
+        """
+        hidx, factors, member, sums, lam, weights, edges, t = self._layout(H.shape[-1], freqs, plans)
+        g = H[hidx]
+        d = np.subtract(g[0], g[1]).view(np.float64)  # [Δba | Δca] as (re, im)
+        q = np.multiply(d, factors)  # [[Δba(ωc²−ωa²) | Δca(ωb²−ωa²)], [Δba ωb²(ωc²−ωa²) | Δca ωc²(ωb²−ωa²)]]
+        dn = np.subtract(q[:, : 2 * t], q[:, 2 * t :]).view(np.complex128)  # [den, num], see vrm_lambda
+        den, num = dn[0], dn[1]
         w = np.abs(den)
-        singular = np.count_nonzero(w) < w.size
+        singular = np.count_nonzero(w) < t
         if singular:
             den += w == 0.0  # singular triplet: divide by 1 instead (its weight is 0)
-        lam = np.divide(num, den, out=num)
+        np.divide(num, den, out=lam)
         re, im = lam.real, lam.imag
         # physical: Re λ > 0 and 0 < ζ ≤ zeta_max, i.e. 0 < Im λ ≤ c·Re λ with
         # c = tan(2 atan ζmax) (viscous, ζ = tan(arg λ / 2)) or 2 ζmax (hysteretic);
@@ -642,25 +656,26 @@ class VrmEstimator:
         else:
             good = re > 0.0
         good &= im > 0.0
-        good &= self._member[ms]
         if singular:
             good &= w > 0.0
-        w *= good
-        wsum = np.add.reduce(w, axis=1).tolist()
-        used = np.count_nonzero(good, axis=1).tolist()
-        lam *= w
-        lam_avg = np.add.reduce(lam, axis=1).tolist()
-        edges = fb[:, 0 :: fb.shape[1] - 1].tolist()  # outermost points (offsets ±m)
+        np.multiply(w, good, out=weights[0, 0])
+        np.copyto(weights[1, 0], good)
+        # per peak: [Σ w Re λ, Σ w Im λ, Σ w] and, below, [·, ·, triplets used]
+        totals = np.matmul(np.multiply(member, weights).reshape(-1, t), sums).tolist()
+        npk = len(plans)
+        df = float(freqs[1] - freqs[0])
         results: list[tuple[float, float, int] | None] = []
-        for g in range(len(used)):
-            if used[g] == 0 or not wsum[g] > 0.0:
+        for j in range(npk):
+            wr, wi, wsum = totals[j]
+            used = int(totals[npk + j][2])
+            if used == 0 or not wsum > 0.0:
                 results.append(None)
                 continue
-            fn, zeta = vrm_modal_scalar(lam_avg[g] / wsum[g], self.model)
+            fn, zeta = vrm_modal_scalar(complex(wr, wi) / wsum, self.model)
             # the averaged mode must lie within two bins of the band it came from
-            f_lo, f_hi = edges[g][0] - 2.0 * df, edges[g][1] + 2.0 * df
+            f_lo, f_hi = edges[j][0] - 2.0 * df, edges[j][1] + 2.0 * df
             ok = f_lo <= fn <= f_hi and 0.0 < zeta <= self.zeta_max
-            results.append((fn, zeta, int(used[g])) if ok else None)
+            results.append((fn, zeta, used) if ok else None)
         return results
 
 

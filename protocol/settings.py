@@ -78,7 +78,7 @@ class ControllerSettings(CommonSettings):
     trajectory: str = Field("", description="Trajectory way-point JSON file (default: the thesis's inspection loop)")
     tip_speed_in_s: float = Field(5.0, gt=0, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
     repeats: int = Field(0, ge=0, description="Passes around the trajectory before stopping (0 = until stopped)")
-    batch_size: int = Field(20, ge=1, le=4096, description="Samples per batch sent to the DSP (l)")
+    batch_size: int = Field(30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)")
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
     oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
     oatf_frequency_hz: float = Field(4.4, gt=0, description="OATF design frequency (initial value when adaptive)")
@@ -118,7 +118,7 @@ class DspSettings(CommonSettings):
     """The DSP service (``ralf-dsp``), the emulated C40 board."""
 
     fft_width: int = Field(2048, ge=16, le=65536, description="FFT width N (history length per channel)")
-    batch_size: int = Field(20, ge=1, le=4096, description="Expected batch size l (informational; any size is accepted)")
+    batch_size: int = Field(30, ge=1, le=4096, description="Expected batch size l (sets the default compute budget; any size is accepted)")
     alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")

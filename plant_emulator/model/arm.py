@@ -32,6 +32,7 @@ One internal step of length ``h``, with the valve voltages held:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import asdict, dataclass, field
@@ -52,6 +53,7 @@ from plant_emulator.model.modes import (
     consts,
     eig2_scalar,
     modal_parameters,
+    static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
 from protocol.can_map import FULL_SCALE_V, ConverterScale
@@ -61,6 +63,22 @@ __all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm", "modal_parameter
 NS_PER_S = 1_000_000_000
 MAX_EVENTS = 256
 """Hard-stop events kept in the truth (the counters never forget)."""
+
+
+@functools.lru_cache(maxsize=8)
+def default_deflection_zero(structure: Structure, payload: bool) -> tuple[float, float]:
+    """Where the deflection sensors read zero unless configured: the middle
+    of the static deflection's range (in) over one lap of the inspection
+    loop, so the loop's static sag is centred in the sensors' +-0.575/0.555
+    in ranges (each camera aimed at its diode accordingly)."""
+    try:
+        tr = kin.sample_trajectory(dt_s=0.05)
+    except FileNotFoundError:  # way-points not installed: zero at home instead
+        w = static_deflection_in(*kin.home_theta(), payload, structure)
+        return float(w[0]), float(w[1])
+    w = static_deflection_in(tr.theta1_rad, tr.theta2_rad, payload, structure)
+    mid = 0.5 * (w.min(axis=0) + w.max(axis=0))
+    return float(mid[0]), float(mid[1])
 
 
 class PlantConfig(BaseModel):
@@ -73,7 +91,7 @@ class PlantConfig(BaseModel):
     payload_attached: bool = Field(False, description="Start with the 15.65 lb payload at the tip")
     valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve command to cylinder velocity lag (thesis: steady within 20 ms)")
     valve_gain_in_per_s_per_v: tuple[float, float] = Field(
-        (10.0, 4.0), description="Cylinder velocity per valve volt, cylinders 1 and 2 (sets the PI loop crossover)"
+        (15.0, 7.0), description="Cylinder velocity per valve volt, cylinders 1 and 2 (sets the PI loop crossover)"
     )
     max_cylinder_speed_in_per_s: tuple[float, float] = Field((6.0, 6.0), description="Flow saturation: the fastest each cylinder moves")
     internal_step_s: float = Field(0.001, gt=0, le=0.005, description="Fixed internal integration step")
@@ -85,7 +103,7 @@ class PlantConfig(BaseModel):
     noise_reference_bits: int = Field(12, ge=8, le=24, description="Resolution at which the noise stds above were measured")
     sensor_noise: bool = Field(True, description="False: noiseless sensors (quantization stays)")
     deflection_zero_in: tuple[float, float] | None = Field(
-        None, description="Deflection read as zero by the sensors (default: the static deflection at home)"
+        None, description="Deflection read as zero by the sensors (default: the middle of the static deflection range over the inspection loop)"
     )
     structure: Structure = Field(DEFAULT_STRUCTURE, description="The flexible structure's physical parameters")
 
@@ -209,7 +227,7 @@ class RalfArm:
             for j in (0, 1)
         )
         w = self._deflections()
-        self._zero = tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else w
+        self._zero = tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else default_deflection_zero(cfg.structure, self._payload)
         self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
 
     # -- public API ---------------------------------------------------------------------

@@ -75,6 +75,7 @@ __all__ = [
     "extension_limits_in",
     "forward",
     "home_theta",
+    "INSPECTION_LOOP_START_IN",
     "inverse",
     "jacobian_determinant",
     "joint_rate",
@@ -181,10 +182,21 @@ def sample_trajectory(
     return TrajectorySamples(t_s=t, x_in=x, y_in=y, theta1_rad=np.asarray(th1), theta2_rad=np.asarray(th2))
 
 
+INSPECTION_LOOP_START_IN: Final[tuple[float, float]] = (-19.437, 196.612)
+"""The inspection loop's first way-point, used when the way-point file is
+not installed (``protocol/trajectories`` is not package data)."""
+
+
 def home_theta(name: str = "inspection_loop") -> tuple[float, float]:
     """Joint angles (rad) at the first way-point of a loop: the plant's home."""
-    w = load_waypoints(name)["waypoints"][0]
-    t1, t2 = inverse(w["x_in"], w["y_in"])
+    try:
+        w = load_waypoints(name)["waypoints"][0]
+        x, y = w["x_in"], w["y_in"]
+    except FileNotFoundError:
+        if name != "inspection_loop":
+            raise
+        x, y = INSPECTION_LOOP_START_IN
+    t1, t2 = inverse(x, y)
     return float(t1), float(t2)
 
 

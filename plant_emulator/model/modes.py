@@ -89,7 +89,7 @@ class Structure(BaseModel):
     bar_stiffness_n_per_m: float = Field(7.80e6, gt=0, description="k_bar: parallel bar (with cylinder 2's oil) along the bar")
     crank_radius_in: float = Field(8.0, gt=0, description="r_c: elbow crank radius of the parallel bar")
     crank_offset_deg: float = Field(0.0, ge=-9.0, le=59.0, description="beta_c: crank angle past link 2 (dead point at theta2 = -beta_c)")
-    damping_ratios: tuple[float, float] = Field((0.09, 0.06), description="Modal damping ratios, mode 1 and 2")
+    damping_ratios: tuple[float, float] = Field((0.09, 0.09), description="Modal damping ratios, mode 1 and 2 (thesis: 0.09 for the first)")
     gravity_m_s2: float = Field(G_M_S2, ge=0, description="Gravity (0 switches it off)")
 
 
@@ -292,7 +292,7 @@ def frequency_response(
     freqs_hz: npt.ArrayLike,
     payload: bool = False,
     structure: Structure = DEFAULT_STRUCTURE,
-    valve_gain_in_s_per_v: tuple[float, float] = (10.0, 4.0),
+    valve_gain_in_s_per_v: tuple[float, float] = (15.0, 7.0),
     valve_time_constant_s: float = 0.01,
 ) -> npt.NDArray[np.complex128]:
     """Linearised transfer functions from valve volts to tip deflections (in)

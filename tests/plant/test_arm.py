@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from plant_emulator.model import GroundTruth, PlantConfig, RalfArm
+from plant_emulator.model.arm import default_deflection_zero
 from plant_emulator.model import kinematics as kin
 from plant_emulator.model.modes import static_deflection_in
 
@@ -29,7 +30,8 @@ def test_starts_at_rest_in_static_equilibrium() -> None:
     arm = RalfArm(PlantConfig(sensor_noise=False))
     t0 = arm.truth()
     assert t0.deflections_in == pytest.approx(t0.static_deflections_in, abs=1e-12)
-    assert t0.sensed_deflections_in == pytest.approx((0.0, 0.0), abs=1e-12)  # sensors zeroed at home
+    zero = default_deflection_zero(arm.cfg.structure, False)  # the sensors' zero: mid-range of the loop's sag
+    assert t0.sensed_deflections_in == pytest.approx((t0.deflections_in[0] - zero[0], t0.deflections_in[1] - zero[1]), abs=1e-12)
     arm.advance(2.0)
     t1 = arm.truth()
     assert t1.time_s == 2.0
@@ -37,7 +39,9 @@ def test_starts_at_rest_in_static_equilibrium() -> None:
     assert max(abs(x) for x in t1.deflection_rates_in_s) < 1e-12
     assert t1.theta_rad == t0.theta_rad
     r = arm.sample()
-    assert abs(int(r.codes[2])) <= 0 and abs(int(r.codes[3])) <= 0
+    assert r.values_in[2:] == pytest.approx(t1.sensed_deflections_in, abs=1.5e-4)  # half an LSB
+    quiet = RalfArm(PlantConfig(sensor_noise=False, deflection_zero_in=t0.deflections_in))
+    assert np.array_equal(quiet.sample().codes[2:], [0, 0])
 
 
 def test_same_seed_same_commands_bit_identical() -> None:

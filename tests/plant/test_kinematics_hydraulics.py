@@ -125,3 +125,19 @@ def test_hard_stops_are_enforced_and_reported() -> None:
     arm.advance(3.0)
     assert arm.truth().hard_stop_counts == (1, 2)
     assert arm.truth().as_dict()["hard_stop_count"] == 3
+
+
+def test_home_without_the_waypoint_file(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """An installed package may lack protocol/trajectories: the plant still starts."""
+    from plant_emulator.model import arm as arm_mod
+
+    expected = kin.home_theta()
+    monkeypatch.setattr(kin, "TRAJECTORY_DIR", tmp_path)
+    arm_mod.default_deflection_zero.cache_clear()
+    try:
+        assert kin.home_theta() == pytest.approx(expected, abs=1e-9)
+        a = RalfArm(PlantConfig(**QUIET))
+        assert a.truth().theta_rad == pytest.approx(expected, abs=1e-9)
+        assert a.truth().sensed_deflections_in == pytest.approx((0.0, 0.0), abs=1e-12)
+    finally:
+        arm_mod.default_deflection_zero.cache_clear()

@@ -23,13 +23,13 @@ def _rest_readings(bits: int, n: int = 4000, seed: int = 4) -> np.ndarray:
 
 
 def test_quantization_error_is_at_most_half_an_lsb() -> None:
-    arm = RalfArm(PlantConfig(sensor_noise=False))
     rng = np.random.default_rng(0)
     for bits in (12, 16, 20):
+        arm = RalfArm(PlantConfig(sensor_noise=False))
         arm.set_adc_bits(bits)
         lsb = ConverterScale(bits).lsb_v
         for _ in range(200):
-            arm.set_valve_voltages(0.1 * rng.standard_normal(2))
+            arm.set_valve_voltages(0.05 * rng.standard_normal(2))
             arm.advance(0.005)
             r = arm.sample()
             t = arm.truth()

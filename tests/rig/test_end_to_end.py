@@ -56,5 +56,5 @@ def test_lockstep_rig_runs_faster_than_real_time(tmp_path: Path) -> None:
     ctrl = summary["controller"]
     assert ctrl["finished"] is True
     assert ctrl["ticks"] == 1000
-    assert ctrl["interrupts"] >= ctrl["batches_sent"] - 1 > 40
+    assert ctrl["interrupts"] >= ctrl["batches_sent"] - 1 > 25  # 1000 ticks in batches of 30
     assert ctrl["deadline_misses"] == 0
