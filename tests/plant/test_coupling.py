@@ -47,7 +47,7 @@ def record() -> tuple[np.ndarray, np.ndarray]:
     return u, y
 
 
-def _mimo(u: np.ndarray, y: np.ndarray, nper: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+def _mimo(u: np.ndarray, y: np.ndarray, nper: int = 1024) -> tuple[np.ndarray, np.ndarray]:
     """H[f, i, j] from input i to output j (conjugates as in scipy's csd)."""
     f, p11 = ss.welch(u[:, 0], FS, nperseg=nper)
     _, p22 = ss.welch(u[:, 1], FS, nperseg=nper)
