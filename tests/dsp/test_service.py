@@ -157,6 +157,9 @@ def test_undecodable_batches_are_counted_and_the_board_keeps_serving(session: ze
         session.put(keys.batch, encode_batch(_batch(0)))
         irq = probe.next("irq")
         assert irq.batch_seq == 0  # type: ignore[union-attr]
+        deadline = time.monotonic() + 5  # the config key's callback is not ordered with the batch key's
+        while service.block.counters.decode_errors < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert service.block.counters.decode_errors == 2
     finally:
         stop.set()
