@@ -48,6 +48,7 @@ class LinkCounters:
     deadline_misses: int = 0
     interrupts_lost: int = 0
     flags_stale: int = 0
+    flags_late: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -111,8 +112,10 @@ class DspLink:
 
     def on_flag(self, flag: BlockFlag) -> None:
         """A block flag from the DSP. A flag that does not expect our next
-        batch (stale or from before a restart) is counted and ignored,
-        unless the DSP restarted (it expects 0): then we follow it."""
+        batch is ignored: a late one (zenoh does not order it with the
+        interrupt, which already told us the block is empty) silently, any
+        other counted as stale; unless the DSP restarted (it expects 0):
+        then we follow it."""
         self.dsp_latency_s = flag.emulated_latency_s
         if flag.state != "empty":
             self.block_empty = False
@@ -124,6 +127,8 @@ class DspLink:
             self.next_seq = 0
             self.in_flight = None
             self.block_empty = True
+        elif flag.next_batch_seq == self.next_seq - 1:
+            self.counters.flags_late += 1
         else:
             self.counters.flags_stale += 1
 
@@ -176,6 +181,7 @@ class DspLink:
             self.counters.interrupts_unexpected += 1
             return None
         self.in_flight = None
+        self.block_empty = True  # the DSP releases the block before it raises the interrupt (Fig. 3.5 step 4)
         self.counters.interrupts += 1
         return sent
 

@@ -111,6 +111,7 @@ class ControllerService:
         self.tf_snapshots: list[TfSnapshot] = []
         self._last_words = np.zeros(4, dtype=np.int64)
         self._tf_thread: threading.Thread | None = None
+        self._tf_due = False
         self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
@@ -324,14 +325,20 @@ class ControllerService:
         out = self.law.step(self.tick, words)
         self.plant.send_outputs(out.volts)
         self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
-        if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0 and self.dsp_alive:
+        if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0:
+            self._tf_due = True
+        if self._tf_due and self.dsp_alive:
             if self.settings.clock == "lockstep":
-                self._download_tf()  # the DSP is idle here: the snapshot is deterministic
+                if self.link.in_flight is None:  # the DSP is idle: the snapshot is deterministic
+                    self._tf_due = False
+                    self._download_tf()
             elif self._tf_thread is None or not self._tf_thread.is_alive():
                 # real time: the query must not hold up the loop
+                self._tf_due = False
                 self._tf_thread = threading.Thread(target=self._download_tf, name="tf-download", daemon=True)
                 self._tf_thread.start()
             else:
+                self._tf_due = False
                 self.timing.tf_download_failures += 1  # the previous download is still under way
         self._maybe_send_batch()
         if self.link.check_deadline(self.tick):
