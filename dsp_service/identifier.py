@@ -54,8 +54,8 @@ from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
     PeakRefiner,
     VrmEstimator,
-    half_power_bandwidth,
-    local_maxima,
+    _half_power,
+    _local_maxima,
     log_weights,
     prominence_bases,
     refine_peak,
@@ -272,6 +272,7 @@ class Identifier:
         self._v_pad = np.empty(n_range + 1)  # weighted magnitude and a +inf sentinel
         self._v_pad[n_range] = np.inf
         self._v = self._v_pad[:n_range]
+        self._max_flags = np.zeros(n_range, dtype=bool)
         self._vrm = VrmEstimator(c.vrm_points_per_side, c.vrm_band_factor, model=c.vrm_model)
         self._refiner = PeakRefiner()
         h = self._smoother.half
@@ -446,7 +447,7 @@ class Identifier:
             v *= self._w_lin
         if n_valid < size:
             v[~vs] = v[vs].min()
-        idx = local_maxima(v)
+        idx = _local_maxima(v, self._max_flags)
         found: list[tuple[int, float]] = []
         if idx.size:
             height = v[idx]
@@ -519,7 +520,7 @@ class Identifier:
         """
         c = self.cfg
         f0, f1 = fd[0:2].tolist()
-        df = f1 - f0
+        df = f1 - f0  # as float(fd[1] - fd[0])
         r = self._relocate
         size = magd.size
         vmask = None if all_valid else vd
@@ -536,7 +537,7 @@ class Identifier:
             half_bins = 2.0
             ok = all_valid or bool(vd[k])
             if ok:
-                band = half_power_bandwidth(magd, fd, k, m_peak, vmask)
+                band = _half_power(magd, f0, df, k, m_peak, vmask)
                 if band is not None:
                     bw = band[1] - band[0]
                     zeta_fwhm = zeta_from_fwhm_exact(bw, f_peak) if c.fwhm_exact else zeta_fwhm_approx(bw, f_peak)

@@ -115,15 +115,20 @@ def local_maxima(x: NDArray[np.float64]) -> NDArray[np.intp]:
     comparison with the larger neighbour; runs of equal samples (plateaus)
     are resolved only when a sample equals its larger neighbour.
     """
+    return _local_maxima(x, np.zeros(x.size, dtype=bool))
+
+
+def _local_maxima(x: NDArray[np.float64], flags: NDArray[np.bool_]) -> NDArray[np.intp]:
+    """:func:`local_maxima` with a caller's work buffer ``flags`` (``bool``, ``x.size``, ends False)."""
     n = x.size
     if n < 3:
         return np.zeros(0, dtype=np.intp)
     mid = x[1:-1]
     nb = np.maximum(x[:-2], x[2:])
-    peaks = np.greater(mid, nb).nonzero()[0]
+    np.greater(mid, nb, out=flags[1:-1])
+    peaks = flags.nonzero()[0]  # flags[0], flags[-1] stay False
     if np.count_nonzero(np.greater_equal(mid, nb)) == peaks.size:
-        peaks += 1  # no sample equals its larger neighbour: no plateau can be a peak
-        return peaks
+        return peaks  # no sample equals its larger neighbour: no plateau can be a peak
     # plateaus: compress runs of equal samples; a run is a peak if both neighbouring runs are lower
     # (the first and last runs touch the ends and never are)
     change = (x[1:] != x[:-1]).nonzero()[0] + 1
@@ -344,6 +349,20 @@ def half_power_bandwidth(
     bins. ``None`` if a side does not drop below half power in reach, or a
     straddling bin is masked (``valid`` False).
     """
+    f0, f1 = freqs[0:2].tolist()
+    return _half_power(mag, f0, f1 - f0, k, peak_mag, valid, max_bins)
+
+
+def _half_power(
+    mag: NDArray[np.float64],
+    f0: float,
+    df: float,
+    k: int,
+    peak_mag: float,
+    valid: NDArray[np.bool_] | None,
+    max_bins: int = 64,
+) -> tuple[float, float] | None:
+    """:func:`half_power_bandwidth` on the grid ``f0 + i·df``."""
     thr = peak_mag * _SQRT_HALF
     if k < 1 or k >= mag.size - 1:
         return None
@@ -359,8 +378,6 @@ def half_power_bandwidth(
     if valid is not None and not (valid[i0] and valid[i0 + 1] and valid[j1 - 1] and valid[j1]):
         return None
     half = thr * thr
-    f0, f1 = freqs[0:2].tolist()
-    df = f1 - f0
     item = mag.item
 
     def cross(i_lo: int) -> float:
