@@ -52,7 +52,7 @@ def test_program_defaults() -> None:
     assert (plant.adc_bits, plant.seed, plant.payload_attached, plant.watchdog_periods) == (12, 0, False, 5)
     ctrl = load_settings(ControllerSettings)
     assert ctrl.oatf_band_hz == (1.0, 20.0) and ctrl.duration_s is None and ctrl.oatf_mode == "off"
-    assert ctrl.batch_size == 20 and ctrl.tip_speed_in_s == 5.0
+    assert ctrl.batch_size == 30 and ctrl.tip_speed_in_s == 5.0
     dsp = load_settings(DspSettings)
     assert dsp.fft_width == 2048 and dsp.alpha == 0.1 and dsp.search_min_hz < dsp.search_max_hz
 
