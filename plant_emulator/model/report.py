@@ -181,7 +181,7 @@ def make_figures(out: Path) -> dict[str, object]:
     axs[0].legend(ncol=4, fontsize=8)
     axs[1].plot(r0.t, np.degrees(r0.theta))
     axs[1].set_ylabel("theta1, theta2 (deg)")
-    axs[2].plot(r0.t, r0.defl_read[:, 0], "C0", lw=0.6, label="link 1, as read (zero at home)")
+    axs[2].plot(r0.t, r0.defl_read[:, 0], "C0", lw=0.6, label="link 1, as read (sensor zero: middle of the loop's static sag)")
     axs[2].plot(r0.t, r0.defl_read[:, 1], "C1", lw=0.6, label="link 2, as read")
     axs[2].set_ylabel("deflection, no payload (in)")
     axs[2].legend(fontsize=8)
