@@ -36,6 +36,17 @@ smoothed spectrum's peak (``estimate_on_smoothed=False``), because the
 thesis's 17-bin smoothing of 0.098 Hz bins widens a ζ = 0.09 peak at 3.6 Hz
 by ~80 % and shifts it by ~1.5 bins; VRM reads λ as a viscous mode
 (``vrm_model``).
+
+Cost (see :mod:`.bench`): everything that depends only on the
+configuration (windows, frequency grids, weights, smoothing plan, views of
+the averaged spectra) is prepared in ``_build``; a step is then about
+seventy numpy calls on arrays of at most a few thousand elements, none in
+a per-bin Python loop, with no ``np.errstate`` (the arithmetic is
+arranged so that masked or degenerate bins never divide by zero). The
+peak search ranks the linear weighted magnitude ``|H|·w`` (the same order,
+maxima and prominence bases as ``20 log10|H| + w_dB``, without the
+logarithms) and reads prominences highest maximum first; VRM solves the
+triplets of all peaks in one pass.
 """
 
 from __future__ import annotations
@@ -291,6 +302,8 @@ class Identifier:
         else:
             src = self._solver.H[H_NAMES.index(c.peak_source)]
         self._src = src
+        # the H_tot fast path of the 'mimo' solver counts the valid bins itself
+        self._counts_valid = self._rls is None and c.peak_source == "tot" and c.solver == "mimo"
         self._smooth = self._smoother.range_plan(src, self._lo, self._hi)
         self._all_valid_range = np.ones(n_range, dtype=bool)
         self._all_valid_range.flags.writeable = False
@@ -385,7 +398,8 @@ class Identifier:
         lo, hi = self._lo, self._hi
         hs = self._smooth()
         # every bin solved is valid (the usual case): so is every smoothed bin of the range
-        all_valid = int(np.count_nonzero(valid_sl)) == self._n_sl
+        n_sl_valid = solver.valid_count if self._counts_valid else int(np.count_nonzero(valid_sl))
+        all_valid = n_sl_valid == self._n_sl
         if all_valid:
             vs = self._all_valid_range
             n_valid = vs.size

@@ -87,6 +87,7 @@ class MimoSolver:
         self._p21 = np.empty(k, dtype=np.complex128)
         self._r3 = np.empty(k)
         self._inv4 = np.zeros(k)
+        self.valid_count = 0  #: valid bins of the last ``solve_source('tot')`` of the 'mimo' solver
         self._tot_key: tuple[object, slice] | None = None
         self._tot: tuple[NDArray, ...] = ()
 
@@ -246,7 +247,8 @@ class MimoSolver:
         if not np.minimum.reduce(pp, axis=None) > floor:  # some bin's input power is below the floor
             valid &= np.greater(p11, floor, out=b1)
             valid &= np.greater(p22, floor, out=b1)
-        if np.count_nonzero(valid) == valid.size:
+        self.valid_count = int(np.count_nonzero(valid))
+        if self.valid_count == valid.size:
             np.divide(0.25, det, out=inv4)
         else:
             inv4.fill(0.0)

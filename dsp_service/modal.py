@@ -9,9 +9,11 @@ power law, i.e. a straight line on the log–log (Bode) plot::
     w(f) = (f / f_lo) ** (−γ)      (a tilt of −20 γ dB/decade, γ = log_weight_exponent)
 
 It only *ranks* candidate peaks; frequencies and magnitudes are refined on
-the unweighted ``|H|``. Candidates are local maxima found by
-``scipy.signal.find_peaks`` on the weighted magnitude in dB with a minimum
-prominence; up to ``max_peaks`` are kept, best weighted magnitude first.
+the unweighted ``|H|``. Candidates are local maxima of the weighted
+magnitude in dB with a minimum prominence, exactly as
+``scipy.signal.find_peaks(…, prominence=…)`` finds them (:func:`local_maxima`,
+:func:`prominence_bases`: vectorised, the same samples compared, tested
+against scipy); up to ``max_peaks`` are kept, best weighted magnitude first.
 Sub-bin refinement: a parabola through the log magnitudes of the three bins
 around the maximum (vertex offset ``δ = ½(ln a − ln c)/(ln a − 2 ln b + ln c)``,
 :func:`refine_peak`), or a least-squares parabola over more bins for noisy

@@ -16,7 +16,10 @@ thesis's example), order ``p``.
 
 Smoothing is linear, so ``smooth(mean(H_ij)) = mean(smooth(H_ij))``; the
 identifier smooths only the spectrum it searches, and only over the search
-range (:meth:`FrequencySmoother.smooth_range`). Smoothing biases damping
+range (:meth:`FrequencySmoother.smooth_range`), with a plan prepared once
+(:meth:`FrequencySmoother.range_plan`): the interior is one real product of
+a sliding-window view of the spectrum's (re, im) floats with the
+coefficients, each edge one small matrix product. Smoothing biases damping
 estimates upward (§2.4.1); see the identifier's ``estimate_on_smoothed``.
 """
 

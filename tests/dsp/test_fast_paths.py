@@ -195,3 +195,69 @@ def test_identifier_peak_search_equals_find_modal_peaks(seed: int, kw: dict) -> 
         assert [p[0] for p in ours] == [p.index for p in ref]
         for p, r in zip(ours, ref):
             assert math.isclose(p[1], r.prominence_db, rel_tol=1e-9, abs_tol=1e-9)
+
+
+# ------------------------------------------------------------- whole step
+def _step_reference(idf: Identifier) -> list[tuple]:
+    """The step's poles rebuilt from the public building blocks (solve_mimo, smoothing, find_modal_peaks, …)."""
+    from dsp_service.modal import PeakRefiner, half_power_bandwidth, refine_peak, zeta_from_fwhm_exact
+
+    cfg = idf.cfg
+    H, valid = solve_mimo(idf._avg.state, cfg.det_threshold, cfg.power_floor)
+    htot = H.mean(axis=0)
+    sm = FrequencySmoother(htot.size, cfg.smoothing_window, cfg.smoothing_order)
+    lo, hi, sl = idf._lo, idf._hi, idf._sl
+    hs = sm.smooth(htot)[lo:hi]
+    vs = sm.valid(valid)[lo:hi]
+    f = idf.freqs
+    wdb = log_weights_db(f[lo:hi], max(cfg.search_min_hz, f[1]), cfg.log_weight_exponent)
+    peaks = find_modal_peaks(np.abs(hs), f[lo:hi], wdb, vs, cfg.max_peaks, cfg.min_peak_prominence_db, refine=False)
+    hd, vd, fd = htot[sl], valid[sl], f[sl]
+    magd = np.abs(hd)
+    r = max(1, (cfg.smoothing_window // 2) // 2)
+    out, ks, hws = [], [], []
+    for p in peaks:
+        k = p.index + lo - sl.start
+        a = max(k - r, 0)
+        k = a + int(np.argmax(magd[a : k + r + 1]))
+        d, lv = refine_peak(magd, k)
+        fp, mp = fd[k] + d * (fd[1] - fd[0]), math.exp(lv)
+        band = half_power_bandwidth(magd, fd, k, mp, vd)
+        bw = band[1] - band[0]
+        hb = 0.5 * bw / (fd[1] - fd[0])
+        d, lv = PeakRefiner().refine(magd, k, int(round(0.5 * hb)))
+        out.append([fd[k] + d * (fd[1] - fd[0]), math.exp(lv), zeta_from_fwhm_exact(bw, fp), p.prominence_db])
+        ks.append(k)
+        hws.append(hb)
+    est = VrmEstimator(cfg.vrm_points_per_side, cfg.vrm_band_factor, model=cfg.vrm_model)
+    for row, k, hb in zip(out, ks, hws):
+        row.append(est.estimate(hd, fd, k, hb, vd))
+    return [tuple(r) for r in out]
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_step_equals_its_definition_from_the_public_building_blocks(seed: int) -> None:
+    n = 1024
+    _, u, y = dataset(40 * n, seed=seed)
+    idf = Identifier(IdentifierConfig(fft_width=n))
+    checked = with_vrm = 0
+    for s in range(0, u.shape[1], n // 8):
+        idf.push(u[:, s : s + n // 8], y[:, s : s + n // 8])
+        result = idf.step()
+        if s < 10 * n or s % (n // 2):
+            continue
+        ref = _step_reference(idf)
+        assert len(result.poles) == len(ref) == 2
+        for pole, (fp, mp, zf, prom, vrm) in zip(result.poles, ref):
+            assert pole.frequency_hz == pytest.approx(fp, rel=1e-11)
+            assert pole.magnitude == pytest.approx(mp, rel=1e-9)
+            assert pole.damping_fwhm == pytest.approx(zf, rel=1e-9)
+            assert pole.prominence_db == pytest.approx(prom, rel=1e-9, abs=1e-9)
+            if vrm is None:
+                assert pole.damping_vrm is None and pole.natural_frequency_vrm_hz is None
+            else:
+                assert pole.natural_frequency_vrm_hz == pytest.approx(vrm[0], rel=1e-11)
+                assert pole.damping_vrm == pytest.approx(vrm[1], rel=1e-9)
+                with_vrm += 1
+        checked += 1
+    assert checked >= 20 and with_vrm >= checked
