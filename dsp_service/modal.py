@@ -549,6 +549,7 @@ class VrmEstimator:
             tri = [c for c in combinations(range(2 * m + 1), 3) if c[2] - c[0] >= max(m, 2)]
             self._triplets.append(np.array(tri, dtype=np.intp).reshape(-1, 3) - m)
         self._layouts: dict[tuple[int, tuple[tuple[int, int, int], ...]], tuple] = {}
+        self._blocks: dict[tuple[int, int, int], tuple] = {}
         self._layout_freqs: NDArray[np.float64] | None = None
 
     def estimate(
@@ -609,10 +610,34 @@ class VrmEstimator:
             out[i] = res
         return out
 
+    def _block(self, freqs: NDArray[np.float64], k: int, s: int, m: int) -> tuple:
+        """One peak's triplets: bins ``(b, c, a)``, frequency factors (each twice), size, band edges (cached)."""
+        key = (k, s, m)
+        blk = self._blocks.get(key)
+        if blk is not None:
+            return blk
+        if len(self._blocks) >= self._CACHE_MAX:
+            self._blocks.clear()
+        tri = k + s * self._triplets[m]  # (T, 3) bins a, b, c
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        fa, fb, fc = freqs[a], freqs[b], freqs[c]
+        f2a, f2b, f2c = fa * fa, fb * fb, fc * fc
+        cab, bab = f2c - f2a, f2b - f2a  # ωc² − ωa², ωb² − ωa² (in Hz²)
+        twice = np.repeat(np.stack([cab, bab, f2b * cab, f2c * bab]), 2, axis=1)
+        blk = (b, c, a, twice, tri.shape[0], (float(freqs[k - s * m]), float(freqs[k + s * m])))
+        self._blocks[key] = blk
+        return blk
+
     def _layout(self, n: int, freqs: NDArray[np.float64], plans: tuple[tuple[int, int, int], ...]) -> tuple:
-        """Bin indices and frequency factors of all triplets of ``plans`` (``(k, stride, m)`` rows), cached."""
+        """Bin indices and frequency factors of all triplets of ``plans`` (``(k, stride, m)`` rows), cached.
+
+        Laid out part by part (``Δba`` of every peak, then ``Δca``; the real
+        factors likewise, each value twice against the (re, im) floats), so
+        that every operation of :meth:`_solve` is on whole contiguous rows.
+        """
         if freqs is not self._layout_freqs:
             self._layouts.clear()
+            self._blocks.clear()
             self._layout_freqs = freqs  # held, so its id cannot be reused while cached
         key = (n, plans)
         lay = self._layouts.get(key)
@@ -620,25 +645,17 @@ class VrmEstimator:
             return lay
         if len(self._layouts) >= self._CACHE_MAX:
             self._layouts.clear()
-        tri = np.concatenate([k + s * self._triplets[m] for k, s, m in plans])  # (T, 3) bins a, b, c
-        t = tri.shape[0]
-        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-        hidx = np.stack([np.concatenate([b, c]), np.concatenate([a, a])])  # H_b, H_c minus H_a, H_a
-        fa, fb, fc = freqs[a], freqs[b], freqs[c]
-        f2a, f2b, f2c = fa * fa, fb * fb, fc * fc
-        cab, bab = f2c - f2a, f2b - f2a  # ωc² − ωa², ωb² − ωa² (in Hz²)
-        factors = np.stack([np.concatenate([cab, bab]), np.concatenate([f2b * cab, f2c * bab])])
-        factors = np.repeat(factors, 2, axis=1)  # each twice, against the (re, im) of the differences
-        sizes = [self._triplets[m].shape[0] for _, _, m in plans]
-        ends = np.cumsum(sizes)
-        member = np.zeros((2, len(plans), t))  # per peak: its triplets (for the sums)
-        for j, (e, size) in enumerate(zip(ends, sizes)):
-            member[:, j, e - size : e] = 1.0
+        blocks = [self._block(freqs, k, s, m) for k, s, m in plans]
+        sizes = [blk[4] for blk in blocks]
+        t = sum(sizes)
+        bs, cs, as_ = [blk[0] for blk in blocks], [blk[1] for blk in blocks], [blk[2] for blk in blocks]
+        hidx = np.concatenate(bs + cs + as_ + as_).reshape(2, 2 * t)  # [H_b | H_c] minus [H_a | H_a]
+        factors = np.concatenate([blk[3][row] for row in range(4) for blk in blocks]).reshape(2, 4 * t)
+        member = np.repeat(np.eye(len(plans)), sizes, axis=1)[None].repeat(2, axis=0)  # per peak: its triplets
         sums = np.ones((t, 3))  # [Re λ, Im λ, 1] per triplet
         lam = np.ndarray((t,), dtype=np.complex128, buffer=sums, strides=(sums.strides[0],))
         weights = np.empty((2, 1, t))
-        edges = [(float(freqs[k - s * m]), float(freqs[k + s * m])) for k, s, m in plans]
-        lay = (hidx, factors, member, sums, lam, weights, edges, t)
+        lay = (hidx, factors, member, sums, lam, weights, [blk[5] for blk in blocks], t)
         self._layouts[key] = lay
         return lay
 
