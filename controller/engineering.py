@@ -25,6 +25,8 @@ FloatArray = npt.NDArray[np.float64]
 class Measurement:
     """One tick's engineering values."""
 
+    words: npt.NDArray[np.int64]
+    """The raw left-justified A/D words as they came in TPDO1."""
     volts: FloatArray
     extension_in: FloatArray
     theta_rad: FloatArray
@@ -34,9 +36,10 @@ class Measurement:
 
 def measure(words: npt.ArrayLike) -> Measurement:
     """Engineering values from the four TPDO1 words."""
-    volts = np.asarray(words, dtype=np.float64) * WORD16_VOLTS_PER_LSB
+    raw = np.asarray(words, dtype=np.int64)
+    volts = raw * WORD16_VOLTS_PER_LSB
     values = volts_to_inputs(volts)
     extension = values[:2]
     theta = np.array([cyl.angle(e) for cyl, e in zip(CYLINDERS, extension, strict=True)], dtype=np.float64)
     phi = np.asarray(theta_to_phi(theta[0], theta[1]), dtype=np.float64)
-    return Measurement(volts=volts, extension_in=extension, theta_rad=theta, phi_rad=phi, deflection_in=values[2:])
+    return Measurement(words=raw, volts=volts, extension_in=extension, theta_rad=theta, phi_rad=phi, deflection_in=values[2:])

@@ -35,7 +35,7 @@ from controller.record import ColumnBuffer, save_record
 from protocol.batch_codec import encode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
-from protocol.messages import BlockFlag, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
+from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
 from rig.runtime import HealthPublisher, LatencyTracker
 
@@ -63,6 +63,7 @@ class TimingCounters:
     syncs_dropped: int = 0
     sync_retries: int = 0
     schedule_resyncs: int = 0
+    reconfigurations: int = 0
     periods_skipped: int = 0
 
     def as_dict(self) -> dict[str, int]:
@@ -112,6 +113,7 @@ class ControllerService:
         self._last_words = np.zeros(4, dtype=np.int64)
         self._tf_thread: threading.Thread | None = None
         self._tf_due = False
+        self._config_seq = -1
         self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
@@ -132,6 +134,7 @@ class ControllerService:
             session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes(), time.monotonic()))),
             session.declare_subscriber(self.keys.interrupt, self._on_interrupt_sample),
             session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
+            session.declare_subscriber(self.keys.controller_command, lambda s: self._events.put(("command", s.payload.to_bytes(), time.monotonic()))),
         ]
         self._token = session.liveliness().declare_token(self.keys.alive("controller"))
         self._health = HealthPublisher(session, self.keys.health("controller"), settings.health_period_s, self._build_health)
@@ -203,6 +206,8 @@ class ControllerService:
                 irq = decode(Interrupt, payload)
                 self._irq_arrival[irq.batch_seq] = arrival
                 self._held_interrupts.append(irq)
+            elif kind == "command":
+                self.reconfigure(decode(ConfigChange, payload))
             elif kind == "alive":
                 up = payload == b"1"
                 if up != self.dsp_alive:
@@ -221,6 +226,18 @@ class ControllerService:
         except ProtocolError as exc:
             self.timing.undecodable += 1
             log.warning("dropped an invalid %s: %s", kind, exc)
+
+    def reconfigure(self, change: ConfigChange) -> None:
+        """A run-time command (thesis §3.2.3): the batch size applies here
+        from the next batch on; the FFT width, alpha and latency go to the
+        DSP, which zeroes its history on an FFT-width change."""
+        if change.batch_size is not None:
+            log.info("batch size %d -> %d", self.link.batch_size, change.batch_size)
+            self.link.batch_size = change.batch_size
+        self._config_seq += 1
+        forwarded = change.model_copy(update={"seq": self._config_seq, "sim_time_s": self.tick * self.settings.sample_period_s})
+        self._config_pub.put(encode(forwarded))
+        self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
         while True:

@@ -14,6 +14,7 @@ plant/scenario                  :class:`~protocol.messages.ScenarioCommand`   te
 plant/events                    :class:`~protocol.messages.PlantEvent`        plant (test port)
 controller/status               :class:`~protocol.messages.ControllerStatus`  controller
 controller/tf                   :class:`~protocol.messages.TfSnapshot`        controller (downloads it recorded)
+controller/command              :class:`~protocol.messages.ConfigChange`      tools (``ralf-hil reconfigure``)
 health/<service>                :class:`~protocol.messages.Health`            every service
 alive/<service>                 liveliness token                             every service
 ==============================  ==========================================  =========
@@ -84,6 +85,10 @@ class Keys:
     @property
     def controller_status(self) -> str:
         return f"{self.root}/controller/status"
+
+    @property
+    def controller_command(self) -> str:
+        return f"{self.root}/controller/command"
 
     @property
     def tf_downloads(self) -> str:

@@ -139,6 +139,42 @@ def cmd_up(args: argparse.Namespace) -> int:
     return 1 if (failure or bad) else 0
 
 
+def cmd_reconfigure(args: argparse.Namespace) -> int:
+    """Send a run-time configuration change to a running controller, which
+    applies the batch size and forwards the rest to the DSP."""
+    from protocol.errors import ConfigError
+    from protocol.keys import Keys
+    from protocol.messages import ConfigChange, encode
+    from protocol.settings import CommonSettings, load_settings
+    from protocol.transport import open_zenoh
+
+    try:
+        change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha)
+    except ValueError as exc:
+        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+        return 2
+    if change.fft_width is None and change.batch_size is None and change.alpha is None:
+        console.print("[red]ralf-hil reconfigure: give --fft-width, --batch-size or --alpha[/red]")
+        return 2
+    overrides = {"rig_id": args.rig_id}
+    if args.connect:
+        overrides["zenoh_connect"] = args.connect
+    try:
+        settings = load_settings(CommonSettings, overrides)
+    except ConfigError as exc:
+        console.print(f"[red]{exc}[/red]")
+        return 2
+    session = open_zenoh(settings)
+    try:
+        time.sleep(0.5)  # let the session find its peers
+        session.put(Keys(settings.rig_id).controller_command, encode(change))
+        time.sleep(0.2)
+    finally:
+        session.close()
+    console.print(f"sent to rig {settings.rig_id!r}: {change.model_dump(include={'fft_width', 'batch_size', 'alpha'}, exclude_none=True)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -150,6 +186,13 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
     up.set_defaults(func=cmd_up)
+    rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")
+    rc.add_argument("--rig-id", default="default")
+    rc.add_argument("--connect", default="", help="zenoh endpoint(s) of the rig, e.g. the one `ralf-hil up` prints")
+    rc.add_argument("--fft-width", type=int, default=None, help="DSP FFT width N (power of two; zeroes its history)")
+    rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")
+    rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
+    rc.set_defaults(func=cmd_reconfigure)
     for module in (bench, monitor, experiments):
         module.register(sub)
     return parser

@@ -1,0 +1,37 @@
+"""Run-time commands: the batch size changes at the controller, the FFT width
+at the DSP (history zeroed), while the rig runs."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import zenoh
+
+from protocol.keys import Keys
+from protocol.messages import ConfigChange, encode
+from rig.composition import run_in_process
+
+
+def test_batch_size_and_fft_width_change_while_running() -> None:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps([]))
+    session = zenoh.open(config)
+    rig_id = "reconf-test"
+    timer = threading.Timer(
+        1.0,
+        lambda: session.put(Keys(rig_id).controller_command, encode(ConfigChange(seq=0, sim_time_s=0.0, batch_size=40, fft_width=256))),
+    )
+    try:
+        timer.start()
+        run = run_in_process(controller={"duration_s": 12.0, "tf_download_samples": 0}, common={"rig_id": rig_id}, session=session)
+    finally:
+        timer.cancel()
+        session.close()
+    assert run.result.counters["reconfigurations"] == 1
+    assert run.controller.link.batch_size == 40
+    assert run.dsp.identifier.fft_width == 256
+    assert run.dsp.block.counters.config_changes == 1
+    assert run.result.counters["samples_dropped"] == 0 and run.dsp.block.counters.samples_missing == 0
