@@ -572,7 +572,7 @@ class VrmEstimator:
         self, n: int, k: int, half_width_bins: float, valid: NDArray[np.bool_] | None
     ) -> tuple[int, int] | None:
         """Points per side ``m`` and stride for a peak at ``k``, or ``None`` if no band fits."""
-        h = max(1, int(round(self.band_factor * half_width_bins)))
+        h = max(1, round(self.band_factor * half_width_bins))  # round(float) is an int
         h = min(h, k, n - 1 - k)
         if h >= 1 and valid is not None:
             seg = valid[k - h : k + h + 1]
@@ -582,7 +582,7 @@ class VrmEstimator:
         if h < 1:
             return None
         m = min(h, self.m_max)
-        stride = max(1, int(round(h / m)))
+        stride = max(1, round(h / m))
         if m * stride > h:  # keep the points inside the usable band
             m = h // stride
         return m, stride
@@ -697,7 +697,7 @@ class VrmEstimator:
         np.multiply(w, good, out=weights[0, 0])
         np.copyto(weights[1, 0], good)
         # per peak: [Σ w Re λ, Σ w Im λ, Σ w] and, below, [·, ·, triplets used]
-        totals = np.matmul(np.multiply(member, weights).reshape(-1, t), sums).tolist()
+        totals = np.dot(np.multiply(member, weights).reshape(-1, t), sums).tolist()
         npk = len(plans)
         df = float(freqs[1] - freqs[0])
         results: list[tuple[float, float, int] | None] = []
