@@ -234,7 +234,8 @@ class MimoSolver:
         every bin is valid.
         """
         pp_all, pp, p12, a_src, b_src, m22_11, ab, d, prod, det, thr, inv4, valid, b1, out = self._tot_views(S, sl)
-        mean_power = float(np.add.reduce(pp_all, axis=None)) / (2 * self.n_bins)
+        sum11, sum22 = np.add.reduce(pp_all, axis=1).tolist()
+        mean_power = (sum11 + sum22) / (2 * self.n_bins)
         floor = self.power_floor * mean_power + _TINY
         p11, p22 = pp[0], pp[1]
         np.multiply(p11, p22, out=prod)
