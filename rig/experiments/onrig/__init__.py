@@ -1,0 +1,14 @@
+"""On-rig experiments: Chapter IV of the thesis run on the emulated rig (plant, controller, DSP).
+
+| name | thesis | module |
+| --- | --- | --- |
+| ``verify`` | §4.1.1, §4.1.2 | :mod:`.verify` |
+| ``pi-spectrogram`` | §4.2.2 | :mod:`.pi_spectrogram` |
+| ``battery`` | §4.2.3 | :mod:`.battery` |
+| ``reduced-damping`` | §4.4 | :mod:`.reduced_damping` |
+| ``id-lag`` | §5.3 (future work) | :mod:`.id_lag` |
+
+Every experiment starts the full three-process rig in lockstep by default
+(``--mode realtime`` for the wall clock) through :mod:`.runner`; ``--quick``
+runs shorter stretches in one process (:mod:`rig.composition`).
+"""

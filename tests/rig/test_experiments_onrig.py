@@ -1,0 +1,186 @@
+"""The on-rig experiments (quick mode, one-process rig) and their runner: report structure and physics."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig.experiments import get_experiment, list_experiments, run_experiment
+from rig.experiments import framework
+from rig.experiments.framework import ExperimentContext
+from rig.experiments.onrig.runner import RigRun, RigRunError, costs_over, lap_seconds, run_rig
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+ONRIG = ("verify", "pi-spectrogram", "battery", "reduced-damping", "id-lag")
+
+
+def _run(name: str, out: Path) -> dict:
+    outcome = run_experiment(name, out, quick=True, seed=0, show_progress=False, raise_errors=True)
+    results = outcome.results()
+    assert outcome.status == "ok", [c for c in results.get("checks", []) if not c["passed"]]
+    return results
+
+
+def _check_structure(out: Path, results: dict, headings: list[str], result_keys: list[str]) -> str:
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert report.startswith("# ")
+    for h in headings:
+        assert f"\n## {h}" in report, f"missing heading {h!r}"
+    assert "| ---: |" in report  # at least one numeric table
+    assert "## Comparison with the thesis" in report and "## Checks" in report and "## Files" in report
+    assert results["figures"], "no figures"
+    for fig in results["figures"]:
+        png = out / fig
+        assert png.is_file() and png.read_bytes()[:8] == PNG_MAGIC, fig
+        assert f"]({fig})" in report, f"figure {fig} not embedded"
+    for key in ("experiment", "title", "section", "meta", "results", "checks", "thesis_comparison", "figures", "attachments"):
+        assert key in results
+    for key in result_keys:
+        assert key in results["results"], key
+    meta = results["meta"]
+    assert meta["quick"] is True and meta["seed"] == 0 and meta["needs_rig"] is True and meta["mode"] == "lockstep"
+    assert all(c["passed"] for c in results["checks"]), results["checks"]
+    for att in results["attachments"]:
+        assert (out / att["path"]).is_file(), att
+    return report
+
+
+# ------------------------------------------------------------------ registry
+
+
+def test_onrig_experiments_are_registered() -> None:
+    names = [e.name for e in list_experiments()]
+    for name in ONRIG:
+        assert name in names
+        exp = get_experiment(name)
+        assert exp.needs_rig and exp.section and "\n" not in exp.description
+        assert exp.module.startswith("rig.experiments.onrig.")
+    assert not [m for m in framework.broken_modules() if ".onrig" in m]
+
+
+# ------------------------------------------------------------------ runner
+
+
+def test_lap_seconds_match_the_thesis() -> None:
+    assert lap_seconds(5.0) == pytest.approx(42.0, abs=0.5)
+    assert lap_seconds(4.0) == pytest.approx(51.0, abs=1.0)
+
+
+def test_costs_over_a_mask_equal_the_whole_run_costs() -> None:
+    from controller.metrics import rms_costs
+
+    rng = np.random.default_rng(1)
+    d = np.cumsum(rng.standard_normal((2000, 2)), axis=0) * 1e-3
+    whole = costs_over(d, np.ones(2000, dtype=bool))
+    ref = rms_costs(d)
+    assert np.allclose(whole["velocity_rms"], ref.velocity_rms)
+    assert np.allclose(whole["acceleration_rms"], ref.acceleration_rms)
+    part = costs_over(d, np.arange(2000) >= 1000)
+    assert not np.allclose(part["velocity_rms"], whole["velocity_rms"])
+
+
+@pytest.mark.timeout(120)
+def test_runner_three_processes_lockstep(tmp_path: Path) -> None:
+    """The default path: three processes in lockstep, both records loaded, exit codes 0."""
+    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False)
+    res = run_rig(ctx, RigRun("short", controller={"duration_s": 2.0, "batch_size": 20, "tf_download_samples": 200}, dsp={"batch_size": 20}))
+    assert not res.in_process and res.exit_codes == {"controller": 0, "plant": 0, "dsp": 0}
+    assert len(res.record) == 400 and res.record["t_s"][-1] == pytest.approx(1.995)
+    assert res.truth["modal_frequencies_hz"].shape[1] == 2 and res.truth["sim_time_s"][-1] > 1.9
+    assert res.tf is not None and res.tf["Htot_mag"].shape[0] == 1
+    assert (tmp_path / "records" / "short.npz").is_file() and (tmp_path / "records" / "short.truth.npz").is_file()
+    assert (tmp_path / "records" / "logs" / "short" / "controller.log").is_file()
+    assert res.summary()["counters"]["batches_sent"] >= 19
+
+
+@pytest.mark.timeout(60)
+def test_runner_reports_a_failing_service_with_its_log(tmp_path: Path) -> None:
+    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False)
+    with pytest.raises(RigRunError) as err:
+        run_rig(ctx, RigRun("bad", controller={"duration_s": 1.0, "oatf_mode": "sideways"}))
+    text = str(err.value)
+    assert "controller" in text and "RALF_OATF_MODE" in text
+
+
+# ------------------------------------------------------------------ experiments
+
+
+@pytest.mark.timeout(120)
+def test_verify_quick(tmp_path: Path) -> None:
+    out = tmp_path / "verify"
+    results = _run("verify", out)
+    _check_structure(out, results, ["Run", "Implementation check (§4.1.1)", "Algorithm check (§4.1.2)"], ["implementation", "algorithm", "summary", "spectra_last"])
+    r = results["results"]
+    # the DSP's downloads and the SciPy recomputation agree to rounding
+    assert r["summary"]["worst_median_rel_diff"] < 1e-9
+    assert r["summary"]["worst_max_rel_diff"] < 1e-6
+    assert all(row["end_is_a_batch_end"] for row in r["implementation"])
+    assert r["batches"]["reconstructed"] == r["batches"]["sent_by_controller"]
+    # the Blackman-Tukey estimate is rougher than the on-line one at the FFT's resolution
+    for name in ("H11", "H12", "H21", "H22", "Htot"):
+        rough = r["algorithm"]["downloads"][-1][name]["roughness_db"]
+        assert rough["online"] < rough["bt_half_N"]
+        assert rough["online"] < rough["unsmoothed"]
+
+
+@pytest.mark.timeout(120)
+def test_pi_spectrogram_quick(tmp_path: Path) -> None:
+    out = tmp_path / "pis"
+    results = _run("pi-spectrogram", out)
+    _check_structure(out, results, ["Run", "Spectrograms", "Identification lag"], ["lag", "apex", "clutter", "downloads"])
+    r = results["results"]
+    assert r["downloads"]["with_estimate"] >= 2
+    al = r["lag"]["alignment"]
+    assert 0 < al["lag_s"] < r["lag"]["max_lag_searched_s"]
+    assert al["error_at_lag_hz"] < al["error_at_zero_hz"]
+    # the plain deflection spectrogram carries the trajectory's low-frequency motion
+    assert r["clutter"]["plain_median_share_below_2hz"] > r["clutter"]["htot_median_share_below_2hz"]
+    assert r["first_estimate_s"] >= 2048 / 200.0
+
+
+@pytest.mark.timeout(120)
+def test_battery_quick_tuned_oatf_lowers_vibration(tmp_path: Path) -> None:
+    out = tmp_path / "battery"
+    results = _run("battery", out)
+    _check_structure(out, results, ["Runs", "Costs"], ["groups"])
+    g = results["results"]["groups"]["5in_s_nopayload"]
+    assert 3.5 < g["right_hz"] < 4.7  # the mean true first mode, from the plant record of run (a)
+    a, b = g["configs"]["a"], g["configs"]["b"]
+    assert b["settings"] == {"oatf_mode": "fixed", "oatf_frequency_hz": pytest.approx(g["right_hz"], abs=1e-3), "oatf_damping": 0.09}
+    for link in (0, 1):
+        assert b["velocity_rms_in_s"][link] < a["velocity_rms_in_s"][link]
+        assert b["velocity_pct"][link] < 100.0
+        assert a["velocity_pct"][link] == pytest.approx(100.0)
+
+
+@pytest.mark.timeout(120)
+def test_reduced_damping_quick(tmp_path: Path) -> None:
+    out = tmp_path / "rd"
+    results = _run("reduced-damping", out)
+    _check_structure(out, results, ["Runs", "Costs"], ["costs", "adaptation", "apex"])
+    r = results["results"]
+    assert r["adaptation"]["design_changes"] > 0 and r["adaptation"]["first_change_s"] >= 2048 / 200.0
+    late = r["costs"]["after the first adaptation"]
+    for link in (0, 1):
+        assert late["adaptive"]["velocity_pct"][link] < late["fixed10"]["velocity_pct"][link]
+    assert r["costs"]["whole run"]["samples"] > r["costs"]["apex, whole run"]["samples"] > 0
+
+
+@pytest.mark.timeout(120)
+def test_id_lag_quick(tmp_path: Path) -> None:
+    out = tmp_path / "idlag"
+    results = _run("id-lag", out)
+    _check_structure(out, results, ["Runs"], ["settings", "trajectory", "events_s", "best_setting"])
+    r = results["results"]
+    (d,) = r["settings"].values()
+    assert d["events_applied_s"] == pytest.approx(r["events_s"], abs=0.06)
+    (e,) = d["events"]
+    assert e["kind"] == "release" and e["step_pct"] > 4.0  # releasing the payload raises the first mode
+    assert e["started_on_the_old_side"]
+    assert 0 < e["delay_50pct_s"] < math.inf
+    assert 0 < e["settle_2pct_s"] < math.inf
+    assert e["delay_50pct_s"] <= e["settle_2pct_s"]
+    assert (out / "records" / "idlag_trajectory.json").is_file()
