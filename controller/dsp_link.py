@@ -49,6 +49,7 @@ class LinkCounters:
     interrupts_lost: int = 0
     flags_stale: int = 0
     flags_late: int = 0
+    resyncs: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -72,7 +73,9 @@ class DspLink:
 
     sample_rate_hz: float
     batch_size: int = 20
-    max_pending: int = 2048
+    max_pending_override: int | None = None
+    """Bound of the pending FIFO; default: the DSP's FFT width N (it keeps N samples, more are moot)."""
+    dsp_fft_width: int = 2048
     deadline_s: float | None = None
     counters: LinkCounters = field(default_factory=LinkCounters)
     block_empty: bool = False
@@ -94,6 +97,10 @@ class DspLink:
         return self.deadline_s if self.deadline_s is not None else self.batch_size * self.sample_period_s
 
     @property
+    def max_pending(self) -> int:
+        return self.max_pending_override or max(self.batch_size, self.dsp_fft_width)
+
+    @property
     def pending(self) -> int:
         return len(self._pending)
 
@@ -111,24 +118,26 @@ class DspLink:
             self._dropped_since_last += 1
 
     def on_flag(self, flag: BlockFlag) -> None:
-        """A block flag from the DSP. A flag that does not expect our next
-        batch is ignored: a late one (zenoh does not order it with the
-        interrupt, which already told us the block is empty) silently, any
-        other counted as stale; unless the DSP restarted (it expects 0):
-        then we follow it."""
+        """A block flag from the DSP. With no batch in flight the DSP's
+        expected sequence number wins (a restart on either side, a lost
+        batch); with one in flight, a flag that does not expect our next
+        batch is late (zenoh does not order it with the interrupt) or stale,
+        and counted."""
         self.dsp_latency_s = flag.emulated_latency_s
         if flag.state != "empty":
             self.block_empty = False
             return
+        self.dsp_fft_width = flag.fft_width
         if flag.next_batch_seq == self.next_seq:
             self.block_empty = True  # the batch in flight (if any) stays so until its interrupt arrives
-        elif flag.next_batch_seq == 0 and self.next_seq > 0:
-            # The DSP restarted: resynchronise sequence numbers with it.
-            self.next_seq = 0
-            self.in_flight = None
+        elif self.in_flight is None:
+            # Nothing in flight and the DSP expects another number: it (or we)
+            # restarted, or a batch was lost. Follow the DSP.
+            self.counters.resyncs += 1
+            self.next_seq = flag.next_batch_seq
             self.block_empty = True
         elif flag.next_batch_seq == self.next_seq - 1:
-            self.counters.flags_late += 1
+            self.counters.flags_late += 1  # overtaken by our next batch
         else:
             self.counters.flags_stale += 1
 
@@ -184,6 +193,12 @@ class DspLink:
         self.block_empty = True  # the DSP releases the block before it raises the interrupt (Fig. 3.5 step 4)
         self.counters.interrupts += 1
         return sent
+
+    def declare_lost(self) -> None:
+        """The interrupt of the batch in flight will not come (a timeout)."""
+        if self.in_flight is not None:
+            self.in_flight = None
+            self.counters.interrupts_lost += 1
 
     def check_deadline(self, tick: int) -> bool:
         """True once per batch when its interrupt is overdue at ``tick``.

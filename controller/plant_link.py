@@ -5,6 +5,7 @@ producer, heartbeat consumer, EMCY consumer)."""
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -23,12 +24,17 @@ class PlantFault(RuntimeError):
     """The plant node stopped answering (no heartbeat, no TPDO)."""
 
 
+class StopRequested(Exception):
+    """SIGINT/SIGTERM arrived while waiting for the plant: not a fault."""
+
+
 @dataclass
 class PlantLinkCounters:
     syncs_sent: int = 0
     tpdos: int = 0
     tpdo_timeouts: int = 0
     extra_tpdos: int = 0
+    stale_tpdos: int = 0
     rpdos_sent: int = 0
     heartbeats: int = 0
     emergencies: int = 0
@@ -70,7 +76,13 @@ class PlantLink:
         self._send(can_map.NMT_COB_ID, can_map.encode_nmt(command, self.node_id))
 
     def send_sync(self) -> int:
-        """Emit the next SYNC; returns its counter (1..240)."""
+        """Emit the next SYNC; returns its counter (1..240). A TPDO still
+        waiting (a late answer to an earlier SYNC) is read and dropped first,
+        so a tick never takes the previous tick's sample."""
+        self.poll(timeout=0.0)
+        if self._pending_tpdo is not None:
+            self._pending_tpdo = None
+            self.counters.stale_tpdos += 1
         self.sync_counter = can_map.next_sync_counter(self.sync_counter)
         self._send(can_map.SYNC_COB_ID, can_map.encode_sync(self.sync_counter))
         self.counters.syncs_sent += 1
@@ -136,10 +148,12 @@ class PlantLink:
     def discard_pending(self) -> None:
         self._pending_tpdo = None
 
-    def wait_for_node(self, timeout: float) -> NmtState:
+    def wait_for_node(self, timeout: float, stop: threading.Event | None = None) -> NmtState:
         """Wait for the node's heartbeat (its boot-up or a periodic one)."""
         deadline = self._now() + timeout
         while self.last_heartbeat is None:
+            if stop is not None and stop.is_set():
+                raise StopRequested("stopped while waiting for the plant")
             remaining = deadline - self._now()
             if remaining <= 0:
                 raise PlantFault(f"no heartbeat from plant node {self.node_id} within {timeout:.1f} s: is ralf-plant running on the same CAN channel?")
@@ -147,12 +161,14 @@ class PlantLink:
         assert self.node_state is not None
         return self.node_state
 
-    def start_node(self, timeout: float) -> None:
+    def start_node(self, timeout: float, stop: threading.Event | None = None) -> None:
         """NMT start, then wait until the heartbeat says operational."""
-        self.wait_for_node(timeout)
+        self.wait_for_node(timeout, stop)
         deadline = self._now() + timeout
         self.nmt(NmtCommand.START)
         while self.node_state != NmtState.OPERATIONAL:
+            if stop is not None and stop.is_set():
+                raise StopRequested("stopped while starting the plant")
             remaining = deadline - self._now()
             if remaining <= 0:
                 raise PlantFault(f"plant node {self.node_id} did not become operational (state {self.node_state})")

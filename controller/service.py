@@ -30,7 +30,8 @@ import zenoh
 from controller.dsp_link import DspLink
 from controller.loop import ControlLaw, run_ticks
 from controller.monitors import MonitorStop, Monitors
-from controller.plant_link import PlantFault, PlantLink
+from controller.plant_link import PlantFault, PlantLink, StopRequested
+from protocol.can_map import NmtCommand, NmtState
 from controller.record import ColumnBuffer, save_record
 from protocol.batch_codec import encode_batch
 from protocol.errors import ProtocolError
@@ -91,7 +92,6 @@ class ControllerService:
         self.link = DspLink(
             sample_rate_hz=settings.sample_rate_hz,
             batch_size=settings.batch_size,
-            max_pending=4096,
             deadline_s=settings.dsp_deadline_s,
         )
         self.timing = TimingCounters()
@@ -253,7 +253,13 @@ class ControllerService:
         self.timing.lockstep_waits += 1
         while not any(irq.batch_seq == seq for irq in self._held_interrupts):
             remaining = deadline - time.monotonic()
-            if remaining <= 0 or not self.dsp_alive and self.timing.dsp_found:
+            if remaining <= 0:
+                # It will not come: count it lost, fire the deadline monitor, go on without it.
+                self.link.declare_lost()
+                self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
+                self.monitors.fire("deadline", self.last_miss)
+                return
+            if not self.dsp_alive and self.timing.dsp_found:
                 return
             try:
                 kind, payload, arrival = self._events.get(timeout=min(remaining, 0.1))
@@ -324,7 +330,13 @@ class ControllerService:
         self.timing.tf_download_failures += 1
 
     def _check_stale(self) -> None:
-        age = (self.tick - self.last_fresh_tick) * self.settings.sample_period_s
+        """Stale: no fresh confident estimate for ``stale_after_s``. Before the
+        first one, the clock starts once the DSP's history can be full (N
+        samples): no estimate can exist earlier."""
+        if self.last_fresh_tick == 0 and self.tick < self.link.dsp_fft_width:
+            return
+        start = self.last_fresh_tick or self.link.dsp_fft_width
+        age = (self.tick - start) * self.settings.sample_period_s
         stale = age > self.settings.stale_after_s
         if stale and not self.stale:
             self.timing.stale_episodes += 1
@@ -384,9 +396,10 @@ class ControllerService:
         ts = s.sample_period_s
         lockstep = s.clock == "lockstep"
         try:
-            self.plant.start_node(timeout=s.lockstep_timeout_s)
+            self.plant.start_node(timeout=s.lockstep_timeout_s, stop=stop)
             self._wait_for_dsp(stop, timeout=3.0)
             t0 = time.monotonic()
+            missed_in_row = 0
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
                 scheduled = t0 + self.tick * ts
                 if not lockstep and time.monotonic() - scheduled > RESYNC_AFTER_PERIODS * ts:
@@ -415,9 +428,12 @@ class ControllerService:
                     self.jitter.add(abs(start - scheduled))
                 words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(0.8 * ts)
                 if words is None:
-                    if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
-                        raise PlantFault(f"plant did not answer SYNC at tick {self.tick} (heartbeat age {self.plant.heartbeat_age():.2f} s)")
+                    missed_in_row += 1
+                    if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s or missed_in_row * ts > s.plant_heartbeat_timeout_s:
+                        raise PlantFault(f"plant did not answer SYNC at tick {self.tick}: {missed_in_row} TPDOs missing in a row (heartbeat age {self.plant.heartbeat_age():.2f} s)")
                     words = self._last_words  # real time: hold the last sample for a missed TPDO
+                else:
+                    missed_in_row = 0
                 self._last_words = words
                 self._tick(words)
                 end = time.monotonic()
@@ -434,16 +450,23 @@ class ControllerService:
                     del self._rate_window[0]
                 if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
                     raise PlantFault(f"plant heartbeat lost for {self.plant.heartbeat_age():.2f} s")
+                if self.plant.node_state not in (None, NmtState.OPERATIONAL):
+                    raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {self.plant.node_state.name})")
                 self._publish_status()
         except PlantFault as exc:
             error = str(exc)
             log.error("plant fault: %s; valves to zero", error)
+        except StopRequested:
+            log.info("stopped before the run began")
         except MonitorStop as exc:
             error = f"stopped by monitor policy: {exc}"
             log.error(error)
         finally:
             try:
                 self.plant.send_outputs(np.zeros(2))
+                # A clean end leaves the node pre-operational (valves at zero) rather
+                # than tripping its SYNC watchdog.
+                self.plant.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
             except Exception:
                 log.debug("could not zero the valves", exc_info=True)
             self._publish_status(finished=True)
@@ -470,7 +493,11 @@ class ControllerService:
             self.plant.send_sync()
 
     def _wait_for_dsp(self, stop: threading.Event, timeout: float) -> None:
-        """Give the DSP a moment to announce its empty block before the first tick."""
+        """Tell the DSP a new run starts (sequence numbers from 0, history
+        restarted) and give it a moment to announce its empty block."""
+        self._config_seq += 1
+        self._config_pub.put(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
+        self.link.next_seq = 0
         deadline = time.monotonic() + timeout
         while not self.link.block_empty and time.monotonic() < deadline and not stop.is_set():
             try:

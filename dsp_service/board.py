@@ -36,7 +36,11 @@ class BoardCounters:
     samples_missing: int = 0
     duplicates: int = 0
     decode_errors: int = 0
+    rejected: int = 0
     config_changes: int = 0
+    config_rejected: int = 0
+    internal_errors: int = 0
+    restarts: int = 0
     budget_misses: int = 0
     dropped_by_controller: int = 0
 
@@ -106,6 +110,13 @@ class BatchBlock:
     def release(self) -> None:
         """Flag the block empty again (Fig. 3.5 step 4)."""
         self.full = False
+
+    def restart(self) -> None:
+        """A new CPU run: sequence numbers and ticks start afresh."""
+        self.full = False
+        self.next_seq = 0
+        self.next_tick = None
+        self.counters.restarts += 1
 
     def note_config(self, change: ConfigChange) -> None:
         self.counters.config_changes += 1

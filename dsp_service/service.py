@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
-from dsp_service.board import BatchBlock
+from dsp_service.board import Admission, BatchBlock
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
 from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.errors import ProtocolError
@@ -60,7 +60,9 @@ def identifier_config(settings: DspSettings) -> IdentifierConfig:
 @dataclass
 class _Event:
     kind: str
-    payload: bytes
+    payload: bytes = b""
+    batch: SampleBatch | None = None
+    admission: Admission | None = None
 
 
 class DspService:
@@ -85,11 +87,12 @@ class DspService:
         self.last_result: IdentificationResult | None = None
         self._events: queue.Queue[_Event] = queue.Queue()
         self._tf_lock = threading.Lock()
+        self._block_lock = threading.Lock()
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._subs = [
-            session.declare_subscriber(self.keys.batch, lambda s: self._events.put(_Event("batch", s.payload.to_bytes()))),
+            session.declare_subscriber(self.keys.batch, self._on_batch_sample),
             session.declare_subscriber(self.keys.dsp_config, lambda s: self._events.put(_Event("config", s.payload.to_bytes()))),
         ]
         self._queryable = session.declare_queryable(self.keys.tf, self._on_tf_query)
@@ -133,6 +136,34 @@ class DspService:
         )
 
     # -- handlers -----------------------------------------------------------------------
+    def _reject(self, reason: str) -> None:
+        with self._block_lock:
+            self.block.counters.rejected += 1
+            self.block.last_violation = reason
+        log.warning("rejected a batch: %s", reason)
+
+    def _on_batch_sample(self, sample: zenoh.Sample) -> None:
+        """A batch arrives in the block (zenoh's thread): decoded, checked and
+        admitted here, so a batch arriving while the block is full is seen as
+        the protocol violation it is; the identification runs on our thread."""
+        try:
+            batch = decode_batch(sample.payload.to_bytes())
+        except ProtocolError as exc:
+            with self._block_lock:
+                self.block.counters.decode_errors += 1
+                self.block.last_violation = f"undecodable batch: {exc}"
+            log.warning("dropped an undecodable batch: %s", exc)
+            return
+        if batch.inputs.shape[0] != 2 or batch.outputs.shape[0] != 2:
+            self._reject(f"batch {batch.seq} has {batch.inputs.shape[0]} inputs and {batch.outputs.shape[0]} outputs; the board identifies 2x2")
+            return
+        if abs(batch.sample_rate_hz - self.settings.sample_rate_hz) > 1e-9 * self.settings.sample_rate_hz:
+            self._reject(f"batch {batch.seq} sampled at {batch.sample_rate_hz} Hz; this board runs at {self.settings.sample_rate_hz} Hz")
+            return
+        with self._block_lock:
+            admission = self.block.admit(batch)
+        if admission.accepted:
+            self._events.put(_Event("batch", batch=batch, admission=admission))
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
             query.reply(self.keys.tf, encode(self.snapshot()))
@@ -160,7 +191,14 @@ class DspService:
             return snap
 
     def apply_config(self, change: ConfigChange) -> None:
+        """Run-time configuration; ``reset`` starts a new CPU run (sequence
+        numbers from 0, history restarted, averages kept)."""
+        if change.reset:
+            with self._block_lock:
+                self.block.restart()
         with self._tf_lock:
+            if change.reset:
+                self.identifier.restart_history()
             if change.fft_width is not None and change.fft_width != self.identifier.fft_width:
                 log.info("FFT width %d -> %d: history zeroed", self.identifier.fft_width, change.fft_width)
                 self.identifier.set_fft_width(change.fft_width)
@@ -172,9 +210,12 @@ class DspService:
                 self.emulated_latency_s = change.emulated_latency_s
         self.block.note_config(change)
 
-    def process_batch(self, batch: SampleBatch) -> Interrupt | None:
-        """One pass of Fig. 3.5 steps 3-4 for an admitted batch."""
-        admission = self.block.admit(batch)
+    def process_batch(self, batch: SampleBatch, admission: Admission | None = None) -> Interrupt | None:
+        """One pass of Fig. 3.5 steps 3-4 for a batch (admitted here unless
+        it already was on arrival)."""
+        if admission is None:
+            with self._block_lock:
+                admission = self.block.admit(batch)
         if not admission.accepted:
             return None
         received = time.monotonic()
@@ -218,22 +259,16 @@ class DspService:
             deadline_missed=missed,
         )
         self.interrupt_seq += 1
-        self.block.release()
+        with self._block_lock:
+            self.block.release()
         self._publish_flag("empty")
         self._irq_pub.put(encode(interrupt))
         self.turnaround.add(time.monotonic() - received)
         return interrupt
 
     def _handle(self, event: _Event) -> None:
-        if event.kind == "batch":
-            try:
-                batch = decode_batch(event.payload)
-            except ProtocolError as exc:
-                self.block.counters.decode_errors += 1
-                self.block.last_violation = f"undecodable batch: {exc}"
-                log.warning("dropped an undecodable batch: %s", exc)
-                return
-            self.process_batch(batch)
+        if event.kind == "batch" and event.batch is not None:
+            self.process_batch(event.batch, event.admission)
         elif event.kind == "config":
             try:
                 change = decode(ConfigChange, event.payload)
@@ -241,8 +276,26 @@ class DspService:
                 self.block.counters.decode_errors += 1
                 log.warning("dropped an invalid config change: %s", exc)
                 return
-            self.apply_config(change)
+            try:
+                self.apply_config(change)
+            except ValueError as exc:
+                self.block.counters.config_rejected += 1
+                self.block.last_violation = f"config change refused: {exc}"
+                log.warning("refused a config change the identifier cannot take: %s", exc)
             self._publish_flag("empty" if not self.block.full else "full")
+
+    def _handle_safely(self, event: _Event) -> None:
+        """Nothing a peer sends may kill the board: an unexpected error is
+        counted and reported, and the block is released so the CPU goes on."""
+        try:
+            self._handle(event)
+        except Exception as exc:
+            self.block.counters.internal_errors += 1
+            self.block.last_violation = f"internal error on a {event.kind}: {exc!r}"
+            log.exception("internal error while handling a %s; block released", event.kind)
+            with self._block_lock:
+                self.block.release()
+            self._publish_flag("empty")
 
     def run(self, stop: threading.Event) -> None:
         """Serve until ``stop`` is set."""
@@ -259,7 +312,7 @@ class DspService:
                     self._publish_flag("empty")
                     last_flag = time.monotonic()
                 continue
-            self._handle(event)
+            self._handle_safely(event)
             last_flag = time.monotonic()
 
     def close(self) -> None:

@@ -84,10 +84,11 @@ class ConfigChange(Message):
     ``batch_size`` keeps it.
     """
 
-    fft_width: Annotated[int, Field(ge=16, le=65536)] | None = None
-    batch_size: Annotated[int, Field(ge=1, le=65536)] | None = None
-    alpha: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    fft_width: Annotated[int, Field(ge=32, le=65536)] | None = None
+    batch_size: Annotated[int, Field(ge=1, le=4096)] | None = None
+    alpha: Annotated[float, Field(gt=0.0, lt=1.0)] | None = None
     emulated_latency_s: NonNegFloat | None = None
+    reset: bool = Field(False, description="A new CPU run: the DSP restarts sequence numbers and history")
 
     @model_validator(mode="after")
     def _power_of_two(self) -> "ConfigChange":

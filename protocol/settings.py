@@ -117,7 +117,7 @@ class ControllerSettings(CommonSettings):
 class DspSettings(CommonSettings):
     """The DSP service (``ralf-dsp``), the emulated C40 board."""
 
-    fft_width: int = Field(2048, ge=16, le=65536, description="FFT width N (history length per channel)")
+    fft_width: int = Field(2048, ge=32, le=65536, description="FFT width N (history length per channel)")
     batch_size: int = Field(30, ge=1, le=4096, description="Expected batch size l (sets the default compute budget; any size is accepted)")
     alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")

@@ -79,7 +79,7 @@ def test_a_busy_dsp_gets_larger_batches_and_nothing_is_lost() -> None:
 
 
 def test_past_the_bound_the_oldest_samples_drop_and_the_batch_says_so() -> None:
-    link = DspLink(sample_rate_hz=200.0, batch_size=20, max_pending=100)
+    link = DspLink(sample_rate_hz=200.0, batch_size=20, max_pending_override=100)
     link.on_flag(flag(0))
     for tick in range(20):
         link.add_sample(tick, np.zeros(2), np.zeros(2))
@@ -112,9 +112,19 @@ def test_missing_interrupt_counts_a_miss_then_is_declared_lost() -> None:
 
 def test_stale_flags_and_unexpected_interrupts_are_counted() -> None:
     link = DspLink(sample_rate_hz=200.0, batch_size=1)
-    link.on_flag(flag(5))
+    link.on_flag(flag(0))
+    link.add_sample(0, np.zeros(2), np.zeros(2))
+    assert link.take_batch(0, 0.0) is not None  # batch 0 in flight
+    link.on_flag(flag(7))
     assert not link.block_empty and link.counters.flags_stale == 1
     assert link.on_interrupt(irq(3)) is None and link.counters.interrupts_unexpected == 1
+
+
+def test_with_nothing_in_flight_the_dsp_sequence_wins() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=1)
+    link.next_seq = 6  # e.g. our batch 5 was lost, or the DSP restarted
+    link.on_flag(flag(5))
+    assert link.block_empty and link.next_seq == 5 and link.counters.resyncs == 1
 
 
 def test_lockstep_due_tick_follows_the_announced_latency() -> None:

@@ -33,5 +33,5 @@ def test_batch_size_and_fft_width_change_while_running() -> None:
     assert run.result.counters["reconfigurations"] == 1
     assert run.controller.link.batch_size == 40
     assert run.dsp.identifier.fft_width == 256
-    assert run.dsp.block.counters.config_changes == 1
+    assert run.dsp.block.counters.config_changes == 2  # the run-start reset, then the command
     assert run.result.counters["samples_dropped"] == 0 and run.dsp.block.counters.samples_missing == 0
