@@ -12,7 +12,7 @@ from controller.plant_link import PlantLink
 from controller.service import ControllerService
 from protocol.settings import ControllerSettings
 from protocol.transport import open_can_bus
-from rig.runtime import run_service
+from rig.runtime import build_or_config_error, run_service
 
 EXIT_PLANT_FAULT = 3
 EXIT_MONITOR_STOP = 4
@@ -23,7 +23,7 @@ log = logging.getLogger("controller")
 def control(settings: ControllerSettings, session: zenoh.Session, stop: threading.Event) -> int:
     bus = open_can_bus(settings)
     try:
-        service = ControllerService(settings, session, PlantLink(bus, settings.node_id))
+        service = build_or_config_error("controller configuration", lambda: ControllerService(settings, session, PlantLink(bus, settings.node_id)))
         try:
             log.info("controller up on rig %r: %s clock, %.0f Hz, OATF %s", settings.rig_id, settings.clock, settings.sample_rate_hz, settings.oatf_mode)
             result = service.run(stop)

@@ -10,13 +10,13 @@ import zenoh
 
 from dsp_service.service import DspService
 from protocol.settings import DspSettings
-from rig.runtime import run_service
+from rig.runtime import build_or_config_error, run_service
 
 log = logging.getLogger("dsp")
 
 
 def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) -> int:
-    service = DspService(settings, session)
+    service = build_or_config_error("DSP configuration", lambda: DspService(settings, session))
     log.info("DSP board up on rig %r: N=%d, alpha=%.3g, emulated latency %.0f ms", settings.rig_id, settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
     try:
         service.run(stop)

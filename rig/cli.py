@@ -18,24 +18,33 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from protocol.keys import validate_rig_id
+from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 from rig import bench, experiments, monitor
 from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
 
 console = Console(stderr=True)
 
 
+SETTINGS_MODELS = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
+
+
 def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
-    """``service.name=value`` (or ``name=value`` for all services) -> env per service."""
+    """``service.name=value`` (or ``name=value`` for every service that has
+    that setting) -> environment per service. Unknown names are refused."""
     out: dict[str, dict[str, str]] = {"dsp": {}, "plant": {}, "controller": {}}
     for item in items:
         target, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"ralf-hil: --set {item!r}: expected [service.]NAME=VALUE")
         service, dot, name = target.rpartition(".")
-        services = [service] if dot else list(out)
+        name = name.strip().lower().removeprefix("ralf_")
+        if dot and service not in out:
+            raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
+        services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
+        if not services or any(name not in SETTINGS_MODELS[svc].model_fields for svc in services):
+            raise SystemExit(f"ralf-hil: --set {item!r}: {name!r} is not a setting of {' or '.join(services or SETTINGS_MODELS)} (see ralf-plant/ralf-controller/ralf-dsp --help)")
         for svc in services:
-            if svc not in out:
-                raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {svc!r} (dsp, plant, controller)")
             out[svc][f"RALF_{name.upper()}"] = value
     return out
 
@@ -93,6 +102,10 @@ def print_summary(summary: dict[str, Any]) -> None:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
+    try:
+        validate_rig_id(args.rig_id)
+    except ValueError as exc:
+        raise SystemExit(f"ralf-hil up: {exc}") from None
     overrides = _parse_overrides(args.set)
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))

@@ -21,6 +21,7 @@ from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings
 
 S = TypeVar("S", bound=CommonSettings)
+T = TypeVar("T")
 
 
 def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[str] | None = None) -> S:
@@ -145,6 +146,18 @@ class HealthPublisher:
 
 def wall_time() -> float:
     return time.time()
+
+
+def build_or_config_error(what: str, factory: Callable[[], T]) -> T:
+    """Build a service's core from its settings; a value the core refuses
+    (a design the OATF rejects, an identifier setting out of range, a
+    missing trajectory file) becomes a :class:`ConfigError` naming it."""
+    try:
+        return factory()
+    except ConfigError:
+        raise
+    except (ValueError, OSError) as exc:
+        raise ConfigError(f"{what}: {exc}") from None
 
 
 def run_service(
