@@ -192,3 +192,65 @@ def test_bad_settings_are_refused_with_the_variable_name() -> None:
     with pytest.raises(ConfigError, match="RALF_FFT_WIDTH"):
         load_settings(DspSettings, {"fft_width": 1000})
     _ = encode  # the module's codec helpers are exercised above
+
+
+def test_a_burst_over_zenoh_while_the_block_is_full_is_a_reported_violation(session: zenoh.Session) -> None:
+    settings = _settings(inject_delay_s=0.3)  # the board is busy with batch 0 while the burst arrives
+    keys = Keys(settings.rig_id)
+    probe = Probe(session, keys)
+    service = DspService(settings, session)
+    stop = threading.Event()
+    thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
+    thread.start()
+    pub = session.declare_publisher(keys.batch)
+    try:
+        probe.next("flag")
+        for seq in range(4):
+            pub.put(encode_batch(_batch(seq)))
+        first = probe.next("irq")
+        assert first.batch_seq == 0  # type: ignore[union-attr]
+        deadline = time.monotonic() + 5
+        while service.block.counters.block_full_violations < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert service.block.counters.block_full_violations == 3  # batches 1..3 came while 0 was processed
+        assert service.block.counters.batches_accepted == 1  # never merged
+        assert service._build_health(0).counters["block_full_violations"] == 3
+        # a batch arriving while full is rejected, not merged: the next one that comes shows the gap
+        pub.put(encode_batch(_batch(4)))
+        irq = probe.next("irq")
+        assert irq.batch_seq == 4 and service.block.counters.sequence_gaps == 1  # type: ignore[union-attr]
+    finally:
+        stop.set()
+        thread.join(5)
+        pub.undeclare()
+        probe.close()
+        service.close()
+
+
+def test_batches_the_board_cannot_identify_are_rejected_not_fatal(session: zenoh.Session) -> None:
+    settings = _settings()
+    keys = Keys(settings.rig_id)
+    probe = Probe(session, keys)
+    service = DspService(settings, session)
+    stop = threading.Event()
+    thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        probe.next("flag")
+        one_input = SampleBatch(seq=0, first_tick=0, sample_rate_hz=200.0, sim_time_s=0.0, wall_time_s=0.0, inputs=np.ones((1, 20)), outputs=np.ones((2, 20)))
+        other_rate = SampleBatch(seq=0, first_tick=0, sample_rate_hz=1000.0, sim_time_s=0.0, wall_time_s=0.0, inputs=np.ones((2, 20)), outputs=np.ones((2, 20)))
+        session.put(keys.batch, encode_batch(one_input))
+        session.put(keys.batch, encode_batch(other_rate))
+        session.put(keys.dsp_config, encode(ConfigChange(seq=0, sim_time_s=0.0, alpha=0.5, fft_width=32, batch_size=4096)))
+        session.put(keys.batch, encode_batch(_batch(0)))
+        assert probe.next("irq").batch_seq == 0  # type: ignore[union-attr]
+        deadline = time.monotonic() + 5
+        while service.block.counters.rejected < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert service.block.counters.rejected == 2
+        assert thread.is_alive()
+    finally:
+        stop.set()
+        thread.join(5)
+        probe.close()
+        service.close()
