@@ -85,6 +85,7 @@ class DspLink:
     _pending_ticks: deque[int] = field(default_factory=deque)
     _pending: deque[np.ndarray] = field(default_factory=deque)
     _dropped_since_last: int = 0
+    _last_tick: int | None = None
     missed_current: bool = False
 
     @property
@@ -106,8 +107,17 @@ class DspLink:
 
     def add_sample(self, tick: int, commands: np.ndarray, deflections: np.ndarray) -> None:
         """Queue one tick's sample: inputs = D/A commands, outputs = deflections."""
-        if self._pending_ticks and tick != self._pending_ticks[-1] + 1:
-            raise ValueError(f"ticks must be consecutive: {self._pending_ticks[-1]} then {tick}")
+        if self._last_tick is not None and tick != self._last_tick + 1:
+            if tick <= self._last_tick:
+                raise ValueError(f"ticks must increase: {self._last_tick} then {tick}")
+            # Sample instants were skipped (a late real-time loop): what waits is
+            # cut off by the gap, so it goes too, and the next batch says so.
+            lost = len(self._pending) + (tick - self._last_tick - 1)
+            self._pending.clear()
+            self._pending_ticks.clear()
+            self.counters.samples_dropped += lost
+            self._dropped_since_last += lost
+        self._last_tick = tick
         self._pending_ticks.append(tick)
         self._pending.append(np.concatenate([np.asarray(commands, float), np.asarray(deflections, float)]))
         self.counters.samples_added += 1

@@ -100,6 +100,7 @@ class ControllerService:
         )
         self.tet = LatencyTracker()
         self.jitter = LatencyTracker()
+        self.period_jitter = LatencyTracker()
         self.irq_latency = LatencyTracker()
         self.tick = 0
         self.latest_frequency_hz: float | None = None
@@ -169,7 +170,12 @@ class ControllerService:
             service="controller",
             state="degraded" if degraded else "running",
             counters=counters,
-            latencies={"tet": self.tet.stats(), "sync_jitter": self.jitter.stats(), "batch_to_interrupt": self.irq_latency.stats()},
+            latencies={
+                "tet": self.tet.stats(),
+                "sync_jitter": self.jitter.stats(),
+                "sync_period_jitter": self.period_jitter.stats(),
+                "batch_to_interrupt": self.irq_latency.stats(),
+            },
             last_miss=self.monitors.last or self.last_miss,
         )
 
@@ -400,32 +406,38 @@ class ControllerService:
             self._wait_for_dsp(stop, timeout=3.0)
             t0 = time.monotonic()
             missed_in_row = 0
+            last_start: float | None = None
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
+                if s.inject_stall_at_s is not None and self.tick == int(round(s.inject_stall_at_s * s.sample_rate_hz)):
+                    log.warning("fault injection: the loop stalls for %.2f s", s.inject_stall_s)
+                    time.sleep(s.inject_stall_s)
                 scheduled = t0 + self.tick * ts
                 if not lockstep and time.monotonic() - scheduled > RESYNC_AFTER_PERIODS * ts:
-                    # Hopelessly behind (a stall or a rate the host cannot hold): drop the
-                    # backlog instead of running ticks back to back; counted.
+                    # Hopelessly behind (a stall, or a rate the host cannot hold): those
+                    # sample instants are gone. Skip them (counted) instead of running
+                    # ticks back to back; the DSP sees the gap and restarts its history.
                     behind = int((time.monotonic() - scheduled) / ts)
-                    t0 += behind * ts
+                    self.tick += behind
                     scheduled += behind * ts
                     self.timing.schedule_resyncs += 1
                     self.timing.periods_skipped += behind
+                    log.warning("loop %d periods late: schedule re-based, samples skipped", behind)
+                    if n_ticks is not None and self.tick >= n_ticks:
+                        break
                 if not lockstep:
                     delay = scheduled - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
-                if s.inject_stall_at_s is not None and self.tick == int(round(s.inject_stall_at_s * s.sample_rate_hz)):
-                    log.warning("fault injection: the loop stalls for %.2f s", s.inject_stall_s)
-                    time.sleep(s.inject_stall_s)
-                    t0 += s.inject_stall_s  # the schedule resumes after the stall
-                    scheduled += s.inject_stall_s
                 start = time.monotonic()
                 if s.inject_sync_drop_every and self.tick % s.inject_sync_drop_every == s.inject_sync_drop_every - 1:
                     self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
                     self.timing.syncs_dropped += 1
                 self.plant.send_sync()
                 if not lockstep:
-                    self.jitter.add(abs(start - scheduled))
+                    self.jitter.add(max(0.0, start - scheduled))  # lateness of this SYNC against its deadline
+                    if last_start is not None:
+                        self.period_jitter.add(abs(start - last_start - ts))
+                    last_start = start
                 words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(0.8 * ts)
                 if words is None:
                     missed_in_row += 1

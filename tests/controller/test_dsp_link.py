@@ -134,3 +134,15 @@ def test_lockstep_due_tick_follows_the_announced_latency() -> None:
         link.add_sample(tick, np.zeros(2), np.zeros(2))
     sent, _ = link.take_batch(19, 0.095)  # type: ignore[misc]
     assert sent.due_tick == 39 and sent.deadline_tick == 39
+
+
+def test_skipped_ticks_cut_the_batch_and_the_next_one_reports_the_gap() -> None:
+    link = DspLink(sample_rate_hz=200.0, batch_size=20)
+    link.on_flag(flag(0))
+    for tick in range(10):
+        link.add_sample(tick, np.zeros(2), np.zeros(2))
+    for tick in range(60, 80):  # ticks 10..59 never happened
+        link.add_sample(tick, np.zeros(2), np.zeros(2))
+    _, batch = link.take_batch(79, 0.4)  # type: ignore[misc]
+    assert batch.first_tick == 60 and batch.n_samples == 20
+    assert batch.dropped_before == 60 and link.counters.samples_dropped == 60
