@@ -85,6 +85,7 @@ class DspService:
         self.last_batch_seq = 0
         self.last_sim_time = 0.0
         self.last_result: IdentificationResult | None = None
+        self.last_batch_missed = False
         self._events: queue.Queue[_Event] = queue.Queue()
         self._tf_lock = threading.Lock()
         self._block_lock = threading.Lock()
@@ -124,7 +125,7 @@ class DspService:
     def _build_health(self, seq: int) -> Health:
         counters = self.block.counters.as_dict()
         counters["interrupts"] = self.interrupt_seq
-        state = "degraded" if counters["budget_misses"] or counters["block_full_violations"] else "running"
+        state = "degraded" if self.last_batch_missed else "running"
         return Health(
             seq=seq,
             sim_time_s=self.last_sim_time,
@@ -238,6 +239,7 @@ class DspService:
             self.block.last_violation = f"batch {batch.seq}: compute {compute * 1e3:.1f} ms over budget {budget * 1e3:.1f} ms"
             log.warning("deadline: %s", self.block.last_violation)
         self.last_result = result
+        self.last_batch_missed = missed
         if self.settings.clock == "realtime":
             remaining = self.emulated_latency_s - (time.monotonic() - received)
             if remaining > 0:

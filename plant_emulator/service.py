@@ -31,6 +31,7 @@ from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
+from rig.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +104,11 @@ class PlantApplication:
         self.publish_truth = publish_truth
         self.publish_event = publish_event
         self._truth_seq = 0
+        self.sync_service = LatencyTracker()
+        """Wall time from a SYNC to its sample being ready (model step + A/D)."""
+        self.sync_interval = LatencyTracker()
+        """Wall time between SYNCs as the node saw them."""
+        self._last_sync_wall: float | None = None
         self.truth_log: list[GroundTruth] = []
         self.scenario = parse_scenario(settings.scenario)
         self._event_seq = 0
@@ -123,6 +129,16 @@ class PlantApplication:
 
     # -- NodeApplication ---------------------------------------------------------------------
     def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        arrived = time.monotonic()
+        if self._last_sync_wall is not None:
+            self.sync_interval.add(arrived - self._last_sync_wall)
+        self._last_sync_wall = arrived
+        try:
+            return self._sample_on_sync()
+        finally:
+            self.sync_service.add(time.monotonic() - arrived)
+
+    def _sample_on_sync(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
         if self.settings.clock == "lockstep":
             self.arm.advance(self.settings.sample_period_s)
         else:
@@ -268,6 +284,7 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
         service="plant",
         state="degraded" if app.held else "running",
         counters=counters,
+        latencies={"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats()},
         last_miss="valves held: SYNC watchdog" if app.held else None,
     )
 
@@ -275,7 +292,6 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
 def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: threading.Event) -> None:
     """Run the node on ``bus`` until ``stop``; the test port on ``session``."""
     from plant_emulator.node import run_node
-    from rig.runtime import HealthPublisher
 
     port = PlantTestPort(settings, session)
     app = PlantApplication(settings, publish_truth=port.publish_truth, publish_event=port.publish_event)

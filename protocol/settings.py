@@ -26,6 +26,7 @@ class CommonSettings(BaseSettings):
     zenoh_connect: str = Field("", description="Comma-separated zenoh endpoints to connect to, e.g. tcp/127.0.0.1:7447")
     zenoh_listen: str = Field("", description="Comma-separated zenoh endpoints to listen on")
     zenoh_multicast_scouting: bool = Field(False, description="Discover peers by UDP multicast (off: explicit endpoints)")
+    zenoh_lease_ms: int = Field(3000, ge=500, le=60000, description="zenoh link lease: a frozen peer is declared gone (liveliness lost) after this long")
     can_interface: str = Field("udp_multicast", description="python-can interface: udp_multicast, virtual, socketcan, ...")
     can_channel: str = Field("239.74.163.2", description="python-can channel (multicast group, vcan0, ...)")
     can_port: int = Field(43113, ge=1, le=65535, description="UDP port of the udp_multicast interface (one per rig)")

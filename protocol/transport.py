@@ -23,6 +23,7 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(settings.zenoh_mode))
     config.insert_json5("scouting/multicast/enabled", json.dumps(settings.zenoh_multicast_scouting))
+    config.insert_json5("transport/link/tx/lease", json.dumps(settings.zenoh_lease_ms))
     connect = settings.endpoints("connect")
     listen = settings.endpoints("listen")
     if connect:

@@ -76,7 +76,10 @@ def test_sync_frames_lost_on_the_bus_are_seen_as_counter_gaps() -> None:
 
 @pytest.mark.timeout(180)
 def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_again(tmp_path: Path) -> None:
-    plan = RigPlan.local(rig_id=f"kill-{uuid.uuid4().hex[:6]}", overrides={"dsp": {"RALF_FFT_WIDTH": "256"}})
+    plan = RigPlan.local(
+        rig_id=f"kill-{uuid.uuid4().hex[:6]}",
+        overrides={"dsp": {"RALF_FFT_WIDTH": "256"}, "controller": {"RALF_OATF_MODE": "adaptive"}},
+    )
     observer = RigObserver(plan)
     procs = {name: start_service(plan, name, tmp_path) for name in ("dsp", "plant", "controller")}
     try:
@@ -97,6 +100,14 @@ def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_ag
         wait_for(lambda: observer.status.interrupts >= irq_before + 10)  # type: ignore[union-attr]
         counters = observer.health["controller"].counters
         assert counters["dsp_found"] >= 2 and counters["dsp_lost"] == 1
+        assert counters["episodes_dsp_lost"] == 1  # the policy (degrade: fallback OATF design) was applied once
+        # a frozen DSP (SIGSTOP) is noticed too, within the zenoh lease (RALF_ZENOH_LEASE_MS)
+        procs["dsp"].popen.send_signal(signal.SIGSTOP)
+        try:
+            wait_for(lambda: observer.health["controller"].counters.get("dsp_lost", 0) >= 2, 15)
+        finally:
+            procs["dsp"].popen.send_signal(signal.SIGCONT)
+        wait_for(lambda: observer.health["controller"].counters.get("dsp_found", 0) >= 3, 20)
     finally:
         codes = {name: stop_service(procs[name]) for name in ("controller", "plant", "dsp")}
         observer.close()
