@@ -441,7 +441,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
                 "sync_jitter then measures accumulated lateness, not per-tick jitter"
             )
     result["notes"].append(
-        "batch_to_interrupt is the controller's own figure: it takes an interrupt in at the start of a tick, so it includes up to one sample period of waiting."
+        "batch_to_interrupt is the controller's own figure: from publishing a batch to its interrupt arriving (stamped in the zenoh callback), emulated latency included."
     )
     if not m:
         result["status"] = "failed"
