@@ -8,6 +8,8 @@ import queue
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -65,16 +67,42 @@ class Probe:
             s.undeclare()
 
 
-def test_flag_sequence_and_interrupts_in_order(session: zenoh.Session) -> None:
-    settings = _settings()
+@dataclass
+class RunningBoard:
+    keys: Keys
+    service: DspService
+    probe: Probe
+    thread: threading.Thread
+    pub: zenoh.Publisher | None  # a publisher on the batch key, when asked for
+
+
+@contextmanager
+def _running_board(session: zenoh.Session, settings: DspSettings, *, publisher: bool = False) -> Iterator[RunningBoard]:
+    """A DspService serving on a thread, a Probe on its flags and interrupts (declared
+    before the service, so the first flag is seen); on exit the service is stopped and
+    joined, then the publisher, the probe and the service are closed."""
     keys = Keys(settings.rig_id)
     probe = Probe(session, keys)
     service = DspService(settings, session)
     stop = threading.Event()
     thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
     thread.start()
-    pub = session.declare_publisher(keys.batch)
+    pub = session.declare_publisher(keys.batch) if publisher else None
     try:
+        yield RunningBoard(keys, service, probe, thread, pub)
+    finally:
+        stop.set()
+        thread.join(5)
+        if pub is not None:
+            pub.undeclare()
+        probe.close()
+        service.close()
+
+
+def test_flag_sequence_and_interrupts_in_order(session: zenoh.Session) -> None:
+    settings = _settings()
+    with _running_board(session, settings, publisher=True) as board:
+        probe, pub = board.probe, board.pub
         first = probe.next("flag")
         assert isinstance(first, BlockFlag) and first.state == "empty" and first.next_batch_seq == 0
         assert first.fft_width == 256
@@ -100,12 +128,6 @@ def test_flag_sequence_and_interrupts_in_order(session: zenoh.Session) -> None:
         assert flags == sorted(flags)
         irq = irqs[-1]
         assert irq.samples_in_history == 256  # 15 x 20 samples, history holds N
-    finally:
-        stop.set()
-        thread.join(5)
-        pub.undeclare()
-        probe.close()
-        service.close()
 
 
 def test_violations_are_reported_not_merged(session: zenoh.Session) -> None:
@@ -144,13 +166,8 @@ def test_fft_width_change_zeroes_history_batch_size_change_keeps_it(session: zen
 
 def test_undecodable_batches_are_counted_and_the_board_keeps_serving(session: zenoh.Session) -> None:
     settings = _settings()
-    keys = Keys(settings.rig_id)
-    probe = Probe(session, keys)
-    service = DspService(settings, session)
-    stop = threading.Event()
-    thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
-    thread.start()
-    try:
+    with _running_board(session, settings) as board:
+        keys, service, probe = board.keys, board.service, board.probe
         probe.next("flag")
         session.put(keys.batch, b"RALB garbage")
         session.put(keys.dsp_config, b'{"seq": "x"}')
@@ -161,11 +178,6 @@ def test_undecodable_batches_are_counted_and_the_board_keeps_serving(session: ze
         while service.block.counters.decode_errors < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert service.block.counters.decode_errors == 2
-    finally:
-        stop.set()
-        thread.join(5)
-        probe.close()
-        service.close()
 
 
 def test_tf_queryable_returns_the_current_estimates(session: zenoh.Session) -> None:
@@ -196,14 +208,8 @@ def test_bad_settings_are_refused_with_the_variable_name() -> None:
 
 def test_a_burst_over_zenoh_while_the_block_is_full_is_a_reported_violation(session: zenoh.Session) -> None:
     settings = _settings(inject_delay_s=0.3)  # the board is busy with batch 0 while the burst arrives
-    keys = Keys(settings.rig_id)
-    probe = Probe(session, keys)
-    service = DspService(settings, session)
-    stop = threading.Event()
-    thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
-    thread.start()
-    pub = session.declare_publisher(keys.batch)
-    try:
+    with _running_board(session, settings, publisher=True) as board:
+        service, probe, pub = board.service, board.probe, board.pub
         probe.next("flag")
         for seq in range(4):
             pub.put(encode_batch(_batch(seq)))
@@ -219,23 +225,12 @@ def test_a_burst_over_zenoh_while_the_block_is_full_is_a_reported_violation(sess
         pub.put(encode_batch(_batch(4)))
         irq = probe.next("irq")
         assert irq.batch_seq == 4 and service.block.counters.sequence_gaps == 1  # type: ignore[union-attr]
-    finally:
-        stop.set()
-        thread.join(5)
-        pub.undeclare()
-        probe.close()
-        service.close()
 
 
 def test_batches_the_board_cannot_identify_are_rejected_not_fatal(session: zenoh.Session) -> None:
     settings = _settings()
-    keys = Keys(settings.rig_id)
-    probe = Probe(session, keys)
-    service = DspService(settings, session)
-    stop = threading.Event()
-    thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
-    thread.start()
-    try:
+    with _running_board(session, settings) as board:
+        keys, service, probe, thread = board.keys, board.service, board.probe, board.thread
         probe.next("flag")
         one_input = SampleBatch(seq=0, first_tick=0, sample_rate_hz=200.0, sim_time_s=0.0, wall_time_s=0.0, inputs=np.ones((1, 20)), outputs=np.ones((2, 20)))
         other_rate = SampleBatch(seq=0, first_tick=0, sample_rate_hz=1000.0, sim_time_s=0.0, wall_time_s=0.0, inputs=np.ones((2, 20)), outputs=np.ones((2, 20)))
@@ -249,8 +244,3 @@ def test_batches_the_board_cannot_identify_are_rejected_not_fatal(session: zenoh
             time.sleep(0.01)
         assert service.block.counters.rejected == 2
         assert thread.is_alive()
-    finally:
-        stop.set()
-        thread.join(5)
-        probe.close()
-        service.close()
