@@ -179,16 +179,21 @@ def start_service(plan: RigPlan, name: str, log_dir: Path) -> ServiceProcess:
     return ServiceProcess(name=name, popen=popen, log_path=log_path)
 
 
+def terminate(popen: subprocess.Popen[bytes], timeout_s: float = 10.0) -> int:
+    """SIGTERM, wait, then SIGKILL if it does not stop; returns the exit code."""
+    if popen.poll() is None:
+        popen.send_signal(signal.SIGTERM)
+        try:
+            popen.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            popen.kill()
+            popen.wait()
+    return int(popen.returncode)
+
+
 def stop_service(proc: ServiceProcess, timeout_s: float = 10.0) -> int:
     """SIGTERM, wait, then SIGKILL if it does not stop; returns the exit code."""
-    if proc.popen.poll() is None:
-        proc.popen.send_signal(signal.SIGTERM)
-        try:
-            proc.popen.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.popen.kill()
-            proc.popen.wait()
-    return int(proc.popen.returncode)
+    return terminate(proc.popen, timeout_s)
 
 
 def tail(path: Path, lines: int = 15) -> str:

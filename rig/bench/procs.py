@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import select
-import signal
 import socket
 import subprocess
 import sys
@@ -102,17 +101,13 @@ class Child:
         return f"{state}; log {self.log_path}: {tail(self.log_path)}"
 
     def stop(self, timeout_s: float = 10.0) -> int:
-        if self.popen.poll() is None:
-            self.popen.send_signal(signal.SIGTERM)
-            try:
-                self.popen.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                self.popen.kill()
-                self.popen.wait()
+        from rig.launcher import terminate  # here, so importing the bench does not import zenoh
+
+        code = terminate(self.popen, timeout_s)
         if self.popen.stdout is not None:
             self.popen.stdout.close()
         self._log.close()
-        return int(self.popen.returncode)
+        return code
 
     def __enter__(self) -> "Child":
         return self
