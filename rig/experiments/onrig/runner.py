@@ -264,6 +264,34 @@ def _load(spec: RigRun, record_path: Path, truth_path: Path) -> tuple[RunRecord,
     return record, truth, tf
 
 
+def _rig_result(
+    ctx: ExperimentContext,
+    spec: RigRun,
+    record_path: Path,
+    truth_path: Path,
+    *,
+    wall_time_s: float,
+    in_process: bool,
+    health: dict[str, dict[str, Any]],
+    exit_codes: dict[str, int],
+) -> RigResult:
+    """Load what a finished run wrote and wrap it with how the run went."""
+    record, truth, tf = _load(spec, record_path, truth_path)
+    return RigResult(
+        spec=spec,
+        record=record,
+        truth=truth,
+        tf=tf,
+        record_path=record_path,
+        truth_path=truth_path,
+        wall_time_s=wall_time_s,
+        in_process=in_process,
+        mode=ctx.mode,
+        health=health,
+        exit_codes=exit_codes,
+    )
+
+
 # --------------------------------------------------------------------------- runners
 
 
@@ -316,20 +344,9 @@ def _run_in_process(
     run.controller.save(str(record_path), run.result)
     if on_progress is not None:
         on_progress(expected)
-    record, truth, tf = _load(spec, record_path, truth_path)
-    return RigResult(
-        spec=spec,
-        record=record,
-        truth=truth,
-        tf=tf,
-        record_path=record_path,
-        truth_path=truth_path,
-        wall_time_s=time.monotonic() - started,
-        in_process=True,
-        mode=ctx.mode,
-        health={k: v.model_dump(mode="json") for k, v in run.health.items()},
-        exit_codes={name: 0 for name in SERVICES},
-    )
+    wall = time.monotonic() - started
+    health = {k: v.model_dump(mode="json") for k, v in run.health.items()}
+    return _rig_result(ctx, spec, record_path, truth_path, wall_time_s=wall, in_process=True, health=health, exit_codes={name: 0 for name in SERVICES})
 
 
 def _run_processes(
@@ -407,20 +424,7 @@ def _run_processes(
         logs = "\n".join(f"--- {name} ({procs[name].log_path}) ---\n{tail(procs[name].log_path, 20)}" for name in procs)
         what = failure or "non-zero exit"
         raise RigRunError(f"run {spec.name!r} on rig {rig_id!r} failed: {what}; exit codes {exit_codes}\n{logs}")
-    record, truth, tf = _load(spec, record_path, truth_path)
-    return RigResult(
-        spec=spec,
-        record=record,
-        truth=truth,
-        tf=tf,
-        record_path=record_path,
-        truth_path=truth_path,
-        wall_time_s=wall,
-        in_process=False,
-        mode=ctx.mode,
-        health=health,
-        exit_codes=exit_codes,
-    )
+    return _rig_result(ctx, spec, record_path, truth_path, wall_time_s=wall, in_process=False, health=health, exit_codes=exit_codes)
 
 
 def run_rigs(
