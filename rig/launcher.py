@@ -85,7 +85,10 @@ class RigPlan:
         return plan
 
     def env_for(self, service: str) -> dict[str, str]:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
+        """The caller's environment (its ``RALF_*`` settings included, e.g.
+        ``RALF_SEED=3 ralf-hil up``), then the rig's own transport and clock
+        settings, then the ``--set`` overrides for this service."""
+        env = dict(os.environ)
         env.update(self.common_env)
         env.update(self.service_env.get(service, {}))
         env.setdefault("PYTHONUNBUFFERED", "1")
