@@ -17,6 +17,9 @@ from protocol import can_map
 from protocol.can_map import NmtCommand, NmtState
 from protocol.errors import FrameError
 
+OD_SAMPLE_PERIOD = 0x2000
+"""The plant node's nominal SYNC period in µs (manufacturer-specific, see protocol/ralf_io.eds)."""
+
 log = logging.getLogger(__name__)
 
 
@@ -65,6 +68,9 @@ class PlantLink:
         self._rpdo1 = ids["rpdo1"]
         self._heartbeat = ids["heartbeat"]
         self._emcy = ids["emcy"]
+        self._sdo_rx = ids["sdo_rx"]
+        self._sdo_tx = ids["sdo_tx"]
+        self._sdo_response: bytes | None = None
 
     def _now(self) -> float:
         return float(self.clock())  # type: ignore[operator]
@@ -115,6 +121,8 @@ class PlantLink:
                 self.node_state = can_map.decode_heartbeat(msg.data)
                 self.last_heartbeat = self._now()
                 self.counters.heartbeats += 1
+            elif msg.arbitration_id == self._sdo_tx:
+                self._sdo_response = bytes(msg.data)
             elif msg.arbitration_id == self._emcy:
                 emcy = can_map.decode_emcy(msg.data)
                 self.emergencies.append(emcy)
@@ -161,9 +169,13 @@ class PlantLink:
         assert self.node_state is not None
         return self.node_state
 
-    def start_node(self, timeout: float, stop: threading.Event | None = None) -> None:
-        """NMT start, then wait until the heartbeat says operational."""
+    def start_node(self, timeout: float, stop: threading.Event | None = None, sample_period_s: float | None = None) -> None:
+        """Configure the node's sample period by SDO (object 0x2000, so plant,
+        watchdog and controller agree on it), NMT start, then wait until the
+        heartbeat says operational."""
         self.wait_for_node(timeout, stop)
+        if sample_period_s is not None:
+            self.sdo_write_u32(OD_SAMPLE_PERIOD, 0, round(sample_period_s * 1e6))
         deadline = self._now() + timeout
         self.nmt(NmtCommand.START)
         while self.node_state != NmtState.OPERATIONAL:
@@ -176,6 +188,25 @@ class PlantLink:
             if self.node_state != NmtState.OPERATIONAL and self.counters.heartbeats and remaining < timeout / 2:
                 self.nmt(NmtCommand.START)
         self.discard_pending()
+
+    def sdo_write_u32(self, index: int, subindex: int, value: int, timeout: float = 1.0) -> None:
+        """Expedited SDO download of a 32-bit value (CiA 301); an abort or no
+        answer is a :class:`PlantFault` naming the object."""
+        self._sdo_response = None
+        data = bytes([0x23, index & 0xFF, index >> 8, subindex]) + int(value).to_bytes(4, "little")
+        self._send(self._sdo_rx, data)
+        deadline = self._now() + timeout
+        while self._sdo_response is None:
+            remaining = deadline - self._now()
+            if remaining <= 0:
+                raise PlantFault(f"no SDO answer from the plant node writing 0x{index:04X}:{subindex}")
+            self.poll(timeout=min(remaining, 0.05))
+        reply = self._sdo_response
+        if reply[0] == 0x80:
+            code = int.from_bytes(reply[4:8], "little")
+            raise PlantFault(f"the plant node refused 0x{index:04X}:{subindex} = {value} (SDO abort 0x{code:08X})")
+        if reply[0] != 0x60 or reply[1:4] != data[1:4]:
+            raise PlantFault(f"unexpected SDO answer {reply.hex()} writing 0x{index:04X}:{subindex}")
 
     def heartbeat_age(self) -> float:
         return float("inf") if self.last_heartbeat is None else self._now() - self.last_heartbeat

@@ -402,7 +402,7 @@ class ControllerService:
         ts = s.sample_period_s
         lockstep = s.clock == "lockstep"
         try:
-            self.plant.start_node(timeout=s.lockstep_timeout_s, stop=stop)
+            self.plant.start_node(timeout=s.lockstep_timeout_s, stop=stop, sample_period_s=ts)
             self._wait_for_dsp(stop, timeout=3.0)
             t0 = time.monotonic()
             missed_in_row = 0

@@ -99,6 +99,7 @@ class PlantApplication:
         self.clock = clock
         self.t0: float | None = None
         self.held = False
+        self.sample_period_s = settings.sample_period_s
         self.syncs = 0
         self.scenario_inbox: queue.Queue[ScenarioCommand] = queue.Queue()
         self.publish_truth = publish_truth
@@ -140,7 +141,7 @@ class PlantApplication:
 
     def _sample_on_sync(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
         if self.settings.clock == "lockstep":
-            self.arm.advance(self.settings.sample_period_s)
+            self.arm.advance(self.sample_period_s)
         else:
             self._catch_up()
         self.syncs += 1
@@ -162,6 +163,14 @@ class PlantApplication:
             self._event("watchdog", "SYNC lost: valves held at zero")
         else:
             self._event("watchdog_cleared", "SYNC back: valves follow the RPDO again")
+
+    def on_sample_period(self, period_s: float) -> None:
+        """The master set object 0x2000: in lockstep, each SYNC advances the
+        arm by this much (the watchdog's unit in both modes)."""
+        if not 1e-4 <= period_s <= 1.0:
+            raise ValueError(f"sample period {period_s} s outside 0.1 ms..1 s")
+        self.sample_period_s = period_s
+        self._event("sample_period", f"sample period set to {period_s * 1e3:.3f} ms by SDO")
 
     def on_adc_bits(self, bits: int) -> None:
         self.arm.set_adc_bits(bits)

@@ -112,3 +112,14 @@ def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_ag
         codes = {name: stop_service(procs[name]) for name in ("controller", "plant", "dsp")}
         observer.close()
     assert codes == {"controller": 0, "plant": 0, "dsp": 0}
+
+
+@pytest.mark.timeout(60)
+def test_the_controller_sets_the_plant_sample_period_by_sdo() -> None:
+    """Plant configured for 100 Hz, controller for 200 Hz: the master's SDO
+    write of 0x2000 wins, so each lockstep SYNC advances the arm 5 ms."""
+    run = run_in_process(controller={"duration_s": 1.0, "tf_download_samples": 0}, plant={"sample_rate_hz": 100.0})
+    assert run.result.error is None and run.result.ticks == 200
+    assert run.health["plant"].counters["sdo_downloads"] == 1
+    truth_time = run.health["plant"].sim_time_s
+    assert truth_time == pytest.approx(1.0, abs=1e-9)
