@@ -22,7 +22,7 @@ recomputed off line from the record with SciPy only:
   P11, P12, P1y1, P1y2, P22, P2y1, P2y2;
 * exponential averaging as [2-9] over those snapshots: weight ``(1 − α)^(K−k)``
   on snapshot ``k`` of ``K``, normalised by the sum of the weights;
-* the corrected 2×2 solve (P21 = conj(P12); ``/work/shared/notes/identification.md``);
+* the corrected 2×2 solve (P21 = conj(P12), see ``docs/identification.md``);
 * Savitzky–Golay smoothing across frequency, ``scipy.signal.savgol_filter``
   (17 bins, order 2, ``mode='interp'``) of the real and imaginary parts;
   ``H_tot`` = the mean of the four smoothed estimates;
