@@ -1,5 +1,5 @@
 """Two lockstep runs of the three-process rig with the same seed and
-configuration produce bit-identical run records (design.md, "Time")."""
+configuration produce bit-identical run records (docs/design.md, "Time")."""
 
 from __future__ import annotations
 
