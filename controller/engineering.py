@@ -37,7 +37,7 @@ class Measurement:
 def measure(words: npt.ArrayLike) -> Measurement:
     """Engineering values from the four TPDO1 words."""
     raw = np.asarray(words, dtype=np.int64)
-    volts = raw * WORD16_VOLTS_PER_LSB
+    volts = np.asarray(raw * WORD16_VOLTS_PER_LSB, dtype=np.float64)
     values = volts_to_inputs(volts)
     extension = values[:2]
     theta = np.array([cyl.angle(e) for cyl, e in zip(CYLINDERS, extension, strict=True)], dtype=np.float64)

@@ -225,7 +225,7 @@ def sample_tip_path(
         x, y = _centred_mean(x, half), _centred_mean(y, half)
     elif corner_blend_s < 0.0:
         raise ValueError("corner_blend_s must be >= 0")
-    return TipPath(t_s=t, x_in=x, y_in=y, sample_period_s=float(sample_period_s), speed_in_per_s=speed)
+    return TipPath(t_s=np.asarray(t, dtype=np.float64), x_in=x, y_in=y, sample_period_s=float(sample_period_s), speed_in_per_s=speed)
 
 
 def _centred_mean(v: FloatArray, half: int) -> FloatArray:

@@ -27,7 +27,7 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from rich.console import Console, Group, RenderableType
 from rich.table import Table
@@ -123,7 +123,8 @@ def render(report: dict[str, Any]) -> RenderableType:
         caption=f"{mach['cpu_model']}, {mach['cores']} cores, Python {mach['python']}, zenoh {mach['packages'].get('eclipse-zenoh')}, "
         f"python-can {mach['packages'].get('python-can')}, {mach['date']}, load {mach.get('load_average_at_start')} -> {mach.get('load_average_at_end')}",
     )
-    for col, just in (("item", "left"), ("measurement", "left"), ("n", "right"), ("p50", "right"), ("p99", "right"), ("p99.9", "right"), ("max", "right"), ("floor", "left"), ("×p50", "right"), ("×p99", "right")):
+    columns: tuple[tuple[str, Literal["left", "right"]], ...] = (("item", "left"), ("measurement", "left"), ("n", "right"), ("p50", "right"), ("p99", "right"), ("p99.9", "right"), ("max", "right"), ("floor", "left"), ("×p50", "right"), ("×p99", "right"))
+    for col, just in columns:
         table.add_column(col, justify=just, overflow="fold")
     problems: list[Text] = []
     notes: list[Text] = []

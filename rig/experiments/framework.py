@@ -251,7 +251,11 @@ class ExperimentContext:
         """A bar advanced by hand: ``with ctx.progress_task("ticks", n) as advance: ... advance(1)``."""
         with self._progress() as prog:
             task = prog.add_task(description, total=total)
-            yield lambda step=1.0: prog.advance(task, step)
+
+            def advance(step: float = 1.0) -> None:
+                prog.advance(task, step)
+
+            yield advance
 
 
 # --------------------------------------------------------------------------- runners

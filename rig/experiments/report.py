@@ -214,11 +214,11 @@ class Report:
                 lines.append(f"| {_cell(c.claim)} | {_cell(c.observed)} | {mark} |")
             lines.append("")
         if self.checks:
-            passed = sum(c.passed for c in self.checks)
+            passed = sum(chk.passed for chk in self.checks)
             lines += ["", "## Checks", "", f"{passed} of {len(self.checks)} passed.", ""]
             lines += ["| check | result | detail |", "| --- | :---: | --- |"]
-            for c in self.checks:
-                lines.append(f"| {_cell(c.name)} | {'pass' if c.passed else '**FAIL**'} | {_cell(c.detail)} |")
+            for chk in self.checks:
+                lines.append(f"| {_cell(chk.name)} | {'pass' if chk.passed else '**FAIL**'} | {_cell(chk.detail)} |")
             lines.append("")
         if self.attachments:
             lines += ["", "## Files", ""]

@@ -29,6 +29,7 @@ no estimate.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -144,7 +145,7 @@ def run(ctx: ExperimentContext) -> Report:
     )
 
     # -------------------------------------------------------------- one draw per level: per-triplet plots
-    examples = {}
+    examples: dict[str, dict[str, Any]] = {}
     for label, eps in NOISE_LEVELS:
         h = add_noise(h0, eps, show_rng)
         mag = np.abs(h)
