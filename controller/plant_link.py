@@ -14,11 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol import can_map
-from protocol.can_map import NmtCommand, NmtState
+from protocol.can_map import OD_SAMPLE_PERIOD, NmtCommand, NmtState
 from protocol.errors import FrameError
-
-OD_SAMPLE_PERIOD = 0x2000
-"""The plant node's nominal SYNC period in µs (manufacturer-specific, see protocol/ralf_io.eds)."""
 
 log = logging.getLogger(__name__)
 

@@ -69,6 +69,22 @@ OD_ANALOG_INPUT_16: Final[int] = 0x6401
 OD_ANALOG_INPUT_32: Final[int] = 0x6402
 OD_ANALOG_OUTPUT_16: Final[int] = 0x6411
 
+# Manufacturer-specific objects of the plant node (protocol/ralf_io.eds), which
+# the controller configures by SDO before it starts the node.
+OD_SAMPLE_PERIOD: Final[int] = 0x2000
+"""UNSIGNED32, µs: the nominal SYNC period; the plant steps by it and its watchdog counts in it."""
+OD_ADC_RESOLUTION: Final[int] = 0x2001
+"""UNSIGNED8, bits: one of :data:`ADC_RESOLUTIONS`."""
+OD_VALVE_LIMIT: Final[int] = 0x2002
+"""REAL32, V: analog outputs are clipped to ± this."""
+OD_WATCHDOG_PERIODS: Final[int] = 0x2003
+"""UNSIGNED16: SYNC watchdog in sample periods; 0 disables it (refused while OPERATIONAL)."""
+OD_DIAGNOSTICS: Final[int] = 0x2010
+"""ARRAY of UNSIGNED32: the node's diagnostic counters."""
+
+ADC_RESOLUTIONS: Final[tuple[int, ...]] = (12, 16, 20)
+"""A/D resolutions the plant node offers on 0x2001 (above 16 bits TPDO2/3 carry 0x6402)."""
+
 
 class NmtCommand(enum.IntEnum):
     """CiA 301 NMT node-control commands."""

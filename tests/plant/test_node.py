@@ -14,14 +14,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plant_emulator.node import CanopenNode, NodeConfig, error_register_bits
-from plant_emulator.object_dictionary import (
-    DataType,
-    SdoAbortCode,
-    object_table,
-    render_eds,
-)
-from plant_emulator.sdo_server import SdoServer
+from plant_emulator.canopen_node import CanopenNode, NodeConfig, error_register_bits, object_table, render_eds
+from plant_emulator.canopen_node.od import DataType, SdoAbortCode
+from plant_emulator.canopen_node.sdo_server import SdoServer
 from protocol.can_map import (
     ADC12,
     DAC12,
@@ -408,7 +403,7 @@ def test_malformed_frames_counted_logged_once_and_ignored(caplog: pytest.LogCapt
     rig = Rig()
     rig.nmt(NmtCommand.START)
     rig.sync()
-    caplog.set_level(logging.WARNING, logger="plant_emulator.node")
+    caplog.set_level(logging.WARNING, logger="plant_emulator.canopen_node.node")
     bad = [
         ("nmt_dlc", frame(NMT, [1])),
         ("nmt_command", frame(NMT, [0x03, 1])),
@@ -556,7 +551,7 @@ def test_sdo_server_transfers_and_abort_codes() -> None:
 
 
 def test_shipped_eds_is_rendered_from_the_table() -> None:
-    assert EDS.read_text() == render_eds(), "regenerate: python -m plant_emulator.object_dictionary > protocol/ralf_io.eds"
+    assert EDS.read_text() == render_eds(), "regenerate: python -m plant_emulator.canopen_node > protocol/ralf_io.eds"
 
 
 def test_eds_loads_in_canopen_and_agrees_with_the_running_dictionary() -> None:

@@ -24,7 +24,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Final
 
-from plant_emulator.object_dictionary import ObjectDictionary, SdoAbort, SdoAbortCode
+from plant_emulator.canopen_node.od import ObjectDictionary, SdoAbort, SdoAbortCode
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class SdoServer:
                 self.counters.client_aborts += 1
                 return None
             raise SdoAbort(SdoAbortCode.INVALID_COMMAND, f"command specifier {ccs} not supported")
-        except Exception as exc:  # noqa: BLE001 - a server never dies of one request
+        except Exception as exc:
             if isinstance(exc, SdoAbort):
                 e = exc
             else:
