@@ -7,7 +7,7 @@ Frames (node id ``n``, default :data:`DEFAULT_NODE_ID`):
 frame      COB-ID        DLC    payload
 =========  ============  =====  =============================================
 NMT        0x000         2      command, node id (0 = all)
-SYNC       0x080         1      counter 1..240 (CiA 301 SYNC counter)
+SYNC       0x080         0/1    counter 1..240 (CiA 301 SYNC counter), or none
 EMCY       0x080 + n     8      error code (u16), error register, 5 vendor bytes
 TPDO1      0x180 + n     8      analog inputs 1-4, 0x6401 sub 1-4 (INT16 LE)
 TPDO2      0x280 + n     8      analog inputs 1-2, 0x6402 sub 1-2 (INT32 LE)
@@ -119,6 +119,11 @@ class EmcyCode(enum.IntEnum):
     """No SYNC for the watchdog time: valves held at zero (vendor use of the RPDO-timeout class)."""
     JOINT_LIMIT = 0xFF01
     """A joint reached a hard stop (manufacturer specific)."""
+    SYNC_CONFLICT = 0xFF02
+    """SYNC counters that one producer cannot give (a repeat, a jump back, counter and no counter
+    mixed): a second SYNC producer on the bus (manufacturer specific)."""
+    RPDO_CONFLICT = 0xFF03
+    """More RPDO1 frames in one SYNC period than SYNCs in it: a second RPDO producer (manufacturer specific)."""
 
 
 def cob_ids(node_id: int = DEFAULT_NODE_ID) -> dict[str, int]:

@@ -30,9 +30,17 @@ class NodeCounters:
     """SYNCs repeating the previous counter"""
     samples: int = 0
     """on_sync calls that produced TPDOs"""
+    sync_conflicts: int = 0
+    """SYNCs whose counter one producer cannot give (repeat, jump back, mixed forms): a second producer"""
+    rpdo_conflicts: int = 0
+    """SYNC periods with more RPDO1 frames than SYNCs: a second RPDO producer"""
     watchdog_trips: int = 0
     watchdog_recoveries: int = 0
-    """trips ended by a SYNC (trips ended by NMT are not counted here)"""
+    """trips ended by a SYNC or RPDO1 (trips ended by NMT are not counted here)"""
+    rpdo_timeouts: int = 0
+    """trips with SYNC present but no RPDO1 for the watchdog time (counted in watchdog_trips too)"""
+    watchdog_disable_refused: int = 0
+    """SDO writes of 0x2003 = 0 refused"""
     outputs_applied: int = 0
     clipped_outputs: int = 0
     """output writes (RPDO or SDO) with at least one channel clipped"""

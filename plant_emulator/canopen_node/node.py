@@ -23,11 +23,17 @@ Behaviour (node id ``n``, see :mod:`protocol.can_map` for the frames):
   hooks if they change), RESET_COMMUNICATION only 0x1000-0x1FFF.
 * **Heartbeat** producer, period 0x1017 (ms, 0 = off), first beat one
   period after boot-up; late beats are not bunched up.
-* **SYNC** consumer: with 0x1019 = 240 (default) a SYNC carries the counter
-  byte 1..240; gaps are counted with :func:`protocol.can_map.sync_gap`, a
-  repeated counter separately. 0x1019 = 0 selects SYNC without counter
-  (DLC 0, e.g. ``canopen``'s periodic SyncProducer); ``on_sync`` then
-  gets counter 0. On each SYNC in OPERATIONAL: ``app.on_sync(counter)`` ->
+* **SYNC** consumer: SYNC with counter (DLC 1, counter 1..0x1019) and SYNC
+  without counter (DLC 0, e.g. ``canopen``'s ``network.sync.start``) are
+  both accepted with the default 0x1019 = 240 (CiA 301 allows both);
+  0x1019 = 0 accepts only SYNC without counter. ``on_sync`` gets counter 0
+  for a SYNC without counter. Gaps are counted with
+  :func:`protocol.can_map.sync_gap`. What one producer cannot send (a
+  repeated counter, a jump back by half the range or more, SYNC with and
+  without counter mixed within one OPERATIONAL session) is a second SYNC
+  producer: counted in ``sync_conflicts`` and EMCY SYNC_CONFLICT, reset
+  after :data:`CONFLICT_CLEAR_PERIODS` clean SYNCs. On each SYNC in
+  OPERATIONAL: ``app.on_sync(counter)`` ->
   codes at the ADC resolution (0x2001) -> TPDO1 with 0x6401 (INT16,
   left-justified: ``code << (16 - bits)``; above 16 bits the 16 most
   significant bits, ``code >> (bits - 16)``). Above 16 bits TPDO2 and TPDO3
@@ -44,14 +50,24 @@ Behaviour (node id ``n``, see :mod:`protocol.can_map` for the frames):
   clipped condition sends EMCY OUTPUT_CLIPPED once, leaving it the reset
   EMCY. An SDO write of 0x6411 applies the outputs the same way (only in
   OPERATIONAL). Wrong-length RPDOs raise EMCY PDO_LENGTH (once per run of
-  bad frames; cleared by the next good one).
+  bad frames; cleared by the next good one). More RPDO1 frames in one SYNC
+  period than SYNCs in it (1 + the SYNCs the counter says were lost) is a
+  second RPDO producer: ``rpdo_conflicts`` and EMCY RPDO_CONFLICT, reset
+  after :data:`CONFLICT_CLEAR_PERIODS` clean periods.
 * **Watchdog**: armed by the first SYNC received in OPERATIONAL; when no SYNC
   arrives for 0x2003 periods of 0x2000 (default 5 x 5 ms) the node calls
   ``app.on_watchdog(True)`` (the app drives the valves to zero and holds),
-  sends EMCY SYNC_TIMEOUT and holds further RPDOs (counted, not applied);
-  the next SYNC calls ``app.on_watchdog(False)``, sends the reset EMCY and
-  resumes (outputs stay at zero until the next RPDO). 0x2003 = 0 disables
-  it (lockstep runs whose SYNC pauses are not faults).
+  sends EMCY SYNC_TIMEOUT (vendor byte 1 = 0) and holds further RPDOs
+  (counted, not applied); the next SYNC calls ``app.on_watchdog(False)``,
+  sends the reset EMCY and resumes (outputs stay at zero until the next
+  RPDO). Once an RPDO1 has been received, RPDO1 feeds the watchdog as well
+  (the CiA 301 RPDO timeout): SYNC still arriving but no RPDO1 for the same
+  time trips it the same way (vendor byte 1 = 1, counted in
+  ``rpdo_timeouts``), so somebody else's SYNC stream cannot keep the valves
+  open for a controller that froze; the next RPDO1 releases it (that frame
+  is held, the following one applies). 0x2003 = 0 disables the watchdog in
+  :class:`NodeConfig` only: an SDO write of 0 is refused (abort 0x08000022,
+  counted in ``watchdog_disable_refused``); lockstep runs use a long time.
 * **EMCY**: one frame when a fault appears (codes of
   :class:`protocol.can_map.EmcyCode`, the error register 0x1001 updated,
   the code also pushed onto 0x1003), and code 0x0000 when it clears, with
@@ -124,6 +140,8 @@ from protocol.can_map import (
 
 log = logging.getLogger(__name__)
 
+CONFLICT_CLEAR_PERIODS: Final[int] = 10
+"""Clean SYNC periods after which a SYNC or RPDO conflict EMCY is reset."""
 TIME_COB_ID: Final[int] = 0x100
 LSS_FIRST_COB_ID: Final[int] = 0x780
 """0x780.. (LSS 0x7E4/0x7E5 and friends) never belong to a node id."""
@@ -204,6 +222,12 @@ class CanopenNode:
         self._error_history: list[int] = []
         self._tripped = False
         self._wd_last: float | None = None
+        self._rpdo_last: float | None = None
+        """last RPDO1 in OPERATIONAL: the watchdog's second input (armed by the first RPDO)"""
+        self._trip_cause = "sync"
+        self._rpdos_in_period = 0
+        self._sync_conflict_clean = 0
+        self._rpdo_conflict_clean = 0
         self._last_sync_counter: int | None = None
         self._hb_next: float | None = None
         self._outputs_v = _ZERO_OUTPUTS.copy()
@@ -324,6 +348,7 @@ class CanopenNode:
         od.on_write(OD_SAMPLE_PERIOD, 0, self._write_sample_period)
         od.on_write(OD_ADC_RESOLUTION, 0, self._write_adc_resolution)
         od.on_write(OD_VALVE_LIMIT, 0, self._write_valve_limit)
+        od.on_write(OD_WATCHDOG_PERIODS, 0, self._write_watchdog_periods)
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             od.on_write(OD_ANALOG_OUTPUT_16, sub, self._output_writer(sub))
 
@@ -365,6 +390,14 @@ class CanopenNode:
             raise SdoAbort(SdoAbortCode.CANNOT_STORE, f"application refused {bits} bits: {e}") from e
         self._update_tpdo_valid(bits)
         log.info("node %d: ADC resolution %d bits", self.node_id, bits)
+
+    def _write_watchdog_periods(self, value: Value) -> None:
+        if int(value) == 0:
+            self.counters.watchdog_disable_refused += 1
+            log.warning("node %d: SDO write 0x2003 = 0 (watchdog off) refused; only the node's configuration "
+                        "disables it", self.node_id)
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
+                           "the SYNC watchdog cannot be disabled over the bus (use a longer time)")
 
     def _write_valve_limit(self, value: Value) -> None:
         v = float(value)
@@ -423,7 +456,7 @@ class CanopenNode:
         elif not ours:
             self.counters.rx["foreign"] += 1
         elif cob_id == self.ids["rpdo1"]:
-            self._on_rpdo(msg, data)
+            self._on_rpdo(msg, data, now)
         elif cob_id == self.ids["sdo_rx"]:
             self._on_sdo(msg, data)
         elif cob_id in self._own_ids:
@@ -465,12 +498,16 @@ class CanopenNode:
             self.counters.rx["sync_stopped"] += 1
             return
         overflow = int(self.od.get(0x1019))
-        if overflow == 0:
-            if data:
+        missed = 0
+        conflict = ""
+        if not data:
+            counter = 0  # SYNC without counter: accepted whatever 0x1019 says (CiA 301 allows both)
+            if self._last_sync_counter:
+                conflict = "a SYNC without counter among SYNCs with counter"
+        else:
+            if overflow == 0:
                 self._malformed("sync_dlc", msg, "0x1019 = 0: SYNC without counter expected (DLC 0)")
                 return
-            counter = 0
-        else:
             if len(data) != 1:
                 self._malformed("sync_dlc", msg, f"SYNC with counter takes 1 byte, got {len(data)}")
                 return
@@ -479,25 +516,66 @@ class CanopenNode:
                 self._malformed("sync_counter", msg, f"SYNC counter {counter} outside 1..{overflow}")
                 return
             prev = self._last_sync_counter
-            if prev is not None:
+            if prev == 0:
+                conflict = "a SYNC with counter among SYNCs without counter"
+            elif prev is not None:
                 if counter == prev:
                     self.counters.sync_repeats += 1
+                    conflict = f"SYNC counter {counter} repeated"
                 else:
                     gap = sync_gap(prev, counter)
-                    if gap:
+                    if gap >= overflow // 2:
+                        conflict = f"SYNC counter went back from {prev} to {counter}"
+                    elif gap:
+                        missed = gap
                         self.counters.sync_gaps += 1
                         self.counters.syncs_missed += gap
                         log.debug("node %d: SYNC gap %d -> %d (%d missed)", self.node_id, prev, counter, gap)
             self._last_sync_counter = counter
+        if not data:
+            self._last_sync_counter = 0
         self.counters.sync_received += 1
+        self._check_sync_conflict(conflict)
         if self.state is not NmtState.OPERATIONAL:
             return
-        if self._tripped:
-            self._recover()
+        self._check_rpdo_conflict(missed)
+        if self._tripped and self._trip_cause == "sync":
+            self._recover(now)
         self._wd_last = now
         self._sample(counter)
 
-    def _on_rpdo(self, msg: can.Message, data: bytes) -> None:
+    def _check_sync_conflict(self, conflict: str) -> None:
+        """A second SYNC producer shows in the counters (repeats, jumps back,
+        mixed forms): EMCY SYNC_CONFLICT until CONFLICT_CLEAR_PERIODS clean SYNCs."""
+        if conflict:
+            self.counters.sync_conflicts += 1
+            self._sync_conflict_clean = 0
+            if int(EmcyCode.SYNC_CONFLICT) not in self._faults:
+                log.warning("node %d: %s: a second SYNC producer on the bus?", self.node_id, conflict)
+            self._set_fault(EmcyCode.SYNC_CONFLICT, True, bytes([self._last_sync_counter or 0]))
+        elif int(EmcyCode.SYNC_CONFLICT) in self._faults:
+            self._sync_conflict_clean += 1
+            if self._sync_conflict_clean >= CONFLICT_CLEAR_PERIODS:
+                self._set_fault(EmcyCode.SYNC_CONFLICT, False)
+
+    def _check_rpdo_conflict(self, missed: int) -> None:
+        """At each SYNC: more RPDO1s in the period just ended than SYNCs in it
+        (1 + the SYNCs the counter says were lost) means a second producer:
+        EMCY RPDO_CONFLICT until CONFLICT_CLEAR_PERIODS clean periods."""
+        n, self._rpdos_in_period = self._rpdos_in_period, 0
+        if n > 1 + missed:
+            self.counters.rpdo_conflicts += 1
+            self._rpdo_conflict_clean = 0
+            if int(EmcyCode.RPDO_CONFLICT) not in self._faults:
+                log.warning("node %d: %d RPDO1 in one SYNC period: a second RPDO producer on the bus?",
+                            self.node_id, n)
+            self._set_fault(EmcyCode.RPDO_CONFLICT, True, bytes([min(n, 255)]))
+        elif int(EmcyCode.RPDO_CONFLICT) in self._faults:
+            self._rpdo_conflict_clean += 1
+            if self._rpdo_conflict_clean >= CONFLICT_CLEAR_PERIODS:
+                self._set_fault(EmcyCode.RPDO_CONFLICT, False)
+
+    def _on_rpdo(self, msg: can.Message, data: bytes, now: float) -> None:
         self.counters.rx["rpdo"] += 1
         if self.state is not NmtState.OPERATIONAL:
             self._malformed("rpdo_not_operational", msg, f"RPDO in {self.state.name}, PDOs need NMT START")
@@ -509,7 +587,11 @@ class CanopenNode:
         self._set_fault(EmcyCode.PDO_LENGTH, False)
         if self._tripped:
             self.counters.outputs_held += 1
+            if self._trip_cause == "rpdo":
+                self._recover(now)  # the controller is back; this frame is held, the next one applies
             return
+        self._rpdo_last = now
+        self._rpdos_in_period += 1  # held frames (tripped) are not counted
         self._apply_outputs(decode_analog_outputs(data))
 
     def _on_sdo(self, msg: can.Message, data: bytes) -> None:
@@ -534,6 +616,8 @@ class CanopenNode:
         self._hb_next = None
         self._last_sync_counter = None
         self._wd_last = None
+        self._rpdo_last = None
+        self._rpdos_in_period = 0
         log.info("node %d: boot-up, PRE-OPERATIONAL", self.node_id)
 
     def _enter(self, new: NmtState) -> None:
@@ -546,9 +630,13 @@ class CanopenNode:
             self._leave_operational()
         if new is NmtState.OPERATIONAL:
             self._wd_last = None  # armed by the first SYNC
+            self._rpdo_last = None  # and by the first RPDO
+            self._last_sync_counter = None  # a new master may count differently
+            self._rpdos_in_period = 0
 
     def _leave_operational(self) -> None:
         self._wd_last = None
+        self._rpdo_last = None
         if self._tripped:
             self._tripped = False
             self._call_app("on_watchdog", self.app.on_watchdog, False)
@@ -660,23 +748,38 @@ class CanopenNode:
         if self.state is not NmtState.OPERATIONAL or self._tripped or self._wd_last is None:
             return None
         timeout = self.watchdog_timeout_s
-        return self._wd_last + timeout if timeout > 0 else None
+        if timeout <= 0:
+            return None
+        last = self._wd_last if self._rpdo_last is None else min(self._wd_last, self._rpdo_last)
+        return last + timeout
 
     def _trip(self, now: float) -> None:
+        assert self._wd_last is not None
+        # SYNC silent, or SYNC still coming but the RPDOs stopped: someone else's
+        # SYNC stream must not keep the valves open for a controller that froze.
+        self._trip_cause = "rpdo" if self._rpdo_last is not None and self._rpdo_last < self._wd_last else "sync"
         self._tripped = True
         self.counters.watchdog_trips += 1
-        assert self._wd_last is not None
-        log.warning("node %d: no SYNC for %.1f ms: watchdog tripped, valves held at zero",
-                    self.node_id, (now - self._wd_last) * 1e3)
+        if self._trip_cause == "sync":
+            log.warning("node %d: no SYNC for %.1f ms: watchdog tripped, valves held at zero",
+                        self.node_id, (now - self._wd_last) * 1e3)
+        else:
+            self.counters.rpdo_timeouts += 1
+            assert self._rpdo_last is not None
+            log.warning("node %d: SYNC present but no RPDO1 for %.1f ms: watchdog tripped, valves held at zero",
+                        self.node_id, (now - self._rpdo_last) * 1e3)
         self._zero_outputs()
         self._call_app("on_watchdog", self.app.on_watchdog, True)
-        self._set_fault(EmcyCode.SYNC_TIMEOUT, True, bytes([self._last_sync_counter or 0]))
+        cause = 0 if self._trip_cause == "sync" else 1
+        self._set_fault(EmcyCode.SYNC_TIMEOUT, True, bytes([self._last_sync_counter or 0, cause]))
         self._set_fault(EmcyCode.OUTPUT_CLIPPED, False)
 
-    def _recover(self) -> None:
+    def _recover(self, now: float) -> None:
         self._tripped = False
         self.counters.watchdog_recoveries += 1
-        log.info("node %d: SYNC back, watchdog released", self.node_id)
+        log.info("node %d: %s back, watchdog released", self.node_id, "SYNC" if self._trip_cause == "sync" else "RPDO1")
+        self._wd_last = now
+        self._rpdo_last = now if self._rpdo_last is not None else None
         self._call_app("on_watchdog", self.app.on_watchdog, False)
         self._set_fault(EmcyCode.SYNC_TIMEOUT, False)
 
