@@ -158,7 +158,7 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             ),
         ),
         _var(0x1019, "Synchronous counter overflow value", DataType.UNSIGNED8, Access.RW, cfg.sync_counter_overflow,
-             high=240, description="240: SYNC carries a counter 1..240; 0: SYNC without counter"),
+             high=240, description="240: SYNC with a counter 1..240 and SYNC without counter both accepted; 0: only SYNC without counter"),
         ObjectDef(
             0x1400,
             "RPDO1 communication parameter",
@@ -186,7 +186,7 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
         _var(OD_VALVE_LIMIT, "Valve voltage limit", DataType.REAL32, Access.RW, cfg.valve_limit_v, unit="V",
              description="analog outputs are clipped to +-limit (0 < limit <= 10)"),
         _var(OD_WATCHDOG_PERIODS, "SYNC watchdog periods", DataType.UNSIGNED16, Access.RW, cfg.watchdog_periods,
-             description="valves to zero after this many sample periods without SYNC; 0 disables"),
+             description="valves to zero after this many sample periods without SYNC (or RPDO1 once one came); 0 (off) is refused by SDO"),
         ObjectDef(
             OD_DIAGNOSTICS,
             "Diagnostic counters",

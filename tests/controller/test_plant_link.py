@@ -17,7 +17,7 @@ from pathlib import Path
 
 import can
 import canopen
-import msgpack
+import msgpack  # type: ignore[import-untyped]
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -200,7 +200,7 @@ def test_the_plants_conflict_emcys_reach_the_link_as_conflicts() -> None:
 def test_a_new_controller_recovers_the_node_from_a_rogue_nmt_stop() -> None:
     """Before: a rogue NMT STOP left the node STOPPED and the next controller could
     not start it. Now start_node resets the node's communication first."""
-    with virtual_rig() as (link, node, rogue, _):
+    with virtual_rig() as (link, node, rogue, channel):
         link.start_node(timeout=2.0, sample_period_s=0.005)
         run_ticks(link, 3)
         rogue.send(frame(can_map.NMT_COB_ID, can_map.encode_nmt(NmtCommand.STOP, 1)))
@@ -210,7 +210,7 @@ def test_a_new_controller_recovers_the_node_from_a_rogue_nmt_stop() -> None:
         assert node.state is NmtState.STOPPED
         link.poll(0.05)
         assert link.counters.foreign_nmt == 1
-        fresh = PlantLink(can.Bus(interface="virtual", channel=link.bus.channel_id), 1)  # the next controller
+        fresh = PlantLink(can.Bus(interface="virtual", channel=channel), 1)  # the next controller
         try:
             fresh.start_node(timeout=2.0, sample_period_s=0.005)
             assert node.state is NmtState.OPERATIONAL and fresh.counters.comm_resets == 1
