@@ -19,6 +19,7 @@ kind is logged at most once per :data:`LOG_INTERVAL_S`.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -30,7 +31,14 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol import can_map
-from protocol.can_map import OD_SAMPLE_PERIOD, NmtCommand, NmtState
+from protocol.can_map import (
+    OD_RPDO1_COMM,
+    OD_RPDO_EVENT_TIMER_SUB,
+    OD_SAMPLE_PERIOD,
+    OD_WATCHDOG_PERIODS,
+    NmtCommand,
+    NmtState,
+)
 from protocol.errors import FrameError
 
 log = logging.getLogger(__name__)
@@ -330,12 +338,17 @@ class PlantLink:
     def start_node(self, timeout: float, stop: threading.Event | None = None, sample_period_s: float | None = None) -> None:
         """Reset the node's communication (NMT, so a rogue STOP or another
         master's settings do not block this run), configure its sample period
-        by SDO (object 0x2000, so plant, watchdog and controller agree on it),
-        NMT start, then wait until the heartbeat says operational."""
+        by SDO (object 0x2000, so plant, watchdog and controller agree on it)
+        and RPDO1's event timer (0x1400 sub 5 = the SYNC watchdog time, so a
+        foreign SYNC stream cannot keep the valves open if this controller
+        freezes), NMT start, then wait until the heartbeat says operational."""
         self.wait_for_node(timeout, stop)
         self.reset_communication(timeout, stop)
         if sample_period_s is not None:
             self.sdo_write_u32(OD_SAMPLE_PERIOD, 0, round(sample_period_s * 1e6))
+            # RPDO1 is cyclic from here on: its event timer (deadline monitoring) = the SYNC watchdog time
+            periods = self.sdo_read(OD_WATCHDOG_PERIODS, 0)
+            self.sdo_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, min(0xFFFF, math.ceil(periods * sample_period_s * 1e3)), 2)
         deadline = self._now() + timeout
         self.nmt(NmtCommand.START)
         while self.node_state != NmtState.OPERATIONAL:
@@ -349,24 +362,46 @@ class PlantLink:
                 self.nmt(NmtCommand.START)
         self.discard_pending()
 
-    def sdo_write_u32(self, index: int, subindex: int, value: int, timeout: float = 1.0) -> None:
-        """Expedited SDO download of a 32-bit value (CiA 301); an abort or no
-        answer is a :class:`PlantFault` naming the object."""
+    def _sdo(self, request: bytes, what: str, timeout: float) -> bytes:
+        """Send an expedited SDO request and return the node's answer to it
+        (an answer for another object, e.g. to someone else's request, is skipped)."""
         self._sdo_response = None
-        data = bytes([0x23, index & 0xFF, index >> 8, subindex]) + int(value).to_bytes(4, "little")
-        self._send(self._sdo_rx, data)
+        self._send(self._sdo_rx, request)
         deadline = self._now() + timeout
-        while self._sdo_response is None:
+        while True:
+            reply = self._sdo_response
+            if reply is not None and reply[1:4] == request[1:4]:
+                break
+            self._sdo_response = None
             remaining = deadline - self._now()
             if remaining <= 0:
-                raise PlantFault(f"no SDO answer from the plant node writing 0x{index:04X}:{subindex}")
+                raise PlantFault(f"no SDO answer from the plant node {what}")
             self.poll(timeout=min(remaining, 0.05))
-        reply = self._sdo_response
         if reply[0] == 0x80:
             code = int.from_bytes(reply[4:8], "little")
-            raise PlantFault(f"the plant node refused 0x{index:04X}:{subindex} = {value} (SDO abort 0x{code:08X})")
-        if reply[0] != 0x60 or reply[1:4] != data[1:4]:
+            raise PlantFault(f"the plant node refused {what} (SDO abort 0x{code:08X})")
+        return reply
+
+    def sdo_write(self, index: int, subindex: int, value: int, size: int = 4, timeout: float = 1.0) -> None:
+        """Expedited SDO download of a ``size``-byte unsigned value (CiA 301); an
+        abort or no answer is a :class:`PlantFault` naming the object."""
+        command = 0x23 | ((4 - size) << 2)
+        data = bytes([command, index & 0xFF, index >> 8, subindex]) + int(value).to_bytes(size, "little").ljust(4, b"\x00")
+        reply = self._sdo(data, f"writing 0x{index:04X}:{subindex} = {value}", timeout)
+        if reply[0] != 0x60:
             raise PlantFault(f"unexpected SDO answer {reply.hex()} writing 0x{index:04X}:{subindex}")
+
+    def sdo_write_u32(self, index: int, subindex: int, value: int, timeout: float = 1.0) -> None:
+        self.sdo_write(index, subindex, value, 4, timeout)
+
+    def sdo_read(self, index: int, subindex: int, timeout: float = 1.0) -> int:
+        """Expedited SDO upload of an unsigned value (up to 4 bytes)."""
+        what = f"reading 0x{index:04X}:{subindex}"
+        reply = self._sdo(bytes([0x40, index & 0xFF, index >> 8, subindex, 0, 0, 0, 0]), what, timeout)
+        if reply[0] & 0xE2 != 0x42:
+            raise PlantFault(f"unexpected SDO answer {reply.hex()} {what}")
+        n = 4 - ((reply[0] >> 2) & 0x3) if reply[0] & 0x01 else 4
+        return int.from_bytes(reply[4 : 4 + n], "little")
 
     def heartbeat_age(self) -> float:
         return float("inf") if self.last_heartbeat is None else self._now() - self.last_heartbeat

@@ -69,6 +69,11 @@ OD_ANALOG_INPUT_16: Final[int] = 0x6401
 OD_ANALOG_INPUT_32: Final[int] = 0x6402
 OD_ANALOG_OUTPUT_16: Final[int] = 0x6411
 
+OD_RPDO1_COMM: Final[int] = 0x1400
+"""RPDO1 communication parameter."""
+OD_RPDO_EVENT_TIMER_SUB: Final[int] = 5
+"""0x1400 sub 5, UNSIGNED16 ms: RPDO1 deadline monitoring (CiA 301 RPDO event timer), 0 = off."""
+
 # Manufacturer-specific objects of the plant node (protocol/ralf_io.eds), which
 # the controller configures by SDO before it starts the node.
 OD_SAMPLE_PERIOD: Final[int] = 0x2000

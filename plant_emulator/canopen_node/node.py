@@ -50,21 +50,25 @@ Behaviour (node id ``n``, see :mod:`protocol.can_map` for the frames):
   clipped condition sends EMCY OUTPUT_CLIPPED once, leaving it the reset
   EMCY. An SDO write of 0x6411 applies the outputs the same way (only in
   OPERATIONAL). Wrong-length RPDOs raise EMCY PDO_LENGTH (once per run of
-  bad frames; cleared by the next good one). More RPDO1 frames in one SYNC
-  period than SYNCs in it (1 + the SYNCs the counter says were lost) is a
-  second RPDO producer: ``rpdo_conflicts`` and EMCY RPDO_CONFLICT, reset
-  after :data:`CONFLICT_CLEAR_PERIODS` clean periods.
+  bad frames; cleared by the next good one). While RPDO1 is declared cyclic
+  (its event timer 0x1400 sub 5 > 0, see the watchdog), more RPDO1 frames
+  in one SYNC period than SYNCs in it (1 + the SYNCs the counter says were
+  lost) is a second RPDO producer: ``rpdo_conflicts`` and EMCY
+  RPDO_CONFLICT, reset after :data:`CONFLICT_CLEAR_PERIODS` clean periods;
+  event-driven masters (event timer 0) may send as many as they like.
 * **Watchdog**: armed by the first SYNC received in OPERATIONAL; when no SYNC
   arrives for 0x2003 periods of 0x2000 (default 5 x 5 ms) the node calls
   ``app.on_watchdog(True)`` (the app drives the valves to zero and holds),
   sends EMCY SYNC_TIMEOUT (vendor byte 1 = 0) and holds further RPDOs
   (counted, not applied); the next SYNC calls ``app.on_watchdog(False)``,
   sends the reset EMCY and resumes (outputs stay at zero until the next
-  RPDO). Once an RPDO1 has been received, RPDO1 feeds the watchdog as well
-  (the CiA 301 RPDO timeout): SYNC still arriving but no RPDO1 for the same
-  time trips it the same way (vendor byte 1 = 1, counted in
-  ``rpdo_timeouts``), so somebody else's SYNC stream cannot keep the valves
-  open for a controller that froze; the next RPDO1 releases it (that frame
+  RPDO). RPDO1 deadline monitoring (CiA 301: the RPDO event timer, 0x1400
+  sub 5 in ms, 0 = off by default; the controller sets it to the watchdog
+  time, and it is written only outside OPERATIONAL): no RPDO1 for that long
+  after the first one trips the watchdog the same way even while SYNC keeps
+  coming (vendor byte 1 = 1, counted in ``rpdo_timeouts``), so somebody
+  else's SYNC stream cannot keep the valves open for a controller that
+  froze; the next RPDO1 releases it (that frame
   is held, the following one applies). 0x2003 = 0 disables the watchdog in
   :class:`NodeConfig` only: an SDO write of 0 is refused (abort 0x08000022,
   counted in ``watchdog_disable_refused``); lockstep runs use a long time.
@@ -120,6 +124,8 @@ from protocol.can_map import (
     OD_ANALOG_INPUT_32,
     OD_ANALOG_OUTPUT_16,
     OD_DIAGNOSTICS,
+    OD_RPDO1_COMM,
+    OD_RPDO_EVENT_TIMER_SUB,
     OD_SAMPLE_PERIOD,
     OD_VALVE_LIMIT,
     OD_WATCHDOG_PERIODS,
@@ -312,6 +318,11 @@ class CanopenNode:
         return int(self.od.get(0x1017)) * 1e-3
 
     @property
+    def rpdo_timeout_s(self) -> float:
+        """0x1400 sub 5, the RPDO1 event timer: deadline monitoring of RPDO1 (0 = off)."""
+        return int(self.od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3
+
+    @property
     def watchdog_timeout_s(self) -> float:
         """0 when the watchdog is disabled."""
         return int(self.od.get(OD_WATCHDOG_PERIODS)) * self.sample_period_s
@@ -349,6 +360,7 @@ class CanopenNode:
         od.on_write(OD_ADC_RESOLUTION, 0, self._write_adc_resolution)
         od.on_write(OD_VALVE_LIMIT, 0, self._write_valve_limit)
         od.on_write(OD_WATCHDOG_PERIODS, 0, self._write_watchdog_periods)
+        od.on_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, self._write_rpdo_timer)
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             od.on_write(OD_ANALOG_OUTPUT_16, sub, self._output_writer(sub))
 
@@ -398,6 +410,11 @@ class CanopenNode:
                         "disables it", self.node_id)
             raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
                            "the SYNC watchdog cannot be disabled over the bus (use a longer time)")
+
+    def _write_rpdo_timer(self, value: Value) -> None:
+        if self.state is NmtState.OPERATIONAL:
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
+                           "the RPDO1 event timer is set in PRE-OPERATIONAL (before NMT START)")
 
     def _write_valve_limit(self, value: Value) -> None:
         v = float(value)
@@ -559,10 +576,13 @@ class CanopenNode:
                 self._set_fault(EmcyCode.SYNC_CONFLICT, False)
 
     def _check_rpdo_conflict(self, missed: int) -> None:
-        """At each SYNC: more RPDO1s in the period just ended than SYNCs in it
-        (1 + the SYNCs the counter says were lost) means a second producer:
-        EMCY RPDO_CONFLICT until CONFLICT_CLEAR_PERIODS clean periods."""
+        """At each SYNC, while RPDO1 is declared cyclic (0x1400 sub 5 > 0): more
+        RPDO1s in the period just ended than SYNCs in it (1 + the SYNCs the
+        counter says were lost) means a second producer: EMCY RPDO_CONFLICT
+        until CONFLICT_CLEAR_PERIODS clean periods."""
         n, self._rpdos_in_period = self._rpdos_in_period, 0
+        if self.rpdo_timeout_s <= 0:
+            return  # RPDO1 not declared cyclic: event-driven masters may send several per period
         if n > 1 + missed:
             self.counters.rpdo_conflicts += 1
             self._rpdo_conflict_clean = 0
@@ -744,23 +764,28 @@ class CanopenNode:
 
     # --- watchdog ------------------------------------------------------------------------
 
+    def _deadlines(self) -> tuple[float | None, float | None]:
+        """(SYNC watchdog, RPDO1 deadline monitoring) while armed, else None."""
+        if self.state is not NmtState.OPERATIONAL or self._tripped:
+            return None, None
+        sync_timeout, rpdo_timeout = self.watchdog_timeout_s, self.rpdo_timeout_s
+        sync = self._wd_last + sync_timeout if self._wd_last is not None and sync_timeout > 0 else None
+        rpdo = self._rpdo_last + rpdo_timeout if self._rpdo_last is not None and rpdo_timeout > 0 else None
+        return sync, rpdo
+
     def _watchdog_deadline(self) -> float | None:
-        if self.state is not NmtState.OPERATIONAL or self._tripped or self._wd_last is None:
-            return None
-        timeout = self.watchdog_timeout_s
-        if timeout <= 0:
-            return None
-        last = self._wd_last if self._rpdo_last is None else min(self._wd_last, self._rpdo_last)
-        return last + timeout
+        times = [t for t in self._deadlines() if t is not None]
+        return min(times) if times else None
 
     def _trip(self, now: float) -> None:
-        assert self._wd_last is not None
-        # SYNC silent, or SYNC still coming but the RPDOs stopped: someone else's
+        # SYNC silent, or SYNC still coming but RPDO1 stopped: someone else's
         # SYNC stream must not keep the valves open for a controller that froze.
-        self._trip_cause = "rpdo" if self._rpdo_last is not None and self._rpdo_last < self._wd_last else "sync"
+        sync_deadline, _ = self._deadlines()
+        self._trip_cause = "sync" if sync_deadline is not None and now >= sync_deadline else "rpdo"
         self._tripped = True
         self.counters.watchdog_trips += 1
         if self._trip_cause == "sync":
+            assert self._wd_last is not None
             log.warning("node %d: no SYNC for %.1f ms: watchdog tripped, valves held at zero",
                         self.node_id, (now - self._wd_last) * 1e3)
         else:

@@ -164,11 +164,14 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             "RPDO1 communication parameter",
             ObjectKind.RECORD,
             (
-                _sub0(0x1400, 2),
+                _sub0(0x1400, 5),
                 Entry(0x1400, 1, "COB-ID used by RPDO", DataType.UNSIGNED32, Access.RO, PDO_NO_RTR + RPDO1_BASE,
                       node_relative=True),
                 Entry(0x1400, 2, "Transmission type", DataType.UNSIGNED8, Access.RO, TRANSMISSION_EVENT,
                       description="255: asynchronous, outputs applied on receipt"),
+                Entry(0x1400, 5, "Event timer", DataType.UNSIGNED16, Access.RW, 0, unit="ms",
+                      description="RPDO1 deadline monitoring: valves to zero when no RPDO1 for this long after the "
+                                  "first (0 off); written only outside OPERATIONAL"),
             ),
         ),
         _mapping(0x1600, "RPDO1 mapping parameter",

@@ -239,3 +239,25 @@ def test_a_stock_master_cannot_switch_the_watchdog_off_and_is_seen() -> None:
     assert node.counters.watchdog_disable_refused == 1
     assert link.counters.foreign_sdo >= 2  # the write and the read back
     assert int(EmcyCode.SYNC_CONFLICT) not in node.active_faults
+
+
+@pytest.mark.timeout(30)
+def test_a_foreign_sync_stream_cannot_hold_the_valves_open_for_a_frozen_controller() -> None:
+    """The controller sets RPDO1's event timer to the watchdog time at start;
+    when it freezes while a rogue keeps sending SYNC (raw frames, 5 ms, 30 of
+    them), the plant's watchdog trips on the missing RPDO1 all the same."""
+    with virtual_rig() as (link, node, rogue, _):
+        link.start_node(timeout=2.0, sample_period_s=0.005)
+        assert node.rpdo_timeout_s == pytest.approx(0.025)  # 5 periods of 5 ms, as 0x2003 says
+        assert run_ticks(link, 5) == 5 and not node.watchdog_tripped
+        for k in range(30):  # the controller is frozen; the rogue's SYNC keeps coming
+            rogue.send(frame(can_map.SYNC_COB_ID, bytes([100 + k])))
+            time.sleep(0.005)
+        assert node.watchdog_tripped and node.counters.rpdo_timeouts == 1
+        assert node.outputs_v.tolist() == [0.0, 0.0]
+        run_ticks(link, 3)  # the controller thaws: its RPDO1 releases the valves
+        assert not node.watchdog_tripped
+        link.poll(0.05)
+        conflicts = link.take_conflicts()
+    assert any(d.startswith("foreign sync") for d in conflicts)
+    assert any(e.code == EmcyCode.SYNC_TIMEOUT and e.vendor[1] == 1 for e in link.emergencies)

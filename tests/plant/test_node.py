@@ -720,6 +720,14 @@ def test_fuzz_sdo_server_answers_every_request_with_eight_bytes(start: bool, req
 def test_rpdo1_twice_in_a_sync_period_raises_rpdo_conflict() -> None:
     rig = Rig()
     rig.nmt(NmtCommand.START)
+    rig.sync()
+    for _ in range(3):  # event timer 0 (default): event-driven RPDOs, any number per period
+        rig.send(RPDO1, encode_analog_outputs([160, 0]), dt=0.001)
+    rig.sync()
+    assert rig.node.counters.rpdo_conflicts == 0
+    rig.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
+    assert rig.write(0x1400, 5, (25).to_bytes(2, "little"))[0] == 0x60  # RPDO1 cyclic, as the controller sets it
+    rig.nmt(NmtCommand.START)
     out: list[can.Message] = []
     for _ in range(3):  # one RPDO per SYNC period: no conflict
         out += rig.sync()
@@ -749,7 +757,10 @@ def test_a_foreign_sync_stream_does_not_feed_the_watchdog_of_a_frozen_controller
     else keeps sending SYNC: the missing RPDO1 trips the watchdog (valves to zero,
     EMCY SYNC_TIMEOUT with vendor byte 1 = 1); the controller's next RPDO1 releases it."""
     rig = Rig()
+    assert rig.read(0x1400, 5) == 0  # off by default: a master that sets its outputs once keeps them
+    assert rig.write(0x1400, 5, (25).to_bytes(2, "little"))[0] == 0x60  # what the controller sets
     rig.nmt(NmtCommand.START)
+    assert abort_code(rig.write(0x1400, 5, b"\x00\x00")) == SdoAbortCode.CANNOT_STORE_DEVICE_STATE
     for _ in range(10):
         rig.sync()
         rig.send(RPDO1, encode_analog_outputs([3200, 0]), dt=0.001)
