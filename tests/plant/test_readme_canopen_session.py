@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import re
 import threading
+import time
 from pathlib import Path
 
 import can
@@ -62,6 +63,9 @@ def test_the_readme_canopen_session_runs_against_the_node(
     monkeypatch.chdir(ROOT)
     try:
         exec(compile(readme_session(), "README.md", "exec"), {"__name__": "readme_session"})
+        deadline = time.monotonic() + 2.0  # the session's last NMT frame may still be on its way
+        while node.state is not NmtState.PRE_OPERATIONAL and time.monotonic() < deadline:
+            time.sleep(0.002)
     finally:
         stop.set()
         thread.join(2.0)
