@@ -251,7 +251,7 @@ class CanopenNode:
             self._now = now
             try:
                 self._dispatch(msg, now)
-            except Exception:
+            except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
                 self.counters.internal_errors += 1
                 log.exception("node %d: internal error handling %s", self.node_id, msg)
             self._start_timers(now)
@@ -384,7 +384,7 @@ class CanopenNode:
         if hook is not None:
             try:
                 hook(int(value) * 1e-6)
-            except Exception as e:
+            except Exception as e:  # noqa: BLE001 - the app refuses: abort, keep the old value
                 raise SdoAbort(SdoAbortCode.CANNOT_STORE, f"application refused the sample period: {e}") from e
 
     def _write_adc_resolution(self, value: Value) -> None:
@@ -398,7 +398,7 @@ class CanopenNode:
             raise SdoAbort(SdoAbortCode.CANNOT_STORE, "the application cannot change the ADC resolution")
         try:
             hook(bits)
-        except Exception as e:
+        except Exception as e:  # noqa: BLE001
             raise SdoAbort(SdoAbortCode.CANNOT_STORE, f"application refused {bits} bits: {e}") from e
         self._update_tpdo_valid(bits)
         log.info("node %d: ADC resolution %d bits", self.node_id, bits)
@@ -709,7 +709,7 @@ class CanopenNode:
                     raise ValueError("codes must be finite")
                 codes = np.rint(codes.astype(np.float64))
             codes = codes.astype(np.int64)
-        except Exception as e:
+        except Exception as e:  # noqa: BLE001 - a bad sample costs one TPDO, not the node
             self.counters.app_errors += 1
             self._log_once("app:on_sync_result", "node %d: on_sync returned unusable data: %s", self.node_id, e)
             return
@@ -872,7 +872,7 @@ class CanopenNode:
     def _call_app(self, name: str, fn: Callable[..., Any], *args: Any) -> Any:
         try:
             return fn(*args)
-        except Exception:
+        except Exception:  # noqa: BLE001 - the app's bug must not take the bus down
             self.counters.app_errors += 1
             if f"app:{name}" not in self._logged:
                 self._logged.add(f"app:{name}")

@@ -112,7 +112,7 @@ class SdoServer:
                 self.counters.client_aborts += 1
                 return None
             raise SdoAbort(SdoAbortCode.INVALID_COMMAND, f"command specifier {ccs} not supported")
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - a server never dies of one request
             if isinstance(exc, SdoAbort):
                 e = exc
             else:

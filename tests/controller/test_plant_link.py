@@ -23,7 +23,12 @@ import numpy.typing as npt
 import pytest
 
 from controller.plant_link import PlantLink, echoing_bus
-from plant_emulator.canopen_node import CanopenNode, NodeConfig, node_can_filters, run_node
+from plant_emulator.canopen_node import (
+    CanopenNode,
+    NodeConfig,
+    node_can_filters,
+    run_node,
+)
 from protocol import can_map
 from protocol.can_map import EmcyCode, NmtCommand, NmtState
 
@@ -161,7 +166,7 @@ def virtual_rig(cfg: NodeConfig | None = None) -> Iterator[tuple[PlantLink, Cano
 
 @pytest.mark.timeout(30)
 def test_foreign_sync_nmt_rpdo_and_sdo_are_detected_and_reported() -> None:
-    with virtual_rig() as (link, node, rogue, _):
+    with virtual_rig() as (link, _, rogue, _channel):
         link.start_node(timeout=2.0, sample_period_s=0.005)
         assert run_ticks(link, 5) == 5 and link.take_conflicts() == []
         rogue.send(frame(can_map.SYNC_COB_ID, bytes([77])))

@@ -14,7 +14,12 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from plant_emulator.canopen_node import CanopenNode, NodeConfig, node_can_filters, run_node
+from plant_emulator.canopen_node import (
+    CanopenNode,
+    NodeConfig,
+    node_can_filters,
+    run_node,
+)
 from protocol.can_map import ADC12, DAC12, NmtState
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -24,7 +29,7 @@ VOLTS = (1.0, -2.5, 9.9, -10.0)
 def readme_session() -> str:
     text = (ROOT / "README.md").read_text()
     section = text.split("### Driving the plant node with a stock CANopen master", 1)[1]
-    match = re.search(r"```python\n(.*?)```", section, re.S)
+    match = re.search(r"```python\n(.*?)```", section, re.DOTALL)
     assert match, "the README's canopen session block is missing"
     return match.group(1)
 
@@ -62,7 +67,7 @@ def test_the_readme_canopen_session_runs_against_the_node(
     monkeypatch.setenv("RALF_CAN_PORT", str(port))
     monkeypatch.chdir(ROOT)
     try:
-        exec(compile(readme_session(), "README.md", "exec"), {"__name__": "readme_session"})
+        exec(compile(readme_session(), "README.md", "exec"), {"__name__": "readme_session"})  # noqa: S102 - the README block, verbatim
         deadline = time.monotonic() + 2.0  # the session's last NMT frame may still be on its way
         while node.state is not NmtState.PRE_OPERATIONAL and time.monotonic() < deadline:
             time.sleep(0.002)
@@ -72,7 +77,7 @@ def test_the_readme_canopen_session_runs_against_the_node(
         bus.shutdown()
     name, inputs = capsys.readouterr().out.strip().splitlines()[-2:]
     assert name == NodeConfig().device_name
-    np.testing.assert_allclose(eval(inputs), VOLTS, atol=ADC12.lsb_v)  # noqa: S307 - our own printed list
+    np.testing.assert_allclose(eval(inputs), VOLTS, atol=ADC12.lsb_v)  # our own printed list
     c = node.counters
     assert c.tx["tpdo1"] >= 2 and c.malformed_total == 0 and c.sync_conflicts == 0
     assert c.rx["sync"] == c.sync_received  # every counter-less SYNC accepted
