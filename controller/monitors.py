@@ -3,7 +3,10 @@
 Each monitor (``deadline``: an interrupt later than its deadline;
 ``stale``: no fresh estimate for ``stale_after_s``; ``dsp_lost``: the DSP's
 liveliness token vanished; ``overrun``: a tick finished after the next was
-due) has a policy:
+due; ``can_conflict``: another master on the CAN bus, i.e. a SYNC, NMT
+command, RPDO1 or SDO request this controller did not send, or the plant's
+SYNC_CONFLICT / RPDO_CONFLICT emergency, see :mod:`controller.plant_link`)
+has a policy:
 
 * ``count``: count it, nothing else;
 * ``warn``: count it and log a warning (once per episode);
@@ -20,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 Policy = Literal["count", "warn", "degrade", "stop"]
-MONITORS = ("deadline", "stale", "dsp_lost", "overrun")
+MONITORS = ("deadline", "stale", "dsp_lost", "overrun", "can_conflict")
 
 log = logging.getLogger(__name__)
 

@@ -1,26 +1,57 @@
 """The controller's side of the CAN bus: a small CANopen master for the
 plant's analog I/O node (NMT start, SYNC producer, TPDO consumer, RPDO
-producer, heartbeat consumer, EMCY consumer)."""
+producer, heartbeat consumer, EMCY consumer).
+
+CAN has no authentication, so the link watches the bus instead: it sees
+every frame, and knows which it sent itself (udp_multicast loops a sender's
+frames back to it, in order: an echo is matched against the frames sent and
+not yet seen again; on buses without echoes every such frame is someone
+else's). A SYNC, NMT command, RPDO1 or SDO request to
+the node that this link did not send is another master on the bus: counted
+(``foreign_sync``, ``foreign_nmt``, ``foreign_rpdo``, ``foreign_sdo``), and
+queued with the plant's own conflict EMCYs (SYNC_CONFLICT, RPDO_CONFLICT)
+for :meth:`PlantLink.take_conflicts`, which the service turns into the
+``can_conflict`` monitor. Input the bus cannot even decode (a junk datagram
+on the udp_multicast group) is counted in ``rx_errors`` and dropped; each
+kind is logged at most once per :data:`LOG_INTERVAL_S`.
+"""
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
+from typing import Final
 
 import can
 import numpy as np
 import numpy.typing as npt
 
 from protocol import can_map
-from protocol.can_map import NmtCommand, NmtState
+from protocol.can_map import (
+    OD_RPDO1_COMM,
+    OD_RPDO_EVENT_TIMER_SUB,
+    OD_SAMPLE_PERIOD,
+    OD_WATCHDOG_PERIODS,
+    NmtCommand,
+    NmtState,
+)
 from protocol.errors import FrameError
 
-OD_SAMPLE_PERIOD = 0x2000
-"""The plant node's nominal SYNC period in µs (manufacturer-specific, see protocol/ralf_io.eds)."""
-
 log = logging.getLogger(__name__)
+
+ECHO_MEMORY: Final[int] = 64
+"""Frames sent and not yet echoed remembered per COB-ID (normally one or two)."""
+LOG_INTERVAL_S: Final[float] = 10.0
+"""Repeated bad input of one kind is logged once per this interval (and counted always)."""
+MAX_RX_ERRORS_PER_POLL: Final[int] = 64
+"""A bus that raises on every receive ends a poll after this many errors instead of spinning."""
+CONFLICT_MEMORY: Final[int] = 64
+"""Conflict events kept until :meth:`PlantLink.take_conflicts` (older ones are only counted)."""
+CONFLICT_EMCYS: Final[frozenset[int]] = frozenset({int(can_map.EmcyCode.SYNC_CONFLICT), int(can_map.EmcyCode.RPDO_CONFLICT)})
 
 
 class PlantFault(RuntimeError):
@@ -29,6 +60,17 @@ class PlantFault(RuntimeError):
 
 class StopRequested(Exception):
     """SIGINT/SIGTERM arrived while waiting for the plant: not a fault."""
+
+
+def echoing_bus(bus: can.BusABC) -> bool:
+    """Whether ``bus`` hands a sender its own frames back: python-can's
+    udp_multicast always does (multicast loopback); others when opened with
+    ``receive_own_messages``."""
+    return type(bus).__name__ == "UdpMulticastBus" or bool(getattr(bus, "receive_own_messages", False))
+
+
+class _RxError(Exception):
+    """One receive failed (already counted and logged)."""
 
 
 @dataclass
@@ -43,6 +85,22 @@ class PlantLinkCounters:
     emergencies: int = 0
     malformed: int = 0
     outputs_clipped: int = 0
+    rx_errors: int = 0
+    """received datagrams/frames the bus could not decode (dropped)"""
+    own_echoes: int = 0
+    """our own frames seen again (udp_multicast loopback)"""
+    foreign_sync: int = 0
+    """SYNC frames this link did not send: a second SYNC producer"""
+    foreign_nmt: int = 0
+    """NMT commands this link did not send"""
+    foreign_rpdo: int = 0
+    """RPDO1 frames to the node this link did not send"""
+    foreign_sdo: int = 0
+    """SDO requests to the node this link did not send"""
+    conflict_emcys: int = 0
+    """SYNC_CONFLICT / RPDO_CONFLICT emergencies from the plant"""
+    comm_resets: int = 0
+    """NMT RESET_COMMUNICATION sent before starting the node"""
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -59,7 +117,8 @@ class PlantLink:
     sync_counter: int = 0
     node_state: NmtState | None = None
     last_heartbeat: float | None = None
-    emergencies: list[can_map.Emergency] = field(default_factory=list)
+    emergencies: deque[can_map.Emergency] = field(default_factory=lambda: deque(maxlen=256))
+    """the latest emergencies (all are counted in ``counters.emergencies``)"""
     _pending_tpdo: npt.NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
@@ -71,12 +130,70 @@ class PlantLink:
         self._sdo_rx = ids["sdo_rx"]
         self._sdo_tx = ids["sdo_tx"]
         self._sdo_response: bytes | None = None
+        self._bootups = 0
+        self._echoes = echoing_bus(self.bus)
+        self._sent: dict[int, deque[bytes]] = {
+            cob_id: deque(maxlen=ECHO_MEMORY) for cob_id in (can_map.NMT_COB_ID, can_map.SYNC_COB_ID, self._rpdo1, self._sdo_rx)
+        }
+        self._foreign_kind = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
+        self._conflicts: deque[str] = deque(maxlen=CONFLICT_MEMORY)
+        self._logged_at: dict[str, float] = {}
 
     def _now(self) -> float:
         return float(self.clock())  # type: ignore[operator]
 
     def _send(self, arbitration_id: int, data: bytes) -> None:
+        sent = self._sent.get(arbitration_id)
+        if sent is not None and self._echoes:
+            sent.append(bytes(data))
         self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+
+    def _log_limited(self, kind: str, fmt: str, *args: object) -> None:
+        """WARNING at most once per :data:`LOG_INTERVAL_S` per kind."""
+        now = self._now()
+        last = self._logged_at.get(kind)
+        if last is None or now - last >= LOG_INTERVAL_S:
+            self._logged_at[kind] = now
+            log.warning(fmt + " (further ones counted, logged every %.0f s)", *args, LOG_INTERVAL_S)
+
+    def _is_echo(self, cob_id: int, data: bytes) -> bool:
+        """True when ``data`` on ``cob_id`` is one of our own frames coming back.
+        Echoes return in send order, so the frames sent before the matching one
+        are forgotten (their echoes were lost)."""
+        sent = self._sent[cob_id]
+        for i, d in enumerate(sent):
+            if d == data:
+                for _ in range(i + 1):
+                    sent.popleft()
+                return True
+        return False
+
+    def _conflict(self, detail: str) -> None:
+        self._conflicts.append(detail)
+        self._log_limited(f"conflict:{detail.split(':')[0]}", "CAN conflict: %s", detail)
+
+    def take_conflicts(self) -> list[str]:
+        """Conflicts seen since the last call (foreign master frames, the plant's conflict EMCYs)."""
+        out = list(self._conflicts)
+        self._conflicts.clear()
+        return out
+
+    def _check_foreign(self, msg: can.Message) -> bool:
+        """True when ``msg`` is a master's frame (ours echoed, or another master's: counted)."""
+        cob_id = msg.arbitration_id
+        kind = self._foreign_kind.get(cob_id)
+        if kind is None:
+            return False
+        data = bytes(msg.data)
+        if self._is_echo(cob_id, data):
+            self.counters.own_echoes += 1
+            return True
+        if kind == "nmt" and len(data) == 2 and data[1] not in (0, self.node_id):
+            return True  # a command for another node: not ours to judge
+        setattr(self.counters, f"foreign_{kind}", getattr(self.counters, f"foreign_{kind}") + 1)
+        what = {"sync": "SYNC", "nmt": "NMT command", "rpdo": "RPDO1", "sdo": "SDO request"}[kind]
+        self._conflict(f"foreign {kind}: a {what} [{data.hex(' ')}] this controller did not send")
+        return True
 
     def nmt(self, command: NmtCommand) -> None:
         self._send(can_map.NMT_COB_ID, can_map.encode_nmt(command, self.node_id))
@@ -108,7 +225,9 @@ class PlantLink:
 
     def _dispatch(self, msg: can.Message) -> None:
         """Handle one received frame (TPDO kept for the caller, others consumed)."""
-        if msg.is_error_frame or msg.is_remote_frame:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        if self._check_foreign(msg):
             return
         try:
             if msg.arbitration_id == self._tpdo1:
@@ -120,6 +239,8 @@ class PlantLink:
             elif msg.arbitration_id == self._heartbeat:
                 self.node_state = can_map.decode_heartbeat(msg.data)
                 self.last_heartbeat = self._now()
+                if self.node_state is NmtState.BOOT_UP:
+                    self._bootups += 1
                 self.counters.heartbeats += 1
             elif msg.arbitration_id == self._sdo_tx:
                 self._sdo_response = bytes(msg.data)
@@ -127,17 +248,41 @@ class PlantLink:
                 emcy = can_map.decode_emcy(msg.data)
                 self.emergencies.append(emcy)
                 self.counters.emergencies += 1
-                log.warning("plant EMCY %s (0x%04x), register 0x%02x", emcy.name, emcy.code, emcy.register)
-        except FrameError as exc:
+                self._log_limited(f"emcy:{emcy.code}", "plant EMCY %s (0x%04x), register 0x%02x", emcy.name, emcy.code, emcy.register)
+                if emcy.code in CONFLICT_EMCYS:
+                    self.counters.conflict_emcys += 1
+                    self._conflict(f"plant EMCY {emcy.name}: the plant sees a second master")
+        except (FrameError, ValueError) as exc:
             self.counters.malformed += 1
-            log.warning("malformed frame 0x%03x from the plant: %s", msg.arbitration_id, exc)
+            self._log_limited(f"malformed:{msg.arbitration_id:x}", "malformed frame 0x%03x from the plant: %s", msg.arbitration_id, exc)
+
+    def _recv(self, timeout: float) -> can.Message | None:
+        """One frame, or None; what the bus cannot decode is counted and dropped
+        (python-can raises CanOperationError for a junk udp_multicast datagram)."""
+        try:
+            return self.bus.recv(timeout=timeout)
+        except (can.CanError, OSError, ValueError, TypeError) as exc:
+            self.counters.rx_errors += 1
+            cause = exc.__cause__ or exc
+            self._log_limited(f"rx:{type(cause).__name__}", "dropped undecodable CAN input (%d so far): %s: %s", self.counters.rx_errors, exc, cause)
+            raise _RxError from exc
 
     def poll(self, timeout: float = 0.0) -> None:
         """Read every frame already waiting (and wait up to ``timeout`` for the first)."""
-        msg = self.bus.recv(timeout=timeout)
-        while msg is not None:
+        errors = 0
+        while True:
+            try:
+                msg = self._recv(timeout)
+            except _RxError:
+                errors += 1
+                if errors >= MAX_RX_ERRORS_PER_POLL:
+                    return
+                timeout = 0.0
+                continue
+            if msg is None:
+                return
             self._dispatch(msg)
-            msg = self.bus.recv(timeout=0.0)
+            timeout = 0.0
 
     def wait_tpdo(self, timeout: float) -> npt.NDArray[np.int64] | None:
         """The TPDO answering the last SYNC, or None after ``timeout`` seconds."""
@@ -147,7 +292,10 @@ class PlantLink:
             if remaining <= 0:
                 self.counters.tpdo_timeouts += 1
                 return None
-            msg = self.bus.recv(timeout=remaining)
+            try:
+                msg = self._recv(remaining)
+            except _RxError:
+                continue
             if msg is not None:
                 self._dispatch(msg)
         words, self._pending_tpdo = self._pending_tpdo, None
@@ -169,13 +317,38 @@ class PlantLink:
         assert self.node_state is not None
         return self.node_state
 
+    def reset_communication(self, timeout: float, stop: threading.Event | None = None) -> None:
+        """NMT RESET_COMMUNICATION, then wait for the node's boot-up: whatever
+        state an earlier (or a rogue) master left it in (STOPPED, a changed
+        heartbeat or 0x1019), it is PRE-OPERATIONAL with its communication
+        objects at their defaults afterwards. The application objects
+        (0x2000-0x2FFF, 0x6000-) keep their values: the plant is not reset."""
+        bootups = self._bootups
+        self.nmt(NmtCommand.RESET_COMMUNICATION)
+        self.counters.comm_resets += 1
+        deadline = self._now() + timeout
+        while self._bootups == bootups:
+            if stop is not None and stop.is_set():
+                raise StopRequested("stopped while resetting the plant node's communication")
+            remaining = deadline - self._now()
+            if remaining <= 0:
+                raise PlantFault(f"plant node {self.node_id} did not boot up after NMT reset-communication within {timeout:.1f} s")
+            self.poll(timeout=min(remaining, 0.05))
+
     def start_node(self, timeout: float, stop: threading.Event | None = None, sample_period_s: float | None = None) -> None:
-        """Configure the node's sample period by SDO (object 0x2000, so plant,
-        watchdog and controller agree on it), NMT start, then wait until the
-        heartbeat says operational."""
+        """Reset the node's communication (NMT, so a rogue STOP or another
+        master's settings do not block this run), configure its sample period
+        by SDO (object 0x2000, so plant, watchdog and controller agree on it)
+        and RPDO1's event timer (0x1400 sub 5 = the SYNC watchdog time, so a
+        foreign SYNC stream cannot keep the valves open if this controller
+        freezes), NMT start, then wait until the heartbeat says operational."""
         self.wait_for_node(timeout, stop)
+        self.reset_communication(timeout, stop)
         if sample_period_s is not None:
             self.sdo_write_u32(OD_SAMPLE_PERIOD, 0, round(sample_period_s * 1e6))
+            # RPDO1 is cyclic from here on: its event timer (deadline monitoring) = the SYNC watchdog time
+            periods = self.sdo_read(OD_WATCHDOG_PERIODS, 0)
+            self.sdo_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, min(0xFFFF, math.ceil(periods * sample_period_s * 1e3)), 2)
         deadline = self._now() + timeout
         self.nmt(NmtCommand.START)
         while self.node_state != NmtState.OPERATIONAL:
@@ -189,24 +362,46 @@ class PlantLink:
                 self.nmt(NmtCommand.START)
         self.discard_pending()
 
-    def sdo_write_u32(self, index: int, subindex: int, value: int, timeout: float = 1.0) -> None:
-        """Expedited SDO download of a 32-bit value (CiA 301); an abort or no
-        answer is a :class:`PlantFault` naming the object."""
+    def _sdo(self, request: bytes, what: str, timeout: float) -> bytes:
+        """Send an expedited SDO request and return the node's answer to it
+        (an answer for another object, e.g. to someone else's request, is skipped)."""
         self._sdo_response = None
-        data = bytes([0x23, index & 0xFF, index >> 8, subindex]) + int(value).to_bytes(4, "little")
-        self._send(self._sdo_rx, data)
+        self._send(self._sdo_rx, request)
         deadline = self._now() + timeout
-        while self._sdo_response is None:
+        while True:
+            reply = self._sdo_response
+            if reply is not None and reply[1:4] == request[1:4]:
+                break
+            self._sdo_response = None
             remaining = deadline - self._now()
             if remaining <= 0:
-                raise PlantFault(f"no SDO answer from the plant node writing 0x{index:04X}:{subindex}")
+                raise PlantFault(f"no SDO answer from the plant node {what}")
             self.poll(timeout=min(remaining, 0.05))
-        reply = self._sdo_response
         if reply[0] == 0x80:
             code = int.from_bytes(reply[4:8], "little")
-            raise PlantFault(f"the plant node refused 0x{index:04X}:{subindex} = {value} (SDO abort 0x{code:08X})")
-        if reply[0] != 0x60 or reply[1:4] != data[1:4]:
+            raise PlantFault(f"the plant node refused {what} (SDO abort 0x{code:08X})")
+        return reply
+
+    def sdo_write(self, index: int, subindex: int, value: int, size: int = 4, timeout: float = 1.0) -> None:
+        """Expedited SDO download of a ``size``-byte unsigned value (CiA 301); an
+        abort or no answer is a :class:`PlantFault` naming the object."""
+        command = 0x23 | ((4 - size) << 2)
+        data = bytes([command, index & 0xFF, index >> 8, subindex]) + int(value).to_bytes(size, "little").ljust(4, b"\x00")
+        reply = self._sdo(data, f"writing 0x{index:04X}:{subindex} = {value}", timeout)
+        if reply[0] != 0x60:
             raise PlantFault(f"unexpected SDO answer {reply.hex()} writing 0x{index:04X}:{subindex}")
+
+    def sdo_write_u32(self, index: int, subindex: int, value: int, timeout: float = 1.0) -> None:
+        self.sdo_write(index, subindex, value, 4, timeout)
+
+    def sdo_read(self, index: int, subindex: int, timeout: float = 1.0) -> int:
+        """Expedited SDO upload of an unsigned value (up to 4 bytes)."""
+        what = f"reading 0x{index:04X}:{subindex}"
+        reply = self._sdo(bytes([0x40, index & 0xFF, index >> 8, subindex, 0, 0, 0, 0]), what, timeout)
+        if reply[0] & 0xE2 != 0x42:
+            raise PlantFault(f"unexpected SDO answer {reply.hex()} {what}")
+        n = 4 - ((reply[0] >> 2) & 0x3) if reply[0] & 0x01 else 4
+        return int.from_bytes(reply[4 : 4 + n], "little")
 
     def heartbeat_age(self) -> float:
         return float("inf") if self.last_heartbeat is None else self._now() - self.last_heartbeat

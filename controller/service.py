@@ -96,7 +96,7 @@ class ControllerService:
         )
         self.timing = TimingCounters()
         self.monitors = Monitors(
-            {"deadline": settings.policy_deadline, "stale": settings.policy_stale, "dsp_lost": settings.policy_dsp_lost, "overrun": settings.policy_overrun}
+            {"deadline": settings.policy_deadline, "stale": settings.policy_stale, "dsp_lost": settings.policy_dsp_lost, "overrun": settings.policy_overrun, "can_conflict": settings.policy_can_conflict}
         )
         self.tet = LatencyTracker()
         self.jitter = LatencyTracker()
@@ -456,6 +456,11 @@ class ControllerService:
                     self.monitors.fire("overrun", f"tick {self.tick} took {(end - start) * 1e3:.2f} ms, past the next SYNC")
                 elif "overrun" in self.monitors.active:
                     self.monitors.clear("overrun")
+                conflicts = self.plant.take_conflicts()  # another master on the bus (see PlantLink)
+                if conflicts:
+                    self.monitors.fire("can_conflict", f"tick {self.tick}: " + "; ".join(conflicts[:3]))
+                elif "can_conflict" in self.monitors.active:
+                    self.monitors.clear("can_conflict")
                 self.tick += 1
                 self._rate_window.append(end)
                 if len(self._rate_window) > 200:

@@ -7,7 +7,7 @@ Frames (node id ``n``, default :data:`DEFAULT_NODE_ID`):
 frame      COB-ID        DLC    payload
 =========  ============  =====  =============================================
 NMT        0x000         2      command, node id (0 = all)
-SYNC       0x080         1      counter 1..240 (CiA 301 SYNC counter)
+SYNC       0x080         0/1    counter 1..240 (CiA 301 SYNC counter), or none
 EMCY       0x080 + n     8      error code (u16), error register, 5 vendor bytes
 TPDO1      0x180 + n     8      analog inputs 1-4, 0x6401 sub 1-4 (INT16 LE)
 TPDO2      0x280 + n     8      analog inputs 1-2, 0x6402 sub 1-2 (INT32 LE)
@@ -69,6 +69,27 @@ OD_ANALOG_INPUT_16: Final[int] = 0x6401
 OD_ANALOG_INPUT_32: Final[int] = 0x6402
 OD_ANALOG_OUTPUT_16: Final[int] = 0x6411
 
+OD_RPDO1_COMM: Final[int] = 0x1400
+"""RPDO1 communication parameter."""
+OD_RPDO_EVENT_TIMER_SUB: Final[int] = 5
+"""0x1400 sub 5, UNSIGNED16 ms: RPDO1 deadline monitoring (CiA 301 RPDO event timer), 0 = off."""
+
+# Manufacturer-specific objects of the plant node (protocol/ralf_io.eds), which
+# the controller configures by SDO before it starts the node.
+OD_SAMPLE_PERIOD: Final[int] = 0x2000
+"""UNSIGNED32, µs: the nominal SYNC period; the plant steps by it and its watchdog counts in it."""
+OD_ADC_RESOLUTION: Final[int] = 0x2001
+"""UNSIGNED8, bits: one of :data:`ADC_RESOLUTIONS`."""
+OD_VALVE_LIMIT: Final[int] = 0x2002
+"""REAL32, V: analog outputs are clipped to ± this."""
+OD_WATCHDOG_PERIODS: Final[int] = 0x2003
+"""UNSIGNED16: SYNC watchdog in sample periods; 0 disables it (refused while OPERATIONAL)."""
+OD_DIAGNOSTICS: Final[int] = 0x2010
+"""ARRAY of UNSIGNED32: the node's diagnostic counters."""
+
+ADC_RESOLUTIONS: Final[tuple[int, ...]] = (12, 16, 20)
+"""A/D resolutions the plant node offers on 0x2001 (above 16 bits TPDO2/3 carry 0x6402)."""
+
 
 class NmtCommand(enum.IntEnum):
     """CiA 301 NMT node-control commands."""
@@ -103,6 +124,11 @@ class EmcyCode(enum.IntEnum):
     """No SYNC for the watchdog time: valves held at zero (vendor use of the RPDO-timeout class)."""
     JOINT_LIMIT = 0xFF01
     """A joint reached a hard stop (manufacturer specific)."""
+    SYNC_CONFLICT = 0xFF02
+    """SYNC counters that one producer cannot give (a repeat, a jump back, counter and no counter
+    mixed): a second SYNC producer on the bus (manufacturer specific)."""
+    RPDO_CONFLICT = 0xFF03
+    """More RPDO1 frames in one SYNC period than SYNCs in it: a second RPDO producer (manufacturer specific)."""
 
 
 def cob_ids(node_id: int = DEFAULT_NODE_ID) -> dict[str, int]:

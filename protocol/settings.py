@@ -97,6 +97,7 @@ class ControllerSettings(CommonSettings):
     policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
     policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
     policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
+    policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On another master's SYNC, NMT, RPDO1 or SDO frame on the CAN bus")
     inject_stall_at_s: float | None = Field(None, ge=0, description="Fault injection: freeze the loop at this simulated time...")
     inject_stall_s: float = Field(0.0, ge=0, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
     inject_sync_drop_every: int = Field(0, ge=0, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")

@@ -14,14 +14,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plant_emulator.node import CanopenNode, NodeConfig, error_register_bits
-from plant_emulator.object_dictionary import (
-    DataType,
-    SdoAbortCode,
+from plant_emulator.canopen_node import (
+    CanopenNode,
+    NodeConfig,
+    error_register_bits,
     object_table,
     render_eds,
 )
-from plant_emulator.sdo_server import SdoServer
+from plant_emulator.canopen_node.node import CONFLICT_CLEAR_PERIODS
+from plant_emulator.canopen_node.od import DataType, SdoAbortCode
+from plant_emulator.canopen_node.sdo_server import SdoServer
 from protocol.can_map import (
     ADC12,
     DAC12,
@@ -273,12 +275,53 @@ def test_wide_adc_adds_tpdo2_and_tpdo3() -> None:
 def test_sync_gaps_and_repeats_are_counted() -> None:
     rig = Rig()
     rig.nmt(NmtCommand.START)
-    for c in (1, 2, 5, 6, 240, 1, 3, 3):
+    for c in (1, 2, 5, 6, 100, 200, 240, 1, 3, 3):
         rig.sync(counter=c)
     c = rig.node.counters
-    assert (c.sync_gaps, c.syncs_missed, c.sync_repeats) == (3, 2 + 233 + 1, 1)
-    assert rig.app.syncs == [1, 2, 5, 6, 240, 1, 3, 3]
-    assert rig.read(0x2010, 2) == 236
+    # gaps below half the counter range are lost SYNCs; 240 -> 1 is the wrap
+    assert (c.sync_gaps, c.syncs_missed, c.sync_repeats) == (5, 2 + 93 + 99 + 39 + 1, 1)
+    assert rig.app.syncs == [1, 2, 5, 6, 100, 200, 240, 1, 3, 3]
+    assert rig.read(0x2010, 2) == 234
+
+
+def test_a_second_sync_producer_raises_sync_conflict_until_clean_again() -> None:
+    """Two producers interleaved (ours counting from 1, a foreign one from 100):
+    every other counter jumps back, which one producer cannot do."""
+    rig = Rig()
+    rig.nmt(NmtCommand.START)
+    out: list[can.Message] = []
+    for k in range(4):
+        out += rig.sync(counter=1 + k, dt=0.0025)
+        out += rig.sync(counter=100 + k, dt=0.0025)
+    (first,) = [e for e in emcys(out) if e[0] == EmcyCode.SYNC_CONFLICT]  # one EMCY per episode
+    assert first[1] == 0x01 | 0x80  # manufacturer-specific bit
+    assert rig.node.counters.sync_conflicts >= 3
+    assert EmcyCode.SYNC_CONFLICT in rig.node.active_faults
+    out = []
+    for k in range(CONFLICT_CLEAR_PERIODS):
+        out += rig.sync(counter=104 + k)
+    assert emcys(out) == [(0, 0, struct.pack("<H", EmcyCode.SYNC_CONFLICT) + b"\x00" * 3)]
+    # a repeated counter and counter / no counter mixed are conflicts too
+    n = rig.node.counters.sync_conflicts
+    rig.sync(counter=rig.sync_counter)
+    rig.send(SYNC, b"", dt=0.005)
+    assert rig.node.counters.sync_conflicts == n + 2
+
+
+def test_sync_with_and_without_counter_both_accepted_by_default() -> None:
+    """CiA 301: with 0x1019 > 1 a SYNC carries the counter, yet stock masters
+    (canopen's SyncProducer) send it empty; both get TPDOs without a conflict."""
+    rig = Rig()
+    assert rig.read(0x1019) == 240
+    rig.nmt(NmtCommand.START)
+    for _ in range(3):
+        assert ids(rig.send(SYNC, b"", dt=0.005)) == [TPDO1]
+    assert rig.app.syncs == [0, 0, 0]
+    assert rig.node.counters.malformed_total == 0 and rig.node.counters.sync_conflicts == 0
+    rig.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
+    rig.nmt(NmtCommand.START)  # a new session may use the other form
+    assert ids(rig.sync(counter=1)) == [TPDO1]
+    assert rig.node.counters.sync_conflicts == 0
 
 
 def test_sync_without_counter() -> None:
@@ -337,12 +380,25 @@ def test_watchdog_configurable_and_disabled() -> None:
     out = rig.run(t0 + 0.05)
     assert of(out, EMCY)[0].timestamp - t0 == pytest.approx(0.020, abs=1.5e-3)
 
-    rig = Rig()
-    rig.write(0x2003, 0, b"\x00\x00")
+    rig = Rig(NodeConfig(watchdog_periods=0))
     rig.nmt(NmtCommand.START)
     rig.sync()
     rig.run(rig.t + 1.0)
     assert rig.app.watchdog == [] and rig.node.counters.watchdog_trips == 0
+
+
+def test_the_watchdog_cannot_be_switched_off_over_the_bus() -> None:
+    """Anyone on the bus can send an SDO: 0x2003 = 0 is refused in every state
+    (abort 0x08000022) and counted; a longer time is still accepted."""
+    rig = Rig()
+    assert abort_code(rig.write(0x2003, 0, b"\x00\x00")) == SdoAbortCode.CANNOT_STORE_DEVICE_STATE
+    rig.nmt(NmtCommand.START)
+    rig.sync()
+    assert abort_code(rig.write(0x2003, 0, b"\x00\x00")) == SdoAbortCode.CANNOT_STORE_DEVICE_STATE
+    assert rig.read(0x2003) == 5 and rig.node.counters.watchdog_disable_refused == 2
+    assert rig.write(0x2003, 0, (400).to_bytes(2, "little"))[0] == 0x60
+    rig.run(rig.t + 0.1)
+    assert rig.app.watchdog == []
 
 
 def test_leaving_operational_ends_a_trip() -> None:
@@ -408,7 +464,7 @@ def test_malformed_frames_counted_logged_once_and_ignored(caplog: pytest.LogCapt
     rig = Rig()
     rig.nmt(NmtCommand.START)
     rig.sync()
-    caplog.set_level(logging.WARNING, logger="plant_emulator.node")
+    caplog.set_level(logging.WARNING, logger="plant_emulator.canopen_node.node")
     bad = [
         ("nmt_dlc", frame(NMT, [1])),
         ("nmt_command", frame(NMT, [0x03, 1])),
@@ -556,7 +612,7 @@ def test_sdo_server_transfers_and_abort_codes() -> None:
 
 
 def test_shipped_eds_is_rendered_from_the_table() -> None:
-    assert EDS.read_text() == render_eds(), "regenerate: python -m plant_emulator.object_dictionary > protocol/ralf_io.eds"
+    assert EDS.read_text() == render_eds(), "regenerate: python -m plant_emulator.canopen_node > protocol/ralf_io.eds"
 
 
 def test_eds_loads_in_canopen_and_agrees_with_the_running_dictionary() -> None:
@@ -656,3 +712,75 @@ def test_fuzz_sdo_server_answers_every_request_with_eight_bytes(start: bool, req
         if resp is None:
             assert req[0] >> 5 == 4
     assert node.counters.internal_errors == 0
+
+
+# --- a second master on the bus ---------------------------------------------------------------
+
+
+def test_rpdo1_twice_in_a_sync_period_raises_rpdo_conflict() -> None:
+    rig = Rig()
+    rig.nmt(NmtCommand.START)
+    rig.sync()
+    for _ in range(3):  # event timer 0 (default): event-driven RPDOs, any number per period
+        rig.send(RPDO1, encode_analog_outputs([160, 0]), dt=0.001)
+    rig.sync()
+    assert rig.node.counters.rpdo_conflicts == 0
+    rig.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
+    assert rig.write(0x1400, 5, (25).to_bytes(2, "little"))[0] == 0x60  # RPDO1 cyclic, as the controller sets it
+    rig.nmt(NmtCommand.START)
+    out: list[can.Message] = []
+    for _ in range(3):  # one RPDO per SYNC period: no conflict
+        out += rig.sync()
+        out += rig.send(RPDO1, encode_analog_outputs([160, 0]), dt=0.001)
+    assert not [e for e in emcys(out) if e[0] == EmcyCode.RPDO_CONFLICT]
+    # a lost SYNC (counter gap of 1) allows two RPDOs in that period
+    rig.send(RPDO1, encode_analog_outputs([160, 0]), dt=0.001)
+    out = rig.sync(counter=rig.sync_counter + 2)
+    assert rig.node.counters.rpdo_conflicts == 0 and not emcys(out)
+    # a foreign producer at 1 kHz: five RPDOs per period
+    for _ in range(5):
+        rig.send(RPDO1, encode_analog_outputs([-3200, 0]), dt=0.001)
+    out = rig.sync(dt=0.0)
+    ((code, register, vendor),) = [e for e in emcys(out) if e[0] == EmcyCode.RPDO_CONFLICT]
+    assert register & 0x81 == 0x81 and vendor[0] == 5
+    assert rig.node.counters.rpdo_conflicts == 1
+    out = []
+    for _ in range(CONFLICT_CLEAR_PERIODS):
+        rig.send(RPDO1, encode_analog_outputs([160, 0]), dt=0.001)
+        out += rig.sync(dt=0.004)
+    assert (0, 0, struct.pack("<H", EmcyCode.RPDO_CONFLICT) + b"\x00" * 3) in emcys(out)
+    assert rig.node.counters.rpdo_conflicts == 1
+
+
+def test_a_foreign_sync_stream_does_not_feed_the_watchdog_of_a_frozen_controller() -> None:
+    """The controller sends SYNC + RPDO1 each period, then freezes while someone
+    else keeps sending SYNC: the missing RPDO1 trips the watchdog (valves to zero,
+    EMCY SYNC_TIMEOUT with vendor byte 1 = 1); the controller's next RPDO1 releases it."""
+    rig = Rig()
+    assert rig.read(0x1400, 5) == 0  # off by default: a master that sets its outputs once keeps them
+    assert rig.write(0x1400, 5, (25).to_bytes(2, "little"))[0] == 0x60  # what the controller sets
+    rig.nmt(NmtCommand.START)
+    assert abort_code(rig.write(0x1400, 5, b"\x00\x00")) == SdoAbortCode.CANNOT_STORE_DEVICE_STATE
+    for _ in range(10):
+        rig.sync()
+        rig.send(RPDO1, encode_analog_outputs([3200, 0]), dt=0.001)
+    frozen_at = rig.t
+    out: list[can.Message] = []
+    for _ in range(10):  # the foreign stream, SYNC without counter, a stock master's
+        out += rig.send(SYNC, b"", dt=0.005)
+        out += rig.node.poll(rig.t)  # as the runner does after each frame
+    assert rig.node.watchdog_tripped and rig.app.watchdog == [True]
+    ((code, _, vendor),) = [e for e in emcys(out) if e[0] == EmcyCode.SYNC_TIMEOUT]
+    assert vendor[1] == 1 and rig.node.counters.rpdo_timeouts == 1
+    trip = next(f for f in of(out, EMCY) if decode_emcy(f.data).code == EmcyCode.SYNC_TIMEOUT)
+    assert 0.025 <= trip.timestamp - frozen_at <= 0.025 + 0.005 + 1e-9  # noticed at the first SYNC past the time
+    assert rig.node.outputs_v.tolist() == [0.0, 0.0]
+    assert rig.node.counters.sync_conflicts == 1  # and the mixed SYNC forms are reported
+    # the controller thaws: its first RPDO1 releases (held), the next applies
+    rig.sync()
+    assert rig.node.watchdog_tripped
+    rig.send(RPDO1, encode_analog_outputs([3200, 0]), dt=0.001)
+    assert not rig.node.watchdog_tripped and rig.node.outputs_v.tolist() == [0.0, 0.0]
+    rig.sync()
+    rig.send(RPDO1, encode_analog_outputs([3200, 0]), dt=0.001)
+    assert rig.node.outputs_v[0] == pytest.approx(200 * DAC12.lsb_v)

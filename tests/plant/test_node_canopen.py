@@ -17,8 +17,7 @@ import canopen
 import numpy as np
 import pytest
 
-from plant_emulator.node import CanopenNode, NodeConfig, node_can_filters, run_node
-from plant_emulator.object_dictionary import SdoAbortCode
+from plant_emulator.canopen_node import CanopenNode, NodeConfig, SdoAbortCode, node_can_filters, run_node
 from protocol.can_map import (
     ADC12,
     DAC12,

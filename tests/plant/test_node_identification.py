@@ -13,7 +13,7 @@ import pytest
 
 from controller.engineering import measure
 from plant_emulator.model import PlantConfig, RalfArm
-from plant_emulator.node import CanopenNode
+from plant_emulator.canopen_node import CanopenNode
 from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
 from protocol.settings import PlantSettings

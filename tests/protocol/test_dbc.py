@@ -13,7 +13,7 @@ import cantools
 import numpy as np
 import pytest
 
-from plant_emulator.node import CanopenNode, NodeConfig
+from plant_emulator.canopen_node import CanopenNode, NodeConfig
 from protocol.can_map import (
     DAC12,
     DEFAULT_NODE_ID,

@@ -120,6 +120,6 @@ def test_the_controller_sets_the_plant_sample_period_by_sdo() -> None:
     write of 0x2000 wins, so each lockstep SYNC advances the arm 5 ms."""
     run = run_in_process(controller={"duration_s": 1.0, "tf_download_samples": 0}, plant={"sample_rate_hz": 100.0})
     assert run.result.error is None and run.result.ticks == 200
-    assert run.health["plant"].counters["sdo_downloads"] == 1
+    assert run.health["plant"].counters["sdo_downloads"] == 2  # 0x2000, then RPDO1's event timer (0x1400 sub 5)
     truth_time = run.health["plant"].sim_time_s
     assert truth_time == pytest.approx(1.0, abs=1e-9)

@@ -24,7 +24,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Final
 
-from plant_emulator.object_dictionary import ObjectDictionary, SdoAbort, SdoAbortCode
+from plant_emulator.canopen_node.od import ObjectDictionary, SdoAbort, SdoAbortCode
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,881 @@
+"""The plant's CAN face: a CANopen (CiA 301) slave with the CiA 401 analog
+I/O profile, emulating the rig's A/D (AVME 9325) and D/A (AVME 947X) boards.
+
+:class:`CanopenNode` is a pure state machine: frames and the current time go
+in (:meth:`~CanopenNode.handle`, :meth:`~CanopenNode.poll`), frames to send
+come out, and the plant is reached only through the
+:class:`NodeApplication` callbacks. No sockets, threads or clocks inside, so
+it is deterministic and tested frame by frame.
+:func:`plant_emulator.canopen_node.runner.run_node` is the thin I/O loop
+around it for a python-can bus.
+
+Behaviour (node id ``n``, see :mod:`protocol.can_map` for the frames):
+
+* **NMT**: boot-up (heartbeat 0x00) at construction and after RESET_NODE /
+  RESET_COMMUNICATION, then PRE-OPERATIONAL; START -> OPERATIONAL, STOP ->
+  STOPPED, ENTER_PRE_OPERATIONAL. Commands to node ``n`` or broadcast 0.
+  PDOs only in OPERATIONAL; SDO and EMCY in PRE-OPERATIONAL and
+  OPERATIONAL; in STOPPED only NMT and heartbeat (EMCYs due then are
+  counted as suppressed; the error register is still kept). Leaving
+  OPERATIONAL drives both valves to 0 V (``on_outputs(zeros)``: the CiA 401
+  output error mode) and ends a watchdog trip. RESET_NODE restores every
+  object to its configured value (calling the resolution/sample-period
+  hooks if they change), RESET_COMMUNICATION only 0x1000-0x1FFF.
+* **Heartbeat** producer, period 0x1017 (ms, 0 = off), first beat one
+  period after boot-up; late beats are not bunched up.
+* **SYNC** consumer: SYNC with counter (DLC 1, counter 1..0x1019) and SYNC
+  without counter (DLC 0, e.g. ``canopen``'s ``network.sync.start``) are
+  both accepted with the default 0x1019 = 240 (CiA 301 allows both);
+  0x1019 = 0 accepts only SYNC without counter. ``on_sync`` gets counter 0
+  for a SYNC without counter. Gaps are counted with
+  :func:`protocol.can_map.sync_gap`. What one producer cannot send (a
+  repeated counter, a jump back by half the range or more, SYNC with and
+  without counter mixed within one OPERATIONAL session) is a second SYNC
+  producer: counted in ``sync_conflicts`` and EMCY SYNC_CONFLICT, reset
+  after :data:`CONFLICT_CLEAR_PERIODS` clean SYNCs. On each SYNC in
+  OPERATIONAL: ``app.on_sync(counter)`` ->
+  codes at the ADC resolution (0x2001) -> TPDO1 with 0x6401 (INT16,
+  left-justified: ``code << (16 - bits)``; above 16 bits the 16 most
+  significant bits, ``code >> (bits - 16)``). Above 16 bits TPDO2 and TPDO3
+  carry 0x6402 (INT32, ``code << (32 - bits)``) **as well**, so a 12-bit
+  consumer of TPDO1 keeps working unchanged while a wide consumer reads
+  TPDO2/3; their COB-IDs (0x1801/0x1802 sub 1) are marked valid only then.
+* **RPDO1** (0x6411 sub 1-2) is transmission type 255, asynchronous:
+  applied on receipt rather than at the next SYNC, because the MVME wrote
+  its D/A as soon as it had computed the command, so the plant sees the
+  valve change at the instant the controller produced it (a synchronous
+  RPDO would add a whole sample of dead time the real rig did not have).
+  Words are converted with DAC12 (the 4 padding bits discarded) and clipped,
+  in codes, to the valve voltage limit 0x2002 (default 10 V); entering the
+  clipped condition sends EMCY OUTPUT_CLIPPED once, leaving it the reset
+  EMCY. An SDO write of 0x6411 applies the outputs the same way (only in
+  OPERATIONAL). Wrong-length RPDOs raise EMCY PDO_LENGTH (once per run of
+  bad frames; cleared by the next good one). While RPDO1 is declared cyclic
+  (its event timer 0x1400 sub 5 > 0, see the watchdog), more RPDO1 frames
+  in one SYNC period than SYNCs in it (1 + the SYNCs the counter says were
+  lost) is a second RPDO producer: ``rpdo_conflicts`` and EMCY
+  RPDO_CONFLICT, reset after :data:`CONFLICT_CLEAR_PERIODS` clean periods;
+  event-driven masters (event timer 0) may send as many as they like.
+* **Watchdog**: armed by the first SYNC received in OPERATIONAL; when no SYNC
+  arrives for 0x2003 periods of 0x2000 (default 5 x 5 ms) the node calls
+  ``app.on_watchdog(True)`` (the app drives the valves to zero and holds),
+  sends EMCY SYNC_TIMEOUT (vendor byte 1 = 0) and holds further RPDOs
+  (counted, not applied); the next SYNC calls ``app.on_watchdog(False)``,
+  sends the reset EMCY and resumes (outputs stay at zero until the next
+  RPDO). RPDO1 deadline monitoring (CiA 301: the RPDO event timer, 0x1400
+  sub 5 in ms, 0 = off by default; the controller sets it to the watchdog
+  time, and it is written only outside OPERATIONAL): no RPDO1 for that long
+  after the first one trips the watchdog the same way even while SYNC keeps
+  coming (vendor byte 1 = 1, counted in ``rpdo_timeouts``), so somebody
+  else's SYNC stream cannot keep the valves open for a controller that
+  froze; the next RPDO1 releases it (that frame
+  is held, the following one applies). 0x2003 = 0 disables the watchdog in
+  :class:`NodeConfig` only: an SDO write of 0 is refused (abort 0x08000022,
+  counted in ``watchdog_disable_refused``); lockstep runs use a long time.
+* **EMCY**: one frame when a fault appears (codes of
+  :class:`protocol.can_map.EmcyCode`, the error register 0x1001 updated,
+  the code also pushed onto 0x1003), and code 0x0000 when it clears, with
+  the remaining error register and the cleared code in vendor bytes 0-1.
+  The application may raise its own faults (e.g. JOINT_LIMIT) with
+  :meth:`CanopenNode.set_fault`.
+* **Malformed or misplaced frames** (wrong DLC, unknown COB-ID with our node
+  id, RPDO before START, bad NMT command, SYNC counter out of range, RTR,
+  SDO while stopped) are counted per kind in ``counters.malformed``, logged
+  once per kind at WARNING, and ignored. Frames of other nodes and echoes of
+  our own COB-IDs (udp_multicast loops them back) are counted in
+  ``counters.rx`` and ignored silently.
+
+The node is not tied to a thread, but its public methods take an internal
+re-entrant lock, so an application may call :meth:`CanopenNode.set_fault`
+from another thread or from inside a callback.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any, Final, Protocol
+
+import can
+import numpy as np
+import numpy.typing as npt
+
+from plant_emulator.canopen_node.config import NodeConfig
+from plant_emulator.canopen_node.counters import NodeCounters
+from plant_emulator.canopen_node.objects import PDO_NO_RTR, PDO_NOT_VALID, object_table
+from plant_emulator.canopen_node.od import (
+    ObjectDictionary,
+    SdoAbort,
+    SdoAbortCode,
+    Value,
+)
+from plant_emulator.canopen_node.sdo_server import SdoServer
+from protocol.can_map import (
+    ADC_RESOLUTIONS,
+    DAC12,
+    DEFAULT_NODE_ID,
+    FULL_SCALE_V,
+    N_ANALOG_INPUTS,
+    N_ANALOG_OUTPUTS,
+    OD_ADC_RESOLUTION,
+    OD_ANALOG_INPUT_16,
+    OD_ANALOG_INPUT_32,
+    OD_ANALOG_OUTPUT_16,
+    OD_DIAGNOSTICS,
+    OD_RPDO1_COMM,
+    OD_RPDO_EVENT_TIMER_SUB,
+    OD_SAMPLE_PERIOD,
+    OD_VALVE_LIMIT,
+    OD_WATCHDOG_PERIODS,
+    SYNC_COUNTER_OVERFLOW,
+    TPDO2_BASE,
+    TPDO3_BASE,
+    EmcyCode,
+    NmtCommand,
+    NmtState,
+    cob_ids,
+    decode_analog_outputs,
+    encode_analog_inputs_16,
+    encode_analog_inputs_32,
+    encode_emcy,
+    encode_heartbeat,
+    sync_gap,
+)
+
+log = logging.getLogger(__name__)
+
+CONFLICT_CLEAR_PERIODS: Final[int] = 10
+"""Clean SYNC periods after which a SYNC or RPDO conflict EMCY is reset."""
+TIME_COB_ID: Final[int] = 0x100
+LSS_FIRST_COB_ID: Final[int] = 0x780
+"""0x780.. (LSS 0x7E4/0x7E5 and friends) never belong to a node id."""
+
+
+class NodeApplication(Protocol):
+    """What the node needs from the plant (implemented by the plant service)."""
+
+    def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        """Advance the plant to this SYNC and sample it: (codes int64 (4,) at
+        the current ADC resolution, saturated bool (4,)). ``counter`` is the
+        SYNC counter (1..240), or 0 for SYNCs without counter."""
+        ...
+
+    def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
+        """New valve voltages (2,), after D/A quantization and clipping."""
+        ...
+
+    def on_watchdog(self, tripped: bool) -> None:
+        """SYNC lost (True: drive the valves to zero and hold) or back (False)."""
+        ...
+
+
+class ConfigurableApplication(NodeApplication, Protocol):
+    """Optional hooks, looked up with ``getattr``: an application without
+    ``on_adc_bits`` refuses resolution changes by SDO (abort 0x08000020);
+    one without ``on_sample_period`` just has the value stored. Either may
+    raise to refuse a value (abort 0x08000020, the old value stays)."""
+
+    def on_adc_bits(self, bits: int) -> None:
+        """Switch the A/D to ``bits`` (12, 16, 20): later ``on_sync`` codes use it."""
+        ...
+
+    def on_sample_period(self, period_s: float) -> None: ...
+
+
+def error_register_bits(code: int) -> int:
+    """CiA 301 error register (0x1001) bits for an active EMCY code, besides
+    the generic bit 0: current (bit 1), voltage (2), temperature (3),
+    communication (4), manufacturer specific (7)."""
+    if code >> 8 == 0xFF:
+        return 0x80
+    return {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}.get(code >> 12, 0x00)
+
+
+def node_can_filters(node_id: int = DEFAULT_NODE_ID) -> list[can.typechecking.CanFilter]:
+    """python-can filters for a node's bus: NMT, SYNC and every COB-ID with the
+    node's id (so misaddressed frames are still counted; udp_multicast echoes
+    of our own frames pass and are counted as ``own_cob_id``)."""
+    return [
+        {"can_id": 0x000, "can_mask": 0x7FF, "extended": False},
+        {"can_id": 0x080, "can_mask": 0x7FF, "extended": False},
+        {"can_id": node_id, "can_mask": 0x07F, "extended": False},
+    ]
+
+
+_ZERO_OUTPUTS: Final = np.zeros(N_ANALOG_OUTPUTS)
+
+
+class CanopenNode:
+    """The CANopen slave state machine. See the module docstring."""
+
+    def __init__(self, app: NodeApplication, cfg: NodeConfig | None = None) -> None:
+        self.app = app
+        self.cfg = cfg if cfg is not None else NodeConfig()
+        self.node_id = self.cfg.node_id
+        self.ids = cob_ids(self.node_id)
+        self.counters = NodeCounters()
+        self.od = ObjectDictionary.from_table(object_table(self.cfg), self.node_id)
+        self.sdo = SdoServer(self.od)
+        self.counters.sdo = self.sdo.counters
+        self.state = NmtState.BOOT_UP
+        self._lock = threading.RLock()
+        self._outbox: list[can.Message] = []
+        self._now = 0.0
+        self._logged: set[str] = set()
+        self._faults: dict[int, bytes] = {}
+        self._error_history: list[int] = []
+        self._tripped = False
+        self._wd_last: float | None = None
+        self._rpdo_last: float | None = None
+        """last RPDO1 in OPERATIONAL: the watchdog's second input (armed by the first RPDO)"""
+        self._trip_cause = "sync"
+        self._rpdos_in_period = 0
+        self._sync_conflict_clean = 0
+        self._rpdo_conflict_clean = 0
+        self._last_sync_counter: int | None = None
+        self._hb_next: float | None = None
+        self._outputs_v = _ZERO_OUTPUTS.copy()
+        self._own_ids = frozenset(
+            self.ids[k] for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat")
+        )
+        self._install_hooks()
+        self._boot()
+
+    # --- public API ------------------------------------------------------------------
+
+    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
+        """Process one received frame; returns the frames to transmit."""
+        with self._lock:
+            self._now = now
+            try:
+                self._dispatch(msg, now)
+            except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
+                self.counters.internal_errors += 1
+                log.exception("node %d: internal error handling %s", self.node_id, msg)
+            self._start_timers(now)
+            return self._drain()
+
+    def poll(self, now: float) -> list[can.Message]:
+        """Run the timers (heartbeat producer, SYNC watchdog); returns frames to transmit.
+        Call it at least every few milliseconds, or at :meth:`next_deadline`."""
+        with self._lock:
+            self._now = now
+            self._start_timers(now)
+            period = self.heartbeat_period_s
+            if period > 0 and self._hb_next is not None and now >= self._hb_next:
+                self._emit(self.ids["heartbeat"], encode_heartbeat(self.state), "heartbeat")
+                self._hb_next += period
+                if self._hb_next <= now:
+                    self.counters.heartbeat_late += 1
+                    self._hb_next = now + period
+            deadline = self._watchdog_deadline()
+            if deadline is not None and now >= deadline:
+                self._trip(now)
+            return self._drain()
+
+    def next_deadline(self) -> float | None:
+        """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
+        with self._lock:
+            times = [t for t in (self._hb_next, self._watchdog_deadline()) if t is not None]
+            if self._outbox:
+                times.append(self._now)
+            return min(times) if times else None
+
+    def set_fault(self, code: EmcyCode | int, active: bool, vendor: bytes = b"") -> None:
+        """Raise or clear an application fault (e.g. ``EmcyCode.JOINT_LIMIT``):
+        EMCY on entry and the reset EMCY on exit; the frames go out with the
+        next :meth:`handle`/:meth:`poll` result."""
+        if not 0 <= int(code) <= 0xFFFF or int(code) == 0:
+            raise ValueError(f"EMCY code must be 0x0001..0xFFFF, got {code}")
+        with self._lock:
+            self._set_fault(int(code), active, vendor[:5])
+
+    @property
+    def watchdog_tripped(self) -> bool:
+        return self._tripped
+
+    @property
+    def outputs_v(self) -> npt.NDArray[np.float64]:
+        """Valve voltages as last given to the application."""
+        return self._outputs_v.copy()
+
+    @property
+    def adc_bits(self) -> int:
+        return int(self.od.get(OD_ADC_RESOLUTION))
+
+    @property
+    def valve_limit_v(self) -> float:
+        return float(self.od.get(OD_VALVE_LIMIT))
+
+    @property
+    def sample_period_s(self) -> float:
+        return int(self.od.get(OD_SAMPLE_PERIOD)) * 1e-6
+
+    @property
+    def heartbeat_period_s(self) -> float:
+        return int(self.od.get(0x1017)) * 1e-3
+
+    @property
+    def rpdo_timeout_s(self) -> float:
+        """0x1400 sub 5, the RPDO1 event timer: deadline monitoring of RPDO1 (0 = off)."""
+        return int(self.od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3
+
+    @property
+    def watchdog_timeout_s(self) -> float:
+        """0 when the watchdog is disabled."""
+        return int(self.od.get(OD_WATCHDOG_PERIODS)) * self.sample_period_s
+
+    @property
+    def error_register(self) -> int:
+        reg = 0
+        for code in self._faults:
+            reg |= 0x01 | error_register_bits(code)
+        return reg
+
+    @property
+    def active_faults(self) -> tuple[int, ...]:
+        return tuple(self._faults)
+
+    # --- object dictionary hooks -------------------------------------------------------
+
+    def _install_hooks(self) -> None:
+        od = self.od
+        od.getter(0x1001, 0, lambda: self.error_register)
+        diag: Sequence[Callable[[], Value]] = (
+            lambda: self.counters.sync_received,
+            lambda: self.counters.syncs_missed,
+            lambda: self.counters.watchdog_trips,
+            lambda: self.counters.clipped_outputs,
+            lambda: self.counters.malformed_total,
+            lambda: sum(self.counters.sdo.aborts.values()),
+        )
+        for sub, fn in enumerate(diag, start=1):
+            od.getter(OD_DIAGNOSTICS, sub, fn)
+        od.on_write(0x1003, 0, self._write_error_history)
+        od.on_write(0x1017, 0, self._write_heartbeat)
+        od.on_write(0x1019, 0, self._write_sync_overflow)
+        od.on_write(OD_SAMPLE_PERIOD, 0, self._write_sample_period)
+        od.on_write(OD_ADC_RESOLUTION, 0, self._write_adc_resolution)
+        od.on_write(OD_VALVE_LIMIT, 0, self._write_valve_limit)
+        od.on_write(OD_WATCHDOG_PERIODS, 0, self._write_watchdog_periods)
+        od.on_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, self._write_rpdo_timer)
+        for sub in range(1, N_ANALOG_OUTPUTS + 1):
+            od.on_write(OD_ANALOG_OUTPUT_16, sub, self._output_writer(sub))
+
+    def _write_error_history(self, value: Value) -> None:
+        if value != 0:
+            raise SdoAbort(SdoAbortCode.INVALID_VALUE, "only 0 may be written (clears the history)")
+        self._error_history.clear()
+        for sub in range(1, 9):
+            self.od.set(0x1003, sub, 0)
+
+    def _write_heartbeat(self, value: Value) -> None:
+        self._hb_next = None  # restart with the new period (one period from now)
+
+    def _write_sync_overflow(self, value: Value) -> None:
+        if value not in (0, SYNC_COUNTER_OVERFLOW):
+            raise SdoAbort(SdoAbortCode.INVALID_VALUE, f"0x1019 must be 0 or {SYNC_COUNTER_OVERFLOW}")
+        self._last_sync_counter = None
+
+    def _write_sample_period(self, value: Value) -> None:
+        hook = getattr(self.app, "on_sample_period", None)
+        if hook is not None:
+            try:
+                hook(int(value) * 1e-6)
+            except Exception as e:  # noqa: BLE001 - the app refuses: abort, keep the old value
+                raise SdoAbort(SdoAbortCode.CANNOT_STORE, f"application refused the sample period: {e}") from e
+
+    def _write_adc_resolution(self, value: Value) -> None:
+        if value not in ADC_RESOLUTIONS:
+            raise SdoAbort(SdoAbortCode.INVALID_VALUE, f"ADC resolution must be one of {ADC_RESOLUTIONS}")
+        bits = int(value)
+        if bits == self.adc_bits:
+            return
+        hook = getattr(self.app, "on_adc_bits", None)
+        if hook is None:
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE, "the application cannot change the ADC resolution")
+        try:
+            hook(bits)
+        except Exception as e:  # noqa: BLE001
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE, f"application refused {bits} bits: {e}") from e
+        self._update_tpdo_valid(bits)
+        log.info("node %d: ADC resolution %d bits", self.node_id, bits)
+
+    def _write_watchdog_periods(self, value: Value) -> None:
+        if int(value) == 0:
+            self.counters.watchdog_disable_refused += 1
+            log.warning("node %d: SDO write 0x2003 = 0 (watchdog off) refused; only the node's configuration "
+                        "disables it", self.node_id)
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
+                           "the SYNC watchdog cannot be disabled over the bus (use a longer time)")
+
+    def _write_rpdo_timer(self, value: Value) -> None:
+        if self.state is NmtState.OPERATIONAL:
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
+                           "the RPDO1 event timer is set in PRE-OPERATIONAL (before NMT START)")
+
+    def _write_valve_limit(self, value: Value) -> None:
+        v = float(value)
+        if v <= 0:
+            raise SdoAbort(SdoAbortCode.VALUE_TOO_LOW, "the valve voltage limit must be positive")
+        if v > FULL_SCALE_V:
+            raise SdoAbort(SdoAbortCode.VALUE_TOO_HIGH, f"the D/A spans ±{FULL_SCALE_V} V")
+        if self.state is NmtState.OPERATIONAL and not self._tripped:
+            words = self._output_words()
+            wanted = DAC12.to_volts(DAC12.from_left_justified(words))
+            if np.any(np.abs(wanted) > v) or int(EmcyCode.OUTPUT_CLIPPED) in self._faults:
+                self._apply_outputs(words, limit_v=v)  # re-clip (or release) what the valves get now
+
+    def _output_writer(self, sub: int) -> Callable[[Value], None]:
+        def write(value: Value) -> None:
+            if self.state is not NmtState.OPERATIONAL or self._tripped:
+                raise SdoAbort(
+                    SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
+                    "outputs are written only in OPERATIONAL with SYNC present",
+                )
+            words = self._output_words()
+            words[sub - 1] = int(value)
+            self._apply_outputs(words)
+
+        return write
+
+    def _update_tpdo_valid(self, bits: int) -> None:
+        valid = bits > 16
+        for index, base in ((0x1801, TPDO2_BASE), (0x1802, TPDO3_BASE)):
+            self.od.set(index, 1, PDO_NO_RTR | (0 if valid else PDO_NOT_VALID) | (base + self.node_id))
+
+    # --- dispatch ---------------------------------------------------------------------------
+
+    def _dispatch(self, msg: can.Message, now: float) -> None:
+        if msg.is_error_frame:
+            self.counters.rx["error_frame"] += 1
+            return
+        if msg.is_extended_id:
+            self.counters.rx["extended"] += 1
+            return
+        cob_id = msg.arbitration_id
+        ours = cob_id < LSS_FIRST_COB_ID and (cob_id & 0x7F) == self.node_id
+        if msg.is_remote_frame:
+            if ours or cob_id in (self.ids["nmt"], self.ids["sync"]):
+                self._malformed("rtr", msg, "remote frames (node guarding, PDO requests) are not supported")
+            else:
+                self.counters.rx["foreign"] += 1
+            return
+        data = bytes(msg.data)
+        if cob_id == self.ids["nmt"]:
+            self._on_nmt(msg, data)
+        elif cob_id == self.ids["sync"]:
+            self._on_sync(msg, data, now)
+        elif cob_id == TIME_COB_ID:
+            self.counters.rx["time"] += 1
+        elif not ours:
+            self.counters.rx["foreign"] += 1
+        elif cob_id == self.ids["rpdo1"]:
+            self._on_rpdo(msg, data, now)
+        elif cob_id == self.ids["sdo_rx"]:
+            self._on_sdo(msg, data)
+        elif cob_id in self._own_ids:
+            self.counters.rx["own_cob_id"] += 1
+        else:
+            self._malformed("unknown_cob_id", msg, "no such object on this node")
+
+    def _on_nmt(self, msg: can.Message, data: bytes) -> None:
+        self.counters.rx["nmt"] += 1
+        if len(data) != 2:
+            self._malformed("nmt_dlc", msg, f"NMT takes 2 bytes, got {len(data)}")
+            return
+        try:
+            command = NmtCommand(data[0])
+        except ValueError:
+            self._malformed("nmt_command", msg, f"unknown NMT command 0x{data[0]:02X}")
+            return
+        target = data[1]
+        if target > 127:
+            self._malformed("nmt_node_id", msg, f"NMT node id {target} outside 0..127")
+            return
+        if target not in (0, self.node_id):
+            self.counters.rx["nmt_other_node"] += 1
+            return
+        if command is NmtCommand.START:
+            self._enter(NmtState.OPERATIONAL)
+        elif command is NmtCommand.STOP:
+            self._enter(NmtState.STOPPED)
+        elif command is NmtCommand.ENTER_PRE_OPERATIONAL:
+            self._enter(NmtState.PRE_OPERATIONAL)
+        elif command is NmtCommand.RESET_NODE:
+            self._reset(application=True)
+        elif command is NmtCommand.RESET_COMMUNICATION:
+            self._reset(application=False)
+
+    def _on_sync(self, msg: can.Message, data: bytes, now: float) -> None:
+        self.counters.rx["sync"] += 1
+        if self.state is NmtState.STOPPED:
+            self.counters.rx["sync_stopped"] += 1
+            return
+        overflow = int(self.od.get(0x1019))
+        missed = 0
+        conflict = ""
+        if not data:
+            counter = 0  # SYNC without counter: accepted whatever 0x1019 says (CiA 301 allows both)
+            if self._last_sync_counter:
+                conflict = "a SYNC without counter among SYNCs with counter"
+        else:
+            if overflow == 0:
+                self._malformed("sync_dlc", msg, "0x1019 = 0: SYNC without counter expected (DLC 0)")
+                return
+            if len(data) != 1:
+                self._malformed("sync_dlc", msg, f"SYNC with counter takes 1 byte, got {len(data)}")
+                return
+            counter = data[0]
+            if not 1 <= counter <= overflow:
+                self._malformed("sync_counter", msg, f"SYNC counter {counter} outside 1..{overflow}")
+                return
+            prev = self._last_sync_counter
+            if prev == 0:
+                conflict = "a SYNC with counter among SYNCs without counter"
+            elif prev is not None:
+                if counter == prev:
+                    self.counters.sync_repeats += 1
+                    conflict = f"SYNC counter {counter} repeated"
+                else:
+                    gap = sync_gap(prev, counter)
+                    if gap >= overflow // 2:
+                        conflict = f"SYNC counter went back from {prev} to {counter}"
+                    elif gap:
+                        missed = gap
+                        self.counters.sync_gaps += 1
+                        self.counters.syncs_missed += gap
+                        log.debug("node %d: SYNC gap %d -> %d (%d missed)", self.node_id, prev, counter, gap)
+            self._last_sync_counter = counter
+        if not data:
+            self._last_sync_counter = 0
+        self.counters.sync_received += 1
+        self._check_sync_conflict(conflict)
+        if self.state is not NmtState.OPERATIONAL:
+            return
+        self._check_rpdo_conflict(missed)
+        if self._tripped and self._trip_cause == "sync":
+            self._recover(now)
+        self._wd_last = now
+        self._sample(counter)
+
+    def _check_sync_conflict(self, conflict: str) -> None:
+        """A second SYNC producer shows in the counters (repeats, jumps back,
+        mixed forms): EMCY SYNC_CONFLICT until CONFLICT_CLEAR_PERIODS clean SYNCs."""
+        if conflict:
+            self.counters.sync_conflicts += 1
+            self._sync_conflict_clean = 0
+            if int(EmcyCode.SYNC_CONFLICT) not in self._faults:
+                log.warning("node %d: %s: a second SYNC producer on the bus?", self.node_id, conflict)
+            self._set_fault(EmcyCode.SYNC_CONFLICT, True, bytes([self._last_sync_counter or 0]))
+        elif int(EmcyCode.SYNC_CONFLICT) in self._faults:
+            self._sync_conflict_clean += 1
+            if self._sync_conflict_clean >= CONFLICT_CLEAR_PERIODS:
+                self._set_fault(EmcyCode.SYNC_CONFLICT, False)
+
+    def _check_rpdo_conflict(self, missed: int) -> None:
+        """At each SYNC, while RPDO1 is declared cyclic (0x1400 sub 5 > 0): more
+        RPDO1s in the period just ended than SYNCs in it (1 + the SYNCs the
+        counter says were lost) means a second producer: EMCY RPDO_CONFLICT
+        until CONFLICT_CLEAR_PERIODS clean periods."""
+        n, self._rpdos_in_period = self._rpdos_in_period, 0
+        if self.rpdo_timeout_s <= 0:
+            return  # RPDO1 not declared cyclic: event-driven masters may send several per period
+        if n > 1 + missed:
+            self.counters.rpdo_conflicts += 1
+            self._rpdo_conflict_clean = 0
+            if int(EmcyCode.RPDO_CONFLICT) not in self._faults:
+                log.warning("node %d: %d RPDO1 in one SYNC period: a second RPDO producer on the bus?",
+                            self.node_id, n)
+            self._set_fault(EmcyCode.RPDO_CONFLICT, True, bytes([min(n, 255)]))
+        elif int(EmcyCode.RPDO_CONFLICT) in self._faults:
+            self._rpdo_conflict_clean += 1
+            if self._rpdo_conflict_clean >= CONFLICT_CLEAR_PERIODS:
+                self._set_fault(EmcyCode.RPDO_CONFLICT, False)
+
+    def _on_rpdo(self, msg: can.Message, data: bytes, now: float) -> None:
+        self.counters.rx["rpdo"] += 1
+        if self.state is not NmtState.OPERATIONAL:
+            self._malformed("rpdo_not_operational", msg, f"RPDO in {self.state.name}, PDOs need NMT START")
+            return
+        if len(data) != 4:
+            self._malformed("rpdo_dlc", msg, f"RPDO1 takes 4 bytes, got {len(data)}")
+            self._set_fault(EmcyCode.PDO_LENGTH, True, bytes([len(data) & 0xFF]))
+            return
+        self._set_fault(EmcyCode.PDO_LENGTH, False)
+        if self._tripped:
+            self.counters.outputs_held += 1
+            if self._trip_cause == "rpdo":
+                self._recover(now)  # the controller is back; this frame is held, the next one applies
+            return
+        self._rpdo_last = now
+        self._rpdos_in_period += 1  # held frames (tripped) are not counted
+        self._apply_outputs(decode_analog_outputs(data))
+
+    def _on_sdo(self, msg: can.Message, data: bytes) -> None:
+        self.counters.rx["sdo"] += 1
+        if self.state is NmtState.STOPPED:
+            self._malformed("sdo_stopped", msg, "SDO is not served in STOPPED")
+            return
+        if len(data) != 8:
+            self._malformed("sdo_dlc", msg, f"SDO requests take 8 bytes, got {len(data)}")
+            return
+        response = self.sdo.handle(data)
+        if response is not None:
+            self._emit(self.ids["sdo_tx"], response, "sdo")
+
+    # --- NMT ------------------------------------------------------------------------------
+
+    def _boot(self) -> None:
+        self.state = NmtState.BOOT_UP
+        self.sdo.reset()
+        self._emit(self.ids["heartbeat"], encode_heartbeat(NmtState.BOOT_UP), "bootup")
+        self.state = NmtState.PRE_OPERATIONAL
+        self._hb_next = None
+        self._last_sync_counter = None
+        self._wd_last = None
+        self._rpdo_last = None
+        self._rpdos_in_period = 0
+        log.info("node %d: boot-up, PRE-OPERATIONAL", self.node_id)
+
+    def _enter(self, new: NmtState) -> None:
+        old = self.state
+        if new is old:
+            return
+        self.state = new
+        log.info("node %d: NMT %s -> %s", self.node_id, old.name, new.name)
+        if old is NmtState.OPERATIONAL:
+            self._leave_operational()
+        if new is NmtState.OPERATIONAL:
+            self._wd_last = None  # armed by the first SYNC
+            self._rpdo_last = None  # and by the first RPDO
+            self._last_sync_counter = None  # a new master may count differently
+            self._rpdos_in_period = 0
+
+    def _leave_operational(self) -> None:
+        self._wd_last = None
+        self._rpdo_last = None
+        if self._tripped:
+            self._tripped = False
+            self._call_app("on_watchdog", self.app.on_watchdog, False)
+            self._set_fault(EmcyCode.SYNC_TIMEOUT, False)
+        self._zero_outputs()
+        self._call_app("on_outputs", self.app.on_outputs, _ZERO_OUTPUTS.copy())
+        self._set_fault(EmcyCode.OUTPUT_CLIPPED, False)
+
+    def _reset(self, application: bool) -> None:
+        old_bits, old_period = self.adc_bits, int(self.od.get(OD_SAMPLE_PERIOD))
+        was_operational = self.state is NmtState.OPERATIONAL
+        self.state = NmtState.BOOT_UP  # no EMCY from the tear-down: the boot-up says it all
+        if was_operational or self._tripped or np.any(self._outputs_v):
+            if self._tripped:
+                self._tripped = False
+                self._call_app("on_watchdog", self.app.on_watchdog, False)
+            self._zero_outputs()
+            self._call_app("on_outputs", self.app.on_outputs, _ZERO_OUTPUTS.copy())
+        self._faults.clear()
+        self._error_history.clear()
+        self.od.restore_defaults(None if application else range(0x1000, 0x2000))
+        if application:
+            bits, period = self.adc_bits, int(self.od.get(OD_SAMPLE_PERIOD))
+            if bits != old_bits:
+                hook = getattr(self.app, "on_adc_bits", None)
+                if hook is not None:
+                    self._call_app("on_adc_bits", hook, bits)
+            if period != old_period:
+                hook = getattr(self.app, "on_sample_period", None)
+                if hook is not None:
+                    self._call_app("on_sample_period", hook, period * 1e-6)
+        self._update_tpdo_valid(self.adc_bits)
+        log.info("node %d: NMT reset %s", self.node_id, "node" if application else "communication")
+        self._boot()
+
+    # --- process data -----------------------------------------------------------------
+
+    def _sample(self, counter: int) -> None:
+        result = self._call_app("on_sync", self.app.on_sync, counter)
+        if result is None:
+            return
+        try:
+            raw_codes, raw_sat = result
+            codes = np.asarray(raw_codes)
+            saturated = np.asarray(raw_sat, dtype=bool).reshape(N_ANALOG_INPUTS)
+            if codes.shape != (N_ANALOG_INPUTS,):
+                raise ValueError(f"codes must have shape (4,), got {codes.shape}")
+            if not np.issubdtype(codes.dtype, np.integer):
+                if not np.all(np.isfinite(codes.astype(np.float64))):
+                    raise ValueError("codes must be finite")
+                codes = np.rint(codes.astype(np.float64))
+            codes = codes.astype(np.int64)
+        except Exception as e:  # noqa: BLE001 - a bad sample costs one TPDO, not the node
+            self.counters.app_errors += 1
+            self._log_once("app:on_sync_result", "node %d: on_sync returned unusable data: %s", self.node_id, e)
+            return
+        bits = self.adc_bits
+        lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+        if np.any((codes < lo) | (codes > hi)):
+            self.counters.app_codes_clipped += 1
+            self._log_once("app:codes", "node %d: on_sync codes %s outside %d-bit range, clipped",
+                           self.node_id, codes, bits)
+            codes = np.clip(codes, lo, hi)
+        words16 = codes << (16 - bits) if bits <= 16 else codes >> (bits - 16)
+        words32 = codes << (32 - bits)
+        for sub in range(1, N_ANALOG_INPUTS + 1):
+            self.od.set(OD_ANALOG_INPUT_16, sub, int(words16[sub - 1]))
+            self.od.set(OD_ANALOG_INPUT_32, sub, int(words32[sub - 1]))
+        self._emit(self.ids["tpdo1"], encode_analog_inputs_16(words16), "tpdo1")
+        if bits > 16:
+            tpdo2, tpdo3 = encode_analog_inputs_32(words32)
+            self._emit(self.ids["tpdo2"], tpdo2, "tpdo2")
+            self._emit(self.ids["tpdo3"], tpdo3, "tpdo3")
+        self.counters.samples += 1
+        n_sat = int(saturated.sum())
+        self.counters.saturated_samples += n_sat
+        mask = int(np.dot(saturated.astype(np.int64), 1 << np.arange(N_ANALOG_INPUTS)))
+        self._set_fault(EmcyCode.INPUT_SATURATED, n_sat > 0, bytes([mask]))
+
+    def _output_words(self) -> npt.NDArray[np.int64]:
+        return np.array([int(self.od.get(OD_ANALOG_OUTPUT_16, s)) for s in range(1, N_ANALOG_OUTPUTS + 1)],
+                        dtype=np.int64)
+
+    def _zero_outputs(self) -> None:
+        for sub in range(1, N_ANALOG_OUTPUTS + 1):
+            self.od.set(OD_ANALOG_OUTPUT_16, sub, 0)
+        self._outputs_v = _ZERO_OUTPUTS.copy()
+
+    def _apply_outputs(self, words: npt.NDArray[np.int64], limit_v: float | None = None) -> None:
+        for sub in range(1, N_ANALOG_OUTPUTS + 1):
+            self.od.set(OD_ANALOG_OUTPUT_16, sub, int(words[sub - 1]))
+        limit = self.valve_limit_v if limit_v is None else limit_v
+        limit_code = int(math.floor(limit / DAC12.lsb_v + 1e-9))
+        lo, hi = max(-limit_code, DAC12.code_min), min(limit_code, DAC12.code_max)
+        codes = DAC12.from_left_justified(words)
+        clipped = (codes < lo) | (codes > hi)
+        volts = DAC12.to_volts(np.clip(codes, lo, hi))
+        self._outputs_v = volts
+        self.counters.outputs_applied += 1
+        self._call_app("on_outputs", self.app.on_outputs, volts.copy())
+        if clipped.any():
+            self.counters.clipped_outputs += 1
+        mask = int(clipped[0]) | (int(clipped[1]) << 1)
+        self._set_fault(EmcyCode.OUTPUT_CLIPPED, bool(clipped.any()), bytes([mask]))
+
+    # --- watchdog ------------------------------------------------------------------------
+
+    def _deadlines(self) -> tuple[float | None, float | None]:
+        """(SYNC watchdog, RPDO1 deadline monitoring) while armed, else None."""
+        if self.state is not NmtState.OPERATIONAL or self._tripped:
+            return None, None
+        sync_timeout, rpdo_timeout = self.watchdog_timeout_s, self.rpdo_timeout_s
+        sync = self._wd_last + sync_timeout if self._wd_last is not None and sync_timeout > 0 else None
+        rpdo = self._rpdo_last + rpdo_timeout if self._rpdo_last is not None and rpdo_timeout > 0 else None
+        return sync, rpdo
+
+    def _watchdog_deadline(self) -> float | None:
+        times = [t for t in self._deadlines() if t is not None]
+        return min(times) if times else None
+
+    def _trip(self, now: float) -> None:
+        # SYNC silent, or SYNC still coming but RPDO1 stopped: someone else's
+        # SYNC stream must not keep the valves open for a controller that froze.
+        sync_deadline, _ = self._deadlines()
+        self._trip_cause = "sync" if sync_deadline is not None and now >= sync_deadline else "rpdo"
+        self._tripped = True
+        self.counters.watchdog_trips += 1
+        if self._trip_cause == "sync":
+            assert self._wd_last is not None
+            log.warning("node %d: no SYNC for %.1f ms: watchdog tripped, valves held at zero",
+                        self.node_id, (now - self._wd_last) * 1e3)
+        else:
+            self.counters.rpdo_timeouts += 1
+            assert self._rpdo_last is not None
+            log.warning("node %d: SYNC present but no RPDO1 for %.1f ms: watchdog tripped, valves held at zero",
+                        self.node_id, (now - self._rpdo_last) * 1e3)
+        self._zero_outputs()
+        self._call_app("on_watchdog", self.app.on_watchdog, True)
+        cause = 0 if self._trip_cause == "sync" else 1
+        self._set_fault(EmcyCode.SYNC_TIMEOUT, True, bytes([self._last_sync_counter or 0, cause]))
+        self._set_fault(EmcyCode.OUTPUT_CLIPPED, False)
+
+    def _recover(self, now: float) -> None:
+        self._tripped = False
+        self.counters.watchdog_recoveries += 1
+        log.info("node %d: %s back, watchdog released", self.node_id, "SYNC" if self._trip_cause == "sync" else "RPDO1")
+        self._wd_last = now
+        self._rpdo_last = now if self._rpdo_last is not None else None
+        self._call_app("on_watchdog", self.app.on_watchdog, False)
+        self._set_fault(EmcyCode.SYNC_TIMEOUT, False)
+
+    # --- EMCY ------------------------------------------------------------------------------
+
+    def _set_fault(self, code: int, active: bool, vendor: bytes = b"") -> None:
+        code = int(code)
+        if active:
+            if code in self._faults:
+                return
+            self._faults[code] = vendor
+            self._record_error(code, vendor)
+            self._emcy(code, vendor)
+        else:
+            if code not in self._faults:
+                return
+            del self._faults[code]
+            self._emcy(EmcyCode.NO_ERROR, code.to_bytes(2, "little"))
+
+    def _record_error(self, code: int, vendor: bytes) -> None:
+        info = int.from_bytes(vendor[:2].ljust(2, b"\x00"), "little")
+        self._error_history.insert(0, code | (info << 16))
+        del self._error_history[8:]
+        for sub in range(1, 9):
+            self.od.set(0x1003, sub, self._error_history[sub - 1] if sub <= len(self._error_history) else 0)
+        self.od.set(0x1003, 0, len(self._error_history))
+
+    def _emcy(self, code: int, vendor: bytes) -> None:
+        if self.state not in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
+            self.counters.emcy_suppressed += 1
+            return
+        self._emit(self.ids["emcy"], encode_emcy(code, self.error_register, vendor[:5]), "emcy")
+
+    # --- plumbing -------------------------------------------------------------------------
+
+    def _start_timers(self, now: float) -> None:
+        if self._hb_next is None:
+            period = self.heartbeat_period_s
+            if period > 0:
+                self._hb_next = now + period
+
+    def _emit(self, cob_id: int, data: bytes, kind: str) -> None:
+        self.counters.tx[kind] += 1
+        self._outbox.append(
+            can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, timestamp=self._now)
+        )
+
+    def _drain(self) -> list[can.Message]:
+        out, self._outbox = self._outbox, []
+        return out
+
+    def _malformed(self, kind: str, msg: can.Message, why: str) -> None:
+        self.counters.malformed[kind] += 1
+        self._log_once(
+            kind,
+            "node %d: ignored %s frame id 0x%03X data [%s]: %s (further ones are only counted)",
+            self.node_id, kind, msg.arbitration_id, bytes(msg.data).hex(" "), why,
+        )
+
+    def _log_once(self, key: str, fmt: str, *args: object) -> None:
+        if key not in self._logged:
+            self._logged.add(key)
+            log.warning(fmt, *args)
+
+    def _call_app(self, name: str, fn: Callable[..., Any], *args: Any) -> Any:
+        try:
+            return fn(*args)
+        except Exception:  # noqa: BLE001 - the app's bug must not take the bus down
+            self.counters.app_errors += 1
+            if f"app:{name}" not in self._logged:
+                self._logged.add(f"app:{name}")
+                log.exception("node %d: application callback %s failed (further failures only counted)",
+                              self.node_id, name)
+            return None

@@ -1,0 +1,59 @@
+"""The node's I/O loop on a python-can bus: the only part with a clock and a socket."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import can
+
+from plant_emulator.canopen_node.node import CanopenNode
+
+log = logging.getLogger(__name__)
+
+
+def run_node(
+    bus: can.BusABC,
+    node: CanopenNode,
+    stop: threading.Event,
+    clock: Callable[[], float] = time.monotonic,
+    *,
+    max_wait_s: float = 0.02,
+) -> None:
+    """Serve ``node`` on ``bus`` until ``stop`` is set (returns within ``max_wait_s``).
+
+    Receives with a timeout bounded by the node's next deadline, so the
+    heartbeat and watchdog run on time; every received frame is handled and
+    answered at once (SYNC -> TPDO latency is one ``handle`` call). Send
+    errors are logged and counted, never raised. The bus belongs to the
+    caller (open and shut it there; :func:`node_can_filters` suits it).
+    """
+
+    def send(frames: list[can.Message]) -> None:
+        for frame in frames:
+            try:
+                bus.send(frame)
+            except (can.CanError, OSError) as e:
+                node.counters.tx_errors += 1
+                if node.counters.tx_errors == 1 or node.counters.tx_errors % 1000 == 0:
+                    log.warning("node %d: send failed (%d so far): %s", node.node_id, node.counters.tx_errors, e)
+
+    send(node.poll(clock()))
+    while not stop.is_set():
+        now = clock()
+        deadline = node.next_deadline()
+        timeout = max_wait_s if deadline is None else min(max(deadline - now, 0.0), max_wait_s)
+        try:
+            msg = bus.recv(timeout)
+        except (can.CanError, OSError) as e:
+            node.counters.rx_errors += 1
+            if node.counters.rx_errors == 1 or node.counters.rx_errors % 1000 == 0:
+                log.warning("node %d: receive failed (%d so far): %s", node.node_id, node.counters.rx_errors, e)
+            stop.wait(0.001)  # a broken bus must not spin the CPU
+            continue
+        now = clock()
+        if msg is not None:
+            send(node.handle(msg, now))
+        send(node.poll(now))
