@@ -71,9 +71,19 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.signal import cont2discrete
 
-from controller.metrics import percent_of_baseline, rms_costs
-from controller.metrics import acceleration_filter, velocity_filter
-from controller.oatf import OatfConfig, OatfDesignError, OatfFilter, robust_delay_s, transfer_function
+from controller.metrics import (
+    acceleration_filter,
+    percent_of_baseline,
+    rms_costs,
+    velocity_filter,
+)
+from controller.oatf import (
+    OatfConfig,
+    OatfDesignError,
+    OatfFilter,
+    robust_delay_s,
+    transfer_function,
+)
 from controller.pi import PIConfig, PIController
 from controller.record import save_record
 from controller.trajectory import load_trajectory, sample_trajectory
