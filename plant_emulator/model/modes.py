@@ -83,12 +83,12 @@ class Structure(BaseModel):
     tip_mass_lb: float = Field(2.0, ge=0, description="Tip hardware (photodiode, plate mount) without the payload")
     payload_lb: float = Field(PAYLOAD_LB, ge=0, description="The thesis's steel plate at the tip")
     slope_transmission: float = Field(0.0, ge=0, le=1.5, description="kappa: how much link 2's base turns with link 1's flexing")
-    link1_root_stiffness_nm_per_rad: float = Field(4.319e5, gt=0, description="k_r1: link 1's bending as a root spring")
-    cylinder1_stiffness_n_per_m: float = Field(5.0e6, gt=0, description="k_c1: cylinder 1's oil column")
+    link1_root_stiffness_nm_per_rad: float = Field(3.874e5, gt=0, description="k_r1: link 1's bending as a root spring")
+    cylinder1_stiffness_n_per_m: float = Field(1.4e7, gt=0, description="k_c1: cylinder 1's oil column (beta A^2 (1/V_a + 1/V_b), 2 in^2, mid-stroke, 1.4 GPa)")
     link2_root_stiffness_nm_per_rad: float = Field(
         1.0e5, gt=0, description="k_r2: link 2's bending as a root spring (sets the share of link 2's deflection its camera sees)"
     )
-    bar_stiffness_n_per_m: float = Field(1.773e7, gt=0, description="k_bar: parallel bar (with cylinder 2's oil) along the bar")
+    bar_stiffness_n_per_m: float = Field(1.794e7, gt=0, description="k_bar: parallel bar (with cylinder 2's oil) along the bar")
     crank_radius_in: float = Field(8.0, gt=0, description="r_c: elbow crank radius of the parallel bar")
     crank_offset_deg: float = Field(-4.0, ge=-9.0, le=59.0, description="beta_c: crank angle past link 2 (dead point at theta2 = -beta_c)")
     damping_ratios: tuple[float, float] = Field((0.09, 0.09), description="Modal damping ratios, mode 1 and 2 (thesis: 0.09 for the first)")
