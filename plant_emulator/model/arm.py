@@ -53,6 +53,7 @@ from plant_emulator.model.modes import (
     consts,
     eig2_scalar,
     modal_parameters,
+    bending_fractions_scalar,
     static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
@@ -65,8 +66,8 @@ MAX_EVENTS = 256
 """Hard-stop events kept in the truth (the counters never forget)."""
 
 
-@functools.lru_cache(maxsize=8)
-def default_deflection_zero(structure: Structure, payload: bool) -> tuple[float, float]:
+@functools.lru_cache(maxsize=16)
+def default_deflection_zero(structure: Structure, payload: bool, bending_only: bool = True) -> tuple[float, float]:
     """Where the deflection sensors read zero unless configured: the middle
     of the static deflection's range (in) over one lap of the inspection
     loop, so the loop's static sag is centred in the sensors' +-0.575/0.555
@@ -74,9 +75,9 @@ def default_deflection_zero(structure: Structure, payload: bool) -> tuple[float,
     try:
         tr = kin.sample_trajectory(dt_s=0.05)
     except FileNotFoundError:  # way-points not installed: zero at home instead
-        w = static_deflection_in(*kin.home_theta(), payload, structure)
+        w = static_deflection_in(*kin.home_theta(), payload, structure, bending_only)
         return float(w[0]), float(w[1])
-    w = static_deflection_in(tr.theta1_rad, tr.theta2_rad, payload, structure)
+    w = static_deflection_in(tr.theta1_rad, tr.theta2_rad, payload, structure, bending_only)
     mid = 0.5 * (w.min(axis=0) + w.max(axis=0))
     return float(mid[0]), float(mid[1])
 
@@ -106,6 +107,11 @@ class PlantConfig(BaseModel):
         None, description="Deflection read as zero by the sensors (default: the middle of the static deflection range over the inspection loop)"
     )
     structure: Structure = Field(DEFAULT_STRUCTURE, description="The flexible structure's physical parameters")
+    camera_on_link: bool = Field(
+        True,
+        description="Each deflection camera sits on its link's root (thesis §3.1.1: 'a camera at its base'), so it sees the link's bending, "
+        "not the link turning on its actuator's compliance; False: the whole tip deflection",
+    )
 
     @field_validator("valve_gain_in_per_s_per_v", "max_cylinder_speed_in_per_s")
     @classmethod
@@ -149,6 +155,9 @@ class GroundTruth:
     """Where the deflections would settle at this configuration at rest."""
     sensed_deflections_in: tuple[float, float]
     """What the deflection channels carry now: filtered, noisy, relative to the sensor zero."""
+    camera_deflections_in: tuple[float, float]
+    """What the cameras see (before filter, noise and zero): the links' bending
+    (``deflections_in`` times the bending fractions; equal to it with ``camera_on_link`` off)."""
     modal_frequencies_hz: tuple[float, ...]
     damping_ratios: tuple[float, ...]
     tip_in: tuple[float, float]
@@ -215,6 +224,7 @@ class RalfArm:
         # flexible state at static equilibrium
         self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
         self._beta_dot = [0.0, 0.0]
+        self._frac = self._fractions(self._theta[0], self._theta[1])
         # sensors
         self._noise = NoiseSources(cfg.seed)
         self._aa = AntiAliasFilter(cfg.antialias_cutoff_hz, self._h)
@@ -226,8 +236,12 @@ class RalfArm:
             self._aa.input_std_for_output_std(analog_noise_std(cfg.deflection_noise_std_in[j], channel_lsb_in(2 + j, ref))) if on else 0.0
             for j in (0, 1)
         )
-        w = self._deflections()
-        self._zero = tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else default_deflection_zero(cfg.structure, self._payload)
+        w = self._seen()
+        self._zero = (
+            tuple(cfg.deflection_zero_in)
+            if cfg.deflection_zero_in is not None
+            else default_deflection_zero(cfg.structure, self._payload, cfg.camera_on_link)
+        )
         self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
 
     # -- public API ---------------------------------------------------------------------
@@ -299,6 +313,7 @@ class RalfArm:
             deflection_rates_in_s=wd,
             static_deflections_in=(L1_M * ws[0] / kin.INCH, L2_M * ws[1] / kin.INCH),
             sensed_deflections_in=(fo[0], fo[1]),
+            camera_deflections_in=self._seen(),
             modal_frequencies_hz=tuple(float(x) for x in f),
             damping_ratios=tuple(float(x) for x in z),
             tip_in=tip,
@@ -349,6 +364,15 @@ class RalfArm:
 
     def _deflections(self) -> tuple[float, float]:
         return L1_M * self._beta[0] / kin.INCH, L2_M * self._beta[1] / kin.INCH
+
+    def _fractions(self, t1: float, t2: float) -> tuple[float, float]:
+        """What share of each tip deflection the cameras see (1, 1 with ``camera_on_link`` off)."""
+        return bending_fractions_scalar(self._consts[self._payload], t1, t2) if self.cfg.camera_on_link else (1.0, 1.0)
+
+    def _seen(self) -> tuple[float, float]:
+        """The deflections the cameras see (in): the links' bending."""
+        f0, f1 = self._frac
+        return f0 * L1_M * self._beta[0] / kin.INCH, f1 * L2_M * self._beta[1] / kin.INCH
 
     def _tip(self, t1: float, t2: float) -> tuple[float, float]:
         """Tip position (in) with the flexing: link 1 turns by beta1 about
@@ -410,7 +434,7 @@ class RalfArm:
         v1, v2 = self._beta_dot
         mb1, mb2 = M11 * b1 + M12 * b2, M12 * b1 + M22 * b2
         mv1, mv2 = M11 * v1 + M12 * v2, M12 * v1 + M22 * v2
-        w_old = self._deflections()
+        w_old = self._seen()
         nb1 = nb2 = nv1 = nv2 = 0.0
         for (pa, pb), (w2, sig, c, s) in zip(((p11, p21), (p12, p22)), steps, strict=True):
             eta = pa * mb1 + pb * mb2
@@ -427,8 +451,9 @@ class RalfArm:
         self._beta_dot = [nv1, nv2]
         self._theta = new_theta
         self._theta_dot = new_rate
-        # 4. anti-alias filters with the deflection noise at their input
-        w_new = self._deflections()
+        # 4. anti-alias filters with the deflection noise at their input (the cameras see the bending)
+        self._frac = self._fractions(new_theta[0], new_theta[1])
+        w_new = self._seen()
         z0, z1 = self._zero
         n0, n1 = self._noise.step_pair() if self.cfg.sensor_noise else (0.0, 0.0)
         self._aa.step(

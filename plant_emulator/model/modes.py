@@ -83,12 +83,14 @@ class Structure(BaseModel):
     tip_mass_lb: float = Field(2.0, ge=0, description="Tip hardware (photodiode, plate mount) without the payload")
     payload_lb: float = Field(PAYLOAD_LB, ge=0, description="The thesis's steel plate at the tip")
     slope_transmission: float = Field(0.0, ge=0, le=1.5, description="kappa: how much link 2's base turns with link 1's flexing")
-    link1_root_stiffness_nm_per_rad: float = Field(4.37e5, gt=0, description="k_r1: link 1's bending as a root spring")
-    cylinder1_stiffness_n_per_m: float = Field(5.0e6, gt=0, description="k_c1: cylinder 1's oil column")
-    link2_root_stiffness_nm_per_rad: float = Field(1.665e5, gt=0, description="k_r2: link 2's bending as a root spring")
-    bar_stiffness_n_per_m: float = Field(7.80e6, gt=0, description="k_bar: parallel bar (with cylinder 2's oil) along the bar")
+    link1_root_stiffness_nm_per_rad: float = Field(3.874e5, gt=0, description="k_r1: link 1's bending as a root spring")
+    cylinder1_stiffness_n_per_m: float = Field(1.4e7, gt=0, description="k_c1: cylinder 1's oil column (beta A^2 (1/V_a + 1/V_b), 2 in^2, mid-stroke, 1.4 GPa)")
+    link2_root_stiffness_nm_per_rad: float = Field(
+        1.0e5, gt=0, description="k_r2: link 2's bending as a root spring (sets the share of link 2's deflection its camera sees)"
+    )
+    bar_stiffness_n_per_m: float = Field(1.794e7, gt=0, description="k_bar: parallel bar (with cylinder 2's oil) along the bar")
     crank_radius_in: float = Field(8.0, gt=0, description="r_c: elbow crank radius of the parallel bar")
-    crank_offset_deg: float = Field(0.0, ge=-9.0, le=59.0, description="beta_c: crank angle past link 2 (dead point at theta2 = -beta_c)")
+    crank_offset_deg: float = Field(-4.0, ge=-9.0, le=59.0, description="beta_c: crank angle past link 2 (dead point at theta2 = -beta_c)")
     damping_ratios: tuple[float, float] = Field((0.09, 0.09), description="Modal damping ratios, mode 1 and 2 (thesis: 0.09 for the first)")
     gravity_m_s2: float = Field(G_M_S2, ge=0, description="Gravity (0 switches it off)")
 
@@ -194,6 +196,38 @@ def coefficients_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[float
     )
 
 
+def _bending_fractions(k: _Consts, lever1_m, sbar):  # type: ignore[no-untyped-def]
+    """Share of each joint chain's rotation that is the link's own bending: ``k_i / k_ri``.
+
+    The chain of joint ``i`` is the link's root bending ``k_ri`` in series with
+    the actuator (cylinder 1's oil column through its lever; the parallel bar
+    through the crank); the massless node between them carries the same
+    torque, so the link bends by ``k_i beta_i / k_ri`` and the rest is the
+    whole link, camera included, turning on the actuator's compliance."""
+    k1 = 1.0 / (1.0 / k.kr1 + 1.0 / (k.kc1 * lever1_m * lever1_m))
+    k2 = 1.0 / (1.0 / k.kr2 + 1.0 / (k.kbar_r2 * sbar * sbar))
+    return k1 / k.kr1, k2 / k.kr2
+
+
+def bending_fractions(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:  # type: ignore[no-untyped-def]
+    """Vectorised :func:`_bending_fractions` at joint angles (rad), shape (..., 2)."""
+    t1 = np.asarray(theta1, dtype=float)
+    t2 = np.asarray(theta2, dtype=float)
+    k = consts(structure, bool(payload))
+    lever1_m = CYLINDER1.p_in * CYLINDER1.q_in * np.sin(t1 + CYLINDER1.offset_rad) / np.asarray(CYLINDER1.length(t1)) * INCH
+    f1, f2 = _bending_fractions(k, lever1_m, np.sin(t2 + k.beta_c))
+    return np.stack(np.broadcast_arrays(f1, f2), axis=-1)
+
+
+def bending_fractions_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[float, float]:
+    """:func:`bending_fractions` for one configuration on floats."""
+    cyl = CYLINDER1
+    gamma = theta1 + cyl.offset_rad
+    pq = cyl.p_in * cyl.q_in
+    lever1_m = pq * math.sin(gamma) / math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(gamma)) * INCH
+    return _bending_fractions(k, lever1_m, math.sin(theta2 + k.beta_c))  # type: ignore[no-any-return]
+
+
 # --- the 2x2 symmetric generalised eigenproblem, closed form ----------------------------
 
 
@@ -277,13 +311,15 @@ def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DE
     return defl / scale
 
 
-def static_deflection_in(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:  # type: ignore[no-untyped-def]
-    """Tip deflections (in) of the two links at rest under gravity, (..., 2)."""
+def static_deflection_in(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE, bending_only: bool = False) -> FloatArray:  # type: ignore[no-untyped-def]
+    """Tip deflections (in) of the two links at rest under gravity, (..., 2);
+    ``bending_only``: the part a camera on the link's root sees (:func:`bending_fractions`)."""
     M11, M12, M22, K11, K12, K22, *_, G1, G2 = coefficients(theta1, theta2, payload, structure)
     det = K11 * K22 - K12 * K12
     b1 = (K22 * G1 - K12 * G2) / det
     b2 = (K11 * G2 - K12 * G1) / det
-    return np.stack([b1 * L1_M / INCH, b2 * L2_M / INCH], axis=-1)
+    w = np.stack(np.broadcast_arrays(b1 * L1_M / INCH, b2 * L2_M / INCH), axis=-1)
+    return w * bending_fractions(theta1, theta2, payload, structure) if bending_only else w
 
 
 def frequency_response(
@@ -294,13 +330,15 @@ def frequency_response(
     structure: Structure = DEFAULT_STRUCTURE,
     valve_gain_in_s_per_v: tuple[float, float] = (15.0, 7.0),
     valve_time_constant_s: float = 0.01,
+    camera_on_link: bool = True,
 ) -> npt.NDArray[np.complex128]:
-    """Linearised transfer functions from valve volts to tip deflections (in)
-    at one configuration, shape (n_freqs, 2 inputs, 2 outputs): ``H[:, i, j]``
+    """Linearised transfer functions from valve volts to the deflections the
+    cameras see (in; ``camera_on_link=False``: the whole tip deflections) at one
+    configuration, shape (n_freqs, 2 inputs, 2 outputs): ``H[:, i, j]``
     is the thesis's ``H_ij`` (valve ``i`` to the deflection of link ``j``).
 
     Chain: valve -> lag -> cylinder velocity -> joint rate (``1/lever``) ->
-    joint acceleration (``s``) -> flexible links -> deflection."""
+    joint acceleration (``s``) -> flexible links -> deflection (-> bending share)."""
     from plant_emulator.model.kinematics import CYLINDER2
 
     co = coefficients(theta1, theta2, payload, structure)
@@ -310,7 +348,8 @@ def frequency_response(
     D = damping_matrix(M, K, structure.damping_ratios)
     levers = np.array([float(CYLINDER1.lever_in_per_rad(theta1)), float(CYLINDER2.lever_in_per_rad(theta2))])
     rate_gain = np.asarray(valve_gain_in_s_per_v, dtype=float) / levers  # rad/s per V
-    out = np.diag([L1_M / INCH, L2_M / INCH])
+    seen = bending_fractions(theta1, theta2, payload, structure) if camera_on_link else np.ones(2)
+    out = np.diag([L1_M / INCH * float(seen[0]), L2_M / INCH * float(seen[1])])
     s = 2j * np.pi * np.asarray(freqs_hz, dtype=float)
     H = np.empty((s.size, 2, 2), dtype=complex)
     for n, sn in enumerate(s):

@@ -53,9 +53,9 @@ class LoopRun:
     hard_stops: int
 
 
-def closed_loop(payload: bool = False, laps: int = 1, seed: int = 0) -> LoopRun:
+def closed_loop(payload: bool = False, laps: int = 1, seed: int = 0, speed_in_s: float | None = None) -> LoopRun:
     """The inspection loop under PI joint control at 200 Hz, plant in lockstep."""
-    tr = kin.sample_trajectory(dt_s=1.0 / FS)
+    tr = kin.sample_trajectory(dt_s=1.0 / FS, speed_in_s=speed_in_s)
     ref = np.tile(np.stack([tr.theta1_rad, tr.theta2_rad], axis=1), (laps, 1))
     arm = RalfArm(PlantConfig(seed=seed, payload_attached=payload))
     n = ref.shape[0]
@@ -113,6 +113,36 @@ def loop_numbers(run: LoopRun) -> dict[str, float]:
         "loop_crossover_rad_s_joint1": float(KP[0] * KV[0] / np.mean(kin.CYLINDER1.lever_in_per_rad(tr.theta1_rad))),
         "loop_crossover_rad_s_joint2": float(KP[1] * KV[1] / np.mean(kin.CYLINDER2.lever_in_per_rad(tr.theta2_rad))),
     }
+
+
+THESIS_UNFILTERED: dict[tuple[float, bool], tuple[float, float, float, float]] = {
+    (5.0, True): (0.317, 0.359, 4.807, 5.354),
+    (5.0, False): (0.262, 0.273, 3.833, 3.573),
+    (4.0, True): (0.426, 0.478, 6.413, 7.109),
+    (4.0, False): (0.358, 0.353, 5.177, 4.613),
+}
+"""Thesis Table 4-1, row (a): RMS deflection velocity (in/s) and acceleration (in/s^2), link 1, link 2."""
+
+
+def unfiltered_costs(seed: int = 0) -> dict[str, dict[str, object]]:
+    """The battery's unfiltered runs (a) in the cheapest faithful form: one lap
+    under PI, the deflections as the A/D reads them, the §4.2.1 costs
+    (``controller.metrics``), against the thesis's Table 4-1 row (a)."""
+    from controller.metrics import rms_costs
+
+    out: dict[str, dict[str, object]] = {}
+    for (speed, payload), thesis in THESIS_UNFILTERED.items():
+        run = closed_loop(payload=payload, seed=seed, speed_in_s=speed)
+        c = rms_costs(run.defl_read, 1.0 / FS)
+        got = [*c.velocity_rms.tolist(), *c.acceleration_rms.tolist()]
+        out[f"{speed:g}in_s_{'payload' if payload else 'nopayload'}"] = {
+            "velocity_in_s": got[:2],
+            "acceleration_in_s2": got[2:],
+            "thesis": list(thesis),
+            "ratio_to_thesis": [g / t for g, t in zip(got, thesis, strict=True)],
+            "mean_true_f1_hz": float(run.freqs[:, 0].mean()),
+        }
+    return out
 
 
 def _workspace_maps(axs, fig) -> None:  # type: ignore[no-untyped-def]
@@ -229,6 +259,7 @@ def make_figures(out: Path) -> dict[str, object]:
     fig.savefig(out / "plant-frf.png", dpi=110)
     plt.close(fig)
     numbers["frf"] = frf
+    numbers["unfiltered_battery"] = unfiltered_costs()
     return numbers
 
 
