@@ -40,9 +40,9 @@ from dsp_service.core import DspCore
 from plant_emulator.node import CanopenNode
 from plant_emulator.service import PlantApplication, node_config
 from protocol.batch_codec import decode_batch
-from protocol.errors import ProtocolError
+from protocol.errors import ConfigError, ProtocolError
 from protocol.messages import ConfigChange, Health, decode, encode
-from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+from protocol.settings import ControllerSettings, DspSettings, PlantSettings, load_settings
 from service_kit.clock import SimulatedScheduler
 
 
@@ -181,10 +181,17 @@ def settings_for(
 ) -> tuple[ControllerSettings, PlantSettings, DspSettings]:
     """The three boards' settings for one co-simulated rig (lockstep semantics)."""
     base = {"rig_id": f"cosim-{uuid.uuid4().hex[:8]}", "can_interface": "virtual", "can_channel": "cosim", **(common or {}), "clock": "lockstep"}
-    cs = ControllerSettings(**{**base, **(controller or {})})
+
+    def load(service: str, model: type[Any], own: dict[str, Any] | None) -> Any:
+        try:
+            return load_settings(model, {**base, **(own or {})})
+        except ConfigError as exc:
+            raise ConfigError(f"{service}: {exc}") from None
+
+    cs = load("controller", ControllerSettings, controller)
     if cs.duration_s is None and cs.repeats == 0:
         raise ValueError("a co-simulation needs controller duration_s or repeats")
-    return cs, PlantSettings(**{**base, **(plant or {})}), DspSettings(**{**base, **(dsp or {})})
+    return cs, load("plant", PlantSettings, plant), load("dsp", DspSettings, dsp)
 
 
 def run_cosim(
