@@ -48,6 +48,7 @@ from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -144,6 +145,8 @@ class ControllerService:
         self.last_miss: str | None = None
         self.dsp_alive = False
         self.ready_at: float | None = None
+        self.realtime = RealtimeMeasures()
+        """Which real-time measures are in effect for the loop (service_kit.realtime)."""
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.liveliness: list[tuple[float, str, bool]] = []
         self.tf_snapshots: list[TfSnapshot] = []
@@ -175,7 +178,7 @@ class ControllerService:
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
     def _build_health(self, seq: int) -> Health:
-        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict()}
+        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters()}
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -444,6 +447,8 @@ class ControllerService:
         try:
             self.plant.start_node(timeout=s.startup_timeout_s, stop=stop, sample_period_s=ts)
             self._wait_for_dsp(stop, timeout=s.startup_timeout_s)
+            if not lockstep:
+                self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity)
             self.ready_at = self.stopwatch()
             t0 = self.clock.now()
             w0 = self.stopwatch()

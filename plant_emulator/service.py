@@ -37,6 +37,7 @@ from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -285,9 +286,10 @@ class PlantTestPort:
         self._event_pub.undeclare()
 
 
-def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort) -> Health:
+def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort, measures: RealtimeMeasures | None = None) -> Health:
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=port.bad_scenarios)
+    counters.update((measures or RealtimeMeasures()).as_counters())
     return Health(
         seq=seq,
         sim_time_s=app.arm.time_s,
@@ -308,7 +310,8 @@ def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: th
     app = PlantApplication(settings, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
     app.scenario_inbox = port.inbox
     node = CanopenNode(app, node_config(settings))
-    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port)).start()
+    measures = apply_realtime(settings.rt_priority, settings.cpu_affinity) if settings.clock == "realtime" else RealtimeMeasures()
+    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
         run_node(bus, node, stop, clock)  # type: ignore[arg-type]
     finally:

@@ -34,6 +34,8 @@ class CommonSettings(BaseSettings):
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, gt=0, le=5000, description="Control and identification sample rate")
     health_period_s: float = Field(1.0, gt=0, description="Period of health messages on ralf/<rig>/health/<service>")
+    rt_priority: int = Field(0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)")
+    cpu_affinity: str = Field("", description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
 
     @field_validator("rig_id")

@@ -101,6 +101,16 @@ def print_summary(summary: dict[str, Any]) -> None:
                     f"{name} {lname}",
                     f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
                 )
+    for name, health in summary["health"].items():
+        counters = health.get("counters", {})
+        if "rt_gc_frozen" in counters:
+            fifo = counters.get("rt_fifo_priority", 0)
+            table.add_row(
+                f"{name} real-time measures",
+                f"{'SCHED_FIFO ' + str(fifo) if fifo else 'normal scheduler'}, "
+                f"{str(counters.get('rt_pinned_cpus', 0)) + ' CPU(s) pinned' if counters.get('rt_pinned_cpus') else 'not pinned'}, "
+                f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
+            )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
     console.print(table)
 

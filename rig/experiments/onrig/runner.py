@@ -400,7 +400,7 @@ def _run_processes(
     on_progress: Callable[[float], None] | None,
     timeout_s: float | None,
 ) -> RigResult:
-    from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
+    from rig.launcher import RigObserver, RigPlan, Supervision, supervise, tail
 
     exp = ctx.experiment.name if ctx.experiment else "exp"
     rig_id = f"x-{exp}-{spec.name}"[:55] + "-" + uuid.uuid4().hex[:6]
@@ -416,45 +416,32 @@ def _run_processes(
     if timeout_s is None:
         # lockstep runs 1-3x faster than real time here; allow for a loaded machine
         timeout_s = 90.0 + (3.0 * expected if ctx.mode == "lockstep" else 1.5 * expected)
-    procs: dict[str, ServiceProcess] = {}
-    exit_codes: dict[str, int] = {}
     observer: RigObserver | None = None
     started = time.monotonic()
-    failure = ""
     reported = 0.0
+    health: dict[str, dict[str, Any]] = {}
+
+    def progress(_sup: Supervision, status: Any) -> None:
+        nonlocal reported
+        if on_progress is not None and status is not None:
+            now = min(float(status.sim_time_s), expected)
+            if now > reported:
+                on_progress(now - reported)
+                reported = now
+
     try:
         observer = RigObserver(plan)
-        for name in START_ORDER:
-            procs[name] = start_service(plan, name, log_dir)
-        ctrl = procs["controller"]
-        while True:
-            code = ctrl.returncode
-            if code is not None:
-                break
-            dead = [p for p in procs.values() if p.name != "controller" and p.returncode is not None]
-            if dead:
-                failure = ", ".join(f"{p.name} exited early with {p.returncode}" for p in dead)
-                break
-            if time.monotonic() - started > timeout_s:
-                failure = f"no end after {timeout_s:.0f} s wall time (expected {expected:.0f} s simulated)"
-                break
-            if on_progress is not None and observer.status is not None:
-                now = min(float(observer.status.sim_time_s), expected)
-                if now > reported:
-                    on_progress(now - reported)
-                    reported = now
-            time.sleep(0.2)
+        watched = observer
+        sup = supervise(plan, log_dir, lambda: watched.status, timeout_s=timeout_s, on_poll=progress, stop_timeout_s=20.0)
+        time.sleep(0.1)
+        health = {k: v.model_dump(mode="json") for k, v in observer.health.items()}
     finally:
-        for name in STOP_ORDER:
-            if name in procs:
-                exit_codes[name] = stop_service(procs[name], timeout_s=20.0)
         if observer is not None:
-            time.sleep(0.1)
-            health = {k: v.model_dump(mode="json") for k, v in observer.health.items()}
             observer.close()
-        else:
-            health = {}
         _release_can_port(port)
+    procs, exit_codes, failure = sup.procs, sup.exit_codes, sup.failure
+    if failure.startswith("no end after"):
+        failure = f"no end after {timeout_s:.0f} s wall time (expected {expected:.0f} s simulated)"
     wall = time.monotonic() - started
     if on_progress is not None and expected > reported:
         on_progress(expected - reported)
