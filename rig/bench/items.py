@@ -570,12 +570,26 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
 
 
+def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Controller tick and plant step in a micro-benchmark (rig.bench.hotpath) against the 100 µs target and CAN ping-pong."""
+    from rig.bench import hotpath
+
+    n = 500 if ctx.quick else 3000
+    ctx.say(f"  controller tick and plant step, {n} calls each, and their parts")
+    raw = hotpath.bench_hotpath(n=n, warmup=100)
+    result["config"] = {"n": n, "oatf_mode": "adaptive", "target_us": hotpath.TARGET_US}
+    m = result["measurements"]
+    for name, stats in raw.items():
+        m[name.strip()] = latency_vs_value(stats, "100 µs target", hotpath.TARGET_US) if not name.startswith(" ") else latency(stats)
+
+
 ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "zenoh": bench_zenoh,
     "can": bench_can,
     "realtime": bench_realtime,
     "lockstep": bench_lockstep,
     "dsp": bench_dsp,
+    "hotpath": bench_hotpath,
 }
 FLOOR_ITEMS = ("zenoh", "can")
 
