@@ -55,10 +55,15 @@ log = logging.getLogger(__name__)
 
 RESYNC_AFTER_PERIODS = 20
 """Real time: a loop this many periods late re-bases its schedule."""
-LOCKSTEP_RETRY_S = 2.0
-"""Lockstep: resend a SYNC that got no TPDO after this long (a frame lost on
-the bus). Long, so that a merely slow plant on a loaded host is never asked
-twice (a second SYNC would step it twice)."""
+LOCKSTEP_RETRY_FRACTION = 0.5
+"""Lockstep: resend a SYNC that got no TPDO after this fraction of
+``lockstep_timeout_s`` (a frame lost on the bus). Long, so that a merely slow
+plant on a starved host is never asked twice (a second SYNC steps it twice)."""
+BATCH_RESEND_S = 5.0
+"""Lockstep: resend the batch in flight when its interrupt has not come this
+long after it was due (a message lost when a starved peer's zenoh session
+dropped); the DSP answers a repeated batch with the interrupt it raised for
+it, or takes it if it never arrived."""
 RESET_RESEND_S = 1.0
 """Start-up: resend the run's reset to the DSP this often until it answers."""
 
@@ -81,6 +86,8 @@ class TimingCounters:
     schedule_resyncs: int = 0
     reconfigurations: int = 0
     periods_skipped: int = 0
+    batch_resends: int = 0
+    tf_download_retries: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -146,6 +153,9 @@ class ControllerService:
         self.dsp_alive = False
         self.ready_at: float | None = None
         self.realtime = RealtimeMeasures()
+        self._n_ticks: int | None = None
+        self._sync_sent_for = -1
+        """Lockstep: the tick whose SYNC already went out at the end of the previous tick."""
         """Which real-time measures are in effect for the loop (service_kit.realtime)."""
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.liveliness: list[tuple[float, str, bool]] = []
@@ -156,6 +166,7 @@ class ControllerService:
         self._config_seq = -1
         self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
         self._flags_seen = 0
+        self._last_batch: bytes | None = None
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
@@ -297,8 +308,13 @@ class ControllerService:
         long it takes to arrive (the DSP's presence is not asked), up to
         ``lockstep_timeout_s``: then it is declared lost."""
         deadline = self.clock.now() + self.settings.lockstep_timeout_s
+        resend_at = self.clock.now() + BATCH_RESEND_S
         self.timing.lockstep_waits += 1
         while not any(irq.batch_seq == seq for irq in self._held_interrupts):
+            if not self.port.synchronous and self._last_batch is not None and self.clock.now() >= resend_at:
+                self.port.send_batch(self._last_batch)
+                self.timing.batch_resends += 1
+                resend_at = self.clock.now() + BATCH_RESEND_S
             remaining = deadline - self.clock.now()
             event = self._next_event(min(remaining, 0.1)) if remaining > 0 and not self.clock.stopping else None
             if event is None and (remaining <= 0 or self.port.synchronous or self.clock.stopping):
@@ -354,11 +370,19 @@ class ControllerService:
         if not self.port.synchronous:
             batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
         self._batch_sent_wall[sent.seq] = self.clock.now()
-        self.port.send_batch(encode_batch(batch))
+        self._last_batch = encode_batch(batch)
+        self.port.send_batch(self._last_batch)
 
     def _download_tf(self) -> None:
         try:
-            replies = self.port.download_tf(self.settings.lockstep_timeout_s if self.lockstep else 2.0)
+            replies = self.port.download_tf(BATCH_RESEND_S if self.lockstep else 2.0)
+            if self.lockstep:
+                # Lockstep: ask again (the DSP is idle, the answer is the same) until
+                # lockstep_timeout_s, so a reply lost on a starved host costs time only.
+                deadline = self.clock.now() + self.settings.lockstep_timeout_s
+                while not replies and self.clock.now() < deadline and not self.clock.stopping:
+                    self.timing.tf_download_retries += 1
+                    replies = self.port.download_tf(BATCH_RESEND_S)
         except Exception as exc:  # a dying session must not end the run
             self.timing.tf_download_failures += 1
             log.warning("TF download failed: %s", exc)
@@ -397,6 +421,12 @@ class ControllerService:
         applied = self._apply_interrupts()
         out = self.law.step(self.tick, words)
         self.plant.send_outputs(out.volts)
+        if self.lockstep and (self._n_ticks is None or self.tick + 1 < self._n_ticks):
+            # Lockstep: the next SYNC follows the D/A frame at once (the node takes
+            # them in this order, as before), so the plant steps while this tick's
+            # bookkeeping runs. Nothing below reaches the plant.
+            self._emit_sync(self.tick + 1)
+            self._sync_sent_for = self.tick + 1
         self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
         if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0:
             self._tf_due = True
@@ -439,6 +469,7 @@ class ControllerService:
         self.port.start_health(s.health_period_s, self._build_health)
         error: str | None = None
         n_ticks = run_ticks(s, self.law.lap_ticks)
+        self._n_ticks = n_ticks
         ts = s.sample_period_s
         lockstep = self.lockstep
         # Lockstep: the plant answers every SYNC, so its heartbeat is a liveness
@@ -477,10 +508,8 @@ class ControllerService:
                     break
                 start = self.clock.now()
                 w_start = self.stopwatch()
-                if s.inject_sync_drop_every and self.tick % s.inject_sync_drop_every == s.inject_sync_drop_every - 1:
-                    self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
-                    self.timing.syncs_dropped += 1
-                self.plant.send_sync()
+                if self._sync_sent_for != self.tick:
+                    self._emit_sync(self.tick)
                 if not lockstep:
                     self.jitter.add(max(0.0, start - scheduled))  # lateness of this SYNC against its deadline
                     if last_start is not None:
@@ -538,14 +567,22 @@ class ControllerService:
             liveliness=self.liveliness,
         )
 
+    def _emit_sync(self, tick: int) -> None:
+        """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
+        every = self.settings.inject_sync_drop_every
+        if every and tick % every == every - 1:
+            self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
+            self.timing.syncs_dropped += 1
+        self.plant.send_sync()
+
     def _lockstep_sample(self) -> np.ndarray:
         """Lockstep: the TPDO for this tick, however long the plant takes. A
-        SYNC lost on the bus gets no answer; after ``LOCKSTEP_RETRY_S`` the
-        SYNC is sent again (the node sees a counter gap and steps once), until
+        SYNC lost on the bus gets no answer; after ``LOCKSTEP_RETRY_FRACTION``
+        of the timeout the SYNC is sent again (the node sees a counter gap and steps once), until
         ``lockstep_timeout_s``."""
         deadline = self.clock.now() + self.settings.lockstep_timeout_s
         while True:
-            retry = min(LOCKSTEP_RETRY_S, max(0.0, deadline - self.clock.now()))
+            retry = min(LOCKSTEP_RETRY_FRACTION * self.settings.lockstep_timeout_s, max(0.0, deadline - self.clock.now()))
             words = self.plant.wait_tpdo(retry)
             if words is not None:
                 return words

@@ -72,6 +72,7 @@ class DspService:
         self.turnaround = LatencyTracker()
         self._events: queue.Queue[_Event] = queue.Queue()
         self._held: _Held | None = None
+        self._last_raised: Interrupt | None = None
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
@@ -143,6 +144,12 @@ class DspService:
                 self.core.block.last_violation = f"undecodable batch: {exc}"
             log.warning("dropped an undecodable batch: %s", exc)
             return
+        last = self._last_raised
+        if last is not None and batch.seq == last.batch_seq and batch.seq == self.core.block.next_seq - 1 and not self.core.block.full:
+            # The CPU sent the batch we answered last again: its interrupt was lost
+            # (a starved peer's session dropped). Answer it again, the same interrupt.
+            self._events.put(_Event("repeat", arrival=arrival))
+            return
         admission = self.core.admit(batch)
         if admission.accepted:
             self._events.put(_Event("batch", batch=batch, admission=admission, arrival=arrival))
@@ -168,6 +175,7 @@ class DspService:
 
     def _raise(self, held: _Held) -> None:
         """Fig. 3.5 step 4: release the block, flag it empty, raise the interrupt."""
+        self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
         self._flag_pub.put(encode(self.core.release()))
         self._irq_pub.put(encode(held.interrupt))
         self.turnaround.add(self.scheduler.now() - held.arrival)
@@ -186,6 +194,11 @@ class DspService:
     def _handle(self, event: _Event) -> None:
         if event.kind == "batch" and event.batch is not None and event.admission is not None:
             self._held = self._compute(event.batch, event.admission, event.arrival)
+        elif event.kind == "repeat" and self._last_raised is not None and self._held is None:
+            self.core.block.counters.interrupts_repeated += 1
+            log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
+            self._flag_pub.put(encode(self.core.flag("empty")))
+            self._irq_pub.put(encode(self._last_raised))
         elif event.kind == "config":
             try:
                 change = decode(ConfigChange, event.payload)

@@ -92,7 +92,7 @@ class ControllerSettings(CommonSettings):
     dsp_deadline_s: float | None = Field(None, gt=0, description="Interrupt deadline after a batch (default: the batch period)")
     stale_after_s: float = Field(2.0, gt=0, description="Parameters older than this are stale")
     tf_download_samples: int = Field(1000, ge=0, description="Download transfer functions every this many samples (0 = never)")
-    lockstep_timeout_s: float = Field(10.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault")
+    lockstep_timeout_s: float = Field(60.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)")
     startup_timeout_s: float = Field(60.0, gt=0, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
     plant_heartbeat_timeout_s: float = Field(1.0, gt=0, description="Plant heartbeat older than this is a fault")
     record: str = Field("", description="Write the run record (npz + JSON) to this path")

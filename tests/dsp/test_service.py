@@ -269,3 +269,19 @@ def test_the_emulated_latency_is_a_due_time_and_a_stop_is_seen_while_an_interrup
         stopped = time.monotonic()
     # the context manager set stop and joined the thread: it ended well within its 5 s join
     assert not thread.is_alive() and time.monotonic() - stopped < 2.0
+
+
+def test_a_batch_sent_again_gets_the_same_interrupt_again(session: zenoh.Session) -> None:
+    """The CPU resends the batch in flight when its interrupt was lost: the
+    board answers with the interrupt it raised, never identifies twice."""
+    settings = _settings()
+    with _running_board(session, settings, publisher=True) as board:
+        service, probe, pub = board.service, board.probe, board.pub
+        probe.next("flag")
+        pub.put(encode_batch(_batch(0)))
+        first = probe.next("irq")
+        pub.put(encode_batch(_batch(0)))
+        again = probe.next("irq")
+        assert again == first  # type: ignore[comparison-overlap]
+        assert service.block.counters.interrupts_repeated == 1 and service.block.counters.batches_accepted == 1
+        assert service.block.counters.duplicates == 0 and service.interrupt_seq == 1

@@ -22,7 +22,7 @@ from controller.record import RunRecord, load_record
 
 CONTROLLER = {"duration_s": 16.0, "oatf_mode": "adaptive", "tf_download_samples": 500}
 DSP = {"fft_width": 512}
-BURN_LIMIT_S = 150
+BURN_LIMIT_S = 500
 """A burner ends by itself after this long even if the test could not kill it."""
 
 
@@ -81,8 +81,9 @@ def _same(a: Path, b: Path) -> None:
     first, second = load_record(a), load_record(b)
     assert len(first) == len(second) == 3200
     assert first.columns.keys() == second.columns.keys()
+    counters = (first.metadata["result"]["counters"], second.metadata["result"]["counters"])
     for name in first.columns:
-        assert np.array_equal(first[name], second[name], equal_nan=True), name
+        assert np.array_equal(first[name], second[name], equal_nan=True), (name, counters)
     tf_a, tf_b = np.load(str(a) + ".tf.npz"), np.load(str(b) + ".tf.npz")
     assert tf_a.files == tf_b.files and tf_a["sim_time_s"].size >= 5
     for key in tf_a.files:
