@@ -25,6 +25,7 @@ answered its reset (``startup_timeout_s``).
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 import time
@@ -163,9 +164,12 @@ class ControllerService:
         self._last_words = np.zeros(4, dtype=np.int64)
         self._tf_thread: threading.Thread | None = None
         self._tf_due = False
-        self._config_seq = -1
+        self._config_seq = int.from_bytes(os.urandom(4), "little") >> 2
+        """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
         self._flags_seen = 0
+        self._dsp_config_seq: int | None = None
+        """The DSP's last applied ConfigChange, from its latest flag."""
         self._last_batch: bytes | None = None
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
@@ -238,8 +242,10 @@ class ControllerService:
     def _take_event(self, kind: str, payload: bytes, arrival: float) -> None:
         try:
             if kind == "flag":
-                self.link.on_flag(decode(BlockFlag, payload))
+                flag = decode(BlockFlag, payload)
+                self.link.on_flag(flag)
                 self._flags_seen += 1
+                self._dsp_config_seq = flag.config_seq
             elif kind == "interrupt":
                 irq = decode(Interrupt, payload)
                 self._irq_arrival[irq.batch_seq] = arrival
@@ -593,31 +599,31 @@ class ControllerService:
 
     def _wait_for_dsp(self, stop: threading.Event, timeout: float) -> None:
         """Tell the DSP a new run starts (sequence numbers from 0, history
-        restarted) and wait until it answers with an empty block expecting
-        batch 0. The reset goes once the DSP is present (its subscriptions
-        exist then) and again every ``RESET_RESEND_S`` while no flag came;
-        the wait ends with the first flag after that, so tick 0 never
-        depends on when the DSP happened to start."""
+        restarted) and wait until a flag says it applied exactly that reset
+        (``config_seq``) with an empty block expecting batch 0. The reset goes
+        once the DSP is present (its subscriptions exist then) and again, with
+        a new number, every ``RESET_RESEND_S`` while unanswered; so tick 0 never
+        depends on when the DSP started or on message order."""
         deadline = self.clock.now() + timeout
         self.link.next_seq = 0
         reset_sent_at: float | None = None
-        flags_at_reset = 0
+
         while not stop.is_set():
             now = self.clock.now()
-            answered = reset_sent_at is not None and self._flags_seen > flags_at_reset and self.link.block_empty and self.link.next_seq == 0
+            answered = reset_sent_at is not None and self._dsp_config_seq == self._config_seq and self.link.block_empty and self.link.next_seq == 0
             if answered or now >= deadline:
                 break
-            if self.dsp_alive and (reset_sent_at is None or (self._flags_seen == flags_at_reset and now - reset_sent_at >= RESET_RESEND_S)):
+            if self.dsp_alive and (reset_sent_at is None or now - reset_sent_at >= RESET_RESEND_S):
                 self._config_seq += 1
                 self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
                 self.link.next_seq = 0
-                reset_sent_at, flags_at_reset = now, self._flags_seen
+                reset_sent_at = now
             event = self._next_event(0.05)
             if event is not None:
                 self._take_event(*event)
             elif self.port.synchronous and not self.dsp_alive:
                 break
-        if not (self.link.block_empty and self.link.next_seq == 0 and reset_sent_at is not None):
+        if not (self.link.block_empty and self.link.next_seq == 0 and self._dsp_config_seq == self._config_seq):
             log.warning("no DSP answered within %.1f s; controlling without identification until it does", timeout)
             if reset_sent_at is None:
                 # Tell a DSP that turns up later all the same.

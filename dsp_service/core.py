@@ -75,6 +75,8 @@ class DspCore:
         self.last_sim_time = 0.0
         self.last_result: IdentificationResult | None = None
         self.last_batch_missed = False
+        self.config_seq: int | None = None
+        """seq of the last ConfigChange applied (announced in every flag)."""
         self.block_lock = threading.Lock()
         """Held around block changes: a zenoh callback admits while the board's thread releases."""
         self.tf_lock = threading.Lock()
@@ -174,6 +176,7 @@ class DspCore:
             fft_width=self.identifier.fft_width,
             batch_size=self.batch_size,
             emulated_latency_s=self.emulated_latency_s,
+            config_seq=self.config_seq,
         )
         self.flag_seq += 1
         return flag
@@ -201,6 +204,7 @@ class DspCore:
             if change.emulated_latency_s is not None:
                 self.emulated_latency_s = change.emulated_latency_s
         self.block.note_config(change)
+        self.config_seq = change.seq
 
     def snapshot(self) -> TfSnapshot:
         """The current transfer-function estimates (magnitude and phase)."""
