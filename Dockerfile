@@ -10,6 +10,7 @@ COPY pyproject.toml README.md ./
 COPY protocol ./protocol
 COPY plant_emulator ./plant_emulator
 COPY controller ./controller
+COPY service_kit ./service_kit
 COPY dsp_service ./dsp_service
 COPY rig ./rig
 RUN pip install . && useradd --create-home ralf

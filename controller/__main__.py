@@ -12,7 +12,7 @@ from controller.plant_link import PlantLink
 from controller.service import ControllerService
 from protocol.settings import ControllerSettings
 from protocol.transport import open_can_bus
-from rig.runtime import build_or_config_error, run_service
+from service_kit.runtime import build_or_config_error, run_service
 
 EXIT_PLANT_FAULT = 3
 EXIT_MONITOR_STOP = 4

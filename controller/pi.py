@@ -44,6 +44,8 @@ The raw sum remains available (``integral_time_scaled=False``) for comparison;
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -136,6 +138,8 @@ class PIController:
         n = self.config.n_joints
         self._kp = self.config.kp_v_per_rad
         self._ki = self.config.ki_v_per_rad
+        self._kp_list: list[float] = self._kp.tolist()
+        self._ki_list: list[float] = self._ki.tolist()
         self._decay = 1.0 - self.config.forgetting_factor
         self._scale = self.config.integral_scale
         self._limit = self.config.output_limit_v
@@ -178,6 +182,64 @@ class PIController:
         ``|e| > integrate_threshold_rad``; with ``anti_windup`` an increment
         that would carry ``Kp e + Ki I`` past the D/A limit is cut at the
         limit (an increment pulling back from saturation is never cut).
+
+        Computed per joint on plain floats (the same IEEE operations in the
+        same order as :meth:`step_vectorised`, so bit-identical to it, at a
+        fraction of the cost of a dozen numpy calls on 2-vectors).
+        """
+        n = self.n_joints
+        errors = np.broadcast_to(np.asarray(error_rad, dtype=float), (n,)).tolist()
+        if not all(math.isfinite(x) for x in errors):
+            raise ValueError(f"non-finite angle error {np.asarray(errors)!r}")
+        kp, ki, limit = self._kp_list, self._ki_list, self._limit
+        decay, scale, threshold = self._decay, self._scale, self.config.integrate_threshold_rad
+        anti_windup = self.config.anti_windup
+        floor = limit * (1.0 - 1e-12)
+        old = self.integral.tolist()
+        integral, p_terms, i_terms, outputs, saturated, integrating, limited_all = [], [], [], [], [], [], []
+        for j in range(n):
+            e = errors[j]
+            decayed = decay * old[j]
+            p = kp[j] * e
+            admit = abs(e) <= threshold
+            value = decayed + scale * e if admit else decayed
+            limited = False
+            if anti_windup:
+                if ki[j] > 0.0:
+                    hi, lo = (limit - p) / ki[j], (-limit - p) / ki[j]
+                else:
+                    hi, lo = math.inf, -math.inf
+                cut = max(decayed, min(value, hi)) if value > decayed else min(decayed, max(value, lo))
+                limited = cut != value
+                value = cut
+            i_term = ki[j] * value
+            unclipped = p + i_term
+            integral.append(value)
+            p_terms.append(p)
+            i_terms.append(i_term)
+            outputs.append(min(max(unclipped, -limit), limit))
+            saturated.append(abs(unclipped) >= floor)
+            integrating.append(admit and not limited)
+            limited_all.append(limited)
+        self.integral = np.array(integral)
+        self.error = np.array(errors)
+        self.p_term_v = np.array(p_terms)
+        self.i_term_v = np.array(i_terms)
+        self.output_v = np.array(outputs)
+        self.saturated = np.array(saturated, dtype=bool)
+        self.integrating = np.array(integrating, dtype=bool)
+        self.windup_limited = np.array(limited_all, dtype=bool)
+        return self.output_v.copy()
+
+    def step_vectorised(self, error_rad: npt.ArrayLike) -> FloatArray:
+        """One control tick from the angle errors ``e = r - y`` (rad); returns volts.
+
+        The gate, per joint: admit ``e`` into the windowed sum unless
+        ``|e| > integrate_threshold_rad``; with ``anti_windup`` an increment
+        that would carry ``Kp e + Ki I`` past the D/A limit is cut at the
+        limit (an increment pulling back from saturation is never cut).
+
+        The numpy formulation of :meth:`step` (the reference it is tested against).
         """
         e = np.broadcast_to(np.asarray(error_rad, dtype=float), (self.n_joints,)).copy()
         if not np.all(np.isfinite(e)):

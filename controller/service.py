@@ -11,16 +11,25 @@ Each tick (thesis §4, design.md "Time"):
 4. the sample joins the DSP link; a batch goes out when the block is empty;
 5. transfer functions are downloaded every ``tf_download_samples``.
 
-Real time: SYNC at absolute deadlines ``t0 + k Ts`` (no drift). Lockstep:
-the next SYNC as soon as the tick is done.
+Time comes from an injected :class:`service_kit.clock.Scheduler`: real
+time paces SYNC at absolute deadlines ``t0 + k Ts`` (no drift); lockstep
+(three processes) sends the next SYNC as soon as the tick is done and waits
+only for its handshake (SYNC -> TPDO; the interrupt of the batch in flight
+at its due tick, whenever it arrives), never for liveliness or the order in
+which messages arrive; the co-simulation (:mod:`rig.cosim`) runs the same
+code on simulated time with every answer already in. Before tick 0 the
+controller waits until the plant node is operational and the DSP has
+answered its reset (``startup_timeout_s``).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +37,7 @@ import numpy as np
 import zenoh
 
 from controller.dsp_link import DspLink
+from controller.dsp_port import DspPort, ZenohDspPort
 from controller.loop import ControlLaw, run_ticks
 from controller.monitors import MonitorStop, Monitors
 from controller.plant_link import PlantFault, PlantLink, StopRequested
@@ -38,14 +48,25 @@ from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
-from rig.runtime import HealthPublisher, LatencyTracker
+from service_kit.clock import Scheduler, scheduler_for
+from service_kit.realtime import RealtimeMeasures, apply_realtime
+from service_kit.runtime import LatencyTracker
 
 log = logging.getLogger(__name__)
 
 RESYNC_AFTER_PERIODS = 20
 """Real time: a loop this many periods late re-bases its schedule."""
-LOCKSTEP_RETRY_S = 0.05
-"""Lockstep: resend a SYNC that got no TPDO after this long (a lost frame)."""
+LOCKSTEP_RETRY_FRACTION = 0.5
+"""Lockstep: resend a SYNC that got no TPDO after this fraction of
+``lockstep_timeout_s`` (a frame lost on the bus). Long, so that a merely slow
+plant on a starved host is never asked twice (a second SYNC steps it twice)."""
+BATCH_RESEND_S = 5.0
+"""Lockstep: resend the batch in flight when its interrupt has not come this
+long after it was due (a message lost when a starved peer's zenoh session
+dropped); the DSP answers a repeated batch with the interrupt it raised for
+it, or takes it if it never arrived."""
+RESET_RESEND_S = 1.0
+"""Start-up: resend the run's reset to the DSP this often until it answers."""
 
 
 @dataclass
@@ -66,6 +87,8 @@ class TimingCounters:
     schedule_resyncs: int = 0
     reconfigurations: int = 0
     periods_skipped: int = 0
+    batch_resends: int = 0
+    tf_download_retries: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))
@@ -83,10 +106,30 @@ class RunResult:
 class ControllerService:
     """Runs the loop against the plant (CAN) and the DSP (zenoh)."""
 
-    def __init__(self, settings: ControllerSettings, session: zenoh.Session, plant: PlantLink, law: ControlLaw | None = None) -> None:
+    def __init__(
+        self,
+        settings: ControllerSettings,
+        session: zenoh.Session | None,
+        plant: PlantLink,
+        law: ControlLaw | None = None,
+        *,
+        port: DspPort | None = None,
+        scheduler: Scheduler | None = None,
+        stopwatch: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.settings = settings
         self.session = session
         self.plant = plant
+        self.lockstep = settings.clock != "realtime"
+        self.clock: Scheduler = scheduler or scheduler_for(settings.clock)
+        """Schedules the loop and times the handshake."""
+        self.stopwatch = stopwatch
+        """Measures execution (TET, SYNC lateness): a measurement, never a schedule."""
+        if port is None:
+            if session is None:
+                raise ValueError("a controller needs a zenoh session or a DSP port")
+            port = ZenohDspPort(session, settings.rig_id)
+        self.port: DspPort = port
         self.keys = Keys(settings.rig_id)
         self.law = law or ControlLaw(settings)
         self.link = DspLink(
@@ -109,13 +152,25 @@ class ControllerService:
         self.stale = False
         self.last_miss: str | None = None
         self.dsp_alive = False
+        self.ready_at: float | None = None
+        self.realtime = RealtimeMeasures()
+        self._n_ticks: int | None = None
+        self._sync_sent_for = -1
+        """Lockstep: the tick whose SYNC already went out at the end of the previous tick."""
+        """Which real-time measures are in effect for the loop (service_kit.realtime)."""
+        """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.liveliness: list[tuple[float, str, bool]] = []
         self.tf_snapshots: list[TfSnapshot] = []
         self._last_words = np.zeros(4, dtype=np.int64)
         self._tf_thread: threading.Thread | None = None
         self._tf_due = False
-        self._config_seq = -1
+        self._config_seq = int.from_bytes(os.urandom(4), "little") >> 2
+        """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        self._flags_seen = 0
+        self._dsp_config_seq: int | None = None
+        """The DSP's last applied ConfigChange, from its latest flag."""
+        self._last_batch: bytes | None = None
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
@@ -127,18 +182,7 @@ class ControllerService:
             capacity=4096,
         )
         self.timing_record = ColumnBuffer({"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}, capacity=4096)
-        block = zenoh.CongestionControl.BLOCK
-        self._batch_pub = session.declare_publisher(self.keys.batch, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
-        self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
-        self._status_pub = session.declare_publisher(self.keys.controller_status)
-        self._subs = [
-            session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes(), time.monotonic()))),
-            session.declare_subscriber(self.keys.interrupt, self._on_interrupt_sample),
-            session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
-            session.declare_subscriber(self.keys.controller_command, lambda s: self._events.put(("command", s.payload.to_bytes(), time.monotonic()))),
-        ]
-        self._token = session.liveliness().declare_token(self.keys.alive("controller"))
-        self._health = HealthPublisher(session, self.keys.health("controller"), settings.health_period_s, self._build_health)
+        self.port.connect(lambda kind, payload, arrival: self._events.put((kind, payload, arrival)), self.clock.now)
 
     # -- bookkeeping --------------------------------------------------------------------
     def _record_names(self) -> list[str]:
@@ -148,17 +192,8 @@ class ControllerService:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
-    def _on_interrupt_sample(self, sample: zenoh.Sample) -> None:
-        """Stamp the interrupt's arrival here: the MVME took it as a hardware
-        interrupt, not at the next tick."""
-        self._events.put(("interrupt", sample.payload.to_bytes(), time.monotonic()))
-
-    def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
-        up = sample.kind == zenoh.SampleKind.PUT
-        self._events.put(("alive", b"1" if up else b"0", time.monotonic()))
-
     def _build_health(self, seq: int) -> Health:
-        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict()}
+        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters()}
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -180,7 +215,7 @@ class ControllerService:
         )
 
     def _publish_status(self, finished: bool = False) -> None:
-        now = time.monotonic()
+        now = self.stopwatch()
         if not finished and now - self._last_status < 0.25:
             return
         rate = 0.0
@@ -201,13 +236,16 @@ class ControllerService:
         )
         self._status_seq += 1
         self._last_status = now
-        self._status_pub.put(encode(status))
+        self.port.send_status(encode(status))
 
     # -- DSP side -----------------------------------------------------------------------
     def _take_event(self, kind: str, payload: bytes, arrival: float) -> None:
         try:
             if kind == "flag":
-                self.link.on_flag(decode(BlockFlag, payload))
+                flag = decode(BlockFlag, payload)
+                self.link.on_flag(flag)
+                self._flags_seen += 1
+                self._dsp_config_seq = flag.config_seq
             elif kind == "interrupt":
                 irq = decode(Interrupt, payload)
                 self._irq_arrival[irq.batch_seq] = arrival
@@ -216,7 +254,15 @@ class ControllerService:
                 self.reconfigure(decode(ConfigChange, payload))
             elif kind == "alive":
                 up = payload == b"1"
-                if up != self.dsp_alive:
+                if up != self.dsp_alive and self.lockstep:
+                    # Lockstep: presence is reported, never acted on; the handshake
+                    # (an interrupt within lockstep_timeout_s) decides.
+                    self.liveliness.append((self.tick * self.settings.sample_period_s, "dsp", up))
+                    if up:
+                        self.timing.dsp_found += 1
+                    else:
+                        self.timing.dsp_lost += 1
+                elif up != self.dsp_alive:
                     self.liveliness.append((self.tick * self.settings.sample_period_s, "dsp", up))
                     if up:
                         self.timing.dsp_found += 1
@@ -242,7 +288,7 @@ class ControllerService:
             self.link.batch_size = change.batch_size
         self._config_seq += 1
         forwarded = change.model_copy(update={"seq": self._config_seq, "sim_time_s": self.tick * self.settings.sample_period_s})
-        self._config_pub.put(encode(forwarded))
+        self.port.send_config(encode(forwarded))
         self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
@@ -253,31 +299,46 @@ class ControllerService:
                 return
             self._take_event(kind, payload, arrival)
 
+    def _next_event(self, timeout: float) -> tuple[str, bytes, float] | None:
+        """The next DSP-side event, waiting up to ``timeout`` wall seconds (not
+        at all when the port answers synchronously)."""
+        try:
+            if self.port.synchronous:
+                return self._events.get_nowait()
+            return self._events.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
     def _wait_for_interrupt(self, seq: int) -> None:
-        """Lockstep: block until the interrupt of batch ``seq`` is in (or time out)."""
-        deadline = time.monotonic() + self.settings.lockstep_timeout_s
+        """Lockstep: block until the interrupt of batch ``seq`` is in, however
+        long it takes to arrive (the DSP's presence is not asked), up to
+        ``lockstep_timeout_s``: then it is declared lost."""
+        deadline = self.clock.now() + self.settings.lockstep_timeout_s
+        resend_at = self.clock.now() + BATCH_RESEND_S
         self.timing.lockstep_waits += 1
         while not any(irq.batch_seq == seq for irq in self._held_interrupts):
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if not self.port.synchronous and self._last_batch is not None and self.clock.now() >= resend_at:
+                self.port.send_batch(self._last_batch)
+                self.timing.batch_resends += 1
+                resend_at = self.clock.now() + BATCH_RESEND_S
+            remaining = deadline - self.clock.now()
+            event = self._next_event(min(remaining, 0.1)) if remaining > 0 and not self.clock.stopping else None
+            if event is None and (remaining <= 0 or self.port.synchronous or self.clock.stopping):
                 # It will not come: count it lost, fire the deadline monitor, go on without it.
                 self.link.declare_lost()
                 self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
                 self.monitors.fire("deadline", self.last_miss)
                 return
-            if not self.dsp_alive and self.timing.dsp_found:
-                return
-            try:
-                kind, payload, arrival = self._events.get(timeout=min(remaining, 0.1))
-            except queue.Empty:
-                continue
-            self._take_event(kind, payload, arrival)
+            if event is not None:
+                self._take_event(*event)
 
     def _apply_interrupts(self) -> bool:
-        """Apply held interrupts that are due; True if one was applied this tick."""
-        lockstep = self.settings.clock == "lockstep"
+        """Apply held interrupts that are due; True if one was applied this tick.
+        Lockstep: the interrupt of the batch in flight is applied exactly at
+        its due tick (waited for there), never earlier or later."""
+        lockstep = self.lockstep
         sent = self.link.in_flight
-        if lockstep and sent is not None and self.tick >= sent.due_tick and self.dsp_alive:
+        if lockstep and sent is not None and self.tick >= sent.due_tick:
             self._wait_for_interrupt(sent.seq)
         applied = False
         keep: list[Interrupt] = []
@@ -290,7 +351,7 @@ class ControllerService:
             if matched is None:
                 continue
             sent_wall = self._batch_sent_wall.pop(irq.batch_seq, None)
-            arrived = self._irq_arrival.pop(irq.batch_seq, time.monotonic())
+            arrived = self._irq_arrival.pop(irq.batch_seq, self.clock.now())
             if sent_wall is not None:
                 self.irq_latency.add(arrived - sent_wall)
             self.timing.interrupts_applied += 1
@@ -312,22 +373,29 @@ class ControllerService:
         if taken is None:
             return
         sent, batch = taken
-        batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
-        self._batch_sent_wall[sent.seq] = time.monotonic()
-        self._batch_pub.put(encode_batch(batch))
+        if not self.port.synchronous:
+            batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
+        self._batch_sent_wall[sent.seq] = self.clock.now()
+        self._last_batch = encode_batch(batch)
+        self.port.send_batch(self._last_batch)
 
     def _download_tf(self) -> None:
         try:
-            replies = list(self.session.get(self.keys.tf, timeout=2.0))
+            replies = self.port.download_tf(BATCH_RESEND_S if self.lockstep else 2.0)
+            if self.lockstep:
+                # Lockstep: ask again (the DSP is idle, the answer is the same) until
+                # lockstep_timeout_s, so a reply lost on a starved host costs time only.
+                deadline = self.clock.now() + self.settings.lockstep_timeout_s
+                while not replies and self.clock.now() < deadline and not self.clock.stopping:
+                    self.timing.tf_download_retries += 1
+                    replies = self.port.download_tf(BATCH_RESEND_S)
         except Exception as exc:  # a dying session must not end the run
             self.timing.tf_download_failures += 1
             log.warning("TF download failed: %s", exc)
             return
         for reply in replies:
-            if reply.ok is None:
-                continue
             try:
-                self.tf_snapshots.append(decode(TfSnapshot, reply.ok.payload.to_bytes()))
+                self.tf_snapshots.append(decode(TfSnapshot, reply))
                 self.timing.tf_downloads += 1
                 return
             except ProtocolError as exc:
@@ -359,15 +427,21 @@ class ControllerService:
         applied = self._apply_interrupts()
         out = self.law.step(self.tick, words)
         self.plant.send_outputs(out.volts)
+        if self.lockstep and (self._n_ticks is None or self.tick + 1 < self._n_ticks):
+            # Lockstep: the next SYNC follows the D/A frame at once (the node takes
+            # them in this order, as before), so the plant steps while this tick's
+            # bookkeeping runs. Nothing below reaches the plant.
+            self._emit_sync(self.tick + 1)
+            self._sync_sent_for = self.tick + 1
         self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
         if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0:
             self._tf_due = True
-        if self._tf_due and self.dsp_alive:
-            if self.settings.clock == "lockstep":
-                if self.link.in_flight is None:  # the DSP is idle: the snapshot is deterministic
-                    self._tf_due = False
-                    self._download_tf()
-            elif self._tf_thread is None or not self._tf_thread.is_alive():
+        if self._tf_due and self.lockstep:
+            if self.link.in_flight is None:  # the DSP is idle: the snapshot is deterministic
+                self._tf_due = False
+                self._download_tf()
+        elif self._tf_due and self.dsp_alive:
+            if self._tf_thread is None or not self._tf_thread.is_alive():
                 # real time: the query must not hold up the loop
                 self._tf_due = False
                 self._tf_thread = threading.Thread(target=self._download_tf, name="tf-download", daemon=True)
@@ -393,30 +467,40 @@ class ControllerService:
         self.record.append(row)
 
     def run(self, stop: threading.Event) -> RunResult:
-        """Start the plant node and run until the duration, the trajectory's
-        end, ``stop``, or a plant fault."""
+        """Start the plant node, wait for the DSP, and run until the duration,
+        the trajectory's end, ``stop``, or a plant fault."""
         s = self.settings
-        self._health.start()
+        if hasattr(self.clock, "stop"):
+            self.clock.stop = stop  # type: ignore[attr-defined]
+        self.port.start_health(s.health_period_s, self._build_health)
         error: str | None = None
         n_ticks = run_ticks(s, self.law.lap_ticks)
+        self._n_ticks = n_ticks
         ts = s.sample_period_s
-        lockstep = s.clock == "lockstep"
+        lockstep = self.lockstep
+        # Lockstep: the plant answers every SYNC, so its heartbeat is a liveness
+        # check only; a loaded host must not turn a late beat into a fault.
+        heartbeat_timeout = max(s.plant_heartbeat_timeout_s, s.lockstep_timeout_s) if lockstep else s.plant_heartbeat_timeout_s
         try:
-            self.plant.start_node(timeout=s.lockstep_timeout_s, stop=stop, sample_period_s=ts)
-            self._wait_for_dsp(stop, timeout=3.0)
-            t0 = time.monotonic()
+            self.plant.start_node(timeout=s.startup_timeout_s, stop=stop, sample_period_s=ts)
+            self._wait_for_dsp(stop, timeout=s.startup_timeout_s)
+            if not lockstep:
+                self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity)
+            self.ready_at = self.stopwatch()
+            t0 = self.clock.now()
+            w0 = self.stopwatch()
             missed_in_row = 0
             last_start: float | None = None
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
                 if s.inject_stall_at_s is not None and self.tick == int(round(s.inject_stall_at_s * s.sample_rate_hz)):
                     log.warning("fault injection: the loop stalls for %.2f s", s.inject_stall_s)
-                    time.sleep(s.inject_stall_s)
+                    stop.wait(s.inject_stall_s)
                 scheduled = t0 + self.tick * ts
-                if not lockstep and time.monotonic() - scheduled > RESYNC_AFTER_PERIODS * ts:
+                if not lockstep and self.clock.now() - scheduled > RESYNC_AFTER_PERIODS * ts:
                     # Hopelessly behind (a stall, or a rate the host cannot hold): those
                     # sample instants are gone. Skip them (counted) instead of running
                     # ticks back to back; the DSP sees the gap and restarts its history.
-                    behind = int((time.monotonic() - scheduled) / ts)
+                    behind = int((self.clock.now() - scheduled) / ts)
                     self.tick += behind
                     scheduled += behind * ts
                     self.timing.schedule_resyncs += 1
@@ -424,15 +508,14 @@ class ControllerService:
                     log.warning("loop %d periods late: schedule re-based, samples skipped", behind)
                     if n_ticks is not None and self.tick >= n_ticks:
                         break
-                if not lockstep:
-                    delay = scheduled - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                start = time.monotonic()
-                if s.inject_sync_drop_every and self.tick % s.inject_sync_drop_every == s.inject_sync_drop_every - 1:
-                    self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
-                    self.timing.syncs_dropped += 1
-                self.plant.send_sync()
+                # Real time sleeps until the tick's deadline; lockstep returns at once;
+                # the co-simulation's simulated clock moves to the tick.
+                if not self.clock.wait_until(scheduled):
+                    break
+                start = self.clock.now()
+                w_start = self.stopwatch()
+                if self._sync_sent_for != self.tick:
+                    self._emit_sync(self.tick)
                 if not lockstep:
                     self.jitter.add(max(0.0, start - scheduled))  # lateness of this SYNC against its deadline
                     if last_start is not None:
@@ -441,19 +524,19 @@ class ControllerService:
                 words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(0.8 * ts)
                 if words is None:
                     missed_in_row += 1
-                    if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s or missed_in_row * ts > s.plant_heartbeat_timeout_s:
+                    if self.plant.heartbeat_age() > heartbeat_timeout or missed_in_row * ts > heartbeat_timeout:
                         raise PlantFault(f"plant did not answer SYNC at tick {self.tick}: {missed_in_row} TPDOs missing in a row (heartbeat age {self.plant.heartbeat_age():.2f} s)")
                     words = self._last_words  # real time: hold the last sample for a missed TPDO
                 else:
                     missed_in_row = 0
                 self._last_words = words
                 self._tick(words)
-                end = time.monotonic()
-                self.tet.add(end - start)
-                self.timing_record.append(tick=self.tick, sync_wall_s=start - t0, tet_s=end - start)
-                if not lockstep and end > scheduled + ts:
+                w_end = self.stopwatch()
+                self.tet.add(w_end - w_start)
+                self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
+                if not lockstep and self.clock.now() > scheduled + ts:
                     self.timing.overruns += 1
-                    self.monitors.fire("overrun", f"tick {self.tick} took {(end - start) * 1e3:.2f} ms, past the next SYNC")
+                    self.monitors.fire("overrun", f"tick {self.tick} took {(w_end - w_start) * 1e3:.2f} ms, past the next SYNC")
                 elif "overrun" in self.monitors.active:
                     self.monitors.clear("overrun")
                 conflicts = self.plant.take_conflicts()  # another master on the bus (see PlantLink)
@@ -462,10 +545,10 @@ class ControllerService:
                 elif "can_conflict" in self.monitors.active:
                     self.monitors.clear("can_conflict")
                 self.tick += 1
-                self._rate_window.append(end)
+                self._rate_window.append(w_end)
                 if len(self._rate_window) > 200:
                     del self._rate_window[0]
-                if self.plant.heartbeat_age() > s.plant_heartbeat_timeout_s:
+                if self.plant.heartbeat_age() > heartbeat_timeout:
                     raise PlantFault(f"plant heartbeat lost for {self.plant.heartbeat_age():.2f} s")
                 if self.plant.node_state not in (None, NmtState.OPERATIONAL):
                     raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {self.plant.node_state.name})")
@@ -495,35 +578,62 @@ class ControllerService:
             liveliness=self.liveliness,
         )
 
+    def _emit_sync(self, tick: int) -> None:
+        """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
+        every = self.settings.inject_sync_drop_every
+        if every and tick % every == every - 1:
+            self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
+            self.timing.syncs_dropped += 1
+        self.plant.send_sync()
+
     def _lockstep_sample(self) -> np.ndarray:
-        """Lockstep: the TPDO for this tick. A SYNC lost on the bus gets no
-        answer; after ``LOCKSTEP_RETRY_S`` the SYNC is sent again (the node
-        sees a counter gap and steps once), until ``lockstep_timeout_s``."""
-        deadline = time.monotonic() + self.settings.lockstep_timeout_s
+        """Lockstep: the TPDO for this tick, however long the plant takes. A
+        SYNC lost on the bus gets no answer; after ``LOCKSTEP_RETRY_FRACTION``
+        of the timeout the SYNC is sent again (the node sees a counter gap and steps once), until
+        ``lockstep_timeout_s``."""
+        deadline = self.clock.now() + self.settings.lockstep_timeout_s
         while True:
-            words = self.plant.wait_tpdo(min(LOCKSTEP_RETRY_S, max(0.0, deadline - time.monotonic())))
+            retry = min(LOCKSTEP_RETRY_FRACTION * self.settings.lockstep_timeout_s, max(0.0, deadline - self.clock.now()))
+            words = self.plant.wait_tpdo(retry)
             if words is not None:
                 return words
-            if time.monotonic() >= deadline:
+            if self.clock.now() >= deadline or self.clock.stopping:
                 raise PlantFault(f"plant did not answer SYNC at tick {self.tick} within {self.settings.lockstep_timeout_s:.1f} s")
             self.timing.sync_retries += 1
             self.plant.send_sync()
 
     def _wait_for_dsp(self, stop: threading.Event, timeout: float) -> None:
         """Tell the DSP a new run starts (sequence numbers from 0, history
-        restarted) and give it a moment to announce its empty block."""
-        self._config_seq += 1
-        self._config_pub.put(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
+        restarted) and wait until a flag says it applied exactly that reset
+        (``config_seq``) with an empty block expecting batch 0. The reset goes
+        once the DSP is present (its subscriptions exist then) and again, with
+        a new number, every ``RESET_RESEND_S`` while unanswered; so tick 0 never
+        depends on when the DSP started or on message order."""
+        deadline = self.clock.now() + timeout
         self.link.next_seq = 0
-        deadline = time.monotonic() + timeout
-        while not self.link.block_empty and time.monotonic() < deadline and not stop.is_set():
-            try:
-                kind, payload, arrival = self._events.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            self._take_event(kind, payload, arrival)
-        if not self.link.block_empty:
+        reset_sent_at: float | None = None
+
+        while not stop.is_set():
+            now = self.clock.now()
+            answered = reset_sent_at is not None and self._dsp_config_seq == self._config_seq and self.link.block_empty and self.link.next_seq == 0
+            if answered or now >= deadline:
+                break
+            if self.dsp_alive and (reset_sent_at is None or now - reset_sent_at >= RESET_RESEND_S):
+                self._config_seq += 1
+                self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
+                self.link.next_seq = 0
+                reset_sent_at = now
+            event = self._next_event(0.05)
+            if event is not None:
+                self._take_event(*event)
+            elif self.port.synchronous and not self.dsp_alive:
+                break
+        if not (self.link.block_empty and self.link.next_seq == 0 and self._dsp_config_seq == self._config_seq):
             log.warning("no DSP answered within %.1f s; controlling without identification until it does", timeout)
+            if reset_sent_at is None:
+                # Tell a DSP that turns up later all the same.
+                self._config_seq += 1
+                self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
 
     def save(self, path: str, result: RunResult) -> None:
         """Write the run record (deterministic columns), timing and TF downloads."""
@@ -542,10 +652,5 @@ class ControllerService:
     def close(self) -> None:
         if self._tf_thread is not None:
             self._tf_thread.join(timeout=3.0)
-        self._health.stop()
-        for sub in self._subs:
-            sub.undeclare()
-        self._token.undeclare()
-        for pub in (self._batch_pub, self._config_pub, self._status_pub):
-            pub.undeclare()
+        self.port.close()
 

@@ -10,7 +10,7 @@ import zenoh
 
 from dsp_service.service import DspService
 from protocol.settings import DspSettings
-from rig.runtime import build_or_config_error, run_service
+from service_kit.runtime import build_or_config_error, run_service
 
 log = logging.getLogger("dsp")
 

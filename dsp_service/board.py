@@ -43,6 +43,8 @@ class BoardCounters:
     restarts: int = 0
     budget_misses: int = 0
     dropped_by_controller: int = 0
+    interrupts_repeated: int = 0
+    """A batch already answered came again (the CPU's resend after a lost interrupt): answered again."""
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))

@@ -1,9 +1,15 @@
 """The DSP service: the emulated C40 board on zenoh.
 
 Subscribes to sample batches and run-time configuration, runs one
-identification step per batch, and answers with the block flag and the
-interrupt carrying the pole parameters (thesis §3.2.3, Fig. 3.5). Heavy
-work happens on the service's own thread, never in zenoh callbacks.
+identification step per batch (:class:`dsp_service.core.DspCore`), and
+answers with the block flag and the interrupt carrying the pole parameters
+(thesis §3.2.3, Fig. 3.5). Heavy work happens on the service's own thread,
+never in zenoh callbacks.
+
+Time comes from an injected :class:`service_kit.clock.Scheduler`. The
+emulated latency is a due time: the interrupt is held (the block stays
+full) until it is due, while the board keeps taking events and notices a
+stop within one wait of at most :data:`MAX_WAIT_S`.
 """
 
 from __future__ import annotations
@@ -11,50 +17,28 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 from dataclasses import dataclass
 
-import numpy as np
 import zenoh
 
-from dsp_service.board import Admission, BatchBlock
-from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
+from dsp_service.board import Admission
+from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
-from protocol.messages import (
-    BlockFlag,
-    ConfigChange,
-    Health,
-    Interrupt,
-    PoleParameters,
-    TfSnapshot,
-    TransferFunction,
-    decode,
-    encode,
-)
+from protocol.messages import ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import DspSettings
-from rig.runtime import HealthPublisher, LatencyTracker
+from service_kit.clock import RealTimeScheduler, Scheduler
+from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
 
-_TF_NAMES = ("H11", "H12", "H21", "H22", "Htot")
+__all__ = ["DspService", "identifier_config"]
 
-
-def identifier_config(settings: DspSettings) -> IdentifierConfig:
-    """The identifier's configuration from the service settings."""
-    return IdentifierConfig(
-        sample_rate_hz=settings.sample_rate_hz,
-        fft_width=settings.fft_width,
-        averaging=settings.averaging,
-        alpha=settings.alpha,
-        rls_forgetting=1.0 - settings.alpha,
-        solver=settings.solver,
-        smoothing_window=settings.smoothing_window,
-        smoothing_order=settings.smoothing_order,
-        search_min_hz=settings.search_min_hz,
-        search_max_hz=min(settings.search_max_hz, settings.sample_rate_hz / 2),
-    )
+MAX_WAIT_S = 0.05
+"""The longest the board's thread waits for an event (so a stop is seen at once)."""
+REANNOUNCE_S = 0.5
+"""An idle board re-announces its empty block this often (a late controller learns it)."""
 
 
 @dataclass
@@ -63,32 +47,32 @@ class _Event:
     payload: bytes = b""
     batch: SampleBatch | None = None
     admission: Admission | None = None
+    arrival: float = 0.0
+
+
+@dataclass
+class _Held:
+    """An interrupt computed and waiting for its due time (the block stays full)."""
+
+    interrupt: Interrupt
+    due: float
+    arrival: float
 
 
 class DspService:
-    """The board: batch block, identifier, publishers, health."""
+    """The board on zenoh: the core, publishers, health."""
 
-    def __init__(self, settings: DspSettings, session: zenoh.Session) -> None:
+    def __init__(self, settings: DspSettings, session: zenoh.Session, scheduler: Scheduler | None = None) -> None:
         self.settings = settings
         self.session = session
         self.keys = Keys(settings.rig_id)
-        self.identifier = Identifier(identifier_config(settings))
-        self.block = BatchBlock()
-        self.batch_size = settings.batch_size
-        self.emulated_latency_s = settings.emulated_latency_s
-        self.extra_delay_s = settings.inject_delay_s
+        self.core = DspCore(settings)
+        self.scheduler: Scheduler = scheduler or RealTimeScheduler()
         self.compute_time = LatencyTracker()
         self.turnaround = LatencyTracker()
-        self.interrupt_seq = 0
-        self.flag_seq = 0
-        self.tf_seq = 0
-        self.last_batch_seq = 0
-        self.last_sim_time = 0.0
-        self.last_result: IdentificationResult | None = None
-        self.last_batch_missed = False
         self._events: queue.Queue[_Event] = queue.Queue()
-        self._tf_lock = threading.Lock()
-        self._block_lock = threading.Lock()
+        self._held: _Held | None = None
+        self._last_raised: Interrupt | None = None
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
@@ -100,71 +84,76 @@ class DspService:
         self._token = session.liveliness().declare_token(self.keys.alive("dsp"))
         self._health = HealthPublisher(session, self.keys.health("dsp"), settings.health_period_s, self._build_health)
 
-    # -- budget ---------------------------------------------------------------------
+    # -- the core's state, as the tests and the composition read it ----------------------
+    @property
+    def identifier(self):  # type: ignore[no-untyped-def]
+        return self.core.identifier
+
+    @property
+    def block(self):  # type: ignore[no-untyped-def]
+        return self.core.block
+
+    @property
+    def batch_size(self) -> int:
+        return self.core.batch_size
+
+    @property
+    def emulated_latency_s(self) -> float:
+        return self.core.emulated_latency_s
+
+    @property
+    def interrupt_seq(self) -> int:
+        return self.core.interrupt_seq
+
+    @property
+    def last_result(self):  # type: ignore[no-untyped-def]
+        return self.core.last_result
+
     def budget_s(self, batch: SampleBatch) -> float:
-        """Compute budget for a batch: configured, else the nominal batch
-        period ``l / fs`` (the deadline the thesis names: the CPU's next batch
-        is due then). Not the batch's own length: batches grow while the
-        board is late, which would excuse the lateness."""
-        return self.settings.budget_s or self.batch_size / batch.sample_rate_hz
+        return self.core.budget_s(batch)
 
     # -- messages out -----------------------------------------------------------------
     def _publish_flag(self, state: str) -> None:
-        flag = BlockFlag(
-            seq=self.flag_seq,
-            sim_time_s=self.last_sim_time,
-            state=state,  # type: ignore[arg-type]
-            next_batch_seq=self.block.next_seq,
-            fft_width=self.identifier.fft_width,
-            batch_size=self.batch_size,
-            emulated_latency_s=self.emulated_latency_s,
-        )
-        self.flag_seq += 1
-        self._flag_pub.put(encode(flag))
+        self._flag_pub.put(encode(self.core.flag(state)))
 
     def _build_health(self, seq: int) -> Health:
-        counters = self.block.counters.as_dict()
-        counters["interrupts"] = self.interrupt_seq
-        state = "degraded" if self.last_batch_missed else "running"
+        counters = self.core.block.counters.as_dict()
+        counters["interrupts"] = self.core.interrupt_seq
+        state = "degraded" if self.core.last_batch_missed else "running"
         return Health(
             seq=seq,
-            sim_time_s=self.last_sim_time,
+            sim_time_s=self.core.last_sim_time,
             service="dsp",
             state=state,  # type: ignore[arg-type]
             counters=counters,
             latencies={"compute": self.compute_time.stats(), "batch_to_interrupt": self.turnaround.stats()},
-            last_miss=self.block.last_violation,
+            last_miss=self.core.block.last_violation,
         )
 
     # -- handlers -----------------------------------------------------------------------
-    def _reject(self, reason: str) -> None:
-        with self._block_lock:
-            self.block.counters.rejected += 1
-            self.block.last_violation = reason
-        log.warning("rejected a batch: %s", reason)
-
     def _on_batch_sample(self, sample: zenoh.Sample) -> None:
         """A batch arrives in the block (zenoh's thread): decoded, checked and
         admitted here, so a batch arriving while the block is full is seen as
         the protocol violation it is; the identification runs on our thread."""
+        arrival = self.scheduler.now()
         try:
             batch = decode_batch(sample.payload.to_bytes())
         except ProtocolError as exc:
-            with self._block_lock:
-                self.block.counters.decode_errors += 1
-                self.block.last_violation = f"undecodable batch: {exc}"
+            with self.core.block_lock:
+                self.core.block.counters.decode_errors += 1
+                self.core.block.last_violation = f"undecodable batch: {exc}"
             log.warning("dropped an undecodable batch: %s", exc)
             return
-        if batch.inputs.shape[0] != 2 or batch.outputs.shape[0] != 2:
-            self._reject(f"batch {batch.seq} has {batch.inputs.shape[0]} inputs and {batch.outputs.shape[0]} outputs; the board identifies 2x2")
+        last = self._last_raised
+        if last is not None and batch.seq == last.batch_seq and batch.seq == self.core.block.next_seq - 1 and not self.core.block.full:
+            # The CPU sent the batch we answered last again: its interrupt was lost
+            # (a starved peer's session dropped). Answer it again, the same interrupt.
+            self._events.put(_Event("repeat", arrival=arrival))
             return
-        if abs(batch.sample_rate_hz - self.settings.sample_rate_hz) > 1e-9 * self.settings.sample_rate_hz:
-            self._reject(f"batch {batch.seq} sampled at {batch.sample_rate_hz} Hz; this board runs at {self.settings.sample_rate_hz} Hz")
-            return
-        with self._block_lock:
-            admission = self.block.admit(batch)
+        admission = self.core.admit(batch)
         if admission.accepted:
-            self._events.put(_Event("batch", batch=batch, admission=admission))
+            self._events.put(_Event("batch", batch=batch, admission=admission, arrival=arrival))
+
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
             query.reply(self.keys.tf, encode(self.snapshot()))
@@ -174,117 +163,56 @@ class DspService:
 
     def snapshot(self) -> TfSnapshot:
         """The current transfer-function estimates (magnitude and phase)."""
-        with self._tf_lock:
-            tf = self.identifier.transfer_functions()
-            estimates = {}
-            for name in _TF_NAMES:
-                h = np.nan_to_num(np.asarray(getattr(tf, name)), nan=0.0, posinf=0.0, neginf=0.0)
-                estimates[name] = TransferFunction(magnitude=tuple(np.abs(h).tolist()), phase_rad=tuple(np.angle(h).tolist()))
-            snap = TfSnapshot(
-                seq=self.tf_seq,
-                sim_time_s=self.last_sim_time,
-                batch_seq=self.last_batch_seq,
-                freqs_hz=tuple(np.asarray(tf.freqs_hz, dtype=float).tolist()),
-                valid=tuple(bool(v) for v in np.asarray(tf.valid)),
-                estimates=estimates,  # type: ignore[arg-type]
-            )
-            self.tf_seq += 1
-            return snap
+        return self.core.snapshot()
 
     def apply_config(self, change: ConfigChange) -> None:
-        """Run-time configuration; ``reset`` starts a new CPU run (sequence
-        numbers from 0, history restarted, averages kept)."""
-        if change.reset:
-            with self._block_lock:
-                self.block.restart()
-        with self._tf_lock:
-            if change.reset:
-                self.identifier.restart_history()
-            if change.fft_width is not None and change.fft_width != self.identifier.fft_width:
-                log.info("FFT width %d -> %d: history zeroed", self.identifier.fft_width, change.fft_width)
-                self.identifier.set_fft_width(change.fft_width)
-            if change.batch_size is not None:
-                self.batch_size = change.batch_size
-            if change.alpha is not None:
-                self.identifier.set_alpha(change.alpha)
-            if change.emulated_latency_s is not None:
-                self.emulated_latency_s = change.emulated_latency_s
-        self.block.note_config(change)
+        self.core.apply_config(change)
+
+    def _compute(self, batch: SampleBatch, admission: Admission, arrival: float) -> _Held:
+        interrupt = self.core.process(batch, admission)
+        self.compute_time.add(interrupt.compute_time_s)
+        return _Held(interrupt, arrival + self.core.due_after(interrupt, self.settings.clock == "realtime"), arrival)
+
+    def _raise(self, held: _Held) -> None:
+        """Fig. 3.5 step 4: release the block, flag it empty, raise the interrupt."""
+        self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
+        self._flag_pub.put(encode(self.core.release()))
+        self._irq_pub.put(encode(held.interrupt))
+        self.turnaround.add(self.scheduler.now() - held.arrival)
 
     def process_batch(self, batch: SampleBatch, admission: Admission | None = None) -> Interrupt | None:
-        """One pass of Fig. 3.5 steps 3-4 for a batch (admitted here unless
-        it already was on arrival)."""
+        """One pass of Fig. 3.5 steps 3-4 for a batch (admitted here unless it
+        already was on arrival), raised at once: for tests and direct callers."""
         if admission is None:
-            with self._block_lock:
-                admission = self.block.admit(batch)
+            admission = self.core.admit(batch)
         if not admission.accepted:
             return None
-        received = time.monotonic()
-        self.last_sim_time = batch.sim_time_s + batch.n_samples / batch.sample_rate_hz
-        self.last_batch_seq = batch.seq
-        started = time.perf_counter()
-        with self._tf_lock:
-            if admission.restart_history:
-                self.identifier.restart_history()
-            self.identifier.push(batch.inputs, batch.outputs)
-            result = self.identifier.step()
-        if self.extra_delay_s > 0:  # fault injection: a slowed board
-            time.sleep(self.extra_delay_s)
-        compute = time.perf_counter() - started
-        self.compute_time.add(compute)
-        budget = self.budget_s(batch)
-        missed = compute > budget
-        if missed:
-            self.block.counters.budget_misses += 1
-            self.block.last_violation = f"batch {batch.seq}: compute {compute * 1e3:.1f} ms over budget {budget * 1e3:.1f} ms"
-            log.warning("deadline: %s", self.block.last_violation)
-        self.last_result = result
-        self.last_batch_missed = missed
-        if self.settings.clock == "realtime":
-            remaining = self.emulated_latency_s - (time.monotonic() - received)
-            if remaining > 0:
-                time.sleep(remaining)
-        interrupt = Interrupt(
-            seq=self.interrupt_seq,
-            sim_time_s=self.last_sim_time,
-            batch_seq=batch.seq,
-            poles=tuple(
-                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source)
-                for p in result.poles
-                if np.isfinite(p.frequency_hz) and p.frequency_hz > 0 and np.isfinite(p.damping_ratio) and np.isfinite(p.magnitude)
-            ),
-            confidence=float(np.clip(result.confidence, 0.0, 1.0)),
-            compute_time_s=compute,
-            emulated_latency_s=self.emulated_latency_s,
-            samples_in_history=result.samples_in_history,
-            valid_fraction=float(np.clip(result.valid_fraction, 0.0, 1.0)),
-            deadline_missed=missed,
-        )
-        self.interrupt_seq += 1
-        with self._block_lock:
-            self.block.release()
-        self._publish_flag("empty")
-        self._irq_pub.put(encode(interrupt))
-        self.turnaround.add(time.monotonic() - received)
-        return interrupt
+        held = self._compute(batch, admission, self.scheduler.now())
+        self._raise(held)
+        return held.interrupt
 
     def _handle(self, event: _Event) -> None:
-        if event.kind == "batch" and event.batch is not None:
-            self.process_batch(event.batch, event.admission)
+        if event.kind == "batch" and event.batch is not None and event.admission is not None:
+            self._held = self._compute(event.batch, event.admission, event.arrival)
+        elif event.kind == "repeat" and self._last_raised is not None and self._held is None:
+            self.core.block.counters.interrupts_repeated += 1
+            log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
+            self._flag_pub.put(encode(self.core.flag("empty")))
+            self._irq_pub.put(encode(self._last_raised))
         elif event.kind == "config":
             try:
                 change = decode(ConfigChange, event.payload)
             except ProtocolError as exc:
-                self.block.counters.decode_errors += 1
+                self.core.block.counters.decode_errors += 1
                 log.warning("dropped an invalid config change: %s", exc)
                 return
             try:
                 self.apply_config(change)
             except ValueError as exc:
-                self.block.counters.config_rejected += 1
-                self.block.last_violation = f"config change refused: {exc}"
-                log.warning("refused a config change the identifier cannot take: %s", exc)
-            self._publish_flag("empty" if not self.block.full else "full")
+                self.core.block.counters.config_rejected += 1
+                self.core.block.last_violation = f"config change refused: {exc}"
+                log.warning("refused a config change the board cannot take: %s", exc)
+            self._publish_flag("empty" if not self.core.block.full else "full")
 
     def _handle_safely(self, event: _Event) -> None:
         """Nothing a peer sends may kill the board: an unexpected error is
@@ -292,30 +220,38 @@ class DspService:
         try:
             self._handle(event)
         except Exception as exc:
-            self.block.counters.internal_errors += 1
-            self.block.last_violation = f"internal error on a {event.kind}: {exc!r}"
+            self.core.block.counters.internal_errors += 1
+            self.core.block.last_violation = f"internal error on a {event.kind}: {exc!r}"
             log.exception("internal error while handling a %s; block released", event.kind)
-            with self._block_lock:
-                self.block.release()
-            self._publish_flag("empty")
+            self._held = None
+            self._flag_pub.put(encode(self.core.release()))
 
     def run(self, stop: threading.Event) -> None:
-        """Serve until ``stop`` is set."""
+        """Serve until ``stop`` is set (seen within :data:`MAX_WAIT_S`, whatever is held)."""
+        if isinstance(self.scheduler, RealTimeScheduler):
+            self.scheduler.stop = stop
         self._health.start()
         self._publish_flag("empty")  # Fig. 3.5 step 1: the block starts empty
-        last_flag = time.monotonic()
+        last_flag = self.scheduler.now()
         while not stop.is_set():
+            now = self.scheduler.now()
+            if self._held is not None and now >= self._held.due:
+                held, self._held = self._held, None
+                self._raise(held)
+                last_flag = now
+                continue
+            timeout = MAX_WAIT_S if self._held is None else min(MAX_WAIT_S, max(0.0, self._held.due - now))
             try:
-                event = self._events.get(timeout=0.05)
+                event = self._events.get(timeout=timeout)
             except queue.Empty:
                 # Re-announce an empty block now and then, so a controller that
                 # starts after us (or missed the first flag) learns it.
-                if not self.block.full and time.monotonic() - last_flag > 0.5:
+                if self._held is None and not self.core.block.full and self.scheduler.now() - last_flag > REANNOUNCE_S:
                     self._publish_flag("empty")
-                    last_flag = time.monotonic()
+                    last_flag = self.scheduler.now()
                 continue
             self._handle_safely(event)
-            last_flag = time.monotonic()
+            last_flag = self.scheduler.now()
 
     def close(self) -> None:
         self._health.stop()

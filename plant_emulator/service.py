@@ -8,14 +8,19 @@ Clock modes (design.md "Time"):
   or watchdog event it first catches up to ``now`` (in fixed internal
   steps, so the old valve command acted until this instant), then samples
   or applies the command;
-* lockstep: the model advances exactly one sample period per SYNC.
+* lockstep: the model advances exactly one sample period per SYNC, and the
+  SYNC watchdog is off: a pause between SYNCs is the master waiting for its
+  handshake (nothing moves in simulated time meanwhile), never a fault, so a
+  loaded host cannot trip it and change the run.
+
+Time comes from an injected clock (:mod:`service_kit.clock`); latencies are
+measured with an injected stopwatch.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import math
 import queue
 import threading
 import time
@@ -31,7 +36,9 @@ from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
-from rig.runtime import HealthPublisher, LatencyTracker
+from service_kit.clock import Scheduler, scheduler_for
+from service_kit.realtime import RealtimeMeasures, apply_realtime
+from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
 
@@ -45,16 +52,9 @@ def plant_config(settings: PlantSettings) -> PlantConfig:
     )
 
 
-LOCKSTEP_WATCHDOG_S = 2.0
-"""In lockstep SYNC pauses while the controller waits for the DSP or writes a
-download, so the watchdog there guards against a dead controller only: it
-trips after at least this much wall time."""
-
-
 def node_config(settings: PlantSettings) -> NodeConfig:
-    periods = settings.watchdog_periods
-    if settings.clock == "lockstep":
-        periods = max(periods, math.ceil(LOCKSTEP_WATCHDOG_S / settings.sample_period_s))
+    """The node's power-on values; lockstep turns the SYNC watchdog off (0x2003 = 0)."""
+    periods = 0 if settings.clock == "lockstep" else settings.watchdog_periods
     return NodeConfig(
         node_id=settings.node_id,
         heartbeat_ms=settings.heartbeat_ms,
@@ -91,12 +91,14 @@ class PlantApplication:
         settings: PlantSettings,
         arm: RalfArm | None = None,
         clock: Callable[[], float] = time.monotonic,
+        stopwatch: Callable[[], float] = time.perf_counter,
         publish_truth: Callable[[GroundTruth], None] | None = None,
         publish_event: Callable[[PlantEvent], None] | None = None,
     ) -> None:
         self.settings = settings
         self.arm = arm or RalfArm(plant_config(settings))
         self.clock = clock
+        self.stopwatch = stopwatch
         self.t0: float | None = None
         self.held = False
         self.sample_period_s = settings.sample_period_s
@@ -130,14 +132,14 @@ class PlantApplication:
 
     # -- NodeApplication ---------------------------------------------------------------------
     def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-        arrived = time.monotonic()
+        arrived = self.stopwatch()
         if self._last_sync_wall is not None:
             self.sync_interval.add(arrived - self._last_sync_wall)
         self._last_sync_wall = arrived
         try:
             return self._sample_on_sync()
         finally:
-            self.sync_service.add(time.monotonic() - arrived)
+            self.sync_service.add(self.stopwatch() - arrived)
 
     def _sample_on_sync(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
         if self.settings.clock == "lockstep":
@@ -284,9 +286,10 @@ class PlantTestPort:
         self._event_pub.undeclare()
 
 
-def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort) -> Health:
+def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort, measures: RealtimeMeasures | None = None) -> Health:
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=port.bad_scenarios)
+    counters.update((measures or RealtimeMeasures()).as_counters())
     return Health(
         seq=seq,
         sim_time_s=app.arm.time_s,
@@ -298,17 +301,19 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     )
 
 
-def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: threading.Event) -> None:
+def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: threading.Event, scheduler: Scheduler | None = None) -> None:
     """Run the node on ``bus`` until ``stop``; the test port on ``session``."""
     from plant_emulator.node import run_node
 
+    clock = (scheduler or scheduler_for(settings.clock, stop)).now
     port = PlantTestPort(settings, session)
-    app = PlantApplication(settings, publish_truth=port.publish_truth, publish_event=port.publish_event)
+    app = PlantApplication(settings, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
     app.scenario_inbox = port.inbox
     node = CanopenNode(app, node_config(settings))
-    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port)).start()
+    measures = apply_realtime(settings.rt_priority, settings.cpu_affinity) if settings.clock == "realtime" else RealtimeMeasures()
+    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
-        run_node(bus, node, stop)  # type: ignore[arg-type]
+        run_node(bus, node, stop, clock)  # type: ignore[arg-type]
     finally:
         if settings.record:
             app.save_truth(settings.record)

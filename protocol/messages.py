@@ -45,6 +45,7 @@ class BlockFlag(Message):
     fft_width: Annotated[int, Field(ge=16, le=65536)]
     batch_size: Annotated[int, Field(ge=1, le=65536)]
     emulated_latency_s: NonNegFloat = Field(0.0, description="When the interrupt for the next batch is due, in simulated time after it is sent")
+    config_seq: Seq | None = Field(None, description="seq of the last ConfigChange the board applied (None: none yet); a CPU starts its run once its reset is applied")
 
     @model_validator(mode="after")
     def _power_of_two(self) -> "BlockFlag":

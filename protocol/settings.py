@@ -34,6 +34,8 @@ class CommonSettings(BaseSettings):
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, gt=0, le=5000, description="Control and identification sample rate")
     health_period_s: float = Field(1.0, gt=0, description="Period of health messages on ralf/<rig>/health/<service>")
+    rt_priority: int = Field(0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)")
+    cpu_affinity: str = Field("", description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
 
     @field_validator("rig_id")
@@ -90,7 +92,8 @@ class ControllerSettings(CommonSettings):
     dsp_deadline_s: float | None = Field(None, gt=0, description="Interrupt deadline after a batch (default: the batch period)")
     stale_after_s: float = Field(2.0, gt=0, description="Parameters older than this are stale")
     tf_download_samples: int = Field(1000, ge=0, description="Download transfer functions every this many samples (0 = never)")
-    lockstep_timeout_s: float = Field(10.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault")
+    lockstep_timeout_s: float = Field(60.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)")
+    startup_timeout_s: float = Field(60.0, gt=0, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
     plant_heartbeat_timeout_s: float = Field(1.0, gt=0, description="Plant heartbeat older than this is a fault")
     record: str = Field("", description="Write the run record (npz + JSON) to this path")
     policy_deadline: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On an interrupt past its deadline")

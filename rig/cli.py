@@ -21,7 +21,7 @@ from rich.text import Text
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 from rig import bench, experiments, monitor
-from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
+from rig.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
 
 console = Console(stderr=True)
 
@@ -79,6 +79,10 @@ def print_summary(summary: dict[str, Any]) -> None:
     table.add_column("item")
     table.add_column("value", justify="right")
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s")
+    if summary.get("startup_s") is not None:
+        table.add_row("start-up (launch to first tick)", f"{summary['startup_s']:.1f} s")
+    if summary.get("control_wall_s") is not None:
+        table.add_row("control time (wall)", f"{summary['control_wall_s']:.1f} s")
     c = summary["controller"]
     if c:
         table.add_row("simulated time", f"{c['sim_time_s']:.2f} s")
@@ -97,8 +101,22 @@ def print_summary(summary: dict[str, Any]) -> None:
                     f"{name} {lname}",
                     f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
                 )
+    for name, health in summary["health"].items():
+        counters = health.get("counters", {})
+        if "rt_gc_frozen" in counters:
+            fifo = counters.get("rt_fifo_priority", 0)
+            table.add_row(
+                f"{name} real-time measures",
+                f"{'SCHED_FIFO ' + str(fifo) if fifo else 'normal scheduler'}, "
+                f"{str(counters.get('rt_pinned_cpus', 0)) + ' CPU(s) pinned' if counters.get('rt_pinned_cpus') else 'not pinned'}, "
+                f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
+            )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
     console.print(table)
+
+
+STARTUP_ALLOWANCE_S = 120.0
+"""``ralf-hil up``: a rig whose controller has not ticked this long after the launch has failed."""
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -106,50 +124,94 @@ def cmd_up(args: argparse.Namespace) -> int:
         validate_rig_id(args.rig_id)
     except ValueError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
+    if args.duration is not None and not args.duration > 0:
+        raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
+    if args.clock == "cosim":
+        return _up_cosim(args, overrides)
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     observer = RigObserver(plan)
-    procs: dict[str, ServiceProcess] = {}
-    started = time.monotonic()
-    failure = ""
+    console.print(f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}")
+    live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
+    said_ready = False
+
+    def on_poll(sup: Supervision, _status: object) -> None:
+        nonlocal said_ready
+        if sup.ready_at is not None and not said_ready:
+            said_ready = True
+            live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)")
+        live.update(status_line(observer, time.monotonic() - sup.started))
+
     try:
-        for name in START_ORDER:
-            procs[name] = start_service(plan, name, log_dir)
-        console.print(f"rig {plan.rig_id!r} up: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}")
-        with Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal) as live:
-            while not stop.is_set():
-                elapsed = time.monotonic() - started
-                live.update(status_line(observer, elapsed))
-                if args.duration is not None and elapsed >= args.duration:
-                    break
-                dead = [p for p in procs.values() if p.returncode is not None]
-                if dead:
-                    if all(p.name == "controller" and p.returncode == 0 for p in dead):
-                        break  # the controller finished its run
-                    failure = ", ".join(f"{p.name} exited with {p.returncode}" for p in dead)
-                    break
-                stop.wait(0.25)
+        with live:
+            sup = supervise(
+                plan, log_dir, lambda: observer.status, run_for_s=args.duration, startup_timeout_s=STARTUP_ALLOWANCE_S, stop=stop, on_poll=on_poll, poll_s=0.25
+            )
         if not console.is_terminal:
-            console.print(status_line(observer, time.monotonic() - started))
-    finally:
-        exit_codes = {name: stop_service(procs[name]) for name in STOP_ORDER if name in procs}
+            console.print(status_line(observer, time.monotonic() - sup.started))
         time.sleep(0.2)  # let the last health messages arrive
-        elapsed = time.monotonic() - started
-        summary = summarize(observer, exit_codes, elapsed)
+        summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
+    finally:
         observer.close()
+    summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
+    summary["control_wall_s"] = round(sup.control_s, 3)
     print_summary(summary)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
+    failure = sup.failure
+    status = summary["controller"]
+    if not failure and (status is None or status["ticks"] == 0):
+        failure = "the controller made no progress (0 control ticks)"
     if failure:
         console.print(f"[red]rig failed: {failure}[/red]")
-    bad = {k: v for k, v in exit_codes.items() if v != 0}
+    bad = {k: v for k, v in sup.exit_codes.items() if v != 0}
     for name in bad:
-        console.print(f"[red]{name} exited with {bad[name]}; last log lines:[/red]\n{tail(procs[name].log_path)}")
+        console.print(f"[red]{name} exited with {bad[name]}; last log lines:[/red]\n{tail(sup.procs[name].log_path)}")
     return 1 if (failure or bad) else 0
+
+
+def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
+    """``ralf-hil up --clock cosim``: the three boards co-simulated in this
+    process, one thread (:mod:`rig.cosim`); ``--duration`` is simulated time."""
+    from protocol.errors import ConfigError
+    from protocol.messages import ControllerStatus, decode
+    from rig.cosim import run_cosim
+
+    own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
+    if args.duration is not None and "duration_s" not in own["controller"]:
+        own["controller"]["duration_s"] = str(args.duration)
+    started = time.monotonic()
+    console.print("co-simulating plant, controller and DSP in one thread (no processes, no network)")
+    try:
+        run = run_cosim(controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id})
+    except (ConfigError, ValueError) as exc:
+        console.print(f"[red]ralf-hil up: {exc}[/red]")
+        return 2
+    wall = time.monotonic() - started
+    status = decode(ControllerStatus, run.controller.port.status) if getattr(run.controller.port, "status", None) else None  # type: ignore[attr-defined]
+    summary: dict[str, Any] = {
+        "wall_time_s": round(wall, 3),
+        "exit_codes": {"controller": 0 if run.result.error is None else 3},
+        "controller": status.model_dump(exclude={"wall_time_s"}) if status else None,
+        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in run.health.items()},
+        "liveliness_events": [],
+        "undecodable_messages": 0,
+        "startup_s": 0.0,
+        "control_wall_s": round(wall, 3),
+        "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+    }
+    console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
+    print_summary(summary)
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2))
+    if run.result.error or run.result.ticks == 0:
+        console.print(f"[red]rig failed: {run.result.error or 'the controller made no progress (0 control ticks)'}[/red]")
+        return 1
+    return 0
 
 
 def cmd_reconfigure(args: argparse.Namespace) -> int:
@@ -192,9 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
     up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
-    up.add_argument("--duration", type=float, default=None, help="stop after this many wall-clock seconds (default: until Ctrl-C)")
+    up.add_argument("--duration", type=float, default=None, help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds")
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
-    up.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime", help="clock mode (default: realtime)")
+    up.add_argument("--clock", choices=("realtime", "lockstep", "cosim"), default="realtime", help="realtime (default), lockstep (three processes, handshake-stepped) or cosim (one thread, bit-identical to lockstep)")
     up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")

@@ -18,7 +18,7 @@ import sys
 import threading
 import time
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -204,3 +204,94 @@ def tail(path: Path, lines: int = 15) -> str:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
     except OSError:
         return ""
+
+
+@dataclass
+class Supervision:
+    """How a supervised rig run went (:func:`supervise`)."""
+
+    procs: dict[str, ServiceProcess]
+    exit_codes: dict[str, int] = field(default_factory=dict)
+    failure: str = ""
+    """Empty when the run ended as asked (duration reached, controller finished, stop)."""
+    started: float = 0.0
+    """``time.monotonic()`` at launch."""
+    ready_at: float | None = None
+    """When the controller's first tick was seen: every service had answered (tick 0 waits for them)."""
+    ended_at: float = 0.0
+    """When the run ended, before the services were stopped."""
+
+    @property
+    def startup_s(self) -> float | None:
+        return None if self.ready_at is None else self.ready_at - self.started
+
+    @property
+    def control_s(self) -> float:
+        """Wall seconds of control: from the first tick to the end."""
+        return 0.0 if self.ready_at is None else self.ended_at - self.ready_at
+
+
+def supervise(
+    plan: RigPlan,
+    log_dir: Path,
+    status: Callable[[], ControllerStatus | None],
+    *,
+    run_for_s: float | None = None,
+    timeout_s: float | None = None,
+    startup_timeout_s: float | None = None,
+    stop: threading.Event | None = None,
+    on_poll: Callable[[Supervision, ControllerStatus | None], None] | None = None,
+    poll_s: float = 0.2,
+    stop_timeout_s: float = 10.0,
+) -> Supervision:
+    """The one supervise loop of the launcher (``ralf-hil up``, the bench and
+    the experiments): start the services in :data:`START_ORDER`, watch them,
+    end, and always stop them in :data:`STOP_ORDER`.
+
+    The run ends when the controller exits (its run is over; non-zero is a
+    failure), when another service dies (a failure), ``run_for_s`` wall
+    seconds after the controller's first tick (start-up is not counted),
+    when ``stop`` is set, after ``timeout_s`` in all (a failure), or when no
+    tick came within ``startup_timeout_s`` of the launch (a failure).
+    ``status()`` gives the latest controller status (from the caller's
+    observer); ``on_poll`` is called on every poll (live view, progress).
+    """
+    sup = Supervision(procs={}, started=time.monotonic())
+    stop = stop or threading.Event()
+    try:
+        for name in START_ORDER:
+            sup.procs[name] = start_service(plan, name, log_dir)
+        while True:
+            now = time.monotonic()
+            current = status()
+            if sup.ready_at is None and current is not None and current.ticks > 0:
+                sup.ready_at = now
+            if on_poll is not None:
+                on_poll(sup, current)
+            dead = {p.name: p.returncode for p in sup.procs.values() if p.returncode is not None}
+            if "controller" in dead and all(code == 0 or name == "controller" for name, code in dead.items()):
+                if dead["controller"] != 0:
+                    sup.failure = f"controller exited with {dead['controller']}"
+                break
+            if dead:
+                sup.failure = ", ".join(f"{name} exited with {code}" for name, code in dead.items())
+                break
+            if stop.is_set():
+                break
+            if run_for_s is not None and sup.ready_at is not None and now - sup.ready_at >= run_for_s:
+                break
+            if timeout_s is not None and now - sup.started > timeout_s:
+                sup.failure = f"no end after {timeout_s:.0f} s wall time ({'running' if sup.ready_at else 'no controller tick seen'})"
+                break
+            if startup_timeout_s is not None and sup.ready_at is None and now - sup.started > startup_timeout_s:
+                sup.failure = f"no controller tick within {startup_timeout_s:.0f} s of the launch"
+                break
+            stop.wait(poll_s)
+    finally:
+        sup.ended_at = time.monotonic()
+        for name in STOP_ORDER:
+            if name in sup.procs:
+                sup.exit_codes[name] = stop_service(sup.procs[name], stop_timeout_s)
+                if name == "controller":
+                    time.sleep(0.3)  # its final status and health
+    return sup

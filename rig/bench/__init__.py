@@ -10,9 +10,12 @@ Items (``--only``):
 * ``realtime``: the three-process rig in real time at 200 Hz and 1 kHz:
   loop rate, SYNC jitter, TET, batch -> interrupt, overruns, deadline
   misses, from the controller's health and status;
-* ``lockstep``: simulated seconds per wall second, three processes and
-  (if :mod:`rig.composition` exists) one process;
-* ``dsp``: :func:`dsp_service.bench.bench_identifier` (n = 2048).
+* ``lockstep``: simulated seconds per wall second, three processes,
+  the one-thread co-simulation (:mod:`rig.cosim`, against its 100x target)
+  and one process (:mod:`rig.composition`);
+* ``dsp``: :func:`dsp_service.bench.bench_identifier` (n = 2048);
+* ``hotpath``: controller tick and plant step in a micro-benchmark
+  (:mod:`rig.bench.hotpath`) against the 100 µs target, with their parts.
 
 Nothing here asserts a time: the numbers are reported, with the machine
 they were measured on. Helper processes: :mod:`rig.bench.peer`.

@@ -314,50 +314,30 @@ def run_rig(
     first tick; always stops every service. Returns the statuses with their
     arrival times, the last snapshot (health, liveliness) and exit codes.
     """
-    from rig.launcher import START_ORDER, STOP_ORDER, RigPlan, start_service, stop_service
+    from rig.launcher import RigPlan, supervise
     from rig.monitor import RigWatch
 
     plan = RigPlan.local(rig_id=rig_id, clock=clock, overrides=overrides, common=common)
     log_dir = ctx.log_dir / rig_id
-    procs: dict[str, Any] = {}
     out: dict[str, Any] = {"failure": None, "exit_codes": {}, "log_dir": str(log_dir)}
     watch = RigWatch(rig_id, listen_config(plan.zenoh_port), history=True)
+
+    def latest() -> Any:
+        history = watch.history()
+        return history[-1][1] if history else None
+
     try:
-        for name in START_ORDER:
-            procs[name] = start_service(plan, name, log_dir)
-        started = time.monotonic()
-        first_tick_at: float | None = None
-        while True:
-            time.sleep(0.1)
-            now = time.monotonic()
-            if first_tick_at is None:
-                running = [t for t, s in watch.history() if s.ticks > 0]
-                first_tick_at = running[0] if running else None
-            dead = {n: p.returncode for n, p in procs.items() if p.returncode is not None}
-            if "controller" in dead:
-                if dead["controller"] != 0:
-                    out["failure"] = f"controller exited with {dead['controller']}"
-                break
-            if dead:
-                out["failure"] = ", ".join(f"{n} exited with {c}" for n, c in dead.items())
-                break
-            if stop_after_running_s is not None and first_tick_at is not None and now - first_tick_at >= stop_after_running_s:
-                break
-            if now - started > timeout_s:
-                out["failure"] = f"timed out after {timeout_s:.0f} s ({'running' if first_tick_at else 'no controller tick seen'})"
-                break
-    finally:
-        for name in STOP_ORDER:
-            if name in procs:
-                out["exit_codes"][name] = stop_service(procs[name])
-                if name == "controller":
-                    time.sleep(0.3)  # the controller's final status and health
+        sup = supervise(plan, log_dir, latest, run_for_s=stop_after_running_s, timeout_s=timeout_s, poll_s=0.1)
+        out["failure"] = sup.failure or None
+        out["exit_codes"] = sup.exit_codes
+        out["startup_s"] = sup.startup_s
         time.sleep(0.3)
         out["snapshot"] = watch.snapshot()
         out["history"] = watch.history()
+    finally:
         watch.close()
     if out["failure"]:
-        out["logs"] = {name: tail(p.log_path, 6) for name, p in procs.items()}
+        out["logs"] = {name: tail(p.log_path, 6) for name, p in sup.procs.items()}
     return out
 
 
@@ -517,6 +497,7 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
         ctrl = run["snapshot"]["services"]["controller"]["health"]
         if ctrl:
             m["three_process tet"] = latency(from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick")
+    _bench_cosim(ctx, result, three)
     try:
         requires("rig.composition")
     except Skip as exc:
@@ -541,6 +522,32 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
     m["one_process tet"] = latency(from_latency_stats(out["tet"]), "can_pingpong (floor)", canf, note="virtual bus in one process: no socket round trip")
 
 
+COSIM_TARGET = 100.0
+"""The co-simulation should run the default loop at least this many times faster than real time."""
+
+
+def _bench_cosim(ctx: BenchContext, result: dict[str, Any], three: float | None) -> None:
+    """The direct co-simulation (rig.cosim) of the default loop (default settings), in this process."""
+    try:
+        requires("rig.cosim")
+    except Skip as exc:
+        result["skipped"].append(f"cosim: {exc}")
+        return
+    from rig.cosim import run_cosim
+
+    sim_s = 10.0 if ctx.quick else 60.0
+    ctx.say(f"  co-simulation of the default loop: {sim_s:.0f} s simulated, one thread")
+    run = run_cosim(controller={"duration_s": sim_s})
+    if run.result.error:
+        result["errors"].append(f"cosim: run ended with {run.result.error}")
+    rate = run.result.sim_time_s / run.wall_time_s if run.wall_time_s > 0 else None
+    m = result["measurements"]
+    m["cosim sim_s/wall_s"] = scalar(rate, "x", "target", COSIM_TARGET, sim_time_s=run.result.sim_time_s, wall_time_s=run.wall_time_s, note="wall time includes start-up")
+    if three:
+        m["cosim vs three_process"] = scalar(rate, "x", "three_process sim_s/wall_s", three)
+    m["cosim tet"] = latency(from_latency_stats(run.controller.tet.stats().model_dump()), note="wall time per co-simulated tick: plant step, controller tick, codecs (the DSP step in its batch's tick)")
+
+
 # --- 5. DSP -------------------------------------------------------------------------------------------
 
 
@@ -563,12 +570,26 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
 
 
+def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Controller tick and plant step in a micro-benchmark (rig.bench.hotpath) against the 100 µs target and CAN ping-pong."""
+    from rig.bench import hotpath
+
+    n = 500 if ctx.quick else 3000
+    ctx.say(f"  controller tick and plant step, {n} calls each, and their parts")
+    raw = hotpath.bench_hotpath(n=n, warmup=100)
+    result["config"] = {"n": n, "oatf_mode": "adaptive", "target_us": hotpath.TARGET_US}
+    m = result["measurements"]
+    for name, stats in raw.items():
+        m[name.strip()] = latency_vs_value(stats, "100 µs target", hotpath.TARGET_US) if not name.startswith(" ") else latency(stats)
+
+
 ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "zenoh": bench_zenoh,
     "can": bench_can,
     "realtime": bench_realtime,
     "lockstep": bench_lockstep,
     "dsp": bench_dsp,
+    "hotpath": bench_hotpath,
 }
 FLOOR_ITEMS = ("zenoh", "can")
 

@@ -1,4 +1,4 @@
-"""``ralf-hil experiment NAME|all [--out DIR] [--seed S] [--mode lockstep|realtime] [--quick]`` and ``--list``."""
+"""``ralf-hil experiment NAME|all [--out DIR] [--seed S] [--mode cosim|lockstep|realtime] [--quick]`` and ``--list``."""
 
 from __future__ import annotations
 
@@ -33,9 +33,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="base seed of every random stream (default 0)")
     p.add_argument(
         "--mode",
-        choices=("lockstep", "realtime"),
-        default="lockstep",
-        help="clock of experiments that start the rig (default lockstep; offline experiments ignore it)",
+        choices=("cosim", "lockstep", "realtime"),
+        default="cosim",
+        help="how experiments that start the rig run it: cosim (default: plant, controller and DSP in one thread, "
+        "bit-identical to lockstep), lockstep or realtime (the three-process rig); offline experiments ignore it",
     )
     p.add_argument("--quick", action="store_true", help="short runs (fewer points, draws, a shorter trajectory)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

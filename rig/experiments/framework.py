@@ -55,7 +55,7 @@ __all__ = [
     "run_experiment",
 ]
 
-ClockMode = Literal["lockstep", "realtime"]
+ClockMode = Literal["cosim", "lockstep", "realtime"]
 T = TypeVar("T")
 
 ALL = "all"
@@ -181,8 +181,9 @@ class ExperimentContext:
     """Where its files go (created); the report is ``out_dir / 'report.md'``."""
     seed: int = 0
     """Base seed: use :meth:`rng` for random numbers, never the global numpy state."""
-    mode: ClockMode = "lockstep"
-    """Clock mode for experiments that start the rig (``rig.composition`` / ``ralf-hil up --clock``)."""
+    mode: ClockMode = "cosim"
+    """Clock mode for experiments that start the rig: ``cosim`` (the one-thread co-simulation,
+    :mod:`rig.cosim`), ``lockstep`` or ``realtime`` (the three-process rig, ``ralf-hil up --clock``)."""
     quick: bool = False
     """Shorten what can be shortened (fewer points, draws, a shorter trajectory): seconds, not minutes."""
     console: Console = field(default_factory=lambda: Console(stderr=True))
@@ -295,7 +296,7 @@ def run_experiment(
     out_dir: str | Path,
     *,
     seed: int = 0,
-    mode: ClockMode = "lockstep",
+    mode: ClockMode = "cosim",
     quick: bool = False,
     console: Console | None = None,
     show_progress: bool = True,
@@ -307,8 +308,8 @@ def run_experiment(
     inside the experiment gives ``status='error'`` (traceback in
     ``out_dir/error.txt``) unless ``raise_errors``.
     """
-    if mode not in ("lockstep", "realtime"):
-        raise ExperimentError(f"mode must be 'lockstep' or 'realtime', got {mode!r}")
+    if mode not in ("cosim", "lockstep", "realtime"):
+        raise ExperimentError(f"mode must be 'cosim', 'lockstep' or 'realtime', got {mode!r}")
     exp = get_experiment(name)
     out = Path(out_dir)
     ctx = ExperimentContext(
@@ -360,7 +361,7 @@ def run_all(
     out_dir: str | Path,
     *,
     seed: int = 0,
-    mode: ClockMode = "lockstep",
+    mode: ClockMode = "cosim",
     quick: bool = False,
     names: Iterable[str] | None = None,
     console: Console | None = None,

@@ -202,3 +202,18 @@ def test_output_always_within_da_range(errors: list[tuple[float, float]], time_s
         u = pi.step(e)
         assert np.all(np.abs(u) <= 5.0)
         np.testing.assert_allclose(u, np.clip(pi.p_term_v + pi.i_term_v, -5.0, 5.0))
+
+
+@pytest.mark.parametrize("anti_windup", [True, False])
+@pytest.mark.parametrize("ki", [(5000.0, 4166.0), (0.0, 4166.0)])
+def test_plain_float_step_is_bit_identical_to_the_numpy_formulation(anti_windup: bool, ki: tuple[float, float]) -> None:
+    """Errors that gate, saturate and come back: every attribute equal bit for bit."""
+    cfg = PIConfig(ki_mv_per_rad=ki, anti_windup=anti_windup)
+    fast, ref = PIController(cfg), PIController(cfg)
+    rng = np.random.default_rng(3)
+    errors = np.concatenate([rng.normal(0, 0.02, (300, 2)), rng.normal(0, 2.0, (200, 2)), rng.normal(0, 0.01, (300, 2))])
+    for e in errors:
+        assert np.array_equal(fast.step(e), ref.step_vectorised(e))
+        for name in ("integral", "error", "p_term_v", "i_term_v", "output_v", "saturated", "integrating", "windup_limited"):
+            assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
+    assert ref.saturated.dtype == fast.saturated.dtype == bool

@@ -244,3 +244,44 @@ def test_batches_the_board_cannot_identify_are_rejected_not_fatal(session: zenoh
             time.sleep(0.01)
         assert service.block.counters.rejected == 2
         assert thread.is_alive()
+
+
+def test_the_emulated_latency_is_a_due_time_and_a_stop_is_seen_while_an_interrupt_is_held(session: zenoh.Session) -> None:
+    """Real time, 10 s emulated latency (the bound): the board holds the
+    interrupt with its block full, keeps taking events (a latency of 1e6 s is
+    refused, counted), and stops at once when told."""
+    settings = _settings(clock="realtime", emulated_latency_s=10.0)
+    with _running_board(session, settings, publisher=True) as board:
+        service, probe, pub, thread = board.service, board.probe, board.pub, board.thread
+        probe.next("flag")
+        pub.put(encode_batch(_batch(0)))
+        deadline = time.monotonic() + 5
+        while service.interrupt_seq == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert service.interrupt_seq == 1 and service.block.full  # computed, held until due
+        session.put(board.keys.dsp_config, encode(ConfigChange(seq=0, sim_time_s=0.0, emulated_latency_s=1e6)))
+        deadline = time.monotonic() + 5
+        while service.block.counters.config_rejected == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert service.block.counters.config_rejected == 1 and service.emulated_latency_s == 10.0
+        with pytest.raises(queue.Empty):
+            probe.next("irq", timeout=0.3)  # not due yet
+        stopped = time.monotonic()
+    # the context manager set stop and joined the thread: it ended well within its 5 s join
+    assert not thread.is_alive() and time.monotonic() - stopped < 2.0
+
+
+def test_a_batch_sent_again_gets_the_same_interrupt_again(session: zenoh.Session) -> None:
+    """The CPU resends the batch in flight when its interrupt was lost: the
+    board answers with the interrupt it raised, never identifies twice."""
+    settings = _settings()
+    with _running_board(session, settings, publisher=True) as board:
+        service, probe, pub = board.service, board.probe, board.pub
+        probe.next("flag")
+        pub.put(encode_batch(_batch(0)))
+        first = probe.next("irq")
+        pub.put(encode_batch(_batch(0)))
+        again = probe.next("irq")
+        assert again == first  # type: ignore[comparison-overlap]
+        assert service.block.counters.interrupts_repeated == 1 and service.block.counters.batches_accepted == 1
+        assert service.block.counters.duplicates == 0 and service.interrupt_seq == 1

@@ -41,7 +41,7 @@ def _check_structure(out: Path, results: dict, headings: list[str], result_keys:
     for key in result_keys:
         assert key in results["results"], key
     meta = results["meta"]
-    assert meta["quick"] is True and meta["seed"] == 0 and meta["needs_rig"] is True and meta["mode"] == "lockstep"
+    assert meta["quick"] is True and meta["seed"] == 0 and meta["needs_rig"] is True and meta["mode"] == "cosim"
     assert all(c["passed"] for c in results["checks"]), results["checks"]
     for att in results["attachments"]:
         assert (out / att["path"]).is_file(), att
@@ -85,7 +85,7 @@ def test_costs_over_a_mask_equal_the_whole_run_costs() -> None:
 @pytest.mark.timeout(120)
 def test_runner_three_processes_lockstep(tmp_path: Path) -> None:
     """The default path: three processes in lockstep, both records loaded, exit codes 0."""
-    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False)
+    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False, mode="lockstep")
     res = run_rig(ctx, RigRun("short", controller={"duration_s": 2.0, "batch_size": 20, "tf_download_samples": 200}, dsp={"batch_size": 20}))
     assert not res.in_process and res.exit_codes == {"controller": 0, "plant": 0, "dsp": 0}
     assert len(res.record) == 400 and res.record["t_s"][-1] == pytest.approx(1.995)
@@ -98,7 +98,7 @@ def test_runner_three_processes_lockstep(tmp_path: Path) -> None:
 
 @pytest.mark.timeout(60)
 def test_runner_reports_a_failing_service_with_its_log(tmp_path: Path) -> None:
-    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False)
+    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False, mode="lockstep")
     with pytest.raises(RigRunError) as err:
         run_rig(ctx, RigRun("bad", controller={"duration_s": 1.0, "oatf_mode": "sideways"}))
     text = str(err.value)

@@ -1,52 +1,111 @@
-"""Two lockstep runs of the three-process rig with the same seed and
-configuration produce bit-identical run records (docs/design.md, "Time")."""
+"""Lockstep is a co-simulation master: with the same seed and settings the
+run records are bit-identical between two three-process runs, with the host
+loaded by one CPU burner per core during one of them, between three
+processes and one (rig.composition), and between three processes and the
+direct co-simulation (rig.cosim). The step boundary is the handshake, so
+none of this depends on when messages arrive."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from controller.record import load_record
+from controller.record import RunRecord, load_record
+
+CONTROLLER = {"duration_s": 16.0, "oatf_mode": "adaptive", "tf_download_samples": 500}
+DSP = {"fft_width": 512}
+BURN_LIMIT_S = 500
+"""A burner ends by itself after this long even if the test could not kill it."""
 
 
-def _run(tmp: Path, name: str, seed: int) -> Path:
+def _three_processes(tmp: Path, name: str, seed: int) -> Path:
     record = tmp / name / "run"
     record.parent.mkdir(parents=True)
+    sets = [f"controller.{k}={v}" for k, v in CONTROLLER.items()] + [f"dsp.{k}={v}" for k, v in DSP.items()]
+    sets += [f"controller.record={record}", f"plant.seed={seed}"]
     proc = subprocess.run(
-        [
-            sys.executable, "-m", "rig", "up", "--clock", "lockstep", "--duration", "120",
-            "--rig-id", f"det-{uuid.uuid4().hex[:6]}", "--log-dir", str(tmp / name / "logs"),
-            "--set", "controller.duration_s=16", "--set", f"controller.record={record}",
-            "--set", "controller.oatf_mode=adaptive", "--set", "controller.tf_download_samples=500",
-            "--set", "dsp.fft_width=512", "--set", f"plant.seed={seed}",
-        ],
-        capture_output=True, text=True, timeout=180,
+        [sys.executable, "-m", "rig", "up", "--clock", "lockstep", "--duration", "120",
+         "--rig-id", f"det-{uuid.uuid4().hex[:6]}", "--log-dir", str(tmp / name / "logs"),
+         *[arg for item in sets for arg in ("--set", item)]],
+        capture_output=True, text=True, timeout=240,
     )
     assert proc.returncode == 0, proc.stderr + "".join(p.read_text() for p in (tmp / name / "logs").glob("*.log"))
     return record
 
 
-@pytest.mark.timeout(300)
-def test_same_seed_same_configuration_bit_identical_records(tmp_path: Path) -> None:
-    first = load_record(_run(tmp_path, "a", seed=7))
-    second = load_record(_run(tmp_path, "b", seed=7))
+def _one_process(tmp: Path, name: str, seed: int) -> Path:
+    from rig.composition import run_in_process
+
+    record = tmp / name / "run"
+    record.parent.mkdir(parents=True)
+    run = run_in_process(controller=dict(CONTROLLER), dsp=dict(DSP), plant={"seed": seed})
+    assert run.result.error is None
+    run.controller.save(str(record), run.result)
+    return record
+
+
+def _cosim(tmp: Path, name: str, seed: int) -> Path:
+    from rig.cosim import run_cosim
+
+    record = tmp / name / "run"
+    record.parent.mkdir(parents=True)
+    run = run_cosim(controller=dict(CONTROLLER), dsp=dict(DSP), plant={"seed": seed})
+    assert run.result.error is None
+    run.controller.save(str(record), run.result)
+    return record
+
+
+@contextmanager
+def _burners() -> Iterator[list[subprocess.Popen[bytes]]]:
+    """One CPU-burning process per core, each bounded in time, killed by PID on exit."""
+    code = f"import time\nend = time.monotonic() + {BURN_LIMIT_S}\nwhile time.monotonic() < end:\n    pass\n"
+    procs = [subprocess.Popen([sys.executable, "-c", code]) for _ in range(os.cpu_count() or 2)]
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait(timeout=10)
+
+
+def _same(a: Path, b: Path) -> None:
+    first, second = load_record(a), load_record(b)
     assert len(first) == len(second) == 3200
     assert first.columns.keys() == second.columns.keys()
+    counters = (first.metadata["result"]["counters"], second.metadata["result"]["counters"])
     for name in first.columns:
-        assert np.array_equal(first[name], second[name], equal_nan=True), name
-    # the run did something worth comparing: identification and adaptation happened
-    assert np.isfinite(first["f_id_hz"]).any()
-    assert np.nanstd(first["oatf_hz"]) > 0
-    tf_a = np.load(tmp_path / "a" / "run.tf.npz")
-    tf_b = np.load(tmp_path / "b" / "run.tf.npz")
+        assert np.array_equal(first[name], second[name], equal_nan=True), (name, counters)
+    tf_a, tf_b = np.load(str(a) + ".tf.npz"), np.load(str(b) + ".tf.npz")
     assert tf_a.files == tf_b.files and tf_a["sim_time_s"].size >= 5
     for key in tf_a.files:
         assert np.array_equal(tf_a[key], tf_b[key]), key
+
+
+def _worth_comparing(record: RunRecord) -> None:
+    # identification and adaptation happened: the runs did something that could differ
+    assert np.isfinite(record["f_id_hz"]).any()
+    assert np.nanstd(record["oatf_hz"]) > 0
+
+
+@pytest.mark.timeout(600)
+def test_lockstep_records_are_bit_identical_across_runs_load_and_compositions(tmp_path: Path) -> None:
+    reference = _three_processes(tmp_path, "a", seed=7)
+    _worth_comparing(load_record(reference))
+    with _burners() as burners:
+        loaded = _three_processes(tmp_path, "loaded", seed=7)
+        assert all(p.poll() is None for p in burners)  # the host was loaded for the whole run
+    _same(reference, loaded)
+    _same(reference, _one_process(tmp_path, "one", seed=7))
+    _same(reference, _cosim(tmp_path, "cosim", seed=7))
     # and the seed matters: another seed gives another record
-    third = load_record(_run(tmp_path, "c", seed=8))
-    assert not np.array_equal(first["defl1_in"], third["defl1_in"])
+    other = load_record(_cosim(tmp_path, "seed8", seed=8))
+    assert not np.array_equal(load_record(reference)["defl1_in"], other["defl1_in"])

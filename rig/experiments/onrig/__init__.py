@@ -8,7 +8,9 @@
 | ``reduced-damping`` | §4.4 | :mod:`.reduced_damping` |
 | ``id-lag`` | §5.3 (future work) | :mod:`.id_lag` |
 
-Every experiment starts the full three-process rig in lockstep by default
-(``--mode realtime`` for the wall clock) through :mod:`.runner`; ``--quick``
+Every experiment runs the rig through :mod:`.runner`: by default as the
+one-thread co-simulation (:mod:`rig.cosim`, bit-identical to the
+three-process rig in lockstep); ``--mode lockstep`` starts the full
+three-process rig (``--mode realtime`` on the wall clock), where ``--quick``
 runs shorter stretches in one process (:mod:`rig.composition`).
 """

@@ -5,7 +5,14 @@
 most two at a time (this is a two-core machine, and one three-process rig in
 lockstep keeps a little over half a core busy).
 
-The full rig (the default)
+The co-simulation (the default, ``ctx.mode == "cosim"``)
+    Plant, controller and DSP cores called in order each tick in this
+    thread (:func:`rig.cosim.run_cosim`): the same cores and codecs as the
+    three-process rig in lockstep, and the same records bit for bit, with
+    no processes, sockets or threads. ``in_process`` does not matter then.
+    The records are written to the same places as below.
+
+The full rig (``--mode lockstep`` or ``--mode realtime``)
     The three services as separate processes through :mod:`rig.launcher`
     (``RigPlan.local``, ``start_service``, ``stop_service``), in the
     experiment's clock mode (``ctx.mode``: ``lockstep`` by default, or
@@ -167,7 +174,7 @@ class RigResult:
             "name": self.spec.name,
             "label": self.spec.label,
             "settings": {"controller": dict(self.spec.controller), "plant": dict(self.spec.plant), "dsp": dict(self.spec.dsp)},
-            "rig": "one process (rig.composition)" if self.in_process else "three processes (rig.launcher)",
+            "rig": "co-simulation (rig.cosim)" if self.mode == "cosim" else "one process (rig.composition)" if self.in_process else "three processes (rig.launcher)",
             "mode": self.mode,
             "sim_time_s": float(len(self.record) * self.sample_period_s),
             "wall_time_s": round(self.wall_time_s, 2),
@@ -313,6 +320,8 @@ def run_rig(
     plant = {**spec.plant, "record": str(truth_path)}
     dsp = dict(spec.dsp)
     expected = spec.expected_sim_s()
+    if ctx.mode == "cosim":
+        return _run_cosim(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     if in_process:
         return _run_in_process(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     return _run_processes(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress, timeout_s)
@@ -349,6 +358,36 @@ def _run_in_process(
     return _rig_result(ctx, spec, record_path, truth_path, wall_time_s=wall, in_process=True, health=health, exit_codes={name: 0 for name in SERVICES})
 
 
+def _run_cosim(
+    ctx: ExperimentContext,
+    spec: RigRun,
+    controller: dict[str, Any],
+    plant: dict[str, Any],
+    dsp: dict[str, Any],
+    record_path: Path,
+    truth_path: Path,
+    expected: float,
+    on_progress: Callable[[float], None] | None,
+) -> RigResult:
+    from rig.cosim import run_cosim
+
+    from protocol.errors import ConfigError
+
+    started = time.monotonic()
+    try:
+        run = run_cosim(controller={k: v for k, v in controller.items() if k != "record"}, plant=plant, dsp=dsp, common=dict(spec.common))
+    except (ConfigError, ValueError) as exc:
+        raise RigRunError(f"run {spec.name!r} (co-simulation): {exc}") from None
+    if run.result.error:
+        raise RigRunError(f"run {spec.name!r} (co-simulation) ended with a fault: {run.result.error}")
+    run.controller.save(str(record_path), run.result)
+    if on_progress is not None:
+        on_progress(expected)
+    wall = time.monotonic() - started
+    health = {k: v.model_dump(mode="json") for k, v in run.health.items()}
+    return _rig_result(ctx, spec, record_path, truth_path, wall_time_s=wall, in_process=True, health=health, exit_codes={name: 0 for name in SERVICES})
+
+
 def _run_processes(
     ctx: ExperimentContext,
     spec: RigRun,
@@ -361,7 +400,7 @@ def _run_processes(
     on_progress: Callable[[float], None] | None,
     timeout_s: float | None,
 ) -> RigResult:
-    from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
+    from rig.launcher import RigObserver, RigPlan, Supervision, supervise, tail
 
     exp = ctx.experiment.name if ctx.experiment else "exp"
     rig_id = f"x-{exp}-{spec.name}"[:55] + "-" + uuid.uuid4().hex[:6]
@@ -377,45 +416,32 @@ def _run_processes(
     if timeout_s is None:
         # lockstep runs 1-3x faster than real time here; allow for a loaded machine
         timeout_s = 90.0 + (3.0 * expected if ctx.mode == "lockstep" else 1.5 * expected)
-    procs: dict[str, ServiceProcess] = {}
-    exit_codes: dict[str, int] = {}
     observer: RigObserver | None = None
     started = time.monotonic()
-    failure = ""
     reported = 0.0
+    health: dict[str, dict[str, Any]] = {}
+
+    def progress(_sup: Supervision, status: Any) -> None:
+        nonlocal reported
+        if on_progress is not None and status is not None:
+            now = min(float(status.sim_time_s), expected)
+            if now > reported:
+                on_progress(now - reported)
+                reported = now
+
     try:
         observer = RigObserver(plan)
-        for name in START_ORDER:
-            procs[name] = start_service(plan, name, log_dir)
-        ctrl = procs["controller"]
-        while True:
-            code = ctrl.returncode
-            if code is not None:
-                break
-            dead = [p for p in procs.values() if p.name != "controller" and p.returncode is not None]
-            if dead:
-                failure = ", ".join(f"{p.name} exited early with {p.returncode}" for p in dead)
-                break
-            if time.monotonic() - started > timeout_s:
-                failure = f"no end after {timeout_s:.0f} s wall time (expected {expected:.0f} s simulated)"
-                break
-            if on_progress is not None and observer.status is not None:
-                now = min(float(observer.status.sim_time_s), expected)
-                if now > reported:
-                    on_progress(now - reported)
-                    reported = now
-            time.sleep(0.2)
+        watched = observer
+        sup = supervise(plan, log_dir, lambda: watched.status, timeout_s=timeout_s, on_poll=progress, stop_timeout_s=20.0)
+        time.sleep(0.1)
+        health = {k: v.model_dump(mode="json") for k, v in observer.health.items()}
     finally:
-        for name in STOP_ORDER:
-            if name in procs:
-                exit_codes[name] = stop_service(procs[name], timeout_s=20.0)
         if observer is not None:
-            time.sleep(0.1)
-            health = {k: v.model_dump(mode="json") for k, v in observer.health.items()}
             observer.close()
-        else:
-            health = {}
         _release_can_port(port)
+    procs, exit_codes, failure = sup.procs, sup.exit_codes, sup.failure
+    if failure.startswith("no end after"):
+        failure = f"no end after {timeout_s:.0f} s wall time (expected {expected:.0f} s simulated)"
     wall = time.monotonic() - started
     if on_progress is not None and expected > reported:
         on_progress(expected - reported)
@@ -446,10 +472,11 @@ def run_rigs(
     if len(set(names)) != len(names):
         raise ValueError(f"run names must be unique: {names}")
     total = sum(s.expected_sim_s() for s in specs)
-    workers = 1 if in_process else max(1, min(parallel, MAX_PARALLEL, len(specs)))
+    one_thread = in_process or ctx.mode == "cosim"
+    workers = 1 if one_thread else max(1, min(parallel, MAX_PARALLEL, len(specs)))
     ctx.log(
         f"{len(specs)} run(s), {total:.0f} s simulated, "
-        + ("one process each, in turn" if in_process else f"three processes each, {workers} at a time")
+        + ("co-simulated in one thread, in turn" if ctx.mode == "cosim" else "one process each, in turn" if in_process else f"three processes each, {workers} at a time")
         + f", {ctx.mode}"
     )
     lock = threading.Lock()

@@ -1,0 +1,113 @@
+"""The controller's window on the DSP (and on its own observers): where
+batches, configuration and status go, and where flags, interrupts,
+commands and the DSP's presence come from.
+
+Two implementations of one small interface, so the same
+:class:`controller.service.ControllerService` runs in three processes and in
+the one-thread co-simulation:
+
+* :class:`ZenohDspPort`: zenoh publishers, subscribers, the DSP's
+  liveliness token, the TF query, the health publisher;
+* :class:`rig.cosim.DirectDspPort`: calls the DSP core directly; every
+  message still goes through its codec (batch codec, pydantic JSON).
+
+Events reach the controller through the ``sink(kind, payload, arrival)``
+it hands to :meth:`DspPort.connect`: ``kind`` is ``flag``, ``interrupt``,
+``command`` or ``alive`` (payload ``b"1"``/``b"0"``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import zenoh
+
+from protocol.keys import Keys
+from protocol.messages import Health
+from service_kit.runtime import HealthPublisher
+
+Sink = Callable[[str, bytes, float], None]
+
+
+class DspPort(Protocol):
+    synchronous: bool
+    """True when every answer is in the sink before ``send_batch`` returns
+    (nothing to wait for: a missing answer is missing)."""
+
+    def connect(self, sink: Sink, clock: Callable[[], float]) -> None: ...
+
+    def send_batch(self, payload: bytes) -> None: ...
+
+    def send_config(self, payload: bytes) -> None: ...
+
+    def send_status(self, payload: bytes) -> None: ...
+
+    def download_tf(self, timeout_s: float) -> list[bytes]:
+        """The encoded TfSnapshot answers (may raise on a dying transport)."""
+        ...
+
+    def start_health(self, period_s: float, build: Callable[[int], Health]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ZenohDspPort:
+    """The DSP, the launcher and the monitor on zenoh."""
+
+    synchronous = False
+
+    def __init__(self, session: zenoh.Session, rig_id: str) -> None:
+        self.session = session
+        self.keys = Keys(rig_id)
+        block = zenoh.CongestionControl.BLOCK
+        self._batch_pub = session.declare_publisher(self.keys.batch, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
+        self._status_pub = session.declare_publisher(self.keys.controller_status)
+        self._subs: list[object] = []
+        self._token: object | None = None
+        self._health: HealthPublisher | None = None
+
+    def connect(self, sink: Sink, clock: Callable[[], float]) -> None:
+        keys, session = self.keys, self.session
+
+        def put(kind: str) -> Callable[[zenoh.Sample], None]:
+            # Stamp the arrival here: the MVME took an interrupt as a hardware
+            # interrupt, not at the next tick.
+            return lambda sample: sink(kind, sample.payload.to_bytes(), clock())
+
+        def alive(sample: zenoh.Sample) -> None:
+            sink("alive", b"1" if sample.kind == zenoh.SampleKind.PUT else b"0", clock())
+
+        self._subs = [
+            session.declare_subscriber(keys.flag, put("flag")),
+            session.declare_subscriber(keys.interrupt, put("interrupt")),
+            session.liveliness().declare_subscriber(keys.alive("dsp"), alive, history=True),
+            session.declare_subscriber(keys.controller_command, put("command")),
+        ]
+        self._token = session.liveliness().declare_token(keys.alive("controller"))
+
+    def send_batch(self, payload: bytes) -> None:
+        self._batch_pub.put(payload)
+
+    def send_config(self, payload: bytes) -> None:
+        self._config_pub.put(payload)
+
+    def send_status(self, payload: bytes) -> None:
+        self._status_pub.put(payload)
+
+    def download_tf(self, timeout_s: float) -> list[bytes]:
+        return [reply.ok.payload.to_bytes() for reply in self.session.get(self.keys.tf, timeout=timeout_s) if reply.ok is not None]
+
+    def start_health(self, period_s: float, build: Callable[[int], Health]) -> None:
+        self._health = HealthPublisher(self.session, self.keys.health("controller"), period_s, build).start()
+
+    def close(self) -> None:
+        if self._health is not None:
+            self._health.stop()
+        for sub in self._subs:
+            sub.undeclare()  # type: ignore[attr-defined]
+        if self._token is not None:
+            self._token.undeclare()  # type: ignore[attr-defined]
+        for pub in (self._batch_pub, self._config_pub, self._status_pub):
+            pub.undeclare()

@@ -1,0 +1,226 @@
+"""The C40 board without its transport: batch block, identifier, block flag
+and interrupt (thesis §3.2.3, Fig. 3.5 steps 1-4), as one deterministic core.
+
+No zenoh, no threads, no clock of its own: the zenoh service
+(:mod:`dsp_service.service`) and the one-thread co-simulation
+(:mod:`rig.cosim`) both drive it, so both identify with the same code. The
+compute time of a step is measured with the injected ``perf_counter`` (it
+goes into the interrupt's ``compute_time_s`` and the budget check only; no
+estimate depends on it).
+
+Time
+    The board's emulated latency is a *due time*, never a sleep: after
+    :meth:`DspCore.process` the block stays full and the interrupt is held
+    until :meth:`DspCore.due_after` has passed on the caller's scheduler;
+    then :meth:`DspCore.release` flags the block empty. In lockstep and
+    co-simulation the controller applies the latency in simulated ticks
+    (the flag announces it), so the board releases at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from dsp_service.board import Admission, BatchBlock
+from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
+from protocol.batch_codec import SampleBatch
+from protocol.messages import BlockFlag, ConfigChange, Interrupt, PoleParameters, TfSnapshot, TransferFunction
+from protocol.settings import DspSettings
+
+log = logging.getLogger(__name__)
+
+TF_NAMES = ("H11", "H12", "H21", "H22", "Htot")
+
+MAX_EMULATED_LATENCY_S = 10.0
+"""A run-time ConfigChange may not set a longer emulated latency than the
+setting allows (``emulated_latency_s`` is capped at 10 s there too)."""
+
+
+def identifier_config(settings: DspSettings) -> IdentifierConfig:
+    """The identifier's configuration from the service settings."""
+    return IdentifierConfig(
+        sample_rate_hz=settings.sample_rate_hz,
+        fft_width=settings.fft_width,
+        averaging=settings.averaging,
+        alpha=settings.alpha,
+        rls_forgetting=1.0 - settings.alpha,
+        solver=settings.solver,
+        smoothing_window=settings.smoothing_window,
+        smoothing_order=settings.smoothing_order,
+        search_min_hz=settings.search_min_hz,
+        search_max_hz=min(settings.search_max_hz, settings.sample_rate_hz / 2),
+    )
+
+
+class DspCore:
+    """Block, identifier and the messages the board answers with."""
+
+    def __init__(self, settings: DspSettings, perf_counter: Callable[[], float] = time.perf_counter) -> None:
+        self.settings = settings
+        self.identifier = Identifier(identifier_config(settings))
+        self.block = BatchBlock()
+        self.batch_size = settings.batch_size
+        self.emulated_latency_s = settings.emulated_latency_s
+        self.extra_delay_s = settings.inject_delay_s
+        self.perf_counter = perf_counter
+        self.interrupt_seq = 0
+        self.flag_seq = 0
+        self.tf_seq = 0
+        self.last_batch_seq = 0
+        self.last_sim_time = 0.0
+        self.last_result: IdentificationResult | None = None
+        self.last_batch_missed = False
+        self.config_seq: int | None = None
+        """seq of the last ConfigChange applied (announced in every flag)."""
+        self.block_lock = threading.Lock()
+        """Held around block changes: a zenoh callback admits while the board's thread releases."""
+        self.tf_lock = threading.Lock()
+        """Held around the identifier: a TF query may come on zenoh's thread."""
+
+    # -- admission ------------------------------------------------------------------
+    def check(self, batch: SampleBatch) -> str | None:
+        """Why this board cannot identify ``batch`` (None: it can)."""
+        if batch.inputs.shape[0] != 2 or batch.outputs.shape[0] != 2:
+            return f"batch {batch.seq} has {batch.inputs.shape[0]} inputs and {batch.outputs.shape[0]} outputs; the board identifies 2x2"
+        if abs(batch.sample_rate_hz - self.settings.sample_rate_hz) > 1e-9 * self.settings.sample_rate_hz:
+            return f"batch {batch.seq} sampled at {batch.sample_rate_hz} Hz; this board runs at {self.settings.sample_rate_hz} Hz"
+        return None
+
+    def reject(self, reason: str) -> None:
+        with self.block_lock:
+            self.block.counters.rejected += 1
+            self.block.last_violation = reason
+        log.warning("rejected a batch: %s", reason)
+
+    def admit(self, batch: SampleBatch) -> Admission:
+        """Check and admit an arriving batch (marks the block full when accepted)."""
+        reason = self.check(batch)
+        if reason is not None:
+            self.reject(reason)
+            return Admission(False, reason=reason)
+        with self.block_lock:
+            return self.block.admit(batch)
+
+    # -- budget and due time ---------------------------------------------------------
+    def budget_s(self, batch: SampleBatch) -> float:
+        """Compute budget for a batch: configured, else the nominal batch
+        period ``l / fs`` (the deadline the thesis names: the CPU's next batch
+        is due then). Not the batch's own length: batches grow while the
+        board is late, which would excuse the lateness."""
+        return self.settings.budget_s or self.batch_size / batch.sample_rate_hz
+
+    def due_after(self, interrupt: Interrupt, realtime: bool) -> float:
+        """Seconds after the batch arrived at which its interrupt is raised:
+        the emulated latency in real time (the C40's compute time), and in
+        every mode at least the compute time (an injected slow board included)."""
+        latency = self.emulated_latency_s if realtime else 0.0
+        return max(latency, interrupt.compute_time_s)
+
+    # -- the step ------------------------------------------------------------------------
+    def process(self, batch: SampleBatch, admission: Admission) -> Interrupt:
+        """Fig. 3.5 step 3: identify an admitted batch; returns the interrupt
+        (the block stays full until :meth:`release`)."""
+        self.last_sim_time = batch.sim_time_s + batch.n_samples / batch.sample_rate_hz
+        self.last_batch_seq = batch.seq
+        started = self.perf_counter()
+        with self.tf_lock:
+            if admission.restart_history:
+                self.identifier.restart_history()
+            self.identifier.push(batch.inputs, batch.outputs)
+            result = self.identifier.step()
+        compute = self.perf_counter() - started + self.extra_delay_s  # fault injection: a slowed board
+        budget = self.budget_s(batch)
+        missed = compute > budget
+        if missed:
+            self.block.counters.budget_misses += 1
+            self.block.last_violation = f"batch {batch.seq}: compute {compute * 1e3:.1f} ms over budget {budget * 1e3:.1f} ms"
+            log.warning("deadline: %s", self.block.last_violation)
+        self.last_result = result
+        self.last_batch_missed = missed
+        interrupt = Interrupt(
+            seq=self.interrupt_seq,
+            sim_time_s=self.last_sim_time,
+            batch_seq=batch.seq,
+            poles=tuple(
+                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source)
+                for p in result.poles
+                if np.isfinite(p.frequency_hz) and p.frequency_hz > 0 and np.isfinite(p.damping_ratio) and np.isfinite(p.magnitude)
+            ),
+            confidence=float(np.clip(result.confidence, 0.0, 1.0)),
+            compute_time_s=compute,
+            emulated_latency_s=self.emulated_latency_s,
+            samples_in_history=result.samples_in_history,
+            valid_fraction=float(np.clip(result.valid_fraction, 0.0, 1.0)),
+            deadline_missed=missed,
+        )
+        self.interrupt_seq += 1
+        return interrupt
+
+    def release(self) -> BlockFlag:
+        """Fig. 3.5 step 4: the block is empty again; returns the flag to publish."""
+        with self.block_lock:
+            self.block.release()
+        return self.flag("empty")
+
+    def flag(self, state: str) -> BlockFlag:
+        flag = BlockFlag(
+            seq=self.flag_seq,
+            sim_time_s=self.last_sim_time,
+            state=state,  # type: ignore[arg-type]
+            next_batch_seq=self.block.next_seq,
+            fft_width=self.identifier.fft_width,
+            batch_size=self.batch_size,
+            emulated_latency_s=self.emulated_latency_s,
+            config_seq=self.config_seq,
+        )
+        self.flag_seq += 1
+        return flag
+
+    # -- configuration and downloads -----------------------------------------------------
+    def apply_config(self, change: ConfigChange) -> None:
+        """Run-time configuration; ``reset`` starts a new CPU run (sequence
+        numbers from 0, history restarted, averages kept). A value the board
+        cannot take raises ValueError and changes nothing."""
+        if change.emulated_latency_s is not None and not change.emulated_latency_s <= MAX_EMULATED_LATENCY_S:
+            raise ValueError(f"emulated_latency_s {change.emulated_latency_s} s exceeds {MAX_EMULATED_LATENCY_S:g} s")
+        if change.reset:
+            with self.block_lock:
+                self.block.restart()
+        with self.tf_lock:
+            if change.reset:
+                self.identifier.restart_history()
+            if change.fft_width is not None and change.fft_width != self.identifier.fft_width:
+                log.info("FFT width %d -> %d: history zeroed", self.identifier.fft_width, change.fft_width)
+                self.identifier.set_fft_width(change.fft_width)
+            if change.batch_size is not None:
+                self.batch_size = change.batch_size
+            if change.alpha is not None:
+                self.identifier.set_alpha(change.alpha)
+            if change.emulated_latency_s is not None:
+                self.emulated_latency_s = change.emulated_latency_s
+        self.block.note_config(change)
+        self.config_seq = change.seq
+
+    def snapshot(self) -> TfSnapshot:
+        """The current transfer-function estimates (magnitude and phase)."""
+        with self.tf_lock:
+            tf = self.identifier.transfer_functions()
+            estimates = {}
+            for name in TF_NAMES:
+                h = np.nan_to_num(np.asarray(getattr(tf, name)), nan=0.0, posinf=0.0, neginf=0.0)
+                estimates[name] = TransferFunction(magnitude=tuple(np.abs(h).tolist()), phase_rad=tuple(np.angle(h).tolist()))
+            snap = TfSnapshot(
+                seq=self.tf_seq,
+                sim_time_s=self.last_sim_time,
+                batch_seq=self.last_batch_seq,
+                freqs_hz=tuple(np.asarray(tf.freqs_hz, dtype=float).tolist()),
+                valid=tuple(bool(v) for v in np.asarray(tf.valid)),
+                estimates=estimates,  # type: ignore[arg-type]
+            )
+            self.tf_seq += 1
+            return snap

@@ -1,0 +1,185 @@
+"""What every service process shares at its edge: command-line parsing of
+settings, logging, clean shutdown on SIGINT/SIGTERM, latency statistics
+and the periodic health message."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
+
+import numpy as np
+import zenoh
+
+from protocol.errors import ConfigError
+from protocol.messages import Health, LatencyStats, encode
+from protocol.settings import CommonSettings, describe, load_settings
+
+S = TypeVar("S", bound=CommonSettings)
+T = TypeVar("T")
+
+
+def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[str] | None = None) -> S:
+    """Parse ``--set NAME=VALUE`` overrides on top of ``RALF_*`` variables.
+
+    ``--help`` lists every setting with its variable, default and meaning.
+    A bad value exits with status 2 and a message naming the variable.
+    """
+    table = "\n".join(f"  {var:<34} {default:<16} {text}" for var, default, text in describe(model))
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description=summary,
+        epilog="settings (environment variable, default, meaning):\n" + table,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a setting, e.g. --set clock=lockstep")
+    args = parser.parse_args(argv)
+    overrides: dict[str, Any] = {}
+    for item in args.set:
+        name, sep, value = item.partition("=")
+        name = name.strip().lower().removeprefix("ralf_")
+        if not sep or name not in model.model_fields:
+            parser.error(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(model.model_fields)}")
+        overrides[name] = value
+    try:
+        settings = load_settings(model, overrides)
+    except ConfigError as exc:
+        parser.exit(2, f"{prog}: {exc}\n")
+    return settings
+
+
+def configure_logging(level: str, service: str) -> None:
+    logging.basicConfig(
+        level=getattr(logging, level),
+        format=f"%(asctime)s {service} %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+
+
+def install_stop_handlers() -> threading.Event:
+    """An event set by SIGINT or SIGTERM, so loops end and resources close."""
+    stop = threading.Event()
+
+    def _handler(signum: int, _frame: Any) -> None:
+        logging.getLogger("runtime").info("received %s, stopping", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, _handler)
+    signal.signal(signal.SIGTERM, _handler)
+    return stop
+
+
+class LatencyTracker:
+    """Keeps the most recent ``capacity`` samples of one latency (seconds)
+    and summarises them as p50/p99/p99.9/max; the maximum and count cover
+    the whole run."""
+
+    def __init__(self, capacity: int = 65536) -> None:
+        self._buf = np.zeros(capacity)
+        self._n = 0
+        self._max = 0.0
+        self._lock = threading.Lock()
+
+    def add(self, seconds: float) -> None:
+        with self._lock:
+            self._buf[self._n % self._buf.size] = seconds
+            self._n += 1
+            self._max = max(self._max, seconds)
+
+    @property
+    def count(self) -> int:
+        return self._n
+
+    def values(self) -> np.ndarray:
+        with self._lock:
+            return self._buf[: min(self._n, self._buf.size)].copy()
+
+    def stats(self) -> LatencyStats:
+        data = self.values()
+        if data.size == 0:
+            return LatencyStats(count=0, p50=0.0, p99=0.0, p999=0.0, max=0.0)
+        p50, p99, p999 = np.percentile(data, [50.0, 99.0, 99.9])
+        return LatencyStats(count=self._n, p50=float(p50), p99=float(p99), p999=float(p999), max=self._max)
+
+
+class HealthPublisher:
+    """Publishes ``build()`` on ``key`` every ``period_s`` from a daemon thread."""
+
+    def __init__(self, session: zenoh.Session, key: str, period_s: float, build: Callable[[int], Health]) -> None:
+        self._pub = session.declare_publisher(key)
+        self._period = period_s
+        self._build = build
+        self._seq = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="health", daemon=True)
+
+    def start(self) -> "HealthPublisher":
+        self._thread.start()
+        return self
+
+    def publish_now(self) -> None:
+        self._pub.put(encode(self._build(self._seq)))
+        self._seq += 1
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._period):
+            try:
+                self.publish_now()
+            except Exception:  # a closing session must not kill the thread noisily
+                logging.getLogger("runtime").debug("health publish failed", exc_info=True)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        try:
+            self.publish_now()
+        except Exception:
+            logging.getLogger("runtime").debug("final health publish failed", exc_info=True)
+        self._pub.undeclare()
+
+
+def wall_time() -> float:
+    return time.time()
+
+
+def build_or_config_error(what: str, factory: Callable[[], T]) -> T:
+    """Build a service's core from its settings; a value the core refuses
+    (a design the OATF rejects, an identifier setting out of range, a
+    missing trajectory file) becomes a :class:`ConfigError` naming it."""
+    try:
+        return factory()
+    except ConfigError:
+        raise
+    except (ValueError, OSError) as exc:
+        raise ConfigError(f"{what}: {exc}") from None
+
+
+def run_service(
+    prog: str,
+    summary: str,
+    model: type[S],
+    body: Callable[[S, zenoh.Session, threading.Event], int],
+    argv: Sequence[str] | None = None,
+) -> int:
+    """The life of a service process: settings, logging, SIGINT/SIGTERM, a
+    zenoh session closed on every path, and ``body``'s exit code."""
+    # Imported here so that parsing --help does not need a network stack.
+    from protocol.transport import open_zenoh
+
+    settings = parse_service_args(prog, summary, model, argv)
+    configure_logging(settings.log_level, prog.removeprefix("ralf-"))
+    stop = install_stop_handlers()
+    session = open_zenoh(settings)
+    try:
+        return body(settings, session, stop)
+    except ConfigError as exc:
+        logging.getLogger(prog).error("%s", exc)
+        return 2
+    finally:
+        session.close()
