@@ -114,6 +114,11 @@ class IdentifierConfig(pydantic.BaseModel):
     det_threshold: float = pydantic.Field(
         1e-3, ge=0, lt=1, description="Mask bins with (P11P22−|P12|²)/(P11P22) below this."
     )
+    collinear: Literal["mask", "dominant"] = pydantic.Field(
+        "dominant",
+        description="Bins failing det_threshold (collinear inputs): 'mask' them (the C40) or solve them "
+        "along the dominant input direction (rank-1 minimum norm, see mimo.py); mode per bin in downloads.",
+    )
     power_floor: float = pydantic.Field(
         1e-12, ge=0, description="Mask bins whose input power is below this × mean input power."
     )
@@ -213,6 +218,8 @@ class TransferFunctionEstimate:
     h22: NDArray[np.complex128]
     htot: NDArray[np.complex128]
     valid: NDArray[np.bool_]
+    #: per bin the solve used: 0 masked, 1 dominant input direction (collinear), 2 full 2×2 (mimo.MODE_*)
+    mode: NDArray[np.uint8] | None = None
 
     # the names used on the wire (TfSnapshot): H11 … Htot
     @property
@@ -268,7 +275,7 @@ class Identifier:
         else:
             self._avg = SpectralAverager((7, k), n, c.averaging, c.alpha)
             self._rls = None
-        self._solver = MimoSolver(k, c.solver, c.det_threshold, c.power_floor)
+        self._solver = MimoSolver(k, c.solver, c.det_threshold, c.power_floor, c.collinear)
         self._smoother = FrequencySmoother(k, c.smoothing_window, c.smoothing_order)
         df = c.sample_rate_hz / n
         self._lo = max(1, math.ceil(c.search_min_hz / df - 1e-9))
@@ -607,11 +614,13 @@ class Identifier:
         else:
             Hv, vv = self._solver.solve(self._avg.state)
             H, valid = Hv.copy(), vv.copy()
+        mode = (self._solver.mode if self._rls is None and self._avg.updates else valid * np.uint8(2)).copy()
         if smoothed:
             sm = self._smoother
             H = sm.smooth(H)
             valid = sm.valid(valid)
             H *= valid
+        mode *= valid
         htot = H.mean(axis=0)
         return TransferFunctionEstimate(
             freqs_hz=_readonly(self.freqs.copy()),
@@ -621,6 +630,7 @@ class Identifier:
             h22=_readonly(H[3]),
             htot=_readonly(htot),
             valid=_readonly(valid),
+            mode=_readonly(mode.astype(np.uint8)),
         )
 
     def spectra(self, scaling: Literal["density", "spectrum", "raw"] = "density") -> dict[str, NDArray[np.complex128]]:
