@@ -52,6 +52,7 @@ triplets of all peaks in one pass.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -60,6 +61,7 @@ import numpy as np
 import pydantic
 from numpy.typing import NDArray
 
+from .arx import ArxConfig, RecursiveArx
 from .history import HistoryBuffer
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
@@ -92,6 +94,14 @@ class IdentifierConfig(pydantic.BaseModel):
         2048, ge=32, le=1 << 20, description="FFT width N = history length (even)."
     )
     window: str = pydantic.Field("hann", description="scipy.signal.get_window name (periodic).")
+    method: Literal["etfe", "arx"] = pydantic.Field(
+        "etfe",
+        description="Poles from the thesis's ETFE peak search, or from the recursive QR-form ARX "
+        "model (dsp_service.arx; settles in about a second; the ETFE still serves the downloads).",
+    )
+    arx_forgetting: float = pydantic.Field(0.995, gt=0.5, le=1, description="ARX forgetting factor per sample.")
+    arx_na: int = pydantic.Field(16, ge=2, le=40, description="ARX denominator order.")
+    arx_nb: int = pydantic.Field(12, ge=1, le=40, description="ARX numerator order.")
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
         "exponential",
         description="Spectra averaging: exponential [2-9], linear (equal weights, Welch), "
@@ -192,8 +202,9 @@ class PoleEstimate:
     natural_frequency_vrm_hz: float | None  #: VRM ω_n/2π
     magnitude: float  #: |H| at the refined peak
     prominence_db: float  #: prominence on the weighted magnitude
-    source: str  #: "tot", "11", "12", "21" or "22"
+    source: str  #: "tot", "11", "12", "21", "22" or "arx"
     damping_defined: bool = True  #: False when neither FWHM nor VRM gave a value (damping_ratio = 0.0)
+    confidence: float = 0.0  #: this pole's confidence in [0, 1] (module doc)
 
 
 @dataclass(frozen=True)
@@ -315,6 +326,21 @@ class Identifier:
         self._all_valid_range = np.ones(n_range, dtype=bool)
         self._all_valid_range.flags.writeable = False
         self._pending = 0
+        self._arx: RecursiveArx | None = None
+        self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+        if c.method == "arx":
+            self._arx = RecursiveArx(
+                ArxConfig(
+                    sample_rate_hz=c.sample_rate_hz,
+                    na=c.arx_na,
+                    nb=c.arx_nb,
+                    forgetting=c.arx_forgetting,
+                    search_min_hz=c.search_min_hz,
+                    search_max_hz=c.search_max_hz,
+                    band_hz=(max(1.0, c.search_min_hz), min(30.0, 0.9 * c.sample_rate_hz / 2)),
+                    max_poles=c.max_peaks,
+                )
+            )
 
     def set_fft_width(self, n: int) -> None:
         """Change N: zeroes the history and every average (as on the C40)."""
@@ -333,6 +359,9 @@ class Identifier:
         """
         self.history.clear()
         self._pending = 0
+        self._arx_batches.clear()
+        if self._arx is not None:
+            self._arx.restart()
 
     def set_alpha(self, alpha: float) -> None:
         """Change the averaging weight α at run time without disturbing history or averages.
@@ -365,6 +394,8 @@ class Identifier:
         before = self.history.samples_seen
         self.history.append(inputs, outputs)
         self._pending += self.history.samples_seen - before
+        if self._arx is not None:
+            self._arx_batches.append((np.asarray(inputs, dtype=np.float64), np.asarray(outputs, dtype=np.float64)))
 
     @property
     def samples_in_history(self) -> int:
@@ -372,6 +403,43 @@ class Identifier:
 
     # ----------------------------------------------------------------- step
     def step(self) -> IdentificationResult:
+        """One iteration: the ETFE's (below), with ``method='arx'`` the ARX model's poles instead."""
+        result = self._step_etfe()
+        if self._arx is None:
+            return result
+        arx = self._arx
+        for u, y in self._arx_batches:
+            arx.update(u, y)
+        self._arx_batches.clear()
+        fill = arx.fill
+        poles = tuple(
+            PoleEstimate(
+                frequency_hz=p.frequency_hz,
+                damping_ratio=p.damping_ratio,
+                damping_fwhm=None,
+                damping_vrm=None,
+                natural_frequency_vrm_hz=None,
+                magnitude=p.strength,
+                prominence_db=20.0 * math.log10(max(p.relative_strength, 1e-12)),
+                source="arx",
+                confidence=fill * p.relative_strength,
+            )
+            for p in arx.poles()
+        )
+        return IdentificationResult(
+            poles=poles,
+            confidence=fill if poles else 0.0,
+            valid_fraction=result.valid_fraction,
+            samples_in_history=result.samples_in_history,
+            effective_averages=result.effective_averages,
+        )
+
+    @property
+    def arx(self) -> RecursiveArx | None:
+        """The recursive ARX model (``method='arx'``), else None."""
+        return self._arx
+
+    def _step_etfe(self) -> IdentificationResult:
         """One C40 iteration on the current history (see module doc).
 
         With an empty history (nothing pushed since the last reset), or with
@@ -427,8 +495,13 @@ class Identifier:
         fill = in_history / hist.n
         conf = 0.0
         if peaks and n_eff > 1.0:
+            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
             prom = peaks[0][1]
-            conf = valid_fraction * (1.0 - 1.0 / n_eff) * fill * prom / (prom + c.confidence_prominence_db)
+            conf = base * prom / (prom + c.confidence_prominence_db)
+            poles = tuple(
+                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
+                for p in poles
+            )
         return IdentificationResult(
             poles=poles,
             confidence=float(min(1.0, max(0.0, conf))),
