@@ -63,6 +63,7 @@ from numpy.typing import NDArray
 
 from .arx import ArxConfig, RecursiveArx
 from .history import HistoryBuffer
+from .ratfit import fit_mode
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
     PeakRefiner,
@@ -76,12 +77,20 @@ from .modal import (
     zeta_from_fwhm_exact,
 )
 from .smoothing import FrequencySmoother
-from .spectra import SPECTRA_NAMES, SpectralAverager, SpectralEstimator, scale_spectra
+from .spectra import (
+    SPECTRA_NAMES,
+    SegmentedSpectralEstimator,
+    SpectralAverager,
+    SpectralEstimator,
+    scale_spectra,
+    welch_equivalent_averages,
+)
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
 _PEAK_RANKS = 8  #: maxima whose prominence is read one by one before the rest are done at once
 PeakSource = Literal["tot", "11", "12", "21", "22"]
+WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
 
 class IdentifierConfig(pydantic.BaseModel):
@@ -94,12 +103,14 @@ class IdentifierConfig(pydantic.BaseModel):
         2048, ge=32, le=1 << 20, description="FFT width N = history length (even)."
     )
     window: str = pydantic.Field("hann", description="scipy.signal.get_window name (periodic).")
-    method: Literal["etfe", "arx"] = pydantic.Field(
+    method: Literal["etfe", "etfe-welch", "arx"] = pydantic.Field(
         "etfe",
-        description="Poles from the thesis's ETFE peak search, or from the recursive QR-form ARX "
-        "model (dsp_service.arx; settles in about a second; the ETFE still serves the downloads).",
+        description="Poles from the thesis's ETFE peak search; 'etfe-welch': the same with Welch "
+        "within the history (welch_segments 7 unless given) and the rational-fit damping "
+        "(damping_method 'fit' unless given); 'arx': from the recursive QR-form ARX model "
+        "(dsp_service.arx; the ETFE still serves the downloads).",
     )
-    arx_forgetting: float = pydantic.Field(0.995, gt=0.5, le=1, description="ARX forgetting factor per sample.")
+    arx_forgetting: float = pydantic.Field(0.99, gt=0.5, le=1, description="ARX forgetting factor per sample.")
     arx_na: int = pydantic.Field(16, ge=2, le=40, description="ARX denominator order.")
     arx_nb: int = pydantic.Field(12, ge=1, le=40, description="ARX numerator order.")
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
@@ -108,6 +119,13 @@ class IdentifierConfig(pydantic.BaseModel):
         "or per-bin RLS of the transfer functions [D.28, D.29] (forgetting rls_forgetting).",
     )
     alpha: float = pydantic.Field(0.1, gt=0, le=1, description="Exponential averaging weight α [2-9].")
+    welch_segments: int = pydantic.Field(
+        1,
+        ge=1,
+        le=15,
+        description="1: one N-point window per snapshot (the C40). S > 1: Welch within the history, S "
+        "half-overlapping windows of 2N/(S+1) samples zero-padded to N (more averages, coarser resolution).",
+    )
     rls_forgetting: float = pydantic.Field(0.9, gt=0, le=1, description="RLS forgetting factor λ (≈ 1 − α).")
     rls_init_scale: float = pydantic.Field(
         1e8, gt=0, description="RLS initial inverse power, × 1/(mean input power of the first snapshot)."
@@ -145,9 +163,13 @@ class IdentifierConfig(pydantic.BaseModel):
     min_peak_prominence_db: float = pydantic.Field(
         3.0, ge=0, description="Minimum prominence (dB, weighted magnitude) of a reported peak."
     )
-    damping_method: Literal["vrm", "fwhm"] = pydantic.Field(
-        "vrm", description="Which estimate PoleEstimate.damping_ratio reports (the other is the fallback)."
+    damping_method: Literal["vrm", "fwhm", "fit"] = pydantic.Field(
+        "vrm",
+        description="Which estimate PoleEstimate.damping_ratio reports: VRM, FWHM (each the other's "
+        "fallback) or 'fit': a rational-fraction fit of the averaged FRF over ±fit_band_hz "
+        "(dsp_service.ratfit; then frequency_hz is the fit's natural frequency; VRM, FWHM fall back).",
     )
+    fit_band_hz: float = pydantic.Field(1.0, gt=0, description="Half-width (Hz) of the band the 'fit' damping uses.")
     estimate_on_smoothed: bool = pydantic.Field(
         False,
         description="Refine peak frequency/magnitude and estimate damping on the smoothed "
@@ -170,10 +192,22 @@ class IdentifierConfig(pydantic.BaseModel):
         6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
     )
 
+    @pydantic.model_validator(mode="before")
+    @classmethod
+    def _profile(cls, data: object) -> object:
+        """``method='etfe-welch'`` fills its two settings unless they are given explicitly."""
+        if isinstance(data, dict) and data.get("method") == "etfe-welch":
+            return {"welch_segments": WELCH_PROFILE_SEGMENTS, "damping_method": "fit", **data}
+        return data
+
     @pydantic.model_validator(mode="after")
     def _check(self) -> IdentifierConfig:
         if self.fft_width % 2:
             raise ValueError("fft_width must be even")
+        if self.welch_segments > 1 and self.averaging == "rls":
+            raise ValueError("welch_segments > 1 averages spectra: not with averaging='rls'")
+        if self.welch_segments > 1 and ((2 * self.fft_width) // (self.welch_segments + 1)) % 2:
+            raise ValueError(f"{self.welch_segments} segments do not split N = {self.fft_width} into even halves")
         nyq = self.sample_rate_hz / 2.0
         if self.search_max_hz > nyq:
             raise ValueError(f"search_max_hz {self.search_max_hz} exceeds Nyquist {nyq}")
@@ -205,6 +239,7 @@ class PoleEstimate:
     source: str  #: "tot", "11", "12", "21", "22" or "arx"
     damping_defined: bool = True  #: False when neither FWHM nor VRM gave a value (damping_ratio = 0.0)
     confidence: float = 0.0  #: this pole's confidence in [0, 1] (module doc)
+    damping_fit: float | None = None  #: ζ of the rational-fraction fit (damping_method='fit'); None otherwise or if unphysical
 
 
 @dataclass(frozen=True)
@@ -272,7 +307,12 @@ class Identifier:
         c = self.cfg
         n = c.fft_width
         self.history = HistoryBuffer(n)
-        self._est = SpectralEstimator(n, c.sample_rate_hz, c.window)
+        if c.welch_segments > 1:
+            self._est: SpectralEstimator = SegmentedSpectralEstimator(n, c.sample_rate_hz, c.window, c.welch_segments)
+            self._seg_avgs = welch_equivalent_averages(c.welch_segments)
+        else:
+            self._est = SpectralEstimator(n, c.sample_rate_hz, c.window)
+            self._seg_avgs = 1.0
         k = self._est.n_bins
         self.freqs = self._est.freqs
         if c.averaging == "rls":
@@ -481,7 +521,7 @@ class Identifier:
         else:
             vs = self._smoother.valid_range(solver.valid, lo, hi)
             n_valid = int(np.count_nonzero(vs))
-        n_eff = avg.effective_averages
+        n_eff = self.effective_averages
         peaks = self._find_peaks(hs, vs, n_valid)
         if not peaks:
             poles: tuple[PoleEstimate, ...] = ()
@@ -648,13 +688,20 @@ class Identifier:
             )
             for i, v in zip(todo, found):
                 vrms[i] = v
-        vrm_first = c.damping_method == "vrm"
+        vrm_first = c.damping_method in ("vrm", "fit")
         source = c.peak_source
         poles = []
-        for (prom, _, f_peak, m_peak, zeta_fwhm, _, _), vrm in zip(located, vrms):
+        for (prom, k_loc, f_peak, m_peak, zeta_fwhm, _, ok), vrm in zip(located, vrms):
             zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
+            zeta_fit = None
+            if c.damping_method == "fit" and ok:
+                band = np.abs(fd - f_peak) <= c.fit_band_hz
+                fit = fit_mode(fd[band], hd[band], None if vmask is None else vd[band].astype(np.float64)[None, :])
+                if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz:
+                    f_peak, zeta_fit = fit
+                    chosen = zeta_fit
             poles.append(
                 PoleEstimate(
                     frequency_hz=f_peak,
@@ -666,6 +713,7 @@ class Identifier:
                     prominence_db=prom,
                     source=source,
                     damping_defined=chosen is not None,
+                    damping_fit=zeta_fit,
                 )
             )
         return tuple(poles)
@@ -721,4 +769,10 @@ class Identifier:
 
     @property
     def effective_averages(self) -> float:
+        """Independent averages the spectra hold (see :class:`.spectra.SpectralAverager`; with
+        ``welch_segments`` > 1 each snapshot counts its segments)."""
+        if self._seg_avgs > 1.0:
+            est = self._est
+            assert isinstance(est, SegmentedSpectralEstimator)
+            return self._avg.segmented_effective_averages(est.segment_length, self._seg_avgs)
         return self._avg.effective_averages

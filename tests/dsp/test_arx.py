@@ -123,3 +123,31 @@ def test_identifier_facade_reports_arx_poles_with_confidence() -> None:
     assert min(abs(p.frequency_hz - 3.6) for p in res.poles) < 0.1
     idf.restart_history()  # a gap: the model is kept
     assert idf.arx is not None and idf.arx.samples > 0
+
+
+def test_rational_fit_damping_on_the_averaged_frf_of_a_known_system() -> None:
+    """damping_method='fit' against the synthetic system's true modes (cont2discrete of known ζ)."""
+    sys_, u, y = dataset(30000, seed=8, noise=0.02)
+    res = {}
+    for method in ("vrm", "fit"):
+        idf = Identifier(IdentifierConfig(damping_method=method, averaging="linear"))
+        for s in range(0, u.shape[1], 200):
+            idf.push(u[:, s : s + 200], y[:, s : s + 200])
+            r = idf.step()
+        res[method] = r
+    p = min(res["fit"].poles, key=lambda q: abs(q.frequency_hz - 3.6))
+    assert p.damping_fit is not None
+    assert p.damping_ratio == pytest.approx(0.09, rel=0.1)
+    assert p.frequency_hz == pytest.approx(3.6, rel=0.01)
+
+
+def test_rational_fit_against_scipy_freqz_exactly() -> None:
+    from dsp_service.ratfit import fit_mode
+
+    wn, z = 2 * np.pi * 4.4, 0.09
+    b, a = [0.3 * wn * wn, 2.0 * wn * wn], [1.0, 2 * z * wn, wn * wn]
+    f = np.linspace(3.4, 5.4, 21)
+    _, h = ss.freqs(b, a, worN=2 * np.pi * f)
+    fit = fit_mode(f, h[None, :])
+    assert fit is not None
+    assert fit[0] == pytest.approx(4.4, rel=1e-9) and fit[1] == pytest.approx(0.09, rel=1e-9)
