@@ -240,19 +240,15 @@ class RecursiveArx:
         if not ok.any():
             return ()
         zk, fn, zeta = zk[ok], fn[ok], zeta[ok]
-        # residue of B(q)/A(q), q = z⁻¹, at the pole: B(1/z_k) / Π_{m≠k} (1 − z_m / z_k)
-        strength = np.empty(zk.size)
-        for k, zp in enumerate(zk):
-            others = np.delete(z, np.flatnonzero(np.isclose(z, zp, rtol=0, atol=1e-14))[:1])
-            den = np.prod(1.0 - others / zp)
-            qk = 1.0 / zp
-            tot = 0.0
-            for i in range(2):
-                for j in range(2):
-                    bij = self.b(i, j)
-                    num = np.polyval(bij[::-1], qk)  # Σ b_m q^m
-                    tot += abs(num / den) ** 2
-            strength[k] = math.sqrt(tot) / max(1.0 - abs(zp), 1e-12)
+        # residue of B(q)/A(q), q = z⁻¹, at the pole: B(q_k) / Π_{m≠k} (1 − z_m q_k), q_k = 1/z_k,
+        # with Π_{m≠k} (1 − z_m q_k) = −A'(q_k) / z_k  (A(q) = Π_m (1 − z_m q))
+        qk = 1.0 / zk
+        P = np.polynomial.polynomial
+        da = P.polyder(a)  # a is [1, a_1, …]: coefficients in ascending powers of q
+        den = -P.polyval(qk, da) / zk
+        bs = np.stack([self.b(i, j) for i in range(2) for j in range(2)])  # (4, nb + 1), ascending in q
+        num = P.polyval(qk, bs.T)  # (4, K)
+        strength = np.sqrt(np.sum(np.abs(num / den) ** 2, axis=0)) / np.maximum(1.0 - np.abs(zk), 1e-12)
         top = float(strength.max())
         rel = strength / top if top > 0 else np.zeros_like(strength)
         order = np.argsort(-strength)

@@ -25,6 +25,14 @@ Confidence ∈ [0, 1] is the product of four factors (each in [0, 1]):
   prominence in dB on the weighted magnitude and ``p₀ =
   confidence_prominence_db`` (0.5 at ``p = p₀``); 0 when no peak.
 
+Each pole also carries its own confidence: the first three factors times
+its own prominence factor. ``method='arx'`` reports the poles of the
+recursive ARX model instead (:mod:`.arx`; confidence = the model's fill
+times the pole's relative modal strength); ``'etfe-welch'`` is the ETFE
+with Welch segments within the history and the rational-fraction damping
+(:mod:`.ratfit`); collinear bins are solved along the dominant input
+direction (:mod:`.mimo`, ``collinear``). See docs/identification.md.
+
 No NaN or inf ever leaves this module: masked bins are exactly 0; an
 undefined FWHM or VRM damping is ``None``, and ``damping_ratio`` is then
 the other method's value, or 0.0 with ``damping_defined=False``.

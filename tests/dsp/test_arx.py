@@ -151,3 +151,29 @@ def test_rational_fit_against_scipy_freqz_exactly() -> None:
     fit = fit_mode(f, h[None, :])
     assert fit is not None
     assert fit[0] == pytest.approx(4.4, rel=1e-9) and fit[1] == pytest.approx(0.09, rel=1e-9)
+
+
+def test_pole_strength_equals_scipy_residuez() -> None:
+    """The modal strength uses the residues of B_ij/A: checked against scipy.signal.residuez."""
+    _, u, y = dataset(6000, seed=5, noise=0.02)
+    m = RecursiveArx(ArxConfig(na=6, nb=4, min_relative_strength=0.0, max_poles=16))
+    for s in range(0, u.shape[1], 200):
+        m.update(u[:, s : s + 200], y[:, s : s + 200])
+    poles = m.poles()
+    assert poles
+    a = m.a
+    z = np.roots(a)
+    for p in poles:
+        zs = {}
+        for i in range(2):
+            for j in range(2):
+                r, pz, _ = ss.residuez(m.b(i, j), a)
+                k = int(np.argmin(np.abs(pz - z[np.argmin([abs(abs(fs_log(zz)) / (2 * math.pi) - p.frequency_hz) + (zz.imag <= 0) for zz in z])])))
+                zs[(i, j)] = (r[k], pz[k])
+        zp = next(iter(zs.values()))[1]
+        ref = math.sqrt(sum(abs(r) ** 2 for r, _ in zs.values())) / (1.0 - abs(zp))
+        assert p.strength == pytest.approx(ref, rel=1e-6)
+
+
+def fs_log(z: complex) -> complex:
+    return FS * np.log(z)

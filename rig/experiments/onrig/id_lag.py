@@ -66,6 +66,7 @@ HOLD_S = 2.0
 MEDIAN_HALF_S = 1.0
 SETTINGS: tuple[tuple[int, float, str], ...] = (
     (2048, 0.1, "etfe"), (2048, 0.5, "etfe"), (1024, 0.1, "etfe"), (1024, 0.05, "etfe"), (512, 0.05, "etfe"), (512, 0.02, "etfe"),
+    (2048, 0.1, "etfe-welch"), (1024, 0.1, "etfe-welch"),
     (2048, 0.1, "arx"),
 )
 """(N, α, identifier); the first is the thesis's; ``arx``: the recursive ARX model's poles (N, α then only shape the downloads)."""
@@ -188,15 +189,17 @@ def step_delays(res: RigResult, events_s: list[float], tolerance: float = TOLERA
 
 
 def _name(n: int, alpha: float, method: str = "etfe") -> str:
-    if method != "etfe":
+    if method == "arx":
         return method
-    return f"n{n}_a{alpha:g}".replace(".", "p")
+    base = f"n{n}_a{alpha:g}".replace(".", "p")
+    return base if method == "etfe" else f"{base}_{method.replace('-', '_')}"
 
 
 def _label(d: dict[str, Any]) -> str:
-    if d.get("identifier", "etfe") != "etfe":
-        return f"{d['identifier'].upper()} (λ {ARX_FORGETTING:g}/sample)"
-    return f"N = {d['fft_width']}, α = {d['alpha']:g}"
+    if d.get("identifier", "etfe") == "arx":
+        return f"ARX (λ {ARX_FORGETTING:g}/sample)"
+    suffix = "" if d.get("identifier", "etfe") == "etfe" else f", {d['identifier']}"
+    return f"N = {d['fft_width']}, α = {d['alpha']:g}{suffix}"
 
 
 @experiment(
@@ -226,7 +229,7 @@ def run(ctx: ExperimentContext) -> Report:
             controller={"duration_s": duration, "tip_speed_in_s": SPEED, "trajectory": str(traj_path), "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, "oatf_mode": "off"},
             plant={"payload_attached": True, "scenario": scenario, "seed": seed},
             dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing_window": smoothing_window(n), "identifier": m},
-            label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" if m == "etfe" else f"recursive ARX, λ = {ARX_FORGETTING:g} per sample, l = {THESIS_BATCH_SIZE}",
+            label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" + ("" if m == "etfe" else f", {m}") if m != "arx" else f"recursive ARX, λ = {ARX_FORGETTING:g} per sample, l = {THESIS_BATCH_SIZE}",
         )
         for n, a, m in settings
     ]
@@ -387,7 +390,7 @@ def _delay_figure(rows: dict, n_events: int):  # type: ignore[no-untyped-def]
         if not math.isfinite(d2[i]):
             ax1.annotate("∞", (i - 0.2, 0), ha="center", va="bottom")
         ax1.annotate(f"{rows[k]['settled_events']}/{n_events}", (i - 0.2, 0), xytext=(0, -22), textcoords="offset points", ha="center", fontsize=6)
-    labels = [(f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" if rows[k]["identifier"] == "etfe" else "ARX") + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "") for k in keys]
+    labels = [(f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" + ("" if rows[k]["identifier"] == "etfe" else "\nWelch+fit") if rows[k]["identifier"] != "arx" else "ARX") + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "") for k in keys]
     ax1.set_xticks(x, labels, fontsize=7)
     ax1.set_ylabel("delay after the event (s)")
     ax1.legend(fontsize=7)

@@ -63,8 +63,8 @@ LOW_BAND_HZ = 2.0
 PEAK_BAND_HZ = (0.5, 12.0)
 
 
-IDENTIFIERS = ("etfe", "etfe-welch")
-"""The thesis's ETFE (its settings; with the dominant-direction solve of collinear bins) and the best ETFE variant."""
+IDENTIFIERS = ("etfe", "etfe-welch", "arx")
+"""The thesis's ETFE (its settings; with the dominant-direction solve of collinear bins), the Welch/fitted-damping ETFE, the recursive ARX."""
 SPLIT_TOL_HZ = 0.5
 """A download shows a mode when |H_tot| has a peak (≥ SPLIT_PROMINENCE_DB) within this of the true frequency."""
 SPLIT_PROMINENCE_DB = 2.0
@@ -224,7 +224,7 @@ def run(ctx: ExperimentContext) -> Report:
             dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": FFT_WIDTH, "alpha": ALPHA, "identifier": ident},
             label=f"PI only, {speed:g} in/s, identifier {ident}",
         )
-        for ident in IDENTIFIERS
+        for ident in (IDENTIFIERS[:2] if quick else IDENTIFIERS)
     ]
     all_runs = run_rigs(ctx, specs, in_process=quick, description="pi-spectrogram runs")
     res = all_runs[0]
@@ -281,10 +281,10 @@ def run(ctx: ExperimentContext) -> Report:
     th2_thr = float(np.quantile(th2, APEX_QUANTILE))
     splits = {r.spec.name: apex_split(r, apex) for r in all_runs}
     errors = {r.spec.name: identification_errors(r, apex, t_first + 2.0) for r in all_runs}
-    best = all_runs[-1].spec.name
-    split_rows = splits[best]["downloads"]
-    split_seen = splits[best]["fraction_showing_both_modes"]
-    apex_valid = splits[best]["mean_valid_3_6hz"]
+    split_run = all_runs[0].spec.name  # the split is checked at the thesis's resolution (Welch segments widen the peaks)
+    split_rows = splits[split_run]["downloads"]
+    split_seen = splits[split_run]["fraction_showing_both_modes"]
+    apex_valid = splits[split_run]["mean_valid_3_6hz"]
 
     # ------------------------------------------------------------------ plain spectrogram of link-2 deflection
     x = np.asarray(rec["defl2_in"], dtype=float)
@@ -438,9 +438,9 @@ def run(ctx: ExperimentContext) -> Report:
         rep.check(
             "at the apex the downloaded H_tot is solved in the 3–6 Hz band (≥ 90 % of the bins) and shows both modes (the split) in at least half of the apex downloads",
             apex_valid >= 0.9 and split_seen >= 0.5,
-            f"{best}: {len(split_rows)} apex downloads (≥ {APEX_WINDOW_SHARE:.0%} of the window at the apex): {apex_valid:.0%} of 3–6 Hz bins valid; "
+            f"{split_run}: {len(split_rows)} apex downloads (≥ {APEX_WINDOW_SHARE:.0%} of the window at the apex): {apex_valid:.0%} of 3–6 Hz bins valid; "
             f"both modes (peaks of ≥ {SPLIT_PROMINENCE_DB:g} dB within {SPLIT_TOL_HZ:g} Hz of the true f1 and f2 at the apex) in {split_seen:.0%}; "
-            + "; ".join(f"{k}: {v['mean_valid_3_6hz']:.0%} valid, both modes in {v['fraction_showing_both_modes']:.0%}" for k, v in splits.items() if k != best),
+            + "; ".join(f"{k}: {v['mean_valid_3_6hz']:.0%} valid, both modes in {v['fraction_showing_both_modes']:.0%}" for k, v in splits.items() if k != split_run),
         )
     else:
         rep.text("No download fell at the apex in this run (quick mode covers only the start of the loop): the split check is not applicable.")
