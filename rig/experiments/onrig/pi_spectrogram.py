@@ -461,7 +461,7 @@ def run(ctx: ExperimentContext) -> Report:
     rep.thesis(
         "A plain spectrogram of the link-2 deflection does not divide out the input spectrum and is cluttered at low frequency.",
         f"Median share of each column below {LOW_BAND_HZ:g} Hz: plain {st_low:.0%} (the trajectory's own motion), |H_tot| {tf_low:.0%} "
-        f"(of which only {tf_low_valid:.0%} of the bins are valid: the DSP masks bins where the inputs are collinear); "
+        f"({tf_low_valid:.0%} of those bins solved: collinear bins are solved along the dominant input direction); "
         f"columns peaking within 0.5 Hz of a true mode: plain {st_near:.0%}, |H_tot| {tf_near:.0%}.",
         True if (st_low > tf_low and st_near <= tf_near) else ("partly" if (st_low > tf_low or st_near < tf_near) else False),
     )
