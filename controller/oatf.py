@@ -340,7 +340,7 @@ class OatfConfig(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _band_ordered(self) -> "OatfConfig":
+    def _band_ordered(self) -> OatfConfig:
         lo, hi = self.plausible_band_hz
         if not 0.0 <= lo < hi:
             raise ValueError(f"plausible_band_hz must satisfy 0 <= low < high, got {self.plausible_band_hz}")
@@ -540,7 +540,7 @@ class OatfSupervisor:
         """
         return _offer_poles(self, poles, confidence)
 
-    def offer_interrupt(self, interrupt: "Interrupt") -> bool:
+    def offer_interrupt(self, interrupt: Interrupt) -> bool:
         """:meth:`offer_poles` with a DSP interrupt's poles (per-pole confidence, else the interrupt's)."""
         offers = [
             PoleOffer(
@@ -632,7 +632,7 @@ class PoleOffer(BaseModel):
     confidence: float = math.inf
 
 
-def _offer_poles(sup: "OatfSupervisor", poles: Sequence[PoleOffer], confidence: float | None) -> bool:
+def _offer_poles(sup: OatfSupervisor, poles: Sequence[PoleOffer], confidence: float | None) -> bool:
     """The body of :meth:`OatfSupervisor.offer_poles`."""
     oatf = sup.oatf
     cfg = oatf.config

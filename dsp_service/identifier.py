@@ -71,7 +71,6 @@ from numpy.typing import NDArray
 
 from .arx import ArxConfig, RecursiveArx
 from .history import HistoryBuffer
-from .ratfit import fit_mode
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
     PeakRefiner,
@@ -81,9 +80,10 @@ from .modal import (
     log_weights,
     prominence_bases,
     refine_peak,
-    zeta_fwhm_approx,
     zeta_from_fwhm_exact,
+    zeta_fwhm_approx,
 )
+from .ratfit import fit_mode
 from .smoothing import FrequencySmoother
 from .spectra import (
     SPECTRA_NAMES,
@@ -277,23 +277,23 @@ class TransferFunctionEstimate:
 
     # the names used on the wire (TfSnapshot): H11 … Htot
     @property
-    def H11(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H11(self) -> NDArray[np.complex128]:
         return self.h11
 
     @property
-    def H12(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H12(self) -> NDArray[np.complex128]:
         return self.h12
 
     @property
-    def H21(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H21(self) -> NDArray[np.complex128]:
         return self.h21
 
     @property
-    def H22(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H22(self) -> NDArray[np.complex128]:
         return self.h22
 
     @property
-    def Htot(self) -> NDArray[np.complex128]:  # noqa: N802
+    def Htot(self) -> NDArray[np.complex128]:
         return self.htot
 
 

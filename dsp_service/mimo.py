@@ -48,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .spectra import P11, P12, P1Y1, P1Y2, P22, P2Y1, P2Y2
+from .spectra import P1Y1, P1Y2, P2Y1, P2Y2, P11, P12, P22
 
 #: Row order of transfer-function arrays ``(4, K)``.
 H11, H12, H21, H22 = range(4)

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor, PoleOffer, transfer_function
+from controller.oatf import (
+    OatfConfig,
+    OatfFilter,
+    OatfSupervisor,
+    PoleOffer,
+    transfer_function,
+)
 from protocol.messages import Interrupt, PoleParameters, decode, encode
 
 TS = 0.005

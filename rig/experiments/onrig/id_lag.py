@@ -47,11 +47,17 @@ from typing import Any
 
 import numpy as np
 
-from dsp_service.identifier import IdentifierConfig
 from controller.trajectory import WaypointTrajectory, sample_trajectory
+from dsp_service.identifier import IdentifierConfig
 from plant_emulator.model.modes import modal_parameters
 from rig.experiments.framework import ExperimentContext, experiment
-from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, centred_median, run_rigs
+from rig.experiments.onrig.runner import (
+    THESIS_BATCH_SIZE,
+    RigResult,
+    RigRun,
+    centred_median,
+    run_rigs,
+)
 from rig.experiments.report import Report, new_figure
 
 FS_HZ = 200.0
@@ -130,7 +136,7 @@ def event_delays(t: np.ndarray, f: np.ndarray, true1: np.ndarray, tm: np.ndarray
     dt = float(tm[1] - tm[0])
     hold = int(round(HOLD_S / dt))
     settle = math.inf
-    for k in range(0, max(0, inside.size - hold)):
+    for k in range(max(0, inside.size - hold)):
         if inside[k : k + hold + 1].all():
             settle = float(tw[k] - at_s)
             break

@@ -45,7 +45,14 @@ from scipy.signal import ShortTimeFFT
 from scipy.signal.windows import hann
 
 from rig.experiments.framework import ExperimentContext, experiment
-from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, centred_median, lap_seconds, run_rigs
+from rig.experiments.onrig.runner import (
+    THESIS_BATCH_SIZE,
+    RigResult,
+    RigRun,
+    centred_median,
+    lap_seconds,
+    run_rigs,
+)
 from rig.experiments.report import Report, new_figure
 
 FS_HZ = 200.0

@@ -28,7 +28,14 @@ import numpy as np
 
 from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.battery import adaptive_summary
-from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds, run_rigs
+from rig.experiments.onrig.runner import (
+    THESIS_BATCH_SIZE,
+    RigResult,
+    RigRun,
+    costs_over,
+    lap_seconds,
+    run_rigs,
+)
 from rig.experiments.report import Report, new_figure
 
 DESIGN_ZETA = 0.01
