@@ -674,9 +674,9 @@ def _offer_poles(sup: OatfSupervisor, poles: Sequence[PoleOffer], confidence: fl
     for p in extras:
         best = None
         for k, t in enumerate(sup._tracks):
-            if k not in seen_tracks and abs(p.frequency_hz - t.frequency_hz) <= tol * t.frequency_hz:
-                if best is None or abs(p.frequency_hz - t.frequency_hz) < abs(p.frequency_hz - sup._tracks[best].frequency_hz):
-                    best = k
+            near = k not in seen_tracks and abs(p.frequency_hz - t.frequency_hz) <= tol * t.frequency_hz
+            if near and (best is None or abs(p.frequency_hz - t.frequency_hz) < abs(p.frequency_hz - sup._tracks[best].frequency_hz)):
+                best = k
         q = conf_of(p)
         keep_level = cfg.stage_off_confidence if best is not None and sup._tracks[best].active else cfg.stage_on_confidence
         if not q >= keep_level:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from controller.oatf import (
     OatfConfig,
@@ -109,5 +110,5 @@ def test_interrupt_poles_carry_their_confidence_and_version() -> None:
     old = Interrupt(seq=1, sim_time_s=1.0, batch_seq=1, version=1, confidence=0.5, compute_time_s=0.0,
                     poles=(PoleParameters(frequency_hz=3.6, damping_ratio=0.09),))
     assert decode(Interrupt, encode(old)).poles[0].confidence is None
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError):
         PoleParameters(frequency_hz=3.6, damping_ratio=0.09, confidence=1.5)

@@ -113,7 +113,7 @@ def test_bounded_cost_and_long_run_stays_sound() -> None:
 
 
 def test_identifier_facade_reports_arx_poles_with_confidence() -> None:
-    sys_, u, y = dataset(12000, seed=4, noise=0.02)
+    _, u, y = dataset(12000, seed=4, noise=0.02)
     idf = Identifier(IdentifierConfig(fft_width=1024, method="arx", smoothing_window=9))
     for s in range(0, u.shape[1], 20):
         idf.push(u[:, s : s + 20], y[:, s : s + 20])
@@ -127,7 +127,7 @@ def test_identifier_facade_reports_arx_poles_with_confidence() -> None:
 
 def test_rational_fit_damping_on_the_averaged_frf_of_a_known_system() -> None:
     """damping_method='fit' against the synthetic system's true modes (cont2discrete of known ζ)."""
-    sys_, u, y = dataset(30000, seed=8, noise=0.02)
+    _, u, y = dataset(30000, seed=8, noise=0.02)
     res = {}
     for method in ("vrm", "fit"):
         idf = Identifier(IdentifierConfig(damping_method=method, averaging="linear"))

@@ -81,7 +81,7 @@ def test_one_silent_input_gives_the_per_input_estimate() -> None:
     assert tf.mode is not None and np.all(tf.mode[band] == MODE_DOMINANT)
     assert np.all(tf.h21[band] == 0) and np.all(tf.h22[band] == 0)  # minimum norm: nothing on the silent input
     # scipy's H1 estimate of the same data: csd(u1, y_j) / welch(u1), same window, segments and detrending
-    kw = dict(fs=FS, window="hann", nperseg=N, noverlap=N - BATCH, detrend="constant")
+    kw = {"fs": FS, "window": "hann", "nperseg": N, "noverlap": N - BATCH, "detrend": "constant"}
     _, p11 = ss.welch(u[0], **kw)
     for j, est in enumerate((tf.h11, tf.h12)):
         _, p1y = ss.csd(u[0], y[j], **kw)
@@ -90,7 +90,7 @@ def test_one_silent_input_gives_the_per_input_estimate() -> None:
 
 
 def test_well_conditioned_bins_are_solved_exactly_as_before() -> None:
-    sys_, u, y = dataset(16 * N, seed=4)
+    _, u, y = dataset(16 * N, seed=4)
     a = _run(u, y, collinear="mask").transfer_functions(smoothed=False)
     b = _run(u, y, collinear="dominant").transfer_functions(smoothed=False)
     assert b.mode is not None and a.mode is not None
@@ -108,7 +108,7 @@ def test_fast_total_path_equals_the_full_solve(source: str) -> None:
     s = MimoSolver(N // 2 + 1, "mimo", 1e-3, 1e-12, "dominant")
     idf = _run(u, y)
     S = idf._avg.state
-    H, valid = s.solve(S)
+    H, _ = s.solve(S)
     H = H.copy()
     tot, valid_tot = s.solve_source(S, source)
     ref = H.mean(axis=0) if source == "tot" else H[0]
@@ -126,7 +126,7 @@ def test_segmented_spectra_equal_scipy_csd_with_zero_padding(segments: int) -> N
     idf.push(u, y)
     idf.step()
     L = 2 * N // (segments + 1)
-    kw = dict(fs=FS, window="hann", nperseg=L, noverlap=L // 2, nfft=N, detrend="constant")
+    kw = {"fs": FS, "window": "hann", "nperseg": L, "noverlap": L // 2, "nfft": N, "detrend": "constant"}
     sp = idf.spectra("density")
     x = {"1": u[0], "2": u[1], "y1": y[0], "y2": y[1]}
     for name, (a, b) in {"P11": ("1", "1"), "P12": ("1", "2"), "P1y1": ("1", "y1"), "P2y2": ("2", "y2")}.items():
