@@ -76,6 +76,8 @@ class ControlLaw:
                 fixed_delay_s=settings.oatf_delay_s or 0.05,
                 plausible_band_hz=settings.oatf_band_hz,
                 min_confidence=settings.oatf_min_confidence,
+                max_stages=settings.oatf_max_stages,
+                adapt_damping=settings.oatf_adapt_damping,
             )
             initial = self.setpoints[0] if settings.oatf_location == "outer" else 0.0
             self.oatf = OatfFilter([settings.oatf_frequency_hz], n_channels=2, config=config, initial=initial)
@@ -122,8 +124,7 @@ class ControlLaw:
         """Adaptive OATF: offer the identified first mode; True if the filter changed."""
         if self.supervisor is None or self.settings.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:
             return False
-        pole = interrupt.poles[0]
-        return self.supervisor.offer([pole.frequency_hz], confidence=interrupt.confidence)
+        return self.supervisor.offer_interrupt(interrupt)
 
     def record_row(self, tick: int, out: TickOutput) -> dict[str, Any]:
         m = out.measurement

@@ -55,11 +55,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+if TYPE_CHECKING:
+    from protocol.messages import Interrupt
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -70,6 +73,7 @@ __all__ = [
     "OatfDesignError",
     "OatfFilter",
     "OatfSupervisor",
+    "PoleOffer",
     "StageDesign",
     "SupervisorCounts",
     "cascade_kernel",
@@ -307,12 +311,44 @@ class OatfConfig(BaseModel):
     min_confidence: float = Field(
         0.0, description="OatfSupervisor ignores estimates whose confidence is below this."
     )
+    max_stages: int = Field(
+        1,
+        ge=1,
+        le=4,
+        description=(
+            "1 (the thesis's runs): one stage on the first identified mode. More: one further stage per "
+            "confident extra pole (thesis §5.3), created and removed with hysteresis."
+        ),
+    )
+    stage_on_confidence: float = Field(
+        0.5, ge=0.0, le=1.0, description="An extra pole must be at least this confident to create a stage."
+    )
+    stage_off_confidence: float = Field(
+        0.25, ge=0.0, le=1.0, description="An extra stage is removed once its pole is less confident than this (or gone)."
+    )
+    stage_hold_offers: int = Field(
+        5, ge=1, description="Consecutive offers a pole must be confident (or absent) before its stage is created (or removed)."
+    )
+    stage_match_tolerance: float = Field(
+        0.15, gt=0.0, lt=1.0, description="Relative frequency distance within which a pole continues a stage's track."
+    )
+    adapt_damping: bool = Field(
+        False, description="Adapt each stage's design damping to the identified damping ratio (else design_zeta)."
+    )
+    damping_limits: tuple[float, float] = Field(
+        (0.005, 0.3), description="Identified damping ratios are clipped to this range when adapt_damping is on."
+    )
 
     @model_validator(mode="after")
-    def _band_ordered(self) -> "OatfConfig":
+    def _band_ordered(self) -> OatfConfig:
         lo, hi = self.plausible_band_hz
         if not 0.0 <= lo < hi:
             raise ValueError(f"plausible_band_hz must satisfy 0 <= low < high, got {self.plausible_band_hz}")
+        if self.stage_off_confidence > self.stage_on_confidence:
+            raise ValueError("stage_off_confidence must not exceed stage_on_confidence (hysteresis)")
+        zlo, zhi = self.damping_limits
+        if not 0.0 <= zlo <= zhi < 1.0:
+            raise ValueError(f"damping_limits must satisfy 0 <= low <= high < 1, got {self.damping_limits}")
         return self
 
     @property
@@ -467,6 +503,8 @@ class SupervisorCounts:
     low_confidence: int = 0
     extra_estimates: int = 0
     design_rejected: int = 0
+    stages_created: int = 0
+    stages_removed: int = 0
     last_rejection: str = field(default="")
 
 
@@ -484,6 +522,39 @@ class OatfSupervisor:
     def __init__(self, oatf: OatfFilter) -> None:
         self.oatf = oatf
         self.counts = SupervisorCounts()
+        self._tracks: list[_Track] = []
+
+    def offer_poles(self, poles: Sequence[PoleOffer], confidence: float | None = None) -> bool:
+        """Offer every identified pole (first mode first); True if the design changed.
+
+        Stage 0 follows ``poles[0]`` exactly as :meth:`offer` does (with
+        ``confidence``, the interrupt's, when given). With ``max_stages > 1``
+        every further pole in the band, not within ``stage_match_tolerance`` of
+        stage 0, continues or opens a track; a track becomes a stage after
+        ``stage_hold_offers`` consecutive offers at confidence ≥
+        ``stage_on_confidence`` and is removed after as many offers without
+        its pole at ≥ ``stage_off_confidence`` (thesis §5.3: zeros created
+        and removed as poles appear and vanish; the two thresholds and the
+        count keep them from flickering). With ``adapt_damping`` each stage's
+        damping follows its pole's, clipped to ``damping_limits``.
+        """
+        return _offer_poles(self, poles, confidence)
+
+    def offer_interrupt(self, interrupt: Interrupt) -> bool:
+        """:meth:`offer_poles` with a DSP interrupt's poles (per-pole confidence, else the interrupt's)."""
+        offers = [
+            PoleOffer(
+                frequency_hz=p.frequency_hz,
+                damping_ratio=p.damping_ratio,
+                confidence=interrupt.confidence if p.confidence is None else p.confidence,
+            )
+            for p in interrupt.poles
+        ]
+        return self.offer_poles(offers, interrupt.confidence)
+
+    def _offer_first(self, frequency_hz: float, confidence: float, zetas: Sequence[float] | None) -> bool:
+        """Stage 0 only, through :meth:`offer` (which keeps the other stages as they are)."""
+        return self.offer([frequency_hz], confidence=confidence, zetas=zetas)
 
     def offer(
         self,
@@ -538,6 +609,115 @@ class OatfSupervisor:
         changed = new != stages
         c.updates += int(changed)
         return changed
+
+
+@dataclass
+class _Track:
+    """An extra pole followed across offers (hysteresis of :meth:`OatfSupervisor.offer_poles`)."""
+
+    frequency_hz: float
+    zeta: float
+    active: bool = False
+    seen: int = 0  #: consecutive offers with the pole confident
+    missed: int = 0  #: consecutive offers without it (or not confident enough)
+
+
+class PoleOffer(BaseModel):
+    """One identified pole as the supervisor takes it (frequency, damping, confidence)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    frequency_hz: float
+    damping_ratio: float = math.nan
+    confidence: float = math.inf
+
+
+def _offer_poles(sup: OatfSupervisor, poles: Sequence[PoleOffer], confidence: float | None) -> bool:
+    """The body of :meth:`OatfSupervisor.offer_poles`."""
+    oatf = sup.oatf
+    cfg = oatf.config
+    c = sup.counts
+    if cfg.max_stages <= 1 and not poles:
+        return False
+    overall = math.inf if confidence is None else float(confidence)
+
+    def conf_of(p: PoleOffer) -> float:
+        return min(float(p.confidence), overall)
+
+    def zeta_of(p: PoleOffer, fallback: float) -> float:
+        z = float(p.damping_ratio)
+        if not cfg.adapt_damping or not math.isfinite(z):
+            return fallback
+        return min(max(z, cfg.damping_limits[0]), cfg.damping_limits[1])
+
+    primary = poles[0] if poles else None
+    stages_before = oatf.stages
+    changed = False
+    if primary is not None:
+        z0 = stages_before[0].zeta if stages_before else cfg.design_zeta
+        zs = [zeta_of(primary, z0)] if cfg.adapt_damping else None
+        changed = sup._offer_first(primary.frequency_hz, overall if confidence is not None else conf_of(primary), zs)
+    if cfg.max_stages <= 1:
+        return changed
+    # extra poles: every other pole, confident, in band, not the first mode's
+    f0 = oatf.stages[0].frequency_hz if oatf.stages else math.nan
+    lo, hi = cfg.plausible_band_hz
+    tol = cfg.stage_match_tolerance
+    extras = [
+        p
+        for p in poles[1:]
+        if math.isfinite(p.frequency_hz)
+        and lo <= p.frequency_hz <= hi
+        and not abs(p.frequency_hz - f0) <= tol * f0
+    ]
+    seen_tracks: set[int] = set()
+    for p in extras:
+        best = None
+        for k, t in enumerate(sup._tracks):
+            near = k not in seen_tracks and abs(p.frequency_hz - t.frequency_hz) <= tol * t.frequency_hz
+            if near and (best is None or abs(p.frequency_hz - t.frequency_hz) < abs(p.frequency_hz - sup._tracks[best].frequency_hz)):
+                best = k
+        q = conf_of(p)
+        keep_level = cfg.stage_off_confidence if best is not None and sup._tracks[best].active else cfg.stage_on_confidence
+        if not q >= keep_level:
+            continue
+        if best is None:
+            sup._tracks.append(_Track(p.frequency_hz, zeta_of(p, cfg.design_zeta)))
+            best = len(sup._tracks) - 1
+        t = sup._tracks[best]
+        t.frequency_hz = p.frequency_hz
+        t.zeta = zeta_of(p, cfg.design_zeta)
+        t.missed = 0
+        t.seen += 1
+        seen_tracks.add(best)
+    for k, t in enumerate(sup._tracks):
+        if k not in seen_tracks:
+            t.missed += 1
+            t.seen = 0
+        if abs(t.frequency_hz - f0) <= tol * f0:  # the first mode's stage took it over
+            t.missed = cfg.stage_hold_offers
+    before = [t for t in sup._tracks if t.active]
+    for t in sup._tracks:
+        if not t.active and t.seen >= cfg.stage_hold_offers:
+            t.active = True
+            c.stages_created += 1
+        elif t.active and t.missed >= cfg.stage_hold_offers:
+            t.active = False
+            c.stages_removed += 1
+    sup._tracks = [t for t in sup._tracks if t.active or t.missed < cfg.stage_hold_offers]
+    active = [t for t in sup._tracks if t.active][: cfg.max_stages - 1]
+    if not active and not before and len(oatf.stages) <= 1:
+        return changed
+    head = oatf.stages[:1]
+    freqs = [s.frequency_hz for s in head] + [t.frequency_hz for t in active]
+    zs = [s.zeta for s in head] + [t.zeta for t in active]
+    try:
+        new = oatf.update_modes(freqs, zs)
+    except OatfDesignError as exc:
+        c.design_rejected += 1
+        c.last_rejection = str(exc)
+        return changed
+    return changed or new != stages_before
 
 
 # --------------------------------------------------------------------------- helpers

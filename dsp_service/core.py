@@ -47,6 +47,7 @@ def identifier_config(settings: DspSettings) -> IdentifierConfig:
         sample_rate_hz=settings.sample_rate_hz,
         fft_width=settings.fft_width,
         averaging=settings.averaging,
+        method=settings.identifier,
         alpha=settings.alpha,
         rls_forgetting=1.0 - settings.alpha,
         solver=settings.solver,
@@ -147,7 +148,7 @@ class DspCore:
             sim_time_s=self.last_sim_time,
             batch_seq=batch.seq,
             poles=tuple(
-                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source)
+                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source, confidence=min(max(p.confidence, 0.0), 1.0))
                 for p in result.poles
                 if np.isfinite(p.frequency_hz) and p.frequency_hz > 0 and np.isfinite(p.damping_ratio) and np.isfinite(p.magnitude)
             ),

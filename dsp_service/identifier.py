@@ -25,6 +25,14 @@ Confidence ∈ [0, 1] is the product of four factors (each in [0, 1]):
   prominence in dB on the weighted magnitude and ``p₀ =
   confidence_prominence_db`` (0.5 at ``p = p₀``); 0 when no peak.
 
+Each pole also carries its own confidence: the first three factors times
+its own prominence factor. ``method='arx'`` reports the poles of the
+recursive ARX model instead (:mod:`.arx`; confidence = the model's fill
+times the pole's relative modal strength); ``'etfe-welch'`` is the ETFE
+with Welch segments within the history and the rational-fraction damping
+(:mod:`.ratfit`); collinear bins are solved along the dominant input
+direction (:mod:`.mimo`, ``collinear``). See docs/identification.md.
+
 No NaN or inf ever leaves this module: masked bins are exactly 0; an
 undefined FWHM or VRM damping is ``None``, and ``damping_ratio`` is then
 the other method's value, or 0.0 with ``damping_defined=False``.
@@ -52,6 +60,7 @@ triplets of all peaks in one pass.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -60,6 +69,7 @@ import numpy as np
 import pydantic
 from numpy.typing import NDArray
 
+from .arx import ArxConfig, RecursiveArx
 from .history import HistoryBuffer
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
@@ -70,16 +80,25 @@ from .modal import (
     log_weights,
     prominence_bases,
     refine_peak,
-    zeta_fwhm_approx,
     zeta_from_fwhm_exact,
+    zeta_fwhm_approx,
 )
+from .ratfit import fit_mode
 from .smoothing import FrequencySmoother
-from .spectra import SPECTRA_NAMES, SpectralAverager, SpectralEstimator, scale_spectra
+from .spectra import (
+    SPECTRA_NAMES,
+    SegmentedSpectralEstimator,
+    SpectralAverager,
+    SpectralEstimator,
+    scale_spectra,
+    welch_equivalent_averages,
+)
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
 _PEAK_RANKS = 8  #: maxima whose prominence is read one by one before the rest are done at once
 PeakSource = Literal["tot", "11", "12", "21", "22"]
+WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
 
 class IdentifierConfig(pydantic.BaseModel):
@@ -92,12 +111,29 @@ class IdentifierConfig(pydantic.BaseModel):
         2048, ge=32, le=1 << 20, description="FFT width N = history length (even)."
     )
     window: str = pydantic.Field("hann", description="scipy.signal.get_window name (periodic).")
+    method: Literal["etfe", "etfe-welch", "arx"] = pydantic.Field(
+        "etfe",
+        description="Poles from the thesis's ETFE peak search; 'etfe-welch': the same with Welch "
+        "within the history (welch_segments 7 unless given) and the rational-fit damping "
+        "(damping_method 'fit' unless given); 'arx': from the recursive QR-form ARX model "
+        "(dsp_service.arx; the ETFE still serves the downloads).",
+    )
+    arx_forgetting: float = pydantic.Field(0.99, gt=0.5, le=1, description="ARX forgetting factor per sample.")
+    arx_na: int = pydantic.Field(16, ge=2, le=40, description="ARX denominator order.")
+    arx_nb: int = pydantic.Field(12, ge=1, le=40, description="ARX numerator order.")
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
         "exponential",
         description="Spectra averaging: exponential [2-9], linear (equal weights, Welch), "
         "or per-bin RLS of the transfer functions [D.28, D.29] (forgetting rls_forgetting).",
     )
     alpha: float = pydantic.Field(0.1, gt=0, le=1, description="Exponential averaging weight α [2-9].")
+    welch_segments: int = pydantic.Field(
+        1,
+        ge=1,
+        le=15,
+        description="1: one N-point window per snapshot (the C40). S > 1: Welch within the history, S "
+        "half-overlapping windows of 2N/(S+1) samples zero-padded to N (more averages, coarser resolution).",
+    )
     rls_forgetting: float = pydantic.Field(0.9, gt=0, le=1, description="RLS forgetting factor λ (≈ 1 − α).")
     rls_init_scale: float = pydantic.Field(
         1e8, gt=0, description="RLS initial inverse power, × 1/(mean input power of the first snapshot)."
@@ -113,6 +149,11 @@ class IdentifierConfig(pydantic.BaseModel):
     )
     det_threshold: float = pydantic.Field(
         1e-3, ge=0, lt=1, description="Mask bins with (P11P22−|P12|²)/(P11P22) below this."
+    )
+    collinear: Literal["mask", "dominant"] = pydantic.Field(
+        "dominant",
+        description="Bins failing det_threshold (collinear inputs): 'mask' them (the C40) or solve them "
+        "along the dominant input direction (rank-1 minimum norm, see mimo.py); mode per bin in downloads.",
     )
     power_floor: float = pydantic.Field(
         1e-12, ge=0, description="Mask bins whose input power is below this × mean input power."
@@ -130,9 +171,13 @@ class IdentifierConfig(pydantic.BaseModel):
     min_peak_prominence_db: float = pydantic.Field(
         3.0, ge=0, description="Minimum prominence (dB, weighted magnitude) of a reported peak."
     )
-    damping_method: Literal["vrm", "fwhm"] = pydantic.Field(
-        "vrm", description="Which estimate PoleEstimate.damping_ratio reports (the other is the fallback)."
+    damping_method: Literal["vrm", "fwhm", "fit"] = pydantic.Field(
+        "vrm",
+        description="Which estimate PoleEstimate.damping_ratio reports: VRM, FWHM (each the other's "
+        "fallback) or 'fit': a rational-fraction fit of the averaged FRF over ±fit_band_hz "
+        "(dsp_service.ratfit; then frequency_hz is the fit's natural frequency; VRM, FWHM fall back).",
     )
+    fit_band_hz: float = pydantic.Field(1.0, gt=0, description="Half-width (Hz) of the band the 'fit' damping uses.")
     estimate_on_smoothed: bool = pydantic.Field(
         False,
         description="Refine peak frequency/magnitude and estimate damping on the smoothed "
@@ -155,10 +200,22 @@ class IdentifierConfig(pydantic.BaseModel):
         6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
     )
 
+    @pydantic.model_validator(mode="before")
+    @classmethod
+    def _profile(cls, data: object) -> object:
+        """``method='etfe-welch'`` fills its two settings unless they are given explicitly."""
+        if isinstance(data, dict) and data.get("method") == "etfe-welch":
+            return {"welch_segments": WELCH_PROFILE_SEGMENTS, "damping_method": "fit", **data}
+        return data
+
     @pydantic.model_validator(mode="after")
     def _check(self) -> IdentifierConfig:
         if self.fft_width % 2:
             raise ValueError("fft_width must be even")
+        if self.welch_segments > 1 and self.averaging == "rls":
+            raise ValueError("welch_segments > 1 averages spectra: not with averaging='rls'")
+        if self.welch_segments > 1 and ((2 * self.fft_width) // (self.welch_segments + 1)) % 2:
+            raise ValueError(f"{self.welch_segments} segments do not split N = {self.fft_width} into even halves")
         nyq = self.sample_rate_hz / 2.0
         if self.search_max_hz > nyq:
             raise ValueError(f"search_max_hz {self.search_max_hz} exceeds Nyquist {nyq}")
@@ -187,8 +244,10 @@ class PoleEstimate:
     natural_frequency_vrm_hz: float | None  #: VRM ω_n/2π
     magnitude: float  #: |H| at the refined peak
     prominence_db: float  #: prominence on the weighted magnitude
-    source: str  #: "tot", "11", "12", "21" or "22"
+    source: str  #: "tot", "11", "12", "21", "22" or "arx"
     damping_defined: bool = True  #: False when neither FWHM nor VRM gave a value (damping_ratio = 0.0)
+    confidence: float = 0.0  #: this pole's confidence in [0, 1] (module doc)
+    damping_fit: float | None = None  #: ζ of the rational-fraction fit (damping_method='fit'); None otherwise or if unphysical
 
 
 @dataclass(frozen=True)
@@ -213,26 +272,28 @@ class TransferFunctionEstimate:
     h22: NDArray[np.complex128]
     htot: NDArray[np.complex128]
     valid: NDArray[np.bool_]
+    #: per bin the solve used: 0 masked, 1 dominant input direction (collinear), 2 full 2×2 (mimo.MODE_*)
+    mode: NDArray[np.uint8] | None = None
 
     # the names used on the wire (TfSnapshot): H11 … Htot
     @property
-    def H11(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H11(self) -> NDArray[np.complex128]:
         return self.h11
 
     @property
-    def H12(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H12(self) -> NDArray[np.complex128]:
         return self.h12
 
     @property
-    def H21(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H21(self) -> NDArray[np.complex128]:
         return self.h21
 
     @property
-    def H22(self) -> NDArray[np.complex128]:  # noqa: N802
+    def H22(self) -> NDArray[np.complex128]:
         return self.h22
 
     @property
-    def Htot(self) -> NDArray[np.complex128]:  # noqa: N802
+    def Htot(self) -> NDArray[np.complex128]:
         return self.htot
 
 
@@ -254,7 +315,12 @@ class Identifier:
         c = self.cfg
         n = c.fft_width
         self.history = HistoryBuffer(n)
-        self._est = SpectralEstimator(n, c.sample_rate_hz, c.window)
+        if c.welch_segments > 1:
+            self._est: SpectralEstimator = SegmentedSpectralEstimator(n, c.sample_rate_hz, c.window, c.welch_segments)
+            self._seg_avgs = welch_equivalent_averages(c.welch_segments)
+        else:
+            self._est = SpectralEstimator(n, c.sample_rate_hz, c.window)
+            self._seg_avgs = 1.0
         k = self._est.n_bins
         self.freqs = self._est.freqs
         if c.averaging == "rls":
@@ -268,7 +334,7 @@ class Identifier:
         else:
             self._avg = SpectralAverager((7, k), n, c.averaging, c.alpha)
             self._rls = None
-        self._solver = MimoSolver(k, c.solver, c.det_threshold, c.power_floor)
+        self._solver = MimoSolver(k, c.solver, c.det_threshold, c.power_floor, c.collinear)
         self._smoother = FrequencySmoother(k, c.smoothing_window, c.smoothing_order)
         df = c.sample_rate_hz / n
         self._lo = max(1, math.ceil(c.search_min_hz / df - 1e-9))
@@ -308,6 +374,21 @@ class Identifier:
         self._all_valid_range = np.ones(n_range, dtype=bool)
         self._all_valid_range.flags.writeable = False
         self._pending = 0
+        self._arx: RecursiveArx | None = None
+        self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+        if c.method == "arx":
+            self._arx = RecursiveArx(
+                ArxConfig(
+                    sample_rate_hz=c.sample_rate_hz,
+                    na=c.arx_na,
+                    nb=c.arx_nb,
+                    forgetting=c.arx_forgetting,
+                    search_min_hz=c.search_min_hz,
+                    search_max_hz=c.search_max_hz,
+                    band_hz=(max(1.0, c.search_min_hz), min(30.0, 0.9 * c.sample_rate_hz / 2)),
+                    max_poles=c.max_peaks,
+                )
+            )
 
     def set_fft_width(self, n: int) -> None:
         """Change N: zeroes the history and every average (as on the C40)."""
@@ -326,6 +407,9 @@ class Identifier:
         """
         self.history.clear()
         self._pending = 0
+        self._arx_batches.clear()
+        if self._arx is not None:
+            self._arx.restart()
 
     def set_alpha(self, alpha: float) -> None:
         """Change the averaging weight α at run time without disturbing history or averages.
@@ -358,6 +442,8 @@ class Identifier:
         before = self.history.samples_seen
         self.history.append(inputs, outputs)
         self._pending += self.history.samples_seen - before
+        if self._arx is not None:
+            self._arx_batches.append((np.asarray(inputs, dtype=np.float64), np.asarray(outputs, dtype=np.float64)))
 
     @property
     def samples_in_history(self) -> int:
@@ -365,6 +451,43 @@ class Identifier:
 
     # ----------------------------------------------------------------- step
     def step(self) -> IdentificationResult:
+        """One iteration: the ETFE's (below), with ``method='arx'`` the ARX model's poles instead."""
+        result = self._step_etfe()
+        if self._arx is None:
+            return result
+        arx = self._arx
+        for u, y in self._arx_batches:
+            arx.update(u, y)
+        self._arx_batches.clear()
+        fill = arx.fill
+        poles = tuple(
+            PoleEstimate(
+                frequency_hz=p.frequency_hz,
+                damping_ratio=p.damping_ratio,
+                damping_fwhm=None,
+                damping_vrm=None,
+                natural_frequency_vrm_hz=None,
+                magnitude=p.strength,
+                prominence_db=20.0 * math.log10(max(p.relative_strength, 1e-12)),
+                source="arx",
+                confidence=fill * p.relative_strength,
+            )
+            for p in arx.poles()
+        )
+        return IdentificationResult(
+            poles=poles,
+            confidence=fill if poles else 0.0,
+            valid_fraction=result.valid_fraction,
+            samples_in_history=result.samples_in_history,
+            effective_averages=result.effective_averages,
+        )
+
+    @property
+    def arx(self) -> RecursiveArx | None:
+        """The recursive ARX model (``method='arx'``), else None."""
+        return self._arx
+
+    def _step_etfe(self) -> IdentificationResult:
         """One C40 iteration on the current history (see module doc).
 
         With an empty history (nothing pushed since the last reset), or with
@@ -406,7 +529,7 @@ class Identifier:
         else:
             vs = self._smoother.valid_range(solver.valid, lo, hi)
             n_valid = int(np.count_nonzero(vs))
-        n_eff = avg.effective_averages
+        n_eff = self.effective_averages
         peaks = self._find_peaks(hs, vs, n_valid)
         if not peaks:
             poles: tuple[PoleEstimate, ...] = ()
@@ -420,8 +543,13 @@ class Identifier:
         fill = in_history / hist.n
         conf = 0.0
         if peaks and n_eff > 1.0:
+            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
             prom = peaks[0][1]
-            conf = valid_fraction * (1.0 - 1.0 / n_eff) * fill * prom / (prom + c.confidence_prominence_db)
+            conf = base * prom / (prom + c.confidence_prominence_db)
+            poles = tuple(
+                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
+                for p in poles
+            )
         return IdentificationResult(
             poles=poles,
             confidence=float(min(1.0, max(0.0, conf))),
@@ -568,13 +696,20 @@ class Identifier:
             )
             for i, v in zip(todo, found):
                 vrms[i] = v
-        vrm_first = c.damping_method == "vrm"
+        vrm_first = c.damping_method in ("vrm", "fit")
         source = c.peak_source
         poles = []
-        for (prom, _, f_peak, m_peak, zeta_fwhm, _, _), vrm in zip(located, vrms):
+        for (prom, k_loc, f_peak, m_peak, zeta_fwhm, _, ok), vrm in zip(located, vrms):
             zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
+            zeta_fit = None
+            if c.damping_method == "fit" and ok:
+                band = np.abs(fd - f_peak) <= c.fit_band_hz
+                fit = fit_mode(fd[band], hd[band], None if vmask is None else vd[band].astype(np.float64)[None, :])
+                if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz:
+                    f_peak, zeta_fit = fit
+                    chosen = zeta_fit
             poles.append(
                 PoleEstimate(
                     frequency_hz=f_peak,
@@ -586,6 +721,7 @@ class Identifier:
                     prominence_db=prom,
                     source=source,
                     damping_defined=chosen is not None,
+                    damping_fit=zeta_fit,
                 )
             )
         return tuple(poles)
@@ -607,11 +743,13 @@ class Identifier:
         else:
             Hv, vv = self._solver.solve(self._avg.state)
             H, valid = Hv.copy(), vv.copy()
+        mode = (self._solver.mode if self._rls is None and self._avg.updates else valid * np.uint8(2)).copy()
         if smoothed:
             sm = self._smoother
             H = sm.smooth(H)
             valid = sm.valid(valid)
             H *= valid
+        mode *= valid
         htot = H.mean(axis=0)
         return TransferFunctionEstimate(
             freqs_hz=_readonly(self.freqs.copy()),
@@ -621,6 +759,7 @@ class Identifier:
             h22=_readonly(H[3]),
             htot=_readonly(htot),
             valid=_readonly(valid),
+            mode=_readonly(mode.astype(np.uint8)),
         )
 
     def spectra(self, scaling: Literal["density", "spectrum", "raw"] = "density") -> dict[str, NDArray[np.complex128]]:
@@ -638,4 +777,10 @@ class Identifier:
 
     @property
     def effective_averages(self) -> float:
+        """Independent averages the spectra hold (see :class:`.spectra.SpectralAverager`; with
+        ``welch_segments`` > 1 each snapshot counts its segments)."""
+        if self._seg_avgs > 1.0:
+            est = self._est
+            assert isinstance(est, SegmentedSpectralEstimator)
+            return self._avg.segmented_effective_averages(est.segment_length, self._seg_avgs)
         return self._avg.effective_averages

@@ -21,6 +21,24 @@ set to exactly 0 and flagged in the mask. A single snapshot has ``γ² = 1``
 at every bin, hence a zero determinant: everything is masked until the
 averaged spectra hold independent data.
 
+Collinear inputs (``collinear='dominant'``, the default of the identifier):
+a bin whose normalised determinant is below ``det_threshold`` but whose
+total input power clears the floor is not masked but solved in the
+minimum-norm sense. With ``P = [[P11, P12], [P21, P22]]`` (Hermitian,
+``P_ai = E[U_a* U_i]``) and ``r_j = [P1yj, P2yj]`` the normal equations are
+``P h_j = r_j`` (``h_j = [H1j, H2j]``); the rank-1 pseudo-inverse keeps the
+dominant eigenpair ``(σ₁, v)`` of ``P`` only::
+
+    h_j = v (vᴴ r_j) / σ₁
+
+which is what the data identify: the response along the dominant input
+direction (for ``u2 = G u1``, ``v ∝ [1, conj G]`` and ``U1 H1j + U2 H2j``
+is reproduced exactly), the per-input estimate ``H_1j = P1yj / P11`` when
+input 1 dominates (``v → [1, 0]``), and the exact ``H_tot`` when the two
+inputs move together (``v = [1, 1]/√2``). :attr:`MimoSolver.mode` says per
+bin which solve was used: :data:`MODE_FULL`, :data:`MODE_DOMINANT` or
+:data:`MODE_NONE` (masked: silent).
+
 The module also holds the per-bin recursive least-squares estimators
 (TTFE, [1-9, 1-10], [D.15–D.29]) selectable instead of spectral averaging.
 """
@@ -30,13 +48,16 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .spectra import P11, P12, P1Y1, P1Y2, P22, P2Y1, P2Y2
+from .spectra import P1Y1, P1Y2, P2Y1, P2Y2, P11, P12, P22
 
 #: Row order of transfer-function arrays ``(4, K)``.
 H11, H12, H21, H22 = range(4)
 H_NAMES: tuple[str, ...] = ("11", "12", "21", "22")
 
 _TINY = float(np.finfo(np.float64).tiny)
+
+#: Per-bin solve used (:attr:`MimoSolver.mode`): masked, dominant direction (rank 1), full 2×2.
+MODE_NONE, MODE_DOMINANT, MODE_FULL = 0, 1, 2
 
 
 def normalised_determinant(S: NDArray[np.complex128]) -> NDArray[np.float64]:
@@ -66,10 +87,14 @@ class MimoSolver:
         solver: str = "mimo",
         det_threshold: float = 1e-3,
         power_floor: float = 1e-12,
+        collinear: str = "mask",
     ) -> None:
         if solver not in ("mimo", "uncorrelated"):
             raise ValueError(f"unknown solver {solver!r}")
+        if collinear not in ("mask", "dominant"):
+            raise ValueError(f"unknown collinear handling {collinear!r}")
         self.solver = solver
+        self.collinear = collinear
         self.det_threshold = float(det_threshold)
         self.power_floor = float(power_floor)
         k = int(n_bins)
@@ -77,6 +102,7 @@ class MimoSolver:
         self.H = np.zeros((4, k), dtype=np.complex128)
         self.source = np.zeros(k, dtype=np.complex128)
         self.valid = np.zeros(k, dtype=bool)
+        self.mode = np.zeros(k, dtype=np.uint8)  #: per bin: MODE_NONE, MODE_DOMINANT or MODE_FULL
         self._b1 = np.empty(k, dtype=bool)
         self._r1 = np.empty(k)
         self._r2 = np.empty(k)
@@ -102,6 +128,7 @@ class MimoSolver:
         p22_all = S[P22].real
         mean_power = float(np.add.reduce(p11_all) + np.add.reduce(p22_all)) / (2 * self.n_bins)
         floor = self.power_floor * mean_power + _TINY
+        self._floor = floor
         p11, p22 = p11_all[sl], p22_all[sl]
         valid = np.greater(p11, floor, out=self.valid[sl])
         b1 = self._b1[sl]
@@ -140,6 +167,7 @@ class MimoSolver:
         if self.solver == "uncorrelated":
             np.multiply(S[P1Y1 : P1Y2 + 1, sl], inv, out=H[H11 : H12 + 1])
             np.multiply(S[P2Y1:, sl], self._inv2[sl], out=H[H21:])
+            np.multiply(valid, MODE_FULL, out=self.mode[sl], casting="unsafe")
             return H, valid
         c2 = self._c2[:, sl]
         p12 = S[P12, sl]
@@ -153,6 +181,7 @@ class MimoSolver:
         np.multiply(S[P1Y1 : P1Y2 + 1, sl], p21, out=c2)
         np.subtract(H[H21:], c2, out=H[H21:])
         H *= inv  # invalid bins: inv = 0 → H = 0 exactly
+        self._dominant(S, sl, valid, H=H)
         return H, valid
 
     def solve_source(
@@ -237,6 +266,7 @@ class MimoSolver:
         sum11, sum22 = np.add.reduce(pp_all, axis=1).tolist()
         mean_power = (sum11 + sum22) / (2 * self.n_bins)
         floor = self.power_floor * mean_power + _TINY
+        self._floor = floor
         p11, p22 = pp[0], pp[1]
         np.multiply(p11, p22, out=prod)
         np.abs(p12, out=det)
@@ -261,14 +291,65 @@ class MimoSolver:
         ab *= d
         np.add(ab[0], ab[1], out=out)
         out *= inv4  # invalid bins: 0
+        if self.collinear == "dominant" and self.valid_count < valid.size:
+            self.valid_count += self._dominant(S, sl, valid, tot=out)
+        else:
+            self.mode[sl] = valid
+            self.mode[sl] *= MODE_FULL
         return out, valid
+
+    def _dominant(
+        self,
+        S: NDArray[np.complex128],
+        sl: slice,
+        valid: NDArray[np.bool_],
+        H: NDArray[np.complex128] | None = None,
+        tot: NDArray[np.complex128] | None = None,
+    ) -> int:
+        """Rank-1 (minimum-norm) solve on the bins of ``sl`` the full solve masked as collinear.
+
+        Sets :attr:`mode` on ``sl``; with ``collinear='dominant'`` writes
+        ``h_j = v (vᴴ r_j)/σ₁`` (module doc) into ``H`` (rows on ``sl``) and/or
+        ``H_tot`` into ``tot``, marks those bins valid and returns their count.
+        Only the (usually few) collinear bins are touched, by index.
+        """
+        mode = self.mode[sl]
+        np.multiply(valid, MODE_FULL, out=mode, casting="unsafe")
+        if self.collinear != "dominant" or self.solver != "mimo":
+            return 0
+        p11, p22 = S[P11, sl].real, S[P22, sl].real
+        idx = np.flatnonzero(~valid & (p11 + p22 > self._floor))
+        if idx.size == 0:
+            return 0
+        a, d, b = p11[idx], p22[idx], S[P12, sl][idx]
+        half = 0.5 * (a - d)
+        disc = np.sqrt(half * half + (b.real * b.real + b.imag * b.imag))
+        sigma = 0.5 * (a + d) + disc  # the larger eigenvalue of [[a, b], [conj b, d]]
+        # eigenvector of σ: (σ − d, conj b) when a ≥ d, else (b, σ − a) (the better-conditioned form)
+        first = a >= d
+        v1 = np.where(first, sigma - d, b)
+        v2 = np.where(first, np.conj(b), sigma - a)
+        norm = np.sqrt(np.abs(v1) ** 2 + np.abs(v2) ** 2)
+        v1 = v1 / norm
+        v2 = v2 / norm
+        r1 = S[P1Y1 : P1Y2 + 1, sl][:, idx]  # rows P1y1, P1y2
+        r2 = S[P2Y1 : P2Y2 + 1, sl][:, idx]  # rows P2y1, P2y2
+        c = (np.conj(v1) * r1 + np.conj(v2) * r2) / sigma  # vᴴ r_j / σ₁, rows j = 1, 2
+        if H is not None:
+            H[H11 : H12 + 1, idx] = v1 * c  # H1j
+            H[H21 : H22 + 1, idx] = v2 * c  # H2j
+        if tot is not None:
+            tot[idx] = 0.25 * (v1 + v2) * (c[0] + c[1])
+        valid[idx] = True
+        mode[idx] = MODE_DOMINANT
+        return int(idx.size)
 
 
 def solve_mimo(
-    S: NDArray[np.complex128], det_threshold: float = 1e-3, power_floor: float = 1e-12
+    S: NDArray[np.complex128], det_threshold: float = 1e-3, power_floor: float = 1e-12, collinear: str = "mask"
 ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
     """Corrected MIMO solve [2-21 … 2-24] (copy of the result; see :class:`MimoSolver`)."""
-    solver = MimoSolver(S.shape[-1], "mimo", det_threshold, power_floor)
+    solver = MimoSolver(S.shape[-1], "mimo", det_threshold, power_floor, collinear)
     H, valid = solver.solve(S)
     return H.copy(), valid.copy()
 

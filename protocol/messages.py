@@ -62,20 +62,38 @@ class PoleParameters(BaseModel):
     frequency_hz: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
     damping_ratio: Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
     magnitude: NonNegFloat = 0.0
-    source: str = Field(default="tot", description="Transfer function the peak was found on: tot, 11, 12, 21, 22")
+    source: str = Field(default="tot", description="Transfer function the peak was found on: tot, 11, 12, 21, 22, or arx (the parametric model)")
+    confidence: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = Field(
+        None, description="This pole's confidence (interrupt version 2); None: the interrupt's confidence applies"
+    )
+
+
+INTERRUPT_VERSION = 2
+"""Version 1: poles without confidence (the first pole was the one used). Version 2: every confident
+pole, first mode first, each with its own ``confidence``; decoders read version 1 payloads too."""
 
 
 class Interrupt(Message):
-    """The DSP's interrupt after processing a batch (Fig. 3.5 step 4)."""
+    """The DSP's interrupt after processing a batch (Fig. 3.5 step 4).
 
+    ``poles``: every confident pole, the first mode first (version 2).
+    """
+
+    version: Literal[1, 2] = INTERRUPT_VERSION
     batch_seq: Seq
-    poles: tuple[PoleParameters, ...] = ()
+    poles: tuple[PoleParameters, ...] = Field((), max_length=16)
     confidence: Annotated[float, Field(ge=0.0, le=1.0)]
     compute_time_s: NonNegFloat = Field(description="Measured wall time of the identification step")
     emulated_latency_s: NonNegFloat = Field(default=0.0, description="C40 compute latency emulated on top")
     samples_in_history: Annotated[int, Field(ge=0)] = 0
     valid_fraction: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
     deadline_missed: bool = False
+
+    @model_validator(mode="after")
+    def _pole_confidence_versioned(self) -> "Interrupt":
+        if self.version == 1 and any(p.confidence is not None for p in self.poles):
+            raise ValueError("a version-1 interrupt carries no per-pole confidence")
+        return self
 
 
 class ConfigChange(Message):

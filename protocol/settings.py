@@ -104,6 +104,8 @@ class ControllerSettings(CommonSettings):
     inject_stall_at_s: float | None = Field(None, ge=0, description="Fault injection: freeze the loop at this simulated time...")
     inject_stall_s: float = Field(0.0, ge=0, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
     inject_sync_drop_every: int = Field(0, ge=0, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
+    oatf_max_stages: int = Field(1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis")
+    oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
     oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
 
     @field_validator("oatf_band_hz", mode="before")
@@ -126,6 +128,7 @@ class DspSettings(CommonSettings):
     batch_size: int = Field(30, ge=1, le=4096, description="Expected batch size l (sets the default compute budget; any size is accepted)")
     alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
+    identifier: Literal["etfe", "etfe-welch", "arx"] = Field("etfe", description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, or the recursive QR-form ARX model (see docs/identification.md)")
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
     smoothing_window: int = Field(17, ge=0, description="Savitzky-Golay window in bins (0 = off)")
     smoothing_order: int = Field(2, ge=0, description="Savitzky-Golay polynomial order")

@@ -60,7 +60,7 @@ def test_single_snapshot_is_singular_and_fully_masked(averaging: str) -> None:
     """One snapshot: P11 P22 − |P12|² = 0 at every bin, so the MIMO solve is undefined."""
     rng = np.random.default_rng(3)
     u, y = rng.standard_normal((2, N)), rng.standard_normal((2, N))
-    idf = Identifier(IdentifierConfig(averaging=averaging, **SMALL))
+    idf = Identifier(IdentifierConfig(averaging=averaging, collinear="mask", **SMALL))
     idf.push(u, y)
     with np.errstate(divide="raise", invalid="raise", over="raise"):
         result = idf.step()
@@ -96,7 +96,7 @@ def test_one_silent_input(averaging: str) -> None:
     rng = np.random.default_rng(6)
     u = np.vstack([rng.standard_normal(6 * N), np.zeros(6 * N)])
     y = rng.standard_normal((2, 6 * N))
-    idf = Identifier(IdentifierConfig(averaging=averaging, **SMALL))
+    idf = Identifier(IdentifierConfig(averaging=averaging, collinear="mask", **SMALL))
     result = _steps(idf, u, y, N // 4)
     assert result.valid_fraction == 0.0 and result.confidence == 0.0
     assert not idf.transfer_functions().valid.any()
@@ -107,7 +107,7 @@ def test_identical_inputs_are_collinear_and_masked() -> None:
     w = rng.standard_normal(6 * N)
     u = np.vstack([w, 2.0 * w])
     y = rng.standard_normal((2, 6 * N))
-    result = _steps(Identifier(IdentifierConfig(**SMALL)), u, y, N // 2)
+    result = _steps(Identifier(IdentifierConfig(collinear="mask", **SMALL)), u, y, N // 2)
     assert result.valid_fraction == 0.0 and result.confidence == 0.0
 
 

@@ -48,9 +48,16 @@ from typing import Any
 import numpy as np
 
 from controller.trajectory import WaypointTrajectory, sample_trajectory
+from dsp_service.identifier import IdentifierConfig
 from plant_emulator.model.modes import modal_parameters
 from rig.experiments.framework import ExperimentContext, experiment
-from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, centred_median, run_rigs
+from rig.experiments.onrig.runner import (
+    THESIS_BATCH_SIZE,
+    RigResult,
+    RigRun,
+    centred_median,
+    run_rigs,
+)
 from rig.experiments.report import Report, new_figure
 
 FS_HZ = 200.0
@@ -63,10 +70,16 @@ QUICK_DURATION_S = 26.0
 TOLERANCE = 0.02
 HOLD_S = 2.0
 MEDIAN_HALF_S = 1.0
-SETTINGS: tuple[tuple[int, float], ...] = ((2048, 0.1), (2048, 0.5), (1024, 0.1), (1024, 0.05), (512, 0.05), (512, 0.02))
-"""(N, α); the first is the thesis's."""
-THESIS_SETTING = (2048, 0.1)
-QUICK_SETTINGS: tuple[tuple[int, float], ...] = ((1024, 0.05),)
+SETTINGS: tuple[tuple[int, float, str], ...] = (
+    (2048, 0.1, "etfe"), (2048, 0.5, "etfe"), (1024, 0.1, "etfe"), (1024, 0.05, "etfe"), (512, 0.05, "etfe"), (512, 0.02, "etfe"),
+    (2048, 0.1, "etfe-welch"), (1024, 0.1, "etfe-welch"),
+    (2048, 0.1, "arx"),
+)
+"""(N, α, identifier); the first is the thesis's; ``arx``: the recursive ARX model's poles (N, α then only shape the downloads)."""
+THESIS_SETTING = (2048, 0.1, "etfe")
+QUICK_SETTINGS: tuple[tuple[int, float, str], ...] = ((1024, 0.05, "etfe"),)
+ARX_FORGETTING = IdentifierConfig().arx_forgetting
+"""The ARX identifier's forgetting factor per sample (its default; memory 1/(1 − λ) samples)."""
 
 # the small loop: a corner of the inspection loop and its bottom edge's direction
 _START = (-19.437, 196.612)
@@ -123,7 +136,7 @@ def event_delays(t: np.ndarray, f: np.ndarray, true1: np.ndarray, tm: np.ndarray
     dt = float(tm[1] - tm[0])
     hold = int(round(HOLD_S / dt))
     settle = math.inf
-    for k in range(0, max(0, inside.size - hold)):
+    for k in range(max(0, inside.size - hold)):
         if inside[k : k + hold + 1].all():
             settle = float(tw[k] - at_s)
             break
@@ -181,8 +194,18 @@ def step_delays(res: RigResult, events_s: list[float], tolerance: float = TOLERA
     }
 
 
-def _name(n: int, alpha: float) -> str:
-    return f"n{n}_a{alpha:g}".replace(".", "p")
+def _name(n: int, alpha: float, method: str = "etfe") -> str:
+    if method == "arx":
+        return method
+    base = f"n{n}_a{alpha:g}".replace(".", "p")
+    return base if method == "etfe" else f"{base}_{method.replace('-', '_')}"
+
+
+def _label(d: dict[str, Any]) -> str:
+    if d.get("identifier", "etfe") == "arx":
+        return f"ARX (λ {ARX_FORGETTING:g}/sample)"
+    suffix = "" if d.get("identifier", "etfe") == "etfe" else f", {d['identifier']}"
+    return f"N = {d['fft_width']}, α = {d['alpha']:g}{suffix}"
 
 
 @experiment(
@@ -208,20 +231,20 @@ def run(ctx: ExperimentContext) -> Report:
     scenario = json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(events)])
     specs = [
         RigRun(
-            _name(n, a),
+            _name(n, a, m),
             controller={"duration_s": duration, "tip_speed_in_s": SPEED, "trajectory": str(traj_path), "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, "oatf_mode": "off"},
             plant={"payload_attached": True, "scenario": scenario, "seed": seed},
-            dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing_window": smoothing_window(n)},
-            label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins",
+            dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing_window": smoothing_window(n), "identifier": m},
+            label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" + ("" if m == "etfe" else f", {m}") if m != "arx" else f"recursive ARX, λ = {ARX_FORGETTING:g} per sample, l = {THESIS_BATCH_SIZE}",
         )
-        for n, a in settings
+        for n, a, m in settings
     ]
     runs = run_rigs(ctx, specs, in_process=quick, description="id-lag runs")
     rows_data: dict[str, dict[str, Any]] = {}
-    for (n, a), r in zip(settings, runs):
+    for (n, a, m), r in zip(settings, runs):
         d = step_delays(r, events)
-        d.update({"fft_width": n, "alpha": a, "batch_size": THESIS_BATCH_SIZE, "smoothing_window": smoothing_window(n), "window_s": n / FS_HZ, "averaging_span_s": (n + THESIS_BATCH_SIZE * (1 / a - 1)) / FS_HZ, "run": r.summary()})
-        rows_data[_name(n, a)] = d
+        d.update({"identifier": m, "fft_width": n, "alpha": a, "batch_size": THESIS_BATCH_SIZE, "smoothing_window": smoothing_window(n), "window_s": n / FS_HZ, "averaging_span_s": (n + THESIS_BATCH_SIZE * (1 / a - 1)) / FS_HZ, "run": r.summary()})
+        rows_data[_name(n, a, m)] = d
     thesis_key = _name(*THESIS_SETTING) if THESIS_SETTING in settings else _name(*settings[0])
     complete = {k: v for k, v in rows_data.items() if v["settled_events"] == len(events)}
     best_key = min(complete, key=lambda k: (complete[k]["median_settle_2pct_s"], complete[k]["median_rel_error_end"])) if complete else None
@@ -254,7 +277,7 @@ def run(ctx: ExperimentContext) -> Report:
     rows = []
     for k, d in rows_data.items():
         rows.append([
-            f"N = {d['fft_width']}, α = {d['alpha']:g}" + (" (thesis)" if (d["fft_width"], d["alpha"]) == THESIS_SETTING else "") + (" **best**" if k == best_key else ""),
+            _label(d) + (" (thesis)" if (d["fft_width"], d["alpha"], d["identifier"]) == THESIS_SETTING else "") + (" **best**" if k == best_key else ""),
             d["window_s"], d["averaging_span_s"], d["first_estimate_s"],
             f"{d['settled_events']}/{len(events)}", d["median_settle_2pct_s"], d["max_settle_2pct_s"], d["median_delay_50pct_s"],
             100 * d["median_rel_error_end"], d["median_confidence"],
@@ -268,7 +291,7 @@ def run(ctx: ExperimentContext) -> Report:
     ev_rows = []
     for k, d in rows_data.items():
         for e in d["events"]:
-            ev_rows.append([f"N = {d['fft_width']}, α = {d['alpha']:g}", e["at_s"], e["kind"], e["step_pct"], e["settle_2pct_s"], e["delay_50pct_s"], e["first_raw_in_band_s"], 100 * e["median_rel_error_before"]])
+            ev_rows.append([_label(d), e["at_s"], e["kind"], e["step_pct"], e["settle_2pct_s"], e["delay_50pct_s"], e["first_raw_in_band_s"], 100 * e["median_rel_error_before"]])
     rep.table(
         ["setting", "event (s)", "payload", "true step (%)", "delay to 2 % (s)", "delay to 50 % (s)", "first raw estimate in band (s)", "error before (%)"],
         ev_rows,
@@ -297,7 +320,7 @@ def run(ctx: ExperimentContext) -> Report:
     else:
         rep.check("delay to 2 %: finite and positive for every event, for at least one setting", False, "no setting settled within 2 % after every event")
     if not quick:
-        faster = [k for k, d in rows_data.items() if d["fft_width"] < 2048 and d["median_settle_2pct_s"] < th["median_settle_2pct_s"]]
+        faster = [k for k, d in rows_data.items() if d["identifier"] == "etfe" and d["fft_width"] < 2048 and d["median_settle_2pct_s"] < th["median_settle_2pct_s"]]
         rep.check(
             "a shorter history tracks faster: some N < 2048 settles sooner (median) than the thesis's setting",
             bool(faster),
@@ -311,10 +334,10 @@ def run(ctx: ExperimentContext) -> Report:
         )
         if best_key is not None:
             b = rows_data[best_key]
-            big_alpha = [d for d in rows_data.values() if d["fft_width"] == 2048 and d["alpha"] > THESIS_SETTING[1]]
+            big_alpha = [d for d in rows_data.values() if d["identifier"] == "etfe" and d["fft_width"] == 2048 and d["alpha"] > THESIS_SETTING[1]]
             rep.thesis(
                 "Future work (§5.3): measure the identifier's delay precisely with a discontinuous change; find settings that track faster.",
-                f"Best setting found: N = {b['fft_width']}, α = {b['alpha']:g}: {b['median_settle_2pct_s']:.1f} s to 2 % (thesis's {th['median_settle_2pct_s']:.1f} s), "
+                f"Best setting found: {_label(b)}: {b['median_settle_2pct_s']:.1f} s to 2 % (thesis's {th['median_settle_2pct_s']:.1f} s), "
                 f"{b['median_delay_50pct_s']:.1f} s to 50 % (thesis's {th['median_delay_50pct_s']:.1f} s), error at the end {100 * b['median_rel_error_end']:.1f} % "
                 f"(thesis's {100 * th['median_rel_error_end']:.1f} %), median confidence {b['median_confidence']:.2f} ({th['median_confidence']:.2f}). "
                 + (
@@ -342,8 +365,8 @@ def run(ctx: ExperimentContext) -> Report:
 def _tracks_figure(runs: list[RigResult], rows: dict, settings, events: list[float]):  # type: ignore[no-untyped-def]
     fig = new_figure(11.0, 2.1 * len(runs) + 0.6)
     axes = np.atleast_1d(fig.subplots(len(runs), 1, sharex=True))
-    for ax, (n, a), r in zip(axes, settings, runs):
-        d = rows[_name(n, a)]
+    for ax, (n, a, m), r in zip(axes, settings, runs):
+        d = rows[_name(n, a, m)]
         t = r.t_s
         true1 = r.true_mode_hz(t, 0)
         ax.fill_between(t, true1 * (1 - TOLERANCE), true1 * (1 + TOLERANCE), color="0.85", lw=0)
@@ -354,7 +377,7 @@ def _tracks_figure(runs: list[RigResult], rows: dict, settings, events: list[flo
             ax.axvline(e, color="k", ls=":", lw=0.8)
         ax.set_ylim(true1.min() * 0.85, true1.max() * 1.15)
         ax.set_ylabel("Hz")
-        ax.set_title(f"N = {n}, α = {a:g}: delay to 2 % " + ", ".join(f"{e['settle_2pct_s']:.1f}" for e in d["events"]) + " s; to 50 % " + ", ".join(f"{e['delay_50pct_s']:.1f}" for e in d["events"]) + " s", fontsize=8)
+        ax.set_title(f"{_label(d)}: delay to 2 % " + ", ".join(f"{e['settle_2pct_s']:.1f}" for e in d["events"]) + " s; to 50 % " + ", ".join(f"{e['delay_50pct_s']:.1f}" for e in d["events"]) + " s", fontsize=8)
         ax.grid(True, lw=0.3)
     axes[-1].set_xlabel("time (s)")
     return fig
@@ -373,7 +396,7 @@ def _delay_figure(rows: dict, n_events: int):  # type: ignore[no-untyped-def]
         if not math.isfinite(d2[i]):
             ax1.annotate("∞", (i - 0.2, 0), ha="center", va="bottom")
         ax1.annotate(f"{rows[k]['settled_events']}/{n_events}", (i - 0.2, 0), xytext=(0, -22), textcoords="offset points", ha="center", fontsize=6)
-    labels = [f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"]) == THESIS_SETTING else "") for k in keys]
+    labels = [(f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" + ("" if rows[k]["identifier"] == "etfe" else "\nWelch+fit") if rows[k]["identifier"] != "arx" else "ARX") + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "") for k in keys]
     ax1.set_xticks(x, labels, fontsize=7)
     ax1.set_ylabel("delay after the event (s)")
     ax1.legend(fontsize=7)

@@ -22,7 +22,7 @@ recomputed off line from the record with SciPy only:
   P11, P12, P1y1, P1y2, P22, P2y1, P2y2;
 * exponential averaging as [2-9] over those snapshots: weight ``(1 − α)^(K−k)``
   on snapshot ``k`` of ``K``, normalised by the sum of the weights;
-* the corrected 2×2 solve (P21 = conj(P12), see ``docs/identification.md``);
+* the corrected 2×2 solve (P21 = conj(P12), see ``docs/identification-pitfalls.md``);
 * Savitzky–Golay smoothing across frequency, ``scipy.signal.savgol_filter``
   (17 bins, order 2, ``mode='interp'``) of the real and imaginary parts;
   ``H_tot`` = the mean of the four smoothed estimates;
@@ -69,6 +69,8 @@ BT_EXTRA = 200
 PEAK_BAND_HZ = (1.0, 12.0)
 ROUGH_BAND_HZ = (1.0, 20.0)
 POLE_TOLERANCE_HZ = 0.5
+COLLINEAR_DET = 1e-3
+"""The DSP's det_threshold: below it a bin is solved along the dominant input direction (docs/identification.md)."""
 
 
 # --------------------------------------------------------------------------- the off-line computations
@@ -91,7 +93,7 @@ def solve_2x2(s: np.ndarray) -> np.ndarray:
     p21 = np.conj(p12)
     det = p11 * p22 - np.abs(p12) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.array(
+        h = np.array(
             [
                 (p1y1 * p22 - p12 * p2y1) / det,
                 (p1y2 * p22 - p12 * p2y2) / det,
@@ -99,6 +101,20 @@ def solve_2x2(s: np.ndarray) -> np.ndarray:
                 (p2y2 * p11 - p21 * p1y2) / det,
             ]
         )
+        # collinear bins (normalised determinant below the DSP's 1e-3): the DSP solves them along the
+        # dominant input direction, h_j = v (v^H r_j) / sigma_1; recomputed here with numpy's eigh
+        pr = (p11 * p22).real
+        col = np.flatnonzero((det.real < COLLINEAR_DET * pr) & ((p11 + p22).real > 0))
+    if col.size:
+        P = np.empty((col.size, 2, 2), dtype=complex)
+        P[:, 0, 0], P[:, 0, 1], P[:, 1, 0], P[:, 1, 1] = p11[col], p12[col], p21[col], p22[col]
+        w, V = np.linalg.eigh(P)
+        v, sig = V[:, :, 1], w[:, 1]
+        for j, (r1, r2) in enumerate(((p1y1, p2y1), (p1y2, p2y2))):
+            c = (np.conj(v[:, 0]) * r1[col] + np.conj(v[:, 1]) * r2[col]) / sig
+            h[j, col] = v[:, 0] * c  # H1j
+            h[2 + j, col] = v[:, 1] * c  # H2j
+    return h
 
 
 def offline_estimate(channels: np.ndarray, ends: np.ndarray, n: int, alpha: float) -> tuple[np.ndarray, np.ndarray, int]:

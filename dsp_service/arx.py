@@ -1,0 +1,266 @@
+"""A fast recursive parametric identifier: 2-input 2-output ARX with a common denominator, in QR form.
+
+The thesis chose the ETFE because an iterative estimator's compute could not
+be bounded per batch (§2.2, §5.3). This one keeps that promise: one batch of
+``l`` samples costs one Householder QR of a ``(2p + 1 + 2l) × (p + 1)``
+matrix (``p`` parameters), whatever the data.
+
+Model (equation error, shared denominator: the modes are the plant's, common to
+all four transfer functions)::
+
+    A(q) y_j(t) = B_1j(q) u_1(t) + B_2j(q) u_2(t) + e_j(t),   j = 1, 2
+    A(q) = 1 + a_1 q⁻¹ + … + a_na q⁻ⁿᵃ,   B_ij(q) = b_ij,1 q⁻¹ + … + b_ij,nb q⁻ⁿᵇ
+
+so ``θ = [a, b_11, b_21, b_12, b_22]`` (``p = na + 4 nb``) and every sample
+gives two regression rows (one per output) sharing ``a``.
+
+Recursion (square-root information filter with exponential forgetting
+``λ`` per sample): the upper-triangular ``R`` of the weighted, augmented data
+matrix ``[Φ | y]`` is updated by one QR of
+
+    [ λ^(l/2) R                           ]
+    [ λ^((l−1−s)/2) [φ_s | y_s], s < l     ]
+    [ (δ (1 − λ^l))^(1/2) [I_p | 0]        ]
+
+The last block keeps a constant ridge ``δ`` (the information never decays
+below ``δ I``: a silent or collinear input cannot make ``R`` singular).
+Orthogonal transformations only, no covariance matrix propagated: the
+round-off of plain RLS's ``P`` update (which loses symmetry and positive
+definiteness over ~10⁵ iterations, as the thesis warns) cannot build up;
+``θ`` is a back-substitution on ``R``. The result equals the batch
+exponentially weighted ridge least squares (tested against ``numpy.linalg.lstsq``).
+
+Before the regression every channel goes through the same band-pass
+(``scipy.signal`` Butterworth, state carried across batches): the same LTI
+filter on inputs and outputs leaves ``B/A`` unchanged and concentrates the
+equation error in the band of the modes (the trajectory's slow motion
+would otherwise dominate). Channels are divided by scales fixed from the
+first batch with signal (the ridge is then relative).
+
+Poles: the roots ``z_k`` of ``A``, ``s_k = f_s ln z_k``, ``f_n = |s|/2π``,
+``ζ = −Re s/|s|``; kept when in the search band, stable, with
+``0 < ζ < max_damping``. A pole's strength is its modal peak in the four
+transfer functions, ``√(Σ_ij |r_ij,k|²) / (1 − |z_k|)`` with ``r_ij,k`` the
+residue of ``B_ij/A`` at ``z_k``; poles weaker than ``min_relative_strength``
+of the strongest are dropped (the extra poles of an over-parametrised ``A``
+model noise, not modes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pydantic
+import scipy.linalg
+import scipy.signal
+from numpy.typing import NDArray
+
+
+class ArxConfig(pydantic.BaseModel):
+    """Parameters of :class:`RecursiveArx` (validated, immutable)."""
+
+    model_config = pydantic.ConfigDict(frozen=True, extra="forbid")
+
+    sample_rate_hz: float = pydantic.Field(200.0, gt=0)
+    na: int = pydantic.Field(16, ge=2, le=40, description="Order of the common denominator A.")
+    nb: int = pydantic.Field(12, ge=1, le=40, description="Order of each numerator B_ij.")
+    forgetting: float = pydantic.Field(
+        0.995, gt=0.5, le=1.0, description="Forgetting factor λ per sample (memory ≈ 1/(1 − λ) samples)."
+    )
+    ridge: float = pydantic.Field(1e-4, gt=0, description="Constant ridge δ on the parameters (scaled data).")
+    band_hz: tuple[float, float] = pydantic.Field((1.0, 30.0), description="Band-pass applied to all channels (Hz).")
+    prefilter_order: int = pydantic.Field(2, ge=1, le=8, description="Butterworth order of the band-pass.")
+    search_min_hz: float = pydantic.Field(0.5, ge=0)
+    search_max_hz: float = pydantic.Field(40.0, gt=0)
+    max_damping: float = pydantic.Field(0.5, gt=0, lt=1, description="Poles more damped than this are not modes.")
+    min_relative_strength: float = pydantic.Field(
+        0.1, ge=0, le=1, description="Drop poles whose modal peak is below this × the strongest's."
+    )
+    max_poles: int = pydantic.Field(4, ge=1, le=16)
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> ArxConfig:
+        lo, hi = self.band_hz
+        if not 0 < lo < hi < self.sample_rate_hz / 2:
+            raise ValueError(f"band_hz must satisfy 0 < low < high < Nyquist, got {self.band_hz}")
+        if self.search_min_hz >= self.search_max_hz:
+            raise ValueError("search_min_hz must be below search_max_hz")
+        return self
+
+    @property
+    def n_params(self) -> int:
+        return self.na + 4 * self.nb
+
+    @property
+    def memory_samples(self) -> float:
+        """Effective memory ``1/(1 − λ)`` (samples; inf without forgetting)."""
+        return math.inf if self.forgetting >= 1.0 else 1.0 / (1.0 - self.forgetting)
+
+
+@dataclass(frozen=True)
+class ArxPole:
+    """One pole of the identified denominator."""
+
+    frequency_hz: float  #: natural frequency |s|/2π
+    damping_ratio: float  #: −Re s / |s|
+    strength: float  #: modal peak √(Σ|r_ij|²)/(1 − |z|)
+    relative_strength: float  #: strength / the strongest kept pole's
+
+
+class RecursiveArx:
+    """Pure, synchronous recursive ARX identifier (see module doc). One :meth:`update` per batch."""
+
+    def __init__(self, cfg: ArxConfig | None = None) -> None:
+        self.cfg = cfg if cfg is not None else ArxConfig()
+        c = self.cfg
+        self._sos = scipy.signal.butter(c.prefilter_order, c.band_hz, btype="bandpass", fs=c.sample_rate_hz, output="sos")
+        self._lag = max(c.na, c.nb)
+        self.reset()
+
+    def reset(self) -> None:
+        c = self.cfg
+        p = c.n_params
+        self.R = np.zeros((p + 1, p + 1))
+        self.R[:p, :p] = math.sqrt(c.ridge) * np.eye(p)
+        self.theta = np.zeros(p)
+        self._zi = np.zeros((self._sos.shape[0], 4, 2))
+        self._tail = np.zeros((4, self._lag))  # last filtered samples (u1, u2, y1, y2)
+        self._scale: NDArray[np.float64] | None = None
+        self.samples = 0  #: samples regressed since the reset
+        self._skip = 0  #: samples still to filter without regressing (after a gap)
+        self.residual_power = 0.0  #: weighted mean squared one-step equation error (scaled units)
+        self._weight_sum = 0.0
+
+    # ------------------------------------------------------------------ data
+    def update(self, inputs: NDArray[np.float64], outputs: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Regress one batch (``inputs``, ``outputs`` each ``(2, l)``); returns θ."""
+        x = np.vstack([np.asarray(inputs, dtype=np.float64), np.asarray(outputs, dtype=np.float64)])
+        n = x.shape[1]
+        if n == 0:
+            return self.theta
+        xf, self._zi = scipy.signal.sosfilt(self._sos, x, axis=-1, zi=self._zi)
+        if self._scale is None:
+            rms = np.sqrt(np.mean(xf * xf, axis=1))
+            if not np.all(rms > 0):
+                self._tail = np.hstack([self._tail, xf])[:, -self._lag :]
+                return self.theta
+            self._scale = 1.0 / rms
+        xf = xf * self._scale[:, None]
+        ext = np.hstack([self._tail, xf])  # (4, lag + n)
+        self._tail = ext[:, -self._lag :].copy()
+        if self._skip:
+            drop = min(self._skip, n)
+            self._skip -= drop
+            ext, n = ext[:, drop:], n - drop
+            if n == 0:
+                return self.theta
+        c = self.cfg
+        na, nb, lag = c.na, c.nb, self._lag
+        p = c.n_params
+        # regressors: row t of output j: [−y_j(t−1..t−na), (u1, u2)(t−1..t−nb) in block j]
+        t = lag + np.arange(n)
+        ky = t[:, None] - 1 - np.arange(na)[None, :]
+        ku = t[:, None] - 1 - np.arange(nb)[None, :]
+        U = np.hstack([ext[0][ku], ext[1][ku]])  # (n, 2 nb)
+        rows = np.zeros((2 * n, p + 1))
+        rows[:n, :na] = -ext[2][ky]
+        rows[n:, :na] = -ext[3][ky]
+        rows[:n, na : na + 2 * nb] = U
+        rows[n:, na + 2 * nb : p] = U
+        rows[:n, p] = ext[2][t]
+        rows[n:, p] = ext[3][t]
+        lam = c.forgetting
+        w = np.sqrt(lam ** (n - 1 - np.arange(n, dtype=np.float64)))
+        rows[:n] *= w[:, None]
+        rows[n:] *= w[:, None]
+        decay = lam**n
+        ridge = np.zeros((p, p + 1))
+        ridge[:, :p] = math.sqrt(c.ridge * (1.0 - decay)) * np.eye(p)
+        stacked = np.vstack([math.sqrt(decay) * self.R, rows, ridge])
+        r = np.linalg.qr(stacked, mode="r")
+        self.R = r[: p + 1]
+        self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
+        self.samples += n
+        self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
+        self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
+        return self.theta
+
+    def restart(self) -> None:
+        """A gap in the data: keep the model, restart the filters and skip the regressors that span the gap."""
+        self._zi.fill(0.0)
+        self._tail.fill(0.0)
+        self._skip = self._lag + int(2 * self.cfg.sample_rate_hz / self.cfg.band_hz[0])
+
+    # ---------------------------------------------------------------- model
+    @property
+    def a(self) -> NDArray[np.float64]:
+        """``[1, a_1, …, a_na]``."""
+        return np.concatenate([[1.0], self.theta[: self.cfg.na]])
+
+    def b(self, i: int, j: int) -> NDArray[np.float64]:
+        """``[0, b_ij,1, …, b_ij,nb]`` of input ``i`` → output ``j`` (0-based), in unscaled units."""
+        c = self.cfg
+        start = c.na + 2 * c.nb * j + c.nb * i
+        coef = self.theta[start : start + c.nb]
+        if self._scale is not None:
+            coef = coef * self._scale[i] / self._scale[2 + j]
+        return np.concatenate([[0.0], coef])
+
+    def frequency_response(self, freqs_hz: NDArray[np.float64]) -> NDArray[np.complex128]:
+        """``H`` ``(4, len(freqs))``, rows H11, H12, H21, H22 (input i → output j), of the model."""
+        fs = self.cfg.sample_rate_hz
+        a = self.a
+        out = []
+        for i in range(2):
+            for j in range(2):
+                out.append(scipy.signal.freqz(self.b(i, j), a, worN=freqs_hz, fs=fs)[1])
+        return np.array(out)
+
+    def poles(self) -> tuple[ArxPole, ...]:
+        """Modal poles of the current model, strongest first (see module doc)."""
+        c = self.cfg
+        if self.samples == 0:
+            return ()
+        a = self.a
+        z = np.roots(a)
+        if z.size == 0:
+            return ()
+        fs = c.sample_rate_hz
+        keep = (z.imag > 0) & (np.abs(z) < 1.0) & (np.abs(z) > 0)
+        zk = z[keep]
+        if zk.size == 0:
+            return ()
+        s = fs * np.log(zk)
+        wn = np.abs(s)
+        fn = wn / (2 * math.pi)
+        zeta = -s.real / wn
+        ok = (fn >= c.search_min_hz) & (fn <= c.search_max_hz) & (zeta > 0) & (zeta < c.max_damping)
+        if not ok.any():
+            return ()
+        zk, fn, zeta = zk[ok], fn[ok], zeta[ok]
+        # residue of B(q)/A(q), q = z⁻¹, at the pole: B(q_k) / Π_{m≠k} (1 − z_m q_k), q_k = 1/z_k,
+        # with Π_{m≠k} (1 − z_m q_k) = −A'(q_k) / z_k  (A(q) = Π_m (1 − z_m q))
+        qk = 1.0 / zk
+        P = np.polynomial.polynomial
+        da = P.polyder(a)  # a is [1, a_1, …]: coefficients in ascending powers of q
+        den = -P.polyval(qk, da) / zk
+        bs = np.stack([self.b(i, j) for i in range(2) for j in range(2)])  # (4, nb + 1), ascending in q
+        num = P.polyval(qk, bs.T)  # (4, K)
+        strength = np.sqrt(np.sum(np.abs(num / den) ** 2, axis=0)) / np.maximum(1.0 - np.abs(zk), 1e-12)
+        top = float(strength.max())
+        rel = strength / top if top > 0 else np.zeros_like(strength)
+        order = np.argsort(-strength)
+        out = [
+            ArxPole(float(fn[k]), float(zeta[k]), float(strength[k]), float(rel[k]))
+            for k in order
+            if rel[k] >= c.min_relative_strength
+        ]
+        return tuple(out[: c.max_poles])
+
+    @property
+    def fill(self) -> float:
+        """How much of the memory the data since the reset fill, in [0, 1]."""
+        mem = self.cfg.memory_samples
+        return 1.0 if not math.isfinite(mem) and self.samples else min(1.0, self.samples / (2.0 * mem))
