@@ -1,0 +1,129 @@
+"""Run modes: how one resolved run is carried out.
+
+A run mode is a function ``(RunPoint) -> dict`` (the metrics row, see
+:mod:`rig.campaign.metrics`), registered under a name with
+:func:`register_mode`; a spec picks one per run (``mode:``, default
+:data:`DEFAULT_MODE`). The function runs on a Dask worker, so it must be
+importable there (a module-level function of an installed module) and must
+choose every bit of per-run plumbing itself: the point's rig id
+(``sw-<key>``, its own ``ralf/<rig-id>`` namespace), the bus, the records.
+
+``lockstep`` (default)
+    The three services composed in one process (:func:`rig.composition.run_in_process`):
+    python-can's in-process ``virtual`` bus, an in-process zenoh session, one
+    plant step per SYNC. Deterministic for given settings; no network.
+``onrig``
+    The three-process rig of the experiments (:func:`rig.experiments.onrig.runner.run_rig`):
+    separate processes over zenoh on loopback and CAN over ``udp_multicast``
+    (run it inside the loopback-only namespace, ``.ci/loopback-netns``), lockstep.
+
+Adding a mode (e.g. a one-thread co-simulation) is one registration::
+
+    @register_mode("cosim")
+    def run_cosim(point: RunPoint) -> dict[str, Any]:
+        ...
+        return run_metrics(columns, truth, counters, sample_period_s=..., wall_s=...)
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rig.campaign.metrics import run_metrics
+from rig.campaign.spec import VOLATILE, RunPoint
+
+__all__ = ["DEFAULT_MODE", "RunMode", "RunFailed", "get_mode", "known_modes", "register_mode", "run_point"]
+
+RunMode = Callable[[RunPoint], dict[str, Any]]
+
+DEFAULT_MODE = "lockstep"
+
+_MODES: dict[str, RunMode] = {}
+
+
+class RunFailed(RuntimeError):
+    """The rig ran but ended with a fault (the controller's error)."""
+
+
+def register_mode(name: str) -> Callable[[RunMode], RunMode]:
+    """Register ``fn(point) -> metrics row`` as run mode ``name`` (decorator)."""
+
+    def deco(fn: RunMode) -> RunMode:
+        old = _MODES.get(name)
+        if old is not None and (old.__module__, old.__qualname__) != (fn.__module__, fn.__qualname__):
+            raise ValueError(f"run mode {name!r} is already registered by {old.__module__}")
+        _MODES[name] = fn
+        return fn
+
+    return deco
+
+
+def known_modes() -> list[str]:
+    return sorted(_MODES)
+
+
+def get_mode(name: str) -> RunMode:
+    try:
+        return _MODES[name]
+    except KeyError:
+        raise KeyError(f"unknown run mode {name!r}; known: {', '.join(known_modes())}") from None
+
+
+def run_point(point: RunPoint) -> dict[str, Any]:
+    """Worker entry: the point's mode, run."""
+    return get_mode(point.mode)(point)
+
+
+def _own(settings: dict[str, Any]) -> dict[str, Any]:
+    """A service's settings without the plumbing and the clock the mode chooses."""
+    return {k: v for k, v in settings.items() if k not in VOLATILE and k != "clock"}
+
+
+def _load_npz(path: Path) -> dict[str, np.ndarray] | None:
+    if not path.exists():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+@register_mode("lockstep")
+def run_lockstep(point: RunPoint) -> dict[str, Any]:
+    """One process, lockstep, in-process bus and zenoh session (see the module doc)."""
+    from rig.composition import run_in_process
+
+    s = point.settings
+    common = {"clock": "lockstep", "can_interface": "virtual", "can_channel": f"{point.rig_id}-{uuid.uuid4().hex[:6]}", "rig_id": point.rig_id}
+    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
+        truth_path = Path(tmp) / "truth.npz"
+        started = time.perf_counter()
+        run = run_in_process(controller=_own(s["controller"]), plant={**_own(s["plant"]), "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
+        wall = time.perf_counter() - started
+        if run.result.error:
+            raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")
+        truth = _load_npz(truth_path)
+    columns = run.controller.record.to_columns()
+    period = 1.0 / float(s["controller"]["sample_rate_hz"])
+    return run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+
+
+@register_mode("onrig")
+def run_onrig(point: RunPoint) -> dict[str, Any]:
+    """Three processes (plant, controller, DSP) over zenoh and udp_multicast CAN, lockstep."""
+    from rich.console import Console
+
+    from rig.experiments.framework import ExperimentContext
+    from rig.experiments.onrig.runner import RigRun, run_rig
+
+    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
+        ctx = ExperimentContext(out_dir=Path(tmp), mode="lockstep", show_progress=False, console=Console(stderr=True, quiet=True))
+        spec = RigRun(point.rig_id, controller=point.changed("controller"), plant=point.changed("plant"), dsp=point.changed("dsp"))
+        res = run_rig(ctx, spec, in_process=False)
+        counters = res.record.metadata.get("result", {}).get("counters", {})
+        return run_metrics(res.record.columns, res.truth, counters, sample_period_s=res.sample_period_s, wall_s=res.wall_time_s)
