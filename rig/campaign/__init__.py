@@ -15,7 +15,7 @@ See docs/campaigns.md.
 """
 
 from rig.campaign.cli import register
-from rig.campaign.engine import Engine, EngineError, TaskOutcome, current_engine, use_engine
+from rig.campaign.engine import Engine, EngineError, TaskOutcome, current_engine, engine_scope, use_engine
 from rig.campaign.modes import DEFAULT_MODE, get_mode, known_modes, register_mode, run_point
 from rig.campaign.spec import RunPoint, SpecError, SweepSpec, expand, load_spec
 from rig.campaign.sweep import SweepResult, run_sweep
@@ -30,6 +30,7 @@ __all__ = [
     "SweepSpec",
     "TaskOutcome",
     "current_engine",
+    "engine_scope",
     "expand",
     "get_mode",
     "known_modes",

@@ -22,6 +22,7 @@ or starts a local one on first use (closed at exit).
 from __future__ import annotations
 
 import atexit
+import logging
 import os
 import socket
 import threading
@@ -40,6 +41,7 @@ __all__ = [
     "EngineError",
     "TaskOutcome",
     "current_engine",
+    "engine_scope",
     "use_engine",
 ]
 
@@ -113,7 +115,7 @@ class Engine:
                 scheduler_port=0,
                 dashboard_address=None,
                 memory_limit=memory_limit,
-                silence_logs=40,
+                silence_logs=logging.CRITICAL,
             )
             client = Client(cluster)
             client.wait_for_workers(n, timeout=120)
@@ -250,14 +252,30 @@ def _progress(console: Console | None, show: bool) -> Progress:
 
 _LOCK = threading.Lock()
 _CURRENT: list[Engine] = []
+_SCOPES: list["_Scope"] = []
 _OWNED: list[Engine] = []
 
 
+@dataclass
+class _Scope:
+    scheduler: str | None
+    workers: int | None
+    engine: Engine | None = None
+
+    def get(self) -> Engine:
+        if self.engine is None:
+            self.engine = Engine.connect(self.scheduler) if self.scheduler else Engine.local(self.workers)
+        return self.engine
+
+
 def current_engine() -> Engine:
-    """The engine installed by :func:`use_engine`, else a local one started on first use (closed at exit)."""
+    """The engine installed by :func:`use_engine`, else the one of the innermost :func:`engine_scope`
+    (started on first use), else a local one started on first use and closed at exit."""
     with _LOCK:
         if _CURRENT:
             return _CURRENT[-1]
+        if _SCOPES:
+            return _SCOPES[-1].get()
         if not _OWNED or _OWNED[0]._closed:
             _OWNED[:] = [Engine.local()]
             atexit.register(_OWNED[0].close)
@@ -274,3 +292,19 @@ def use_engine(engine: Engine) -> Iterator[Engine]:
     finally:
         with _LOCK:
             _CURRENT.remove(engine)
+
+
+@contextmanager
+def engine_scope(scheduler: str | None = None, workers: int | None = None) -> Iterator[None]:
+    """Inside the block :func:`current_engine` is the scheduler at ``scheduler`` (or a local cluster of
+    ``workers``), connected or started only if something asks for it, and closed at the end."""
+    scope = _Scope(scheduler, workers)
+    with _LOCK:
+        _SCOPES.append(scope)
+    try:
+        yield
+    finally:
+        with _LOCK:
+            _SCOPES.remove(scope)
+        if scope.engine is not None:
+            scope.engine.close()

@@ -11,7 +11,11 @@ choose every bit of per-run plumbing itself: the point's rig id
 ``lockstep`` (default)
     The three services composed in one process (:func:`rig.composition.run_in_process`):
     python-can's in-process ``virtual`` bus, an in-process zenoh session, one
-    plant step per SYNC. Deterministic for given settings; no network.
+    plant step per SYNC. Deterministic for given settings, also on a loaded
+    host: no SYNC is ever resent (the virtual bus loses none; a late answer
+    resent would step the plant twice) and the plant's heartbeat may be as
+    late as the lockstep timeout (``controller.lockstep_timeout_s``) before
+    it is a fault. No network.
 ``onrig``
     The three-process rig of the experiments (:func:`rig.experiments.onrig.runner.run_rig`):
     separate processes over zenoh on loopback and CAN over ``udp_multicast``
@@ -30,7 +34,8 @@ from __future__ import annotations
 import tempfile
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -93,17 +98,47 @@ def _load_npz(path: Path) -> dict[str, np.ndarray] | None:
         return {k: data[k] for k in data.files}
 
 
+@contextmanager
+def no_sync_resend(timeout_s: float) -> Iterator[None]:
+    """Lockstep over python-can's in-process ``virtual`` bus: never resend a SYNC.
+
+    The controller resends a SYNC that got no TPDO within
+    ``controller.service.LOCKSTEP_RETRY_S`` (50 ms), for a frame lost on a real
+    bus. The virtual bus loses nothing; on a loaded host the answer is merely
+    late, the plant then sees both SYNCs and steps twice, and the run is no
+    longer the deterministic function of its settings a campaign needs
+    (measured: 1-4 resends per 2 s run with four rigs on two cores, and
+    different costs for the same point). Inside the block the resend waits
+    for the whole lockstep timeout instead (one task per worker process at a
+    time, so the module constant is the run's own).
+    """
+    import controller.service as service
+
+    old = service.LOCKSTEP_RETRY_S
+    service.LOCKSTEP_RETRY_S = max(old, timeout_s)
+    try:
+        yield
+    finally:
+        service.LOCKSTEP_RETRY_S = old
+
+
 @register_mode("lockstep")
 def run_lockstep(point: RunPoint) -> dict[str, Any]:
     """One process, lockstep, in-process bus and zenoh session (see the module doc)."""
     from rig.composition import run_in_process
 
     s = point.settings
+    controller = _own(s["controller"])
+    # Wall-clock supervision of the plant's heartbeat means nothing for a lockstep run's result;
+    # on a loaded host the heartbeat thread can starve for over a second (measured: 1.0-3.2 s
+    # with four rigs on two cores) and the run would end in a fault. Allow the lockstep timeout.
+    controller["plant_heartbeat_timeout_s"] = max(float(controller["plant_heartbeat_timeout_s"]), float(controller["lockstep_timeout_s"]))
     common = {"clock": "lockstep", "can_interface": "virtual", "can_channel": f"{point.rig_id}-{uuid.uuid4().hex[:6]}", "rig_id": point.rig_id}
     with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
         truth_path = Path(tmp) / "truth.npz"
         started = time.perf_counter()
-        run = run_in_process(controller=_own(s["controller"]), plant={**_own(s["plant"]), "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
+        with no_sync_resend(float(s["controller"]["lockstep_timeout_s"])):
+            run = run_in_process(controller=controller, plant={**_own(s["plant"]), "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
         wall = time.perf_counter() - started
         if run.result.error:
             raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")

@@ -42,7 +42,12 @@ def run_rig_job(job: RigJob) -> RigResult:
     ctx = ExperimentContext(
         out_dir=Path(job.out_dir), mode=job.mode, show_progress=False, console=Console(stderr=True, quiet=True), experiment=job.experiment
     )
-    return run_rig(ctx, job.spec, in_process=job.in_process)
+    if not job.in_process:
+        return run_rig(ctx, job.spec, in_process=False)
+    from rig.campaign.modes import no_sync_resend
+
+    with no_sync_resend(float(job.spec.controller.get("lockstep_timeout_s", 10.0))):
+        return run_rig(ctx, job.spec, in_process=True)
 
 
 def _materialise(res: RigResult) -> None:

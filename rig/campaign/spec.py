@@ -9,7 +9,8 @@ plant's sensor-noise seed) and ``mode`` (the run mode, :mod:`rig.campaign.modes`
 The runs are ``points × grid × seeds``: every explicit point (default: one
 empty point), crossed with the Cartesian product of the grid's axes, crossed
 with the seeds, each merged over ``base`` (later wins: base < point < grid
-value < seed). A grid axis whose values are tables is a *bundle*: each value
+value < seed); a point's optional ``label`` is its name in the table's
+``point`` column. A grid axis whose values are tables is a *bundle*: each value
 sets several settings at once (an optional ``label`` names it in the table).
 
 Every run is resolved against the pydantic models of :mod:`protocol.settings`
@@ -76,7 +77,7 @@ class SweepSpec(BaseModel):
     seeds: int | list[int] | None = Field(None, description="N derived seeds, or a list of plant seeds; every point runs once per seed")
     base: dict[str, Any] = Field(default_factory=dict, description="Settings of every run")
     grid: dict[str, list[Any]] = Field(default_factory=dict, description="Axes: setting -> values (a Cartesian product)")
-    points: list[dict[str, Any]] = Field(default_factory=list, description="Explicit runs (each crossed with the grid)")
+    points: list[dict[str, Any]] = Field(default_factory=list, description="Explicit runs (each crossed with the grid); an optional `label` names one in the table")
 
     @field_validator("base", "grid", mode="before")
     @classmethod
@@ -261,10 +262,12 @@ def expand(spec: SweepSpec) -> list[RunPoint]:
     for p_index, point in enumerate(points):
         for combo in combos:
             for seed in seeds:
-                assignments: dict[str, Any] = {**spec.base, **point}
+                own = dict(point)
+                label = own.pop("label", None)
+                assignments: dict[str, Any] = {**spec.base, **own}
                 shown: dict[str, Any] = {}
-                if len(points) > 1:
-                    shown["point"] = p_index
+                if len(points) > 1 or label is not None:
+                    shown["point"] = p_index if label is None else label
                 for (axis, _), (values, label) in zip(axes, combo):
                     assignments.update(values)
                     shown[axis] = label
