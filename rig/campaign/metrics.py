@@ -75,6 +75,8 @@ def run_metrics(
         rel = np.abs(f_oatf - true1) / true1
         row["oatf_median_rel_error"] = float(np.median(rel))
         row["oatf_time_within_10pct"] = float(np.mean(rel <= 0.10))
+        if "valves_held" in truth:
+            row["valves_held_samples"] = int(np.count_nonzero(np.asarray(truth["valves_held"])))
         truth_period = float(np.median(np.diff(ts)))
         if abs(truth_period - sample_period_s) <= 1e-6 * sample_period_s:
             row.update(_costs("true_", np.asarray(truth["deflections_in"], dtype=float), sample_period_s))

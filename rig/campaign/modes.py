@@ -13,9 +13,10 @@ choose every bit of per-run plumbing itself: the point's rig id
     python-can's in-process ``virtual`` bus, an in-process zenoh session, one
     plant step per SYNC. Deterministic for given settings, also on a loaded
     host: no SYNC is ever resent (the virtual bus loses none; a late answer
-    resent would step the plant twice) and the plant's heartbeat may be as
-    late as the lockstep timeout (``controller.lockstep_timeout_s``) before
-    it is a fault. No network.
+    resent would step the plant twice), and the plant's heartbeat and the
+    SYNC may be as late as the lockstep timeout (``controller.lockstep_timeout_s``)
+    before the controller declares a fault or the plant's watchdog holds the
+    valves (``valves_held_samples`` in the row counts any). No network.
 ``onrig``
     The three-process rig of the experiments (:func:`rig.experiments.onrig.runner.run_rig`):
     separate processes over zenoh on loopback and CAN over ``udp_multicast``
@@ -31,6 +32,7 @@ Adding a mode (e.g. a one-thread co-simulation) is one registration::
 
 from __future__ import annotations
 
+import math
 import tempfile
 import time
 import uuid
@@ -132,13 +134,17 @@ def run_lockstep(point: RunPoint) -> dict[str, Any]:
     # Wall-clock supervision of the plant's heartbeat means nothing for a lockstep run's result;
     # on a loaded host the heartbeat thread can starve for over a second (measured: 1.0-3.2 s
     # with four rigs on two cores) and the run would end in a fault. Allow the lockstep timeout.
-    controller["plant_heartbeat_timeout_s"] = max(float(controller["plant_heartbeat_timeout_s"]), float(controller["lockstep_timeout_s"]))
+    timeout_s = float(controller["lockstep_timeout_s"])
+    controller["plant_heartbeat_timeout_s"] = max(float(controller["plant_heartbeat_timeout_s"]), timeout_s)
+    # Likewise the plant's SYNC watchdog (2 s of wall time in lockstep): tripped, it holds the valves.
+    plant = _own(s["plant"])
+    plant["watchdog_periods"] = max(int(plant["watchdog_periods"]), math.ceil(timeout_s * float(s["plant"]["sample_rate_hz"])))
     common = {"clock": "lockstep", "can_interface": "virtual", "can_channel": f"{point.rig_id}-{uuid.uuid4().hex[:6]}", "rig_id": point.rig_id}
     with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
         truth_path = Path(tmp) / "truth.npz"
         started = time.perf_counter()
         with no_sync_resend(float(s["controller"]["lockstep_timeout_s"])):
-            run = run_in_process(controller=controller, plant={**_own(s["plant"]), "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
+            run = run_in_process(controller=controller, plant={**plant, "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
         wall = time.perf_counter() - started
         if run.result.error:
             raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")

@@ -52,7 +52,7 @@ BITS = (12, 16, 20)
 NOISE = (0.25, 1.0, 4.0)
 IDENTIFIERS: tuple[tuple[int, float], ...] = ((2048, 0.1), (1024, 0.05), (512, 0.05))
 """ETFE (N, α), slowest first; the first is the thesis's."""
-FULL_SEEDS = 2
+FULL_SEEDS = 1
 QUICK_BITS = (12, 20)
 QUICK_NOISE = (1.0,)
 QUICK_IDENTIFIERS: tuple[tuple[int, float], ...] = ((1024, 0.05),)
