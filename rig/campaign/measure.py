@@ -67,8 +67,8 @@ def overheads(engine: Engine, n: int = 40) -> dict[str, float]:
     for mb in (1, 8):
         rt = []
         for k in range(3):
-            out = engine.map(payload, [mb], keys=[f"payload-{mb}-{k}"], show_progress=False)[0]
-            rt.append(out.round_trip_s - out.run_s)
+            got = engine.map(payload, [mb], keys=[f"payload-{mb}-{k}"], show_progress=False)[0]
+            rt.append(got.round_trip_s - got.run_s)
         transfer[f"result_{mb}mb_extra_s"] = statistics.median(rt) - statistics.median(single)
     return {"task_round_trip_overhead_s": statistics.median(single), "burst_wall_per_task_s": burst, **transfer}
 
@@ -90,7 +90,7 @@ def measure(blocks: int, runs: int, duration_s: float) -> dict[str, Any]:
                     res = run_sweep(_spec(runs, duration_s, b), Path(tmp) / f"b{b}w{workers}", engine, resume=False, show_progress=False)
                     wall = time.perf_counter() - started
                     ok = [o for o in res.outcomes if o.ok]
-                    entry = {
+                    entry: dict[str, Any] = {
                         "startup_s": engine.started_s,
                         "wall_s": wall,
                         "runs": len(res.outcomes),

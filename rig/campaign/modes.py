@@ -46,7 +46,7 @@ import numpy as np
 from rig.campaign.metrics import run_metrics
 from rig.campaign.spec import VOLATILE, RunPoint
 
-__all__ = ["DEFAULT_MODE", "RunMode", "RunFailed", "get_mode", "known_modes", "register_mode", "run_point"]
+__all__ = ["DEFAULT_MODE", "RunFailed", "RunMode", "get_mode", "known_modes", "no_sync_resend", "register_mode", "run_point"]
 
 RunMode = Callable[[RunPoint], dict[str, Any]]
 

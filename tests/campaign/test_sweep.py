@@ -103,7 +103,7 @@ def test_noise_vs_lag_quick(engine: Engine, tmp_path: Path) -> None:
     assert res["runs"] == 6 and res["failed"] == 0
     assert (tmp_path / "heatmaps_true.png").stat().st_size > 10_000 and (tmp_path / "heatmaps_measured.png").exists()
     cells = res["cells"]
-    for lab in ("b", "c N=1024 α=0.05"):
+    for lab in ("b", "e N=1024 α=0.05"):
         for bits in ("12", "20"):
             c = cells[lab][bits]["1"]
             assert 0 < c["true_velocity_rms_1_pct"] < 100 and 0 < c["velocity_rms_2_pct"] < 100
@@ -147,12 +147,45 @@ def test_sweep_on_a_dask_scheduler_with_two_workers(tmp_path: Path) -> None:
             )
         with Engine.connect(address, wait_for_workers=2, timeout_s=90) as eng:
             assert len(eng.workers()) == 2
-            res = run_sweep(small_spec(grid={"plant.adc_bits": [12, 16, 20]}, seeds=[3]), tmp_path / "out", eng, show_progress=False)
-        assert (res.ran, res.failed) == (3, 0)
-        rows = pq.read_table(res.parquet).to_pylist()
-        assert all(r["status"] == "ok" and r["ticks"] == 400 for r in rows)
+        # the command line, as documented: ralf-hil sweep SPEC --scheduler ADDRESS
+        spec = tmp_path / "spec.yaml"
+        spec.write_text(
+            "name: cluster\nbase:\n  controller.duration_s: 2\n  batch_size: 20\n  controller.tf_download_samples: 0\n  dsp.fft_width: 256\n"
+            "grid:\n  plant.adc_bits: [12, 16, 20]\nseeds: [3]\n",
+            encoding="utf-8",
+        )
+        from rig.cli import main
+
+        assert main(["sweep", str(spec), "--scheduler", address, "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+        rows = pq.read_table(tmp_path / "out" / "results.parquet").to_pylist()
+        assert len(rows) == 3 and all(r["status"] == "ok" and r["ticks"] == 400 for r in rows)
         worker_pids = {str(p.pid) for p in procs[1:]}
         assert {r["worker"].rsplit(":", 1)[1] for r in rows} <= worker_pids
     finally:
         for p in reversed(procs):
             _end(p)
+
+
+def test_cli_dry_run_and_bad_specs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rig.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "t"\n[base]\ncontroller.duration_s = 1\n[grid]\nplant.adc_bits = [12, 16]\nmode = ["lockstep", "onrig"]\n', encoding="utf-8")
+    assert main(["sweep", str(spec), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "4 run(s)" in out and "onrig" in out
+    spec.write_text('[base]\ncontroller.duration_s = 1\nplant.adc_bitz = 12\n', encoding="utf-8")
+    assert main(["sweep", str(spec), "--dry-run"]) == 2
+    assert "adc_bits" in capsys.readouterr().err
+    assert main(["sweep", str(tmp_path / "none.yaml")]) == 2
+
+
+@pytest.mark.rig
+def test_onrig_mode_runs_the_three_process_rig(tmp_path: Path) -> None:
+    """One point in the three-process mode (udp_multicast CAN: run inside the loopback namespace, as CI does)."""
+    from rig.campaign.modes import run_point
+    from rig.campaign.spec import expand
+
+    point = expand(SweepSpec(mode="onrig", base={"controller.duration_s": 2.0, "batch_size": 20, "controller.tf_download_samples": 0, "dsp.fft_width": 256, "seed": 5}))[0]
+    row = run_point(point)
+    assert row["ticks"] == 400 and row["batches_sent"] == 20 and row["velocity_rms_1"] > 0
