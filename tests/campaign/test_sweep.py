@@ -189,3 +189,11 @@ def test_onrig_mode_runs_the_three_process_rig(tmp_path: Path) -> None:
     point = expand(SweepSpec(mode="onrig", base={"controller.duration_s": 2.0, "batch_size": 20, "controller.tf_download_samples": 0, "dsp.fft_width": 256, "seed": 5}))[0]
     row = run_point(point)
     assert row["ticks"] == 400 and row["batches_sent"] == 20 and row["velocity_rms_1"] > 0
+
+
+def test_overhead_measurement_reports_every_figure(engine: Engine) -> None:
+    from rig.campaign.measure import overheads
+
+    o = overheads(engine, n=4)
+    assert set(o) == {"task_round_trip_overhead_s", "burst_wall_per_task_s", "result_1mb_extra_s", "result_8mb_extra_s"}
+    assert o["task_round_trip_overhead_s"] > 0 and o["burst_wall_per_task_s"] > 0

@@ -9,8 +9,9 @@ loop at 5 in/s, payload removed, the OATF at the outer location, design
 * the sensor-noise scale: the thesis's measured noise stds times 0.25, 1, 4
   (``plant.sensor_noise_scale``);
 * the identifier's lag: the ETFE at N = 2048, α = 0.1 (the thesis's, a
-  10.2 s window; the first estimate after about 11 s) against N = 512,
-  α = 0.05 (2.6 s; smoothing scaled with N as in ``id-lag``), l = 20;
+  10.2 s window; the first estimate after about 11 s), N = 1024, α = 0.05
+  (5.1 s) and N = 512, α = 0.05 (2.6 s; smoothing scaled with N as in
+  ``id-lag``), l = 20;
 * the OATF: (a) unfiltered, (b) fixed, tuned right (the lap's mean true
   first-mode frequency, from the plant model along the sampled trajectory)
   and (e) 10 Hz at first, then adaptive (the battery's names: adaptation
@@ -54,12 +55,12 @@ DAMPING = 0.09
 WRONG_HZ = 10.0
 BITS = (12, 16, 20)
 NOISE = (0.25, 1.0, 4.0)
-IDENTIFIERS: tuple[tuple[int, float], ...] = ((2048, 0.1), (512, 0.05))
+IDENTIFIERS: tuple[tuple[int, float], ...] = ((2048, 0.1), (1024, 0.05), (512, 0.05))
 """ETFE (N, α), slowest first; the first is the thesis's. (N = 1024, α = 0.05 and a faster
 identifier are one more entry each; the journal keeps the runs already made.)"""
 ADAPTIVE = ("e",)
 """The adaptive configurations run per identifier ("c" is the other one: tuned right, then adaptive)."""
-FULL_SEEDS = 1
+FULL_SEEDS = 2
 QUICK_BITS = (12, 20)
 QUICK_NOISE = (1.0,)
 QUICK_IDENTIFIERS: tuple[tuple[int, float], ...] = ((1024, 0.05),)
@@ -153,8 +154,18 @@ def analyse(rows: list[dict[str, Any]]) -> dict[str, Any]:
     for (label, bits, noise), entries in cells.items():
         mean = {k: float(np.nanmean([e[k] for e in entries])) if any(math.isfinite(e[k]) for e in entries) else float("nan") for k in entries[0]}
         mean["seeds"] = len(entries)
+        for k in [k for k in entries[0] if k.endswith("_pct")]:
+            vals = [e[k] for e in entries if math.isfinite(e[k])]
+            mean[f"{k}_seed_spread"] = float(max(vals) - min(vals)) if len(vals) > 1 else float("nan")
         out.setdefault(label, {}).setdefault(str(bits), {})[f"{noise:g}"] = mean
     return out
+
+
+def seed_spread(cells: dict[str, Any], metric: str) -> float:
+    """Median over every cell of the range of ``metric`` between its seeds (NaN with one seed)."""
+    vals = [c[f"{metric}_seed_spread"] for by_bits in cells.values() for by_noise in by_bits.values() for c in by_noise.values() if f"{metric}_seed_spread" in c]
+    vals = [v for v in vals if math.isfinite(v)]
+    return float(np.median(vals)) if vals else float("nan")
 
 
 def main_effects(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], idents: list[str], metric: str) -> dict[str, float]:
@@ -267,10 +278,15 @@ def run(ctx: ExperimentContext) -> Report:
     for key, e in effects.items():
         grp, metric = key.split("_", 1)
         eff_rows.append([CONFIG_LABELS[grp], metric.replace("_pct", " (% of a)"), e["adc_bits"], e["noise_scale"], e["identifier"]])
+    spreads = {metric: seed_spread(cells, metric) for metric in ("true_velocity_rms_1_pct", "true_velocity_rms_2_pct", "velocity_rms_1_pct", "velocity_rms_2_pct")}
+    rep.results["seed_spread_pct_points"] = spreads
+    for row in eff_rows:
+        row.append(spreads[str(row[1]).replace(" (% of a)", "_pct")])
     rep.table(
-        ["configuration", "cost", "A/D bits", "noise scale", "identifier (N, α)"],
+        ["configuration", "cost", "A/D bits", "noise scale", "identifier (N, α)", "seed-to-seed spread"],
         eff_rows,
-        caption="Main effects: range (percentage points) of the mean cost over each axis's values, the other axes averaged",
+        caption="Main effects: range (percentage points) of the mean cost over each axis's values, the other axes averaged; "
+        "beside them the median over the cells of the range between the seeds of one cell (the resolution of this campaign)",
         digits=3,
     )
 
@@ -306,7 +322,10 @@ def _conclusion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
     for grp in ADAPTIVE:
         for link in (1, 2):
             e = effects[f"{grp}_{m.format(link)}"]
-            lines.append(f"{CONFIG_LABELS[grp]}, link {link}: A/D {e['adc_bits']:.1f}, noise {e['noise_scale']:.1f}, identifier {e['identifier']:.1f} points")
+            lines.append(
+                f"{CONFIG_LABELS[grp]}, link {link}: A/D {e['adc_bits']:.1f}, noise {e['noise_scale']:.1f}, identifier {e['identifier']:.1f} points "
+                f"(seed-to-seed spread {seed_spread(cells, m.format(link)):.1f})"
+            )
     fixed = {b: [_mean(cells, ["b"], [b], noise, m.format(j)) for j in (1, 2)] for b in bits}
     fixed_noise = {n: [_mean(cells, ["b"], bits, [n], m.format(j)) for j in (1, 2)] for n in noise}
     parts_lag, parts_bits = [], []
