@@ -98,7 +98,7 @@ def measure(blocks: int, runs: int, duration_s: float) -> dict[str, Any]:
                         "runs_per_hour": 3600.0 * len(ok) / wall,
                         "sim_s_per_wall_s": len(ok) * duration_s / wall,
                         "mean_run_s": statistics.mean(o.run_s for o in ok) if ok else float("nan"),
-                        "mean_round_trip_minus_run_s": statistics.mean(o.round_trip_s - o.run_s for o in ok) if ok else float("nan"),
+                        "mean_queue_and_overhead_s": statistics.mean(o.round_trip_s - o.run_s for o in ok) if ok else float("nan"),
                         "load": os.getloadavg()[0],
                     }
                     if b == 0:
