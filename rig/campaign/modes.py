@@ -44,13 +44,11 @@ from typing import Any
 import numpy as np
 
 from rig.campaign.metrics import run_metrics
-from rig.campaign.spec import VOLATILE, RunPoint
+from rig.campaign.spec import DEFAULT_MODE, VOLATILE, RunPoint
 
 __all__ = ["DEFAULT_MODE", "RunFailed", "RunMode", "get_mode", "known_modes", "no_sync_resend", "register_mode", "run_point"]
 
 RunMode = Callable[[RunPoint], dict[str, Any]]
-
-DEFAULT_MODE = "lockstep"
 
 _MODES: dict[str, RunMode] = {}
 

@@ -42,6 +42,7 @@ from pydantic_settings import BaseSettings
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings
 
 __all__ = [
+    "DEFAULT_MODE",
     "SERVICES",
     "VOLATILE",
     "RunPoint",
@@ -61,6 +62,10 @@ VOLATILE = frozenset(
 
 SPECIAL = ("seed", "mode")
 
+DEFAULT_MODE = "lockstep"
+"""The run mode of a spec that names none (:mod:`rig.campaign.modes`; the one-thread
+co-simulation, once registered there as ``cosim``, is meant to replace it: change this line)."""
+
 
 class SpecError(ValueError):
     """The spec cannot be expanded: an unknown setting, a bad value, a bad layout."""
@@ -72,7 +77,7 @@ class SweepSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field("sweep", description="Name of the campaign (the output directory's default name)")
-    mode: str = Field("lockstep", description="Run mode of every run unless an axis or point says otherwise")
+    mode: str = Field(DEFAULT_MODE, description="Run mode of every run unless an axis or point says otherwise")
     seed: int = Field(0, ge=0, description="Base seed from which `seeds: N` derives N seeds")
     seeds: int | list[int] | None = Field(None, description="N derived seeds, or a list of plant seeds; every point runs once per seed")
     base: dict[str, Any] = Field(default_factory=dict, description="Settings of every run")
