@@ -49,7 +49,16 @@ def plant_config(settings: PlantSettings) -> PlantConfig:
         payload_attached=settings.payload_attached,
         valve_time_constant_s=settings.valve_time_constant_s,
         adc_bits=settings.adc_bits,
+        **_scaled_noise(settings.sensor_noise_scale),
     )
+
+
+def _scaled_noise(scale: float) -> dict[str, tuple[float, float]]:
+    """The thesis's sensor noise stds (the PlantConfig defaults) times ``scale`` (only when it is not 1)."""
+    if scale == 1.0:
+        return {}
+    fields = PlantConfig.model_fields
+    return {k: tuple(scale * x for x in fields[k].default) for k in ("extension_noise_std_in", "deflection_noise_std_in")}  # type: ignore[misc]
 
 
 def node_config(settings: PlantSettings) -> NodeConfig:

@@ -58,6 +58,7 @@ class PlantSettings(CommonSettings):
     seed: int = Field(0, ge=0, description="Seed of the sensor-noise generator")
     payload_attached: bool = Field(False, description="Start with the 15.65 lb payload at the tip")
     adc_bits: Literal[12, 16, 20] = Field(12, description="A/D resolution (the thesis's rig: 12 bits)")
+    sensor_noise_scale: float = Field(1.0, ge=0, le=100, description="Scale of every sensor's analog noise std (1 = the thesis's rig, 0 = noiseless; quantization stays)")
     valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve-to-cylinder-velocity lag")
     truth_rate_hz: float = Field(20.0, ge=0, description="Rate of ground truth on the test port (0 = off)")
     watchdog_periods: int = Field(5, ge=1, description="SYNC periods without SYNC before the valves are held")

@@ -20,7 +20,7 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
-from rig import bench, experiments, monitor
+from rig import bench, campaign, experiments, monitor
 from rig.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
 
 console = Console(stderr=True)
@@ -268,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
     rc.set_defaults(func=cmd_reconfigure)
-    for module in (bench, monitor, experiments):
+    for module in (bench, monitor, experiments, campaign):
         module.register(sub)
     return parser
 

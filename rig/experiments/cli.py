@@ -40,6 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--quick", action="store_true", help="short runs (fewer points, draws, a shorter trajectory)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run the experiments' rigs on this Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster, started when an experiment needs it)")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="worker processes of the local cluster (default: one per core)")
 
 
 def register(subparsers: Any) -> None:
@@ -69,6 +71,13 @@ def print_list(console: Console) -> None:
 
 
 def cmd_experiment(args: argparse.Namespace) -> int:
+    from rig.campaign.engine import engine_scope
+
+    with engine_scope(getattr(args, "scheduler", None), getattr(args, "workers", None)):
+        return _cmd_experiment(args)
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
     out_console = Console(width=max(Console().width, 120) if not sys.stdout.isatty() else None)
     err_console = Console(stderr=True)
     if args.list:

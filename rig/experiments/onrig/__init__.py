@@ -7,6 +7,7 @@
 | ``battery`` | §4.2.3 | :mod:`.battery` |
 | ``reduced-damping`` | §4.4 | :mod:`.reduced_damping` |
 | ``id-lag`` | §5.3 (future work) | :mod:`.id_lag` |
+| ``noise-vs-lag`` | §5.3 (future work) | :mod:`.noise_vs_lag` |
 
 Every experiment runs the rig through :mod:`.runner`: by default as the
 one-thread co-simulation (:mod:`rig.cosim`, bit-identical to the

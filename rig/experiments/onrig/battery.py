@@ -18,7 +18,8 @@ from rest, the thesis's single pass; the identifier starts with the run, so
 the adaptive runs use their initial design until the first confident
 estimate (≈ 11 s: a full 2048-sample history first). DSP at the thesis's
 settings (N = 2048, α = 0.1, l = 20). The (a) runs go first (they set the
-(b)/(c) frequency); the sixteen others follow, two rigs at a time.
+(b)/(c) frequency); the sixteen others follow, as tasks of the campaign
+engine (``rig.campaign.rigs.map_rigs``).
 
 Costs (§4.2.1, ``controller.metrics``): RMS (standard deviation over the
 lap) of the deflection velocity (10-sample linear regression) and
@@ -36,7 +37,8 @@ import numpy as np
 
 from controller.oatf import OatfConfig, OatfFilter, design_stage
 from rig.experiments.framework import ExperimentContext, experiment
-from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds, run_rigs
+from rig.campaign.rigs import map_rigs
+from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds
 from rig.experiments.report import Report, new_figure
 
 OATF_DAMPING = 0.09
@@ -133,7 +135,7 @@ def run(ctx: ExperimentContext) -> Report:
         )
 
     # ---------------------------------------------------------------- (a) first: the right frequency of each group
-    base_runs = run_rigs(ctx, [spec(s, p, "a", 0.0) for s, p in groups], in_process=quick, description="battery (a) runs")
+    base_runs = map_rigs(ctx, [spec(s, p, "a", 0.0) for s, p in groups], in_process=quick, description="battery (a) runs")
     results: dict[tuple[str, str], RigResult] = {}
     right: dict[str, float] = {}
     truth_stats: dict[str, dict[str, float]] = {}
@@ -145,7 +147,7 @@ def run(ctx: ExperimentContext) -> Report:
         truth_stats[gk] = {"mean_f1_hz": float(np.mean(f1)), "min_f1_hz": float(np.min(f1)), "max_f1_hz": float(np.max(f1)), "variation_pct": float(100 * (f1.max() - f1.min()) / f1.mean())}
     ctx.log("tuned-right frequencies: " + ", ".join(f"{k} {v:.2f} Hz" for k, v in right.items()))
     rest = [spec(s, p, c, right[group_key(s, p)]) for s, p in groups for c in configs if c != "a"]
-    for r in run_rigs(ctx, rest, in_process=quick, description="battery (b)-(e) runs"):
+    for r in map_rigs(ctx, rest, in_process=quick, description="battery (b)-(e) runs"):
         gk, c = r.spec.name.rsplit("_", 1)
         results[(gk, c)] = r
 
@@ -177,7 +179,7 @@ def run(ctx: ExperimentContext) -> Report:
 
     # ---------------------------------------------------------------- report
     rep.heading("Runs")
-    mode_text = "one process each (rig.composition)" if quick else "three processes each (rig.launcher), two rigs at a time"
+    mode_text = "one process each (rig.composition)" if quick else "three processes each (rig.launcher), one run per campaign-engine worker at a time"
     rep.text(
         f"{len(results)} runs, {mode_text}, {ctx.mode}. "
         + ("Quick mode: the first 20 s of the loop at 5 in/s, payload removed, configurations (a) and (b) only. " if quick else "Each run is one lap of the inspection loop from rest (42 s at 5 in/s, 51 s at 4 in/s). ")

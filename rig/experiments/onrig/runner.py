@@ -1,9 +1,10 @@
 """Running the rig for an experiment, and the analysis helpers the on-rig experiments share.
 
 :func:`run_rig` runs one rig to completion and returns its records
-(:class:`RigResult`); :func:`run_rigs` runs several independent ones, at
-most two at a time (this is a two-core machine, and one three-process rig in
-lockstep keeps a little over half a core busy).
+(:class:`RigResult`); :func:`run_rigs` runs several independent ones on the
+campaign engine (:mod:`rig.campaign.rigs`: one Dask task per run, a local
+cluster of one worker per core unless ``ralf-hil experiment --scheduler``
+names a cluster).
 
 The co-simulation (the default, ``ctx.mode == "cosim"``)
     Plant, controller and DSP cores called in order each tick in this
@@ -43,13 +44,11 @@ variables (booleans as ``true``/``false``, tuples as JSON).
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 import uuid
 import zlib
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,7 +62,6 @@ from controller.trajectory import DEFAULT_TRAJECTORY_PATH, load_trajectory, samp
 from rig.experiments.framework import ExperimentContext
 
 __all__ = [
-    "MAX_PARALLEL",
     "THESIS_BATCH_SIZE",
     "RigResult",
     "RigRun",
@@ -76,9 +74,6 @@ __all__ = [
 ]
 
 FloatArray = npt.NDArray[np.float64]
-
-MAX_PARALLEL = 2
-"""Independent rigs running at once (two cores)."""
 
 THESIS_BATCH_SIZE = 20
 """The batch size l the experiments use (thesis: 20-50 samples; its identification runs: 20)."""
@@ -458,43 +453,13 @@ def run_rigs(
     specs: Sequence[RigRun],
     *,
     in_process: bool = False,
-    parallel: int = MAX_PARALLEL,
     description: str = "rig runs",
 ) -> list[RigResult]:
-    """Run independent rigs (at most ``parallel`` at a time; one-process runs one after the other),
-    under one progress bar in simulated seconds; results in the order of ``specs``.
+    """Run independent rigs on the campaign engine (:func:`rig.campaign.rigs.map_rigs`: one Dask
+    task per run, as many at once as the engine has workers); results in the order of ``specs``.
 
-    If a run fails the others still finish, then the first failure is raised.
+    If a run fails the others still finish, then a :class:`RigRunError` names the failures.
     """
-    if not specs:
-        return []
-    names = [s.name for s in specs]
-    if len(set(names)) != len(names):
-        raise ValueError(f"run names must be unique: {names}")
-    total = sum(s.expected_sim_s() for s in specs)
-    one_thread = in_process or ctx.mode == "cosim"
-    workers = 1 if one_thread else max(1, min(parallel, MAX_PARALLEL, len(specs)))
-    ctx.log(
-        f"{len(specs)} run(s), {total:.0f} s simulated, "
-        + ("co-simulated in one thread, in turn" if ctx.mode == "cosim" else "one process each, in turn" if in_process else f"three processes each, {workers} at a time")
-        + f", {ctx.mode}"
-    )
-    lock = threading.Lock()
-    with ctx.progress_task(f"{description} (simulated s)", total=math.ceil(total)) as advance:
+    from rig.campaign.rigs import map_rigs
 
-        def progress(step: float) -> None:
-            with lock:
-                advance(step)
-
-        def one(spec: RigRun) -> RigResult:
-            return run_rig(ctx, spec, in_process=in_process, on_progress=progress)
-
-        if workers == 1:
-            return [one(s) for s in specs]
-        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rig") as pool:
-            futures = [pool.submit(one, s) for s in specs]
-            errors = [f.exception() for f in futures]
-        for err in errors:
-            if err is not None:
-                raise err
-        return [f.result() for f in futures]
+    return map_rigs(ctx, specs, in_process=in_process, description=description)
