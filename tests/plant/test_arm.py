@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from plant_emulator.model import GroundTruth, PlantConfig, RalfArm
-from plant_emulator.model.arm import default_deflection_zero
 from plant_emulator.model import kinematics as kin
+from plant_emulator.model.arm import default_deflection_zero
 from plant_emulator.model.modes import static_deflection_in
 
 

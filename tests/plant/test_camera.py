@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from plant_emulator.model import PlantConfig, RalfArm
+from plant_emulator.model import PlantConfig, RalfArm, modes
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model import modes
 
 
 def test_bending_share_is_the_series_spring_split() -> None:

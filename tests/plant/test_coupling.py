@@ -18,6 +18,7 @@ import scipy.signal as ss
 
 from plant_emulator.model import PlantConfig, RalfArm, frequency_response, modal_parameters
 from plant_emulator.model import kinematics as kin
+from tests.plant.support import interior_peak_hz, mimo_h1
 
 FS = 200.0
 HOLD = (math.radians(85.0), math.radians(25.0))
@@ -47,34 +48,9 @@ def record() -> tuple[np.ndarray, np.ndarray]:
     return u, y
 
 
-def _mimo(u: np.ndarray, y: np.ndarray, nper: int = 1024) -> tuple[np.ndarray, np.ndarray]:
-    """H[f, i, j] from input i to output j (conjugates as in scipy's csd)."""
-    f, p11 = ss.welch(u[:, 0], FS, nperseg=nper)
-    _, p22 = ss.welch(u[:, 1], FS, nperseg=nper)
-    _, p12 = ss.csd(u[:, 0], u[:, 1], FS, nperseg=nper)
-    p21 = np.conj(p12)
-    den = p11 * p22 - np.abs(p12) ** 2
-    H = np.empty((f.size, 2, 2), dtype=complex)
-    for j in range(2):
-        _, p1y = ss.csd(u[:, 0], y[:, j], FS, nperseg=nper)
-        _, p2y = ss.csd(u[:, 1], y[:, j], FS, nperseg=nper)
-        H[:, 0, j] = (p1y * p22 - p12 * p2y) / den
-        H[:, 1, j] = (p2y * p11 - p21 * p1y) / den
-    return f, H
-
-
-def _peak(f: np.ndarray, mag: np.ndarray, lo: float, hi: float) -> float:
-    """Frequency of the largest local maximum in [lo, hi], parabolic on log |H|."""
-    idx = np.flatnonzero((f >= lo) & (f <= hi))
-    i = idx[np.argmax(mag[idx])]
-    assert idx[0] < i < idx[-1], "no interior peak"
-    a, b, c = np.log(mag[i - 1 : i + 2])
-    return float(f[i] + 0.5 * (a - c) / (a - 2 * b + c) * (f[1] - f[0]))
-
-
 def test_four_transfer_functions_peak_at_the_true_modes(record: tuple[np.ndarray, np.ndarray]) -> None:
     u, y = record
-    f, H = _mimo(u, y)
+    f, H = mimo_h1(u, y)
     f_true, _ = modal_parameters(*HOLD)
     mag = np.abs(H)
     band = (f > 1.0) & (f < 12.0)
@@ -87,7 +63,7 @@ def test_four_transfer_functions_peak_at_the_true_modes(record: tuple[np.ndarray
         # the path in which this mode stands out most against the other one
         score = mag[at[0]] / mag[at[1]]
         i, j = np.unravel_index(np.argmax(score), (2, 2))
-        fp = _peak(f, mag[:, i, j], 0.8 * f_true[r], 1.2 * f_true[r])
+        fp = interior_peak_hz(f, mag[:, i, j], 0.8 * f_true[r], 1.2 * f_true[r])
         assert fp == pytest.approx(f_true[r], rel=0.02), (r, i, j)
     # the estimate agrees with the linearised model's transfer functions, once
     # the sampling is accounted for: the command is held for a sample period

@@ -38,46 +38,13 @@ from protocol.can_map import (
     volts_to_output_frame,
 )
 from protocol.errors import ConfigError
+from tests.plant.support import EDS, FakeApp
 
 ROOT = Path(__file__).resolve().parents[2]
-EDS = ROOT / "protocol" / "ralf_io.eds"
 
 NMT, SYNC, EMCY, TPDO1, TPDO2, TPDO3, RPDO1, SDO_TX, SDO_RX, HB = (
     0x000, 0x080, 0x081, 0x181, 0x281, 0x381, 0x201, 0x581, 0x601, 0x701
 )
-
-
-class FakeApp:
-    """A plant stand-in: fixed analog volts, quantized by the current A/D."""
-
-    def __init__(self, volts: tuple[float, ...] = (1.0, -2.5, 9.9, -10.0)) -> None:
-        self.bits = 12
-        self.volts = np.asarray(volts, dtype=float)
-        self.saturated = np.zeros(4, dtype=bool)
-        self.syncs: list[int] = []
-        self.outputs: list[np.ndarray] = []
-        self.watchdog: list[bool] = []
-        self.adc_calls: list[int] = []
-
-    @property
-    def codes(self) -> np.ndarray:
-        from protocol.can_map import ConverterScale
-
-        return ConverterScale(self.bits).quantize(self.volts).counts
-
-    def on_sync(self, counter: int) -> tuple[np.ndarray, np.ndarray]:
-        self.syncs.append(counter)
-        return self.codes, self.saturated.copy()
-
-    def on_outputs(self, volts: np.ndarray) -> None:
-        self.outputs.append(np.array(volts))
-
-    def on_watchdog(self, tripped: bool) -> None:
-        self.watchdog.append(tripped)
-
-    def on_adc_bits(self, bits: int) -> None:
-        self.adc_calls.append(bits)
-        self.bits = bits
 
 
 def frame(cob_id: int, data: bytes | list[int] = b"", **kw: object) -> can.Message:

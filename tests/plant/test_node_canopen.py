@@ -28,7 +28,7 @@ from protocol.can_map import (
     encode_nmt,
     encode_sync,
 )
-from tests.plant.test_node import EDS, FakeApp
+from tests.plant.support import EDS, FakeApp
 
 
 def wait_until(pred: Callable[[], bool], timeout: float = 1.0) -> bool:

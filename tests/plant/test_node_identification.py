@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from controller.engineering import measure
-from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.canopen_node import CanopenNode
+from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
 from protocol.settings import PlantSettings
-from tests.plant.test_coupling import _mimo, _peak
+from tests.plant.support import interior_peak_hz, mimo_h1
 
 FS = 200.0
 HOLD = (math.radians(85.0), math.radians(25.0))
@@ -59,11 +59,11 @@ def over_can() -> tuple[np.ndarray, np.ndarray, list[float]]:
 
 def test_peaks_identified_through_the_node_match_the_ground_truth(over_can: tuple[np.ndarray, np.ndarray, list[float]]) -> None:
     u, y, f_true = over_can
-    f, H = _mimo(u, y)
+    f, H = mimo_h1(u, y)
     mag = np.abs(H)
     band = (f > 1.0) & (f < 12.0)
     assert np.all(mag[band].max(axis=0) > 0.05 * mag[band].max())  # all four paths carry the modes
     for r in range(2):
         at = [np.argmin(abs(f - f_true[r])), np.argmin(abs(f - f_true[1 - r]))]
         i, j = np.unravel_index(np.argmax(mag[at[0]] / mag[at[1]]), (2, 2))
-        assert _peak(f, mag[:, i, j], 0.8 * f_true[r], 1.2 * f_true[r]) == pytest.approx(f_true[r], rel=0.02)
+        assert interior_peak_hz(f, mag[:, i, j], 0.8 * f_true[r], 1.2 * f_true[r]) == pytest.approx(f_true[r], rel=0.02)
