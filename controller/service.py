@@ -18,7 +18,6 @@ the next SYNC as soon as the tick is done.
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -32,9 +31,10 @@ from controller.loop import ControlLaw, run_ticks
 from controller.monitors import MonitorStop, Monitors
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from protocol.can_map import NmtCommand, NmtState
-from controller.record import ColumnBuffer, save_record
+from controller.record import ChunkedRecord, RowCounter
 from protocol.batch_codec import encode_batch
 from protocol.errors import ProtocolError
+from protocol.inbox import Inbox
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
@@ -115,27 +115,28 @@ class ControllerService:
         self._tf_thread: threading.Thread | None = None
         self._tf_due = False
         self._config_seq = -1
-        self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        self._events = Inbox("controller", capacity=256)  # decoded in zenoh's threads, bounded (protocol/inbox.py)
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
         self._status_seq = 0
         self._last_status = 0.0
         self._rate_window: list[float] = []
-        self.record = ColumnBuffer(
-            {**{name: np.float64 for name in self._record_names()}, "tick": np.int64},
-            capacity=4096,
-        )
-        self.timing_record = ColumnBuffer({"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}, capacity=4096)
+        columns = {**{name: np.float64 for name in self._record_names()}, "tick": np.int64}
+        timing_columns = {"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}
+        # RALF_RECORD unset: nothing is kept (flat memory); set: streamed to disk in chunks.
+        self.record: ChunkedRecord | RowCounter = ChunkedRecord(settings.record, columns) if settings.record else RowCounter(columns)
+        self.timing_record: ChunkedRecord | RowCounter = ChunkedRecord(settings.record + ".timing", timing_columns) if settings.record else RowCounter(timing_columns)
         block = zenoh.CongestionControl.BLOCK
         self._batch_pub = session.declare_publisher(self.keys.batch, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
         self._status_pub = session.declare_publisher(self.keys.controller_status)
         self._subs = [
-            session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes(), time.monotonic()))),
-            session.declare_subscriber(self.keys.interrupt, self._on_interrupt_sample),
+            session.declare_subscriber(self.keys.flag, self._events.subscriber("flag", lambda b: decode(BlockFlag, b))),
+            # The arrival is stamped in zenoh's thread: the MVME took it as a hardware interrupt, not at the next tick.
+            session.declare_subscriber(self.keys.interrupt, self._events.subscriber("interrupt", lambda b: decode(Interrupt, b))),
             session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
-            session.declare_subscriber(self.keys.controller_command, lambda s: self._events.put(("command", s.payload.to_bytes(), time.monotonic()))),
+            session.declare_subscriber(self.keys.controller_command, self._events.subscriber("command", lambda b: decode(ConfigChange, b))),
         ]
         self._token = session.liveliness().declare_token(self.keys.alive("controller"))
         self._health = HealthPublisher(session, self.keys.health("controller"), settings.health_period_s, self._build_health)
@@ -148,17 +149,11 @@ class ControllerService:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
-    def _on_interrupt_sample(self, sample: zenoh.Sample) -> None:
-        """Stamp the interrupt's arrival here: the MVME took it as a hardware
-        interrupt, not at the next tick."""
-        self._events.put(("interrupt", sample.payload.to_bytes(), time.monotonic()))
-
     def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
-        up = sample.kind == zenoh.SampleKind.PUT
-        self._events.put(("alive", b"1" if up else b"0", time.monotonic()))
+        self._events.put("alive", sample.kind == zenoh.SampleKind.PUT)
 
     def _build_health(self, seq: int) -> Health:
-        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict()}
+        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self._events.as_dict()}
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -204,18 +199,22 @@ class ControllerService:
         self._status_pub.put(encode(status))
 
     # -- DSP side -----------------------------------------------------------------------
-    def _take_event(self, kind: str, payload: bytes, arrival: float) -> None:
+    def _take_event(self, kind: str, payload: Any, arrival: float) -> None:
+        """One decoded message from the inbox (never raw bytes: decoding
+        happened in zenoh's thread)."""
         try:
             if kind == "flag":
-                self.link.on_flag(decode(BlockFlag, payload))
+                self.link.on_flag(payload)
             elif kind == "interrupt":
-                irq = decode(Interrupt, payload)
+                irq = payload
                 self._irq_arrival[irq.batch_seq] = arrival
+                while len(self._irq_arrival) > 64:  # unmatched ones (lost or foreign) must not accumulate
+                    del self._irq_arrival[next(iter(self._irq_arrival))]
                 self._held_interrupts.append(irq)
             elif kind == "command":
-                self.reconfigure(decode(ConfigChange, payload))
+                self.reconfigure(payload)
             elif kind == "alive":
-                up = payload == b"1"
+                up = bool(payload)
                 if up != self.dsp_alive:
                     self.liveliness.append((self.tick * self.settings.sample_period_s, "dsp", up))
                     if up:
@@ -246,12 +245,8 @@ class ControllerService:
         self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
-        while True:
-            try:
-                kind, payload, arrival = self._events.get_nowait()
-            except queue.Empty:
-                return
-            self._take_event(kind, payload, arrival)
+        for kind, message, arrival in self._events.drain(limit=self._events.capacity):
+            self._take_event(kind, message, arrival)
 
     def _wait_for_interrupt(self, seq: int) -> None:
         """Lockstep: block until the interrupt of batch ``seq`` is in (or time out)."""
@@ -267,11 +262,9 @@ class ControllerService:
                 return
             if not self.dsp_alive and self.timing.dsp_found:
                 return
-            try:
-                kind, payload, arrival = self._events.get(timeout=min(remaining, 0.1))
-            except queue.Empty:
-                continue
-            self._take_event(kind, payload, arrival)
+            item = self._events.get(timeout=min(remaining, 0.1))
+            if item is not None:
+                self._take_event(*item)
 
     def _apply_interrupts(self) -> bool:
         """Apply held interrupts that are due; True if one was applied this tick."""
@@ -314,6 +307,8 @@ class ControllerService:
         sent, batch = taken
         batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
         self._batch_sent_wall[sent.seq] = time.monotonic()
+        while len(self._batch_sent_wall) > 64:  # batches never answered must not accumulate
+            del self._batch_sent_wall[next(iter(self._batch_sent_wall))]
         self._batch_pub.put(encode_batch(batch))
 
     def _download_tf(self) -> None:
@@ -328,6 +323,8 @@ class ControllerService:
                 continue
             try:
                 self.tf_snapshots.append(decode(TfSnapshot, reply.ok.payload.to_bytes()))
+                if not self.settings.record:
+                    del self.tf_snapshots[:-1]  # nothing will save them: keep the latest only
                 self.timing.tf_downloads += 1
                 return
             except ProtocolError as exc:
@@ -485,7 +482,7 @@ class ControllerService:
         return RunResult(
             ticks=self.tick,
             sim_time_s=self.tick * ts,
-            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict()},
+            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict()},
             error=error,
             liveliness=self.liveliness,
         )
@@ -512,19 +509,19 @@ class ControllerService:
         self.link.next_seq = 0
         deadline = time.monotonic() + timeout
         while not self.link.block_empty and time.monotonic() < deadline and not stop.is_set():
-            try:
-                kind, payload, arrival = self._events.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            self._take_event(kind, payload, arrival)
+            item = self._events.get(timeout=0.05)
+            if item is not None:
+                self._take_event(*item)
         if not self.link.block_empty:
             log.warning("no DSP answered within %.1f s; controlling without identification until it does", timeout)
 
     def save(self, path: str, result: RunResult) -> None:
         """Write the run record (deterministic columns), timing and TF downloads."""
         metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
-        save_record(path, self.record.to_columns(), self.settings.model_dump(), metadata)
-        save_record(path + ".timing", self.timing_record.to_columns(), None, {"note": "wall-clock timing; differs run to run"})
+        if not isinstance(self.record, ChunkedRecord) or not isinstance(self.timing_record, ChunkedRecord):
+            raise ValueError("this run keeps no record: set RALF_RECORD to save one")
+        self.record.save(path, self.settings.model_dump(), metadata)
+        self.timing_record.save(path + ".timing", None, {"note": "wall-clock timing; differs run to run"})
         if self.tf_snapshots:
             freqs = np.asarray(self.tf_snapshots[-1].freqs_hz)
             same = [s for s in self.tf_snapshots if len(s.freqs_hz) == freqs.size]

@@ -9,7 +9,6 @@ work happens on the service's own thread, never in zenoh callbacks.
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -21,9 +20,11 @@ from dsp_service.board import Admission, BatchBlock
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
 from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.errors import ProtocolError
+from protocol.inbox import Inbox
 from protocol.keys import Keys
 from protocol.messages import (
     BlockFlag,
+    ConfigAck,
     ConfigChange,
     Health,
     Interrupt,
@@ -63,6 +64,7 @@ class _Event:
     payload: bytes = b""
     batch: SampleBatch | None = None
     admission: Admission | None = None
+    change: ConfigChange | None = None
 
 
 class DspService:
@@ -86,15 +88,16 @@ class DspService:
         self.last_sim_time = 0.0
         self.last_result: IdentificationResult | None = None
         self.last_batch_missed = False
-        self._events: queue.Queue[_Event] = queue.Queue()
+        self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (protocol/inbox.py)
         self._tf_lock = threading.Lock()
         self._block_lock = threading.Lock()
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._ack_pub = session.declare_publisher(self.keys.dsp_config_ack, congestion_control=block)
         self._subs = [
-            session.declare_subscriber(self.keys.batch, self._on_batch_sample),
-            session.declare_subscriber(self.keys.dsp_config, lambda s: self._events.put(_Event("config", s.payload.to_bytes()))),
+            session.declare_subscriber(self.keys.batch, self._events.subscriber("batch", self._on_batch_payload)),
+            session.declare_subscriber(self.keys.dsp_config, self._events.subscriber("config", self._decode_config)),
         ]
         self._queryable = session.declare_queryable(self.keys.tf, self._on_tf_query)
         self._token = session.liveliness().declare_token(self.keys.alive("dsp"))
@@ -124,6 +127,7 @@ class DspService:
 
     def _build_health(self, seq: int) -> Health:
         counters = self.block.counters.as_dict()
+        counters.update(self._events.as_dict())
         counters["interrupts"] = self.interrupt_seq
         state = "degraded" if self.last_batch_missed else "running"
         return Health(
@@ -141,20 +145,30 @@ class DspService:
         with self._block_lock:
             self.block.counters.rejected += 1
             self.block.last_violation = reason
-        log.warning("rejected a batch: %s", reason)
+        self._events.log.warning("batch:rejected", "rejected a batch: %s", reason)
 
-    def _on_batch_sample(self, sample: zenoh.Sample) -> None:
-        """A batch arrives in the block (zenoh's thread): decoded, checked and
-        admitted here, so a batch arriving while the block is full is seen as
-        the protocol violation it is; the identification runs on our thread."""
+    def _decode_config(self, payload: bytes) -> _Event:
+        """A config change decoded in zenoh's thread; an invalid one counts as a decode error."""
         try:
-            batch = decode_batch(sample.payload.to_bytes())
+            return _Event("config", change=decode(ConfigChange, payload))
+        except ProtocolError:
+            with self._block_lock:
+                self.block.counters.decode_errors += 1
+            raise
+
+    def _on_batch_payload(self, payload: bytes) -> None:
+        """A batch arrives in the block (zenoh's thread, size-capped by the
+        inbox): decoded, checked and admitted here, so a batch arriving while
+        the block is full is seen as the protocol violation it is; the
+        identification runs on our thread. Queues itself; returns None."""
+        try:
+            batch = decode_batch(payload)
         except ProtocolError as exc:
             with self._block_lock:
                 self.block.counters.decode_errors += 1
                 self.block.last_violation = f"undecodable batch: {exc}"
-            log.warning("dropped an undecodable batch: %s", exc)
-            return
+            self._events.log.warning("batch:undecodable", "dropped an undecodable batch: %s", exc)
+            return None
         if batch.inputs.shape[0] != 2 or batch.outputs.shape[0] != 2:
             self._reject(f"batch {batch.seq} has {batch.inputs.shape[0]} inputs and {batch.outputs.shape[0]} outputs; the board identifies 2x2")
             return
@@ -164,7 +178,8 @@ class DspService:
         with self._block_lock:
             admission = self.block.admit(batch)
         if admission.accepted:
-            self._events.put(_Event("batch", batch=batch, admission=admission))
+            self._events.put("batch", _Event("batch", batch=batch, admission=admission))
+        return None
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
             query.reply(self.keys.tf, encode(self.snapshot()))
@@ -271,19 +286,17 @@ class DspService:
     def _handle(self, event: _Event) -> None:
         if event.kind == "batch" and event.batch is not None:
             self.process_batch(event.batch, event.admission)
-        elif event.kind == "config":
-            try:
-                change = decode(ConfigChange, event.payload)
-            except ProtocolError as exc:
-                self.block.counters.decode_errors += 1
-                log.warning("dropped an invalid config change: %s", exc)
-                return
+        elif event.kind == "config" and event.change is not None:
+            change = event.change  # decoded (and counted if invalid) by the inbox
+            refused = ""
             try:
                 self.apply_config(change)
             except ValueError as exc:
+                refused = str(exc)
                 self.block.counters.config_rejected += 1
                 self.block.last_violation = f"config change refused: {exc}"
                 log.warning("refused a config change the identifier cannot take: %s", exc)
+            self._ack_pub.put(encode(ConfigAck.answering(change, not refused, refused, self.identifier.fft_width, self.batch_size, self.identifier.cfg.alpha, self.emulated_latency_s)))
             self._publish_flag("empty" if not self.block.full else "full")
 
     def _handle_safely(self, event: _Event) -> None:
@@ -305,16 +318,15 @@ class DspService:
         self._publish_flag("empty")  # Fig. 3.5 step 1: the block starts empty
         last_flag = time.monotonic()
         while not stop.is_set():
-            try:
-                event = self._events.get(timeout=0.05)
-            except queue.Empty:
+            item = self._events.get(timeout=0.05)
+            if item is None:
                 # Re-announce an empty block now and then, so a controller that
                 # starts after us (or missed the first flag) learns it.
                 if not self.block.full and time.monotonic() - last_flag > 0.5:
                     self._publish_flag("empty")
                     last_flag = time.monotonic()
                 continue
-            self._handle_safely(event)
+            self._handle_safely(item.message)
             last_flag = time.monotonic()
 
     def close(self) -> None:
@@ -325,3 +337,4 @@ class DspService:
         self._token.undeclare()
         self._flag_pub.undeclare()
         self._irq_pub.undeclare()
+        self._ack_pub.undeclare()

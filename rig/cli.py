@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import tempfile
@@ -152,17 +153,65 @@ def cmd_up(args: argparse.Namespace) -> int:
     return 1 if (failure or bad) else 0
 
 
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite number of seconds above zero."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if math.isnan(value):
+        raise argparse.ArgumentTypeError("NaN (not a number) is not a duration")
+    if not 0 < value <= 1e7:
+        raise argparse.ArgumentTypeError(f"{text} s: give a duration above 0 and at most 1e7 s")
+    return value
+
+
+def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
+    """Send ``change`` to the controller and wait for the DSP's
+    :class:`~protocol.messages.ConfigAck` carrying its ``request_id``; None if
+    nothing answers within ``timeout_s``."""
+    from protocol.errors import ProtocolError
+    from protocol.messages import ConfigAck, decode, encode
+
+    got: list[Any] = []
+    answered = threading.Event()
+
+    def on_ack(sample: Any) -> None:
+        try:
+            ack = decode(ConfigAck, sample.payload.to_bytes())
+        except ProtocolError:
+            return
+        if ack.request_id == change.request_id:
+            got.append(ack)
+            answered.set()
+
+    sub = session.declare_subscriber(keys.dsp_config_ack, on_ack)
+    try:
+        deadline = time.monotonic() + timeout_s
+        # Resend until answered: the tool's session may take a moment to find
+        # the controller, and a command nobody received is not an error yet.
+        while not answered.is_set() and time.monotonic() < deadline:
+            session.put(keys.controller_command, encode(change))
+            answered.wait(min(0.5, max(0.0, deadline - time.monotonic())))
+    finally:
+        sub.undeclare()
+    return got[0] if got else None
+
+
 def cmd_reconfigure(args: argparse.Namespace) -> int:
     """Send a run-time configuration change to a running controller, which
-    applies the batch size and forwards the rest to the DSP."""
+    applies the batch size and forwards the rest to the DSP; succeed only
+    when the DSP acknowledges it."""
+    import uuid
+
     from protocol.errors import ConfigError
     from protocol.keys import Keys
-    from protocol.messages import ConfigChange, encode
+    from protocol.messages import ConfigChange
     from protocol.settings import CommonSettings, load_settings
     from protocol.transport import open_zenoh
 
     try:
-        change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha)
+        change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha, request_id=uuid.uuid4().hex)
     except ValueError as exc:
         console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
         return 2
@@ -177,14 +226,26 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         console.print(f"[red]{exc}[/red]")
         return 2
-    session = open_zenoh(settings)
     try:
-        time.sleep(0.5)  # let the session find its peers
-        session.put(Keys(settings.rig_id).controller_command, encode(change))
-        time.sleep(0.2)
+        session = open_zenoh(settings, retry_for_s=0.0)
+    except ConfigError as exc:
+        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+        return 2
+    wanted = change.model_dump(include={"fft_width", "batch_size", "alpha"}, exclude_none=True)
+    try:
+        ack = wait_for_ack(session, Keys(settings.rig_id), change, args.timeout)
     finally:
         session.close()
-    console.print(f"sent to rig {settings.rig_id!r}: {change.model_dump(include={'fft_width', 'batch_size', 'alpha'}, exclude_none=True)}")
+    if ack is None:
+        console.print(
+            f"[red]ralf-hil reconfigure: no acknowledgement from the DSP of rig {settings.rig_id!r} within {args.timeout:g} s "
+            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?); {wanted} not applied[/red]"
+        )
+        return 1
+    if not ack.accepted:
+        console.print(f"[red]ralf-hil reconfigure: the DSP refused {wanted}: {ack.reason}[/red]")
+        return 1
+    console.print(f"applied on rig {settings.rig_id!r}: {wanted}; the DSP now runs N={ack.fft_width}, l={ack.batch_size}, alpha={ack.alpha:g}")
     return 0
 
 
@@ -192,7 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
     up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
-    up.add_argument("--duration", type=float, default=None, help="stop after this many wall-clock seconds (default: until Ctrl-C)")
+    up.add_argument("--duration", type=positive_seconds, default=None, help="stop after this many wall-clock seconds (default: until Ctrl-C)")
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
     up.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime", help="clock mode (default: realtime)")
     up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
@@ -205,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--fft-width", type=int, default=None, help="DSP FFT width N (power of two; zeroes its history)")
     rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
+    rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
     for module in (bench, monitor, experiments):
         module.register(sub)
