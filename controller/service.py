@@ -34,7 +34,7 @@ from protocol.can_map import NmtCommand, NmtState
 from controller.record import ChunkedRecord, RowCounter
 from protocol.batch_codec import encode_batch
 from protocol.errors import ProtocolError
-from protocol.inbox import Inbox
+from protocol.inbox import REFUSED, Inbox
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
@@ -134,7 +134,7 @@ class ControllerService:
         self._subs = [
             session.declare_subscriber(self.keys.flag, self._events.subscriber("flag", lambda b: decode(BlockFlag, b))),
             # The arrival is stamped in zenoh's thread: the MVME took it as a hardware interrupt, not at the next tick.
-            session.declare_subscriber(self.keys.interrupt, self._events.subscriber("interrupt", lambda b: decode(Interrupt, b))),
+            session.declare_subscriber(self.keys.interrupt, self._events.subscriber("interrupt", self._decode_interrupt)),
             session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
             session.declare_subscriber(self.keys.controller_command, self._events.subscriber("command", lambda b: decode(ConfigChange, b))),
         ]
@@ -148,6 +148,13 @@ class ControllerService:
         if self.law.oatf is not None:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
+
+    def _decode_interrupt(self, payload: bytes) -> Interrupt | object:
+        """In zenoh's thread: an interrupt for no batch we sent is refused
+        before it can take a place in the inbox (a flood must not crowd out
+        the real one)."""
+        irq = decode(Interrupt, payload)
+        return irq if irq.batch_seq in self._batch_sent_wall else REFUSED
 
     def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
         self._events.put("alive", sample.kind == zenoh.SampleKind.PUT)
