@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import tempfile
@@ -102,11 +103,35 @@ def print_summary(summary: dict[str, Any]) -> None:
     console.print(table)
 
 
+def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
+    """Hold this host's lock of ``rig_id`` for as long as the returned file
+    stays open: a second ``ralf-hil up`` of the same rig id on this host
+    would share its CAN port and zenoh keys, so it is refused (exit 2)."""
+    import fcntl
+
+    path = Path(directory or tempfile.gettempdir()) / f"ralf-hil-{rig_id}.lock"
+    handle = open(path, "a+")  # noqa: SIM115 (held open for the run)
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.seek(0)
+        holder = handle.read().strip() or "another process"
+        handle.close()
+        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({holder}); stop it or choose another --rig-id[/red]")
+        raise SystemExit(2) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()}")
+    handle.flush()
+    return handle
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
     except ValueError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
+    _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
     overrides = _parse_overrides(args.set)
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
