@@ -12,6 +12,7 @@ from typing import Any
 import can
 import zenoh
 
+from protocol.access import insert_access
 from protocol.errors import TransportError
 from protocol.settings import CommonSettings
 
@@ -32,6 +33,15 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
+    insert_access(
+        config,
+        settings.rig_id,
+        user=settings.zenoh_user,
+        password=settings.zenoh_password,
+        credentials_file=settings.zenoh_credentials_file,
+        acl=settings.zenoh_acl,
+        scenarios=settings.zenoh_acl_scenarios,
+    )
     return config
 
 

@@ -126,6 +126,26 @@ def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
     return handle
 
 
+def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
+    """Fresh zenoh credentials for this run: every service, the launcher's
+    observer and tools authenticate with their role's password, and every
+    node applies the rig's access rules (protocol/access.py). Writes the
+    credentials file (owner-only) and ``tool.env``, the variables that let
+    ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
+    from protocol.access import generate_credentials, role_env, write_credentials_file
+
+    credentials = generate_credentials()
+    path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
+    plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="true", RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower())
+    for role in ("dsp", "plant", "controller", "launcher"):
+        plan.service_env.setdefault(role, {}).update(role_env(role, credentials))
+    tool_env = directory / "tool.env"
+    fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{k}={v}\n" for k, v in {**role_env("tool", credentials), "RALF_RIG_ID": plan.rig_id}.items())
+    return tool_env
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -135,6 +155,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     overrides = _parse_overrides(args.set)
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    tool_env = provision_access(plan, log_dir)  # credentials of this run, access rules on
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -145,7 +167,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     try:
         for name in START_ORDER:
             procs[name] = start_service(plan, name, log_dir)
-        console.print(f"rig {plan.rig_id!r} up: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}")
+        console.print(f"rig {plan.rig_id!r} up: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}")
         with Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal) as live:
             while not stop.is_set():
                 elapsed = time.monotonic() - started
