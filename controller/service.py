@@ -116,6 +116,8 @@ class ControllerService:
         self._tf_due = False
         self._config_seq = -1
         self._events = Inbox("controller", capacity=256)  # decoded in zenoh's threads, bounded (protocol/inbox.py)
+        self.paired_board: bytes | None = None
+        """The DSP board (session id) this controller takes flags and interrupts from."""
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
@@ -132,9 +134,9 @@ class ControllerService:
         self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
         self._status_pub = session.declare_publisher(self.keys.controller_status)
         self._subs = [
-            session.declare_subscriber(self.keys.flag, self._events.subscriber("flag", lambda b: decode(BlockFlag, b))),
+            session.declare_subscriber(self.keys.flag, self._events.subscriber("flag", self._decode_flag, with_attachment=True)),
             # The arrival is stamped in zenoh's thread: the MVME took it as a hardware interrupt, not at the next tick.
-            session.declare_subscriber(self.keys.interrupt, self._events.subscriber("interrupt", self._decode_interrupt)),
+            session.declare_subscriber(self.keys.interrupt, self._events.subscriber("interrupt", self._decode_interrupt, with_attachment=True)),
             session.liveliness().declare_subscriber(self.keys.alive("dsp"), self._on_dsp_liveliness, history=True),
             session.declare_subscriber(self.keys.controller_command, self._events.subscriber("command", lambda b: decode(ConfigChange, b))),
         ]
@@ -149,11 +151,23 @@ class ControllerService:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
-    def _decode_interrupt(self, payload: bytes) -> Interrupt | object:
-        """In zenoh's thread: an interrupt for no batch we sent is refused
-        before it can take a place in the inbox (a flood must not crowd out
-        the real one)."""
+    def _decode_flag(self, payload: bytes, board: bytes | None) -> BlockFlag | object:
+        """In zenoh's thread: the first flag after the run-start reset pairs
+        the controller with its board (the DSP session's id, sent as the
+        attachment); flags of any other board are refused."""
+        flag = decode(BlockFlag, payload)
+        if self.paired_board is None and self._config_seq >= 0 and board:
+            self.paired_board = board
+            log.info("paired with DSP board %s", board.decode(errors="replace"))
+        return flag if board is not None and board == self.paired_board else REFUSED
+
+    def _decode_interrupt(self, payload: bytes, board: bytes | None) -> Interrupt | object:
+        """In zenoh's thread: an interrupt from another board than the paired
+        one, or for no batch we sent, is refused before it can take a place
+        in the inbox (a flood must not crowd out the real one)."""
         irq = decode(Interrupt, payload)
+        if board is None or board != self.paired_board:
+            return REFUSED
         return irq if irq.batch_seq in self._batch_sent_wall else REFUSED
 
     def _on_dsp_liveliness(self, sample: zenoh.Sample) -> None:
@@ -229,6 +243,7 @@ class ControllerService:
                         self.monitors.clear("dsp_lost")
                         log.info("DSP present at tick %d", self.tick)
                     else:
+                        self.paired_board = None  # a restarted board pairs anew with its first flag
                         self.timing.dsp_lost += 1
                         self.last_miss = f"DSP lost at tick {self.tick}"
                         self.link.in_flight = None

@@ -95,6 +95,7 @@ class DspService:
         self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._ack_pub = session.declare_publisher(self.keys.dsp_config_ack, congestion_control=block)
+        self.board_id = str(session.info.zid()).encode()  # sent with flags and interrupts: the controller pairs with one board
         self._subs = [
             session.declare_subscriber(self.keys.batch, self._events.subscriber("batch", self._on_batch_payload)),
             session.declare_subscriber(self.keys.dsp_config, self._events.subscriber("config", self._decode_config)),
@@ -123,7 +124,7 @@ class DspService:
             emulated_latency_s=self.emulated_latency_s,
         )
         self.flag_seq += 1
-        self._flag_pub.put(encode(flag))
+        self._flag_pub.put(encode(flag), attachment=self.board_id)
 
     def _build_health(self, seq: int) -> Health:
         counters = self.block.counters.as_dict()
@@ -279,7 +280,7 @@ class DspService:
         with self._block_lock:
             self.block.release()
         self._publish_flag("empty")
-        self._irq_pub.put(encode(interrupt))
+        self._irq_pub.put(encode(interrupt), attachment=self.board_id)
         self.turnaround.add(time.monotonic() - received)
         return interrupt
 

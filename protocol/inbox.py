@@ -60,6 +60,10 @@ MAX_BYTES: Final[dict[str, int]] = {
 with 32 poles is ~6 KiB; a batch of 65536 samples of 4 channels ~2 MiB)."""
 
 
+MAX_ATTACHMENT: Final[int] = 256
+"""Cap of a zenoh attachment (a board id is 32 hex digits)."""
+
+
 class _Refused:
     def __repr__(self) -> str:
         return "REFUSED"
@@ -136,30 +140,39 @@ class Inbox:
         self.log = RateLimitedLog(self.logger, self.log_interval_s, self.clock)
 
     # -- the edge (zenoh's threads) -------------------------------------------------------
-    def subscriber(self, kind: str, decode: Callable[[bytes], Any], max_bytes: int | None = None) -> Callable[[Any], None]:
-        """A zenoh subscriber callback for ``kind``: cap, decode, queue."""
+    def subscriber(self, kind: str, decode: Callable[..., Any], max_bytes: int | None = None, with_attachment: bool = False) -> Callable[[Any], None]:
+        """A zenoh subscriber callback for ``kind``: cap, decode, queue.
+        With ``with_attachment`` the decoder is called as
+        ``decode(payload, attachment)`` (``attachment``: bytes or None, at
+        most :data:`MAX_ATTACHMENT` bytes), e.g. to check the sender's board id."""
         cap = MAX_BYTES[kind] if max_bytes is None else max_bytes
 
         def on_sample(sample: Any) -> None:
-            payload = sample.payload
-            self.offer(kind, payload, decode, cap)
+            if with_attachment:
+                self.offer(kind, sample.payload, decode, cap, attachment=sample.attachment, use_attachment=True)
+            else:
+                self.offer(kind, sample.payload, decode, cap)
 
         return on_sample
 
-    def offer(self, kind: str, payload: Any, decode: Callable[[bytes], Any], max_bytes: int) -> bool:
+    def offer(self, kind: str, payload: Any, decode: Callable[..., Any], max_bytes: int, attachment: Any = None, use_attachment: bool = False) -> bool:
         """Cap, decode and queue one payload (anything with ``len`` and
         ``to_bytes()``, or bytes); True if it was queued or handled."""
         arrival = self.clock()
         counters = self._count(kind)
-        size = len(payload)
-        if size > max_bytes:
+        size = len(payload) + (len(attachment) if attachment is not None else 0)
+        if size > max_bytes or (attachment is not None and len(attachment) > MAX_ATTACHMENT):
             with self._lock:
                 counters.oversize += 1
             self.log.warning(f"{kind}:oversize", "%s: dropped a %d-byte %s (cap %d bytes)", self.name, size, kind, max_bytes)
             return False
         raw = payload if isinstance(payload, (bytes, bytearray, memoryview)) else payload.to_bytes()
         try:
-            message = decode(bytes(raw))
+            if use_attachment:
+                extra = None if attachment is None else bytes(attachment if isinstance(attachment, (bytes, bytearray, memoryview)) else attachment.to_bytes())
+                message = decode(bytes(raw), extra)
+            else:
+                message = decode(bytes(raw))
         except (ProtocolError, ValueError) as exc:
             with self._lock:
                 counters.undecodable += 1
@@ -168,7 +181,7 @@ class Inbox:
         if message is REFUSED:
             with self._lock:
                 counters.refused += 1
-            self.log.warning(f"{kind}:refused", "%s: refused a %s (not from the paired peer)", self.name, kind)
+            self.log.warning(f"{kind}:refused", "%s: refused a %s (not from the paired board, or for no batch sent)", self.name, kind)
             return False
         if message is None:
             with self._lock:

@@ -10,7 +10,10 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 import zenoh
+
+import controller.service as controller_service
 
 from controller.record import load_record
 from protocol.keys import Keys
@@ -18,6 +21,14 @@ from protocol.messages import Interrupt, encode
 from rig.composition import run_in_process
 
 FLOOD = 5000
+
+
+@pytest.fixture(autouse=True)
+def no_lockstep_resend(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The virtual bus loses no frame; on a loaded host (and the attack loads
+    this one process) a SYNC resent after 50 ms would step the plant twice
+    and make the runs differ for a reason that is not the attack."""
+    monkeypatch.setattr(controller_service, "LOCKSTEP_RETRY_S", 30.0)
 
 
 def _session() -> zenoh.Session:
@@ -46,6 +57,7 @@ def _run(tmp: Path, name: str, attack: bool) -> tuple[dict[str, int], Path]:
             timer.start()
         run = run_in_process(controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"}, dsp={"fft_width": 256}, common={"rig_id": rig_id}, session=session)
         run.controller.save(str(record), run.result)
+        assert run.result.counters["sync_retries"] == 0
     finally:
         if timer:
             timer.join()
@@ -66,3 +78,45 @@ def test_oversize_and_flood_are_dropped_counted_and_change_nothing(tmp_path: Pat
     assert len(a) == len(b) == 1200
     for name in a.columns:
         assert np.array_equal(a[name], b[name], equal_nan=True), name
+
+
+def test_interrupts_and_flags_of_another_board_are_refused(tmp_path: Path) -> None:
+    """The issue's attack: a foreign session answers each batch first with a
+    forged interrupt (15 Hz, confidence 1.0) and a forged 'empty' flag. The
+    controller takes flags and interrupts only from the board it paired with."""
+    from protocol.batch_codec import decode_batch
+    from protocol.messages import BlockFlag, PoleParameters
+
+    quiet, quiet_record = _run(tmp_path, "quiet2", attack=False)
+    session = _session()
+    rig_id = "forge-board"
+    keys = Keys(rig_id)
+    forged: list[int] = []
+
+    def answer_first(sample: zenoh.Sample) -> None:
+        batch = decode_batch(sample.payload.to_bytes())
+        irq = Interrupt(seq=batch.seq, sim_time_s=batch.sim_time_s, batch_seq=batch.seq, poles=(PoleParameters(frequency_hz=15.0, damping_ratio=0.01),), confidence=1.0, compute_time_s=0.0)
+        for board in (b"forged-board", None):
+            session.put(keys.interrupt, encode(irq), attachment=board)
+        flag = BlockFlag(seq=batch.seq, sim_time_s=0.0, state="empty", next_batch_seq=batch.seq + 1, fft_width=256, batch_size=30)
+        session.put(keys.flag, encode(flag), attachment=b"forged-board")
+        forged.append(batch.seq)
+
+    sub = session.declare_subscriber(keys.batch, answer_first)
+    record = tmp_path / "forged"
+    try:
+        run = run_in_process(controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"}, dsp={"fft_width": 256}, common={"rig_id": rig_id}, session=session)
+        run.controller.save(str(record), run.result)
+    finally:
+        sub.undeclare()
+        session.close()
+    noisy = run.result.counters
+    sent = noisy["batches_sent"]
+    assert sent > 0 and len(forged) >= sent
+    # every batch got its forged answers, all refused (those to the last batch may come after the counters are taken)
+    assert noisy["in_interrupt_refused"] >= 2 * (sent - 1) and noisy["in_flag_refused"] >= sent - 1
+    assert noisy["interrupts_applied"] == quiet["interrupts_applied"]
+    a, b = load_record(quiet_record), load_record(record)
+    for name in a.columns:
+        assert np.array_equal(a[name], b[name], equal_nan=True), name
+    assert not np.any(b["f_id_hz"] == 15.0)
