@@ -296,6 +296,41 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     return 0
 
 
+COMPOSE_PASSWORD_VARS = {"controller": "ZENOH_PASSWORD_CONTROLLER", "dsp": "ZENOH_PASSWORD_DSP", "plant": "ZENOH_PASSWORD_PLANT", "tool": "ZENOH_PASSWORD_TOOL", "tester": "ZENOH_PASSWORD_TESTER"}
+"""The variables docker-compose.yml takes the services' passwords from (not
+``RALF_*``: they are compose's, never a service's)."""
+
+
+def write_compose_access(out: Path, rig_id: str = "default", scenarios: bool = False, mounted_at: str = "/etc/ralf") -> dict[str, Path]:
+    """Credentials for the distributed rig: the router's configuration
+    (authentication of every client and the rig's access rules), its
+    credentials file, and ``ralf.env`` for ``docker compose --env-file``."""
+    from protocol.access import generate_credentials, router_config, write_credentials_file
+    from protocol.keys import Keys
+
+    credentials = generate_credentials()
+    out.mkdir(parents=True, exist_ok=True)
+    creds = write_credentials_file(out / "zenoh-credentials.txt", credentials)
+    router = out / "zenoh-router.json5"
+    router.write_text(json.dumps(router_config(Keys(rig_id), f"{mounted_at}/zenoh-credentials.txt", scenarios=scenarios), indent=2) + "\n")
+    env = out / "ralf.env"
+    fd = os.open(env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{var}={credentials[role]}\n" for role, var in COMPOSE_PASSWORD_VARS.items())
+    return {"credentials": creds, "router": router, "env": env}
+
+
+def cmd_credentials(args: argparse.Namespace) -> int:
+    try:
+        validate_rig_id(args.rig_id)
+    except ValueError as exc:
+        console.print(f"[red]ralf-hil credentials: {exc}[/red]")
+        return 2
+    files = write_compose_access(Path(args.out), args.rig_id, args.scenarios)
+    console.print(f"wrote {', '.join(str(p) for p in files.values())}; start the rig with: docker compose --env-file {files['env']} up --build")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -315,6 +350,11 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
     rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
+    cr = sub.add_parser("credentials", help="generate zenoh credentials and the router's access rules for docker compose")
+    cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
+    cr.add_argument("--rig-id", default="default")
+    cr.add_argument("--scenarios", action="store_true", help="accept scenario commands on the plant's test port (from the tester role)")
+    cr.set_defaults(func=cmd_credentials)
     for module in (bench, monitor, experiments):
         module.register(sub)
     return parser
