@@ -104,3 +104,20 @@ def test_decoder_errors_other_than_protocol_errors_propagate() -> None:
     with pytest.raises(KeyError):
         inbox.offer("flag", b"{}", broken, 1024)
     assert issubclass(ProtocolError, ValueError)
+
+
+def test_dsp_block_flood_logs_once(caplog: pytest.LogCaptureFixture) -> None:
+    """5000 batches into a full block: all counted, one WARNING line (the issue's 5000 lines, 682 KB)."""
+    import numpy as np
+
+    from dsp_service.board import BatchBlock
+    from protocol.batch_codec import SampleBatch
+
+    block = BatchBlock()
+    batch = SampleBatch(seq=0, first_tick=0, sample_rate_hz=200.0, sim_time_s=0.0, wall_time_s=0.0, inputs=np.zeros((2, 30)), outputs=np.zeros((2, 30)))
+    assert block.admit(batch).accepted
+    with caplog.at_level(logging.WARNING, logger="dsp_service.board"):
+        for seq in range(1, 5001):
+            assert not block.admit(SampleBatch(**{**batch.__dict__, "seq": seq, "first_tick": 30 * seq})).accepted
+    assert block.counters.block_full_violations == 5000
+    assert len([r for r in caplog.records if r.name == "dsp_service.board"]) == 1
