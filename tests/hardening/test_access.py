@@ -15,7 +15,14 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from protocol.access import ROLES, acl_config, generate_credentials, insert_access, publishers, write_credentials_file
+from protocol.access import (
+    ROLES,
+    acl_config,
+    generate_credentials,
+    insert_access,
+    publishers,
+    write_credentials_file,
+)
 from protocol.keys import Keys
 
 RIG = "acl-test"

@@ -15,7 +15,13 @@ from annotated_types import Le, Lt
 
 from protocol import messages as m
 from protocol.errors import ConfigError, TransportError
-from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, settings_models
+from protocol.settings import (
+    CommonSettings,
+    ControllerSettings,
+    DspSettings,
+    load_settings,
+    settings_models,
+)
 from protocol.transport import open_can_bus, open_zenoh
 
 
@@ -116,7 +122,7 @@ def test_can_open_error_is_one_line() -> None:
 def _run(args: list[str], env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
     full = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
     full.update(env or {})
-    return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=timeout, env=full)
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=timeout, env=full, check=False)
 
 
 def test_service_with_a_port_in_use_exits_2_with_one_line() -> None:

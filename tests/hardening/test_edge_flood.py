@@ -14,7 +14,6 @@ import pytest
 import zenoh
 
 import controller.service as controller_service
-
 from controller.record import load_record
 from protocol.keys import Keys
 from protocol.messages import Interrupt, encode

@@ -20,10 +20,18 @@ import pytest
 import zenoh
 
 from controller.record import load_record
-from protocol.batch_codec import decode_batch, encode_batch
 from protocol.access import insert_access_from_env
+from protocol.batch_codec import decode_batch, encode_batch
 from protocol.keys import Keys
-from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, PoleParameters, ScenarioCommand, encode
+from protocol.messages import (
+    BlockFlag,
+    ConfigChange,
+    Health,
+    Interrupt,
+    PoleParameters,
+    ScenarioCommand,
+    encode,
+)
 
 
 def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
@@ -97,7 +105,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
 
 @pytest.mark.timeout(400)
 def test_foreign_session_drives_nothing(tmp_path: Path) -> None:
-    quiet_record, quiet, _ = _up(tmp_path, "quiet", attack=False)
+    quiet_record, _, _ = _up(tmp_path, "quiet", attack=False)
     noisy_record, noisy, forged = _up(tmp_path, "noisy", attack=True)
     assert forged > 10  # the forger was connected and answered batch after batch
     a, b = load_record(quiet_record), load_record(noisy_record)

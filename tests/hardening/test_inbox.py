@@ -62,7 +62,7 @@ def test_flood_is_bounded_and_every_message_accounted_for() -> None:
 
 def test_undecodable_and_refused_are_counted_apart() -> None:
     inbox = Inbox("t")
-    flag = lambda b: decode(BlockFlag, b)  # noqa: E731
+    flag = lambda b: decode(BlockFlag, b)
     assert not inbox.offer("flag", b'{"seq": "x"}', flag, 1024)
     assert not inbox.offer("flag", b"\xff\x00", flag, 1024)
     assert not inbox.offer("interrupt", _irq(1), lambda b: REFUSED, 1 << 15)

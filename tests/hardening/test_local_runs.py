@@ -20,13 +20,13 @@ def test_second_up_on_the_same_rig_id_refuses(tmp_path: Path) -> None:
     held = acquire_rig_lock("lock-test", str(tmp_path))
     try:
         code = "import sys; from rig.cli import acquire_rig_lock; acquire_rig_lock('lock-test', sys.argv[1])"
-        proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60)
+        proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60, check=False)
         assert proc.returncode == 2 and "already running" in proc.stderr and f"pid {os.getpid()}" in proc.stderr
-        other = subprocess.run([sys.executable, "-c", code.replace("lock-test", "other-rig"), str(tmp_path)], capture_output=True, text=True, timeout=60)
+        other = subprocess.run([sys.executable, "-c", code.replace("lock-test", "other-rig"), str(tmp_path)], capture_output=True, text=True, timeout=60, check=False)
         assert other.returncode == 0
     finally:
         held.close()
-    again = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60)
+    again = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60, check=False)
     assert again.returncode == 0  # released with the first run
 
 
