@@ -11,9 +11,14 @@ the one-thread co-simulation:
 * :class:`rig.cosim.DirectDspPort`: calls the DSP core directly; every
   message still goes through its codec (batch codec, pydantic JSON).
 
-Events reach the controller through the ``sink(kind, payload, arrival)``
-it hands to :meth:`DspPort.connect`: ``kind`` is ``flag``, ``interrupt``,
-``command`` or ``alive`` (payload ``b"1"``/``b"0"``).
+Events reach the controller through the ``sink(kind, payload, arrival,
+attachment=None)`` it hands to :meth:`DspPort.connect`: ``kind`` is
+``flag``, ``interrupt``, ``command`` or ``alive`` (payload ``b"1"``/``b"0"``).
+``payload`` is bytes or zenoh's payload as received (``len`` and
+``to_bytes()``: the controller caps its size before copying a byte, see
+:mod:`protocol.inbox`); ``attachment`` is the sending board's id on flags
+and interrupts (the controller pairs with one board). The zenoh port calls
+the sink in zenoh's threads, so decoding happens at the edge.
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from protocol.keys import Keys
 from protocol.messages import Health
 from service_kit.runtime import HealthPublisher
 
-Sink = Callable[[str, bytes, float], None]
+Sink = Callable[..., None]
+"""``sink(kind, payload, arrival, attachment=None)``."""
 
 
 class DspPort(Protocol):
@@ -73,8 +79,9 @@ class ZenohDspPort:
 
         def put(kind: str) -> Callable[[zenoh.Sample], None]:
             # Stamp the arrival here: the MVME took an interrupt as a hardware
-            # interrupt, not at the next tick.
-            return lambda sample: sink(kind, sample.payload.to_bytes(), clock())
+            # interrupt, not at the next tick. The payload goes uncopied: the sink
+            # checks its size first.
+            return lambda sample: sink(kind, sample.payload, clock(), sample.attachment)
 
         def alive(sample: zenoh.Sample) -> None:
             sink("alive", b"1" if sample.kind == zenoh.SampleKind.PUT else b"0", clock())

@@ -20,6 +20,8 @@ import json
 import math
 import os
 import re
+import shutil
+import zipfile
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +30,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RECORD_FORMAT", "RECORD_VERSION", "ColumnBuffer", "RunRecord", "load_record", "save_record", "to_jsonable"]
+__all__ = ["RECORD_FORMAT", "RECORD_VERSION", "ChunkedRecord", "ColumnBuffer", "RowCounter", "RunRecord", "load_record", "save_record", "to_jsonable"]
 
 RECORD_FORMAT = "ralf-hil-run-record"
 RECORD_VERSION = 1
@@ -115,18 +117,24 @@ def save_record(
     cols = _validate_columns(columns)
     npz_path, json_path = _paths(path)
     npz_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp_npz = npz_path.with_name(npz_path.name + ".tmp.npz")
+    with open(tmp_npz, "wb") as fh:
+        np.savez_compressed(fh, **cols)
+    n = len(next(iter(cols.values()))) if cols else 0
+    return _commit(tmp_npz, npz_path, json_path, n, {name: str(arr.dtype) for name, arr in cols.items()}, config, metadata)
+
+
+def _commit(tmp_npz: Path, npz_path: Path, json_path: Path, n: int, dtypes: dict[str, str], config: Any, metadata: Mapping[str, Any] | None) -> tuple[Path, Path]:
+    """Write the sidecar and rename both files into place."""
     sidecar = {
         "format": RECORD_FORMAT,
         "version": RECORD_VERSION,
-        "n_samples": len(next(iter(cols.values()))) if cols else 0,
-        "columns": {name: str(arr.dtype) for name, arr in cols.items()},
+        "n_samples": n,
+        "columns": dtypes,
         "config": to_jsonable(config) if config is not None else {},
         "metadata": to_jsonable(dict(metadata or {})),
     }
-    tmp_npz = npz_path.with_name(npz_path.name + ".tmp.npz")
     tmp_json = json_path.with_name(json_path.name + ".tmp")
-    with open(tmp_npz, "wb") as fh:
-        np.savez_compressed(fh, **cols)
     tmp_json.write_text(json.dumps(sidecar, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     os.replace(tmp_npz, npz_path)
     os.replace(tmp_json, json_path)
@@ -213,3 +221,98 @@ class ColumnBuffer:
     def save(self, path: str | Path, config: Any = None, metadata: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
         """:func:`save_record` of the filled rows."""
         return save_record(path, self.to_columns(), config, metadata)
+
+
+class RowCounter:
+    """The record sink of a run that keeps no record (``RALF_RECORD`` unset):
+    it counts rows and stores nothing, so memory stays flat however long the
+    run (a :class:`ColumnBuffer` would grow by ~3 MB a minute at 200 Hz)."""
+
+    def __init__(self, columns: Iterable[str] | Mapping[str, npt.DTypeLike]) -> None:
+        self._names = list(dict(columns) if isinstance(columns, Mapping) else columns)
+        self._n = 0
+
+    @property
+    def names(self) -> list[str]:
+        return list(self._names)
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
+        self._n += 1
+
+
+class ChunkedRecord:
+    """A run record streamed to disk while it is taken: rows collect in a
+    :class:`ColumnBuffer` of ``chunk_rows``; each full chunk is appended to one
+    raw file per column in ``<path>.parts/``. :meth:`save` writes the usual
+    ``<path>.npz`` (each column streamed into its zip member, never loaded
+    whole) and ``<path>.json``, then removes the parts. Memory stays at one
+    chunk whatever the run's length; the files are what :func:`load_record`
+    reads, byte for byte the same columns as :func:`save_record` would write."""
+
+    def __init__(self, path: str | Path, columns: Iterable[str] | Mapping[str, npt.DTypeLike], chunk_rows: int = 4096) -> None:
+        self._buffer = ColumnBuffer(columns, capacity=chunk_rows)
+        self._chunk = max(1, int(chunk_rows))
+        npz_path, _ = _paths(path)
+        self._path = path
+        self._parts = npz_path.with_name(npz_path.name[: -len(".npz")] + ".parts")
+        self._parts.mkdir(parents=True, exist_ok=True)
+        self._dtypes = {name: self._buffer.column(name).dtype for name in self._buffer.names}
+        self._files = {name: open(self._parts / f"{name}.bin", "wb") for name in self._buffer.names}  # noqa: SIM115 (closed in save/close)
+        self._flushed = 0
+        self.chunks_written = 0
+
+    @property
+    def names(self) -> list[str]:
+        return self._buffer.names
+
+    def __len__(self) -> int:
+        return self._flushed + len(self._buffer)
+
+    def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
+        self._buffer.append(row, **values)
+        if len(self._buffer) >= self._chunk:
+            self.flush()
+
+    def flush(self) -> None:
+        """Append the buffered rows to the parts files."""
+        n = len(self._buffer)
+        if not n:
+            return
+        for name, fh in self._files.items():
+            fh.write(self._buffer.column(name).tobytes())
+            fh.flush()
+        self._flushed += n
+        self._buffer.clear()
+        self.chunks_written += 1
+
+    def to_columns(self) -> dict[str, npt.NDArray[Any]]:
+        """The whole record read back (for tests and small runs)."""
+        self.flush()
+        return {name: np.fromfile(self._parts / f"{name}.bin", dtype=dt) for name, dt in self._dtypes.items()}
+
+    def save(self, path: str | Path | None = None, config: Any = None, metadata: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
+        """Write ``<path>.npz`` and ``<path>.json`` from the parts (streamed), then remove them."""
+        self.flush()
+        for fh in self._files.values():
+            fh.close()
+        npz_path, json_path = _paths(path if path is not None else self._path)
+        npz_path.parent.mkdir(parents=True, exist_ok=True)
+        tmp_npz = npz_path.with_name(npz_path.name + ".tmp.npz")
+        n = self._flushed
+        with zipfile.ZipFile(tmp_npz, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+            for name, dt in self._dtypes.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as member, open(self._parts / f"{name}.bin", "rb") as raw:
+                    np.lib.format.write_array_header_1_0(member, {"descr": np.lib.format.dtype_to_descr(dt), "fortran_order": False, "shape": (n,)})
+                    shutil.copyfileobj(raw, member, 1 << 20)
+        out = _commit(tmp_npz, npz_path, json_path, n, {name: str(dt) for name, dt in self._dtypes.items()}, config, metadata)
+        shutil.rmtree(self._parts, ignore_errors=True)
+        return out
+
+    def close(self) -> None:
+        """Drop the parts without saving."""
+        for fh in self._files.values():
+            fh.close()
+        shutil.rmtree(self._parts, ignore_errors=True)

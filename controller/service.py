@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import logging
 import os
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -42,9 +41,10 @@ from controller.loop import ControlLaw, run_ticks
 from controller.monitors import MonitorStop, Monitors
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from protocol.can_map import NmtCommand, NmtState
-from controller.record import ColumnBuffer, save_record
+from controller.record import ChunkedRecord, ColumnBuffer, RowCounter
 from protocol.batch_codec import encode_batch
 from protocol.errors import ProtocolError
+from protocol.inbox import MAX_BYTES, REFUSED, Inbox, Item
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
@@ -116,6 +116,7 @@ class ControllerService:
         port: DspPort | None = None,
         scheduler: Scheduler | None = None,
         stopwatch: Callable[[], float] = time.perf_counter,
+        keep_record: bool = False,
     ) -> None:
         self.settings = settings
         self.session = session
@@ -166,7 +167,11 @@ class ControllerService:
         self._tf_due = False
         self._config_seq = int.from_bytes(os.urandom(4), "little") >> 2
         """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
-        self._events: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        self._reset_sent = False
+        """The run-start reset went out: the next flag pairs the controller with its board."""
+        self._events = Inbox("controller", capacity=256)  # decoded at the edge (zenoh's threads), bounded (protocol/inbox.py)
+        self.paired_board: bytes | None = None
+        """The DSP board (session id) this controller takes flags and interrupts from."""
         self._flags_seen = 0
         self._dsp_config_seq: int | None = None
         """The DSP's last applied ConfigChange, from its latest flag."""
@@ -177,12 +182,28 @@ class ControllerService:
         self._status_seq = 0
         self._last_status = 0.0
         self._rate_window: list[float] = []
-        self.record = ColumnBuffer(
-            {**{name: np.float64 for name in self._record_names()}, "tick": np.int64},
-            capacity=4096,
-        )
-        self.timing_record = ColumnBuffer({"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}, capacity=4096)
-        self.port.connect(lambda kind, payload, arrival: self._events.put((kind, payload, arrival)), self.clock.now)
+        columns = {**{name: np.float64 for name in self._record_names()}, "tick": np.int64}
+        timing_columns = {"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}
+        # RALF_RECORD set: streamed to disk in chunks. Unset: nothing is kept (flat
+        # memory), unless the caller reads the columns (keep_record: in-process runs).
+        self._keep_all = bool(settings.record) or keep_record
+        self.record: ChunkedRecord | ColumnBuffer | RowCounter
+        self.timing_record: ChunkedRecord | ColumnBuffer | RowCounter
+        if settings.record:
+            self.record = ChunkedRecord(settings.record, columns)
+            self.timing_record = ChunkedRecord(settings.record + ".timing", timing_columns)
+        elif keep_record:
+            self.record = ColumnBuffer(columns, capacity=4096)
+            self.timing_record = ColumnBuffer(timing_columns, capacity=4096)
+        else:
+            self.record = RowCounter(columns)
+            self.timing_record = RowCounter(timing_columns)
+        self._decoders: dict[str, Callable[..., Any]] = {
+            "flag": self._decode_flag,
+            "interrupt": self._decode_interrupt,
+            "command": lambda b: decode(ConfigChange, b),
+        }
+        self.port.connect(self._on_port_event, self.clock.now)
 
     # -- bookkeeping --------------------------------------------------------------------
     def _record_names(self) -> list[str]:
@@ -192,8 +213,41 @@ class ControllerService:
             self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
+    def _on_port_event(self, kind: str, payload: Any, arrival: float, attachment: Any = None) -> None:
+        """The port's sink, called in its thread (zenoh's, for the zenoh port):
+        size-capped, decoded and checked here, then queued (protocol/inbox.py)."""
+        if kind == "alive":
+            self._events.put("alive", payload == b"1", arrival)
+            return
+        decoder = self._decoders.get(kind)
+        if decoder is None:
+            return
+        if kind in ("flag", "interrupt"):
+            self._events.offer(kind, payload, decoder, MAX_BYTES[kind], attachment=attachment, use_attachment=True, arrival=arrival)
+        else:
+            self._events.offer(kind, payload, decoder, MAX_BYTES[kind], arrival=arrival)
+
+    def _decode_flag(self, payload: bytes, board: bytes | None) -> BlockFlag | object:
+        """At the edge: the first flag after the run-start reset pairs the
+        controller with its board (the DSP session's id, sent as the
+        attachment); flags of any other board are refused."""
+        flag = decode(BlockFlag, payload)
+        if self.paired_board is None and self._reset_sent and board:
+            self.paired_board = board
+            log.info("paired with DSP board %s", board.decode(errors="replace"))
+        return flag if board is not None and board == self.paired_board else REFUSED
+
+    def _decode_interrupt(self, payload: bytes, board: bytes | None) -> Interrupt | object:
+        """At the edge: an interrupt from another board than the paired one,
+        or for no batch we sent, is refused before it can take a place in the
+        inbox (a flood must not crowd out the real one)."""
+        irq = decode(Interrupt, payload)
+        if board is None or board != self.paired_board:
+            return REFUSED
+        return irq if irq.batch_seq in self._batch_sent_wall else REFUSED
+
     def _build_health(self, seq: int) -> Health:
-        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters()}
+        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters(), **self._events.as_dict()}
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -239,21 +293,27 @@ class ControllerService:
         self.port.send_status(encode(status))
 
     # -- DSP side -----------------------------------------------------------------------
-    def _take_event(self, kind: str, payload: bytes, arrival: float) -> None:
+    def _take_event(self, kind: str, payload: Any, arrival: float) -> None:
+        """One decoded message from the inbox (never raw bytes: decoding
+        happened in zenoh's thread)."""
         try:
             if kind == "flag":
-                flag = decode(BlockFlag, payload)
+                flag = payload
                 self.link.on_flag(flag)
                 self._flags_seen += 1
                 self._dsp_config_seq = flag.config_seq
             elif kind == "interrupt":
-                irq = decode(Interrupt, payload)
+                irq = payload
                 self._irq_arrival[irq.batch_seq] = arrival
+                while len(self._irq_arrival) > 64:  # unmatched ones (lost or foreign) must not accumulate
+                    del self._irq_arrival[next(iter(self._irq_arrival))]
                 self._held_interrupts.append(irq)
             elif kind == "command":
-                self.reconfigure(decode(ConfigChange, payload))
+                self.reconfigure(payload)
             elif kind == "alive":
-                up = payload == b"1"
+                up = bool(payload)
+                if up != self.dsp_alive and not up:
+                    self.paired_board = None  # a restarted board pairs anew with its first flag
                 if up != self.dsp_alive and self.lockstep:
                     # Lockstep: presence is reported, never acted on; the handshake
                     # (an interrupt within lockstep_timeout_s) decides.
@@ -292,22 +352,15 @@ class ControllerService:
         self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
-        while True:
-            try:
-                kind, payload, arrival = self._events.get_nowait()
-            except queue.Empty:
-                return
-            self._take_event(kind, payload, arrival)
+        for kind, message, arrival in self._events.drain(limit=self._events.capacity):
+            self._take_event(kind, message, arrival)
 
-    def _next_event(self, timeout: float) -> tuple[str, bytes, float] | None:
-        """The next DSP-side event, waiting up to ``timeout`` wall seconds (not
-        at all when the port answers synchronously)."""
-        try:
-            if self.port.synchronous:
-                return self._events.get_nowait()
-            return self._events.get(timeout=timeout)
-        except queue.Empty:
-            return None
+    def _next_event(self, timeout: float) -> Item | None:
+        """The next DSP-side event (decoded), waiting up to ``timeout`` wall
+        seconds (not at all when the port answers synchronously)."""
+        if self.port.synchronous:
+            return self._events.get_nowait()
+        return self._events.get(timeout=timeout)
 
     def _wait_for_interrupt(self, seq: int) -> None:
         """Lockstep: block until the interrupt of batch ``seq`` is in, however
@@ -376,6 +429,8 @@ class ControllerService:
         if not self.port.synchronous:
             batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
         self._batch_sent_wall[sent.seq] = self.clock.now()
+        while len(self._batch_sent_wall) > 64:  # batches never answered must not accumulate
+            del self._batch_sent_wall[next(iter(self._batch_sent_wall))]
         self._last_batch = encode_batch(batch)
         self.port.send_batch(self._last_batch)
 
@@ -396,6 +451,8 @@ class ControllerService:
         for reply in replies:
             try:
                 self.tf_snapshots.append(decode(TfSnapshot, reply))
+                if not self._keep_all:
+                    del self.tf_snapshots[:-1]  # nothing will save them: keep the latest only
                 self.timing.tf_downloads += 1
                 return
             except ProtocolError as exc:
@@ -573,7 +630,7 @@ class ControllerService:
         return RunResult(
             ticks=self.tick,
             sim_time_s=self.tick * ts,
-            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict()},
+            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict()},
             error=error,
             liveliness=self.liveliness,
         )
@@ -619,9 +676,7 @@ class ControllerService:
             if answered or now >= deadline:
                 break
             if self.dsp_alive and (reset_sent_at is None or now - reset_sent_at >= RESET_RESEND_S):
-                self._config_seq += 1
-                self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
-                self.link.next_seq = 0
+                self._send_reset()
                 reset_sent_at = now
             event = self._next_event(0.05)
             if event is not None:
@@ -632,14 +687,22 @@ class ControllerService:
             log.warning("no DSP answered within %.1f s; controlling without identification until it does", timeout)
             if reset_sent_at is None:
                 # Tell a DSP that turns up later all the same.
-                self._config_seq += 1
-                self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
+                self._send_reset()
+
+    def _send_reset(self) -> None:
+        """The run-start reset (a new number each time); after it, the next flag pairs."""
+        self._config_seq += 1
+        self._reset_sent = True
+        self.link.next_seq = 0
+        self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
 
     def save(self, path: str, result: RunResult) -> None:
         """Write the run record (deterministic columns), timing and TF downloads."""
         metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
-        save_record(path, self.record.to_columns(), self.settings.model_dump(), metadata)
-        save_record(path + ".timing", self.timing_record.to_columns(), None, {"note": "wall-clock timing; differs run to run"})
+        if isinstance(self.record, RowCounter) or isinstance(self.timing_record, RowCounter):
+            raise ValueError("this run keeps no record: set RALF_RECORD to save one")
+        self.record.save(path, self.settings.model_dump(), metadata)
+        self.timing_record.save(path + ".timing", None, {"note": "wall-clock timing; differs run to run"})
         if self.tf_snapshots:
             freqs = np.asarray(self.tf_snapshots[-1].freqs_hz)
             same = [s for s in self.tf_snapshots if len(s.freqs_hz) == freqs.size]

@@ -22,9 +22,11 @@ import logging
 from dataclasses import dataclass, field
 
 from protocol.batch_codec import SampleBatch
+from protocol.inbox import RateLimitedLog
 from protocol.messages import ConfigChange
 
 log = logging.getLogger(__name__)
+_log_once = RateLimitedLog(log)  # a flood of violations logs once per kind per 10 s (counted all the same)
 
 
 @dataclass
@@ -74,11 +76,11 @@ class BatchBlock:
         if self.full:
             self.counters.block_full_violations += 1
             self.last_violation = f"batch {batch.seq} arrived while the block was full"
-            log.warning("protocol violation: %s; rejected", self.last_violation)
+            _log_once.warning("violation", "protocol violation: %s; rejected", self.last_violation)
             return Admission(False, reason="block full")
         if batch.seq < self.next_seq:
             self.counters.duplicates += 1
-            log.warning("batch %d is a duplicate or out of order (expected %d); dropped", batch.seq, self.next_seq)
+            _log_once.warning("duplicate", "batch %d is a duplicate or out of order (expected %d); dropped", batch.seq, self.next_seq)
             return Admission(False, reason="duplicate")
         restart = False
         reason = ""
@@ -95,13 +97,13 @@ class BatchBlock:
                 reason = (reason + "; " if reason else "") + f"{missing} samples missing before tick {batch.first_tick}"
             else:
                 self.counters.duplicates += 1
-                log.warning("batch %d overlaps already received samples; dropped", batch.seq)
+                _log_once.warning("overlap", "batch %d overlaps already received samples; dropped", batch.seq)
                 return Admission(False, reason="overlap")
         if batch.dropped_before:
             self.counters.dropped_by_controller += batch.dropped_before
         if reason:
             self.last_violation = reason
-            log.warning("sequence gap: %s; history restarted", reason)
+            _log_once.warning("gap", "sequence gap: %s; history restarted", reason)
         self.full = True
         self.next_seq = batch.seq + 1
         self.next_tick = batch.first_tick + batch.n_samples

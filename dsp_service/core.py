@@ -29,10 +29,12 @@ import numpy as np
 from dsp_service.board import Admission, BatchBlock
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
 from protocol.batch_codec import SampleBatch
-from protocol.messages import BlockFlag, ConfigChange, Interrupt, PoleParameters, TfSnapshot, TransferFunction
+from protocol.inbox import RateLimitedLog
+from protocol.messages import BlockFlag, ConfigAck, ConfigChange, Interrupt, PoleParameters, TfSnapshot, TransferFunction
 from protocol.settings import DspSettings
 
 log = logging.getLogger(__name__)
+_log_once = RateLimitedLog(log)  # a flood of bad batches logs once per 10 s (counted all the same)
 
 TF_NAMES = ("H11", "H12", "H21", "H22", "Htot")
 
@@ -96,7 +98,7 @@ class DspCore:
         with self.block_lock:
             self.block.counters.rejected += 1
             self.block.last_violation = reason
-        log.warning("rejected a batch: %s", reason)
+        _log_once.warning("rejected", "rejected a batch: %s", reason)
 
     def admit(self, batch: SampleBatch) -> Admission:
         """Check and admit an arriving batch (marks the block full when accepted)."""
@@ -206,6 +208,11 @@ class DspCore:
                 self.emulated_latency_s = change.emulated_latency_s
         self.block.note_config(change)
         self.config_seq = change.seq
+
+    def config_ack(self, change: ConfigChange, refused: str = "") -> ConfigAck:
+        """The answer to ``change`` (on ``dsp/config_ack``): applied, or refused
+        with the reason, and the configuration the board runs with now."""
+        return ConfigAck.answering(change, not refused, refused, self.identifier.fft_width, self.batch_size, self.identifier.cfg.alpha, self.emulated_latency_s)
 
     def snapshot(self) -> TfSnapshot:
         """The current transfer-function estimates (magnitude and phase)."""

@@ -15,7 +15,6 @@ stop within one wait of at most :data:`MAX_WAIT_S`.
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 from dataclasses import dataclass
 
@@ -25,8 +24,9 @@ from dsp_service.board import Admission
 from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.errors import ProtocolError
+from protocol.inbox import Inbox
 from protocol.keys import Keys
-from protocol.messages import ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
+from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import DspSettings
 from service_kit.clock import RealTimeScheduler, Scheduler
 from service_kit.runtime import HealthPublisher, LatencyTracker
@@ -48,6 +48,7 @@ class _Event:
     batch: SampleBatch | None = None
     admission: Admission | None = None
     arrival: float = 0.0
+    change: ConfigChange | None = None
 
 
 @dataclass
@@ -70,15 +71,17 @@ class DspService:
         self.scheduler: Scheduler = scheduler or RealTimeScheduler()
         self.compute_time = LatencyTracker()
         self.turnaround = LatencyTracker()
-        self._events: queue.Queue[_Event] = queue.Queue()
+        self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (protocol/inbox.py)
         self._held: _Held | None = None
         self._last_raised: Interrupt | None = None
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._ack_pub = session.declare_publisher(self.keys.dsp_config_ack, congestion_control=block)
+        self.board_id = str(session.info.zid()).encode()  # sent with flags and interrupts: the controller pairs with one board
         self._subs = [
-            session.declare_subscriber(self.keys.batch, self._on_batch_sample),
-            session.declare_subscriber(self.keys.dsp_config, lambda s: self._events.put(_Event("config", s.payload.to_bytes()))),
+            session.declare_subscriber(self.keys.batch, self._events.subscriber("batch", self._on_batch_payload)),
+            session.declare_subscriber(self.keys.dsp_config, self._events.subscriber("config", self._decode_config)),
         ]
         self._queryable = session.declare_queryable(self.keys.tf, self._on_tf_query)
         self._token = session.liveliness().declare_token(self.keys.alive("dsp"))
@@ -114,10 +117,17 @@ class DspService:
 
     # -- messages out -----------------------------------------------------------------
     def _publish_flag(self, state: str) -> None:
-        self._flag_pub.put(encode(self.core.flag(state)))
+        self._put_flag(self.core.flag(state))
+
+    def _put_flag(self, flag: BlockFlag) -> None:
+        self._flag_pub.put(encode(flag), attachment=self.board_id)
+
+    def _put_interrupt(self, interrupt: Interrupt) -> None:
+        self._irq_pub.put(encode(interrupt), attachment=self.board_id)
 
     def _build_health(self, seq: int) -> Health:
         counters = self.core.block.counters.as_dict()
+        counters.update(self._events.as_dict())
         counters["interrupts"] = self.core.interrupt_seq
         state = "degraded" if self.core.last_batch_missed else "running"
         return Health(
@@ -131,28 +141,39 @@ class DspService:
         )
 
     # -- handlers -----------------------------------------------------------------------
-    def _on_batch_sample(self, sample: zenoh.Sample) -> None:
-        """A batch arrives in the block (zenoh's thread): decoded, checked and
-        admitted here, so a batch arriving while the block is full is seen as
-        the protocol violation it is; the identification runs on our thread."""
+    def _decode_config(self, payload: bytes) -> _Event:
+        """A config change decoded in zenoh's thread; an invalid one counts as a decode error."""
+        try:
+            return _Event("config", change=decode(ConfigChange, payload))
+        except ProtocolError:
+            with self.core.block_lock:
+                self.core.block.counters.decode_errors += 1
+            raise
+
+    def _on_batch_payload(self, payload: bytes) -> None:
+        """A batch arrives in the block (zenoh's thread, size-capped by the
+        inbox): decoded, checked and admitted here, so a batch arriving while
+        the block is full is seen as the protocol violation it is; the
+        identification runs on our thread. Queues itself; returns None."""
         arrival = self.scheduler.now()
         try:
-            batch = decode_batch(sample.payload.to_bytes())
+            batch = decode_batch(payload)
         except ProtocolError as exc:
             with self.core.block_lock:
                 self.core.block.counters.decode_errors += 1
                 self.core.block.last_violation = f"undecodable batch: {exc}"
-            log.warning("dropped an undecodable batch: %s", exc)
-            return
+            self._events.log.warning("batch:undecodable", "dropped an undecodable batch: %s", exc)
+            return None
         last = self._last_raised
         if last is not None and batch.seq == last.batch_seq and batch.seq == self.core.block.next_seq - 1 and not self.core.block.full:
             # The CPU sent the batch we answered last again: its interrupt was lost
             # (a starved peer's session dropped). Answer it again, the same interrupt.
-            self._events.put(_Event("repeat", arrival=arrival))
-            return
+            self._events.put("batch", _Event("repeat", arrival=arrival))
+            return None
         admission = self.core.admit(batch)
         if admission.accepted:
-            self._events.put(_Event("batch", batch=batch, admission=admission, arrival=arrival))
+            self._events.put("batch", _Event("batch", batch=batch, admission=admission, arrival=arrival))
+        return None
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
@@ -176,8 +197,8 @@ class DspService:
     def _raise(self, held: _Held) -> None:
         """Fig. 3.5 step 4: release the block, flag it empty, raise the interrupt."""
         self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
-        self._flag_pub.put(encode(self.core.release()))
-        self._irq_pub.put(encode(held.interrupt))
+        self._put_flag(self.core.release())
+        self._put_interrupt(held.interrupt)
         self.turnaround.add(self.scheduler.now() - held.arrival)
 
     def process_batch(self, batch: SampleBatch, admission: Admission | None = None) -> Interrupt | None:
@@ -197,21 +218,19 @@ class DspService:
         elif event.kind == "repeat" and self._last_raised is not None and self._held is None:
             self.core.block.counters.interrupts_repeated += 1
             log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
-            self._flag_pub.put(encode(self.core.flag("empty")))
-            self._irq_pub.put(encode(self._last_raised))
-        elif event.kind == "config":
-            try:
-                change = decode(ConfigChange, event.payload)
-            except ProtocolError as exc:
-                self.core.block.counters.decode_errors += 1
-                log.warning("dropped an invalid config change: %s", exc)
-                return
+            self._publish_flag("empty")
+            self._put_interrupt(self._last_raised)
+        elif event.kind == "config" and event.change is not None:
+            change = event.change  # decoded (and counted if invalid) by the inbox
+            refused = ""
             try:
                 self.apply_config(change)
             except ValueError as exc:
+                refused = str(exc)
                 self.core.block.counters.config_rejected += 1
                 self.core.block.last_violation = f"config change refused: {exc}"
                 log.warning("refused a config change the board cannot take: %s", exc)
+            self._ack_pub.put(encode(self.core.config_ack(change, refused)))
             self._publish_flag("empty" if not self.core.block.full else "full")
 
     def _handle_safely(self, event: _Event) -> None:
@@ -224,7 +243,7 @@ class DspService:
             self.core.block.last_violation = f"internal error on a {event.kind}: {exc!r}"
             log.exception("internal error while handling a %s; block released", event.kind)
             self._held = None
-            self._flag_pub.put(encode(self.core.release()))
+            self._put_flag(self.core.release())
 
     def run(self, stop: threading.Event) -> None:
         """Serve until ``stop`` is set (seen within :data:`MAX_WAIT_S`, whatever is held)."""
@@ -241,16 +260,15 @@ class DspService:
                 last_flag = now
                 continue
             timeout = MAX_WAIT_S if self._held is None else min(MAX_WAIT_S, max(0.0, self._held.due - now))
-            try:
-                event = self._events.get(timeout=timeout)
-            except queue.Empty:
+            item = self._events.get(timeout=timeout)
+            if item is None:
                 # Re-announce an empty block now and then, so a controller that
                 # starts after us (or missed the first flag) learns it.
                 if self._held is None and not self.core.block.full and self.scheduler.now() - last_flag > REANNOUNCE_S:
                     self._publish_flag("empty")
                     last_flag = self.scheduler.now()
                 continue
-            self._handle_safely(event)
+            self._handle_safely(item.message)
             last_flag = self.scheduler.now()
 
     def close(self) -> None:
@@ -261,3 +279,4 @@ class DspService:
         self._token.undeclare()
         self._flag_pub.undeclare()
         self._irq_pub.undeclare()
+        self._ack_pub.undeclare()

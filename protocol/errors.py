@@ -17,3 +17,8 @@ class BatchDecodeError(ProtocolError):
 
 class ConfigError(ValueError):
     """A configuration value that cannot work (caught at start-up, never mid-run)."""
+
+
+class TransportError(ConfigError, ConnectionError):
+    """A zenoh session or CAN bus that cannot be opened as configured (a bad
+    endpoint, a port in use, no such interface): reported on one line, exit 2."""

@@ -8,6 +8,7 @@ dsp/batch                       sample batch (binary, :mod:`protocol.batch_codec
 dsp/flag                        :class:`~protocol.messages.BlockFlag`         dsp
 dsp/interrupt                   :class:`~protocol.messages.Interrupt`         dsp
 dsp/config                      :class:`~protocol.messages.ConfigChange`      controller/tools
+dsp/config_ack                  :class:`~protocol.messages.ConfigAck`         dsp
 dsp/tf                          queryable -> :class:`~protocol.messages.TfSnapshot`  dsp
 plant/truth                     :class:`~protocol.messages.GroundTruth`       plant (test port)
 plant/scenario                  :class:`~protocol.messages.ScenarioCommand`   tests/experiments
@@ -65,6 +66,10 @@ class Keys:
     @property
     def dsp_config(self) -> str:
         return f"{self.root}/dsp/config"
+
+    @property
+    def dsp_config_ack(self) -> str:
+        return f"{self.root}/dsp/config_ack"
 
     @property
     def tf(self) -> str:

@@ -17,9 +17,24 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from protocol.errors import ProtocolError
 
-NonNegFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+# Every numeric field is bounded (a peer's 1e300 is refused at decoding, not
+# discovered by whatever arithmetic it reaches), every text and collection
+# has a maximum length.
+MAX_ABS = 1e15
+"""Bound of physical quantities (seconds, inches, radians, magnitudes)."""
+MAX_LATENCY_S = 10.0
+"""Bound of an emulated DSP latency: the same cap as the ``emulated_latency_s`` setting."""
+MAX_BINS = 65536 // 2 + 1
+"""Frequency bins of the largest FFT width (65536)."""
+NonNegFloat = Annotated[float, Field(ge=0.0, le=MAX_ABS, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(ge=-MAX_ABS, le=MAX_ABS, allow_inf_nan=False)]
+LatencyS = Annotated[float, Field(ge=0.0, le=MAX_LATENCY_S, allow_inf_nan=False)]
 Seq = Annotated[int, Field(ge=0, lt=2**63)]
+Count = Annotated[int, Field(ge=0, lt=2**63)]
+Hz = Annotated[float, Field(ge=0.0, le=1e5, allow_inf_nan=False)]
+ShortText = Annotated[str, Field(max_length=64)]
+LongText = Annotated[str, Field(max_length=2000)]
+RequestId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
 
 
 class Message(BaseModel):
@@ -44,7 +59,7 @@ class BlockFlag(Message):
     next_batch_seq: Seq
     fft_width: Annotated[int, Field(ge=16, le=65536)]
     batch_size: Annotated[int, Field(ge=1, le=65536)]
-    emulated_latency_s: NonNegFloat = Field(0.0, description="When the interrupt for the next batch is due, in simulated time after it is sent")
+    emulated_latency_s: LatencyS = Field(0.0, description="When the interrupt for the next batch is due, in simulated time after it is sent")
     config_seq: Seq | None = Field(None, description="seq of the last ConfigChange the board applied (None: none yet); a CPU starts its run once its reset is applied")
 
     @model_validator(mode="after")
@@ -59,10 +74,10 @@ class PoleParameters(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    frequency_hz: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
-    damping_ratio: Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+    frequency_hz: Annotated[float, Field(gt=0.0, le=1e5, allow_inf_nan=False)]
+    damping_ratio: Annotated[float, Field(ge=0.0, le=1e3, allow_inf_nan=False)]
     magnitude: NonNegFloat = 0.0
-    source: str = Field(default="tot", description="Transfer function the peak was found on: tot, 11, 12, 21, 22, or arx (the parametric model)")
+    source: ShortText = Field(default="tot", description="Transfer function the peak was found on: tot, 11, 12, 21, 22, or arx (the parametric model)")
     confidence: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = Field(
         None, description="This pole's confidence (interrupt version 2); None: the interrupt's confidence applies"
     )
@@ -84,8 +99,8 @@ class Interrupt(Message):
     poles: tuple[PoleParameters, ...] = Field((), max_length=16)
     confidence: Annotated[float, Field(ge=0.0, le=1.0)]
     compute_time_s: NonNegFloat = Field(description="Measured wall time of the identification step")
-    emulated_latency_s: NonNegFloat = Field(default=0.0, description="C40 compute latency emulated on top")
-    samples_in_history: Annotated[int, Field(ge=0)] = 0
+    emulated_latency_s: LatencyS = Field(default=0.0, description="C40 compute latency emulated on top")
+    samples_in_history: Annotated[int, Field(ge=0, lt=2**63)] = 0
     valid_fraction: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
     deadline_missed: bool = False
 
@@ -106,8 +121,9 @@ class ConfigChange(Message):
     fft_width: Annotated[int, Field(ge=32, le=65536)] | None = None
     batch_size: Annotated[int, Field(ge=1, le=4096)] | None = None
     alpha: Annotated[float, Field(gt=0.0, lt=1.0)] | None = None
-    emulated_latency_s: NonNegFloat | None = None
+    emulated_latency_s: LatencyS | None = None
     reset: bool = Field(False, description="A new CPU run: the DSP restarts sequence numbers and history")
+    request_id: RequestId | None = Field(None, description="Set by a tool that waits for the DSP's ConfigAck; forwarded unchanged by the controller")
 
     @model_validator(mode="after")
     def _power_of_two(self) -> "ConfigChange":
@@ -116,21 +132,50 @@ class ConfigChange(Message):
         return self
 
 
+class ConfigAck(Message):
+    """The DSP's answer to a :class:`ConfigChange` (on ``dsp/config_ack``):
+    applied or refused, with the configuration it runs with afterwards.
+    ``seq`` is the change's own sequence number."""
+
+    request_id: RequestId | None = None
+    accepted: bool
+    reason: LongText = ""
+    fft_width: Annotated[int, Field(ge=16, le=65536)]
+    batch_size: Annotated[int, Field(ge=1, le=65536)]
+    alpha: Annotated[float, Field(gt=0.0, le=1.0)]
+    emulated_latency_s: LatencyS
+
+    @classmethod
+    def answering(cls, change: ConfigChange, accepted: bool, reason: str, fft_width: int, batch_size: int, alpha: float, emulated_latency_s: float) -> "ConfigAck":
+        """The acknowledgement of ``change`` (reason cut to the field's length)."""
+        return cls(
+            seq=change.seq,
+            sim_time_s=change.sim_time_s,
+            request_id=change.request_id,
+            accepted=accepted,
+            reason=reason[:2000],
+            fft_width=fft_width,
+            batch_size=batch_size,
+            alpha=alpha,
+            emulated_latency_s=emulated_latency_s,
+        )
+
+
 class TransferFunction(BaseModel):
     """Magnitude and phase of one estimate over the frequency grid."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    magnitude: tuple[FiniteFloat, ...]
-    phase_rad: tuple[FiniteFloat, ...]
+    magnitude: Annotated[tuple[FiniteFloat, ...], Field(max_length=MAX_BINS)]
+    phase_rad: Annotated[tuple[FiniteFloat, ...], Field(max_length=MAX_BINS)]
 
 
 class TfSnapshot(Message):
     """The DSP's current transfer-function estimates, for spectrograms."""
 
     batch_seq: Seq
-    freqs_hz: tuple[FiniteFloat, ...]
-    valid: tuple[bool, ...]
+    freqs_hz: Annotated[tuple[FiniteFloat, ...], Field(max_length=MAX_BINS)]
+    valid: Annotated[tuple[bool, ...], Field(max_length=MAX_BINS)]
     estimates: dict[Literal["H11", "H12", "H21", "H22", "Htot"], TransferFunction]
 
     @model_validator(mode="after")
@@ -156,7 +201,7 @@ class LatencyStats(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    count: Annotated[int, Field(ge=0)]
+    count: Count
     p50: NonNegFloat
     p99: NonNegFloat
     p999: NonNegFloat
@@ -166,31 +211,31 @@ class LatencyStats(BaseModel):
 class Health(Message):
     """A service's health: counters, latency percentiles and the last miss."""
 
-    service: str
+    service: ShortText
     state: Literal["starting", "running", "degraded", "stopping", "failed"] = "running"
-    counters: dict[str, int] = Field(default_factory=dict)
-    latencies: dict[str, LatencyStats] = Field(default_factory=dict)
-    last_miss: str | None = None
+    counters: Annotated[dict[ShortText, Annotated[int, Field(ge=-(2**63), lt=2**63)]], Field(max_length=512)] = Field(default_factory=dict)
+    latencies: Annotated[dict[ShortText, LatencyStats], Field(max_length=64)] = Field(default_factory=dict)
+    last_miss: LongText | None = None
 
 
 class ControllerStatus(Message):
     """The controller's running state, for the live status line."""
 
-    ticks: Annotated[int, Field(ge=0)]
-    loop_rate_hz: NonNegFloat
-    batches_sent: Annotated[int, Field(ge=0)]
-    interrupts: Annotated[int, Field(ge=0)]
-    latest_frequency_hz: NonNegFloat | None = None
-    deadline_misses: Annotated[int, Field(ge=0)] = 0
-    overruns: Annotated[int, Field(ge=0)] = 0
+    ticks: Count
+    loop_rate_hz: Hz
+    batches_sent: Count
+    interrupts: Count
+    latest_frequency_hz: Hz | None = None
+    deadline_misses: Count = 0
+    overruns: Count = 0
     finished: bool = False
 
 
 class GroundTruth(Message):
     """The plant's true state on the test port (never used by the controller)."""
 
-    modal_frequencies_hz: tuple[FiniteFloat, ...]
-    damping_ratios: tuple[FiniteFloat, ...]
+    modal_frequencies_hz: Annotated[tuple[FiniteFloat, ...], Field(max_length=64)]
+    damping_ratios: Annotated[tuple[FiniteFloat, ...], Field(max_length=64)]
     deflections_in: tuple[FiniteFloat, FiniteFloat]
     theta_rad: tuple[FiniteFloat, FiniteFloat]
     tip_in: tuple[FiniteFloat, FiniteFloat]
@@ -205,7 +250,7 @@ class ScenarioCommand(Message):
     kind: Literal["payload", "seed", "adc_bits"]
     at_sim_time_s: NonNegFloat = 0.0
     payload_attached: bool | None = None
-    seed: Annotated[int, Field(ge=0)] | None = None
+    seed: Annotated[int, Field(ge=0, lt=2**32)] | None = None
     adc_bits: Literal[12, 16, 20] | None = None
 
     @model_validator(mode="after")
@@ -219,8 +264,8 @@ class ScenarioCommand(Message):
 class PlantEvent(Message):
     """Something that happened in the plant: a hard stop, a watchdog trip, a scenario applied."""
 
-    kind: str
-    detail: str = ""
+    kind: ShortText
+    detail: LongText = ""
 
 
 M = TypeVar("M", bound=BaseModel)

@@ -6,14 +6,29 @@ program's ``--help`` prints them.
 
 from __future__ import annotations
 
+import difflib
+import math
+import os
 import re
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
 from protocol.keys import validate_rig_id
+
+
+_ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
+_Hz = Annotated[float, Field(gt=0, le=2500)]
+
+
+def _is_nan(value: Any) -> bool:
+    if isinstance(value, float):
+        return math.isnan(value)
+    if isinstance(value, str):
+        return value.strip().lower() in ("nan", "+nan", "-nan")
+    return False
 
 
 class CommonSettings(BaseSettings):
@@ -33,15 +48,41 @@ class CommonSettings(BaseSettings):
     node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, gt=0, le=5000, description="Control and identification sample rate")
-    health_period_s: float = Field(1.0, gt=0, description="Period of health messages on ralf/<rig>/health/<service>")
+    health_period_s: float = Field(1.0, gt=0, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
     rt_priority: int = Field(0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)")
-    cpu_affinity: str = Field("", description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)")
+    cpu_affinity: str = Field("", max_length=256, description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
+    zenoh_user: str = Field("", max_length=64, description="zenoh user name (transport/auth/usrpwd): the session's role, controller, dsp, plant, tool or tester (empty: no authentication)")
+    zenoh_password: str = Field("", max_length=256, description="zenoh password of zenoh_user")
+    zenoh_credentials_file: str = Field("", description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted)")
+    zenoh_acl: bool = Field(False, description="Apply the rig's access rules (protocol/access.py): each role publishes only its own keys")
+    zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
+    can_multicast_ttl: int = Field(0, ge=0, le=32, description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)")
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_nan(cls, value: Any) -> Any:
+        # A NaN passes neither gt nor le, and pydantic would report it as
+        # "should be <= 5000": say what it is instead.
+        if _is_nan(value) or (isinstance(value, (list, tuple)) and any(_is_nan(v) for v in value)):
+            raise ValueError("NaN (not a number) is not a valid value; give a finite number")
+        return value
 
     @field_validator("rig_id")
     @classmethod
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
+
+    @field_validator("zenoh_connect", "zenoh_listen")
+    @classmethod
+    def _endpoints(cls, value: str) -> str:
+        for endpoint in (e.strip() for e in value.split(",")):
+            if endpoint and not _ENDPOINT.fullmatch(endpoint):
+                raise ValueError(f"{endpoint!r} is not a zenoh endpoint PROTOCOL/HOST:PORT (e.g. tcp/127.0.0.1:7447)")
+            port = _ENDPOINT.fullmatch(endpoint).group("port") if endpoint else None  # type: ignore[union-attr]
+            if port is not None and int(port) > 65535:
+                raise ValueError(f"{endpoint!r}: port {port} is above 65535")
+        return value
 
     @property
     def sample_period_s(self) -> float:
@@ -55,14 +96,14 @@ class CommonSettings(BaseSettings):
 class PlantSettings(CommonSettings):
     """The plant emulator (``ralf-plant``)."""
 
-    seed: int = Field(0, ge=0, description="Seed of the sensor-noise generator")
+    seed: int = Field(0, ge=0, lt=2**32, description="Seed of the sensor-noise generator")
     payload_attached: bool = Field(False, description="Start with the 15.65 lb payload at the tip")
     adc_bits: Literal[12, 16, 20] = Field(12, description="A/D resolution (the thesis's rig: 12 bits)")
     sensor_noise_scale: float = Field(1.0, ge=0, le=100, description="Scale of every sensor's analog noise std (1 = the thesis's rig, 0 = noiseless; quantization stays)")
     valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve-to-cylinder-velocity lag")
-    truth_rate_hz: float = Field(20.0, ge=0, description="Rate of ground truth on the test port (0 = off)")
-    watchdog_periods: int = Field(5, ge=1, description="SYNC periods without SYNC before the valves are held")
-    heartbeat_ms: int = Field(100, ge=0, description="CANopen heartbeat producer period (0 = off)")
+    truth_rate_hz: float = Field(20.0, ge=0, le=1000, description="Rate of ground truth on the test port (0 = off)")
+    watchdog_periods: int = Field(5, ge=1, le=10000, description="SYNC periods without SYNC before the valves are held")
+    heartbeat_ms: int = Field(100, ge=0, le=65535, description="CANopen heartbeat producer period (0 = off)")
     scenario: str = Field("", description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]')
     record: str = Field("", description="Write the ground truth at truth_rate_hz to this .npz file when the plant stops")
 
@@ -78,33 +119,33 @@ class PlantSettings(CommonSettings):
 class ControllerSettings(CommonSettings):
     """The controller (``ralf-controller``), the emulated MVME CPU."""
 
-    duration_s: float | None = Field(None, gt=0, description="Stop after this much simulated time (default: after `repeats` passes)")
+    duration_s: float | None = Field(None, gt=0, le=1e7, description="Stop after this much simulated time (default: after `repeats` passes)")
     trajectory: str = Field("", description="Trajectory way-point JSON file (default: the thesis's inspection loop)")
     tip_speed_in_s: float = Field(5.0, gt=0, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
-    repeats: int = Field(0, ge=0, description="Passes around the trajectory before stopping (0 = until stopped)")
+    repeats: int = Field(0, ge=0, le=100000, description="Passes around the trajectory before stopping (0 = until stopped)")
     batch_size: int = Field(30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)")
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
     oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
-    oatf_frequency_hz: float = Field(4.4, gt=0, description="OATF design frequency (initial value when adaptive)")
+    oatf_frequency_hz: float = Field(4.4, gt=0, le=2500, description="OATF design frequency (initial value when adaptive)")
     oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
-    oatf_delay_s: float | None = Field(None, gt=0, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
-    oatf_band_hz: tuple[float, float] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
+    oatf_delay_s: float | None = Field(None, gt=0, le=10, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
+    oatf_band_hz: tuple[_Hz, _Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
     oatf_min_confidence: float = Field(0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)")
-    dsp_deadline_s: float | None = Field(None, gt=0, description="Interrupt deadline after a batch (default: the batch period)")
-    stale_after_s: float = Field(2.0, gt=0, description="Parameters older than this are stale")
-    tf_download_samples: int = Field(1000, ge=0, description="Download transfer functions every this many samples (0 = never)")
-    lockstep_timeout_s: float = Field(60.0, gt=0, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)")
-    startup_timeout_s: float = Field(60.0, gt=0, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
-    plant_heartbeat_timeout_s: float = Field(1.0, gt=0, description="Plant heartbeat older than this is a fault")
+    dsp_deadline_s: float | None = Field(None, gt=0, le=60, description="Interrupt deadline after a batch (default: the batch period)")
+    stale_after_s: float = Field(2.0, gt=0, le=3600, description="Parameters older than this are stale")
+    tf_download_samples: int = Field(1000, ge=0, le=10**7, description="Download transfer functions every this many samples (0 = never)")
+    lockstep_timeout_s: float = Field(60.0, gt=0, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)")
+    startup_timeout_s: float = Field(60.0, gt=0, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
+    plant_heartbeat_timeout_s: float = Field(1.0, gt=0, le=60, description="Plant heartbeat older than this is a fault")
     record: str = Field("", description="Write the run record (npz + JSON) to this path")
     policy_deadline: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On an interrupt past its deadline")
     policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
     policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
     policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
     policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On another master's SYNC, NMT, RPDO1 or SDO frame on the CAN bus")
-    inject_stall_at_s: float | None = Field(None, ge=0, description="Fault injection: freeze the loop at this simulated time...")
-    inject_stall_s: float = Field(0.0, ge=0, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
-    inject_sync_drop_every: int = Field(0, ge=0, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
+    inject_stall_at_s: float | None = Field(None, ge=0, le=1e7, description="Fault injection: freeze the loop at this simulated time...")
+    inject_stall_s: float = Field(0.0, ge=0, le=60, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
+    inject_sync_drop_every: int = Field(0, ge=0, le=10**6, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
     oatf_max_stages: int = Field(1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis")
     oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
     oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
@@ -131,13 +172,13 @@ class DspSettings(CommonSettings):
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
     identifier: Literal["etfe", "etfe-welch", "arx"] = Field("etfe", description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, or the recursive QR-form ARX model (see docs/identification.md)")
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
-    smoothing_window: int = Field(17, ge=0, description="Savitzky-Golay window in bins (0 = off)")
-    smoothing_order: int = Field(2, ge=0, description="Savitzky-Golay polynomial order")
+    smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
+    smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
-    budget_s: float | None = Field(None, gt=0, description="Compute-time budget per batch (default: the batch period)")
-    inject_delay_s: float = Field(0.0, ge=0, description="Fault injection: extra compute time per batch (a slowed board)")
-    search_min_hz: float = Field(0.5, ge=0, description="Lower edge of the peak search")
-    search_max_hz: float = Field(40.0, gt=0, description="Upper edge of the peak search")
+    budget_s: float | None = Field(None, gt=0, le=60, description="Compute-time budget per batch (default: the batch period)")
+    inject_delay_s: float = Field(0.0, ge=0, le=10, description="Fault injection: extra compute time per batch (a slowed board)")
+    search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
+    search_max_hz: float = Field(40.0, gt=0, le=2500, description="Upper edge of the peak search")
 
     @field_validator("fft_width")
     @classmethod
@@ -153,9 +194,40 @@ class DspSettings(CommonSettings):
         return self
 
 
+def settings_models() -> tuple[type[CommonSettings], ...]:
+    """Every program's settings model."""
+    return (PlantSettings, ControllerSettings, DspSettings)
+
+
+def known_variables() -> set[str]:
+    """Every ``RALF_*`` variable some program reads."""
+    return {f"RALF_{name.upper()}" for model in settings_models() for name in model.model_fields}
+
+
+def unknown_variables(environ: dict[str, str] | None = None) -> list[str]:
+    """``RALF_*`` variables of ``environ`` that no program reads, each with
+    the closest valid name: a misspelt setting is an error, never ignored.
+    (Checked against every program, since ``ralf-hil up`` and compose give one
+    environment to all three services.)"""
+    env = os.environ if environ is None else environ
+    known = sorted(known_variables())
+    problems = []
+    for name in sorted(env):
+        upper = name.upper()
+        if not upper.startswith("RALF_") or upper in known:
+            continue
+        close = difflib.get_close_matches(upper, known, n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]}?" if close else "; see --help for the settings"
+        problems.append(f"  {name}: not a setting of any ralf-hil program{hint}")
+    return problems
+
+
 def load_settings(model: type[CommonSettings], overrides: dict[str, Any] | None = None) -> Any:
     """Read settings from the environment plus ``overrides``; a bad value
-    raises :class:`ConfigError` naming the field."""
+    or an unknown ``RALF_*`` variable raises :class:`ConfigError` naming it."""
+    unknown = unknown_variables()
+    if unknown:
+        raise ConfigError("invalid configuration:\n" + "\n".join(unknown))
     try:
         return model(**(overrides or {}))
     except ValidationError as exc:

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from typing import Any
 
 import can
 import zenoh
 
+from protocol.access import insert_access
+from protocol.errors import TransportError
 from protocol.settings import CommonSettings
 
 log = logging.getLogger(__name__)
@@ -30,33 +33,63 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
+    insert_access(
+        config,
+        settings.rig_id,
+        user=settings.zenoh_user,
+        password=settings.zenoh_password,
+        credentials_file=settings.zenoh_credentials_file,
+        acl=settings.zenoh_acl,
+        scenarios=settings.zenoh_acl_scenarios,
+    )
     return config
 
 
-def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0) -> zenoh.Session:
-    """Open a zenoh session; a client retries while its router starts."""
+_RUST_WHERE = re.compile(r"\s+at /\S+?\.rs:\d+\.?")
+_NOT_YET = "Unable to connect to any of"
+"""The one zenoh error worth waiting out: a client whose router is not up
+yet. A bad endpoint, an unsupported protocol or a port already in use fails
+at once and for good."""
+
+
+def zenoh_error_text(exc: BaseException) -> str:
+    """zenoh's message on one line, without its Rust source locations."""
+    return " ".join(_RUST_WHERE.sub("", str(exc)).split())
+
+
+def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any = time.sleep) -> zenoh.Session:
+    """Open a zenoh session; a client retries while its router starts (only
+    that: any other failure raises :class:`TransportError` at once)."""
     global _zenoh_log_initialised
     if not _zenoh_log_initialised:
         zenoh.init_log_from_env_or("error")
         _zenoh_log_initialised = True
     deadline = time.monotonic() + retry_for_s
+    where = f"mode {settings.zenoh_mode}, connect {settings.zenoh_connect or '-'}, listen {settings.zenoh_listen or '-'}"
     while True:
         try:
             return zenoh.open(zenoh_config(settings))
         except zenoh.ZError as exc:
+            text = zenoh_error_text(exc)
+            if _NOT_YET not in text:
+                raise TransportError(f"cannot open zenoh session ({where}): {text}") from None
             if time.monotonic() >= deadline:
-                raise ConnectionError(f"cannot open zenoh session ({settings.zenoh_mode}, connect={settings.zenoh_connect!r}): {exc}") from exc
-            log.warning("zenoh not reachable yet (%s); retrying", exc)
-            time.sleep(0.5)
+                raise TransportError(f"cannot open zenoh session ({where}): nothing answered for {retry_for_s:.0f} s: {text}") from None
+            log.warning("zenoh router not reachable yet (%s); retrying", text)
+            sleep(0.5)
 
 
 def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:
-    """Open the CAN bus named by the settings (udp_multicast, virtual, socketcan...)."""
+    """Open the CAN bus named by the settings (udp_multicast, virtual,
+    socketcan...). udp_multicast frames get the TTL ``can_multicast_ttl``:
+    0 (the default) keeps them on this host."""
     options: dict[str, Any] = {"interface": settings.can_interface, "channel": settings.can_channel}
     if settings.can_interface == "udp_multicast":
         options["port"] = settings.can_port
+        options["hop_limit"] = settings.can_multicast_ttl
     options.update(kwargs)
     try:
         return can.Bus(**options)
     except Exception as exc:  # python-can raises several types by interface
-        raise ConnectionError(f"cannot open CAN bus {settings.can_interface}:{settings.can_channel}: {exc}") from exc
+        detail = " ".join(str(exc).split()) or type(exc).__name__
+        raise TransportError(f"cannot open CAN bus {settings.can_interface}:{settings.can_channel}: {detail}") from None

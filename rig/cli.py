@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import signal
 import sys
 import tempfile
@@ -119,6 +121,49 @@ STARTUP_ALLOWANCE_S = 120.0
 """``ralf-hil up``: a rig whose controller has not ticked this long after the launch has failed."""
 
 
+def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
+    """Hold this host's lock of ``rig_id`` for as long as the returned file
+    stays open: a second ``ralf-hil up`` of the same rig id on this host
+    would share its CAN port and zenoh keys, so it is refused (exit 2)."""
+    import fcntl
+
+    path = Path(directory or tempfile.gettempdir()) / f"ralf-hil-{rig_id}.lock"
+    handle = open(path, "a+")  # noqa: SIM115 (held open for the run)
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.seek(0)
+        holder = handle.read().strip() or "another process"
+        handle.close()
+        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({holder}); stop it or choose another --rig-id[/red]")
+        raise SystemExit(2) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()}")
+    handle.flush()
+    return handle
+
+
+def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
+    """Fresh zenoh credentials for this run: every service, the launcher's
+    observer and tools authenticate with their role's password, and every
+    node applies the rig's access rules (protocol/access.py). Writes the
+    credentials file (owner-only) and ``tool.env``, the variables that let
+    ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
+    from protocol.access import generate_credentials, role_env, write_credentials_file
+
+    credentials = generate_credentials()
+    path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
+    plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="true", RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower())
+    for role in ("dsp", "plant", "controller", "launcher"):
+        plan.service_env.setdefault(role, {}).update(role_env(role, credentials))
+    tool_env = directory / "tool.env"
+    fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{k}={v}\n" for k, v in {**role_env("tool", credentials), "RALF_RIG_ID": plan.rig_id}.items())
+    return tool_env
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -129,13 +174,16 @@ def cmd_up(args: argparse.Namespace) -> int:
     overrides = _parse_overrides(args.set)
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
+    _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    tool_env = provision_access(plan, log_dir)  # credentials of this run, access rules on
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     observer = RigObserver(plan)
-    console.print(f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}")
+    console.print(f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}")
     live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
     said_ready = False
 
@@ -214,17 +262,65 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     return 0
 
 
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite number of seconds above zero."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if math.isnan(value):
+        raise argparse.ArgumentTypeError("NaN (not a number) is not a duration")
+    if not 0 < value <= 1e7:
+        raise argparse.ArgumentTypeError(f"{text} s: give a duration above 0 and at most 1e7 s")
+    return value
+
+
+def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
+    """Send ``change`` to the controller and wait for the DSP's
+    :class:`~protocol.messages.ConfigAck` carrying its ``request_id``; None if
+    nothing answers within ``timeout_s``."""
+    from protocol.errors import ProtocolError
+    from protocol.messages import ConfigAck, decode, encode
+
+    got: list[Any] = []
+    answered = threading.Event()
+
+    def on_ack(sample: Any) -> None:
+        try:
+            ack = decode(ConfigAck, sample.payload.to_bytes())
+        except ProtocolError:
+            return
+        if ack.request_id == change.request_id:
+            got.append(ack)
+            answered.set()
+
+    sub = session.declare_subscriber(keys.dsp_config_ack, on_ack)
+    try:
+        deadline = time.monotonic() + timeout_s
+        # Resend until answered: the tool's session may take a moment to find
+        # the controller, and a command nobody received is not an error yet.
+        while not answered.is_set() and time.monotonic() < deadline:
+            session.put(keys.controller_command, encode(change))
+            answered.wait(min(0.5, max(0.0, deadline - time.monotonic())))
+    finally:
+        sub.undeclare()
+    return got[0] if got else None
+
+
 def cmd_reconfigure(args: argparse.Namespace) -> int:
     """Send a run-time configuration change to a running controller, which
-    applies the batch size and forwards the rest to the DSP."""
+    applies the batch size and forwards the rest to the DSP; succeed only
+    when the DSP acknowledges it."""
+    import uuid
+
     from protocol.errors import ConfigError
     from protocol.keys import Keys
-    from protocol.messages import ConfigChange, encode
+    from protocol.messages import ConfigChange
     from protocol.settings import CommonSettings, load_settings
     from protocol.transport import open_zenoh
 
     try:
-        change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha)
+        change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha, request_id=uuid.uuid4().hex)
     except ValueError as exc:
         console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
         return 2
@@ -239,14 +335,61 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         console.print(f"[red]{exc}[/red]")
         return 2
-    session = open_zenoh(settings)
     try:
-        time.sleep(0.5)  # let the session find its peers
-        session.put(Keys(settings.rig_id).controller_command, encode(change))
-        time.sleep(0.2)
+        session = open_zenoh(settings, retry_for_s=0.0)
+    except ConfigError as exc:
+        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+        return 2
+    wanted = change.model_dump(include={"fft_width", "batch_size", "alpha"}, exclude_none=True)
+    try:
+        ack = wait_for_ack(session, Keys(settings.rig_id), change, args.timeout)
     finally:
         session.close()
-    console.print(f"sent to rig {settings.rig_id!r}: {change.model_dump(include={'fft_width', 'batch_size', 'alpha'}, exclude_none=True)}")
+    if ack is None:
+        console.print(
+            f"[red]ralf-hil reconfigure: no acknowledgement from the DSP of rig {settings.rig_id!r} within {args.timeout:g} s "
+            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?); {wanted} not applied[/red]"
+        )
+        return 1
+    if not ack.accepted:
+        console.print(f"[red]ralf-hil reconfigure: the DSP refused {wanted}: {ack.reason}[/red]")
+        return 1
+    console.print(f"applied on rig {settings.rig_id!r}: {wanted}; the DSP now runs N={ack.fft_width}, l={ack.batch_size}, alpha={ack.alpha:g}")
+    return 0
+
+
+COMPOSE_PASSWORD_VARS = {"controller": "ZENOH_PASSWORD_CONTROLLER", "dsp": "ZENOH_PASSWORD_DSP", "plant": "ZENOH_PASSWORD_PLANT", "tool": "ZENOH_PASSWORD_TOOL", "tester": "ZENOH_PASSWORD_TESTER"}
+"""The variables docker-compose.yml takes the services' passwords from (not
+``RALF_*``: they are compose's, never a service's)."""
+
+
+def write_compose_access(out: Path, rig_id: str = "default", scenarios: bool = False, mounted_at: str = "/etc/ralf") -> dict[str, Path]:
+    """Credentials for the distributed rig: the router's configuration
+    (authentication of every client and the rig's access rules), its
+    credentials file, and ``ralf.env`` for ``docker compose --env-file``."""
+    from protocol.access import generate_credentials, router_config, write_credentials_file
+    from protocol.keys import Keys
+
+    credentials = generate_credentials()
+    out.mkdir(parents=True, exist_ok=True)
+    creds = write_credentials_file(out / "zenoh-credentials.txt", credentials)
+    router = out / "zenoh-router.json5"
+    router.write_text(json.dumps(router_config(Keys(rig_id), f"{mounted_at}/zenoh-credentials.txt", scenarios=scenarios), indent=2) + "\n")
+    env = out / "ralf.env"
+    fd = os.open(env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{var}={credentials[role]}\n" for role, var in COMPOSE_PASSWORD_VARS.items())
+    return {"credentials": creds, "router": router, "env": env}
+
+
+def cmd_credentials(args: argparse.Namespace) -> int:
+    try:
+        validate_rig_id(args.rig_id)
+    except ValueError as exc:
+        console.print(f"[red]ralf-hil credentials: {exc}[/red]")
+        return 2
+    files = write_compose_access(Path(args.out), args.rig_id, args.scenarios)
+    console.print(f"wrote {', '.join(str(p) for p in files.values())}; start the rig with: docker compose --env-file {files['env']} up --build")
     return 0
 
 
@@ -254,7 +397,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
     up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
-    up.add_argument("--duration", type=float, default=None, help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds")
+    up.add_argument("--duration", type=positive_seconds, default=None, help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds")
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
     up.add_argument("--clock", choices=("realtime", "lockstep", "cosim"), default="realtime", help="realtime (default), lockstep (three processes, handshake-stepped) or cosim (one thread, bit-identical to lockstep)")
     up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
@@ -267,7 +410,13 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--fft-width", type=int, default=None, help="DSP FFT width N (power of two; zeroes its history)")
     rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
+    rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
+    cr = sub.add_parser("credentials", help="generate zenoh credentials and the router's access rules for docker compose")
+    cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
+    cr.add_argument("--rig-id", default="default")
+    cr.add_argument("--scenarios", action="store_true", help="accept scenario commands on the plant's test port (from the tester role)")
+    cr.set_defaults(func=cmd_credentials)
     for module in (bench, monitor, experiments, campaign):
         module.register(sub)
     return parser

@@ -79,7 +79,7 @@ def run_in_process(
         threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), name="plant", daemon=True),
         threading.Thread(target=dsp_service.run, args=(stop,), name="dsp", daemon=True),
     ]
-    ctrl = ControllerService(cs, sess, PlantLink(ctrl_bus, cs.node_id))
+    ctrl = ControllerService(cs, sess, PlantLink(ctrl_bus, cs.node_id), keep_record=True)  # callers read controller.record
     started = time.monotonic()
     try:
         for t in threads:

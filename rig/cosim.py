@@ -94,11 +94,13 @@ class DirectDspPort:
         self._clock: Any = None
         self._build_health: Any = None
         self.status: bytes | None = None
+        self.board_id = f"cosim-{uuid.uuid4().hex}".encode()
+        """Sent with flags and interrupts, as the DSP service sends its session id."""
 
     def connect(self, sink: Any, clock: Any) -> None:
         self._sink, self._clock = sink, clock
         sink("alive", b"1", clock())
-        sink("flag", encode(self.core.flag("empty")), clock())  # Fig. 3.5 step 1
+        sink("flag", encode(self.core.flag("empty")), clock(), self.board_id)  # Fig. 3.5 step 1
 
     def send_batch(self, payload: bytes) -> None:
         try:
@@ -112,8 +114,8 @@ class DirectDspPort:
             return
         interrupt = self.core.process(batch, admission)
         now = self._clock()
-        self._sink("flag", encode(self.core.release()), now)
-        self._sink("interrupt", encode(interrupt), now)
+        self._sink("flag", encode(self.core.release()), now, self.board_id)
+        self._sink("interrupt", encode(interrupt), now, self.board_id)
 
     def send_config(self, payload: bytes) -> None:
         try:
@@ -123,7 +125,7 @@ class DirectDspPort:
         except ValueError as exc:
             self.core.block.counters.config_rejected += 1
             self.core.block.last_violation = f"config change refused: {exc}"
-        self._sink("flag", encode(self.core.flag("full" if self.core.block.full else "empty")), self._clock())
+        self._sink("flag", encode(self.core.flag("full" if self.core.block.full else "empty")), self._clock(), self.board_id)
 
     def send_status(self, payload: bytes) -> None:
         self.status = payload
@@ -212,7 +214,7 @@ def run_cosim(
     port = DirectDspPort(core)
     link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
     started = time.monotonic()
-    ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler)
+    ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)
     try:
         result = ctrl.run(scheduler.stop)
     finally:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import zenoh
 
+from protocol.access import insert_access_from_env
 from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.errors import ProtocolError
@@ -116,6 +117,7 @@ class RigObserver:
         config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
         config.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{self.plan.zenoh_port}"]')
+        insert_access_from_env(config, self.plan.rig_id, {**self.plan.common_env, **self.plan.service_env.get("launcher", {})})
         zenoh.init_log_from_env_or("error")
         self.session = zenoh.open(config)
         self._lock = threading.Lock()

@@ -175,7 +175,11 @@ def run_service(
     settings = parse_service_args(prog, summary, model, argv)
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
     stop = install_stop_handlers()
-    session = open_zenoh(settings)
+    try:
+        session = open_zenoh(settings)
+    except ConfigError as exc:  # a TransportError: one line, exit 2
+        logging.getLogger(prog).error("%s", exc)
+        return 2
     try:
         return body(settings, session, stop)
     except ConfigError as exc:

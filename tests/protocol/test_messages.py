@@ -23,8 +23,10 @@ FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthChe
 
 # --- strategies of valid instances -------------------------------------------------
 
-finite = st.floats(allow_nan=False, allow_infinity=False)
-nonneg = st.floats(min_value=0.0, allow_nan=False, allow_infinity=False)
+finite = st.floats(min_value=-m.MAX_ABS, max_value=m.MAX_ABS, allow_nan=False, allow_infinity=False)
+nonneg = st.floats(min_value=0.0, max_value=m.MAX_ABS, allow_nan=False, allow_infinity=False)
+latency = st.floats(min_value=0.0, max_value=m.MAX_LATENCY_S, allow_nan=False)
+hz = st.floats(min_value=0.0, max_value=1e5, allow_nan=False)
 unit = st.floats(min_value=0.0, max_value=1.0, allow_nan=False)
 seqs = st.integers(min_value=0, max_value=2**63 - 1)
 counts = st.integers(min_value=0, max_value=2**63 - 1)
@@ -38,8 +40,8 @@ def _header() -> dict[str, Any]:
 
 poles = st.builds(
     m.PoleParameters,
-    frequency_hz=st.floats(min_value=0.0, exclude_min=True, allow_nan=False, allow_infinity=False),
-    damping_ratio=nonneg,
+    frequency_hz=st.floats(min_value=0.0, max_value=1e5, exclude_min=True, allow_nan=False, allow_infinity=False),
+    damping_ratio=st.floats(min_value=0.0, max_value=1e3, allow_nan=False),
     magnitude=nonneg,
     source=st.sampled_from(["tot", "11", "12", "21", "22"]),
 )
@@ -73,12 +75,12 @@ def scenario_commands(draw: st.DrawFn) -> m.ScenarioCommand:
     kind = draw(st.sampled_from(["payload", "seed", "adc_bits"]))
     values = {
         "payload_attached": draw(st.none() | st.booleans()),
-        "seed": draw(st.none() | st.integers(min_value=0, max_value=2**63)),
+        "seed": draw(st.none() | st.integers(min_value=0, max_value=2**32 - 1)),
         "adc_bits": draw(st.none() | st.sampled_from([12, 16, 20])),
     }
     needed = {"payload": "payload_attached", "seed": "seed", "adc_bits": "adc_bits"}[kind]
     if values[needed] is None:
-        values[needed] = draw({"payload_attached": st.booleans(), "seed": st.integers(0, 2**32), "adc_bits": st.sampled_from([12, 16, 20])}[needed])
+        values[needed] = draw({"payload_attached": st.booleans(), "seed": st.integers(0, 2**32 - 1), "adc_bits": st.sampled_from([12, 16, 20])}[needed])
     return m.ScenarioCommand(**{k: draw(v) for k, v in _header().items()}, kind=kind, at_sim_time_s=draw(nonneg), **values)
 
 
@@ -90,7 +92,7 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
         next_batch_seq=seqs,
         fft_width=pow2_fft,
         batch_size=st.integers(1, 65536),
-        emulated_latency_s=nonneg,
+        emulated_latency_s=latency,
     ),
     m.PoleParameters: poles,
     m.Interrupt: st.builds(
@@ -100,7 +102,7 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
         poles=st.lists(poles, max_size=4).map(tuple),
         confidence=unit,
         compute_time_s=nonneg,
-        emulated_latency_s=nonneg,
+        emulated_latency_s=latency,
         samples_in_history=counts,
         valid_fraction=unit,
         deadline_missed=st.booleans(),
@@ -111,7 +113,19 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
         fft_width=st.none() | st.integers(min_value=5, max_value=16).map(lambda k: 1 << k),
         batch_size=st.none() | st.integers(1, 4096),
         alpha=st.none() | st.floats(min_value=0.0, max_value=1.0, exclude_min=True, exclude_max=True),
-        emulated_latency_s=st.none() | nonneg,
+        emulated_latency_s=st.none() | latency,
+        request_id=st.none() | st.text("abcdef0123456789", min_size=1, max_size=32),
+    ),
+    m.ConfigAck: st.builds(
+        m.ConfigAck,
+        **_header(),
+        request_id=st.none() | st.text("abcdef0123456789", min_size=1, max_size=32),
+        accepted=st.booleans(),
+        reason=texts,
+        fft_width=pow2_fft,
+        batch_size=st.integers(1, 65536),
+        alpha=st.floats(min_value=0.0, max_value=1.0, exclude_min=True),
+        emulated_latency_s=latency,
     ),
     m.TransferFunction: transfer_functions(),
     m.TfSnapshot: tf_snapshots(),
@@ -129,10 +143,10 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
         m.ControllerStatus,
         **_header(),
         ticks=counts,
-        loop_rate_hz=nonneg,
+        loop_rate_hz=hz,
         batches_sent=counts,
         interrupts=counts,
-        latest_frequency_hz=st.none() | nonneg,
+        latest_frequency_hz=st.none() | hz,
         deadline_misses=counts,
         overruns=counts,
         finished=st.booleans(),
@@ -191,22 +205,25 @@ def test_decode_accepts_bytearray_and_memoryview(message: BaseModel) -> None:
 
 
 def test_round_trip_keeps_float_bits_of_extremes() -> None:
-    values = (5e-324, -5e-324, 2.2250738585072014e-308, 1.7976931348623157e308, -1.7976931348623157e308, -0.0, 0.1)
+    # The largest values a field takes are its bounds (m.MAX_ABS); beyond them decoding refuses.
+    values = (5e-324, -5e-324, 2.2250738585072014e-308, m.MAX_ABS, -m.MAX_ABS, -0.0, 0.1)
     truth = m.GroundTruth(
         seq=0,
         sim_time_s=5e-324,
-        wall_time_s=1.7976931348623157e308,
+        wall_time_s=m.MAX_ABS,
         modal_frequencies_hz=values,
         damping_ratios=values,
         deflections_in=(-0.0, 5e-324),
-        theta_rad=(1.7976931348623157e308, -1.7976931348623157e308),
+        theta_rad=(m.MAX_ABS, -m.MAX_ABS),
         tip_in=(0.1, 0.2),
         payload_attached=True,
     )
     back = m.decode(m.GroundTruth, m.encode(truth))
     assert [math.copysign(1.0, x) for x in back.modal_frequencies_hz] == [math.copysign(1.0, x) for x in values]
     assert np.array_equal(np.asarray(back.modal_frequencies_hz).view(np.uint64), np.asarray(values).view(np.uint64))
-    assert back.sim_time_s == 5e-324 and back.wall_time_s == 1.7976931348623157e308
+    assert back.sim_time_s == 5e-324 and back.wall_time_s == m.MAX_ABS
+    with pytest.raises(ProtocolError, match="theta_rad"):
+        m.decode(m.GroundTruth, m.encode(truth).replace(b"[1000000000000000.0,-1000000000000000.0]", b"[1.7976931348623157e308,-1e15]"))
 
 
 def test_seq_extremes_round_trip() -> None:
@@ -250,6 +267,7 @@ VALID: dict[type[BaseModel], dict[str, Any]] = {
     m.PoleParameters: {"frequency_hz": 4.4, "damping_ratio": 0.09},
     m.Interrupt: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "batch_seq": 0, "confidence": 0.9, "compute_time_s": 0.01},
     m.ConfigChange: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "fft_width": 1024},
+    m.ConfigAck: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "request_id": "ab12", "accepted": True, "fft_width": 1024, "batch_size": 30, "alpha": 0.1, "emulated_latency_s": 0.1},
     m.TransferFunction: {"magnitude": [1.0], "phase_rad": [0.0]},
     m.TfSnapshot: {
         "seq": 1,

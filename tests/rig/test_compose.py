@@ -6,6 +6,7 @@ services started as local processes with exactly the compose environment
 from __future__ import annotations
 
 import json
+import re
 import os
 import queue
 import shutil
@@ -46,7 +47,13 @@ def test_compose_file_describes_router_and_three_services() -> None:
     assert set(services) == {"zenoh-router", "dsp", "plant", "controller"}
     router = services["zenoh-router"]
     assert router["image"].startswith("eclipse/zenoh")
-    assert "tcp/0.0.0.0:7447" in router["command"]
+    # the router reads the configuration `ralf-hil credentials` writes into ./secrets
+    assert router["command"] == ["-c", "/etc/ralf/zenoh-router.json5"] and "./secrets:/etc/ralf:ro" in router["volumes"]
+    from rig.cli import COMPOSE_PASSWORD_VARS
+
+    for name in MODELS:
+        env = services[name]["environment"]
+        assert env["RALF_ZENOH_USER"] == name and env["RALF_ZENOH_PASSWORD"].startswith("${" + COMPOSE_PASSWORD_VARS[name] + ":?")
     for name, model in MODELS.items():
         svc = services[name]
         assert svc["command"][0] in COMMANDS
@@ -82,10 +89,15 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
     doc = _compose()
     port = _free_port()
     rig_id = f"compose-{uuid.uuid4().hex[:6]}"
-    router_cfg = zenoh.Config()
-    router_cfg.insert_json5("mode", '"router"')
-    router_cfg.insert_json5("scouting/multicast/enabled", "false")
+    # The router as compose runs it: the configuration `ralf-hil credentials`
+    # writes (authentication of every client, the rig's access rules), on loopback.
+    from rig.cli import write_compose_access
+
+    files = write_compose_access(tmp_path / "secrets", rig_id)
+    router_cfg = zenoh.Config.from_file(str(files["router"]))
     router_cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    router_cfg.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(files["credentials"])))
+    passwords = dict(line.split("=", 1) for line in files["env"].read_text().splitlines())
     router = zenoh.open(router_cfg)
     statuses: queue.Queue[ControllerStatus] = queue.Queue()
     sub = router.declare_subscriber(Keys(rig_id).controller_status, lambda s: statuses.put(decode(ControllerStatus, s.payload.to_bytes())))
@@ -95,7 +107,7 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
         for name in ("dsp", "plant", "controller"):
             svc = doc["services"][name]
             env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
-            env.update({k: str(v) for k, v in svc["environment"].items()})
+            env.update({k: re.sub(r"\$\{(\w+)(:\?[^}]*)?\}", lambda m: passwords[m.group(1)], str(v)) for k, v in svc["environment"].items()})
             env["RALF_ZENOH_CONNECT"] = env["RALF_ZENOH_CONNECT"].replace("zenoh-router:7447", f"127.0.0.1:{port}")
             env["RALF_RIG_ID"] = rig_id
             env["RALF_CAN_PORT"] = can_port

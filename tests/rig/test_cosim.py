@@ -52,6 +52,34 @@ def test_cosim_applies_each_interrupt_at_its_due_tick(tmp_path) -> None:
     assert np.array_equal(applied, sent + 10)
 
 
+def test_cosim_pairs_with_its_board_and_refuses_any_other_at_the_edge() -> None:
+    """The direct port goes through the same inbox as zenoh: the controller
+    pairs with the core's board id after its reset; an interrupt or flag with
+    another board id, or an interrupt for no batch sent, is refused."""
+    from protocol.messages import BlockFlag, Interrupt, encode
+
+    run = run_cosim(controller={"duration_s": 1.0, "tf_download_samples": 0, "batch_size": 20}, dsp={"fft_width": 256, "emulated_latency_s": 0.05})
+    ctrl = run.controller
+    assert ctrl.paired_board == ctrl.port.board_id  # type: ignore[attr-defined]
+    assert run.result.counters.get("in_interrupt_refused", 0) == 0
+    assert run.result.counters["interrupts_applied"] > 0
+    before = ctrl._events.counters("interrupt").refused
+    left = len(ctrl._events)  # the answers to the last batch, never taken
+    irq = encode(Interrupt(seq=0, sim_time_s=0.0, batch_seq=0, confidence=1.0, compute_time_s=0.0))
+    ctrl._on_port_event("interrupt", irq, 0.0, b"another-board")
+    ctrl._on_port_event("interrupt", irq, 0.0, None)
+    unsent = encode(Interrupt(seq=0, sim_time_s=0.0, batch_seq=10**9, confidence=1.0, compute_time_s=0.0))
+    ctrl._on_port_event("interrupt", unsent, 0.0, ctrl.paired_board)
+    assert ctrl._events.counters("interrupt").refused == before + 3
+    flag = encode(BlockFlag(seq=0, sim_time_s=0.0, state="empty", next_batch_seq=0, fft_width=256, batch_size=20))
+    flags_refused = ctrl._events.counters("flag").refused
+    ctrl._on_port_event("flag", flag, 0.0, b"another-board")
+    assert ctrl._events.counters("flag").refused == flags_refused + 1
+    assert len(ctrl._events) == left  # nothing of it was queued
+    ctrl._on_port_event("interrupt", b"x" * 100_000, 0.0, ctrl.paired_board)
+    assert ctrl._events.counters("interrupt").oversize == 1
+
+
 def test_cosim_settings_errors_name_the_service_and_variable() -> None:
     with pytest.raises(ConfigError, match="(?s)controller: .*RALF_OATF_MODE"):
         run_cosim(controller={"duration_s": 1.0, "oatf_mode": "sideways"})

@@ -35,3 +35,28 @@ def test_batch_size_and_fft_width_change_while_running() -> None:
     assert run.dsp.identifier.fft_width == 256
     assert run.dsp.block.counters.config_changes == 2  # the run-start reset, then the command
     assert run.result.counters["samples_dropped"] == 0 and run.dsp.block.counters.samples_missing == 0
+
+
+def test_reconfigure_tool_gets_the_dsp_acknowledgement_or_its_refusal() -> None:
+    from rig.cli import wait_for_ack
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps([]))
+    session = zenoh.open(config)
+    rig_id = "reconf-ack"
+    acks: list[object] = []
+
+    def tool() -> None:
+        acks.append(wait_for_ack(session, Keys(rig_id), ConfigChange(seq=0, sim_time_s=0.0, fft_width=256, request_id="t1"), 8.0))
+
+    timer = threading.Timer(1.0, tool)
+    try:
+        timer.start()
+        run_in_process(controller={"duration_s": 12.0, "tf_download_samples": 0}, dsp={"search_max_hz": 40.0}, common={"rig_id": rig_id}, session=session)
+    finally:
+        timer.join()
+        session.close()
+    (ok,) = acks
+    assert ok is not None and ok.accepted and ok.request_id == "t1" and ok.fft_width == 256  # type: ignore[attr-defined]

@@ -338,7 +338,7 @@ def _run_in_process(
     started = time.monotonic()
     common = {**spec.common, "clock": ctx.mode}
     run = run_in_process(
-        controller={k: v for k, v in controller.items() if k != "record"},
+        controller={**{k: v for k, v in controller.items() if k != "record"}, "record": str(record_path)},  # the record streams to disk (controller.record.ChunkedRecord)
         plant=plant,
         dsp=dsp,
         common=common,

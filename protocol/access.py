@@ -1,0 +1,157 @@
+"""Who may drive the rig: zenoh's own authentication (``transport/auth/usrpwd``)
+and access control (``access_control``), generated from the rig's keys.
+
+Every session of a rig authenticates with a user name naming its role
+(:data:`ROLES`) and a password; a node that has the credentials file
+(``user:password`` lines) accepts only sessions that present one of them.
+The access rules then let each role publish only what its board publishes
+(:func:`publishers`): only the controller publishes batches, its status and
+the DSP's configuration; only the DSP publishes flags, interrupts,
+configuration acknowledgements and answers TF queries; only the plant
+publishes ground truth and plant events; each service only its own health
+and liveliness; tools (``ralf-hil reconfigure``) only commands; scenario
+commands only the ``tester`` role, and only where ``zenoh_acl_scenarios`` is
+on. Everything else (subscribing, querying) is allowed.
+
+The rules are applied by every receiving node on ``ingress`` (zenoh 1.x
+peers do not relay, so the subject of a message is its originator; in
+client mode the router applies them). Schema: zenoh 1.10's ``AclConfig``
+(``enabled``, ``default_permission``, ``rules`` of ``id``/``permission``/
+``flows``/``messages``/``key_exprs``, ``subjects`` of ``id``/``usernames``,
+``policies`` of ``rules``/``subjects``), checked by experiment in
+``tests/hardening/test_access.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from protocol.keys import Keys
+
+ROLES: tuple[str, ...] = ("controller", "dsp", "plant", "launcher", "tool", "tester")
+"""Session roles: the three boards, ``ralf-hil up``'s observer, tools, and test harnesses."""
+SERVICES: tuple[str, ...] = ("controller", "dsp", "plant")
+
+
+def publishers(keys: Keys, scenarios: bool = False) -> dict[str, tuple[str, ...]]:
+    """Key expression -> the roles allowed to publish (put/delete) on it."""
+    table: dict[str, tuple[str, ...]] = {
+        keys.batch: ("controller",),
+        keys.dsp_config: ("controller",),
+        keys.controller_status: ("controller",),
+        keys.tf_downloads: ("controller",),
+        keys.flag: ("dsp",),
+        keys.interrupt: ("dsp",),
+        keys.dsp_config_ack: ("dsp",),
+        keys.truth: ("plant",),
+        keys.plant_events: ("plant",),
+        keys.controller_command: ("tool", "tester"),
+        keys.scenario: ("tester",) if scenarios else (),
+    }
+    for service in SERVICES:
+        table[keys.health(service)] = (service,)
+    return table
+
+
+def _rule(rule_id: str, messages: Iterable[str], key_exprs: Iterable[str]) -> dict[str, Any]:
+    return {"id": rule_id, "permission": "deny", "flows": ["ingress"], "messages": list(messages), "key_exprs": list(key_exprs)}
+
+
+def acl_config(keys: Keys, scenarios: bool = False) -> dict[str, Any]:
+    """The ``access_control`` section of every node of the rig."""
+    rules: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+
+    def deny(rule_id: str, messages: Iterable[str], key_exprs: Iterable[str], allowed: Iterable[str]) -> None:
+        others = [role for role in ROLES if role not in set(allowed)]
+        if not others:
+            return
+        rules.append(_rule(rule_id, messages, key_exprs))
+        policies.append({"rules": [rule_id], "subjects": [f"role {role}" for role in others]})
+
+    for n, (key, allowed) in enumerate(sorted(publishers(keys, scenarios).items())):
+        deny(f"publish {n} {key}", ("put", "delete"), [key], allowed)
+    # The TF queryable and the liveliness tokens are the DSP's and each service's own.
+    deny("answer tf", ("declare_queryable", "reply"), [keys.tf], ("dsp",))
+    for n, service in enumerate(SERVICES):
+        deny(f"alive {n} {service}", ("liveliness_token",), [keys.alive(service)], (service,))
+    return {
+        "enabled": True,
+        "default_permission": "allow",
+        "rules": rules,
+        "subjects": [{"id": f"role {role}", "usernames": [role]} for role in ROLES],
+        "policies": policies,
+    }
+
+
+def generate_credentials(roles: Iterable[str] = ROLES) -> dict[str, str]:
+    """A fresh random password per role (for one run)."""
+    return {role: secrets.token_urlsafe(24) for role in roles}
+
+
+def write_credentials_file(path: str | Path, credentials: Mapping[str, str]) -> Path:
+    """The ``user:password`` dictionary zenoh reads, readable by the owner only."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{user}:{password}\n" for user, password in credentials.items())
+    return p
+
+
+def router_config(keys: Keys, credentials_file: str, listen: str = "tcp/0.0.0.0:7447", scenarios: bool = False) -> dict[str, Any]:
+    """A zenoh router's configuration for the distributed rig (docker compose):
+    authentication of every client and the rig's access rules."""
+    return {
+        "mode": "router",
+        "listen": {"endpoints": [listen]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}}},
+        "access_control": acl_config(keys, scenarios),
+    }
+
+
+def insert_access(
+    config: Any,
+    rig_id: str,
+    user: str = "",
+    password: str = "",
+    credentials_file: str = "",
+    acl: bool = False,
+    scenarios: bool = False,
+) -> Any:
+    """Add authentication and the rig's access rules to a ``zenoh.Config``."""
+    if user or credentials_file:
+        usrpwd: dict[str, str] = {}
+        if user:
+            usrpwd.update(user=user, password=password)
+        if credentials_file:
+            usrpwd["dictionary_file"] = credentials_file
+        config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
+    if acl:
+        config.insert_json5("access_control", json.dumps(acl_config(Keys(rig_id), scenarios)))
+    return config
+
+
+def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> Any:
+    """:func:`insert_access` from ``RALF_ZENOH_*`` variables (e.g. a
+    launcher's own session, configured like the services)."""
+    return insert_access(
+        config,
+        rig_id,
+        user=env.get("RALF_ZENOH_USER", ""),
+        password=env.get("RALF_ZENOH_PASSWORD", ""),
+        credentials_file=env.get("RALF_ZENOH_CREDENTIALS_FILE", ""),
+        acl=env.get("RALF_ZENOH_ACL", "").lower() in ("1", "true", "yes", "on"),
+        scenarios=env.get("RALF_ZENOH_ACL_SCENARIOS", "").lower() in ("1", "true", "yes", "on"),
+    )
+
+
+def role_env(role: str, credentials: Mapping[str, str]) -> dict[str, str]:
+    """The variables that make a session authenticate as ``role``."""
+    return {"RALF_ZENOH_USER": role, "RALF_ZENOH_PASSWORD": credentials[role]}
