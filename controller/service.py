@@ -34,6 +34,7 @@ from controller.plant_link import PlantFault, PlantLink, StopRequested
 from protocol.can_map import NmtCommand, NmtState
 from controller.record import ColumnBuffer, save_record
 from protocol.batch_codec import encode_batch
+from protocol.encodings import BATCH, JSON
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
@@ -128,9 +129,10 @@ class ControllerService:
         )
         self.timing_record = ColumnBuffer({"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}, capacity=4096)
         block = zenoh.CongestionControl.BLOCK
-        self._batch_pub = session.declare_publisher(self.keys.batch, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
-        self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
-        self._status_pub = session.declare_publisher(self.keys.controller_status)
+        self._batch_pub = session.declare_publisher(self.keys.batch, encoding=BATCH, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._config_pub = session.declare_publisher(self.keys.dsp_config, encoding=JSON, congestion_control=block)
+        self._status_pub = session.declare_publisher(self.keys.controller_status, encoding=JSON)
+        self._tf_pub = session.declare_publisher(self.keys.tf_downloads, encoding=JSON)
         self._subs = [
             session.declare_subscriber(self.keys.flag, lambda s: self._events.put(("flag", s.payload.to_bytes(), time.monotonic()))),
             session.declare_subscriber(self.keys.interrupt, self._on_interrupt_sample),
@@ -327,8 +329,10 @@ class ControllerService:
             if reply.ok is None:
                 continue
             try:
-                self.tf_snapshots.append(decode(TfSnapshot, reply.ok.payload.to_bytes()))
+                payload = reply.ok.payload.to_bytes()
+                self.tf_snapshots.append(decode(TfSnapshot, payload))
                 self.timing.tf_downloads += 1
+                self._tf_pub.put(payload)  # controller/tf: each download, for recorders and viewers
                 return
             except ProtocolError as exc:
                 self.timing.undecodable += 1
@@ -541,6 +545,6 @@ class ControllerService:
         for sub in self._subs:
             sub.undeclare()
         self._token.undeclare()
-        for pub in (self._batch_pub, self._config_pub, self._status_pub):
+        for pub in (self._batch_pub, self._config_pub, self._status_pub, self._tf_pub):
             pub.undeclare()
 

@@ -22,6 +22,7 @@ from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 from rig import bench, experiments, monitor
 from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
+from rig.recording.tap import RigRecording
 
 console = Console(stderr=True)
 
@@ -98,7 +99,10 @@ def print_summary(summary: dict[str, Any]) -> None:
                     f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
                 )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
-    console.print(table)
+    if summary.get("recording"):
+        r = summary["recording"]
+        table.add_row("recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable")
+    Console().print(table)  # the summary is the command's result: stdout
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -107,16 +111,20 @@ def cmd_up(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
     overrides = _parse_overrides(args.set)
-    plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
+    plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides, common={"RALF_CAN_PORT": str(args.can_port)} if args.can_port else None)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     observer = RigObserver(plan)
+    recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock) if args.record else None
     procs: dict[str, ServiceProcess] = {}
     started = time.monotonic()
     failure = ""
     try:
+        # Before any service starts (their Python start-up takes a second or more), so a bus
+        # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
+        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
         for name in START_ORDER:
             procs[name] = start_service(plan, name, log_dir)
         console.print(f"rig {plan.rig_id!r} up: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}")
@@ -140,6 +148,8 @@ def cmd_up(args: argparse.Namespace) -> int:
         time.sleep(0.2)  # let the last health messages arrive
         elapsed = time.monotonic() - started
         summary = summarize(observer, exit_codes, elapsed)
+        if recording is not None:
+            summary["recording"] = {"path": args.record, **recording.close().as_dict()}
         observer.close()
     print_summary(summary)
     if args.json:
@@ -155,6 +165,7 @@ def cmd_up(args: argparse.Namespace) -> int:
 def cmd_reconfigure(args: argparse.Namespace) -> int:
     """Send a run-time configuration change to a running controller, which
     applies the batch size and forwards the rest to the DSP."""
+    from protocol.encodings import JSON
     from protocol.errors import ConfigError
     from protocol.keys import Keys
     from protocol.messages import ConfigChange, encode
@@ -180,7 +191,7 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     session = open_zenoh(settings)
     try:
         time.sleep(0.5)  # let the session find its peers
-        session.put(Keys(settings.rig_id).controller_command, encode(change))
+        session.put(Keys(settings.rig_id).controller_command, encode(change), encoding=JSON)
         time.sleep(0.2)
     finally:
         session.close()
@@ -198,6 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
+    up.add_argument("--record", default=None, metavar="RUN.mcap", help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file")
+    up.add_argument("--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)")
+    up.add_argument("--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)")
     up.set_defaults(func=cmd_up)
     rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")
     rc.add_argument("--rig-id", default="default")

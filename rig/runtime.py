@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 import numpy as np
 import zenoh
 
+from protocol.encodings import JSON
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings
@@ -111,7 +112,7 @@ class HealthPublisher:
     """Publishes ``build()`` on ``key`` every ``period_s`` from a daemon thread."""
 
     def __init__(self, session: zenoh.Session, key: str, period_s: float, build: Callable[[int], Health]) -> None:
-        self._pub = session.declare_publisher(key)
+        self._pub = session.declare_publisher(key, encoding=JSON)
         self._period = period_s
         self._build = build
         self._seq = 0
