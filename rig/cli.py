@@ -22,6 +22,7 @@ from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 from rig import bench, experiments, monitor
 from rig.launcher import START_ORDER, STOP_ORDER, RigObserver, RigPlan, ServiceProcess, start_service, stop_service, tail
+from rig.recording import cli as recording_cli
 from rig.recording.tap import RigRecording
 
 console = Console(stderr=True)
@@ -220,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
     rc.set_defaults(func=cmd_reconfigure)
-    for module in (bench, monitor, experiments):
+    for module in (bench, monitor, experiments, recording_cli):
         module.register(sub)
     return parser
 
