@@ -78,6 +78,7 @@ class Recorder:
         can_log: str | Path | None = None,
         queue_limit: int = DEFAULT_QUEUE_LIMIT,
         compression: CompressionType = CompressionType.ZSTD,
+        autostart: bool = True,
     ) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -94,7 +95,13 @@ class Recorder:
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=queue_limit)
         self._closed = False
         self._thread = threading.Thread(target=self._run, name="mcap-recorder", daemon=True)
-        self._thread.start()
+        if autostart:
+            self._thread.start()
+
+    def start(self) -> None:
+        """Start the writer thread (done by the constructor unless ``autostart=False``)."""
+        if not self._thread.is_alive() and not self._closed:
+            self._thread.start()
 
     # -- the API (any thread) -----------------------------------------------------------
     def on_can_frame(
@@ -128,6 +135,8 @@ class Recorder:
         """Write what is queued, the recorder's own counters, and finish the file (summary, index)."""
         if self._closed:
             return self.stats
+        if not self._thread.is_alive():
+            self._thread.start()
         self._closed = True
         self._queue.put(None)
         self._thread.join(timeout=timeout_s)
