@@ -231,7 +231,7 @@ class Recorder:
                     "inputs": b.inputs.tolist(),
                     "outputs": b.outputs.tolist(),
                 }
-                self._emit(topic, schemas.BATCH_SCHEMA, record, wall, publish_s=b.wall_time_s)
+                self._emit(topic, schemas.BATCH_SCHEMA, record, wall, publish_s=b.wall_time_s, metadata={"zenoh_key": key, "zenoh_encoding": encoding})
             else:
                 model = schemas.model_for_key(key)
                 if model is None:
@@ -239,7 +239,7 @@ class Recorder:
                 message = decode(model, payload)
                 sent = getattr(message, "wall_time_s", wall)
                 # The payload as it travelled (it validated): bit-for-bit the sender's JSON.
-                self._emit_raw(topic, model.__name__, schemas.schema_of(model), payload, wall, publish_s=sent)
+                self._emit_raw(topic, model.__name__, schemas.schema_of(model), payload, wall, publish_s=sent, metadata={"zenoh_key": key, "zenoh_encoding": encoding})
         except ProtocolError as exc:
             self.stats.undecodable += 1
             raw = {"key": key, "encoding": encoding, "size": len(payload), "data_base64": base64.b64encode(payload).decode(), "error": str(exc), "wall_time_s": wall}
@@ -247,11 +247,13 @@ class Recorder:
             return
         self.stats.messages += 1
 
-    def _emit(self, topic: str, schema: Mapping[str, Any], record: Mapping[str, Any], log_s: float, publish_s: float | None = None) -> None:
+    def _emit(self, topic: str, schema: Mapping[str, Any], record: Mapping[str, Any], log_s: float, publish_s: float | None = None, metadata: Mapping[str, str] | None = None) -> None:
         data = json.dumps(record, separators=(",", ":"), allow_nan=False).encode()
-        self._emit_raw(topic, str(schema["title"]), schema, data, log_s, publish_s)
+        self._emit_raw(topic, str(schema["title"]), schema, data, log_s, publish_s, metadata)
 
-    def _emit_raw(self, topic: str, schema_name: str, schema: Mapping[str, Any], data: bytes, log_s: float, publish_s: float | None = None) -> None:
+    def _emit_raw(
+        self, topic: str, schema_name: str, schema: Mapping[str, Any], data: bytes, log_s: float, publish_s: float | None = None, metadata: Mapping[str, str] | None = None
+    ) -> None:
         title = str(schema.get("title", schema_name))
         channel = self._channels.get((topic, title))
         if channel is None:
@@ -259,7 +261,8 @@ class Recorder:
             if schema_id is None:
                 schema_id = self._writer.register_schema(name=title, encoding="jsonschema", data=json.dumps(schema).encode())
                 self._schemas[title] = schema_id
-            channel = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+            # The channel keeps the zenoh key and encoding of its first sample.
+            channel = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id, metadata=dict(metadata or {}))
             self._channels[(topic, title)] = channel
         seq = self._sequence.get(channel, 0)
         self._sequence[channel] = seq + 1

@@ -68,7 +68,13 @@ def test_every_message_validates_against_its_channel_schema(run: dict[str, Any])
             validators[schema.id].validate(json.loads(message.data))
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        summary = reader.get_summary()
+    assert summary is not None
+    encodings = {ch.topic: ch.metadata.get("zenoh_encoding") for ch in summary.channels.values() if "zenoh_encoding" in ch.metadata}
     root = f"/ralf/{run['rig_id']}"
+    # every publisher tags its payload: JSON, or the named binary batch encoding
+    assert encodings.pop(f"{root}/dsp/batch") == "application/octet-stream;ralf-batch-v1"
+    assert set(encodings.values()) == {"application/json"}, encodings
     for suffix in ("dsp/batch", "dsp/interrupt", "dsp/flag", "dsp/config", "plant/truth", "controller/tf", "controller/status", "health/controller", "health/dsp", "health/plant", "alive"):
         assert counts.get(f"{root}/{suffix}", 0) > 0, suffix
     assert "/_undecodable" not in counts

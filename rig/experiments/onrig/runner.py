@@ -314,6 +314,8 @@ def run_rig(
     dsp = dict(spec.dsp)
     expected = spec.expected_sim_s()
     if in_process:
+        if ctx.record:
+            ctx.log(f"run {spec.name!r} runs in one process (--quick): not recorded (only three-process runs are)")
         return _run_in_process(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     return _run_processes(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress, timeout_s)
 
@@ -383,8 +385,13 @@ def _run_processes(
     started = time.monotonic()
     failure = ""
     reported = 0.0
+    recording = None
     try:
         observer = RigObserver(plan)
+        if ctx.record:
+            from rig.recording.tap import RigRecording
+
+            recording = RigRecording(plan, str(ctx.path(f"records/{spec.name}.mcap")), observer.session, experiment=exp, run=spec.name, clock=ctx.mode)
         for name in START_ORDER:
             procs[name] = start_service(plan, name, log_dir)
         ctrl = procs["controller"]
@@ -409,6 +416,8 @@ def _run_processes(
         for name in STOP_ORDER:
             if name in procs:
                 exit_codes[name] = stop_service(procs[name], timeout_s=20.0)
+        if recording is not None:
+            recording.close()
         if observer is not None:
             time.sleep(0.1)
             health = {k: v.model_dump(mode="json") for k, v in observer.health.items()}
