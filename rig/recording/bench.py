@@ -58,7 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pairs", type=int, default=3)
     p.add_argument("--duration", type=float, default=20.0, help="wall seconds per run")
     p.add_argument("--json", default=None)
+    p.add_argument("--writer-only", action="store_true", help="only the recorder's own CPU cost per frame and batch (no rig runs)")
     args = p.parse_args(argv)
+    cost = writer_cost()
+    print(
+        f"recorder: {cost['us_per_frame']:.1f} us CPU per CAN frame, {cost['us_per_batch']:.0f} us per batch of 30; "
+        f"a 200 Hz rig (3 frames a tick, a batch every 30) costs it {100 * cost['core_fraction_200hz']:.1f} % of one core",
+        flush=True,
+    )
+    if args.writer_only:
+        return 0
     runs = []
     with tempfile.TemporaryDirectory(prefix="rec-bench-") as tmp:
         for pair in range(args.pairs):
@@ -85,6 +94,42 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(runs, indent=2))
     return 0
+
+
+
+def writer_cost(n_frames: int = 20000, n_batches: int = 200) -> dict[str, float]:
+    """CPU seconds the recorder spends per CAN frame and per batch (its
+    writer thread and the callers' puts, measured as this process's CPU
+    time over a burst), and what a 200 Hz rig costs it per second of run."""
+    import time
+
+    import numpy as np
+
+    from protocol.batch_codec import SampleBatch, encode_batch
+    from rig.recording.recorder import Recorder
+
+    with tempfile.TemporaryDirectory(prefix="rec-cost-") as tmp:
+        rec = Recorder(Path(tmp) / "cost.mcap", queue_limit=n_frames + n_batches + 10)
+        frames = [(0x080, b"\x01"), (0x181, bytes(8)), (0x201, bytes(4))]
+        t0 = time.process_time()
+        for i in range(n_frames):
+            cob, data = frames[i % 3]
+            rec.on_can_frame(cob, data, wall_time_s=1e9 + i * 1e-3)
+        rec.close()
+        frame_s = (time.process_time() - t0) / n_frames
+        rec = Recorder(Path(tmp) / "cost2.mcap", queue_limit=n_batches + 10)
+        rng = np.random.default_rng(0)
+        payloads = [
+            encode_batch(SampleBatch(seq=i, first_tick=30 * i, sample_rate_hz=200.0, sim_time_s=0.15 * i, wall_time_s=1e9, inputs=rng.standard_normal((2, 30)), outputs=rng.standard_normal((2, 30))))
+            for i in range(n_batches)
+        ]
+        t0 = time.process_time()
+        for p in payloads:
+            rec.on_message("ralf/cost/dsp/batch", p, wall_time_s=1e9)
+        rec.close()
+        batch_s = (time.process_time() - t0) / n_batches
+    per_run_s = 3 * 200 * frame_s + 200 / 30 * batch_s
+    return {"us_per_frame": frame_s * 1e6, "us_per_batch": batch_s * 1e6, "core_fraction_200hz": per_run_s}
 
 
 if __name__ == "__main__":

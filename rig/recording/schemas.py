@@ -91,10 +91,25 @@ def is_batch_key(key: str) -> bool:
 
 
 def schema_of(model: type[BaseModel]) -> dict[str, Any]:
-    """The JSON schema of a message model (pydantic's, titled ``ralf.<Model>``)."""
+    """The JSON schema of a message model: pydantic's, titled ``ralf.<Model>``,
+    with its ``$ref``s inlined (one self-contained object per channel, which
+    viewers that do not follow references can read)."""
     schema = model.model_json_schema(mode="serialization")
-    schema["title"] = f"ralf.{model.__name__}"
-    return schema
+    defs = schema.pop("$defs", {})
+
+    def inline(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                return inline({**defs[ref.removeprefix("#/$defs/")], **{k: v for k, v in node.items() if k != "$ref"}})
+            return {k: inline(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [inline(v) for v in node]
+        return node
+
+    out: dict[str, Any] = inline(schema)
+    out["title"] = f"ralf.{model.__name__}"
+    return out
 
 
 _NUMBER_ROWS: Final[dict[str, Any]] = {
