@@ -34,23 +34,24 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     tmp = tmp_path_factory.mktemp("recorded")
     rig_id = f"rec-{uuid.uuid4().hex[:8]}"
     mcap_path = tmp / "run.mcap"
+    can_port = 46000 + uuid.uuid4().int % 4000
     proc = subprocess.run(
         [
             sys.executable, "-m", "rig", "up", "--clock", "lockstep", "--duration", "90", "--rig-id", rig_id,
             "--record", str(mcap_path), "--can-log", str(tmp / "run.asc"), "--json", str(tmp / "summary.json"), "--log-dir", str(tmp / "logs"),
-            "--set", f"controller.duration_s={SIM_S}", "--set", "fft_width=512", "--set", "controller.tf_download_samples=400",
+            "--can-port", str(can_port), "--set", f"controller.duration_s={SIM_S}", "--set", "fft_width=512", "--set", "controller.tf_download_samples=400",
         ],
         capture_output=True, text=True, timeout=150,
     )  # fmt: skip
     logs = "\n".join(p.read_text() for p in (tmp / "logs").glob("*.log"))
     assert proc.returncode == 0, proc.stderr + logs
-    return {"tmp": tmp, "path": mcap_path, "rig_id": rig_id, "stdout": proc.stdout, "summary": json.loads((tmp / "summary.json").read_text())}
+    return {"tmp": tmp, "path": mcap_path, "rig_id": rig_id, "can_port": can_port, "stdout": proc.stdout, "summary": json.loads((tmp / "summary.json").read_text())}
 
 
 @pytest.mark.timeout(200)
 def test_up_prints_the_can_port_first_and_the_summary_on_stdout(run: dict[str, Any]) -> None:
     lines = run["stdout"].splitlines()
-    assert "CAN udp_multicast port" in lines[0]
+    assert f"CAN udp_multicast port {run['can_port']}," in lines[0]  # --can-port, printed before any service starts
     assert "run summary" in run["stdout"] and "recording" in run["stdout"]
     rec = run["summary"]["recording"]
     assert rec["dropped"] == 0 and rec["undecodable"] == 0 and rec["can_frames"] > 3 * SIM_S * 200
@@ -178,3 +179,20 @@ def test_can_replay_onto_a_bus_is_bounded_and_faithful(run: dict[str, Any]) -> N
         thread.join(timeout=10)
     assert sent == 300
     assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(m.arbitration_id, bytes(m.data)) for m in messages[:300]]
+
+
+def test_replay_cli_plays_the_can_side_onto_udp_multicast(run: dict[str, Any]) -> None:
+    """``ralf-hil replay --can``: another tool on the bus (here a python-can bus) sees the recorded frames."""
+    port = 42000 + uuid.uuid4().int % 1000
+    frames = [f for f in Recording.load(run["path"]).can_frames() if f["direction"] == "plant->controller"][:100]
+    with can.Bus(interface="udp_multicast", channel="239.74.163.2", port=port, receive_own_messages=False) as rx:
+        proc = subprocess.run(
+            [sys.executable, "-m", "rig", "replay", str(run["path"]), "--can", "--port", str(port), "--direction", "plant->controller", "--ignore-timestamps", "--gap", "0.001", "--limit", "100", "--max-wall", "30"],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        assert "100 of" in proc.stderr
+        got = []
+        while (msg := rx.recv(timeout=1.0)) is not None:
+            got.append((msg.arbitration_id, bytes(msg.data)))
+    assert got == [(f["arbitration_id"], bytes(f["data"])) for f in frames]
