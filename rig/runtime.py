@@ -39,6 +39,7 @@ def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[s
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a setting, e.g. --set clock=lockstep")
+    parser.add_argument("--record", default=None, metavar="RUN.mcap", help="record the rig as this service sees it into an MCAP file (a `ralf-hil record` child process; see docs/recording.md)")
     args = parser.parse_args(argv)
     overrides: dict[str, Any] = {}
     for item in args.set:
@@ -173,10 +174,14 @@ def run_service(
     # Imported here so that parsing --help does not need a network stack.
     from protocol.transport import open_zenoh
 
+    from rig.recording.attach import split_record_arg, start_recorder, stop_recorder
+
+    record, argv = split_record_arg(argv)
     settings = parse_service_args(prog, summary, model, argv)
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
     stop = install_stop_handlers()
     session = open_zenoh(settings)
+    recorder = start_recorder(settings, record) if record else None
     try:
         return body(settings, session, stop)
     except ConfigError as exc:
@@ -184,3 +189,4 @@ def run_service(
         return 2
     finally:
         session.close()
+        stop_recorder(recorder)

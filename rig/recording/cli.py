@@ -40,7 +40,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from protocol.settings import CommonSettings, load_settings
     from protocol.transport import open_zenoh
     from rig.recording.recorder import Recorder
-    from rig.recording.tap import Tap, open_tap_bus, run_metadata, service_settings
+    from rig.recording.tap import Tap, open_tap_bus, resolve_settings_here, run_metadata
 
     overrides: dict[str, Any] = {}
     if args.rig_id:
@@ -56,7 +56,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         console.print(f"[red]{exc}[/red]")
         return 2
     env = {k: v for k, v in os.environ.items() if k.startswith("RALF_")}
-    resolved = service_settings({name: env for name in ("dsp", "plant", "controller")})
+    resolved = resolve_settings_here({name: env for name in ("dsp", "plant", "controller")})  # no threads yet
     recorder = Recorder(args.path, sample_rate_hz=settings.sample_rate_hz, node_id=settings.node_id, can_log=args.can_log)
     for name, values in run_metadata(settings.rig_id, resolved, settings_source="the recorder's RALF_* environment", can_port=settings.can_port).items():
         recorder.add_metadata(name, values)

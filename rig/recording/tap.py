@@ -154,27 +154,39 @@ def service_settings(env_by_service: Mapping[str, Mapping[str, str]], timeout_s:
     return dict(json.loads(result.stdout))
 
 
-def _resolve_settings_main() -> None:
-    """Child side of :func:`service_settings`: JSON {service: env} on stdin -> settings on stdout."""
-    import json
+def resolve_settings_here(env_by_service: Mapping[str, Mapping[str, str]]) -> dict[str, dict[str, Any]]:
+    """:func:`service_settings` in this process: swaps ``os.environ``, so only
+    for a process with no other threads yet (``ralf-hil record`` before its
+    session opens, the child of :func:`service_settings`)."""
     import os
 
     from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 
     models = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
     out: dict[str, dict[str, Any]] = {}
-    for service, env in json.load(sys.stdin).items():
-        model = models.get(service)
-        if model is None:
-            continue
+    saved = dict(os.environ)
+    try:
+        for service, env in env_by_service.items():
+            model = models.get(service)
+            if model is None:
+                continue
+            os.environ.clear()
+            os.environ.update(env)
+            try:
+                out[service] = model().model_dump(mode="json")  # type: ignore[call-arg]
+            except Exception as exc:
+                out[service] = {"error": str(exc)}
+    finally:
         os.environ.clear()
-        os.environ.update(env)
-        try:
-            out[service] = model().model_dump(mode="json")  # type: ignore[call-arg]
-        except Exception as exc:
-            out[service] = {"error": str(exc)}
-    json.dump(out, sys.stdout)
+        os.environ.update(saved)
+    return out
 
+
+def _resolve_settings_main() -> None:
+    """Child side of :func:`service_settings`: JSON {service: env} on stdin -> settings on stdout."""
+    import json
+
+    json.dump(resolve_settings_here(json.load(sys.stdin)), sys.stdout)
 
 
 class RigRecording:

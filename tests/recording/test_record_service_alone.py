@@ -56,3 +56,28 @@ def test_record_a_plant_running_alone(tmp_path: Path) -> None:
     assert len(rec.data("health/plant")) >= 2
     assert any(m.data["service"] == "plant" and m.data["alive"] for m in rec.iter("alive"))
     assert rec.settings("plant")["seed"] == 5  # the recorder's RALF_* environment, as the plant read it
+
+
+@pytest.mark.timeout(120)
+def test_a_service_records_itself_with_record_flag(tmp_path: Path) -> None:
+    """``ralf-dsp --record RUN.mcap``: a recorder child beside the board, with the board's --set settings."""
+    rig_id = f"self-{uuid.uuid4().hex[:6]}"
+    path = tmp_path / "dsp.mcap"
+    env = {**os.environ, "RALF_RIG_ID": rig_id, "RALF_HEALTH_PERIOD_S": "0.5", "RALF_CAN_PORT": str(45000 + (os.getpid() + 7) % 5000), "PYTHONUNBUFFERED": "1"}
+    dsp = subprocess.Popen(
+        [sys.executable, "-m", "dsp_service", "--set", "fft_width=1024", "--record", str(path), "--set", f"zenoh_listen=tcp/127.0.0.1:{_free_port()}"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (path.exists() and path.stat().st_size > 0):
+            time.sleep(0.2)
+        time.sleep(4.0)  # the empty-block flag every 0.5 s, health every 0.5 s
+    finally:
+        assert terminate(dsp) == 0
+    rec = Recording.load(path)
+    assert rec.rig_id == rig_id
+    flags = rec.data("dsp/flag")
+    assert flags and {f["fft_width"] for f in flags} == {1024} and {f["state"] for f in flags} == {"empty"}
+    assert rec.data("health/dsp")
+    assert rec.settings("dsp")["fft_width"] == 1024  # the --set override reached the recorder's metadata
