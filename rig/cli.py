@@ -118,11 +118,13 @@ def cmd_up(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     observer = RigObserver(plan)
-    recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock) if args.record else None
+    recording: RigRecording | None = None
     procs: dict[str, ServiceProcess] = {}
     started = time.monotonic()
     failure = ""
     try:
+        if args.record:  # the tap starts before the services, so it holds their start-up
+            recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock)
         # Before any service starts (their Python start-up takes a second or more), so a bus
         # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
         print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
