@@ -84,7 +84,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from rig.recording.reader import Recording
     from rig.recording.replay import compare, export_can_log, play_can, recorded_can_messages, report_markdown
 
-    rec = Recording.load(args.path)
+    needs_can = bool(args.can or args.export_can)
+    rec = Recording.load(args.path, only=None if needs_can else ("dsp/config", "dsp/batch", "dsp/interrupt", "plant/truth"))
     did = False
     if args.export_can:
         n = export_can_log(rec, args.export_can)

@@ -5,7 +5,7 @@ plots use (batches, interrupts, truth, TF downloads, CAN frames)."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,13 +36,20 @@ class Recording:
     messages: list[Recorded] = field(default_factory=list)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Recording":
+    def load(cls, path: str | Path, only: Iterable[str] | None = None) -> "Recording":
+        """Read ``path``; ``only``: topic suffixes to keep (``"dsp/batch"``, ``"can"``, ...), all by default.
+        (A long run's CAN frames are most of the file: leave them out when they are not needed.)"""
         rec = cls(Path(path))
+        wanted = None if only is None else tuple(only)
         with open(rec.path, "rb") as f:
             reader = make_reader(f)
             for meta in reader.iter_metadata():
                 rec.metadata[meta.name] = dict(meta.metadata)
-            for schema, channel, message in reader.iter_messages(log_time_order=True):
+            summary = reader.get_summary()
+            topics = None
+            if wanted is not None and summary is not None:
+                topics = [c.topic for c in summary.channels.values() if any(c.topic == schemas.CAN_TOPIC if w == "can" else c.topic.endswith("/" + w) for w in wanted)]
+            for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
                 rec.messages.append(
                     Recorded(channel.topic, schema.name if schema else "", message.log_time, message.publish_time, json.loads(message.data))
                 )
