@@ -79,6 +79,7 @@ class Recorder:
         queue_limit: int = DEFAULT_QUEUE_LIMIT,
         compression: CompressionType = CompressionType.ZSTD,
         autostart: bool = True,
+        decode_can: bool = True,
     ) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -92,6 +93,7 @@ class Recorder:
         self._schemas: dict[str, int] = {}
         self._sequence: dict[int, int] = {}
         self._can_log: can.Listener | None = can.Logger(str(can_log)) if can_log else None
+        self._dbc = schemas.load_dbc() if decode_can else None
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=queue_limit)
         self._closed = False
         self._thread = threading.Thread(target=self._run, name="mcap-recorder", daemon=True)
@@ -210,10 +212,23 @@ class Recorder:
         }
         self._emit(schemas.CAN_TOPIC, schemas.CAN_SCHEMA, record, wall)
         self.stats.can_frames += 1
+        if self._dbc is not None and not extended:
+            self._write_decoded(cob, data, wall, sim_time, tick)
         if self._can_log is not None:
             self._can_log.on_message_received(
                 can.Message(timestamp=wall, arbitration_id=cob, data=data, is_extended_id=extended, is_rx=record["direction"] != schemas.TO_PLANT)
             )
+
+    def _write_decoded(self, cob: int, data: bytes, wall: float, sim_time: float | None, tick: int | None) -> None:
+        """The frame's signals by the shipped DBC, one topic per DBC message (plottable as they are)."""
+        assert self._dbc is not None
+        try:
+            message = self._dbc.get_message_by_frame_id(cob)
+            signals = message.decode(data, decode_choices=False)
+        except Exception:  # not in the DBC (another node id), or a frame it does not describe (SYNC without counter)
+            return
+        record = {"tick": tick, "sim_time_s": sim_time, "wall_time_s": wall, **{k: float(v) if isinstance(v, float) else int(v) for k, v in signals.items()}}
+        self._emit(f"{schemas.CAN_DECODED_PREFIX}/{message.name}", schemas.decoded_schema(message), record, wall)
 
     def _write_message(self, key: str, payload: bytes, wall: float, encoding: str) -> None:
         topic = schemas.topic_for_key(key)

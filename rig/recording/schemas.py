@@ -5,6 +5,7 @@ time of a CAN frame).
 Topics (``<rig>`` the rig id; every zenoh key becomes the topic ``/`` + key)::
 
     /can                              every CAN frame                 ralf.CanFrame
+    /can/decoded/<message>            its signals by ralf.dbc         ralf.dbc.<message>
     /ralf/<rig>/dsp/batch             sample batches, typed arrays    ralf.SampleBatch
     /ralf/<rig>/dsp/flag              block flags                     ralf.BlockFlag
     /ralf/<rig>/dsp/interrupt         the DSP's answers               ralf.Interrupt
@@ -45,6 +46,8 @@ from protocol.messages import (
 )
 
 CAN_TOPIC: Final[str] = "/can"
+CAN_DECODED_PREFIX: Final[str] = "/can/decoded"
+"""``/can/decoded/<DBC message>``: each frame's signals decoded with ``protocol/ralf.dbc`` (volts, counters)."""
 UNDECODABLE_TOPIC: Final[str] = "/_undecodable"
 PROFILE: Final[str] = ""
 """No ROS profile: plain JSON channels."""
@@ -179,6 +182,27 @@ RAW_SCHEMA: Final[dict[str, Any]] = {
     "required": ["key", "encoding", "size", "data_base64", "error", "wall_time_s"],
     "additionalProperties": False,
 }
+
+
+def load_dbc() -> Any:
+    """The shipped DBC (``protocol/ralf.dbc``) as a cantools database."""
+    from importlib.resources import files
+
+    import cantools
+
+    return cantools.database.load_string(files("protocol").joinpath("ralf.dbc").read_text(), database_format="dbc")
+
+
+def decoded_schema(message: Any) -> dict[str, Any]:
+    """JSON schema of one DBC message's decoded signals (a cantools ``Message``)."""
+    props: dict[str, Any] = {
+        "tick": {"type": ["integer", "null"]},
+        "sim_time_s": {"type": ["number", "null"]},
+        "wall_time_s": {"type": "number"},
+    }
+    for sig in message.signals:
+        props[sig.name] = {"type": "number", "description": f"{sig.comment or sig.name} ({sig.unit or 'raw'}), DBC {message.name}"}
+    return {"title": f"ralf.dbc.{message.name}", "type": "object", "properties": props, "required": list(props), "additionalProperties": False}
 
 
 # --- CAN direction and names -------------------------------------------------------------

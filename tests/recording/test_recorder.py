@@ -24,6 +24,8 @@ from rig.recording.recorder import Recorder
 
 DBC = Path(__file__).resolve().parents[2] / "protocol" / "ralf.dbc"
 KEYS = Keys("unit")
+N_RECORDS = 12 + 11 + 6
+"""12 frames, 11 of them decoded by the DBC (not the SYNC without counter), 6 zenoh records."""
 
 
 def _frames() -> list[tuple[int, bytes]]:
@@ -89,7 +91,7 @@ def test_mcap_reader_reads_every_channel_with_its_schema(recording: tuple[Path, 
             assert schema is not None and schema.encoding == "jsonschema"
             jsonschema.validate(json.loads(message.data), json.loads(schema.data))
             seen += 1
-        assert seen == summary.statistics.message_count == len(_frames()) + 6
+        assert seen == summary.statistics.message_count == N_RECORDS
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert meta["ralf.run"]["seed"] == "7"
     assert meta["ralf.recorder"]["can_frames"] == str(len(_frames()))
@@ -152,6 +154,15 @@ def test_cantools_decodes_the_recorded_frames(recording: tuple[Path, Path]) -> N
     assert tpdo_volts == pytest.approx([(300 + t) * 20.0 / 4096 for t in range(3)])
 
 
+def test_decoded_channels_carry_the_dbc_signals(recording: tuple[Path, Path]) -> None:
+    rec = Recording.load(recording[0])
+    tpdo = [m.data for m in rec.messages if m.topic == "/can/decoded/TPDO1_AnalogInputs16"]
+    assert [d["AI3"] for d in tpdo] == pytest.approx([(300 + t) * 20.0 / 4096 for t in range(3)])
+    assert [d["tick"] for d in tpdo] == [0, 1, 2]
+    syncs = [m.data["SYNC_Counter"] for m in rec.messages if m.topic == "/can/decoded/SYNC"]
+    assert syncs == [1, 2, 3]  # the counter-less SYNC has no signal to decode
+
+
 def test_blf_side_log_reads_back_with_python_can(recording: tuple[Path, Path]) -> None:
     _, blf = recording
     read = list(can.BLFReader(str(blf)))
@@ -179,4 +190,4 @@ def test_seeking_and_streaming_readers_agree_with_crcs_checked(recording: tuple[
         seeking = [(c.topic, m.log_time, m.data) for _, c, m in SeekingReader(f, validate_crcs=True).iter_messages(log_time_order=False)]
     with open(path, "rb") as f:
         streaming = [(c.topic, m.log_time, m.data) for _, c, m in NonSeekingReader(f, validate_crcs=True).iter_messages()]
-    assert sorted(seeking) == sorted(streaming) and len(streaming) == len(_frames()) + 6
+    assert sorted(seeking) == sorted(streaming) and len(streaming) == N_RECORDS
