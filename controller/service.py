@@ -397,6 +397,7 @@ class ControllerService:
             try:
                 self.tf_snapshots.append(decode(TfSnapshot, reply))
                 self.timing.tf_downloads += 1
+                self.port.publish_tf(reply)  # controller/tf: each download, for recorders and viewers
                 return
             except ProtocolError as exc:
                 self.timing.undecodable += 1

@@ -24,6 +24,7 @@ import zenoh
 from dsp_service.board import Admission
 from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
+from protocol.encodings import JSON
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
@@ -74,8 +75,8 @@ class DspService:
         self._held: _Held | None = None
         self._last_raised: Interrupt | None = None
         block = zenoh.CongestionControl.BLOCK
-        self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
-        self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._flag_pub = session.declare_publisher(self.keys.flag, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._irq_pub = session.declare_publisher(self.keys.interrupt, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._subs = [
             session.declare_subscriber(self.keys.batch, self._on_batch_sample),
             session.declare_subscriber(self.keys.dsp_config, lambda s: self._events.put(_Event("config", s.payload.to_bytes()))),
@@ -156,7 +157,7 @@ class DspService:
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
-            query.reply(self.keys.tf, encode(self.snapshot()))
+            query.reply(self.keys.tf, encode(self.snapshot()), encoding=JSON)
         except Exception as exc:  # never let a query kill zenoh's thread
             log.exception("TF query failed")
             query.reply_err(str(exc).encode())
