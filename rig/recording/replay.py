@@ -108,7 +108,9 @@ def reidentify(events: Iterable[tuple[str, Any]], settings: DspSettings) -> list
     the history. The block is released after each batch (the on-line board
     releases it before the next batch is sent).
     """
-    core = DspCore(settings)
+    # Compute time is the host's, not the recording's (not compared): a constant
+    # clock keeps a loaded host's budget-miss warnings out of the replay.
+    core = DspCore(settings, perf_counter=lambda: 0.0)
     out: list[Identified] = []
     for kind, obj in events:
         if kind == "config":
@@ -250,7 +252,7 @@ def compare(rec: Recording, overrides: Mapping[str, Any] | None = None) -> tuple
 
 def identifier_fields() -> tuple[str, ...]:
     """The DSP settings that change the identification (``ralf-hil replay --set`` takes these)."""
-    return ("fft_width", "alpha", "averaging", "solver", "smoothing_window", "smoothing_order", "search_min_hz", "search_max_hz", "sample_rate_hz")
+    return ("fft_width", "alpha", "averaging", "identifier", "solver", "smoothing_window", "smoothing_order", "search_min_hz", "search_max_hz", "sample_rate_hz")
 
 
 def report_markdown(c: Comparison) -> str:

@@ -221,7 +221,28 @@ def open_tap_bus(settings: Any) -> can.BusABC:
     from protocol.transport import open_can_bus
 
     kwargs: dict[str, Any] = {"receive_own_messages": False} if settings.can_interface in ("udp_multicast", "virtual") else {}
-    return open_can_bus(settings, **kwargs)
+    bus = open_can_bus(settings, **kwargs)
+    _widen_receive_buffer(bus)
+    return bus
+
+
+TAP_RCVBUF_BYTES = 4 << 20
+"""The tap's socket receive buffer: a lockstep rig sends its frames back to back,
+and a launcher descheduled on a loaded host must not lose them at the socket
+(the kernel caps it at ``net.core.rmem_max``)."""
+
+
+def _widen_receive_buffer(bus: can.BusABC) -> None:
+    """Best effort: a larger ``SO_RCVBUF`` on a ``udp_multicast`` bus's socket."""
+    import socket as _socket
+
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if not isinstance(sock, _socket.socket):
+        return
+    try:
+        sock.setsockopt(_socket.SOL_SOCKET, _socket.SO_RCVBUF, TAP_RCVBUF_BYTES)
+    except OSError:
+        pass
 
 
 if __name__ == "__main__":
