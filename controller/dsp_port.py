@@ -28,6 +28,7 @@ from typing import Protocol
 
 import zenoh
 
+from protocol.encodings import BATCH, JSON
 from protocol.keys import Keys
 from protocol.messages import Health
 from service_kit.runtime import HealthPublisher
@@ -53,6 +54,13 @@ class DspPort(Protocol):
         """The encoded TfSnapshot answers (may raise on a dying transport)."""
         ...
 
+    def publish_tf(self, payload: bytes) -> None:
+        """``controller/tf``: a TF download as downloaded (for recorders and viewers)."""
+        ...
+
+    def publish_tf(self, payload: bytes) -> None:
+        self._tf_pub.put(payload)
+
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None: ...
 
     def close(self) -> None: ...
@@ -67,9 +75,10 @@ class ZenohDspPort:
         self.session = session
         self.keys = Keys(rig_id)
         block = zenoh.CongestionControl.BLOCK
-        self._batch_pub = session.declare_publisher(self.keys.batch, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
-        self._config_pub = session.declare_publisher(self.keys.dsp_config, congestion_control=block)
-        self._status_pub = session.declare_publisher(self.keys.controller_status)
+        self._batch_pub = session.declare_publisher(self.keys.batch, encoding=BATCH, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._config_pub = session.declare_publisher(self.keys.dsp_config, encoding=JSON, congestion_control=block)
+        self._status_pub = session.declare_publisher(self.keys.controller_status, encoding=JSON)
+        self._tf_pub = session.declare_publisher(self.keys.tf_downloads, encoding=JSON)
         self._subs: list[object] = []
         self._token: object | None = None
         self._health: HealthPublisher | None = None
@@ -106,6 +115,9 @@ class ZenohDspPort:
     def download_tf(self, timeout_s: float) -> list[bytes]:
         return [reply.ok.payload.to_bytes() for reply in self.session.get(self.keys.tf, timeout=timeout_s) if reply.ok is not None]
 
+    def publish_tf(self, payload: bytes) -> None:
+        self._tf_pub.put(payload)
+
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None:
         self._health = HealthPublisher(self.session, self.keys.health("controller"), period_s, build).start()
 
@@ -116,5 +128,5 @@ class ZenohDspPort:
             sub.undeclare()  # type: ignore[attr-defined]
         if self._token is not None:
             self._token.undeclare()  # type: ignore[attr-defined]
-        for pub in (self._batch_pub, self._config_pub, self._status_pub):
+        for pub in (self._batch_pub, self._config_pub, self._status_pub, self._tf_pub):
             pub.undeclare()

@@ -454,6 +454,7 @@ class ControllerService:
                 if not self._keep_all:
                     del self.tf_snapshots[:-1]  # nothing will save them: keep the latest only
                 self.timing.tf_downloads += 1
+                self.port.publish_tf(reply)  # controller/tf: each download, for recorders and viewers
                 return
             except ProtocolError as exc:
                 self.timing.undecodable += 1

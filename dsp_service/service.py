@@ -23,6 +23,7 @@ import zenoh
 from dsp_service.board import Admission
 from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
+from protocol.encodings import JSON
 from protocol.errors import ProtocolError
 from protocol.inbox import Inbox
 from protocol.keys import Keys
@@ -75,9 +76,9 @@ class DspService:
         self._held: _Held | None = None
         self._last_raised: Interrupt | None = None
         block = zenoh.CongestionControl.BLOCK
-        self._flag_pub = session.declare_publisher(self.keys.flag, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
-        self._irq_pub = session.declare_publisher(self.keys.interrupt, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
-        self._ack_pub = session.declare_publisher(self.keys.dsp_config_ack, congestion_control=block)
+        self._flag_pub = session.declare_publisher(self.keys.flag, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._irq_pub = session.declare_publisher(self.keys.interrupt, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
+        self._ack_pub = session.declare_publisher(self.keys.dsp_config_ack, encoding=JSON, congestion_control=block)
         self.board_id = str(session.info.zid()).encode()  # sent with flags and interrupts: the controller pairs with one board
         self._subs = [
             session.declare_subscriber(self.keys.batch, self._events.subscriber("batch", self._on_batch_payload)),
@@ -177,7 +178,7 @@ class DspService:
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
-            query.reply(self.keys.tf, encode(self.snapshot()))
+            query.reply(self.keys.tf, encode(self.snapshot()), encoding=JSON)
         except Exception as exc:  # never let a query kill zenoh's thread
             log.exception("TF query failed")
             query.reply_err(str(exc).encode())

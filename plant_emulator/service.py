@@ -32,6 +32,7 @@ import zenoh
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.node import CanopenNode, NodeConfig
+from protocol.encodings import JSON
 from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
@@ -269,8 +270,8 @@ class PlantTestPort:
         self.keys = Keys(settings.rig_id)
         self.session = session
         self.bad_scenarios = 0
-        self._truth_pub = session.declare_publisher(self.keys.truth)
-        self._event_pub = session.declare_publisher(self.keys.plant_events, congestion_control=zenoh.CongestionControl.BLOCK)
+        self._truth_pub = session.declare_publisher(self.keys.truth, encoding=JSON)
+        self._event_pub = session.declare_publisher(self.keys.plant_events, encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK)
         self.inbox: queue.Queue[ScenarioCommand] = queue.Queue()
         self._sub = session.declare_subscriber(self.keys.scenario, self._on_scenario)
         self._token = session.liveliness().declare_token(self.keys.alive("plant"))

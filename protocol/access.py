@@ -106,14 +106,32 @@ def write_credentials_file(path: str | Path, credentials: Mapping[str, str]) -> 
 
 def router_config(keys: Keys, credentials_file: str, listen: str = "tcp/0.0.0.0:7447", scenarios: bool = False) -> dict[str, Any]:
     """A zenoh router's configuration for the distributed rig (docker compose):
-    authentication of every client and the rig's access rules."""
+    authentication of every client, the rig's access rules, and (used by
+    ``zenohd``, which has the plugins) the REST plugin on port 8000 with an
+    in-memory storage of each rig's latest health and controller status, so
+    ``curl http://localhost:8000/ralf/<rig>/health/**`` answers: a GET is a
+    zenoh query, and health is published, not queryable, so the storage
+    keeps the latest sample of every such key and answers for it."""
     return {
         "mode": "router",
         "listen": {"endpoints": [listen]},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}}},
         "access_control": acl_config(keys, scenarios),
+        "plugins": ROUTER_PLUGINS,
     }
+
+
+ROUTER_PLUGINS: dict[str, Any] = {
+    "rest": {"http_port": 8000},
+    "storage_manager": {
+        "storages": {
+            "ralf_health": {"key_expr": "ralf/*/health/*", "volume": "memory"},
+            "ralf_status": {"key_expr": "ralf/*/controller/status", "volume": "memory"},
+        },
+    },
+}
+"""The compose router's plugins: REST on 8000 and the health/status storage."""
 
 
 def insert_access(

@@ -14,7 +14,7 @@ plant/truth                     :class:`~protocol.messages.GroundTruth`       pl
 plant/scenario                  :class:`~protocol.messages.ScenarioCommand`   tests/experiments
 plant/events                    :class:`~protocol.messages.PlantEvent`        plant (test port)
 controller/status               :class:`~protocol.messages.ControllerStatus`  controller
-controller/tf                   :class:`~protocol.messages.TfSnapshot`        controller (downloads it recorded)
+controller/tf                   :class:`~protocol.messages.TfSnapshot`        controller (each TF download, as downloaded)
 controller/command              :class:`~protocol.messages.ConfigChange`      tools (``ralf-hil reconfigure``)
 health/<service>                :class:`~protocol.messages.Health`            every service
 alive/<service>                 liveliness token                             every service

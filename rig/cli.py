@@ -24,6 +24,8 @@ from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 from rig import bench, campaign, experiments, monitor
 from rig.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
+from rig.recording import cli as recording_cli
+from rig.recording.tap import RigRecording
 
 console = Console(stderr=True)
 
@@ -114,7 +116,10 @@ def print_summary(summary: dict[str, Any]) -> None:
                 f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
             )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
-    console.print(table)
+    if summary.get("recording"):
+        r = summary["recording"]
+        table.add_row("recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable")
+    Console().print(table)  # the summary is the command's result: stdout
 
 
 STARTUP_ALLOWANCE_S = 120.0
@@ -175,7 +180,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
     _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
-    plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides)
+    plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides, common={"RALF_CAN_PORT": str(args.can_port)} if args.can_port else None)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     log_dir.mkdir(parents=True, exist_ok=True)
     tool_env = provision_access(plan, log_dir)  # credentials of this run, access rules on
@@ -194,7 +199,13 @@ def cmd_up(args: argparse.Namespace) -> int:
             live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)")
         live.update(status_line(observer, time.monotonic() - sup.started))
 
+    recording: RigRecording | None = None
     try:
+        if args.record:  # the tap starts before the services, so it holds their start-up
+            recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock)
+        # Before any service starts (their Python start-up takes a second or more), so a bus
+        # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
+        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
         with live:
             sup = supervise(
                 plan, log_dir, lambda: observer.status, run_for_s=args.duration, startup_timeout_s=STARTUP_ALLOWANCE_S, stop=stop, on_poll=on_poll, poll_s=0.25
@@ -203,7 +214,12 @@ def cmd_up(args: argparse.Namespace) -> int:
             console.print(status_line(observer, time.monotonic() - sup.started))
         time.sleep(0.2)  # let the last health messages arrive
         summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
+        if recording is not None:
+            summary["recording"] = {"path": args.record, **recording.close().as_dict()}
+            recording = None
     finally:
+        if recording is not None:  # an error on the way: the file is still closed
+            recording.close()
         observer.close()
     summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
     summary["control_wall_s"] = round(sup.control_s, 3)
@@ -234,6 +250,8 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         own["controller"]["duration_s"] = str(args.duration)
     started = time.monotonic()
     console.print("co-simulating plant, controller and DSP in one thread (no processes, no network)")
+    if args.record or args.can_log:
+        console.print("[yellow]--record/--can-log: a co-simulation is not recorded (no bus, no zenoh to tap); use --clock lockstep to record[/yellow]")
     try:
         run = run_cosim(controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id})
     except (ConfigError, ValueError) as exc:
@@ -279,6 +297,7 @@ def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
     """Send ``change`` to the controller and wait for the DSP's
     :class:`~protocol.messages.ConfigAck` carrying its ``request_id``; None if
     nothing answers within ``timeout_s``."""
+    from protocol.encodings import JSON
     from protocol.errors import ProtocolError
     from protocol.messages import ConfigAck, decode, encode
 
@@ -300,7 +319,7 @@ def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
         # Resend until answered: the tool's session may take a moment to find
         # the controller, and a command nobody received is not an error yet.
         while not answered.is_set() and time.monotonic() < deadline:
-            session.put(keys.controller_command, encode(change))
+            session.put(keys.controller_command, encode(change), encoding=JSON)
             answered.wait(min(0.5, max(0.0, deadline - time.monotonic())))
     finally:
         sub.undeclare()
@@ -403,6 +422,9 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
+    up.add_argument("--record", default=None, metavar="RUN.mcap", help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file")
+    up.add_argument("--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)")
+    up.add_argument("--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)")
     up.set_defaults(func=cmd_up)
     rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")
     rc.add_argument("--rig-id", default="default")
@@ -417,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     cr.add_argument("--rig-id", default="default")
     cr.add_argument("--scenarios", action="store_true", help="accept scenario commands on the plant's test port (from the tester role)")
     cr.set_defaults(func=cmd_credentials)
-    for module in (bench, monitor, experiments, campaign):
+    for module in (bench, monitor, experiments, campaign, recording_cli):
         module.register(sub)
     return parser
 

@@ -133,6 +133,9 @@ class DirectDspPort:
     def download_tf(self, timeout_s: float) -> list[bytes]:
         return [encode(self.core.snapshot())]
 
+    def publish_tf(self, payload: bytes) -> None:
+        pass  # no observers in one thread (a co-simulation is not recorded)
+
     def start_health(self, period_s: float, build: Any) -> None:
         self._build_health = build
 

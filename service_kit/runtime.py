@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 import numpy as np
 import zenoh
 
+from protocol.encodings import JSON
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings
@@ -38,6 +39,7 @@ def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[s
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a setting, e.g. --set clock=lockstep")
+    parser.add_argument("--record", default=None, metavar="RUN.mcap", help="record the rig as this service sees it into an MCAP file (a `ralf-hil record` child process; see docs/recording.md)")
     args = parser.parse_args(argv)
     overrides: dict[str, Any] = {}
     for item in args.set:
@@ -111,7 +113,7 @@ class HealthPublisher:
     """Publishes ``build()`` on ``key`` every ``period_s`` from a daemon thread."""
 
     def __init__(self, session: zenoh.Session, key: str, period_s: float, build: Callable[[int], Health]) -> None:
-        self._pub = session.declare_publisher(key)
+        self._pub = session.declare_publisher(key, encoding=JSON)
         self._period = period_s
         self._build = build
         self._seq = 0
@@ -172,7 +174,18 @@ def run_service(
     # Imported here so that parsing --help does not need a network stack.
     from protocol.transport import open_zenoh
 
-    settings = parse_service_args(prog, summary, model, argv)
+    args = list(sys.argv[1:] if argv is None else argv)
+    record: str | None = None
+    recorder: Any = None
+    stop_recorder: Callable[[Any], None] = lambda _proc: None
+    if any(a == "--record" or a.startswith("--record=") for a in args):
+        # The recorder is the launcher's (rig.recording), imported only when asked
+        # for: the boards' own code never imports rig. It runs as a child process.
+        from rig.recording.attach import split_record_arg, start_recorder, stop_recorder
+
+        record, stripped = split_record_arg(args)
+        args = stripped if stripped is not None else args
+    settings = parse_service_args(prog, summary, model, args)
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
     stop = install_stop_handlers()
     try:
@@ -180,6 +193,8 @@ def run_service(
     except ConfigError as exc:  # a TransportError: one line, exit 2
         logging.getLogger(prog).error("%s", exc)
         return 2
+    if record:
+        recorder = start_recorder(settings, record)
     try:
         return body(settings, session, stop)
     except ConfigError as exc:
@@ -187,3 +202,4 @@ def run_service(
         return 2
     finally:
         session.close()
+        stop_recorder(recorder)

@@ -35,12 +35,15 @@ class RigJob:
     experiment: Experiment | None
     spec: RigRun
     in_process: bool
+    record: bool = False
+    """Record a three-process run into ``out_dir/records/<run>.mcap`` (written where the worker runs)."""
 
 
 def run_rig_job(job: RigJob) -> RigResult:
     """Worker side: :func:`run_rig` in a quiet context on the experiment's output directory."""
     ctx = ExperimentContext(
-        out_dir=Path(job.out_dir), mode=job.mode, show_progress=False, console=Console(stderr=True, quiet=True), experiment=job.experiment
+        out_dir=Path(job.out_dir), mode=job.mode, show_progress=False, console=Console(stderr=True, quiet=True), experiment=job.experiment,
+        record=job.record,
     )
     return run_rig(ctx, job.spec, in_process=job.in_process)
 
@@ -83,7 +86,7 @@ def map_rigs(
         + ("one process each" if in_process else "three processes each")
         + f", {ctx.mode}, on {eng.describe()}"
     )
-    jobs = [RigJob(str(ctx.out_dir.resolve()), ctx.mode, ctx.experiment, s, in_process) for s in specs]
+    jobs = [RigJob(str(ctx.out_dir.resolve()), ctx.mode, ctx.experiment, s, in_process, ctx.record) for s in specs]
     outcomes = eng.map(run_rig_job, jobs, keys=[f"rig-{n}" for n in names], description=description, console=ctx.console, show_progress=ctx.show_progress)
     failed = [(specs[o.index].name, o.error) for o in outcomes if not o.ok]
     if failed:

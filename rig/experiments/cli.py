@@ -42,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run the experiments' rigs on this Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster, started when an experiment needs it)")
     p.add_argument("--workers", type=int, default=None, metavar="N", help="worker processes of the local cluster (default: one per core)")
+    p.add_argument("--record", action="store_true", help="also record every three-process rig run (--mode lockstep/realtime) into DIR/records/<run>.mcap (ralf-hil replay/plot read them); co-simulated runs are not recorded")
 
 
 def register(subparsers: Any) -> None:
@@ -89,7 +90,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     show = not args.no_progress
     if args.name == ALL:
         out = Path(args.out) if args.out else DEFAULT_OUT_ROOT / ALL
-        outcomes, index = run_all(out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show)
+        outcomes, index = run_all(out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record)
         err_console.print(f"index: {index}")
         return 0 if all(o.ok for o in outcomes) and not broken_modules() else 1
     try:
@@ -100,7 +101,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else DEFAULT_OUT_ROOT / args.name
     try:
         outcome = run_experiment(
-            args.name, out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show
+            args.name, out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record
         )
     except ExperimentError as exc:
         err_console.print(f"ralf-hil experiment: {exc}", highlight=False)

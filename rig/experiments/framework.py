@@ -190,6 +190,8 @@ class ExperimentContext:
     show_progress: bool = True
     """Draw rich progress bars (only on a terminal)."""
     experiment: Experiment | None = None
+    record: bool = False
+    """Record every three-process rig run into ``records/<run>.mcap`` (:mod:`rig.recording`)."""
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
@@ -301,6 +303,7 @@ def run_experiment(
     console: Console | None = None,
     show_progress: bool = True,
     raise_errors: bool = False,
+    record: bool = False,
 ) -> RunOutcome:
     """Run one experiment into ``out_dir`` and write its report.
 
@@ -320,6 +323,7 @@ def run_experiment(
         console=console or Console(stderr=True),
         show_progress=show_progress,
         experiment=exp,
+        record=record,
     )
     started = time.perf_counter()
     error_file = out / "error.txt"
@@ -366,6 +370,7 @@ def run_all(
     names: Iterable[str] | None = None,
     console: Console | None = None,
     show_progress: bool = True,
+    record: bool = False,
 ) -> tuple[list[RunOutcome], Path]:
     """Run every registered experiment (or ``names``) into ``out_dir/<name>/`` and write ``out_dir/index.md``.
 
@@ -380,7 +385,7 @@ def run_all(
     for exp in chosen:
         console.print(f"[bold]experiment {exp.name}[/bold] ({exp.section})", highlight=False)
         outcome = run_experiment(
-            exp.name, out / exp.name, seed=seed, mode=mode, quick=quick, console=console, show_progress=show_progress
+            exp.name, out / exp.name, seed=seed, mode=mode, quick=quick, console=console, show_progress=show_progress, record=record
         )
         console.print(f"  {outcome.status} in {outcome.runtime_s:.1f} s" + (f": {outcome.error}" if outcome.error else ""))
         outcomes.append(outcome)

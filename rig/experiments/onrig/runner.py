@@ -316,8 +316,12 @@ def run_rig(
     dsp = dict(spec.dsp)
     expected = spec.expected_sim_s()
     if ctx.mode == "cosim":
+        if ctx.record:
+            ctx.log(f"run {spec.name!r} is co-simulated (--mode cosim): not recorded (only three-process runs are: --mode lockstep)")
         return _run_cosim(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     if in_process:
+        if ctx.record:
+            ctx.log(f"run {spec.name!r} runs in one process (--quick): not recorded (only three-process runs are)")
         return _run_in_process(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     return _run_processes(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress, timeout_s)
 
@@ -415,6 +419,7 @@ def _run_processes(
     started = time.monotonic()
     reported = 0.0
     health: dict[str, dict[str, Any]] = {}
+    recording: Any = None
 
     def progress(_sup: Supervision, status: Any) -> None:
         nonlocal reported
@@ -426,11 +431,17 @@ def _run_processes(
 
     try:
         observer = RigObserver(plan)
+        if ctx.record:  # the tap starts before the services, so it holds their start-up
+            from rig.recording.tap import RigRecording
+
+            recording = RigRecording(plan, str(ctx.path(f"records/{spec.name}.mcap")), observer.session, experiment=exp, run=spec.name, clock=ctx.mode)
         watched = observer
         sup = supervise(plan, log_dir, lambda: watched.status, timeout_s=timeout_s, on_poll=progress, stop_timeout_s=20.0)
         time.sleep(0.1)
         health = {k: v.model_dump(mode="json") for k, v in observer.health.items()}
     finally:
+        if recording is not None:
+            recording.close()
         if observer is not None:
             observer.close()
         _release_can_port(port)
