@@ -35,6 +35,7 @@ from pydantic import BaseModel
 from protocol import can_map
 from protocol.messages import (
     BlockFlag,
+    ConfigAck,
     ConfigChange,
     ControllerStatus,
     GroundTruth,
@@ -60,6 +61,7 @@ MODELS_BY_SUFFIX: Final[dict[str, type[BaseModel]]] = {
     "dsp/flag": BlockFlag,
     "dsp/interrupt": Interrupt,
     "dsp/config": ConfigChange,
+    "dsp/config_ack": ConfigAck,
     "plant/truth": GroundTruth,
     "plant/scenario": ScenarioCommand,
     "plant/events": PlantEvent,
