@@ -267,6 +267,12 @@ class RalfArm:
         """The two valve voltages (V), held until the next call. The node
         hands them already quantized by the 12-bit D/A; beyond +-10 V they
         are clipped like the D/A's output."""
+        if type(volts) is np.ndarray and volts.dtype == np.float64 and volts.shape == (2,):
+            a, b = volts.tolist()
+            if math.isfinite(a) and math.isfinite(b):
+                # min/max are np.clip's result for finite values (signed zeros included)
+                self._volts = [min(FULL_SCALE_V, max(-FULL_SCALE_V, a)), min(FULL_SCALE_V, max(-FULL_SCALE_V, b))]
+                return
         v = np.asarray(volts, dtype=np.float64)
         if v.shape != (2,):
             raise ValueError(f"two valve voltages expected, got shape {v.shape}")
