@@ -43,6 +43,8 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from plant_emulator.model import kinematics as kin
+from plant_emulator.model._modal_kernel import modal_step
+from plant_emulator.model._modal_kernel import warm_up as warm_up_modal
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
@@ -51,7 +53,6 @@ from plant_emulator.model.modes import (
     Structure,
     coefficients_scalar,
     consts,
-    eig2_scalar,
     modal_parameters,
     bending_fractions_scalar,
     static_deflection_in,
@@ -221,6 +222,15 @@ class RalfArm:
         self._stop_counts = [0, 0]
         self._cache_key: tuple[float, float, bool] | None = None
         self._cache: tuple[Any, ...] = ()
+        # modal_step's constant arguments, payload out / in
+        cyl = kin.CYLINDERS[0]
+        z1, z2 = self._zetas
+        self._modal_args = tuple(
+            (k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, z1, z2, self._h,
+             cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2, kin.INCH, L1_M)
+            for k in self._consts
+        )
+        warm_up_modal()
         # flexible state at static equilibrium
         self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
         self._beta_dot = [0.0, 0.0]
@@ -392,22 +402,9 @@ class RalfArm:
     def _modal(self, tm1: float, tm2: float) -> tuple[Any, ...]:
         key = (tm1, tm2, self._payload)
         if key != self._cache_key:
-            co = coefficients_scalar(self._consts[self._payload], tm1, tm2)
-            M11, M12, M22, K11, K12, K22 = co[:6]
-            l1, l2, (p11, p21, p12, p22) = eig2_scalar(M11, M12, M22, K11, K12, K22)
-            h = self._h
-            steps = []
-            for lam, zeta in ((l1, self._zetas[0]), (l2, self._zetas[1])):
-                w = math.sqrt(lam)
-                sig = zeta * w
-                wd = w * math.sqrt(1.0 - zeta * zeta)
-                e = math.exp(-sig * h)
-                c = e * math.cos(wd * h)
-                s = e * math.sin(wd * h) / wd
-                # x1 = c x0 + s (v0 + sig x0);  v1 = c v0 - s (sig v0 + w^2 x0)
-                steps.append((w * w, sig, c, s))
+            r = modal_step(tm1, tm2, *self._modal_args[self._payload])
             self._cache_key = key
-            self._cache = (co, (p11, p21, p12, p22), steps)
+            self._cache = (r[:12], r[12:16], ((r[16], r[17], r[18], r[19]), (r[20], r[21], r[22], r[23])))
         return self._cache
 
     def _step(self) -> None:
