@@ -185,6 +185,16 @@ class GroundTruth:
         return d
 
 
+_JOINT: tuple[tuple[float, float, float, float, float, float], ...] = tuple(
+    (cyl.retracted_length_in, cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.offset_rad,
+     cyl.p_in * cyl.q_in, 2.0 * (cyl.p_in * cyl.q_in))
+    for cyl in kin.CYLINDERS
+)
+"""Per joint, the pin triangle's constant sub-expressions as ``_angle`` and ``_lever``
+evaluate them (the same floats, each left-to-right product and sum kept):
+retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
+
+
 class RalfArm:
     """RALF with its sensors: ``set_valve_voltages`` / ``advance`` / ``sample``.
 
@@ -360,17 +370,16 @@ class RalfArm:
 
     # -- internals ----------------------------------------------------------------------
     def _angle(self, j: int) -> float:
-        cyl = kin.CYLINDERS[j]
-        length = self._axes[j].extension_in + cyl.retracted_length_in
-        cg = (cyl.p_in**2 + cyl.q_in**2 - length * length) / (2.0 * cyl.p_in * cyl.q_in)
-        return math.acos(min(1.0, max(-1.0, cg))) - cyl.offset_rad
+        retracted, p2q2, two_p_q, offset, _, _ = _JOINT[j]
+        length = self._axes[j].extension_in + retracted
+        cg = (p2q2 - length * length) / two_p_q
+        return math.acos(min(1.0, max(-1.0, cg))) - offset
 
     @staticmethod
     def _lever(j: int, theta: float) -> float:
-        cyl = kin.CYLINDERS[j]
-        g = theta + cyl.offset_rad
-        pq = cyl.p_in * cyl.q_in
-        return pq * math.sin(g) / math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(g))
+        _, p2q2, _, offset, pq, two_pq = _JOINT[j]
+        g = theta + offset
+        return pq * math.sin(g) / math.sqrt(p2q2 - two_pq * math.cos(g))
 
     def _static_beta(self, t1: float, t2: float) -> tuple[float, float]:
         co = coefficients_scalar(self._consts[self._payload], t1, t2)
@@ -437,7 +446,8 @@ class RalfArm:
         v1, v2 = self._beta_dot
         mb1, mb2 = M11 * b1 + M12 * b2, M12 * b1 + M22 * b2
         mv1, mv2 = M11 * v1 + M12 * v2, M12 * v1 + M22 * v2
-        w_old = self._seen()
+        f_0, f_1 = self._frac
+        w_old0, w_old1 = f_0 * L1_M * b1 / kin.INCH, f_1 * L2_M * b2 / kin.INCH  # _seen() before the step
         nb1 = nb2 = nv1 = nv2 = 0.0
         for (pa, pb), (w2, sig, c, s) in zip(((p11, p21), (p12, p22)), steps, strict=True):
             eta = pa * mb1 + pb * mb2
@@ -455,12 +465,12 @@ class RalfArm:
         self._theta = new_theta
         self._theta_dot = new_rate
         # 4. anti-alias filters with the deflection noise at their input (the cameras see the bending)
-        self._frac = self._fractions(new_theta[0], new_theta[1])
-        w_new = self._seen()
+        self._frac = f_0, f_1 = self._fractions(new_theta[0], new_theta[1])
+        w_new0, w_new1 = f_0 * L1_M * nb1 / kin.INCH, f_1 * L2_M * nb2 / kin.INCH  # _seen() after it
         z0, z1 = self._zero
         n0, n1 = self._noise.step_pair() if self.cfg.sensor_noise else (0.0, 0.0)
         self._aa.step(
-            0.5 * (w_old[0] + w_new[0]) - z0 + self._defl_noise_in[0] * n0,
-            0.5 * (w_old[1] + w_new[1]) - z1 + self._defl_noise_in[1] * n1,
+            0.5 * (w_old0 + w_new0) - z0 + self._defl_noise_in[0] * n0,
+            0.5 * (w_old1 + w_new1) - z1 + self._defl_noise_in[1] * n1,
         )
         self._steps += 1
