@@ -107,12 +107,31 @@ def _modal_step(
     )
 
 
+def _compiled() -> Any:
+    if _njit is None:
+        return _modal_step
+    try:
+        return _njit(cache=True)(_modal_step)
+    except RuntimeError:  # no writable cache location: compile in memory only
+        return _njit(_modal_step)
+
+
 modal_step_py = _modal_step
-modal_step: Any = _njit(cache=True)(_modal_step) if _njit is not None else _modal_step
+modal_step: Any = _compiled()
 """Compiled when numba is installed (cached on disk; compiled by :func:`warm_up` before the first tick)."""
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) now, not in the first tick."""
-    modal_step(1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 1e4, 1e6, 1e4, 1e4, 0.1, 9.81, 0.02, 0.02, 1e-3,
+    """Compile (or load from the cache) now, not in the first tick; a
+    compiler that fails leaves the plain-Python function in place."""
+    global modal_step
+    try:
+        _warm(modal_step)
+    except Exception:  # noqa: BLE001 - numba's errors are many; Python gives the same floats
+        modal_step = _modal_step
+        _warm(modal_step)
+
+
+def _warm(fn: Any) -> None:
+    fn(1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 1e4, 1e6, 1e4, 1e4, 0.1, 9.81, 0.02, 0.02, 1e-3,
                -0.5, 900.0, 1800.0, 0.0254, 1.0)

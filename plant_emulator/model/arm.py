@@ -43,8 +43,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model._modal_kernel import modal_step
-from plant_emulator.model._modal_kernel import warm_up as warm_up_modal
+from plant_emulator.model import _modal_kernel
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
@@ -240,7 +239,8 @@ class RalfArm:
              cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2, kin.INCH, L1_M)
             for k in self._consts
         )
-        warm_up_modal()
+        _modal_kernel.warm_up()
+        self._modal_step = _modal_kernel.modal_step  # compiled, or the same function in Python
         # flexible state at static equilibrium
         self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
         self._beta_dot = [0.0, 0.0]
@@ -411,7 +411,7 @@ class RalfArm:
     def _modal(self, tm1: float, tm2: float) -> tuple[Any, ...]:
         key = (tm1, tm2, self._payload)
         if key != self._cache_key:
-            r = modal_step(tm1, tm2, *self._modal_args[self._payload])
+            r = self._modal_step(tm1, tm2, *self._modal_args[self._payload])
             self._cache_key = key
             self._cache = (r[:12], r[12:16], ((r[16], r[17], r[18], r[19]), (r[20], r[21], r[22], r[23])))
         return self._cache
