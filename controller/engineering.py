@@ -15,8 +15,8 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.can_map import WORD16_VOLTS_PER_LSB
-from protocol.geometry import CYLINDERS, theta_to_phi
-from protocol.signals import volts_to_inputs
+from protocol.geometry import CYLINDERS, DELTA_RAD
+from protocol.signals import ANALOG_INPUTS
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -34,12 +34,41 @@ class Measurement:
     deflection_in: FloatArray
 
 
+_CHANNELS: tuple[tuple[float, float], ...] = tuple((ch.volts_per_unit, ch.centre) for ch in ANALOG_INPUTS)
+"""(volts per unit, centre) of the four inputs, as :meth:`AnalogChannel.from_volts` uses them."""
+_TRIANGLES: tuple[tuple[float, float, float, float], ...] = tuple(
+    (cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.retracted_length_in, cyl.offset_rad) for cyl in CYLINDERS
+)
+""":meth:`PinTriangle.angle`'s constant sub-expressions, evaluated as it evaluates them."""
+
+
+def _angle(extension: float, tri: tuple[float, float, float, float]) -> float:
+    """:meth:`PinTriangle.angle` on one float, the same IEEE operations in the
+    same order: the square as a numpy float64 power and the arc cosine as the
+    numpy ufunc (which may differ from ``math.acos`` where numpy dispatches a
+    SIMD kernel); the clip as min/max (identical for finite values)."""
+    pq2, two_pq, retracted, offset = tri
+    length = np.float64(extension + retracted)
+    cos_gamma = float((pq2 - length**2) / two_pq)
+    return float(np.arccos(min(1.0, max(-1.0, cos_gamma)))) - offset
+
+
 def measure(words: npt.ArrayLike) -> Measurement:
-    """Engineering values from the four TPDO1 words."""
+    """Engineering values from the four TPDO1 words (plain floats inside:
+    bit for bit what the array form computes, see ``_angle``)."""
     raw = np.asarray(words, dtype=np.int64)
-    volts = np.asarray(raw * WORD16_VOLTS_PER_LSB, dtype=np.float64)
-    values = volts_to_inputs(volts)
-    extension = values[:2]
-    theta = np.array([cyl.angle(e) for cyl, e in zip(CYLINDERS, extension, strict=True)], dtype=np.float64)
-    phi = np.asarray(theta_to_phi(theta[0], theta[1]), dtype=np.float64)
-    return Measurement(words=raw, volts=volts, extension_in=extension, theta_rad=theta, phi_rad=phi, deflection_in=values[2:])
+    w = raw.tolist()
+    if len(w) != len(_CHANNELS) or raw.ndim != 1:
+        raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
+    volts = [x * WORD16_VOLTS_PER_LSB for x in w]
+    values = [v / vpu + centre for v, (vpu, centre) in zip(volts, _CHANNELS, strict=True)]
+    t1 = _angle(values[0], _TRIANGLES[0])
+    t2 = _angle(values[1], _TRIANGLES[1])
+    return Measurement(
+        words=raw,
+        volts=np.array(volts, dtype=np.float64),
+        extension_in=np.array(values[:2], dtype=np.float64),
+        theta_rad=np.array((t1, t2), dtype=np.float64),
+        phi_rad=np.array((t1 - DELTA_RAD, t2 + DELTA_RAD), dtype=np.float64),
+        deflection_in=np.array(values[2:], dtype=np.float64),
+    )

@@ -461,7 +461,10 @@ class OatfFilter:
 
     def step(self, x: npt.ArrayLike) -> FloatArray:
         """Filter one tick: push ``x`` (one value per channel) and return the filtered values."""
-        xv = np.broadcast_to(np.asarray(x, dtype=float), (self.n_channels,))
+        if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (self.n_channels,):
+            xv = x  # already one float64 per channel: skip broadcast_to's view machinery
+        else:
+            xv = np.broadcast_to(np.asarray(x, dtype=float), (self.n_channels,))
         self._head = (self._head + 1) % self._capacity
         self._buf[self._head] = xv
         taps = self._buf[(self._head - self._delays) % self._capacity]

@@ -188,7 +188,10 @@ class PIController:
         fraction of the cost of a dozen numpy calls on 2-vectors).
         """
         n = self.n_joints
-        errors = np.broadcast_to(np.asarray(error_rad, dtype=float), (n,)).tolist()
+        if type(error_rad) is np.ndarray and error_rad.dtype == np.float64 and error_rad.shape == (n,):
+            errors = error_rad.tolist()  # the common case: skip broadcast_to's view machinery
+        else:
+            errors = np.broadcast_to(np.asarray(error_rad, dtype=float), (n,)).tolist()
         if not all(math.isfinite(x) for x in errors):
             raise ValueError(f"non-finite angle error {np.asarray(errors)!r}")
         kp, ki, limit = self._kp_list, self._ki_list, self._limit

@@ -61,6 +61,8 @@ NOISE_BLOCK = 512
 _VPU = np.array([ch.volts_per_unit for ch in ANALOG_INPUTS], dtype=np.float64)
 _CENTRE = np.array([ch.centre for ch in ANALOG_INPUTS], dtype=np.float64)
 """protocol.signals' linear maps as arrays (``volts = (value - centre) * volts_per_unit``)."""
+_MAPS: tuple[tuple[float, float], ...] = tuple((float(v), float(c)) for v, c in zip(_VPU.tolist(), _CENTRE.tolist(), strict=True))
+"""The same maps as (volts per unit, centre) floats."""
 """Normal deviates drawn at a time for the per-step deflection noise."""
 
 
@@ -175,15 +177,20 @@ def read_inputs(
 
     ``deflections_in`` are the anti-alias filter outputs (their noise is
     already in them); the extensions get their per-sample noise here."""
-    values = np.array([extensions_in[0], extensions_in[1], deflections_in[0], deflections_in[1]], dtype=np.float64)
+    # Plain floats, element by element: the same IEEE operations as the
+    # array form ``(values - centre) * vpu`` etc., without numpy's per-call cost.
+    values = [float(extensions_in[0]), float(extensions_in[1]), float(deflections_in[0]), float(deflections_in[1])]
     if rng is not None:
-        n = rng.standard_normal(2)
-        values[0] += extension_noise_std_in[0] * n[0]
-        values[1] += extension_noise_std_in[1] * n[1]
-    analog = (values - _CENTRE) * _VPU
-    q = scale.quantize(analog)
-    volts = scale.to_volts(q.counts)
-    vals = volts / _VPU + _CENTRE
+        n0, n1 = rng.standard_normal(2).tolist()
+        values[0] += extension_noise_std_in[0] * n0
+        values[1] += extension_noise_std_in[1] * n1
+    analog_l = [(x - centre) * vpu for x, (vpu, centre) in zip(values, _MAPS, strict=True)]
+    q = scale.quantize(np.array(analog_l, dtype=np.float64))
+    lsb = scale.lsb_v
+    volts_l = [float(c) * lsb for c in q.counts.tolist()]
+    analog = np.array(analog_l, dtype=np.float64)
+    volts = np.array(volts_l, dtype=np.float64)
+    vals = np.array([v / vpu + centre for v, (vpu, centre) in zip(volts_l, _MAPS, strict=True)], dtype=np.float64)
     return SensorReading(
         time_s=time_s,
         codes=q.counts,

@@ -94,6 +94,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import threading
 from collections.abc import Callable, Sequence
 from typing import Any, Final, Protocol
@@ -205,6 +206,8 @@ def node_can_filters(node_id: int = DEFAULT_NODE_ID) -> list[can.typechecking.Ca
 
 
 _ZERO_OUTPUTS: Final = np.zeros(N_ANALOG_OUTPUTS)
+_RPDO1: Final = struct.Struct("<2h")
+"""RPDO1 payload: two left-justified INT16 words (as protocol.can_map.decode_analog_outputs, length already checked)."""
 
 
 class CanopenNode:
@@ -612,7 +615,7 @@ class CanopenNode:
             return
         self._rpdo_last = now
         self._rpdos_in_period += 1  # held frames (tripped) are not counted
-        self._apply_outputs(decode_analog_outputs(data))
+        self._apply_outputs(_RPDO1.unpack(bytes(data)))
 
     def _on_sdo(self, msg: can.Message, data: bytes) -> None:
         self.counters.rx["sdo"] += 1
@@ -700,40 +703,58 @@ class CanopenNode:
             return
         try:
             raw_codes, raw_sat = result
-            codes = np.asarray(raw_codes)
-            saturated = np.asarray(raw_sat, dtype=bool).reshape(N_ANALOG_INPUTS)
-            if codes.shape != (N_ANALOG_INPUTS,):
-                raise ValueError(f"codes must have shape (4,), got {codes.shape}")
-            if not np.issubdtype(codes.dtype, np.integer):
-                if not np.all(np.isfinite(codes.astype(np.float64))):
-                    raise ValueError("codes must be finite")
-                codes = np.rint(codes.astype(np.float64))
-            codes = codes.astype(np.int64)
+            if (type(raw_codes) is np.ndarray and raw_codes.dtype == np.int64 and raw_codes.shape == (N_ANALOG_INPUTS,)
+                    and type(raw_sat) is np.ndarray and raw_sat.dtype == np.bool_ and raw_sat.shape == (N_ANALOG_INPUTS,)):
+                # The application's own types (the plant's A/D): plain ints and bools from here on.
+                codes: list[int] = raw_codes.tolist()
+                saturated: list[bool] = raw_sat.tolist()
+            else:
+                arr = np.asarray(raw_codes)
+                sat_arr = np.asarray(raw_sat, dtype=bool).reshape(N_ANALOG_INPUTS)
+                if arr.shape != (N_ANALOG_INPUTS,):
+                    raise ValueError(f"codes must have shape (4,), got {arr.shape}")
+                if not np.issubdtype(arr.dtype, np.integer):
+                    if not np.all(np.isfinite(arr.astype(np.float64))):
+                        raise ValueError("codes must be finite")
+                    arr = np.rint(arr.astype(np.float64))
+                codes = arr.astype(np.int64).tolist()
+                saturated = sat_arr.tolist()
         except Exception as e:  # noqa: BLE001 - a bad sample costs one TPDO, not the node
             self.counters.app_errors += 1
             self._log_once("app:on_sync_result", "node %d: on_sync returned unusable data: %s", self.node_id, e)
             return
         bits = self.adc_bits
         lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-        if np.any((codes < lo) | (codes > hi)):
+        if min(codes) < lo or max(codes) > hi:
             self.counters.app_codes_clipped += 1
             self._log_once("app:codes", "node %d: on_sync codes %s outside %d-bit range, clipped",
-                           self.node_id, codes, bits)
-            codes = np.clip(codes, lo, hi)
-        words16 = codes << (16 - bits) if bits <= 16 else codes >> (bits - 16)
-        words32 = codes << (32 - bits)
+                           self.node_id, np.array(codes, dtype=np.int64), bits)
+            codes = [min(hi, max(lo, c)) for c in codes]
+        if bits <= 16:
+            s16 = 16 - bits
+            words16 = [c << s16 for c in codes]
+        else:
+            s16 = bits - 16
+            words16 = [c >> s16 for c in codes]
+        s32 = 32 - bits
+        words32 = [c << s32 for c in codes]
+        od_set = self.od.set
         for sub in range(1, N_ANALOG_INPUTS + 1):
-            self.od.set(OD_ANALOG_INPUT_16, sub, int(words16[sub - 1]))
-            self.od.set(OD_ANALOG_INPUT_32, sub, int(words32[sub - 1]))
+            od_set(OD_ANALOG_INPUT_16, sub, words16[sub - 1])
+            od_set(OD_ANALOG_INPUT_32, sub, words32[sub - 1])
         self._emit(self.ids["tpdo1"], encode_analog_inputs_16(words16), "tpdo1")
         if bits > 16:
             tpdo2, tpdo3 = encode_analog_inputs_32(words32)
             self._emit(self.ids["tpdo2"], tpdo2, "tpdo2")
             self._emit(self.ids["tpdo3"], tpdo3, "tpdo3")
         self.counters.samples += 1
-        n_sat = int(saturated.sum())
+        n_sat = 0
+        mask = 0
+        for i, flag in enumerate(saturated):
+            if flag:
+                n_sat += 1
+                mask |= 1 << i
         self.counters.saturated_samples += n_sat
-        mask = int(np.dot(saturated.astype(np.int64), 1 << np.arange(N_ANALOG_INPUTS)))
         self._set_fault(EmcyCode.INPUT_SATURATED, n_sat > 0, bytes([mask]))
 
     def _output_words(self) -> npt.NDArray[np.int64]:
@@ -745,22 +766,27 @@ class CanopenNode:
             self.od.set(OD_ANALOG_OUTPUT_16, sub, 0)
         self._outputs_v = _ZERO_OUTPUTS.copy()
 
-    def _apply_outputs(self, words: npt.NDArray[np.int64], limit_v: float | None = None) -> None:
+    def _apply_outputs(self, words: npt.ArrayLike, limit_v: float | None = None) -> None:
+        w = words.tolist() if type(words) is np.ndarray else [int(x) for x in words]  # type: ignore[union-attr]
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
-            self.od.set(OD_ANALOG_OUTPUT_16, sub, int(words[sub - 1]))
+            self.od.set(OD_ANALOG_OUTPUT_16, sub, int(w[sub - 1]))
         limit = self.valve_limit_v if limit_v is None else limit_v
-        limit_code = int(math.floor(limit / DAC12.lsb_v + 1e-9))
+        lsb = DAC12.lsb_v
+        limit_code = int(math.floor(limit / lsb + 1e-9))
         lo, hi = max(-limit_code, DAC12.code_min), min(limit_code, DAC12.code_max)
-        codes = DAC12.from_left_justified(words)
-        clipped = (codes < lo) | (codes > hi)
-        volts = DAC12.to_volts(np.clip(codes, lo, hi))
+        shift = DAC12.shift(16)
+        # Plain ints: the code's int -> float conversion and the product by one LSB are
+        # the same IEEE operations numpy does on the int64 array.
+        c0, c1 = w[0] >> shift, w[1] >> shift
+        clip0, clip1 = c0 < lo or c0 > hi, c1 < lo or c1 > hi
+        volts = np.array([float(min(hi, max(lo, c0))) * lsb, float(min(hi, max(lo, c1))) * lsb], dtype=np.float64)
         self._outputs_v = volts
         self.counters.outputs_applied += 1
         self._call_app("on_outputs", self.app.on_outputs, volts.copy())
-        if clipped.any():
+        if clip0 or clip1:
             self.counters.clipped_outputs += 1
-        mask = int(clipped[0]) | (int(clipped[1]) << 1)
-        self._set_fault(EmcyCode.OUTPUT_CLIPPED, bool(clipped.any()), bytes([mask]))
+        mask = int(clip0) | (int(clip1) << 1)
+        self._set_fault(EmcyCode.OUTPUT_CLIPPED, clip0 or clip1, bytes([mask]))
 
     # --- watchdog ------------------------------------------------------------------------
 

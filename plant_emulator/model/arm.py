@@ -43,6 +43,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from plant_emulator.model import kinematics as kin
+from plant_emulator.model import _modal_kernel
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
@@ -51,7 +52,6 @@ from plant_emulator.model.modes import (
     Structure,
     coefficients_scalar,
     consts,
-    eig2_scalar,
     modal_parameters,
     bending_fractions_scalar,
     static_deflection_in,
@@ -184,6 +184,16 @@ class GroundTruth:
         return d
 
 
+_JOINT: tuple[tuple[float, float, float, float, float, float], ...] = tuple(
+    (cyl.retracted_length_in, cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.offset_rad,
+     cyl.p_in * cyl.q_in, 2.0 * (cyl.p_in * cyl.q_in))
+    for cyl in kin.CYLINDERS
+)
+"""Per joint, the pin triangle's constant sub-expressions as ``_angle`` and ``_lever``
+evaluate them (the same floats, each left-to-right product and sum kept):
+retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
+
+
 class RalfArm:
     """RALF with its sensors: ``set_valve_voltages`` / ``advance`` / ``sample``.
 
@@ -221,6 +231,16 @@ class RalfArm:
         self._stop_counts = [0, 0]
         self._cache_key: tuple[float, float, bool] | None = None
         self._cache: tuple[Any, ...] = ()
+        # modal_step's constant arguments, payload out / in
+        cyl = kin.CYLINDERS[0]
+        z1, z2 = self._zetas
+        self._modal_args = tuple(
+            (k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, z1, z2, self._h,
+             cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2, kin.INCH, L1_M)
+            for k in self._consts
+        )
+        _modal_kernel.warm_up()
+        self._modal_step = _modal_kernel.modal_step  # compiled, or the same function in Python
         # flexible state at static equilibrium
         self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
         self._beta_dot = [0.0, 0.0]
@@ -267,6 +287,12 @@ class RalfArm:
         """The two valve voltages (V), held until the next call. The node
         hands them already quantized by the 12-bit D/A; beyond +-10 V they
         are clipped like the D/A's output."""
+        if type(volts) is np.ndarray and volts.dtype == np.float64 and volts.shape == (2,):
+            a, b = volts.tolist()
+            if math.isfinite(a) and math.isfinite(b):
+                # min/max are np.clip's result for finite values (signed zeros included)
+                self._volts = [min(FULL_SCALE_V, max(-FULL_SCALE_V, a)), min(FULL_SCALE_V, max(-FULL_SCALE_V, b))]
+                return
         v = np.asarray(volts, dtype=np.float64)
         if v.shape != (2,):
             raise ValueError(f"two valve voltages expected, got shape {v.shape}")
@@ -344,17 +370,16 @@ class RalfArm:
 
     # -- internals ----------------------------------------------------------------------
     def _angle(self, j: int) -> float:
-        cyl = kin.CYLINDERS[j]
-        length = self._axes[j].extension_in + cyl.retracted_length_in
-        cg = (cyl.p_in**2 + cyl.q_in**2 - length * length) / (2.0 * cyl.p_in * cyl.q_in)
-        return math.acos(min(1.0, max(-1.0, cg))) - cyl.offset_rad
+        retracted, p2q2, two_p_q, offset, _, _ = _JOINT[j]
+        length = self._axes[j].extension_in + retracted
+        cg = (p2q2 - length * length) / two_p_q
+        return math.acos(min(1.0, max(-1.0, cg))) - offset
 
     @staticmethod
     def _lever(j: int, theta: float) -> float:
-        cyl = kin.CYLINDERS[j]
-        g = theta + cyl.offset_rad
-        pq = cyl.p_in * cyl.q_in
-        return pq * math.sin(g) / math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(g))
+        _, p2q2, _, offset, pq, two_pq = _JOINT[j]
+        g = theta + offset
+        return pq * math.sin(g) / math.sqrt(p2q2 - two_pq * math.cos(g))
 
     def _static_beta(self, t1: float, t2: float) -> tuple[float, float]:
         co = coefficients_scalar(self._consts[self._payload], t1, t2)
@@ -386,22 +411,9 @@ class RalfArm:
     def _modal(self, tm1: float, tm2: float) -> tuple[Any, ...]:
         key = (tm1, tm2, self._payload)
         if key != self._cache_key:
-            co = coefficients_scalar(self._consts[self._payload], tm1, tm2)
-            M11, M12, M22, K11, K12, K22 = co[:6]
-            l1, l2, (p11, p21, p12, p22) = eig2_scalar(M11, M12, M22, K11, K12, K22)
-            h = self._h
-            steps = []
-            for lam, zeta in ((l1, self._zetas[0]), (l2, self._zetas[1])):
-                w = math.sqrt(lam)
-                sig = zeta * w
-                wd = w * math.sqrt(1.0 - zeta * zeta)
-                e = math.exp(-sig * h)
-                c = e * math.cos(wd * h)
-                s = e * math.sin(wd * h) / wd
-                # x1 = c x0 + s (v0 + sig x0);  v1 = c v0 - s (sig v0 + w^2 x0)
-                steps.append((w * w, sig, c, s))
+            r = self._modal_step(tm1, tm2, *self._modal_args[self._payload])
             self._cache_key = key
-            self._cache = (co, (p11, p21, p12, p22), steps)
+            self._cache = (r[:12], r[12:16], ((r[16], r[17], r[18], r[19]), (r[20], r[21], r[22], r[23])))
         return self._cache
 
     def _step(self) -> None:
@@ -434,7 +446,8 @@ class RalfArm:
         v1, v2 = self._beta_dot
         mb1, mb2 = M11 * b1 + M12 * b2, M12 * b1 + M22 * b2
         mv1, mv2 = M11 * v1 + M12 * v2, M12 * v1 + M22 * v2
-        w_old = self._seen()
+        f_0, f_1 = self._frac
+        w_old0, w_old1 = f_0 * L1_M * b1 / kin.INCH, f_1 * L2_M * b2 / kin.INCH  # _seen() before the step
         nb1 = nb2 = nv1 = nv2 = 0.0
         for (pa, pb), (w2, sig, c, s) in zip(((p11, p21), (p12, p22)), steps, strict=True):
             eta = pa * mb1 + pb * mb2
@@ -452,12 +465,12 @@ class RalfArm:
         self._theta = new_theta
         self._theta_dot = new_rate
         # 4. anti-alias filters with the deflection noise at their input (the cameras see the bending)
-        self._frac = self._fractions(new_theta[0], new_theta[1])
-        w_new = self._seen()
+        self._frac = f_0, f_1 = self._fractions(new_theta[0], new_theta[1])
+        w_new0, w_new1 = f_0 * L1_M * nb1 / kin.INCH, f_1 * L2_M * nb2 / kin.INCH  # _seen() after it
         z0, z1 = self._zero
         n0, n1 = self._noise.step_pair() if self.cfg.sensor_noise else (0.0, 0.0)
         self._aa.step(
-            0.5 * (w_old[0] + w_new[0]) - z0 + self._defl_noise_in[0] * n0,
-            0.5 * (w_old[1] + w_new[1]) - z1 + self._defl_noise_in[1] * n1,
+            0.5 * (w_old0 + w_new0) - z0 + self._defl_noise_in[0] * n0,
+            0.5 * (w_old1 + w_new1) - z1 + self._defl_noise_in[1] * n1,
         )
         self._steps += 1
