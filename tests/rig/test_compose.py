@@ -141,3 +141,20 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
         sub.undeclare()
         router.close()
     assert codes == {"dsp": 0, "plant": 0, "controller": 0}, {n: (tmp_path / f"{n}.log").read_text(errors="replace")[-2000:] for n in procs}
+
+
+@pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose (Debian's package) is not installed; .ci/run installs it")
+def test_docker_compose_itself_accepts_the_file_with_generated_credentials(tmp_path: Path) -> None:
+    """A real compose parser (``docker-compose config``), not only YAML: the
+    file resolves with the env file ``ralf-hil credentials`` writes, and
+    refuses to resolve without it (the passwords are mandatory)."""
+    out = tmp_path / "secrets"
+    assert subprocess.run([sys.executable, "-m", "rig", "credentials", "--out", str(out)], capture_output=True, check=False).returncode == 0
+    compose = ["docker-compose", "-f", str(ROOT / "docker-compose.yml")]
+    ok = subprocess.run([*compose, "--env-file", str(out / "ralf.env"), "config"], capture_output=True, text=True, check=False)
+    assert ok.returncode == 0, ok.stderr
+    resolved = yaml.safe_load(ok.stdout)
+    assert set(resolved["services"]) == {"zenoh-router", "dsp", "plant", "controller"}
+    assert all(svc["environment"]["RALF_ZENOH_PASSWORD"] for name, svc in resolved["services"].items() if name != "zenoh-router")
+    bare = subprocess.run([*compose, "config"], capture_output=True, text=True, check=False, env={**os.environ, "ZENOH_PASSWORD_DSP": ""})
+    assert bare.returncode != 0 and "ralf-hil credentials" in bare.stderr
