@@ -13,7 +13,7 @@ COPY controller ./controller
 COPY service_kit ./service_kit
 COPY dsp_service ./dsp_service
 COPY rig ./rig
-RUN pip install . && useradd --create-home ralf
+RUN pip install ".[fast]" && useradd --create-home ralf
 USER ralf
 WORKDIR /home/ralf
 
