@@ -90,6 +90,7 @@ from .spectra import (
     SegmentedSpectralEstimator,
     SpectralAverager,
     SpectralEstimator,
+    rfft_rows,
     scale_spectra,
     welch_equivalent_averages,
 )
@@ -198,6 +199,13 @@ class IdentifierConfig(pydantic.BaseModel):
     )
     confidence_prominence_db: float = pydantic.Field(
         6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
+    )
+    kernel: Literal["numpy", "numba"] = pydantic.Field(
+        "numpy",
+        description="'numba': averaging, H_tot solve, smoothing and peak search after the FFTs in one "
+        "compiled call (dsp_service.kernel; same results to rounding), for the ETFE with exponential or "
+        "linear averaging, one window per snapshot, the 'mimo' solver and peak_source 'tot' (other "
+        "settings use the numpy path). 'numpy': the reference path.",
     )
 
     @pydantic.model_validator(mode="before")
@@ -373,6 +381,15 @@ class Identifier:
         self._smooth = self._smoother.range_plan(src, self._lo, self._hi)
         self._all_valid_range = np.ones(n_range, dtype=bool)
         self._all_valid_range.flags.writeable = False
+        self._fused = (
+            c.kernel == "numba"
+            and c.welch_segments == 1
+            and self._rls is None
+            and c.solver == "mimo"
+            and c.peak_source == "tot"
+        )
+        if self._fused:
+            self._build_fused(n_range)
         self._pending = 0
         self._arx: RecursiveArx | None = None
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
@@ -389,6 +406,43 @@ class Identifier:
                     max_poles=c.max_peaks,
                 )
             )
+
+    def _build_fused(self, n_range: int) -> None:
+        """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""
+        from . import kernel
+
+        sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
+        if sm.enabled:
+            h, w = sm.half, sm.window
+            rows = []
+            for i in range(lo, hi):
+                if i < h:
+                    rows.append(sm.edge_lo[i])
+                elif i >= k - h:
+                    rows.append(sm.edge_hi[i - (k - h)])
+                else:
+                    rows.append(sm.centre)
+            self._k_coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
+            self._k_starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
+        else:
+            self._k_coef = np.ones((n_range, 1))
+            self._k_starts = np.arange(lo, hi, dtype=np.intp)
+        self._k_hs = np.empty(n_range, dtype=np.complex128)
+        self._k_vs = np.empty(n_range, dtype=bool)
+        self._k_w = self._w_lin if self._w_lin is not None else np.ones(n_range)
+        self._k_order = np.empty(n_range, dtype=np.intp)
+        self._k_idx = np.empty(self.cfg.max_peaks, dtype=np.intp)
+        self._k_prom = np.empty(self.cfg.max_peaks)
+        self._k_stats = np.zeros(4)
+        self._k_post = kernel.post_fft
+        kernel.warm_up()
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the compiled step; the constructor already does."""
+        if self._fused:
+            from . import kernel
+
+            kernel.warm_up()
 
     def set_fft_width(self, n: int) -> None:
         """Change N: zeroes the history and every average (as on the C40)."""
@@ -495,6 +549,8 @@ class Identifier:
         averaged; until the first average an empty result is returned.
         """
         c = self.cfg
+        if self._fused:
+            return self._step_fused()
         avg = self._avg
         hist = self.history
         if hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history):
@@ -538,6 +594,85 @@ class Identifier:
         else:
             poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
         valid_fraction = n_valid / vs.size
+        hist = self.history
+        in_history = hist.samples_in_history
+        fill = in_history / hist.n
+        conf = 0.0
+        if peaks and n_eff > 1.0:
+            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
+            prom = peaks[0][1]
+            conf = base * prom / (prom + c.confidence_prominence_db)
+            poles = tuple(
+                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
+                for p in poles
+            )
+        return IdentificationResult(
+            poles=poles,
+            confidence=float(min(1.0, max(0.0, conf))),
+            valid_fraction=valid_fraction,
+            samples_in_history=in_history,
+            effective_averages=float(n_eff),
+        )
+
+    def _step_fused(self) -> IdentificationResult:
+        """:meth:`_step_etfe` with stages 2–5 up to the peaks in one compiled call (:mod:`.kernel`)."""
+        c = self.cfg
+        avg = self._avg
+        hist = self.history
+        solver = self._solver
+        sl = self._sl
+        lo, hi = self._lo, self._hi
+        new = hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history)
+        if not new and avg.updates == 0:
+            return IdentificationResult((), 0.0, 0.0, hist.samples_in_history, 0.0)
+        est = self._est
+        if new:
+            weight = avg.next_weight()
+            x = hist.view()
+            means = x @ est._ones_over_n  # detrend='constant', then window (spectra.SpectralEstimator)
+            tmp = np.subtract(x, means[:, None], out=est._tmp)
+            tmp *= est.window
+            X = rfft_rows(tmp, est.ffts)
+            avg.account(self._pending)
+            self._pending = 0
+        else:  # no new snapshot: solve the averages as they are
+            X = self._k_zero_ffts()
+            weight = 0.0
+        stats = self._k_stats
+        self._k_post(
+            X, weight, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
+            c.collinear == "dominant", solver.source, solver.valid, solver.mode,
+            lo, hi, self._k_coef, self._k_starts, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
+            self._prom_ratio, c.max_peaks, self._v, self._k_order, self._k_idx, self._k_prom, stats,
+        )
+        n_sl_valid, n_valid, nf = int(stats[0]), int(stats[1]), int(stats[2])
+        solver._floor = float(stats[3])
+        solver.valid_count = n_sl_valid
+        all_valid = n_sl_valid == self._n_sl
+        src_sl, valid_sl = solver.source[sl], solver.valid[sl]
+        hs, vs = self._k_hs, self._k_vs
+        peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
+        if not peaks:
+            poles: tuple[PoleEstimate, ...] = ()
+        elif c.estimate_on_smoothed:
+            poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == vs.size)
+        else:
+            poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
+        return self._result(peaks, poles, n_valid, vs.size)
+
+    def _k_zero_ffts(self) -> NDArray[np.complex128]:
+        z = getattr(self, "_k_zeros", None)
+        if z is None:
+            z = self._k_zeros = np.zeros((4, self._est.n_bins), dtype=np.complex128)
+        return z
+
+    def _result(
+        self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int
+    ) -> IdentificationResult:
+        """The step's result with the confidences (module doc)."""
+        c = self.cfg
+        n_eff = self.effective_averages
+        valid_fraction = n_valid / n_range
         hist = self.history
         in_history = hist.samples_in_history
         fill = in_history / hist.n
