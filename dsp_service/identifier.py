@@ -435,6 +435,20 @@ class Identifier:
         self._k_prom = np.empty(self.cfg.max_peaks)
         self._k_stats = np.zeros(4)
         self._k_post = kernel.post_fft
+        # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
+        self._k_poles = kernel.poles if self.cfg.damping_method != "fit" else None
+        ref, vrm = self._refiner, self._vrm
+        r_max = ref.r_max
+        self._k_pinv = np.zeros((r_max + 1, 3, 2 * r_max + 1))
+        for r, pinv in ref._pinv.items():
+            self._k_pinv[r, :, : 2 * r + 1] = pinv
+        tris = vrm._triplets
+        self._k_ntri = np.array([t.shape[0] for t in tris], dtype=np.intp)
+        self._k_tri = np.zeros((len(tris), max(1, int(self._k_ntri.max())), 3), dtype=np.intp)
+        for m, t in enumerate(tris):
+            self._k_tri[m, : t.shape[0]] = t
+        self._k_mag = np.empty(max(self._n_sl, n_range))
+        self._k_out = np.empty((self.cfg.max_peaks, 6))
         kernel.warm_up()
 
     def warm_up(self) -> None:
@@ -654,11 +668,59 @@ class Identifier:
         peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
         if not peaks:
             poles: tuple[PoleEstimate, ...] = ()
+        elif self._k_poles is not None:
+            if c.estimate_on_smoothed:
+                hd, vd, fd, off, av = hs, vs, self._f_range, 0, n_valid == vs.size
+            else:
+                hd, vd, fd, off, av = src_sl, valid_sl, self._f_sl, lo - sl.start, all_valid
+            poles = self._poles_compiled(peaks, hd, vd, fd, off, av)
         elif c.estimate_on_smoothed:
             poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == vs.size)
         else:
             poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
         return self._result(peaks, poles, n_valid, vs.size)
+
+    def _poles_compiled(
+        self,
+        peaks: list[tuple[int, float]],
+        hd: NDArray[np.complex128],
+        vd: NDArray[np.bool_],
+        fd: NDArray[np.float64],
+        offset: int,
+        all_valid: bool,
+    ) -> tuple[PoleEstimate, ...]:
+        """:meth:`_poles` (VRM/FWHM damping) in one compiled call (:func:`.kernel.poles`)."""
+        c, vrm, out = self.cfg, self._vrm, self._k_out
+        nf = len(peaks)
+        assert self._k_poles is not None
+        self._k_poles(
+            hd, vd, all_valid, fd, offset, self._k_idx, nf, self._relocate, c.fwhm_exact, self._k_pinv,
+            self._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
+            vrm.model == "viscous", self._k_tri, self._k_ntri, self._k_mag[: hd.size], out,
+        )
+        vrm_first = c.damping_method == "vrm"
+        source = c.peak_source
+        poles = []
+        for (_, prom), (f_peak, m_peak, zf, _ok, fn, zv) in zip(peaks, out[:nf].tolist()):
+            zeta_fwhm = None if zf != zf else zf
+            zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
+            first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
+            chosen = first if first is not None else second
+            poles.append(
+                PoleEstimate(
+                    frequency_hz=f_peak,
+                    damping_ratio=chosen if chosen is not None else 0.0,
+                    damping_fwhm=zeta_fwhm,
+                    damping_vrm=zeta_vrm,
+                    natural_frequency_vrm_hz=fn_vrm,
+                    magnitude=m_peak,
+                    prominence_db=prom,
+                    source=source,
+                    damping_defined=chosen is not None,
+                    damping_fit=None,
+                )
+            )
+        return tuple(poles)
 
     def _k_zero_ffts(self) -> NDArray[np.complex128]:
         z = getattr(self, "_k_zeros", None)

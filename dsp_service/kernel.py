@@ -286,3 +286,236 @@ def warm_up() -> None:
         1.4, 2, np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(16, dtype=np.intp),
         np.zeros(16), np.zeros(4),
     )
+    hd = np.exp(1j * np.arange(16.0)) * (1.0 + np.arange(16.0))
+    tri = np.zeros((2, 1, 3), dtype=np.intp)
+    tri[1, 0] = (-1, 0, 1)
+    poles(
+        hd, np.ones(16, dtype=np.bool_), False, np.arange(16.0), 0, np.array([8], dtype=np.intp), 1, 1, True,
+        np.zeros((2, 3, 3)), 1, 1, 1.5, 0.5, 1.0, True, tri, np.array([0, 1], dtype=np.intp), np.empty(16),
+        np.empty((1, 6)),
+    )
+
+
+# ---------------------------------------------------------------------------
+# Stage 5: refinement, FWHM and VRM of the peaks (Identifier._poles, modal.py)
+# ---------------------------------------------------------------------------
+_SQRT_HALF = math.sqrt(0.5)
+_ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
+_SQRT2 = math.sqrt(2.0)
+
+
+@njit(cache=True, inline="always")
+def _cdiv(a, b):  # type: ignore[no-untyped-def]
+    """numpy's complex division (Smith's algorithm)."""
+    br = b.real
+    bi = b.imag
+    if abs(br) >= abs(bi):
+        rat = bi / br
+        scl = 1.0 / (br + bi * rat)
+        return complex((a.real + a.imag * rat) * scl, (a.imag - a.real * rat) * scl)
+    rat = br / bi
+    scl = 1.0 / (bi + br * rat)
+    return complex((a.real * rat + a.imag) * scl, (a.imag * rat - a.real) * scl)
+
+
+@njit(cache=True)
+def _refine_peak(mag, k):  # type: ignore[no-untyped-def]
+    if 0 < k < mag.size - 1:
+        a = math.log(max(mag[k - 1], _TINY))
+        b = math.log(max(mag[k], _TINY))
+        c = math.log(max(mag[k + 1], _TINY))
+        curv = a - 2.0 * b + c
+        if curv < 0.0:
+            d = min(0.5, max(-0.5, 0.5 * (a - c) / curv))
+            return d, b - 0.25 * (a - c) * d
+        return 0.0, b
+    return 0.0, math.log(max(mag[k], _TINY))
+
+
+@njit(cache=True)
+def _refine_ls(mag, k, r, pinv, r_max):  # type: ignore[no-untyped-def]
+    r = max(1, min(r, r_max, k, mag.size - 1 - k))
+    w = 2 * r + 1
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
+    for j in range(w):
+        yj = math.log(max(mag[k - r + j], _TINY))
+        c0 += pinv[r, 0, j] * yj
+        c1 += pinv[r, 1, j] * yj
+        c2 += pinv[r, 2, j] * yj
+    if not c2 < 0.0:
+        return 0.0, math.log(max(mag[k], _TINY))
+    d = min(float(r), max(-float(r), -0.5 * c1 / c2))
+    return d, c0 + c1 * d + c2 * d * d
+
+
+@njit(cache=True)
+def _half_power(mag, f0, df, k, peak_mag, vd, check):  # type: ignore[no-untyped-def]
+    """``(ok, f_left, f_right)`` (modal._half_power, 64 bins each side)."""
+    thr = peak_mag * _SQRT_HALF
+    size = mag.size
+    if k < 1 or k >= size - 1:
+        return False, 0.0, 0.0
+    lo = max(0, k - 64)
+    hi = min(size, k + 65)
+    i0 = -1
+    for i in range(k - 1, lo - 1, -1):
+        if mag[i] < thr:
+            i0 = i
+            break
+    j1 = -1
+    for i in range(k + 1, hi):
+        if mag[i] < thr:
+            j1 = i
+            break
+    if i0 < 0 or j1 < 0:
+        return False, 0.0, 0.0
+    if check and not (vd[i0] and vd[i0 + 1] and vd[j1 - 1] and vd[j1]):
+        return False, 0.0, 0.0
+    half = thr * thr
+    pa = mag[i0] * mag[i0]
+    pb = mag[i0 + 1] * mag[i0 + 1]
+    t = (half - pa) / (pb - pa) if pb != pa else 0.5
+    fl = f0 + (i0 + t) * df
+    i1 = j1 - 1
+    pa = mag[i1] * mag[i1]
+    pb = mag[i1 + 1] * mag[i1 + 1]
+    t = (half - pa) / (pb - pa) if pb != pa else 0.5
+    return True, fl, f0 + (i1 + t) * df
+
+
+@njit(cache=True)
+def _zeta_fwhm(bw, fp, exact):  # type: ignore[no-untyped-def]
+    if not exact:
+        return bw / (2.0 * fp)
+    rho = bw / fp
+    if not rho > 0.0:
+        return 0.0
+    if rho >= _SQRT2:
+        return _ZETA_MAX_HALF_POWER
+    c = 1.0 - 0.5 * rho * rho
+    return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(2.0 - c * c))))
+
+
+@njit(cache=True)
+def _vrm(hd, fd, vd, check, k, hw, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri):  # type: ignore[no-untyped-def]
+    """``(ok, f_n, ζ, used)`` of one peak (modal.VrmEstimator._plan and ._solve)."""
+    n = hd.size
+    h = max(1, int(np.rint(band_factor * hw)))
+    h = min(h, k, n - 1 - k)
+    if h >= 1 and check:
+        for i in range(k - h, k + h + 1):
+            if not vd[i]:
+                dist = abs(i - k) - 1
+                if dist < h:
+                    h = dist
+    if h < 1:
+        return False, 0.0, 0.0, 0
+    m = min(h, m_max)
+    s = max(1, int(np.rint(h / m)))
+    if m * s > h:
+        m = h // s
+    wr = 0.0
+    wi = 0.0
+    ws = 0.0
+    used = 0
+    for q in range(n_tri[m]):
+        a = k + s * tri[m, q, 0]
+        b = k + s * tri[m, q, 1]
+        c = k + s * tri[m, q, 2]
+        f2a = fd[a] * fd[a]
+        f2b = fd[b] * fd[b]
+        f2c = fd[c] * fd[c]
+        cab = f2c - f2a
+        bab = f2b - f2a
+        dba = hd[b] - hd[a]
+        dca = hd[c] - hd[a]
+        fb = f2b * cab
+        fc = f2c * bab
+        den = complex(dba.real * cab - dca.real * bab, dba.imag * cab - dca.imag * bab)
+        num = complex(dba.real * fb - dca.real * fc, dba.imag * fb - dca.imag * fc)
+        w = _cabs(den)
+        if w == 0.0:
+            continue
+        lam = _cdiv(num, den)
+        re = lam.real
+        im = lam.imag
+        if 0.0 < c_max < np.inf:
+            good = im <= re * c_max
+        else:
+            good = re > 0.0
+        if not (good and im > 0.0):
+            continue
+        wr += w * re
+        wi += w * im
+        ws += w
+        used += 1
+    if used == 0 or not ws > 0.0:
+        return False, 0.0, 0.0, used
+    re = wr / ws
+    im = wi / ws
+    if re <= 0.0:
+        fn, zeta = 0.0, 0.0
+    elif viscous:
+        mod = math.hypot(re, im)
+        fn, zeta = math.sqrt(mod), im / (mod + re)
+    else:
+        fn, zeta = math.sqrt(re), 0.5 * im / re
+    df = fd[1] - fd[0]
+    f_lo = fd[k - s * m] - 2.0 * df
+    f_hi = fd[k + s * m] + 2.0 * df
+    if f_lo <= fn <= f_hi and 0.0 < zeta <= zeta_max:
+        return True, fn, zeta, used
+    return False, 0.0, 0.0, used
+
+
+@njit(cache=True)
+def poles(  # type: ignore[no-untyped-def]
+    hd, vd, all_valid, fd, offset, idx, nf, relocate, fwhm_exact, pinv, r_max,
+    m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
+):
+    """Identifier._poles without the rational fit: ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
+    ok, f_n VRM or NaN, ζ_VRM or NaN) of peak ``i``; ``mag`` ← |hd|."""
+    size = hd.size
+    for i in range(size):
+        mag[i] = _cabs(hd[i])
+    f0 = fd[0]
+    df = fd[1] - f0
+    check = not all_valid
+    for p in range(nf):
+        k = idx[p] + offset
+        a = max(k - relocate, 0)
+        b = min(k + relocate + 1, size)
+        best = a
+        for i in range(a + 1, b):
+            if mag[i] > mag[best]:
+                best = i
+        k = best
+        d, lv = _refine_peak(mag, k)
+        fk = fd[k]
+        f_peak = fk + d * df
+        m_peak = math.exp(lv)
+        zeta_fwhm = np.nan
+        half_bins = 2.0
+        ok = all_valid or vd[k]
+        if ok:
+            found, fl, fr = _half_power(mag, f0, df, k, m_peak, vd, check)
+            if found:
+                bw = fr - fl
+                zeta_fwhm = _zeta_fwhm(bw, f_peak, fwhm_exact)
+                half_bins = 0.5 * bw / df
+                d, lv = _refine_ls(mag, k, int(np.rint(0.5 * half_bins)), pinv, r_max)
+                f_peak = fk + d * df
+                m_peak = math.exp(lv)
+        out[p, 0] = f_peak
+        out[p, 1] = m_peak
+        out[p, 2] = zeta_fwhm
+        out[p, 3] = 1.0 if ok else 0.0
+        out[p, 4] = np.nan
+        out[p, 5] = np.nan
+        if ok:
+            good, fn, zeta, _ = _vrm(hd, fd, vd, check, k, half_bins, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri)
+            if good:
+                out[p, 4] = fn
+                out[p, 5] = zeta
