@@ -434,9 +434,9 @@ class Identifier:
         self._k_idx = np.empty(self.cfg.max_peaks, dtype=np.intp)
         self._k_prom = np.empty(self.cfg.max_peaks)
         self._k_stats = np.zeros(4)
-        self._k_post = kernel.post_fft
+        self._k_step = kernel.step
         # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
-        self._k_poles = kernel.poles if self.cfg.damping_method != "fit" else None
+        self._k_do_poles = self.cfg.damping_method != "fit"
         ref, vrm = self._refiner, self._vrm
         r_max = ref.r_max
         self._k_pinv = np.zeros((r_max + 1, 3, 2 * r_max + 1))
@@ -652,61 +652,50 @@ class Identifier:
         else:  # no new snapshot: solve the averages as they are
             X = self._k_zero_ffts()
             weight = 0.0
-        stats = self._k_stats
-        self._k_post(
+        stats, vrm, out = self._k_stats, self._vrm, self._k_out
+        on_smoothed, do_poles = c.estimate_on_smoothed, self._k_do_poles
+        self._k_step(
             X, weight, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
             c.collinear == "dominant", solver.source, solver.valid, solver.mode,
             lo, hi, self._k_coef, self._k_starts, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
             self._prom_ratio, c.max_peaks, self._v, self._k_order, self._k_idx, self._k_prom, stats,
+            do_poles, on_smoothed, self._f_sl, self._f_range, self._relocate, c.fwhm_exact, self._k_pinv,
+            self._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
+            vrm.model == "viscous", self._k_tri, self._k_ntri, self._k_mag, out,
         )
         n_sl_valid, n_valid, nf = int(stats[0]), int(stats[1]), int(stats[2])
         solver._floor = float(stats[3])
         solver.valid_count = n_sl_valid
-        all_valid = n_sl_valid == self._n_sl
-        src_sl, valid_sl = solver.source[sl], solver.valid[sl]
-        hs, vs = self._k_hs, self._k_vs
+        n_range = self._k_vs.size
+        if nf == 0:
+            return self._result([], (), n_valid, n_range)
         peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
-        if not peaks:
-            poles: tuple[PoleEstimate, ...] = ()
-        elif self._k_poles is not None:
-            if c.estimate_on_smoothed:
-                hd, vd, fd, off, av = hs, vs, self._f_range, 0, n_valid == vs.size
+        if not do_poles:  # the rational fit: the numpy pole stage
+            if on_smoothed:
+                hs, vs = self._k_hs, self._k_vs
+                poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
             else:
-                hd, vd, fd, off, av = src_sl, valid_sl, self._f_sl, lo - sl.start, all_valid
-            poles = self._poles_compiled(peaks, hd, vd, fd, off, av)
-        elif c.estimate_on_smoothed:
-            poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == vs.size)
-        else:
-            poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
-        return self._result(peaks, poles, n_valid, vs.size)
-
-    def _poles_compiled(
-        self,
-        peaks: list[tuple[int, float]],
-        hd: NDArray[np.complex128],
-        vd: NDArray[np.bool_],
-        fd: NDArray[np.float64],
-        offset: int,
-        all_valid: bool,
-    ) -> tuple[PoleEstimate, ...]:
-        """:meth:`_poles` (VRM/FWHM damping) in one compiled call (:func:`.kernel.poles`)."""
-        c, vrm, out = self.cfg, self._vrm, self._k_out
-        nf = len(peaks)
-        assert self._k_poles is not None
-        self._k_poles(
-            hd, vd, all_valid, fd, offset, self._k_idx, nf, self._relocate, c.fwhm_exact, self._k_pinv,
-            self._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
-            vrm.model == "viscous", self._k_tri, self._k_ntri, self._k_mag[: hd.size], out,
-        )
+                src_sl, valid_sl = solver.source[sl], solver.valid[sl]
+                poles = self._poles(
+                    peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, n_sl_valid == self._n_sl
+                )
+            return self._result(peaks, poles, n_valid, n_range)
+        # _result's confidences, computed before the poles are made
+        n_eff = self.effective_averages
+        valid_fraction = n_valid / n_range
+        in_history = hist.samples_in_history
+        p0 = c.confidence_prominence_db
+        confident = n_eff > 1.0
+        base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / hist.n) if confident else 0.0
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
-        poles = []
+        pole_list = []
         for (_, prom), (f_peak, m_peak, zf, _ok, fn, zv) in zip(peaks, out[:nf].tolist()):
-            zeta_fwhm = None if zf != zf else zf
+            zeta_fwhm = None if zf != zf else zf  # NaN: undefined
             zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
-            poles.append(
+            pole_list.append(
                 PoleEstimate(
                     frequency_hz=f_peak,
                     damping_ratio=chosen if chosen is not None else 0.0,
@@ -717,10 +706,18 @@ class Identifier:
                     prominence_db=prom,
                     source=source,
                     damping_defined=chosen is not None,
+                    confidence=float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
                     damping_fit=None,
                 )
             )
-        return tuple(poles)
+        conf = base * peaks[0][1] / (peaks[0][1] + p0) if confident else 0.0
+        return IdentificationResult(
+            poles=tuple(pole_list),
+            confidence=float(min(1.0, max(0.0, conf))),
+            valid_fraction=valid_fraction,
+            samples_in_history=in_history,
+            effective_averages=float(n_eff),
+        )
 
     def _k_zero_ffts(self) -> NDArray[np.complex128]:
         z = getattr(self, "_k_zeros", None)

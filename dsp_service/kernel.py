@@ -145,22 +145,30 @@ def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):
 
 @njit(cache=True)
 def _smooth(src, valid, lo, hi, coef, starts, hs, vs):  # type: ignore[no-untyped-def]
-    """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid."""
+    """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
+
+    Each output bin sums its window in order ``j = 0 … w−1``; the loop runs over
+    the bins innermost (independent sums, no chain of dependent adds)."""
     w = coef.shape[1]
-    n_valid = 0
-    for i in range(hi - lo):
-        s = starts[i]
-        re = 0.0
-        im = 0.0
-        ok = True
-        for j in range(w):
-            x = src[s + j]
+    m = hi - lo
+    re = np.zeros(m)
+    im = np.zeros(m)
+    for j in range(w):
+        for i in range(m):
+            x = src[starts[i] + j]
             cj = coef[i, j]
-            re += cj * x.real
-            im += cj * x.imag
-            if not valid[s + j]:
-                ok = False
-        hs[i] = complex(re, im)
+            re[i] += cj * x.real
+            im[i] += cj * x.imag
+    a = starts[0]
+    b = starts[m - 1] + w
+    bad = np.zeros(b - a + 1, dtype=np.intp)  # invalid raw bins before each position
+    for q in range(a, b):
+        bad[q - a + 1] = bad[q - a] + (0 if valid[q] else 1)
+    n_valid = 0
+    for i in range(m):
+        hs[i] = complex(re[i], im[i])
+        s = starts[i] - a
+        ok = bad[s + w] == bad[s]
         vs[i] = ok
         if ok:
             n_valid += 1
@@ -271,29 +279,56 @@ def post_fft(  # type: ignore[no-untyped-def]
     stats[3] = floor
 
 
-def warm_up() -> None:
-    """Compile (or load from the cache) :func:`post_fft` with the types a step uses."""
-    k, n_range = 9, 5
-    X = np.zeros((4, k), dtype=np.complex128)
-    X[0] = 1.0
-    X[1] = np.arange(k) * 1j
-    state = np.zeros((7, k), dtype=np.complex128)
+@njit(cache=True)
+def step(  # type: ignore[no-untyped-def]
+    X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+    lo, hi, coef, starts, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+    do_poles, on_smoothed, f_sl, f_range, relocate, fwhm_exact, pinv, r_max,
+    m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
+):
+    """:func:`post_fft`, then (``do_poles``) :func:`poles` of the peaks found, on the smoothed
+    (``on_smoothed``) or the solved spectrum."""
     post_fft(
-        X, 1.0, state, k, 1e-12, 0, k, 1e-3, True,
-        np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
-        1, 1 + n_range, np.ones((n_range, 3)) / 3.0, np.arange(n_range, dtype=np.intp),
-        np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range), True,
-        1.4, 2, np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(16, dtype=np.intp),
-        np.zeros(16), np.zeros(4),
+        X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+        lo, hi, coef, starts, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
     )
-    hd = np.exp(1j * np.arange(16.0)) * (1.0 + np.arange(16.0))
+    nf = int(stats[2])
+    if not do_poles or nf == 0:
+        return
+    if on_smoothed:
+        poles(
+            hs, vs, int(stats[1]) == hs.size, f_range, 0, found_idx, nf, relocate, fwhm_exact, pinv, r_max,
+            m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag[: hs.size], out,
+        )
+    else:
+        poles(
+            src[s0:s1], valid[s0:s1], int(stats[0]) == s1 - s0, f_sl, lo - s0, found_idx, nf, relocate,
+            fwhm_exact, pinv, r_max, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri,
+            mag[: s1 - s0], out,
+        )
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`step` with the types the identifier passes."""
+    k, n_range = 40, 20
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
+    state = np.zeros((7, k), dtype=np.complex128)
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
-    poles(
-        hd, np.ones(16, dtype=np.bool_), False, np.arange(16.0), 0, np.array([8], dtype=np.intp), 1, 1, True,
-        np.zeros((2, 3, 3)), 1, 1, 1.5, 0.5, 1.0, True, tri, np.array([0, 1], dtype=np.intp), np.empty(16),
-        np.empty((1, 6)),
-    )
+    for do_poles in (True, False):
+        for _ in range(3):
+            step(
+                X, 1.0, state, k, 1e-12, 0, k, 1e-3, True,
+                np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
+                10, 10 + n_range, np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp),
+                np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range), True,
+                1.0, 2, np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(2, dtype=np.intp),
+                np.zeros(2), np.zeros(4),
+                do_poles, not do_poles, np.arange(k, dtype=np.float64), np.arange(10.0, 10.0 + n_range), 1, True,
+                np.zeros((2, 3, 3)), 1, 1, 1.5, 0.5, 1.0, True, tri, np.array([0, 1], dtype=np.intp),
+                np.empty(k), np.empty((2, 6)),
+            )
 
 
 # ---------------------------------------------------------------------------
