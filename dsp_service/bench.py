@@ -214,10 +214,8 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
         x = idf.history.view()
         for i in range(start, stop):
             t0 = perf()
-            means = x @ est._ones_over_n
-            tmp = np.subtract(x, means[:, None], out=est._tmp)
-            tmp *= est.window
-            rfft_rows(tmp, est.ffts)
+            K.detrend_window(x, x @ est._ones_over_n, est.window, est._tmp)
+            rfft_rows(est._tmp, est.ffts)
             t["fft"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
@@ -229,7 +227,8 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["solve"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs)
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs,
+                      idf._k_coef_t, idf._k_ia, idf._k_ib)
             t["smooth"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()

@@ -427,6 +427,14 @@ class Identifier:
         else:
             self._k_coef = np.ones((n_range, 1))
             self._k_starts = np.arange(lo, hi, dtype=np.intp)
+        self._k_coef_t = np.ascontiguousarray(self._k_coef.T)
+        steps = np.flatnonzero(np.diff(self._k_starts) == 1)  # consecutive rows of a sliding window
+        if steps.size:
+            self._k_ia, self._k_ib = int(steps[0]), int(steps[-1]) + 2
+            if not np.array_equal(self._k_starts[self._k_ia : self._k_ib], self._k_starts[self._k_ia] + np.arange(self._k_ib - self._k_ia)):
+                self._k_ia = self._k_ib = 0
+        else:
+            self._k_ia = self._k_ib = 0
         self._k_hs = np.empty(n_range, dtype=np.complex128)
         self._k_vs = np.empty(n_range, dtype=bool)
         self._k_w = self._w_lin if self._w_lin is not None else np.ones(n_range)
@@ -435,6 +443,7 @@ class Identifier:
         self._k_prom = np.empty(self.cfg.max_peaks)
         self._k_stats = np.zeros(4)
         self._k_step = kernel.step
+        self._k_detrend = kernel.detrend_window
         # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
         self._k_do_poles = self.cfg.damping_method != "fit"
         ref, vrm = self._refiner, self._vrm
@@ -643,10 +652,9 @@ class Identifier:
         if new:
             weight = avg.next_weight()
             x = hist.view()
-            means = x @ est._ones_over_n  # detrend='constant', then window (spectra.SpectralEstimator)
-            tmp = np.subtract(x, means[:, None], out=est._tmp)
-            tmp *= est.window
-            X = rfft_rows(tmp, est.ffts)
+            # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
+            self._k_detrend(x, x @ est._ones_over_n, est.window, est._tmp)
+            X = rfft_rows(est._tmp, est.ffts)
             avg.account(self._pending)
             self._pending = 0
         else:  # no new snapshot: solve the averages as they are
@@ -657,7 +665,7 @@ class Identifier:
         self._k_step(
             X, weight, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
             c.collinear == "dominant", solver.source, solver.valid, solver.mode,
-            lo, hi, self._k_coef, self._k_starts, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
+            lo, hi, self._k_coef, self._k_starts, self._k_coef_t, self._k_ia, self._k_ib, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
             self._prom_ratio, c.max_peaks, self._v, self._k_order, self._k_idx, self._k_prom, stats,
             do_poles, on_smoothed, self._f_sl, self._f_range, self._relocate, c.fwhm_exact, self._k_pinv,
             self._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,

@@ -65,6 +65,16 @@ def _cabs(z):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
+def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
+    """``out = (x − means[:, None]) · window`` (spectra.SpectralEstimator.snapshot's two passes in one)."""
+    rows, n = x.shape
+    for r in range(rows):
+        m = means[r]
+        for i in range(n):
+            out[r, i] = (x[r, i] - m) * window[i]
+
+
+@njit(cache=True)
 def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
     """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra; returns ``(Σ P11.real, Σ P22.real)``."""
     k = X.shape[1]
@@ -144,21 +154,38 @@ def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):
 
 
 @njit(cache=True)
-def _smooth(src, valid, lo, hi, coef, starts, hs, vs):  # type: ignore[no-untyped-def]
+def _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib):  # type: ignore[no-untyped-def]
     """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
 
-    Each output bin sums its window in order ``j = 0 … w−1``; the loop runs over
-    the bins innermost (independent sums, no chain of dependent adds)."""
+    Each output bin sums its window in order ``j = 0 … w−1``. The rows ``ia … ib−1``
+    (the interior, ``starts[i] = starts[ia] + i − ia``) run as ``w`` contiguous
+    passes over the bins (``coef_t`` = ``coef`` transposed), the edge rows one by one."""
     w = coef.shape[1]
     m = hi - lo
     re = np.zeros(m)
     im = np.zeros(m)
-    for j in range(w):
-        for i in range(m):
-            x = src[starts[i] + j]
-            cj = coef[i, j]
-            re[i] += cj * x.real
-            im[i] += cj * x.imag
+    if ib > ia:
+        s0 = starts[ia]
+        cnt = ib - ia
+        for j in range(w):
+            cr = coef_t[j, ia:ib]
+            x = src[s0 + j : s0 + j + cnt]
+            rr = re[ia:ib]
+            ii = im[ia:ib]
+            for i in range(cnt):
+                rr[i] += cr[i] * x[i].real
+                ii[i] += cr[i] * x[i].imag
+    for i in range(m):
+        if ia <= i < ib:
+            continue
+        st = starts[i]
+        a = 0.0
+        b = 0.0
+        for j in range(w):
+            a += coef[i, j] * src[st + j].real
+            b += coef[i, j] * src[st + j].imag
+        re[i] = a
+        im[i] = b
     a = starts[0]
     b = starts[m - 1] + w
     bad = np.zeros(b - a + 1, dtype=np.intp)  # invalid raw bins before each position
@@ -263,7 +290,7 @@ def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_id
 @njit(cache=True)
 def post_fft(  # type: ignore[no-untyped-def]
     X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
-    lo, hi, coef, starts, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+    lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
 ):
     """Stages 1–4 (module doc) in one call. ``stats`` ← (valid count on the slice, valid smoothed
     bins, peaks found, floor)."""
@@ -271,7 +298,7 @@ def post_fft(  # type: ignore[no-untyped-def]
     mean_power = (s11 + s22) / (2 * n_bins)
     floor = power_floor * mean_power + _TINY
     n_sl_valid = _solve_tot(state, s0, s1, floor, det_threshold, dominant, src, valid, mode)
-    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs)
+    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib)
     nf = _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom)
     stats[0] = n_sl_valid
     stats[1] = n_valid
@@ -282,7 +309,7 @@ def post_fft(  # type: ignore[no-untyped-def]
 @njit(cache=True)
 def step(  # type: ignore[no-untyped-def]
     X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
-    lo, hi, coef, starts, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+    lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
     do_poles, on_smoothed, f_sl, f_range, relocate, fwhm_exact, pinv, r_max,
     m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
 ):
@@ -290,7 +317,7 @@ def step(  # type: ignore[no-untyped-def]
     (``on_smoothed``) or the solved spectrum."""
     post_fft(
         X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
-        lo, hi, coef, starts, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+        lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
     )
     nf = int(stats[2])
     if not do_poles or nf == 0:
@@ -312,6 +339,10 @@ def warm_up() -> None:
     """Compile (or load from numba's cache) :func:`step` with the types the identifier passes."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
+    ring = rng.standard_normal((4, 2 * (2 * k - 2)))
+    hist = ring[:, 3 : 3 + 2 * k - 2]  # a view into the history's ring buffer, as HistoryBuffer.view()
+    hist.flags.writeable = False
+    detrend_window(hist, hist @ np.ones(2 * k - 2), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
     tri = np.zeros((2, 1, 3), dtype=np.intp)
@@ -322,6 +353,7 @@ def warm_up() -> None:
                 X, 1.0, state, k, 1e-12, 0, k, 1e-3, True,
                 np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
                 10, 10 + n_range, np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp),
+                np.ones((3, n_range)) / 3.0, 0, n_range,
                 np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range), True,
                 1.0, 2, np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(2, dtype=np.intp),
                 np.zeros(2), np.zeros(4),
