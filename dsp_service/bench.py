@@ -211,7 +211,8 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
         floor = float(idf._k_stats[3])
         n_valid, nf = int(idf._k_stats[1]), int(idf._k_stats[2])
         state = avg.state.copy()
-        x = idf.history.view()
+        hb = idf.history
+        x = hb._buf[:, hb._head : hb._head + hb._n]
         for i in range(start, stop):
             t0 = perf()
             K.detrend_window(x, x @ est._ones_over_n, est.window, est._tmp)
@@ -219,7 +220,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["fft"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._accumulate(est.ffts, 1.0, state)
+            K._accumulate(est.ffts.view(np.float64), 1.0, state.view(np.float64))
             t["average"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()

@@ -435,6 +435,9 @@ class Identifier:
                 self._k_ia = self._k_ib = 0
         else:
             self._k_ia = self._k_ib = 0
+        self._k_ffts_f = self._est.ffts.view(np.float64)  # (re, im) float views for the averaging
+        self._k_state_f = self._avg.state.view(np.float64)
+        self._k_zeros_f = np.zeros_like(self._k_ffts_f)
         self._k_hs = np.empty(n_range, dtype=np.complex128)
         self._k_vs = np.empty(n_range, dtype=bool)
         self._k_w = self._w_lin if self._w_lin is not None else np.ones(n_range)
@@ -651,19 +654,20 @@ class Identifier:
         est = self._est
         if new:
             weight = avg.next_weight()
-            x = hist.view()
+            x = hist._buf[:, hist._head : hist._head + hist._n]  # hist.view() without its read-only flag
             # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
             self._k_detrend(x, x @ est._ones_over_n, est.window, est._tmp)
-            X = rfft_rows(est._tmp, est.ffts)
+            rfft_rows(est._tmp, est.ffts)
+            X = self._k_ffts_f
             avg.account(self._pending)
             self._pending = 0
         else:  # no new snapshot: solve the averages as they are
-            X = self._k_zero_ffts()
+            X = self._k_zeros_f
             weight = 0.0
         stats, vrm, out = self._k_stats, self._vrm, self._k_out
         on_smoothed, do_poles = c.estimate_on_smoothed, self._k_do_poles
         self._k_step(
-            X, weight, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
+            X, weight, self._k_state_f, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
             c.collinear == "dominant", solver.source, solver.valid, solver.mode,
             lo, hi, self._k_coef, self._k_starts, self._k_coef_t, self._k_ia, self._k_ib, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
             self._prom_ratio, c.max_peaks, self._v, self._k_order, self._k_idx, self._k_prom, stats,
@@ -726,12 +730,6 @@ class Identifier:
             samples_in_history=in_history,
             effective_averages=float(n_eff),
         )
-
-    def _k_zero_ffts(self) -> NDArray[np.complex128]:
-        z = getattr(self, "_k_zeros", None)
-        if z is None:
-            z = self._k_zeros = np.zeros((4, self._est.n_bins), dtype=np.complex128)
-        return z
 
     def _result(
         self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int

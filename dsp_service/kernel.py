@@ -76,26 +76,28 @@ def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
 
 @njit(cache=True)
 def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
-    """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra; returns ``(Σ P11.real, Σ P22.real)``."""
-    k = X.shape[1]
+    """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra; returns ``(Σ P11.real, Σ P22.real)``.
+
+    On float views (``X`` ``(4, 2K)``, ``state`` ``(7, 2K)``: (re, im) pairs), one row at a time."""
+    k = X.shape[1] // 2
+    for r in range(7):
+        i = 0 if r < 4 else 1
+        j = r if r < 4 else r - 3
+        xi = X[i]
+        xj = X[j]
+        st = state[r]
+        for b in range(k):
+            ur = xi[2 * b] * c
+            ui = -xi[2 * b + 1] * c
+            br = xj[2 * b]
+            bi = xj[2 * b + 1]
+            st[2 * b] += _fma(ur, br, -(ui * bi))
+            st[2 * b + 1] += _fma(ur, bi, ui * br)
     s11 = 0.0
     s22 = 0.0
     for b in range(k):
-        u1 = X[0, b].conjugate() * c
-        u2 = X[1, b].conjugate() * c
-        x0 = X[0, b]
-        x1 = X[1, b]
-        x2 = X[2, b]
-        x3 = X[3, b]
-        state[0, b] += _cmul(u1, x0)  # P11
-        state[1, b] += _cmul(u1, x1)  # P12
-        state[2, b] += _cmul(u1, x2)  # P1y1
-        state[3, b] += _cmul(u1, x3)  # P1y2
-        state[4, b] += _cmul(u2, x1)  # P22
-        state[5, b] += _cmul(u2, x2)  # P2y1
-        state[6, b] += _cmul(u2, x3)  # P2y2
-        s11 += state[0, b].real
-        s22 += state[4, b].real
+        s11 += state[0, 2 * b]
+        s22 += state[4, 2 * b]
     return s11, s22
 
 
@@ -289,12 +291,12 @@ def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_id
 
 @njit(cache=True)
 def post_fft(  # type: ignore[no-untyped-def]
-    X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+    X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
     lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
 ):
     """Stages 1–4 (module doc) in one call. ``stats`` ← (valid count on the slice, valid smoothed
     bins, peaks found, floor)."""
-    s11, s22 = _accumulate(X, c, state)
+    s11, s22 = _accumulate(X, c, state_f)
     mean_power = (s11 + s22) / (2 * n_bins)
     floor = power_floor * mean_power + _TINY
     n_sl_valid = _solve_tot(state, s0, s1, floor, det_threshold, dominant, src, valid, mode)
@@ -308,7 +310,7 @@ def post_fft(  # type: ignore[no-untyped-def]
 
 @njit(cache=True)
 def step(  # type: ignore[no-untyped-def]
-    X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+    X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
     lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
     do_poles, on_smoothed, f_sl, f_range, relocate, fwhm_exact, pinv, r_max,
     m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
@@ -316,7 +318,7 @@ def step(  # type: ignore[no-untyped-def]
     """:func:`post_fft`, then (``do_poles``) :func:`poles` of the peaks found, on the smoothed
     (``on_smoothed``) or the solved spectrum."""
     post_fft(
-        X, c, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+        X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
         lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
     )
     nf = int(stats[2])
@@ -340,8 +342,7 @@ def warm_up() -> None:
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
-    hist = ring[:, 3 : 3 + 2 * k - 2]  # a view into the history's ring buffer, as HistoryBuffer.view()
-    hist.flags.writeable = False
+    hist = ring[:, 3 : 3 + 2 * k - 2]  # a slice of the history's ring buffer, as the identifier passes it
     detrend_window(hist, hist @ np.ones(2 * k - 2), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
@@ -350,7 +351,7 @@ def warm_up() -> None:
     for do_poles in (True, False):
         for _ in range(3):
             step(
-                X, 1.0, state, k, 1e-12, 0, k, 1e-3, True,
+                X.view(np.float64), 1.0, state.view(np.float64), state, k, 1e-12, 0, k, 1e-3, True,
                 np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
                 10, 10 + n_range, np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp),
                 np.ones((3, n_range)) / 3.0, 0, n_range,
