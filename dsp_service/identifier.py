@@ -201,11 +201,13 @@ class IdentifierConfig(pydantic.BaseModel):
         6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
     )
     kernel: Literal["numpy", "numba"] = pydantic.Field(
-        "numpy",
-        description="'numba': averaging, H_tot solve, smoothing and peak search after the FFTs in one "
-        "compiled call (dsp_service.kernel; same results to rounding), for the ETFE with exponential or "
-        "linear averaging, one window per snapshot, the 'mimo' solver and peak_source 'tot' (other "
-        "settings use the numpy path). 'numpy': the reference path.",
+        "numba",
+        description="'numba' (default): detrend/window, averaging, H_tot solve, smoothing, peak search and "
+        "the poles' refinement, FWHM and VRM in compiled code (dsp_service.kernel; the same results as "
+        "the numpy path to rounding, tested to 1e-12), for the ETFE with exponential or linear averaging, "
+        "one window per snapshot, the 'mimo' solver and peak_source 'tot' (other settings, and the "
+        "rational fit's pole stage, use the numpy path). Compiled (or loaded from numba's cache) when the "
+        "Identifier is built. 'numpy': the reference path.",
     )
 
     @pydantic.model_validator(mode="before")
