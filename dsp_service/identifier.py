@@ -704,34 +704,38 @@ class Identifier:
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
         pole_list = []
+        new = object.__new__
         for (_, prom), (f_peak, m_peak, zf, _ok, fn, zv) in zip(peaks, out[:nf].tolist()):
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
             zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
-            pole_list.append(
-                PoleEstimate(
-                    frequency_hz=f_peak,
-                    damping_ratio=chosen if chosen is not None else 0.0,
-                    damping_fwhm=zeta_fwhm,
-                    damping_vrm=zeta_vrm,
-                    natural_frequency_vrm_hz=fn_vrm,
-                    magnitude=m_peak,
-                    prominence_db=prom,
-                    source=source,
-                    damping_defined=chosen is not None,
-                    confidence=float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
-                    damping_fit=None,
-                )
+            # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
+            pole = new(PoleEstimate)
+            pole.__dict__.update(
+                frequency_hz=f_peak,
+                damping_ratio=chosen if chosen is not None else 0.0,
+                damping_fwhm=zeta_fwhm,
+                damping_vrm=zeta_vrm,
+                natural_frequency_vrm_hz=fn_vrm,
+                magnitude=m_peak,
+                prominence_db=prom,
+                source=source,
+                damping_defined=chosen is not None,
+                confidence=float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
+                damping_fit=None,
             )
+            pole_list.append(pole)
         conf = base * peaks[0][1] / (peaks[0][1] + p0) if confident else 0.0
-        return IdentificationResult(
+        result = new(IdentificationResult)
+        result.__dict__.update(
             poles=tuple(pole_list),
             confidence=float(min(1.0, max(0.0, conf))),
             valid_fraction=valid_fraction,
             samples_in_history=in_history,
             effective_averages=float(n_eff),
         )
+        return result
 
     def _result(
         self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int

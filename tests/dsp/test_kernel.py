@@ -111,3 +111,20 @@ def test_compiled_step_masks_a_silent_input_like_the_reference() -> None:
 def test_other_settings_fall_back_to_the_numpy_path() -> None:
     for cfg in ({"welch_segments": 3}, {"averaging": "rls"}, {"solver": "uncorrelated"}, {"peak_source": "11"}):
         assert not Identifier(IdentifierConfig(kernel="numba", **cfg))._fused
+
+
+def test_compiled_step_returns_ordinary_result_objects() -> None:
+    """The fused step builds its PoleEstimate / IdentificationResult without __init__: they must be
+    indistinguishable from constructed ones (fields, equality, frozen)."""
+    import dataclasses
+
+    _, u, y = dataset(24 * N, seed=3)
+    idf = Identifier(IdentifierConfig(fft_width=N, kernel="numba"))
+    for s in range(0, u.shape[1], N // 4):
+        idf.push(u[:, s : s + N // 4], y[:, s : s + N // 4])
+        r = idf.step()
+    assert r.poles
+    rebuilt = dataclasses.replace(r, poles=tuple(dataclasses.replace(p) for p in r.poles))
+    assert rebuilt == r and [dataclasses.asdict(p) for p in r.poles] == [dataclasses.asdict(p) for p in rebuilt.poles]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        r.poles[0].frequency_hz = 1.0  # type: ignore[misc]
