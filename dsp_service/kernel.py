@@ -1,24 +1,32 @@
-"""The fused post-FFT kernel of one identification step (``IdentifierConfig.kernel = 'numba'``).
+"""The compiled identification step (``IdentifierConfig.kernel = 'numba'``, the default).
 
-One compiled call does, after the four FFTs, what the numpy reference path
-(:mod:`.spectra`, :mod:`.mimo`, :mod:`.smoothing`, :meth:`.Identifier._find_peaks`)
-does in about fifty small numpy calls:
+:func:`detrend_window` (before the FFTs) and one call of :func:`step` (after
+them) do what the numpy reference path (:mod:`.spectra`, :mod:`.mimo`,
+:mod:`.smoothing`, :mod:`.modal`, :meth:`.Identifier._find_peaks`,
+:meth:`.Identifier._poles`) does in about seventy small numpy calls:
 
-1. the exponential average of the seven raw spectra, ``S' += c·conj(U_i)·X_j``
-   (all bins; the sums of ``P11``, ``P22`` for the power floor in the same pass);
-2. the corrected 2×2 ``H_tot`` solve on the solved slice, with its mask and,
-   for the collinear bins, the dominant-direction (rank-1) solve (:mod:`.mimo`);
-3. the Savitzky–Golay smoothing of ``H_tot`` over the search range (one
-   coefficient row per output bin, the interior and edge rows of
-   :class:`.smoothing.FrequencySmoother`) and the smoothed-bin validity;
+1. the exponential (or linear) average of the seven raw spectra,
+   ``S' += c·conj(U_i)·X_j`` over all bins, with the sums of ``P11``, ``P22``
+   for the power floor;
+2. the corrected 2×2 ``H_tot`` solve on the solved slice, its mask and, for
+   the collinear bins, the dominant-direction (rank-1) solve (:mod:`.mimo`);
+3. the Savitzky–Golay smoothing of ``H_tot`` over the search range (the
+   interior and edge rows of :class:`.smoothing.FrequencySmoother`) and the
+   smoothed-bin validity;
 4. the peak search on the linear weighted magnitude: scipy's local maxima,
-   prominence bases by scipy's walk, highest first (:func:`.modal.find_modal_peaks`).
+   prominence bases by scipy's walk, highest first;
+5. per peak: relocation, the three-point and least-squares refinement,
+   FWHM (exact or [B.1]) and VRM (modal.VrmEstimator; not the rational fit).
 
-The arithmetic is the reference's, operation for operation, so results agree
-to rounding (sums are taken in another order: a few ulps); the tests compare
-both paths to 1e-12. The refinement, FWHM and VRM of the (at most
-``max_peaks``) poles stay on the numpy path. Compiled with ``cache=True``;
-:func:`warm_up` compiles (or loads) it before the first batch.
+The arithmetic is the reference's operation for operation, including how
+numpy rounds complex products (fused multiply-adds), ``|z|`` and complex
+division on this kind of CPU, so the averaged spectra and ``H_tot`` are
+bit-identical to the numpy path; sums over the power floor, the smoothing
+windows, the least-squares refinement and the VRM triplets run in another
+order (a few ulps). The tests compare every output with the numpy path to
+1e-12. Compiled with ``cache=True``; :func:`warm_up` (called when the
+Identifier is built) compiles or loads everything with the types a step
+passes, so no batch pays compilation.
 """
 
 from __future__ import annotations
