@@ -20,7 +20,14 @@ same machine state:
   broadcast multiply (less than the issue's floor: for reference only).
 
 Timings alternate in blocks of ten (step, then each floor) so all see the
-same machine state.
+same machine state. The step is timed with the identifier's ``kernel``
+(``IdentifierConfig.kernel``: the compiled ``'numba'`` step or the numpy
+reference); ``step_numpy_p50_us`` is the numpy reference in the same blocks.
+
+:func:`bench_stages` splits the compiled step into its stages (each timed
+alone on the same state, interleaved), :func:`bench_sizes` gives floor, step
+and ratio for several N. Ratios are measured in one run on whatever machine
+runs them: never a timed assertion.
 
 The data are seeded random inputs, and outputs made of the inputs through
 two lightly damped resonances plus noise, so the peak and damping stages do
@@ -61,22 +68,11 @@ def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndar
     return u, y
 
 
-def bench_identifier(n: int = 2048, repeats: int = 200) -> dict[str, float | int]:
-    """p50/p99 (µs) of one identification step and of the numpy floor, and their ratios.
-
-    Returns keys: ``n``, ``repeats``, ``step_p50_us``, ``step_p99_us``,
-    ``floor_p50_us``, ``floor_p99_us``, ``floor_unbatched_p50_us``,
-    ``floor_numpy_p50_us``, ``floor_fused_p50_us``, ``ratio_p50``
-    (step/floor), ``ratio_p99``, ``c40_fraction`` (step p50 / 100 ms),
-    ``poles_found`` (poles in the last step, to show the damping stages ran).
-    """
-    if repeats < 1:
-        raise ValueError("repeats must be >= 1")
-    cfg = IdentifierConfig(fft_width=n)
+def _warmed(n: int, repeats: int, kernel: str) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
+    """An identifier at FFT width ``n`` after the warm-up snapshots, its data and the next position."""
+    cfg = IdentifierConfig(fft_width=n, kernel=kernel)  # type: ignore[arg-type]
     idf = Identifier(cfg)
     u, y = _bench_data(n, repeats, cfg.sample_rate_hz)
-    # warm-up: 30 half-overlapping snapshots build independent averages, so the
-    # timed steps find valid bins and peaks and run the damping estimators
     half = n // 2
     idf.push(u[:, :half], y[:, :half])
     pos = half
@@ -84,6 +80,28 @@ def bench_identifier(n: int = 2048, repeats: int = 200) -> dict[str, float | int
         idf.push(u[:, pos : pos + half], y[:, pos : pos + half])
         pos += half
         idf.step()
+    return idf, u, y, pos
+
+
+def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -> dict[str, float | int]:
+    """p50/p99 (µs) of one identification step and of the numpy floor, and their ratios.
+
+    Returns keys: ``n``, ``repeats``, ``step_p50_us``, ``step_p99_us``,
+    ``floor_p50_us``, ``floor_p99_us``, ``floor_unbatched_p50_us``,
+    ``floor_numpy_p50_us``, ``floor_fused_p50_us``, ``ratio_p50``
+    (step/floor), ``ratio_p99``, ``c40_fraction`` (step p50 / 100 ms),
+    ``poles_found`` (poles in the last step, to show the damping stages ran),
+    ``kernel``, and ``step_numpy_p50_us`` / ``ratio_numpy_p50``: the numpy
+    reference step in the same blocks.
+    """
+    if repeats < 1:
+        raise ValueError("repeats must be >= 1")
+    # warm-up: 30 half-overlapping snapshots build independent averages, so the
+    # timed steps find valid bins and peaks and run the damping estimators
+    idf, u, y, pos = _warmed(n, repeats, kernel)
+    ref, _, _, _ = _warmed(n, repeats, "numpy")
+    ref_pos = pos
+    ref_t = np.empty(repeats)
     data = np.vstack([u[:, :n], y[:, :n]])  # the floor's input (contents do not matter)
     rows = [np.ascontiguousarray(data[c]) for c in range(4)]
     perf = time.perf_counter
@@ -104,6 +122,12 @@ def bench_identifier(n: int = 2048, repeats: int = 200) -> dict[str, float | int
             t0 = perf()
             result = idf.step()
             step_t[i] = perf() - t0
+        for i in range(start, stop):
+            ref.push(u[:, ref_pos : ref_pos + _BATCH], y[:, ref_pos : ref_pos + _BATCH])
+            ref_pos += _BATCH
+            t0 = perf()
+            ref.step()
+            ref_t[i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
             X = rfft_rows(data)
@@ -142,10 +166,112 @@ def bench_identifier(n: int = 2048, repeats: int = 200) -> dict[str, float | int
         "ratio_p99": s99 / f99,
         "c40_fraction": s50 / C40_STEP_US,
         "poles_found": len(result.poles) if result is not None else 0,
+        "kernel": kernel,  # type: ignore[dict-item]
+        "step_numpy_p50_us": float(np.percentile(ref_t, 50)) * 1e6,
+        "ratio_numpy_p50": float(np.percentile(ref_t, 50)) * 1e6 / f50,
     }
+
+
+SIZES = (512, 1024, 2048, 4096, 8192)
+
+
+def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[dict[str, float | int]]:
+    """:func:`bench_identifier` (compiled step, numpy reference and floor) at each FFT width."""
+    return [bench_identifier(n, repeats) for n in sizes]
+
+
+def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
+    """p50 (µs) of each stage of the compiled step at FFT width ``n``, and of the whole step.
+
+    Stages, each timed alone on the identifier's current state (interleaved
+    with the step, blocks of ten): ``fft`` (detrend, window, the four real
+    FFTs), ``average`` (the seven spectra into the averages), ``solve``
+    (the H_tot solve, dominant branch), ``smooth`` (Savitzky–Golay and
+    validity over the search range), ``peaks`` (the peak search), ``poles``
+    (refinement, FWHM, VRM); ``python`` is the step minus their sum (the
+    Identifier's glue: result objects, confidences, call overhead); and the
+    bench's ``floor``.
+    """
+    from . import kernel as K
+
+    idf, u, y, pos = _warmed(n, repeats, "numba")
+    c, avg, est, sv, sl, vrm = idf.cfg, idf._avg, idf._est, idf._solver, idf._sl, idf._vrm
+    data = np.vstack([u[:, :n], y[:, :n]])
+    names = ("step", "fft", "average", "solve", "smooth", "peaks", "poles", "floor")
+    t = {k: np.empty(repeats) for k in names}
+    perf = time.perf_counter
+    for start in range(0, repeats, _BLOCK):
+        stop = min(start + _BLOCK, repeats)
+        for i in range(start, stop):
+            idf.push(u[:, pos : pos + _BATCH], y[:, pos : pos + _BATCH])
+            pos += _BATCH
+            t0 = perf()
+            idf.step()
+            t["step"][i] = perf() - t0
+        floor = float(idf._k_stats[3])
+        n_valid, nf = int(idf._k_stats[1]), int(idf._k_stats[2])
+        state = avg.state.copy()
+        hb = idf.history
+        x = hb._buf[:, hb._head : hb._head + hb._n]
+        for i in range(start, stop):
+            t0 = perf()
+            K.detrend_window(x, x @ est._ones_over_n, est.window, est._tmp)
+            rfft_rows(est._tmp, est.ffts)
+            t["fft"][i] = perf() - t0
+        for i in range(start, stop):
+            t0 = perf()
+            K._accumulate(est.ffts.view(np.float64), 1.0, state.view(np.float64))
+            t["average"][i] = perf() - t0
+        for i in range(start, stop):
+            t0 = perf()
+            K._solve_tot(avg.state, sl.start, sl.stop, floor, c.det_threshold, True, sv.source, sv.valid, sv.mode)
+            t["solve"][i] = perf() - t0
+        for i in range(start, stop):
+            t0 = perf()
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs,
+                      idf._k_coef_t, idf._k_ia, idf._k_ib)
+            t["smooth"][i] = perf() - t0
+        for i in range(start, stop):
+            t0 = perf()
+            K._peaks(idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio,
+                     c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom)
+            t["poles"][i] = 0.0
+            t["peaks"][i] = perf() - t0
+        src, vd = sv.source[sl], sv.valid[sl]
+        for i in range(start, stop):
+            t0 = perf()
+            K.poles(src, vd, True, idf._f_sl, idf._lo - sl.start, idf._k_idx, nf, idf._relocate, c.fwhm_exact,
+                    idf._k_pinv, idf._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
+                    vrm.model == "viscous", idf._k_tri, idf._k_ntri, idf._k_mag[: src.size], idf._k_out)
+            t["poles"][i] = perf() - t0
+        for i in range(start, stop):
+            t0 = perf()
+            X = rfft_rows(data)
+            products = [np.conj(X[a]) * X[b] for a, b in _PAIRS]
+            t["floor"][i] = perf() - t0
+        del products
+    out = {k: float(np.percentile(v, 50)) * 1e6 for k, v in t.items()}
+    out["python"] = out["step"] - sum(out[k] for k in ("fft", "average", "solve", "smooth", "peaks", "poles"))
+    return out
+
+
+def format_report(rows: list[dict[str, float | int]], stages: dict[str, float]) -> str:
+    """The size table and the stage breakdown as text (µs, ratios to the floor of the same run)."""
+    lines = ["   N   floor us   step us  ratio   numpy step us  ratio"]
+    for r in rows:
+        lines.append(
+            f"{r['n']:>5} {r['floor_p50_us']:>9.1f} {r['step_p50_us']:>9.1f} {r['ratio_p50']:>6.2f}"
+            f" {r['step_numpy_p50_us']:>14.1f} {r['ratio_numpy_p50']:>6.2f}"
+        )
+    f = stages["floor"]
+    lines.append(f"stages at the bench's N (p50 us, / floor {f:.1f} us):")
+    for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step"):
+        lines.append(f"  {k:<8} {stages[k]:>8.1f}  {stages[k] / f:>5.2f}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":  # pragma: no cover
     import json
 
     print(json.dumps(bench_identifier(), indent=2))
+    print(format_report(bench_sizes(repeats=200), bench_stages(2048)))

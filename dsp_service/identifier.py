@@ -47,14 +47,20 @@ by ~80 % and shifts it by ~1.5 bins; VRM reads λ as a viscous mode
 
 Cost (see :mod:`.bench`): everything that depends only on the
 configuration (windows, frequency grids, weights, smoothing plan, views of
-the averaged spectra) is prepared in ``_build``; a step is then about
+the averaged spectra) is prepared in ``_build``. With ``kernel='numba'``
+(the default) a step is the channel means (one BLAS product), one compiled
+detrend/window pass, the four FFTs and one compiled call
+(:func:`.kernel.step`: averaging, the ``H_tot`` solve with its dominant
+branch, smoothing, peak search, refinement, FWHM and VRM), compiled when the
+Identifier is built. ``kernel='numpy'`` is the reference path: about
 seventy numpy calls on arrays of at most a few thousand elements, none in
 a per-bin Python loop, with no ``np.errstate`` (the arithmetic is
 arranged so that masked or degenerate bins never divide by zero). The
 peak search ranks the linear weighted magnitude ``|H|·w`` (the same order,
 maxima and prominence bases as ``20 log10|H| + w_dB``, without the
 logarithms) and reads prominences highest maximum first; VRM solves the
-triplets of all peaks in one pass.
+triplets of all peaks in one pass. Both paths give the same results to
+rounding (tests/dsp/test_kernel.py: 1e-12 on every output).
 """
 
 from __future__ import annotations
@@ -90,6 +96,7 @@ from .spectra import (
     SegmentedSpectralEstimator,
     SpectralAverager,
     SpectralEstimator,
+    rfft_rows,
     scale_spectra,
     welch_equivalent_averages,
 )
@@ -198,6 +205,15 @@ class IdentifierConfig(pydantic.BaseModel):
     )
     confidence_prominence_db: float = pydantic.Field(
         6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
+    )
+    kernel: Literal["numpy", "numba"] = pydantic.Field(
+        "numba",
+        description="'numba' (default): detrend/window, averaging, H_tot solve, smoothing, peak search and "
+        "the poles' refinement, FWHM and VRM in compiled code (dsp_service.kernel; the same results as "
+        "the numpy path to rounding, tested to 1e-12), for the ETFE with exponential or linear averaging, "
+        "one window per snapshot, the 'mimo' solver and peak_source 'tot' (other settings, and the "
+        "rational fit's pole stage, use the numpy path). Compiled (or loaded from numba's cache) when the "
+        "Identifier is built. 'numpy': the reference path.",
     )
 
     @pydantic.model_validator(mode="before")
@@ -373,6 +389,15 @@ class Identifier:
         self._smooth = self._smoother.range_plan(src, self._lo, self._hi)
         self._all_valid_range = np.ones(n_range, dtype=bool)
         self._all_valid_range.flags.writeable = False
+        self._fused = (
+            c.kernel == "numba"
+            and c.welch_segments == 1
+            and self._rls is None
+            and c.solver == "mimo"
+            and c.peak_source == "tot"
+        )
+        if self._fused:
+            self._build_fused(n_range)
         self._pending = 0
         self._arx: RecursiveArx | None = None
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
@@ -389,6 +414,69 @@ class Identifier:
                     max_poles=c.max_peaks,
                 )
             )
+
+    def _build_fused(self, n_range: int) -> None:
+        """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""
+        from . import kernel
+
+        sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
+        if sm.enabled:
+            h, w = sm.half, sm.window
+            rows = []
+            for i in range(lo, hi):
+                if i < h:
+                    rows.append(sm.edge_lo[i])
+                elif i >= k - h:
+                    rows.append(sm.edge_hi[i - (k - h)])
+                else:
+                    rows.append(sm.centre)
+            self._k_coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
+            self._k_starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
+        else:
+            self._k_coef = np.ones((n_range, 1))
+            self._k_starts = np.arange(lo, hi, dtype=np.intp)
+        self._k_coef_t = np.ascontiguousarray(self._k_coef.T)
+        steps = np.flatnonzero(np.diff(self._k_starts) == 1)  # consecutive rows of a sliding window
+        if steps.size:
+            self._k_ia, self._k_ib = int(steps[0]), int(steps[-1]) + 2
+            if not np.array_equal(self._k_starts[self._k_ia : self._k_ib], self._k_starts[self._k_ia] + np.arange(self._k_ib - self._k_ia)):
+                self._k_ia = self._k_ib = 0
+        else:
+            self._k_ia = self._k_ib = 0
+        self._k_ffts_f = self._est.ffts.view(np.float64)  # (re, im) float views for the averaging
+        self._k_state_f = self._avg.state.view(np.float64)
+        self._k_zeros_f = np.zeros_like(self._k_ffts_f)
+        self._k_hs = np.empty(n_range, dtype=np.complex128)
+        self._k_vs = np.empty(n_range, dtype=bool)
+        self._k_w = self._w_lin if self._w_lin is not None else np.ones(n_range)
+        self._k_order = np.empty(n_range, dtype=np.intp)
+        self._k_idx = np.empty(self.cfg.max_peaks, dtype=np.intp)
+        self._k_prom = np.empty(self.cfg.max_peaks)
+        self._k_stats = np.zeros(4)
+        self._k_step = kernel.step
+        self._k_detrend = kernel.detrend_window
+        # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
+        self._k_do_poles = self.cfg.damping_method != "fit"
+        ref, vrm = self._refiner, self._vrm
+        r_max = ref.r_max
+        self._k_pinv = np.zeros((r_max + 1, 3, 2 * r_max + 1))
+        for r, pinv in ref._pinv.items():
+            self._k_pinv[r, :, : 2 * r + 1] = pinv
+        tris = vrm._triplets
+        self._k_ntri = np.array([t.shape[0] for t in tris], dtype=np.intp)
+        self._k_tri = np.zeros((len(tris), max(1, int(self._k_ntri.max())), 3), dtype=np.intp)
+        for m, t in enumerate(tris):
+            self._k_tri[m, : t.shape[0]] = t
+        self._k_mag = np.empty(max(self._n_sl, n_range))
+        self._k_out = np.empty((self.cfg.max_peaks, 6))
+        kernel.warm_up()
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the compiled step; the constructor already does."""
+        if self._fused:
+            from . import kernel
+
+            kernel.warm_up()
 
     def set_fft_width(self, n: int) -> None:
         """Change N: zeroes the history and every average (as on the C40)."""
@@ -495,6 +583,8 @@ class Identifier:
         averaged; until the first average an empty result is returned.
         """
         c = self.cfg
+        if self._fused:
+            return self._step_fused()
         avg = self._avg
         hist = self.history
         if hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history):
@@ -538,6 +628,128 @@ class Identifier:
         else:
             poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
         valid_fraction = n_valid / vs.size
+        hist = self.history
+        in_history = hist.samples_in_history
+        fill = in_history / hist.n
+        conf = 0.0
+        if peaks and n_eff > 1.0:
+            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
+            prom = peaks[0][1]
+            conf = base * prom / (prom + c.confidence_prominence_db)
+            poles = tuple(
+                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
+                for p in poles
+            )
+        return IdentificationResult(
+            poles=poles,
+            confidence=float(min(1.0, max(0.0, conf))),
+            valid_fraction=valid_fraction,
+            samples_in_history=in_history,
+            effective_averages=float(n_eff),
+        )
+
+    def _step_fused(self) -> IdentificationResult:
+        """:meth:`_step_etfe` with stages 2–5 up to the peaks in one compiled call (:mod:`.kernel`)."""
+        c = self.cfg
+        avg = self._avg
+        hist = self.history
+        solver = self._solver
+        sl = self._sl
+        lo, hi = self._lo, self._hi
+        new = hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history)
+        if not new and avg.updates == 0:
+            return IdentificationResult((), 0.0, 0.0, hist.samples_in_history, 0.0)
+        est = self._est
+        if new:
+            weight = avg.next_weight()
+            x = hist._buf[:, hist._head : hist._head + hist._n]  # hist.view() without its read-only flag
+            # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
+            self._k_detrend(x, x @ est._ones_over_n, est.window, est._tmp)
+            rfft_rows(est._tmp, est.ffts)
+            X = self._k_ffts_f
+            avg.account(self._pending)
+            self._pending = 0
+        else:  # no new snapshot: solve the averages as they are
+            X = self._k_zeros_f
+            weight = 0.0
+        stats, vrm, out = self._k_stats, self._vrm, self._k_out
+        on_smoothed, do_poles = c.estimate_on_smoothed, self._k_do_poles
+        self._k_step(
+            X, weight, self._k_state_f, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
+            c.collinear == "dominant", solver.source, solver.valid, solver.mode,
+            lo, hi, self._k_coef, self._k_starts, self._k_coef_t, self._k_ia, self._k_ib, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
+            self._prom_ratio, c.max_peaks, self._v, self._k_order, self._k_idx, self._k_prom, stats,
+            do_poles, on_smoothed, self._f_sl, self._f_range, self._relocate, c.fwhm_exact, self._k_pinv,
+            self._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
+            vrm.model == "viscous", self._k_tri, self._k_ntri, self._k_mag, out,
+        )
+        n_sl_valid, n_valid, nf = int(stats[0]), int(stats[1]), int(stats[2])
+        solver._floor = float(stats[3])
+        solver.valid_count = n_sl_valid
+        n_range = self._k_vs.size
+        if nf == 0:
+            return self._result([], (), n_valid, n_range)
+        peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
+        if not do_poles:  # the rational fit: the numpy pole stage
+            if on_smoothed:
+                hs, vs = self._k_hs, self._k_vs
+                poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
+            else:
+                src_sl, valid_sl = solver.source[sl], solver.valid[sl]
+                poles = self._poles(
+                    peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, n_sl_valid == self._n_sl
+                )
+            return self._result(peaks, poles, n_valid, n_range)
+        # _result's confidences, computed before the poles are made
+        n_eff = self.effective_averages
+        valid_fraction = n_valid / n_range
+        in_history = hist.samples_in_history
+        p0 = c.confidence_prominence_db
+        confident = n_eff > 1.0
+        base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / hist.n) if confident else 0.0
+        vrm_first = c.damping_method == "vrm"
+        source = c.peak_source
+        pole_list = []
+        new = object.__new__
+        for (_, prom), (f_peak, m_peak, zf, _ok, fn, zv) in zip(peaks, out[:nf].tolist()):
+            zeta_fwhm = None if zf != zf else zf  # NaN: undefined
+            zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
+            first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
+            chosen = first if first is not None else second
+            # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
+            pole = new(PoleEstimate)
+            pole.__dict__.update(
+                frequency_hz=f_peak,
+                damping_ratio=chosen if chosen is not None else 0.0,
+                damping_fwhm=zeta_fwhm,
+                damping_vrm=zeta_vrm,
+                natural_frequency_vrm_hz=fn_vrm,
+                magnitude=m_peak,
+                prominence_db=prom,
+                source=source,
+                damping_defined=chosen is not None,
+                confidence=float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
+                damping_fit=None,
+            )
+            pole_list.append(pole)
+        conf = base * peaks[0][1] / (peaks[0][1] + p0) if confident else 0.0
+        result = new(IdentificationResult)
+        result.__dict__.update(
+            poles=tuple(pole_list),
+            confidence=float(min(1.0, max(0.0, conf))),
+            valid_fraction=valid_fraction,
+            samples_in_history=in_history,
+            effective_averages=float(n_eff),
+        )
+        return result
+
+    def _result(
+        self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int
+    ) -> IdentificationResult:
+        """The step's result with the confidences (module doc)."""
+        c = self.cfg
+        n_eff = self.effective_averages
+        valid_fraction = n_valid / n_range
         hist = self.history
         in_history = hist.samples_in_history
         fill = in_history / hist.n

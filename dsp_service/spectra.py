@@ -296,6 +296,15 @@ class SpectralAverager:
         self._sum_c2 += c * c
         self._sum_cl += c * float(new_samples)
 
+    def account(self, new_samples: int) -> None:
+        """:meth:`add`'s bookkeeping only, for a caller that added the weighted snapshot to
+        :attr:`state` itself (the compiled step, :mod:`.kernel`)."""
+        c = self._c
+        self.updates += 1
+        self._sum_c += c
+        self._sum_c2 += c * c
+        self._sum_cl += c * float(new_samples)
+
     def update(self, new: NDArray[np.complex128], new_samples: int) -> None:
         """Blend in one (unweighted) snapshot; ``new_samples`` = samples appended since the last one."""
         c = self.next_weight()

@@ -21,7 +21,18 @@ BATCH = 32
 G = (np.array([0.6, 0.3]), np.array([1.0, -0.2]))  # u2 = G(z) u1: dynamic, complex P12
 
 
+_KERNEL = {"kernel": "numba"}
+
+
+@pytest.fixture(params=["numba", "numpy"], autouse=True)
+def kernel(request: pytest.FixtureRequest) -> str:
+    """Every test of the module with the compiled step and with the numpy reference (through _run)."""
+    _KERNEL["kernel"] = request.param
+    return str(request.param)
+
+
 def _run(u: np.ndarray, y: np.ndarray, **cfg: object) -> Identifier:
+    cfg = {"kernel": _KERNEL["kernel"], **cfg}
     idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", **cfg))  # type: ignore[arg-type]
     for s in range(0, u.shape[1], BATCH):
         idf.push(u[:, s : s + BATCH], y[:, s : s + BATCH])

@@ -235,11 +235,12 @@ def _step_reference(idf: Identifier) -> list[tuple]:
     return [tuple(r) for r in out]
 
 
+@pytest.mark.parametrize("kernel", ["numpy", "numba"])
 @pytest.mark.parametrize("seed", [1, 3])
-def test_step_equals_its_definition_from_the_public_building_blocks(seed: int) -> None:
+def test_step_equals_its_definition_from_the_public_building_blocks(seed: int, kernel: str) -> None:
     n = 1024
     _, u, y = dataset(40 * n, seed=seed)
-    idf = Identifier(IdentifierConfig(fft_width=n))
+    idf = Identifier(IdentifierConfig(fft_width=n, kernel=kernel))  # type: ignore[arg-type]
     checked = with_vrm = 0
     for s in range(0, u.shape[1], n // 8):
         idf.push(u[:, s : s + n // 8], y[:, s : s + n // 8])

@@ -70,11 +70,12 @@ def test_single_snapshot_ffts_and_raw_spectra_match_scipy() -> None:
         np.testing.assert_allclose(ours, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
 
 
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
 @pytest.mark.parametrize("scaling", ["density", "spectrum"])
-def test_welch_averaged_spectra_and_h_match_scipy(scaling: str) -> None:
+def test_welch_averaged_spectra_and_h_match_scipy(scaling: str, kernel: str) -> None:
     segments = 12
     x = _data(N + (segments - 1) * (N // 2))
-    idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", smoothing_window=0))
+    idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", smoothing_window=0, kernel=kernel))  # type: ignore[arg-type]
     idf.push(x[:2, :N], x[2:, :N])
     idf.step()
     for s in range(N, x.shape[1], N // 2):

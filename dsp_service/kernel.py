@@ -1,0 +1,597 @@
+"""The compiled identification step (``IdentifierConfig.kernel = 'numba'``, the default).
+
+:func:`detrend_window` (before the FFTs) and one call of :func:`step` (after
+them) do what the numpy reference path (:mod:`.spectra`, :mod:`.mimo`,
+:mod:`.smoothing`, :mod:`.modal`, :meth:`.Identifier._find_peaks`,
+:meth:`.Identifier._poles`) does in about seventy small numpy calls:
+
+1. the exponential (or linear) average of the seven raw spectra,
+   ``S' += c·conj(U_i)·X_j`` over all bins, with the sums of ``P11``, ``P22``
+   for the power floor;
+2. the corrected 2×2 ``H_tot`` solve on the solved slice, its mask and, for
+   the collinear bins, the dominant-direction (rank-1) solve (:mod:`.mimo`);
+3. the Savitzky–Golay smoothing of ``H_tot`` over the search range (the
+   interior and edge rows of :class:`.smoothing.FrequencySmoother`) and the
+   smoothed-bin validity;
+4. the peak search on the linear weighted magnitude: scipy's local maxima,
+   prominence bases by scipy's walk, highest first;
+5. per peak: relocation, the three-point and least-squares refinement,
+   FWHM (exact or [B.1]) and VRM (modal.VrmEstimator; not the rational fit).
+
+The arithmetic is the reference's operation for operation, including how
+numpy rounds complex products (fused multiply-adds), ``|z|`` and complex
+division on this kind of CPU, so the averaged spectra and ``H_tot`` are
+bit-identical to the numpy path; sums over the power floor, the smoothing
+windows, the least-squares refinement and the VRM triplets run in another
+order (a few ulps). The tests compare every output with the numpy path to
+1e-12. Compiled with ``cache=True``; :func:`warm_up` (called when the
+Identifier is built) compiles or loads everything with the types a step
+passes, so no batch pays compilation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, types
+from numba.extending import intrinsic
+
+_TINY = float(np.finfo(np.float64).tiny)
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
+    """``a·b + c`` rounded once (LLVM ``fma``)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.fma(*args)
+
+    return sig, codegen
+
+
+# numpy's complex loops (its SIMD kernels on this kind of CPU) multiply with fused
+# multiply-adds and take |z| as l·sqrt(1 + (s/l)²): the same here, so that the
+# compiled step rounds exactly as the reference does (the 2×2 determinant of a
+# few averages cancels, so one ulp there would show as 1e-13 in a damping).
+@njit(cache=True, inline="always")
+def _cmul(a, b):  # type: ignore[no-untyped-def]
+    return complex(_fma(a.real, b.real, -(a.imag * b.imag)), _fma(a.real, b.imag, a.imag * b.real))
+
+
+@njit(cache=True, inline="always")
+def _cabs(z):  # type: ignore[no-untyped-def]
+    x = abs(z.real)
+    y = abs(z.imag)
+    big = x if x > y else y
+    small = y if x > y else x
+    if big == 0.0:
+        return 0.0
+    r = small / big
+    return big * math.sqrt(_fma(r, r, 1.0))
+
+
+@njit(cache=True)
+def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
+    """``out = (x − means[:, None]) · window`` (spectra.SpectralEstimator.snapshot's two passes in one)."""
+    rows, n = x.shape
+    for r in range(rows):
+        m = means[r]
+        for i in range(n):
+            out[r, i] = (x[r, i] - m) * window[i]
+
+
+@njit(cache=True)
+def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
+    """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra; returns ``(Σ P11.real, Σ P22.real)``.
+
+    On float views (``X`` ``(4, 2K)``, ``state`` ``(7, 2K)``: (re, im) pairs), one row at a time."""
+    k = X.shape[1] // 2
+    for r in range(7):
+        i = 0 if r < 4 else 1
+        j = r if r < 4 else r - 3
+        xi = X[i]
+        xj = X[j]
+        st = state[r]
+        for b in range(k):
+            ur = xi[2 * b] * c
+            ui = -xi[2 * b + 1] * c
+            br = xj[2 * b]
+            bi = xj[2 * b + 1]
+            st[2 * b] += _fma(ur, br, -(ui * bi))
+            st[2 * b + 1] += _fma(ur, bi, ui * br)
+    s11 = 0.0
+    s22 = 0.0
+    for b in range(k):
+        s11 += state[0, 2 * b]
+        s22 += state[4, 2 * b]
+    return s11, s22
+
+
+@njit(cache=True)
+def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):  # type: ignore[no-untyped-def]
+    """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count."""
+    count = 0
+    for b in range(s0, s1):
+        p11 = state[0, b].real
+        p22 = state[4, b].real
+        p12 = state[1, b]
+        prod = p11 * p22
+        a12 = _cabs(p12)
+        det = prod - a12 * a12
+        ok = det >= prod * det_threshold and p11 > floor and p22 > floor
+        if ok:
+            inv4 = 0.25 / det
+            A = state[2, b] + state[3, b]
+            B = state[5, b] + state[6, b]
+            d0 = complex(state[4, b].real - p12.real, state[4, b].imag + p12.imag)  # P22 − P21
+            d1 = state[0, b] - p12  # P11 − P12
+            out[b] = (_cmul(A, d0) + _cmul(B, d1)) * inv4
+            valid[b] = True
+            mode[b] = 2
+            count += 1
+            continue
+        out[b] = 0.0
+        valid[b] = False
+        mode[b] = 0
+        if not dominant or not (p11 + p22 > floor):
+            continue
+        # rank-1 minimum-norm solve along the dominant eigenvector (mimo.MimoSolver._dominant)
+        half = 0.5 * (p11 - p22)
+        disc = math.sqrt(half * half + (p12.real * p12.real + p12.imag * p12.imag))
+        sigma = 0.5 * (p11 + p22) + disc
+        if p11 >= p22:
+            v1 = complex(sigma - p22, 0.0)
+            v2 = p12.conjugate()
+        else:
+            v1 = p12
+            v2 = complex(sigma - p11, 0.0)
+        av1 = _cabs(v1)
+        av2 = _cabs(v2)
+        norm = math.sqrt(av1 * av1 + av2 * av2)
+        rn = 1.0 / norm
+        v1 = v1 * rn
+        v2 = v2 * rn
+        rs = 1.0 / sigma
+        c0 = (_cmul(v1.conjugate(), state[2, b]) + _cmul(v2.conjugate(), state[5, b])) * rs
+        c1 = (_cmul(v1.conjugate(), state[3, b]) + _cmul(v2.conjugate(), state[6, b])) * rs
+        out[b] = _cmul(0.25 * (v1 + v2), c0 + c1)
+        valid[b] = True
+        mode[b] = 1
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib):  # type: ignore[no-untyped-def]
+    """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
+
+    Each output bin sums its window in order ``j = 0 … w−1``. The rows ``ia … ib−1``
+    (the interior, ``starts[i] = starts[ia] + i − ia``) run as ``w`` contiguous
+    passes over the bins (``coef_t`` = ``coef`` transposed), the edge rows one by one."""
+    w = coef.shape[1]
+    m = hi - lo
+    re = np.zeros(m)
+    im = np.zeros(m)
+    if ib > ia:
+        s0 = starts[ia]
+        cnt = ib - ia
+        for j in range(w):
+            cr = coef_t[j, ia:ib]
+            x = src[s0 + j : s0 + j + cnt]
+            rr = re[ia:ib]
+            ii = im[ia:ib]
+            for i in range(cnt):
+                rr[i] += cr[i] * x[i].real
+                ii[i] += cr[i] * x[i].imag
+    for i in range(m):
+        if ia <= i < ib:
+            continue
+        st = starts[i]
+        a = 0.0
+        b = 0.0
+        for j in range(w):
+            a += coef[i, j] * src[st + j].real
+            b += coef[i, j] * src[st + j].imag
+        re[i] = a
+        im[i] = b
+    a = starts[0]
+    b = starts[m - 1] + w
+    bad = np.zeros(b - a + 1, dtype=np.intp)  # invalid raw bins before each position
+    for q in range(a, b):
+        bad[q - a + 1] = bad[q - a] + (0 if valid[q] else 1)
+    n_valid = 0
+    for i in range(m):
+        hs[i] = complex(re[i], im[i])
+        s = starts[i] - a
+        ok = bad[s + w] == bad[s]
+        vs[i] = ok
+        if ok:
+            n_valid += 1
+    return n_valid
+
+
+@njit(cache=True)
+def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom):  # type: ignore[no-untyped-def]
+    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many."""
+    size = hs.size
+    if size < 3 or n_valid == 0:
+        return 0
+    vmin = np.inf
+    for i in range(size):
+        a = _cabs(hs[i])
+        if a < _TINY:
+            a = _TINY
+        if weighted:
+            a *= w_lin[i]
+        v[i] = a
+        if vs[i] and a < vmin:
+            vmin = a
+    if n_valid < size:
+        for i in range(size):
+            if not vs[i]:
+                v[i] = vmin
+    # scipy.signal._peak_finding_utils._local_maxima_1d
+    m = 0
+    i = 1
+    last = size - 1
+    while i < last:
+        if v[i - 1] < v[i]:
+            ahead = i + 1
+            while ahead < last and v[ahead] == v[i]:
+                ahead += 1
+            if v[ahead] < v[i]:
+                order_buf[m] = (i + ahead - 1) // 2
+                m += 1
+                i = ahead
+        i += 1
+    nf = 0
+    if m:
+        idx = order_buf[:m].copy()
+        height = np.empty(m)
+        for q in range(m):
+            height[q] = v[idx[q]]
+        order = np.argsort(height, kind="mergesort")[::-1]  # highest first, ties: the later first
+        for q in range(m):
+            p = idx[order[q]]
+            hp = v[p]
+            lmin = hp
+            j = p
+            while j >= 0 and v[j] <= hp:
+                if v[j] < lmin:
+                    lmin = v[j]
+                j -= 1
+            rmin = hp
+            j = p
+            while j < size and v[j] <= hp:
+                if v[j] < rmin:
+                    rmin = v[j]
+                j += 1
+            base = lmin if lmin > rmin else rmin
+            if hp >= base * ratio:
+                found_idx[nf] = p
+                found_prom[nf] = 20.0 * math.log10(hp / base)
+                nf += 1
+                if nf == want:
+                    break
+    if nf:
+        return nf
+    g = 0
+    for i in range(1, size):
+        if v[i] > v[g]:
+            g = i
+    if g == 0 or g == size - 1:
+        return 0
+    lmin = v[0]
+    for i in range(g + 1):
+        if v[i] < lmin:
+            lmin = v[i]
+    rmin = v[g]
+    for i in range(g, size):
+        if v[i] < rmin:
+            rmin = v[i]
+    base = lmin if lmin > rmin else rmin
+    found_idx[0] = g
+    found_prom[0] = 20.0 * math.log10(v[g] / base)
+    return 1
+
+
+@njit(cache=True)
+def post_fft(  # type: ignore[no-untyped-def]
+    X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+    lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+):
+    """Stages 1–4 (module doc) in one call. ``stats`` ← (valid count on the slice, valid smoothed
+    bins, peaks found, floor)."""
+    s11, s22 = _accumulate(X, c, state_f)
+    mean_power = (s11 + s22) / (2 * n_bins)
+    floor = power_floor * mean_power + _TINY
+    n_sl_valid = _solve_tot(state, s0, s1, floor, det_threshold, dominant, src, valid, mode)
+    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib)
+    nf = _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom)
+    stats[0] = n_sl_valid
+    stats[1] = n_valid
+    stats[2] = nf
+    stats[3] = floor
+
+
+@njit(cache=True)
+def step(  # type: ignore[no-untyped-def]
+    X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+    lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+    do_poles, on_smoothed, f_sl, f_range, relocate, fwhm_exact, pinv, r_max,
+    m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
+):
+    """:func:`post_fft`, then (``do_poles``) :func:`poles` of the peaks found, on the smoothed
+    (``on_smoothed``) or the solved spectrum."""
+    post_fft(
+        X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
+        lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+    )
+    nf = int(stats[2])
+    if not do_poles or nf == 0:
+        return
+    if on_smoothed:
+        poles(
+            hs, vs, int(stats[1]) == hs.size, f_range, 0, found_idx, nf, relocate, fwhm_exact, pinv, r_max,
+            m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag[: hs.size], out,
+        )
+    else:
+        poles(
+            src[s0:s1], valid[s0:s1], int(stats[0]) == s1 - s0, f_sl, lo - s0, found_idx, nf, relocate,
+            fwhm_exact, pinv, r_max, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri,
+            mag[: s1 - s0], out,
+        )
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`step` with the types the identifier passes."""
+    k, n_range = 40, 20
+    rng = np.random.default_rng(0)
+    ring = rng.standard_normal((4, 2 * (2 * k - 2)))
+    hist = ring[:, 3 : 3 + 2 * k - 2]  # a slice of the history's ring buffer, as the identifier passes it
+    detrend_window(hist, hist @ np.ones(2 * k - 2), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
+    X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
+    state = np.zeros((7, k), dtype=np.complex128)
+    tri = np.zeros((2, 1, 3), dtype=np.intp)
+    tri[1, 0] = (-1, 0, 1)
+    for do_poles in (True, False):
+        for _ in range(3):
+            step(
+                X.view(np.float64), 1.0, state.view(np.float64), state, k, 1e-12, 0, k, 1e-3, True,
+                np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
+                10, 10 + n_range, np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp),
+                np.ones((3, n_range)) / 3.0, 0, n_range,
+                np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range), True,
+                1.0, 2, np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(2, dtype=np.intp),
+                np.zeros(2), np.zeros(4),
+                do_poles, not do_poles, np.arange(k, dtype=np.float64), np.arange(10.0, 10.0 + n_range), 1, True,
+                np.zeros((2, 3, 3)), 1, 1, 1.5, 0.5, 1.0, True, tri, np.array([0, 1], dtype=np.intp),
+                np.empty(k), np.empty((2, 6)),
+            )
+
+
+# ---------------------------------------------------------------------------
+# Stage 5: refinement, FWHM and VRM of the peaks (Identifier._poles, modal.py)
+# ---------------------------------------------------------------------------
+_SQRT_HALF = math.sqrt(0.5)
+_ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
+_SQRT2 = math.sqrt(2.0)
+
+
+@njit(cache=True, inline="always")
+def _cdiv(a, b):  # type: ignore[no-untyped-def]
+    """numpy's complex division (Smith's algorithm)."""
+    br = b.real
+    bi = b.imag
+    if abs(br) >= abs(bi):
+        rat = bi / br
+        scl = 1.0 / (br + bi * rat)
+        return complex((a.real + a.imag * rat) * scl, (a.imag - a.real * rat) * scl)
+    rat = br / bi
+    scl = 1.0 / (bi + br * rat)
+    return complex((a.real * rat + a.imag) * scl, (a.imag * rat - a.real) * scl)
+
+
+@njit(cache=True)
+def _refine_peak(mag, k):  # type: ignore[no-untyped-def]
+    if 0 < k < mag.size - 1:
+        a = math.log(max(mag[k - 1], _TINY))
+        b = math.log(max(mag[k], _TINY))
+        c = math.log(max(mag[k + 1], _TINY))
+        curv = a - 2.0 * b + c
+        if curv < 0.0:
+            d = min(0.5, max(-0.5, 0.5 * (a - c) / curv))
+            return d, b - 0.25 * (a - c) * d
+        return 0.0, b
+    return 0.0, math.log(max(mag[k], _TINY))
+
+
+@njit(cache=True)
+def _refine_ls(mag, k, r, pinv, r_max):  # type: ignore[no-untyped-def]
+    r = max(1, min(r, r_max, k, mag.size - 1 - k))
+    w = 2 * r + 1
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
+    for j in range(w):
+        yj = math.log(max(mag[k - r + j], _TINY))
+        c0 += pinv[r, 0, j] * yj
+        c1 += pinv[r, 1, j] * yj
+        c2 += pinv[r, 2, j] * yj
+    if not c2 < 0.0:
+        return 0.0, math.log(max(mag[k], _TINY))
+    d = min(float(r), max(-float(r), -0.5 * c1 / c2))
+    return d, c0 + c1 * d + c2 * d * d
+
+
+@njit(cache=True)
+def _half_power(mag, f0, df, k, peak_mag, vd, check):  # type: ignore[no-untyped-def]
+    """``(ok, f_left, f_right)`` (modal._half_power, 64 bins each side)."""
+    thr = peak_mag * _SQRT_HALF
+    size = mag.size
+    if k < 1 or k >= size - 1:
+        return False, 0.0, 0.0
+    lo = max(0, k - 64)
+    hi = min(size, k + 65)
+    i0 = -1
+    for i in range(k - 1, lo - 1, -1):
+        if mag[i] < thr:
+            i0 = i
+            break
+    j1 = -1
+    for i in range(k + 1, hi):
+        if mag[i] < thr:
+            j1 = i
+            break
+    if i0 < 0 or j1 < 0:
+        return False, 0.0, 0.0
+    if check and not (vd[i0] and vd[i0 + 1] and vd[j1 - 1] and vd[j1]):
+        return False, 0.0, 0.0
+    half = thr * thr
+    pa = mag[i0] * mag[i0]
+    pb = mag[i0 + 1] * mag[i0 + 1]
+    t = (half - pa) / (pb - pa) if pb != pa else 0.5
+    fl = f0 + (i0 + t) * df
+    i1 = j1 - 1
+    pa = mag[i1] * mag[i1]
+    pb = mag[i1 + 1] * mag[i1 + 1]
+    t = (half - pa) / (pb - pa) if pb != pa else 0.5
+    return True, fl, f0 + (i1 + t) * df
+
+
+@njit(cache=True)
+def _zeta_fwhm(bw, fp, exact):  # type: ignore[no-untyped-def]
+    if not exact:
+        return bw / (2.0 * fp)
+    rho = bw / fp
+    if not rho > 0.0:
+        return 0.0
+    if rho >= _SQRT2:
+        return _ZETA_MAX_HALF_POWER
+    c = 1.0 - 0.5 * rho * rho
+    return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(2.0 - c * c))))
+
+
+@njit(cache=True)
+def _vrm(hd, fd, vd, check, k, hw, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri):  # type: ignore[no-untyped-def]
+    """``(ok, f_n, ζ, used)`` of one peak (modal.VrmEstimator._plan and ._solve)."""
+    n = hd.size
+    h = max(1, int(np.rint(band_factor * hw)))
+    h = min(h, k, n - 1 - k)
+    if h >= 1 and check:
+        for i in range(k - h, k + h + 1):
+            if not vd[i]:
+                dist = abs(i - k) - 1
+                if dist < h:
+                    h = dist
+    if h < 1:
+        return False, 0.0, 0.0, 0
+    m = min(h, m_max)
+    s = max(1, int(np.rint(h / m)))
+    if m * s > h:
+        m = h // s
+    wr = 0.0
+    wi = 0.0
+    ws = 0.0
+    used = 0
+    for q in range(n_tri[m]):
+        a = k + s * tri[m, q, 0]
+        b = k + s * tri[m, q, 1]
+        c = k + s * tri[m, q, 2]
+        f2a = fd[a] * fd[a]
+        f2b = fd[b] * fd[b]
+        f2c = fd[c] * fd[c]
+        cab = f2c - f2a
+        bab = f2b - f2a
+        dba = hd[b] - hd[a]
+        dca = hd[c] - hd[a]
+        fb = f2b * cab
+        fc = f2c * bab
+        den = complex(dba.real * cab - dca.real * bab, dba.imag * cab - dca.imag * bab)
+        num = complex(dba.real * fb - dca.real * fc, dba.imag * fb - dca.imag * fc)
+        w = _cabs(den)
+        if w == 0.0:
+            continue
+        lam = _cdiv(num, den)
+        re = lam.real
+        im = lam.imag
+        if 0.0 < c_max < np.inf:
+            good = im <= re * c_max
+        else:
+            good = re > 0.0
+        if not (good and im > 0.0):
+            continue
+        wr += w * re
+        wi += w * im
+        ws += w
+        used += 1
+    if used == 0 or not ws > 0.0:
+        return False, 0.0, 0.0, used
+    re = wr / ws
+    im = wi / ws
+    if re <= 0.0:
+        fn, zeta = 0.0, 0.0
+    elif viscous:
+        mod = math.hypot(re, im)
+        fn, zeta = math.sqrt(mod), im / (mod + re)
+    else:
+        fn, zeta = math.sqrt(re), 0.5 * im / re
+    df = fd[1] - fd[0]
+    f_lo = fd[k - s * m] - 2.0 * df
+    f_hi = fd[k + s * m] + 2.0 * df
+    if f_lo <= fn <= f_hi and 0.0 < zeta <= zeta_max:
+        return True, fn, zeta, used
+    return False, 0.0, 0.0, used
+
+
+@njit(cache=True)
+def poles(  # type: ignore[no-untyped-def]
+    hd, vd, all_valid, fd, offset, idx, nf, relocate, fwhm_exact, pinv, r_max,
+    m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
+):
+    """Identifier._poles without the rational fit: ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
+    ok, f_n VRM or NaN, ζ_VRM or NaN) of peak ``i``; ``mag`` ← |hd|."""
+    size = hd.size
+    for i in range(size):
+        mag[i] = _cabs(hd[i])
+    f0 = fd[0]
+    df = fd[1] - f0
+    check = not all_valid
+    for p in range(nf):
+        k = idx[p] + offset
+        a = max(k - relocate, 0)
+        b = min(k + relocate + 1, size)
+        best = a
+        for i in range(a + 1, b):
+            if mag[i] > mag[best]:
+                best = i
+        k = best
+        d, lv = _refine_peak(mag, k)
+        fk = fd[k]
+        f_peak = fk + d * df
+        m_peak = math.exp(lv)
+        zeta_fwhm = np.nan
+        half_bins = 2.0
+        ok = all_valid or vd[k]
+        if ok:
+            found, fl, fr = _half_power(mag, f0, df, k, m_peak, vd, check)
+            if found:
+                bw = fr - fl
+                zeta_fwhm = _zeta_fwhm(bw, f_peak, fwhm_exact)
+                half_bins = 0.5 * bw / df
+                d, lv = _refine_ls(mag, k, int(np.rint(0.5 * half_bins)), pinv, r_max)
+                f_peak = fk + d * df
+                m_peak = math.exp(lv)
+        out[p, 0] = f_peak
+        out[p, 1] = m_peak
+        out[p, 2] = zeta_fwhm
+        out[p, 3] = 1.0 if ok else 0.0
+        out[p, 4] = np.nan
+        out[p, 5] = np.nan
+        if ok:
+            good, fn, zeta, _ = _vrm(hd, fd, vd, check, k, half_bins, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri)
+            if good:
+                out[p, 4] = fn
+                out[p, 5] = zeta
