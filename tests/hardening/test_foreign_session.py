@@ -112,7 +112,13 @@ def test_foreign_session_drives_nothing(tmp_path: Path) -> None:
     assert len(a) == len(b) == 1600
     qc, nc = a.metadata["result"]["counters"], b.metadata["result"]["counters"]
     # Nothing forged even reached the controller's inbox: the access rules dropped it at zenoh's level.
-    assert nc["in_dropped"] == 0 and nc["interrupts_unexpected"] == 0
+    # The one drop a run may count is the DSP's announcement flag that arrives before the
+    # controller's run-start reset (refused: no board is paired yet), in either run alike,
+    # depending on which service came up first.
+    for counters in (qc, nc):
+        assert counters.get("in_flag_refused", 0) <= 1
+        assert counters["in_dropped"] - counters.get("in_flag_refused", 0) == 0, counters
+    assert nc["interrupts_unexpected"] == 0
     assert not np.any(b["oatf_hz"] == 15.0) and not np.any(b["f_id_hz"] == 15.0)
     if qc["sync_retries"] == nc["sync_retries"] == 0 and qc["interrupts_lost"] == nc["interrupts_lost"] == 0:
         # Bit-identical records, unless the host was so loaded that lockstep itself lost its
