@@ -101,6 +101,23 @@ def _load_npz(path: Path) -> dict[str, np.ndarray] | None:
         return {k: data[k] for k in data.files}
 
 
+def _one_process_row(point: RunPoint, run_rig: Callable[..., Any], controller: dict[str, Any], plant: dict[str, Any], common: dict[str, Any]) -> dict[str, Any]:
+    """Run one rig in this process (``run_rig``: the co-simulation or the one-process
+    composition, the same signature), the plant's truth through a temporary file; its row."""
+    s = point.settings
+    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
+        truth_path = Path(tmp) / "truth.npz"
+        started = time.perf_counter()
+        run = run_rig(controller=controller, plant={**plant, "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
+        wall = time.perf_counter() - started
+        if run.result.error:
+            raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")
+        truth = _load_npz(truth_path)
+    columns = run.controller.record.to_columns()
+    period = 1.0 / float(s["controller"]["sample_rate_hz"])
+    return run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+
+
 @register_mode("cosim")
 def run_cosim_point(point: RunPoint) -> dict[str, Any]:
     """The three boards co-simulated in one thread (:mod:`rig.cosim`): bit-identical to the
@@ -109,17 +126,7 @@ def run_cosim_point(point: RunPoint) -> dict[str, Any]:
     from rig.cosim import run_cosim
 
     s = point.settings
-    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
-        truth_path = Path(tmp) / "truth.npz"
-        started = time.perf_counter()
-        run = run_cosim(controller=_own(s["controller"]), plant={**_own(s["plant"]), "record": str(truth_path)}, dsp=_own(s["dsp"]), common={"rig_id": point.rig_id})
-        wall = time.perf_counter() - started
-        if run.result.error:
-            raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")
-        truth = _load_npz(truth_path)
-    columns = run.controller.record.to_columns()
-    period = 1.0 / float(s["controller"]["sample_rate_hz"])
-    return run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+    return _one_process_row(point, run_cosim, _own(s["controller"]), _own(s["plant"]), {"rig_id": point.rig_id})
 
 
 @register_mode("lockstep")
@@ -138,17 +145,7 @@ def run_lockstep(point: RunPoint) -> dict[str, Any]:
     plant = _own(s["plant"])
     plant["watchdog_periods"] = max(int(plant["watchdog_periods"]), math.ceil(timeout_s * float(s["plant"]["sample_rate_hz"])))
     common = {"clock": "lockstep", "can_interface": "virtual", "can_channel": f"{point.rig_id}-{uuid.uuid4().hex[:6]}", "rig_id": point.rig_id}
-    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
-        truth_path = Path(tmp) / "truth.npz"
-        started = time.perf_counter()
-        run = run_in_process(controller=controller, plant={**plant, "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
-        wall = time.perf_counter() - started
-        if run.result.error:
-            raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")
-        truth = _load_npz(truth_path)
-    columns = run.controller.record.to_columns()
-    period = 1.0 / float(s["controller"]["sample_rate_hz"])
-    return run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+    return _one_process_row(point, run_in_process, controller, plant, common)
 
 
 @register_mode("onrig")
