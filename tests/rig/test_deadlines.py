@@ -74,7 +74,7 @@ def test_sync_frames_lost_on_the_bus_are_seen_as_counter_gaps() -> None:
     assert run.health["plant"].counters["sync_gaps"] == 8
 
 
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(400)
 def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_again(tmp_path: Path) -> None:
     plan = RigPlan.local(
         rig_id=f"kill-{uuid.uuid4().hex[:6]}",
@@ -83,7 +83,9 @@ def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_ag
     observer = RigObserver(plan)
     procs = {name: start_service(plan, name, tmp_path) for name in ("dsp", "plant", "controller")}
     try:
-        def wait_for(cond, timeout: float = 30.0) -> None:  # type: ignore[no-untyped-def]
+        # The waits are bounds for a loaded host, not figures: what is tested is that each
+        # event is noticed and the run goes on, not how fast (that is the bench's).
+        def wait_for(cond, timeout: float = 60.0) -> None:  # type: ignore[no-untyped-def]
             deadline = time.monotonic() + timeout
             while not cond():
                 assert time.monotonic() < deadline, {n: p.log_path.read_text()[-1500:] for n, p in procs.items()}
@@ -92,9 +94,9 @@ def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_ag
         wait_for(lambda: observer.status is not None and observer.status.interrupts >= 10)
         procs["dsp"].popen.send_signal(signal.SIGKILL)
         procs["dsp"].popen.wait()
-        wait_for(lambda: observer.health.get("controller") is not None and observer.health["controller"].counters.get("dsp_lost", 0) >= 1, 10)
+        wait_for(lambda: observer.health.get("controller") is not None and observer.health["controller"].counters.get("dsp_lost", 0) >= 1, 30)
         ticks_at_loss = observer.status.ticks  # type: ignore[union-attr]
-        wait_for(lambda: observer.status.ticks > ticks_at_loss + 200, 10)  # type: ignore[union-attr]
+        wait_for(lambda: observer.status.ticks > ticks_at_loss + 200, 30)  # type: ignore[union-attr]
         irq_before = observer.status.interrupts  # type: ignore[union-attr]
         procs["dsp"] = start_service(plan, "dsp", tmp_path / "restart")
         wait_for(lambda: observer.status.interrupts >= irq_before + 10)  # type: ignore[union-attr]
@@ -104,10 +106,10 @@ def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_ag
         # a frozen DSP (SIGSTOP) is noticed too, within the zenoh lease (RALF_ZENOH_LEASE_MS)
         procs["dsp"].popen.send_signal(signal.SIGSTOP)
         try:
-            wait_for(lambda: observer.health["controller"].counters.get("dsp_lost", 0) >= 2, 15)
+            wait_for(lambda: observer.health["controller"].counters.get("dsp_lost", 0) >= 2, 60)
         finally:
             procs["dsp"].popen.send_signal(signal.SIGCONT)
-        wait_for(lambda: observer.health["controller"].counters.get("dsp_found", 0) >= 3, 20)
+        wait_for(lambda: observer.health["controller"].counters.get("dsp_found", 0) >= 3, 60)  # generous: a loaded host reconnects slowly
     finally:
         codes = {name: stop_service(procs[name]) for name in ("controller", "plant", "dsp")}
         observer.close()
