@@ -69,7 +69,7 @@ import bisect
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pydantic
@@ -575,6 +575,32 @@ class Identifier:
         """The recursive ARX model (``method='arx'``), else None."""
         return self._arx
 
+
+    def _with_confidence(self, poles: tuple[PoleEstimate, ...], peaks: Any, n_eff: float, valid_fraction: float) -> IdentificationResult:
+        """The step's result: the overall confidence from the valid fraction, the
+        effective number of averages, the history's fill and the top peak's
+        prominence, and each pole's confidence from its own prominence (both
+        kernels share it, so their confidences agree by construction)."""
+        c = self.cfg
+        hist = self.history
+        in_history = hist.samples_in_history
+        fill = in_history / hist.n
+        conf = 0.0
+        if peaks and n_eff > 1.0:
+            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
+            prom = peaks[0][1]
+            conf = base * prom / (prom + c.confidence_prominence_db)
+            poles = tuple(
+                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
+                for p in poles
+            )
+        return IdentificationResult(
+            poles=poles,
+            confidence=float(min(1.0, max(0.0, conf))),
+            valid_fraction=valid_fraction,
+            samples_in_history=in_history,
+            effective_averages=float(n_eff),
+        )
     def _step_etfe(self) -> IdentificationResult:
         """One C40 iteration on the current history (see module doc).
 
@@ -628,25 +654,7 @@ class Identifier:
         else:
             poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
         valid_fraction = n_valid / vs.size
-        hist = self.history
-        in_history = hist.samples_in_history
-        fill = in_history / hist.n
-        conf = 0.0
-        if peaks and n_eff > 1.0:
-            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
-            prom = peaks[0][1]
-            conf = base * prom / (prom + c.confidence_prominence_db)
-            poles = tuple(
-                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
-                for p in poles
-            )
-        return IdentificationResult(
-            poles=poles,
-            confidence=float(min(1.0, max(0.0, conf))),
-            valid_fraction=valid_fraction,
-            samples_in_history=in_history,
-            effective_averages=float(n_eff),
-        )
+        return self._with_confidence(poles, peaks, n_eff, valid_fraction)
 
     def _step_fused(self) -> IdentificationResult:
         """:meth:`_step_etfe` with stages 2–5 up to the peaks in one compiled call (:mod:`.kernel`)."""
@@ -747,28 +755,9 @@ class Identifier:
         self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int
     ) -> IdentificationResult:
         """The step's result with the confidences (module doc)."""
-        c = self.cfg
         n_eff = self.effective_averages
         valid_fraction = n_valid / n_range
-        hist = self.history
-        in_history = hist.samples_in_history
-        fill = in_history / hist.n
-        conf = 0.0
-        if peaks and n_eff > 1.0:
-            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
-            prom = peaks[0][1]
-            conf = base * prom / (prom + c.confidence_prominence_db)
-            poles = tuple(
-                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
-                for p in poles
-            )
-        return IdentificationResult(
-            poles=poles,
-            confidence=float(min(1.0, max(0.0, conf))),
-            valid_fraction=valid_fraction,
-            samples_in_history=in_history,
-            effective_averages=float(n_eff),
-        )
+        return self._with_confidence(poles, peaks, n_eff, valid_fraction)
 
     def _find_peaks(
         self, hs: NDArray[np.complex128], vs: NDArray[np.bool_], n_valid: int
