@@ -11,7 +11,7 @@ import zenoh
 from controller.plant_link import PlantLink
 from controller.service import ControllerService
 from protocol.settings import ControllerSettings
-from protocol.transport import open_can_bus
+from service_kit.transport import open_can_bus
 from service_kit.runtime import build_or_config_error, run_service
 
 EXIT_PLANT_FAULT = 3

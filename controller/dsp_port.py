@@ -16,7 +16,7 @@ attachment=None)`` it hands to :meth:`DspPort.connect`: ``kind`` is
 ``flag``, ``interrupt``, ``command`` or ``alive`` (payload ``b"1"``/``b"0"``).
 ``payload`` is bytes or zenoh's payload as received (``len`` and
 ``to_bytes()``: the controller caps its size before copying a byte, see
-:mod:`protocol.inbox`); ``attachment`` is the sending board's id on flags
+:mod:`service_kit.inbox`); ``attachment`` is the sending board's id on flags
 and interrupts (the controller pairs with one board). The zenoh port calls
 the sink in zenoh's threads, so decoding happens at the edge.
 """
@@ -28,7 +28,7 @@ from typing import Protocol
 
 import zenoh
 
-from protocol.encodings import BATCH, JSON
+from service_kit.encodings import BATCH, JSON
 from protocol.keys import Keys
 from protocol.messages import Health
 from service_kit.runtime import HealthPublisher

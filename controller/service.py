@@ -44,7 +44,7 @@ from protocol.can_map import NmtCommand, NmtState
 from controller.record import ChunkedRecord, ColumnBuffer, RowCounter
 from protocol.batch_codec import encode_batch
 from protocol.errors import ProtocolError
-from protocol.inbox import MAX_BYTES, REFUSED, Inbox, Item
+from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
@@ -169,7 +169,7 @@ class ControllerService:
         """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._reset_sent = False
         """The run-start reset went out: the next flag pairs the controller with its board."""
-        self._events = Inbox("controller", capacity=256)  # decoded at the edge (zenoh's threads), bounded (protocol/inbox.py)
+        self._events = Inbox("controller", capacity=256)  # decoded at the edge (zenoh's threads), bounded (service_kit/inbox.py)
         self.paired_board: bytes | None = None
         """The DSP board (session id) this controller takes flags and interrupts from."""
         self._flags_seen = 0
@@ -215,7 +215,7 @@ class ControllerService:
 
     def _on_port_event(self, kind: str, payload: Any, arrival: float, attachment: Any = None) -> None:
         """The port's sink, called in its thread (zenoh's, for the zenoh port):
-        size-capped, decoded and checked here, then queued (protocol/inbox.py)."""
+        size-capped, decoded and checked here, then queued (service_kit/inbox.py)."""
         if kind == "alive":
             self._events.put("alive", payload == b"1", arrival)
             return

@@ -22,7 +22,7 @@ import logging
 from dataclasses import dataclass, field
 
 from protocol.batch_codec import SampleBatch
-from protocol.inbox import RateLimitedLog
+from service_kit.inbox import RateLimitedLog
 from protocol.messages import ConfigChange
 
 log = logging.getLogger(__name__)

@@ -29,7 +29,7 @@ import numpy as np
 from dsp_service.board import Admission, BatchBlock
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
 from protocol.batch_codec import SampleBatch
-from protocol.inbox import RateLimitedLog
+from service_kit.inbox import RateLimitedLog
 from protocol.messages import BlockFlag, ConfigAck, ConfigChange, Interrupt, PoleParameters, TfSnapshot, TransferFunction
 from protocol.settings import DspSettings
 

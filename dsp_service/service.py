@@ -23,9 +23,9 @@ import zenoh
 from dsp_service.board import Admission
 from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
-from protocol.encodings import JSON
+from service_kit.encodings import JSON
 from protocol.errors import ProtocolError
-from protocol.inbox import Inbox
+from service_kit.inbox import Inbox
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import DspSettings
@@ -72,7 +72,7 @@ class DspService:
         self.scheduler: Scheduler = scheduler or RealTimeScheduler()
         self.compute_time = LatencyTracker()
         self.turnaround = LatencyTracker()
-        self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (protocol/inbox.py)
+        self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
         self._held: _Held | None = None
         self._last_raised: Interrupt | None = None
         block = zenoh.CongestionControl.BLOCK

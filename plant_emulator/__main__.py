@@ -10,7 +10,7 @@ import zenoh
 
 from plant_emulator.service import serve
 from protocol.settings import PlantSettings
-from protocol.transport import open_can_bus
+from service_kit.transport import open_can_bus
 from service_kit.runtime import run_service
 
 log = logging.getLogger("plant")

@@ -32,7 +32,7 @@ import zenoh
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.node import CanopenNode, NodeConfig
-from protocol.encodings import JSON
+from service_kit.encodings import JSON
 from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode

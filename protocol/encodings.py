@@ -1,32 +1,29 @@
-"""zenoh encodings of the contract's payloads, so any zenoh tool (the REST
-plugin, ``z_sub``, a recorder) can tell what a sample carries without
-knowing the key:
+"""Encodings of the contract's payloads on zenoh, as the MIME strings any
+zenoh tool (the REST plugin, ``z_sub``, a recorder) reads off a sample, so it
+can tell what a sample carries without knowing the key:
 
 * every pydantic message (:mod:`protocol.messages`) travels as
-  :data:`JSON` (``application/json``);
-* a sample batch (:mod:`protocol.batch_codec`) as :data:`BATCH`
+  :data:`JSON_MIME` (``application/json``);
+* a sample batch (:mod:`protocol.batch_codec`) as :data:`BATCH_MIME`
   (``application/octet-stream;ralf-batch-v1``: binary, layout version 1).
 
-Publishers pass them at declaration, e.g.
-``session.declare_publisher(key, encoding=JSON)``; :func:`encoding_for`
-gives the one a key of the contract uses.
+The contract names them; :mod:`service_kit.encodings` turns them into zenoh
+encoding objects for publishers (the contract itself imports no transport).
 """
 
 from __future__ import annotations
 
 from typing import Final
 
-import zenoh
-
 from protocol.batch_codec import VERSION as BATCH_VERSION
 
-JSON: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_JSON
+JSON_MIME: Final[str] = "application/json"
 """Every control message (BlockFlag, Interrupt, Health, ...)."""
 BATCH_SCHEMA: Final[str] = f"ralf-batch-v{BATCH_VERSION}"
-BATCH: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(BATCH_SCHEMA)
+BATCH_MIME: Final[str] = f"application/octet-stream;{BATCH_SCHEMA}"
 """The binary sample batch of :mod:`protocol.batch_codec`."""
 
 
-def encoding_for(key: str) -> zenoh.Encoding:
+def mime_for(key: str) -> str:
     """The encoding the contract uses on ``key`` (a full ``ralf/<rig>/...`` key)."""
-    return BATCH if key.endswith("/dsp/batch") else JSON
+    return BATCH_MIME if key.endswith("/dsp/batch") else JSON_MIME

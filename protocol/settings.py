@@ -55,7 +55,7 @@ class CommonSettings(BaseSettings):
     zenoh_user: str = Field("", max_length=64, description="zenoh user name (transport/auth/usrpwd): the session's role, controller, dsp, plant, tool or tester (empty: no authentication)")
     zenoh_password: str = Field("", max_length=256, description="zenoh password of zenoh_user")
     zenoh_credentials_file: str = Field("", description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted)")
-    zenoh_acl: bool = Field(False, description="Apply the rig's access rules (protocol/access.py): each role publishes only its own keys")
+    zenoh_acl: bool = Field(False, description="Apply the rig's access rules (service_kit/access.py): each role publishes only its own keys")
     zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
     can_multicast_ttl: int = Field(0, ge=0, le=32, description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)")
 

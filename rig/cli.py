@@ -152,10 +152,10 @@ def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
 def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
     """Fresh zenoh credentials for this run: every service, the launcher's
     observer and tools authenticate with their role's password, and every
-    node applies the rig's access rules (protocol/access.py). Writes the
+    node applies the rig's access rules (service_kit/access.py). Writes the
     credentials file (owner-only) and ``tool.env``, the variables that let
     ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
-    from protocol.access import generate_credentials, role_env, write_credentials_file
+    from service_kit.access import generate_credentials, role_env, write_credentials_file
 
     credentials = generate_credentials()
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
@@ -297,7 +297,7 @@ def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
     """Send ``change`` to the controller and wait for the DSP's
     :class:`~protocol.messages.ConfigAck` carrying its ``request_id``; None if
     nothing answers within ``timeout_s``."""
-    from protocol.encodings import JSON
+    from service_kit.encodings import JSON
     from protocol.errors import ProtocolError
     from protocol.messages import ConfigAck, decode, encode
 
@@ -336,7 +336,7 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     from protocol.keys import Keys
     from protocol.messages import ConfigChange
     from protocol.settings import CommonSettings, load_settings
-    from protocol.transport import open_zenoh
+    from service_kit.transport import open_zenoh
 
     try:
         change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha, request_id=uuid.uuid4().hex)
@@ -386,7 +386,7 @@ def write_compose_access(out: Path, rig_id: str = "default", scenarios: bool = F
     """Credentials for the distributed rig: the router's configuration
     (authentication of every client and the rig's access rules), its
     credentials file, and ``ralf.env`` for ``docker compose --env-file``."""
-    from protocol.access import generate_credentials, router_config, write_credentials_file
+    from service_kit.access import generate_credentials, router_config, write_credentials_file
     from protocol.keys import Keys
 
     credentials = generate_credentials()

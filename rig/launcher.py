@@ -24,7 +24,7 @@ from pathlib import Path
 
 import zenoh
 
-from protocol.access import insert_access_from_env
+from service_kit.access import insert_access_from_env
 from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.errors import ProtocolError

@@ -30,7 +30,7 @@ from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import SERVICES, Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.settings import CommonSettings, load_settings
-from protocol.transport import zenoh_config
+from service_kit.transport import zenoh_config
 
 
 class RigWatch:

@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 import numpy as np
 import zenoh
 
-from protocol.encodings import JSON
+from service_kit.encodings import JSON
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings
@@ -172,7 +172,7 @@ def run_service(
     """The life of a service process: settings, logging, SIGINT/SIGTERM, a
     zenoh session closed on every path, and ``body``'s exit code."""
     # Imported here so that parsing --help does not need a network stack.
-    from protocol.transport import open_zenoh
+    from service_kit.transport import open_zenoh
 
     args = list(sys.argv[1:] if argv is None else argv)
     record: str | None = None

@@ -218,7 +218,7 @@ class RigRecording:
 
 def open_tap_bus(settings: Any) -> can.BusABC:
     """A bus to listen on (``udp_multicast`` without its own frames: it sends none)."""
-    from protocol.transport import open_can_bus
+    from service_kit.transport import open_can_bus
 
     kwargs: dict[str, Any] = {"receive_own_messages": False} if settings.can_interface in ("udp_multicast", "virtual") else {}
     bus = open_can_bus(settings, **kwargs)

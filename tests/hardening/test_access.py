@@ -1,5 +1,5 @@
 """zenoh's own authentication and access control, as the rig configures it
-(protocol.access), checked against a real zenoh 1.10 node on loopback: a
+(service_kit.access), checked against a real zenoh 1.10 node on loopback: a
 session without valid credentials cannot connect, and each role's puts on
 each protected key arrive only where the rules allow them."""
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from protocol.access import (
+from service_kit.access import (
     ROLES,
     acl_config,
     generate_credentials,

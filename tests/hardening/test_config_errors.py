@@ -22,7 +22,7 @@ from protocol.settings import (
     load_settings,
     settings_models,
 )
-from protocol.transport import open_can_bus, open_zenoh
+from service_kit.transport import open_can_bus, open_zenoh
 
 
 @pytest.fixture(autouse=True)

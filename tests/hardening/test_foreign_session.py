@@ -20,7 +20,7 @@ import pytest
 import zenoh
 
 from controller.record import load_record
-from protocol.access import insert_access_from_env
+from service_kit.access import insert_access_from_env
 from protocol.batch_codec import decode_batch, encode_batch
 from protocol.keys import Keys
 from protocol.messages import (

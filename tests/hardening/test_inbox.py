@@ -1,4 +1,4 @@
-"""Decoding at the edge (protocol.inbox): caps before decoding, bounded
+"""Decoding at the edge (service_kit.inbox): caps before decoding, bounded
 queue, every drop counted, repeated bad input logged once per interval."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import logging
 import pytest
 
 from protocol.errors import ProtocolError
-from protocol.inbox import MAX_BYTES, REFUSED, Inbox, RateLimitedLog
+from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, RateLimitedLog
 from protocol.messages import BlockFlag, Interrupt, decode, encode
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from protocol.settings import CommonSettings, load_settings
-from protocol.transport import open_can_bus
+from service_kit.transport import open_can_bus
 from rig.cli import acquire_rig_lock
 
 

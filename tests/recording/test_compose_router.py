@@ -13,7 +13,7 @@ from pathlib import Path
 import yaml
 import zenoh
 
-from protocol.access import router_config
+from service_kit.access import router_config
 from protocol.keys import SERVICES, Keys
 
 ROOT = Path(__file__).resolve().parents[2]

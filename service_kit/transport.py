@@ -12,7 +12,7 @@ from typing import Any
 import can
 import zenoh
 
-from protocol.access import insert_access
+from service_kit.access import insert_access
 from protocol.errors import TransportError
 from protocol.settings import CommonSettings
 

@@ -131,7 +131,7 @@ class Inbox:
     capacity: int = 256
     log_interval_s: float = 10.0
     clock: Callable[[], float] = time.monotonic
-    logger: logging.Logger = field(default_factory=lambda: logging.getLogger("protocol.inbox"))
+    logger: logging.Logger = field(default_factory=lambda: logging.getLogger("service_kit.inbox"))
 
     def __post_init__(self) -> None:
         self._queue: queue.Queue[Item] = queue.Queue(maxsize=self.capacity)

@@ -1,0 +1,22 @@
+"""The contract's payload encodings (:mod:`protocol.encodings`) as zenoh
+encoding objects, for ``session.declare_publisher(key, encoding=JSON)``."""
+
+from __future__ import annotations
+
+from typing import Final
+
+import zenoh
+
+from protocol.encodings import BATCH_MIME, BATCH_SCHEMA, JSON_MIME, mime_for
+
+JSON: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_JSON
+"""Every control message (BlockFlag, Interrupt, Health, ...)."""
+BATCH: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(BATCH_SCHEMA)
+"""The binary sample batch of :mod:`protocol.batch_codec`."""
+
+assert str(JSON) == JSON_MIME and str(BATCH) == BATCH_MIME, "contract and zenoh encodings disagree"
+
+
+def encoding_for(key: str) -> zenoh.Encoding:
+    """The zenoh encoding the contract uses on ``key``."""
+    return BATCH if mime_for(key) == BATCH_MIME else JSON
