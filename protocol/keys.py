@@ -1,24 +1,10 @@
 """zenoh key expressions. Everything of one rig lives under ``ralf/<rig-id>/``
 so several rigs can share one zenoh network.
 
-==============================  ==========================================  =========
-key                             what travels                                  from
-==============================  ==========================================  =========
-dsp/batch                       sample batch (binary, :mod:`protocol.batch_codec`)  controller
-dsp/flag                        :class:`~protocol.messages.BlockFlag`         dsp
-dsp/interrupt                   :class:`~protocol.messages.Interrupt`         dsp
-dsp/config                      :class:`~protocol.messages.ConfigChange`      controller/tools
-dsp/config_ack                  :class:`~protocol.messages.ConfigAck`         dsp
-dsp/tf                          queryable -> :class:`~protocol.messages.TfSnapshot`  dsp
-plant/truth                     :class:`~protocol.messages.GroundTruth`       plant (test port)
-plant/scenario                  :class:`~protocol.messages.ScenarioCommand`   tests/experiments
-plant/events                    :class:`~protocol.messages.PlantEvent`        plant (test port)
-controller/status               :class:`~protocol.messages.ControllerStatus`  controller
-controller/tf                   :class:`~protocol.messages.TfSnapshot`        controller (each TF download, as downloaded)
-controller/command              :class:`~protocol.messages.ConfigChange`      tools (``ralf-hil reconfigure``)
-health/<service>                :class:`~protocol.messages.Health`            every service
-alive/<service>                 liveliness token                             every service
-==============================  ==========================================  =========
+What travels on each key, and who may send it, is declared once in
+:mod:`protocol.rig_description` (``docs/design.md`` shows it as a table);
+:class:`Keys` spells the keys out for code, and a test checks that every
+key here is a declared channel and every declared channel has its key here.
 """
 
 from __future__ import annotations
@@ -27,7 +13,8 @@ import re
 from dataclasses import dataclass
 
 _RIG_ID = re.compile(r"[A-Za-z0-9_-]{1,64}")
-SERVICES = ("plant", "controller", "dsp")
+SERVICES: tuple[str, ...] = ("plant", "controller", "dsp")
+"""The three boards (the rig description declares them with their start order)."""
 
 
 def validate_rig_id(rig_id: str) -> str:

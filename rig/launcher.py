@@ -26,12 +26,13 @@ import zenoh
 
 from service_kit.access import insert_access_from_env
 from protocol.keys import Keys
+from protocol.rig_description import RIG, start_order, stop_order
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.errors import ProtocolError
 
-SERVICE_MODULES: dict[str, str] = {"dsp": "dsp_service", "plant": "plant_emulator", "controller": "controller"}
-START_ORDER = ("dsp", "plant", "controller")
-STOP_ORDER = ("controller", "plant", "dsp")
+SERVICE_MODULES: dict[str, str] = {s.name: s.module for s in RIG.services}
+START_ORDER = start_order()
+STOP_ORDER = stop_order()
 
 
 def free_tcp_port() -> int:

@@ -1,5 +1,5 @@
 """Who may drive the rig: zenoh's own authentication (``transport/auth/usrpwd``)
-and access control (``access_control``), generated from the rig's keys.
+and access control (``access_control``), generated from the rig's description (:mod:`protocol.rig_description`).
 
 Every session of a rig authenticates with a user name naming its role
 (:data:`ROLES`) and a password; a node that has the credentials file
@@ -32,54 +32,55 @@ from pathlib import Path
 from typing import Any
 
 from protocol.keys import Keys
+from protocol.rig_description import RIG, Channel
 
-ROLES: tuple[str, ...] = ("controller", "dsp", "plant", "launcher", "tool", "tester")
+ROLES: tuple[str, ...] = RIG.roles
 """Session roles: the three boards, ``ralf-hil up``'s observer, tools, and test harnesses."""
-SERVICES: tuple[str, ...] = ("controller", "dsp", "plant")
+SERVICES: tuple[str, ...] = RIG.service_names
+
+
+def _senders(channel: Channel, senders: tuple[str, ...], scenarios: bool) -> tuple[str, ...]:
+    if channel.gated_by == "zenoh_acl_scenarios" and not scenarios:
+        return ()
+    return senders
 
 
 def publishers(keys: Keys, scenarios: bool = False) -> dict[str, tuple[str, ...]]:
-    """Key expression -> the roles allowed to publish (put/delete) on it."""
-    table: dict[str, tuple[str, ...]] = {
-        keys.batch: ("controller",),
-        keys.dsp_config: ("controller",),
-        keys.controller_status: ("controller",),
-        keys.tf_downloads: ("controller",),
-        keys.flag: ("dsp",),
-        keys.interrupt: ("dsp",),
-        keys.dsp_config_ack: ("dsp",),
-        keys.truth: ("plant",),
-        keys.plant_events: ("plant",),
-        keys.controller_command: ("tool", "tester"),
-        keys.scenario: ("tester",) if scenarios else (),
+    """Key expression -> the roles allowed to publish (put/delete) on it: the
+    declared senders of every publication channel of :data:`protocol.rig_description.RIG`."""
+    return {
+        f"{keys.root}/{suffix}": _senders(channel, senders, scenarios)
+        for suffix, channel, senders in RIG.expanded()
+        if channel.kind == "publication"
     }
-    for service in SERVICES:
-        table[keys.health(service)] = (service,)
-    return table
 
 
 def _rule(rule_id: str, messages: Iterable[str], key_exprs: Iterable[str]) -> dict[str, Any]:
     return {"id": rule_id, "permission": "deny", "flows": ["ingress"], "messages": list(messages), "key_exprs": list(key_exprs)}
 
 
+_DENIED_MESSAGES: dict[str, tuple[str, ...]] = {
+    "publication": ("put", "delete"),
+    "queryable": ("declare_queryable", "reply"),
+    "liveliness": ("liveliness_token",),
+}
+"""What a role that is not a channel's sender may not do on it, per channel kind."""
+
+
 def acl_config(keys: Keys, scenarios: bool = False) -> dict[str, Any]:
-    """The ``access_control`` section of every node of the rig."""
+    """The ``access_control`` section of every node of the rig: on every
+    channel of the rig description, every role but its senders is denied
+    the channel kind's messages."""
     rules: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-
-    def deny(rule_id: str, messages: Iterable[str], key_exprs: Iterable[str], allowed: Iterable[str]) -> None:
-        others = [role for role in ROLES if role not in set(allowed)]
+    for n, (suffix, channel, senders) in enumerate(sorted(RIG.expanded(), key=lambda item: item[0])):
+        allowed = set(_senders(channel, senders, scenarios))
+        others = [role for role in ROLES if role not in allowed]
         if not others:
-            return
-        rules.append(_rule(rule_id, messages, key_exprs))
+            continue
+        rule_id = f"{channel.kind} {n} {suffix}"
+        rules.append(_rule(rule_id, _DENIED_MESSAGES[channel.kind], [f"{keys.root}/{suffix}"]))
         policies.append({"rules": [rule_id], "subjects": [f"role {role}" for role in others]})
-
-    for n, (key, allowed) in enumerate(sorted(publishers(keys, scenarios).items())):
-        deny(f"publish {n} {key}", ("put", "delete"), [key], allowed)
-    # The TF queryable and the liveliness tokens are the DSP's and each service's own.
-    deny("answer tf", ("declare_queryable", "reply"), [keys.tf], ("dsp",))
-    for n, service in enumerate(SERVICES):
-        deny(f"alive {n} {service}", ("liveliness_token",), [keys.alive(service)], (service,))
     return {
         "enabled": True,
         "default_permission": "allow",

@@ -32,6 +32,8 @@ from typing import Any, Final, Literal
 
 from pydantic import BaseModel
 
+from protocol.rig_description import json_models
+
 from protocol import can_map
 from protocol.messages import (
     BlockFlag,
@@ -57,18 +59,7 @@ Direction = Literal["controller->plant", "plant->controller"]
 TO_PLANT: Final[Direction] = "controller->plant"
 TO_CONTROLLER: Final[Direction] = "plant->controller"
 
-MODELS_BY_SUFFIX: Final[dict[str, type[BaseModel]]] = {
-    "dsp/flag": BlockFlag,
-    "dsp/interrupt": Interrupt,
-    "dsp/config": ConfigChange,
-    "dsp/config_ack": ConfigAck,
-    "plant/truth": GroundTruth,
-    "plant/scenario": ScenarioCommand,
-    "plant/events": PlantEvent,
-    "controller/status": ControllerStatus,
-    "controller/tf": TfSnapshot,
-    "controller/command": ConfigChange,
-}
+MODELS_BY_SUFFIX: Final[dict[str, type[BaseModel]]] = json_models()
 """The JSON messages of the contract, by key below ``ralf/<rig>/`` (health/* apart)."""
 
 BATCH_SUFFIX: Final[str] = "dsp/batch"
