@@ -1,4 +1,6 @@
 # One image for the three services of the rig; docker-compose.yml picks the command.
+# It carries the contract, the service kit and the three boards, not the launcher
+# (`rig/`: ralf-hil up, bench, experiments, plots), which users run on the host.
 FROM python:3.11-slim
 
 ENV PYTHONUNBUFFERED=1 \
@@ -12,11 +14,10 @@ COPY plant_emulator ./plant_emulator
 COPY controller ./controller
 COPY service_kit ./service_kit
 COPY dsp_service ./dsp_service
-COPY rig ./rig
 RUN pip install ".[fast]" && useradd --create-home ralf \
     && python -c "from dsp_service.kernel import warm_up as dsp; from plant_emulator.model._modal_kernel import warm_up as plant; dsp(); plant()"
 USER ralf
 WORKDIR /home/ralf
 
 # Services are configured only through RALF_* environment variables.
-CMD ["ralf-hil", "--help"]
+CMD ["ralf-controller", "--help"]

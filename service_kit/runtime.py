@@ -181,7 +181,11 @@ def run_service(
     if any(a == "--record" or a.startswith("--record=") for a in args):
         # The recorder is the launcher's (rig.recording), imported only when asked
         # for: the boards' own code never imports rig. It runs as a child process.
-        from rig.recording.attach import split_record_arg, start_recorder, stop_recorder
+        try:
+            from rig.recording.attach import split_record_arg, start_recorder, stop_recorder
+        except ImportError as exc:  # a service image carries no launcher
+            print(f"{prog}: --record needs the launcher's recorder (pip install 'ralf-hil[rig]'): {exc}", file=sys.stderr)
+            return 2
 
         record, stripped = split_record_arg(args)
         args = stripped if stripped is not None else args
