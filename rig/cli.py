@@ -250,10 +250,14 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         own["controller"]["duration_s"] = str(args.duration)
     started = time.monotonic()
     console.print("co-simulating plant, controller and DSP in one thread (no processes, no network)")
-    if args.record or args.can_log:
-        console.print("[yellow]--record/--can-log: a co-simulation is not recorded (no bus, no zenoh to tap); use --clock lockstep to record[/yellow]")
+    if args.can_log and not args.record:
+        console.print("[red]ralf-hil up: --can-log goes with --record[/red]")
+        return 2
     try:
-        run = run_cosim(controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id})
+        run = run_cosim(
+            controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
+            record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None,
+        )  # fmt: skip
     except (ConfigError, ValueError) as exc:
         console.print(f"[red]ralf-hil up: {exc}[/red]")
         return 2
@@ -271,6 +275,9 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
     }
     console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
+    if args.record:
+        summary["recording"] = {"path": args.record, "can_log": args.can_log, **(run.recording or {})}
+        console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
     print_summary(summary)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))

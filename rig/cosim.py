@@ -134,7 +134,7 @@ class DirectDspPort:
         return [encode(self.core.snapshot())]
 
     def publish_tf(self, payload: bytes) -> None:
-        pass  # no observers in one thread (a co-simulation is not recorded)
+        pass  # no observers in one thread (rig.recording.cosim_tap records it when asked)
 
     def start_health(self, period_s: float, build: Any) -> None:
         self._build_health = build
@@ -157,6 +157,8 @@ class CosimRun:
     node: CanopenNode
     wall_time_s: float
     health: dict[str, Health]
+    recording: dict[str, int] | None = None
+    """The recorder's counters when the run was recorded (``record=``)."""
 
 
 def _plant_health(app: PlantApplication, node: CanopenNode) -> Health:
@@ -199,23 +201,44 @@ def settings_for(
     return cs, load("plant", PlantSettings, plant), load("dsp", DspSettings, dsp)
 
 
+def _recording(record: str | None, can_log: str | None, extra: dict[str, Any] | None, scheduler: SimulatedScheduler, *settings: Any) -> Any:
+    if not record:
+        return None
+    from rig.recording.cosim_tap import CosimRecording
+
+    resolved = {name: s.model_dump(mode="json") for name, s in zip(("controller", "plant", "dsp"), settings)}
+    return CosimRecording(record, settings[0].rig_id, scheduler.now, resolved, can_log=can_log, extra=extra)
+
+
 def run_cosim(
     controller: dict[str, Any] | None = None,
     plant: dict[str, Any] | None = None,
     dsp: dict[str, Any] | None = None,
     common: dict[str, Any] | None = None,
+    *,
+    record: str | None = None,
+    can_log: str | None = None,
+    record_metadata: dict[str, Any] | None = None,
 ) -> CosimRun:
     """Run one rig to the controller's end (``duration_s`` or ``repeats``
     must be set), every board in this thread. The plant writes its ground
-    truth to its ``record`` setting, as the plant service does on stop."""
+    truth to its ``record`` setting, as the plant service does on stop.
+    ``record`` writes the run into an MCAP file as ``ralf-hil up --record``
+    does (:mod:`rig.recording.cosim_tap`; ``can_log`` also the CAN side in
+    python-can's ``.blf``/``.asc``/``.log``; ``record_metadata``: extra facts
+    for its ``ralf.run`` record); the run itself is unchanged."""
     cs, ps, ds = settings_for(controller, plant, dsp, common)
     scheduler = SimulatedScheduler()
+    recording = _recording(record, can_log, record_metadata, scheduler, cs, ps, ds)
     app = PlantApplication(ps, clock=scheduler.now)
     node = CanopenNode(app, node_config(ps))
-    wire = DirectCanWire(node, scheduler)
+    wire: Any = DirectCanWire(node, scheduler)
     core = DspCore(ds)
-    port = DirectDspPort(core)
-    link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
+    port: Any = DirectDspPort(core)
+    if recording is not None:
+        app.publish_truth, app.publish_event = recording.truth, recording.event
+        wire, port = recording.wire(wire), recording.port(port)
+    link = PlantLink(wire, cs.node_id, clock=scheduler.now)
     started = time.monotonic()
     ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)
     try:
@@ -229,4 +252,9 @@ def run_cosim(
     ctrl_health = port.health()
     if ctrl_health is not None:
         health["controller"] = ctrl_health
-    return CosimRun(result=result, controller=ctrl, dsp=core, plant=app, node=node, wall_time_s=wall, health=health)
+    recorded: dict[str, int] | None = None
+    if recording is not None:
+        for service, message in health.items():
+            recording.health(service, message)
+        recorded = recording.close().as_dict()
+    return CosimRun(result=result, controller=ctrl, dsp=core, plant=app, node=node, wall_time_s=wall, health=health, recording=recorded)

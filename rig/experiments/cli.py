@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run the experiments' rigs on this Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster, started when an experiment needs it)")
     p.add_argument("--workers", type=int, default=None, metavar="N", help="worker processes of the local cluster (default: one per core)")
-    p.add_argument("--record", action="store_true", help="also record every three-process rig run (--mode lockstep/realtime) into DIR/records/<run>.mcap (ralf-hil replay/plot read them); co-simulated runs are not recorded")
+    p.add_argument("--record", action="store_true", help="also record every rig run (co-simulated or three-process) into DIR/records/<run>.mcap (ralf-hil replay/plot read them)")
 
 
 def register(subparsers: Any) -> None:

@@ -191,7 +191,7 @@ class ExperimentContext:
     """Draw rich progress bars (only on a terminal)."""
     experiment: Experiment | None = None
     record: bool = False
-    """Record every three-process rig run into ``records/<run>.mcap`` (:mod:`rig.recording`)."""
+    """Record every rig run (co-simulated or three-process) into ``records/<run>.mcap`` (:mod:`rig.recording`)."""
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)

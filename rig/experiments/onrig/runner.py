@@ -316,12 +316,10 @@ def run_rig(
     dsp = dict(spec.dsp)
     expected = spec.expected_sim_s()
     if ctx.mode == "cosim":
-        if ctx.record:
-            ctx.log(f"run {spec.name!r} is co-simulated (--mode cosim): not recorded (only three-process runs are: --mode lockstep)")
         return _run_cosim(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     if in_process:
         if ctx.record:
-            ctx.log(f"run {spec.name!r} runs in one process (--quick): not recorded (only three-process runs are)")
+            ctx.log(f"run {spec.name!r} runs in one process (--quick): not recorded (co-simulated and three-process runs are)")
         return _run_in_process(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress)
     return _run_processes(ctx, spec, controller, plant, dsp, record_path, truth_path, expected, on_progress, timeout_s)
 
@@ -374,7 +372,14 @@ def _run_cosim(
 
     started = time.monotonic()
     try:
-        run = run_cosim(controller={k: v for k, v in controller.items() if k != "record"}, plant=plant, dsp=dsp, common=dict(spec.common))
+        run = run_cosim(
+            controller={k: v for k, v in controller.items() if k != "record"},
+            plant=plant,
+            dsp=dsp,
+            common=dict(spec.common),
+            record=str(ctx.path(f"records/{spec.name}.mcap")) if ctx.record else None,
+            record_metadata={"experiment": ctx.experiment.name if ctx.experiment else "exp", "run": spec.name},
+        )
     except (ConfigError, ValueError) as exc:
         raise RigRunError(f"run {spec.name!r} (co-simulation): {exc}") from None
     if run.result.error:
