@@ -153,8 +153,21 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_doctor(args: argparse.Namespace) -> int:
+    from rig.recording.doctor import check
+
+    status = 0
+    for path in args.paths:
+        problems = check(path)
+        print(f"{path}: {'ok' if not problems else f'{len(problems)} problem(s)'}")
+        for line in problems[: args.max_problems]:
+            print(f"  {line}")
+        status = status or (1 if problems else 0)
+    return status
+
+
 def register(subparsers: Any) -> None:
-    """Add ``record``, ``replay`` and ``plot`` to ``ralf-hil``."""
+    """Add ``record``, ``replay``, ``plot`` and ``doctor`` to ``ralf-hil``."""
     p = subparsers.add_parser(
         "record",
         help="record a rig whose services run on their own into an MCAP file",
@@ -200,3 +213,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", default=None, metavar="DIR", help="output directory (default: RUN/ beside the file)")
     p.add_argument("--foxglove-layout", default=None, metavar="LAYOUT.json", help="also write a Foxglove layout for the recording's rig id")
     p.set_defaults(func=cmd_plot)
+
+    p = subparsers.add_parser("doctor", help="check a recording's structure (CRCs, declarations, chunk ranges, statistics); exit 1 on a problem")
+    p.add_argument("paths", nargs="+", metavar="RUN.mcap")
+    p.add_argument("--max-problems", type=int, default=20, help="problems printed per file (default 20)")
+    p.set_defaults(func=cmd_doctor)

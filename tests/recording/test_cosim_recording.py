@@ -81,3 +81,22 @@ def test_replay_of_a_cosim_recording_is_bit_identical(recorded: dict[str, Any]) 
     same, replayed = compare(rec)
     assert same.identical
     assert len(replayed) == len(rec.interrupts()) > 5
+
+
+def test_doctor_finds_the_file_sound_and_a_damaged_one_not(recorded: dict[str, Any], tmp_path: Path) -> None:
+    from mcap import records
+    from mcap.stream_reader import StreamReader
+
+    from rig.recording.doctor import check
+
+    assert check(recorded["path"]) == []
+    data = recorded["path"].read_bytes()
+    with open(recorded["path"], "rb") as fh:
+        chunk = next(r for r in StreamReader(fh, emit_chunks=True).records if isinstance(r, records.Chunk))
+    at = data.find(chunk.data[64:128]) + 8  # a byte inside the first chunk's compressed data
+    flipped = bytearray(data)
+    flipped[at] ^= 0x01
+    (tmp_path / "flipped.mcap").write_bytes(bytes(flipped))
+    assert any("crc" in p.lower() or "unreadable" in p for p in check(tmp_path / "flipped.mcap"))
+    (tmp_path / "truncated.mcap").write_bytes(data[: len(data) - 4000])
+    assert check(tmp_path / "truncated.mcap")

@@ -58,6 +58,9 @@ def test_up_prints_the_can_port_first_and_the_summary_on_stdout(run: dict[str, A
 
 
 def test_every_message_validates_against_its_channel_schema(run: dict[str, Any]) -> None:
+    from rig.recording.doctor import check
+
+    assert check(run["path"]) == []  # CRCs, declarations, chunk ranges, statistics
     counts: dict[str, int] = {}
     with open(run["path"], "rb") as f:
         reader = make_reader(f)
