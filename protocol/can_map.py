@@ -256,7 +256,7 @@ _INT32X2 = struct.Struct("<2i")
 _EMCY = struct.Struct("<HB5s")
 
 
-def _pack(fmt: struct.Struct, what: str, *values: int) -> bytes:
+def _pack(fmt: struct.Struct, what: str, *values: int | bytes) -> bytes:
     try:
         return fmt.pack(*values)
     except struct.error as exc:

@@ -10,7 +10,7 @@ latencies.  Decoding validates everything; a bad payload raises
 from __future__ import annotations
 
 import time
-from typing import Annotated, Literal, TypeVar
+from typing import Annotated, Final, Literal, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -83,7 +83,7 @@ class PoleParameters(BaseModel):
     )
 
 
-INTERRUPT_VERSION = 2
+INTERRUPT_VERSION: Final = 2
 """Version 1: poles without confidence (the first pole was the one used). Version 2: every confident
 pole, first mode first, each with its own ``confidence``; decoders read version 1 payloads too."""
 

@@ -179,7 +179,8 @@ def keys_table(rig: RigDescription = RIG) -> str:
             return "sample batch (binary)"
         if c.payload == "token":
             return "liveliness token"
-        return f"`{c.payload.__name__}` (JSON)"  # type: ignore[union-attr]
+        assert isinstance(c.payload, type)
+        return f"`{c.payload.__name__}` (JSON)"
 
     lines = [
         "| key below `ralf/<rig-id>/` | kind | payload | sent by | read by | what |",

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from pydantic_settings import BaseSettings
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
@@ -30,7 +31,7 @@ from rig.recording.tap import RigRecording
 console = Console(stderr=True)
 
 
-SETTINGS_MODELS = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
+SETTINGS_MODELS: dict[str, type[BaseSettings]] = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
 
 
 def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
@@ -304,9 +305,9 @@ def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
     """Send ``change`` to the controller and wait for the DSP's
     :class:`~protocol.messages.ConfigAck` carrying its ``request_id``; None if
     nothing answers within ``timeout_s``."""
-    from service_kit.encodings import JSON
     from protocol.errors import ProtocolError
     from protocol.messages import ConfigAck, decode, encode
+    from service_kit.encodings import JSON
 
     got: list[Any] = []
     answered = threading.Event()
@@ -393,8 +394,8 @@ def write_compose_access(out: Path, rig_id: str = "default", scenarios: bool = F
     """Credentials for the distributed rig: the router's configuration
     (authentication of every client and the rig's access rules), its
     credentials file, and ``ralf.env`` for ``docker compose --env-file``."""
-    from service_kit.access import generate_credentials, router_config, write_credentials_file
     from protocol.keys import Keys
+    from service_kit.access import generate_credentials, router_config, write_credentials_file
 
     credentials = generate_credentials()
     out.mkdir(parents=True, exist_ok=True)

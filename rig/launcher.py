@@ -24,11 +24,11 @@ from pathlib import Path
 
 import zenoh
 
-from service_kit.access import insert_access_from_env
-from protocol.keys import Keys
-from protocol.rig_description import RIG, start_order, stop_order
-from protocol.messages import ControllerStatus, Health, decode
 from protocol.errors import ProtocolError
+from protocol.keys import Keys
+from protocol.messages import ControllerStatus, Health, decode
+from protocol.rig_description import RIG, start_order, stop_order
+from service_kit.access import insert_access_from_env
 
 SERVICE_MODULES: dict[str, str] = {s.name: s.module for s in RIG.services}
 START_ORDER = start_order()
@@ -64,7 +64,7 @@ class RigPlan:
         clock: str = "realtime",
         overrides: Mapping[str, Mapping[str, str]] | None = None,
         common: Mapping[str, str] | None = None,
-    ) -> "RigPlan":
+    ) -> RigPlan:
         port = free_tcp_port()
         service_ports = {name: free_tcp_port() for name in SERVICE_MODULES}
         env = {

@@ -57,10 +57,10 @@ def _materialise(res: RigResult) -> None:
         save_record(res.record_path, res.record.columns, res.record.config, res.record.metadata)
     if not res.truth_path.exists():
         res.truth_path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(res.truth_path, **res.truth)
+        np.savez_compressed(res.truth_path, **res.truth)  # type: ignore[arg-type]  # numpy stubs type **kwds as allow_pickle
     tf_path = Path(str(res.record_path) + ".tf.npz")
     if res.tf is not None and not tf_path.exists():
-        np.savez_compressed(tf_path, **res.tf)
+        np.savez_compressed(tf_path, **res.tf)  # type: ignore[arg-type]
 
 
 def map_rigs(

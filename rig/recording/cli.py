@@ -38,9 +38,9 @@ def cmd_record(args: argparse.Namespace) -> int:
     """Record a rig whose services run on their own (``ralf-plant`` etc.)."""
     from protocol.errors import ConfigError
     from protocol.settings import CommonSettings, load_settings
-    from service_kit.transport import open_zenoh
     from rig.recording.recorder import Recorder
     from rig.recording.tap import Tap, open_tap_bus, resolve_settings_here, run_metadata
+    from service_kit.transport import open_zenoh
 
     overrides: dict[str, Any] = {}
     if args.rig_id:

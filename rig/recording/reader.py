@@ -36,7 +36,7 @@ class Recording:
     messages: list[Recorded] = field(default_factory=list)
 
     @classmethod
-    def load(cls, path: str | Path, only: Iterable[str] | None = None) -> "Recording":
+    def load(cls, path: str | Path, only: Iterable[str] | None = None) -> Recording:
         """Read ``path``; ``only``: topic suffixes to keep (``"dsp/batch"``, ``"can"``, ...), all by default.
         (A long run's CAN frames are most of the file: leave them out when they are not needed.)"""
         rec = cls(Path(path))

@@ -152,7 +152,7 @@ class Recorder:
             self._can_log.stop()
         return self.stats
 
-    def __enter__(self) -> "Recorder":
+    def __enter__(self) -> Recorder:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -57,7 +57,7 @@ class Identified:
         return (self.batch_seq, self.poles, self.confidence, self.samples_in_history, self.valid_fraction)
 
     @classmethod
-    def from_interrupt(cls, irq: Mapping[str, Any]) -> "Identified":
+    def from_interrupt(cls, irq: Mapping[str, Any]) -> Identified:
         return cls(
             batch_seq=int(irq["batch_seq"]),
             sim_time_s=float(irq["sim_time_s"]),

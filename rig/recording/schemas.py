@@ -32,21 +32,11 @@ from typing import Any, Final, Literal
 
 from pydantic import BaseModel
 
-from protocol.rig_description import json_models
-
 from protocol import can_map
 from protocol.messages import (
-    BlockFlag,
-    ConfigAck,
-    ConfigChange,
-    ControllerStatus,
-    GroundTruth,
     Health,
-    Interrupt,
-    PlantEvent,
-    ScenarioCommand,
-    TfSnapshot,
 )
+from protocol.rig_description import json_models
 
 CAN_TOPIC: Final[str] = "/can"
 CAN_DECODED_PREFIX: Final[str] = "/can/decoded"

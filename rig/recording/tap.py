@@ -173,7 +173,7 @@ def resolve_settings_here(env_by_service: Mapping[str, Mapping[str, str]]) -> di
             os.environ.clear()
             os.environ.update(env)
             try:
-                out[service] = model().model_dump(mode="json")  # type: ignore[call-arg]
+                out[service] = model().model_dump(mode="json")
             except Exception as exc:
                 out[service] = {"error": str(exc)}
     finally:
@@ -206,7 +206,7 @@ class RigRecording:
         self.recorder = Recorder(path, sample_rate_hz=rate, node_id=node_id, can_log=can_log)
         for name, values in run_metadata(plan.rig_id, settings, can_port=plan.can_port, **extra).items():
             self.recorder.add_metadata(name, values)
-        common = CommonSettings(can_interface=plan.common_env["RALF_CAN_INTERFACE"], can_channel=plan.common_env["RALF_CAN_CHANNEL"], can_port=plan.can_port)  # type: ignore[call-arg]
+        common = CommonSettings(can_interface=plan.common_env["RALF_CAN_INTERFACE"], can_channel=plan.common_env["RALF_CAN_CHANNEL"], can_port=plan.can_port)
         self.bus = open_tap_bus(common)
         self.tap = Tap(self.recorder, plan.rig_id, session=session, bus=self.bus)
 

@@ -64,7 +64,7 @@ def test_start_order_is_a_topological_sort_and_cycles_are_refused() -> None:
 
 
 def test_every_sender_is_a_role_and_access_rules_follow_the_senders() -> None:
-    for suffix, channel, senders in RIG.expanded():
+    for suffix, _channel, senders in RIG.expanded():
         assert set(senders) <= set(ROLES), suffix
         assert "{service}" not in suffix
     allowed = publishers(KEYS, scenarios=True)

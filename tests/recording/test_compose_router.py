@@ -13,8 +13,8 @@ from pathlib import Path
 import yaml
 import zenoh
 
-from service_kit.access import router_config
 from protocol.keys import SERVICES, Keys
+from service_kit.access import router_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
