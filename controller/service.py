@@ -1,6 +1,6 @@
 """The controller service: the emulated MVME CPU at the edge of CAN and zenoh.
 
-Each tick (thesis §4, design.md "Time"):
+Each tick (thesis §4, docs/design.md "Time"):
 
 1. SYNC -> the plant samples -> TPDO1 (A/D words);
 2. flags and interrupts from the DSP are taken in; in lockstep the

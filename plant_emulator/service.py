@@ -2,7 +2,7 @@
 its out-of-band test port on zenoh (ground truth, scenario commands,
 events) that the controller never uses.
 
-Clock modes (design.md "Time"):
+Clock modes (docs/design.md "Time"):
 
 * real time: the model integrates on the wall clock; on every SYNC, RPDO
   or watchdog event it first catches up to ``now`` (in fixed internal

@@ -1,7 +1,7 @@
 """Control messages exchanged over zenoh, as pydantic v2 models in JSON.
 
 Every message that crosses a process carries a sequence number, the
-simulated time and the sender's wall-clock time (design.md, Conventions),
+simulated time and the sender's wall-clock time (docs/design.md, "Time"),
 so receivers can detect gaps, duplicates and reordering and measure
 latencies.  Decoding validates everything; a bad payload raises
 :class:`~protocol.errors.ProtocolError` with the reason.

@@ -1,5 +1,5 @@
 """Opening the two transports from settings: a zenoh session and a python-can
-bus. The interface is a setting, never a code change (design.md)."""
+bus. The interface is a setting, never a code change (docs/design.md)."""
 
 from __future__ import annotations
 
