@@ -39,7 +39,12 @@ def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[s
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a setting, e.g. --set clock=lockstep")
-    parser.add_argument("--record", default=None, metavar="RUN.mcap", help="record the rig as this service sees it into an MCAP file (a `ralf-hil record` child process; see docs/recording.md)")
+    parser.add_argument(
+        "--record",
+        default=None,
+        metavar="RUN.mcap",
+        help="record the rig as this service sees it into an MCAP file (a `ralf-hil record` child process; see docs/recording.md)",
+    )
     args = parser.parse_args(argv)
     overrides: dict[str, Any] = {}
     for item in args.set:

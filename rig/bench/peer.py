@@ -69,9 +69,7 @@ def zenoh_echo(args: argparse.Namespace) -> int:
     config.insert_json5("listen/endpoints", json.dumps([args.listen]))
     session = zenoh.open(config)
     try:
-        pong = session.declare_publisher(
-            args.pong, congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME, express=True
-        )
+        pong = session.declare_publisher(args.pong, congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME, express=True)
         sub = session.declare_subscriber(args.ping, lambda sample: pong.put(sample.payload.to_bytes()))
         _say("READY", {"listen": args.listen})
         stop.wait()

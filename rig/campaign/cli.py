@@ -70,8 +70,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     with engine:
         res = run_sweep(spec, out_dir, engine, resume=not args.no_resume, console=err, show_progress=not args.no_progress)
     err.print(
-        f"{res.ran} run(s) in {res.wall_s:.1f} s ({res.runs_per_hour:.0f} runs/h), {res.skipped} skipped, {res.failed} failed; "
-        f"table: {res.parquet}, {res.csv}",
+        f"{res.ran} run(s) in {res.wall_s:.1f} s ({res.runs_per_hour:.0f} runs/h), {res.skipped} skipped, {res.failed} failed; table: {res.parquet}, {res.csv}",
         highlight=False,
     )
     return 1 if res.failed else 0

@@ -99,7 +99,7 @@ class Engine:
 
     # -- construction ----------------------------------------------------------------
     @classmethod
-    def local(cls, workers: int | None = None, *, processes: bool = True, threads_per_worker: int = 1, memory_limit: str = "auto") -> "Engine":
+    def local(cls, workers: int | None = None, *, processes: bool = True, threads_per_worker: int = 1, memory_limit: str = "auto") -> Engine:
         """An embedded ``LocalCluster`` on 127.0.0.1: ``workers`` single-threaded worker
         processes (default: one per core), random ports, no dashboard."""
         from distributed import Client, LocalCluster
@@ -124,7 +124,7 @@ class Engine:
         return cls(client, cluster, started_s=time.perf_counter() - started)
 
     @classmethod
-    def connect(cls, address: str, *, wait_for_workers: int = 1, timeout_s: float = 60.0) -> "Engine":
+    def connect(cls, address: str, *, wait_for_workers: int = 1, timeout_s: float = 60.0) -> Engine:
         """Join a running scheduler (``tcp://HOST:8786``) and wait until it has ``wait_for_workers``."""
         from distributed import Client
 
@@ -226,7 +226,7 @@ class Engine:
             if self.cluster is not None:
                 self.cluster.close()
 
-    def __enter__(self) -> "Engine":
+    def __enter__(self) -> Engine:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -252,7 +252,7 @@ def _progress(console: Console | None, show: bool) -> Progress:
 
 _LOCK = threading.Lock()
 _CURRENT: list[Engine] = []
-_SCOPES: list["_Scope"] = []
+_SCOPES: list[_Scope] = []
 _OWNED: list[Engine] = []
 
 

@@ -49,7 +49,14 @@ def payload(megabytes: int) -> np.ndarray:
 def _spec(runs: int, duration_s: float, block: int) -> SweepSpec:
     return SweepSpec(
         name=f"measure-{block}",
-        base={"controller.duration_s": duration_s, "batch_size": 20, "controller.tf_download_samples": 0, "controller.oatf_mode": "adaptive", "dsp.fft_width": 1024, "dsp.alpha": 0.05},
+        base={
+            "controller.duration_s": duration_s,
+            "batch_size": 20,
+            "controller.tf_download_samples": 0,
+            "controller.oatf_mode": "adaptive",
+            "dsp.fft_width": 1024,
+            "dsp.alpha": 0.05,
+        },
         seeds=[1000 * block + i for i in range(runs)],
     )
 

@@ -21,7 +21,19 @@ from rig.experiments.onrig.runner import costs_over
 
 __all__ = ["COUNTERS", "run_metrics"]
 
-COUNTERS = ("batches_sent", "interrupts", "interrupts_lost", "deadline_misses", "samples_dropped", "oatf_updates", "stale_episodes", "overruns", "sync_retries", "syncs_sent", "tpdos")
+COUNTERS = (
+    "batches_sent",
+    "interrupts",
+    "interrupts_lost",
+    "deadline_misses",
+    "samples_dropped",
+    "oatf_updates",
+    "stale_episodes",
+    "overruns",
+    "sync_retries",
+    "syncs_sent",
+    "tpdos",
+)
 """Controller counters copied into the row."""
 
 

@@ -42,7 +42,11 @@ class RigJob:
 def run_rig_job(job: RigJob) -> RigResult:
     """Worker side: :func:`run_rig` in a quiet context on the experiment's output directory."""
     ctx = ExperimentContext(
-        out_dir=Path(job.out_dir), mode=job.mode, show_progress=False, console=Console(stderr=True, quiet=True), experiment=job.experiment,
+        out_dir=Path(job.out_dir),
+        mode=job.mode,
+        show_progress=False,
+        console=Console(stderr=True, quiet=True),
+        experiment=job.experiment,
         record=job.record,
     )
     return run_rig(ctx, job.spec, in_process=job.in_process)

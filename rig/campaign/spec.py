@@ -82,7 +82,9 @@ class SweepSpec(BaseModel):
     seeds: int | list[int] | None = Field(None, description="N derived seeds, or a list of plant seeds; every point runs once per seed")
     base: dict[str, Any] = Field(default_factory=dict, description="Settings of every run")
     grid: dict[str, list[Any]] = Field(default_factory=dict, description="Axes: setting -> values (a Cartesian product)")
-    points: list[dict[str, Any]] = Field(default_factory=list, description="Explicit runs (each crossed with the grid); an optional `label` names one in the table")
+    points: list[dict[str, Any]] = Field(
+        default_factory=list, description="Explicit runs (each crossed with the grid); an optional `label` names one in the table"
+    )
 
     @field_validator("base", "grid", mode="before")
     @classmethod

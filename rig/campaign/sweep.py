@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +94,7 @@ def run_sweep(
             worker=outcome.worker,
             run_s=outcome.run_s,
             round_trip_s=outcome.round_trip_s,
-            finished_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            finished_utc=datetime.now(UTC).isoformat(timespec="seconds"),
         )
         if outcome.ok and outcome.value is not None:
             row.update(outcome.value)

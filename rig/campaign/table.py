@@ -29,7 +29,7 @@ class Journal:
         self.path = path
         self.rows: dict[str, dict[str, Any]] = {}
         if path.exists():
-            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            for line in path.read_text(encoding="utf-8").splitlines():
                 if not line.strip():
                     continue
                 try:

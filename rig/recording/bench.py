@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = []
     with tempfile.TemporaryDirectory(prefix="rec-bench-") as tmp:
         for pair in range(args.pairs):
-            for record in ((False, True) if pair % 2 == 0 else (True, False)):  # ABBA: no order bias
+            for record in (False, True) if pair % 2 == 0 else (True, False):  # ABBA: no order bias
                 r = run_once(args.duration, record, Path(tmp))
                 runs.append(r)
                 rec = r["recording"] or {}
@@ -94,7 +94,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(runs, indent=2))
     return 0
-
 
 
 def writer_cost(n_frames: int = 20000, n_batches: int = 200) -> dict[str, float]:
@@ -120,7 +119,17 @@ def writer_cost(n_frames: int = 20000, n_batches: int = 200) -> dict[str, float]
         rec = Recorder(Path(tmp) / "cost2.mcap", queue_limit=n_batches + 10)
         rng = np.random.default_rng(0)
         payloads = [
-            encode_batch(SampleBatch(seq=i, first_tick=30 * i, sample_rate_hz=200.0, sim_time_s=0.15 * i, wall_time_s=1e9, inputs=rng.standard_normal((2, 30)), outputs=rng.standard_normal((2, 30))))
+            encode_batch(
+                SampleBatch(
+                    seq=i,
+                    first_tick=30 * i,
+                    sample_rate_hz=200.0,
+                    sim_time_s=0.15 * i,
+                    wall_time_s=1e9,
+                    inputs=rng.standard_normal((2, 30)),
+                    outputs=rng.standard_normal((2, 30)),
+                )
+            )
             for i in range(n_batches)
         ]
         t0 = time.process_time()

@@ -66,7 +66,10 @@ def cmd_record(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    print(f"recording rig {settings.rig_id!r} (zenoh {settings.zenoh_connect or 'peers'}, CAN {settings.can_interface}:{settings.can_channel} port {settings.can_port}) into {args.path}; Ctrl-C stops", flush=True)
+    print(
+        f"recording rig {settings.rig_id!r} (zenoh {settings.zenoh_connect or 'peers'}, CAN {settings.can_interface}:{settings.can_channel} port {settings.can_port}) into {args.path}; Ctrl-C stops",
+        flush=True,
+    )
     started = time.monotonic()
     try:
         while not stop.is_set() and (args.duration is None or time.monotonic() - started < args.duration):
@@ -99,7 +102,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             kwargs["port"] = args.port or int(rec.metadata.get("ralf.run", {}).get("can_port", 43113))
         messages = recorded_can_messages(rec, direction=args.direction)
         with can.Bus(**kwargs) as bus:
-            sent = play_can(messages, bus, ignore_timestamps=args.ignore_timestamps, gap_s=args.gap, skip_s=args.skip, limit=args.limit, max_wall_s=args.max_wall)
+            sent = play_can(
+                messages, bus, ignore_timestamps=args.ignore_timestamps, gap_s=args.gap, skip_s=args.skip, limit=args.limit, max_wall_s=args.max_wall
+            )
         console.print(f"{sent} of {len(messages)} CAN frames replayed on {args.interface}:{args.channel}")
         did = True
     if args.identify or not did:
@@ -128,8 +133,22 @@ def _plot_tracks(rec: Any, c: Any, path: Path) -> None:
     truth = rec.truth()
     if truth:
         ax.plot(truth["sim_time_s"], truth["modal_frequencies_hz"][:, 0], color="k", lw=1.0, label="true f1")
-    ax.plot(c.recorded.times_s, c.recorded.f1_hz, ".", ms=3, color="tab:blue", label=f"recorded: {c.recorded.median_abs_error_pct:.1f} % median error, lag {c.recorded.lag_s:.2f} s")
-    ax.plot(c.replayed.times_s, c.replayed.f1_hz, "x", ms=3, color="tab:orange", label=f"replayed: {c.replayed.median_abs_error_pct:.1f} % median error, lag {c.replayed.lag_s:.2f} s")
+    ax.plot(
+        c.recorded.times_s,
+        c.recorded.f1_hz,
+        ".",
+        ms=3,
+        color="tab:blue",
+        label=f"recorded: {c.recorded.median_abs_error_pct:.1f} % median error, lag {c.recorded.lag_s:.2f} s",
+    )
+    ax.plot(
+        c.replayed.times_s,
+        c.replayed.f1_hz,
+        "x",
+        ms=3,
+        color="tab:orange",
+        label=f"replayed: {c.replayed.median_abs_error_pct:.1f} % median error, lag {c.replayed.lag_s:.2f} s",
+    )
     ax.set_xlabel("simulated time (s)")
     ax.set_ylabel("first mode (Hz)")
     ax.grid(alpha=0.3)
@@ -191,7 +210,9 @@ def register(subparsers: Any) -> None:
         "with the on-line run and the recorded truth. --can plays the CAN frames onto a bus; --export-can writes them as .blf/.asc.",
     )
     p.add_argument("path", metavar="RUN.mcap")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="identifier setting (fft_width, alpha, averaging, solver, smoothing_window, ...)")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="NAME=VALUE", help="identifier setting (fft_width, alpha, averaging, solver, smoothing_window, ...)"
+    )
     p.add_argument("--out", default=None, metavar="DIR", help="write replay.md, replay.json and replay_tracks.png here")
     p.add_argument("--identify", action="store_true", help="re-identify even with --can/--export-can")
     p.add_argument("--require-identical", action="store_true", help="exit 1 unless the replay equals the recorded run bit for bit")

@@ -125,7 +125,16 @@ class RecordingDspPort:
 class CosimRecording:
     """One co-simulation's MCAP file: the recorder, its metadata and the hooks to wrap the run's parts with."""
 
-    def __init__(self, path: str, rig_id: str, now: Callable[[], float], settings: dict[str, dict[str, Any]], *, can_log: str | None = None, extra: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        path: str,
+        rig_id: str,
+        now: Callable[[], float],
+        settings: dict[str, dict[str, Any]],
+        *,
+        can_log: str | None = None,
+        extra: dict[str, Any] | None = None,
+    ) -> None:
         from rig.recording.tap import run_metadata
 
         rate = float(settings.get("controller", {}).get("sample_rate_hz", 200.0) or 200.0)
@@ -134,7 +143,9 @@ class CosimRecording:
         self.keys = Keys(rig_id)
         self.now = now
         self.epoch_s = time.time()
-        for name, values in run_metadata(rig_id, settings, **{**(extra or {}), "clock": "cosim", "log_time": "run start (wall clock) + simulated time"}).items():
+        for name, values in run_metadata(
+            rig_id, settings, **{**(extra or {}), "clock": "cosim", "log_time": "run start (wall clock) + simulated time"}
+        ).items():
             self.recorder.add_metadata(name, values)
 
     def wire(self, inner: Any) -> RecordingWire:

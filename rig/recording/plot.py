@@ -113,7 +113,14 @@ def plot_modes(rec: Recording, out: Path) -> Path:
     truth = rec.truth()
     if truth:
         for m in range(truth["modal_frequencies_hz"].shape[1]):
-            ax.plot(truth["sim_time_s"], truth["modal_frequencies_hz"][:, m], color="k", lw=1.0 if m == 0 else 0.7, ls="-" if m == 0 else ":", label=f"true mode {m + 1}")
+            ax.plot(
+                truth["sim_time_s"],
+                truth["modal_frequencies_hz"][:, m],
+                color="k",
+                lw=1.0 if m == 0 else 0.7,
+                ls="-" if m == 0 else ":",
+                label=f"true mode {m + 1}",
+            )
     irqs = rec.interrupts()
     t = np.array([i["sim_time_s"] for i in irqs], dtype=float)
     for k, color in ((0, "tab:blue"), (1, "tab:orange")):
@@ -147,7 +154,15 @@ def plot_tf_spectrogram(rec: Recording, out: Path, name: str = "Htot") -> Path:
         edges_t = np.concatenate([t, [t[-1] + (t[-1] - t[-2] if t.size > 1 else 1.0)]])
         df = f[1] - f[0] if f.size > 1 else 1.0
         edges_f = np.concatenate([f - df / 2, [f[-1] + df / 2]])
-        mesh = ax.pcolormesh(edges_t, edges_f, db.T, shading="flat", cmap="viridis", vmin=float(np.nanpercentile(db, 5)) if np.isfinite(db).any() else None, vmax=float(np.nanmax(db)) if np.isfinite(db).any() else None)
+        mesh = ax.pcolormesh(
+            edges_t,
+            edges_f,
+            db.T,
+            shading="flat",
+            cmap="viridis",
+            vmin=float(np.nanpercentile(db, 5)) if np.isfinite(db).any() else None,
+            vmax=float(np.nanmax(db)) if np.isfinite(db).any() else None,
+        )
         fig.colorbar(mesh, ax=ax, label=f"|{name}| (dB)")
         truth = rec.truth()
         if truth:

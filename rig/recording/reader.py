@@ -48,11 +48,11 @@ class Recording:
             summary = reader.get_summary()
             topics = None
             if wanted is not None and summary is not None:
-                topics = [c.topic for c in summary.channels.values() if any(c.topic == schemas.CAN_TOPIC if w == "can" else c.topic.endswith("/" + w) for w in wanted)]
+                topics = [
+                    c.topic for c in summary.channels.values() if any(c.topic == schemas.CAN_TOPIC if w == "can" else c.topic.endswith("/" + w) for w in wanted)
+                ]
             for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
-                rec.messages.append(
-                    Recorded(channel.topic, schema.name if schema else "", message.log_time, message.publish_time, json.loads(message.data))
-                )
+                rec.messages.append(Recorded(channel.topic, schema.name if schema else "", message.log_time, message.publish_time, json.loads(message.data)))
         return rec
 
     # -- metadata -----------------------------------------------------------------------

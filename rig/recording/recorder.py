@@ -119,7 +119,9 @@ class Recorder:
     ) -> None:
         """A CAN frame. ``direction`` defaults to the COB-ID's (:func:`~rig.recording.schemas.direction_of`),
         the simulated time to the SYNC clock's (give both when the caller knows them)."""
-        self._put(("can", int(arbitration_id), bytes(data), time.time() if wall_time_s is None else wall_time_s, bool(is_extended_id), direction, sim_time_s, tick))
+        self._put(
+            ("can", int(arbitration_id), bytes(data), time.time() if wall_time_s is None else wall_time_s, bool(is_extended_id), direction, sim_time_s, tick)
+        )
 
     def on_message(self, key: str, payload: bytes | bytearray | memoryview, *, wall_time_s: float | None = None, encoding: str = "") -> None:
         """A zenoh sample on ``key`` (its payload bytes, as they travelled)."""
@@ -187,7 +189,12 @@ class Recorder:
         elif kind == "alive":
             _, key, alive, wall = item
             rig_root = key.rsplit("/", 2)[0]
-            self._emit(schemas.topic_for_key(rig_root + "/alive"), schemas.LIVELINESS_SCHEMA, {"service": key.rsplit("/", 1)[-1], "alive": alive, "wall_time_s": wall}, wall)
+            self._emit(
+                schemas.topic_for_key(rig_root + "/alive"),
+                schemas.LIVELINESS_SCHEMA,
+                {"service": key.rsplit("/", 1)[-1], "alive": alive, "wall_time_s": wall},
+                wall,
+            )
             self.stats.liveliness += 1
         elif kind == "meta":
             self._writer.add_metadata(item[1], item[2])
@@ -254,20 +261,44 @@ class Recorder:
                 message = decode(model, payload)
                 sent = getattr(message, "wall_time_s", wall)
                 # The payload as it travelled (it validated): bit-for-bit the sender's JSON.
-                self._emit_raw(topic, model.__name__, schemas.schema_of(model), payload, wall, publish_s=sent, metadata={"zenoh_key": key, "zenoh_encoding": encoding})
+                self._emit_raw(
+                    topic, model.__name__, schemas.schema_of(model), payload, wall, publish_s=sent, metadata={"zenoh_key": key, "zenoh_encoding": encoding}
+                )
         except ProtocolError as exc:
             self.stats.undecodable += 1
-            raw = {"key": key, "encoding": encoding, "size": len(payload), "data_base64": base64.b64encode(payload).decode(), "error": str(exc), "wall_time_s": wall}
+            raw = {
+                "key": key,
+                "encoding": encoding,
+                "size": len(payload),
+                "data_base64": base64.b64encode(payload).decode(),
+                "error": str(exc),
+                "wall_time_s": wall,
+            }
             self._emit(schemas.UNDECODABLE_TOPIC, schemas.RAW_SCHEMA, raw, wall)
             return
         self.stats.messages += 1
 
-    def _emit(self, topic: str, schema: Mapping[str, Any], record: Mapping[str, Any], log_s: float, publish_s: float | None = None, metadata: Mapping[str, str] | None = None) -> None:
+    def _emit(
+        self,
+        topic: str,
+        schema: Mapping[str, Any],
+        record: Mapping[str, Any],
+        log_s: float,
+        publish_s: float | None = None,
+        metadata: Mapping[str, str] | None = None,
+    ) -> None:
         data = json.dumps(record, separators=(",", ":"), allow_nan=False).encode()
         self._emit_raw(topic, str(schema["title"]), schema, data, log_s, publish_s, metadata)
 
     def _emit_raw(
-        self, topic: str, schema_name: str, schema: Mapping[str, Any], data: bytes, log_s: float, publish_s: float | None = None, metadata: Mapping[str, str] | None = None
+        self,
+        topic: str,
+        schema_name: str,
+        schema: Mapping[str, Any],
+        data: bytes,
+        log_s: float,
+        publish_s: float | None = None,
+        metadata: Mapping[str, str] | None = None,
     ) -> None:
         title = str(schema.get("title", schema_name))
         channel = self._channels.get((topic, title))
@@ -281,4 +312,6 @@ class Recorder:
             self._channels[(topic, title)] = channel
         seq = self._sequence.get(channel, 0)
         self._sequence[channel] = seq + 1
-        self._writer.add_message(channel_id=channel, log_time=_ns(log_s), data=data, publish_time=_ns(publish_s if publish_s is not None else log_s), sequence=seq)
+        self._writer.add_message(
+            channel_id=channel, log_time=_ns(log_s), data=data, publish_time=_ns(publish_s if publish_s is not None else log_s), sequence=seq
+        )

@@ -128,7 +128,9 @@ def reidentify(events: Iterable[tuple[str, Any]], settings: DspSettings) -> list
             Identified(
                 batch_seq=irq.batch_seq,
                 sim_time_s=irq.sim_time_s,
-                poles=tuple({"frequency_hz": p.frequency_hz, "damping_ratio": p.damping_ratio, "magnitude": p.magnitude, "source": p.source} for p in irq.poles),
+                poles=tuple(
+                    {"frequency_hz": p.frequency_hz, "damping_ratio": p.damping_ratio, "magnitude": p.magnitude, "source": p.source} for p in irq.poles
+                ),
                 confidence=irq.confidence,
                 samples_in_history=irq.samples_in_history,
                 valid_fraction=irq.valid_fraction,
@@ -143,7 +145,9 @@ def _normalise(ident: Identified) -> Identified:
     return Identified(
         batch_seq=ident.batch_seq,
         sim_time_s=float(ident.sim_time_s),
-        poles=tuple({**p, "frequency_hz": float(p["frequency_hz"]), "damping_ratio": float(p["damping_ratio"]), "magnitude": float(p["magnitude"])} for p in ident.poles),
+        poles=tuple(
+            {**p, "frequency_hz": float(p["frequency_hz"]), "damping_ratio": float(p["damping_ratio"]), "magnitude": float(p["magnitude"])} for p in ident.poles
+        ),
         confidence=float(ident.confidence),
         samples_in_history=int(ident.samples_in_history),
         valid_fraction=float(ident.valid_fraction),
@@ -252,7 +256,18 @@ def compare(rec: Recording, overrides: Mapping[str, Any] | None = None) -> tuple
 
 def identifier_fields() -> tuple[str, ...]:
     """The DSP settings that change the identification (``ralf-hil replay --set`` takes these)."""
-    return ("fft_width", "alpha", "averaging", "identifier", "solver", "smoothing_window", "smoothing_order", "search_min_hz", "search_max_hz", "sample_rate_hz")
+    return (
+        "fft_width",
+        "alpha",
+        "averaging",
+        "identifier",
+        "solver",
+        "smoothing_window",
+        "smoothing_order",
+        "search_min_hz",
+        "search_max_hz",
+        "sample_rate_hz",
+    )
 
 
 def report_markdown(c: Comparison) -> str:
@@ -337,7 +352,11 @@ def export_can_log(rec: Recording, path: str) -> int:
         for d in rec.can_frames():
             writer.on_message_received(
                 can.Message(
-                    timestamp=d["wall_time_s"], arbitration_id=d["arbitration_id"], is_extended_id=d["is_extended_id"], data=bytes(d["data"]), is_rx=d["direction"] != "controller->plant"
+                    timestamp=d["wall_time_s"],
+                    arbitration_id=d["arbitration_id"],
+                    is_extended_id=d["is_extended_id"],
+                    data=bytes(d["data"]),
+                    is_rx=d["direction"] != "controller->plant",
                 )
             )
             n += 1

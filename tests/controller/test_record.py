@@ -90,8 +90,7 @@ def test_column_buffer_grows_by_doubling(tmp_path: Path) -> None:
 
 
 @settings(max_examples=30, deadline=None)
-@given(rows=st.lists(st.tuples(st.floats(allow_nan=False, allow_infinity=False), st.integers(-1000, 1000)), max_size=300),
-       capacity=st.integers(1, 64))
+@given(rows=st.lists(st.tuples(st.floats(allow_nan=False, allow_infinity=False), st.integers(-1000, 1000)), max_size=300), capacity=st.integers(1, 64))
 def test_column_buffer_equals_list_append(rows: list[tuple[float, int]], capacity: int) -> None:
     buf = ColumnBuffer({"x": np.float64, "k": np.int64}, capacity=capacity)
     for x, k in rows:

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from protocol.keys import Keys
 from service_kit.access import (
     ROLES,
     acl_config,
@@ -23,7 +24,6 @@ from service_kit.access import (
     publishers,
     write_credentials_file,
 )
-from protocol.keys import Keys
 
 RIG = "acl-test"
 KEYS = Keys(RIG)

@@ -74,7 +74,9 @@ def _has_upper(metadata: list[Any]) -> bool:
 def test_every_numeric_setting_is_bounded(model: type[CommonSettings]) -> None:
     unbounded = [name for name, field in _numeric_fields(model) if not _has_upper(field.metadata) and name != "oatf_band_hz"]
     assert unbounded == []
-    assert "greater than 2500" in _error(ControllerSettings, oatf_band_hz="1,1e9") or "less than or equal to 2500" in _error(ControllerSettings, oatf_band_hz="1,1e9")
+    assert "greater than 2500" in _error(ControllerSettings, oatf_band_hz="1,1e9") or "less than or equal to 2500" in _error(
+        ControllerSettings, oatf_band_hz="1,1e9"
+    )
 
 
 def test_message_fields_are_bounded() -> None:
@@ -82,7 +84,10 @@ def test_message_fields_are_bounded() -> None:
         m.decode(m.ConfigChange, b'{"seq": 0, "sim_time_s": 0.0, "wall_time_s": 0.0, "emulated_latency_s": 1000000.0}')
     with pytest.raises(Exception, match="poles"):
         pole = '{"frequency_hz": 1.0, "damping_ratio": 0.1}'
-        m.decode(m.Interrupt, ('{"seq": 0, "sim_time_s": 0.0, "batch_seq": 0, "confidence": 1.0, "compute_time_s": 0.0, "poles": [' + ",".join([pole] * 33) + "]}").encode())
+        m.decode(
+            m.Interrupt,
+            ('{"seq": 0, "sim_time_s": 0.0, "batch_seq": 0, "confidence": 1.0, "compute_time_s": 0.0, "poles": [' + ",".join([pole] * 33) + "]}").encode(),
+        )
     with pytest.raises(Exception, match="counters"):
         m.decode(m.Health, ('{"seq": 0, "sim_time_s": 0.0, "service": "x", "counters": {' + ",".join(f'"c{i}": 1' for i in range(600)) + "}}").encode())
 

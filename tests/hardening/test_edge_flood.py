@@ -44,7 +44,12 @@ def _run(tmp: Path, name: str, attack: bool) -> tuple[dict[str, int], Path]:
     try:
         if timer:
             timer.start()
-        run = run_in_process(controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"}, dsp={"fft_width": 256}, common={"rig_id": rig_id}, session=session)
+        run = run_in_process(
+            controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"},
+            dsp={"fft_width": 256},
+            common={"rig_id": rig_id},
+            session=session,
+        )
         run.controller.save(str(record), run.result)
         assert run.result.counters["sync_retries"] == 0
     finally:
@@ -84,7 +89,14 @@ def test_interrupts_and_flags_of_another_board_are_refused(tmp_path: Path) -> No
 
     def answer_first(sample: zenoh.Sample) -> None:
         batch = decode_batch(sample.payload.to_bytes())
-        irq = Interrupt(seq=batch.seq, sim_time_s=batch.sim_time_s, batch_seq=batch.seq, poles=(PoleParameters(frequency_hz=15.0, damping_ratio=0.01),), confidence=1.0, compute_time_s=0.0)
+        irq = Interrupt(
+            seq=batch.seq,
+            sim_time_s=batch.sim_time_s,
+            batch_seq=batch.seq,
+            poles=(PoleParameters(frequency_hz=15.0, damping_ratio=0.01),),
+            confidence=1.0,
+            compute_time_s=0.0,
+        )
         for board in (b"forged-board", None):
             session.put(keys.interrupt, encode(irq), attachment=board)
         flag = BlockFlag(seq=batch.seq, sim_time_s=0.0, state="empty", next_batch_seq=batch.seq + 1, fft_width=256, batch_size=30)
@@ -94,7 +106,12 @@ def test_interrupts_and_flags_of_another_board_are_refused(tmp_path: Path) -> No
     sub = session.declare_subscriber(keys.batch, answer_first)
     record = tmp_path / "forged"
     try:
-        run = run_in_process(controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"}, dsp={"fft_width": 256}, common={"rig_id": rig_id}, session=session)
+        run = run_in_process(
+            controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"},
+            dsp={"fft_width": 256},
+            common={"rig_id": rig_id},
+            session=session,
+        )
         run.controller.save(str(record), run.result)
     finally:
         sub.undeclare()

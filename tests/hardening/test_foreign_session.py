@@ -20,7 +20,6 @@ import pytest
 import zenoh
 
 from controller.record import load_record
-from service_kit.access import insert_access_from_env
 from protocol.batch_codec import decode_batch, encode_batch
 from protocol.keys import Keys
 from protocol.messages import (
@@ -32,6 +31,7 @@ from protocol.messages import (
     ScenarioCommand,
     encode,
 )
+from service_kit.access import insert_access_from_env
 
 
 def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
@@ -41,11 +41,34 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
     summary = tmp / name / "summary.json"
     proc = subprocess.Popen(
         [
-            sys.executable, "-m", "rig", "up", "--clock", "lockstep", "--duration", "150", "--rig-id", rig_id, "--log-dir", str(logs),
-            "--json", str(summary), "--set", "controller.duration_s=8", "--set", f"controller.record={record}",
-            "--set", "controller.oatf_mode=adaptive", "--set", "controller.tf_download_samples=0", "--set", "dsp.fft_width=256",
+            sys.executable,
+            "-m",
+            "rig",
+            "up",
+            "--clock",
+            "lockstep",
+            "--duration",
+            "150",
+            "--rig-id",
+            rig_id,
+            "--log-dir",
+            str(logs),
+            "--json",
+            str(summary),
+            "--set",
+            "controller.duration_s=8",
+            "--set",
+            f"controller.record={record}",
+            "--set",
+            "controller.oatf_mode=adaptive",
+            "--set",
+            "controller.tf_download_samples=0",
+            "--set",
+            "dsp.fft_width=256",
         ],
-        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
     )
     assert proc.stderr is not None
     port = None
@@ -75,7 +98,9 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
                 return  # our own forged batch, delivered back to us
             batch = decode_batch(payload)
             seq = batch.seq
-            irq = Interrupt(seq=seq, sim_time_s=0.0, batch_seq=seq, poles=(PoleParameters(frequency_hz=15.0, damping_ratio=0.01),), confidence=1.0, compute_time_s=0.0)
+            irq = Interrupt(
+                seq=seq, sim_time_s=0.0, batch_seq=seq, poles=(PoleParameters(frequency_hz=15.0, damping_ratio=0.01),), confidence=1.0, compute_time_s=0.0
+            )
             session.put(keys.interrupt, encode(irq))
             session.put(keys.flag, encode(BlockFlag(seq=seq, sim_time_s=0.0, state="empty", next_batch_seq=seq + 1, fft_width=256, batch_size=30)))
             # the next batch, early (the attack: it was accepted and the real one rejected as block-full)

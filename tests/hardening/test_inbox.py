@@ -8,8 +8,8 @@ import logging
 import pytest
 
 from protocol.errors import ProtocolError
-from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, RateLimitedLog
 from protocol.messages import BlockFlag, Interrupt, decode, encode
+from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, RateLimitedLog
 
 
 class FakeClock:
@@ -62,7 +62,10 @@ def test_flood_is_bounded_and_every_message_accounted_for() -> None:
 
 def test_undecodable_and_refused_are_counted_apart() -> None:
     inbox = Inbox("t")
-    flag = lambda b: decode(BlockFlag, b)
+
+    def flag(b: bytes) -> BlockFlag:
+        return decode(BlockFlag, b)
+
     assert not inbox.offer("flag", b'{"seq": "x"}', flag, 1024)
     assert not inbox.offer("flag", b"\xff\x00", flag, 1024)
     assert not inbox.offer("interrupt", _irq(1), lambda b: REFUSED, 1 << 15)

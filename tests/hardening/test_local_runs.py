@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from protocol.settings import CommonSettings, load_settings
-from service_kit.transport import open_can_bus
 from rig.cli import acquire_rig_lock
+from service_kit.transport import open_can_bus
 
 
 def test_second_up_on_the_same_rig_id_refuses(tmp_path: Path) -> None:
@@ -22,7 +22,9 @@ def test_second_up_on_the_same_rig_id_refuses(tmp_path: Path) -> None:
         code = "import sys; from rig.cli import acquire_rig_lock; acquire_rig_lock('lock-test', sys.argv[1])"
         proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60, check=False)
         assert proc.returncode == 2 and "already running" in proc.stderr and f"pid {os.getpid()}" in proc.stderr
-        other = subprocess.run([sys.executable, "-c", code.replace("lock-test", "other-rig"), str(tmp_path)], capture_output=True, text=True, timeout=60, check=False)
+        other = subprocess.run(
+            [sys.executable, "-c", code.replace("lock-test", "other-rig"), str(tmp_path)], capture_output=True, text=True, timeout=60, check=False
+        )
         assert other.returncode == 0
     finally:
         held.close()

@@ -50,9 +50,7 @@ class App:
 
 
 @pytest.mark.timeout(60)
-def test_the_readme_canopen_session_runs_against_the_node(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_the_readme_canopen_session_runs_against_the_node(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("msgpack", reason="udp_multicast needs msgpack")
     port = 47201 + os.getpid() % 10000 // 2 * 2
     try:

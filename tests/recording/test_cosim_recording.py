@@ -54,7 +54,18 @@ def test_the_file_holds_every_channel_validated_against_its_schema(recorded: dic
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     root = "/ralf/cosimrec"
-    for suffix in ("dsp/batch", "dsp/interrupt", "dsp/flag", "dsp/config", "plant/truth", "controller/tf", "controller/status", "health/controller", "health/dsp", "health/plant"):
+    for suffix in (
+        "dsp/batch",
+        "dsp/interrupt",
+        "dsp/flag",
+        "dsp/config",
+        "plant/truth",
+        "controller/tf",
+        "controller/status",
+        "health/controller",
+        "health/dsp",
+        "health/plant",
+    ):
         assert counts.get(f"{root}/{suffix}", 0) > 0, suffix
     ticks = int(CONTROLLER["duration_s"] * 200)
     assert counts["/can"] >= 3 * ticks  # SYNC, TPDO1, RPDO1 each tick

@@ -36,7 +36,12 @@ def test_record_a_plant_running_alone(tmp_path: Path) -> None:
         "RALF_HEALTH_PERIOD_S": "0.5",
         "PYTHONUNBUFFERED": "1",
     }
-    plant = subprocess.Popen([sys.executable, "-m", "plant_emulator"], env={**env, "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{zport}"}, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    plant = subprocess.Popen(
+        [sys.executable, "-m", "plant_emulator"],
+        env={**env, "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{zport}"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.STDOUT,
+    )
     try:
         time.sleep(1.0)
         path = tmp_path / "plant.mcap"

@@ -45,7 +45,14 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     )  # fmt: skip
     logs = "\n".join(p.read_text() for p in (tmp / "logs").glob("*.log"))
     assert proc.returncode == 0, proc.stderr + logs
-    return {"tmp": tmp, "path": mcap_path, "rig_id": rig_id, "can_port": can_port, "stdout": proc.stdout, "summary": json.loads((tmp / "summary.json").read_text())}
+    return {
+        "tmp": tmp,
+        "path": mcap_path,
+        "rig_id": rig_id,
+        "can_port": can_port,
+        "stdout": proc.stdout,
+        "summary": json.loads((tmp / "summary.json").read_text()),
+    }
 
 
 @pytest.mark.timeout(200)
@@ -79,7 +86,19 @@ def test_every_message_validates_against_its_channel_schema(run: dict[str, Any])
     # every publisher tags its payload: JSON, or the named binary batch encoding
     assert encodings.pop(f"{root}/dsp/batch") == "application/octet-stream;ralf-batch-v1"
     assert set(encodings.values()) == {"application/json"}, encodings
-    for suffix in ("dsp/batch", "dsp/interrupt", "dsp/flag", "dsp/config", "plant/truth", "controller/tf", "controller/status", "health/controller", "health/dsp", "health/plant", "alive"):
+    for suffix in (
+        "dsp/batch",
+        "dsp/interrupt",
+        "dsp/flag",
+        "dsp/config",
+        "plant/truth",
+        "controller/tf",
+        "controller/status",
+        "health/controller",
+        "health/dsp",
+        "health/plant",
+        "alive",
+    ):
         assert counts.get(f"{root}/{suffix}", 0) > 0, suffix
     assert "/_undecodable" not in counts
     assert counts[f"{root}/controller/tf"] >= 3  # a download every 400 ticks, each published on controller/tf
@@ -119,7 +138,9 @@ def test_replay_at_the_recorded_settings_is_bit_identical(run: dict[str, Any]) -
 
 def test_replay_cli_writes_its_report(run: dict[str, Any]) -> None:
     out = run["tmp"] / "replay"
-    proc = subprocess.run([sys.executable, "-m", "rig", "replay", str(run["path"]), "--require-identical", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "rig", "replay", str(run["path"]), "--require-identical", "--out", str(out)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr
     assert "**identical**" in proc.stdout
     assert json.loads((out / "replay.json").read_text())["identical_to_recorded"] is True
@@ -129,7 +150,12 @@ def test_replay_cli_writes_its_report(run: dict[str, Any]) -> None:
 def test_plot_writes_the_figures(run: dict[str, Any]) -> None:
     out = run["tmp"] / "figures"
     layout = run["tmp"] / "layout.json"
-    proc = subprocess.run([sys.executable, "-m", "rig", "plot", str(run["path"]), "--out", str(out), "--foxglove-layout", str(layout)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "rig", "plot", str(run["path"]), "--out", str(out), "--foxglove-layout", str(layout)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     for name in FIGURES:
         assert (out / name).stat().st_size > 20_000, name  # a figure with data, not an empty canvas

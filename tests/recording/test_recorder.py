@@ -66,7 +66,16 @@ def recording(tmp_path: Path) -> tuple[Path, Path]:
     rec.on_message(KEYS.batch, encode_batch(_batch(0)), wall_time_s=1001.0)
     irq = Interrupt(seq=0, sim_time_s=0.15, batch_seq=0, poles=(PoleParameters(frequency_hz=4.4, damping_ratio=0.09),), confidence=0.5, compute_time_s=1e-3)
     rec.on_message(KEYS.interrupt, encode(irq), wall_time_s=1001.1)
-    truth = GroundTruth(seq=0, sim_time_s=0.1, modal_frequencies_hz=(4.4, 9.1), damping_ratios=(0.09, 0.09), deflections_in=(0.1, -0.2), theta_rad=(1.0, 0.5), tip_in=(40.0, 30.0), payload_attached=False)
+    truth = GroundTruth(
+        seq=0,
+        sim_time_s=0.1,
+        modal_frequencies_hz=(4.4, 9.1),
+        damping_ratios=(0.09, 0.09),
+        deflections_in=(0.1, -0.2),
+        theta_rad=(1.0, 0.5),
+        tip_in=(40.0, 30.0),
+        payload_attached=False,
+    )
     rec.on_message(KEYS.truth, encode(truth), wall_time_s=1001.2)
     rec.on_message(KEYS.health("dsp"), encode(Health(seq=0, sim_time_s=0.0, service="dsp")), wall_time_s=1001.3)
     rec.on_message(KEYS.interrupt, b'{"seq": "not a number"}', wall_time_s=1001.4)
@@ -84,7 +93,15 @@ def test_mcap_reader_reads_every_channel_with_its_schema(recording: tuple[Path, 
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
         topics = {ch.topic for ch in summary.channels.values()}
-        assert {"/can", "/ralf/unit/dsp/batch", "/ralf/unit/dsp/interrupt", "/ralf/unit/plant/truth", "/ralf/unit/health/dsp", "/ralf/unit/alive", "/_undecodable"} <= topics
+        assert {
+            "/can",
+            "/ralf/unit/dsp/batch",
+            "/ralf/unit/dsp/interrupt",
+            "/ralf/unit/plant/truth",
+            "/ralf/unit/health/dsp",
+            "/ralf/unit/alive",
+            "/_undecodable",
+        } <= topics
         seen = 0
         for schema, channel, message in reader.iter_messages():
             assert channel.message_encoding == "json"

@@ -6,7 +6,18 @@ from __future__ import annotations
 from protocol.keys import Keys
 from rig.recording.schemas import BATCH_SUFFIX, model_for_key
 
-JSON_KEYS = ("flag", "interrupt", "dsp_config", "dsp_config_ack", "truth", "scenario", "plant_events", "controller_status", "controller_command", "tf_downloads")
+JSON_KEYS = (
+    "flag",
+    "interrupt",
+    "dsp_config",
+    "dsp_config_ack",
+    "truth",
+    "scenario",
+    "plant_events",
+    "controller_status",
+    "controller_command",
+    "tf_downloads",
+)
 
 
 def test_every_json_key_of_the_contract_has_a_model() -> None:

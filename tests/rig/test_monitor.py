@@ -74,7 +74,9 @@ def service() -> Iterator[FakeService]:
                 last_miss="valves held: SYNC watchdog",
             )
             health_pub.put(encode(health))
-            status_pub.put(encode(ControllerStatus(seq=seq, sim_time_s=1.25, ticks=250, loop_rate_hz=199.5, batches_sent=12, interrupts=11, latest_frequency_hz=4.4)))
+            status_pub.put(
+                encode(ControllerStatus(seq=seq, sim_time_s=1.25, ticks=250, loop_rate_hz=199.5, batches_sent=12, interrupts=11, latest_frequency_hz=4.4))
+            )
             seq += 1
             stop.wait(0.1)
 
