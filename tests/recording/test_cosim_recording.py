@@ -10,14 +10,13 @@ from pathlib import Path
 from typing import Any
 
 import cantools
-import jsonschema
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
 from rig.cosim import run_cosim
 from rig.recording.reader import Recording
 from rig.recording.replay import compare
+from tests.recording.support import CHANNELS_OF_A_RUN, read_validated
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTROLLER = {"duration_s": 6.0, "tf_download_samples": 200, "batch_size": 20}
@@ -42,31 +41,11 @@ def test_recording_changes_nothing_in_the_run(recorded: dict[str, Any]) -> None:
 
 
 def test_the_file_holds_every_channel_validated_against_its_schema(recorded: dict[str, Any]) -> None:
-    counts: dict[str, int] = {}
-    with open(recorded["path"], "rb") as f:
-        reader = make_reader(f)
-        validators: dict[int, Any] = {}
-        for schema, channel, message in reader.iter_messages():
-            assert schema is not None
-            if schema.id not in validators:
-                validators[schema.id] = jsonschema.Draft202012Validator(json.loads(schema.data))
-            validators[schema.id].validate(json.loads(message.data))
-            counts[channel.topic] = counts.get(channel.topic, 0) + 1
-        meta = {m.name: m.metadata for m in reader.iter_metadata()}
-    root = "/ralf/cosimrec"
-    for suffix in (
-        "dsp/batch",
-        "dsp/interrupt",
-        "dsp/flag",
-        "dsp/config",
-        "plant/truth",
-        "controller/tf",
-        "controller/status",
-        "health/controller",
-        "health/dsp",
-        "health/plant",
-    ):
-        assert counts.get(f"{root}/{suffix}", 0) > 0, suffix
+    seen = read_validated(recorded["path"])
+    counts, meta = seen.counts, seen.metadata
+    for suffix in CHANNELS_OF_A_RUN:
+        assert counts.get(f"/ralf/cosimrec/{suffix}", 0) > 0, suffix
+    assert set(seen.encodings.values()) == {"application/json", "application/octet-stream;ralf-batch-v1"}
     ticks = int(CONTROLLER["duration_s"] * 200)
     assert counts["/can"] >= 3 * ticks  # SYNC, TPDO1, RPDO1 each tick
     assert meta["ralf.run"]["clock"] == "cosim"

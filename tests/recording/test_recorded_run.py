@@ -15,15 +15,14 @@ from typing import Any
 
 import can
 import cantools
-import jsonschema
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
 from rig.recording import foxglove
 from rig.recording.plot import FIGURES
 from rig.recording.reader import Recording
 from rig.recording.replay import compare, play_can, recorded_can_messages
+from tests.recording.support import CHANNELS_OF_A_RUN, read_validated
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM_S = 12.0
@@ -68,37 +67,13 @@ def test_every_message_validates_against_its_channel_schema(run: dict[str, Any])
     from rig.recording.doctor import check
 
     assert check(run["path"]) == []  # CRCs, declarations, chunk ranges, statistics
-    counts: dict[str, int] = {}
-    with open(run["path"], "rb") as f:
-        reader = make_reader(f)
-        validators: dict[int, jsonschema.protocols.Validator] = {}
-        for schema, channel, message in reader.iter_messages():
-            assert schema is not None and schema.encoding == "jsonschema" and channel.message_encoding == "json"
-            if schema.id not in validators:
-                validators[schema.id] = jsonschema.Draft202012Validator(json.loads(schema.data))
-            validators[schema.id].validate(json.loads(message.data))
-            counts[channel.topic] = counts.get(channel.topic, 0) + 1
-        meta = {m.name: m.metadata for m in reader.iter_metadata()}
-        summary = reader.get_summary()
-    assert summary is not None
-    encodings = {ch.topic: ch.metadata.get("zenoh_encoding") for ch in summary.channels.values() if "zenoh_encoding" in ch.metadata}
+    seen = read_validated(run["path"])
+    counts, meta, encodings = seen.counts, seen.metadata, dict(seen.encodings)
     root = f"/ralf/{run['rig_id']}"
     # every publisher tags its payload: JSON, or the named binary batch encoding
     assert encodings.pop(f"{root}/dsp/batch") == "application/octet-stream;ralf-batch-v1"
     assert set(encodings.values()) == {"application/json"}, encodings
-    for suffix in (
-        "dsp/batch",
-        "dsp/interrupt",
-        "dsp/flag",
-        "dsp/config",
-        "plant/truth",
-        "controller/tf",
-        "controller/status",
-        "health/controller",
-        "health/dsp",
-        "health/plant",
-        "alive",
-    ):
+    for suffix in (*CHANNELS_OF_A_RUN, "alive"):
         assert counts.get(f"{root}/{suffix}", 0) > 0, suffix
     assert "/_undecodable" not in counts
     assert counts[f"{root}/controller/tf"] >= 3  # a download every 400 ticks, each published on controller/tf
