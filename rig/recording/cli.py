@@ -133,22 +133,9 @@ def _plot_tracks(rec: Any, c: Any, path: Path) -> None:
     truth = rec.truth()
     if truth:
         ax.plot(truth["sim_time_s"], truth["modal_frequencies_hz"][:, 0], color="k", lw=1.0, label="true f1")
-    ax.plot(
-        c.recorded.times_s,
-        c.recorded.f1_hz,
-        ".",
-        ms=3,
-        color="tab:blue",
-        label=f"recorded: {c.recorded.median_abs_error_pct:.1f} % median error, lag {c.recorded.lag_s:.2f} s",
-    )
-    ax.plot(
-        c.replayed.times_s,
-        c.replayed.f1_hz,
-        "x",
-        ms=3,
-        color="tab:orange",
-        label=f"replayed: {c.replayed.median_abs_error_pct:.1f} % median error, lag {c.replayed.lag_s:.2f} s",
-    )
+    for name, track, marker, colour in (("recorded", c.recorded, ".", "tab:blue"), ("replayed", c.replayed, "x", "tab:orange")):
+        label = f"{name}: {track.median_abs_error_pct:.1f} % median error, lag {track.lag_s:.2f} s"
+        ax.plot(track.times_s, track.f1_hz, marker, ms=3, color=colour, label=label)
     ax.set_xlabel("simulated time (s)")
     ax.set_ylabel("first mode (Hz)")
     ax.grid(alpha=0.3)
