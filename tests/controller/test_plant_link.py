@@ -71,11 +71,11 @@ def frame(cob_id: int, data: bytes) -> can.Message:
 
 
 def run_ticks(link: PlantLink, n: int, volts: tuple[float, float] = (0.5, -0.5)) -> int:
-    """n controller ticks (SYNC, TPDO, RPDO); returns how many got their TPDO."""
+    """n controller ticks (SYNC, TPDO, RPDO); returns how many got their TPDO (waited for generously: the subject is what arrives, not how fast, and a loaded host may hold the node thread for a while)."""
     answered = 0
     for _ in range(n):
         link.send_sync()
-        if link.wait_tpdo(0.5) is not None:
+        if link.wait_tpdo(5.0) is not None:
             answered += 1
         link.send_outputs(volts)
     return answered
