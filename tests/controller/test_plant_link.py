@@ -62,7 +62,7 @@ def serving(bus: can.BusABC, node: CanopenNode) -> Iterator[None]:
         yield
     finally:
         stop.set()
-        thread.join(2.0)
+        thread.join(10.0)
         assert not thread.is_alive()
 
 

@@ -49,7 +49,7 @@ def serving(bus: can.BusABC, node: CanopenNode) -> Iterator[threading.Thread]:
         yield thread
     finally:
         stop.set()
-        thread.join(1.0)
+        thread.join(10.0)  # it returns within max_wait_s; 10 s leaves a loaded host its pauses
         assert not thread.is_alive(), "run_node did not return after stop"
 
 
@@ -167,28 +167,65 @@ def test_canopen_master_drives_the_node() -> None:
         node_bus.shutdown()
 
 
+class _WaitingBus:
+    """A bus whose ``recv(timeout)`` lets ``timeout`` of a fake clock pass (nothing
+    ever arrives) and which stamps each sent frame with that clock: the runner's
+    scheduling, judged without the host's timing."""
+
+    def __init__(self, stop: threading.Event, until_s: float) -> None:
+        self.now = 0.0
+        self.sent: list[tuple[float, can.Message]] = []
+        self.waits: list[float] = []
+        self.stop, self.until_s = stop, until_s
+
+    def clock(self) -> float:
+        return self.now
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        self.waits.append(float(timeout or 0.0))
+        self.now += float(timeout or 0.0)
+        if self.now >= self.until_s:
+            self.stop.set()
+        return None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.sent.append((self.now, msg))
+
+
 def test_runner_keeps_heartbeat_time_and_stops_promptly() -> None:
+    """The runner waits exactly until the node's next deadline (never past
+    ``max_wait_s``, so a stop is seen within it): heartbeats go out on their
+    50 ms grid with no drift, the first one the boot-up."""
+    stop = threading.Event()
+    bus = _WaitingBus(stop, until_s=1.0)
+    node = CanopenNode(FakeApp(), NodeConfig(heartbeat_ms=50))
+    run_node(bus, node, stop, bus.clock, max_wait_s=0.02)  # type: ignore[arg-type]
+    beats = [(t, m) for t, m in bus.sent if m.arbitration_id == 0x701]
+    assert bytes(beats[0][1].data) == b"\x00"
+    times = np.array([t for t, _ in beats[1:]])
+    assert len(times) == 20
+    assert np.allclose(times, 0.05 * np.arange(1, 21), atol=1e-9), times  # on the grid: no drift
+    assert max(bus.waits) <= 0.02 + 1e-12 and min(bus.waits) >= 0.0
+
+
+def test_runner_serves_heartbeats_on_a_real_bus_and_stops() -> None:
+    """The same loop on a python-can virtual bus in real time: heartbeats
+    arrive and stop() ends it (counts only: no timing is asserted)."""
     channel = f"ralf-node-runner-{uuid.uuid4().hex}"
     node_bus = can.Bus(interface="virtual", channel=channel)
     listener = can.Bus(interface="virtual", channel=channel)
-    node = CanopenNode(FakeApp(), NodeConfig(heartbeat_ms=50))
-    frames: list[can.Message] = []
+    node = CanopenNode(FakeApp(), NodeConfig(heartbeat_ms=20))
+    beats = 0
     try:
-        with serving(node_bus, node):
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 0.33:
-                msg = listener.recv(0.05)
-                if msg is not None:
-                    frames.append(msg)
-            stopped_at = time.monotonic()
-        assert time.monotonic() - stopped_at < 0.2
+        with serving(node_bus, node):  # joins the runner thread on exit (asserts it ended)
+            deadline = time.monotonic() + 30.0
+            while beats < 3 and time.monotonic() < deadline:
+                msg = listener.recv(0.1)
+                beats += msg is not None and msg.arbitration_id == 0x701
     finally:
         node_bus.shutdown()
         listener.shutdown()
-    beats = [m for m in frames if m.arbitration_id == 0x701]
-    assert bytes(beats[0].data) == b"\x00"
-    periods = np.diff([m.timestamp for m in beats[1:]])
-    assert len(beats) >= 5 and abs(np.median(periods) - 0.05) < 0.005 and np.all(np.abs(periods - 0.05) < 0.03), periods
+    assert beats >= 3
 
 
 UDP_GROUP = "239.74.163.2"

@@ -78,13 +78,15 @@ def test_sync_frames_lost_on_the_bus_are_seen_as_counter_gaps() -> None:
 def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_again(tmp_path: Path) -> None:
     plan = RigPlan.local(
         rig_id=f"kill-{uuid.uuid4().hex[:6]}",
-        overrides={"dsp": {"RALF_FFT_WIDTH": "256"}, "controller": {"RALF_OATF_MODE": "adaptive"}},
+        overrides={"dsp": {"RALF_FFT_WIDTH": "256"}, "controller": {"RALF_OATF_MODE": "adaptive", "RALF_PLANT_HEARTBEAT_TIMEOUT_S": "20"}},
     )
     observer = RigObserver(plan)
     procs = {name: start_service(plan, name, tmp_path) for name in ("dsp", "plant", "controller")}
     try:
         # The waits are bounds for a loaded host, not figures: what is tested is that each
-        # event is noticed and the run goes on, not how fast (that is the bench's).
+        # event is noticed and the run goes on, not how fast (that is the bench's). The
+        # plant's heartbeat may go quiet for a second or more at load 15 (the review saw
+        # that end the run): the subject here is the DSP, so the controller tolerates 20 s.
         def wait_for(cond, timeout: float = 60.0) -> None:  # type: ignore[no-untyped-def]
             deadline = time.monotonic() + timeout
             while not cond():
