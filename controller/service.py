@@ -24,6 +24,7 @@ answered its reset (``startup_timeout_s``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
@@ -37,6 +38,9 @@ import zenoh
 
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
+from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
+from controller.hop_timing import HopTimer
+from controller.tf_download import TfDownloader
 from controller.loop import ControlLaw, run_ticks
 from controller.monitors import MonitorStop, Monitors
 from controller.plant_link import PlantFault, PlantLink, StopRequested
@@ -49,6 +53,7 @@ from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.link_faults import Scenario, load_scenario, parse_scenario
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
@@ -117,6 +122,7 @@ class ControllerService:
         scheduler: Scheduler | None = None,
         stopwatch: Callable[[], float] = time.perf_counter,
         keep_record: bool = False,
+        scenario: Scenario | None = None,
     ) -> None:
         self.settings = settings
         self.session = session
@@ -146,6 +152,22 @@ class ControllerService:
         self.jitter = LatencyTracker()
         self.period_jitter = LatencyTracker()
         self.irq_latency = LatencyTracker()
+        self.hops = HopTimer()
+        """Per-hop stamps of the tick and batch paths (controller/hop_timing.py)."""
+        self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
+        self.injection = LegacyInjection(
+            stall_at_tick=int(round(settings.inject_stall_at_s * settings.sample_rate_hz)) if settings.inject_stall_at_s is not None else None,
+            stall_s=settings.inject_stall_s,
+            sync_drop_every=settings.inject_sync_drop_every,
+        )
+        if scenario is None and settings.fault_scenario:
+            text = settings.fault_scenario.strip()
+            scenario = parse_scenario(text) if text.startswith("{") else load_scenario(text)
+        self._w0 = stopwatch()
+        self.faults: FaultStage | None = (
+            FaultStage.from_scenario(scenario, settings.sample_period_s, self.lockstep, lambda: self.stopwatch() - self._w0) if scenario is not None and scenario.faults else None
+        )
+        """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
         self.tick = 0
         self.latest_frequency_hz: float | None = None
         self.latest_interrupt: Interrupt | None = None
@@ -161,10 +183,7 @@ class ControllerService:
         """Which real-time measures are in effect for the loop (service_kit.realtime)."""
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.liveliness: list[tuple[float, str, bool]] = []
-        self.tf_snapshots: list[TfSnapshot] = []
         self._last_words = np.zeros(4, dtype=np.int64)
-        self._tf_thread: threading.Thread | None = None
-        self._tf_due = False
         self._config_seq = int.from_bytes(os.urandom(4), "little") >> 2
         """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._reset_sent = False
@@ -179,7 +198,13 @@ class ControllerService:
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
+        self._batch_sent_unix: dict[int, tuple[float, int]] = {}
+        """Per batch in flight: Unix time sent (the batch path's first stamp) and its sample count."""
+        self._unix_offset = time.time() - time.monotonic()
+        """Unix - monotonic: converts the port's arrival stamps for the batch path's hops (real time)."""
         self._status_seq = 0
+        self._dsp_acked = False
+        """The DSP flagged its block full since the last batch went out (it has the batch)."""
         self._last_status = 0.0
         self._rate_window: list[float] = []
         columns = {**{name: np.float64 for name in self._record_names()}, "tick": np.int64}
@@ -187,6 +212,9 @@ class ControllerService:
         # RALF_RECORD set: streamed to disk in chunks. Unset: nothing is kept (flat
         # memory), unless the caller reads the columns (keep_record: in-process runs).
         self._keep_all = bool(settings.record) or keep_record
+        self.tf = TfDownloader(
+            self.port, self.clock, self.timing, self.lockstep, settings.tf_download_samples, settings.lockstep_timeout_s, BATCH_RESEND_S, self._keep_all
+        )
         self.record: ChunkedRecord | ColumnBuffer | RowCounter
         self.timing_record: ChunkedRecord | ColumnBuffer | RowCounter
         if settings.record:
@@ -204,6 +232,11 @@ class ControllerService:
             "command": lambda b: decode(ConfigChange, b),
         }
         self.port.connect(self._on_port_event, self.clock.now)
+
+    @property
+    def tf_snapshots(self) -> list[TfSnapshot]:
+        """The TF downloads kept (all of them when a record is kept, else the latest)."""
+        return self.tf.snapshots
 
     # -- bookkeeping --------------------------------------------------------------------
     def _record_names(self) -> list[str]:
@@ -248,6 +281,8 @@ class ControllerService:
 
     def _build_health(self, seq: int) -> Health:
         counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters(), **self._events.as_dict()}
+        if self.faults is not None:
+            counters.update(self.faults.as_counters())
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -264,6 +299,7 @@ class ControllerService:
                 "sync_jitter": self.jitter.stats(),
                 "sync_period_jitter": self.period_jitter.stats(),
                 "batch_to_interrupt": self.irq_latency.stats(),
+                **self.hops.stats(),
             },
             last_miss=self.monitors.last or self.last_miss,
         )
@@ -299,6 +335,8 @@ class ControllerService:
         try:
             if kind == "flag":
                 flag = payload
+                if flag.state == "full":
+                    self._dsp_acked = True
                 self.link.on_flag(flag)
                 self._flags_seen += 1
                 self._dsp_config_seq = flag.config_seq
@@ -307,7 +345,10 @@ class ControllerService:
                 self._irq_arrival[irq.batch_seq] = arrival
                 while len(self._irq_arrival) > 64:  # unmatched ones (lost or foreign) must not accumulate
                     del self._irq_arrival[next(iter(self._irq_arrival))]
-                self._held_interrupts.append(irq)
+                if self.faults is None:
+                    self._held_interrupts.append(irq)
+                else:
+                    self._held_interrupts.extend(self.faults.interrupt(irq, irq.batch_seq))  # type: ignore[arg-type]
             elif kind == "command":
                 self.reconfigure(payload)
             elif kind == "alive":
@@ -354,6 +395,10 @@ class ControllerService:
     def _drain_events(self) -> None:
         for kind, message, arrival in self._events.drain(limit=self._events.capacity):
             self._take_event(kind, message, arrival)
+        if self.faults is not None and not self.lockstep:
+            self._held_interrupts.extend(self.faults.interrupts_due())  # type: ignore[arg-type]
+            for payload in self.faults.batches_due():
+                self.port.send_batch(payload)
 
     def _next_event(self, timeout: float) -> Item | None:
         """The next DSP-side event (decoded), waiting up to ``timeout`` wall
@@ -366,6 +411,9 @@ class ControllerService:
         """Lockstep: block until the interrupt of batch ``seq`` is in, however
         long it takes to arrive (the DSP's presence is not asked), up to
         ``lockstep_timeout_s``: then it is declared lost."""
+        if self.faults is not None and self.faults.lost(seq):
+            self._fault_lost(seq)
+            return
         deadline = self.clock.now() + self.settings.lockstep_timeout_s
         resend_at = self.clock.now() + BATCH_RESEND_S
         self.timing.lockstep_waits += 1
@@ -384,6 +432,26 @@ class ControllerService:
                 return
             if event is not None:
                 self._take_event(*event)
+
+    def _fault_lost(self, seq: int) -> None:
+        """Lockstep: batch ``seq`` or its interrupt was dropped by a link fault,
+        so it is lost at its due tick, without waiting. A batch that never
+        reached the DSP leaves its block empty and expecting ``seq`` (the flag
+        the CPU reads, Fig. 3.5): the next batch takes that number again and
+        says its samples are missing, so the DSP restarts its history."""
+        assert self.faults is not None
+        self.link.declare_lost()
+        sent = self._batch_sent_unix.pop(seq, None)
+        if self.faults.engine.covers("batch") and self._dsp_never_got(seq):
+            self.link.next_seq = seq
+            self.link.block_empty = True
+            self.link.note_lost_samples(sent[1] if sent is not None else 0)
+        self.last_miss = f"batch {seq}: interrupt lost at its due tick {self.tick} ({self.faults.blame(seq)})"
+        self.monitors.fire("deadline", self.last_miss)
+
+    def _dsp_never_got(self, seq: int) -> bool:
+        assert self.faults is not None
+        return seq in self.faults.batches_dropped
 
     def _apply_interrupts(self) -> bool:
         """Apply held interrupts that are due; True if one was applied this tick.
@@ -407,6 +475,10 @@ class ControllerService:
             arrived = self._irq_arrival.pop(irq.batch_seq, self.clock.now())
             if sent_wall is not None:
                 self.irq_latency.add(arrived - sent_wall)
+            sent_unix = self._batch_sent_unix.pop(irq.batch_seq, None)
+            if sent_unix is not None and not self.port.synchronous:
+                now_unix = time.time()
+                self.hops.batch(sent_unix[0], irq.wall_time_s, irq.compute_time_s, arrived + self._unix_offset, now_unix)
             self.timing.interrupts_applied += 1
             applied = True
             if not self.link.missed_current:
@@ -426,40 +498,42 @@ class ControllerService:
         if taken is None:
             return
         sent, batch = taken
+        sent_unix = time.time()
         if not self.port.synchronous:
-            batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
+            batch = type(batch)(**{**batch.__dict__, "wall_time_s": sent_unix})
         self._batch_sent_wall[sent.seq] = self.clock.now()
+        self._batch_sent_unix[sent.seq] = (sent_unix, batch.n_samples)
         while len(self._batch_sent_wall) > 64:  # batches never answered must not accumulate
             del self._batch_sent_wall[next(iter(self._batch_sent_wall))]
-        self._last_batch = encode_batch(batch)
-        self.port.send_batch(self._last_batch)
-
-    def _download_tf(self) -> None:
-        try:
-            replies = self.port.download_tf(BATCH_RESEND_S if self.lockstep else 2.0)
-            if self.lockstep:
-                # Lockstep: ask again (the DSP is idle, the answer is the same) until
-                # lockstep_timeout_s, so a reply lost on a starved host costs time only.
-                deadline = self.clock.now() + self.settings.lockstep_timeout_s
-                while not replies and self.clock.now() < deadline and not self.clock.stopping:
-                    self.timing.tf_download_retries += 1
-                    replies = self.port.download_tf(BATCH_RESEND_S)
-        except Exception as exc:  # a dying session must not end the run
-            self.timing.tf_download_failures += 1
-            log.warning("TF download failed: %s", exc)
-            return
-        for reply in replies:
-            try:
-                self.tf_snapshots.append(decode(TfSnapshot, reply))
-                if not self._keep_all:
-                    del self.tf_snapshots[:-1]  # nothing will save them: keep the latest only
-                self.timing.tf_downloads += 1
-                self.port.publish_tf(reply)  # controller/tf: each download, for recorders and viewers
+        while len(self._batch_sent_unix) > 64:
+            del self._batch_sent_unix[next(iter(self._batch_sent_unix))]
+        payload = encode_batch(batch)
+        self._last_batch = payload
+        self._dsp_acked = False
+        if self.faults is not None:
+            send, shift = self.faults.batch(sent.seq, self.tick, payload)
+            if shift and self.link.in_flight is sent:
+                self.link.in_flight = dataclasses.replace(sent, due_tick=sent.due_tick + shift)
+            if not send:
+                if self.faults.lost(sent.seq):
+                    self._last_batch = None  # lost on the wire: never resent
                 return
-            except ProtocolError as exc:
-                self.timing.undecodable += 1
-                log.warning("bad TF snapshot: %s", exc)
-        self.timing.tf_download_failures += 1
+        self.port.send_batch(payload)
+
+    def _blame_batch(self) -> str:
+        """Which hop of the batch in flight ate its deadline: a link fault, the
+        DSP (it acknowledged the batch: block full) or the way there (no
+        acknowledgement yet)."""
+        sent = self.link.in_flight
+        if sent is not None and self.faults is not None:
+            fault = self.faults.blame(sent.seq)
+            if fault:
+                return fault
+        if sent is not None and sent.due_tick > sent.deadline_tick:
+            return f"the DSP's emulated latency ({(sent.due_tick - sent.tick) * self.settings.sample_period_s * 1e3:.0f} ms) exceeds the deadline"
+        if not self.link.block_empty and self._dsp_acked:
+            return "hop dsp_compute: the DSP acknowledged the batch and has not answered"
+        return "hop batch_to_dsp: no acknowledgement from the DSP yet"
 
     def _check_stale(self) -> None:
         """Stale: no fresh confident estimate for ``stale_after_s``. Before the
@@ -484,7 +558,11 @@ class ControllerService:
         self._drain_events()
         applied = self._apply_interrupts()
         out = self.law.step(self.tick, words)
-        self.plant.send_outputs(out.volts)
+        if self.faults is None:
+            self.plant.send_outputs(out.volts)
+        else:
+            for volts in self.faults.rpdo(self.tick, out.volts):
+                self.plant.send_outputs(volts)
         if self.lockstep and (self._n_ticks is None or self.tick + 1 < self._n_ticks):
             # Lockstep: the next SYNC follows the D/A frame at once (the node takes
             # them in this order, as before), so the plant steps while this tick's
@@ -492,24 +570,10 @@ class ControllerService:
             self._emit_sync(self.tick + 1)
             self._sync_sent_for = self.tick + 1
         self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
-        if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0:
-            self._tf_due = True
-        if self._tf_due and self.lockstep:
-            if self.link.in_flight is None:  # the DSP is idle: the snapshot is deterministic
-                self._tf_due = False
-                self._download_tf()
-        elif self._tf_due and self.dsp_alive:
-            if self._tf_thread is None or not self._tf_thread.is_alive():
-                # real time: the query must not hold up the loop
-                self._tf_due = False
-                self._tf_thread = threading.Thread(target=self._download_tf, name="tf-download", daemon=True)
-                self._tf_thread.start()
-            else:
-                self._tf_due = False
-                self.timing.tf_download_failures += 1  # the previous download is still under way
+        self.tf.on_tick(self.tick, self.link.in_flight is None, self.dsp_alive)
         self._maybe_send_batch()
         if self.link.check_deadline(self.tick):
-            self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms"
+            self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms ({self._blame_batch()})"
             self.monitors.fire("deadline", self.last_miss)
         self._check_stale()
         self.law.set_degraded(self.monitors.degraded)
@@ -549,10 +613,15 @@ class ControllerService:
             w0 = self.stopwatch()
             missed_in_row = 0
             last_start: float | None = None
+            self._w0 = w0
+            faults = self.faults
+            hops = self.hops
+            ns = self._stopwatch_ns
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
-                if s.inject_stall_at_s is not None and self.tick == int(round(s.inject_stall_at_s * s.sample_rate_hz)):
-                    log.warning("fault injection: the loop stalls for %.2f s", s.inject_stall_s)
-                    stop.wait(s.inject_stall_s)
+                stall = self.injection.stall_now(self.tick)
+                if stall:
+                    log.warning("fault injection: the loop stalls for %.2f s", stall)
+                    stop.wait(stall)
                 scheduled = t0 + self.tick * ts
                 if not lockstep and self.clock.now() - scheduled > RESYNC_AFTER_PERIODS * ts:
                     # Hopelessly behind (a stall, or a rate the host cannot hold): those
@@ -572,14 +641,22 @@ class ControllerService:
                     break
                 start = self.clock.now()
                 w_start = self.stopwatch()
+                sync_ns = ns()
                 if self._sync_sent_for != self.tick:
                     self._emit_sync(self.tick)
+                wakeup_ns = -1
                 if not lockstep:
-                    self.jitter.add(max(0.0, start - scheduled))  # lateness of this SYNC against its deadline
+                    late = max(0.0, start - scheduled)  # lateness of this SYNC against its deadline
+                    self.jitter.add(late)
+                    wakeup_ns = round(late * 1e9)
                     if last_start is not None:
                         self.period_jitter.add(abs(start - last_start - ts))
                     last_start = start
-                words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(0.8 * ts)
+                if faults is None:
+                    words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(TPDO_WINDOW * ts)
+                else:
+                    words = self._faulted_sample(faults, ts)
+                tpdo_ns = ns()
                 if words is None:
                     missed_in_row += 1
                     if self.plant.heartbeat_age() > heartbeat_timeout or missed_in_row * ts > heartbeat_timeout:
@@ -590,11 +667,12 @@ class ControllerService:
                 self._last_words = words
                 self._tick(words)
                 w_end = self.stopwatch()
+                hops.tick(wakeup_ns, sync_ns, tpdo_ns, ns())
                 self.tet.add(w_end - w_start)
                 self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
                 if not lockstep and self.clock.now() > scheduled + ts:
                     self.timing.overruns += 1
-                    self.monitors.fire("overrun", f"tick {self.tick} took {(w_end - w_start) * 1e3:.2f} ms, past the next SYNC")
+                    self.monitors.fire("overrun", f"tick {self.tick} took {(w_end - w_start) * 1e3:.2f} ms, past the next SYNC (blame: {hops.blame_tick()})")
                 elif "overrun" in self.monitors.active:
                     self.monitors.clear("overrun")
                 conflicts = self.plant.take_conflicts()  # another master on the bus (see PlantLink)
@@ -631,18 +709,41 @@ class ControllerService:
         return RunResult(
             ticks=self.tick,
             sim_time_s=self.tick * ts,
-            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict()},
+            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict(), **(self.faults.as_counters() if self.faults is not None else {})},
             error=error,
             liveliness=self.liveliness,
         )
 
     def _emit_sync(self, tick: int) -> None:
         """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
-        every = self.settings.inject_sync_drop_every
-        if every and tick % every == every - 1:
+        if self.injection.drop_sync(tick):
             self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
             self.timing.syncs_dropped += 1
+        if self.faults is not None:
+            delay = self.faults.sync(tick)
+            if delay is None:  # a link fault lost it: counter advanced, nothing sent, no TPDO to wait for
+                self.plant.skip_sync()
+                self.timing.syncs_dropped += 1
+                return
+            if delay > 0:
+                self.clock.wait(delay)
         self.plant.send_sync()
+
+    def _faulted_sample(self, faults: FaultStage, ts: float) -> np.ndarray | None:
+        """This tick's TPDO1 through the link faults: None when its SYNC or it was lost."""
+        if not faults.expects_tpdo(self.tick):
+            if not self.lockstep:
+                self.plant.wait_tpdo(0.0)  # take what is on the bus (stale frames are counted there)
+            return None
+        words = self._lockstep_sample() if self.lockstep else self.plant.wait_tpdo(TPDO_WINDOW * ts)
+        if words is None:
+            return None
+        delay = faults.tpdo(self.tick)
+        if delay is None:
+            return None
+        if delay > 0:
+            self.clock.wait(delay)
+        return words
 
     def _lockstep_sample(self) -> np.ndarray:
         """Lockstep: the TPDO for this tick, however long the plant takes. A
@@ -702,6 +803,8 @@ class ControllerService:
         metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
         if isinstance(self.record, RowCounter) or isinstance(self.timing_record, RowCounter):
             raise ValueError("this run keeps no record: set RALF_RECORD to save one")
+        if self.faults is not None:
+            metadata["faults"] = {"scenario": self.faults.engine.scenario.model_dump(), "counters": self.faults.as_counters(), "events": [dataclasses.asdict(e) for e in self.faults.engine.events[:10000]]}
         self.record.save(path, self.settings.model_dump(), metadata)
         self.timing_record.save(path + ".timing", None, {"note": "wall-clock timing; differs run to run"})
         if self.tf_snapshots:
@@ -714,7 +817,6 @@ class ControllerService:
             np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)
 
     def close(self) -> None:
-        if self._tf_thread is not None:
-            self._tf_thread.join(timeout=3.0)
+        self.tf.join(timeout=3.0)
         self.port.close()
 

@@ -1,0 +1,183 @@
+"""Link faults as scripted stimulus: the pure engine against scipy's
+distributions and tests, and the controller's reaction to each fault kind
+in the co-simulation (deterministic, bit-for-bit reproducible)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from controller.plant_link import PlantLink
+from controller.service import ControllerService
+from dsp_service.core import DspCore
+from plant_emulator.node import CanopenNode
+from plant_emulator.service import PlantApplication, node_config
+from rig.cosim import DirectCanWire, DirectDspPort, run_cosim, settings_for
+from service_kit.clock import SimulatedScheduler
+from service_kit.link_faults import FaultEngine, Jitter, ScenarioError, load_scenario, parse_scenario, uniform
+
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "scenarios"
+FAST = {"tf_download_samples": 0, "batch_size": 20}
+FAST_DSP = {"fft_width": 256, "emulated_latency_s": 0.05}
+
+
+def scenario(*faults: dict[str, Any], seed: int = 0) -> str:
+    return json.dumps({"seed": seed, "faults": list(faults)})
+
+
+# -- the engine --------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "jitter, reference",
+    [
+        (Jitter(distribution="exponential", scale_s=0.002), stats.expon(scale=0.002)),
+        (Jitter(distribution="uniform", low_s=0.001, high_s=0.003), stats.uniform(loc=0.001, scale=0.002)),
+        (Jitter(distribution="normal", mean_s=0.01, std_s=0.001), stats.norm(loc=0.01, scale=0.001)),
+    ],
+)
+def test_jitter_draws_follow_their_distribution(jitter: Jitter, reference: Any) -> None:
+    engine = FaultEngine(parse_scenario(scenario({"link": "zenoh", "kinds": ["batch"], "jitter": jitter.model_dump()}, seed=11)))
+    delays = np.array([engine.decide("batch", seq, 0.0, 0.0).delay_s for seq in range(4000)])
+    assert stats.kstest(delays, reference.cdf).pvalue > 1e-3
+
+
+def test_drop_and_duplicate_rates_are_binomial_and_independent_of_call_order() -> None:
+    text = scenario({"link": "can", "kinds": ["rpdo", "tpdo"], "drop": 0.1, "duplicate": 0.3}, seed=5)
+    engine = FaultEngine(parse_scenario(text))
+    fates = [engine.decide("rpdo", k, k * 0.005, 0.0) for k in range(5000)]
+    dropped = sum(f.dropped for f in fates)
+    assert stats.binomtest(dropped, 5000, 0.1).pvalue > 1e-3
+    kept = [f for f in fates if not f.dropped]
+    assert stats.binomtest(sum(f.copies == 2 for f in kept), len(kept), 0.3).pvalue > 1e-3
+    # pure: the same messages in reverse order, interleaved with another kind, get the same fates
+    other = FaultEngine(parse_scenario(text))
+    backwards = {}
+    for k in reversed(range(5000)):
+        other.decide("tpdo", k, 0.0, 0.0)
+        backwards[k] = other.decide("rpdo", k, k * 0.005, 0.0)
+    assert all(backwards[k] == fates[k] for k in range(5000))
+    assert engine.counters.dropped["rpdo"] == dropped
+    # a different seed, different fates
+    assert uniform(5, 0, 3, 1, 1) != uniform(6, 0, 3, 1, 1)
+
+
+def test_windows_and_burst_outages() -> None:
+    engine = FaultEngine(parse_scenario(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 3.0, "outage": {"every_s": 1.0, "length_s": 0.25}})))
+    t = np.arange(0.0, 4.0, 0.05)
+    dropped = np.array([engine.decide("interrupt", i, float(x), 0.0).dropped for i, x in enumerate(t)])
+    expected = (t >= 1.0) & (t < 3.0) & (((t - 1.0) % 1.0) < 0.25)
+    assert np.array_equal(dropped, expected)
+    assert not engine.covers("batch") and engine.decide("batch", 0, 2.0, 0.0).dropped is False
+
+
+def test_scenarios_are_validated_and_the_examples_load() -> None:
+    with pytest.raises(ScenarioError, match="unknown kinds"):
+        parse_scenario(scenario({"link": "can", "kinds": ["interrupt"]}))
+    with pytest.raises(ScenarioError, match="stop_s"):
+        parse_scenario(scenario({"link": "can", "kinds": ["sync"], "start_s": 2, "stop_s": 1}))
+    with pytest.raises(ScenarioError):
+        parse_scenario("faults: [{link: serial, kinds: [x]}]")
+    for path in sorted(DOCS.glob("*")):
+        s = load_scenario(path)
+        assert s.faults and s.name == path.stem
+
+
+# -- the controller's reaction, in the co-simulation -------------------------------------------
+def _cosim(faults: str, **controller: Any) -> Any:
+    return run_cosim(controller={"duration_s": 4.0, **FAST, "fault_scenario": faults, **controller}, dsp=dict(FAST_DSP))
+
+
+def _columns(run: Any) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v) for k, v in run.controller.record.to_columns().items()}
+
+
+def _same(a: Any, b: Any) -> None:
+    ca, cb = _columns(a), _columns(b)
+    assert ca.keys() == cb.keys()
+    for k in ca:
+        assert np.array_equal(ca[k], cb[k], equal_nan=True), k
+
+
+def test_interrupt_outage_fires_the_deadline_monitor_and_the_run_reproduces_bit_for_bit() -> None:
+    faults = scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 2.0, "drop": 1.0})
+    a = _cosim(faults)
+    c = a.result.counters
+    # batches every 100 ms; the 10 whose interrupts are due in [1, 2) s are lost at their due tick
+    assert c["fault_dropped_interrupt"] == 10 == c["interrupts_lost"]
+    assert a.controller.monitors.episodes["deadline"] == 10
+    assert "lost at its due tick" in (a.controller.monitors.last or "") or "deadline" in (a.controller.monitors.last or "")
+    assert c["interrupts_applied"] == c["batches_sent"] - 10 - 1  # the last one still in flight
+    _same(a, _cosim(faults))
+    clean = run_cosim(controller={"duration_s": 4.0, **FAST}, dsp=dict(FAST_DSP))
+    applied, clean_applied = _columns(a)["irq_applied"], _columns(clean)["irq_applied"]
+    assert not np.array_equal(applied, clean_applied)
+    assert np.array_equal(applied[:200], clean_applied[:200])  # nothing changes before the fault
+
+
+def test_batch_loss_restarts_the_dsp_history_and_identification_resumes() -> None:
+    a = _cosim(scenario({"link": "zenoh", "kinds": ["batch"], "start_s": 1.0, "stop_s": 1.3, "drop": 1.0}))
+    c = a.result.counters
+    assert c["fault_dropped_batch"] >= 1 and c["interrupts_lost"] == c["fault_dropped_batch"]
+    assert a.dsp.block.counters.samples_missing > 0  # the next batch said its samples were missing
+    applied = np.flatnonzero(_columns(a)["irq_applied"] > 0)
+    assert applied[-1] > 700  # interrupts came back after the outage
+    assert "dropped on zenoh" in (a.controller.last_miss or "") or a.controller.monitors.episodes["deadline"] >= 1
+
+
+def test_interrupts_delayed_past_the_deadline_are_misses_that_name_the_fault() -> None:
+    a = _cosim(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 2.0, "delay_s": 0.08}), policy_deadline="degrade")
+    c = a.result.counters
+    # deadline = batch period 100 ms; latency 50 ms + 80 ms delay = 130 ms: a miss, not a loss
+    assert c["deadline_misses"] >= 5 and c["interrupts_lost"] == 0
+    assert c["fault_delayed_interrupt"] == c["deadline_misses"]
+    assert "link fault: interrupt delayed 80.0 ms" in (a.controller.monitors.last or "")
+    applied = np.flatnonzero(_columns(a)["irq_applied"] > 0)
+    late = applied[(applied > 200) & (applied < 400)]
+    assert np.all(np.diff(late) >= 20)  # still one per batch, each 16 ticks later
+
+
+def test_tpdo_loss_holds_the_last_sample_and_rpdo_loss_the_last_command() -> None:
+    a = _cosim(scenario({"link": "can", "kinds": ["tpdo"], "start_s": 1.0, "stop_s": 1.05, "drop": 1.0}, {"link": "can", "kinds": ["rpdo"], "start_s": 2.0, "stop_s": 2.05, "drop": 1.0}))
+    col = _columns(a)
+    held = col["ai1_word"][200:210]
+    assert np.all(held == col["ai1_word"][199])  # ticks 200..209 have no sample: the last one held
+    assert a.result.counters["fault_dropped_tpdo"] == 10 and a.result.counters["fault_dropped_rpdo"] == 10
+    assert a.result.error is None and a.result.ticks == 800
+
+
+def _cosim_with_watchdog(faults: str, duration_s: float = 2.0) -> tuple[Any, PlantApplication, CanopenNode]:
+    """The co-simulation with the plant's SYNC watchdog on (as on the real rig;
+    a lockstep plant turns it off), on the simulated clock."""
+    cs, ps, ds = settings_for({"duration_s": duration_s, **FAST, "fault_scenario": faults}, None, dict(FAST_DSP))
+    scheduler = SimulatedScheduler()
+    app = PlantApplication(ps, clock=scheduler.now)
+    node = CanopenNode(app, dataclasses.replace(node_config(ps), watchdog_periods=5))
+    link = PlantLink(DirectCanWire(node, scheduler), cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
+    ctrl = ControllerService(cs, None, link, port=DirectDspPort(DspCore(ds)), scheduler=scheduler, keep_record=True)
+    try:
+        result = ctrl.run(scheduler.stop)
+    finally:
+        ctrl.close()
+    return result, app, node
+
+
+def test_sync_outage_trips_the_plant_watchdog_which_holds_the_valves_then_releases() -> None:
+    faults = scenario({"link": "can", "kinds": ["sync"], "start_s": 1.0, "stop_s": 1.2, "drop": 1.0})
+    result, app, node = _cosim_with_watchdog(faults)
+    n = node.counters.as_dict()
+    assert n["watchdog_trips"] == 1 and n["watchdog_recoveries"] == 1
+    assert result.counters["fault_dropped_sync"] == 40 and result.error is None
+    again, _, node2 = _cosim_with_watchdog(faults)
+    assert again.counters == result.counters and node2.counters.as_dict() == n
+
+
+def test_rpdo_outage_trips_the_watchdog_while_sync_keeps_coming() -> None:
+    result, app, node = _cosim_with_watchdog(scenario({"link": "can", "kinds": ["rpdo"], "start_s": 1.0, "stop_s": 1.2, "drop": 1.0}))
+    n = node.counters.as_dict()
+    assert n["watchdog_trips"] >= 1 and n.get("rpdo_timeouts", n["watchdog_trips"]) >= 1
+    assert result.counters["fault_dropped_rpdo"] == 40
