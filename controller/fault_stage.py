@@ -83,6 +83,7 @@ class FaultStage:
     _batch_held: list[tuple[float, int, bytes]] = field(default_factory=list)
     _irq_fate: dict[int, Fate] = field(default_factory=dict)
     _irq_held: list[tuple[float, object]] = field(default_factory=list)
+    _batch_delay: dict[int, float] = field(default_factory=dict)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, sample_period_s: float, simulated: bool, wall: Callable[[], float]) -> FaultStage:
@@ -159,6 +160,9 @@ class FaultStage:
         self._lost_batches.discard(seq)
         self.batches_dropped.discard(seq)
         self._irq_fate.pop(seq, None)
+        self._batch_delay.pop(seq, None)
+        while len(self._batch_delay) > 64:
+            del self._batch_delay[next(iter(self._batch_delay))]
         # keyed by the tick it goes out at (unique per attempt, deterministic)
         if self.engine.covers("batch"):
             fate = self._decide("batch", tick, tick)
@@ -169,6 +173,7 @@ class FaultStage:
                     self.batches_dropped.add(seq)
                     return False, 0
                 if fate.delay_s > 0:
+                    self._batch_delay[seq] = fate.delay_s
                     if self.simulated:
                         shift += math.ceil(round(fate.delay_s / self.sample_period_s, 9))
                     else:
@@ -234,6 +239,8 @@ class FaultStage:
             return "link fault: batch or interrupt dropped on zenoh"
         if fate is not None and fate.delay_s > 0:
             return f"link fault: interrupt delayed {fate.delay_s * 1e3:.1f} ms on zenoh (faults {list(fate.faults)})"
+        if seq in self._batch_delay:
+            return f"link fault: batch delayed {self._batch_delay[seq] * 1e3:.1f} ms on zenoh"
         return None
 
 

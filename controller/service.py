@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from array import array
 import os
 import threading
 import time
@@ -154,6 +155,11 @@ class ControllerService:
         self.irq_latency = LatencyTracker()
         self.hops = HopTimer()
         """Per-hop stamps of the tick and batch paths (controller/hop_timing.py)."""
+        self.batch_missed = array("b")
+        """Per batch answered or lost, in order: 1 if it missed its deadline (late or lost), else 0."""
+        self.overrun_run = 0
+        self.overrun_run_max = 0
+        """Consecutive overrunning ticks: now, and the longest run."""
         self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
         self.injection = LegacyInjection(
             stall_at_tick=int(round(settings.inject_stall_at_s * settings.sample_rate_hz)) if settings.inject_stall_at_s is not None else None,
@@ -427,6 +433,7 @@ class ControllerService:
             if event is None and (remaining <= 0 or self.port.synchronous or self.clock.stopping):
                 # It will not come: count it lost, fire the deadline monitor, go on without it.
                 self.link.declare_lost()
+                self.batch_missed.append(1)
                 self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
                 self.monitors.fire("deadline", self.last_miss)
                 return
@@ -441,6 +448,7 @@ class ControllerService:
         says its samples are missing, so the DSP restarts its history."""
         assert self.faults is not None
         self.link.declare_lost()
+        self.batch_missed.append(1)
         sent = self._batch_sent_unix.pop(seq, None)
         if self.faults.engine.covers("batch") and self._dsp_never_got(seq):
             self.link.next_seq = seq
@@ -480,6 +488,7 @@ class ControllerService:
                 now_unix = time.time()
                 self.hops.batch(sent_unix[0], irq.wall_time_s, irq.compute_time_s, arrived + self._unix_offset, now_unix)
             self.timing.interrupts_applied += 1
+            self.batch_missed.append(1 if self.link.missed_current else 0)
             applied = True
             if not self.link.missed_current:
                 self.monitors.clear("deadline")
@@ -672,9 +681,13 @@ class ControllerService:
                 self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
                 if not lockstep and self.clock.now() > scheduled + ts:
                     self.timing.overruns += 1
+                    self.overrun_run += 1
+                    self.overrun_run_max = max(self.overrun_run_max, self.overrun_run)
                     self.monitors.fire("overrun", f"tick {self.tick} took {(w_end - w_start) * 1e3:.2f} ms, past the next SYNC (blame: {hops.blame_tick()})")
-                elif "overrun" in self.monitors.active:
-                    self.monitors.clear("overrun")
+                else:
+                    self.overrun_run = 0
+                    if "overrun" in self.monitors.active:
+                        self.monitors.clear("overrun")
                 conflicts = self.plant.take_conflicts()  # another master on the bus (see PlantLink)
                 if conflicts:
                     self.monitors.fire("can_conflict", f"tick {self.tick}: " + "; ".join(conflicts[:3]))

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 from controller.dsp_port import DspPort
 from protocol.errors import ProtocolError
@@ -21,13 +21,6 @@ from protocol.messages import TfSnapshot, decode
 from service_kit.clock import Scheduler
 
 log = logging.getLogger(__name__)
-
-
-class _Counters(Protocol):
-    tf_downloads: int
-    tf_download_failures: int
-    tf_download_retries: int
-    undecodable: int
 
 
 @dataclass

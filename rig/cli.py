@@ -22,7 +22,8 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
-from rig import bench, campaign, experiments, monitor
+from rig import bench, campaign, experiments, monitor, timing_test
+from rig.hostinfo import host_info, host_line
 from rig.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
 from rig.recording import cli as recording_cli
 from rig.recording.tap import RigRecording
@@ -74,6 +75,7 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
         "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in observer.health.items()},
         "liveliness_events": observer.events,
         "undecodable_messages": observer.bad_messages,
+        "host": host_info(),  # the machine the numbers were measured on (rig/hostinfo.py)
     }
     return summary
 
@@ -116,6 +118,8 @@ def print_summary(summary: dict[str, Any]) -> None:
                 f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
             )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
+    if summary.get("host"):
+        table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row("recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable")
@@ -441,6 +445,7 @@ def build_parser() -> argparse.ArgumentParser:
     cr.set_defaults(func=cmd_credentials)
     for module in (bench, monitor, experiments, campaign, recording_cli):
         module.register(sub)
+    timing_test.register(sub)  # ralf-hil timing-test (rig/timing_test)
     return parser
 
 

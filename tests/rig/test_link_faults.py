@@ -181,3 +181,41 @@ def test_rpdo_outage_trips_the_watchdog_while_sync_keeps_coming() -> None:
     n = node.counters.as_dict()
     assert n["watchdog_trips"] >= 1 and n.get("rpdo_timeouts", n["watchdog_trips"]) >= 1
     assert result.counters["fault_dropped_rpdo"] == 40
+
+
+def test_a_faulted_cosim_equals_the_faulted_one_process_lockstep_run() -> None:
+    """The same scenario in the co-simulation and in lockstep over the virtual
+    CAN bus and a zenoh session with the real DSP service: the same record."""
+    from rig.composition import run_in_process
+
+    faults = scenario(
+        {"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 1.5, "drop": 1.0},
+        {"link": "zenoh", "kinds": ["batch"], "start_s": 2.0, "stop_s": 2.2, "drop": 1.0},
+        {"link": "zenoh", "kinds": ["interrupt"], "start_s": 2.5, "stop_s": 3.0, "delay_s": 0.08},
+        {"link": "can", "kinds": ["rpdo", "tpdo"], "start_s": 0.5, "drop": 0.05, "duplicate": 0.05},
+        seed=9,
+    )
+    controller = {"duration_s": 3.5, **FAST, "fault_scenario": faults}
+    a = run_cosim(controller=dict(controller), dsp=dict(FAST_DSP))
+    b = run_in_process(controller=dict(controller), dsp=dict(FAST_DSP))
+    assert a.result.error is None and b.result.error is None
+    _same(a, b)
+    keys = ("fault_dropped_interrupt", "fault_dropped_batch", "fault_delayed_interrupt", "fault_dropped_rpdo", "fault_duplicated_rpdo", "interrupts_lost", "deadline_misses")
+    assert {k: a.result.counters.get(k) for k in keys} == {k: b.result.counters.get(k) for k in keys}
+
+
+def test_timing_test_report_gives_verdicts_percentiles_and_histograms(tmp_path: Path) -> None:
+    from rig.cli import main
+    from rig.timing_test.report import run_lengths
+
+    assert run_lengths([0, 1, 1, 0, 1, 0, 0, 1, 1, 1]) == [2, 1, 3] and run_lengths([]) == []
+    spec = tmp_path / "s.json"
+    spec.write_text(json.dumps({"name": "t", "duration_s": 2.0, "settings": {"controller": FAST, "dsp": FAST_DSP},
+                                "faults": [{"link": "zenoh", "kinds": ["interrupt"], "start_s": 0.5, "stop_s": 1.0, "drop": 1.0}]}))
+    rc = main(["timing-test", str(spec), "--out", str(tmp_path / "r"), "--max-consecutive-misses", "10"])
+    report = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert rc == 0 and report["passed"]
+    assert report["miss_run_lengths"]["longest"] == 5  # the five batches whose interrupts were due in [0.5, 1) s
+    assert report["host"]["cpus"] and "load_average_after" in report["host"]
+    assert (tmp_path / "r" / "hist_tet.png").stat().st_size > 1000
+    assert main(["timing-test", str(spec), "--out", str(tmp_path / "r2")]) == 1  # default: never two misses in a row
