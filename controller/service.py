@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from array import array
 import os
 import threading
 import time
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,27 +41,27 @@ from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
 from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
 from controller.hop_timing import HopTimer
-from controller.tf_download import TfDownloader
 from controller.loop import ControlLaw, run_ticks
-from controller.monitors import MonitorStop, Monitors
+from controller.monitors import Monitors, MonitorStop
 from controller.plant_link import PlantFault, PlantLink, StopRequested
-from protocol.can_map import NmtCommand, NmtState
 from controller.record import ChunkedRecord, ColumnBuffer, RowCounter
+from controller.schedule import TickSchedule, WakeupMeter
+from controller.tf_download import TfDownloader
+from controller.tick_policy import TickPolicy
 from protocol.batch_codec import encode_batch
+from protocol.can_map import NmtCommand
 from protocol.errors import ProtocolError
-from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
 from service_kit.link_faults import Scenario, load_scenario, parse_scenario
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
 log = logging.getLogger(__name__)
 
-RESYNC_AFTER_PERIODS = 20
-"""Real time: a loop this many periods late re-bases its schedule."""
 LOCKSTEP_RETRY_FRACTION = 0.5
 """Lockstep: resend a SYNC that got no TPDO after this fraction of
 ``lockstep_timeout_s`` (a frame lost on the bus). Long, so that a merely slow
@@ -157,9 +157,8 @@ class ControllerService:
         """Per-hop stamps of the tick and batch paths (controller/hop_timing.py)."""
         self.batch_missed = array("b")
         """Per batch answered or lost, in order: 1 if it missed its deadline (late or lost), else 0."""
-        self.overrun_run = 0
-        self.overrun_run_max = 0
-        """Consecutive overrunning ticks: now, and the longest run."""
+        self.policy: TickPolicy | None = None
+        """The per-tick checks of the running loop (controller/tick_policy.py)."""
         self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
         self.injection = LegacyInjection(
             stall_at_tick=int(round(settings.inject_stall_at_s * settings.sample_rate_hz)) if settings.inject_stall_at_s is not None else None,
@@ -238,6 +237,11 @@ class ControllerService:
             "command": lambda b: decode(ConfigChange, b),
         }
         self.port.connect(self._on_port_event, self.clock.now)
+
+    @property
+    def overrun_run_max(self) -> int:
+        """The longest run of consecutive overrunning ticks."""
+        return self.policy.overrun_run_max if self.policy is not None else 0
 
     @property
     def tf_snapshots(self) -> list[TfSnapshot]:
@@ -602,7 +606,7 @@ class ControllerService:
         the trajectory's end, ``stop``, or a plant fault."""
         s = self.settings
         if hasattr(self.clock, "stop"):
-            self.clock.stop = stop  # type: ignore[attr-defined]
+            self.clock.stop = stop
         self.port.start_health(s.health_period_s, self._build_health)
         error: str | None = None
         n_ticks = run_ticks(s, self.law.lap_ticks)
@@ -618,11 +622,11 @@ class ControllerService:
             if not lockstep:
                 self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity)
             self.ready_at = self.stopwatch()
-            t0 = self.clock.now()
-            w0 = self.stopwatch()
-            missed_in_row = 0
-            last_start: float | None = None
-            self._w0 = w0
+            schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
+            schedule.start()
+            wakeups = WakeupMeter(ts, self.jitter, self.period_jitter)
+            policy = self.policy = TickPolicy(self.monitors, self.plant, ts, heartbeat_timeout, self.timing)
+            w0 = self._w0 = self.stopwatch()
             faults = self.faults
             hops = self.hops
             ns = self._stopwatch_ns
@@ -631,76 +635,46 @@ class ControllerService:
                 if stall:
                     log.warning("fault injection: the loop stalls for %.2f s", stall)
                     stop.wait(stall)
-                scheduled = t0 + self.tick * ts
-                if not lockstep and self.clock.now() - scheduled > RESYNC_AFTER_PERIODS * ts:
+                behind = schedule.periods_behind(self.tick)
+                if behind:
                     # Hopelessly behind (a stall, or a rate the host cannot hold): those
                     # sample instants are gone. Skip them (counted) instead of running
                     # ticks back to back; the DSP sees the gap and restarts its history.
-                    behind = int((self.clock.now() - scheduled) / ts)
                     self.tick += behind
-                    scheduled += behind * ts
                     self.timing.schedule_resyncs += 1
                     self.timing.periods_skipped += behind
                     log.warning("loop %d periods late: schedule re-based, samples skipped", behind)
                     if n_ticks is not None and self.tick >= n_ticks:
                         break
-                # Real time sleeps until the tick's deadline; lockstep returns at once;
-                # the co-simulation's simulated clock moves to the tick.
-                if not self.clock.wait_until(scheduled):
+                if not schedule.wait(self.tick):
                     break
                 start = self.clock.now()
                 w_start = self.stopwatch()
                 sync_ns = ns()
                 if self._sync_sent_for != self.tick:
                     self._emit_sync(self.tick)
-                wakeup_ns = -1
-                if not lockstep:
-                    late = max(0.0, start - scheduled)  # lateness of this SYNC against its deadline
-                    self.jitter.add(late)
-                    wakeup_ns = round(late * 1e9)
-                    if last_start is not None:
-                        self.period_jitter.add(abs(start - last_start - ts))
-                    last_start = start
+                wakeup_ns = -1 if lockstep else wakeups.measure(start, schedule.due(self.tick))
                 if faults is None:
                     words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(TPDO_WINDOW * ts)
                 else:
                     words = self._faulted_sample(faults, ts)
                 tpdo_ns = ns()
+                policy.sample(self.tick, words is not None)
                 if words is None:
-                    missed_in_row += 1
-                    if self.plant.heartbeat_age() > heartbeat_timeout or missed_in_row * ts > heartbeat_timeout:
-                        raise PlantFault(f"plant did not answer SYNC at tick {self.tick}: {missed_in_row} TPDOs missing in a row (heartbeat age {self.plant.heartbeat_age():.2f} s)")
-                    words = self._last_words  # real time: hold the last sample for a missed TPDO
-                else:
-                    missed_in_row = 0
+                    words = self._last_words  # hold the last sample for a missed TPDO
                 self._last_words = words
                 self._tick(words)
                 w_end = self.stopwatch()
                 hops.tick(wakeup_ns, sync_ns, tpdo_ns, ns())
                 self.tet.add(w_end - w_start)
                 self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
-                if not lockstep and self.clock.now() > scheduled + ts:
-                    self.timing.overruns += 1
-                    self.overrun_run += 1
-                    self.overrun_run_max = max(self.overrun_run_max, self.overrun_run)
-                    self.monitors.fire("overrun", f"tick {self.tick} took {(w_end - w_start) * 1e3:.2f} ms, past the next SYNC (blame: {hops.blame_tick()})")
-                else:
-                    self.overrun_run = 0
-                    if "overrun" in self.monitors.active:
-                        self.monitors.clear("overrun")
-                conflicts = self.plant.take_conflicts()  # another master on the bus (see PlantLink)
-                if conflicts:
-                    self.monitors.fire("can_conflict", f"tick {self.tick}: " + "; ".join(conflicts[:3]))
-                elif "can_conflict" in self.monitors.active:
-                    self.monitors.clear("can_conflict")
+                overran = schedule.overran(self.tick)
+                policy.after_tick(self.tick, overran, w_end - w_start, hops.blame_tick() if overran else "")
                 self.tick += 1
                 self._rate_window.append(w_end)
                 if len(self._rate_window) > 200:
                     del self._rate_window[0]
-                if self.plant.heartbeat_age() > heartbeat_timeout:
-                    raise PlantFault(f"plant heartbeat lost for {self.plant.heartbeat_age():.2f} s")
-                if self.plant.node_state not in (None, NmtState.OPERATIONAL):
-                    raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {self.plant.node_state.name})")
+                policy.check_plant()
                 self._publish_status()
         except PlantFault as exc:
             error = str(exc)
@@ -825,9 +799,9 @@ class ControllerService:
             same = [s for s in self.tf_snapshots if len(s.freqs_hz) == freqs.size]
             columns: dict[str, np.ndarray] = {"sim_time_s": np.array([s.sim_time_s for s in same])}
             for name in ("H11", "H12", "H21", "H22", "Htot"):
-                columns[f"{name}_mag"] = np.array([s.estimates[name].magnitude for s in same])  # type: ignore[index]
+                columns[f"{name}_mag"] = np.array([s.estimates[name].magnitude for s in same])
             arrays = {k: v for k, v in columns.items()}
-            np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)
+            np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)  # type: ignore[arg-type]
 
     def close(self) -> None:
         self.tf.join(timeout=3.0)
