@@ -21,9 +21,11 @@ nothing is added to the DSP's messages):
 * ``irq_to_controller``: interrupt published -> received by the controller;
 * ``irq_to_applied``: received -> applied at a tick.
 
-The stamps go into preallocated ``array('q')`` rings (no allocation, no
-numpy call on the tick path); percentiles are computed only when health
-or the summary asks. :meth:`HopTimer.blame_tick` and
+The tick path's four raw stamps go into one preallocated ``array('q')``
+ring, written inline by the loop (four item stores, no call, no
+allocation); the batch path's hops into rings of their own. Differences,
+percentiles and maxima are computed only when health or a report asks, over
+the last ``capacity`` ticks (the tick hops' ``max`` too). :meth:`HopTimer.blame_tick` and
 :meth:`HopTimer.blame_batch` name the hop that ate a missed budget.
 """
 
@@ -72,25 +74,50 @@ class HopRing:
 
 
 class HopTimer:
-    """The per-hop rings and the last tick's and batch's hops (for blame)."""
+    """The tick path's raw stamps, the batch path's rings, and blame.
+
+    The loop writes tick ``i``'s stamps itself (see :meth:`tick`, which does
+    the same, for callers off the hot path): ``raw[4 j] = wakeup lateness
+    (ns, -1 = not measured)``, ``raw[4 j + 1] = SYNC sent``, ``raw[4 j + 2] =
+    TPDO1 in``, ``raw[4 j + 3] = tick done`` (stopwatch ns) with ``j = n %
+    capacity``, then ``n += 1``."""
 
     def __init__(self, capacity: int = 65536) -> None:
-        self.rings = {name: HopRing(capacity) for name in HOPS}
-        self._wakeup = self.rings["wakeup"]
-        self._s2t = self.rings["sync_to_tpdo"]
-        self._compute = self.rings["tick_compute"]
-        self.last_tick: tuple[int, int, int] = (0, 0, 0)
+        self.capacity = capacity
+        self.raw = array("q", bytes(8 * 4 * capacity))
+        self.n = 0
+        self.rings = {name: HopRing(capacity) for name in BATCH_HOPS}
         self.last_batch: dict[str, int] = {}
 
     def tick(self, wakeup_ns: int, sync_ns: int, tpdo_ns: int, done_ns: int) -> None:
-        """One tick: SYNC lateness (ns, -1 = not measured), SYNC sent, TPDO in, tick done (stopwatch ns)."""
-        s2t = tpdo_ns - sync_ns
-        comp = done_ns - tpdo_ns
-        if wakeup_ns >= 0:
-            self._wakeup.add(wakeup_ns)
-        self._s2t.add(s2t)
-        self._compute.add(comp)
-        self.last_tick = (max(0, wakeup_ns), s2t, comp)
+        """One tick's stamps (what the loop writes inline)."""
+        j = (self.n % self.capacity) << 2
+        raw = self.raw
+        raw[j] = wakeup_ns
+        raw[j + 1] = sync_ns
+        raw[j + 2] = tpdo_ns
+        raw[j + 3] = done_ns
+        self.n += 1
+
+    @property
+    def last_tick(self) -> tuple[int, int, int]:
+        """The last tick's (wakeup, sync_to_tpdo, tick_compute) in ns."""
+        if not self.n:
+            return (0, 0, 0)
+        j = ((self.n - 1) % self.capacity) << 2
+        w, s, t, d = self.raw[j : j + 4]
+        return (max(0, w), t - s, d - t)
+
+    def tick_hops_s(self) -> dict[str, np.ndarray]:
+        """The tick hops (s) of the last ``capacity`` ticks, in tick order within the ring."""
+        m = min(self.n, self.capacity)
+        r = np.frombuffer(self.raw, dtype=np.int64)[: 4 * m].reshape(m, 4)
+        wake = r[:, 0]
+        return {
+            "wakeup": wake[wake >= 0].astype(np.float64) * 1e-9,
+            "sync_to_tpdo": np.maximum(r[:, 2] - r[:, 1], 0).astype(np.float64) * 1e-9,
+            "tick_compute": np.maximum(r[:, 3] - r[:, 2], 0).astype(np.float64) * 1e-9,
+        }
 
     def batch(self, sent_unix_s: float, irq_unix_s: float, compute_s: float, received_unix_s: float, applied_unix_s: float) -> None:
         """One interrupt applied: the batch path's hops from the stamps both sides took."""
@@ -117,6 +144,18 @@ class HopTimer:
         name = max(h, key=lambda k: h[k])
         return f"{name} {h[name] / 1e6:.2f} ms of {sum(max(0, v) for v in h.values()) / 1e6:.2f} ms"
 
+    def values_s(self) -> dict[str, np.ndarray]:
+        """Every hop measured at least once: its values (s)."""
+        out = {k: v for k, v in self.tick_hops_s().items() if v.size}
+        out.update({name: ring.values_s() for name, ring in self.rings.items() if ring.n})
+        return out
+
     def stats(self) -> dict[str, LatencyStats]:
         """``hop_<name>`` percentiles of every hop measured at least once."""
-        return {f"hop_{name}": ring.stats() for name, ring in self.rings.items() if ring.n}
+        out = {}
+        for name, v in self.tick_hops_s().items():
+            if v.size:
+                p50, p99, p999 = np.percentile(v, [50.0, 99.0, 99.9])
+                out[f"hop_{name}"] = LatencyStats(count=int(v.size) if self.n <= self.capacity else self.n, p50=float(p50), p99=float(p99), p999=float(p999), max=float(v.max()))
+        out.update({f"hop_{name}": ring.stats() for name, ring in self.rings.items() if ring.n})
+        return out

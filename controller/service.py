@@ -629,6 +629,7 @@ class ControllerService:
             w0 = self._w0 = self.stopwatch()
             faults = self.faults
             hops = self.hops
+            raw, hop_capacity = hops.raw, hops.capacity
             ns = self._stopwatch_ns
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
                 stall = self.injection.stall_now(self.tick)
@@ -665,7 +666,12 @@ class ControllerService:
                 self._last_words = words
                 self._tick(words)
                 w_end = self.stopwatch()
-                hops.tick(wakeup_ns, sync_ns, tpdo_ns, ns())
+                j = (hops.n % hop_capacity) << 2  # per-hop stamps, inline (controller/hop_timing.py)
+                raw[j] = wakeup_ns
+                raw[j + 1] = sync_ns
+                raw[j + 2] = tpdo_ns
+                raw[j + 3] = ns()
+                hops.n += 1
                 self.tet.add(w_end - w_start)
                 self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
                 overran = schedule.overran(self.tick)

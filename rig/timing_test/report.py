@@ -41,9 +41,9 @@ def percentiles_us(values_s: npt.ArrayLike) -> dict[str, float | int]:
 
 def _series(controller: Any) -> dict[str, np.ndarray]:
     out = {"wakeup": controller.jitter.values(), "tet": controller.tet.values()}
-    for name, ring in controller.hops.rings.items():
-        if ring.n and name != "wakeup":
-            out[f"hop_{name}"] = ring.values_s()
+    for name, values in controller.hops.values_s().items():
+        if name != "wakeup":
+            out[f"hop_{name}"] = values
     return out
 
 

@@ -238,3 +238,18 @@ def test_lost_interrupts_under_policy_degrade_make_the_oatf_fall_back() -> None:
     assert np.all(hz["fixed"][after] == 4.4)
     frozen = hz["last"][after]
     assert np.all(frozen == hz["last"][5 * 200 - 1]) and frozen[0] != 4.4
+
+
+def test_in_real_time_a_delayed_interrupt_is_held_then_applied_late() -> None:
+    """Real time (one process, virtual CAN, in-process zenoh): interrupts
+    delayed 300 ms, twice the deadline, are misses, then applied (not lost).
+    Counts only, no time is asserted."""
+    from rig.composition import run_in_process
+
+    faults = scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 0.5, "stop_s": 1.5, "delay_s": 0.3})
+    run = run_in_process(controller={"duration_s": 2.5, **FAST, "fault_scenario": faults}, dsp=dict(FAST_DSP), common={"clock": "realtime"})
+    c = run.result.counters
+    assert run.result.error is None
+    assert c["fault_delayed_interrupt"] >= 1 and c["deadline_misses"] >= 1
+    assert c["interrupts_applied"] >= c["fault_delayed_interrupt"]
+    assert "hop_dsp_compute" in run.controller.hops.stats()
