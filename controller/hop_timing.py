@@ -18,7 +18,10 @@ nothing is added to the DSP's messages):
   ``wall_time_s``, both Unix time: exact on one host, within the clock
   offset across hosts);
 * ``dsp_compute``: ``Interrupt.compute_time_s``;
-* ``irq_to_controller``: interrupt published -> received by the controller;
+* ``dsp_hold``: real time only: the rest of the DSP's emulated latency
+  (the C40's 100 ms), for which the board holds a computed interrupt
+  (``max(0, latency - compute)``; lockstep applies it in ticks instead);
+* ``irq_to_controller``: interrupt raised -> received by the controller;
 * ``irq_to_applied``: received -> applied at a tick.
 
 The tick path's four raw stamps go into one preallocated ``array('q')``
@@ -38,7 +41,7 @@ import numpy as np
 from protocol.messages import LatencyStats
 
 TICK_HOPS = ("wakeup", "sync_to_tpdo", "tick_compute")
-BATCH_HOPS = ("batch_to_dsp", "dsp_compute", "irq_to_controller", "irq_to_applied")
+BATCH_HOPS = ("batch_to_dsp", "dsp_compute", "dsp_hold", "irq_to_controller", "irq_to_applied")
 HOPS = TICK_HOPS + BATCH_HOPS
 
 
@@ -119,12 +122,14 @@ class HopTimer:
             "tick_compute": np.maximum(r[:, 3] - r[:, 2], 0).astype(np.float64) * 1e-9,
         }
 
-    def batch(self, sent_unix_s: float, irq_unix_s: float, compute_s: float, received_unix_s: float, applied_unix_s: float) -> None:
-        """One interrupt applied: the batch path's hops from the stamps both sides took."""
+    def batch(self, sent_unix_s: float, irq_unix_s: float, compute_s: float, hold_s: float, received_unix_s: float, applied_unix_s: float) -> None:
+        """One interrupt applied: the batch path's hops from the stamps both sides took
+        (``irq_unix_s``: the interrupt's ``wall_time_s``, stamped when its computation ended)."""
         hops = {
             "batch_to_dsp": round((irq_unix_s - compute_s - sent_unix_s) * 1e9),
             "dsp_compute": round(compute_s * 1e9),
-            "irq_to_controller": round((received_unix_s - irq_unix_s) * 1e9),
+            "dsp_hold": round(hold_s * 1e9),
+            "irq_to_controller": round((received_unix_s - irq_unix_s - hold_s) * 1e9),
             "irq_to_applied": round((applied_unix_s - received_unix_s) * 1e9),
         }
         for name, ns in hops.items():

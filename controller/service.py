@@ -238,6 +238,14 @@ class ControllerService:
         }
         self.port.connect(self._on_port_event, self.clock.now)
 
+    def _longest_miss_run(self) -> int:
+        """The longest run of consecutive batches that missed their deadline (health only, not per tick)."""
+        longest = run = 0
+        for missed in self.batch_missed:
+            run = run + 1 if missed else 0
+            longest = max(longest, run)
+        return longest
+
     @property
     def overrun_run_max(self) -> int:
         """The longest run of consecutive overrunning ticks."""
@@ -293,6 +301,8 @@ class ControllerService:
         counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters(), **self._events.as_dict()}
         if self.faults is not None:
             counters.update(self.faults.as_counters())
+        counters["deadline_miss_run_max"] = self._longest_miss_run()
+        counters["overrun_run_max"] = self.overrun_run_max
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -490,7 +500,8 @@ class ControllerService:
             sent_unix = self._batch_sent_unix.pop(irq.batch_seq, None)
             if sent_unix is not None and not self.port.synchronous:
                 now_unix = time.time()
-                self.hops.batch(sent_unix[0], irq.wall_time_s, irq.compute_time_s, arrived + self._unix_offset, now_unix)
+                hold = 0.0 if self.lockstep else max(0.0, self.link.dsp_latency_s - irq.compute_time_s)
+                self.hops.batch(sent_unix[0], irq.wall_time_s, irq.compute_time_s, hold, arrived + self._unix_offset, now_unix)
             self.timing.interrupts_applied += 1
             self.batch_missed.append(1 if self.link.missed_current else 0)
             applied = True

@@ -27,6 +27,7 @@ from rig.hostinfo import host_info, host_line
 from rig.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
 from rig.recording import cli as recording_cli
 from rig.recording.tap import RigRecording
+from rig.timing_test.report import health_verdict
 
 console = Console(stderr=True)
 
@@ -120,6 +121,9 @@ def print_summary(summary: dict[str, Any]) -> None:
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
     if summary.get("host"):
         table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
+    verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
+    if verdict:
+        table.add_row("timing verdict", verdict)
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row("recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable")

@@ -21,6 +21,28 @@ class Criteria:
     max_consecutive_misses: int = 1
 
 
+def health_verdict(controller_health: dict[str, Any], criteria: Criteria | None = None) -> str | None:
+    """A one-line verdict from the controller's health (``ralf-hil up``'s summary):
+    wake-up p99/p99.9 (real time: ``sync_jitter``) and the longest runs of
+    deadline misses and overruns against the default criteria."""
+    c = criteria or Criteria()
+    lat = controller_health.get("latencies", {}).get("sync_jitter") or {}
+    counters = controller_health.get("counters", {})
+    parts, ok = [], True
+    if lat.get("count"):
+        for name, key, limit in (("p99", "p99", c.wakeup_p99_us), ("p99.9", "p999", c.wakeup_p999_us)):
+            value = lat[key] * 1e6
+            ok &= value <= limit
+            parts.append(f"wake-up {name} {value:.0f} us (<= {limit:g})")
+    for name, key in (("misses in a row", "deadline_miss_run_max"), ("overruns in a row", "overrun_run_max")):
+        if key in counters:
+            ok &= counters[key] <= c.max_consecutive_misses
+            parts.append(f"{name} {counters[key]} (<= {c.max_consecutive_misses})")
+    if not parts:
+        return None
+    return ("PASS: " if ok else "FAIL: ") + ", ".join(parts)
+
+
 def run_lengths(flags: npt.ArrayLike) -> list[int]:
     """Lengths of the runs of consecutive true values, in order."""
     f = np.asarray(flags, dtype=bool).astype(np.int8)

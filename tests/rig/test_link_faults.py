@@ -253,3 +253,15 @@ def test_in_real_time_a_delayed_interrupt_is_held_then_applied_late() -> None:
     assert c["fault_delayed_interrupt"] >= 1 and c["deadline_misses"] >= 1
     assert c["interrupts_applied"] >= c["fault_delayed_interrupt"]
     assert "hop_dsp_compute" in run.controller.hops.stats()
+
+
+def test_the_up_summary_verdict_reads_the_controller_health() -> None:
+    from rig.timing_test.report import health_verdict
+
+    run = _cosim(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 1.3, "drop": 1.0}))
+    health = run.health["controller"].model_dump()
+    assert health["counters"]["deadline_miss_run_max"] == 3
+    assert "hop_sync_to_tpdo" in health["latencies"]
+    assert health_verdict(health) == "FAIL: misses in a row 3 (<= 1), overruns in a row 0 (<= 1)"
+    stats = {"count": 100, "p50": 1e-5, "p99": 2e-4, "p999": 2e-3, "max": 3e-3}
+    assert health_verdict({"latencies": {"sync_jitter": stats}, "counters": {}}) == "FAIL: wake-up p99 200 us (<= 250), wake-up p99.9 2000 us (<= 1000)"
