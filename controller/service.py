@@ -157,6 +157,9 @@ class ControllerService:
         """Per-hop stamps of the tick and batch paths (controller/hop_timing.py)."""
         self.batch_missed = array("b")
         """Per batch answered or lost, in order: 1 if it missed its deadline (late or lost), else 0."""
+        self._miss_run = 0
+        self.miss_run_max = 0
+        """The longest run of consecutive batches that missed their deadline."""
         self.policy: TickPolicy | None = None
         """The per-tick checks of the running loop (controller/tick_policy.py)."""
         self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
@@ -238,13 +241,11 @@ class ControllerService:
         }
         self.port.connect(self._on_port_event, self.clock.now)
 
-    def _longest_miss_run(self) -> int:
-        """The longest run of consecutive batches that missed their deadline (health only, not per tick)."""
-        longest = run = 0
-        for missed in self.batch_missed:
-            run = run + 1 if missed else 0
-            longest = max(longest, run)
-        return longest
+    def _note_batch(self, missed: bool) -> None:
+        """A batch was answered (``missed``: past its deadline) or lost (missed)."""
+        self.batch_missed.append(1 if missed else 0)
+        self._miss_run = self._miss_run + 1 if missed else 0
+        self.miss_run_max = max(self.miss_run_max, self._miss_run)
 
     @property
     def overrun_run_max(self) -> int:
@@ -301,7 +302,7 @@ class ControllerService:
         counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters(), **self._events.as_dict()}
         if self.faults is not None:
             counters.update(self.faults.as_counters())
-        counters["deadline_miss_run_max"] = self._longest_miss_run()
+        counters["deadline_miss_run_max"] = self.miss_run_max
         counters["overrun_run_max"] = self.overrun_run_max
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
@@ -447,7 +448,7 @@ class ControllerService:
             if event is None and (remaining <= 0 or self.port.synchronous or self.clock.stopping):
                 # It will not come: count it lost, fire the deadline monitor, go on without it.
                 self.link.declare_lost()
-                self.batch_missed.append(1)
+                self._note_batch(True)
                 self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
                 self.monitors.fire("deadline", self.last_miss)
                 return
@@ -462,7 +463,7 @@ class ControllerService:
         says its samples are missing, so the DSP restarts its history."""
         assert self.faults is not None
         self.link.declare_lost()
-        self.batch_missed.append(1)
+        self._note_batch(True)
         sent = self._batch_sent_unix.pop(seq, None)
         if self.faults.engine.covers("batch") and self._dsp_never_got(seq):
             self.link.next_seq = seq
@@ -503,7 +504,7 @@ class ControllerService:
                 hold = 0.0 if self.lockstep else max(0.0, self.link.dsp_latency_s - irq.compute_time_s)
                 self.hops.batch(sent_unix[0], irq.wall_time_s, irq.compute_time_s, hold, arrived + self._unix_offset, now_unix)
             self.timing.interrupts_applied += 1
-            self.batch_missed.append(1 if self.link.missed_current else 0)
+            self._note_batch(self.link.missed_current)
             applied = True
             if not self.link.missed_current:
                 self.monitors.clear("deadline")
