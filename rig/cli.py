@@ -277,6 +277,7 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         "startup_s": 0.0,
         "control_wall_s": round(wall, 3),
         "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+        "host": host_info(),
     }
     console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
     print_summary(summary)
