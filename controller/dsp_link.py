@@ -204,6 +204,12 @@ class DspLink:
         self.counters.interrupts += 1
         return sent
 
+    def note_lost_samples(self, n: int) -> None:
+        """``n`` samples never reached the DSP (a batch lost on the link): the
+        next batch says so, and the DSP restarts its history."""
+        self.counters.samples_dropped += n
+        self._dropped_since_last += n
+
     def declare_lost(self) -> None:
         """The interrupt of the batch in flight will not come (a timeout)."""
         if self.in_flight is not None:

@@ -24,10 +24,12 @@ answered its reset (``startup_timeout_s``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
 import time
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,25 +39,29 @@ import zenoh
 
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
+from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
+from controller.hop_timing import HopTimer
 from controller.loop import ControlLaw, run_ticks
-from controller.monitors import MonitorStop, Monitors
+from controller.monitors import Monitors, MonitorStop
 from controller.plant_link import PlantFault, PlantLink, StopRequested
-from protocol.can_map import NmtCommand, NmtState
 from controller.record import ChunkedRecord, ColumnBuffer, RowCounter
+from controller.schedule import TickSchedule, WakeupMeter
+from controller.tf_download import TfDownloader
+from controller.tick_policy import TickPolicy
 from protocol.batch_codec import encode_batch
+from protocol.can_map import NmtCommand
 from protocol.errors import ProtocolError
-from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
+from service_kit.link_faults import Scenario, load_scenario, parse_scenario
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
 log = logging.getLogger(__name__)
 
-RESYNC_AFTER_PERIODS = 20
-"""Real time: a loop this many periods late re-bases its schedule."""
 LOCKSTEP_RETRY_FRACTION = 0.5
 """Lockstep: resend a SYNC that got no TPDO after this fraction of
 ``lockstep_timeout_s`` (a frame lost on the bus). Long, so that a merely slow
@@ -117,6 +123,7 @@ class ControllerService:
         scheduler: Scheduler | None = None,
         stopwatch: Callable[[], float] = time.perf_counter,
         keep_record: bool = False,
+        scenario: Scenario | None = None,
     ) -> None:
         self.settings = settings
         self.session = session
@@ -146,6 +153,29 @@ class ControllerService:
         self.jitter = LatencyTracker()
         self.period_jitter = LatencyTracker()
         self.irq_latency = LatencyTracker()
+        self.hops = HopTimer()
+        """Per-hop stamps of the tick and batch paths (controller/hop_timing.py)."""
+        self.batch_missed = array("b")
+        """Per batch answered or lost, in order: 1 if it missed its deadline (late or lost), else 0."""
+        self._miss_run = 0
+        self.miss_run_max = 0
+        """The longest run of consecutive batches that missed their deadline."""
+        self.policy: TickPolicy | None = None
+        """The per-tick checks of the running loop (controller/tick_policy.py)."""
+        self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
+        self.injection = LegacyInjection(
+            stall_at_tick=int(round(settings.inject_stall_at_s * settings.sample_rate_hz)) if settings.inject_stall_at_s is not None else None,
+            stall_s=settings.inject_stall_s,
+            sync_drop_every=settings.inject_sync_drop_every,
+        )
+        if scenario is None and settings.fault_scenario:
+            text = settings.fault_scenario.strip()
+            scenario = parse_scenario(text) if text.startswith("{") else load_scenario(text)
+        self._w0 = stopwatch()
+        self.faults: FaultStage | None = (
+            FaultStage.from_scenario(scenario, settings.sample_period_s, self.lockstep, lambda: self.stopwatch() - self._w0) if scenario is not None and scenario.faults else None
+        )
+        """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
         self.tick = 0
         self.latest_frequency_hz: float | None = None
         self.latest_interrupt: Interrupt | None = None
@@ -161,10 +191,7 @@ class ControllerService:
         """Which real-time measures are in effect for the loop (service_kit.realtime)."""
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.liveliness: list[tuple[float, str, bool]] = []
-        self.tf_snapshots: list[TfSnapshot] = []
         self._last_words = np.zeros(4, dtype=np.int64)
-        self._tf_thread: threading.Thread | None = None
-        self._tf_due = False
         self._config_seq = int.from_bytes(os.urandom(4), "little") >> 2
         """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._reset_sent = False
@@ -179,7 +206,13 @@ class ControllerService:
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
         self._batch_sent_wall: dict[int, float] = {}
+        self._batch_sent_unix: dict[int, tuple[float, int]] = {}
+        """Per batch in flight: Unix time sent (the batch path's first stamp) and its sample count."""
+        self._unix_offset = time.time() - time.monotonic()
+        """Unix - monotonic: converts the port's arrival stamps for the batch path's hops (real time)."""
         self._status_seq = 0
+        self._dsp_acked = False
+        """The DSP flagged its block full since the last batch went out (it has the batch)."""
         self._last_status = 0.0
         self._rate_window: list[float] = []
         columns = {**{name: np.float64 for name in self._record_names()}, "tick": np.int64}
@@ -187,6 +220,9 @@ class ControllerService:
         # RALF_RECORD set: streamed to disk in chunks. Unset: nothing is kept (flat
         # memory), unless the caller reads the columns (keep_record: in-process runs).
         self._keep_all = bool(settings.record) or keep_record
+        self.tf = TfDownloader(
+            self.port, self.clock, self.timing, self.lockstep, settings.tf_download_samples, settings.lockstep_timeout_s, BATCH_RESEND_S, self._keep_all
+        )
         self.record: ChunkedRecord | ColumnBuffer | RowCounter
         self.timing_record: ChunkedRecord | ColumnBuffer | RowCounter
         if settings.record:
@@ -204,6 +240,22 @@ class ControllerService:
             "command": lambda b: decode(ConfigChange, b),
         }
         self.port.connect(self._on_port_event, self.clock.now)
+
+    def _note_batch(self, missed: bool) -> None:
+        """A batch was answered (``missed``: past its deadline) or lost (missed)."""
+        self.batch_missed.append(1 if missed else 0)
+        self._miss_run = self._miss_run + 1 if missed else 0
+        self.miss_run_max = max(self.miss_run_max, self._miss_run)
+
+    @property
+    def overrun_run_max(self) -> int:
+        """The longest run of consecutive overrunning ticks."""
+        return self.policy.overrun_run_max if self.policy is not None else 0
+
+    @property
+    def tf_snapshots(self) -> list[TfSnapshot]:
+        """The TF downloads kept (all of them when a record is kept, else the latest)."""
+        return self.tf.snapshots
 
     # -- bookkeeping --------------------------------------------------------------------
     def _record_names(self) -> list[str]:
@@ -248,6 +300,10 @@ class ControllerService:
 
     def _build_health(self, seq: int) -> Health:
         counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters(), **self._events.as_dict()}
+        if self.faults is not None:
+            counters.update(self.faults.as_counters())
+        counters["deadline_miss_run_max"] = self.miss_run_max
+        counters["overrun_run_max"] = self.overrun_run_max
         counters.update({f"episodes_{name}": n for name, n in self.monitors.episodes.items()})
         if self.law.supervisor is not None:
             counts = self.law.supervisor.counts
@@ -264,6 +320,7 @@ class ControllerService:
                 "sync_jitter": self.jitter.stats(),
                 "sync_period_jitter": self.period_jitter.stats(),
                 "batch_to_interrupt": self.irq_latency.stats(),
+                **self.hops.stats(),
             },
             last_miss=self.monitors.last or self.last_miss,
         )
@@ -299,6 +356,8 @@ class ControllerService:
         try:
             if kind == "flag":
                 flag = payload
+                if flag.state == "full":
+                    self._dsp_acked = True
                 self.link.on_flag(flag)
                 self._flags_seen += 1
                 self._dsp_config_seq = flag.config_seq
@@ -307,7 +366,10 @@ class ControllerService:
                 self._irq_arrival[irq.batch_seq] = arrival
                 while len(self._irq_arrival) > 64:  # unmatched ones (lost or foreign) must not accumulate
                     del self._irq_arrival[next(iter(self._irq_arrival))]
-                self._held_interrupts.append(irq)
+                if self.faults is None:
+                    self._held_interrupts.append(irq)
+                else:
+                    self._held_interrupts.extend(self.faults.interrupt(irq, irq.batch_seq))  # type: ignore[arg-type]
             elif kind == "command":
                 self.reconfigure(payload)
             elif kind == "alive":
@@ -354,6 +416,10 @@ class ControllerService:
     def _drain_events(self) -> None:
         for kind, message, arrival in self._events.drain(limit=self._events.capacity):
             self._take_event(kind, message, arrival)
+        if self.faults is not None and not self.lockstep:
+            self._held_interrupts.extend(self.faults.interrupts_due())  # type: ignore[arg-type]
+            for payload in self.faults.batches_due():
+                self.port.send_batch(payload)
 
     def _next_event(self, timeout: float) -> Item | None:
         """The next DSP-side event (decoded), waiting up to ``timeout`` wall
@@ -366,6 +432,9 @@ class ControllerService:
         """Lockstep: block until the interrupt of batch ``seq`` is in, however
         long it takes to arrive (the DSP's presence is not asked), up to
         ``lockstep_timeout_s``: then it is declared lost."""
+        if self.faults is not None and self.faults.lost(seq):
+            self._fault_lost(seq)
+            return
         deadline = self.clock.now() + self.settings.lockstep_timeout_s
         resend_at = self.clock.now() + BATCH_RESEND_S
         self.timing.lockstep_waits += 1
@@ -379,11 +448,33 @@ class ControllerService:
             if event is None and (remaining <= 0 or self.port.synchronous or self.clock.stopping):
                 # It will not come: count it lost, fire the deadline monitor, go on without it.
                 self.link.declare_lost()
+                self._note_batch(True)
                 self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
                 self.monitors.fire("deadline", self.last_miss)
                 return
             if event is not None:
                 self._take_event(*event)
+
+    def _fault_lost(self, seq: int) -> None:
+        """Lockstep: batch ``seq`` or its interrupt was dropped by a link fault,
+        so it is lost at its due tick, without waiting. A batch that never
+        reached the DSP leaves its block empty and expecting ``seq`` (the flag
+        the CPU reads, Fig. 3.5): the next batch takes that number again and
+        says its samples are missing, so the DSP restarts its history."""
+        assert self.faults is not None
+        self.link.declare_lost()
+        self._note_batch(True)
+        sent = self._batch_sent_unix.pop(seq, None)
+        if self.faults.engine.covers("batch") and self._dsp_never_got(seq):
+            self.link.next_seq = seq
+            self.link.block_empty = True
+            self.link.note_lost_samples(sent[1] if sent is not None else 0)
+        self.last_miss = f"batch {seq}: interrupt lost at its due tick {self.tick} ({self.faults.blame(seq)})"
+        self.monitors.fire("deadline", self.last_miss)
+
+    def _dsp_never_got(self, seq: int) -> bool:
+        assert self.faults is not None
+        return seq in self.faults.batches_dropped
 
     def _apply_interrupts(self) -> bool:
         """Apply held interrupts that are due; True if one was applied this tick.
@@ -407,7 +498,13 @@ class ControllerService:
             arrived = self._irq_arrival.pop(irq.batch_seq, self.clock.now())
             if sent_wall is not None:
                 self.irq_latency.add(arrived - sent_wall)
+            sent_unix = self._batch_sent_unix.pop(irq.batch_seq, None)
+            if sent_unix is not None and not self.port.synchronous:
+                now_unix = time.time()
+                hold = 0.0 if self.lockstep else max(0.0, self.link.dsp_latency_s - irq.compute_time_s)
+                self.hops.batch(sent_unix[0], irq.wall_time_s, irq.compute_time_s, hold, arrived + self._unix_offset, now_unix)
             self.timing.interrupts_applied += 1
+            self._note_batch(self.link.missed_current)
             applied = True
             if not self.link.missed_current:
                 self.monitors.clear("deadline")
@@ -426,40 +523,42 @@ class ControllerService:
         if taken is None:
             return
         sent, batch = taken
+        sent_unix = time.time()
         if not self.port.synchronous:
-            batch = type(batch)(**{**batch.__dict__, "wall_time_s": time.time()})
+            batch = type(batch)(**{**batch.__dict__, "wall_time_s": sent_unix})
         self._batch_sent_wall[sent.seq] = self.clock.now()
+        self._batch_sent_unix[sent.seq] = (sent_unix, batch.n_samples)
         while len(self._batch_sent_wall) > 64:  # batches never answered must not accumulate
             del self._batch_sent_wall[next(iter(self._batch_sent_wall))]
-        self._last_batch = encode_batch(batch)
-        self.port.send_batch(self._last_batch)
-
-    def _download_tf(self) -> None:
-        try:
-            replies = self.port.download_tf(BATCH_RESEND_S if self.lockstep else 2.0)
-            if self.lockstep:
-                # Lockstep: ask again (the DSP is idle, the answer is the same) until
-                # lockstep_timeout_s, so a reply lost on a starved host costs time only.
-                deadline = self.clock.now() + self.settings.lockstep_timeout_s
-                while not replies and self.clock.now() < deadline and not self.clock.stopping:
-                    self.timing.tf_download_retries += 1
-                    replies = self.port.download_tf(BATCH_RESEND_S)
-        except Exception as exc:  # a dying session must not end the run
-            self.timing.tf_download_failures += 1
-            log.warning("TF download failed: %s", exc)
-            return
-        for reply in replies:
-            try:
-                self.tf_snapshots.append(decode(TfSnapshot, reply))
-                if not self._keep_all:
-                    del self.tf_snapshots[:-1]  # nothing will save them: keep the latest only
-                self.timing.tf_downloads += 1
-                self.port.publish_tf(reply)  # controller/tf: each download, for recorders and viewers
+        while len(self._batch_sent_unix) > 64:
+            del self._batch_sent_unix[next(iter(self._batch_sent_unix))]
+        payload = encode_batch(batch)
+        self._last_batch = payload
+        self._dsp_acked = False
+        if self.faults is not None:
+            send, shift = self.faults.batch(sent.seq, self.tick, payload)
+            if shift and self.link.in_flight is sent:
+                self.link.in_flight = dataclasses.replace(sent, due_tick=sent.due_tick + shift)
+            if not send:
+                if self.faults.lost(sent.seq):
+                    self._last_batch = None  # lost on the wire: never resent
                 return
-            except ProtocolError as exc:
-                self.timing.undecodable += 1
-                log.warning("bad TF snapshot: %s", exc)
-        self.timing.tf_download_failures += 1
+        self.port.send_batch(payload)
+
+    def _blame_batch(self) -> str:
+        """Which hop of the batch in flight ate its deadline: a link fault, the
+        DSP (it acknowledged the batch: block full) or the way there (no
+        acknowledgement yet)."""
+        sent = self.link.in_flight
+        if sent is not None and self.faults is not None:
+            fault = self.faults.blame(sent.seq)
+            if fault:
+                return fault
+        if sent is not None and sent.due_tick > sent.deadline_tick:
+            return f"the DSP's emulated latency ({(sent.due_tick - sent.tick) * self.settings.sample_period_s * 1e3:.0f} ms) exceeds the deadline"
+        if not self.link.block_empty and self._dsp_acked:
+            return "hop dsp_compute: the DSP acknowledged the batch and has not answered"
+        return "hop batch_to_dsp: no acknowledgement from the DSP yet"
 
     def _check_stale(self) -> None:
         """Stale: no fresh confident estimate for ``stale_after_s``. Before the
@@ -484,7 +583,11 @@ class ControllerService:
         self._drain_events()
         applied = self._apply_interrupts()
         out = self.law.step(self.tick, words)
-        self.plant.send_outputs(out.volts)
+        if self.faults is None:
+            self.plant.send_outputs(out.volts)
+        else:
+            for volts in self.faults.rpdo(self.tick, out.volts):
+                self.plant.send_outputs(volts)
         if self.lockstep and (self._n_ticks is None or self.tick + 1 < self._n_ticks):
             # Lockstep: the next SYNC follows the D/A frame at once (the node takes
             # them in this order, as before), so the plant steps while this tick's
@@ -492,24 +595,10 @@ class ControllerService:
             self._emit_sync(self.tick + 1)
             self._sync_sent_for = self.tick + 1
         self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
-        if self.settings.tf_download_samples and self.tick > 0 and self.tick % self.settings.tf_download_samples == 0:
-            self._tf_due = True
-        if self._tf_due and self.lockstep:
-            if self.link.in_flight is None:  # the DSP is idle: the snapshot is deterministic
-                self._tf_due = False
-                self._download_tf()
-        elif self._tf_due and self.dsp_alive:
-            if self._tf_thread is None or not self._tf_thread.is_alive():
-                # real time: the query must not hold up the loop
-                self._tf_due = False
-                self._tf_thread = threading.Thread(target=self._download_tf, name="tf-download", daemon=True)
-                self._tf_thread.start()
-            else:
-                self._tf_due = False
-                self.timing.tf_download_failures += 1  # the previous download is still under way
+        self.tf.on_tick(self.tick, self.link.in_flight is None, self.dsp_alive)
         self._maybe_send_batch()
         if self.link.check_deadline(self.tick):
-            self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms"
+            self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms ({self._blame_batch()})"
             self.monitors.fire("deadline", self.last_miss)
         self._check_stale()
         self.law.set_degraded(self.monitors.degraded)
@@ -529,7 +618,7 @@ class ControllerService:
         the trajectory's end, ``stop``, or a plant fault."""
         s = self.settings
         if hasattr(self.clock, "stop"):
-            self.clock.stop = stop  # type: ignore[attr-defined]
+            self.clock.stop = stop
         self.port.start_health(s.health_period_s, self._build_health)
         error: str | None = None
         n_ticks = run_ticks(s, self.law.lap_ticks)
@@ -545,71 +634,65 @@ class ControllerService:
             if not lockstep:
                 self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity)
             self.ready_at = self.stopwatch()
-            t0 = self.clock.now()
-            w0 = self.stopwatch()
-            missed_in_row = 0
-            last_start: float | None = None
+            schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
+            schedule.start()
+            wakeups = WakeupMeter(ts, self.jitter, self.period_jitter)
+            policy = self.policy = TickPolicy(self.monitors, self.plant, ts, heartbeat_timeout, self.timing)
+            w0 = self._w0 = self.stopwatch()
+            faults = self.faults
+            hops = self.hops
+            raw, hop_capacity = hops.raw, hops.capacity
+            ns = self._stopwatch_ns
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
-                if s.inject_stall_at_s is not None and self.tick == int(round(s.inject_stall_at_s * s.sample_rate_hz)):
-                    log.warning("fault injection: the loop stalls for %.2f s", s.inject_stall_s)
-                    stop.wait(s.inject_stall_s)
-                scheduled = t0 + self.tick * ts
-                if not lockstep and self.clock.now() - scheduled > RESYNC_AFTER_PERIODS * ts:
+                stall = self.injection.stall_now(self.tick)
+                if stall:
+                    log.warning("fault injection: the loop stalls for %.2f s", stall)
+                    stop.wait(stall)
+                behind = schedule.periods_behind(self.tick)
+                if behind:
                     # Hopelessly behind (a stall, or a rate the host cannot hold): those
                     # sample instants are gone. Skip them (counted) instead of running
                     # ticks back to back; the DSP sees the gap and restarts its history.
-                    behind = int((self.clock.now() - scheduled) / ts)
                     self.tick += behind
-                    scheduled += behind * ts
                     self.timing.schedule_resyncs += 1
                     self.timing.periods_skipped += behind
                     log.warning("loop %d periods late: schedule re-based, samples skipped", behind)
                     if n_ticks is not None and self.tick >= n_ticks:
                         break
-                # Real time sleeps until the tick's deadline; lockstep returns at once;
-                # the co-simulation's simulated clock moves to the tick.
-                if not self.clock.wait_until(scheduled):
+                if not schedule.wait(self.tick):
                     break
                 start = self.clock.now()
                 w_start = self.stopwatch()
+                sync_ns = ns()
                 if self._sync_sent_for != self.tick:
                     self._emit_sync(self.tick)
-                if not lockstep:
-                    self.jitter.add(max(0.0, start - scheduled))  # lateness of this SYNC against its deadline
-                    if last_start is not None:
-                        self.period_jitter.add(abs(start - last_start - ts))
-                    last_start = start
-                words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(0.8 * ts)
-                if words is None:
-                    missed_in_row += 1
-                    if self.plant.heartbeat_age() > heartbeat_timeout or missed_in_row * ts > heartbeat_timeout:
-                        raise PlantFault(f"plant did not answer SYNC at tick {self.tick}: {missed_in_row} TPDOs missing in a row (heartbeat age {self.plant.heartbeat_age():.2f} s)")
-                    words = self._last_words  # real time: hold the last sample for a missed TPDO
+                wakeup_ns = -1 if lockstep else wakeups.measure(start, schedule.due(self.tick))
+                if faults is None:
+                    words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(TPDO_WINDOW * ts)
                 else:
-                    missed_in_row = 0
+                    words = self._faulted_sample(faults, ts)
+                tpdo_ns = ns()
+                policy.sample(self.tick, words is not None)
+                if words is None:
+                    words = self._last_words  # hold the last sample for a missed TPDO
                 self._last_words = words
                 self._tick(words)
                 w_end = self.stopwatch()
+                j = (hops.n % hop_capacity) << 2  # per-hop stamps, inline (controller/hop_timing.py)
+                raw[j] = wakeup_ns
+                raw[j + 1] = sync_ns
+                raw[j + 2] = tpdo_ns
+                raw[j + 3] = ns()
+                hops.n += 1
                 self.tet.add(w_end - w_start)
                 self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
-                if not lockstep and self.clock.now() > scheduled + ts:
-                    self.timing.overruns += 1
-                    self.monitors.fire("overrun", f"tick {self.tick} took {(w_end - w_start) * 1e3:.2f} ms, past the next SYNC")
-                elif "overrun" in self.monitors.active:
-                    self.monitors.clear("overrun")
-                conflicts = self.plant.take_conflicts()  # another master on the bus (see PlantLink)
-                if conflicts:
-                    self.monitors.fire("can_conflict", f"tick {self.tick}: " + "; ".join(conflicts[:3]))
-                elif "can_conflict" in self.monitors.active:
-                    self.monitors.clear("can_conflict")
+                overran = schedule.overran(self.tick)
+                policy.after_tick(self.tick, overran, w_end - w_start, hops.blame_tick() if overran else "")
                 self.tick += 1
                 self._rate_window.append(w_end)
                 if len(self._rate_window) > 200:
                     del self._rate_window[0]
-                if self.plant.heartbeat_age() > heartbeat_timeout:
-                    raise PlantFault(f"plant heartbeat lost for {self.plant.heartbeat_age():.2f} s")
-                if self.plant.node_state not in (None, NmtState.OPERATIONAL):
-                    raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {self.plant.node_state.name})")
+                policy.check_plant()
                 self._publish_status()
         except PlantFault as exc:
             error = str(exc)
@@ -631,18 +714,41 @@ class ControllerService:
         return RunResult(
             ticks=self.tick,
             sim_time_s=self.tick * ts,
-            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict()},
+            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict(), **(self.faults.as_counters() if self.faults is not None else {})},
             error=error,
             liveliness=self.liveliness,
         )
 
     def _emit_sync(self, tick: int) -> None:
         """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
-        every = self.settings.inject_sync_drop_every
-        if every and tick % every == every - 1:
+        if self.injection.drop_sync(tick):
             self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
             self.timing.syncs_dropped += 1
+        if self.faults is not None:
+            delay = self.faults.sync(tick)
+            if delay is None:  # a link fault lost it: counter advanced, nothing sent, no TPDO to wait for
+                self.plant.skip_sync()
+                self.timing.syncs_dropped += 1
+                return
+            if delay > 0:
+                self.clock.wait(delay)
         self.plant.send_sync()
+
+    def _faulted_sample(self, faults: FaultStage, ts: float) -> np.ndarray | None:
+        """This tick's TPDO1 through the link faults: None when its SYNC or it was lost."""
+        if not faults.expects_tpdo(self.tick):
+            if not self.lockstep:
+                self.plant.wait_tpdo(0.0)  # take what is on the bus (stale frames are counted there)
+            return None
+        words = self._lockstep_sample() if self.lockstep else self.plant.wait_tpdo(TPDO_WINDOW * ts)
+        if words is None:
+            return None
+        delay = faults.tpdo(self.tick)
+        if delay is None:
+            return None
+        if delay > 0:
+            self.clock.wait(delay)
+        return words
 
     def _lockstep_sample(self) -> np.ndarray:
         """Lockstep: the TPDO for this tick, however long the plant takes. A
@@ -702,6 +808,8 @@ class ControllerService:
         metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
         if isinstance(self.record, RowCounter) or isinstance(self.timing_record, RowCounter):
             raise ValueError("this run keeps no record: set RALF_RECORD to save one")
+        if self.faults is not None:
+            metadata["faults"] = {"scenario": self.faults.engine.scenario.model_dump(), "counters": self.faults.as_counters(), "events": [dataclasses.asdict(e) for e in self.faults.engine.events[:10000]]}
         self.record.save(path, self.settings.model_dump(), metadata)
         self.timing_record.save(path + ".timing", None, {"note": "wall-clock timing; differs run to run"})
         if self.tf_snapshots:
@@ -709,12 +817,11 @@ class ControllerService:
             same = [s for s in self.tf_snapshots if len(s.freqs_hz) == freqs.size]
             columns: dict[str, np.ndarray] = {"sim_time_s": np.array([s.sim_time_s for s in same])}
             for name in ("H11", "H12", "H21", "H22", "Htot"):
-                columns[f"{name}_mag"] = np.array([s.estimates[name].magnitude for s in same])  # type: ignore[index]
+                columns[f"{name}_mag"] = np.array([s.estimates[name].magnitude for s in same])
             arrays = {k: v for k, v in columns.items()}
-            np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)
+            np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)  # type: ignore[arg-type]
 
     def close(self) -> None:
-        if self._tf_thread is not None:
-            self._tf_thread.join(timeout=3.0)
+        self.tf.join(timeout=3.0)
         self.port.close()
 

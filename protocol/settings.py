@@ -146,6 +146,7 @@ class ControllerSettings(CommonSettings):
     inject_stall_at_s: float | None = Field(None, ge=0, le=1e7, description="Fault injection: freeze the loop at this simulated time...")
     inject_stall_s: float = Field(0.0, ge=0, le=60, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
     inject_sync_drop_every: int = Field(0, ge=0, le=10**6, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
+    fault_scenario: str = Field("", max_length=100_000, description="Link faults: a scenario file (YAML/JSON) or inline JSON, see docs/timing-faults.md (empty = none)")
     oatf_max_stages: int = Field(1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis")
     oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
     oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")

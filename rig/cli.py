@@ -23,10 +23,12 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
-from rig import bench, campaign, experiments, monitor
+from rig import bench, campaign, experiments, monitor, timing_test
+from rig.hostinfo import host_info, host_line
 from rig.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
 from rig.recording import cli as recording_cli
 from rig.recording.tap import RigRecording
+from rig.timing_test.report import health_verdict
 
 console = Console(stderr=True)
 
@@ -75,6 +77,7 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
         "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in observer.health.items()},
         "liveliness_events": observer.events,
         "undecodable_messages": observer.bad_messages,
+        "host": host_info(),  # the machine the numbers were measured on (rig/hostinfo.py)
     }
     return summary
 
@@ -117,6 +120,11 @@ def print_summary(summary: dict[str, Any]) -> None:
                 f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
             )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
+    if summary.get("host"):
+        table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
+    verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
+    if verdict:
+        table.add_row("timing verdict", verdict)
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row("recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable")
@@ -274,6 +282,7 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         "startup_s": 0.0,
         "control_wall_s": round(wall, 3),
         "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+        "host": host_info(),
     }
     console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
     if args.record:
@@ -449,6 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
     cr.set_defaults(func=cmd_credentials)
     for module in (bench, monitor, experiments, campaign, recording_cli):
         module.register(sub)
+    timing_test.register(sub)  # ralf-hil timing-test (rig/timing_test)
     return parser
 
 

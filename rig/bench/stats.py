@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from rig.hostinfo import host_info
+
 PACKAGES = ("eclipse-zenoh", "python-can", "msgpack", "numpy", "scipy", "pydantic", "pydantic-settings", "rich", "canopen")
 
 
@@ -103,4 +105,5 @@ def machine_info() -> dict[str, Any]:
         "python_implementation": platform.python_implementation(),
         "packages": versions,
         "load_average_at_start": load_average(),
+        "host": host_info(),  # governor, SCHED_FIFO/mlock permitted, isolated CPUs, PREEMPT_RT (rig/hostinfo.py)
     }

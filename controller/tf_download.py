@@ -1,0 +1,90 @@
+"""Transfer-function downloads from the DSP (thesis §4.2.2: every
+``tf_download_samples`` samples the CPU reads the DSP's current estimates).
+
+In lockstep and the co-simulation a download is made in the loop's thread
+while no batch is in flight (the DSP is idle, so the snapshot is
+deterministic) and retried until ``lockstep_timeout_s``; in real time it
+runs in a thread of its own so the query never holds up the loop (a
+download still under way when the next is due counts as a failure).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+from controller.dsp_port import DspPort
+from protocol.errors import ProtocolError
+from protocol.messages import TfSnapshot, decode
+from service_kit.clock import Scheduler
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TfDownloader:
+    port: DspPort
+    clock: Scheduler
+    counters: Any
+    """The controller's timing counters (``tf_downloads``, ``tf_download_failures``, ``tf_download_retries``, ``undecodable``)."""
+    lockstep: bool
+    every_samples: int
+    lockstep_timeout_s: float
+    resend_s: float
+    keep_all: bool
+    """Keep every snapshot (a record will save them); else only the latest."""
+    snapshots: list[TfSnapshot] = field(default_factory=list)
+    due: bool = False
+    _thread: threading.Thread | None = None
+
+    def on_tick(self, tick: int, dsp_idle: bool, dsp_alive: bool) -> None:
+        """Called once per tick after the sample joined the batch."""
+        if self.every_samples and tick > 0 and tick % self.every_samples == 0:
+            self.due = True
+        if not self.due:
+            return
+        if self.lockstep:
+            if dsp_idle:  # the DSP is idle: the snapshot is deterministic
+                self.due = False
+                self.download()
+        elif dsp_alive:
+            self.due = False
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self.download, name="tf-download", daemon=True)
+                self._thread.start()
+            else:
+                self.counters.tf_download_failures += 1  # the previous download is still under way
+
+    def download(self) -> None:
+        c = self.counters
+        try:
+            replies = self.port.download_tf(self.resend_s if self.lockstep else 2.0)
+            if self.lockstep:
+                # Ask again (the DSP is idle, the answer is the same) until
+                # lockstep_timeout_s, so a reply lost on a starved host costs time only.
+                deadline = self.clock.now() + self.lockstep_timeout_s
+                while not replies and self.clock.now() < deadline and not self.clock.stopping:
+                    c.tf_download_retries += 1
+                    replies = self.port.download_tf(self.resend_s)
+        except Exception as exc:  # a dying session must not end the run
+            c.tf_download_failures += 1
+            log.warning("TF download failed: %s", exc)
+            return
+        for reply in replies:
+            try:
+                self.snapshots.append(decode(TfSnapshot, reply))
+                if not self.keep_all:
+                    del self.snapshots[:-1]  # nothing will save them: keep the latest only
+                c.tf_downloads += 1
+                self.port.publish_tf(reply)  # controller/tf: each download, for recorders and viewers
+                return
+            except ProtocolError as exc:
+                c.undecodable += 1
+                log.warning("bad TF snapshot: %s", exc)
+        c.tf_download_failures += 1
+
+    def join(self, timeout: float) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout=timeout)
