@@ -82,7 +82,7 @@ def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
             out[r, i] = (x[r, i] - m) * window[i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def detrend_window_ring(buf, head, means, window, out):  # type: ignore[no-untyped-def]
     """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
     C-contiguous ring buffer itself (unit stride known to the compiler: the loop vectorizes)."""
@@ -365,12 +365,13 @@ FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7
 ) = range(18)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def step_packed(  # type: ignore[no-untyped-def]
     X, c, fp, ip, state_f, state, src, valid, mode, coef, starts, coef_t, hs, vs, w_lin, v, order_buf,
     found_idx, found_prom, stats, f_sl, f_range, pinv, tri, n_tri, mag, out,
 ):
-    """:func:`step` with its scalars packed: ``fp`` (float64, ``FP_*``) and ``ip`` (intp, ``IP_*``)."""
+    """:func:`step` with its scalars packed: ``fp`` (float64, ``FP_*``) and ``ip`` (intp, ``IP_*``).
+    Releases the GIL: the boards of several rigs in one process step on several cores."""
     step(
         X, c, state_f, state, ip[IP_BINS], fp[FP_POWER_FLOOR], ip[IP_S0], ip[IP_S1], fp[FP_DET],
         ip[IP_DOMINANT] != 0, src, valid, mode, ip[IP_LO], ip[IP_HI], coef, starts, coef_t, ip[IP_IA], ip[IP_IB],
