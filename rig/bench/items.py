@@ -593,12 +593,21 @@ def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
         m[name.strip()] = latency_vs_value(stats, "100 µs target", hotpath.TARGET_US) if not name.startswith(" ") else latency(stats)
 
 
+def bench_dsp_rigs(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """How many 200 Hz rigs one DSP process serves (:mod:`rig.bench.dsp_rigs`)."""
+    requires("dsp_service.service")
+    from rig.bench.dsp_rigs import bench_dsp_rigs as run
+
+    run(ctx, result)
+
+
 ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "zenoh": bench_zenoh,
     "can": bench_can,
     "realtime": bench_realtime,
     "lockstep": bench_lockstep,
     "dsp": bench_dsp,
+    "dsp-rigs": bench_dsp_rigs,
     "hotpath": bench_hotpath,
 }
 FLOOR_ITEMS = ("zenoh", "can")
