@@ -263,6 +263,8 @@ def format_report(rows: list[dict[str, float | int]], stages: dict[str, float]) 
             f"{r['n']:>5} {r['floor_p50_us']:>9.1f} {r['step_p50_us']:>9.1f} {r['ratio_p50']:>6.2f}"
             f" {r['step_numpy_p50_us']:>14.1f} {r['ratio_numpy_p50']:>6.2f}"
         )
+    if not stages:
+        return "\n".join(lines)
     f = stages["floor"]
     lines.append(f"stages at the bench's N (p50 us, / floor {f:.1f} us):")
     for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step"):

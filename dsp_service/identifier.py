@@ -495,6 +495,7 @@ class Identifier:
         )
         # resolved with no snapshot (weight 0 on a zero state: nothing changes)
         self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
+        self._k_fft = rfft_rows
         self._k_detrend_ring = kernel.compiled_entry(
             kernel.detrend_window_ring, (self.history._buf, 0, np.zeros(4), self._est.window, self._est._tmp)
         )
@@ -568,6 +569,8 @@ class Identifier:
     # ----------------------------------------------------------------- step
     def step(self) -> IdentificationResult:
         """One iteration: the ETFE's (below), with ``method='arx'`` the ARX model's poles instead."""
+        if self._fused and self._arx is None:
+            return self._step_fused()
         result = self._step_etfe()
         if self._arx is None:
             return result
@@ -692,7 +695,8 @@ class Identifier:
         solver = self._solver
         sl = self._sl
         lo = self._lo
-        new = hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history)
+        seen, n_hist = hist._seen, hist._n  # hist.samples_seen, hist.n (the properties, without their calls)
+        new = seen > 0 and (seen >= n_hist or not c.wait_for_full_history)
         if not new and avg.updates == 0:
             return IdentificationResult((), 0.0, 0.0, hist.samples_in_history, 0.0)
         est = self._est
@@ -700,8 +704,8 @@ class Identifier:
             weight = avg.next_weight()
             buf, head = hist._buf, hist._head
             # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
-            self._k_detrend_ring(buf, head, buf[:, head : head + hist._n] @ est._ones_over_n, est.window, est._tmp)
-            rfft_rows(est._tmp, est.ffts)
+            self._k_detrend_ring(buf, head, buf[:, head : head + n_hist] @ est._ones_over_n, est.window, est._tmp)
+            self._k_fft(est._tmp, est.ffts)
             X = self._k_ffts_f
             avg.account(self._pending)
             self._pending = 0
@@ -711,14 +715,14 @@ class Identifier:
         stats, out = self._k_stats, self._k_out
         on_smoothed, do_poles = c.estimate_on_smoothed, self._k_do_poles
         self._k_call(X, weight, *self._k_args)
-        n_sl_valid, n_valid, nf = int(stats[0]), int(stats[1]), int(stats[2])
-        solver._floor = float(stats[3])
+        f_sl_valid, f_valid, f_nf, solver._floor = stats.tolist()
+        n_sl_valid, n_valid, nf = int(f_sl_valid), int(f_valid), int(f_nf)
         solver.valid_count = n_sl_valid
         n_range = self._k_vs.size
         if nf == 0:
             return self._result([], (), n_valid, n_range)
-        peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
         if not do_poles:  # the rational fit: the numpy pole stage
+            peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
             if on_smoothed:
                 hs, vs = self._k_hs, self._k_vs
                 poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
@@ -733,15 +737,16 @@ class Identifier:
         kish = avg._sum_c * avg._sum_c / avg._sum_c2 if avg._sum_c2 > 0.0 else 0.0
         n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / avg._sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
         valid_fraction = n_valid / n_range
-        in_history = hist.samples_in_history
+        in_history = min(seen, n_hist)  # hist.samples_in_history
         p0 = c.confidence_prominence_db
         confident = n_eff > 1.0
-        base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / hist.n) if confident else 0.0
+        base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / n_hist) if confident else 0.0
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
         pole_list = []
         new = object.__new__
-        for (_, prom), (f_peak, m_peak, zf, _ok, fn, zv) in zip(peaks, out[:nf].tolist()):
+        proms = self._k_prom[:nf].tolist()
+        for prom, (f_peak, m_peak, zf, _ok, fn, zv) in zip(proms, out[:nf].tolist()):
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
             zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
@@ -762,7 +767,7 @@ class Identifier:
                 damping_fit=None,
             )
             pole_list.append(pole)
-        conf = base * peaks[0][1] / (peaks[0][1] + p0) if confident else 0.0
+        conf = base * proms[0] / (proms[0] + p0) if confident else 0.0
         result = new(IdentificationResult)
         result.__dict__.update(
             poles=tuple(pole_list),

@@ -578,6 +578,21 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
             f"{k} {stages[k]:.1f} ({stages[k] / stages['floor']:.2f})"
             for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step")
         ))
+    if hasattr(module, "bench_sizes"):
+        rows = module.bench_sizes(repeats=repeats)
+        result["sizes"] = rows
+        for line in module.format_report(rows, result.get("stages") or {}).splitlines()[: len(rows) + 1]:
+            ctx.say("  " + line)
+        for r in rows:
+            m[f"identifier_step N={r['n']}"] = latency(
+                {"n": r["repeats"], "p50_us": r["step_p50_us"], "p99_us": r["step_p99_us"]}, "numpy_floor",
+                {"n": r["repeats"], "p50_us": r["floor_p50_us"], "p99_us": r["floor_p99_us"]},
+            )
+        big = rows[-1]
+        # a 1 kHz loop sends a batch at least every 1 ms: the step must fit in that period
+        m[f"identifier_step N={big['n']} vs 1 kHz"] = latency_vs_value(
+            {"n": big["repeats"], "p50_us": big["step_p50_us"], "p99_us": big["step_p99_us"]}, "1 ms (1 kHz batch period, l = 1)", 1000.0
+        )
 
 
 def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
