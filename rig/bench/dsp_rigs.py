@@ -111,9 +111,10 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
                         rig.sent_at = None
 
         def send(rig: _Rig, i: int) -> None:
-            pubs[i].put(encode_batch(sample_batch(rig.seq, BATCH, RATE_HZ, seed=i)))
-            rig.sent_at = perf()
+            payload = encode_batch(sample_batch(rig.seq, BATCH, RATE_HZ, seed=i))
+            rig.sent_at = perf()  # before the put: the interrupt may be stamped before put() returns
             rig.seq += 1
+            pubs[i].put(payload)
 
         ctx.say(f"  one DSP process serving {total} rigs; waiting for their empty flags")
         deadline = perf() + 120.0
