@@ -16,13 +16,27 @@ log = logging.getLogger("dsp")
 
 
 def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) -> int:
-    service = build_or_config_error("DSP configuration", lambda: DspService(settings, session))
-    log.info("DSP board up on rig %r: N=%d, alpha=%.3g, emulated latency %.0f ms", settings.rig_id, settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
+    """One board per rig served (``rig_id``, then ``serve_rigs``), all on this session: each has
+    its own identifier, inbox and thread, so one rig's batch never waits in another's queue,
+    and their compiled steps (which release the GIL) run on as many cores as there are."""
+    rigs = settings.rig_ids
+    services = [
+        build_or_config_error("DSP configuration", lambda rig=rig: DspService(settings.model_copy(update={"rig_id": rig}), session))  # type: ignore[misc]
+        for rig in rigs
+    ]
+    log.info("DSP board up on rig(s) %s: N=%d, alpha=%.3g, emulated latency %.0f ms", ", ".join(map(repr, rigs)), settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
+    threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
     try:
-        service.run(stop)
+        for thread in threads:
+            thread.start()
+        services[0].run(stop)
     finally:
-        service.close()
-        log.info("DSP board stopped: %s", service.block.counters.as_dict())
+        stop.set()
+        for thread in threads:
+            thread.join()
+        for service in services:
+            service.close()
+            log.info("DSP board of rig %r stopped: %s", service.settings.rig_id, service.block.counters.as_dict())
     return 0
 
 

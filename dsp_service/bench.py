@@ -212,10 +212,10 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
         n_valid, nf = int(idf._k_stats[1]), int(idf._k_stats[2])
         state = avg.state.copy()
         hb = idf.history
-        x = hb._buf[:, hb._head : hb._head + hb._n]
+        buf, head = hb._buf, hb._head
         for i in range(start, stop):
             t0 = perf()
-            K.detrend_window(x, x @ est._ones_over_n, est.window, est._tmp)
+            idf._k_detrend_ring(buf, head, buf[:, head : head + hb._n] @ est._ones_over_n, est.window, est._tmp)
             rfft_rows(est._tmp, est.ffts)
             t["fft"][i] = perf() - t0
         for i in range(start, stop):
@@ -263,6 +263,8 @@ def format_report(rows: list[dict[str, float | int]], stages: dict[str, float]) 
             f"{r['n']:>5} {r['floor_p50_us']:>9.1f} {r['step_p50_us']:>9.1f} {r['ratio_p50']:>6.2f}"
             f" {r['step_numpy_p50_us']:>14.1f} {r['ratio_numpy_p50']:>6.2f}"
         )
+    if not stages:
+        return "\n".join(lines)
     f = stages["floor"]
     lines.append(f"stages at the bench's N (p50 us, / floor {f:.1f} us):")
     for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step"):

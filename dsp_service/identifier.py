@@ -453,8 +453,6 @@ class Identifier:
         self._k_idx = np.empty(self.cfg.max_peaks, dtype=np.intp)
         self._k_prom = np.empty(self.cfg.max_peaks)
         self._k_stats = np.zeros(4)
-        self._k_step = kernel.step
-        self._k_detrend = kernel.detrend_window
         # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
         self._k_do_poles = self.cfg.damping_method != "fit"
         ref, vrm = self._refiner, self._vrm
@@ -470,6 +468,37 @@ class Identifier:
         self._k_mag = np.empty(max(self._n_sl, n_range))
         self._k_out = np.empty((self.cfg.max_peaks, 6))
         kernel.warm_up()
+        # Every argument of the compiled step but the snapshot and its weight is fixed
+        # until the next _build: packed once here, so a step makes one call of 27
+        # arguments to the compiled overload itself (no per-call type resolution).
+        c, sl = self.cfg, self._sl
+        fp = np.zeros(kernel.N_FP)
+        fp[kernel.FP_POWER_FLOOR], fp[kernel.FP_DET], fp[kernel.FP_RATIO] = c.power_floor, c.det_threshold, self._prom_ratio
+        fp[kernel.FP_BAND], fp[kernel.FP_ZETA_MAX], fp[kernel.FP_C_MAX] = vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max
+        ip = np.zeros(kernel.N_IP, dtype=np.intp)
+        for i, value in (
+            (kernel.IP_BINS, k), (kernel.IP_S0, sl.start), (kernel.IP_S1, sl.stop),
+            (kernel.IP_DOMINANT, c.collinear == "dominant"), (kernel.IP_LO, lo), (kernel.IP_HI, hi),
+            (kernel.IP_IA, self._k_ia), (kernel.IP_IB, self._k_ib), (kernel.IP_WEIGHTED, self._w_lin is not None),
+            (kernel.IP_WANT, c.max_peaks), (kernel.IP_DO_POLES, self._k_do_poles),
+            (kernel.IP_ON_SMOOTHED, c.estimate_on_smoothed), (kernel.IP_RELOCATE, self._relocate),
+            (kernel.IP_FWHM_EXACT, c.fwhm_exact), (kernel.IP_R_MAX, r_max), (kernel.IP_M_MAX, vrm.m_max),
+            (kernel.IP_VISCOUS, vrm.model == "viscous"),
+        ):
+            ip[i] = int(value)
+        solver = self._solver
+        self._k_args = (
+            fp, ip, self._k_state_f, self._avg.state, solver.source, solver.valid, solver.mode,
+            self._k_coef, self._k_starts, self._k_coef_t, self._k_hs, self._k_vs, self._k_w, self._v, self._k_order,
+            self._k_idx, self._k_prom, self._k_stats, self._f_sl, self._f_range, self._k_pinv, self._k_tri,
+            self._k_ntri, self._k_mag, self._k_out,
+        )
+        # resolved with no snapshot (weight 0 on a zero state: nothing changes)
+        self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
+        self._k_fft = rfft_rows
+        self._k_detrend_ring = kernel.compiled_entry(
+            kernel.detrend_window_ring, (self.history._buf, 0, np.zeros(4), self._est.window, self._est._tmp)
+        )
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the compiled step; the constructor already does."""
@@ -540,6 +569,8 @@ class Identifier:
     # ----------------------------------------------------------------- step
     def step(self) -> IdentificationResult:
         """One iteration: the ETFE's (below), with ``method='arx'`` the ARX model's poles instead."""
+        if self._fused and self._arx is None:
+            return self._step_fused()
         result = self._step_etfe()
         if self._arx is None:
             return result
@@ -663,42 +694,35 @@ class Identifier:
         hist = self.history
         solver = self._solver
         sl = self._sl
-        lo, hi = self._lo, self._hi
-        new = hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history)
+        lo = self._lo
+        seen, n_hist = hist._seen, hist._n  # hist.samples_seen, hist.n (the properties, without their calls)
+        new = seen > 0 and (seen >= n_hist or not c.wait_for_full_history)
         if not new and avg.updates == 0:
             return IdentificationResult((), 0.0, 0.0, hist.samples_in_history, 0.0)
         est = self._est
         if new:
             weight = avg.next_weight()
-            x = hist._buf[:, hist._head : hist._head + hist._n]  # hist.view() without its read-only flag
+            buf, head = hist._buf, hist._head
             # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
-            self._k_detrend(x, x @ est._ones_over_n, est.window, est._tmp)
-            rfft_rows(est._tmp, est.ffts)
+            self._k_detrend_ring(buf, head, buf[:, head : head + n_hist] @ est._ones_over_n, est.window, est._tmp)
+            self._k_fft(est._tmp, est.ffts)
             X = self._k_ffts_f
             avg.account(self._pending)
             self._pending = 0
         else:  # no new snapshot: solve the averages as they are
             X = self._k_zeros_f
             weight = 0.0
-        stats, vrm, out = self._k_stats, self._vrm, self._k_out
+        stats, out = self._k_stats, self._k_out
         on_smoothed, do_poles = c.estimate_on_smoothed, self._k_do_poles
-        self._k_step(
-            X, weight, self._k_state_f, avg.state, est.n_bins, c.power_floor, sl.start, sl.stop, c.det_threshold,
-            c.collinear == "dominant", solver.source, solver.valid, solver.mode,
-            lo, hi, self._k_coef, self._k_starts, self._k_coef_t, self._k_ia, self._k_ib, self._k_hs, self._k_vs, self._k_w, self._w_lin is not None,
-            self._prom_ratio, c.max_peaks, self._v, self._k_order, self._k_idx, self._k_prom, stats,
-            do_poles, on_smoothed, self._f_sl, self._f_range, self._relocate, c.fwhm_exact, self._k_pinv,
-            self._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
-            vrm.model == "viscous", self._k_tri, self._k_ntri, self._k_mag, out,
-        )
-        n_sl_valid, n_valid, nf = int(stats[0]), int(stats[1]), int(stats[2])
-        solver._floor = float(stats[3])
+        self._k_call(X, weight, *self._k_args)
+        f_sl_valid, f_valid, f_nf, solver._floor = stats.tolist()
+        n_sl_valid, n_valid, nf = int(f_sl_valid), int(f_valid), int(f_nf)
         solver.valid_count = n_sl_valid
         n_range = self._k_vs.size
         if nf == 0:
             return self._result([], (), n_valid, n_range)
-        peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
         if not do_poles:  # the rational fit: the numpy pole stage
+            peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
             if on_smoothed:
                 hs, vs = self._k_hs, self._k_vs
                 poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
@@ -709,17 +733,20 @@ class Identifier:
                 )
             return self._result(peaks, poles, n_valid, n_range)
         # _result's confidences, computed before the poles are made
-        n_eff = self.effective_averages
+        # (self.effective_averages, SpectralAverager.effective_averages, inline)
+        kish = avg._sum_c * avg._sum_c / avg._sum_c2 if avg._sum_c2 > 0.0 else 0.0
+        n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / avg._sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
         valid_fraction = n_valid / n_range
-        in_history = hist.samples_in_history
+        in_history = min(seen, n_hist)  # hist.samples_in_history
         p0 = c.confidence_prominence_db
         confident = n_eff > 1.0
-        base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / hist.n) if confident else 0.0
+        base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / n_hist) if confident else 0.0
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
         pole_list = []
         new = object.__new__
-        for (_, prom), (f_peak, m_peak, zf, _ok, fn, zv) in zip(peaks, out[:nf].tolist()):
+        proms = self._k_prom[:nf].tolist()
+        for prom, (f_peak, m_peak, zf, _ok, fn, zv) in zip(proms, out[:nf].tolist()):
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
             zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
@@ -740,7 +767,7 @@ class Identifier:
                 damping_fit=None,
             )
             pole_list.append(pole)
-        conf = base * peaks[0][1] / (peaks[0][1] + p0) if confident else 0.0
+        conf = base * proms[0] / (proms[0] + p0) if confident else 0.0
         result = new(IdentificationResult)
         result.__dict__.update(
             poles=tuple(pole_list),

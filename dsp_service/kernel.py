@@ -55,12 +55,12 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
 # multiply-adds and take |z| as l·sqrt(1 + (s/l)²): the same here, so that the
 # compiled step rounds exactly as the reference does (the 2×2 determinant of a
 # few averages cancels, so one ulp there would show as 1e-13 in a damping).
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cmul(a, b):  # type: ignore[no-untyped-def]
     return complex(_fma(a.real, b.real, -(a.imag * b.imag)), _fma(a.real, b.imag, a.imag * b.real))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cabs(z):  # type: ignore[no-untyped-def]
     x = abs(z.real)
     y = abs(z.imag)
@@ -72,7 +72,7 @@ def _cabs(z):  # type: ignore[no-untyped-def]
     return big * math.sqrt(_fma(r, r, 1.0))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
     """``out = (x − means[:, None]) · window`` (spectra.SpectralEstimator.snapshot's two passes in one)."""
     rows, n = x.shape
@@ -82,7 +82,18 @@ def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
             out[r, i] = (x[r, i] - m) * window[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", nogil=True)
+def detrend_window_ring(buf, head, means, window, out):  # type: ignore[no-untyped-def]
+    """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
+    C-contiguous ring buffer itself (unit stride known to the compiler: the loop vectorizes)."""
+    rows, n = out.shape
+    for r in range(rows):
+        m = means[r]
+        for i in range(n):
+            out[r, i] = (buf[r, head + i] - m) * window[i]
+
+
+@njit(cache=True, error_model="numpy")
 def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
     """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra; returns ``(Σ P11.real, Σ P22.real)``.
 
@@ -109,7 +120,7 @@ def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
     return s11, s22
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):  # type: ignore[no-untyped-def]
     """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count."""
     count = 0
@@ -163,7 +174,7 @@ def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib):  # type: ignore[no-untyped-def]
     """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
 
@@ -212,7 +223,7 @@ def _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib):  # type: 
     return n_valid
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom):  # type: ignore[no-untyped-def]
     """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many."""
     size = hs.size
@@ -297,7 +308,7 @@ def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_id
     return 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def post_fft(  # type: ignore[no-untyped-def]
     X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
     lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
@@ -316,7 +327,7 @@ def post_fft(  # type: ignore[no-untyped-def]
     stats[3] = floor
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def step(  # type: ignore[no-untyped-def]
     X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
     lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
@@ -345,6 +356,47 @@ def step(  # type: ignore[no-untyped-def]
         )
 
 
+# Packed arguments of :func:`step_packed`: the scalars of :func:`step` in two arrays, so one
+# call passes 27 arguments instead of 48 (each costs the dispatcher's type check and unboxing).
+FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7)
+(
+    IP_BINS, IP_S0, IP_S1, IP_DOMINANT, IP_LO, IP_HI, IP_IA, IP_IB, IP_WEIGHTED, IP_WANT, IP_DO_POLES,
+    IP_ON_SMOOTHED, IP_RELOCATE, IP_FWHM_EXACT, IP_R_MAX, IP_M_MAX, IP_VISCOUS, N_IP,
+) = range(18)
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def step_packed(  # type: ignore[no-untyped-def]
+    X, c, fp, ip, state_f, state, src, valid, mode, coef, starts, coef_t, hs, vs, w_lin, v, order_buf,
+    found_idx, found_prom, stats, f_sl, f_range, pinv, tri, n_tri, mag, out,
+):
+    """:func:`step` with its scalars packed: ``fp`` (float64, ``FP_*``) and ``ip`` (intp, ``IP_*``).
+    Releases the GIL: the boards of several rigs in one process step on several cores."""
+    step(
+        X, c, state_f, state, ip[IP_BINS], fp[FP_POWER_FLOOR], ip[IP_S0], ip[IP_S1], fp[FP_DET],
+        ip[IP_DOMINANT] != 0, src, valid, mode, ip[IP_LO], ip[IP_HI], coef, starts, coef_t, ip[IP_IA], ip[IP_IB],
+        hs, vs, w_lin, ip[IP_WEIGHTED] != 0, fp[FP_RATIO], ip[IP_WANT], v, order_buf, found_idx, found_prom, stats,
+        ip[IP_DO_POLES] != 0, ip[IP_ON_SMOOTHED] != 0, f_sl, f_range, ip[IP_RELOCATE], ip[IP_FWHM_EXACT] != 0,
+        pinv, ip[IP_R_MAX], ip[IP_M_MAX], fp[FP_BAND], fp[FP_ZETA_MAX], fp[FP_C_MAX], ip[IP_VISCOUS] != 0,
+        tri, n_tri, mag, out,
+    )
+
+
+def compiled_entry(dispatcher, args):  # type: ignore[no-untyped-def]
+    """The compiled overload of ``dispatcher`` for exactly these argument types, to be called
+    without the dispatcher's per-call type resolution (about 60 ns per argument).
+
+    Compiles (or loads from the cache) by calling once with ``args``: the caller
+    must pass the same arrays (or arrays of the very same types) every time.
+    Returns the dispatcher itself if numba's internals are not as expected."""
+    dispatcher(*args)
+    try:
+        sig = tuple(dispatcher.typeof_pyval(a) for a in args)
+        return dispatcher.overloads[sig].entry_point
+    except (AttributeError, KeyError):  # another numba: the dispatcher works too, just slower
+        return dispatcher
+
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) :func:`step` with the types the identifier passes."""
     k, n_range = 40, 20
@@ -352,6 +404,7 @@ def warm_up() -> None:
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
     hist = ring[:, 3 : 3 + 2 * k - 2]  # a slice of the history's ring buffer, as the identifier passes it
     detrend_window(hist, hist @ np.ones(2 * k - 2), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
+    detrend_window_ring(ring, 3, np.zeros(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
     tri = np.zeros((2, 1, 3), dtype=np.intp)
@@ -370,6 +423,19 @@ def warm_up() -> None:
                 np.zeros((2, 3, 3)), 1, 1, 1.5, 0.5, 1.0, True, tri, np.array([0, 1], dtype=np.intp),
                 np.empty(k), np.empty((2, 6)),
             )
+    fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
+    ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)
+    for smoothed in (0, 1):
+        ip[IP_ON_SMOOTHED] = smoothed
+        step_packed(
+            X.view(np.float64), 1.0, fp, ip, state.view(np.float64), state,
+            np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
+            np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp), np.ones((3, n_range)) / 3.0,
+            np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range),
+            np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(2, dtype=np.intp), np.zeros(2), np.zeros(4),
+            np.arange(k, dtype=np.float64), np.arange(10.0, 10.0 + n_range), np.zeros((2, 3, 3)), tri,
+            np.array([0, 1], dtype=np.intp), np.empty(k), np.empty((2, 6)),
+        )
 
 
 # ---------------------------------------------------------------------------
@@ -380,7 +446,7 @@ _ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
 _SQRT2 = math.sqrt(2.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cdiv(a, b):  # type: ignore[no-untyped-def]
     """numpy's complex division (Smith's algorithm)."""
     br = b.real
@@ -394,7 +460,7 @@ def _cdiv(a, b):  # type: ignore[no-untyped-def]
     return complex((a.real * rat + a.imag) * scl, (a.imag * rat - a.real) * scl)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _refine_peak(mag, k):  # type: ignore[no-untyped-def]
     if 0 < k < mag.size - 1:
         a = math.log(max(mag[k - 1], _TINY))
@@ -408,7 +474,7 @@ def _refine_peak(mag, k):  # type: ignore[no-untyped-def]
     return 0.0, math.log(max(mag[k], _TINY))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _refine_ls(mag, k, r, pinv, r_max):  # type: ignore[no-untyped-def]
     r = max(1, min(r, r_max, k, mag.size - 1 - k))
     w = 2 * r + 1
@@ -426,7 +492,7 @@ def _refine_ls(mag, k, r, pinv, r_max):  # type: ignore[no-untyped-def]
     return d, c0 + c1 * d + c2 * d * d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _half_power(mag, f0, df, k, peak_mag, vd, check):  # type: ignore[no-untyped-def]
     """``(ok, f_left, f_right)`` (modal._half_power, 64 bins each side)."""
     thr = peak_mag * _SQRT_HALF
@@ -461,7 +527,7 @@ def _half_power(mag, f0, df, k, peak_mag, vd, check):  # type: ignore[no-untyped
     return True, fl, f0 + (i1 + t) * df
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _zeta_fwhm(bw, fp, exact):  # type: ignore[no-untyped-def]
     if not exact:
         return bw / (2.0 * fp)
@@ -474,7 +540,7 @@ def _zeta_fwhm(bw, fp, exact):  # type: ignore[no-untyped-def]
     return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(2.0 - c * c))))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _vrm(hd, fd, vd, check, k, hw, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri):  # type: ignore[no-untyped-def]
     """``(ok, f_n, ζ, used)`` of one peak (modal.VrmEstimator._plan and ._solve)."""
     n = hd.size
@@ -546,7 +612,7 @@ def _vrm(hd, fd, vd, check, k, hw, m_max, band_factor, zeta_max, c_max, viscous,
     return False, 0.0, 0.0, used
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def poles(  # type: ignore[no-untyped-def]
     hd, vd, all_valid, fd, offset, idx, nf, relocate, fwhm_exact, pinv, r_max,
     m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,

@@ -180,6 +180,23 @@ class DspSettings(CommonSettings):
     inject_delay_s: float = Field(0.0, ge=0, le=10, description="Fault injection: extra compute time per batch (a slowed board)")
     search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
     search_max_hz: float = Field(40.0, gt=0, le=2500, description="Upper edge of the peak search")
+    serve_rigs: str = Field("", description="Further rig ids this one DSP process serves besides rig_id, comma-separated (each its own board: identifier, queue and thread)")
+
+    @field_validator("serve_rigs")
+    @classmethod
+    def _serve_rigs(cls, value: str) -> str:
+        ids = [r.strip() for r in value.split(",") if r.strip()]
+        for rig in ids:
+            validate_rig_id(rig)
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"serve_rigs lists a rig twice: {value!r}")
+        return ",".join(ids)
+
+    @property
+    def rig_ids(self) -> tuple[str, ...]:
+        """Every rig this process serves: ``rig_id`` first, then ``serve_rigs``."""
+        extra = [r for r in self.serve_rigs.split(",") if r and r != self.rig_id]
+        return (self.rig_id, *extra)
 
     @field_validator("fft_width")
     @classmethod

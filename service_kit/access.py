@@ -143,8 +143,11 @@ def insert_access(
     credentials_file: str = "",
     acl: bool = False,
     scenarios: bool = False,
+    more_rigs: Iterable[str] = (),
 ) -> Any:
-    """Add authentication and the rig's access rules to a ``zenoh.Config``."""
+    """Add authentication and the rig's access rules to a ``zenoh.Config``
+    (``more_rigs``: the rules of further rigs the same session serves, e.g.
+    one DSP process for several rigs)."""
     if user or credentials_file:
         usrpwd: dict[str, str] = {}
         if user:
@@ -153,7 +156,16 @@ def insert_access(
             usrpwd["dictionary_file"] = credentials_file
         config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
     if acl:
-        config.insert_json5("access_control", json.dumps(acl_config(Keys(rig_id), scenarios)))
+        section = acl_config(Keys(rig_id), scenarios)
+        for n, other in enumerate(r for r in more_rigs if r != rig_id):
+            extra = acl_config(Keys(other), scenarios)
+            for rule in extra["rules"]:
+                rule["id"] = f"rig {n + 1} {rule['id']}"
+            for policy in extra["policies"]:
+                policy["rules"] = [f"rig {n + 1} {r}" for r in policy["rules"]]
+            section["rules"] += extra["rules"]
+            section["policies"] += extra["policies"]
+        config.insert_json5("access_control", json.dumps(section))
     return config
 
 

@@ -41,6 +41,7 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         credentials_file=settings.zenoh_credentials_file,
         acl=settings.zenoh_acl,
         scenarios=settings.zenoh_acl_scenarios,
+        more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
     )
     return config
 

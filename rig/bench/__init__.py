@@ -14,6 +14,7 @@ Items (``--only``):
   the one-thread co-simulation (:mod:`rig.cosim`, against its 100x target)
   and one process (:mod:`rig.composition`);
 * ``dsp``: :func:`dsp_service.bench.bench_identifier` (n = 2048);
+* ``dsp-rigs``: how many 200 Hz rigs one DSP process serves (:mod:`rig.bench.dsp_rigs`);
 * ``hotpath``: controller tick and plant step in a micro-benchmark
   (:mod:`rig.bench.hotpath`) against the 100 µs target, with their parts.
 

@@ -578,6 +578,21 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
             f"{k} {stages[k]:.1f} ({stages[k] / stages['floor']:.2f})"
             for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step")
         ))
+    if hasattr(module, "bench_sizes"):
+        rows = module.bench_sizes(repeats=repeats)
+        result["sizes"] = rows
+        for line in module.format_report(rows, result.get("stages") or {}).splitlines()[: len(rows) + 1]:
+            ctx.say("  " + line)
+        for r in rows:
+            m[f"identifier_step N={r['n']}"] = latency(
+                {"n": r["repeats"], "p50_us": r["step_p50_us"], "p99_us": r["step_p99_us"]}, "numpy_floor",
+                {"n": r["repeats"], "p50_us": r["floor_p50_us"], "p99_us": r["floor_p99_us"]},
+            )
+        big = rows[-1]
+        # a 1 kHz loop sends a batch at least every 1 ms: the step must fit in that period
+        m[f"identifier_step N={big['n']} vs 1 kHz"] = latency_vs_value(
+            {"n": big["repeats"], "p50_us": big["step_p50_us"], "p99_us": big["step_p99_us"]}, "1 ms (1 kHz batch period, l = 1)", 1000.0
+        )
 
 
 def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
@@ -593,12 +608,21 @@ def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
         m[name.strip()] = latency_vs_value(stats, "100 µs target", hotpath.TARGET_US) if not name.startswith(" ") else latency(stats)
 
 
+def bench_dsp_rigs(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """How many 200 Hz rigs one DSP process serves (:mod:`rig.bench.dsp_rigs`)."""
+    requires("dsp_service.service")
+    from rig.bench.dsp_rigs import bench_dsp_rigs as run
+
+    run(ctx, result)
+
+
 ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "zenoh": bench_zenoh,
     "can": bench_can,
     "realtime": bench_realtime,
     "lockstep": bench_lockstep,
     "dsp": bench_dsp,
+    "dsp-rigs": bench_dsp_rigs,
     "hotpath": bench_hotpath,
 }
 FLOOR_ITEMS = ("zenoh", "can")

@@ -287,3 +287,83 @@ def test_a_batch_sent_again_gets_the_same_interrupt_again(session: zenoh.Session
         assert again == first  # type: ignore[comparison-overlap]
         assert service.block.counters.interrupts_repeated == 1 and service.block.counters.batches_accepted == 1
         assert service.block.counters.duplicates == 0 and service.interrupt_seq == 1
+
+
+def test_one_process_serves_several_rigs_and_a_stuck_rig_delays_no_other(session: zenoh.Session, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``serve_rigs``: one board per rig on one session (``dsp_service.__main__.serve``). While
+    one rig's step is stuck (held here until released), the other rigs' batches are answered:
+    each rig has its own queue and thread."""
+    from dsp_service import __main__ as dsp_main
+    from dsp_service.core import DspCore
+
+    settings = _settings(serve_rigs="")
+    slow, fast = settings.rig_id, [f"{settings.rig_id}-b", f"{settings.rig_id}-c"]
+    settings = _settings(rig_id=slow, serve_rigs=",".join(fast))
+    assert settings.rig_ids == (slow, *fast)
+    entered, release = threading.Event(), threading.Event()
+    original = DspCore.process
+
+    def process(core: DspCore, batch: SampleBatch, admission: object) -> Interrupt:
+        if core.settings.rig_id == slow:
+            entered.set()
+            assert release.wait(30.0), "the stuck rig was never released"
+        return original(core, batch, admission)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(DspCore, "process", process)
+    probes = {rig: Probe(session, Keys(rig)) for rig in (slow, *fast)}
+    pubs = {rig: session.declare_publisher(Keys(rig).batch) for rig in (slow, *fast)}
+    stop = threading.Event()
+    thread = threading.Thread(target=dsp_main.serve, args=(settings, session, stop), daemon=True)
+    thread.start()
+    try:
+        for rig in (slow, *fast):
+            assert probes[rig].next("flag", timeout=60.0).state == "empty"  # type: ignore[attr-defined]
+        pubs[slow].put(encode_batch(_batch(0)))
+        assert entered.wait(10.0)
+        for seq in range(3):  # the other rigs go on while the first is stuck
+            for rig in fast:
+                pubs[rig].put(encode_batch(_batch(seq)))
+                irq = probes[rig].next("irq")
+                assert isinstance(irq, Interrupt) and irq.batch_seq == seq
+                while probes[rig].next("flag").state != "empty":  # type: ignore[attr-defined]
+                    pass
+        assert all(kind == "flag" for kind, _ in list(probes[slow].events.queue))  # no interrupt yet
+        release.set()
+        irq = probes[slow].next("irq")
+        assert isinstance(irq, Interrupt) and irq.batch_seq == 0
+    finally:
+        release.set()
+        stop.set()
+        thread.join(10)
+        for pub in pubs.values():
+            pub.undeclare()
+        for probe in probes.values():
+            probe.close()
+    assert not thread.is_alive()
+
+
+def test_serve_rigs_are_validated() -> None:
+    with pytest.raises(ValueError, match="twice"):
+        _settings(serve_rigs="a,b,a")
+    with pytest.raises(ValueError, match="rig id"):
+        _settings(serve_rigs="a,b/c")
+    assert _settings(rig_id="x", serve_rigs=" a , b ").rig_ids == ("x", "a", "b")
+
+
+def test_access_rules_cover_every_rig_a_dsp_serves() -> None:
+    """The DSP session's access control (service_kit.access) carries each served rig's rules:
+    on every rig's flag and interrupt keys only the dsp role may publish."""
+    from service_kit.transport import zenoh_config
+
+    settings = _settings(rig_id="r0", serve_rigs="r1,r2", zenoh_acl=True)
+    acl = json.loads(zenoh_config(settings).get_json("access_control"))
+    rule_ids = {r["id"]: r for r in acl["rules"]}
+    assert len({r["id"] for r in acl["rules"]}) == len(acl["rules"])  # no id twice
+    for rig in ("r0", "r1", "r2"):
+        keys = Keys(rig)
+        for key in (keys.flag, keys.interrupt, keys.batch):
+            denied = [rid for rid, r in rule_ids.items() if key in r["key_exprs"]]
+            assert len(denied) == 1, (rig, key)
+            subjects = {s for p in acl["policies"] if denied[0] in p["rules"] for s in p["subjects"]}
+            allowed = "role dsp" if key != keys.batch else "role controller"
+            assert allowed not in subjects and "role tool" in subjects
