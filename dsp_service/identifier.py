@@ -949,8 +949,9 @@ class Identifier:
         if not hist.is_full:
             return None
         x = hist.view()
-        X = np.fft.rfft(x - x.mean(axis=1, keepdims=True), axis=1)
-        return np.fft.rfftfreq(hist.n, 1.0 / self.cfg.sample_rate_hz), X
+        X: NDArray[np.complex128] = np.fft.rfft(x - x.mean(axis=1, keepdims=True), axis=1)
+        f: NDArray[np.float64] = np.fft.rfftfreq(hist.n, 1.0 / self.cfg.sample_rate_hz).astype(np.float64)
+        return f, X
 
     # ----------------------------------------------------------- downloads
     def transfer_functions(self, smoothed: bool = True) -> TransferFunctionEstimate:
