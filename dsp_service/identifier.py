@@ -83,6 +83,7 @@ from .modal import (
     VrmEstimator,
     _half_power,
     _local_maxima,
+    fit_mode_transient,
     log_weights,
     prominence_bases,
     refine_peak,
@@ -118,11 +119,13 @@ class IdentifierConfig(pydantic.BaseModel):
         2048, ge=32, le=1 << 20, description="FFT width N = history length (even)."
     )
     window: str = pydantic.Field("hann", description="scipy.signal.get_window name (periodic).")
-    method: Literal["etfe", "etfe-welch", "arx"] = pydantic.Field(
+    method: Literal["etfe", "etfe-welch", "etfe-transient", "arx"] = pydantic.Field(
         "etfe",
         description="Poles from the thesis's ETFE peak search; 'etfe-welch': the same with Welch "
         "within the history (welch_segments 7 unless given) and the rational-fit damping "
-        "(damping_method 'fit' unless given); 'arx': from the recursive QR-form ARX model "
+        "(damping_method 'fit' unless given); 'etfe-transient': the thesis's ETFE with the damping "
+        "and natural frequency of the transient-aware fit of the history's DFT (damping_method "
+        "'transient' unless given); 'arx': from the recursive QR-form ARX model "
         "(dsp_service.arx; the ETFE still serves the downloads).",
     )
     arx_forgetting: float = pydantic.Field(0.99, gt=0.5, le=1, description="ARX forgetting factor per sample.")
@@ -178,11 +181,13 @@ class IdentifierConfig(pydantic.BaseModel):
     min_peak_prominence_db: float = pydantic.Field(
         3.0, ge=0, description="Minimum prominence (dB, weighted magnitude) of a reported peak."
     )
-    damping_method: Literal["vrm", "fwhm", "fit"] = pydantic.Field(
+    damping_method: Literal["vrm", "fwhm", "fit", "transient"] = pydantic.Field(
         "vrm",
         description="Which estimate PoleEstimate.damping_ratio reports: VRM, FWHM (each the other's "
         "fallback) or 'fit': a rational-fraction fit of the averaged FRF over ±fit_band_hz "
-        "(dsp_service.ratfit; then frequency_hz is the fit's natural frequency; VRM, FWHM fall back).",
+        "(dsp_service.ratfit; then frequency_hz is the fit's natural frequency; VRM, FWHM fall back); "
+        "'transient': the local rational fit with the record's transient term of the unwindowed DFTs of "
+        "the current history over ±fit_band_hz (dsp_service.modal.fit_mode_transient; likewise).",
     )
     fit_band_hz: float = pydantic.Field(1.0, gt=0, description="Half-width (Hz) of the band the 'fit' damping uses.")
     estimate_on_smoothed: bool = pydantic.Field(
@@ -222,6 +227,8 @@ class IdentifierConfig(pydantic.BaseModel):
         """``method='etfe-welch'`` fills its two settings unless they are given explicitly."""
         if isinstance(data, dict) and data.get("method") == "etfe-welch":
             return {"welch_segments": WELCH_PROFILE_SEGMENTS, "damping_method": "fit", **data}
+        if isinstance(data, dict) and data.get("method") == "etfe-transient":
+            return {"damping_method": "transient", **data}
         return data
 
     @pydantic.model_validator(mode="after")
@@ -263,7 +270,7 @@ class PoleEstimate:
     source: str  #: "tot", "11", "12", "21", "22" or "arx"
     damping_defined: bool = True  #: False when neither FWHM nor VRM gave a value (damping_ratio = 0.0)
     confidence: float = 0.0  #: this pole's confidence in [0, 1] (module doc)
-    damping_fit: float | None = None  #: ζ of the rational-fraction fit (damping_method='fit'); None otherwise or if unphysical
+    damping_fit: float | None = None  #: ζ of the rational-fraction fit (damping_method 'fit' or 'transient'); None otherwise or if unphysical
 
 
 @dataclass(frozen=True)
@@ -454,7 +461,7 @@ class Identifier:
         self._k_prom = np.empty(self.cfg.max_peaks)
         self._k_stats = np.zeros(4)
         # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
-        self._k_do_poles = self.cfg.damping_method != "fit"
+        self._k_do_poles = self.cfg.damping_method not in ("fit", "transient")
         ref, vrm = self._refiner, self._vrm
         r_max = ref.r_max
         self._k_pinv = np.zeros((r_max + 1, 3, 2 * r_max + 1))
@@ -924,8 +931,9 @@ class Identifier:
             )
             for i, v in zip(todo, found):
                 vrms[i] = v
-        vrm_first = c.damping_method in ("vrm", "fit")
+        vrm_first = c.damping_method in ("vrm", "fit", "transient")
         source = c.peak_source
+        record = self._record_dft() if c.damping_method == "transient" else None
         poles = []
         for (prom, k_loc, f_peak, m_peak, zeta_fwhm, _, ok), vrm in zip(located, vrms):
             zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
@@ -935,6 +943,13 @@ class Identifier:
             if c.damping_method == "fit" and ok:
                 band = np.abs(fd - f_peak) <= c.fit_band_hz
                 fit = fit_mode(fd[band], hd[band], None if vmask is None else vd[band].astype(np.float64)[None, :])
+                if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz:
+                    f_peak, zeta_fit = fit
+                    chosen = zeta_fit
+            elif record is not None:
+                f_all, X = record
+                band = np.abs(f_all - f_peak) <= c.fit_band_hz
+                fit = fit_mode_transient(f_all[band], X[:2, band], X[2:, band])
                 if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz:
                     f_peak, zeta_fit = fit
                     chosen = zeta_fit
@@ -953,6 +968,17 @@ class Identifier:
                 )
             )
         return tuple(poles)
+
+    def _record_dft(self) -> tuple[NDArray[np.float64], NDArray[np.complex128]] | None:
+        """The rectangular-window DFTs of the mean-removed history (4 rows: inputs, outputs) for
+        damping_method 'transient'; None until the history is full."""
+        hist = self.history
+        if not hist.is_full:
+            return None
+        x = hist.view()
+        X: NDArray[np.complex128] = np.fft.rfft(x - x.mean(axis=1, keepdims=True), axis=1)
+        f: NDArray[np.float64] = np.fft.rfftfreq(hist.n, 1.0 / self.cfg.sample_rate_hz).astype(np.float64)
+        return f, X
 
     # ----------------------------------------------------------- downloads
     def transfer_functions(self, smoothed: bool = True) -> TransferFunctionEstimate:

@@ -171,7 +171,7 @@ class DspSettings(CommonSettings):
     batch_size: int = Field(30, ge=1, le=4096, description="Expected batch size l (sets the default compute budget; any size is accepted)")
     alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
-    identifier: Literal["etfe", "etfe-welch", "arx"] = Field("etfe", description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, or the recursive QR-form ARX model (see docs/identification.md)")
+    identifier: Literal["etfe", "etfe-welch", "etfe-transient", "arx"] = Field("etfe", description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, the ETFE with the transient-aware damping fit, or the recursive QR-form ARX model (see docs/identification.md)")
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
     smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")

@@ -83,6 +83,7 @@ def _compare(cfg: dict, u: np.ndarray, y: np.ndarray, batch: int) -> int:
         {"estimate_on_smoothed": True},
         {"damping_method": "fwhm", "fwhm_exact": False},
         {"damping_method": "fit"},
+        {"damping_method": "transient"},
         {"min_peak_prominence_db": 40.0},
         {"search_min_hz": 0.0, "search_max_hz": 100.0},
         {"det_threshold": 0.5},

@@ -72,7 +72,7 @@ HOLD_S = 2.0
 MEDIAN_HALF_S = 1.0
 SETTINGS: tuple[tuple[int, float, str], ...] = (
     (2048, 0.1, "etfe"), (2048, 0.5, "etfe"), (1024, 0.1, "etfe"), (1024, 0.05, "etfe"), (512, 0.05, "etfe"), (512, 0.02, "etfe"),
-    (2048, 0.1, "etfe-welch"), (1024, 0.1, "etfe-welch"),
+    (2048, 0.1, "etfe-welch"), (1024, 0.1, "etfe-welch"), (2048, 0.1, "etfe-transient"),
     (2048, 0.1, "arx"),
 )
 """(N, α, identifier); the first is the thesis's; ``arx``: the recursive ARX model's poles (N, α then only shape the downloads)."""
@@ -396,7 +396,7 @@ def _delay_figure(rows: dict, n_events: int):  # type: ignore[no-untyped-def]
         if not math.isfinite(d2[i]):
             ax1.annotate("∞", (i - 0.2, 0), ha="center", va="bottom")
         ax1.annotate(f"{rows[k]['settled_events']}/{n_events}", (i - 0.2, 0), xytext=(0, -22), textcoords="offset points", ha="center", fontsize=6)
-    labels = [(f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" + ("" if rows[k]["identifier"] == "etfe" else "\nWelch+fit") if rows[k]["identifier"] != "arx" else "ARX") + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "") for k in keys]
+    labels = [(f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" + {"etfe": "", "etfe-welch": "\nWelch+fit", "etfe-transient": "\ntransient fit"}.get(rows[k]["identifier"], "") if rows[k]["identifier"] != "arx" else "ARX") + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "") for k in keys]
     ax1.set_xticks(x, labels, fontsize=7)
     ax1.set_ylabel("delay after the event (s)")
     ax1.legend(fontsize=7)

@@ -70,8 +70,11 @@ LOW_BAND_HZ = 2.0
 PEAK_BAND_HZ = (0.5, 12.0)
 
 
-IDENTIFIERS = ("etfe", "etfe-welch", "arx")
-"""The thesis's ETFE (its settings; with the dominant-direction solve of collinear bins), the Welch/fitted-damping ETFE, the recursive ARX."""
+IDENTIFIERS = ("etfe", "etfe-transient", "etfe-welch", "arx")
+"""The thesis's ETFE (its settings; with the dominant-direction solve of collinear bins), the same with the transient-aware
+damping fit, the Welch/fitted-damping ETFE, the recursive ARX."""
+DAMPING_RUN = "pi_loop_etfe_transient"
+"""The run whose on-line damping is checked against the plant's (issue: within ±25 % away from the apex)."""
 SPLIT_TOL_HZ = 0.5
 """A download shows a mode when |H_tot| has a peak (≥ SPLIT_PROMINENCE_DB) within this of the true frequency."""
 SPLIT_PROMINENCE_DB = 2.0
@@ -441,6 +444,13 @@ def run(ctx: ExperimentContext) -> Report:
         caption="The first identified pole against the plant's first mode (after the first estimate + 2 s; ζ only where the pole is within 10 % of the first mode); apex downloads: ≥ 30 % of their window at the apex",
         digits=3,
     )
+    if DAMPING_RUN in errors:
+        ez = errors[DAMPING_RUN]["away"]
+        rep.check(
+            "on-line damping of the first mode away from the apex within ±25 % of the plant's (median; etfe-transient)",
+            abs(ez["median_zeta"] / ez["true_zeta"] - 1.0) <= 0.25,
+            f"median ζ {ez['median_zeta']:.3f} for {ez['true_zeta']:.3f}; {ez['zeta_within_25pct']:.0%} of the estimates within ±25 %",
+        )
     if split_rows:
         rep.check(
             "at the apex the downloaded H_tot is solved in the 3–6 Hz band (≥ 90 % of the bins) and shows both modes (the split) in at least half of the apex downloads",
