@@ -65,7 +65,6 @@ rounding (tests/dsp/test_kernel.py: 1e-12 on every output).
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -82,10 +81,10 @@ from .modal import (
     PeakRefiner,
     VrmEstimator,
     _half_power,
-    _local_maxima,
+    find_modal_peaks,
     fit_mode_transient,
     log_weights,
-    prominence_bases,
+    log_weights_db,
     refine_peak,
     zeta_from_fwhm_exact,
     zeta_fwhm_approx,
@@ -104,7 +103,6 @@ from .spectra import (
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
-_PEAK_RANKS = 8  #: maxima whose prominence is read one by one before the rest are done at once
 PeakSource = Literal["tot", "11", "12", "21", "22"]
 WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
@@ -368,11 +366,11 @@ class Identifier:
         # peaks as 20 log10|H| + 20 log10 w in dB); prominences become ratios
         self._w_lin = log_weights(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
         self._prom_ratio = 10.0 ** (c.min_peak_prominence_db / 20.0)
+        self._w_db = log_weights_db(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
         n_range = self._hi - self._lo
         self._v_pad = np.empty(n_range + 1)  # weighted magnitude and a +inf sentinel
         self._v_pad[n_range] = np.inf
         self._v = self._v_pad[:n_range]
-        self._max_flags = np.zeros(n_range, dtype=bool)
         self._vrm = VrmEstimator(c.vrm_points_per_side, c.vrm_band_factor, model=c.vrm_model)
         self._refiner = PeakRefiner()
         h = self._smoother.half
@@ -796,81 +794,16 @@ class Identifier:
     def _find_peaks(
         self, hs: NDArray[np.complex128], vs: NDArray[np.bool_], n_valid: int
     ) -> list[tuple[int, float]]:
-        """Up to ``max_peaks`` ``(index in the search range, prominence in dB)``, best weighted first.
-
-        :func:`.modal.find_modal_peaks` on the smoothed spectrum (local maxima
-        of the weighted magnitude with at least ``min_peak_prominence_db`` of
-        prominence, masked bins set to the valid minimum; else the global
-        maximum unless on an edge), computed on the linear weighted magnitude
-        ``max(|H|, tiny)·w``: the same maxima, bases and order as on its dB
-        values, with the prominence test as a ratio and the dB read only for
-        the peaks kept.
-
-        Only the best peaks are wanted, so the maxima are taken highest
-        first and each one's prominence read as it comes: a maximum's base
-        depends only on the strictly higher maxima (the nearest on either
-        side bound its two minima, see :func:`.modal.prominence_bases`),
-        which have all been seen by then. After a few rejections the bases
-        of all the rest are computed at once instead.
-        """
+        """Up to ``max_peaks`` ``(index in the search range, prominence in dB)``, best weighted first:
+        :func:`.modal.find_modal_peaks` on the smoothed spectrum, the one peak search of
+        the numpy path (the compiled kernel's is its compiled form, tested equal)."""
         c = self.cfg
-        v = self._v
-        size = v.size
-        if size < 3 or n_valid == 0:
+        if n_valid == 0:
             return []
-        np.abs(hs, out=v)
-        np.maximum(v, _TINY, out=v)
-        if self._w_lin is not None:
-            v *= self._w_lin
-        if n_valid < size:
-            v[~vs] = v[vs].min()
-        idx = _local_maxima(v, self._max_flags)
-        found: list[tuple[int, float]] = []
-        if idx.size:
-            height = v[idx]
-            # highest first; among equal heights the later one first, as argsort()[::-1]
-            order = np.argsort(height, kind="stable")[::-1].tolist()
-            il, hl = idx.tolist(), height.tolist()
-            vp, ratio, want, log10 = self._v_pad, self._prom_ratio, c.max_peaks, math.log10
-            reduceat = np.minimum.reduceat
-            seen: list[int] = []  # positions of the maxima taken so far (all at least as high), sorted
-            seen_h: dict[int, float] = {}
-            for rank, o in enumerate(order):
-                if rank == _PEAK_RANKS:  # many low-prominence maxima: bases of all the rest at once
-                    rest = order[rank:]
-                    bases = prominence_bases(vp, size, idx).tolist()
-                    for o2 in rest:
-                        if hl[o2] >= bases[o2] * ratio:
-                            found.append((il[o2], 20.0 * log10(hl[o2] / bases[o2])))
-                            if len(found) == want:
-                                break
-                    break
-                p, hp = il[o], hl[o]
-                j = bisect.bisect_left(seen, p)
-                i = j - 1
-                while i >= 0 and seen_h[seen[i]] <= hp:  # only strictly higher maxima bound the walk
-                    i -= 1
-                left = seen[i] if i >= 0 else 0
-                i = j
-                while i < len(seen) and seen_h[seen[i]] <= hp:
-                    i += 1
-                right = seen[i] if i < len(seen) else size
-                mins = reduceat(vp, (left, p, p, right)).tolist()
-                base = max(mins[0], mins[2])
-                if hp >= base * ratio:
-                    found.append((p, 20.0 * log10(hp / base)))
-                    if len(found) == want:
-                        break
-                seen.insert(j, p)
-                seen_h[p] = hp
-        if found:
-            return found
-        g = int(np.argmax(v))
-        if g == 0 or g == size - 1:
-            return []
-        # the global maximum: no higher sample on either side
-        b = max(float(np.min(v[: g + 1])), float(np.min(v[g:])))
-        return [(g, 20.0 * math.log10(float(v[g]) / b))]
+        peaks = find_modal_peaks(
+            np.abs(hs), self._f_range, self._w_db, vs if n_valid < vs.size else None, c.max_peaks, c.min_peak_prominence_db, n_valid=n_valid, refine=False
+        )
+        return [(p.index, p.prominence_db) for p in peaks]
 
     def _poles(
         self,

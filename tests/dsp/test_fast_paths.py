@@ -165,38 +165,6 @@ def test_vrm_degenerate_spectra_give_none_without_warnings() -> None:
 
 
 # ----------------------------------------------------------------- peaks
-@pytest.mark.parametrize("seed", [1, 2])
-@pytest.mark.parametrize(
-    "kw",
-    [
-        {},
-        {"log_weighting": False},
-        {"max_peaks": 5, "min_peak_prominence_db": 0.0},
-        {"min_peak_prominence_db": 12.0},
-        {"smoothing_window": 0, "min_peak_prominence_db": 8.0},  # many low maxima: the all-at-once path
-        {"smoothing_window": 0, "max_peaks": 16, "min_peak_prominence_db": 1.0},
-    ],
-)
-def test_identifier_peak_search_equals_find_modal_peaks(seed: int, kw: dict) -> None:
-    """The step ranks on the linear weighted magnitude; find_modal_peaks on dB: the same peaks."""
-    n = 512
-    _, u, y = dataset(30 * n, seed=seed)
-    idf = Identifier(IdentifierConfig(fft_width=n, **kw))
-    cfg = idf.cfg
-    for s in range(0, u.shape[1], n // 4):
-        idf.push(u[:, s : s + n // 4], y[:, s : s + n // 4])
-        idf.step()
-        hs = idf._smooth()
-        vs = idf._smoother.valid_range(idf._solver.valid, idf._lo, idf._hi)
-        ours = idf._find_peaks(hs, vs, int(np.count_nonzero(vs)))
-        f = idf._f_range
-        wdb = log_weights_db(f, max(cfg.search_min_hz, FS / n), cfg.log_weight_exponent) if cfg.log_weighting else None
-        ref = find_modal_peaks(np.abs(hs), f, wdb, vs, cfg.max_peaks, cfg.min_peak_prominence_db, refine=False)
-        assert [p[0] for p in ours] == [p.index for p in ref]
-        for p, r in zip(ours, ref):
-            assert math.isclose(p[1], r.prominence_db, rel_tol=1e-9, abs_tol=1e-9)
-
-
 # ------------------------------------------------------------- whole step
 def _step_reference(idf: Identifier) -> list[tuple]:
     """The step's poles rebuilt from the public building blocks (solve_mimo, smoothing, find_modal_peaks, …)."""
