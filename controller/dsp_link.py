@@ -31,14 +31,14 @@ import numpy as np
 
 from protocol.batch_codec import SampleBatch
 from protocol.messages import BlockFlag, Interrupt
-
+from service_kit.counters import Counters
 
 LOST_AFTER_DEADLINES = 10
 """An interrupt this many deadlines late is taken as lost."""
 
 
 @dataclass
-class LinkCounters:
+class LinkCounters(Counters):
     samples_added: int = 0
     samples_sent: int = 0
     samples_dropped: int = 0
@@ -50,9 +50,6 @@ class LinkCounters:
     flags_stale: int = 0
     flags_late: int = 0
     resyncs: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(vars(self))
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from service_kit.counters import Counters
 from service_kit.link_faults import PASS, Fate, FaultEngine, Scenario
 
 log = logging.getLogger(__name__)
@@ -53,15 +54,12 @@ TPDO_WINDOW = 0.8
 
 
 @dataclass
-class StageCounters:
+class StageCounters(Counters):
     syncs_faulted: int = 0
     tpdos_faulted: int = 0
     rpdos_faulted: int = 0
     batches_faulted: int = 0
     interrupts_faulted: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(vars(self))
 
 
 @dataclass

@@ -55,6 +55,7 @@ from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.counters import Counters
 from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
 from service_kit.link_faults import Scenario, load_scenario, parse_scenario
 from service_kit.realtime import RealtimeMeasures, apply_realtime
@@ -76,7 +77,7 @@ RESET_RESEND_S = 1.0
 
 
 @dataclass
-class TimingCounters:
+class TimingCounters(Counters):
     overruns: int = 0
     stale_ticks: int = 0
     stale_episodes: int = 0
@@ -95,9 +96,6 @@ class TimingCounters:
     periods_skipped: int = 0
     batch_resends: int = 0
     tf_download_retries: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(vars(self))
 
 
 @dataclass

@@ -22,15 +22,16 @@ import logging
 from dataclasses import dataclass, field
 
 from protocol.batch_codec import SampleBatch
-from service_kit.inbox import RateLimitedLog
 from protocol.messages import ConfigChange
+from service_kit.counters import Counters
+from service_kit.inbox import RateLimitedLog
 
 log = logging.getLogger(__name__)
 _log_once = RateLimitedLog(log)  # a flood of violations logs once per kind per 10 s (counted all the same)
 
 
 @dataclass
-class BoardCounters:
+class BoardCounters(Counters):
     batches_accepted: int = 0
     samples_accepted: int = 0
     block_full_violations: int = 0
@@ -47,9 +48,6 @@ class BoardCounters:
     dropped_by_controller: int = 0
     interrupts_repeated: int = 0
     """A batch already answered came again (the CPU's resend after a lost interrupt): answered again."""
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(vars(self))
 
 
 @dataclass(frozen=True)

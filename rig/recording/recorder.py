@@ -42,6 +42,7 @@ from protocol.can_map import DEFAULT_NODE_ID
 from protocol.errors import ProtocolError
 from protocol.messages import decode
 from rig.recording import schemas
+from service_kit.counters import Counters
 
 log = logging.getLogger(__name__)
 
@@ -54,16 +55,13 @@ def _ns(t_s: float) -> int:
 
 
 @dataclass
-class RecorderStats:
+class RecorderStats(Counters):
     can_frames: int = 0
     messages: int = 0
     liveliness: int = 0
     undecodable: int = 0
     dropped: int = 0
     """Items the full queue refused (the writer fell behind)."""
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(vars(self))
 
 
 class Recorder:
