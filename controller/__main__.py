@@ -11,8 +11,8 @@ import zenoh
 from controller.plant_link import PlantLink
 from controller.service import ControllerService
 from protocol.settings import ControllerSettings
-from service_kit.transport import open_can_bus
 from service_kit.runtime import build_or_config_error, run_service
+from service_kit.transport import open_can_bus
 
 EXIT_PLANT_FAULT = 3
 EXIT_MONITOR_STOP = 4
@@ -41,7 +41,9 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_service("ralf-controller", "The emulated MVME CPU: 200 Hz PI joint control, OATF input shaping, link to the DSP.", ControllerSettings, control, argv)
+    return run_service(
+        "ralf-controller", "The emulated MVME CPU: 200 Hz PI joint control, OATF input shaping, link to the DSP.", ControllerSettings, control, argv
+    )
 
 
 if __name__ == "__main__":

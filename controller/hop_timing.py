@@ -161,6 +161,8 @@ class HopTimer:
         for name, v in self.tick_hops_s().items():
             if v.size:
                 p50, p99, p999 = np.percentile(v, [50.0, 99.0, 99.9])
-                out[f"hop_{name}"] = LatencyStats(count=int(v.size) if self.n <= self.capacity else self.n, p50=float(p50), p99=float(p99), p999=float(p999), max=float(v.max()))
+                out[f"hop_{name}"] = LatencyStats(
+                    count=int(v.size) if self.n <= self.capacity else self.n, p50=float(p50), p99=float(p99), p999=float(p999), max=float(v.max())
+                )
         out.update({f"hop_{name}": ring.stats() for name, ring in self.rings.items() if ring.n})
         return out

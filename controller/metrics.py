@@ -93,7 +93,7 @@ class RegressionDerivative:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.abs(resp) / np.abs((1j * w) ** self.deriv)
 
-    def apply(self, x: npt.ArrayLike, t0_s: float = 0.0) -> "DerivativeEstimate":
+    def apply(self, x: npt.ArrayLike, t0_s: float = 0.0) -> DerivativeEstimate:
         """Filter the samples ``x`` (1-D, or 2-D with samples along axis 0) over full windows only."""
         xa = np.asarray(x, dtype=float)
         n = xa.shape[0]
@@ -130,16 +130,12 @@ def _regression(window: int, polyorder: int, deriv: int, sample_period_s: float,
     return RegressionDerivative(window, polyorder, deriv, float(sample_period_s), alignment, taps)
 
 
-def velocity_filter(
-    sample_period_s: float = 0.005, window: int = VELOCITY_WINDOW, alignment: Alignment = "centred"
-) -> RegressionDerivative:
+def velocity_filter(sample_period_s: float = 0.005, window: int = VELOCITY_WINDOW, alignment: Alignment = "centred") -> RegressionDerivative:
     """Slope of a sliding linear regression over ``window`` samples (§4.2.1)."""
     return _regression(window, 1, 1, sample_period_s, alignment)
 
 
-def acceleration_filter(
-    sample_period_s: float = 0.005, window: int = ACCELERATION_WINDOW, alignment: Alignment = "centred"
-) -> RegressionDerivative:
+def acceleration_filter(sample_period_s: float = 0.005, window: int = ACCELERATION_WINDOW, alignment: Alignment = "centred") -> RegressionDerivative:
     """Second derivative of a sliding quadratic regression over ``window`` samples (§4.2.1)."""
     return _regression(window, 2, 2, sample_period_s, alignment)
 

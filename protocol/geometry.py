@@ -97,14 +97,10 @@ class PinTriangle:
         return float(out) if np.ndim(out) == 0 else out
 
 
-CYLINDER1: Final[PinTriangle] = PinTriangle(
-    p_in=30.0, q_in=30.0, offset_rad=math.radians(-29.0), retracted_length_in=15.5
-)
+CYLINDER1: Final[PinTriangle] = PinTriangle(p_in=30.0, q_in=30.0, offset_rad=math.radians(-29.0), retracted_length_in=15.5)
 """Joint 1: 31 deg to 71 deg of pin angle over the 60-100 deg joint range:
 about 18.8 in of the 20 in stroke, 27 in/rad on average."""
-CYLINDER2: Final[PinTriangle] = PinTriangle(
-    p_in=13.0, q_in=13.0, offset_rad=math.radians(10.0), retracted_length_in=4.0
-)
+CYLINDER2: Final[PinTriangle] = PinTriangle(p_in=13.0, q_in=13.0, offset_rad=math.radians(10.0), retracted_length_in=4.0)
 """Joint 2 (through the parallel bar): 20 deg to 130 deg of pin angle over the
 10-120 deg elbow range: about 19.1 in of stroke, 10 in/rad on average."""
 CYLINDERS: Final[tuple[PinTriangle, PinTriangle]] = (CYLINDER1, CYLINDER2)

@@ -135,7 +135,9 @@ RIG: Final[RigDescription] = RigDescription(
         Channel("dsp/config_ack", "publication", ConfigAck, ("dsp",), ("controller", "tool"), "a configuration change taken or refused"),
         Channel("dsp/tf", "queryable", TfSnapshot, ("dsp",), ("controller", "tool"), "the identified transfer functions, on request"),
         Channel("plant/truth", "publication", GroundTruth, ("plant",), ("tester",), "the emulated arm's true state (test port)"),
-        Channel("plant/scenario", "publication", ScenarioCommand, ("tester",), ("plant",), "scenario commands (payload, faults)", gated_by="zenoh_acl_scenarios"),
+        Channel(
+            "plant/scenario", "publication", ScenarioCommand, ("tester",), ("plant",), "scenario commands (payload, faults)", gated_by="zenoh_acl_scenarios"
+        ),
         Channel("plant/events", "publication", PlantEvent, ("plant",), ("tester", "launcher"), "hard stops, watchdog, clipping (test port)"),
         Channel("controller/status", "publication", ControllerStatus, ("controller",), ("launcher", "tool"), "the control loop's status"),
         Channel("controller/tf", "publication", TfSnapshot, ("controller",), ("tool",), "each TF download, as downloaded"),

@@ -18,7 +18,6 @@ from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 from protocol.errors import ConfigError
 from protocol.keys import validate_rig_id
 
-
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 _Hz = Annotated[float, Field(gt=0, le=2500)]
 
@@ -49,15 +48,28 @@ class CommonSettings(BaseSettings):
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, gt=0, le=5000, description="Control and identification sample rate")
     health_period_s: float = Field(1.0, gt=0, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
-    rt_priority: int = Field(0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)")
-    cpu_affinity: str = Field("", max_length=256, description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)")
+    rt_priority: int = Field(
+        0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)"
+    )
+    cpu_affinity: str = Field(
+        "", max_length=256, description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)"
+    )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
-    zenoh_user: str = Field("", max_length=64, description="zenoh user name (transport/auth/usrpwd): the session's role, controller, dsp, plant, tool or tester (empty: no authentication)")
+    zenoh_user: str = Field(
+        "",
+        max_length=64,
+        description="zenoh user name (transport/auth/usrpwd): the session's role, controller, dsp, plant, tool or tester (empty: no authentication)",
+    )
     zenoh_password: str = Field("", max_length=256, description="zenoh password of zenoh_user")
     zenoh_credentials_file: str = Field("", description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted)")
     zenoh_acl: bool = Field(False, description="Apply the rig's access rules (service_kit/access.py): each role publishes only its own keys")
     zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
-    can_multicast_ttl: int = Field(0, ge=0, le=32, description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)")
+    can_multicast_ttl: int = Field(
+        0,
+        ge=0,
+        le=32,
+        description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)",
+    )
 
     @field_validator("*", mode="before")
     @classmethod
@@ -99,12 +111,17 @@ class PlantSettings(CommonSettings):
     seed: int = Field(0, ge=0, lt=2**32, description="Seed of the sensor-noise generator")
     payload_attached: bool = Field(False, description="Start with the 15.65 lb payload at the tip")
     adc_bits: Literal[12, 16, 20] = Field(12, description="A/D resolution (the thesis's rig: 12 bits)")
-    sensor_noise_scale: float = Field(1.0, ge=0, le=100, description="Scale of every sensor's analog noise std (1 = the thesis's rig, 0 = noiseless; quantization stays)")
+    sensor_noise_scale: float = Field(
+        1.0, ge=0, le=100, description="Scale of every sensor's analog noise std (1 = the thesis's rig, 0 = noiseless; quantization stays)"
+    )
     valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve-to-cylinder-velocity lag")
     truth_rate_hz: float = Field(20.0, ge=0, le=1000, description="Rate of ground truth on the test port (0 = off)")
     watchdog_periods: int = Field(5, ge=1, le=10000, description="SYNC periods without SYNC before the valves are held")
     heartbeat_ms: int = Field(100, ge=0, le=65535, description="CANopen heartbeat producer period (0 = off)")
-    scenario: str = Field("", description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]')
+    scenario: str = Field(
+        "",
+        description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]',
+    )
     record: str = Field("", description="Write the ground truth at truth_rate_hz to this .npz file when the plant stops")
 
     @field_validator("adc_bits", mode="before")
@@ -123,18 +140,24 @@ class ControllerSettings(CommonSettings):
     trajectory: str = Field("", description="Trajectory way-point JSON file (default: the thesis's inspection loop)")
     tip_speed_in_s: float = Field(5.0, gt=0, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
     repeats: int = Field(0, ge=0, le=100000, description="Passes around the trajectory before stopping (0 = until stopped)")
-    batch_size: int = Field(30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)")
+    batch_size: int = Field(
+        30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)"
+    )
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
     oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
     oatf_frequency_hz: float = Field(4.4, gt=0, le=2500, description="OATF design frequency (initial value when adaptive)")
     oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
     oatf_delay_s: float | None = Field(None, gt=0, le=10, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
     oatf_band_hz: tuple[_Hz, _Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
-    oatf_min_confidence: float = Field(0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)")
+    oatf_min_confidence: float = Field(
+        0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)"
+    )
     dsp_deadline_s: float | None = Field(None, gt=0, le=60, description="Interrupt deadline after a batch (default: the batch period)")
     stale_after_s: float = Field(2.0, gt=0, le=3600, description="Parameters older than this are stale")
     tf_download_samples: int = Field(1000, ge=0, le=10**7, description="Download transfer functions every this many samples (0 = never)")
-    lockstep_timeout_s: float = Field(60.0, gt=0, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)")
+    lockstep_timeout_s: float = Field(
+        60.0, gt=0, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)"
+    )
     startup_timeout_s: float = Field(60.0, gt=0, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
     plant_heartbeat_timeout_s: float = Field(1.0, gt=0, le=60, description="Plant heartbeat older than this is a fault")
     record: str = Field("", description="Write the run record (npz + JSON) to this path")
@@ -142,12 +165,18 @@ class ControllerSettings(CommonSettings):
     policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
     policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
     policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
-    policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On another master's SYNC, NMT, RPDO1 or SDO frame on the CAN bus")
+    policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field(
+        "warn", description="On another master's SYNC, NMT, RPDO1 or SDO frame on the CAN bus"
+    )
     inject_stall_at_s: float | None = Field(None, ge=0, le=1e7, description="Fault injection: freeze the loop at this simulated time...")
     inject_stall_s: float = Field(0.0, ge=0, le=60, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
     inject_sync_drop_every: int = Field(0, ge=0, le=10**6, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
-    fault_scenario: str = Field("", max_length=100_000, description="Link faults: a scenario file (YAML/JSON) or inline JSON, see docs/timing-faults.md (empty = none)")
-    oatf_max_stages: int = Field(1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis")
+    fault_scenario: str = Field(
+        "", max_length=100_000, description="Link faults: a scenario file (YAML/JSON) or inline JSON, see docs/timing-faults.md (empty = none)"
+    )
+    oatf_max_stages: int = Field(
+        1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis"
+    )
     oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
     oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
 
@@ -171,7 +200,10 @@ class DspSettings(CommonSettings):
     batch_size: int = Field(30, ge=1, le=4096, description="Expected batch size l (sets the default compute budget; any size is accepted)")
     alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
-    identifier: Literal["etfe", "etfe-welch", "etfe-transient", "arx"] = Field("etfe", description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, the ETFE with the transient-aware damping fit, or the recursive QR-form ARX model (see docs/identification.md)")
+    identifier: Literal["etfe", "etfe-welch", "etfe-transient", "arx"] = Field(
+        "etfe",
+        description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, the ETFE with the transient-aware damping fit, or the recursive QR-form ARX model (see docs/identification.md)",
+    )
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
     smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
@@ -180,7 +212,9 @@ class DspSettings(CommonSettings):
     inject_delay_s: float = Field(0.0, ge=0, le=10, description="Fault injection: extra compute time per batch (a slowed board)")
     search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
     search_max_hz: float = Field(40.0, gt=0, le=2500, description="Upper edge of the peak search")
-    serve_rigs: str = Field("", description="Further rig ids this one DSP process serves besides rig_id, comma-separated (each its own board: identifier, queue and thread)")
+    serve_rigs: str = Field(
+        "", description="Further rig ids this one DSP process serves besides rig_id, comma-separated (each its own board: identifier, queue and thread)"
+    )
 
     @field_validator("serve_rigs")
     @classmethod
@@ -206,7 +240,7 @@ class DspSettings(CommonSettings):
         return value
 
     @model_validator(mode="after")
-    def _checks(self) -> "DspSettings":
+    def _checks(self) -> DspSettings:
         if self.search_max_hz <= self.search_min_hz:
             raise ValueError("search_max_hz must exceed search_min_hz")
         return self

@@ -50,7 +50,9 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
             raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
         services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
         if not services or any(name not in SETTINGS_MODELS[svc].model_fields for svc in services):
-            raise SystemExit(f"ralf-hil: --set {item!r}: {name!r} is not a setting of {' or '.join(services or SETTINGS_MODELS)} (see ralf-plant/ralf-controller/ralf-dsp --help)")
+            raise SystemExit(
+                f"ralf-hil: --set {item!r}: {name!r} is not a setting of {' or '.join(services or SETTINGS_MODELS)} (see ralf-plant/ralf-controller/ralf-dsp --help)"
+            )
         for svc in services:
             out[svc][f"RALF_{name.upper()}"] = value
     return out
@@ -127,7 +129,9 @@ def print_summary(summary: dict[str, Any]) -> None:
         table.add_row("timing verdict", verdict)
     if summary.get("recording"):
         r = summary["recording"]
-        table.add_row("recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable")
+        table.add_row(
+            "recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable"
+        )
     Console().print(table)  # the summary is the command's result: stdout
 
 
@@ -197,7 +201,9 @@ def cmd_up(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     observer = RigObserver(plan)
-    console.print(f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}")
+    console.print(
+        f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
+    )
     live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
     said_ready = False
 
@@ -394,7 +400,13 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     return 0
 
 
-COMPOSE_PASSWORD_VARS = {"controller": "ZENOH_PASSWORD_CONTROLLER", "dsp": "ZENOH_PASSWORD_DSP", "plant": "ZENOH_PASSWORD_PLANT", "tool": "ZENOH_PASSWORD_TOOL", "tester": "ZENOH_PASSWORD_TESTER"}
+COMPOSE_PASSWORD_VARS = {
+    "controller": "ZENOH_PASSWORD_CONTROLLER",
+    "dsp": "ZENOH_PASSWORD_DSP",
+    "plant": "ZENOH_PASSWORD_PLANT",
+    "tool": "ZENOH_PASSWORD_TOOL",
+    "tester": "ZENOH_PASSWORD_TESTER",
+}
 """The variables docker-compose.yml takes the services' passwords from (not
 ``RALF_*``: they are compose's, never a service's)."""
 
@@ -433,15 +445,36 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
     up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
-    up.add_argument("--duration", type=positive_seconds, default=None, help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds")
+    up.add_argument(
+        "--duration",
+        type=positive_seconds,
+        default=None,
+        help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds",
+    )
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
-    up.add_argument("--clock", choices=("realtime", "lockstep", "cosim"), default="realtime", help="realtime (default), lockstep (three processes, handshake-stepped) or cosim (one thread, bit-identical to lockstep)")
-    up.add_argument("--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)")
+    up.add_argument(
+        "--clock",
+        choices=("realtime", "lockstep", "cosim"),
+        default="realtime",
+        help="realtime (default), lockstep (three processes, handshake-stepped) or cosim (one thread, bit-identical to lockstep)",
+    )
+    up.add_argument(
+        "--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)"
+    )
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
-    up.add_argument("--record", default=None, metavar="RUN.mcap", help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file")
-    up.add_argument("--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)")
-    up.add_argument("--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)")
+    up.add_argument(
+        "--record",
+        default=None,
+        metavar="RUN.mcap",
+        help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file",
+    )
+    up.add_argument(
+        "--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)"
+    )
+    up.add_argument(
+        "--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)"
+    )
     up.set_defaults(func=cmd_up)
     rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")
     rc.add_argument("--rig-id", default="default")

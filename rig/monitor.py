@@ -149,7 +149,7 @@ class RigWatch:
                 pass
         self.session.close()
 
-    def __enter__(self) -> "RigWatch":
+    def __enter__(self) -> RigWatch:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -180,7 +180,9 @@ def open_watch(settings: CommonSettings, history: bool = False) -> RigWatch:
     return RigWatch(settings.rig_id, zenoh_config(settings), history=history)
 
 
-def snapshot_once(rig_id: str | None = None, connect: str | Sequence[str] | None = None, window_s: float = 2.5, settings: CommonSettings | None = None) -> dict[str, Any]:
+def snapshot_once(
+    rig_id: str | None = None, connect: str | Sequence[str] | None = None, window_s: float = 2.5, settings: CommonSettings | None = None
+) -> dict[str, Any]:
     """Collect for ``window_s`` seconds and return one snapshot (the session is closed)."""
     if settings is None:
         text = connect if isinstance(connect, str) or connect is None else ",".join(connect)
@@ -327,9 +329,13 @@ def register(subparsers: Any) -> None:
         "zenoh settings come from RALF_ZENOH_* (mode, connect, listen, multicast scouting) and the options below.",
     )
     p.add_argument("--rig-id", default=None, help="rig to watch (default: RALF_RIG_ID or 'default')")
-    p.add_argument("--connect", default=None, metavar="ENDPOINT[,ENDPOINT...]", help="zenoh endpoints to connect to, e.g. tcp/127.0.0.1:7447 (default: RALF_ZENOH_CONNECT)")
+    p.add_argument(
+        "--connect", default=None, metavar="ENDPOINT[,ENDPOINT...]", help="zenoh endpoints to connect to, e.g. tcp/127.0.0.1:7447 (default: RALF_ZENOH_CONNECT)"
+    )
     p.add_argument("--once", action="store_true", help="collect for --window seconds, print one snapshot and exit (1 if nothing was heard)")
-    p.add_argument("--window", type=_positive, default=2.5, help="collection window of --once in seconds (default 2.5; health comes every RALF_HEALTH_PERIOD_S)")
+    p.add_argument(
+        "--window", type=_positive, default=2.5, help="collection window of --once in seconds (default 2.5; health comes every RALF_HEALTH_PERIOD_S)"
+    )
     p.add_argument("--json", action="store_true", help="with --once: print the snapshot as JSON instead of tables")
     p.add_argument("--refresh", type=_positive, default=4.0, help="live refreshes per second (default 4)")
     p.set_defaults(func=cmd_monitor)

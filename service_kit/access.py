@@ -48,11 +48,7 @@ def _senders(channel: Channel, senders: tuple[str, ...], scenarios: bool) -> tup
 def publishers(keys: Keys, scenarios: bool = False) -> dict[str, tuple[str, ...]]:
     """Key expression -> the roles allowed to publish (put/delete) on it: the
     declared senders of every publication channel of :data:`protocol.rig_description.RIG`."""
-    return {
-        f"{keys.root}/{suffix}": _senders(channel, senders, scenarios)
-        for suffix, channel, senders in RIG.expanded()
-        if channel.kind == "publication"
-    }
+    return {f"{keys.root}/{suffix}": _senders(channel, senders, scenarios) for suffix, channel, senders in RIG.expanded() if channel.kind == "publication"}
 
 
 def _rule(rule_id: str, messages: Iterable[str], key_exprs: Iterable[str]) -> dict[str, Any]:

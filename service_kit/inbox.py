@@ -155,7 +155,16 @@ class Inbox:
 
         return on_sample
 
-    def offer(self, kind: str, payload: Any, decode: Callable[..., Any], max_bytes: int, attachment: Any = None, use_attachment: bool = False, arrival: float | None = None) -> bool:
+    def offer(
+        self,
+        kind: str,
+        payload: Any,
+        decode: Callable[..., Any],
+        max_bytes: int,
+        attachment: Any = None,
+        use_attachment: bool = False,
+        arrival: float | None = None,
+    ) -> bool:
         """Cap, decode and queue one payload (anything with ``len`` and
         ``to_bytes()``, or bytes); True if it was queued or handled.
         ``arrival``: when it came, on the caller's clock (default: ``clock()``)."""

@@ -318,7 +318,9 @@ class FaultEngine:
                 acting.append(i)
         if not acting:
             return PASS
-        fate = Fate(dropped=dropped, delay_s=0.0 if dropped else delay, copies=1 if dropped else copies, reordered=reordered and not dropped, faults=tuple(acting))
+        fate = Fate(
+            dropped=dropped, delay_s=0.0 if dropped else delay, copies=1 if dropped else copies, reordered=reordered and not dropped, faults=tuple(acting)
+        )
         self.counters.add(kind, fate)
         if len(self.events) < self.max_events:
             self.events.append(FaultEvent(sim_s, kind, seq, fate.dropped, fate.delay_s, fate.copies, fate.reordered, fate.faults))

@@ -16,10 +16,10 @@ from typing import Any, TypeVar
 import numpy as np
 import zenoh
 
-from service_kit.encodings import JSON
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings
+from service_kit.encodings import JSON
 
 S = TypeVar("S", bound=CommonSettings)
 T = TypeVar("T")
@@ -125,7 +125,7 @@ class HealthPublisher:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="health", daemon=True)
 
-    def start(self) -> "HealthPublisher":
+    def start(self) -> HealthPublisher:
         self._thread.start()
         return self
 
@@ -167,6 +167,10 @@ def build_or_config_error(what: str, factory: Callable[[], T]) -> T:
         raise ConfigError(f"{what}: {exc}") from None
 
 
+def _no_recorder(_proc: Any) -> None:
+    """Stopping the recorder when none was started."""
+
+
 def run_service(
     prog: str,
     summary: str,
@@ -182,7 +186,7 @@ def run_service(
     args = list(sys.argv[1:] if argv is None else argv)
     record: str | None = None
     recorder: Any = None
-    stop_recorder: Callable[[Any], None] = lambda _proc: None
+    stop_recorder: Callable[[Any], None] = _no_recorder
     if any(a == "--record" or a.startswith("--record=") for a in args):
         # The recorder is the launcher's (rig.recording), imported only when asked
         # for: the boards' own code never imports rig. It runs as a child process.

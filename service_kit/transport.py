@@ -12,9 +12,9 @@ from typing import Any
 import can
 import zenoh
 
-from service_kit.access import insert_access
 from protocol.errors import TransportError
 from protocol.settings import CommonSettings
+from service_kit.access import insert_access
 
 log = logging.getLogger(__name__)
 

@@ -84,8 +84,24 @@ def evaluate(controller: Any, criteria: Criteria, mode: str) -> dict[str, Any]:
             checks.append({"name": name, "value": round(value, 1), "limit": limit, "unit": "us", "verdict": "pass" if value <= limit else "fail"})
         else:
             checks.append({"name": name, "value": None, "limit": limit, "unit": "us", "verdict": "n/a (no wall-clock schedule in this mode)"})
-    checks.append({"name": "consecutive deadline misses", "value": longest, "limit": criteria.max_consecutive_misses, "unit": "batches", "verdict": "pass" if longest <= criteria.max_consecutive_misses else "fail"})
-    checks.append({"name": "consecutive overruns", "value": controller.overrun_run_max, "limit": criteria.max_consecutive_misses, "unit": "ticks", "verdict": "pass" if controller.overrun_run_max <= criteria.max_consecutive_misses else "fail"})
+    checks.append(
+        {
+            "name": "consecutive deadline misses",
+            "value": longest,
+            "limit": criteria.max_consecutive_misses,
+            "unit": "batches",
+            "verdict": "pass" if longest <= criteria.max_consecutive_misses else "fail",
+        }
+    )
+    checks.append(
+        {
+            "name": "consecutive overruns",
+            "value": controller.overrun_run_max,
+            "limit": criteria.max_consecutive_misses,
+            "unit": "ticks",
+            "verdict": "pass" if controller.overrun_run_max <= criteria.max_consecutive_misses else "fail",
+        }
+    )
     faults = controller.faults.as_counters() if controller.faults is not None else {}
     return {
         "passed": all(c["verdict"] != "fail" for c in checks),

@@ -39,7 +39,14 @@ def engine() -> Iterator[Engine]:
 def small_spec(**kw: object) -> SweepSpec:
     return SweepSpec(
         name="t",
-        base={"controller.duration_s": 2.0, "batch_size": 20, "controller.tf_download_samples": 0, "controller.oatf_mode": "adaptive", "dsp.fft_width": 256, "plant.truth_rate_hz": 200.0},
+        base={
+            "controller.duration_s": 2.0,
+            "batch_size": 20,
+            "controller.tf_download_samples": 0,
+            "controller.oatf_mode": "adaptive",
+            "dsp.fft_width": 256,
+            "plant.truth_rate_hz": 200.0,
+        },
         **kw,  # type: ignore[arg-type]
     )
 
@@ -141,7 +148,20 @@ def test_sweep_on_a_dask_scheduler_with_two_workers(tmp_path: Path) -> None:
         for i in range(2):
             procs.append(
                 _start(
-                    ["worker", address, "--no-nanny", "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{i}", "--local-directory", str(tmp_path / f"w{i}")],
+                    [
+                        "worker",
+                        address,
+                        "--no-nanny",
+                        "--nthreads",
+                        "1",
+                        "--host",
+                        "127.0.0.1",
+                        "--no-dashboard",
+                        "--name",
+                        f"w{i}",
+                        "--local-directory",
+                        str(tmp_path / f"w{i}"),
+                    ],
                     tmp_path / f"worker{i}.log",
                 )
             )
@@ -174,7 +194,7 @@ def test_cli_dry_run_and_bad_specs(tmp_path: Path, capsys: pytest.CaptureFixture
     assert main(["sweep", str(spec), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "4 run(s)" in out and "onrig" in out
-    spec.write_text('[base]\ncontroller.duration_s = 1\nplant.adc_bitz = 12\n', encoding="utf-8")
+    spec.write_text("[base]\ncontroller.duration_s = 1\nplant.adc_bitz = 12\n", encoding="utf-8")
     assert main(["sweep", str(spec), "--dry-run"]) == 2
     assert "adc_bits" in capsys.readouterr().err
     assert main(["sweep", str(tmp_path / "none.yaml")]) == 2
@@ -186,7 +206,9 @@ def test_onrig_mode_runs_the_three_process_rig(tmp_path: Path) -> None:
     from rig.campaign.modes import run_point
     from rig.campaign.spec import expand
 
-    point = expand(SweepSpec(mode="onrig", base={"controller.duration_s": 2.0, "batch_size": 20, "controller.tf_download_samples": 0, "dsp.fft_width": 256, "seed": 5}))[0]
+    point = expand(
+        SweepSpec(mode="onrig", base={"controller.duration_s": 2.0, "batch_size": 20, "controller.tf_download_samples": 0, "dsp.fft_width": 256, "seed": 5})
+    )[0]
     row = run_point(point)
     assert row["ticks"] == 400 and row["batches_sent"] == 20 and row["velocity_rms_1"] > 0
 

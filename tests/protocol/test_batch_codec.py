@@ -287,7 +287,9 @@ def test_arbitrary_bytes_raise_only_batch_decode_error(payload: bytes) -> None:
     floats=st.lists(st.floats(), min_size=3, max_size=3),
     tail=st.binary(max_size=400),
 )
-def test_plausible_headers_with_arbitrary_bodies_raise_only_batch_decode_error(n_in: int, n_out: int, n: int, reserved: int, floats: list[float], tail: bytes) -> None:
+def test_plausible_headers_with_arbitrary_bodies_raise_only_batch_decode_error(
+    n_in: int, n_out: int, n: int, reserved: int, floats: list[float], tail: bytes
+) -> None:
     payload = bc.HEADER.pack(MAGIC, VERSION, n_in, n_out, reserved, 0, 0, n, 0, *floats) + tail
     try:
         batch = decode_batch(payload)

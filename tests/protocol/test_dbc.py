@@ -41,9 +41,16 @@ def db() -> cantools.database.can.Database:
 def test_dbc_agrees_with_can_map(db: cantools.database.can.Database) -> None:
     ids = cob_ids(DEFAULT_NODE_ID)
     by_frame = {
-        "nmt": "NMT", "sync": "SYNC", "emcy": "EMCY_Plant", "tpdo1": "TPDO1_AnalogInputs16",
-        "tpdo2": "TPDO2_AnalogInputs32", "tpdo3": "TPDO3_AnalogInputs32", "rpdo1": "RPDO1_AnalogOutputs16",
-        "sdo_tx": "SDO_Tx_Plant", "sdo_rx": "SDO_Rx_Plant", "heartbeat": "Heartbeat_Plant",
+        "nmt": "NMT",
+        "sync": "SYNC",
+        "emcy": "EMCY_Plant",
+        "tpdo1": "TPDO1_AnalogInputs16",
+        "tpdo2": "TPDO2_AnalogInputs32",
+        "tpdo3": "TPDO3_AnalogInputs32",
+        "rpdo1": "RPDO1_AnalogOutputs16",
+        "sdo_tx": "SDO_Tx_Plant",
+        "sdo_rx": "SDO_Rx_Plant",
+        "heartbeat": "Heartbeat_Plant",
     }
     assert {m.name for m in db.messages} == set(by_frame.values())
     for key, name in by_frame.items():
@@ -54,10 +61,12 @@ def test_dbc_agrees_with_can_map(db: cantools.database.can.Database) -> None:
         assert m.comment, m.name
         for s in m.signals:
             assert s.comment, (m.name, s.name)
-    for name, n, scale in (("TPDO1_AnalogInputs16", 4, WORD16_VOLTS_PER_LSB),
-                           ("RPDO1_AnalogOutputs16", 2, WORD16_VOLTS_PER_LSB),
-                           ("TPDO2_AnalogInputs32", 2, WORD32_VOLTS_PER_LSB),
-                           ("TPDO3_AnalogInputs32", 2, WORD32_VOLTS_PER_LSB)):
+    for name, n, scale in (
+        ("TPDO1_AnalogInputs16", 4, WORD16_VOLTS_PER_LSB),
+        ("RPDO1_AnalogOutputs16", 2, WORD16_VOLTS_PER_LSB),
+        ("TPDO2_AnalogInputs32", 2, WORD32_VOLTS_PER_LSB),
+        ("TPDO3_AnalogInputs32", 2, WORD32_VOLTS_PER_LSB),
+    ):
         sigs = db.get_message_by_name(name).signals
         assert len(sigs) == n
         for s in sigs:
@@ -134,9 +143,7 @@ def record_session(path: Path) -> tuple[RampApp, list[np.ndarray], int]:
 
 
 @pytest.mark.parametrize("suffix", [".asc", ".log", ".blf"])
-def test_recorded_session_decodes_to_the_sent_values(
-    db: cantools.database.can.Database, tmp_path: Path, suffix: str
-) -> None:
+def test_recorded_session_decodes_to_the_sent_values(db: cantools.database.can.Database, tmp_path: Path, suffix: str) -> None:
     path = tmp_path / f"session{suffix}"
     app, commanded, n_frames = record_session(path)
     frames = list(can.LogReader(str(path)))
@@ -154,10 +161,12 @@ def test_recorded_session_decodes_to_the_sent_values(
     assert tpdo1.shape == (30, 4)
     np.testing.assert_allclose(tpdo1[:15], sent[:15], atol=ConverterScale(12).lsb_v / 2)
     np.testing.assert_allclose(tpdo1[15:], sent[15:], atol=20.0 / 2**16)  # 16 MSBs of a 20-bit code
-    wide = np.hstack([
-        np.array([[d["AI1_32"], d["AI2_32"]] for i, d in decoded if i == 0x281]),
-        np.array([[d["AI3_32"], d["AI4_32"]] for i, d in decoded if i == 0x381]),
-    ])
+    wide = np.hstack(
+        [
+            np.array([[d["AI1_32"], d["AI2_32"]] for i, d in decoded if i == 0x281]),
+            np.array([[d["AI3_32"], d["AI4_32"]] for i, d in decoded if i == 0x381]),
+        ]
+    )
     assert wide.shape == (15, 4)
     np.testing.assert_allclose(wide, sent[15:], atol=ConverterScale(20).lsb_v / 2)
 
@@ -168,19 +177,21 @@ def test_recorded_session_decodes_to_the_sent_values(
 
     emcy = [(d["EMCY_ErrorCode"], d["EMCY_ErrorRegister"]) for i, d in decoded if i == 0x081]
     assert emcy and emcy[0] == ("OUTPUT_CLIPPED", 0x03)
-    assert [str(c) for c, _ in emcy] == ["OUTPUT_CLIPPED", "NO_ERROR"] * (len(emcy) // 2) + (
-        ["OUTPUT_CLIPPED"] if len(emcy) % 2 else [])
+    assert [str(c) for c, _ in emcy] == ["OUTPUT_CLIPPED", "NO_ERROR"] * (len(emcy) // 2) + (["OUTPUT_CLIPPED"] if len(emcy) % 2 else [])
     sdo = [d for i, d in decoded if i in (0x581, 0x601)]
     assert [str(d.get("SDO_Rx_Command", d.get("SDO_Tx_Command"))) for d in sdo] == [
-        "DOWNLOAD_EXPEDITED_4", "DOWNLOAD_INITIATE_RESPONSE", "DOWNLOAD_EXPEDITED_1", "DOWNLOAD_INITIATE_RESPONSE"]
+        "DOWNLOAD_EXPEDITED_4",
+        "DOWNLOAD_INITIATE_RESPONSE",
+        "DOWNLOAD_EXPEDITED_1",
+        "DOWNLOAD_INITIATE_RESPONSE",
+    ]
 
 
 def test_cantools_cli_decodes_a_candump_log(tmp_path: Path) -> None:
     path = tmp_path / "session.log"
     record_session(path)
     with path.open() as log:
-        out = subprocess.run([sys.executable, "-m", "cantools", "decode", str(DBC)], stdin=log,
-                             capture_output=True, text=True, timeout=60, check=True).stdout
+        out = subprocess.run([sys.executable, "-m", "cantools", "decode", str(DBC)], stdin=log, capture_output=True, text=True, timeout=60, check=True).stdout
     assert out.count("TPDO1_AnalogInputs16(") == 30
     assert "EMCY_ErrorCode: OUTPUT_CLIPPED" in out and "HB_State: BOOT_UP" in out
     assert "Unknown" not in out

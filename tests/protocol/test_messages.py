@@ -172,11 +172,7 @@ any_model_instance = st.sampled_from(MODELS).flatmap(lambda cls: STRATEGIES[cls]
 
 
 def test_every_model_in_the_module_has_a_strategy() -> None:
-    defined = {
-        obj
-        for _, obj in inspect.getmembers(m, inspect.isclass)
-        if issubclass(obj, BaseModel) and obj.__module__ == m.__name__ and obj is not m.Message
-    }
+    defined = {obj for _, obj in inspect.getmembers(m, inspect.isclass) if issubclass(obj, BaseModel) and obj.__module__ == m.__name__ and obj is not m.Message}
     assert defined == set(STRATEGIES)
 
 
@@ -267,7 +263,17 @@ VALID: dict[type[BaseModel], dict[str, Any]] = {
     m.PoleParameters: {"frequency_hz": 4.4, "damping_ratio": 0.09},
     m.Interrupt: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "batch_seq": 0, "confidence": 0.9, "compute_time_s": 0.01},
     m.ConfigChange: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "fft_width": 1024},
-    m.ConfigAck: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "request_id": "ab12", "accepted": True, "fft_width": 1024, "batch_size": 30, "alpha": 0.1, "emulated_latency_s": 0.1},
+    m.ConfigAck: {
+        "seq": 1,
+        "sim_time_s": 0.5,
+        "wall_time_s": 1.0,
+        "request_id": "ab12",
+        "accepted": True,
+        "fft_width": 1024,
+        "batch_size": 30,
+        "alpha": 0.1,
+        "emulated_latency_s": 0.1,
+    },
     m.TransferFunction: {"magnitude": [1.0], "phase_rad": [0.0]},
     m.TfSnapshot: {
         "seq": 1,
@@ -323,7 +329,24 @@ def test_valid_fixtures_decode() -> None:
         assert isinstance(m.decode(model, _payload(doc)), model)
 
 
-MALFORMED = [b"", b" ", b"{", b"}", b"{}}", b'{"seq": 1,}', b"[]", b"null", b"true", b"1", b'"text"', b"\xff\xfe\x00", b"\x00", b"{'seq': 1}", b"[" * 10_000, b'{"a":' * 10_000]
+MALFORMED = [
+    b"",
+    b" ",
+    b"{",
+    b"}",
+    b"{}}",
+    b'{"seq": 1,}',
+    b"[]",
+    b"null",
+    b"true",
+    b"1",
+    b'"text"',
+    b"\xff\xfe\x00",
+    b"\x00",
+    b"{'seq': 1}",
+    b"[" * 10_000,
+    b'{"a":' * 10_000,
+]
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)

@@ -96,9 +96,7 @@ def test_describe_lists_every_field(model: type[CommonSettings]) -> None:
         (DspSettings, "RALF_BUDGET_S", "0.02", "budget_s", 0.02),
     ],
 )
-def test_environment_values_are_parsed(
-    clean_env: pytest.MonkeyPatch, model: type[CommonSettings], var: str, raw: str, field: str, expected: Any
-) -> None:
+def test_environment_values_are_parsed(clean_env: pytest.MonkeyPatch, model: type[CommonSettings], var: str, raw: str, field: str, expected: Any) -> None:
     clean_env.setenv(var, raw)
     value = getattr(load_settings(model), field)
     assert value == expected and type(value) is type(expected)

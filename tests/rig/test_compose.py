@@ -6,9 +6,9 @@ services started as local processes with exactly the compose environment
 from __future__ import annotations
 
 import json
-import re
 import os
 import queue
+import re
 import shutil
 import signal
 import socket
@@ -61,7 +61,7 @@ def test_compose_file_describes_router_and_three_services() -> None:
         env = svc["environment"]
         assert env["RALF_ZENOH_MODE"] == "client"
         assert env["RALF_ZENOH_CONNECT"] == "tcp/zenoh-router:7447"
-        for var, value in env.items():
+        for var in env:
             field = var.removeprefix("RALF_").lower()
             assert field in model.model_fields, f"{name}: {var} is not a setting of {model.__name__}"
         model(**{k.removeprefix("RALF_").lower(): v for k, v in env.items()})  # values validate

@@ -67,7 +67,9 @@ def test_drop_and_duplicate_rates_are_binomial_and_independent_of_call_order() -
 
 
 def test_windows_and_burst_outages() -> None:
-    engine = FaultEngine(parse_scenario(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 3.0, "outage": {"every_s": 1.0, "length_s": 0.25}})))
+    engine = FaultEngine(
+        parse_scenario(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 3.0, "outage": {"every_s": 1.0, "length_s": 0.25}}))
+    )
     t = np.arange(0.0, 4.0, 0.05)
     dropped = np.array([engine.decide("interrupt", i, float(x), 0.0).dropped for i, x in enumerate(t)])
     expected = (t >= 1.0) & (t < 3.0) & (((t - 1.0) % 1.0) < 0.25)
@@ -142,7 +144,12 @@ def test_interrupts_delayed_past_the_deadline_are_misses_that_name_the_fault() -
 
 
 def test_tpdo_loss_holds_the_last_sample_and_rpdo_loss_the_last_command() -> None:
-    a = _cosim(scenario({"link": "can", "kinds": ["tpdo"], "start_s": 1.0, "stop_s": 1.05, "drop": 1.0}, {"link": "can", "kinds": ["rpdo"], "start_s": 2.0, "stop_s": 2.05, "drop": 1.0}))
+    a = _cosim(
+        scenario(
+            {"link": "can", "kinds": ["tpdo"], "start_s": 1.0, "stop_s": 1.05, "drop": 1.0},
+            {"link": "can", "kinds": ["rpdo"], "start_s": 2.0, "stop_s": 2.05, "drop": 1.0},
+        )
+    )
     col = _columns(a)
     held = col["ai1_word"][200:210]
     assert np.all(held == col["ai1_word"][199])  # ticks 200..209 have no sample: the last one held
@@ -200,7 +207,15 @@ def test_a_faulted_cosim_equals_the_faulted_one_process_lockstep_run() -> None:
     b = run_in_process(controller=dict(controller), dsp=dict(FAST_DSP))
     assert a.result.error is None and b.result.error is None
     _same(a, b)
-    keys = ("fault_dropped_interrupt", "fault_dropped_batch", "fault_delayed_interrupt", "fault_dropped_rpdo", "fault_duplicated_rpdo", "interrupts_lost", "deadline_misses")
+    keys = (
+        "fault_dropped_interrupt",
+        "fault_dropped_batch",
+        "fault_delayed_interrupt",
+        "fault_dropped_rpdo",
+        "fault_duplicated_rpdo",
+        "interrupts_lost",
+        "deadline_misses",
+    )
     assert {k: a.result.counters.get(k) for k in keys} == {k: b.result.counters.get(k) for k in keys}
 
 
@@ -210,8 +225,16 @@ def test_timing_test_report_gives_verdicts_percentiles_and_histograms(tmp_path: 
 
     assert run_lengths([0, 1, 1, 0, 1, 0, 0, 1, 1, 1]) == [2, 1, 3] and run_lengths([]) == []
     spec = tmp_path / "s.json"
-    spec.write_text(json.dumps({"name": "t", "duration_s": 2.0, "settings": {"controller": FAST, "dsp": FAST_DSP},
-                                "faults": [{"link": "zenoh", "kinds": ["interrupt"], "start_s": 0.5, "stop_s": 1.0, "drop": 1.0}]}))
+    spec.write_text(
+        json.dumps(
+            {
+                "name": "t",
+                "duration_s": 2.0,
+                "settings": {"controller": FAST, "dsp": FAST_DSP},
+                "faults": [{"link": "zenoh", "kinds": ["interrupt"], "start_s": 0.5, "stop_s": 1.0, "drop": 1.0}],
+            }
+        )
+    )
     rc = main(["timing-test", str(spec), "--out", str(tmp_path / "r"), "--max-consecutive-misses", "10"])
     report = json.loads((tmp_path / "r" / "report.json").read_text())
     assert rc == 0 and report["passed"]
