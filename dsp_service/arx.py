@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import pydantic
@@ -179,7 +180,8 @@ class RecursiveArx:
         ridge = np.zeros((p, p + 1))
         ridge[:, :p] = math.sqrt(c.ridge * (1.0 - decay)) * np.eye(p)
         stacked = np.vstack([math.sqrt(decay) * self.R, rows, ridge])
-        r = np.linalg.qr(stacked, mode="r")
+        # mode="r" returns R alone; numpy's stub types every mode as the (Q, R) pair
+        r = cast(NDArray[np.float64], np.linalg.qr(stacked, mode="r"))
         self.R = r[: p + 1]
         self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
         self.samples += n

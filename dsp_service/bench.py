@@ -37,11 +37,12 @@ real work (on pure noise they would often find no peak and return early).
 from __future__ import annotations
 
 import time
+from typing import TypedDict
 
 import numpy as np
 import scipy.signal
 
-from .identifier import Identifier, IdentifierConfig
+from .identifier import Identifier, IdentifierConfig, KernelName
 from .spectra import rfft_rows
 
 C40_STEP_US = 100_000.0  #: the C40's ≈ 100 ms per 2×2 iteration (§2)
@@ -49,6 +50,27 @@ _BATCH = 20
 _WARMUP_SNAPSHOTS = 30
 _BLOCK = 10
 _PAIRS = ((0, 0), (1, 1), (0, 1), (1, 0), (0, 2), (0, 3), (1, 2), (1, 3))
+
+
+class IdentifierBench(TypedDict):
+    """One row of :func:`bench_identifier` (times in µs, ratios to the numpy floor of the same run)."""
+
+    n: int
+    repeats: int
+    step_p50_us: float
+    step_p99_us: float
+    floor_p50_us: float
+    floor_p99_us: float
+    floor_unbatched_p50_us: float
+    floor_numpy_p50_us: float
+    floor_fused_p50_us: float
+    ratio_p50: float
+    ratio_p99: float
+    c40_fraction: float
+    poles_found: int
+    kernel: KernelName
+    step_numpy_p50_us: float
+    ratio_numpy_p50: float
 
 
 def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -68,9 +90,9 @@ def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndar
     return u, y
 
 
-def _warmed(n: int, repeats: int, kernel: str) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
+def _warmed(n: int, repeats: int, kernel: KernelName) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
     """An identifier at FFT width ``n`` after the warm-up snapshots, its data and the next position."""
-    cfg = IdentifierConfig(fft_width=n, kernel=kernel)  # type: ignore[arg-type]
+    cfg = IdentifierConfig(fft_width=n, kernel=kernel)
     idf = Identifier(cfg)
     u, y = _bench_data(n, repeats, cfg.sample_rate_hz)
     half = n // 2
@@ -83,7 +105,7 @@ def _warmed(n: int, repeats: int, kernel: str) -> tuple[Identifier, np.ndarray, 
     return idf, u, y, pos
 
 
-def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -> dict[str, float | int]:
+def bench_identifier(n: int = 2048, repeats: int = 200, kernel: KernelName = "numba") -> IdentifierBench:
     """p50/p99 (µs) of one identification step and of the numpy floor, and their ratios.
 
     Returns keys: ``n``, ``repeats``, ``step_p50_us``, ``step_p99_us``,
@@ -166,7 +188,7 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -
         "ratio_p99": s99 / f99,
         "c40_fraction": s50 / C40_STEP_US,
         "poles_found": len(result.poles) if result is not None else 0,
-        "kernel": kernel,  # type: ignore[dict-item]
+        "kernel": kernel,
         "step_numpy_p50_us": float(np.percentile(ref_t, 50)) * 1e6,
         "ratio_numpy_p50": float(np.percentile(ref_t, 50)) * 1e6 / f50,
     }
@@ -175,7 +197,7 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -
 SIZES = (512, 1024, 2048, 4096, 8192)
 
 
-def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[dict[str, float | int]]:
+def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[IdentifierBench]:
     """:func:`bench_identifier` (compiled step, numpy reference and floor) at each FFT width."""
     return [bench_identifier(n, repeats) for n in sizes]
 
@@ -255,7 +277,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
     return out
 
 
-def format_report(rows: list[dict[str, float | int]], stages: dict[str, float]) -> str:
+def format_report(rows: list[IdentifierBench], stages: dict[str, float]) -> str:
     """The size table and the stage breakdown as text (µs, ratios to the floor of the same run)."""
     lines = ["   N   floor us   step us  ratio   numpy step us  ratio"]
     for r in rows:

@@ -68,7 +68,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 import pydantic
@@ -103,7 +103,9 @@ from .spectra import (
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
+_Scalar = TypeVar("_Scalar", bound=np.generic)
 PeakSource = Literal["tot", "11", "12", "21", "22"]
+KernelName = Literal["numpy", "numba"]  #: IdentifierConfig.kernel
 WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
 
@@ -209,7 +211,7 @@ class IdentifierConfig(pydantic.BaseModel):
     confidence_prominence_db: float = pydantic.Field(
         6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
     )
-    kernel: Literal["numpy", "numba"] = pydantic.Field(
+    kernel: KernelName = pydantic.Field(
         "numba",
         description="'numba' (default): detrend/window, averaging, H_tot solve, smoothing, peak search and "
         "the poles' refinement, FWHM and VRM in compiled code (dsp_service.kernel; the same results as "
@@ -318,7 +320,7 @@ class TransferFunctionEstimate:
         return self.htot
 
 
-def _readonly(a: NDArray[np.generic]) -> NDArray[np.generic]:
+def _readonly(a: NDArray[_Scalar]) -> NDArray[_Scalar]:
     a.flags.writeable = False
     return a
 
@@ -749,7 +751,7 @@ class Identifier:
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
         pole_list = []
-        new = object.__new__
+        bare = object.__new__  # an instance without running the frozen __init__
         proms = self._k_prom[:nf].tolist()
         for prom, (f_peak, m_peak, zf, _ok, fn, zv) in zip(proms, out[:nf].tolist()):
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
@@ -757,7 +759,7 @@ class Identifier:
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
             # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
-            pole = new(PoleEstimate)
+            pole = bare(PoleEstimate)
             pole.__dict__.update(
                 frequency_hz=f_peak,
                 damping_ratio=chosen if chosen is not None else 0.0,
@@ -773,7 +775,7 @@ class Identifier:
             )
             pole_list.append(pole)
         conf = base * proms[0] / (proms[0] + p0) if confident else 0.0
-        result = new(IdentificationResult)
+        result = bare(IdentificationResult)
         result.__dict__.update(
             poles=tuple(pole_list),
             confidence=float(min(1.0, max(0.0, conf))),
