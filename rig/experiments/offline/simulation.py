@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
+from typing import Any, Literal
 
 import numpy as np
 from scipy.signal import cont2discrete
@@ -180,7 +181,7 @@ class Group:
     number: int
     title: str
     noise: bool
-    delay_mode: str
+    delay_mode: Literal["robust", "fixed"]  #: OatfConfig.delay_mode
     design_zeta: float
 
 
@@ -232,16 +233,23 @@ def _abs_at_pole(stage, frequency_hz: float, zeta: float) -> float:
     return float(abs(transfer_function([np.exp(pole * stage.sample_period_s)], [stage])[0]))
 
 
-def gain_sweep(model: SimulationModel, ref: np.ndarray, gains: tuple[float, ...]) -> dict[str, dict[str, list[float]]]:
+#: One actuator gain of :func:`gain_sweep`, JSON-shaped as the report stores it: under each OATF design's
+#: label ``{"velocity_pct": [link 1, link 2], "acceleration_pct": [...]}`` (% of unfiltered), and the lists
+#: ``"unfiltered_velocity_rms_in_s"`` and ``"tracking_error_rms_rad"``. The design labels are keys of the
+#: same mapping, so no TypedDict can name them.
+GainSweepRow = dict[str, Any]
+
+
+def gain_sweep(model: SimulationModel, ref: np.ndarray, gains: tuple[float, ...]) -> dict[str, GainSweepRow]:
     """Group 1 (no noise, robust T1) for other actuator gains G: velocity and acceleration cost in % of unfiltered."""
     cfg = OatfConfig(sample_period_s=model.sample_period_s, design_zeta=model.design_zeta)
     sps = [ref if f is None else OatfFilter([f], 2, cfg, initial=ref[0]).process(ref) for f in DESIGNS]
-    out: dict[str, dict[str, list[float]]] = {}
+    out: dict[str, GainSweepRow] = {}
     for g in gains:
         m = replace(model, velocity_gain_rad_s_per_v=(g, g))
         res = simulate(m, np.stack(sps))
         c = [rms_costs(res["deflection_in"][i], model.sample_period_s) for i in range(len(DESIGNS))]
-        row: dict[str, list[float]] = {}
+        row: GainSweepRow = {}
         for f, ci in zip(DESIGNS[1:], c[1:]):
             p = percent_of_baseline(ci, c[0])
             row[_design_label(f)] = {"velocity_pct": p.velocity_rms.tolist(), "acceleration_pct": p.acceleration_rms.tolist()}
@@ -330,7 +338,7 @@ def run(ctx: ExperimentContext) -> Report:
                 cfg = OatfConfig(
                     sample_period_s=ts,
                     design_zeta=g.design_zeta,
-                    delay_mode=g.delay_mode,  # type: ignore[arg-type]
+                    delay_mode=g.delay_mode,
                     fixed_delay_s=model.delay_s(f, g.design_zeta),
                 )
                 try:
@@ -375,8 +383,8 @@ def run(ctx: ExperimentContext) -> Report:
             vel = np.array([costs[i].velocity_rms for i in idx])
             acc = np.array([costs[i].acceleration_rms for i in idx])
             pct = [percent_of_baseline(costs[i], costs[base_idx[(g.number, runs[i][1])]]) for i in idx]
-            pv = np.array([p.velocity_rms for p in pct])
-            pa = np.array([p.acceleration_rms for p in pct])
+            pct_v = np.array([p.velocity_rms for p in pct])
+            pct_a = np.array([p.acceleration_rms for p in pct])
             err = np.array([np.sqrt(np.mean((setpoints[i] - out["joint_rad"][i]) ** 2, axis=0)) for i in idx])
             table[gk]["designs"][_design_label(f)] = {
                 "design_hz": f,
@@ -385,10 +393,10 @@ def run(ctx: ExperimentContext) -> Report:
                 "velocity_rms_in_s_std": vel.std(0).tolist(),
                 "acceleration_rms_in_s2": acc.mean(0).tolist(),
                 "acceleration_rms_in_s2_std": acc.std(0).tolist(),
-                "velocity_pct_of_unfiltered": pv.mean(0).tolist(),
-                "velocity_pct_std": pv.std(0).tolist(),
-                "acceleration_pct_of_unfiltered": pa.mean(0).tolist(),
-                "acceleration_pct_std": pa.std(0).tolist(),
+                "velocity_pct_of_unfiltered": pct_v.mean(0).tolist(),
+                "velocity_pct_std": pct_v.std(0).tolist(),
+                "acceleration_pct_of_unfiltered": pct_a.mean(0).tolist(),
+                "acceleration_pct_std": pct_a.std(0).tolist(),
                 "tracking_error_rms_rad": err.mean(0).tolist(),
                 "max_abs_valve_v": float(np.max(np.abs(out["valve_v"][idx]))),
                 "max_abs_deflection_in": np.max(np.abs(defl[idx]), axis=(0, 1)).tolist(),
@@ -537,9 +545,9 @@ def run(ctx: ExperimentContext) -> Report:
 
     # run record of group 1 and of group 2's first draw
     cols: dict[str, np.ndarray] = {"t_s": t, "phi1_ref_rad": ref[:, 0], "phi2_ref_rad": ref[:, 1]}
-    for i, (g, d, f) in enumerate(runs):
-        if g <= 2 and d == 0:
-            tag = f"g{g}_{'unfiltered' if f is None else f'oatf{f:g}hz'}"
+    for i, (gn, d, f) in enumerate(runs):
+        if gn <= 2 and d == 0:
+            tag = f"g{gn}_{'unfiltered' if f is None else f'oatf{f:g}hz'}"
             cols[f"{tag}_phi1_sp_rad"], cols[f"{tag}_phi2_sp_rad"] = setpoints[i, :, 0], setpoints[i, :, 1]
             cols[f"{tag}_defl1_in"], cols[f"{tag}_defl2_in"] = defl[i, :, 0], defl[i, :, 1]
     npz, js = save_record(ctx.path("records/simulation_g1_g2"), cols, config=asdict(model), metadata={"groups": [1, 2], "draw": 0})

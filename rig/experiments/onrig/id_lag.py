@@ -224,9 +224,9 @@ def run(ctx: ExperimentContext) -> Report:
     traj_path = ctx.path("records/idlag_trajectory.json")
     traj_path.write_text(json.dumps(traj.model_dump(), indent=1) + "\n", encoding="utf-8")
     sampled = sample_trajectory(traj, 1.0 / FS_HZ)
-    th = sampled.joints.theta
-    f_free = modal_parameters(th[:, 0], th[:, 1], False)[0][:, 0]
-    f_load = modal_parameters(th[:, 0], th[:, 1], True)[0][:, 0]
+    theta = sampled.joints.theta
+    f_free = modal_parameters(theta[:, 0], theta[:, 1], False)[0][:, 0]
+    f_load = modal_parameters(theta[:, 0], theta[:, 1], True)[0][:, 0]
     seed = int(ctx.rng("plant-seed").integers(0, 2**31 - 1))
     scenario = json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(events)])
     specs = [

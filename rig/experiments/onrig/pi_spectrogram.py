@@ -37,7 +37,7 @@ downloaded every 1000 samples (5 s, as in the thesis; ``--quick``: 400).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 import scipy.signal as ss
@@ -162,7 +162,37 @@ def moving_average(x: np.ndarray, n: int) -> np.ndarray:
     return np.convolve(np.pad(x, (n // 2, n - 1 - n // 2), mode="edge"), ker, mode="valid")
 
 
-def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s: float, step_s: float = LAG_STEP_S) -> dict[str, Any]:
+class Alignment(TypedDict):
+    """:func:`alignment_lag`: the median error against each shift, and the best shift."""
+
+    lags_s: list[float]
+    median_abs_error_hz: list[float]
+    lag_s: float
+    error_at_lag_hz: float
+    error_at_zero_hz: float
+
+
+class Transition(TypedDict):
+    """One big change of the true first mode (:func:`transition_lags`)."""
+
+    true_crossing_s: float
+    from_hz: float
+    to_hz: float
+    level_hz: float
+    direction: Literal["up", "down"]
+    lag_s: float  #: NaN: the estimate was already past the level; ∞: not within the searched range
+
+
+class IdentificationLag(TypedDict):
+    """The identification lag as the report stores it."""
+
+    alignment: Alignment
+    transitions: list[Transition]
+    median_transition_lag_s: float
+    max_lag_searched_s: float
+
+
+def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s: float, step_s: float = LAG_STEP_S) -> Alignment:
     """The shift τ ∈ [0, max_lag_s] minimising the median |f_id(t) − f_true(t − τ)| (``t`` uniform; NaNs ignored)."""
     lags = np.arange(0.0, max_lag_s + 1e-9, step_s)
     med = []
@@ -175,7 +205,7 @@ def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s
     return {"lags_s": lags.tolist(), "median_abs_error_hz": med_a.tolist(), "lag_s": float(lags[i]), "error_at_lag_hz": float(med_a[i]), "error_at_zero_hz": float(med_a[0])}
 
 
-def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.ndarray, t_min: float, prominence: float, max_lag_s: float) -> list[dict[str, Any]]:
+def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.ndarray, t_min: float, prominence: float, max_lag_s: float) -> list[Transition]:
     """Lags at the big changes of the (smoothed) true first mode.
 
     A transition runs between consecutive extrema of ``f_smooth`` (prominence
@@ -191,7 +221,7 @@ def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.n
     for end in (0, f_smooth.size - 1):
         if not ext or abs(f_smooth[end] - f_smooth[ext[0] if end == 0 else ext[-1]]) >= prominence:
             ext = sorted(set(ext) | {end})
-    out = []
+    out: list[Transition] = []
     for a, b in zip(ext[:-1], ext[1:]):
         fa, fb = float(f_smooth[a]), float(f_smooth[b])
         if abs(fb - fa) < prominence:
@@ -268,7 +298,7 @@ def run(ctx: ExperimentContext) -> Report:
     align = alignment_lag(grid, m_grid, np.interp(grid, truth_t, f_smooth), max_lag)
     trans = transition_lags(truth_t, f_smooth, tm, m, t_first + 2.0, TRANSITION_HZ, max_lag)
     trans_lags = np.array([x["lag_s"] for x in trans if math.isfinite(x["lag_s"])])
-    lag = {
+    lag: IdentificationLag = {
         "alignment": align,
         "transitions": trans,
         "median_transition_lag_s": float(np.median(trans_lags)) if trans_lags.size else float("nan"),
