@@ -31,7 +31,7 @@ seed.  ``--quick``: one group (5 in/s, no payload), (a) and (b), the first
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,6 +40,9 @@ from rig.experiments.framework import ExperimentContext, experiment
 from rig.campaign.rigs import map_rigs
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 OATF_DAMPING = 0.09
 WRONG_HZ = 10.0
@@ -338,7 +341,7 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _bar_chart(table: dict, groups: list[tuple[float, bool]], configs: tuple[str, ...]):  # type: ignore[no-untyped-def]
+def _bar_chart(table: dict[str, dict[str, Any]], groups: list[tuple[float, bool]], configs: tuple[str, ...]) -> Figure:
     fig = new_figure(12.0, 7.5)
     axes = fig.subplots(2, 2)
     colours = {"a": "0.45", "b": "tab:green", "c": "tab:olive", "d": "tab:orange", "e": "tab:blue"}
@@ -364,7 +367,7 @@ def _bar_chart(table: dict, groups: list[tuple[float, bool]], configs: tuple[str
     return fig
 
 
-def _adaptation_figure(results: dict, groups: list[tuple[float, bool]]):  # type: ignore[no-untyped-def]
+def _adaptation_figure(results: dict[tuple[str, str], RigResult], groups: list[tuple[float, bool]]) -> Figure:
     fig = new_figure(12.0, 2.6 * len(groups))
     axes = np.atleast_1d(fig.subplots(len(groups), 1, sharex=False))
     for ax, (s, p) in zip(axes, groups):

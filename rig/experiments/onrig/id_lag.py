@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -59,6 +59,9 @@ from rig.experiments.onrig.runner import (
     run_rigs,
 )
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 FS_HZ = 200.0
 SPEED = 5.0
@@ -362,7 +365,7 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _tracks_figure(runs: list[RigResult], rows: dict, settings, events: list[float]):  # type: ignore[no-untyped-def]
+def _tracks_figure(runs: list[RigResult], rows: dict[str, dict[str, Any]], settings: tuple[tuple[int, float, str], ...], events: list[float]) -> Figure:
     fig = new_figure(11.0, 2.1 * len(runs) + 0.6)
     axes = np.atleast_1d(fig.subplots(len(runs), 1, sharex=True))
     for ax, (n, a, m), r in zip(axes, settings, runs):
@@ -383,7 +386,7 @@ def _tracks_figure(runs: list[RigResult], rows: dict, settings, events: list[flo
     return fig
 
 
-def _delay_figure(rows: dict, n_events: int):  # type: ignore[no-untyped-def]
+def _delay_figure(rows: dict[str, dict[str, Any]], n_events: int) -> Figure:
     fig = new_figure(10.0, 3.8)
     ax1, ax2 = fig.subplots(1, 2)
     keys = list(rows)

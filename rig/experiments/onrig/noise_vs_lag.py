@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,6 +49,9 @@ from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.id_lag import smoothing_window
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, lap_seconds
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 SPEED = 5.0
 DAMPING = 0.09
@@ -414,7 +417,7 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
     rep.text(*paras)
 
 
-def _heatmaps(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], kind: str):  # type: ignore[no-untyped-def]
+def _heatmaps(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], kind: str) -> Figure:
     fig = new_figure(7.5, 1.9 * len(labels) + 0.6)
     axes = np.atleast_2d(fig.subplots(len(labels), 2, squeeze=False))
     for r, lab in enumerate(labels):

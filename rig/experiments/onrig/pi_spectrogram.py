@@ -37,9 +37,10 @@ downloaded every 1000 samples (5 s, as in the thesis; ``--quick``: 400).
 from __future__ import annotations
 
 import math
-from typing import Any, Literal, TypedDict
+from typing import TYPE_CHECKING, Any, Literal, TypedDict
 
 import numpy as np
+from numpy.typing import NDArray
 import scipy.signal as ss
 from scipy.signal import ShortTimeFFT
 from scipy.signal.windows import hann
@@ -54,6 +55,11 @@ from rig.experiments.onrig.runner import (
     run_rigs,
 )
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from controller.record import RunRecord
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -518,7 +524,17 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _deflection_figure(t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex):  # type: ignore[no-untyped-def]
+def _deflection_figure(
+    t: NDArray[np.float64],
+    rec: RunRecord,
+    th2: NDArray[np.float64],
+    truth_t: NDArray[np.float64],
+    truth_f: np.ndarray,
+    f_id: np.ndarray,
+    f_id2: np.ndarray,
+    conf: np.ndarray,
+    apex: NDArray[np.bool_],
+) -> Figure:
     fig = new_figure(11.0, 8.5)
     ax1, ax2, ax3, ax4 = fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 0.7, 1.4]})
     for ax in (ax1, ax2, ax3, ax4):
@@ -543,7 +559,18 @@ def _deflection_figure(t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex): 
     return fig
 
 
-def _spectrogram_figure(freqs, tf, dl_t, has, interval, sf, sx, st_end, truth_t, truth_f):  # type: ignore[no-untyped-def]
+def _spectrogram_figure(
+    freqs: np.ndarray,
+    tf: dict[str, np.ndarray],
+    dl_t: np.ndarray,
+    has: np.ndarray,
+    interval: float,
+    sf: np.ndarray,
+    sx: np.ndarray,
+    st_end: np.ndarray,
+    truth_t: NDArray[np.float64],
+    truth_f: np.ndarray,
+) -> Figure:
     fig = new_figure(12.0, 11.0)
     axes = fig.subplots(3, 2, sharex=True, sharey=True).ravel()
     m = freqs <= F_MAX_PLOT
@@ -582,7 +609,7 @@ def _spectrogram_figure(freqs, tf, dl_t, has, interval, sf, sx, st_end, truth_t,
     return fig
 
 
-def _lag_figure(grid, m_grid, truth_t, f_true, f_smooth, lag):  # type: ignore[no-untyped-def]
+def _lag_figure(grid: np.ndarray, m_grid: np.ndarray, truth_t: NDArray[np.float64], f_true: np.ndarray, f_smooth: np.ndarray, lag: IdentificationLag) -> Figure:
     fig = new_figure(11.0, 3.8)
     ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
     al = lag["alignment"]

@@ -22,9 +22,10 @@ from the whole run; only the samples counted change (``runner.costs_over``).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.battery import adaptive_summary
@@ -37,6 +38,9 @@ from rig.experiments.onrig.runner import (
     run_rigs,
 )
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 DESIGN_ZETA = 0.01
 WRONG_HZ = 10.0
@@ -208,7 +212,7 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _traces(runs: dict[str, RigResult], t: np.ndarray, apex: np.ndarray, true1: np.ndarray):  # type: ignore[no-untyped-def]
+def _traces(runs: dict[str, RigResult], t: NDArray[np.float64], apex: NDArray[np.bool_], true1: NDArray[np.float64]) -> Figure:
     fig = new_figure(11.0, 7.5)
     ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [1.4, 0.7, 1]})
     for ax in (ax1, ax2, ax3):
@@ -231,7 +235,7 @@ def _traces(runs: dict[str, RigResult], t: np.ndarray, apex: np.ndarray, true1: 
     return fig
 
 
-def _bars(table: dict, windows: list[str]):  # type: ignore[no-untyped-def]
+def _bars(table: dict[str, dict[str, Any]], windows: list[str]) -> Figure:
     fig = new_figure(11.0, 4.0)
     axes = fig.subplots(1, 2, sharey=True)
     x = np.arange(len(windows))

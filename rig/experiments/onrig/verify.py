@@ -45,14 +45,18 @@ bins).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 import scipy.signal as ss
 
 from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigRun, run_rig
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -536,7 +540,17 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _spectra_figure(freqs, tf, i, off, bt, raws, true1, true2, valid):  # type: ignore[no-untyped-def]
+def _spectra_figure(
+    freqs: np.ndarray,
+    tf: dict[str, np.ndarray],
+    i: int,
+    off: dict[str, np.ndarray],
+    bt: dict[str, dict[str, np.ndarray]],
+    raws: dict[str, Any],
+    true1: NDArray[np.float64],
+    true2: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+) -> Figure:
     fig = new_figure(11.0, 11.0)
     axes = fig.subplots(5, 1, sharex=True)
     m = freqs <= 20.0
@@ -564,7 +578,7 @@ def _spectra_figure(freqs, tf, i, off, bt, raws, true1, true2, valid):  # type: 
     return fig
 
 
-def _difference_figure(freqs, tf, i, off):  # type: ignore[no-untyped-def]
+def _difference_figure(freqs: np.ndarray, tf: dict[str, np.ndarray], i: int, off: dict[str, np.ndarray]) -> Figure:
     fig = new_figure(9.0, 3.8)
     ax = fig.add_subplot(1, 1, 1)
     for name in TF_NAMES:
