@@ -24,7 +24,7 @@ import pkgutil
 import time
 import traceback
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sized
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -241,8 +241,8 @@ class ExperimentContext:
 
     def progress(self, items: Iterable[T], description: str = "", total: int | None = None) -> Iterator[T]:
         """Iterate ``items`` under a rich progress bar (``for x in ctx.progress(xs, "noise draws")``)."""
-        if total is None and hasattr(items, "__len__"):
-            total = len(items)  # type: ignore[arg-type]
+        if total is None and isinstance(items, Sized):
+            total = len(items)
         with self._progress() as prog:
             task = prog.add_task(description or "working", total=total)
             for item in items:
