@@ -125,7 +125,9 @@ def save_record(
     return _commit(tmp_npz, npz_path, json_path, n, {name: str(arr.dtype) for name, arr in cols.items()}, config, metadata)
 
 
-def _commit(tmp_npz: Path, npz_path: Path, json_path: Path, n: int, dtypes: dict[str, str], config: Any, metadata: Mapping[str, Any] | None) -> tuple[Path, Path]:
+def _commit(
+    tmp_npz: Path, npz_path: Path, json_path: Path, n: int, dtypes: dict[str, str], config: Any, metadata: Mapping[str, Any] | None
+) -> tuple[Path, Path]:
     """Write the sidecar and rename both files into place."""
     sidecar = {
         "format": RECORD_FORMAT,

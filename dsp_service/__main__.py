@@ -24,7 +24,13 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
         build_or_config_error("DSP configuration", lambda rig=rig: DspService(settings.model_copy(update={"rig_id": rig}), session))  # type: ignore[misc]
         for rig in rigs
     ]
-    log.info("DSP board up on rig(s) %s: N=%d, alpha=%.3g, emulated latency %.0f ms", ", ".join(map(repr, rigs)), settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
+    log.info(
+        "DSP board up on rig(s) %s: N=%d, alpha=%.3g, emulated latency %.0f ms",
+        ", ".join(map(repr, rigs)),
+        settings.fft_width,
+        settings.alpha,
+        settings.emulated_latency_s * 1e3,
+    )
     threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
     try:
         for thread in threads:

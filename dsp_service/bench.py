@@ -80,9 +80,7 @@ def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndar
     y = np.zeros_like(u)
     for fn, zeta, gain in ((3.6, 0.09, 1.0), (9.0, 0.05, 0.4)):
         wn = 2 * np.pi * fn
-        b, a, _ = scipy.signal.cont2discrete(
-            ([gain * wn * wn], [1.0, 2 * zeta * wn, wn * wn]), 1.0 / fs, method="zoh"
-        )
+        b, a, _ = scipy.signal.cont2discrete(([gain * wn * wn], [1.0, 2 * zeta * wn, wn * wn]), 1.0 / fs, method="zoh")
         b = np.ravel(b)
         y[0] += scipy.signal.lfilter(b, a, u[0] + 0.5 * u[1])
         y[1] += scipy.signal.lfilter(b, a, 0.3 * u[0] + u[1])
@@ -250,21 +248,40 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["solve"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs,
-                      idf._k_coef_t, idf._k_ia, idf._k_ib)
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_coef_t, idf._k_ia, idf._k_ib)
             t["smooth"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._peaks(idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio,
-                     c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom)
+            K._peaks(
+                idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio, c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom
+            )
             t["poles"][i] = 0.0
             t["peaks"][i] = perf() - t0
         src, vd = sv.source[sl], sv.valid[sl]
         for i in range(start, stop):
             t0 = perf()
-            K.poles(src, vd, True, idf._f_sl, idf._lo - sl.start, idf._k_idx, nf, idf._relocate, c.fwhm_exact,
-                    idf._k_pinv, idf._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
-                    vrm.model == "viscous", idf._k_tri, idf._k_ntri, idf._k_mag[: src.size], idf._k_out)
+            K.poles(
+                src,
+                vd,
+                True,
+                idf._f_sl,
+                idf._lo - sl.start,
+                idf._k_idx,
+                nf,
+                idf._relocate,
+                c.fwhm_exact,
+                idf._k_pinv,
+                idf._refiner.r_max,
+                vrm.m_max,
+                vrm.band_factor,
+                vrm.zeta_max,
+                vrm._im_over_re_max,
+                vrm.model == "viscous",
+                idf._k_tri,
+                idf._k_ntri,
+                idf._k_mag[: src.size],
+                idf._k_out,
+            )
             t["poles"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()

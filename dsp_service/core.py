@@ -30,9 +30,9 @@ import numpy as np
 from dsp_service.board import Admission, BatchBlock
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
 from protocol.batch_codec import SampleBatch
-from service_kit.inbox import RateLimitedLog
 from protocol.messages import BlockFlag, ConfigAck, ConfigChange, Interrupt, PoleParameters, TfSnapshot, TransferFunction
 from protocol.settings import DspSettings
+from service_kit.inbox import RateLimitedLog
 
 log = logging.getLogger(__name__)
 _log_once = RateLimitedLog(log)  # a flood of bad batches logs once per 10 s (counted all the same)
@@ -155,7 +155,13 @@ class DspCore:
             sim_time_s=self.last_sim_time,
             batch_seq=batch.seq,
             poles=tuple(
-                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source, confidence=min(max(p.confidence, 0.0), 1.0))
+                PoleParameters(
+                    frequency_hz=p.frequency_hz,
+                    damping_ratio=max(p.damping_ratio, 0.0),
+                    magnitude=p.magnitude,
+                    source=p.source,
+                    confidence=min(max(p.confidence, 0.0), 1.0),
+                )
                 for p in result.poles
                 if np.isfinite(p.frequency_hz) and p.frequency_hz > 0 and np.isfinite(p.damping_ratio) and np.isfinite(p.magnitude)
             ),

@@ -85,19 +85,13 @@ class FrequencySmoother:
         # 'dot' coefficients: estimate at window position pos = Σ c[j] x[start + j]
         self.centre = scipy.signal.savgol_coeffs(w, self.order, pos=h, use="dot")
         self._all_valid = np.ones(self.n_bins, dtype=bool)
-        self.edge_lo = np.stack(
-            [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]
-        ) if h else np.zeros((0, w))
-        self.edge_hi = np.stack(
-            [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h + 1, w)]
-        ) if h else np.zeros((0, w))
+        self.edge_lo = np.stack([scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]) if h else np.zeros((0, w))
+        self.edge_hi = np.stack([scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h + 1, w)]) if h else np.zeros((0, w))
         # first bin of the fitting window used for each output bin
         self._starts = np.clip(np.arange(self.n_bins) - h, 0, self.n_bins - w)
 
     # ------------------------------------------------------------------ values
-    def range_plan(
-        self, x: NDArray[_Bins], lo: int, hi: int
-    ) -> Callable[[], NDArray[_Bins]]:
+    def range_plan(self, x: NDArray[_Bins], lo: int, hi: int) -> Callable[[], NDArray[_Bins]]:
         """A prepared :meth:`smooth_range` of the buffer ``x`` (contiguous, shape ``(K,)``) over ``lo … hi−1``.
 
         Calling the plan smooths the *current* contents of ``x`` into an

@@ -21,8 +21,17 @@ from .synth import FS, dataset, make_system
 N = 512
 RTOL = 1e-12
 _POLE_FIELDS = (
-    "frequency_hz", "damping_ratio", "damping_fwhm", "damping_vrm", "natural_frequency_vrm_hz",
-    "magnitude", "prominence_db", "confidence", "damping_fit", "damping_defined", "source",
+    "frequency_hz",
+    "damping_ratio",
+    "damping_fwhm",
+    "damping_vrm",
+    "natural_frequency_vrm_hz",
+    "magnitude",
+    "prominence_db",
+    "confidence",
+    "damping_fit",
+    "damping_defined",
+    "source",
 )
 
 

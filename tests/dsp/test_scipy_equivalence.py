@@ -62,7 +62,13 @@ def test_single_snapshot_ffts_and_raw_spectra_match_scipy() -> None:
     for i, name in enumerate(SPECTRA_NAMES):
         a, b = PAIRS[name]
         _, ref = scipy.signal.csd(
-            x[a], x[b], fs=FS, window="hann", nperseg=N, noverlap=0, detrend="constant",
+            x[a],
+            x[b],
+            fs=FS,
+            window="hann",
+            nperseg=N,
+            noverlap=0,
+            detrend="constant",
             scaling="spectrum",
         )
         ours = raw[i] * scale
@@ -86,12 +92,16 @@ def test_welch_averaged_spectra_and_h_match_scipy(scaling: str, kernel: str) -> 
     ref: dict[str, np.ndarray] = {}
     for name, (a, b) in PAIRS.items():
         freqs, ref[name] = scipy.signal.csd(
-            x[a], x[b], fs=FS, window="hann", nperseg=N, noverlap=N // 2, detrend="constant",
+            x[a],
+            x[b],
+            fs=FS,
+            window="hann",
+            nperseg=N,
+            noverlap=N // 2,
+            detrend="constant",
             scaling=scaling,
         )
-        np.testing.assert_allclose(
-            ours[name], ref[name], rtol=1e-10, atol=1e-12 * np.abs(ref[name]).max(), err_msg=name
-        )
+        np.testing.assert_allclose(ours[name], ref[name], rtol=1e-10, atol=1e-12 * np.abs(ref[name]).max(), err_msg=name)
     # auto spectra equal welch (real)
     _, p11 = scipy.signal.welch(x[0], fs=FS, nperseg=N, scaling=scaling)
     np.testing.assert_allclose(ours["P11"].real, p11, rtol=1e-10)

@@ -458,8 +458,17 @@ def run(ctx: ExperimentContext) -> Report:
             if "rejected" in info:
                 drows.append([g.number, f, "rejected", "–", "–", "–", "–"])
             else:
-                drows.append([g.number, f, info["delay_samples"], ", ".join(f"{a:.3f}" for a in info["coefficients"]),
-                              info["abs_coefficient_sum"], info["abs_F_at_mode"], info["abs_F_at_mode_pole"]])
+                drows.append(
+                    [
+                        g.number,
+                        f,
+                        info["delay_samples"],
+                        ", ".join(f"{a:.3f}" for a in info["coefficients"]),
+                        info["abs_coefficient_sum"],
+                        info["abs_F_at_mode"],
+                        info["abs_F_at_mode_pole"],
+                    ]
+                )
     rep.table(
         ["group", "design (Hz)", "n1", "coefficients", "Σ|a|", "|F(j·2π·5 Hz)|", "|F| at the mode's pole"],
         drows,
@@ -474,10 +483,7 @@ def run(ctx: ExperimentContext) -> Report:
     )
     rep.table(
         ["quantity", "link 1", "link 2", "pooled", "thesis", "pooled / thesis"],
-        [
-            [row["label"], row["link"][0], row["link"][1], row["pooled"], row["thesis"], row["pooled"] / row["thesis"]]
-            for row in bl["rows"]
-        ],
+        [[row["label"], row["link"][0], row["link"][1], row["pooled"], row["thesis"], row["pooled"] / row["thesis"]] for row in bl["rows"]],
         caption="Unfiltered runs: RMS deflection velocity (in/s) and acceleration (in/s²)",
         digits=4,
     )
@@ -499,13 +505,19 @@ def run(ctx: ExperimentContext) -> Report:
             if "runs" not in dd:
                 rows.append([_design_label(f)] + ["rejected"] + ["–"] * 7)
                 continue
-            rows.append([
-                _design_label(f),
-                dd["velocity_rms_in_s"][0], dd["velocity_pct_of_unfiltered"][0],
-                dd["velocity_rms_in_s"][1], dd["velocity_pct_of_unfiltered"][1],
-                dd["acceleration_rms_in_s2"][0], dd["acceleration_pct_of_unfiltered"][0],
-                dd["acceleration_rms_in_s2"][1], dd["acceleration_pct_of_unfiltered"][1],
-            ])
+            rows.append(
+                [
+                    _design_label(f),
+                    dd["velocity_rms_in_s"][0],
+                    dd["velocity_pct_of_unfiltered"][0],
+                    dd["velocity_rms_in_s"][1],
+                    dd["velocity_pct_of_unfiltered"][1],
+                    dd["acceleration_rms_in_s2"][0],
+                    dd["acceleration_pct_of_unfiltered"][0],
+                    dd["acceleration_rms_in_s2"][1],
+                    dd["acceleration_pct_of_unfiltered"][1],
+                ]
+            )
         rep.table(
             ["design", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
             rows,
@@ -513,7 +525,9 @@ def run(ctx: ExperimentContext) -> Report:
             digits=4,
         )
     fig = _bar_chart(table, grps)
-    rep.figure(fig, "simulation_costs.png", "RMS deflection velocity and acceleration per group and design (mean ± std over noise draws); labels: % of unfiltered.")
+    rep.figure(
+        fig, "simulation_costs.png", "RMS deflection velocity and acceleration per group and design (mean ± std over noise draws); labels: % of unfiltered."
+    )
     fig = _traces(t, ref, setpoints, runs, defl, model)
     rep.figure(fig, "simulation_traces.png", "Group 1: joint-2 set-point and link-2 deflection around the first corners, unfiltered and with each OATF.")
 
@@ -540,7 +554,8 @@ def run(ctx: ExperimentContext) -> Report:
     )
     sweep_ok = all(
         row[_design_label(5.0)]["velocity_pct"][j] < row[_design_label(10.0)]["velocity_pct"][j] < row[_design_label(50.0)]["velocity_pct"][j]
-        for row in sweep.values() for j in (0, 1)
+        for row in sweep.values()
+        for j in (0, 1)
     )
 
     # run record of group 1 and of group 2's first draw
@@ -607,7 +622,11 @@ def run(ctx: ExperimentContext) -> Report:
     )
     literal = OatfFilter([50.0], 2, OatfConfig(sample_period_s=ts, design_zeta=model.design_zeta, delay_mode="fixed", fixed_delay_s=model.fixed_delay_s))
     literal_f = float(abs(literal.frequency_response([model.mode_hz])[0]))
-    rep.results["group3_literal_50hz"] = {"delay_samples": literal.stages[0].delay_samples, "coefficients": list(literal.stages[0].coefficients), "abs_F_at_mode": literal_f}
+    rep.results["group3_literal_50hz"] = {
+        "delay_samples": literal.stages[0].delay_samples,
+        "coefficients": list(literal.stages[0].coefficients),
+        "abs_F_at_mode": literal_f,
+    }
     rep.thesis(
         "Group 3: a fixed 0.05 s delay for every design (adaptation would change only the coefficients); the 50 Hz design changes little from group 2.",
         f"5 Hz: {pv(3, 5.0, 0):.1f}/{pv(3, 5.0, 1):.1f} % (robust delay: {pv(2, 5.0, 0):.1f}/{pv(2, 5.0, 1):.1f} %); "
@@ -634,12 +653,11 @@ def run(ctx: ExperimentContext) -> Report:
         rep.thesis(
             f"Unfiltered {row['label']}: {row['thesis']:g} (thesis §4.3).",
             f"{row['pooled']:.4g} pooled over both links ({row['pooled'] / row['thesis'] - 1:+.0%})"
-            + ("" if math.isnan(row["link"][0]) else f"; link 1 {row['link'][0]:.4g}, link 2 {row['link'][1]:.4g}") + ".",
+            + ("" if math.isnan(row["link"][0]) else f"; link 1 {row['link'][0]:.4g}, link 2 {row['link'][1]:.4g}")
+            + ".",
             ok,
         )
-    best = all(
-        min((pv(g.number, f, j), f) for f in DESIGNS[1:])[1] == 5.0 for g in grps for j in (0, 1)
-    )
+    best = all(min((pv(g.number, f, j), f) for f in DESIGNS[1:])[1] == 5.0 for g in grps for j in (0, 1))
     rep.thesis(
         "An ideal adaptive filter cannot beat a fixed filter tuned to a time-invariant system.",
         "In this time-invariant model the fixed 5 Hz design is the best of the designs in "
@@ -655,9 +673,7 @@ def _bar_chart(table: dict, grps: list[Group]):
     colours = ("0.45", "tab:green", "tab:orange", "tab:blue")
     width = 0.2
     x = np.arange(len(grps))
-    for (row, quantity, unit), ax_row in zip(
-        (("velocity", "velocity_rms_in_s", "in/s"), ("acceleration", "acceleration_rms_in_s2", "in/s²")), axes
-    ):
+    for (row, quantity, unit), ax_row in zip((("velocity", "velocity_rms_in_s", "in/s"), ("acceleration", "acceleration_rms_in_s2", "in/s²")), axes):
         for link, ax in enumerate(ax_row):
             for j, (f, col) in enumerate(zip(DESIGNS, colours)):
                 vals, errs, pcts = [], [], []
@@ -685,7 +701,7 @@ def _traces(t, ref, setpoints, runs, defl, model: SimulationModel):
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     lo, hi = 13.0, min(19.0, float(t[-1]))
     m = (t >= lo) & (t <= hi)
-    for i, (g, d, f) in enumerate(runs):
+    for i, (g, _d, f) in enumerate(runs):
         if g != 1:
             continue
         ax1.plot(t[m], setpoints[i, m, 1], lw=1.0, label=_design_label(f))

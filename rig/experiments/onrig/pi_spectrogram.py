@@ -40,8 +40,8 @@ import math
 from typing import TYPE_CHECKING, Any, Literal, TypedDict
 
 import numpy as np
-from numpy.typing import NDArray
 import scipy.signal as ss
+from numpy.typing import NDArray
 from scipy.signal import ShortTimeFFT
 from scipy.signal.windows import hann
 
@@ -126,7 +126,16 @@ def apex_split(res: RigResult, apex: np.ndarray) -> dict[str, Any]:
             continue
         f1_i, f2_i = float(np.median(tr1[at_apex])), float(np.median(tr2[at_apex]))
         band = (freqs >= 3.0) & (freqs <= 6.0)
-        rows.append({"t_s": float(dl_t[i]), "apex_share": share, "f1_hz": f1_i, "f2_hz": f2_i, "valid_3_6hz": float(np.mean(mag[band] > 0)), **split_peaks(freqs, mag, f1_i, f2_i)})
+        rows.append(
+            {
+                "t_s": float(dl_t[i]),
+                "apex_share": share,
+                "f1_hz": f1_i,
+                "f2_hz": f2_i,
+                "valid_3_6hz": float(np.mean(mag[band] > 0)),
+                **split_peaks(freqs, mag, f1_i, f2_i),
+            }
+        )
     return {
         "downloads": rows,
         "fraction_showing_both_modes": float(np.mean([r["both_modes"] for r in rows])) if rows else float("nan"),
@@ -208,7 +217,13 @@ def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s
         med.append(float(np.median(np.abs(f_id[ok] - shifted[ok]))) if ok.sum() >= 40 else np.nan)
     med_a = np.array(med)
     i = int(np.nanargmin(med_a)) if np.isfinite(med_a).any() else 0
-    return {"lags_s": lags.tolist(), "median_abs_error_hz": med_a.tolist(), "lag_s": float(lags[i]), "error_at_lag_hz": float(med_a[i]), "error_at_zero_hz": float(med_a[0])}
+    return {
+        "lags_s": lags.tolist(),
+        "median_abs_error_hz": med_a.tolist(),
+        "lag_s": float(lags[i]),
+        "error_at_lag_hz": float(med_a[i]),
+        "error_at_zero_hz": float(med_a[0]),
+    }
 
 
 def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.ndarray, t_min: float, prominence: float, max_lag_s: float) -> list[Transition]:
@@ -393,7 +408,10 @@ def run(ctx: ExperimentContext) -> Report:
             "htot_column_peaks_hz": [c[1] for c in tf_cols],
             "plain_column_peaks_hz": [c[1] for c in st_cols],
         },
-        "true_modes": {"f1_range_hz": [float(truth_f[:, 0].min()), float(truth_f[:, 0].max())], "f2_range_hz": [float(truth_f[:, 1].min()), float(truth_f[:, 1].max())]},
+        "true_modes": {
+            "f1_range_hz": [float(truth_f[:, 0].min()), float(truth_f[:, 0].max())],
+            "f2_range_hz": [float(truth_f[:, 1].min()), float(truth_f[:, 1].max())],
+        },
         "deflection": {"rms_in": defl.std(axis=0).tolist(), "peak_to_peak_in": np.ptp(defl, axis=0).tolist()},
         "identified": {"median_confidence": float(np.median(conf[est])), "fraction_ticks_confidence_ge_0.2": float(np.mean(conf[est] >= 0.2))},
     }
@@ -408,7 +426,11 @@ def run(ctx: ExperimentContext) -> Report:
         f"{int(has.sum())} of {dl_t.size} with an estimate (the first estimate at {t_first:.2f} s: the identifier waits for a full history)."
     )
     fig = _deflection_figure(t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex)
-    rep.figure(fig, "pi_deflections.png", "Link deflections, θ2 (apex samples shaded) and the true modal frequencies with the identified poles (first: dots, coloured by confidence; second: crosses).")
+    rep.figure(
+        fig,
+        "pi_deflections.png",
+        "Link deflections, θ2 (apex samples shaded) and the true modal frequencies with the identified poles (first: dots, coloured by confidence; second: crosses).",
+    )
 
     rep.heading("Spectrograms")
     fig = _spectrogram_figure(freqs, tf, dl_t, has, download / FS_HZ, sf, sx, st_end, truth_t, truth_f)
@@ -446,7 +468,11 @@ def run(ctx: ExperimentContext) -> Report:
     else:
         rep.text("No big change of the true first mode after the first estimate (a quick run ends too soon).")
     fig = _lag_figure(grid, m_grid, truth_t, truth_f[:, 0], f_smooth, lag)
-    rep.figure(fig, "pi_lag.png", "Left: identified first pole (running median), the true first mode and its smoothed version shifted by the alignment lag; transition crossings marked. Right: median error against the shift.")
+    rep.figure(
+        fig,
+        "pi_lag.png",
+        "Left: identified first pole (running median), the true first mode and its smoothed version shifted by the alignment lag; transition crossings marked. Right: median error against the shift.",
+    )
     rep.text(
         f"At the apex (θ2 ≤ {rep.results['apex']['theta2_threshold_rad']:.3f} rad, the lowest {APEX_QUANTILE:.0%} of the run) the two true modes close in "
         f"(median f2/f1 {split_ratio_apex:.2f}, elsewhere {split_ratio_else:.2f}); the identified pole lies nearer the true second mode for "
@@ -457,8 +483,16 @@ def run(ctx: ExperimentContext) -> Report:
     rep.check("transfer-function downloads with an estimate", int(has.sum()) >= (2 if quick else 10), f"{int(has.sum())} of {dl_t.size}")
     lags_ok = [x["lag_s"] for x in trans if math.isfinite(x["lag_s"])]
     rep.check("the alignment lag is positive and inside the searched range", 0 < al["lag_s"] < max_lag, f"{al['lag_s']:.2f} s")
-    rep.check("shifting the truth by the alignment lag lowers the median error", al["error_at_lag_hz"] < al["error_at_zero_hz"], f"{al['error_at_zero_hz']:.3f} → {al['error_at_lag_hz']:.3f} Hz")
-    rep.check("every measurable transition lag is positive", all(v > 0 for v in lags_ok), ", ".join(f"{v:.2f}" for v in lags_ok) + " s" if lags_ok else "none measurable")
+    rep.check(
+        "shifting the truth by the alignment lag lowers the median error",
+        al["error_at_lag_hz"] < al["error_at_zero_hz"],
+        f"{al['error_at_zero_hz']:.3f} → {al['error_at_lag_hz']:.3f} Hz",
+    )
+    rep.check(
+        "every measurable transition lag is positive",
+        all(v > 0 for v in lags_ok),
+        ", ".join(f"{v:.2f}" for v in lags_ok) + " s" if lags_ok else "none measurable",
+    )
     rep.check(
         "the identified first pole lies in the true modes' range (median of the running median)",
         truth_f[:, 0].min() - 0.5 <= float(np.nanmedian(m_grid)) <= truth_f[:, 1].max() + 0.5,
@@ -469,13 +503,33 @@ def run(ctx: ExperimentContext) -> Report:
     for r in all_runs:
         e = errors[r.spec.name]
         sp = splits[r.spec.name]
-        rows_cmp.append([
-            r.spec.label, 100 * e["whole"]["median_rel_f_error"], 100 * e["apex"]["median_rel_f_error"], 100 * e["away"]["median_rel_f_error"],
-            100 * e["away"]["within_5pct"], e["away"]["median_zeta"], e["away"]["true_zeta"], 100 * e["away"]["zeta_within_25pct"],
-            100 * sp["mean_valid_3_6hz"], 100 * sp["fraction_showing_both_modes"],
-        ])
+        rows_cmp.append(
+            [
+                r.spec.label,
+                100 * e["whole"]["median_rel_f_error"],
+                100 * e["apex"]["median_rel_f_error"],
+                100 * e["away"]["median_rel_f_error"],
+                100 * e["away"]["within_5pct"],
+                e["away"]["median_zeta"],
+                e["away"]["true_zeta"],
+                100 * e["away"]["zeta_within_25pct"],
+                100 * sp["mean_valid_3_6hz"],
+                100 * sp["fraction_showing_both_modes"],
+            ]
+        )
     rep.table(
-        ["run", "median |f1 error| whole (%)", "at the apex (%)", "away (%)", "away: within 5 % (% of samples)", "away: median ζ", "true ζ1", "away: ζ within ±25 % (%)", "apex downloads: 3–6 Hz bins solved (%)", "apex downloads showing both modes (%)"],
+        [
+            "run",
+            "median |f1 error| whole (%)",
+            "at the apex (%)",
+            "away (%)",
+            "away: within 5 % (% of samples)",
+            "away: median ζ",
+            "true ζ1",
+            "away: ζ within ±25 % (%)",
+            "apex downloads: 3–6 Hz bins solved (%)",
+            "apex downloads showing both modes (%)",
+        ],
         rows_cmp,
         caption="The first identified pole against the plant's first mode (after the first estimate + 2 s; ζ only where the pole is within 10 % of the first mode); apex downloads: ≥ 30 % of their window at the apex",
         digits=3,
@@ -493,11 +547,17 @@ def run(ctx: ExperimentContext) -> Report:
             apex_valid >= 0.9 and split_seen >= 0.5,
             f"{split_run}: {len(split_rows)} apex downloads (≥ {APEX_WINDOW_SHARE:.0%} of the window at the apex): {apex_valid:.0%} of 3–6 Hz bins valid; "
             f"both modes (peaks of ≥ {SPLIT_PROMINENCE_DB:g} dB within {SPLIT_TOL_HZ:g} Hz of the true f1 and f2 at the apex) in {split_seen:.0%}; "
-            + "; ".join(f"{k}: {v['mean_valid_3_6hz']:.0%} valid, both modes in {v['fraction_showing_both_modes']:.0%}" for k, v in splits.items() if k != split_run),
+            + "; ".join(
+                f"{k}: {v['mean_valid_3_6hz']:.0%} valid, both modes in {v['fraction_showing_both_modes']:.0%}" for k, v in splits.items() if k != split_run
+            ),
         )
     else:
         rep.text("No download fell at the apex in this run (quick mode covers only the start of the loop): the split check is not applicable.")
-    rep.check("the true modes close in at the apex (median f2/f1 lower there)", split_ratio_apex < split_ratio_else, f"{split_ratio_apex:.2f} vs {split_ratio_else:.2f}")
+    rep.check(
+        "the true modes close in at the apex (median f2/f1 lower there)",
+        split_ratio_apex < split_ratio_else,
+        f"{split_ratio_apex:.2f} vs {split_ratio_else:.2f}",
+    )
     headline = lag["median_transition_lag_s"] if math.isfinite(lag["median_transition_lag_s"]) else al["lag_s"]
     rep.thesis(
         "The identified modes lag the true changes by several seconds (1 to 4 s in §5; low-frequency features lag more).",
