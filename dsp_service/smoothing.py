@@ -34,7 +34,8 @@ from numpy.lib.stride_tricks import as_strided
 from numpy.typing import NDArray
 
 #: The spectra smoothed: real (float64) or complex (complex128) bins; the result has the input's dtype.
-_Bins = TypeVar("_Bins", np.float64, np.complex128)
+#: (Bound by np.inexact, not constrained to the two, so a buffer whose dtype is chosen at run time passes too.)
+_Bins = TypeVar("_Bins", bound=np.inexact)
 
 
 def _windows(x: NDArray[np.generic], start: int, count: int, width: int) -> NDArray[np.float64]:
@@ -55,11 +56,11 @@ def _windows(x: NDArray[np.generic], start: int, count: int, width: int) -> NDAr
     return w
 
 
-def _as_float(a: NDArray[np.float64] | NDArray[np.complex128]) -> NDArray[np.float64]:
+def _as_float(a: NDArray[np.inexact]) -> NDArray[np.float64]:
     """``a`` as float rows: complex ``(m,)`` → ``(m, 2)`` (re, im); real unchanged."""
     if np.iscomplexobj(a):
         return a.view(np.float64).reshape(-1, 2)
-    # not complex: one of the two dtypes of the union, float64 (iscomplexobj does not narrow)
+    # not complex: the real float64 bins (iscomplexobj does not narrow the type)
     return cast(NDArray[np.float64], a)
 
 
