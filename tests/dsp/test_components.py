@@ -196,7 +196,7 @@ def test_config_is_frozen_and_defaults() -> None:
     cfg = IdentifierConfig()
     assert (cfg.fft_width, cfg.alpha, cfg.smoothing_window, cfg.smoothing_order) == (2048, 0.1, 17, 2)
     with pytest.raises(pydantic.ValidationError):
-        cfg.alpha = 0.2  # type: ignore[misc]
+        cfg.alpha = 0.2  # type: ignore[misc]  # writing the frozen field is the test
 
 
 def test_smoothing_off_and_estimate_on_smoothed_paths_run() -> None:
