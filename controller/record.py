@@ -119,12 +119,15 @@ def save_record(
     npz_path.parent.mkdir(parents=True, exist_ok=True)
     tmp_npz = npz_path.with_name(npz_path.name + ".tmp.npz")
     with open(tmp_npz, "wb") as fh:
-        np.savez_compressed(fh, **cols)
+        # allow_pickle spelled out (numpy's default): a column can then not be taken for the flag
+        np.savez_compressed(fh, allow_pickle=True, **cols)
     n = len(next(iter(cols.values()))) if cols else 0
     return _commit(tmp_npz, npz_path, json_path, n, {name: str(arr.dtype) for name, arr in cols.items()}, config, metadata)
 
 
-def _commit(tmp_npz: Path, npz_path: Path, json_path: Path, n: int, dtypes: dict[str, str], config: Any, metadata: Mapping[str, Any] | None) -> tuple[Path, Path]:
+def _commit(
+    tmp_npz: Path, npz_path: Path, json_path: Path, n: int, dtypes: dict[str, str], config: Any, metadata: Mapping[str, Any] | None
+) -> tuple[Path, Path]:
     """Write the sidecar and rename both files into place."""
     sidecar = {
         "format": RECORD_FORMAT,

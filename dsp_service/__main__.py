@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Sequence
+from functools import partial
 
 import zenoh
 
@@ -20,11 +21,18 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
     its own identifier, inbox and thread, so one rig's batch never waits in another's queue,
     and their compiled steps (which release the GIL) run on as many cores as there are."""
     rigs = settings.rig_ids
-    services = [
-        build_or_config_error("DSP configuration", lambda rig=rig: DspService(settings.model_copy(update={"rig_id": rig}), session))  # type: ignore[misc]
-        for rig in rigs
-    ]
-    log.info("DSP board up on rig(s) %s: N=%d, alpha=%.3g, emulated latency %.0f ms", ", ".join(map(repr, rigs)), settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
+
+    def board(rig: str) -> DspService:
+        return DspService(settings.model_copy(update={"rig_id": rig}), session)
+
+    services = [build_or_config_error("DSP configuration", partial(board, rig)) for rig in rigs]
+    log.info(
+        "DSP board up on rig(s) %s: N=%d, alpha=%.3g, emulated latency %.0f ms",
+        ", ".join(map(repr, rigs)),
+        settings.fft_width,
+        settings.alpha,
+        settings.emulated_latency_s * 1e3,
+    )
     threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
     try:
         for thread in threads:

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import pydantic
@@ -66,18 +67,14 @@ class ArxConfig(pydantic.BaseModel):
     sample_rate_hz: float = pydantic.Field(200.0, gt=0)
     na: int = pydantic.Field(16, ge=2, le=40, description="Order of the common denominator A.")
     nb: int = pydantic.Field(12, ge=1, le=40, description="Order of each numerator B_ij.")
-    forgetting: float = pydantic.Field(
-        0.995, gt=0.5, le=1.0, description="Forgetting factor λ per sample (memory ≈ 1/(1 − λ) samples)."
-    )
+    forgetting: float = pydantic.Field(0.995, gt=0.5, le=1.0, description="Forgetting factor λ per sample (memory ≈ 1/(1 − λ) samples).")
     ridge: float = pydantic.Field(1e-4, gt=0, description="Constant ridge δ on the parameters (scaled data).")
     band_hz: tuple[float, float] = pydantic.Field((1.0, 30.0), description="Band-pass applied to all channels (Hz).")
     prefilter_order: int = pydantic.Field(2, ge=1, le=8, description="Butterworth order of the band-pass.")
     search_min_hz: float = pydantic.Field(0.5, ge=0)
     search_max_hz: float = pydantic.Field(40.0, gt=0)
     max_damping: float = pydantic.Field(0.5, gt=0, lt=1, description="Poles more damped than this are not modes.")
-    min_relative_strength: float = pydantic.Field(
-        0.1, ge=0, le=1, description="Drop poles whose modal peak is below this × the strongest's."
-    )
+    min_relative_strength: float = pydantic.Field(0.1, ge=0, le=1, description="Drop poles whose modal peak is below this × the strongest's.")
     max_poles: int = pydantic.Field(4, ge=1, le=16)
 
     @pydantic.model_validator(mode="after")
@@ -179,7 +176,8 @@ class RecursiveArx:
         ridge = np.zeros((p, p + 1))
         ridge[:, :p] = math.sqrt(c.ridge * (1.0 - decay)) * np.eye(p)
         stacked = np.vstack([math.sqrt(decay) * self.R, rows, ridge])
-        r = np.linalg.qr(stacked, mode="r")
+        # mode="r" returns R alone; numpy's stub types every mode as the (Q, R) pair
+        r = cast(NDArray[np.float64], np.linalg.qr(stacked, mode="r"))
         self.R = r[: p + 1]
         self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
         self.samples += n
@@ -252,11 +250,7 @@ class RecursiveArx:
         top = float(strength.max())
         rel = strength / top if top > 0 else np.zeros_like(strength)
         order = np.argsort(-strength)
-        out = [
-            ArxPole(float(fn[k]), float(zeta[k]), float(strength[k]), float(rel[k]))
-            for k in order
-            if rel[k] >= c.min_relative_strength
-        ]
+        out = [ArxPole(float(fn[k]), float(zeta[k]), float(strength[k]), float(rel[k])) for k in order if rel[k] >= c.min_relative_strength]
         return tuple(out[: c.max_poles])
 
     @property

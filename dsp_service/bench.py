@@ -37,11 +37,12 @@ real work (on pure noise they would often find no peak and return early).
 from __future__ import annotations
 
 import time
+from typing import TypedDict
 
 import numpy as np
 import scipy.signal
 
-from .identifier import Identifier, IdentifierConfig
+from .identifier import Identifier, IdentifierConfig, KernelName
 from .spectra import rfft_rows
 
 C40_STEP_US = 100_000.0  #: the C40's ≈ 100 ms per 2×2 iteration (§2)
@@ -51,6 +52,27 @@ _BLOCK = 10
 _PAIRS = ((0, 0), (1, 1), (0, 1), (1, 0), (0, 2), (0, 3), (1, 2), (1, 3))
 
 
+class IdentifierBench(TypedDict):
+    """One row of :func:`bench_identifier` (times in µs, ratios to the numpy floor of the same run)."""
+
+    n: int
+    repeats: int
+    step_p50_us: float
+    step_p99_us: float
+    floor_p50_us: float
+    floor_p99_us: float
+    floor_unbatched_p50_us: float
+    floor_numpy_p50_us: float
+    floor_fused_p50_us: float
+    ratio_p50: float
+    ratio_p99: float
+    c40_fraction: float
+    poles_found: int
+    kernel: KernelName
+    step_numpy_p50_us: float
+    ratio_numpy_p50: float
+
+
 def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     total = (_WARMUP_SNAPSHOTS + 1) * (n // 2) + (repeats + 10) * _BATCH
@@ -58,9 +80,7 @@ def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndar
     y = np.zeros_like(u)
     for fn, zeta, gain in ((3.6, 0.09, 1.0), (9.0, 0.05, 0.4)):
         wn = 2 * np.pi * fn
-        b, a, _ = scipy.signal.cont2discrete(
-            ([gain * wn * wn], [1.0, 2 * zeta * wn, wn * wn]), 1.0 / fs, method="zoh"
-        )
+        b, a, _ = scipy.signal.cont2discrete(([gain * wn * wn], [1.0, 2 * zeta * wn, wn * wn]), 1.0 / fs, method="zoh")
         b = np.ravel(b)
         y[0] += scipy.signal.lfilter(b, a, u[0] + 0.5 * u[1])
         y[1] += scipy.signal.lfilter(b, a, 0.3 * u[0] + u[1])
@@ -68,9 +88,9 @@ def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndar
     return u, y
 
 
-def _warmed(n: int, repeats: int, kernel: str) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
+def _warmed(n: int, repeats: int, kernel: KernelName) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
     """An identifier at FFT width ``n`` after the warm-up snapshots, its data and the next position."""
-    cfg = IdentifierConfig(fft_width=n, kernel=kernel)  # type: ignore[arg-type]
+    cfg = IdentifierConfig(fft_width=n, kernel=kernel)
     idf = Identifier(cfg)
     u, y = _bench_data(n, repeats, cfg.sample_rate_hz)
     half = n // 2
@@ -83,7 +103,7 @@ def _warmed(n: int, repeats: int, kernel: str) -> tuple[Identifier, np.ndarray, 
     return idf, u, y, pos
 
 
-def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -> dict[str, float | int]:
+def bench_identifier(n: int = 2048, repeats: int = 200, kernel: KernelName = "numba") -> IdentifierBench:
     """p50/p99 (µs) of one identification step and of the numpy floor, and their ratios.
 
     Returns keys: ``n``, ``repeats``, ``step_p50_us``, ``step_p99_us``,
@@ -166,7 +186,7 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -
         "ratio_p99": s99 / f99,
         "c40_fraction": s50 / C40_STEP_US,
         "poles_found": len(result.poles) if result is not None else 0,
-        "kernel": kernel,  # type: ignore[dict-item]
+        "kernel": kernel,
         "step_numpy_p50_us": float(np.percentile(ref_t, 50)) * 1e6,
         "ratio_numpy_p50": float(np.percentile(ref_t, 50)) * 1e6 / f50,
     }
@@ -175,7 +195,7 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: str = "numba") -
 SIZES = (512, 1024, 2048, 4096, 8192)
 
 
-def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[dict[str, float | int]]:
+def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[IdentifierBench]:
     """:func:`bench_identifier` (compiled step, numpy reference and floor) at each FFT width."""
     return [bench_identifier(n, repeats) for n in sizes]
 
@@ -228,21 +248,40 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["solve"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs,
-                      idf._k_coef_t, idf._k_ia, idf._k_ib)
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_coef_t, idf._k_ia, idf._k_ib)
             t["smooth"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._peaks(idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio,
-                     c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom)
+            K._peaks(
+                idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio, c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom
+            )
             t["poles"][i] = 0.0
             t["peaks"][i] = perf() - t0
         src, vd = sv.source[sl], sv.valid[sl]
         for i in range(start, stop):
             t0 = perf()
-            K.poles(src, vd, True, idf._f_sl, idf._lo - sl.start, idf._k_idx, nf, idf._relocate, c.fwhm_exact,
-                    idf._k_pinv, idf._refiner.r_max, vrm.m_max, vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max,
-                    vrm.model == "viscous", idf._k_tri, idf._k_ntri, idf._k_mag[: src.size], idf._k_out)
+            K.poles(
+                src,
+                vd,
+                True,
+                idf._f_sl,
+                idf._lo - sl.start,
+                idf._k_idx,
+                nf,
+                idf._relocate,
+                c.fwhm_exact,
+                idf._k_pinv,
+                idf._refiner.r_max,
+                vrm.m_max,
+                vrm.band_factor,
+                vrm.zeta_max,
+                vrm._im_over_re_max,
+                vrm.model == "viscous",
+                idf._k_tri,
+                idf._k_ntri,
+                idf._k_mag[: src.size],
+                idf._k_out,
+            )
             t["poles"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
@@ -255,7 +294,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
     return out
 
 
-def format_report(rows: list[dict[str, float | int]], stages: dict[str, float]) -> str:
+def format_report(rows: list[IdentifierBench], stages: dict[str, float]) -> str:
     """The size table and the stage breakdown as text (µs, ratios to the floor of the same run)."""
     lines = ["   N   floor us   step us  ratio   numpy step us  ratio"]
     for r in rows:

@@ -23,20 +23,25 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from typing import Literal
 
 import numpy as np
 
 from dsp_service.board import Admission, BatchBlock
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
 from protocol.batch_codec import SampleBatch
-from service_kit.inbox import RateLimitedLog
 from protocol.messages import BlockFlag, ConfigAck, ConfigChange, Interrupt, PoleParameters, TfSnapshot, TransferFunction
 from protocol.settings import DspSettings
+from service_kit.inbox import RateLimitedLog
 
 log = logging.getLogger(__name__)
 _log_once = RateLimitedLog(log)  # a flood of bad batches logs once per 10 s (counted all the same)
 
-TF_NAMES = ("H11", "H12", "H21", "H22", "Htot")
+#: The estimates a TfSnapshot carries (the keys of ``TfSnapshot.estimates``).
+TfName = Literal["H11", "H12", "H21", "H22", "Htot"]
+TF_NAMES: tuple[TfName, ...] = ("H11", "H12", "H21", "H22", "Htot")
+#: ``BlockFlag.state``.
+BlockState = Literal["empty", "full"]
 
 MAX_EMULATED_LATENCY_S = 10.0
 """A run-time ConfigChange may not set a longer emulated latency than the
@@ -150,7 +155,13 @@ class DspCore:
             sim_time_s=self.last_sim_time,
             batch_seq=batch.seq,
             poles=tuple(
-                PoleParameters(frequency_hz=p.frequency_hz, damping_ratio=max(p.damping_ratio, 0.0), magnitude=p.magnitude, source=p.source, confidence=min(max(p.confidence, 0.0), 1.0))
+                PoleParameters(
+                    frequency_hz=p.frequency_hz,
+                    damping_ratio=max(p.damping_ratio, 0.0),
+                    magnitude=p.magnitude,
+                    source=p.source,
+                    confidence=min(max(p.confidence, 0.0), 1.0),
+                )
                 for p in result.poles
                 if np.isfinite(p.frequency_hz) and p.frequency_hz > 0 and np.isfinite(p.damping_ratio) and np.isfinite(p.magnitude)
             ),
@@ -170,11 +181,11 @@ class DspCore:
             self.block.release()
         return self.flag("empty")
 
-    def flag(self, state: str) -> BlockFlag:
+    def flag(self, state: BlockState) -> BlockFlag:
         flag = BlockFlag(
             seq=self.flag_seq,
             sim_time_s=self.last_sim_time,
-            state=state,  # type: ignore[arg-type]
+            state=state,
             next_batch_seq=self.block.next_seq,
             fft_width=self.identifier.fft_width,
             batch_size=self.batch_size,
@@ -218,7 +229,7 @@ class DspCore:
         """The current transfer-function estimates (magnitude and phase)."""
         with self.tf_lock:
             tf = self.identifier.transfer_functions()
-            estimates = {}
+            estimates: dict[TfName, TransferFunction] = {}
             for name in TF_NAMES:
                 h = np.nan_to_num(np.asarray(getattr(tf, name)), nan=0.0, posinf=0.0, neginf=0.0)
                 estimates[name] = TransferFunction(magnitude=tuple(np.abs(h).tolist()), phase_rad=tuple(np.angle(h).tolist()))
@@ -228,7 +239,7 @@ class DspCore:
                 batch_seq=self.last_batch_seq,
                 freqs_hz=tuple(np.asarray(tf.freqs_hz, dtype=float).tolist()),
                 valid=tuple(bool(v) for v in np.asarray(tf.valid)),
-                estimates=estimates,  # type: ignore[arg-type]
+                estimates=estimates,
             )
             self.tf_seq += 1
             return snap

@@ -79,9 +79,7 @@ class HistoryBuffer:
         u = np.asarray(inputs, dtype=np.float64)
         y = np.asarray(outputs, dtype=np.float64)
         if u.ndim != 2 or y.ndim != 2 or u.shape[0] != N_INPUTS or y.shape[0] != N_OUTPUTS:
-            raise ValueError(
-                f"expected inputs (2, l) and outputs (2, l), got {u.shape} and {y.shape}"
-            )
+            raise ValueError(f"expected inputs (2, l) and outputs (2, l), got {u.shape} and {y.shape}")
         if u.shape[1] != y.shape[1]:
             raise ValueError(f"inputs have {u.shape[1]} samples but outputs {y.shape[1]}")
         if not (np.isfinite(u).all() and np.isfinite(y).all()):

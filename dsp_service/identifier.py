@@ -68,7 +68,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 import pydantic
@@ -103,7 +103,9 @@ from .spectra import (
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
+_Scalar = TypeVar("_Scalar", bound=np.generic)
 PeakSource = Literal["tot", "11", "12", "21", "22"]
+KernelName = Literal["numpy", "numba"]  #: IdentifierConfig.kernel
 WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
 
@@ -113,9 +115,7 @@ class IdentifierConfig(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(frozen=True, extra="forbid")
 
     sample_rate_hz: float = pydantic.Field(200.0, gt=0, description="Sample rate of the batches (Hz).")
-    fft_width: int = pydantic.Field(
-        2048, ge=32, le=1 << 20, description="FFT width N = history length (even)."
-    )
+    fft_width: int = pydantic.Field(2048, ge=32, le=1 << 20, description="FFT width N = history length (even).")
     window: str = pydantic.Field("hann", description="scipy.signal.get_window name (periodic).")
     method: Literal["etfe", "etfe-welch", "etfe-transient", "arx"] = pydantic.Field(
         "etfe",
@@ -143,42 +143,30 @@ class IdentifierConfig(pydantic.BaseModel):
         "half-overlapping windows of 2N/(S+1) samples zero-padded to N (more averages, coarser resolution).",
     )
     rls_forgetting: float = pydantic.Field(0.9, gt=0, le=1, description="RLS forgetting factor λ (≈ 1 − α).")
-    rls_init_scale: float = pydantic.Field(
-        1e8, gt=0, description="RLS initial inverse power, × 1/(mean input power of the first snapshot)."
-    )
+    rls_init_scale: float = pydantic.Field(1e8, gt=0, description="RLS initial inverse power, × 1/(mean input power of the first snapshot).")
     wait_for_full_history: bool = pydantic.Field(
         True,
         description="Average nothing until N samples have arrived since the last reset. The C40 "
         "ran on its zero-filled history from the start; a zero-to-signal step (e.g. joint "
         "angles of ~1 rad) then pollutes the averages for ~1/α iterations. False emulates the C40.",
     )
-    solver: Literal["mimo", "uncorrelated"] = pydantic.Field(
-        "mimo", description="Corrected 2×2 solve [2-21…2-24] or H_ij = P_iyj/P_ii [2-25…2-28]."
-    )
-    det_threshold: float = pydantic.Field(
-        1e-3, ge=0, lt=1, description="Mask bins with (P11P22−|P12|²)/(P11P22) below this."
-    )
+    solver: Literal["mimo", "uncorrelated"] = pydantic.Field("mimo", description="Corrected 2×2 solve [2-21…2-24] or H_ij = P_iyj/P_ii [2-25…2-28].")
+    det_threshold: float = pydantic.Field(1e-3, ge=0, lt=1, description="Mask bins with (P11P22−|P12|²)/(P11P22) below this.")
     collinear: Literal["mask", "dominant"] = pydantic.Field(
         "dominant",
         description="Bins failing det_threshold (collinear inputs): 'mask' them (the C40) or solve them "
         "along the dominant input direction (rank-1 minimum norm, see mimo.py); mode per bin in downloads.",
     )
-    power_floor: float = pydantic.Field(
-        1e-12, ge=0, description="Mask bins whose input power is below this × mean input power."
-    )
+    power_floor: float = pydantic.Field(1e-12, ge=0, description="Mask bins whose input power is below this × mean input power.")
     smoothing_window: int = pydantic.Field(17, ge=0, description="Savitzky–Golay window in bins (odd; 0 or 1 = off).")
     smoothing_order: int = pydantic.Field(2, ge=0, description="Savitzky–Golay polynomial order.")
     peak_source: PeakSource = pydantic.Field("tot", description="Spectrum searched: H_tot or one H_ij.")
     log_weighting: bool = pydantic.Field(True, description="Rank peaks by |H|·(f/f_lo)^−γ (prefers low poles).")
-    log_weight_exponent: float = pydantic.Field(
-        0.5, ge=0, description="γ of the log weighting (−20γ dB/decade)."
-    )
+    log_weight_exponent: float = pydantic.Field(0.5, ge=0, description="γ of the log weighting (−20γ dB/decade).")
     search_min_hz: float = pydantic.Field(0.5, ge=0, description="Lower edge of the peak search range (Hz).")
     search_max_hz: float = pydantic.Field(40.0, gt=0, description="Upper edge of the peak search range (Hz).")
     max_peaks: int = pydantic.Field(2, ge=1, le=16, description="Peaks reported (e.g. the two split poles).")
-    min_peak_prominence_db: float = pydantic.Field(
-        3.0, ge=0, description="Minimum prominence (dB, weighted magnitude) of a reported peak."
-    )
+    min_peak_prominence_db: float = pydantic.Field(3.0, ge=0, description="Minimum prominence (dB, weighted magnitude) of a reported peak.")
     damping_method: Literal["vrm", "fwhm", "fit", "transient"] = pydantic.Field(
         "vrm",
         description="Which estimate PoleEstimate.damping_ratio reports: VRM, FWHM (each the other's "
@@ -194,22 +182,12 @@ class IdentifierConfig(pydantic.BaseModel):
         "spectrum (smoothing widens peaks: ζ biased up) instead of the averaged, unsmoothed one "
         "near the smoothed spectrum's peak.",
     )
-    fwhm_exact: bool = pydantic.Field(
-        True, description="FWHM: exact half-power inversion instead of ζ ≈ Δω/(2ω_p) [B.1]."
-    )
-    vrm_model: Literal["viscous", "hysteretic"] = pydantic.Field(
-        "viscous", description="VRM reading of λ: viscous ζ = tan(arg λ/2), or [C-13, C-14]."
-    )
-    vrm_band_factor: float = pydantic.Field(
-        1.5, gt=0, description="VRM band half-width in half-power half-widths."
-    )
-    vrm_points_per_side: int = pydantic.Field(
-        5, ge=1, le=10, description="At most this many VRM points each side of the peak (bounds the cost)."
-    )
-    confidence_prominence_db: float = pydantic.Field(
-        6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5."
-    )
-    kernel: Literal["numpy", "numba"] = pydantic.Field(
+    fwhm_exact: bool = pydantic.Field(True, description="FWHM: exact half-power inversion instead of ζ ≈ Δω/(2ω_p) [B.1].")
+    vrm_model: Literal["viscous", "hysteretic"] = pydantic.Field("viscous", description="VRM reading of λ: viscous ζ = tan(arg λ/2), or [C-13, C-14].")
+    vrm_band_factor: float = pydantic.Field(1.5, gt=0, description="VRM band half-width in half-power half-widths.")
+    vrm_points_per_side: int = pydantic.Field(5, ge=1, le=10, description="At most this many VRM points each side of the peak (bounds the cost).")
+    confidence_prominence_db: float = pydantic.Field(6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5.")
+    kernel: KernelName = pydantic.Field(
         "numba",
         description="'numba' (default): detrend/window, averaging, H_tot solve, smoothing, peak search and "
         "the poles' refinement, FWHM and VRM in compiled code (dsp_service.kernel; the same results as "
@@ -318,7 +296,7 @@ class TransferFunctionEstimate:
         return self.htot
 
 
-def _readonly(a: NDArray[np.generic]) -> NDArray[np.generic]:
+def _readonly(a: NDArray[_Scalar]) -> NDArray[_Scalar]:
     a.flags.writeable = False
     return a
 
@@ -347,9 +325,7 @@ class Identifier:
         if c.averaging == "rls":
             # input spectra for the mask, with the RLS's own weighting (α = 1 − λ)
             lam = c.rls_forgetting
-            self._avg = SpectralAverager(
-                (7, k), n, "linear" if lam >= 1.0 else "exponential", min(1.0, 1.0 - lam) or 1.0
-            )
+            self._avg = SpectralAverager((7, k), n, "linear" if lam >= 1.0 else "exponential", min(1.0, 1.0 - lam) or 1.0)
             cls = VectorRLS if c.solver == "mimo" else ScalarRLS
             self._rls: ScalarRLS | VectorRLS | None = cls(k, c.rls_forgetting, c.rls_init_scale)
         else:
@@ -394,13 +370,7 @@ class Identifier:
         self._smooth = self._smoother.range_plan(src, self._lo, self._hi)
         self._all_valid_range = np.ones(n_range, dtype=bool)
         self._all_valid_range.flags.writeable = False
-        self._fused = (
-            c.kernel == "numba"
-            and c.welch_segments == 1
-            and self._rls is None
-            and c.solver == "mimo"
-            and c.peak_source == "tot"
-        )
+        self._fused = c.kernel == "numba" and c.welch_segments == 1 and self._rls is None and c.solver == "mimo" and c.peak_source == "tot"
         if self._fused:
             self._build_fused(n_range)
         self._pending = 0
@@ -426,7 +396,7 @@ class Identifier:
 
         sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
         if sm.enabled:
-            h, w = sm.half, sm.window
+            h = sm.half
             rows = []
             for i in range(lo, hi):
                 if i < h:
@@ -482,28 +452,57 @@ class Identifier:
         fp[kernel.FP_BAND], fp[kernel.FP_ZETA_MAX], fp[kernel.FP_C_MAX] = vrm.band_factor, vrm.zeta_max, vrm._im_over_re_max
         ip = np.zeros(kernel.N_IP, dtype=np.intp)
         for i, value in (
-            (kernel.IP_BINS, k), (kernel.IP_S0, sl.start), (kernel.IP_S1, sl.stop),
-            (kernel.IP_DOMINANT, c.collinear == "dominant"), (kernel.IP_LO, lo), (kernel.IP_HI, hi),
-            (kernel.IP_IA, self._k_ia), (kernel.IP_IB, self._k_ib), (kernel.IP_WEIGHTED, self._w_lin is not None),
-            (kernel.IP_WANT, c.max_peaks), (kernel.IP_DO_POLES, self._k_do_poles),
-            (kernel.IP_ON_SMOOTHED, c.estimate_on_smoothed), (kernel.IP_RELOCATE, self._relocate),
-            (kernel.IP_FWHM_EXACT, c.fwhm_exact), (kernel.IP_R_MAX, r_max), (kernel.IP_M_MAX, vrm.m_max),
+            (kernel.IP_BINS, k),
+            (kernel.IP_S0, sl.start),
+            (kernel.IP_S1, sl.stop),
+            (kernel.IP_DOMINANT, c.collinear == "dominant"),
+            (kernel.IP_LO, lo),
+            (kernel.IP_HI, hi),
+            (kernel.IP_IA, self._k_ia),
+            (kernel.IP_IB, self._k_ib),
+            (kernel.IP_WEIGHTED, self._w_lin is not None),
+            (kernel.IP_WANT, c.max_peaks),
+            (kernel.IP_DO_POLES, self._k_do_poles),
+            (kernel.IP_ON_SMOOTHED, c.estimate_on_smoothed),
+            (kernel.IP_RELOCATE, self._relocate),
+            (kernel.IP_FWHM_EXACT, c.fwhm_exact),
+            (kernel.IP_R_MAX, r_max),
+            (kernel.IP_M_MAX, vrm.m_max),
             (kernel.IP_VISCOUS, vrm.model == "viscous"),
         ):
             ip[i] = int(value)
         solver = self._solver
         self._k_args = (
-            fp, ip, self._k_state_f, self._avg.state, solver.source, solver.valid, solver.mode,
-            self._k_coef, self._k_starts, self._k_coef_t, self._k_hs, self._k_vs, self._k_w, self._v, self._k_order,
-            self._k_idx, self._k_prom, self._k_stats, self._f_sl, self._f_range, self._k_pinv, self._k_tri,
-            self._k_ntri, self._k_mag, self._k_out,
+            fp,
+            ip,
+            self._k_state_f,
+            self._avg.state,
+            solver.source,
+            solver.valid,
+            solver.mode,
+            self._k_coef,
+            self._k_starts,
+            self._k_coef_t,
+            self._k_hs,
+            self._k_vs,
+            self._k_w,
+            self._v,
+            self._k_order,
+            self._k_idx,
+            self._k_prom,
+            self._k_stats,
+            self._f_sl,
+            self._f_range,
+            self._k_pinv,
+            self._k_tri,
+            self._k_ntri,
+            self._k_mag,
+            self._k_out,
         )
         # resolved with no snapshot (weight 0 on a zero state: nothing changes)
         self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
         self._k_fft = rfft_rows
-        self._k_detrend_ring = kernel.compiled_entry(
-            kernel.detrend_window_ring, (self.history._buf, 0, np.zeros(4), self._est.window, self._est._tmp)
-        )
+        self._k_detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (self.history._buf, 0, np.zeros(4), self._est.window, self._est._tmp))
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the compiled step; the constructor already does."""
@@ -611,7 +610,6 @@ class Identifier:
         """The recursive ARX model (``method='arx'``), else None."""
         return self._arx
 
-
     def _with_confidence(self, poles: tuple[PoleEstimate, ...], peaks: Any, n_eff: float, valid_fraction: float) -> IdentificationResult:
         """The step's result: the overall confidence from the valid fraction, the
         effective number of averages, the history's fill and the top peak's
@@ -627,8 +625,7 @@ class Identifier:
             prom = peaks[0][1]
             conf = base * prom / (prom + c.confidence_prominence_db)
             poles = tuple(
-                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db))))
-                for p in poles
+                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db)))) for p in poles
             )
         return IdentificationResult(
             poles=poles,
@@ -637,6 +634,7 @@ class Identifier:
             samples_in_history=in_history,
             effective_averages=float(n_eff),
         )
+
     def _step_etfe(self) -> IdentificationResult:
         """One C40 iteration on the current history (see module doc).
 
@@ -733,9 +731,7 @@ class Identifier:
                 poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
             else:
                 src_sl, valid_sl = solver.source[sl], solver.valid[sl]
-                poles = self._poles(
-                    peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, n_sl_valid == self._n_sl
-                )
+                poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, n_sl_valid == self._n_sl)
             return self._result(peaks, poles, n_valid, n_range)
         # _result's confidences, computed before the poles are made
         # (self.effective_averages, SpectralAverager.effective_averages, inline)
@@ -749,7 +745,7 @@ class Identifier:
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
         pole_list = []
-        new = object.__new__
+        bare = object.__new__  # an instance without running the frozen __init__
         proms = self._k_prom[:nf].tolist()
         for prom, (f_peak, m_peak, zf, _ok, fn, zv) in zip(proms, out[:nf].tolist()):
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
@@ -757,7 +753,7 @@ class Identifier:
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
             # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
-            pole = new(PoleEstimate)
+            pole = bare(PoleEstimate)
             pole.__dict__.update(
                 frequency_hz=f_peak,
                 damping_ratio=chosen if chosen is not None else 0.0,
@@ -773,7 +769,7 @@ class Identifier:
             )
             pole_list.append(pole)
         conf = base * proms[0] / (proms[0] + p0) if confident else 0.0
-        result = new(IdentificationResult)
+        result = bare(IdentificationResult)
         result.__dict__.update(
             poles=tuple(pole_list),
             confidence=float(min(1.0, max(0.0, conf))),
@@ -783,17 +779,13 @@ class Identifier:
         )
         return result
 
-    def _result(
-        self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int
-    ) -> IdentificationResult:
+    def _result(self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int) -> IdentificationResult:
         """The step's result with the confidences (module doc)."""
         n_eff = self.effective_averages
         valid_fraction = n_valid / n_range
         return self._with_confidence(poles, peaks, n_eff, valid_fraction)
 
-    def _find_peaks(
-        self, hs: NDArray[np.complex128], vs: NDArray[np.bool_], n_valid: int
-    ) -> list[tuple[int, float]]:
+    def _find_peaks(self, hs: NDArray[np.complex128], vs: NDArray[np.bool_], n_valid: int) -> list[tuple[int, float]]:
         """Up to ``max_peaks`` ``(index in the search range, prominence in dB)``, best weighted first:
         :func:`.modal.find_modal_peaks` on the smoothed spectrum, the one peak search of
         the numpy path (the compiled kernel's is its compiled form, tested equal)."""
@@ -859,16 +851,14 @@ class Identifier:
         todo = [i for i, loc in enumerate(located) if loc[6]]
         vrms: list[tuple[float, float, int] | None] = [None] * len(located)
         if todo:
-            found = self._vrm.estimate_many(
-                hd, fd, [located[i][1] for i in todo], [located[i][5] for i in todo], vmask
-            )
+            found = self._vrm.estimate_many(hd, fd, [located[i][1] for i in todo], [located[i][5] for i in todo], vmask)
             for i, v in zip(todo, found):
                 vrms[i] = v
         vrm_first = c.damping_method in ("vrm", "fit", "transient")
         source = c.peak_source
         record = self._record_dft() if c.damping_method == "transient" else None
         poles = []
-        for (prom, k_loc, f_peak, m_peak, zeta_fwhm, _, ok), vrm in zip(located, vrms):
+        for (prom, _k, f_peak, m_peak, zeta_fwhm, _, ok), vrm in zip(located, vrms):
             zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second

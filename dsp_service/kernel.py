@@ -32,23 +32,39 @@ passes, so no batch pays compilation.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, cast
 
 import numpy as np
 from numba import njit, types
 from numba.extending import intrinsic
+from numpy.typing import NDArray
+
+# The arrays a step passes (warm_up builds each of them); numba types them itself when compiling,
+# these annotations document them and let mypy check the bodies.
+F64 = NDArray[np.float64]
+C128 = NDArray[np.complex128]
+Bool = NDArray[np.bool_]
+U8 = NDArray[np.uint8]
+Intp = NDArray[np.intp]
 
 _TINY = float(np.finfo(np.float64).tiny)
 
 
 @intrinsic
-def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
+def _fma_intrinsic(typingctx: Any, a: Any, b: Any, c: Any) -> tuple[Any, Callable[..., Any]]:
     """``a·b + c`` rounded once (LLVM ``fma``)."""
     sig = types.float64(types.float64, types.float64, types.float64)
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         return builder.fma(*args)
 
     return sig, codegen
+
+
+# numba's intrinsic types its call with the typing function's signature, the typing context
+# included; compiled code calls it with the three floats only
+_fma = cast(Callable[[float, float, float], float], _fma_intrinsic)
 
 
 # numpy's complex loops (its SIMD kernels on this kind of CPU) multiply with fused
@@ -56,12 +72,12 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
 # compiled step rounds exactly as the reference does (the 2×2 determinant of a
 # few averages cancels, so one ulp there would show as 1e-13 in a damping).
 @njit(cache=True, inline="always", error_model="numpy")
-def _cmul(a, b):  # type: ignore[no-untyped-def]
+def _cmul(a: complex, b: complex) -> complex:
     return complex(_fma(a.real, b.real, -(a.imag * b.imag)), _fma(a.real, b.imag, a.imag * b.real))
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _cabs(z):  # type: ignore[no-untyped-def]
+def _cabs(z: complex) -> float:
     x = abs(z.real)
     y = abs(z.imag)
     big = x if x > y else y
@@ -73,7 +89,7 @@ def _cabs(z):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
+def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
     """``out = (x − means[:, None]) · window`` (spectra.SpectralEstimator.snapshot's two passes in one)."""
     rows, n = x.shape
     for r in range(rows):
@@ -83,7 +99,7 @@ def detrend_window(x, means, window, out):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def detrend_window_ring(buf, head, means, window, out):  # type: ignore[no-untyped-def]
+def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) -> None:
     """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
     C-contiguous ring buffer itself (unit stride known to the compiler: the loop vectorizes)."""
     rows, n = out.shape
@@ -94,7 +110,7 @@ def detrend_window_ring(buf, head, means, window, out):  # type: ignore[no-untyp
 
 
 @njit(cache=True, error_model="numpy")
-def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
+def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
     """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra; returns ``(Σ P11.real, Σ P22.real)``.
 
     On float views (``X`` ``(4, 2K)``, ``state`` ``(7, 2K)``: (re, im) pairs), one row at a time."""
@@ -121,7 +137,7 @@ def _accumulate(X, c, state):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):  # type: ignore[no-untyped-def]
+def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, out: C128, valid: Bool, mode: U8) -> int:
     """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count."""
     count = 0
     for b in range(s0, s1):
@@ -175,7 +191,7 @@ def _solve_tot(state, s0, s1, floor, det_threshold, dominant, out, valid, mode):
 
 
 @njit(cache=True, error_model="numpy")
-def _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib):  # type: ignore[no-untyped-def]
+def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, hs: C128, vs: Bool, coef_t: F64, ia: int, ib: int) -> int:
     """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
 
     Each output bin sums its window in order ``j = 0 … w−1``. The rows ``ia … ib−1``
@@ -224,7 +240,9 @@ def _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib):  # type: 
 
 
 @njit(cache=True, error_model="numpy")
-def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom):  # type: ignore[no-untyped-def]
+def _peaks(
+    hs: C128, vs: Bool, n_valid: int, w_lin: F64, weighted: bool, ratio: float, want: int, v: F64, order_buf: Intp, found_idx: Intp, found_prom: F64
+) -> int:
     """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many."""
     size = hs.size
     if size < 3 or n_valid == 0:
@@ -309,10 +327,39 @@ def _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_id
 
 
 @njit(cache=True, error_model="numpy")
-def post_fft(  # type: ignore[no-untyped-def]
-    X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
-    lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
-):
+def post_fft(
+    X: F64,
+    c: float,
+    state_f: F64,
+    state: C128,
+    n_bins: int,
+    power_floor: float,
+    s0: int,
+    s1: int,
+    det_threshold: float,
+    dominant: bool,
+    src: C128,
+    valid: Bool,
+    mode: U8,
+    lo: int,
+    hi: int,
+    coef: F64,
+    starts: Intp,
+    coef_t: F64,
+    ia: int,
+    ib: int,
+    hs: C128,
+    vs: Bool,
+    w_lin: F64,
+    weighted: bool,
+    ratio: float,
+    want: int,
+    v: F64,
+    order_buf: Intp,
+    found_idx: Intp,
+    found_prom: F64,
+    stats: F64,
+) -> None:
     """Stages 1–4 (module doc) in one call. ``stats`` ← (valid count on the slice, valid smoothed
     bins, peaks found, floor)."""
     s11, s22 = _accumulate(X, c, state_f)
@@ -328,31 +375,139 @@ def post_fft(  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def step(  # type: ignore[no-untyped-def]
-    X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
-    lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
-    do_poles, on_smoothed, f_sl, f_range, relocate, fwhm_exact, pinv, r_max,
-    m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
-):
+def step(
+    X: F64,
+    c: float,
+    state_f: F64,
+    state: C128,
+    n_bins: int,
+    power_floor: float,
+    s0: int,
+    s1: int,
+    det_threshold: float,
+    dominant: bool,
+    src: C128,
+    valid: Bool,
+    mode: U8,
+    lo: int,
+    hi: int,
+    coef: F64,
+    starts: Intp,
+    coef_t: F64,
+    ia: int,
+    ib: int,
+    hs: C128,
+    vs: Bool,
+    w_lin: F64,
+    weighted: bool,
+    ratio: float,
+    want: int,
+    v: F64,
+    order_buf: Intp,
+    found_idx: Intp,
+    found_prom: F64,
+    stats: F64,
+    do_poles: bool,
+    on_smoothed: bool,
+    f_sl: F64,
+    f_range: F64,
+    relocate: int,
+    fwhm_exact: bool,
+    pinv: F64,
+    r_max: int,
+    m_max: int,
+    band_factor: float,
+    zeta_max: float,
+    c_max: float,
+    viscous: bool,
+    tri: Intp,
+    n_tri: Intp,
+    mag: F64,
+    out: F64,
+) -> None:
     """:func:`post_fft`, then (``do_poles``) :func:`poles` of the peaks found, on the smoothed
     (``on_smoothed``) or the solved spectrum."""
     post_fft(
-        X, c, state_f, state, n_bins, power_floor, s0, s1, det_threshold, dominant, src, valid, mode,
-        lo, hi, coef, starts, coef_t, ia, ib, hs, vs, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, stats,
+        X,
+        c,
+        state_f,
+        state,
+        n_bins,
+        power_floor,
+        s0,
+        s1,
+        det_threshold,
+        dominant,
+        src,
+        valid,
+        mode,
+        lo,
+        hi,
+        coef,
+        starts,
+        coef_t,
+        ia,
+        ib,
+        hs,
+        vs,
+        w_lin,
+        weighted,
+        ratio,
+        want,
+        v,
+        order_buf,
+        found_idx,
+        found_prom,
+        stats,
     )
     nf = int(stats[2])
     if not do_poles or nf == 0:
         return
     if on_smoothed:
         poles(
-            hs, vs, int(stats[1]) == hs.size, f_range, 0, found_idx, nf, relocate, fwhm_exact, pinv, r_max,
-            m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag[: hs.size], out,
+            hs,
+            vs,
+            int(stats[1]) == hs.size,
+            f_range,
+            0,
+            found_idx,
+            nf,
+            relocate,
+            fwhm_exact,
+            pinv,
+            r_max,
+            m_max,
+            band_factor,
+            zeta_max,
+            c_max,
+            viscous,
+            tri,
+            n_tri,
+            mag[: hs.size],
+            out,
         )
     else:
         poles(
-            src[s0:s1], valid[s0:s1], int(stats[0]) == s1 - s0, f_sl, lo - s0, found_idx, nf, relocate,
-            fwhm_exact, pinv, r_max, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri,
-            mag[: s1 - s0], out,
+            src[s0:s1],
+            valid[s0:s1],
+            int(stats[0]) == s1 - s0,
+            f_sl,
+            lo - s0,
+            found_idx,
+            nf,
+            relocate,
+            fwhm_exact,
+            pinv,
+            r_max,
+            m_max,
+            band_factor,
+            zeta_max,
+            c_max,
+            viscous,
+            tri,
+            n_tri,
+            mag[: s1 - s0],
+            out,
         )
 
 
@@ -360,29 +515,112 @@ def step(  # type: ignore[no-untyped-def]
 # call passes 27 arguments instead of 48 (each costs the dispatcher's type check and unboxing).
 FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7)
 (
-    IP_BINS, IP_S0, IP_S1, IP_DOMINANT, IP_LO, IP_HI, IP_IA, IP_IB, IP_WEIGHTED, IP_WANT, IP_DO_POLES,
-    IP_ON_SMOOTHED, IP_RELOCATE, IP_FWHM_EXACT, IP_R_MAX, IP_M_MAX, IP_VISCOUS, N_IP,
+    IP_BINS,
+    IP_S0,
+    IP_S1,
+    IP_DOMINANT,
+    IP_LO,
+    IP_HI,
+    IP_IA,
+    IP_IB,
+    IP_WEIGHTED,
+    IP_WANT,
+    IP_DO_POLES,
+    IP_ON_SMOOTHED,
+    IP_RELOCATE,
+    IP_FWHM_EXACT,
+    IP_R_MAX,
+    IP_M_MAX,
+    IP_VISCOUS,
+    N_IP,
 ) = range(18)
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def step_packed(  # type: ignore[no-untyped-def]
-    X, c, fp, ip, state_f, state, src, valid, mode, coef, starts, coef_t, hs, vs, w_lin, v, order_buf,
-    found_idx, found_prom, stats, f_sl, f_range, pinv, tri, n_tri, mag, out,
-):
+def step_packed(
+    X: F64,
+    c: float,
+    fp: F64,
+    ip: Intp,
+    state_f: F64,
+    state: C128,
+    src: C128,
+    valid: Bool,
+    mode: U8,
+    coef: F64,
+    starts: Intp,
+    coef_t: F64,
+    hs: C128,
+    vs: Bool,
+    w_lin: F64,
+    v: F64,
+    order_buf: Intp,
+    found_idx: Intp,
+    found_prom: F64,
+    stats: F64,
+    f_sl: F64,
+    f_range: F64,
+    pinv: F64,
+    tri: Intp,
+    n_tri: Intp,
+    mag: F64,
+    out: F64,
+) -> None:
     """:func:`step` with its scalars packed: ``fp`` (float64, ``FP_*``) and ``ip`` (intp, ``IP_*``).
     Releases the GIL: the boards of several rigs in one process step on several cores."""
     step(
-        X, c, state_f, state, ip[IP_BINS], fp[FP_POWER_FLOOR], ip[IP_S0], ip[IP_S1], fp[FP_DET],
-        ip[IP_DOMINANT] != 0, src, valid, mode, ip[IP_LO], ip[IP_HI], coef, starts, coef_t, ip[IP_IA], ip[IP_IB],
-        hs, vs, w_lin, ip[IP_WEIGHTED] != 0, fp[FP_RATIO], ip[IP_WANT], v, order_buf, found_idx, found_prom, stats,
-        ip[IP_DO_POLES] != 0, ip[IP_ON_SMOOTHED] != 0, f_sl, f_range, ip[IP_RELOCATE], ip[IP_FWHM_EXACT] != 0,
-        pinv, ip[IP_R_MAX], ip[IP_M_MAX], fp[FP_BAND], fp[FP_ZETA_MAX], fp[FP_C_MAX], ip[IP_VISCOUS] != 0,
-        tri, n_tri, mag, out,
+        X,
+        c,
+        state_f,
+        state,
+        ip[IP_BINS],
+        fp[FP_POWER_FLOOR],
+        ip[IP_S0],
+        ip[IP_S1],
+        fp[FP_DET],
+        ip[IP_DOMINANT] != 0,
+        src,
+        valid,
+        mode,
+        ip[IP_LO],
+        ip[IP_HI],
+        coef,
+        starts,
+        coef_t,
+        ip[IP_IA],
+        ip[IP_IB],
+        hs,
+        vs,
+        w_lin,
+        ip[IP_WEIGHTED] != 0,
+        fp[FP_RATIO],
+        ip[IP_WANT],
+        v,
+        order_buf,
+        found_idx,
+        found_prom,
+        stats,
+        ip[IP_DO_POLES] != 0,
+        ip[IP_ON_SMOOTHED] != 0,
+        f_sl,
+        f_range,
+        ip[IP_RELOCATE],
+        ip[IP_FWHM_EXACT] != 0,
+        pinv,
+        ip[IP_R_MAX],
+        ip[IP_M_MAX],
+        fp[FP_BAND],
+        fp[FP_ZETA_MAX],
+        fp[FP_C_MAX],
+        ip[IP_VISCOUS] != 0,
+        tri,
+        n_tri,
+        mag,
+        out,
     )
 
 
-def compiled_entry(dispatcher, args):  # type: ignore[no-untyped-def]
+def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]:
     """The compiled overload of ``dispatcher`` for exactly these argument types, to be called
     without the dispatcher's per-call type resolution (about 60 ns per argument).
 
@@ -412,29 +650,87 @@ def warm_up() -> None:
     for do_poles in (True, False):
         for _ in range(3):
             step(
-                X.view(np.float64), 1.0, state.view(np.float64), state, k, 1e-12, 0, k, 1e-3, True,
-                np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
-                10, 10 + n_range, np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp),
-                np.ones((3, n_range)) / 3.0, 0, n_range,
-                np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range), True,
-                1.0, 2, np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(2, dtype=np.intp),
-                np.zeros(2), np.zeros(4),
-                do_poles, not do_poles, np.arange(k, dtype=np.float64), np.arange(10.0, 10.0 + n_range), 1, True,
-                np.zeros((2, 3, 3)), 1, 1, 1.5, 0.5, 1.0, True, tri, np.array([0, 1], dtype=np.intp),
-                np.empty(k), np.empty((2, 6)),
+                X.view(np.float64),
+                1.0,
+                state.view(np.float64),
+                state,
+                k,
+                1e-12,
+                0,
+                k,
+                1e-3,
+                True,
+                np.zeros(k, dtype=np.complex128),
+                np.zeros(k, dtype=np.bool_),
+                np.zeros(k, dtype=np.uint8),
+                10,
+                10 + n_range,
+                np.ones((n_range, 3)) / 3.0,
+                np.arange(9, 9 + n_range, dtype=np.intp),
+                np.ones((3, n_range)) / 3.0,
+                0,
+                n_range,
+                np.zeros(n_range, dtype=np.complex128),
+                np.zeros(n_range, dtype=np.bool_),
+                np.ones(n_range),
+                True,
+                1.0,
+                2,
+                np.zeros(n_range),
+                np.zeros(n_range, dtype=np.intp),
+                np.zeros(2, dtype=np.intp),
+                np.zeros(2),
+                np.zeros(4),
+                do_poles,
+                not do_poles,
+                np.arange(k, dtype=np.float64),
+                np.arange(10.0, 10.0 + n_range),
+                1,
+                True,
+                np.zeros((2, 3, 3)),
+                1,
+                1,
+                1.5,
+                0.5,
+                1.0,
+                True,
+                tri,
+                np.array([0, 1], dtype=np.intp),
+                np.empty(k),
+                np.empty((2, 6)),
             )
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
     ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)
     for smoothed in (0, 1):
         ip[IP_ON_SMOOTHED] = smoothed
         step_packed(
-            X.view(np.float64), 1.0, fp, ip, state.view(np.float64), state,
-            np.zeros(k, dtype=np.complex128), np.zeros(k, dtype=np.bool_), np.zeros(k, dtype=np.uint8),
-            np.ones((n_range, 3)) / 3.0, np.arange(9, 9 + n_range, dtype=np.intp), np.ones((3, n_range)) / 3.0,
-            np.zeros(n_range, dtype=np.complex128), np.zeros(n_range, dtype=np.bool_), np.ones(n_range),
-            np.zeros(n_range), np.zeros(n_range, dtype=np.intp), np.zeros(2, dtype=np.intp), np.zeros(2), np.zeros(4),
-            np.arange(k, dtype=np.float64), np.arange(10.0, 10.0 + n_range), np.zeros((2, 3, 3)), tri,
-            np.array([0, 1], dtype=np.intp), np.empty(k), np.empty((2, 6)),
+            X.view(np.float64),
+            1.0,
+            fp,
+            ip,
+            state.view(np.float64),
+            state,
+            np.zeros(k, dtype=np.complex128),
+            np.zeros(k, dtype=np.bool_),
+            np.zeros(k, dtype=np.uint8),
+            np.ones((n_range, 3)) / 3.0,
+            np.arange(9, 9 + n_range, dtype=np.intp),
+            np.ones((3, n_range)) / 3.0,
+            np.zeros(n_range, dtype=np.complex128),
+            np.zeros(n_range, dtype=np.bool_),
+            np.ones(n_range),
+            np.zeros(n_range),
+            np.zeros(n_range, dtype=np.intp),
+            np.zeros(2, dtype=np.intp),
+            np.zeros(2),
+            np.zeros(4),
+            np.arange(k, dtype=np.float64),
+            np.arange(10.0, 10.0 + n_range),
+            np.zeros((2, 3, 3)),
+            tri,
+            np.array([0, 1], dtype=np.intp),
+            np.empty(k),
+            np.empty((2, 6)),
         )
 
 
@@ -447,7 +743,7 @@ _SQRT2 = math.sqrt(2.0)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _cdiv(a, b):  # type: ignore[no-untyped-def]
+def _cdiv(a: complex, b: complex) -> complex:
     """numpy's complex division (Smith's algorithm)."""
     br = b.real
     bi = b.imag
@@ -461,7 +757,7 @@ def _cdiv(a, b):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def _refine_peak(mag, k):  # type: ignore[no-untyped-def]
+def _refine_peak(mag: F64, k: int) -> tuple[float, float]:
     if 0 < k < mag.size - 1:
         a = math.log(max(mag[k - 1], _TINY))
         b = math.log(max(mag[k], _TINY))
@@ -475,7 +771,7 @@ def _refine_peak(mag, k):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def _refine_ls(mag, k, r, pinv, r_max):  # type: ignore[no-untyped-def]
+def _refine_ls(mag: F64, k: int, r: int, pinv: F64, r_max: int) -> tuple[float, float]:
     r = max(1, min(r, r_max, k, mag.size - 1 - k))
     w = 2 * r + 1
     c0 = 0.0
@@ -493,7 +789,7 @@ def _refine_ls(mag, k, r, pinv, r_max):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def _half_power(mag, f0, df, k, peak_mag, vd, check):  # type: ignore[no-untyped-def]
+def _half_power(mag: F64, f0: float, df: float, k: int, peak_mag: float, vd: Bool, check: bool) -> tuple[bool, float, float]:
     """``(ok, f_left, f_right)`` (modal._half_power, 64 bins each side)."""
     thr = peak_mag * _SQRT_HALF
     size = mag.size
@@ -528,7 +824,7 @@ def _half_power(mag, f0, df, k, peak_mag, vd, check):  # type: ignore[no-untyped
 
 
 @njit(cache=True, error_model="numpy")
-def _zeta_fwhm(bw, fp, exact):  # type: ignore[no-untyped-def]
+def _zeta_fwhm(bw: float, fp: float, exact: bool) -> float:
     if not exact:
         return bw / (2.0 * fp)
     rho = bw / fp
@@ -541,7 +837,21 @@ def _zeta_fwhm(bw, fp, exact):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, error_model="numpy")
-def _vrm(hd, fd, vd, check, k, hw, m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri):  # type: ignore[no-untyped-def]
+def _vrm(
+    hd: C128,
+    fd: F64,
+    vd: Bool,
+    check: bool,
+    k: int,
+    hw: float,
+    m_max: int,
+    band_factor: float,
+    zeta_max: float,
+    c_max: float,
+    viscous: bool,
+    tri: Intp,
+    n_tri: Intp,
+) -> tuple[bool, float, float, int]:
     """``(ok, f_n, ζ, used)`` of one peak (modal.VrmEstimator._plan and ._solve)."""
     n = hd.size
     h = max(1, int(np.rint(band_factor * hw)))
@@ -613,10 +923,28 @@ def _vrm(hd, fd, vd, check, k, hw, m_max, band_factor, zeta_max, c_max, viscous,
 
 
 @njit(cache=True, error_model="numpy")
-def poles(  # type: ignore[no-untyped-def]
-    hd, vd, all_valid, fd, offset, idx, nf, relocate, fwhm_exact, pinv, r_max,
-    m_max, band_factor, zeta_max, c_max, viscous, tri, n_tri, mag, out,
-):
+def poles(
+    hd: C128,
+    vd: Bool,
+    all_valid: bool,
+    fd: F64,
+    offset: int,
+    idx: Intp,
+    nf: int,
+    relocate: int,
+    fwhm_exact: bool,
+    pinv: F64,
+    r_max: int,
+    m_max: int,
+    band_factor: float,
+    zeta_max: float,
+    c_max: float,
+    viscous: bool,
+    tri: Intp,
+    n_tri: Intp,
+    mag: F64,
+    out: F64,
+) -> None:
     """Identifier._poles without the rational fit: ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
     ok, f_n VRM or NaN, ζ_VRM or NaN) of peak ``i``; ``mag`` ← |hd|."""
     size = hd.size

@@ -156,9 +156,7 @@ class MimoSolver:
         return self._mask(S, sl)
 
     # --------------------------------------------------------------- solves
-    def solve(
-        self, S: NDArray[np.complex128], sl: slice = slice(None)
-    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+    def solve(self, S: NDArray[np.complex128], sl: slice = slice(None)) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
         """All four transfer functions on ``sl``: ``(H[:, sl], valid[sl])`` (views)."""
         valid = self._mask(S, sl)
         H = self.H[:, sl]
@@ -184,9 +182,7 @@ class MimoSolver:
         self._dominant(S, sl, valid, H=H)
         return H, valid
 
-    def solve_source(
-        self, S: NDArray[np.complex128], source: str = "tot", sl: slice = slice(None)
-    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+    def solve_source(self, S: NDArray[np.complex128], source: str = "tot", sl: slice = slice(None)) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
         """Only the searched spectrum on ``sl``: ``H_tot`` or one ``H_ij`` (views).
 
         ``H_tot`` in one pass: with ``A = P1y1 + P1y2``, ``B = P2y1 + P2y2`` the
@@ -221,12 +217,11 @@ class MimoSolver:
         a *= self._r1[sl]
         return out, valid
 
-
     def _tot_views(self, S: NDArray[np.complex128], sl: slice) -> tuple[NDArray, ...]:
         """Views of ``S`` and the buffers on ``sl`` for :meth:`_solve_tot_mimo` (cached per ``S``, ``sl``)."""
         if self._tot_key is not None and self._tot_key[0] is S and self._tot_key[1] == sl:
             return self._tot
-        pp_all = S[P11::P22 - P11].real  # rows P11, P22: (2, K), real parts
+        pp_all = S[P11 :: P22 - P11].real  # rows P11, P22: (2, K), real parts
         pp = pp_all[:, sl]
         n = pp.shape[1]
         ab = np.empty((2, n), dtype=np.complex128)
@@ -235,9 +230,9 @@ class MimoSolver:
             pp_all,
             pp,
             S[P12, sl],
-            S[P1Y1::P2Y1 - P1Y1, sl],  # rows P1y1, P2y1
-            S[P1Y2::P2Y2 - P1Y2, sl],  # rows P1y2, P2y2
-            S[P22::P11 - P22, sl],  # rows P22, P11
+            S[P1Y1 :: P2Y1 - P1Y1, sl],  # rows P1y1, P2y1
+            S[P1Y2 :: P2Y2 - P1Y2, sl],  # rows P1y2, P2y2
+            S[P22 :: P11 - P22, sl],  # rows P22, P11
             ab,
             d,
             self._r1[sl],
@@ -251,9 +246,7 @@ class MimoSolver:
         self._tot_key = (S, sl)
         return self._tot
 
-    def _solve_tot_mimo(
-        self, S: NDArray[np.complex128], sl: slice
-    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+    def _solve_tot_mimo(self, S: NDArray[np.complex128], sl: slice) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
         """``H_tot`` of the corrected solve on ``sl`` and its mask, with as few passes as possible.
 
         The same arithmetic as :meth:`_mask` then the ``H_tot`` formula of
@@ -354,9 +347,7 @@ def solve_mimo(
     return H.copy(), valid.copy()
 
 
-def solve_uncorrelated(
-    S: NDArray[np.complex128], power_floor: float = 1e-12
-) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+def solve_uncorrelated(S: NDArray[np.complex128], power_floor: float = 1e-12) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
     """Uncorrelated-input shortcut ``H_ij = P_iyj / P_ii`` [2-25 … 2-28]."""
     solver = MimoSolver(S.shape[-1], "uncorrelated", power_floor=power_floor)
     H, valid = solver.solve(S)

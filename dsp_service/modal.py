@@ -426,9 +426,7 @@ def vrm_solve(
     return np.asarray(lam), np.asarray(cc), np.asarray(ok)
 
 
-def vrm_solve_printed(
-    ha: complex, hb: complex, hc: complex, wa: float, wb: float, wc: float
-) -> tuple[complex, complex]:
+def vrm_solve_printed(ha: complex, hb: complex, hc: complex, wa: float, wb: float, wc: float) -> tuple[complex, complex]:
     """[C-12] exactly as printed, solved for ``[λ; C]`` (wrong: returns ``(C, λ)`` in truth)."""
     wa2, wb2, wc2 = wa * wa, wb * wb, wc * wc
     dba, dca, dcb = hb - ha, hc - ha, hc - hb
@@ -540,9 +538,7 @@ class VrmEstimator:
         self.zeta_max = float(zeta_max)
         self.model = model
         zm = self.zeta_max
-        self._im_over_re_max = (
-            math.tan(2.0 * math.atan(zm)) if model == "viscous" and zm < 1.0 else (2.0 * zm if model == "hysteretic" else math.inf)
-        )
+        self._im_over_re_max = math.tan(2.0 * math.atan(zm)) if model == "viscous" and zm < 1.0 else (2.0 * zm if model == "hysteretic" else math.inf)
         #: per m: the triplets (a, b, c) of the 2m + 1 points, as offsets −m … m in strides
         self._triplets = [np.zeros((0, 3), dtype=np.intp)]
         for m in range(1, self.m_max + 1):
@@ -568,9 +564,7 @@ class VrmEstimator:
         """
         return self.estimate_many(H, freqs, [k], [half_width_bins], valid)[0]
 
-    def _plan(
-        self, n: int, k: int, half_width_bins: float, valid: NDArray[np.bool_] | None
-    ) -> tuple[int, int] | None:
+    def _plan(self, n: int, k: int, half_width_bins: float, valid: NDArray[np.bool_] | None) -> tuple[int, int] | None:
         """Points per side ``m`` and stride for a peak at ``k``, or ``None`` if no band fits."""
         h = max(1, round(self.band_factor * half_width_bins))  # round(float) is an int
         h = min(h, k, n - 1 - k)

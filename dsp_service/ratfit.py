@@ -44,7 +44,8 @@ def fit_mode(
     s = 2j * math.pi * np.asarray(freqs_hz, dtype=np.float64)
     w = np.ones((m, b)) if weights is None else np.asarray(weights, dtype=np.float64)
     n_par = 2 + 3 * m
-    a1 = a0 = None
+    a1 = 0.0
+    a0: float | None = None  # None until the first pass has fitted the denominator
     for _ in range(max(1, iterations)):
         if a0 is None:
             sk = np.ones(b)
@@ -74,6 +75,7 @@ def fit_mode(
         a1, a0 = float(x[0]), float(x[1])
         if not (a0 > 0.0 and math.isfinite(a0) and math.isfinite(a1)):
             return None
+    assert a0 is not None  # the loop runs at least once and sets a0 or returns
     wn = math.sqrt(a0)
     zeta = a1 / (2.0 * wn)
     if not 0.0 < zeta < 1.0:

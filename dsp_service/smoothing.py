@@ -26,11 +26,16 @@ estimates upward (§2.4.1); see the identifier's ``estimate_on_smoothed``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TypeVar, cast
 
 import numpy as np
 import scipy.signal
 from numpy.lib.stride_tricks import as_strided
 from numpy.typing import NDArray
+
+#: The spectra smoothed: real (float64) or complex (complex128) bins; the result has the input's dtype.
+#: (Bound by np.inexact, not constrained to the two, so a buffer whose dtype is chosen at run time passes too.)
+_Bins = TypeVar("_Bins", bound=np.inexact)
 
 
 def _windows(x: NDArray[np.generic], start: int, count: int, width: int) -> NDArray[np.float64]:
@@ -51,9 +56,12 @@ def _windows(x: NDArray[np.generic], start: int, count: int, width: int) -> NDAr
     return w
 
 
-def _as_float(a: NDArray[np.generic]) -> NDArray[np.float64]:
+def _as_float(a: NDArray[np.inexact]) -> NDArray[np.float64]:
     """``a`` as float rows: complex ``(m,)`` → ``(m, 2)`` (re, im); real unchanged."""
-    return a.view(np.float64).reshape(-1, 2) if np.iscomplexobj(a) else a
+    if np.iscomplexobj(a):
+        return a.view(np.float64).reshape(-1, 2)
+    # not complex: the real float64 bins (iscomplexobj does not narrow the type)
+    return cast(NDArray[np.float64], a)
 
 
 class FrequencySmoother:
@@ -78,19 +86,13 @@ class FrequencySmoother:
         # 'dot' coefficients: estimate at window position pos = Σ c[j] x[start + j]
         self.centre = scipy.signal.savgol_coeffs(w, self.order, pos=h, use="dot")
         self._all_valid = np.ones(self.n_bins, dtype=bool)
-        self.edge_lo = np.stack(
-            [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]
-        ) if h else np.zeros((0, w))
-        self.edge_hi = np.stack(
-            [scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h + 1, w)]
-        ) if h else np.zeros((0, w))
+        self.edge_lo = np.stack([scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]) if h else np.zeros((0, w))
+        self.edge_hi = np.stack([scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h + 1, w)]) if h else np.zeros((0, w))
         # first bin of the fitting window used for each output bin
         self._starts = np.clip(np.arange(self.n_bins) - h, 0, self.n_bins - w)
 
     # ------------------------------------------------------------------ values
-    def range_plan(
-        self, x: NDArray[np.generic], lo: int, hi: int
-    ) -> Callable[[], NDArray[np.generic]]:
+    def range_plan(self, x: NDArray[_Bins], lo: int, hi: int) -> Callable[[], NDArray[_Bins]]:
         """A prepared :meth:`smooth_range` of the buffer ``x`` (contiguous, shape ``(K,)``) over ``lo … hi−1``.
 
         Calling the plan smooths the *current* contents of ``x`` into an
@@ -110,7 +112,7 @@ class FrequencySmoother:
         if not self.enabled:
             src = x[lo:hi]
 
-            def copy() -> NDArray[np.generic]:
+            def copy() -> NDArray[_Bins]:
                 np.copyto(out, src)
                 return out
 
@@ -134,27 +136,27 @@ class FrequencySmoother:
         if len(parts) == 1:
             only = parts[0]
 
-            def run1() -> NDArray[np.generic]:
+            def run1() -> NDArray[_Bins]:
                 only()
                 return out
 
             return run1
 
-        def run() -> NDArray[np.generic]:
+        def run() -> NDArray[_Bins]:
             for part in parts:
                 part()
             return out
 
         return run
 
-    def smooth_range(self, x: NDArray[np.generic], lo: int, hi: int) -> NDArray[np.generic]:
+    def smooth_range(self, x: NDArray[_Bins], lo: int, hi: int) -> NDArray[_Bins]:
         """Smoothed values of the 1-D spectrum ``x`` at bins ``lo … hi−1`` (a new array)."""
         k = self.n_bins
         if x.shape != (k,):
             raise ValueError(f"expected shape ({k},), got {x.shape}")
         return self.range_plan(np.ascontiguousarray(x), lo, hi)().copy()
 
-    def smooth(self, x: NDArray[np.generic]) -> NDArray[np.generic]:
+    def smooth(self, x: NDArray[_Bins]) -> NDArray[_Bins]:
         """Smooth every bin of ``x`` (shape ``(K,)`` or ``(m, K)``); returns a new array."""
         if x.ndim == 1:
             return self.smooth_range(x, 0, self.n_bins)

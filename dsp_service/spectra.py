@@ -57,7 +57,7 @@ def make_window(window: WindowSpec, n: int) -> NDArray[np.float64]:
 
 def rfft_frequencies(n: int, sample_rate_hz: float) -> NDArray[np.float64]:
     """Bin centre frequencies (Hz) of a length-``n`` real FFT."""
-    return np.fft.rfftfreq(n, d=1.0 / sample_rate_hz)
+    return np.asarray(np.fft.rfftfreq(n, d=1.0 / sample_rate_hz), dtype=np.float64)  # float64 already: no copy
 
 
 def rfft_rows(x: NDArray[np.float64], out: NDArray[np.complex128] | None = None) -> NDArray[np.complex128]:

@@ -40,9 +40,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--quick", action="store_true", help="short runs (fewer points, draws, a shorter trajectory)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run the experiments' rigs on this Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster, started when an experiment needs it)")
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the experiments' rigs on this Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster, started when an experiment needs it)",
+    )
     p.add_argument("--workers", type=int, default=None, metavar="N", help="worker processes of the local cluster (default: one per core)")
-    p.add_argument("--record", action="store_true", help="also record every rig run (co-simulated or three-process) into DIR/records/<run>.mcap (ralf-hil replay/plot read them)")
+    p.add_argument(
+        "--record",
+        action="store_true",
+        help="also record every rig run (co-simulated or three-process) into DIR/records/<run>.mcap (ralf-hil replay/plot read them)",
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -50,8 +59,7 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "experiment",
         help="reproduce the thesis's figures and experiments into a Markdown report",
-        description="Run one experiment (or all) and write report.md, PNG figures and results.json. "
-        "Use --list to see them.",
+        description="Run one experiment (or all) and write report.md, PNG figures and results.json. Use --list to see them.",
     )
     add_arguments(p)
     p.set_defaults(func=cmd_experiment)
@@ -100,9 +108,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         return 2
     out = Path(args.out) if args.out else DEFAULT_OUT_ROOT / args.name
     try:
-        outcome = run_experiment(
-            args.name, out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record
-        )
+        outcome = run_experiment(args.name, out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record)
     except ExperimentError as exc:
         err_console.print(f"ralf-hil experiment: {exc}", highlight=False)
         return 2

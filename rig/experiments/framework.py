@@ -24,10 +24,10 @@ import pkgutil
 import time
 import traceback
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sized
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from difflib import get_close_matches
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
@@ -85,7 +85,7 @@ class Experiment:
     """The thesis section/figures it reproduces, e.g. ``§3.3, Figs. 3.7-3.8``."""
     description: str
     """One line for ``--list`` and the index."""
-    run: Callable[["ExperimentContext"], "Report"]
+    run: Callable[[ExperimentContext], Report]
     needs_rig: bool = False
     """True if it starts the rig (plant, controller, DSP); ``--mode`` matters only then."""
     module: str = ""
@@ -98,7 +98,7 @@ _DISCOVERED = False
 
 def experiment(
     name: str, *, section: str, description: str, needs_rig: bool = False
-) -> Callable[[Callable[["ExperimentContext"], "Report"]], Callable[["ExperimentContext"], "Report"]]:
+) -> Callable[[Callable[[ExperimentContext], Report]], Callable[[ExperimentContext], Report]]:
     """Register ``run(ctx) -> Report`` as an experiment (decorator; returns the function unchanged).
 
     ::
@@ -114,7 +114,7 @@ def experiment(
     if "\n" in description:
         raise ValueError("the description is one line")
 
-    def deco(func: Callable[["ExperimentContext"], "Report"]) -> Callable[["ExperimentContext"], "Report"]:
+    def deco(func: Callable[[ExperimentContext], Report]) -> Callable[[ExperimentContext], Report]:
         old = _REGISTRY.get(name)
         if old is not None and (old.module, old.run.__qualname__) != (func.__module__, func.__qualname__):
             raise ValueError(f"experiment {name!r} is already registered by {old.module}")
@@ -165,9 +165,7 @@ def get_experiment(name: str) -> Experiment:
         known = sorted(_REGISTRY)
         close = get_close_matches(name, known + [ALL], n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise UnknownExperimentError(
-            f"unknown experiment {name!r}{hint}; known: {', '.join(known + [ALL])} (see --list)"
-        ) from None
+        raise UnknownExperimentError(f"unknown experiment {name!r}{hint}; known: {', '.join(known + [ALL])} (see --list)") from None
 
 
 # --------------------------------------------------------------------------- context
@@ -209,7 +207,7 @@ class ExperimentContext:
         p.parent.mkdir(parents=True, exist_ok=True)
         return p
 
-    def report(self, title: str) -> "Report":
+    def report(self, title: str) -> Report:
         """A :class:`~rig.experiments.report.Report` writing into :attr:`out_dir`."""
         from rig.experiments.report import Report
 
@@ -241,8 +239,8 @@ class ExperimentContext:
 
     def progress(self, items: Iterable[T], description: str = "", total: int | None = None) -> Iterator[T]:
         """Iterate ``items`` under a rich progress bar (``for x in ctx.progress(xs, "noise draws")``)."""
-        if total is None and hasattr(items, "__len__"):
-            total = len(items)  # type: ignore[arg-type]
+        if total is None and isinstance(items, Sized):
+            total = len(items)
         with self._progress() as prog:
             task = prog.add_task(description or "working", total=total)
             for item in items:
@@ -341,7 +339,7 @@ def run_experiment(
             quick=quick,
             needs_rig=exp.needs_rig,
             runtime_s=round(runtime, 3),
-            finished_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            finished_utc=datetime.now(UTC).isoformat(timespec="seconds"),
         )
         report_path, results_path = report.write()
     except Exception as exc:
@@ -350,14 +348,27 @@ def run_experiment(
         runtime = time.perf_counter() - started
         error_file.write_text(traceback.format_exc(), encoding="utf-8")
         return RunOutcome(
-            exp.name, "error", out, runtime, error=f"{type(exc).__name__}: {exc}",
-            section=exp.section, description=exp.description,
+            exp.name,
+            "error",
+            out,
+            runtime,
+            error=f"{type(exc).__name__}: {exc}",
+            section=exp.section,
+            description=exp.description,
         )
     passed = sum(1 for c in report.checks if c.passed)
     status: Literal["ok", "checks failed"] = "ok" if passed == len(report.checks) else "checks failed"
     return RunOutcome(
-        exp.name, status, out, runtime, report_path, results_path, passed, len(report.checks),
-        section=exp.section, description=exp.description,
+        exp.name,
+        status,
+        out,
+        runtime,
+        report_path,
+        results_path,
+        passed,
+        len(report.checks),
+        section=exp.section,
+        description=exp.description,
     )
 
 
@@ -384,26 +395,21 @@ def run_all(
     outcomes = []
     for exp in chosen:
         console.print(f"[bold]experiment {exp.name}[/bold] ({exp.section})", highlight=False)
-        outcome = run_experiment(
-            exp.name, out / exp.name, seed=seed, mode=mode, quick=quick, console=console, show_progress=show_progress, record=record
-        )
+        outcome = run_experiment(exp.name, out / exp.name, seed=seed, mode=mode, quick=quick, console=console, show_progress=show_progress, record=record)
         console.print(f"  {outcome.status} in {outcome.runtime_s:.1f} s" + (f": {outcome.error}" if outcome.error else ""))
         outcomes.append(outcome)
     index = write_index(out, outcomes, broken_modules(), seed=seed, mode=mode, quick=quick)
     return outcomes, index
 
 
-def write_index(
-    out_dir: Path, outcomes: list[RunOutcome], broken: dict[str, str], *, seed: int, mode: str, quick: bool
-) -> Path:
+def write_index(out_dir: Path, outcomes: list[RunOutcome], broken: dict[str, str], *, seed: int, mode: str, quick: bool) -> Path:
     """``index.md`` (and ``index.json``) linking every report, with status and runtime."""
     import json
 
     lines = [
         "# ralf-hil experiments",
         "",
-        f"Seed {seed}, mode {mode}, {'quick' if quick else 'full'} runs. "
-        f"{sum(o.ok for o in outcomes)} of {len(outcomes)} experiments ok.",
+        f"Seed {seed}, mode {mode}, {'quick' if quick else 'full'} runs. {sum(o.ok for o in outcomes)} of {len(outcomes)} experiments ok.",
         "",
         "| experiment | thesis | status | checks | runtime (s) | report |",
         "| --- | --- | --- | --- | ---: | --- |",

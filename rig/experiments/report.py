@@ -97,24 +97,24 @@ class Report:
         self._body: list[str] = []
 
     # -- content --------------------------------------------------------------------------
-    def heading(self, text: str, level: int = 2) -> "Report":
+    def heading(self, text: str, level: int = 2) -> Report:
         """A Markdown heading (level 2 by default; the title is the only level 1)."""
         if not 1 <= level <= 6:
             raise ValueError("heading level must be 1..6")
         self._body += ["", "#" * level + " " + text, ""]
         return self
 
-    def text(self, *paragraphs: str) -> "Report":
+    def text(self, *paragraphs: str) -> Report:
         """Paragraphs of Markdown."""
         for p in paragraphs:
             self._body += [p.strip(), ""]
         return self
 
-    def bullets(self, items: Sequence[str]) -> "Report":
+    def bullets(self, items: Sequence[str]) -> Report:
         self._body += [f"- {item}" for item in items] + [""]
         return self
 
-    def code(self, text: str, lang: str = "") -> "Report":
+    def code(self, text: str, lang: str = "") -> Report:
         self._body += [f"```{lang}", text.rstrip("\n"), "```", ""]
         return self
 
@@ -125,7 +125,7 @@ class Report:
         caption: str | None = None,
         align: str | None = None,
         digits: int = 4,
-    ) -> "Report":
+    ) -> Report:
         """A Markdown table; numbers are formatted with :func:`fmt` (strings are kept as given).
 
         ``align``: one of 'l', 'r', 'c' per column (default: right for numeric columns, left otherwise).
@@ -133,10 +133,7 @@ class Report:
         if any(len(r) != len(headers) for r in rows):
             raise ValueError("every row needs one cell per header")
         if align is None:  # numbers right, text left
-            align = "".join(
-                "r" if rows and all(not isinstance(r[i], str) or r[i] in ("–", "") for r in rows) else "l"
-                for i in range(len(headers))
-            )
+            align = "".join("r" if rows and all(not isinstance(r[i], str) or r[i] in ("–", "") for r in rows) else "l" for i in range(len(headers)))
         marks = {"l": "---", "r": "---:", "c": ":---:"}
         if caption:
             self._body += [f"*{caption}*", ""]
@@ -162,7 +159,7 @@ class Report:
             self._body += [f"*{caption}*", ""]
         return path
 
-    def attach(self, path: str | Path, description: str) -> "Report":
+    def attach(self, path: str | Path, description: str) -> Report:
         """List a file the experiment wrote (a run record, raw data) in the report and results.json."""
         p = Path(path)
         rel = p.relative_to(self.out_dir) if p.is_absolute() and p.is_relative_to(self.out_dir) else p
@@ -174,7 +171,7 @@ class Report:
         self.checks.append(Check(name, bool(passed), detail))
         return bool(passed)
 
-    def thesis(self, claim: str, observed: str, agrees: bool | str | None = None) -> "Report":
+    def thesis(self, claim: str, observed: str, agrees: bool | str | None = None) -> Report:
         """One row of the comparison with what the thesis reports (qualitatively)."""
         self.comparisons.append(ThesisComparison(claim, observed, agrees))
         return self
@@ -237,9 +234,7 @@ class Report:
             "meta": to_jsonable(self.meta),
             "results": to_jsonable(self.results),
             "checks": [{"name": c.name, "passed": c.passed, "detail": c.detail} for c in self.checks],
-            "thesis_comparison": [
-                {"claim": c.claim, "observed": c.observed, "agrees": c.agrees} for c in self.comparisons
-            ],
+            "thesis_comparison": [{"claim": c.claim, "observed": c.observed, "agrees": c.agrees} for c in self.comparisons],
             "figures": list(self.figures),
             "attachments": list(self.attachments),
         }

@@ -77,9 +77,7 @@ def make_system(
     return DiscreteSystem(tuple(tf), fs)
 
 
-def correlated_inputs(
-    n: int, seed: int = 1, coupling: float = 0.9, delay: int = 3, fs: float = FS
-) -> NDArray[np.float64]:
+def correlated_inputs(n: int, seed: int = 1, coupling: float = 0.9, delay: int = 3, fs: float = FS) -> NDArray[np.float64]:
     """``(2, n)`` band-limited inputs with low-frequency emphasis (like trajectory commands).
 
     ``u2 = coupling · u1(t − delay) + √(1 − coupling²) · (independent, same spectrum)``.
@@ -97,9 +95,7 @@ def correlated_inputs(
     return np.vstack([u1, u2])
 
 
-def dataset(
-    n: int, seed: int = 1, coupling: float = 0.9, noise: float = 0.02
-) -> tuple[DiscreteSystem, NDArray[np.float64], NDArray[np.float64]]:
+def dataset(n: int, seed: int = 1, coupling: float = 0.9, noise: float = 0.02) -> tuple[DiscreteSystem, NDArray[np.float64], NDArray[np.float64]]:
     """System, inputs and noisy outputs (white noise of ``noise`` × each output's std)."""
     sys_ = make_system()
     u = correlated_inputs(n, seed, coupling)

@@ -87,16 +87,16 @@ def test_settles_within_a_second_after_a_step_of_the_mode() -> None:
         m.update(u[:, s : s + 20], y[:, s : s + 20])
         ps = [p.frequency_hz for p in m.poles() if 2.0 < p.frequency_hz < 5.0]
         f1.append(ps[0] if ps else math.nan)
-    f1 = np.array(f1)
-    t = (np.arange(f1.size) + 1) * 20 / FS
+    track = np.array(f1)
+    t = (np.arange(track.size) + 1) * 20 / FS
     after = t > n / 2 / FS
     target = 3.6 * 0.905
     # as id-lag reads it: a centred running median (±0.25 s) that stays within 2 % for 2 s
-    med = np.array([np.nanmedian(f1[max(0, k - 12) : k + 13]) for k in range(f1.size)])
+    med = np.array([np.nanmedian(track[max(0, k - 12) : k + 13]) for k in range(track.size)])
     ok = np.abs(med / target - 1) <= 0.02
     hold = int(2.0 * FS / 20)
     idx = np.flatnonzero(after)
-    settle = next((t[k] for k in idx if k + hold < f1.size and ok[k : k + hold + 1].all()), math.inf)
+    settle = next((t[k] for k in idx if k + hold < track.size and ok[k : k + hold + 1].all()), math.inf)
     assert settle - n / 2 / FS <= 1.0
 
 

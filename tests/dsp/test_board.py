@@ -9,8 +9,16 @@ from protocol.batch_codec import SampleBatch
 
 
 def _batch(seq: int, first_tick: int, n: int = 20, dropped: int = 0) -> SampleBatch:
-    return SampleBatch(seq=seq, first_tick=first_tick, sample_rate_hz=200.0, sim_time_s=first_tick / 200.0, wall_time_s=0.0,
-                       inputs=np.zeros((2, n)), outputs=np.zeros((2, n)), dropped_before=dropped)
+    return SampleBatch(
+        seq=seq,
+        first_tick=first_tick,
+        sample_rate_hz=200.0,
+        sim_time_s=first_tick / 200.0,
+        wall_time_s=0.0,
+        inputs=np.zeros((2, n)),
+        outputs=np.zeros((2, n)),
+        dropped_before=dropped,
+    )
 
 
 def test_consecutive_batches_are_admitted_and_release_empties_the_block() -> None:

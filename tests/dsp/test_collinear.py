@@ -33,7 +33,7 @@ def kernel(request: pytest.FixtureRequest) -> str:
 
 def _run(u: np.ndarray, y: np.ndarray, **cfg: object) -> Identifier:
     cfg = {"kernel": _KERNEL["kernel"], **cfg}
-    idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", **cfg))  # type: ignore[arg-type]
+    idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", **cfg))
     for s in range(0, u.shape[1], BATCH):
         idf.push(u[:, s : s + BATCH], y[:, s : s + BATCH])
         idf.step()

@@ -140,9 +140,7 @@ def test_savgol_on_complex_keeps_the_imaginary_part() -> None:
     x = rng.standard_normal(300) + 1j * rng.standard_normal(300)
     sm = FrequencySmoother(300, 17, 2)
     got = sm.smooth(x)
-    ref = scipy.signal.savgol_filter(x.real, 17, 2, mode="interp") + 1j * scipy.signal.savgol_filter(
-        x.imag, 17, 2, mode="interp"
-    )
+    ref = scipy.signal.savgol_filter(x.real, 17, 2, mode="interp") + 1j * scipy.signal.savgol_filter(x.imag, 17, 2, mode="interp")
     np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-12)
     imag_only = sm.smooth(1j * x.imag)
     assert np.all(imag_only.real == 0) and np.abs(imag_only.imag).max() > 0.1
@@ -198,13 +196,18 @@ def test_config_is_frozen_and_defaults() -> None:
     cfg = IdentifierConfig()
     assert (cfg.fft_width, cfg.alpha, cfg.smoothing_window, cfg.smoothing_order) == (2048, 0.1, 17, 2)
     with pytest.raises(pydantic.ValidationError):
-        cfg.alpha = 0.2  # type: ignore[misc]
+        cfg.alpha = 0.2  # type: ignore[misc]  # writing the frozen field is the test
 
 
 def test_smoothing_off_and_estimate_on_smoothed_paths_run() -> None:
     _, u, y = dataset(30 * N, seed=4)
-    for kw in (dict(smoothing_window=0), dict(estimate_on_smoothed=True), dict(peak_source="21"),
-               dict(damping_method="fwhm", fwhm_exact=False), dict(log_weighting=False)):
+    for kw in (
+        dict(smoothing_window=0),
+        dict(estimate_on_smoothed=True),
+        dict(peak_source="21"),
+        dict(damping_method="fwhm", fwhm_exact=False),
+        dict(log_weighting=False),
+    ):
         idf = Identifier(IdentifierConfig(fft_width=N, **kw))
         for s in range(0, u.shape[1], N // 2):
             idf.push(u[:, s : s + N // 2], y[:, s : s + N // 2])
@@ -219,8 +222,7 @@ def test_smoothing_off_and_estimate_on_smoothed_paths_run() -> None:
 # ------------------------------------------------------------------------- bench
 def test_bench_returns_the_documented_structure() -> None:
     out = bench_identifier(n=256, repeats=5)
-    for key in ("step_p50_us", "step_p99_us", "floor_p50_us", "floor_p99_us", "ratio_p50", "ratio_p99",
-                "c40_fraction"):
+    for key in ("step_p50_us", "step_p99_us", "floor_p50_us", "floor_p99_us", "ratio_p50", "ratio_p99", "c40_fraction"):
         assert isinstance(out[key], float) and out[key] > 0, key
     assert out["n"] == 256 and out["repeats"] == 5
     assert isinstance(out["poles_found"], int)

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 from itertools import combinations
+from typing import Literal
 
 import numpy as np
 import pytest
 import scipy.signal
 
 import dsp_service.spectra as spectra
-from dsp_service.identifier import Identifier, IdentifierConfig
+from dsp_service.identifier import Identifier, IdentifierConfig, KernelName
 from dsp_service.mimo import MimoSolver, solve_mimo
 from dsp_service.modal import VrmEstimator, find_modal_peaks, log_weights_db, vrm_lambda, vrm_modal_scalar
 from dsp_service.smoothing import FrequencySmoother
@@ -19,7 +20,7 @@ from dsp_service.spectra import SpectralEstimator, rfft_rows
 from .synth import dataset
 
 FS, N = 200.0, 2048
-FREQS = np.fft.rfftfreq(N, 1.0 / FS)
+FREQS = np.asarray(np.fft.rfftfreq(N, 1.0 / FS), dtype=np.float64)  # float64 (the stub says floating)
 
 
 # ------------------------------------------------------------------- spectra
@@ -130,7 +131,7 @@ def _vrm_reference(est: VrmEstimator, H, freqs, k, half_width, valid):
 
 @pytest.mark.parametrize("model", ["viscous", "hysteretic"])
 @pytest.mark.parametrize("m_max", [2, 5, 10])
-def test_vrm_all_peaks_at_once_equals_the_triplet_by_triplet_definition(model: str, m_max: int) -> None:
+def test_vrm_all_peaks_at_once_equals_the_triplet_by_triplet_definition(model: Literal["viscous", "hysteretic"], m_max: int) -> None:
     rng = np.random.default_rng(m_max)
     wn1, wn2 = 2 * np.pi * 3.6, 2 * np.pi * 9.0
     w = 2 * np.pi * FREQS
@@ -205,10 +206,10 @@ def _step_reference(idf: Identifier) -> list[tuple]:
 
 @pytest.mark.parametrize("kernel", ["numpy", "numba"])
 @pytest.mark.parametrize("seed", [1, 3])
-def test_step_equals_its_definition_from_the_public_building_blocks(seed: int, kernel: str) -> None:
+def test_step_equals_its_definition_from_the_public_building_blocks(seed: int, kernel: KernelName) -> None:
     n = 1024
     _, u, y = dataset(40 * n, seed=seed)
-    idf = Identifier(IdentifierConfig(fft_width=n, kernel=kernel))  # type: ignore[arg-type]
+    idf = Identifier(IdentifierConfig(fft_width=n, kernel=kernel))
     checked = with_vrm = 0
     for s in range(0, u.shape[1], n // 8):
         idf.push(u[:, s : s + n // 8], y[:, s : s + n // 8])

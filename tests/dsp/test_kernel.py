@@ -21,8 +21,17 @@ from .synth import FS, dataset, make_system
 N = 512
 RTOL = 1e-12
 _POLE_FIELDS = (
-    "frequency_hz", "damping_ratio", "damping_fwhm", "damping_vrm", "natural_frequency_vrm_hz",
-    "magnitude", "prominence_db", "confidence", "damping_fit", "damping_defined", "source",
+    "frequency_hz",
+    "damping_ratio",
+    "damping_fwhm",
+    "damping_vrm",
+    "natural_frequency_vrm_hz",
+    "magnitude",
+    "prominence_db",
+    "confidence",
+    "damping_fit",
+    "damping_defined",
+    "source",
 )
 
 
@@ -128,4 +137,4 @@ def test_compiled_step_returns_ordinary_result_objects() -> None:
     rebuilt = dataclasses.replace(r, poles=tuple(dataclasses.replace(p) for p in r.poles))
     assert rebuilt == r and [dataclasses.asdict(p) for p in r.poles] == [dataclasses.asdict(p) for p in rebuilt.poles]
     with pytest.raises(dataclasses.FrozenInstanceError):
-        r.poles[0].frequency_hz = 1.0  # type: ignore[misc]
+        r.poles[0].frequency_hz = 1.0  # type: ignore[misc]  # writing the frozen field is the test

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -29,7 +29,7 @@ def _run(cfg: IdentifierConfig, u: np.ndarray, y: np.ndarray, batch: int = N // 
     return idf, result
 
 
-@lru_cache(maxsize=None)
+@cache
 def _true_htot_peaks() -> tuple[float, ...]:
     """Peak frequencies of the true |H_tot| on a fine grid."""
     f = np.linspace(0.5, 40.0, 200_001)

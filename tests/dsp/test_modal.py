@@ -27,7 +27,7 @@ from dsp_service.modal import (
 )
 
 FS, N = 200.0, 2048
-FREQS = np.fft.rfftfreq(N, 1.0 / FS)
+FREQS = np.asarray(np.fft.rfftfreq(N, 1.0 / FS), dtype=np.float64)  # float64 (the stub says floating)
 DF = FREQS[1]
 
 
@@ -103,8 +103,10 @@ def test_vrm_hysteretic_reading_is_biased_on_viscous_modes() -> None:
     fn, zeta = 3.6, 0.09
     H = viscous_frf(fn, zeta)
     k = int(np.argmax(np.abs(H)))
-    f_h, _, _ = VrmEstimator(model="hysteretic").estimate(H, FREQS, k, zeta * fn / DF)
-    f_v, _, _ = VrmEstimator(model="viscous").estimate(H, FREQS, k, zeta * fn / DF)
+    est_h = VrmEstimator(model="hysteretic").estimate(H, FREQS, k, zeta * fn / DF)
+    est_v = VrmEstimator(model="viscous").estimate(H, FREQS, k, zeta * fn / DF)
+    assert est_h is not None and est_v is not None
+    f_h, f_v = est_h[0], est_v[0]
     assert f_h / fn - 1 == pytest.approx(-(zeta**2), rel=0.1)
     assert abs(f_v / fn - 1) < 1e-3
 

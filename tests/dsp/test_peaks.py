@@ -95,7 +95,7 @@ def _find_modal_peaks_with_scipy(mag, freqs, weights_db, max_peaks, min_prom):
 @pytest.mark.parametrize("max_peaks,min_prom", [(2, 3.0), (4, 0.5), (1, 20.0), (6, 0.0)])
 def test_find_modal_peaks_equals_the_scipy_version(seed: int, max_peaks: int, min_prom: float) -> None:
     rng = np.random.default_rng(100 + seed)
-    f = np.fft.rfftfreq(2048, 1 / 200.0)[5:410]
+    f = np.asarray(np.fft.rfftfreq(2048, 1 / 200.0)[5:410], dtype=np.float64)  # float64 (the stub says floating)
     mag = 1.0 / np.abs((3.6**2 - f**2) + 0.6j * f) + 0.4 / np.abs((9.0**2 - f**2) + 0.9j * f)
     mag = np.abs(mag * (1.0 + (0.02 + 0.1 * seed / 8) * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size))))
     for weights in (None, log_weights_db(f, 0.5, 0.5)):

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import pytest
 import scipy.signal
 
 from dsp_service.history import HistoryBuffer
-from dsp_service.identifier import Identifier, IdentifierConfig
+from dsp_service.identifier import Identifier, IdentifierConfig, KernelName
 from dsp_service.spectra import SPECTRA_NAMES, SpectralEstimator
 
 FS = 200.0
@@ -62,7 +64,13 @@ def test_single_snapshot_ffts_and_raw_spectra_match_scipy() -> None:
     for i, name in enumerate(SPECTRA_NAMES):
         a, b = PAIRS[name]
         _, ref = scipy.signal.csd(
-            x[a], x[b], fs=FS, window="hann", nperseg=N, noverlap=0, detrend="constant",
+            x[a],
+            x[b],
+            fs=FS,
+            window="hann",
+            nperseg=N,
+            noverlap=0,
+            detrend="constant",
             scaling="spectrum",
         )
         ours = raw[i] * scale
@@ -72,10 +80,10 @@ def test_single_snapshot_ffts_and_raw_spectra_match_scipy() -> None:
 
 @pytest.mark.parametrize("kernel", ["numba", "numpy"])
 @pytest.mark.parametrize("scaling", ["density", "spectrum"])
-def test_welch_averaged_spectra_and_h_match_scipy(scaling: str, kernel: str) -> None:
+def test_welch_averaged_spectra_and_h_match_scipy(scaling: Literal["density", "spectrum"], kernel: KernelName) -> None:
     segments = 12
     x = _data(N + (segments - 1) * (N // 2))
-    idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", smoothing_window=0, kernel=kernel))  # type: ignore[arg-type]
+    idf = Identifier(IdentifierConfig(fft_width=N, averaging="linear", smoothing_window=0, kernel=kernel))
     idf.push(x[:2, :N], x[2:, :N])
     idf.step()
     for s in range(N, x.shape[1], N // 2):
@@ -86,12 +94,16 @@ def test_welch_averaged_spectra_and_h_match_scipy(scaling: str, kernel: str) -> 
     ref: dict[str, np.ndarray] = {}
     for name, (a, b) in PAIRS.items():
         freqs, ref[name] = scipy.signal.csd(
-            x[a], x[b], fs=FS, window="hann", nperseg=N, noverlap=N // 2, detrend="constant",
+            x[a],
+            x[b],
+            fs=FS,
+            window="hann",
+            nperseg=N,
+            noverlap=N // 2,
+            detrend="constant",
             scaling=scaling,
         )
-        np.testing.assert_allclose(
-            ours[name], ref[name], rtol=1e-10, atol=1e-12 * np.abs(ref[name]).max(), err_msg=name
-        )
+        np.testing.assert_allclose(ours[name], ref[name], rtol=1e-10, atol=1e-12 * np.abs(ref[name]).max(), err_msg=name)
     # auto spectra equal welch (real)
     _, p11 = scipy.signal.welch(x[0], fs=FS, nperseg=N, scaling=scaling)
     np.testing.assert_allclose(ours["P11"].real, p11, rtol=1e-10)

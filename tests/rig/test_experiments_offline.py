@@ -11,13 +11,13 @@ import pytest
 from rig.experiments import (
     Experiment,
     UnknownExperimentError,
+    framework,
     get_experiment,
     list_experiments,
     run_all,
     run_experiment,
 )
 from rig.experiments import cli as exp_cli
-from rig.experiments import framework
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 OFFLINE = ("oatf-response", "fwhm-error", "vrm", "simulation")
@@ -132,7 +132,9 @@ def test_all_reports_errors_in_the_index(tmp_path: Path, monkeypatch: pytest.Mon
 def test_oatf_response(tmp_path: Path) -> None:
     res = _run("oatf-response", tmp_path)
     report = _check_structure(
-        tmp_path, res, ["1. Integer delay versus continuous delay: 51 Hz at 500 Hz (Figs. 3.7, 3.8)", "2. OATF for a 4.4 Hz mode"],
+        tmp_path,
+        res,
+        ["1. Integer delay versus continuous delay: 51 Hz at 500 Hz (Figs. 3.7, 3.8)", "2. OATF for a 4.4 Hz mode"],
         ["example_51hz", "arm_4p4hz"],
     )
     assert "| design | coefficients a0, a1, a2 | \\|F(51 Hz)\\|" in report

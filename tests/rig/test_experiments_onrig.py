@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.experiments import get_experiment, list_experiments, run_experiment
-from rig.experiments import framework
+from rig.experiments import framework, get_experiment, list_experiments, run_experiment
 from rig.experiments.framework import ExperimentContext
 from rig.experiments.onrig.runner import RigRun, RigRunError, costs_over, lap_seconds, run_rig
 
@@ -112,7 +111,9 @@ def test_runner_reports_a_failing_service_with_its_log(tmp_path: Path) -> None:
 def test_verify_quick(tmp_path: Path) -> None:
     out = tmp_path / "verify"
     results = _run("verify", out)
-    _check_structure(out, results, ["Run", "Implementation check (§4.1.1)", "Algorithm check (§4.1.2)"], ["implementation", "algorithm", "summary", "spectra_last"])
+    _check_structure(
+        out, results, ["Run", "Implementation check (§4.1.1)", "Algorithm check (§4.1.2)"], ["implementation", "algorithm", "summary", "spectra_last"]
+    )
     r = results["results"]
     # the DSP's downloads and the SciPy recomputation agree to rounding
     assert r["summary"]["worst_median_rel_diff"] < 1e-9

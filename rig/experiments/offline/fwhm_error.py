@@ -106,9 +106,7 @@ def run(ctx: ExperimentContext) -> Report:
     roundtrip = np.array([zeta_from_fwhm_exact(fwhm_ratio(z), 1.0) / z - 1.0 for z in zetas])
     n_bf = 9 if ctx.quick else 41
     bf_z = np.geomspace(ZETA_MIN, ZETA_MAX, n_bf)
-    bf_dev = max(
-        max(abs(a - b) for a, b in zip(half_power_points(z), brute_force_half_power(z), strict=True)) for z in bf_z
-    )
+    bf_dev = max(max(abs(a - b) for a, b in zip(half_power_points(z), brute_force_half_power(z), strict=True)) for z in bf_z)
     cross_true = _crossing(approx_error_true_wn, 0.01, ZETA_MIN, ZETA_MAX)
     cross_peak = _crossing(approx_error_peak, 0.01, ZETA_MIN, ZETA_MAX)
     at = {f"{z:g}": {"true_wn": approx_error_true_wn(z), "peak": approx_error_peak(z)} for z in (0.001, 0.01, 0.05, 0.09, 0.1, 0.2)}
@@ -211,7 +209,11 @@ def run(ctx: ExperimentContext) -> Report:
         rep.results["analytic"]["monotonic_true_wn"] and bool(np.all(np.diff(err_peak) > 0)),
         f"{100 * err_true[0]:.2e} % at ζ = {ZETA_MIN}, {100 * err_true[-1]:.2f} % at ζ = {ZETA_MAX}",
     )
-    rep.check("1 % crossing (true ω_n) between 0.09 and 0.11", cross_true is not None and 0.09 < cross_true < 0.11, f"ζ = {cross_true:.5f}" if cross_true else "no crossing")
+    rep.check(
+        "1 % crossing (true ω_n) between 0.09 and 0.11",
+        cross_true is not None and 0.09 < cross_true < 0.11,
+        f"ζ = {cross_true:.5f}" if cross_true else "no crossing",
+    )
     rep.check("closed-form half-power points match a root search", bf_dev < 1e-9, f"max |Δr| = {bf_dev:.1e}")
     rep.check("exact inversion returns ζ", float(np.max(np.abs(roundtrip))) < 1e-9, f"max rel. error {np.max(np.abs(roundtrip)):.1e}")
     rep.thesis(

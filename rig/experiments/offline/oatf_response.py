@@ -58,7 +58,9 @@ def _notch(stage: StageDesign, near_hz: float, f_hi: float, n_grid: int) -> tupl
     i = int(interior[np.argmin(np.abs(grid[interior] - near_hz))])
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
     res = minimize_scalar(
-        lambda f: float(abs(frequency_response([f], [stage])[0])), bounds=(a, b), method="bounded",
+        lambda f: float(abs(frequency_response([f], [stage])[0])),
+        bounds=(a, b),
+        method="bounded",
         options={"xatol": 1e-10},
     )
     return float(res.x), float(res.fun)
@@ -322,8 +324,15 @@ def run(ctx: ExperimentContext) -> Report:
             label = d["mode_zeta"]
             b = d["V_below_5pct_ratio_band"]
             srows.append(
-                [z, label, 100 * d["V_at_design"], f"{b[0]:.3f}–{b[1]:.3f}" if b else "never", d["V_below_5pct_width"],
-                 100 * d["V_at_ratio"]["0.9"], 100 * d["V_at_ratio"]["1.1"]]
+                [
+                    z,
+                    label,
+                    100 * d["V_at_design"],
+                    f"{b[0]:.3f}–{b[1]:.3f}" if b else "never",
+                    d["V_below_5pct_width"],
+                    100 * d["V_at_ratio"]["0.9"],
+                    100 * d["V_at_ratio"]["1.1"],
+                ]
             )
     rep.table(
         ["design ζ", "mode ζ", "V at ω_design (%)", "V ≤ 5 % for ω/ω_design in", "width", "V at 0.9 (%)", "V at 1.1 (%)"],

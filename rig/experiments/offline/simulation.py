@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
+from typing import Any, Literal
 
 import numpy as np
 from scipy.signal import cont2discrete
@@ -180,7 +181,7 @@ class Group:
     number: int
     title: str
     noise: bool
-    delay_mode: str
+    delay_mode: Literal["robust", "fixed"]  #: OatfConfig.delay_mode
     design_zeta: float
 
 
@@ -232,16 +233,23 @@ def _abs_at_pole(stage, frequency_hz: float, zeta: float) -> float:
     return float(abs(transfer_function([np.exp(pole * stage.sample_period_s)], [stage])[0]))
 
 
-def gain_sweep(model: SimulationModel, ref: np.ndarray, gains: tuple[float, ...]) -> dict[str, dict[str, list[float]]]:
+#: One actuator gain of :func:`gain_sweep`, JSON-shaped as the report stores it: under each OATF design's
+#: label ``{"velocity_pct": [link 1, link 2], "acceleration_pct": [...]}`` (% of unfiltered), and the lists
+#: ``"unfiltered_velocity_rms_in_s"`` and ``"tracking_error_rms_rad"``. The design labels are keys of the
+#: same mapping, so no TypedDict can name them.
+GainSweepRow = dict[str, Any]
+
+
+def gain_sweep(model: SimulationModel, ref: np.ndarray, gains: tuple[float, ...]) -> dict[str, GainSweepRow]:
     """Group 1 (no noise, robust T1) for other actuator gains G: velocity and acceleration cost in % of unfiltered."""
     cfg = OatfConfig(sample_period_s=model.sample_period_s, design_zeta=model.design_zeta)
     sps = [ref if f is None else OatfFilter([f], 2, cfg, initial=ref[0]).process(ref) for f in DESIGNS]
-    out: dict[str, dict[str, list[float]]] = {}
+    out: dict[str, GainSweepRow] = {}
     for g in gains:
         m = replace(model, velocity_gain_rad_s_per_v=(g, g))
         res = simulate(m, np.stack(sps))
         c = [rms_costs(res["deflection_in"][i], model.sample_period_s) for i in range(len(DESIGNS))]
-        row: dict[str, list[float]] = {}
+        row: GainSweepRow = {}
         for f, ci in zip(DESIGNS[1:], c[1:]):
             p = percent_of_baseline(ci, c[0])
             row[_design_label(f)] = {"velocity_pct": p.velocity_rms.tolist(), "acceleration_pct": p.acceleration_rms.tolist()}
@@ -330,7 +338,7 @@ def run(ctx: ExperimentContext) -> Report:
                 cfg = OatfConfig(
                     sample_period_s=ts,
                     design_zeta=g.design_zeta,
-                    delay_mode=g.delay_mode,  # type: ignore[arg-type]
+                    delay_mode=g.delay_mode,
                     fixed_delay_s=model.delay_s(f, g.design_zeta),
                 )
                 try:
@@ -375,8 +383,8 @@ def run(ctx: ExperimentContext) -> Report:
             vel = np.array([costs[i].velocity_rms for i in idx])
             acc = np.array([costs[i].acceleration_rms for i in idx])
             pct = [percent_of_baseline(costs[i], costs[base_idx[(g.number, runs[i][1])]]) for i in idx]
-            pv = np.array([p.velocity_rms for p in pct])
-            pa = np.array([p.acceleration_rms for p in pct])
+            pct_v = np.array([p.velocity_rms for p in pct])
+            pct_a = np.array([p.acceleration_rms for p in pct])
             err = np.array([np.sqrt(np.mean((setpoints[i] - out["joint_rad"][i]) ** 2, axis=0)) for i in idx])
             table[gk]["designs"][_design_label(f)] = {
                 "design_hz": f,
@@ -385,10 +393,10 @@ def run(ctx: ExperimentContext) -> Report:
                 "velocity_rms_in_s_std": vel.std(0).tolist(),
                 "acceleration_rms_in_s2": acc.mean(0).tolist(),
                 "acceleration_rms_in_s2_std": acc.std(0).tolist(),
-                "velocity_pct_of_unfiltered": pv.mean(0).tolist(),
-                "velocity_pct_std": pv.std(0).tolist(),
-                "acceleration_pct_of_unfiltered": pa.mean(0).tolist(),
-                "acceleration_pct_std": pa.std(0).tolist(),
+                "velocity_pct_of_unfiltered": pct_v.mean(0).tolist(),
+                "velocity_pct_std": pct_v.std(0).tolist(),
+                "acceleration_pct_of_unfiltered": pct_a.mean(0).tolist(),
+                "acceleration_pct_std": pct_a.std(0).tolist(),
                 "tracking_error_rms_rad": err.mean(0).tolist(),
                 "max_abs_valve_v": float(np.max(np.abs(out["valve_v"][idx]))),
                 "max_abs_deflection_in": np.max(np.abs(defl[idx]), axis=(0, 1)).tolist(),
@@ -450,8 +458,17 @@ def run(ctx: ExperimentContext) -> Report:
             if "rejected" in info:
                 drows.append([g.number, f, "rejected", "–", "–", "–", "–"])
             else:
-                drows.append([g.number, f, info["delay_samples"], ", ".join(f"{a:.3f}" for a in info["coefficients"]),
-                              info["abs_coefficient_sum"], info["abs_F_at_mode"], info["abs_F_at_mode_pole"]])
+                drows.append(
+                    [
+                        g.number,
+                        f,
+                        info["delay_samples"],
+                        ", ".join(f"{a:.3f}" for a in info["coefficients"]),
+                        info["abs_coefficient_sum"],
+                        info["abs_F_at_mode"],
+                        info["abs_F_at_mode_pole"],
+                    ]
+                )
     rep.table(
         ["group", "design (Hz)", "n1", "coefficients", "Σ|a|", "|F(j·2π·5 Hz)|", "|F| at the mode's pole"],
         drows,
@@ -466,10 +483,7 @@ def run(ctx: ExperimentContext) -> Report:
     )
     rep.table(
         ["quantity", "link 1", "link 2", "pooled", "thesis", "pooled / thesis"],
-        [
-            [row["label"], row["link"][0], row["link"][1], row["pooled"], row["thesis"], row["pooled"] / row["thesis"]]
-            for row in bl["rows"]
-        ],
+        [[row["label"], row["link"][0], row["link"][1], row["pooled"], row["thesis"], row["pooled"] / row["thesis"]] for row in bl["rows"]],
         caption="Unfiltered runs: RMS deflection velocity (in/s) and acceleration (in/s²)",
         digits=4,
     )
@@ -491,13 +505,19 @@ def run(ctx: ExperimentContext) -> Report:
             if "runs" not in dd:
                 rows.append([_design_label(f)] + ["rejected"] + ["–"] * 7)
                 continue
-            rows.append([
-                _design_label(f),
-                dd["velocity_rms_in_s"][0], dd["velocity_pct_of_unfiltered"][0],
-                dd["velocity_rms_in_s"][1], dd["velocity_pct_of_unfiltered"][1],
-                dd["acceleration_rms_in_s2"][0], dd["acceleration_pct_of_unfiltered"][0],
-                dd["acceleration_rms_in_s2"][1], dd["acceleration_pct_of_unfiltered"][1],
-            ])
+            rows.append(
+                [
+                    _design_label(f),
+                    dd["velocity_rms_in_s"][0],
+                    dd["velocity_pct_of_unfiltered"][0],
+                    dd["velocity_rms_in_s"][1],
+                    dd["velocity_pct_of_unfiltered"][1],
+                    dd["acceleration_rms_in_s2"][0],
+                    dd["acceleration_pct_of_unfiltered"][0],
+                    dd["acceleration_rms_in_s2"][1],
+                    dd["acceleration_pct_of_unfiltered"][1],
+                ]
+            )
         rep.table(
             ["design", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
             rows,
@@ -505,7 +525,9 @@ def run(ctx: ExperimentContext) -> Report:
             digits=4,
         )
     fig = _bar_chart(table, grps)
-    rep.figure(fig, "simulation_costs.png", "RMS deflection velocity and acceleration per group and design (mean ± std over noise draws); labels: % of unfiltered.")
+    rep.figure(
+        fig, "simulation_costs.png", "RMS deflection velocity and acceleration per group and design (mean ± std over noise draws); labels: % of unfiltered."
+    )
     fig = _traces(t, ref, setpoints, runs, defl, model)
     rep.figure(fig, "simulation_traces.png", "Group 1: joint-2 set-point and link-2 deflection around the first corners, unfiltered and with each OATF.")
 
@@ -532,14 +554,15 @@ def run(ctx: ExperimentContext) -> Report:
     )
     sweep_ok = all(
         row[_design_label(5.0)]["velocity_pct"][j] < row[_design_label(10.0)]["velocity_pct"][j] < row[_design_label(50.0)]["velocity_pct"][j]
-        for row in sweep.values() for j in (0, 1)
+        for row in sweep.values()
+        for j in (0, 1)
     )
 
     # run record of group 1 and of group 2's first draw
     cols: dict[str, np.ndarray] = {"t_s": t, "phi1_ref_rad": ref[:, 0], "phi2_ref_rad": ref[:, 1]}
-    for i, (g, d, f) in enumerate(runs):
-        if g <= 2 and d == 0:
-            tag = f"g{g}_{'unfiltered' if f is None else f'oatf{f:g}hz'}"
+    for i, (gn, d, f) in enumerate(runs):
+        if gn <= 2 and d == 0:
+            tag = f"g{gn}_{'unfiltered' if f is None else f'oatf{f:g}hz'}"
             cols[f"{tag}_phi1_sp_rad"], cols[f"{tag}_phi2_sp_rad"] = setpoints[i, :, 0], setpoints[i, :, 1]
             cols[f"{tag}_defl1_in"], cols[f"{tag}_defl2_in"] = defl[i, :, 0], defl[i, :, 1]
     npz, js = save_record(ctx.path("records/simulation_g1_g2"), cols, config=asdict(model), metadata={"groups": [1, 2], "draw": 0})
@@ -599,7 +622,11 @@ def run(ctx: ExperimentContext) -> Report:
     )
     literal = OatfFilter([50.0], 2, OatfConfig(sample_period_s=ts, design_zeta=model.design_zeta, delay_mode="fixed", fixed_delay_s=model.fixed_delay_s))
     literal_f = float(abs(literal.frequency_response([model.mode_hz])[0]))
-    rep.results["group3_literal_50hz"] = {"delay_samples": literal.stages[0].delay_samples, "coefficients": list(literal.stages[0].coefficients), "abs_F_at_mode": literal_f}
+    rep.results["group3_literal_50hz"] = {
+        "delay_samples": literal.stages[0].delay_samples,
+        "coefficients": list(literal.stages[0].coefficients),
+        "abs_F_at_mode": literal_f,
+    }
     rep.thesis(
         "Group 3: a fixed 0.05 s delay for every design (adaptation would change only the coefficients); the 50 Hz design changes little from group 2.",
         f"5 Hz: {pv(3, 5.0, 0):.1f}/{pv(3, 5.0, 1):.1f} % (robust delay: {pv(2, 5.0, 0):.1f}/{pv(2, 5.0, 1):.1f} %); "
@@ -626,12 +653,11 @@ def run(ctx: ExperimentContext) -> Report:
         rep.thesis(
             f"Unfiltered {row['label']}: {row['thesis']:g} (thesis §4.3).",
             f"{row['pooled']:.4g} pooled over both links ({row['pooled'] / row['thesis'] - 1:+.0%})"
-            + ("" if math.isnan(row["link"][0]) else f"; link 1 {row['link'][0]:.4g}, link 2 {row['link'][1]:.4g}") + ".",
+            + ("" if math.isnan(row["link"][0]) else f"; link 1 {row['link'][0]:.4g}, link 2 {row['link'][1]:.4g}")
+            + ".",
             ok,
         )
-    best = all(
-        min((pv(g.number, f, j), f) for f in DESIGNS[1:])[1] == 5.0 for g in grps for j in (0, 1)
-    )
+    best = all(min((pv(g.number, f, j), f) for f in DESIGNS[1:])[1] == 5.0 for g in grps for j in (0, 1))
     rep.thesis(
         "An ideal adaptive filter cannot beat a fixed filter tuned to a time-invariant system.",
         "In this time-invariant model the fixed 5 Hz design is the best of the designs in "
@@ -647,9 +673,7 @@ def _bar_chart(table: dict, grps: list[Group]):
     colours = ("0.45", "tab:green", "tab:orange", "tab:blue")
     width = 0.2
     x = np.arange(len(grps))
-    for (row, quantity, unit), ax_row in zip(
-        (("velocity", "velocity_rms_in_s", "in/s"), ("acceleration", "acceleration_rms_in_s2", "in/s²")), axes
-    ):
+    for (row, quantity, unit), ax_row in zip((("velocity", "velocity_rms_in_s", "in/s"), ("acceleration", "acceleration_rms_in_s2", "in/s²")), axes):
         for link, ax in enumerate(ax_row):
             for j, (f, col) in enumerate(zip(DESIGNS, colours)):
                 vals, errs, pcts = [], [], []
@@ -677,7 +701,7 @@ def _traces(t, ref, setpoints, runs, defl, model: SimulationModel):
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     lo, hi = 13.0, min(19.0, float(t[-1]))
     m = (t >= lo) & (t <= hi)
-    for i, (g, d, f) in enumerate(runs):
+    for i, (g, _d, f) in enumerate(runs):
         if g != 1:
             continue
         ax1.plot(t[m], setpoints[i, m, 1], lw=1.0, label=_design_label(f))

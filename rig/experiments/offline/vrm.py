@@ -181,7 +181,9 @@ def run(ctx: ExperimentContext) -> Report:
             for m, style in (("vrm_avg", "--"), ("vrm_robust", "-."), ("fwhm", ":")):
                 v = ex["estimates"].get(m)
                 if v is not None:
-                    ax.axhline(v[idx], ls=style, lw=1.2, color={"vrm_avg": "tab:green", "vrm_robust": "tab:purple", "fwhm": "tab:orange"}[m], label=METHOD_LABELS[m])
+                    ax.axhline(
+                        v[idx], ls=style, lw=1.2, color={"vrm_avg": "tab:green", "vrm_robust": "tab:purple", "fwhm": "tab:orange"}[m], label=METHOD_LABELS[m]
+                    )
             ax.axvspan(F_N_HZ * (1 - ZETA), F_N_HZ * (1 + ZETA), color="0.9", zorder=0)
             ax.set_title(f"noise {label}", fontsize=9)
             ax.grid(True, lw=0.3)
@@ -197,7 +199,8 @@ def run(ctx: ExperimentContext) -> Report:
         axes[0].legend(fontsize=6.5, loc="best")
         name = "frequency" if quantity == "f_n" else "damping"
         rep.figure(
-            fig, fname,
+            fig,
+            fname,
             f"VRM {name} estimate of each adjacent-bin triplet (one noise draw per level) against the truth; shaded: the half-power band.",
         )
 
@@ -219,7 +222,9 @@ def run(ctx: ExperimentContext) -> Report:
             if m != "peak":
                 summary[label][m]["damping"] = _stats(errs[m]["zeta"], n_draws)
                 z = np.asarray(errs[m]["zeta"]) + 1.0
-                summary[label][m]["damping"]["within_order_of_magnitude"] = float(np.mean((z > 0.1) & (z < 10.0))) * (1.0 - summary[label][m]["damping"]["failure_fraction"]) if z.size else 0.0
+                summary[label][m]["damping"]["within_order_of_magnitude"] = (
+                    float(np.mean((z > 0.1) & (z < 10.0))) * (1.0 - summary[label][m]["damping"]["failure_fraction"]) if z.size else 0.0
+                )
     rep.results["monte_carlo"] = {"n_draws": n_draws, "levels": summary}
     rep.results["truth"] = {"f_n_hz": F_N_HZ, "zeta": ZETA, "fs_hz": FS_HZ, "fft_width": N_FFT}
 
@@ -228,8 +233,18 @@ def run(ctx: ExperimentContext) -> Report:
     for label, s in summary.items():
         for m in METHODS:
             f, z = s[m]["frequency"], s[m]["damping"]
-            rows.append([label, METHOD_LABELS[m], 100 * f["median_abs_rel_error"], 100 * f["p90_abs_rel_error"],
-                         100 * z["median_abs_rel_error"], 100 * z["p90_abs_rel_error"], 100 * z["within_order_of_magnitude"], 100 * f["failure_fraction"]])
+            rows.append(
+                [
+                    label,
+                    METHOD_LABELS[m],
+                    100 * f["median_abs_rel_error"],
+                    100 * f["p90_abs_rel_error"],
+                    100 * z["median_abs_rel_error"],
+                    100 * z["p90_abs_rel_error"],
+                    100 * z["within_order_of_magnitude"],
+                    100 * f["failure_fraction"],
+                ]
+            )
         pk = s["peak"]["frequency"]
         rows.append([label, METHOD_LABELS["peak"], 100 * pk["median_abs_rel_error"], 100 * pk["p90_abs_rel_error"], "–", "–", "–", 0.0])
     rep.table(
@@ -266,7 +281,9 @@ def run(ctx: ExperimentContext) -> Report:
         f"f_n {ex4[0]:.4f} Hz, ζ {ex4[1]:.5f}" if ex4 else "no estimate",
     )
     worst4 = max(s4[m][q]["max_abs_rel_error"] for m in ("vrm_avg", "vrm_robust") for q in ("frequency", "damping"))
-    rep.check("VRM (both) within 1 % at SNR 1e4, every draw", worst4 < 0.01 and s4["vrm_avg"]["frequency"]["failure_fraction"] == 0, f"worst {100 * worst4:.3f} %")
+    rep.check(
+        "VRM (both) within 1 % at SNR 1e4, every draw", worst4 < 0.01 and s4["vrm_avg"]["frequency"]["failure_fraction"] == 0, f"worst {100 * worst4:.3f} %"
+    )
     s10 = summary["10 %"]
     rep.check(
         "VRM damping within an order of magnitude at 10 % noise (robust estimator, ≥ 90 % of draws)",

@@ -31,15 +31,18 @@ seed.  ``--quick``: one group (5 in/s, no payload), (a) and (b), the first
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from controller.oatf import OatfConfig, OatfFilter, design_stage
-from rig.experiments.framework import ExperimentContext, experiment
 from rig.campaign.rigs import map_rigs
+from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 OATF_DAMPING = 0.09
 WRONG_HZ = 10.0
@@ -128,7 +131,13 @@ def run(ctx: ExperimentContext) -> Report:
         duration = 20.0 if quick else laps[speed]
         return RigRun(
             f"{group_key(speed, payload)}_{config}",
-            controller={"duration_s": duration, "tip_speed_in_s": speed, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, **oatf_settings(config, right_hz)},
+            controller={
+                "duration_s": duration,
+                "tip_speed_in_s": speed,
+                "batch_size": THESIS_BATCH_SIZE,
+                "tf_download_samples": 0,
+                **oatf_settings(config, right_hz),
+            },
             plant={"payload_attached": payload, "seed": seeds[group_key(speed, payload)]},
             dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": 2048, "alpha": 0.1},
             label=f"{group_label(speed, payload)}, {CONFIG_LABELS[config]}",
@@ -144,7 +153,12 @@ def run(ctx: ExperimentContext) -> Report:
         results[(gk, "a")] = res
         f1 = res.true_mode_hz(res.t_s, 0)
         right[gk] = float(np.mean(f1))
-        truth_stats[gk] = {"mean_f1_hz": float(np.mean(f1)), "min_f1_hz": float(np.min(f1)), "max_f1_hz": float(np.max(f1)), "variation_pct": float(100 * (f1.max() - f1.min()) / f1.mean())}
+        truth_stats[gk] = {
+            "mean_f1_hz": float(np.mean(f1)),
+            "min_f1_hz": float(np.min(f1)),
+            "max_f1_hz": float(np.max(f1)),
+            "variation_pct": float(100 * (f1.max() - f1.min()) / f1.mean()),
+        }
     ctx.log("tuned-right frequencies: " + ", ".join(f"{k} {v:.2f} Hz" for k, v in right.items()))
     rest = [spec(s, p, c, right[group_key(s, p)]) for s, p in groups for c in configs if c != "a"]
     for r in map_rigs(ctx, rest, in_process=quick, description="battery (b)-(e) runs"):
@@ -167,7 +181,12 @@ def run(ctx: ExperimentContext) -> Report:
                 "acceleration_rms_in_s2": cost["acceleration_rms"],
                 "velocity_pct": [100 * a / b for a, b in zip(cost["velocity_rms"], base["velocity_rms"])],
                 "acceleration_pct": [100 * a / b for a, b in zip(cost["acceleration_rms"], base["acceleration_rms"])],
-                "tracking_error_rms_rad": np.sqrt(np.mean((np.column_stack([res.record["phi_ref1"], res.record["phi_ref2"]]) - np.column_stack([res.record["phi1"], res.record["phi2"]])) ** 2, axis=0)).tolist(),
+                "tracking_error_rms_rad": np.sqrt(
+                    np.mean(
+                        (np.column_stack([res.record["phi_ref1"], res.record["phi_ref2"]]) - np.column_stack([res.record["phi1"], res.record["phi2"]])) ** 2,
+                        axis=0,
+                    )
+                ).tolist(),
                 "max_abs_valve_v": float(np.max(np.abs(np.column_stack([res.record["u1_v"], res.record["u2_v"]])))),
                 "run": res.summary(),
             }
@@ -182,14 +201,27 @@ def run(ctx: ExperimentContext) -> Report:
     mode_text = "one process each (rig.composition)" if quick else "three processes each (rig.launcher), one run per campaign-engine worker at a time"
     rep.text(
         f"{len(results)} runs, {mode_text}, {ctx.mode}. "
-        + ("Quick mode: the first 20 s of the loop at 5 in/s, payload removed, configurations (a) and (b) only. " if quick else "Each run is one lap of the inspection loop from rest (42 s at 5 in/s, 51 s at 4 in/s). ")
+        + (
+            "Quick mode: the first 20 s of the loop at 5 in/s, payload removed, configurations (a) and (b) only. "
+            if quick
+            else "Each run is one lap of the inspection loop from rest (42 s at 5 in/s, 51 s at 4 in/s). "
+        )
         + f"OATF at the outer location, design ζ = {OATF_DAMPING}, T1 = π/ω_d of the initial design (kept while adapting); "
         "adaptive runs take the identified first pole when its confidence is at least 0.2. DSP: N = 2048, α = 0.1, l = 20. "
         "The tuned-right frequency is the mean true first-mode frequency of run (a) of the group (plant ground truth):"
     )
     rep.table(
         ["group", "tuned right (Hz)", "true f1 min (Hz)", "true f1 max (Hz)", "variation (%)"],
-        [[group_label(s, p), right[group_key(s, p)], truth_stats[group_key(s, p)]["min_f1_hz"], truth_stats[group_key(s, p)]["max_f1_hz"], truth_stats[group_key(s, p)]["variation_pct"]] for s, p in groups],
+        [
+            [
+                group_label(s, p),
+                right[group_key(s, p)],
+                truth_stats[group_key(s, p)]["min_f1_hz"],
+                truth_stats[group_key(s, p)]["max_f1_hz"],
+                truth_stats[group_key(s, p)]["variation_pct"],
+            ]
+            for s, p in groups
+        ],
         caption="True first-mode frequency over each group's unfiltered lap",
         digits=3,
     )
@@ -199,11 +231,19 @@ def run(ctx: ExperimentContext) -> Report:
         rows = []
         for c in configs:
             e = table[gk]["configs"][c]
-            rows.append([
-                e["label"],
-                e["velocity_rms_in_s"][0], e["velocity_pct"][0], e["velocity_rms_in_s"][1], e["velocity_pct"][1],
-                e["acceleration_rms_in_s2"][0], e["acceleration_pct"][0], e["acceleration_rms_in_s2"][1], e["acceleration_pct"][1],
-            ])
+            rows.append(
+                [
+                    e["label"],
+                    e["velocity_rms_in_s"][0],
+                    e["velocity_pct"][0],
+                    e["velocity_rms_in_s"][1],
+                    e["velocity_pct"][1],
+                    e["acceleration_rms_in_s2"][0],
+                    e["acceleration_pct"][0],
+                    e["acceleration_rms_in_s2"][1],
+                    e["acceleration_pct"][1],
+                ]
+            )
         rep.table(
             ["configuration", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
             rows,
@@ -211,18 +251,42 @@ def run(ctx: ExperimentContext) -> Report:
             digits=4,
         )
     fig = _bar_chart(table, groups, configs)
-    rep.figure(fig, "battery_costs.png", "RMS deflection velocity and acceleration per group and configuration; labels: % of the unfiltered run (a) of the group.")
+    rep.figure(
+        fig, "battery_costs.png", "RMS deflection velocity and acceleration per group and configuration; labels: % of the unfiltered run (a) of the group."
+    )
     adaptive_rows = []
     for s, p in groups:
         gk = group_key(s, p)
         for c in ("c", "e"):
             if c in table[gk]["configs"]:
                 a = table[gk]["configs"][c]["adaptation"]
-                adaptive_rows.append([group_label(s, p), CONFIG_LABELS[c], a["first_change_s"], a["design_changes"], a["mean_hz"], a["min_hz"], a["max_hz"], 100 * a["median_rel_error_after_first_change"], 100 * a["time_within_10pct_of_true_f1"]])
+                adaptive_rows.append(
+                    [
+                        group_label(s, p),
+                        CONFIG_LABELS[c],
+                        a["first_change_s"],
+                        a["design_changes"],
+                        a["mean_hz"],
+                        a["min_hz"],
+                        a["max_hz"],
+                        100 * a["median_rel_error_after_first_change"],
+                        100 * a["time_within_10pct_of_true_f1"],
+                    ]
+                )
     if adaptive_rows:
         rep.heading("Adaptation")
         rep.table(
-            ["group", "configuration", "first change (s)", "design changes", "mean OATF f (Hz)", "min (Hz)", "max (Hz)", "median |f − f1 true| after it (%)", "time within 10 % of f1 (%)"],
+            [
+                "group",
+                "configuration",
+                "first change (s)",
+                "design changes",
+                "mean OATF f (Hz)",
+                "min (Hz)",
+                "max (Hz)",
+                "median |f − f1 true| after it (%)",
+                "time within 10 % of f1 (%)",
+            ],
             adaptive_rows,
             caption="The adaptive OATF's design frequency against the true first mode",
             digits=3,
@@ -244,14 +308,20 @@ def run(ctx: ExperimentContext) -> Report:
     rep.check("every run: PI within the D/A range (|u| < 10 V)", all(table[gk]["configs"][c]["max_abs_valve_v"] < 10.0 for gk in gks for c in configs))
     if not quick:
         d_worse = all(pv(gk, "d", j) > pv(gk, "b", j) for gk in gks for j in (0, 1))
-        rep.check("(d) 10 Hz is less effective than (b) on velocity, every group and link", d_worse, "; ".join(f"{gk}: (d) {pv(gk, 'd', 0):.0f}/{pv(gk, 'd', 1):.0f} % vs (b) {pv(gk, 'b', 0):.0f}/{pv(gk, 'b', 1):.0f} %" for gk in gks))
+        rep.check(
+            "(d) 10 Hz is less effective than (b) on velocity, every group and link",
+            d_worse,
+            "; ".join(f"{gk}: (d) {pv(gk, 'd', 0):.0f}/{pv(gk, 'd', 1):.0f} % vs (b) {pv(gk, 'b', 0):.0f}/{pv(gk, 'b', 1):.0f} %" for gk in gks),
+        )
         adapted = all(table[gk]["configs"][c]["adaptation"]["design_changes"] > 0 for gk in gks for c in ("c", "e"))
         rep.check("every adaptive run changed its design", adapted)
         e_better = [pv(gk, "e", j) < pv(gk, "d", j) for gk in gks for j in (0, 1)]
         c_vs_b = [pv(gk, "c", j) - pv(gk, "b", j) for gk in gks for j in (0, 1)]
         rep.thesis(
             "A correctly tuned OATF lowers the deflection velocity and acceleration against the unfiltered run.",
-            "(b), velocity link 1/2: " + "; ".join(f"{group_label(s, p)} {pv(group_key(s, p), 'b', 0):.0f}/{pv(group_key(s, p), 'b', 1):.0f} %" for s, p in groups) + " of (a).",
+            "(b), velocity link 1/2: "
+            + "; ".join(f"{group_label(s, p)} {pv(group_key(s, p), 'b', 0):.0f}/{pv(group_key(s, p), 'b', 1):.0f} %" for s, p in groups)
+            + " of (a).",
             b_better,
         )
         rep.thesis(
@@ -278,7 +348,8 @@ def run(ctx: ExperimentContext) -> Report:
     diffs = {group_key(s, p): right[group_key(s, p)] - thesis_avg[(s, p)] for s, p in groups}
     rep.thesis(
         "Average first-mode frequency over the test trajectory: 3.6 Hz (payload attached, 5 in/s), 3.9 Hz (attached, 4 in/s), 4.4 Hz (removed, 5 in/s), 4.1 Hz (removed, 4 in/s).",
-        "Plant ground truth of the unfiltered runs: " + "; ".join(f"{group_label(s, p)} {right[group_key(s, p)]:.2f} Hz" for s, p in groups)
+        "Plant ground truth of the unfiltered runs: "
+        + "; ".join(f"{group_label(s, p)} {right[group_key(s, p)]:.2f} Hz" for s, p in groups)
         + ". The emulated plant's modes depend on the configuration only, so the speed changes the average only through the time spent where.",
         True if all(abs(v) <= 0.1 for v in diffs.values()) else ("partly" if any(abs(v) <= 0.1 for v in diffs.values()) else False),
     )
@@ -292,7 +363,11 @@ def run(ctx: ExperimentContext) -> Report:
                 f"acceleration {THESIS_UNFILTERED[(s_, p_)][2]:g} / {THESIS_UNFILTERED[(s_, p_)][3]:g} in/s² (link 1 / 2, Table 4-1).",
                 f"{got[0]:.3f} / {got[1]:.3f} in/s, {got[2]:.2f} / {got[3]:.2f} in/s² ("
                 + ", ".join(f"{100 * (r - 1):+.0f} %" for r in ratio)
-                + (")." if s_ == 5.0 else "; the plant vibrates less at 4 in/s than at 5 in/s, the thesis's more: docs/plant-model.md explains why a configuration-only model cannot)."),
+                + (
+                    ")."
+                    if s_ == 5.0
+                    else "; the plant vibrates less at 4 in/s than at 5 in/s, the thesis's more: docs/plant-model.md explains why a configuration-only model cannot)."
+                ),
                 all(abs(r - 1) <= 0.25 for r in ratio),
             )
         rep.heading("Discussion")
@@ -304,14 +379,38 @@ def run(ctx: ExperimentContext) -> Report:
             f_med = a["median_hz_after_first_change"]
             robust = design_stage(f_med, OATF_DAMPING, 0.005)
             kept = design_stage(f_med, OATF_DAMPING, 0.005, delay_samples=n1)
-            disc_rows.append([group_label(s, p), f_med, n1, kept.abs_coefficient_sum, robust.delay_samples, robust.abs_coefficient_sum, pv(gk, "e", 0), pv(gk, "e", 1), pv(gk, "c", 0), pv(gk, "c", 1)])
+            disc_rows.append(
+                [
+                    group_label(s, p),
+                    f_med,
+                    n1,
+                    kept.abs_coefficient_sum,
+                    robust.delay_samples,
+                    robust.abs_coefficient_sum,
+                    pv(gk, "e", 0),
+                    pv(gk, "e", 1),
+                    pv(gk, "c", 0),
+                    pv(gk, "c", 1),
+                ]
+            )
         rep.text(
             "(e) keeps the integer delay of its initial 10 Hz design (adaptation changes only the coefficients, as in the thesis), "
             f"n1 = {n1} samples; at the 3–4.5 Hz it adapts to, that delay is a fraction of the robust π/ω_d and the coefficients grow "
             "(Σ|a| above 1 amplifies and reverses parts of the set-point), so the adapted (e) is not the adapted (c):"
         )
         rep.table(
-            ["group", "(e) median adapted f (Hz)", "(e) n1", "Σ|a| with that n1", "robust n1", "Σ|a| robust", "(e) vel link 1 (%)", "(e) vel link 2 (%)", "(c) vel link 1 (%)", "(c) vel link 2 (%)"],
+            [
+                "group",
+                "(e) median adapted f (Hz)",
+                "(e) n1",
+                "Σ|a| with that n1",
+                "robust n1",
+                "Σ|a| robust",
+                "(e) vel link 1 (%)",
+                "(e) vel link 2 (%)",
+                "(c) vel link 1 (%)",
+                "(c) vel link 2 (%)",
+            ],
             disc_rows,
             caption="Why (e) does not reach (c): the kept 10 Hz delay",
             digits=3,
@@ -338,7 +437,7 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _bar_chart(table: dict, groups: list[tuple[float, bool]], configs: tuple[str, ...]):  # type: ignore[no-untyped-def]
+def _bar_chart(table: dict[str, dict[str, Any]], groups: list[tuple[float, bool]], configs: tuple[str, ...]) -> Figure:
     fig = new_figure(12.0, 7.5)
     axes = fig.subplots(2, 2)
     colours = {"a": "0.45", "b": "tab:green", "c": "tab:olive", "d": "tab:orange", "e": "tab:blue"}
@@ -364,7 +463,7 @@ def _bar_chart(table: dict, groups: list[tuple[float, bool]], configs: tuple[str
     return fig
 
 
-def _adaptation_figure(results: dict, groups: list[tuple[float, bool]]):  # type: ignore[no-untyped-def]
+def _adaptation_figure(results: dict[tuple[str, str], RigResult], groups: list[tuple[float, bool]]) -> Figure:
     fig = new_figure(12.0, 2.6 * len(groups))
     axes = np.atleast_1d(fig.subplots(len(groups), 1, sharex=False))
     for ax, (s, p) in zip(axes, groups):

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -60,6 +60,9 @@ from rig.experiments.onrig.runner import (
 )
 from rig.experiments.report import Report, new_figure
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 FS_HZ = 200.0
 SPEED = 5.0
 EVENTS_S = (22.0, 42.0, 62.0, 82.0)
@@ -71,8 +74,15 @@ TOLERANCE = 0.02
 HOLD_S = 2.0
 MEDIAN_HALF_S = 1.0
 SETTINGS: tuple[tuple[int, float, str], ...] = (
-    (2048, 0.1, "etfe"), (2048, 0.5, "etfe"), (1024, 0.1, "etfe"), (1024, 0.05, "etfe"), (512, 0.05, "etfe"), (512, 0.02, "etfe"),
-    (2048, 0.1, "etfe-welch"), (1024, 0.1, "etfe-welch"), (2048, 0.1, "etfe-transient"),
+    (2048, 0.1, "etfe"),
+    (2048, 0.5, "etfe"),
+    (1024, 0.1, "etfe"),
+    (1024, 0.05, "etfe"),
+    (512, 0.05, "etfe"),
+    (512, 0.02, "etfe"),
+    (2048, 0.1, "etfe-welch"),
+    (1024, 0.1, "etfe-welch"),
+    (2048, 0.1, "etfe-transient"),
     (2048, 0.1, "arx"),
 )
 """(N, α, identifier); the first is the thesis's; ``arx``: the recursive ARX model's poles (N, α then only shape the downloads)."""
@@ -122,7 +132,9 @@ def idlag_trajectory() -> WaypointTrajectory:
     )
 
 
-def event_delays(t: np.ndarray, f: np.ndarray, true1: np.ndarray, tm: np.ndarray, m: np.ndarray, at_s: float, until_s: float, tolerance: float = TOLERANCE) -> dict[str, Any]:
+def event_delays(
+    t: np.ndarray, f: np.ndarray, true1: np.ndarray, tm: np.ndarray, m: np.ndarray, at_s: float, until_s: float, tolerance: float = TOLERANCE
+) -> dict[str, Any]:
     """Delays after one payload event at ``at_s`` (the next event or the run's end at ``until_s``), see the module doc."""
     before = (t >= at_s - 8.0) & (t < at_s)
     old = float(np.median(true1[before]))
@@ -224,18 +236,27 @@ def run(ctx: ExperimentContext) -> Report:
     traj_path = ctx.path("records/idlag_trajectory.json")
     traj_path.write_text(json.dumps(traj.model_dump(), indent=1) + "\n", encoding="utf-8")
     sampled = sample_trajectory(traj, 1.0 / FS_HZ)
-    th = sampled.joints.theta
-    f_free = modal_parameters(th[:, 0], th[:, 1], False)[0][:, 0]
-    f_load = modal_parameters(th[:, 0], th[:, 1], True)[0][:, 0]
+    theta = sampled.joints.theta
+    f_free = modal_parameters(theta[:, 0], theta[:, 1], False)[0][:, 0]
+    f_load = modal_parameters(theta[:, 0], theta[:, 1], True)[0][:, 0]
     seed = int(ctx.rng("plant-seed").integers(0, 2**31 - 1))
     scenario = json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(events)])
     specs = [
         RigRun(
             _name(n, a, m),
-            controller={"duration_s": duration, "tip_speed_in_s": SPEED, "trajectory": str(traj_path), "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, "oatf_mode": "off"},
+            controller={
+                "duration_s": duration,
+                "tip_speed_in_s": SPEED,
+                "trajectory": str(traj_path),
+                "batch_size": THESIS_BATCH_SIZE,
+                "tf_download_samples": 0,
+                "oatf_mode": "off",
+            },
             plant={"payload_attached": True, "scenario": scenario, "seed": seed},
             dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing_window": smoothing_window(n), "identifier": m},
-            label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" + ("" if m == "etfe" else f", {m}") if m != "arx" else f"recursive ARX, λ = {ARX_FORGETTING:g} per sample, l = {THESIS_BATCH_SIZE}",
+            label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" + ("" if m == "etfe" else f", {m}")
+            if m != "arx"
+            else f"recursive ARX, λ = {ARX_FORGETTING:g} per sample, l = {THESIS_BATCH_SIZE}",
         )
         for n, a, m in settings
     ]
@@ -243,13 +264,29 @@ def run(ctx: ExperimentContext) -> Report:
     rows_data: dict[str, dict[str, Any]] = {}
     for (n, a, m), r in zip(settings, runs):
         d = step_delays(r, events)
-        d.update({"identifier": m, "fft_width": n, "alpha": a, "batch_size": THESIS_BATCH_SIZE, "smoothing_window": smoothing_window(n), "window_s": n / FS_HZ, "averaging_span_s": (n + THESIS_BATCH_SIZE * (1 / a - 1)) / FS_HZ, "run": r.summary()})
+        d.update(
+            {
+                "identifier": m,
+                "fft_width": n,
+                "alpha": a,
+                "batch_size": THESIS_BATCH_SIZE,
+                "smoothing_window": smoothing_window(n),
+                "window_s": n / FS_HZ,
+                "averaging_span_s": (n + THESIS_BATCH_SIZE * (1 / a - 1)) / FS_HZ,
+                "run": r.summary(),
+            }
+        )
         rows_data[_name(n, a, m)] = d
     thesis_key = _name(*THESIS_SETTING) if THESIS_SETTING in settings else _name(*settings[0])
     complete = {k: v for k, v in rows_data.items() if v["settled_events"] == len(events)}
     best_key = min(complete, key=lambda k: (complete[k]["median_settle_2pct_s"], complete[k]["median_rel_error_end"])) if complete else None
     rep.results = {
-        "trajectory": {"file": traj_path.name, "lap_s": len(sampled.joints.phi) / FS_HZ, "true_f1_payload_hz": [float(f_load.min()), float(f_load.max())], "true_f1_free_hz": [float(f_free.min()), float(f_free.max())]},
+        "trajectory": {
+            "file": traj_path.name,
+            "lap_s": len(sampled.joints.phi) / FS_HZ,
+            "true_f1_payload_hz": [float(f_load.min()), float(f_load.max())],
+            "true_f1_free_hz": [float(f_free.min()), float(f_free.max())],
+        },
         "events_s": events,
         "duration_s": duration,
         "tolerance": TOLERANCE,
@@ -276,22 +313,52 @@ def run(ctx: ExperimentContext) -> Report:
     )
     rows = []
     for k, d in rows_data.items():
-        rows.append([
-            _label(d) + (" (thesis)" if (d["fft_width"], d["alpha"], d["identifier"]) == THESIS_SETTING else "") + (" **best**" if k == best_key else ""),
-            d["window_s"], d["averaging_span_s"], d["first_estimate_s"],
-            f"{d['settled_events']}/{len(events)}", d["median_settle_2pct_s"], d["max_settle_2pct_s"], d["median_delay_50pct_s"],
-            100 * d["median_rel_error_end"], d["median_confidence"],
-        ])
+        rows.append(
+            [
+                _label(d) + (" (thesis)" if (d["fft_width"], d["alpha"], d["identifier"]) == THESIS_SETTING else "") + (" **best**" if k == best_key else ""),
+                d["window_s"],
+                d["averaging_span_s"],
+                d["first_estimate_s"],
+                f"{d['settled_events']}/{len(events)}",
+                d["median_settle_2pct_s"],
+                d["max_settle_2pct_s"],
+                d["median_delay_50pct_s"],
+                100 * d["median_rel_error_end"],
+                d["median_confidence"],
+            ]
+        )
     rep.table(
-        ["setting (l = 20)", "window N/fs (s)", "averaged span (s)", "first estimate (s)", "events settled to 2 %", "median delay to 2 % (s)", "longest (s)", "median delay to 50 % (s)", "error at the end (%)", "median confidence"],
+        [
+            "setting (l = 20)",
+            "window N/fs (s)",
+            "averaged span (s)",
+            "first estimate (s)",
+            "events settled to 2 %",
+            "median delay to 2 % (s)",
+            "longest (s)",
+            "median delay to 50 % (s)",
+            "error at the end (%)",
+            "median confidence",
+        ],
         rows,
         caption="Per setting, over the events; averaged span = (N + l(1/α − 1)) / fs; error: median |f_id − f_true| / f_true over the last 8 s",
         digits=3,
     )
     ev_rows = []
-    for k, d in rows_data.items():
+    for d in rows_data.values():
         for e in d["events"]:
-            ev_rows.append([_label(d), e["at_s"], e["kind"], e["step_pct"], e["settle_2pct_s"], e["delay_50pct_s"], e["first_raw_in_band_s"], 100 * e["median_rel_error_before"]])
+            ev_rows.append(
+                [
+                    _label(d),
+                    e["at_s"],
+                    e["kind"],
+                    e["step_pct"],
+                    e["settle_2pct_s"],
+                    e["delay_50pct_s"],
+                    e["first_raw_in_band_s"],
+                    100 * e["median_rel_error_before"],
+                ]
+            )
     rep.table(
         ["setting", "event (s)", "payload", "true step (%)", "delay to 2 % (s)", "delay to 50 % (s)", "first raw estimate in band (s)", "error before (%)"],
         ev_rows,
@@ -299,15 +366,25 @@ def run(ctx: ExperimentContext) -> Report:
         digits=3,
     )
     fig = _tracks_figure(runs, rows_data, settings, events)
-    rep.figure(fig, "id_lag_tracks.png", "Identified first pole (dots), its centred running median (red), the true first mode (black) and the 2 % band around it, per setting; events at the dotted lines.")
+    rep.figure(
+        fig,
+        "id_lag_tracks.png",
+        "Identified first pole (dots), its centred running median (red), the true first mode (black) and the 2 % band around it, per setting; events at the dotted lines.",
+    )
     fig = _delay_figure(rows_data, len(events))
-    rep.figure(fig, "id_lag_delays.png", "Median delay to 2 % and to 50 % over the events, and the error at the end, per setting (∞: some event never settled).")
+    rep.figure(
+        fig, "id_lag_delays.png", "Median delay to 2 % and to 50 % over the events, and the error at the end, per setting (∞: some event never settled)."
+    )
 
     # ------------------------------------------------------------------ checks and thesis
     th = rows_data[thesis_key]
     applied_ok = len(th["events_applied_s"]) == len(events) and all(abs(a - e) <= 0.06 for a, e in zip(th["events_applied_s"], events))
     rep.check("the payload events happened at their scheduled times (plant record)", applied_ok, ", ".join(f"{a:.3f}" for a in th["events_applied_s"]) + " s")
-    rep.check("releasing the payload steps the true first mode up by more than twice the tolerance", th0["step_pct"] > 2 * 100 * TOLERANCE, f"{th0['step_pct']:+.1f} %")
+    rep.check(
+        "releasing the payload steps the true first mode up by more than twice the tolerance",
+        th0["step_pct"] > 2 * 100 * TOLERANCE,
+        f"{th0['step_pct']:+.1f} %",
+    )
     key_settings = [k for k in (thesis_key, best_key) if k is not None]
     key_events = [e for k in dict.fromkeys(key_settings) for e in rows_data[k]["events"] if e["started_on_the_old_side"]]
     rep.check(
@@ -316,11 +393,17 @@ def run(ctx: ExperimentContext) -> Report:
         "; ".join(f"{k}: " + ", ".join(f"{e['delay_50pct_s']:.2f}" for e in rows_data[k]["events"]) + " s" for k in dict.fromkeys(key_settings)),
     )
     if best_key is not None:
-        rep.check("delay to 2 %: finite and positive for every event, for at least one setting", 0 < rows_data[best_key]["max_settle_2pct_s"] < math.inf, f"{best_key}: {rows_data[best_key]['median_settle_2pct_s']:.2f} s (median), {rows_data[best_key]['max_settle_2pct_s']:.2f} s (longest)")
+        rep.check(
+            "delay to 2 %: finite and positive for every event, for at least one setting",
+            0 < rows_data[best_key]["max_settle_2pct_s"] < math.inf,
+            f"{best_key}: {rows_data[best_key]['median_settle_2pct_s']:.2f} s (median), {rows_data[best_key]['max_settle_2pct_s']:.2f} s (longest)",
+        )
     else:
         rep.check("delay to 2 %: finite and positive for every event, for at least one setting", False, "no setting settled within 2 % after every event")
     if not quick:
-        faster = [k for k, d in rows_data.items() if d["identifier"] == "etfe" and d["fft_width"] < 2048 and d["median_settle_2pct_s"] < th["median_settle_2pct_s"]]
+        faster = [
+            k for k, d in rows_data.items() if d["identifier"] == "etfe" and d["fft_width"] < 2048 and d["median_settle_2pct_s"] < th["median_settle_2pct_s"]
+        ]
         rep.check(
             "a shorter history tracks faster: some N < 2048 settles sooner (median) than the thesis's setting",
             bool(faster),
@@ -342,7 +425,9 @@ def run(ctx: ExperimentContext) -> Report:
                 f"(thesis's {100 * th['median_rel_error_end']:.1f} %), median confidence {b['median_confidence']:.2f} ({th['median_confidence']:.2f}). "
                 + (
                     "A larger α alone does not help at N = 2048: "
-                    + ", ".join(f"α = {d['alpha']:g} settles {d['settled_events']}/{len(events)} events, confidence {d['median_confidence']:.2f}" for d in big_alpha)
+                    + ", ".join(
+                        f"α = {d['alpha']:g} settles {d['settled_events']}/{len(events)} events, confidence {d['median_confidence']:.2f}" for d in big_alpha
+                    )
                     + " (the average then holds about one window's data, and a single snapshot's 2×2 solve is undefined)."
                     if big_alpha
                     else ""
@@ -362,7 +447,7 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _tracks_figure(runs: list[RigResult], rows: dict, settings, events: list[float]):  # type: ignore[no-untyped-def]
+def _tracks_figure(runs: list[RigResult], rows: dict[str, dict[str, Any]], settings: tuple[tuple[int, float, str], ...], events: list[float]) -> Figure:
     fig = new_figure(11.0, 2.1 * len(runs) + 0.6)
     axes = np.atleast_1d(fig.subplots(len(runs), 1, sharex=True))
     for ax, (n, a, m), r in zip(axes, settings, runs):
@@ -377,13 +462,20 @@ def _tracks_figure(runs: list[RigResult], rows: dict, settings, events: list[flo
             ax.axvline(e, color="k", ls=":", lw=0.8)
         ax.set_ylim(true1.min() * 0.85, true1.max() * 1.15)
         ax.set_ylabel("Hz")
-        ax.set_title(f"{_label(d)}: delay to 2 % " + ", ".join(f"{e['settle_2pct_s']:.1f}" for e in d["events"]) + " s; to 50 % " + ", ".join(f"{e['delay_50pct_s']:.1f}" for e in d["events"]) + " s", fontsize=8)
+        ax.set_title(
+            f"{_label(d)}: delay to 2 % "
+            + ", ".join(f"{e['settle_2pct_s']:.1f}" for e in d["events"])
+            + " s; to 50 % "
+            + ", ".join(f"{e['delay_50pct_s']:.1f}" for e in d["events"])
+            + " s",
+            fontsize=8,
+        )
         ax.grid(True, lw=0.3)
     axes[-1].set_xlabel("time (s)")
     return fig
 
 
-def _delay_figure(rows: dict, n_events: int):  # type: ignore[no-untyped-def]
+def _delay_figure(rows: dict[str, dict[str, Any]], n_events: int) -> Figure:
     fig = new_figure(10.0, 3.8)
     ax1, ax2 = fig.subplots(1, 2)
     keys = list(rows)
@@ -396,7 +488,16 @@ def _delay_figure(rows: dict, n_events: int):  # type: ignore[no-untyped-def]
         if not math.isfinite(d2[i]):
             ax1.annotate("∞", (i - 0.2, 0), ha="center", va="bottom")
         ax1.annotate(f"{rows[k]['settled_events']}/{n_events}", (i - 0.2, 0), xytext=(0, -22), textcoords="offset points", ha="center", fontsize=6)
-    labels = [(f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}" + {"etfe": "", "etfe-welch": "\nWelch+fit", "etfe-transient": "\ntransient fit"}.get(rows[k]["identifier"], "") if rows[k]["identifier"] != "arx" else "ARX") + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "") for k in keys]
+    labels = [
+        (
+            f"N {rows[k]['fft_width']}\nα {rows[k]['alpha']:g}"
+            + {"etfe": "", "etfe-welch": "\nWelch+fit", "etfe-transient": "\ntransient fit"}.get(rows[k]["identifier"], "")
+            if rows[k]["identifier"] != "arx"
+            else "ARX"
+        )
+        + ("\n(thesis)" if (rows[k]["fft_width"], rows[k]["alpha"], rows[k]["identifier"]) == THESIS_SETTING else "")
+        for k in keys
+    ]
     ax1.set_xticks(x, labels, fontsize=7)
     ax1.set_ylabel("delay after the event (s)")
     ax1.legend(fontsize=7)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,6 +49,9 @@ from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.id_lag import smoothing_window
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, lap_seconds
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 SPEED = 5.0
 DAMPING = 0.09
@@ -135,7 +138,9 @@ def _pct(v: float, base: float) -> float:
 def analyse(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Per (config label, bits, noise): the costs (mean over seeds) and their % of (a) of the same bits, noise and seed."""
     ok = [r for r in rows if r.get("status") == "ok"]
-    base: dict[tuple[int, float, int], dict[str, Any]] = {(r["plant.adc_bits"], r["plant.sensor_noise_scale"], r["plant.seed"]): r for r in ok if r["point"] == "a"}
+    base: dict[tuple[int, float, int], dict[str, Any]] = {
+        (r["plant.adc_bits"], r["plant.sensor_noise_scale"], r["plant.seed"]): r for r in ok if r["point"] == "a"
+    }
     cells: dict[tuple[str, int, float], list[dict[str, float]]] = defaultdict(list)
     for r in ok:
         b = base.get((r["plant.adc_bits"], r["plant.sensor_noise_scale"], r["plant.seed"]))
@@ -163,7 +168,9 @@ def analyse(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def seed_spread(cells: dict[str, Any], metric: str) -> float:
     """Median over every cell of the range of ``metric`` between its seeds (NaN with one seed)."""
-    vals = [c[f"{metric}_seed_spread"] for by_bits in cells.values() for by_noise in by_bits.values() for c in by_noise.values() if f"{metric}_seed_spread" in c]
+    vals = [
+        c[f"{metric}_seed_spread"] for by_bits in cells.values() for by_noise in by_bits.values() for c in by_noise.values() if f"{metric}_seed_spread" in c
+    ]
     vals = [v for v in vals if math.isfinite(v)]
     return float(np.median(vals)) if vals else float("nan")
 
@@ -267,9 +274,31 @@ def run(ctx: ExperimentContext) -> Report:
                 c = cells.get(lab, {}).get(str(b), {}).get(f"{n:g}")
                 if c is None:
                     continue
-                table_rows.append([_label(lab), b, n, c["true_velocity_rms_1_pct"], c["true_velocity_rms_2_pct"], c["velocity_rms_1_pct"], c["velocity_rms_2_pct"], 100 * c["oatf_median_rel_error"] if lab != "b" else None, c["oatf_first_change_s"] if lab != "b" else None])
+                table_rows.append(
+                    [
+                        _label(lab),
+                        b,
+                        n,
+                        c["true_velocity_rms_1_pct"],
+                        c["true_velocity_rms_2_pct"],
+                        c["velocity_rms_1_pct"],
+                        c["velocity_rms_2_pct"],
+                        100 * c["oatf_median_rel_error"] if lab != "b" else None,
+                        c["oatf_first_change_s"] if lab != "b" else None,
+                    ]
+                )
     rep.table(
-        ["configuration", "A/D bits", "noise ×", "true vel. link 1 (% of a)", "true vel. link 2 (%)", "measured vel. link 1 (%)", "measured vel. link 2 (%)", "median |f_OATF − f1| (%)", "first design change (s)"],
+        [
+            "configuration",
+            "A/D bits",
+            "noise ×",
+            "true vel. link 1 (% of a)",
+            "true vel. link 2 (%)",
+            "measured vel. link 1 (%)",
+            "measured vel. link 2 (%)",
+            "median |f_OATF − f1| (%)",
+            "first design change (s)",
+        ],
         table_rows,
         caption="Mean over seeds; % of the unfiltered run (a) of the same A/D bits, noise scale and seed",
         digits=3,
@@ -279,7 +308,9 @@ def run(ctx: ExperimentContext) -> Report:
     for key, e in effects.items():
         grp, metric = key.split("_", 1)
         eff_rows.append([CONFIG_LABELS[grp], metric.replace("_pct", " (% of a)"), e["adc_bits"], e["noise_scale"], e["identifier"]])
-    spreads = {metric: seed_spread(cells, metric) for metric in ("true_velocity_rms_1_pct", "true_velocity_rms_2_pct", "velocity_rms_1_pct", "velocity_rms_2_pct")}
+    spreads = {
+        metric: seed_spread(cells, metric) for metric in ("true_velocity_rms_1_pct", "true_velocity_rms_2_pct", "velocity_rms_1_pct", "velocity_rms_2_pct")
+    }
     rep.results["seed_spread_pct_points"] = spreads
     for row in eff_rows:
         row.append(spreads[str(row[1]).replace(" (% of a)", "_pct")])
@@ -292,7 +323,11 @@ def run(ctx: ExperimentContext) -> Report:
     )
 
     # ------------------------------------------------------------------ checks
-    rep.check("every run of the campaign finished", not failed, "; ".join(f"{r['key']}: {str(r.get('error', '')).splitlines()[0] if r.get('error') else r.get('status')}" for r in failed[:5]))
+    rep.check(
+        "every run of the campaign finished",
+        not failed,
+        "; ".join(f"{r['key']}: {str(r.get('error', '')).splitlines()[0] if r.get('error') else r.get('status')}" for r in failed[:5]),
+    )
     b_cells = [cells["b"][str(b)][f"{n:g}"] for b in bits for n in noise if "b" in cells and str(b) in cells["b"] and f"{n:g}" in cells["b"][str(b)]]
     rep.check(
         "(b) the tuned fixed OATF lowers the true RMS deflection velocity against (a) in every cell, both links",
@@ -300,7 +335,9 @@ def run(ctx: ExperimentContext) -> Report:
         f"max {max((max(c['true_velocity_rms_1_pct'], c['true_velocity_rms_2_pct']) for c in b_cells), default=float('nan')):.1f} %",
     )
     adapted = [r for r in rows if r.get("status") == "ok" and str(r.get("point", "")).startswith(("c ", "e "))]
-    rep.check("every adaptive run changed its OATF design", bool(adapted) and all(int(r["oatf_design_changes"]) > 0 for r in adapted), f"{len(adapted)} adaptive runs")
+    rep.check(
+        "every adaptive run changed its OATF design", bool(adapted) and all(int(r["oatf_design_changes"]) > 0 for r in adapted), f"{len(adapted)} adaptive runs"
+    )
     if not quick:
         _conclusion(rep, cells, effects, bits, noise, idents)
     return rep
@@ -317,7 +354,13 @@ def _label(lab: str) -> str:
 
 
 def _mean(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], metric: str) -> float:
-    vals = [cells[lab][str(b)][f"{n:g}"][metric] for lab in labels for b in bits for n in noise if lab in cells and str(b) in cells[lab] and f"{n:g}" in cells[lab][str(b)]]
+    vals = [
+        cells[lab][str(b)][f"{n:g}"][metric]
+        for lab in labels
+        for b in bits
+        for n in noise
+        if lab in cells and str(b) in cells[lab] and f"{n:g}" in cells[lab][str(b)]
+    ]
     return float(np.nanmean(vals)) if vals else float("nan")
 
 
@@ -341,21 +384,31 @@ def _conclusion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
         by_noise = {n: [_mean(cells, labs, bits, [n], m.format(j)) for j in (1, 2)] for n in noise}
         by_bits = {b: [_mean(cells, labs, [b], noise, m.format(j)) for j in (1, 2)] for b in bits}
         parts_lag.append(
-            f"{CONFIG_LABELS[grp]} by identifier: " + ", ".join(f"{i} {v[0]:.0f}/{v[1]:.0f} %" for i, v in by_id.items())
-            + "; by noise scale: " + ", ".join(f"×{n:g} {v[0]:.0f}/{v[1]:.0f} %" for n, v in by_noise.items())
+            f"{CONFIG_LABELS[grp]} by identifier: "
+            + ", ".join(f"{i} {v[0]:.0f}/{v[1]:.0f} %" for i, v in by_id.items())
+            + "; by noise scale: "
+            + ", ".join(f"×{n:g} {v[0]:.0f}/{v[1]:.0f} %" for n, v in by_noise.items())
         )
         parts_bits.append(f"{CONFIG_LABELS[grp]} " + ", ".join(f"{b} bit {v[0]:.0f}/{v[1]:.0f} %" for b, v in by_bits.items()))
     _discussion(rep, cells, effects, bits, noise, idents)
     rep.thesis(
         "§5.3 (open): how much adaptive performance depends on sensor noise versus identification delay.",
-        "Main effects on the true RMS deflection velocity (% of (a)), range over each axis: " + "; ".join(lines) + ". "
-        + "; ".join(parts_lag) + "; (b) fixed by noise scale: " + ", ".join(f"×{n:g} {v[0]:.0f}/{v[1]:.0f} %" for n, v in fixed_noise.items()) + " (links 1/2).",
+        "Main effects on the true RMS deflection velocity (% of (a)), range over each axis: "
+        + "; ".join(lines)
+        + ". "
+        + "; ".join(parts_lag)
+        + "; (b) fixed by noise scale: "
+        + ", ".join(f"×{n:g} {v[0]:.0f}/{v[1]:.0f} %" for n, v in fixed_noise.items())
+        + " (links 1/2).",
         None,
     )
     rep.thesis(
         "§5.3 (open): whether 16- or 20-bit A/D converters pay off.",
-        "True RMS deflection velocity, % of (a), by A/D bits: (b) fixed " + ", ".join(f"{b} bit {v[0]:.0f}/{v[1]:.0f} %" for b, v in fixed.items())
-        + "; " + "; ".join(parts_bits) + " (links 1/2). The controller reads the plant's TPDO1 (16-bit words), so a 20-bit converter reaches it with 16 bits.",
+        "True RMS deflection velocity, % of (a), by A/D bits: (b) fixed "
+        + ", ".join(f"{b} bit {v[0]:.0f}/{v[1]:.0f} %" for b, v in fixed.items())
+        + "; "
+        + "; ".join(parts_bits)
+        + " (links 1/2). The controller reads the plant's TPDO1 (16-bit words), so a 20-bit converter reaches it with 16 bits.",
         None,
     )
 
@@ -396,7 +449,8 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
         err = {i: 100 * _mean(cells, [f"{grp} {i}"], bits, noise, "oatf_median_rel_error") for i in idents}
         fixed = np.mean([_mean(cells, ["b"], bits, noise, m.format(j)) for j in (1, 2)])
         paras.append(
-            "Identification delay: " + ", ".join(f"{i} adapts after {first[i]:.1f} s, median |f_OATF − f1| {err[i]:.1f} %, cost {by_id[i]:.1f} %" for i in idents)
+            "Identification delay: "
+            + ", ".join(f"{i} adapts after {first[i]:.1f} s, median |f_OATF − f1| {err[i]:.1f} %, cost {by_id[i]:.1f} %" for i in idents)
             + f" (mean of both links), against {fixed:.1f} % for the fixed filter tuned right. A shorter window starts adapting seconds earlier and tracks the true mode more closely, "
             f"but the cost improves by {max(by_id.values()) - min(by_id.values()):.1f} points only: most of the gap to the tuned fixed filter ({min(by_id.values()) - fixed:.1f} points at best) "
             "is not the lag (adapting from 10 Hz keeps that design's integer delay, whose coefficients then overshoot at 4 Hz; see the battery)."
@@ -408,13 +462,17 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
     paras.append(
         f"Better converters: the best of {'/'.join(str(b) for b in bits[1:])} bits changes the cost against {bits[0]} bits by {-gain_b:+.1f} points for the fixed filter and {-gain_a:+.1f} for the adaptive one "
         f"(negative is better; one cell's seeds differ by {spread:.1f}): "
-        + ("they do not pay off on this rig; the 12-bit step is already below the analog noise that matters. " if max(gain_a, gain_b) <= spread else "a measurable gain. ")
+        + (
+            "they do not pay off on this rig; the 12-bit step is already below the analog noise that matters. "
+            if max(gain_a, gain_b) <= spread
+            else "a measurable gain. "
+        )
         + "(The controller reads the plant's 16-bit TPDO1 words, so the 20-bit converter reaches it with 16 bits.)"
     )
     rep.text(*paras)
 
 
-def _heatmaps(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], kind: str):  # type: ignore[no-untyped-def]
+def _heatmaps(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], kind: str) -> Figure:
     fig = new_figure(7.5, 1.9 * len(labels) + 0.6)
     axes = np.atleast_2d(fig.subplots(len(labels), 2, squeeze=False))
     for r, lab in enumerate(labels):

@@ -37,10 +37,11 @@ downloaded every 1000 samples (5 s, as in the thesis; ``--quick``: 400).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal, TypedDict
 
 import numpy as np
 import scipy.signal as ss
+from numpy.typing import NDArray
 from scipy.signal import ShortTimeFFT
 from scipy.signal.windows import hann
 
@@ -54,6 +55,11 @@ from rig.experiments.onrig.runner import (
     run_rigs,
 )
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from controller.record import RunRecord
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -120,7 +126,16 @@ def apex_split(res: RigResult, apex: np.ndarray) -> dict[str, Any]:
             continue
         f1_i, f2_i = float(np.median(tr1[at_apex])), float(np.median(tr2[at_apex]))
         band = (freqs >= 3.0) & (freqs <= 6.0)
-        rows.append({"t_s": float(dl_t[i]), "apex_share": share, "f1_hz": f1_i, "f2_hz": f2_i, "valid_3_6hz": float(np.mean(mag[band] > 0)), **split_peaks(freqs, mag, f1_i, f2_i)})
+        rows.append(
+            {
+                "t_s": float(dl_t[i]),
+                "apex_share": share,
+                "f1_hz": f1_i,
+                "f2_hz": f2_i,
+                "valid_3_6hz": float(np.mean(mag[band] > 0)),
+                **split_peaks(freqs, mag, f1_i, f2_i),
+            }
+        )
     return {
         "downloads": rows,
         "fraction_showing_both_modes": float(np.mean([r["both_modes"] for r in rows])) if rows else float("nan"),
@@ -162,7 +177,37 @@ def moving_average(x: np.ndarray, n: int) -> np.ndarray:
     return np.convolve(np.pad(x, (n // 2, n - 1 - n // 2), mode="edge"), ker, mode="valid")
 
 
-def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s: float, step_s: float = LAG_STEP_S) -> dict[str, Any]:
+class Alignment(TypedDict):
+    """:func:`alignment_lag`: the median error against each shift, and the best shift."""
+
+    lags_s: list[float]
+    median_abs_error_hz: list[float]
+    lag_s: float
+    error_at_lag_hz: float
+    error_at_zero_hz: float
+
+
+class Transition(TypedDict):
+    """One big change of the true first mode (:func:`transition_lags`)."""
+
+    true_crossing_s: float
+    from_hz: float
+    to_hz: float
+    level_hz: float
+    direction: Literal["up", "down"]
+    lag_s: float  #: NaN: the estimate was already past the level; ∞: not within the searched range
+
+
+class IdentificationLag(TypedDict):
+    """The identification lag as the report stores it."""
+
+    alignment: Alignment
+    transitions: list[Transition]
+    median_transition_lag_s: float
+    max_lag_searched_s: float
+
+
+def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s: float, step_s: float = LAG_STEP_S) -> Alignment:
     """The shift τ ∈ [0, max_lag_s] minimising the median |f_id(t) − f_true(t − τ)| (``t`` uniform; NaNs ignored)."""
     lags = np.arange(0.0, max_lag_s + 1e-9, step_s)
     med = []
@@ -172,10 +217,16 @@ def alignment_lag(t: np.ndarray, f_id: np.ndarray, f_true: np.ndarray, max_lag_s
         med.append(float(np.median(np.abs(f_id[ok] - shifted[ok]))) if ok.sum() >= 40 else np.nan)
     med_a = np.array(med)
     i = int(np.nanargmin(med_a)) if np.isfinite(med_a).any() else 0
-    return {"lags_s": lags.tolist(), "median_abs_error_hz": med_a.tolist(), "lag_s": float(lags[i]), "error_at_lag_hz": float(med_a[i]), "error_at_zero_hz": float(med_a[0])}
+    return {
+        "lags_s": lags.tolist(),
+        "median_abs_error_hz": med_a.tolist(),
+        "lag_s": float(lags[i]),
+        "error_at_lag_hz": float(med_a[i]),
+        "error_at_zero_hz": float(med_a[0]),
+    }
 
 
-def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.ndarray, t_min: float, prominence: float, max_lag_s: float) -> list[dict[str, Any]]:
+def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.ndarray, t_min: float, prominence: float, max_lag_s: float) -> list[Transition]:
     """Lags at the big changes of the (smoothed) true first mode.
 
     A transition runs between consecutive extrema of ``f_smooth`` (prominence
@@ -191,7 +242,7 @@ def transition_lags(t: np.ndarray, f_smooth: np.ndarray, tm: np.ndarray, m: np.n
     for end in (0, f_smooth.size - 1):
         if not ext or abs(f_smooth[end] - f_smooth[ext[0] if end == 0 else ext[-1]]) >= prominence:
             ext = sorted(set(ext) | {end})
-    out = []
+    out: list[Transition] = []
     for a, b in zip(ext[:-1], ext[1:]):
         fa, fb = float(f_smooth[a]), float(f_smooth[b])
         if abs(fb - fa) < prominence:
@@ -268,7 +319,7 @@ def run(ctx: ExperimentContext) -> Report:
     align = alignment_lag(grid, m_grid, np.interp(grid, truth_t, f_smooth), max_lag)
     trans = transition_lags(truth_t, f_smooth, tm, m, t_first + 2.0, TRANSITION_HZ, max_lag)
     trans_lags = np.array([x["lag_s"] for x in trans if math.isfinite(x["lag_s"])])
-    lag = {
+    lag: IdentificationLag = {
         "alignment": align,
         "transitions": trans,
         "median_transition_lag_s": float(np.median(trans_lags)) if trans_lags.size else float("nan"),
@@ -357,7 +408,10 @@ def run(ctx: ExperimentContext) -> Report:
             "htot_column_peaks_hz": [c[1] for c in tf_cols],
             "plain_column_peaks_hz": [c[1] for c in st_cols],
         },
-        "true_modes": {"f1_range_hz": [float(truth_f[:, 0].min()), float(truth_f[:, 0].max())], "f2_range_hz": [float(truth_f[:, 1].min()), float(truth_f[:, 1].max())]},
+        "true_modes": {
+            "f1_range_hz": [float(truth_f[:, 0].min()), float(truth_f[:, 0].max())],
+            "f2_range_hz": [float(truth_f[:, 1].min()), float(truth_f[:, 1].max())],
+        },
         "deflection": {"rms_in": defl.std(axis=0).tolist(), "peak_to_peak_in": np.ptp(defl, axis=0).tolist()},
         "identified": {"median_confidence": float(np.median(conf[est])), "fraction_ticks_confidence_ge_0.2": float(np.mean(conf[est] >= 0.2))},
     }
@@ -372,7 +426,11 @@ def run(ctx: ExperimentContext) -> Report:
         f"{int(has.sum())} of {dl_t.size} with an estimate (the first estimate at {t_first:.2f} s: the identifier waits for a full history)."
     )
     fig = _deflection_figure(t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex)
-    rep.figure(fig, "pi_deflections.png", "Link deflections, θ2 (apex samples shaded) and the true modal frequencies with the identified poles (first: dots, coloured by confidence; second: crosses).")
+    rep.figure(
+        fig,
+        "pi_deflections.png",
+        "Link deflections, θ2 (apex samples shaded) and the true modal frequencies with the identified poles (first: dots, coloured by confidence; second: crosses).",
+    )
 
     rep.heading("Spectrograms")
     fig = _spectrogram_figure(freqs, tf, dl_t, has, download / FS_HZ, sf, sx, st_end, truth_t, truth_f)
@@ -410,7 +468,11 @@ def run(ctx: ExperimentContext) -> Report:
     else:
         rep.text("No big change of the true first mode after the first estimate (a quick run ends too soon).")
     fig = _lag_figure(grid, m_grid, truth_t, truth_f[:, 0], f_smooth, lag)
-    rep.figure(fig, "pi_lag.png", "Left: identified first pole (running median), the true first mode and its smoothed version shifted by the alignment lag; transition crossings marked. Right: median error against the shift.")
+    rep.figure(
+        fig,
+        "pi_lag.png",
+        "Left: identified first pole (running median), the true first mode and its smoothed version shifted by the alignment lag; transition crossings marked. Right: median error against the shift.",
+    )
     rep.text(
         f"At the apex (θ2 ≤ {rep.results['apex']['theta2_threshold_rad']:.3f} rad, the lowest {APEX_QUANTILE:.0%} of the run) the two true modes close in "
         f"(median f2/f1 {split_ratio_apex:.2f}, elsewhere {split_ratio_else:.2f}); the identified pole lies nearer the true second mode for "
@@ -421,8 +483,16 @@ def run(ctx: ExperimentContext) -> Report:
     rep.check("transfer-function downloads with an estimate", int(has.sum()) >= (2 if quick else 10), f"{int(has.sum())} of {dl_t.size}")
     lags_ok = [x["lag_s"] for x in trans if math.isfinite(x["lag_s"])]
     rep.check("the alignment lag is positive and inside the searched range", 0 < al["lag_s"] < max_lag, f"{al['lag_s']:.2f} s")
-    rep.check("shifting the truth by the alignment lag lowers the median error", al["error_at_lag_hz"] < al["error_at_zero_hz"], f"{al['error_at_zero_hz']:.3f} → {al['error_at_lag_hz']:.3f} Hz")
-    rep.check("every measurable transition lag is positive", all(v > 0 for v in lags_ok), ", ".join(f"{v:.2f}" for v in lags_ok) + " s" if lags_ok else "none measurable")
+    rep.check(
+        "shifting the truth by the alignment lag lowers the median error",
+        al["error_at_lag_hz"] < al["error_at_zero_hz"],
+        f"{al['error_at_zero_hz']:.3f} → {al['error_at_lag_hz']:.3f} Hz",
+    )
+    rep.check(
+        "every measurable transition lag is positive",
+        all(v > 0 for v in lags_ok),
+        ", ".join(f"{v:.2f}" for v in lags_ok) + " s" if lags_ok else "none measurable",
+    )
     rep.check(
         "the identified first pole lies in the true modes' range (median of the running median)",
         truth_f[:, 0].min() - 0.5 <= float(np.nanmedian(m_grid)) <= truth_f[:, 1].max() + 0.5,
@@ -433,13 +503,33 @@ def run(ctx: ExperimentContext) -> Report:
     for r in all_runs:
         e = errors[r.spec.name]
         sp = splits[r.spec.name]
-        rows_cmp.append([
-            r.spec.label, 100 * e["whole"]["median_rel_f_error"], 100 * e["apex"]["median_rel_f_error"], 100 * e["away"]["median_rel_f_error"],
-            100 * e["away"]["within_5pct"], e["away"]["median_zeta"], e["away"]["true_zeta"], 100 * e["away"]["zeta_within_25pct"],
-            100 * sp["mean_valid_3_6hz"], 100 * sp["fraction_showing_both_modes"],
-        ])
+        rows_cmp.append(
+            [
+                r.spec.label,
+                100 * e["whole"]["median_rel_f_error"],
+                100 * e["apex"]["median_rel_f_error"],
+                100 * e["away"]["median_rel_f_error"],
+                100 * e["away"]["within_5pct"],
+                e["away"]["median_zeta"],
+                e["away"]["true_zeta"],
+                100 * e["away"]["zeta_within_25pct"],
+                100 * sp["mean_valid_3_6hz"],
+                100 * sp["fraction_showing_both_modes"],
+            ]
+        )
     rep.table(
-        ["run", "median |f1 error| whole (%)", "at the apex (%)", "away (%)", "away: within 5 % (% of samples)", "away: median ζ", "true ζ1", "away: ζ within ±25 % (%)", "apex downloads: 3–6 Hz bins solved (%)", "apex downloads showing both modes (%)"],
+        [
+            "run",
+            "median |f1 error| whole (%)",
+            "at the apex (%)",
+            "away (%)",
+            "away: within 5 % (% of samples)",
+            "away: median ζ",
+            "true ζ1",
+            "away: ζ within ±25 % (%)",
+            "apex downloads: 3–6 Hz bins solved (%)",
+            "apex downloads showing both modes (%)",
+        ],
         rows_cmp,
         caption="The first identified pole against the plant's first mode (after the first estimate + 2 s; ζ only where the pole is within 10 % of the first mode); apex downloads: ≥ 30 % of their window at the apex",
         digits=3,
@@ -457,11 +547,17 @@ def run(ctx: ExperimentContext) -> Report:
             apex_valid >= 0.9 and split_seen >= 0.5,
             f"{split_run}: {len(split_rows)} apex downloads (≥ {APEX_WINDOW_SHARE:.0%} of the window at the apex): {apex_valid:.0%} of 3–6 Hz bins valid; "
             f"both modes (peaks of ≥ {SPLIT_PROMINENCE_DB:g} dB within {SPLIT_TOL_HZ:g} Hz of the true f1 and f2 at the apex) in {split_seen:.0%}; "
-            + "; ".join(f"{k}: {v['mean_valid_3_6hz']:.0%} valid, both modes in {v['fraction_showing_both_modes']:.0%}" for k, v in splits.items() if k != split_run),
+            + "; ".join(
+                f"{k}: {v['mean_valid_3_6hz']:.0%} valid, both modes in {v['fraction_showing_both_modes']:.0%}" for k, v in splits.items() if k != split_run
+            ),
         )
     else:
         rep.text("No download fell at the apex in this run (quick mode covers only the start of the loop): the split check is not applicable.")
-    rep.check("the true modes close in at the apex (median f2/f1 lower there)", split_ratio_apex < split_ratio_else, f"{split_ratio_apex:.2f} vs {split_ratio_else:.2f}")
+    rep.check(
+        "the true modes close in at the apex (median f2/f1 lower there)",
+        split_ratio_apex < split_ratio_else,
+        f"{split_ratio_apex:.2f} vs {split_ratio_else:.2f}",
+    )
     headline = lag["median_transition_lag_s"] if math.isfinite(lag["median_transition_lag_s"]) else al["lag_s"]
     rep.thesis(
         "The identified modes lag the true changes by several seconds (1 to 4 s in §5; low-frequency features lag more).",
@@ -488,7 +584,17 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _deflection_figure(t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex):  # type: ignore[no-untyped-def]
+def _deflection_figure(
+    t: NDArray[np.float64],
+    rec: RunRecord,
+    th2: NDArray[np.float64],
+    truth_t: NDArray[np.float64],
+    truth_f: np.ndarray,
+    f_id: np.ndarray,
+    f_id2: np.ndarray,
+    conf: np.ndarray,
+    apex: NDArray[np.bool_],
+) -> Figure:
     fig = new_figure(11.0, 8.5)
     ax1, ax2, ax3, ax4 = fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 0.7, 1.4]})
     for ax in (ax1, ax2, ax3, ax4):
@@ -513,7 +619,18 @@ def _deflection_figure(t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex): 
     return fig
 
 
-def _spectrogram_figure(freqs, tf, dl_t, has, interval, sf, sx, st_end, truth_t, truth_f):  # type: ignore[no-untyped-def]
+def _spectrogram_figure(
+    freqs: np.ndarray,
+    tf: dict[str, np.ndarray],
+    dl_t: np.ndarray,
+    has: np.ndarray,
+    interval: float,
+    sf: np.ndarray,
+    sx: np.ndarray,
+    st_end: np.ndarray,
+    truth_t: NDArray[np.float64],
+    truth_f: np.ndarray,
+) -> Figure:
     fig = new_figure(12.0, 11.0)
     axes = fig.subplots(3, 2, sharex=True, sharey=True).ravel()
     m = freqs <= F_MAX_PLOT
@@ -552,7 +669,7 @@ def _spectrogram_figure(freqs, tf, dl_t, has, interval, sf, sx, st_end, truth_t,
     return fig
 
 
-def _lag_figure(grid, m_grid, truth_t, f_true, f_smooth, lag):  # type: ignore[no-untyped-def]
+def _lag_figure(grid: np.ndarray, m_grid: np.ndarray, truth_t: NDArray[np.float64], f_true: np.ndarray, f_smooth: np.ndarray, lag: IdentificationLag) -> Figure:
     fig = new_figure(11.0, 3.8)
     ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
     al = lag["alignment"]

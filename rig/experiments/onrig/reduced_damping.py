@@ -22,9 +22,10 @@ from the whole run; only the samples counted change (``runner.costs_over``).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.battery import adaptive_summary
@@ -37,6 +38,9 @@ from rig.experiments.onrig.runner import (
     run_rigs,
 )
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 DESIGN_ZETA = 0.01
 WRONG_HZ = 10.0
@@ -113,14 +117,27 @@ def run(ctx: ExperimentContext) -> Report:
     true1 = base.true_mode_hz(t, 0)
     f_ad = np.asarray(runs["adaptive"].record["oatf_hz"], dtype=float)
     rel_apex = np.abs(f_ad[apex] - true1[apex]) / true1[apex]
-    rel_else = np.abs(f_ad[~apex & (t >= adapt["first_change_s"])] - true1[~apex & (t >= adapt["first_change_s"])]) / true1[~apex & (t >= adapt["first_change_s"])] if np.isfinite(adapt["first_change_s"]) else np.array([np.nan])
+    rel_else = (
+        np.abs(f_ad[~apex & (t >= adapt["first_change_s"])] - true1[~apex & (t >= adapt["first_change_s"])]) / true1[~apex & (t >= adapt["first_change_s"])]
+        if np.isfinite(adapt["first_change_s"])
+        else np.array([np.nan])
+    )
     rep.results = {
         "runs": {k: r.summary() for k, r in runs.items()},
         "design_zeta": DESIGN_ZETA,
         "wrong_hz": WRONG_HZ,
         "lap_s": lap,
-        "apex": {"quantile": APEX_QUANTILE, "theta2_threshold_rad": float(np.quantile(th2, APEX_QUANTILE)), "true_f1_at_apex_hz": [float(true1[apex].min()), float(true1[apex].max())], "true_f1_elsewhere_hz": [float(true1[~apex].min()), float(true1[~apex].max())]},
-        "adaptation": {**adapt, "median_rel_error_at_apex": float(np.median(rel_apex)) if rel_apex.size else float("nan"), "median_rel_error_elsewhere_after_first_change": float(np.nanmedian(rel_else)) if rel_else.size else float("nan")},
+        "apex": {
+            "quantile": APEX_QUANTILE,
+            "theta2_threshold_rad": float(np.quantile(th2, APEX_QUANTILE)),
+            "true_f1_at_apex_hz": [float(true1[apex].min()), float(true1[apex].max())],
+            "true_f1_elsewhere_hz": [float(true1[~apex].min()), float(true1[~apex].max())],
+        },
+        "adaptation": {
+            **adapt,
+            "median_rel_error_at_apex": float(np.median(rel_apex)) if rel_apex.size else float("nan"),
+            "median_rel_error_elsewhere_after_first_change": float(np.nanmedian(rel_else)) if rel_else.size else float("nan"),
+        },
         "costs": table,
     }
 
@@ -145,7 +162,19 @@ def run(ctx: ExperimentContext) -> Report:
         rows = []
         for name, _ in RUNS:
             e = table[wname][name]
-            rows.append([LABELS[name], e["velocity_rms_in_s"][0], e["velocity_pct"][0], e["velocity_rms_in_s"][1], e["velocity_pct"][1], e["acceleration_rms_in_s2"][0], e["acceleration_pct"][0], e["acceleration_rms_in_s2"][1], e["acceleration_pct"][1]])
+            rows.append(
+                [
+                    LABELS[name],
+                    e["velocity_rms_in_s"][0],
+                    e["velocity_pct"][0],
+                    e["velocity_rms_in_s"][1],
+                    e["velocity_pct"][1],
+                    e["acceleration_rms_in_s2"][0],
+                    e["acceleration_pct"][0],
+                    e["acceleration_rms_in_s2"][1],
+                    e["acceleration_pct"][1],
+                ]
+            )
         rep.table(
             ["OATF", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
             rows,
@@ -153,7 +182,11 @@ def run(ctx: ExperimentContext) -> Report:
             digits=4,
         )
     fig = _traces(runs, t, apex, true1)
-    rep.figure(fig, "reduced_damping_traces.png", "Link-2 deflection of the three runs, θ2 (apex samples shaded), and the adaptive OATF's design frequency against the true first mode.")
+    rep.figure(
+        fig,
+        "reduced_damping_traces.png",
+        "Link-2 deflection of the three runs, θ2 (apex samples shaded), and the adaptive OATF's design frequency against the true first mode.",
+    )
     fig = _bars(table, list(windows))
     rep.figure(fig, "reduced_damping_costs.png", "RMS deflection velocity in % of unfiltered per window, link 1 and link 2.")
 
@@ -163,7 +196,9 @@ def run(ctx: ExperimentContext) -> Report:
 
     late = "after the first adaptation" if quick else "lap 2"
     late_apex = "apex, after the first adaptation" if quick else "apex, lap 2"
-    rep.check("the adaptive OATF changed its design", adapt["design_changes"] > 0, f"{adapt['design_changes']} changes, first at {adapt['first_change_s']:.2f} s")
+    rep.check(
+        "the adaptive OATF changed its design", adapt["design_changes"] > 0, f"{adapt['design_changes']} changes, first at {adapt['first_change_s']:.2f} s"
+    )
     rep.check(
         "the adaptive OATF moved from 10 Hz toward the first mode (median design frequency after its first change within ±1 Hz of the true first mode's range)",
         true1.min() - 1.0 <= adapt["median_hz_after_first_change"] <= true1.max() + 1.0,
@@ -208,7 +243,7 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _traces(runs: dict[str, RigResult], t: np.ndarray, apex: np.ndarray, true1: np.ndarray):  # type: ignore[no-untyped-def]
+def _traces(runs: dict[str, RigResult], t: NDArray[np.float64], apex: NDArray[np.bool_], true1: NDArray[np.float64]) -> Figure:
     fig = new_figure(11.0, 7.5)
     ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [1.4, 0.7, 1]})
     for ax in (ax1, ax2, ax3):
@@ -231,7 +266,7 @@ def _traces(runs: dict[str, RigResult], t: np.ndarray, apex: np.ndarray, true1: 
     return fig
 
 
-def _bars(table: dict, windows: list[str]):  # type: ignore[no-untyped-def]
+def _bars(table: dict[str, dict[str, Any]], windows: list[str]) -> Figure:
     fig = new_figure(11.0, 4.0)
     axes = fig.subplots(1, 2, sharey=True)
     x = np.arange(len(windows))

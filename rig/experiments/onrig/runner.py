@@ -169,7 +169,11 @@ class RigResult:
             "name": self.spec.name,
             "label": self.spec.label,
             "settings": {"controller": dict(self.spec.controller), "plant": dict(self.spec.plant), "dsp": dict(self.spec.dsp)},
-            "rig": "co-simulation (rig.cosim)" if self.mode == "cosim" else "one process (rig.composition)" if self.in_process else "three processes (rig.launcher)",
+            "rig": "co-simulation (rig.cosim)"
+            if self.mode == "cosim"
+            else "one process (rig.composition)"
+            if self.in_process
+            else "three processes (rig.launcher)",
             "mode": self.mode,
             "sim_time_s": float(len(self.record) * self.sample_period_s),
             "wall_time_s": round(self.wall_time_s, 2),
@@ -340,7 +344,10 @@ def _run_in_process(
     started = time.monotonic()
     common = {**spec.common, "clock": ctx.mode}
     run = run_in_process(
-        controller={**{k: v for k, v in controller.items() if k != "record"}, "record": str(record_path)},  # the record streams to disk (controller.record.ChunkedRecord)
+        controller={
+            **{k: v for k, v in controller.items() if k != "record"},
+            "record": str(record_path),
+        },  # the record streams to disk (controller.record.ChunkedRecord)
         plant=plant,
         dsp=dsp,
         common=common,
@@ -366,9 +373,8 @@ def _run_cosim(
     expected: float,
     on_progress: Callable[[float], None] | None,
 ) -> RigResult:
-    from rig.cosim import run_cosim
-
     from protocol.errors import ConfigError
+    from rig.cosim import run_cosim
 
     started = time.monotonic()
     try:

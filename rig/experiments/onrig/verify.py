@@ -45,14 +45,18 @@ bins).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.signal as ss
+from numpy.typing import NDArray
 
 from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigRun, run_rig
 from rig.experiments.report import Report, new_figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -308,7 +312,13 @@ def run(ctx: ExperimentContext) -> Report:
         spectra, f_off, n_snap = offline_estimate(channels, ends[ends <= end_tick], FFT_WIDTH, ALPHA)
         spectra_at[i] = spectra
         off = offline_tfs(spectra)
-        row: dict[str, Any] = {"sim_time_s": float(times[i]), "end_tick": end_tick, "end_is_a_batch_end": matched, "snapshots": n_snap, "grid_equal": bool(np.allclose(f_off, freqs, rtol=0, atol=1e-12))}
+        row: dict[str, Any] = {
+            "sim_time_s": float(times[i]),
+            "end_tick": end_tick,
+            "end_is_a_batch_end": matched,
+            "snapshots": n_snap,
+            "grid_equal": bool(np.allclose(f_off, freqs, rtol=0, atol=1e-12)),
+        }
         for name in TF_NAMES:
             on = np.asarray(tf[f"{name}_mag"][i], dtype=float)
             valid = on > 0
@@ -336,7 +346,9 @@ def run(ctx: ExperimentContext) -> Report:
     lag_sets = {"matched": m_match, "half_N": FFT_WIDTH // 2}
     algo: dict[str, Any] = {
         "online_bandwidth_bins": b_online,
-        "lag_windows": {k: {"max_lag": m, "ensemble_samples": max(BT_ENSEMBLE, 2 * m), "bandwidth_bins": bt_bandwidth_bins(m, FFT_WIDTH)} for k, m in lag_sets.items()},
+        "lag_windows": {
+            k: {"max_lag": m, "ensemble_samples": max(BT_ENSEMBLE, 2 * m), "bandwidth_bins": bt_bandwidth_bins(m, FFT_WIDTH)} for k, m in lag_sets.items()
+        },
         "hop_samples": BT_HOP,
         "downloads": [],
     }
@@ -351,7 +363,12 @@ def run(ctx: ExperimentContext) -> Report:
         t_span = np.arange(start, end_tick + 1) / FS_HZ
         true1 = res.true_mode_hz(t_span, 0)
         true2 = res.true_mode_hz(t_span, 1)
-        entry: dict[str, Any] = {"sim_time_s": r["sim_time_s"], "stretch_s": [start / FS_HZ, (end_tick + 1) / FS_HZ], "true_f1_hz": [float(true1.min()), float(true1.mean()), float(true1.max())], "true_f2_hz": [float(true2.min()), float(true2.mean()), float(true2.max())]}
+        entry: dict[str, Any] = {
+            "sim_time_s": r["sim_time_s"],
+            "stretch_s": [start / FS_HZ, (end_tick + 1) / FS_HZ],
+            "true_f1_hz": [float(true1.min()), float(true1.mean()), float(true1.max())],
+            "true_f2_hz": [float(true2.min()), float(true2.mean()), float(true2.max())],
+        }
         ests: dict[str, dict[str, np.ndarray]] = {}
         for key, m in lag_sets.items():
             spectra_bt, n_ens = blackman_tukey(channels, start, end_tick + 1, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
@@ -394,7 +411,13 @@ def run(ctx: ExperimentContext) -> Report:
 
     rep.results = {
         "run": res.summary(),
-        "settings": {"fft_width": FFT_WIDTH, "alpha": ALPHA, "batch_size": THESIS_BATCH_SIZE, "smoothing": [SMOOTH_WINDOW, SMOOTH_ORDER], "tf_download_samples": download},
+        "settings": {
+            "fft_width": FFT_WIDTH,
+            "alpha": ALPHA,
+            "batch_size": THESIS_BATCH_SIZE,
+            "smoothing": [SMOOTH_WINDOW, SMOOTH_ORDER],
+            "tf_download_samples": download,
+        },
         "batches": {"reconstructed": int(ends.size), "sent_by_controller": counters.get("batches_sent")},
         "implementation": impl,
         "algorithm": algo,
@@ -410,7 +433,7 @@ def run(ctx: ExperimentContext) -> Report:
         },
         "spectra_last": {
             "freqs_hz": freqs.tolist(),
-            **{f"{n}_online": np.asarray(tf[f'{n}_mag'][last_i]).tolist() for n in TF_NAMES},
+            **{f"{n}_online": np.asarray(tf[f"{n}_mag"][last_i]).tolist() for n in TF_NAMES},
             **{f"{n}_offline": np.abs(last_off[n]).tolist() for n in TF_NAMES},
             **{f"{n}_unsmoothed": np.abs(raw_last[n]).tolist() for n in TF_NAMES},
             **{f"{n}_bt_{k}": np.abs(bt_last[k][n]).tolist() for n in TF_NAMES for k in lag_sets},
@@ -448,15 +471,43 @@ def run(ctx: ExperimentContext) -> Report:
     for r in impl:
         for name in TF_NAMES:
             d = r[name]
-            rows.append([r["sim_time_s"], name, d["valid_bins"], d["median_rel_diff"], d["p99_rel_diff"], d["max_rel_diff"], d["peak_online_hz"], d["peak_offline_hz"], "yes" if r["end_is_a_batch_end"] else "**no**", r["snapshots"]])
+            rows.append(
+                [
+                    r["sim_time_s"],
+                    name,
+                    d["valid_bins"],
+                    d["median_rel_diff"],
+                    d["p99_rel_diff"],
+                    d["max_rel_diff"],
+                    d["peak_online_hz"],
+                    d["peak_offline_hz"],
+                    "yes" if r["end_is_a_batch_end"] else "**no**",
+                    r["snapshots"],
+                ]
+            )
     rep.table(
-        ["download (s)", "estimate", "valid bins", "median rel. diff", "99th pct", "max", "peak on-line (Hz)", "peak off-line (Hz)", "time stamp = a batch end", "snapshots averaged"],
+        [
+            "download (s)",
+            "estimate",
+            "valid bins",
+            "median rel. diff",
+            "99th pct",
+            "max",
+            "peak on-line (Hz)",
+            "peak off-line (Hz)",
+            "time stamp = a batch end",
+            "snapshots averaged",
+        ],
         rows,
         caption=f"On-line (DSP download) against off-line (SciPy) magnitudes; peaks: largest |H| in {PEAK_BAND_HZ[0]:g}–{PEAK_BAND_HZ[1]:g} Hz on valid bins",
         digits=3,
     )
     fig = _spectra_figure(freqs, tf, last_i, last_off, bt_last, raw_last, true1, true2, valid_last)
-    rep.figure(fig, "verify_tf.png", f"Last download ({times[last_i]:g} s): the DSP's smoothed estimates, the SciPy recomputation (black dashes, on top of them), the unsmoothed solve, the Blackman–Tukey estimates (bandwidth-matched and M = N/2); grey band: true first-mode range over the data, red: second mode; hatched: bins the DSP reports invalid.")
+    rep.figure(
+        fig,
+        "verify_tf.png",
+        f"Last download ({times[last_i]:g} s): the DSP's smoothed estimates, the SciPy recomputation (black dashes, on top of them), the unsmoothed solve, the Blackman–Tukey estimates (bandwidth-matched and M = N/2); grey band: true first-mode range over the data, red: second mode; hatched: bins the DSP reports invalid.",
+    )
     fig = _difference_figure(freqs, tf, last_i, last_off)
     rep.figure(fig, "verify_difference.png", "Relative difference |off-line − on-line| / on-line of the magnitudes at the last download, valid bins.")
     rep.text(
@@ -495,13 +546,27 @@ def run(ctx: ExperimentContext) -> Report:
 
     # ------------------------------------------------------------------ checks and thesis
     exact = worst_median < 1e-9 and worst_max < 1e-6
-    rep.check("every download's time stamp is a reconstructed batch end", all(r["end_is_a_batch_end"] for r in impl), ", ".join(f"{r['sim_time_s']:g} s" for r in impl))
-    rep.check("on-line and off-line magnitudes agree (median rel. diff < 1e-9, max < 1e-6)", exact, f"worst median {worst_median:.1e}, worst max {worst_max:.1e}")
+    rep.check(
+        "every download's time stamp is a reconstructed batch end",
+        all(r["end_is_a_batch_end"] for r in impl),
+        ", ".join(f"{r['sim_time_s']:g} s" for r in impl),
+    )
+    rep.check(
+        "on-line and off-line magnitudes agree (median rel. diff < 1e-9, max < 1e-6)", exact, f"worst median {worst_median:.1e}, worst max {worst_max:.1e}"
+    )
     rep.check(
         "the same dominant peak on-line and off-line",
-        all(math.isclose(r[n]["peak_online_hz"], r[n]["peak_offline_hz"]) or (math.isnan(r[n]["peak_online_hz"]) and math.isnan(r[n]["peak_offline_hz"])) for r in impl for n in TF_NAMES),
+        all(
+            math.isclose(r[n]["peak_online_hz"], r[n]["peak_offline_hz"]) or (math.isnan(r[n]["peak_online_hz"]) and math.isnan(r[n]["peak_offline_hz"]))
+            for r in impl
+            for n in TF_NAMES
+        ),
     )
-    rep.check("most valid bins (> 50 %) in every download", all(r["Htot"]["valid_bins"] > 0.5 * freqs.size for r in impl), ", ".join(str(r["Htot"]["valid_bins"]) for r in impl) + f" of {freqs.size}")
+    rep.check(
+        "most valid bins (> 50 %) in every download",
+        all(r["Htot"]["valid_bins"] > 0.5 * freqs.size for r in impl),
+        ", ".join(str(r["Htot"]["valid_bins"]) for r in impl) + f" of {freqs.size}",
+    )
     htot_half_n = [rr[2] < rr[4] for rr in rough_rows if rr[1] == "Htot"]
     frac_half_n = sum(smoother_half_n) / len(smoother_half_n)
     rep.check(
@@ -509,7 +574,11 @@ def run(ctx: ExperimentContext) -> Report:
         all(htot_half_n) and frac_half_n >= 0.8,
         f"H_tot {sum(htot_half_n)} of {len(htot_half_n)}; all estimates {sum(smoother_half_n)} of {len(smoother_half_n)}",
     )
-    rep.check("smoothing lowers the roughness of the solve (on-line < unsmoothed), every download and estimate", all(rr[2] < rr[5] for rr in rough_rows), f"{sum(rr[2] < rr[5] for rr in rough_rows)} of {len(rough_rows)}")
+    rep.check(
+        "smoothing lowers the roughness of the solve (on-line < unsmoothed), every download and estimate",
+        all(rr[2] < rr[5] for rr in rough_rows),
+        f"{sum(rr[2] < rr[5] for rr in rough_rows)} of {len(rough_rows)}",
+    )
     rep.thesis(
         "§4.1.1: the DSP's FFT, spectra and transfer functions are virtually identical to an independent off-line implementation, apart from rounding in the noise floor.",
         f"{len(impl)} download(s) × 5 estimates: median relative difference ≤ {worst_median:.1e}, largest {worst_max:.1e} (double precision; the C40 computed in single).",
@@ -530,17 +599,29 @@ def run(ctx: ExperimentContext) -> Report:
         "smoother smooths the solved transfer functions).",
         True if frac_half_n >= 0.8 and sum(smoother_matched) >= 0.5 * len(smoother_matched) else ("partly" if frac_half_n >= 0.8 else False),
     )
-    rep.attach(res.record_path.with_name(res.record_path.name + ".npz"), "controller run record (inputs u1_v, u2_v and outputs defl1_in, defl2_in sent to the DSP)")
+    rep.attach(
+        res.record_path.with_name(res.record_path.name + ".npz"), "controller run record (inputs u1_v, u2_v and outputs defl1_in, defl2_in sent to the DSP)"
+    )
     rep.attach(res.record_path.with_name(res.record_path.name + ".tf.npz"), "the DSP's transfer-function downloads")
     rep.attach(res.truth_path, "plant ground truth (modal frequencies)")
     return rep
 
 
-def _spectra_figure(freqs, tf, i, off, bt, raws, true1, true2, valid):  # type: ignore[no-untyped-def]
+def _spectra_figure(
+    freqs: np.ndarray,
+    tf: dict[str, np.ndarray],
+    i: int,
+    off: dict[str, np.ndarray],
+    bt: dict[str, dict[str, np.ndarray]],
+    raws: dict[str, Any],
+    true1: NDArray[np.float64],
+    true2: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+) -> Figure:
     fig = new_figure(11.0, 11.0)
     axes = fig.subplots(5, 1, sharex=True)
     m = freqs <= 20.0
-    for k, (ax, name) in enumerate(zip(axes, TF_NAMES)):
+    for ax, name in zip(axes, TF_NAMES):
         on = np.asarray(tf[f"{name}_mag"][i])
         raw = np.abs(raws[name])
         ax.axvspan(true1.min(), true1.max(), color="0.85", lw=0)
@@ -564,7 +645,7 @@ def _spectra_figure(freqs, tf, i, off, bt, raws, true1, true2, valid):  # type: 
     return fig
 
 
-def _difference_figure(freqs, tf, i, off):  # type: ignore[no-untyped-def]
+def _difference_figure(freqs: np.ndarray, tf: dict[str, np.ndarray], i: int, off: dict[str, np.ndarray]) -> Figure:
     fig = new_figure(9.0, 3.8)
     ax = fig.add_subplot(1, 1, 1)
     for name in TF_NAMES:
