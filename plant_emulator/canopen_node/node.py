@@ -220,6 +220,9 @@ class CanopenNode:
         self.ids = cob_ids(self.node_id)
         self.counters = NodeCounters()
         self.od = ObjectDictionary.from_table(object_table(self.cfg), self.node_id)
+        self.od.quiet = frozenset({OD_ANALOG_INPUT_16, OD_ANALOG_INPUT_32, OD_ANALOG_OUTPUT_16})
+        self._conf_generation = -1
+        self._conf: tuple[int, float, float, float, float, float, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
         self.sdo = SdoServer(self.od)
         self.counters.sdo = self.sdo.counters
         self.state = NmtState.BOOT_UP
@@ -304,31 +307,50 @@ class CanopenNode:
         """Valve voltages as last given to the application."""
         return self._outputs_v.copy()
 
+    def _config(self) -> tuple[int, float, float, float, float, float, int]:
+        """The configuration read every tick (A/D bits, valve limit, sample period,
+        heartbeat period, RPDO1 timer, watchdog timeout, SYNC overflow), read
+        from the object dictionary again whenever it changed (its ``generation``)."""
+        od = self.od
+        if od.generation != self._conf_generation:
+            period = int(od.get(OD_SAMPLE_PERIOD)) * 1e-6
+            self._conf = (
+                int(od.get(OD_ADC_RESOLUTION)),
+                float(od.get(OD_VALVE_LIMIT)),
+                period,
+                int(od.get(0x1017)) * 1e-3,
+                int(od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3,
+                int(od.get(OD_WATCHDOG_PERIODS)) * period,
+                int(od.get(0x1019)),
+            )
+            self._conf_generation = od.generation
+        return self._conf
+
     @property
     def adc_bits(self) -> int:
-        return int(self.od.get(OD_ADC_RESOLUTION))
+        return self._config()[0]
 
     @property
     def valve_limit_v(self) -> float:
-        return float(self.od.get(OD_VALVE_LIMIT))
+        return self._config()[1]
 
     @property
     def sample_period_s(self) -> float:
-        return int(self.od.get(OD_SAMPLE_PERIOD)) * 1e-6
+        return self._config()[2]
 
     @property
     def heartbeat_period_s(self) -> float:
-        return int(self.od.get(0x1017)) * 1e-3
+        return self._config()[3]
 
     @property
     def rpdo_timeout_s(self) -> float:
         """0x1400 sub 5, the RPDO1 event timer: deadline monitoring of RPDO1 (0 = off)."""
-        return int(self.od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3
+        return self._config()[4]
 
     @property
     def watchdog_timeout_s(self) -> float:
         """0 when the watchdog is disabled."""
-        return int(self.od.get(OD_WATCHDOG_PERIODS)) * self.sample_period_s
+        return self._config()[5]
 
     @property
     def error_register(self) -> int:
@@ -517,7 +539,7 @@ class CanopenNode:
         if self.state is NmtState.STOPPED:
             self.counters.rx["sync_stopped"] += 1
             return
-        overflow = int(self.od.get(0x1019))
+        overflow = self._config()[6]
         missed = 0
         conflict = ""
         if not data:
@@ -794,7 +816,8 @@ class CanopenNode:
         """(SYNC watchdog, RPDO1 deadline monitoring) while armed, else None."""
         if self.state is not NmtState.OPERATIONAL or self._tripped:
             return None, None
-        sync_timeout, rpdo_timeout = self.watchdog_timeout_s, self.rpdo_timeout_s
+        conf = self._config()
+        sync_timeout, rpdo_timeout = conf[5], conf[4]
         sync = self._wd_last + sync_timeout if self._wd_last is not None and sync_timeout > 0 else None
         rpdo = self._rpdo_last + rpdo_timeout if self._rpdo_last is not None and rpdo_timeout > 0 else None
         return sync, rpdo
