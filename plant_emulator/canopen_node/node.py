@@ -206,6 +206,11 @@ def node_can_filters(node_id: int = DEFAULT_NODE_ID) -> list[can.typechecking.Ca
 
 
 _ZERO_OUTPUTS: Final = np.zeros(N_ANALOG_OUTPUTS)
+_DAC_LSB: Final = DAC12.lsb_v
+_DAC_CODE_MIN: Final = DAC12.code_min
+_DAC_CODE_MAX: Final = DAC12.code_max
+_DAC_SHIFT: Final = DAC12.shift(16)
+"""DAC12's constants, read once (its properties compute them on every access)."""
 _RPDO1: Final = struct.Struct("<2h")
 """RPDO1 payload: two left-justified INT16 words (as protocol.can_map.decode_analog_outputs, length already checked)."""
 
@@ -793,10 +798,10 @@ class CanopenNode:
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             self.od.set(OD_ANALOG_OUTPUT_16, sub, int(w[sub - 1]))
         limit = self.valve_limit_v if limit_v is None else limit_v
-        lsb = DAC12.lsb_v
+        lsb = _DAC_LSB
         limit_code = int(math.floor(limit / lsb + 1e-9))
-        lo, hi = max(-limit_code, DAC12.code_min), min(limit_code, DAC12.code_max)
-        shift = DAC12.shift(16)
+        lo, hi = max(-limit_code, _DAC_CODE_MIN), min(limit_code, _DAC_CODE_MAX)
+        shift = _DAC_SHIFT
         # Plain ints: the code's int -> float conversion and the product by one LSB are
         # the same IEEE operations numpy does on the int64 array.
         c0, c1 = w[0] >> shift, w[1] >> shift
