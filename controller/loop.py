@@ -127,33 +127,47 @@ class ControlLaw:
         return self.supervisor.offer_interrupt(interrupt)
 
     def record_row(self, tick: int, out: TickOutput) -> dict[str, Any]:
+        """One row of the run record. The arrays are read with ``tolist`` (the
+        same float64 values as indexing them, as Python floats; the words as
+        ints, converted to float64 by the record exactly as int64 is): one
+        call per array instead of one numpy scalar per column."""
         m = out.measurement
+        ref1, ref2 = out.setpoint_rad.tolist()
+        sh1, sh2 = out.shaped_setpoint_rad.tolist()
+        phi1, phi2 = m.phi_rad.tolist()
+        th1, th2 = m.theta_rad.tolist()
+        ext1, ext2 = m.extension_in.tolist()
+        d1, d2 = m.deflection_in.tolist()
+        w1, w2, w3, w4 = m.words.tolist()
+        v1, v2, v3, v4 = m.volts.tolist()
+        u1, u2 = out.volts.tolist()
+        pi1, pi2 = out.pi_output_v.tolist()
         return {
             "tick": tick,
             "t_s": tick * self.settings.sample_period_s,
-            "phi_ref1": out.setpoint_rad[0],
-            "phi_ref2": out.setpoint_rad[1],
-            "phi_shaped1": out.shaped_setpoint_rad[0],
-            "phi_shaped2": out.shaped_setpoint_rad[1],
-            "phi1": m.phi_rad[0],
-            "phi2": m.phi_rad[1],
-            "theta1": m.theta_rad[0],
-            "theta2": m.theta_rad[1],
-            "ext1_in": m.extension_in[0],
-            "ext2_in": m.extension_in[1],
-            "defl1_in": m.deflection_in[0],
-            "defl2_in": m.deflection_in[1],
-            "ai1_word": m.words[0],
-            "ai2_word": m.words[1],
-            "ai3_word": m.words[2],
-            "ai4_word": m.words[3],
-            "ai1_v": m.volts[0],
-            "ai2_v": m.volts[1],
-            "ai3_v": m.volts[2],
-            "ai4_v": m.volts[3],
-            "u1_v": out.volts[0],
-            "u2_v": out.volts[1],
-            "pi1_v": out.pi_output_v[0],
-            "pi2_v": out.pi_output_v[1],
+            "phi_ref1": ref1,
+            "phi_ref2": ref2,
+            "phi_shaped1": sh1,
+            "phi_shaped2": sh2,
+            "phi1": phi1,
+            "phi2": phi2,
+            "theta1": th1,
+            "theta2": th2,
+            "ext1_in": ext1,
+            "ext2_in": ext2,
+            "defl1_in": d1,
+            "defl2_in": d2,
+            "ai1_word": w1,
+            "ai2_word": w2,
+            "ai3_word": w3,
+            "ai4_word": w4,
+            "ai1_v": v1,
+            "ai2_v": v2,
+            "ai3_v": v3,
+            "ai4_v": v4,
+            "u1_v": u1,
+            "u2_v": u2,
+            "pi1_v": pi1,
+            "pi2_v": pi2,
             "oatf_hz": self.oatf_frequency_hz,
         }

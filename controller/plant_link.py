@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import threading
 import time
 from collections import deque
@@ -40,6 +41,10 @@ from protocol.can_map import (
     NmtState,
 )
 from protocol.errors import FrameError
+
+_RPDO1: Final = struct.Struct("<2h")
+"""RPDO1 payload: two left-justified INT16 words (protocol.can_map.encode_analog_outputs)."""
+_DAC_SHIFT: Final = can_map.DAC12.shift(16)
 
 log = logging.getLogger(__name__)
 
@@ -217,10 +222,21 @@ class PlantLink:
 
     def send_outputs(self, volts: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """RPDO1 with two valve voltages; returns which were clipped to the D/A range."""
-        data, clipped = can_map.volts_to_output_frame(volts)
+        if type(volts) is np.ndarray and volts.dtype == np.float64 and volts.shape == (2,):
+            # The control law's own type: can_map.volts_to_output_frame on plain ints
+            # (the codes are clipped to 12 bits, so code << 4 always fits the INT16 word).
+            q = can_map.DAC12.quantize(volts)
+            c0, c1 = q.counts.tolist()
+            data = _RPDO1.pack(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT)
+            clipped = q.saturated
+            s0, s1 = clipped.tolist()
+            n_clipped = int(s0) + int(s1)
+        else:
+            data, clipped = can_map.volts_to_output_frame(volts)
+            n_clipped = int(np.count_nonzero(clipped))
         self._send(self._rpdo1, data)
         self.counters.rpdos_sent += 1
-        self.counters.outputs_clipped += int(np.count_nonzero(clipped))
+        self.counters.outputs_clipped += n_clipped
         return clipped
 
     def _dispatch(self, msg: can.Message) -> None:

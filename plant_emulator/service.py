@@ -190,11 +190,14 @@ class PlantApplication:
 
     # -- scenario and test port ------------------------------------------------------------
     def _apply_scenario(self) -> None:
-        while True:
+        inbox = self.scenario_inbox
+        while inbox.qsize():  # nothing queued (every tick but a few): no exception raised and caught
             try:
-                self.scenario.append(self.scenario_inbox.get_nowait())
+                self.scenario.append(inbox.get_nowait())
             except queue.Empty:
                 break
+        if not self.scenario:
+            return
         due = [c for c in self.scenario if c.at_sim_time_s <= self.arm.time_s + 1e-12]
         if not due:
             return

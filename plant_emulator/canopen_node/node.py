@@ -206,6 +206,11 @@ def node_can_filters(node_id: int = DEFAULT_NODE_ID) -> list[can.typechecking.Ca
 
 
 _ZERO_OUTPUTS: Final = np.zeros(N_ANALOG_OUTPUTS)
+_DAC_LSB: Final = DAC12.lsb_v
+_DAC_CODE_MIN: Final = DAC12.code_min
+_DAC_CODE_MAX: Final = DAC12.code_max
+_DAC_SHIFT: Final = DAC12.shift(16)
+"""DAC12's constants, read once (its properties compute them on every access)."""
 _RPDO1: Final = struct.Struct("<2h")
 """RPDO1 payload: two left-justified INT16 words (as protocol.can_map.decode_analog_outputs, length already checked)."""
 
@@ -220,6 +225,9 @@ class CanopenNode:
         self.ids = cob_ids(self.node_id)
         self.counters = NodeCounters()
         self.od = ObjectDictionary.from_table(object_table(self.cfg), self.node_id)
+        self.od.quiet = frozenset({OD_ANALOG_INPUT_16, OD_ANALOG_INPUT_32, OD_ANALOG_OUTPUT_16})
+        self._conf_generation = -1
+        self._conf: tuple[int, float, float, float, float, float, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
         self.sdo = SdoServer(self.od)
         self.counters.sdo = self.sdo.counters
         self.state = NmtState.BOOT_UP
@@ -304,31 +312,50 @@ class CanopenNode:
         """Valve voltages as last given to the application."""
         return self._outputs_v.copy()
 
+    def _config(self) -> tuple[int, float, float, float, float, float, int]:
+        """The configuration read every tick (A/D bits, valve limit, sample period,
+        heartbeat period, RPDO1 timer, watchdog timeout, SYNC overflow), read
+        from the object dictionary again whenever it changed (its ``generation``)."""
+        od = self.od
+        if od.generation != self._conf_generation:
+            period = int(od.get(OD_SAMPLE_PERIOD)) * 1e-6
+            self._conf = (
+                int(od.get(OD_ADC_RESOLUTION)),
+                float(od.get(OD_VALVE_LIMIT)),
+                period,
+                int(od.get(0x1017)) * 1e-3,
+                int(od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3,
+                int(od.get(OD_WATCHDOG_PERIODS)) * period,
+                int(od.get(0x1019)),
+            )
+            self._conf_generation = od.generation
+        return self._conf
+
     @property
     def adc_bits(self) -> int:
-        return int(self.od.get(OD_ADC_RESOLUTION))
+        return self._config()[0]
 
     @property
     def valve_limit_v(self) -> float:
-        return float(self.od.get(OD_VALVE_LIMIT))
+        return self._config()[1]
 
     @property
     def sample_period_s(self) -> float:
-        return int(self.od.get(OD_SAMPLE_PERIOD)) * 1e-6
+        return self._config()[2]
 
     @property
     def heartbeat_period_s(self) -> float:
-        return int(self.od.get(0x1017)) * 1e-3
+        return self._config()[3]
 
     @property
     def rpdo_timeout_s(self) -> float:
         """0x1400 sub 5, the RPDO1 event timer: deadline monitoring of RPDO1 (0 = off)."""
-        return int(self.od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3
+        return self._config()[4]
 
     @property
     def watchdog_timeout_s(self) -> float:
         """0 when the watchdog is disabled."""
-        return int(self.od.get(OD_WATCHDOG_PERIODS)) * self.sample_period_s
+        return self._config()[5]
 
     @property
     def error_register(self) -> int:
@@ -517,7 +544,7 @@ class CanopenNode:
         if self.state is NmtState.STOPPED:
             self.counters.rx["sync_stopped"] += 1
             return
-        overflow = int(self.od.get(0x1019))
+        overflow = self._config()[6]
         missed = 0
         conflict = ""
         if not data:
@@ -771,10 +798,10 @@ class CanopenNode:
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             self.od.set(OD_ANALOG_OUTPUT_16, sub, int(w[sub - 1]))
         limit = self.valve_limit_v if limit_v is None else limit_v
-        lsb = DAC12.lsb_v
+        lsb = _DAC_LSB
         limit_code = int(math.floor(limit / lsb + 1e-9))
-        lo, hi = max(-limit_code, DAC12.code_min), min(limit_code, DAC12.code_max)
-        shift = DAC12.shift(16)
+        lo, hi = max(-limit_code, _DAC_CODE_MIN), min(limit_code, _DAC_CODE_MAX)
+        shift = _DAC_SHIFT
         # Plain ints: the code's int -> float conversion and the product by one LSB are
         # the same IEEE operations numpy does on the int64 array.
         c0, c1 = w[0] >> shift, w[1] >> shift
@@ -794,7 +821,8 @@ class CanopenNode:
         """(SYNC watchdog, RPDO1 deadline monitoring) while armed, else None."""
         if self.state is not NmtState.OPERATIONAL or self._tripped:
             return None, None
-        sync_timeout, rpdo_timeout = self.watchdog_timeout_s, self.rpdo_timeout_s
+        conf = self._config()
+        sync_timeout, rpdo_timeout = conf[5], conf[4]
         sync = self._wd_last + sync_timeout if self._wd_last is not None and sync_timeout > 0 else None
         rpdo = self._rpdo_last + rpdo_timeout if self._rpdo_last is not None and rpdo_timeout > 0 else None
         return sync, rpdo

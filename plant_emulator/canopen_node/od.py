@@ -231,6 +231,12 @@ class ObjectDictionary:
     _values: dict[tuple[int, int], Value] = field(default_factory=dict)
     _hooks: dict[tuple[int, int], WriteHook] = field(default_factory=dict)
     _getters: dict[tuple[int, int], Getter] = field(default_factory=dict)
+    generation: int = 0
+    """Bumped by every change that may alter a stored value or how it is
+    served, except ``set`` on the ``quiet`` indices: lets the node cache
+    configuration it reads every tick."""
+    quiet: frozenset[int] = frozenset()
+    """Indices whose ``set`` leaves ``generation`` alone (process data written every tick)."""
 
     @classmethod
     def from_table(cls, table: Iterable[ObjectDef], node_id: int) -> ObjectDictionary:
@@ -243,6 +249,7 @@ class ObjectDictionary:
 
     def restore_defaults(self, indices: range | None = None) -> None:
         """Reset stored values (of the indices in ``indices``, default all) to the table."""
+        self.generation += 1
         for key, e in self._entries.items():
             if indices is None or e.index in indices:
                 self._values[key] = e.default_for(self.node_id)
@@ -271,6 +278,7 @@ class ObjectDictionary:
         """Serve a live value instead of the stored one."""
         assert (index, sub) in self._entries, (index, sub)
         self._getters[(index, sub)] = fn
+        self.generation += 1
 
     def get(self, index: int, sub: int = 0) -> Value:
         g = self._getters.get((index, sub))
@@ -281,6 +289,8 @@ class ObjectDictionary:
     def set(self, index: int, sub: int, value: Value) -> None:
         assert (index, sub) in self._entries, (index, sub)
         self._values[(index, sub)] = value
+        if index not in self.quiet:
+            self.generation += 1
 
     # --- SDO view --------------------------------------------------------------
 
@@ -314,3 +324,4 @@ class ObjectDictionary:
         if hook is not None:
             hook(value)
         self._values[(index, sub)] = value
+        self.generation += 1

@@ -17,8 +17,10 @@ from typing import Any
 
 try:  # numba is optional: the plain-Python function gives the same floats
     from numba import njit as _njit
+    from numba.extending import register_jitable as _register_jitable
 except ImportError:  # pragma: no cover - depends on the environment
     _njit = None
+    _register_jitable = None  # type: ignore[assignment]
 
 
 def _modal_step(
@@ -117,6 +119,8 @@ def _compiled() -> Any:
 
 
 modal_step_py = _modal_step
+modal_step_jitable: Any = _modal_step if _register_jitable is None else _register_jitable(_modal_step)
+"""The same function, callable from compiled code (``._period_kernel``) and from Python."""
 modal_step: Any = _compiled()
 """Compiled when numba is installed (cached on disk; compiled by :func:`warm_up` before the first tick)."""
 

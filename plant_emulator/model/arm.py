@@ -43,7 +43,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model import _modal_kernel
+from plant_emulator.model import _modal_kernel, _period_kernel
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
@@ -263,6 +263,26 @@ class RalfArm:
             else default_deflection_zero(cfg.structure, self._payload, cfg.camera_on_link)
         )
         self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
+        # the compiled period (_period_kernel): its constant arguments and state vector
+        _period_kernel.warm_up()
+        self._advance_steps = _period_kernel.advance_steps
+        a0, a1 = self._axes
+        if a0.tau != a1.tau:  # pragma: no cover - both come from one setting
+            raise ValueError("the cylinders share one valve time constant")
+        self._hp = np.array(
+            [self._h, math.exp(-self._h / a0.tau), a0.tau,
+             a0.gain, a0.vmax, a0.ext_lo, a0.ext_hi, a1.gain, a1.vmax, a1.ext_lo, a1.ext_hi,
+             *_JOINT[0], *_JOINT[1], float(cfg.camera_on_link), float(cfg.sensor_noise)],
+            dtype=np.float64,
+        )
+        self._sp = np.array(
+            [L1_M, L2_M, kin.INCH, self._zero[0], self._zero[1], self._defl_noise_in[0], self._defl_noise_in[1], *self._aa._c],
+            dtype=np.float64,
+        )
+        self._ma = tuple(np.array(m, dtype=np.float64) for m in self._modal_args)
+        self._st = np.zeros(20)
+        self._noise_src: list[float] | None = None
+        self._noise_arr = np.zeros(0)
 
     # -- public API ---------------------------------------------------------------------
     @property
@@ -308,8 +328,15 @@ class RalfArm:
             raise ValueError(f"advance needs a finite dt >= 0, got {dt!r}")
         total = self._pending_ns + int(round(dt * NS_PER_S))
         n, self._pending_ns = divmod(total, self._h_ns)
-        for _ in range(n):
-            self._step()
+        if not self.compiled_steps:
+            for _ in range(n):
+                self._step()
+        elif n:
+            self._run_steps(n)
+
+    compiled_steps = True
+    """Run the internal steps in :mod:`._period_kernel` (False: :meth:`_step`, the
+    Python reference it equals bit for bit)."""
 
     def sample(self) -> SensorReading:
         """A/D conversion of the four inputs now (on SYNC)."""
@@ -415,6 +442,52 @@ class RalfArm:
             self._cache_key = key
             self._cache = (r[:12], r[12:16], ((r[16], r[17], r[18], r[19]), (r[20], r[21], r[22], r[23])))
         return self._cache
+
+    def _run_steps(self, n: int) -> None:
+        """``n`` internal steps through :func:`._period_kernel.advance_steps`:
+        the state in, the kernel, the state back out (the same state as ``n``
+        calls of :meth:`_step`)."""
+        st = self._st
+        a0, a1 = self._axes
+        aa = self._aa.state
+        st[:] = (
+            a0.extension_in, a0.velocity_in_s, a0.stop_side, a1.extension_in, a1.velocity_in_s, a1.stop_side,
+            *self._theta, *self._theta_dot, *self._beta, *self._beta_dot, *self._frac, *aa[0], *aa[1],
+        )
+        noise = self._noise
+        noisy = self.cfg.sensor_noise
+        volts0, volts1 = self._volts
+        ma = self._ma[self._payload]
+        while n:
+            if noisy:
+                if noise._next + 2 > len(noise._block):  # refilled by the noise source's own rule
+                    noise.step_pair()
+                    noise._next -= 2
+                if noise._block is not self._noise_src:
+                    self._noise_src = noise._block
+                    self._noise_arr = np.array(noise._block, dtype=np.float64)
+            done, nxt, status, arr0, spd0, side0, arr1, spd1, side1 = self._advance_steps(
+                n, volts0, volts1, st, self._hp, self._sp, ma, self._noise_arr, noise._next
+            )
+            if noisy:
+                noise._next = nxt
+            self._steps += done
+            n -= done
+            if status == _period_kernel.STATUS_STOP:
+                t_end = self._steps * self._h_ns / NS_PER_S
+                for j, arrived, side, speed in ((0, arr0, side0, spd0), (1, arr1, side1, spd1)):
+                    if arrived:
+                        self._stop_counts[j] += 1
+                        self._events.append(HardStop(time_s=t_end, joint=j, side=side, speed_in_s=speed))
+        (e0, v0, s0, e1, v1, s1, t0, t1, td0, td1, b0, b1, bd0, bd1, f0, f1, x00, x01, x10, x11) = st.tolist()
+        a0.extension_in, a0.velocity_in_s, a0.stop_side = e0, v0, int(s0)
+        a1.extension_in, a1.velocity_in_s, a1.stop_side = e1, v1, int(s1)
+        self._theta = [t0, t1]
+        self._theta_dot = [td0, td1]
+        self._beta = [b0, b1]
+        self._beta_dot = [bd0, bd1]
+        self._frac = (f0, f1)
+        self._aa.state = [[x00, x01], [x10, x11]]
 
     def _step(self) -> None:
         h = self._h

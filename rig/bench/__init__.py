@@ -13,6 +13,9 @@ Items (``--only``):
 * ``lockstep``: simulated seconds per wall second, three processes,
   the one-thread co-simulation (:mod:`rig.cosim`, against its 100x target)
   and one process (:mod:`rig.composition`);
+* ``cosim``: the co-simulation alone (simulated s per wall s and per CPU
+  s, µs per tick against the 100x budget, and where a tick goes,
+  :mod:`rig.bench.cosim_parts`);
 * ``dsp``: :func:`dsp_service.bench.bench_identifier` (n = 2048);
 * ``dsp-rigs``: how many 200 Hz rigs one DSP process serves (:mod:`rig.bench.dsp_rigs`);
 * ``hotpath``: controller tick and plant step in a micro-benchmark
@@ -57,6 +60,12 @@ def options_from_args(args: argparse.Namespace) -> dict[str, Any]:
         "duration_s": args.duration if args.duration is not None else (3.0 if quick else 10.0),
         "iterations": args.iterations if args.iterations is not None else (100 if quick else 2000),
         "warmup": 10 if quick else 100,
+        "rates": [list(r) for r in (args.rate or [])],
+        "batch_period_s": args.batch_period,
+        "floor_s": args.floor_seconds,
+        "burners": args.burners,
+        "rt_priority": args.rt_priority,
+        "cpu_affinity": args.cpu_affinity,
     }
 
 
@@ -71,6 +80,12 @@ def run_bench(options: dict[str, Any], log_dir: Path | None = None, say: Any = N
         log_dir=log_dir,
         floors_only=options["floors_only"],
         say=say or (lambda text: None),
+        rates=tuple((float(r), None if sec is None else float(sec)) for r, sec in options.get("rates", [])),
+        batch_period_s=options.get("batch_period_s", 0.2),
+        floor_s=options.get("floor_s", 5.0),
+        burners=options.get("burners", 0),
+        rt_priority=options.get("rt_priority", 0),
+        cpu_affinity=options.get("cpu_affinity", ""),
     )
     report: dict[str, Any] = {"schema": SCHEMA, "machine": machine_info(), "options": {**options, "log_dir": str(log_dir)}, "items": {}}
     started = time.monotonic()
@@ -196,12 +211,42 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _rate(text: str) -> tuple[float, float | None]:
+    """``HZ`` or ``HZ:SECONDS`` (``--rate 1000:60``)."""
+    rate, _, seconds = text.partition(":")
+    try:
+        r = float(rate)
+        sec = float(seconds) if seconds else None
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HZ or HZ:SECONDS, e.g. 1000:60") from None
+    if not (math.isfinite(r) and 0 < r <= 5000) or (sec is not None and not (math.isfinite(sec) and sec > 0)):
+        raise argparse.ArgumentTypeError(f"{text!r}: rate must be 0..5000 Hz and seconds positive")
+    return r, sec
+
+
+def _cpus(text: str) -> str:
+    from service_kit.realtime import parse_cpus
+
+    try:
+        parse_cpus(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", nargs="+", action="extend", choices=list(ITEMS), metavar="NAME", help=f"run only these items: {', '.join(ITEMS)} (default: all)")
     p.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="seconds per real-time rate and per lockstep run (default 10, --quick 3)")
     p.add_argument("--iterations", type=_positive_int, default=None, metavar="N", help="round trips per latency measurement (default 2000, --quick 100)")
     p.add_argument("--quick", action="store_true", help="few iterations and short runs: a smoke test of the bench, not a measurement to quote")
     p.add_argument("--floors-only", action="store_true", help="only the bare transport floors (zenoh, UDP, udp_multicast); no service is started")
+    rt = p.add_argument_group("realtime item (the acceptance runs: --rate 1000:60 --rate 200:600, then again with --burners 2)")
+    rt.add_argument("--rate", type=_rate, action="append", default=None, metavar="HZ[:S]", help="a real-time run at HZ for S seconds (default --duration); repeat for several (default: 200 and 1000 Hz)")
+    rt.add_argument("--batch-period", type=_positive_float, default=0.2, metavar="S", help="batch size = S seconds of samples; above the DSP's 100 ms emulated latency leaves the deadline slack (default 0.2)")
+    rt.add_argument("--floor-seconds", type=_positive_float, default=5.0, metavar="S", help="seconds of the sleep-only loop per rate, at most the run's (default 5)")
+    rt.add_argument("--burners", type=int, choices=range(0, 17), default=0, metavar="N", help="N CPU-burning processes during the floors and the rig: a loaded host (default 0)")
+    rt.add_argument("--rt-priority", type=int, choices=range(0, 100), default=0, metavar="P", help="RALF_RT_PRIORITY for the controller and plant: SCHED_FIFO where permitted (default 0: off)")
+    rt.add_argument("--cpu-affinity", type=_cpus, default="", metavar="CPUS", help="RALF_CPU_AFFINITY for the controller and plant, e.g. 1 or 0-1 (default: not pinned)")
     p.add_argument("--json", default=DEFAULT_JSON, metavar="PATH", help=f"write the results here (default {DEFAULT_JSON})")
     p.add_argument("--log-dir", default=None, help="where helper and service logs go (default: a temporary directory)")
 

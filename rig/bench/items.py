@@ -20,10 +20,11 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import subprocess
 import sys
 import time
-from collections.abc import Callable, Mapping
-from contextlib import ExitStack
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,17 @@ class BenchContext:
     log_dir: Path = field(default_factory=lambda: Path("/tmp"))
     floors_only: bool = False
     say: Callable[[str], None] = lambda text: None
+    rates: tuple[tuple[float, float | None], ...] = ()
+    """realtime: (rate Hz, seconds or None = ``duration_s``) per run (empty: 200 Hz and 1 kHz)."""
+    batch_period_s: float = 0.2
+    """realtime: batch size = this many seconds of samples (> the DSP's 100 ms emulated latency: slack for the deadline)."""
+    floor_s: float = 5.0
+    """realtime: seconds of the sleep-only loop per rate (at most the run's own)."""
+    burners: int = 0
+    """realtime: CPU-burning processes running during the floor and the rig (a loaded host)."""
+    rt_priority: int = 0
+    cpu_affinity: str = ""
+    """realtime: RALF_RT_PRIORITY / RALF_CPU_AFFINITY for the controller and the plant (opt-in measures)."""
 
 
 def new_result() -> dict[str, Any]:
@@ -357,29 +369,62 @@ def _progress(history: list[tuple[float, Any]]) -> dict[str, float] | None:
 # --- 3. real time -------------------------------------------------------------------------------------
 
 
-def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float, ...] = (200.0, 1000.0)) -> None:
-    """The whole rig in real time at each rate for ``duration_s``."""
+BURN_LIMIT_S = 3600.0
+"""A CPU burner ends by itself after this long even if the bench could not stop it."""
+
+
+@contextmanager
+def cpu_burners(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
+    """``n`` CPU-burning processes (a loaded host), each bounded in time, killed by PID on exit."""
+    code = f"import time\nend = time.monotonic() + {BURN_LIMIT_S}\nwhile time.monotonic() < end:\n    pass\n"
+    procs = [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait(timeout=10)
+
+
+def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """The whole rig in real time at each rate (``ctx.rates``, default 200 Hz and
+    1 kHz for ``duration_s``), optionally with CPU burners running."""
     requires("plant_emulator.service", "controller.service", "dsp_service.service")
     m = result["measurements"]
-    result["config"] = {"duration_s": ctx.duration_s, "rates_hz": list(rates), "runs": {}}
-    for rate in rates:
+    runs = ctx.rates or ((200.0, None), (1000.0, None))
+    result["config"] = {
+        "duration_s": ctx.duration_s, "rates_hz": [r for r, _ in runs], "batch_period_s": ctx.batch_period_s, "burners": ctx.burners,
+        "rt_priority": ctx.rt_priority, "cpu_affinity": ctx.cpu_affinity, "runs": {},
+    }
+    for rate, seconds in runs:
+        duration = seconds if seconds is not None else ctx.duration_s
         tag = f"{rate:g}Hz"
-        batch = max(1, round(0.1 * rate))  # keep the batch period at 100 ms = the DSP's default emulated latency
+        batch = max(1, round(ctx.batch_period_s * rate))  # batch period > the DSP's emulated latency: the deadline has slack
         latency_s = 0.1
         rig_id = private_rig_id(f"rt{rate:g}")
         common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
+        if ctx.rt_priority:
+            common["RALF_RT_PRIORITY"] = str(ctx.rt_priority)
+        if ctx.cpu_affinity:
+            common["RALF_CPU_AFFINITY"] = ctx.cpu_affinity
         record = ctx.log_dir / rig_id / "controller-record"
         overrides = {
-            "controller": {"RALF_DURATION_S": str(ctx.duration_s), "RALF_BATCH_SIZE": str(batch), "RALF_RECORD": str(record)},
+            "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RECORD": str(record)},
             "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
         }
-        result["config"]["runs"][tag] = {"rig_id": rig_id, "batch_size": batch, "batch_period_s": batch / rate, "emulated_latency_s": latency_s, "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}}}
+        result["config"]["runs"][tag] = {
+            "rig_id": rig_id, "duration_s": duration, "batch_size": batch, "batch_period_s": batch / rate, "emulated_latency_s": latency_s,
+            "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}},
+        }
         try:
-            ctx.say(f"  {tag}: floors (sleep-to-deadline loop, bare CAN ping-pong)")
-            sleep = sleep_floor(ctx, rate, min(ctx.duration_s, 5.0))
-            canf = can_floor(ctx, max(200, ctx.iterations // 2))
-            ctx.say(f"  {tag}: three-process rig for {ctx.duration_s:g} s")
-            run = run_rig(ctx, rig_id, "realtime", common, overrides, None, ctx.duration_s + 90)
+            with cpu_burners(ctx.burners):
+                floor_s = min(duration, ctx.floor_s)
+                ctx.say(f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else ""))
+                sleep = sleep_floor(ctx, rate, floor_s)
+                canf = can_floor(ctx, max(200, ctx.iterations // 2))
+                ctx.say(f"  {tag}: three-process rig for {duration:g} s")
+                run = run_rig(ctx, rig_id, "realtime", common, overrides, None, duration + 90)
         except BenchError as exc:
             result["errors"].append(f"{tag}: {exc}")
             continue
@@ -408,13 +453,22 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any], rates: tuple[float
         else:
             result["errors"].append(f"{tag}: no interrupt came back from the DSP")
         ticks = max(int(status.ticks), 1)
-        m[f"{tag} overruns"] = scalar(int(counters.get("overruns", status.overruns)), "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=counters.get("overruns", status.overruns) / ticks)
+        overruns = int(counters.get("overruns", status.overruns))
+        m[f"{tag} overruns"] = scalar(overruns, "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=overruns / ticks, ticks=ticks)
+        sleep_per_tick = sleep["overruns"] / max(int(sleep.get("ticks", 1)), 1)
+        m[f"{tag} overruns per tick"] = scalar(
+            overruns / ticks, "per tick", "sleep loop's overruns per tick", sleep_per_tick if sleep_per_tick > 0 else None,
+            sleep_overruns=sleep["overruns"], sleep_ticks=sleep.get("ticks"), note="target (1 kHz, idle host): at most 2x the sleep loop's",
+        )
         m[f"{tag} tpdo_timeouts"] = scalar(int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held")
         m[f"{tag} deadline_misses"] = scalar(int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts)
         dsp_h = run["snapshot"]["services"]["dsp"]["health"]
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
         result["config"]["runs"][tag]["controller_counters"] = counters
+        rt = {k: counters[k] for k in ("rt_fifo_priority", "rt_pinned_cpus", "rt_gc_frozen") if k in counters}
+        if rt:
+            result["notes"].append(f"{tag}: real-time measures in effect in the controller: {rt}")
         if progress["ticks_per_s"] < 0.98 * rate or lat["sync_jitter"]["p50"] > 1.0 / rate:
             result["notes"].append(
                 f"{tag}: the loop fell behind its absolute schedule t0 + k*Ts ({progress['ticks_per_s']:.0f} of {rate:g} ticks/s); "
@@ -548,6 +602,38 @@ def _bench_cosim(ctx: BenchContext, result: dict[str, Any], three: float | None)
     m["cosim tet"] = latency(from_latency_stats(run.controller.tet.stats().model_dump()), note="wall time per co-simulated tick: plant step, controller tick, codecs (the DSP step in its batch's tick)")
 
 
+def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """The co-simulation alone: simulated s per wall s and per CPU s against the
+    100x target, µs per tick, and where a tick goes (:mod:`rig.bench.cosim_parts`)."""
+    import os
+
+    requires("rig.cosim")
+    from rig.bench.cosim_parts import cosim_parts
+    from rig.cosim import run_cosim
+
+    sim_s = 10.0 if ctx.quick else 60.0
+    ctx.say(f"  co-simulation of the default loop: {sim_s:.0f} s simulated, one thread (after a 1 s warm-up)")
+    run_cosim(controller={"duration_s": 1.0})
+    cpu = time.process_time()
+    run = run_cosim(controller={"duration_s": sim_s})
+    cpu = time.process_time() - cpu
+    if run.result.error:
+        result["errors"].append(f"cosim: run ended with {run.result.error}")
+    ticks = max(run.result.ticks, 1)
+    m = result["measurements"]
+    m["cosim sim_s/wall_s"] = scalar(run.result.sim_time_s / run.wall_time_s, "x", "target", COSIM_TARGET, sim_time_s=run.result.sim_time_s, wall_time_s=run.wall_time_s, note="wall time includes start-up")
+    m["cosim sim_s/cpu_s"] = scalar(run.result.sim_time_s / cpu if cpu > 0 else None, "x", "target", COSIM_TARGET, cpu_s=cpu, note="process CPU time: what the run costs on a shared host")
+    tick_budget_us = 1e6 / 200.0 / COSIM_TARGET
+    m["cosim wall per tick"] = scalar(run.wall_time_s / ticks * 1e6, "us", "100x budget", tick_budget_us)
+    m["cosim cpu per tick"] = scalar(cpu / ticks * 1e6, "us", "100x budget", tick_budget_us)
+    parts = cosim_parts(5.0 if ctx.quick else 20.0)
+    result["parts"] = parts
+    for name, us in parts["parts_us_per_tick"].items():
+        m[f"  {name}"] = scalar(us, "us", "100x budget", tick_budget_us, share=parts["parts_share"][name])
+    result["config"] = {"sim_s": sim_s, "controller": "default loop (default settings)", "parts_sim_s": 5.0 if ctx.quick else 20.0, "load_average": os.getloadavg()}
+    result["notes"].append("cosim parts: instrumented run (perf_counter wrappers, adaptive OATF), inclusive wall µs per tick; the service's share is the rest of the run")
+
+
 # --- 5. DSP -------------------------------------------------------------------------------------------
 
 
@@ -621,6 +707,7 @@ ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "can": bench_can,
     "realtime": bench_realtime,
     "lockstep": bench_lockstep,
+    "cosim": bench_cosim,
     "dsp": bench_dsp,
     "dsp-rigs": bench_dsp_rigs,
     "hotpath": bench_hotpath,

@@ -8,6 +8,7 @@ import argparse
 import io
 import json
 import math
+import unittest.mock
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ def _parse(*argv: str) -> argparse.Namespace:
 
 def test_defaults_and_quick() -> None:
     full = bench.options_from_args(_parse())
-    assert full["items"] == ["zenoh", "can", "realtime", "lockstep", "dsp", "dsp-rigs", "hotpath"]
+    assert full["items"] == ["zenoh", "can", "realtime", "lockstep", "cosim", "dsp", "dsp-rigs", "hotpath"]
     assert full["quick"] is False and full["duration_s"] == 10.0 and full["iterations"] == 2000
     quick = bench.options_from_args(_parse("--quick"))
     assert quick["duration_s"] < full["duration_s"] and quick["iterations"] < full["iterations"]
@@ -36,6 +37,32 @@ def test_defaults_and_quick() -> None:
     opts = bench.options_from_args(args)
     assert (opts["duration_s"], opts["iterations"]) == (4.5, 7)  # explicit values win over --quick
     assert args.json == "x.json" and args.func is bench.cmd_bench
+
+
+def test_realtime_acceptance_options_reach_the_context(tmp_path: Path) -> None:
+    args = _parse("--only", "realtime", "--rate", "1000:60", "--rate", "200", "--burners", "2", "--batch-period", "0.3",
+                  "--floor-seconds", "60", "--rt-priority", "10", "--cpu-affinity", "1")
+    opts = bench.options_from_args(args)
+    assert opts["rates"] == [[1000.0, 60.0], [200.0, None]]
+    assert (opts["burners"], opts["batch_period_s"], opts["floor_s"], opts["rt_priority"], opts["cpu_affinity"]) == (2, 0.3, 60.0, 10, "1")
+    seen: list[bench_items.BenchContext] = []
+
+    def capture(ctx: bench_items.BenchContext, result: dict[str, Any]) -> None:
+        seen.append(ctx)
+
+    with unittest.mock.patch.dict(bench_items.ITEMS, {"realtime": capture}):
+        bench.run_bench(opts, tmp_path)
+    ctx = seen[0]
+    assert ctx.rates == ((1000.0, 60.0), (200.0, None)) and ctx.burners == 2 and ctx.cpu_affinity == "1"
+    for bad in (["--rate", "fast"], ["--rate", "1000:-1"], ["--rate", "0"], ["--cpu-affinity", "x"], ["--burners", "99"]):
+        with pytest.raises(SystemExit):
+            _parse(*bad)
+
+
+def test_cpu_burners_run_for_the_block_and_are_gone_after_it() -> None:
+    with bench_items.cpu_burners(2) as procs:
+        assert len(procs) == 2 and all(p.poll() is None for p in procs)
+    assert all(p.poll() is not None for p in procs)
 
 
 def test_only_selects_items_in_order_without_duplicates() -> None:
