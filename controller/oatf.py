@@ -134,10 +134,7 @@ def three_term_coefficients(frequency_hz: float, zeta: float, delay_s: float) ->
     raw = np.array([1.0, -2.0 * math.cos(wd * delay_s) * k, k * k])
     den = float(raw.sum())  # = |1 - K e^(j w_d T)|^2 >= 0
     if not den > 1e-12:
-        raise OatfDesignError(
-            f"degenerate OATF stage: {frequency_hz} Hz, zeta {zeta}, delay {delay_s} s "
-            "(w_d T is a multiple of 2 pi with no damping)"
-        )
+        raise OatfDesignError(f"degenerate OATF stage: {frequency_hz} Hz, zeta {zeta}, delay {delay_s} s (w_d T is a multiple of 2 pi with no damping)")
     return raw / den
 
 
@@ -272,7 +269,7 @@ def kernel_impulses(stages: Sequence[StageDesign]) -> tuple[FloatArray, FloatArr
     """The cascade as impulses for :func:`residual_vibration`: (amplitudes, times in s)."""
     delays, weights = cascade_kernel(stages)
     ts = _common_sample_period(stages) if stages else 0.0
-    return weights, delays * ts
+    return weights, np.asarray(delays * ts, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- filter
@@ -284,9 +281,7 @@ class OatfConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     sample_period_s: float = Field(0.005, gt=0.0, description="Sample period Ts (s); 200 Hz in the thesis.")
-    design_zeta: float = Field(
-        0.09, ge=0.0, lt=1.0, description="Design damping ratio of every stage (thesis: 0.09; §4.4: 0.01)."
-    )
+    design_zeta: float = Field(0.09, ge=0.0, lt=1.0, description="Design damping ratio of every stage (thesis: 0.09; §4.4: 0.01).")
     delay_mode: Literal["robust", "fixed"] = Field(
         "robust",
         description="'robust': T1 = pi/w_d of each stage's design frequency [3-33]; 'fixed': T1 = fixed_delay_s.",
@@ -299,18 +294,10 @@ class OatfConfig(BaseModel):
             "update_modes changes only the coefficients. True: the delay is recomputed on every update."
         ),
     )
-    max_abs_coefficient_sum: float = Field(
-        4.0, ge=1.0, description="Reject a stage whose sum |a_i| exceeds this (large alternating coefficients)."
-    )
-    max_total_delay_s: float = Field(
-        2.0, gt=0.0, description="Reject a cascade whose total delay (2 n1 Ts summed over stages) exceeds this (s)."
-    )
-    plausible_band_hz: tuple[float, float] = Field(
-        (1.0, 20.0), description="OatfSupervisor ignores identified frequencies outside this band (Hz)."
-    )
-    min_confidence: float = Field(
-        0.0, description="OatfSupervisor ignores estimates whose confidence is below this."
-    )
+    max_abs_coefficient_sum: float = Field(4.0, ge=1.0, description="Reject a stage whose sum |a_i| exceeds this (large alternating coefficients).")
+    max_total_delay_s: float = Field(2.0, gt=0.0, description="Reject a cascade whose total delay (2 n1 Ts summed over stages) exceeds this (s).")
+    plausible_band_hz: tuple[float, float] = Field((1.0, 20.0), description="OatfSupervisor ignores identified frequencies outside this band (Hz).")
+    min_confidence: float = Field(0.0, description="OatfSupervisor ignores estimates whose confidence is below this.")
     max_stages: int = Field(
         1,
         ge=1,
@@ -320,24 +307,12 @@ class OatfConfig(BaseModel):
             "confident extra pole (thesis §5.3), created and removed with hysteresis."
         ),
     )
-    stage_on_confidence: float = Field(
-        0.5, ge=0.0, le=1.0, description="An extra pole must be at least this confident to create a stage."
-    )
-    stage_off_confidence: float = Field(
-        0.25, ge=0.0, le=1.0, description="An extra stage is removed once its pole is less confident than this (or gone)."
-    )
-    stage_hold_offers: int = Field(
-        5, ge=1, description="Consecutive offers a pole must be confident (or absent) before its stage is created (or removed)."
-    )
-    stage_match_tolerance: float = Field(
-        0.15, gt=0.0, lt=1.0, description="Relative frequency distance within which a pole continues a stage's track."
-    )
-    adapt_damping: bool = Field(
-        False, description="Adapt each stage's design damping to the identified damping ratio (else design_zeta)."
-    )
-    damping_limits: tuple[float, float] = Field(
-        (0.005, 0.3), description="Identified damping ratios are clipped to this range when adapt_damping is on."
-    )
+    stage_on_confidence: float = Field(0.5, ge=0.0, le=1.0, description="An extra pole must be at least this confident to create a stage.")
+    stage_off_confidence: float = Field(0.25, ge=0.0, le=1.0, description="An extra stage is removed once its pole is less confident than this (or gone).")
+    stage_hold_offers: int = Field(5, ge=1, description="Consecutive offers a pole must be confident (or absent) before its stage is created (or removed).")
+    stage_match_tolerance: float = Field(0.15, gt=0.0, lt=1.0, description="Relative frequency distance within which a pole continues a stage's track.")
+    adapt_damping: bool = Field(False, description="Adapt each stage's design damping to the identified damping ratio (else design_zeta).")
+    damping_limits: tuple[float, float] = Field((0.005, 0.3), description="Identified damping ratios are clipped to this range when adapt_damping is on.")
 
     @model_validator(mode="after")
     def _band_ordered(self) -> OatfConfig:
@@ -402,9 +377,7 @@ class OatfFilter:
     def total_delay_samples(self) -> int:
         return int(self._delays.max())
 
-    def design(
-        self, frequencies_hz: Sequence[float], zetas: Sequence[float] | None = None
-    ) -> tuple[StageDesign, ...]:
+    def design(self, frequencies_hz: Sequence[float], zetas: Sequence[float] | None = None) -> tuple[StageDesign, ...]:
         """The stages :meth:`update_modes` would install, checked against the guards; changes nothing."""
         cfg = self.config
         freqs = [float(f) for f in frequencies_hz]
@@ -427,15 +400,10 @@ class OatfFilter:
             stages.append(stage)
         total = sum(2 * s.delay_samples for s in stages)
         if total > self._capacity - 1:
-            raise OatfDesignError(
-                f"total OATF delay {total * cfg.sample_period_s:.3f} s exceeds max_total_delay_s "
-                f"{cfg.max_total_delay_s} s"
-            )
+            raise OatfDesignError(f"total OATF delay {total * cfg.sample_period_s:.3f} s exceeds max_total_delay_s {cfg.max_total_delay_s} s")
         return tuple(stages)
 
-    def update_modes(
-        self, frequencies_hz: Sequence[float], zetas: Sequence[float] | None = None
-    ) -> tuple[StageDesign, ...]:
+    def update_modes(self, frequencies_hz: Sequence[float], zetas: Sequence[float] | None = None) -> tuple[StageDesign, ...]:
         """Install new design frequencies (Hz), one stage each; the delay line is untouched.
 
         Stage ``i`` keeps its integer delay unless ``adapt_delay`` (new
@@ -666,13 +634,7 @@ def _offer_poles(sup: OatfSupervisor, poles: Sequence[PoleOffer], confidence: fl
     f0 = oatf.stages[0].frequency_hz if oatf.stages else math.nan
     lo, hi = cfg.plausible_band_hz
     tol = cfg.stage_match_tolerance
-    extras = [
-        p
-        for p in poles[1:]
-        if math.isfinite(p.frequency_hz)
-        and lo <= p.frequency_hz <= hi
-        and not abs(p.frequency_hz - f0) <= tol * f0
-    ]
+    extras = [p for p in poles[1:] if math.isfinite(p.frequency_hz) and lo <= p.frequency_hz <= hi and not abs(p.frequency_hz - f0) <= tol * f0]
     seen_tracks: set[int] = set()
     for p in extras:
         best = None
@@ -738,9 +700,7 @@ def _check_below_nyquist(frequency_hz: float, sample_period_s: float) -> None:
         raise OatfDesignError(f"design frequency {frequency_hz} Hz is not below Nyquist ({0.5 / sample_period_s} Hz)")
 
 
-def _resolve_delay(
-    frequency_hz: float, zeta: float, sample_period_s: float, delay_s: float | None, delay_samples: int | None
-) -> int:
+def _resolve_delay(frequency_hz: float, zeta: float, sample_period_s: float, delay_s: float | None, delay_samples: int | None) -> int:
     if delay_samples is not None:
         if delay_samples < 1:
             raise OatfDesignError(f"delay_samples must be >= 1, got {delay_samples}")

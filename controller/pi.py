@@ -90,9 +90,7 @@ class PIConfig(BaseModel):
         lt=1.0,
         description="Exponential window of the integrator: I_k = (1 - forgetting_factor) I_{k-1} + ... (thesis: 0.0001).",
     )
-    integrate_threshold_rad: float = Field(
-        0.04, gt=0.0, description="The integrator stops summing while |error| exceeds this (rad) (thesis: 0.04)."
-    )
+    integrate_threshold_rad: float = Field(0.04, gt=0.0, description="The integrator stops summing while |error| exceeds this (rad) (thesis: 0.04).")
     output_limit_v: float = Field(10.0, gt=0.0, description="D/A range: the output is clipped to +/- this (V).")
     anti_windup: bool = Field(
         True,
@@ -100,7 +98,7 @@ class PIConfig(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _same_joint_count(self) -> "PIConfig":
+    def _same_joint_count(self) -> PIConfig:
         if len(self.kp_mv_per_rad) != len(self.ki_mv_per_rad) or len(self.kp_mv_per_rad) == 0:
             raise ValueError("kp_mv_per_rad and ki_mv_per_rad must be non-empty and of equal length")
         if any(g < 0.0 for g in (*self.kp_mv_per_rad, *self.ki_mv_per_rad)):

@@ -96,7 +96,7 @@ class WaypointTrajectory(BaseModel):
     closed: bool = Field(False, description="The tip returns to the first way-point at the end of a lap.")
     waypoints: list[Waypoint] = Field(min_length=2)
 
-    def with_speed(self, speed_in_per_s: float) -> "WaypointTrajectory":
+    def with_speed(self, speed_in_per_s: float) -> WaypointTrajectory:
         """A copy at another tip speed (the thesis ran 4 and 5 in/s)."""
         return WaypointTrajectory.model_validate({**self.model_dump(), "speed_in_per_s": speed_in_per_s})
 
@@ -243,10 +243,7 @@ def _centred_mean(v: FloatArray, half: int) -> FloatArray:
 
 def _describe_limits() -> str:
     (a, b), (c, d) = geometry.THETA1_LIMITS_RAD, geometry.THETA2_LIMITS_RAD
-    return (
-        f"theta1 in [{math.degrees(a):.1f}, {math.degrees(b):.1f}] deg, "
-        f"theta2 in [{math.degrees(c):.1f}, {math.degrees(d):.1f}] deg"
-    )
+    return f"theta1 in [{math.degrees(a):.1f}, {math.degrees(b):.1f}] deg, theta2 in [{math.degrees(c):.1f}, {math.degrees(d):.1f}] deg"
 
 
 def _inverse_checked(x: FloatArray, y: FloatArray, what: str) -> tuple[FloatArray, FloatArray]:
@@ -256,9 +253,7 @@ def _inverse_checked(x: FloatArray, y: FloatArray, what: str) -> tuple[FloatArra
         r = np.hypot(x, y)
         bad = np.flatnonzero((r > geometry.A1_IN + geometry.A2_IN) | (r < abs(geometry.A1_IN - geometry.A2_IN)))
         first = int(bad[0]) if bad.size else 0
-        raise TrajectoryLimitError(
-            f"{what} {first} at ({x[first]:.3f}, {y[first]:.3f}) in is unreachable: {exc}"
-        ) from exc
+        raise TrajectoryLimitError(f"{what} {first} at ({x[first]:.3f}, {y[first]:.3f}) in is unreachable: {exc}") from exc
 
 
 def check_waypoints(traj: WaypointTrajectory, margin_rad: float = 0.0) -> None:
@@ -268,14 +263,9 @@ def check_waypoints(traj: WaypointTrajectory, margin_rad: float = 0.0) -> None:
     t1, t2 = _inverse_checked(x, y, "way-point")
     ok = geometry.within_limits(t1, t2, margin_rad)
     if not np.all(ok):
-        bad = [
-            f"#{i} ({x[i]:.3f}, {y[i]:.3f}) in -> theta1 {math.degrees(t1[i]):.2f} deg, "
-            f"theta2 {math.degrees(t2[i]):.2f} deg"
-            for i in np.flatnonzero(~ok)
-        ]
+        bad = [f"#{i} ({x[i]:.3f}, {y[i]:.3f}) in -> theta1 {math.degrees(t1[i]):.2f} deg, theta2 {math.degrees(t2[i]):.2f} deg" for i in np.flatnonzero(~ok)]
         raise TrajectoryLimitError(
-            f"trajectory {traj.name!r}: way-points outside the joint limits ({_describe_limits()}, "
-            f"margin {margin_rad} rad): " + "; ".join(bad)
+            f"trajectory {traj.name!r}: way-points outside the joint limits ({_describe_limits()}, margin {margin_rad} rad): " + "; ".join(bad)
         )
 
 
@@ -306,9 +296,7 @@ def sample_trajectory(
 ) -> SampledTrajectory:
     """Check the way-points, sample the tip path and compute the joint set-points (all checked)."""
     check_waypoints(traj, margin_rad)
-    path = sample_tip_path(
-        traj, sample_period_s, speed_in_per_s=speed_in_per_s, repeat=repeat, corner_blend_s=corner_blend_s
-    )
+    path = sample_tip_path(traj, sample_period_s, speed_in_per_s=speed_in_per_s, repeat=repeat, corner_blend_s=corner_blend_s)
     return SampledTrajectory(name=traj.name, path=path, joints=joint_setpoints(path, margin_rad))
 
 

@@ -10,8 +10,8 @@ import zenoh
 
 from plant_emulator.service import serve
 from protocol.settings import PlantSettings
-from service_kit.transport import open_can_bus
 from service_kit.runtime import run_service
+from service_kit.transport import open_can_bus
 
 log = logging.getLogger("plant")
 
@@ -19,7 +19,9 @@ log = logging.getLogger("plant")
 def serve_on_bus(settings: PlantSettings, session: zenoh.Session, stop: threading.Event) -> int:
     bus = open_can_bus(settings)
     try:
-        log.info("plant up on rig %r: node %d on %s:%s, %s clock", settings.rig_id, settings.node_id, settings.can_interface, settings.can_channel, settings.clock)
+        log.info(
+            "plant up on rig %r: node %d on %s:%s, %s clock", settings.rig_id, settings.node_id, settings.can_interface, settings.can_channel, settings.clock
+        )
         serve(settings, session, bus, stop)
     finally:
         bus.shutdown()

@@ -55,14 +55,14 @@ class ScenarioEvent(BaseModel):
     adc_bits: int | None = Field(None, ge=8, le=24)
 
     @model_validator(mode="after")
-    def _value_present(self) -> "ScenarioEvent":
+    def _value_present(self) -> ScenarioEvent:
         value = {"payload": self.payload_attached, "seed": self.seed, "adc_bits": self.adc_bits}[self.kind]
         if value is None:
             raise ValueError(f"a {self.kind!r} event needs its value")
         return self
 
     @classmethod
-    def from_command(cls, cmd: Any) -> "ScenarioEvent":
+    def from_command(cls, cmd: Any) -> ScenarioEvent:
         """From a ``protocol.messages.ScenarioCommand`` (same fields, ``at_sim_time_s``)."""
         return cls(
             at_time_s=float(cmd.at_sim_time_s),
@@ -73,15 +73,15 @@ class ScenarioEvent(BaseModel):
         )
 
     @classmethod
-    def payload(cls, at_time_s: float, attached: bool) -> "ScenarioEvent":
+    def payload(cls, at_time_s: float, attached: bool) -> ScenarioEvent:
         return cls(at_time_s=at_time_s, kind="payload", payload_attached=attached)
 
     @classmethod
-    def reseed(cls, at_time_s: float, seed: int) -> "ScenarioEvent":
+    def reseed(cls, at_time_s: float, seed: int) -> ScenarioEvent:
         return cls(at_time_s=at_time_s, kind="seed", seed=seed)
 
     @classmethod
-    def resolution(cls, at_time_s: float, bits: int) -> "ScenarioEvent":
+    def resolution(cls, at_time_s: float, bits: int) -> ScenarioEvent:
         return cls(at_time_s=at_time_s, kind="adc_bits", adc_bits=bits)
 
 

@@ -32,12 +32,12 @@ import zenoh
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.node import CanopenNode, NodeConfig
-from service_kit.encodings import JSON
 from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
 from service_kit.clock import Scheduler, scheduler_for
+from service_kit.encodings import JSON
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
@@ -59,7 +59,7 @@ def _scaled_noise(scale: float) -> dict[str, tuple[float, float]]:
     if scale == 1.0:
         return {}
     fields = PlantConfig.model_fields
-    return {k: tuple(scale * x for x in fields[k].default) for k in ("extension_noise_std_in", "deflection_noise_std_in")}  # type: ignore[misc]
+    return {k: tuple(scale * x for x in fields[k].default) for k in ("extension_noise_std_in", "deflection_noise_std_in")}
 
 
 def node_config(settings: PlantSettings) -> NodeConfig:

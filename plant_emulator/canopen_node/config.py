@@ -82,4 +82,3 @@ class NodeConfig:
     def sample_period_us(self) -> int:
         """As object 0x2000 holds it."""
         return round(self.sample_period_s * 1e6)
-

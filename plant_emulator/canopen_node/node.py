@@ -137,7 +137,6 @@ from protocol.can_map import (
     NmtCommand,
     NmtState,
     cob_ids,
-    decode_analog_outputs,
     encode_analog_inputs_16,
     encode_analog_inputs_32,
     encode_emcy,
@@ -248,9 +247,7 @@ class CanopenNode:
         self._last_sync_counter: int | None = None
         self._hb_next: float | None = None
         self._outputs_v = _ZERO_OUTPUTS.copy()
-        self._own_ids = frozenset(
-            self.ids[k] for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat")
-        )
+        self._own_ids = frozenset(self.ids[k] for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat"))
         self._install_hooks()
         self._boot()
 
@@ -436,15 +433,12 @@ class CanopenNode:
     def _write_watchdog_periods(self, value: Value) -> None:
         if int(value) == 0:
             self.counters.watchdog_disable_refused += 1
-            log.warning("node %d: SDO write 0x2003 = 0 (watchdog off) refused; only the node's configuration "
-                        "disables it", self.node_id)
-            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
-                           "the SYNC watchdog cannot be disabled over the bus (use a longer time)")
+            log.warning("node %d: SDO write 0x2003 = 0 (watchdog off) refused; only the node's configuration disables it", self.node_id)
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE, "the SYNC watchdog cannot be disabled over the bus (use a longer time)")
 
     def _write_rpdo_timer(self, value: Value) -> None:
         if self.state is NmtState.OPERATIONAL:
-            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE,
-                           "the RPDO1 event timer is set in PRE-OPERATIONAL (before NMT START)")
+            raise SdoAbort(SdoAbortCode.CANNOT_STORE_DEVICE_STATE, "the RPDO1 event timer is set in PRE-OPERATIONAL (before NMT START)")
 
     def _write_valve_limit(self, value: Value) -> None:
         v = float(value)
@@ -617,8 +611,7 @@ class CanopenNode:
             self.counters.rpdo_conflicts += 1
             self._rpdo_conflict_clean = 0
             if int(EmcyCode.RPDO_CONFLICT) not in self._faults:
-                log.warning("node %d: %d RPDO1 in one SYNC period: a second RPDO producer on the bus?",
-                            self.node_id, n)
+                log.warning("node %d: %d RPDO1 in one SYNC period: a second RPDO producer on the bus?", self.node_id, n)
             self._set_fault(EmcyCode.RPDO_CONFLICT, True, bytes([min(n, 255)]))
         elif int(EmcyCode.RPDO_CONFLICT) in self._faults:
             self._rpdo_conflict_clean += 1
@@ -730,8 +723,14 @@ class CanopenNode:
             return
         try:
             raw_codes, raw_sat = result
-            if (type(raw_codes) is np.ndarray and raw_codes.dtype == np.int64 and raw_codes.shape == (N_ANALOG_INPUTS,)
-                    and type(raw_sat) is np.ndarray and raw_sat.dtype == np.bool_ and raw_sat.shape == (N_ANALOG_INPUTS,)):
+            if (
+                type(raw_codes) is np.ndarray
+                and raw_codes.dtype == np.int64
+                and raw_codes.shape == (N_ANALOG_INPUTS,)
+                and type(raw_sat) is np.ndarray
+                and raw_sat.dtype == np.bool_
+                and raw_sat.shape == (N_ANALOG_INPUTS,)
+            ):
                 # The application's own types (the plant's A/D): plain ints and bools from here on.
                 codes: list[int] = raw_codes.tolist()
                 saturated: list[bool] = raw_sat.tolist()
@@ -754,8 +753,7 @@ class CanopenNode:
         lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
         if min(codes) < lo or max(codes) > hi:
             self.counters.app_codes_clipped += 1
-            self._log_once("app:codes", "node %d: on_sync codes %s outside %d-bit range, clipped",
-                           self.node_id, np.array(codes, dtype=np.int64), bits)
+            self._log_once("app:codes", "node %d: on_sync codes %s outside %d-bit range, clipped", self.node_id, np.array(codes, dtype=np.int64), bits)
             codes = [min(hi, max(lo, c)) for c in codes]
         if bits <= 16:
             s16 = 16 - bits
@@ -785,8 +783,7 @@ class CanopenNode:
         self._set_fault(EmcyCode.INPUT_SATURATED, n_sat > 0, bytes([mask]))
 
     def _output_words(self) -> npt.NDArray[np.int64]:
-        return np.array([int(self.od.get(OD_ANALOG_OUTPUT_16, s)) for s in range(1, N_ANALOG_OUTPUTS + 1)],
-                        dtype=np.int64)
+        return np.array([int(self.od.get(OD_ANALOG_OUTPUT_16, s)) for s in range(1, N_ANALOG_OUTPUTS + 1)], dtype=np.int64)
 
     def _zero_outputs(self) -> None:
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
@@ -794,7 +791,7 @@ class CanopenNode:
         self._outputs_v = _ZERO_OUTPUTS.copy()
 
     def _apply_outputs(self, words: npt.ArrayLike, limit_v: float | None = None) -> None:
-        w = words.tolist() if type(words) is np.ndarray else [int(x) for x in words]  # type: ignore[union-attr]
+        w = words.tolist() if isinstance(words, np.ndarray) else [int(x) for x in words]  # type: ignore[union-attr,arg-type]  # ArrayLike admits no iteration in numpy's stubs
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             self.od.set(OD_ANALOG_OUTPUT_16, sub, int(w[sub - 1]))
         limit = self.valve_limit_v if limit_v is None else limit_v
@@ -840,13 +837,11 @@ class CanopenNode:
         self.counters.watchdog_trips += 1
         if self._trip_cause == "sync":
             assert self._wd_last is not None
-            log.warning("node %d: no SYNC for %.1f ms: watchdog tripped, valves held at zero",
-                        self.node_id, (now - self._wd_last) * 1e3)
+            log.warning("node %d: no SYNC for %.1f ms: watchdog tripped, valves held at zero", self.node_id, (now - self._wd_last) * 1e3)
         else:
             self.counters.rpdo_timeouts += 1
             assert self._rpdo_last is not None
-            log.warning("node %d: SYNC present but no RPDO1 for %.1f ms: watchdog tripped, valves held at zero",
-                        self.node_id, (now - self._rpdo_last) * 1e3)
+            log.warning("node %d: SYNC present but no RPDO1 for %.1f ms: watchdog tripped, valves held at zero", self.node_id, (now - self._rpdo_last) * 1e3)
         self._zero_outputs()
         self._call_app("on_watchdog", self.app.on_watchdog, True)
         cause = 0 if self._trip_cause == "sync" else 1
@@ -902,9 +897,7 @@ class CanopenNode:
 
     def _emit(self, cob_id: int, data: bytes, kind: str) -> None:
         self.counters.tx[kind] += 1
-        self._outbox.append(
-            can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, timestamp=self._now)
-        )
+        self._outbox.append(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, timestamp=self._now))
 
     def _drain(self) -> list[can.Message]:
         out, self._outbox = self._outbox, []
@@ -915,7 +908,11 @@ class CanopenNode:
         self._log_once(
             kind,
             "node %d: ignored %s frame id 0x%03X data [%s]: %s (further ones are only counted)",
-            self.node_id, kind, msg.arbitration_id, bytes(msg.data).hex(" "), why,
+            self.node_id,
+            kind,
+            msg.arbitration_id,
+            bytes(msg.data).hex(" "),
+            why,
         )
 
     def _log_once(self, key: str, fmt: str, *args: object) -> None:
@@ -930,6 +927,5 @@ class CanopenNode:
             self.counters.app_errors += 1
             if f"app:{name}" not in self._logged:
                 self._logged.add(f"app:{name}")
-                log.exception("node %d: application callback %s failed (further failures only counted)",
-                              self.node_id, name)
+                log.exception("node %d: application callback %s failed (further failures only counted)", self.node_id, name)
             return None

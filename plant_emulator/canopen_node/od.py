@@ -15,9 +15,9 @@ import math
 import struct
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Final, Union
+from typing import Final
 
-Value = Union[int, float, str]
+Value = int | float | str
 
 
 class DataType(enum.IntEnum):
@@ -69,7 +69,7 @@ _INT_RANGES: Final[dict[DataType, tuple[int, int]]] = {
 }
 
 
-class Access(str, enum.Enum):
+class Access(str, enum.Enum):  # noqa: UP042 -- str(member) and f"{member}" must stay as they are in the EDS writer
     """CiA 306 access types."""
 
     RO = "ro"

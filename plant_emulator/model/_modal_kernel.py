@@ -19,16 +19,33 @@ try:  # numba is optional: the plain-Python function gives the same floats
     from numba import njit as _njit
     from numba.extending import register_jitable as _register_jitable
 except ImportError:  # pragma: no cover - depends on the environment
-    _njit = None
+    _njit = None  # type: ignore[assignment]  # the compiler is absent: the Python function runs
     _register_jitable = None  # type: ignore[assignment]
 
 
 def _modal_step(
-    tm1: float, tm2: float,
-    I1: float, Mt: float, S: float, Ia: float, A1: float, kap: float,
-    kr1: float, kc1: float, kr2: float, kbar_r2: float, beta_c: float, g: float,
-    z1: float, z2: float, h: float,
-    offset1: float, pq: float, pq2: float, inch: float, l1: float,
+    tm1: float,
+    tm2: float,
+    I1: float,
+    Mt: float,
+    S: float,
+    Ia: float,
+    A1: float,
+    kap: float,
+    kr1: float,
+    kc1: float,
+    kr2: float,
+    kbar_r2: float,
+    beta_c: float,
+    g: float,
+    z1: float,
+    z2: float,
+    h: float,
+    offset1: float,
+    pq: float,
+    pq2: float,
+    inch: float,
+    l1: float,
 ) -> tuple[float, ...]:
     # coefficients_scalar
     gamma = tm1 + offset1
@@ -103,9 +120,30 @@ def _modal_step(
         st[4 * r + 2] = e * math.cos(wd * h)
         st[4 * r + 3] = e * math.sin(wd * h) / wd
     return (
-        M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2,
-        p[0], p[1], p[2], p[3],
-        st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7],
+        M11,
+        M12,
+        M22,
+        K11,
+        K12,
+        K22,
+        E11,
+        E12,
+        E21,
+        E22,
+        G1,
+        G2,
+        p[0],
+        p[1],
+        p[2],
+        p[3],
+        st[0],
+        st[1],
+        st[2],
+        st[3],
+        st[4],
+        st[5],
+        st[6],
+        st[7],
     )
 
 
@@ -137,5 +175,4 @@ def warm_up() -> None:
 
 
 def _warm(fn: Any) -> None:
-    fn(1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 1e4, 1e6, 1e4, 1e4, 0.1, 9.81, 0.02, 0.02, 1e-3,
-               -0.5, 900.0, 1800.0, 0.0254, 1.0)
+    fn(1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 1e4, 1e6, 1e4, 1e4, 0.1, 9.81, 0.02, 0.02, 1e-3, -0.5, 900.0, 1800.0, 0.0254, 1.0)

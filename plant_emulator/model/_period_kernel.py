@@ -172,9 +172,28 @@ def _advance_steps(
         acc1 = (new_rate1 - thd01) / h
         # 3. flexible links at the mid configuration
         r = _modal(
-            0.5 * (th00 + new_theta0), 0.5 * (th01 + new_theta1),
-            ma[0], ma[1], ma[2], ma[3], ma[4], ma[5], ma[6], ma[7], ma[8], ma[9], ma[10], ma[11],
-            ma[12], ma[13], ma[14], ma[15], ma[16], ma[17], ma[18], ma[19],
+            0.5 * (th00 + new_theta0),
+            0.5 * (th01 + new_theta1),
+            ma[0],
+            ma[1],
+            ma[2],
+            ma[3],
+            ma[4],
+            ma[5],
+            ma[6],
+            ma[7],
+            ma[8],
+            ma[9],
+            ma[10],
+            ma[11],
+            ma[12],
+            ma[13],
+            ma[14],
+            ma[15],
+            ma[16],
+            ma[17],
+            ma[18],
+            ma[19],
         )
         M11 = r[0]
         M12 = r[1]

@@ -42,18 +42,18 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from plant_emulator.model import kinematics as kin
 from plant_emulator.model import _modal_kernel, _period_kernel
+from plant_emulator.model import kinematics as kin
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
     L1_M,
     L2_M,
     Structure,
+    bending_fractions_scalar,
     coefficients_scalar,
     consts,
     modal_parameters,
-    bending_fractions_scalar,
     static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
@@ -128,7 +128,7 @@ class PlantConfig(BaseModel):
         return v
 
     @model_validator(mode="after")
-    def _home_inside(self) -> "PlantConfig":
+    def _home_inside(self) -> PlantConfig:
         if self.home_theta_rad is not None and not bool(kin.within_limits(*self.home_theta_rad)):
             raise ValueError("home configuration outside the joint limits")
         if self.antialias_cutoff_hz >= 0.5 / self.internal_step_s:
@@ -185,8 +185,7 @@ class GroundTruth:
 
 
 _JOINT: tuple[tuple[float, float, float, float, float, float], ...] = tuple(
-    (cyl.retracted_length_in, cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.offset_rad,
-     cyl.p_in * cyl.q_in, 2.0 * (cyl.p_in * cyl.q_in))
+    (cyl.retracted_length_in, cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.offset_rad, cyl.p_in * cyl.q_in, 2.0 * (cyl.p_in * cyl.q_in))
     for cyl in kin.CYLINDERS
 )
 """Per joint, the pin triangle's constant sub-expressions as ``_angle`` and ``_lever``
@@ -235,8 +234,28 @@ class RalfArm:
         cyl = kin.CYLINDERS[0]
         z1, z2 = self._zetas
         self._modal_args = tuple(
-            (k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, z1, z2, self._h,
-             cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2, kin.INCH, L1_M)
+            (
+                k.I1,
+                k.Mt,
+                k.S,
+                k.Ia,
+                k.A1,
+                k.kappa,
+                k.kr1,
+                k.kc1,
+                k.kr2,
+                k.kbar_r2,
+                k.beta_c,
+                k.g,
+                z1,
+                z2,
+                self._h,
+                cyl.offset_rad,
+                cyl.p_in * cyl.q_in,
+                cyl.p_in**2 + cyl.q_in**2,
+                kin.INCH,
+                L1_M,
+            )
             for k in self._consts
         )
         _modal_kernel.warm_up()
@@ -253,14 +272,11 @@ class RalfArm:
         on = cfg.sensor_noise
         self._ext_noise = tuple(analog_noise_std(cfg.extension_noise_std_in[j], channel_lsb_in(j, ref)) if on else 0.0 for j in (0, 1))
         self._defl_noise_in = tuple(
-            self._aa.input_std_for_output_std(analog_noise_std(cfg.deflection_noise_std_in[j], channel_lsb_in(2 + j, ref))) if on else 0.0
-            for j in (0, 1)
+            self._aa.input_std_for_output_std(analog_noise_std(cfg.deflection_noise_std_in[j], channel_lsb_in(2 + j, ref))) if on else 0.0 for j in (0, 1)
         )
         w = self._seen()
         self._zero = (
-            tuple(cfg.deflection_zero_in)
-            if cfg.deflection_zero_in is not None
-            else default_deflection_zero(cfg.structure, self._payload, cfg.camera_on_link)
+            tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else default_deflection_zero(cfg.structure, self._payload, cfg.camera_on_link)
         )
         self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
         # the compiled period (_period_kernel): its constant arguments and state vector
@@ -270,9 +286,23 @@ class RalfArm:
         if a0.tau != a1.tau:  # pragma: no cover - both come from one setting
             raise ValueError("the cylinders share one valve time constant")
         self._hp = np.array(
-            [self._h, math.exp(-self._h / a0.tau), a0.tau,
-             a0.gain, a0.vmax, a0.ext_lo, a0.ext_hi, a1.gain, a1.vmax, a1.ext_lo, a1.ext_hi,
-             *_JOINT[0], *_JOINT[1], float(cfg.camera_on_link), float(cfg.sensor_noise)],
+            [
+                self._h,
+                math.exp(-self._h / a0.tau),
+                a0.tau,
+                a0.gain,
+                a0.vmax,
+                a0.ext_lo,
+                a0.ext_hi,
+                a1.gain,
+                a1.vmax,
+                a1.ext_lo,
+                a1.ext_hi,
+                *_JOINT[0],
+                *_JOINT[1],
+                float(cfg.camera_on_link),
+                float(cfg.sensor_noise),
+            ],
             dtype=np.float64,
         )
         self._sp = np.array(
@@ -451,8 +481,19 @@ class RalfArm:
         a0, a1 = self._axes
         aa = self._aa.state
         st[:] = (
-            a0.extension_in, a0.velocity_in_s, a0.stop_side, a1.extension_in, a1.velocity_in_s, a1.stop_side,
-            *self._theta, *self._theta_dot, *self._beta, *self._beta_dot, *self._frac, *aa[0], *aa[1],
+            a0.extension_in,
+            a0.velocity_in_s,
+            a0.stop_side,
+            a1.extension_in,
+            a1.velocity_in_s,
+            a1.stop_side,
+            *self._theta,
+            *self._theta_dot,
+            *self._beta,
+            *self._beta_dot,
+            *self._frac,
+            *aa[0],
+            *aa[1],
         )
         noise = self._noise
         noisy = self.cfg.sensor_noise

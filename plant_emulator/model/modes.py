@@ -145,7 +145,7 @@ def consts(structure: Structure, payload: bool) -> _Consts:
 # --- the matrices: plain arithmetic, so floats and arrays both work ----------------------
 
 
-def _coefficients(k: _Consts, c1, s1, c12, s12, c2, lever1_m, sbar):  # type: ignore[no-untyped-def]
+def _coefficients(k: _Consts, c1, s1, c12, s12, c2, lever1_m, sbar):
     """Mass, stiffness (elastic + gravity), input and gravity-load terms.
 
     Returns ``(M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2)``
@@ -173,7 +173,7 @@ def _coefficients(k: _Consts, c1, s1, c12, s12, c2, lever1_m, sbar):  # type: ig
     return M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2
 
 
-def coefficients(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE):  # type: ignore[no-untyped-def]
+def coefficients(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE):
     """Vectorised :func:`_coefficients` at joint angles (rad)."""
     t1 = np.asarray(theta1, dtype=float)
     t2 = np.asarray(theta2, dtype=float)
@@ -191,12 +191,10 @@ def coefficients_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[float
     length = math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(gamma))
     lever1_m = pq * math.sin(gamma) / length * INCH
     t12 = theta1 + theta2
-    return _coefficients(
-        k, math.cos(theta1), math.sin(theta1), math.cos(t12), math.sin(t12), math.cos(theta2), lever1_m, math.sin(theta2 + k.beta_c)
-    )
+    return _coefficients(k, math.cos(theta1), math.sin(theta1), math.cos(t12), math.sin(t12), math.cos(theta2), lever1_m, math.sin(theta2 + k.beta_c))
 
 
-def _bending_fractions(k: _Consts, lever1_m, sbar):  # type: ignore[no-untyped-def]
+def _bending_fractions(k: _Consts, lever1_m, sbar):
     """Share of each joint chain's rotation that is the link's own bending: ``k_i / k_ri``.
 
     The chain of joint ``i`` is the link's root bending ``k_ri`` in series with
@@ -209,7 +207,7 @@ def _bending_fractions(k: _Consts, lever1_m, sbar):  # type: ignore[no-untyped-d
     return k1 / k.kr1, k2 / k.kr2
 
 
-def bending_fractions(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:  # type: ignore[no-untyped-def]
+def bending_fractions(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:
     """Vectorised :func:`_bending_fractions` at joint angles (rad), shape (..., 2)."""
     t1 = np.asarray(theta1, dtype=float)
     t2 = np.asarray(theta2, dtype=float)
@@ -225,13 +223,13 @@ def bending_fractions_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[
     gamma = theta1 + cyl.offset_rad
     pq = cyl.p_in * cyl.q_in
     lever1_m = pq * math.sin(gamma) / math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(gamma)) * INCH
-    return _bending_fractions(k, lever1_m, math.sin(theta2 + k.beta_c))  # type: ignore[no-any-return]
+    return _bending_fractions(k, lever1_m, math.sin(theta2 + k.beta_c))
 
 
 # --- the 2x2 symmetric generalised eigenproblem, closed form ----------------------------
 
 
-def eig2(M11, M12, M22, K11, K12, K22):  # type: ignore[no-untyped-def]
+def eig2(M11, M12, M22, K11, K12, K22):
     """Solve ``K phi = w^2 M phi`` for every configuration (arrays).
 
     Returns ``(w2, phi)``: ``w2`` shape (..., 2) ascending, ``phi`` shape
@@ -301,7 +299,7 @@ def modal_parameters(
     return freqs, zetas
 
 
-def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:  # type: ignore[no-untyped-def]
+def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:
     """Mode shapes as tip deflections (in) per unit modal coordinate, shape
     (..., 2 links, 2 modes), each column scaled to unit largest entry."""
     co = coefficients(theta1, theta2, payload, structure)
@@ -311,7 +309,7 @@ def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DE
     return defl / scale
 
 
-def static_deflection_in(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE, bending_only: bool = False) -> FloatArray:  # type: ignore[no-untyped-def]
+def static_deflection_in(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE, bending_only: bool = False) -> FloatArray:
     """Tip deflections (in) of the two links at rest under gravity, (..., 2);
     ``bending_only``: the part a camera on the link's root sees (:func:`bending_fractions`)."""
     M11, M12, M22, K11, K12, K22, *_, G1, G2 = coefficients(theta1, theta2, payload, structure)

@@ -145,7 +145,7 @@ def unfiltered_costs(seed: int = 0) -> dict[str, dict[str, object]]:
     return out
 
 
-def _workspace_maps(axs, fig) -> None:  # type: ignore[no-untyped-def]
+def _workspace_maps(axs, fig) -> None:
     """Rows: without / with payload. Columns: f1 and f2 over the joint-space
     workspace (the loop overlaid), and a cut at theta1 = 85 deg."""
     n1, n2 = 81, 221

@@ -142,7 +142,18 @@ def render(report: dict[str, Any]) -> RenderableType:
         caption=f"{mach['cpu_model']}, {mach['cores']} cores, Python {mach['python']}, zenoh {mach['packages'].get('eclipse-zenoh')}, "
         f"python-can {mach['packages'].get('python-can')}, {mach['date']}, load {mach.get('load_average_at_start')} -> {mach.get('load_average_at_end')}",
     )
-    columns: tuple[tuple[str, Literal["left", "right"]], ...] = (("item", "left"), ("measurement", "left"), ("n", "right"), ("p50", "right"), ("p99", "right"), ("p99.9", "right"), ("max", "right"), ("floor", "left"), ("×p50", "right"), ("×p99", "right"))
+    columns: tuple[tuple[str, Literal["left", "right"]], ...] = (
+        ("item", "left"),
+        ("measurement", "left"),
+        ("n", "right"),
+        ("p50", "right"),
+        ("p99", "right"),
+        ("p99.9", "right"),
+        ("max", "right"),
+        ("floor", "left"),
+        ("×p50", "right"),
+        ("×p99", "right"),
+    )
     for col, just in columns:
         table.add_column(col, justify=just, overflow="fold")
     problems: list[Text] = []
@@ -156,7 +167,18 @@ def render(report: dict[str, Any]) -> RenderableType:
             floor = m.get("floor") or ""
             if m["kind"] == "latency":
                 r = m.get("ratio") or {}
-                table.add_row(label, mname, str(m.get("n", "")), _us(m.get("p50_us")), _us(m.get("p99_us")), _us(m.get("p999_us")), _us(m.get("max_us")), floor, _ratio(r.get("p50")), _ratio(r.get("p99")))
+                table.add_row(
+                    label,
+                    mname,
+                    str(m.get("n", "")),
+                    _us(m.get("p50_us")),
+                    _us(m.get("p99_us")),
+                    _us(m.get("p999_us")),
+                    _us(m.get("max_us")),
+                    floor,
+                    _ratio(r.get("p50")),
+                    _ratio(r.get("p99")),
+                )
             else:
                 value = _scalar(m.get("value"), m.get("unit", ""))
                 if floor:
@@ -236,17 +258,50 @@ def _cpus(text: str) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", nargs="+", action="extend", choices=list(ITEMS), metavar="NAME", help=f"run only these items: {', '.join(ITEMS)} (default: all)")
-    p.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="seconds per real-time rate and per lockstep run (default 10, --quick 3)")
+    p.add_argument(
+        "--duration", type=_positive_float, default=None, metavar="S", help="seconds per real-time rate and per lockstep run (default 10, --quick 3)"
+    )
     p.add_argument("--iterations", type=_positive_int, default=None, metavar="N", help="round trips per latency measurement (default 2000, --quick 100)")
     p.add_argument("--quick", action="store_true", help="few iterations and short runs: a smoke test of the bench, not a measurement to quote")
     p.add_argument("--floors-only", action="store_true", help="only the bare transport floors (zenoh, UDP, udp_multicast); no service is started")
     rt = p.add_argument_group("realtime item (the acceptance runs: --rate 1000:60 --rate 200:600, then again with --burners 2)")
-    rt.add_argument("--rate", type=_rate, action="append", default=None, metavar="HZ[:S]", help="a real-time run at HZ for S seconds (default --duration); repeat for several (default: 200 and 1000 Hz)")
-    rt.add_argument("--batch-period", type=_positive_float, default=0.2, metavar="S", help="batch size = S seconds of samples; above the DSP's 100 ms emulated latency leaves the deadline slack (default 0.2)")
-    rt.add_argument("--floor-seconds", type=_positive_float, default=5.0, metavar="S", help="seconds of the sleep-only loop per rate, at most the run's (default 5)")
-    rt.add_argument("--burners", type=int, choices=range(0, 17), default=0, metavar="N", help="N CPU-burning processes during the floors and the rig: a loaded host (default 0)")
-    rt.add_argument("--rt-priority", type=int, choices=range(0, 100), default=0, metavar="P", help="RALF_RT_PRIORITY for the controller and plant: SCHED_FIFO where permitted (default 0: off)")
-    rt.add_argument("--cpu-affinity", type=_cpus, default="", metavar="CPUS", help="RALF_CPU_AFFINITY for the controller and plant, e.g. 1 or 0-1 (default: not pinned)")
+    rt.add_argument(
+        "--rate",
+        type=_rate,
+        action="append",
+        default=None,
+        metavar="HZ[:S]",
+        help="a real-time run at HZ for S seconds (default --duration); repeat for several (default: 200 and 1000 Hz)",
+    )
+    rt.add_argument(
+        "--batch-period",
+        type=_positive_float,
+        default=0.2,
+        metavar="S",
+        help="batch size = S seconds of samples; above the DSP's 100 ms emulated latency leaves the deadline slack (default 0.2)",
+    )
+    rt.add_argument(
+        "--floor-seconds", type=_positive_float, default=5.0, metavar="S", help="seconds of the sleep-only loop per rate, at most the run's (default 5)"
+    )
+    rt.add_argument(
+        "--burners",
+        type=int,
+        choices=range(0, 17),
+        default=0,
+        metavar="N",
+        help="N CPU-burning processes during the floors and the rig: a loaded host (default 0)",
+    )
+    rt.add_argument(
+        "--rt-priority",
+        type=int,
+        choices=range(0, 100),
+        default=0,
+        metavar="P",
+        help="RALF_RT_PRIORITY for the controller and plant: SCHED_FIFO where permitted (default 0: off)",
+    )
+    rt.add_argument(
+        "--cpu-affinity", type=_cpus, default="", metavar="CPUS", help="RALF_CPU_AFFINITY for the controller and plant, e.g. 1 or 0-1 (default: not pinned)"
+    )
     p.add_argument("--json", default=DEFAULT_JSON, metavar="PATH", help=f"write the results here (default {DEFAULT_JSON})")
     p.add_argument("--log-dir", default=None, help="where helper and service logs go (default: a temporary directory)")
 

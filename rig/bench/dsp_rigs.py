@@ -64,15 +64,29 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
     base = private_rig_id("rigs")
     ids = [f"{base}-{i}" for i in range(total)]
     port = free_tcp_port()
-    result["config"] = {"rigs_served_by_the_process": total, "rungs": list(rungs), "seconds_per_rung": seconds,
-                        "fft_width": FFT_WIDTH, "batch": BATCH, "rate_hz": RATE_HZ, "budget_ms": period * 1e3}
+    result["config"] = {
+        "rigs_served_by_the_process": total,
+        "rungs": list(rungs),
+        "seconds_per_rung": seconds,
+        "fft_width": FFT_WIDTH,
+        "batch": BATCH,
+        "rate_hz": RATE_HZ,
+        "budget_ms": period * 1e3,
+    }
     m = result["measurements"]
     with ExitStack() as stack:
-        env = clean_env({
-            "RALF_RIG_ID": ids[0], "RALF_SERVE_RIGS": ",".join(ids[1:]), "RALF_ZENOH_MODE": "peer",
-            "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{port}", "RALF_EMULATED_LATENCY_S": "0",
-            "RALF_FFT_WIDTH": str(FFT_WIDTH), "RALF_BATCH_SIZE": str(BATCH), "RALF_LOG_LEVEL": "WARNING",
-        })
+        env = clean_env(
+            {
+                "RALF_RIG_ID": ids[0],
+                "RALF_SERVE_RIGS": ",".join(ids[1:]),
+                "RALF_ZENOH_MODE": "peer",
+                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{port}",
+                "RALF_EMULATED_LATENCY_S": "0",
+                "RALF_FFT_WIDTH": str(FFT_WIDTH),
+                "RALF_BATCH_SIZE": str(BATCH),
+                "RALF_LOG_LEVEL": "WARNING",
+            }
+        )
         dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp-rigs", log_dir=ctx.log_dir))
         session = zenoh_session(connect=[f"tcp/127.0.0.1:{port}"])
         stack.callback(session.close)
@@ -82,6 +96,7 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
         pubs = []
         for i, rig in enumerate(rigs):
             for kind, key in (("flag", rig.keys.flag), ("irq", rig.keys.interrupt)):
+
                 def on_sample(sample: Any, i: int = i, kind: str = kind) -> None:
                     events.put((i, kind, sample.payload.to_bytes(), perf()))
 
@@ -161,19 +176,36 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
             if not samples:
                 raise BenchError(f"no interrupt in the rung of {k} rigs; {dsp.describe_failure()}")
             summary = summarize(samples)
-            entry: dict[str, Any] = {"kind": "latency", **summary, "floor": "budget (batch period)",
-                     "floor_value_us": period * 1e6, "ratio": {"p99": float(summary["p99_us"]) / (period * 1e6)},
-                     "late": late, "behind": behind, "dsp_cpu_fraction": cpu / wall,
-                     "dsp_cpu_per_batch_us": cpu / batches * 1e6}
+            entry: dict[str, Any] = {
+                "kind": "latency",
+                **summary,
+                "floor": "budget (batch period)",
+                "floor_value_us": period * 1e6,
+                "ratio": {"p99": float(summary["p99_us"]) / (period * 1e6)},
+                "late": late,
+                "behind": behind,
+                "dsp_cpu_fraction": cpu / wall,
+                "dsp_cpu_per_batch_us": cpu / batches * 1e6,
+            }
             m[f"{k} rigs: batch_to_interrupt"] = entry
-            ctx.say(f"  {k:>3} rigs: {batches} batches, p99 {entry['p99_us'] / 1e3:.2f} ms (budget {period * 1e3:.0f} ms), "
-                    f"late {late}, behind {behind}, DSP CPU {cpu / wall:.0%} of one core")
+            ctx.say(
+                f"  {k:>3} rigs: {batches} batches, p99 {entry['p99_us'] / 1e3:.2f} ms (budget {period * 1e3:.0f} ms), "
+                f"late {late}, behind {behind}, DSP CPU {cpu / wall:.0%} of one core"
+            )
             if late == 0 and behind == 0:
                 served = k
             per_batch = (cpu / batches, k)
-        m["rigs_per_core_by_cpu"] = {"kind": "scalar", "value": round(period / per_batch[0], 1), "unit": "rigs",
-                                     "note": f"extrapolated: batch period / DSP CPU time per batch at {per_batch[1]} rigs"}
-        m["rigs_served"] = {"kind": "scalar", "value": served, "unit": "rigs",
-                            "note": f"largest rung with no late or missed interrupt (rungs {list(rungs)}, N = {FFT_WIDTH}, 200 Hz, l = {BATCH})"}
+        m["rigs_per_core_by_cpu"] = {
+            "kind": "scalar",
+            "value": round(period / per_batch[0], 1),
+            "unit": "rigs",
+            "note": f"extrapolated: batch period / DSP CPU time per batch at {per_batch[1]} rigs",
+        }
+        m["rigs_served"] = {
+            "kind": "scalar",
+            "value": served,
+            "unit": "rigs",
+            "note": f"largest rung with no late or missed interrupt (rungs {list(rungs)}, N = {FFT_WIDTH}, 200 Hz, l = {BATCH})",
+        }
         for pub in pubs:
             pub.undeclare()

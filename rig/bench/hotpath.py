@@ -46,7 +46,7 @@ def _timed(fn: Callable[[int], Any], n: int, warmup: int) -> dict[str, float]:
 
 def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive") -> dict[str, dict[str, float]]:
     """p50/p99 in µs of each hot path and of its parts."""
-    cs = ControllerSettings(oatf_mode=oatf_mode, duration_s=3600.0, can_interface="virtual")  # type: ignore[arg-type]
+    cs = ControllerSettings(oatf_mode=oatf_mode, duration_s=3600.0, can_interface="virtual")
     law = ControlLaw(cs)
     link = DspLink(sample_rate_hz=cs.sample_rate_hz, batch_size=cs.batch_size)
     probe = law.record_row(0, law.step(0, np.zeros(4)))

@@ -138,9 +138,7 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
     }
     with ExitStack() as stack:
         udp = stack.enter_context(Child.peer("udp-echo", log_dir=ctx.log_dir))
-        zecho = stack.enter_context(
-            Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{echo_port}", "--ping", ping, "--pong", pong, log_dir=ctx.log_dir)
-        )
+        zecho = stack.enter_context(Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{echo_port}", "--ping", ping, "--pong", pong, log_dir=ctx.log_dir))
         dsp: Child | None = None
         if ctx.floors_only:
             result["notes"].append("--floors-only: the DSP service was not started")
@@ -199,13 +197,17 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
         compute = dp.compute_s[-len(rtt) :]
         m["dsp_compute"] = latency(summarize(compute), note="Interrupt.compute_time_s: the identifier step inside the service")
         overhead = [max(r - c, 0.0) for r, c in zip(rtt, compute)]
-        m["dsp_rtt_minus_compute"] = latency(summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead")
+        m["dsp_rtt_minus_compute"] = latency(
+            summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead"
+        )
         if dp.bad:
             result["notes"].append(f"{dp.bad} undecodable flag/interrupt payloads")
     m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)
     m["udp_pingpong"] = latency(udp_s)
     result["notes"].append("Round trips interleaved in blocks of 50 so a figure and its floors see the same machine state.")
-    result["notes"].append("zenoh arrivals are stamped in the subscriber callback (decoding and the hand-off to the measuring thread are not timed); UDP after recv().")
+    result["notes"].append(
+        "zenoh arrivals are stamped in the subscriber callback (decoding and the hand-off to the measuring thread are not timed); UDP after recv()."
+    )
 
 
 # --- 2. CAN ---------------------------------------------------------------------------------------
@@ -394,8 +396,13 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
     m = result["measurements"]
     runs = ctx.rates or ((200.0, None), (1000.0, None))
     result["config"] = {
-        "duration_s": ctx.duration_s, "rates_hz": [r for r, _ in runs], "batch_period_s": ctx.batch_period_s, "burners": ctx.burners,
-        "rt_priority": ctx.rt_priority, "cpu_affinity": ctx.cpu_affinity, "runs": {},
+        "duration_s": ctx.duration_s,
+        "rates_hz": [r for r, _ in runs],
+        "batch_period_s": ctx.batch_period_s,
+        "burners": ctx.burners,
+        "rt_priority": ctx.rt_priority,
+        "cpu_affinity": ctx.cpu_affinity,
+        "runs": {},
     }
     for rate, seconds in runs:
         duration = seconds if seconds is not None else ctx.duration_s
@@ -414,13 +421,19 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
             "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
         }
         result["config"]["runs"][tag] = {
-            "rig_id": rig_id, "duration_s": duration, "batch_size": batch, "batch_period_s": batch / rate, "emulated_latency_s": latency_s,
+            "rig_id": rig_id,
+            "duration_s": duration,
+            "batch_size": batch,
+            "batch_period_s": batch / rate,
+            "emulated_latency_s": latency_s,
             "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}},
         }
         try:
             with cpu_burners(ctx.burners):
                 floor_s = min(duration, ctx.floor_s)
-                ctx.say(f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else ""))
+                ctx.say(
+                    f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else "")
+                )
                 sleep = sleep_floor(ctx, rate, floor_s)
                 canf = can_floor(ctx, max(200, ctx.iterations // 2))
                 ctx.say(f"  {tag}: three-process rig for {duration:g} s")
@@ -438,7 +451,9 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
             continue
         status = run["history"][-1][1]
         lat, counters = ctrl["latencies"], ctrl["counters"]
-        m[f"{tag} loop_rate"] = scalar(progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz)
+        m[f"{tag} loop_rate"] = scalar(
+            progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz
+        )
         m[f"{tag} sleep_jitter (floor)"] = latency(sleep["jitter"], note="a process that only sleeps to t0 + k/rate")
         m[f"{tag} sync_jitter"] = latency(from_latency_stats(lat["sync_jitter"]), f"{tag} sleep_jitter (floor)", sleep["jitter"])
         timing = _timing_record(record)
@@ -449,7 +464,9 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         m[f"{tag} can_pingpong (floor)"] = latency(canf)
         m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
         if lat["batch_to_interrupt"]["count"]:
-            m[f"{tag} batch_to_interrupt"] = latency_vs_value(from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6)
+            m[f"{tag} batch_to_interrupt"] = latency_vs_value(
+                from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6
+            )
         else:
             result["errors"].append(f"{tag}: no interrupt came back from the DSP")
         ticks = max(int(status.ticks), 1)
@@ -457,11 +474,20 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         m[f"{tag} overruns"] = scalar(overruns, "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=overruns / ticks, ticks=ticks)
         sleep_per_tick = sleep["overruns"] / max(int(sleep.get("ticks", 1)), 1)
         m[f"{tag} overruns per tick"] = scalar(
-            overruns / ticks, "per tick", "sleep loop's overruns per tick", sleep_per_tick if sleep_per_tick > 0 else None,
-            sleep_overruns=sleep["overruns"], sleep_ticks=sleep.get("ticks"), note="target (1 kHz, idle host): at most 2x the sleep loop's",
+            overruns / ticks,
+            "per tick",
+            "sleep loop's overruns per tick",
+            sleep_per_tick if sleep_per_tick > 0 else None,
+            sleep_overruns=sleep["overruns"],
+            sleep_ticks=sleep.get("ticks"),
+            note="target (1 kHz, idle host): at most 2x the sleep loop's",
         )
-        m[f"{tag} tpdo_timeouts"] = scalar(int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held")
-        m[f"{tag} deadline_misses"] = scalar(int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts)
+        m[f"{tag} tpdo_timeouts"] = scalar(
+            int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held"
+        )
+        m[f"{tag} deadline_misses"] = scalar(
+            int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts
+        )
         dsp_h = run["snapshot"]["services"]["dsp"]["health"]
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
@@ -507,7 +533,10 @@ def _timing_measurements(m: dict[str, Any], notes: list[str], tag: str, timing: 
         return
     intervals = np.diff(starts)
     m[f"{tag} sync_period_jitter"] = latency(
-        summarize(np.abs(intervals - ts)), f"{tag} sleep_period_jitter (floor)", sleep["period_jitter"], note="|SYNC interval - Ts| from the controller's timing record"
+        summarize(np.abs(intervals - ts)),
+        f"{tag} sleep_period_jitter (floor)",
+        sleep["period_jitter"],
+        note="|SYNC interval - Ts| from the controller's timing record",
     )
     m[f"{tag} sleep_period_jitter (floor)"] = latency(sleep["period_jitter"])
     worst = np.argsort(intervals)[-3:][::-1]
@@ -534,7 +563,13 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
     ceiling = (1.0 / rate) / (canf["p50_us"] * 1e-6)
     rig_id = private_rig_id("lock")
     overrides = {"controller": {"RALF_DURATION_S": "3600"}}
-    result["config"] = {"rig_id": rig_id, "rate_hz": rate, "wall_s": ctx.duration_s, "controller": {"RALF_DURATION_S": "3600 (stopped after the wall time)"}, "dsp_emulated_latency_s": "default (0.1 s simulated)"}
+    result["config"] = {
+        "rig_id": rig_id,
+        "rate_hz": rate,
+        "wall_s": ctx.duration_s,
+        "controller": {"RALF_DURATION_S": "3600 (stopped after the wall time)"},
+        "dsp_emulated_latency_s": "default (0.1 s simulated)",
+    }
     ctx.say(f"  three-process rig in lockstep for {ctx.duration_s:g} s")
     run = run_rig(ctx, rig_id, "lockstep", {"RALF_HEALTH_PERIOD_S": "0.5"}, overrides, ctx.duration_s, ctx.duration_s + 90)
     result["config"]["exit_codes"] = run["exit_codes"]
@@ -547,10 +582,14 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
         result["errors"].append("three-process: no controller progress seen")
     else:
         three = progress["sim_per_wall"]
-        m["three_process sim_s/wall_s"] = scalar(three, "x", "CAN-bound ceiling (one bare round trip per tick)", ceiling, ticks_per_s=progress["ticks_per_s"], over_wall_s=progress["wall_s"])
+        m["three_process sim_s/wall_s"] = scalar(
+            three, "x", "CAN-bound ceiling (one bare round trip per tick)", ceiling, ticks_per_s=progress["ticks_per_s"], over_wall_s=progress["wall_s"]
+        )
         ctrl = run["snapshot"]["services"]["controller"]["health"]
         if ctrl:
-            m["three_process tet"] = latency(from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick")
+            m["three_process tet"] = latency(
+                from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick"
+            )
     _bench_cosim(ctx, result, three)
     try:
         requires("rig.composition")
@@ -572,7 +611,9 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
     if out.get("error"):
         result["errors"].append(f"one_process: run ended with {out['error']}")
     one = out["sim_time_s"] / out["wall_time_s"] if out["wall_time_s"] > 0 else None
-    m["one_process sim_s/wall_s"] = scalar(one, "x", "three-process", three, sim_time_s=out["sim_time_s"], wall_time_s=out["wall_time_s"], note="wall time includes the run's start-up")
+    m["one_process sim_s/wall_s"] = scalar(
+        one, "x", "three-process", three, sim_time_s=out["sim_time_s"], wall_time_s=out["wall_time_s"], note="wall time includes the run's start-up"
+    )
     m["one_process tet"] = latency(from_latency_stats(out["tet"]), "can_pingpong (floor)", canf, note="virtual bus in one process: no socket round trip")
 
 
@@ -596,10 +637,15 @@ def _bench_cosim(ctx: BenchContext, result: dict[str, Any], three: float | None)
         result["errors"].append(f"cosim: run ended with {run.result.error}")
     rate = run.result.sim_time_s / run.wall_time_s if run.wall_time_s > 0 else None
     m = result["measurements"]
-    m["cosim sim_s/wall_s"] = scalar(rate, "x", "target", COSIM_TARGET, sim_time_s=run.result.sim_time_s, wall_time_s=run.wall_time_s, note="wall time includes start-up")
+    m["cosim sim_s/wall_s"] = scalar(
+        rate, "x", "target", COSIM_TARGET, sim_time_s=run.result.sim_time_s, wall_time_s=run.wall_time_s, note="wall time includes start-up"
+    )
     if three:
         m["cosim vs three_process"] = scalar(rate, "x", "three_process sim_s/wall_s", three)
-    m["cosim tet"] = latency(from_latency_stats(run.controller.tet.stats().model_dump()), note="wall time per co-simulated tick: plant step, controller tick, codecs (the DSP step in its batch's tick)")
+    m["cosim tet"] = latency(
+        from_latency_stats(run.controller.tet.stats().model_dump()),
+        note="wall time per co-simulated tick: plant step, controller tick, codecs (the DSP step in its batch's tick)",
+    )
 
 
 def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
@@ -621,8 +667,18 @@ def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
         result["errors"].append(f"cosim: run ended with {run.result.error}")
     ticks = max(run.result.ticks, 1)
     m = result["measurements"]
-    m["cosim sim_s/wall_s"] = scalar(run.result.sim_time_s / run.wall_time_s, "x", "target", COSIM_TARGET, sim_time_s=run.result.sim_time_s, wall_time_s=run.wall_time_s, note="wall time includes start-up")
-    m["cosim sim_s/cpu_s"] = scalar(run.result.sim_time_s / cpu if cpu > 0 else None, "x", "target", COSIM_TARGET, cpu_s=cpu, note="process CPU time: what the run costs on a shared host")
+    m["cosim sim_s/wall_s"] = scalar(
+        run.result.sim_time_s / run.wall_time_s,
+        "x",
+        "target",
+        COSIM_TARGET,
+        sim_time_s=run.result.sim_time_s,
+        wall_time_s=run.wall_time_s,
+        note="wall time includes start-up",
+    )
+    m["cosim sim_s/cpu_s"] = scalar(
+        run.result.sim_time_s / cpu if cpu > 0 else None, "x", "target", COSIM_TARGET, cpu_s=cpu, note="process CPU time: what the run costs on a shared host"
+    )
     tick_budget_us = 1e6 / 200.0 / COSIM_TARGET
     m["cosim wall per tick"] = scalar(run.wall_time_s / ticks * 1e6, "us", "100x budget", tick_budget_us)
     m["cosim cpu per tick"] = scalar(cpu / ticks * 1e6, "us", "100x budget", tick_budget_us)
@@ -630,8 +686,15 @@ def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
     result["parts"] = parts
     for name, us in parts["parts_us_per_tick"].items():
         m[f"  {name}"] = scalar(us, "us", "100x budget", tick_budget_us, share=parts["parts_share"][name])
-    result["config"] = {"sim_s": sim_s, "controller": "default loop (default settings)", "parts_sim_s": 5.0 if ctx.quick else 20.0, "load_average": os.getloadavg()}
-    result["notes"].append("cosim parts: instrumented run (perf_counter wrappers, adaptive OATF), inclusive wall µs per tick; the service's share is the rest of the run")
+    result["config"] = {
+        "sim_s": sim_s,
+        "controller": "default loop (default settings)",
+        "parts_sim_s": 5.0 if ctx.quick else 20.0,
+        "load_average": os.getloadavg(),
+    }
+    result["notes"].append(
+        "cosim parts: instrumented run (perf_counter wrappers, adaptive OATF), inclusive wall µs per tick; the service's share is the rest of the run"
+    )
 
 
 # --- 5. DSP -------------------------------------------------------------------------------------------
@@ -652,7 +715,9 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
     m["identifier_step"] = latency(step, "numpy_floor", floor, poles_found=raw.get("poles_found"))
     m["numpy_floor"] = latency(floor, note="4 rfft + 8 cross-spectra, bare numpy")
     if raw.get("floor_unbatched_p50_us"):
-        m["numpy_floor_unbatched"] = latency({"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see dsp_service.bench)")
+        m["numpy_floor_unbatched"] = latency(
+            {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see dsp_service.bench)"
+        )
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
     if raw.get("step_numpy_p50_us"):
         ref = {"n": raw["repeats"], "p50_us": raw["step_numpy_p50_us"]}
@@ -660,10 +725,12 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
     if hasattr(module, "bench_stages"):
         stages = module.bench_stages(n=2048, repeats=repeats)
         result["stages"] = stages
-        ctx.say("  stages of the compiled step (p50 us, / floor): " + ", ".join(
-            f"{k} {stages[k]:.1f} ({stages[k] / stages['floor']:.2f})"
-            for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step")
-        ))
+        ctx.say(
+            "  stages of the compiled step (p50 us, / floor): "
+            + ", ".join(
+                f"{k} {stages[k]:.1f} ({stages[k] / stages['floor']:.2f})" for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step")
+            )
+        )
     if hasattr(module, "bench_sizes"):
         rows = module.bench_sizes(repeats=repeats)
         result["sizes"] = rows
@@ -671,7 +738,8 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
             ctx.say("  " + line)
         for r in rows:
             m[f"identifier_step N={r['n']}"] = latency(
-                {"n": r["repeats"], "p50_us": r["step_p50_us"], "p99_us": r["step_p99_us"]}, "numpy_floor",
+                {"n": r["repeats"], "p50_us": r["step_p50_us"], "p99_us": r["step_p99_us"]},
+                "numpy_floor",
                 {"n": r["repeats"], "p50_us": r["floor_p50_us"], "p99_us": r["floor_p99_us"]},
             )
         big = rows[-1]

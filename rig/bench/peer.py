@@ -52,7 +52,7 @@ def udp_echo(args: argparse.Namespace) -> int:
         while not stop.is_set():
             try:
                 data, addr = sock.recvfrom(65536)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             sock.sendto(data, addr)
     return 0

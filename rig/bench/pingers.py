@@ -94,7 +94,7 @@ class UdpPinger:
         while True:
             try:
                 data = self.sock.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 raise BenchError(f"UDP echo did not answer ping {self.seq}") from None
             if data[: _SEQ.size] == payload[: _SEQ.size]:
                 return _perf() - t0
@@ -344,7 +344,9 @@ class PlantPinger:
             if now > deadline:
                 raise BenchError(f"plant node {self.node_id} not operational within {within_s:.0f} s (state {self.state})")
             if self.state is not None and now - last_start > 0.5:
-                self.bus.send(can.Message(arbitration_id=can_map.NMT_COB_ID, data=can_map.encode_nmt(can_map.NmtCommand.START, self.node_id), is_extended_id=False))
+                self.bus.send(
+                    can.Message(arbitration_id=can_map.NMT_COB_ID, data=can_map.encode_nmt(can_map.NmtCommand.START, self.node_id), is_extended_id=False)
+                )
                 last_start = now
             msg = self.bus.recv(timeout=0.1)
             if msg is not None:

@@ -67,7 +67,7 @@ class Child:
         self._buffer = b""
 
     @classmethod
-    def peer(cls, mode: str, *args: str, env: Mapping[str, str] | None = None, name: str | None = None, log_dir: Path | None = None) -> "Child":
+    def peer(cls, mode: str, *args: str, env: Mapping[str, str] | None = None, name: str | None = None, log_dir: Path | None = None) -> Child:
         return cls([sys.executable, "-m", "rig.bench.peer", mode, *args], env=env, name=name or mode, log_dir=log_dir)
 
     def read_tagged(self, tag: str, timeout_s: float) -> dict[str, Any]:
@@ -109,7 +109,7 @@ class Child:
         self._log.close()
         return code
 
-    def __enter__(self) -> "Child":
+    def __enter__(self) -> Child:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -95,7 +95,7 @@ def machine_info() -> dict[str, Any]:
     except (AttributeError, OSError):
         usable = os.cpu_count()
     return {
-        "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "platform": platform.platform(),
         "machine": platform.machine(),
         "cpu_model": cpu_model(),

@@ -107,8 +107,9 @@ def test_interrupt_poles_carry_their_confidence_and_version() -> None:
     bad = encode(irq).replace(b'"version":2', b'"version":1')
     with pytest.raises(Exception, match="version-1"):
         decode(Interrupt, bad)
-    old = Interrupt(seq=1, sim_time_s=1.0, batch_seq=1, version=1, confidence=0.5, compute_time_s=0.0,
-                    poles=(PoleParameters(frequency_hz=3.6, damping_ratio=0.09),))
+    old = Interrupt(
+        seq=1, sim_time_s=1.0, batch_seq=1, version=1, confidence=0.5, compute_time_s=0.0, poles=(PoleParameters(frequency_hz=3.6, damping_ratio=0.09),)
+    )
     assert decode(Interrupt, encode(old)).poles[0].confidence is None
     with pytest.raises(ValidationError):
         PoleParameters(frequency_hz=3.6, damping_ratio=0.09, confidence=1.5)

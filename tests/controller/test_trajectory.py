@@ -109,9 +109,7 @@ def test_repeat_runs_laps_back_to_back_with_the_start_pause_each_lap(loop: Waypo
     # the second lap repeats the first (the lap is within 2e-6 s of whole samples)
     np.testing.assert_allclose(two.x_in[k : k + len(one) - 1], one.x_in[:-1], atol=1e-4)
     np.testing.assert_allclose(two.y_in[k : k + len(one) - 1], one.y_in[:-1], atol=1e-4)
-    open_traj = WaypointTrajectory(
-        name="open", speed_in_per_s=5.0, closed=False, waypoints=[{"x_in": -20, "y_in": 200}, {"x_in": -25, "y_in": 200}]
-    )
+    open_traj = WaypointTrajectory(name="open", speed_in_per_s=5.0, closed=False, waypoints=[{"x_in": -20, "y_in": 200}, {"x_in": -25, "y_in": 200}])
     with pytest.raises(ValueError, match="closed"):
         sample_tip_path(open_traj, TS, repeat=2)
     assert sample_tip_path(open_traj, TS).duration_s == pytest.approx(1.0)
@@ -145,17 +143,13 @@ def test_limit_violations_are_clear_errors() -> None:
     )
     with pytest.raises(TrajectoryLimitError, match=r"#1 \(100.000, 100.000\)"):
         sample_trajectory(outside)
-    unreachable = WaypointTrajectory(
-        name="far", speed_in_per_s=5.0, waypoints=[{"x_in": -20.0, "y_in": 200.0}, {"x_in": 0.0, "y_in": 300.0}]
-    )
+    unreachable = WaypointTrajectory(name="far", speed_in_per_s=5.0, waypoints=[{"x_in": -20.0, "y_in": 200.0}, {"x_in": 0.0, "y_in": 300.0}])
     with pytest.raises(TrajectoryLimitError, match="unreachable"):
         sample_trajectory(unreachable)
     # both way-points inside, but the straight chord cuts through the inner (theta2 = 120 deg) boundary
     xa, ya = geometry.forward(math.radians(65.0), math.radians(118.0))
     xb, yb = geometry.forward(math.radians(95.0), math.radians(118.0))
-    chord = WaypointTrajectory(
-        name="chord", speed_in_per_s=5.0, waypoints=[{"x_in": float(xa), "y_in": float(ya)}, {"x_in": float(xb), "y_in": float(yb)}]
-    )
+    chord = WaypointTrajectory(name="chord", speed_in_per_s=5.0, waypoints=[{"x_in": float(xa), "y_in": float(ya)}, {"x_in": float(xb), "y_in": float(yb)}])
     check_waypoints(chord)
     with pytest.raises(TrajectoryLimitError, match="path samples outside the joint limits"):
         sample_trajectory(chord)

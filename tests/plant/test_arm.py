@@ -138,7 +138,18 @@ def test_truth_is_consistent_and_plain() -> None:
     assert len(t.modal_frequencies_hz) == len(t.damping_ratios) == 2
     d = t.as_dict()
     json.dumps(d)
-    assert set(d) >= {"modal_frequencies_hz", "damping_ratios", "deflections_in", "theta_rad", "phi_rad", "extensions_in", "tip_in", "payload_attached", "hard_stop_events", "hard_stop_count"}
+    assert set(d) >= {
+        "modal_frequencies_hz",
+        "damping_ratios",
+        "deflections_in",
+        "theta_rad",
+        "phi_rad",
+        "extensions_in",
+        "tip_in",
+        "payload_attached",
+        "hard_stop_events",
+        "hard_stop_count",
+    }
 
 
 def test_service_facing_construction() -> None:

@@ -42,9 +42,7 @@ from tests.plant.support import EDS, FakeApp
 
 ROOT = Path(__file__).resolve().parents[2]
 
-NMT, SYNC, EMCY, TPDO1, TPDO2, TPDO3, RPDO1, SDO_TX, SDO_RX, HB = (
-    0x000, 0x080, 0x081, 0x181, 0x281, 0x381, 0x201, 0x581, 0x601, 0x701
-)
+NMT, SYNC, EMCY, TPDO1, TPDO2, TPDO3, RPDO1, SDO_TX, SDO_RX, HB = (0x000, 0x080, 0x081, 0x181, 0x281, 0x381, 0x201, 0x581, 0x601, 0x701)
 
 
 def frame(cob_id: int, data: bytes | list[int] = b"", **kw: object) -> can.Message:
@@ -529,8 +527,7 @@ def test_sdo_server_transfers_and_abort_codes() -> None:
     cfg = rig.node.cfg
     # expedited uploads
     assert rig.read(0x1000) == 0x000C0191
-    assert [rig.read(0x1018, s) for s in range(5)] == [4, cfg.vendor_id, cfg.product_code, cfg.revision,
-                                                       cfg.serial_number]
+    assert [rig.read(0x1018, s) for s in range(5)] == [4, cfg.vendor_id, cfg.product_code, cfg.revision, cfg.serial_number]
     assert rig.read(0x1014) == 0x81 and rig.read(0x1800, 1) == 0x40000181 and rig.read(0x1A00, 1) == 0x64010110
     # segmented upload of the device name
     r = rig.sdo(struct.pack("<BHB4x", 0x40, 0x1008, 0))
@@ -605,8 +602,14 @@ def test_eds_loads_in_canopen_and_agrees_with_the_running_dictionary() -> None:
 
 
 def test_config_is_validated() -> None:
-    for bad in (dict(adc_bits=14), dict(node_id=0), dict(valve_limit_v=11.0), dict(sample_period_s=1e-5),
-                dict(sync_counter_overflow=100), dict(device_name="a;b")):
+    for bad in (
+        dict(adc_bits=14),
+        dict(node_id=0),
+        dict(valve_limit_v=11.0),
+        dict(sample_period_s=1e-5),
+        dict(sync_counter_overflow=100),
+        dict(device_name="a;b"),
+    ):
         with pytest.raises(ConfigError):
             NodeConfig(**bad)  # type: ignore[arg-type]
     assert NodeConfig(sample_period_s=1 / 300).sample_period_us == 3333
@@ -618,8 +621,13 @@ OUR_IDS = [NMT, SYNC, RPDO1, SDO_RX, HB, TPDO1, EMCY, 0x301, 0x100, 0x7E5, 0x202
 
 frames = st.builds(
     lambda cob_id, data, ext, rtr, err, fd: can.Message(
-        arbitration_id=cob_id, data=data, is_extended_id=ext, is_remote_frame=rtr and not fd,
-        is_error_frame=err, is_fd=fd, check=False,
+        arbitration_id=cob_id,
+        data=data,
+        is_extended_id=ext,
+        is_remote_frame=rtr and not fd,
+        is_error_frame=err,
+        is_fd=fd,
+        check=False,
     ),
     cob_id=st.one_of(st.sampled_from(OUR_IDS), st.integers(0, 0x7FF), st.integers(0, 0x1FFFFFFF)),
     data=st.one_of(st.binary(max_size=8), st.binary(min_size=9, max_size=64)),
@@ -657,8 +665,7 @@ sdo_requests = st.one_of(
     st.binary(min_size=8, max_size=8),
     st.builds(
         lambda cmd, index, sub, data: struct.pack("<BHB", cmd, index, sub) + data,
-        cmd=st.one_of(st.sampled_from([0x40, 0x60, 0x70, 0x23, 0x27, 0x2B, 0x2F, 0x22, 0x21, 0x00, 0x11, 0x80]),
-                      st.integers(0, 255)),
+        cmd=st.one_of(st.sampled_from([0x40, 0x60, 0x70, 0x23, 0x27, 0x2B, 0x2F, 0x22, 0x21, 0x00, 0x11, 0x80]), st.integers(0, 255)),
         index=st.sampled_from(INDICES),
         sub=st.integers(0, 10),
         data=st.binary(min_size=4, max_size=4),

@@ -85,8 +85,7 @@ def test_canopen_master_drives_the_node() -> None:
             assert [v.name for v in t1.map] == [f"Read analog input 16-bit.Analog input {i}" for i in range(1, 5)]
             assert not t2.enabled
             assert (r1.cob_id, r1.enabled, r1.trans_type) == (0x201, True, 255)
-            assert [v.name for v in r1.map] == ["Write analog output 16-bit.Analog output 1",
-                                                "Write analog output 16-bit.Analog output 2"]
+            assert [v.name for v in r1.map] == ["Write analog output 16-bit.Analog output 1", "Write analog output 16-bit.Analog output 2"]
 
             # NMT start; TPDO1 on SYNC carries what the app sampled
             remote.nmt.state = "OPERATIONAL"
@@ -235,14 +234,16 @@ def test_node_over_udp_multicast() -> None:
     pytest.importorskip("msgpack", reason="udp_multicast needs msgpack")
     port = 47000 + os.getpid() % 10000 // 2 * 2  # test-unique, away from the default 43113
     try:
-        node_bus = can.Bus(interface="udp_multicast", channel=UDP_GROUP, port=port,
-                           can_filters=node_can_filters(1))
+        node_bus = can.Bus(interface="udp_multicast", channel=UDP_GROUP, port=port, can_filters=node_can_filters(1))
     except Exception as e:  # noqa: BLE001
         pytest.skip(f"udp_multicast unavailable on this host: {e}")
     try:
-        master = can.Bus(interface="udp_multicast", channel=UDP_GROUP, port=port,
-                         can_filters=[{"can_id": 0x181, "can_mask": 0x7FF, "extended": False},
-                                      {"can_id": 0x701, "can_mask": 0x7FF, "extended": False}])
+        master = can.Bus(
+            interface="udp_multicast",
+            channel=UDP_GROUP,
+            port=port,
+            can_filters=[{"can_id": 0x181, "can_mask": 0x7FF, "extended": False}, {"can_id": 0x701, "can_mask": 0x7FF, "extended": False}],
+        )
     except Exception as e:  # noqa: BLE001
         node_bus.shutdown()
         pytest.skip(f"udp_multicast unavailable on this host: {e}")

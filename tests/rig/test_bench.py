@@ -40,8 +40,24 @@ def test_defaults_and_quick() -> None:
 
 
 def test_realtime_acceptance_options_reach_the_context(tmp_path: Path) -> None:
-    args = _parse("--only", "realtime", "--rate", "1000:60", "--rate", "200", "--burners", "2", "--batch-period", "0.3",
-                  "--floor-seconds", "60", "--rt-priority", "10", "--cpu-affinity", "1")
+    args = _parse(
+        "--only",
+        "realtime",
+        "--rate",
+        "1000:60",
+        "--rate",
+        "200",
+        "--burners",
+        "2",
+        "--batch-period",
+        "0.3",
+        "--floor-seconds",
+        "60",
+        "--rt-priority",
+        "10",
+        "--cpu-affinity",
+        "1",
+    )
     opts = bench.options_from_args(args)
     assert opts["rates"] == [[1000.0, 60.0], [200.0, None]]
     assert (opts["burners"], opts["batch_period_s"], opts["floor_s"], opts["rt_priority"], opts["cpu_affinity"]) == (2, 0.3, 60.0, 10, "1")

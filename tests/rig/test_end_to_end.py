@@ -16,7 +16,21 @@ def _up(tmp_path: Path, *extra: str, duration: float = 8.0) -> tuple[subprocess.
     summary_path = tmp_path / "summary.json"
     rig_id = f"e2e-{uuid.uuid4().hex[:8]}"
     proc = subprocess.run(
-        [sys.executable, "-m", "rig", "up", "--duration", str(duration), "--rig-id", rig_id, "--json", str(summary_path), "--log-dir", str(tmp_path / "logs"), *extra],
+        [
+            sys.executable,
+            "-m",
+            "rig",
+            "up",
+            "--duration",
+            str(duration),
+            "--rig-id",
+            rig_id,
+            "--json",
+            str(summary_path),
+            "--log-dir",
+            str(tmp_path / "logs"),
+            *extra,
+        ],
         capture_output=True,
         text=True,
         timeout=120,

@@ -32,10 +32,24 @@ def _three_processes(tmp: Path, name: str, seed: int) -> Path:
     sets = [f"controller.{k}={v}" for k, v in CONTROLLER.items()] + [f"dsp.{k}={v}" for k, v in DSP.items()]
     sets += [f"controller.record={record}", f"plant.seed={seed}"]
     proc = subprocess.run(
-        [sys.executable, "-m", "rig", "up", "--clock", "lockstep", "--duration", "120",
-         "--rig-id", f"det-{uuid.uuid4().hex[:6]}", "--log-dir", str(tmp / name / "logs"),
-         *[arg for item in sets for arg in ("--set", item)]],
-        capture_output=True, text=True, timeout=240,
+        [
+            sys.executable,
+            "-m",
+            "rig",
+            "up",
+            "--clock",
+            "lockstep",
+            "--duration",
+            "120",
+            "--rig-id",
+            f"det-{uuid.uuid4().hex[:6]}",
+            "--log-dir",
+            str(tmp / name / "logs"),
+            *[arg for item in sets for arg in ("--set", item)],
+        ],
+        capture_output=True,
+        text=True,
+        timeout=240,
     )
     assert proc.returncode == 0, proc.stderr + "".join(p.read_text() for p in (tmp / name / "logs").glob("*.log"))
     return record
