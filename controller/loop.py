@@ -11,7 +11,7 @@ model in one.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -19,27 +19,26 @@ import numpy.typing as npt
 from controller.engineering import Measurement, measure
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
-from controller.trajectory import DEFAULT_TRAJECTORY_PATH, SampledTrajectory, load_trajectory, sample_trajectory
+from controller.trajectory import SampledTrajectory
 from protocol.can_map import DAC12
 from protocol.messages import Interrupt
-from protocol.settings import ControllerSettings
 
 FloatArray = npt.NDArray[np.float64]
 
 
-def build_trajectory(settings: ControllerSettings) -> SampledTrajectory:
-    """One lap of the configured trajectory at the configured speed and rate."""
-    traj = load_trajectory(settings.trajectory or DEFAULT_TRAJECTORY_PATH)
-    return sample_trajectory(traj, settings.sample_period_s, speed_in_per_s=settings.tip_speed_in_s)
+@dataclass(frozen=True)
+class LawConfig:
+    """What the control law needs, in its own terms (the service maps its
+    settings into it: :func:`controller.config.law_config`)."""
 
-
-def run_ticks(settings: ControllerSettings, lap_ticks: int) -> int | None:
-    """How many ticks the run lasts (None: until stopped)."""
-    if settings.duration_s is not None:
-        return int(round(settings.duration_s * settings.sample_rate_hz))
-    if settings.repeats > 0:
-        return settings.repeats * lap_ticks
-    return None
+    sample_period_s: float
+    oatf_mode: Literal["off", "fixed", "adaptive"] = "off"
+    oatf_location: Literal["outer", "inner"] = "outer"
+    oatf_frequency_hz: float = 4.4
+    """The OATF's initial design (and the ``fixed`` fallback's)."""
+    oatf_fallback: Literal["last", "fixed"] = "last"
+    oatf: OatfConfig | None = None
+    """The OATF's design rules (None: off)."""
 
 
 @dataclass(frozen=True)
@@ -58,29 +57,20 @@ class TickOutput:
 class ControlLaw:
     """Trajectory, OATF and PI for the two joints."""
 
-    def __init__(self, settings: ControllerSettings, trajectory: SampledTrajectory | None = None) -> None:
-        self.settings = settings
-        self.trajectory = trajectory or build_trajectory(settings)
+    def __init__(self, config: LawConfig, trajectory: SampledTrajectory) -> None:
+        self.config = config
+        self.trajectory = trajectory
         self.setpoints = self.trajectory.joints.phi
         self.lap_ticks = len(self.setpoints)
-        ts = settings.sample_period_s
-        self.pi = PIController(PIConfig(sample_period_s=ts))
+        self.pi = PIController(PIConfig(sample_period_s=config.sample_period_s))
         self.degraded = False
         self.oatf: OatfFilter | None = None
         self.supervisor: OatfSupervisor | None = None
-        if settings.oatf_mode != "off":
-            config = OatfConfig(
-                sample_period_s=ts,
-                design_zeta=settings.oatf_damping,
-                delay_mode="fixed" if settings.oatf_delay_s else "robust",
-                fixed_delay_s=settings.oatf_delay_s or 0.05,
-                plausible_band_hz=settings.oatf_band_hz,
-                min_confidence=settings.oatf_min_confidence,
-                max_stages=settings.oatf_max_stages,
-                adapt_damping=settings.oatf_adapt_damping,
-            )
-            initial = self.setpoints[0] if settings.oatf_location == "outer" else 0.0
-            self.oatf = OatfFilter([settings.oatf_frequency_hz], n_channels=2, config=config, initial=initial)
+        if config.oatf_mode != "off":
+            if config.oatf is None:
+                raise ValueError(f"OATF mode {config.oatf_mode!r} needs its design rules (LawConfig.oatf)")
+            initial = self.setpoints[0] if config.oatf_location == "outer" else 0.0
+            self.oatf = OatfFilter([config.oatf_frequency_hz], n_channels=2, config=config.oatf, initial=initial)
             self.supervisor = OatfSupervisor(self.oatf)
 
     @property
@@ -98,10 +88,10 @@ class ControlLaw:
         m = measure(words)
         ref = self.setpoint(tick)
         shaped = ref
-        if self.oatf is not None and self.settings.oatf_location == "outer":
+        if self.oatf is not None and self.config.oatf_location == "outer":
             shaped = self.oatf.step(ref)
         u = self.pi.update(shaped, m.phi_rad)
-        if self.oatf is not None and self.settings.oatf_location == "inner":
+        if self.oatf is not None and self.config.oatf_location == "inner":
             u = np.clip(self.oatf.step(u), -DAC12.full_scale_v, DAC12.full_scale_v)
         q = DAC12.quantize(u)
         return TickOutput(
@@ -116,13 +106,13 @@ class ControlLaw:
     def set_degraded(self, degraded: bool) -> None:
         """While degraded the OATF stops adapting; with the ``fixed`` fallback
         it also returns to the configured design frequency."""
-        if degraded and not self.degraded and self.oatf is not None and self.settings.oatf_fallback == "fixed":
-            self.oatf.update_modes([self.settings.oatf_frequency_hz])
+        if degraded and not self.degraded and self.oatf is not None and self.config.oatf_fallback == "fixed":
+            self.oatf.update_modes([self.config.oatf_frequency_hz])
         self.degraded = degraded
 
     def apply_interrupt(self, interrupt: Interrupt) -> bool:
         """Adaptive OATF: offer the identified first mode; True if the filter changed."""
-        if self.supervisor is None or self.settings.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:
+        if self.supervisor is None or self.config.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:
             return False
         return self.supervisor.offer_interrupt(interrupt)
 
@@ -144,7 +134,7 @@ class ControlLaw:
         pi1, pi2 = out.pi_output_v.tolist()
         return {
             "tick": tick,
-            "t_s": tick * self.settings.sample_period_s,
+            "t_s": tick * self.config.sample_period_s,
             "phi_ref1": ref1,
             "phi_ref2": ref2,
             "phi_shaped1": sh1,

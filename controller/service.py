@@ -37,11 +37,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from controller.config import build_trajectory, law_config, run_ticks
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
 from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
 from controller.hop_timing import HopTimer
-from controller.loop import ControlLaw, run_ticks
+from controller.loop import ControlLaw
 from controller.monitors import Monitors, MonitorStop
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from controller.record import ChunkedRecord, ColumnBuffer, RowCounter
@@ -137,7 +138,7 @@ class ControllerService:
             port = ZenohDspPort(session, settings.rig_id)
         self.port: DspPort = port
         self.keys = Keys(settings.rig_id)
-        self.law = law or ControlLaw(settings)
+        self.law = law or ControlLaw(law_config(settings), build_trajectory(settings))
         self.link = DspLink(
             sample_rate_hz=settings.sample_rate_hz,
             batch_size=settings.batch_size,

@@ -18,6 +18,7 @@ from typing import Any
 import can
 import numpy as np
 
+from controller.config import build_trajectory, law_config
 from controller.dsp_link import DspLink
 from controller.engineering import measure
 from controller.loop import ControlLaw
@@ -47,7 +48,7 @@ def _timed(fn: Callable[[int], Any], n: int, warmup: int) -> dict[str, float]:
 def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive") -> dict[str, dict[str, float]]:
     """p50/p99 in µs of each hot path and of its parts."""
     cs = ControllerSettings(oatf_mode=oatf_mode, duration_s=3600.0, can_interface="virtual")
-    law = ControlLaw(cs)
+    law = ControlLaw(law_config(cs), build_trajectory(cs))
     link = DspLink(sample_rate_hz=cs.sample_rate_hz, batch_size=cs.batch_size)
     probe = law.record_row(0, law.step(0, np.zeros(4)))
     record = ColumnBuffer({name: (np.int64 if name == "tick" else np.float64) for name in probe}, capacity=4096)

@@ -42,6 +42,7 @@ from rig.bench.pingers import (
 )
 from rig.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_can_port, private_rig_id, tail
 from rig.bench.stats import from_latency_stats, ratio, ratios, summarize
+from rig.timing_test.report import health_verdict
 
 CAN_GROUP = "239.74.163.2"
 DSP_FFT_WIDTH = 2048
@@ -492,6 +493,10 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
         result["config"]["runs"][tag]["controller_counters"] = counters
+        verdict = health_verdict(ctrl)  # the same criteria as `up` and `timing-test` (docs/timing-faults.md)
+        if verdict:
+            result["config"]["runs"][tag]["verdict"] = verdict
+            result["notes"].append(f"{tag}: timing verdict {verdict}")
         rt = {k: counters[k] for k in ("rt_fifo_priority", "rt_pinned_cpus", "rt_gc_frozen") if k in counters}
         if rt:
             result["notes"].append(f"{tag}: real-time measures in effect in the controller: {rt}")

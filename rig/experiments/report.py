@@ -35,6 +35,17 @@ def new_figure(width_in: float = 7.5, height_in: float = 4.5, dpi: int = 110) ->
     return fig
 
 
+COST_HEADERS: tuple[str, ...] = ("link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%")
+"""The columns of a cost table (§4.2.1): RMS deflection velocity and acceleration per link, each with its % of a reference."""
+
+
+def cost_cells(entry: Any, velocity_pct: str = "velocity_pct", acceleration_pct: str = "acceleration_pct") -> list[Any]:
+    """A cost table's cells for one run (:data:`COST_HEADERS`), from its entry's
+    ``velocity_rms_in_s``, ``acceleration_rms_in_s2`` and the two % keys."""
+    v, a, vp, ap = entry["velocity_rms_in_s"], entry["acceleration_rms_in_s2"], entry[velocity_pct], entry[acceleration_pct]
+    return [v[0], vp[0], v[1], vp[1], a[0], ap[0], a[1], ap[1]]
+
+
 def fmt(value: Any, digits: int = 4) -> str:
     """A number for a Markdown table: ``digits`` significant digits, '–' for None/NaN."""
     if value is None:

@@ -61,7 +61,7 @@ def plot_deflections(rec: Recording, out: Path) -> Path:
 
 def _setpoints(rec: Recording, t: np.ndarray) -> np.ndarray | None:
     """Trajectory theta set-points at simulated times ``t`` from the recorded controller settings."""
-    from controller.loop import build_trajectory
+    from controller.config import build_trajectory
     from protocol.settings import ControllerSettings
 
     values = {k: v for k, v in rec.settings("controller").items() if k in ControllerSettings.model_fields}

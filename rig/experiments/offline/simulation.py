@@ -90,7 +90,7 @@ from controller.record import save_record
 from controller.trajectory import load_trajectory, sample_trajectory
 from protocol import geometry
 from rig.experiments.framework import ExperimentContext, experiment
-from rig.experiments.report import Report, new_figure
+from rig.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 
 DESIGNS: tuple[float | None, ...] = (None, 5.0, 10.0, 50.0)
 """OATF design frequencies (Hz); None is the unfiltered run."""
@@ -505,21 +505,9 @@ def run(ctx: ExperimentContext) -> Report:
             if "runs" not in dd:
                 rows.append([_design_label(f)] + ["rejected"] + ["–"] * 7)
                 continue
-            rows.append(
-                [
-                    _design_label(f),
-                    dd["velocity_rms_in_s"][0],
-                    dd["velocity_pct_of_unfiltered"][0],
-                    dd["velocity_rms_in_s"][1],
-                    dd["velocity_pct_of_unfiltered"][1],
-                    dd["acceleration_rms_in_s2"][0],
-                    dd["acceleration_pct_of_unfiltered"][0],
-                    dd["acceleration_rms_in_s2"][1],
-                    dd["acceleration_pct_of_unfiltered"][1],
-                ]
-            )
+            rows.append([_design_label(f), *cost_cells(dd, "velocity_pct_of_unfiltered", "acceleration_pct_of_unfiltered")])
         rep.table(
-            ["design", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
+            ["design", *COST_HEADERS],
             rows,
             caption=f"Group {g.number}: {g.title}" + (f" (mean of {n_draws} noise draws)" if g.noise else ""),
             digits=4,

@@ -39,7 +39,7 @@ from controller.oatf import OatfConfig, OatfFilter, design_stage
 from rig.campaign.rigs import map_rigs
 from rig.experiments.framework import ExperimentContext, experiment
 from rig.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds
-from rig.experiments.report import Report, new_figure
+from rig.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -231,21 +231,9 @@ def run(ctx: ExperimentContext) -> Report:
         rows = []
         for c in configs:
             e = table[gk]["configs"][c]
-            rows.append(
-                [
-                    e["label"],
-                    e["velocity_rms_in_s"][0],
-                    e["velocity_pct"][0],
-                    e["velocity_rms_in_s"][1],
-                    e["velocity_pct"][1],
-                    e["acceleration_rms_in_s2"][0],
-                    e["acceleration_pct"][0],
-                    e["acceleration_rms_in_s2"][1],
-                    e["acceleration_pct"][1],
-                ]
-            )
+            rows.append([e["label"], *cost_cells(e)])
         rep.table(
-            ["configuration", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
+            ["configuration", *COST_HEADERS],
             rows,
             caption=f"{group_label(s, p)} (tuned right: {right[gk]:.2f} Hz); % of (a)",
             digits=4,

@@ -37,7 +37,7 @@ from rig.experiments.onrig.runner import (
     lap_seconds,
     run_rigs,
 )
-from rig.experiments.report import Report, new_figure
+from rig.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -162,21 +162,9 @@ def run(ctx: ExperimentContext) -> Report:
         rows = []
         for name, _ in RUNS:
             e = table[wname][name]
-            rows.append(
-                [
-                    LABELS[name],
-                    e["velocity_rms_in_s"][0],
-                    e["velocity_pct"][0],
-                    e["velocity_rms_in_s"][1],
-                    e["velocity_pct"][1],
-                    e["acceleration_rms_in_s2"][0],
-                    e["acceleration_pct"][0],
-                    e["acceleration_rms_in_s2"][1],
-                    e["acceleration_pct"][1],
-                ]
-            )
+            rows.append([LABELS[name], *cost_cells(e)])
         rep.table(
-            ["OATF", "link 1 vel (in/s)", "%", "link 2 vel (in/s)", "%", "link 1 acc (in/s²)", "%", "link 2 acc (in/s²)", "%"],
+            ["OATF", *COST_HEADERS],
             rows,
             caption=f"{wname} ({table[wname]['samples']} samples); % of unfiltered",
             digits=4,

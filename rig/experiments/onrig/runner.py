@@ -352,14 +352,7 @@ def _run_in_process(
         dsp=dsp,
         common=common,
     )
-    if run.result.error:
-        raise RigRunError(f"run {spec.name!r} (one process) ended with a fault: {run.result.error}")
-    run.controller.save(str(record_path), run.result)
-    if on_progress is not None:
-        on_progress(expected)
-    wall = time.monotonic() - started
-    health = {k: v.model_dump(mode="json") for k, v in run.health.items()}
-    return _rig_result(ctx, spec, record_path, truth_path, wall_time_s=wall, in_process=True, health=health, exit_codes={name: 0 for name in SERVICES})
+    return _finish_in_thread(ctx, spec, run, "one process", record_path, truth_path, expected, on_progress, started)
 
 
 def _run_cosim(
@@ -388,8 +381,24 @@ def _run_cosim(
         )
     except (ConfigError, ValueError) as exc:
         raise RigRunError(f"run {spec.name!r} (co-simulation): {exc}") from None
+    return _finish_in_thread(ctx, spec, run, "co-simulation", record_path, truth_path, expected, on_progress, started)
+
+
+def _finish_in_thread(
+    ctx: ExperimentContext,
+    spec: RigRun,
+    run: Any,
+    what: str,
+    record_path: Path,
+    truth_path: Path,
+    expected: float,
+    on_progress: Callable[[float], None] | None,
+    started: float,
+) -> RigResult:
+    """The end of a run made in this process (one process or co-simulated):
+    its fault raised, its record saved, its result read back from disk."""
     if run.result.error:
-        raise RigRunError(f"run {spec.name!r} (co-simulation) ended with a fault: {run.result.error}")
+        raise RigRunError(f"run {spec.name!r} ({what}) ended with a fault: {run.result.error}")
     run.controller.save(str(record_path), run.result)
     if on_progress is not None:
         on_progress(expected)
