@@ -18,10 +18,13 @@ log = logging.getLogger("dsp")
 def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) -> int:
     """One board per rig served (``rig_id``, then ``serve_rigs``), all on this session: each has
     its own identifier, inbox and thread, so one rig's batch never waits in another's queue,
-    and their compiled steps (which release the GIL) run on as many cores as there are."""
+    and their compiled steps (which release the GIL) run on as many cores as there are. A board
+    serving one rig identifies in zenoh's batch callback (``inline``): no thread hand-off on the
+    batch -> interrupt path (docs/dsp-performance.md)."""
     rigs = settings.rig_ids
+    inline = len(rigs) == 1
     services = [
-        build_or_config_error("DSP configuration", lambda rig=rig: DspService(settings.model_copy(update={"rig_id": rig}), session))  # type: ignore[misc]
+        build_or_config_error("DSP configuration", lambda rig=rig: DspService(settings.model_copy(update={"rig_id": rig}), session, inline=inline))  # type: ignore[misc]
         for rig in rigs
     ]
     log.info("DSP board up on rig(s) %s: N=%d, alpha=%.3g, emulated latency %.0f ms", ", ".join(map(repr, rigs)), settings.fft_width, settings.alpha, settings.emulated_latency_s * 1e3)
