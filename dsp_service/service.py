@@ -25,13 +25,13 @@ import zenoh
 from dsp_service.board import Admission
 from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
-from service_kit.encodings import JSON
 from protocol.errors import ProtocolError
-from service_kit.inbox import Inbox
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import DspSettings
 from service_kit.clock import RealTimeScheduler, Scheduler
+from service_kit.encodings import JSON
+from service_kit.inbox import Inbox
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -52,7 +52,7 @@ class _Event:
     admission: Admission | None = None
     arrival: float = 0.0
     change: ConfigChange | None = None
-    held: "_Held | None" = None
+    held: _Held | None = None
 
 
 @dataclass
