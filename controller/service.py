@@ -357,7 +357,8 @@ class ControllerService:
                 flag = payload
                 if flag.state == "full":
                     self._dsp_acked = True
-                self.link.on_flag(flag)
+                if not self._echoes_interrupt(flag):
+                    self.link.on_flag(flag)
                 self._flags_seen += 1
                 self._dsp_config_seq = flag.config_seq
             elif kind == "interrupt":
@@ -399,6 +400,14 @@ class ControllerService:
         except ProtocolError as exc:
             self.timing.undecodable += 1
             log.warning("dropped an invalid %s: %s", kind, exc)
+
+    def _echoes_interrupt(self, flag: BlockFlag) -> bool:
+        """The empty flag the DSP sends just after an interrupt (it raises the
+        interrupt first, docs/design.md): that interrupt already emptied the
+        block and our next batch may be in flight, so the flag is no news for
+        the link (not a late flag)."""
+        irq, sent = self.latest_interrupt, self.link.in_flight
+        return flag.state == "empty" and irq is not None and sent is not None and flag.next_batch_seq == irq.batch_seq + 1 == sent.seq
 
     def reconfigure(self, change: ConfigChange) -> None:
         """A run-time command (thesis §3.2.3): the batch size applies here

@@ -19,11 +19,15 @@ log = logging.getLogger("dsp")
 def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) -> int:
     """One board per rig served (``rig_id``, then ``serve_rigs``), all on this session: each has
     its own identifier, inbox and thread, so one rig's batch never waits in another's queue,
-    and their compiled steps (which release the GIL) run on as many cores as there are."""
+    and their compiled steps (which release the GIL) run on as many cores as there are. A board
+    serving one rig identifies in zenoh's batch callback (``inline``): no thread hand-off on the
+    batch -> interrupt path (docs/dsp-performance.md)."""
     rigs = settings.rig_ids
 
+    inline = len(rigs) == 1
+
     def board(rig: str) -> DspService:
-        return DspService(settings.model_copy(update={"rig_id": rig}), session)
+        return DspService(settings.model_copy(update={"rig_id": rig}), session, inline=inline)
 
     services = [build_or_config_error("DSP configuration", partial(board, rig)) for rig in rigs]
     log.info(

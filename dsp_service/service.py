@@ -3,8 +3,10 @@
 Subscribes to sample batches and run-time configuration, runs one
 identification step per batch (:class:`dsp_service.core.DspCore`), and
 answers with the block flag and the interrupt carrying the pole parameters
-(thesis §3.2.3, Fig. 3.5). Heavy work happens on the service's own thread,
-never in zenoh callbacks.
+(thesis §3.2.3, Fig. 3.5). Serving several rigs, each board's work happens
+on its own thread, never in zenoh callbacks (one rig's batch never waits for
+another's); a board serving one rig (``inline``) identifies in zenoh's batch
+callback, so no thread wake-up lies on the batch -> interrupt path.
 
 Time comes from an injected :class:`service_kit.clock.Scheduler`. The
 emulated latency is a due time: the interrupt is held (the block stays
@@ -23,13 +25,13 @@ import zenoh
 from dsp_service.board import Admission
 from dsp_service.core import DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
-from service_kit.encodings import JSON
 from protocol.errors import ProtocolError
-from service_kit.inbox import Inbox
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import DspSettings
 from service_kit.clock import RealTimeScheduler, Scheduler
+from service_kit.encodings import JSON
+from service_kit.inbox import Inbox
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -50,6 +52,7 @@ class _Event:
     admission: Admission | None = None
     arrival: float = 0.0
     change: ConfigChange | None = None
+    held: _Held | None = None
 
 
 @dataclass
@@ -64,8 +67,12 @@ class _Held:
 class DspService:
     """The board on zenoh: the core, publishers, health."""
 
-    def __init__(self, settings: DspSettings, session: zenoh.Session, scheduler: Scheduler | None = None) -> None:
+    def __init__(self, settings: DspSettings, session: zenoh.Session, scheduler: Scheduler | None = None, inline: bool = False) -> None:
         self.settings = settings
+        self.inline = inline
+        """Identify in zenoh's batch callback instead of handing the batch to the board's thread
+        (a DSP serving one rig: no thread wake-up on the path; several rigs keep one thread each)."""
+        self._out_lock = threading.Lock()  # flags are numbered and sent from the board's thread and, inline, zenoh's
         self.session = session
         self.keys = Keys(settings.rig_id)
         self.core = DspCore(settings)
@@ -118,7 +125,8 @@ class DspService:
 
     # -- messages out -----------------------------------------------------------------
     def _publish_flag(self, state: str) -> None:
-        self._put_flag(self.core.flag(state))
+        with self._out_lock:
+            self._put_flag(self.core.flag(state))
 
     def _put_flag(self, flag: BlockFlag) -> None:
         self._flag_pub.put(encode(flag), attachment=self.board_id)
@@ -172,8 +180,20 @@ class DspService:
             self._events.put("batch", _Event("repeat", arrival=arrival))
             return None
         admission = self.core.admit(batch)
-        if admission.accepted:
+        if not admission.accepted:
+            return None
+        if not self.inline:
             self._events.put("batch", _Event("batch", batch=batch, admission=admission, arrival=arrival))
+            return None
+        try:
+            held = self._compute(batch, admission, arrival)
+        except Exception as exc:
+            self._internal_error("batch", exc)
+            return None
+        if self.scheduler.now() >= held.due:
+            self._raise(held)  # latency 0: raised here, no thread on the path
+        else:
+            self._events.put("batch", _Event("held", held=held, arrival=arrival))  # the board's thread holds it until due
         return None
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
@@ -192,15 +212,23 @@ class DspService:
 
     def _compute(self, batch: SampleBatch, admission: Admission, arrival: float) -> _Held:
         interrupt = self.core.process(batch, admission)
-        self.compute_time.add(interrupt.compute_time_s)
         return _Held(interrupt, arrival + self.core.due_after(interrupt, self.settings.clock == "realtime"), arrival)
 
     def _raise(self, held: _Held) -> None:
-        """Fig. 3.5 step 4: release the block, flag it empty, raise the interrupt."""
+        """Fig. 3.5 step 4: release the block, raise the interrupt, flag the block empty.
+
+        The block is released before the interrupt goes (the CPU may send
+        its next batch as soon as the interrupt is in, and the interrupt
+        means the block is empty: :meth:`controller.dsp_link.DspLink.on_interrupt`);
+        the empty flag, built at the release, follows the interrupt so that
+        it is not on the batch -> interrupt path, and the bookkeeping comes last."""
         self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
-        self._put_flag(self.core.release())
-        self._put_interrupt(held.interrupt)
+        with self._out_lock:
+            flag = self.core.release()
+            self._put_interrupt(held.interrupt)
+            self._put_flag(flag)
         self.turnaround.add(self.scheduler.now() - held.arrival)
+        self.compute_time.add(held.interrupt.compute_time_s)
 
     def process_batch(self, batch: SampleBatch, admission: Admission | None = None) -> Interrupt | None:
         """One pass of Fig. 3.5 steps 3-4 for a batch (admitted here unless it
@@ -216,11 +244,14 @@ class DspService:
     def _handle(self, event: _Event) -> None:
         if event.kind == "batch" and event.batch is not None and event.admission is not None:
             self._held = self._compute(event.batch, event.admission, event.arrival)
+        elif event.kind == "held" and event.held is not None:
+            self._held = event.held  # computed inline in zenoh's thread, due later
         elif event.kind == "repeat" and self._last_raised is not None and self._held is None:
             self.core.block.counters.interrupts_repeated += 1
             log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
-            self._publish_flag("empty")
-            self._put_interrupt(self._last_raised)
+            with self._out_lock:
+                self._put_interrupt(self._last_raised)
+                self._put_flag(self.core.flag("empty"))
         elif event.kind == "config" and event.change is not None:
             change = event.change  # decoded (and counted if invalid) by the inbox
             refused = ""
@@ -240,10 +271,14 @@ class DspService:
         try:
             self._handle(event)
         except Exception as exc:
-            self.core.block.counters.internal_errors += 1
-            self.core.block.last_violation = f"internal error on a {event.kind}: {exc!r}"
-            log.exception("internal error while handling a %s; block released", event.kind)
             self._held = None
+            self._internal_error(event.kind, exc)
+
+    def _internal_error(self, kind: str, exc: Exception) -> None:
+        self.core.block.counters.internal_errors += 1
+        self.core.block.last_violation = f"internal error on a {kind}: {exc!r}"
+        log.exception("internal error while handling a %s; block released", kind)
+        with self._out_lock:
             self._put_flag(self.core.release())
 
     def run(self, stop: threading.Event) -> None:

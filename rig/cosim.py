@@ -114,8 +114,9 @@ class DirectDspPort:
             return
         interrupt = self.core.process(batch, admission)
         now = self._clock()
-        self._sink("flag", encode(self.core.release()), now, self.board_id)
+        flag = self.core.release()  # the interrupt, then the flag of the release: as the DSP service sends them
         self._sink("interrupt", encode(interrupt), now, self.board_id)
+        self._sink("flag", encode(flag), now, self.board_id)
 
     def send_config(self, payload: bytes) -> None:
         try:

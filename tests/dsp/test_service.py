@@ -77,13 +77,13 @@ class RunningBoard:
 
 
 @contextmanager
-def _running_board(session: zenoh.Session, settings: DspSettings, *, publisher: bool = False) -> Iterator[RunningBoard]:
+def _running_board(session: zenoh.Session, settings: DspSettings, *, publisher: bool = False, inline: bool = False) -> Iterator[RunningBoard]:
     """A DspService serving on a thread, a Probe on its flags and interrupts (declared
     before the service, so the first flag is seen); on exit the service is stopped and
     joined, then the publisher, the probe and the service are closed."""
     keys = Keys(settings.rig_id)
     probe = Probe(session, keys)
-    service = DspService(settings, session)
+    service = DspService(settings, session, inline=inline)
     stop = threading.Event()
     thread = threading.Thread(target=service.run, args=(stop,), daemon=True)
     thread.start()
@@ -99,9 +99,10 @@ def _running_board(session: zenoh.Session, settings: DspSettings, *, publisher: 
         service.close()
 
 
-def test_flag_sequence_and_interrupts_in_order(session: zenoh.Session) -> None:
+@pytest.mark.parametrize("inline", [False, True])
+def test_flag_sequence_and_interrupts_in_order(session: zenoh.Session, inline: bool) -> None:
     settings = _settings()
-    with _running_board(session, settings, publisher=True) as board:
+    with _running_board(session, settings, publisher=True, inline=inline) as board:
         probe, pub = board.probe, board.pub
         first = probe.next("flag")
         assert isinstance(first, BlockFlag) and first.state == "empty" and first.next_batch_seq == 0
@@ -246,12 +247,14 @@ def test_batches_the_board_cannot_identify_are_rejected_not_fatal(session: zenoh
         assert thread.is_alive()
 
 
-def test_the_emulated_latency_is_a_due_time_and_a_stop_is_seen_while_an_interrupt_is_held(session: zenoh.Session) -> None:
+@pytest.mark.parametrize("inline", [False, True])
+def test_the_emulated_latency_is_a_due_time_and_a_stop_is_seen_while_an_interrupt_is_held(session: zenoh.Session, inline: bool) -> None:
     """Real time, 10 s emulated latency (the bound): the board holds the
     interrupt with its block full, keeps taking events (a latency of 1e6 s is
-    refused, counted), and stops at once when told."""
+    refused, counted), and stops at once when told (inline too: computed in
+    zenoh's thread, held by the board's)."""
     settings = _settings(clock="realtime", emulated_latency_s=10.0)
-    with _running_board(session, settings, publisher=True) as board:
+    with _running_board(session, settings, publisher=True, inline=inline) as board:
         service, probe, pub, thread = board.service, board.probe, board.pub, board.thread
         probe.next("flag")
         pub.put(encode_batch(_batch(0)))
@@ -271,6 +274,34 @@ def test_the_emulated_latency_is_a_due_time_and_a_stop_is_seen_while_an_interrup
         stopped = time.monotonic()
     # the context manager set stop and joined the thread: it ended well within its 5 s join
     assert not thread.is_alive() and time.monotonic() - stopped < 2.0
+
+
+@pytest.mark.parametrize("inline", [False, True])
+def test_an_inline_board_answers_in_zenohs_thread_and_raises_the_interrupt_before_the_flag(session: zenoh.Session, inline: bool) -> None:
+    """Without the board's thread running, only an inline board (one rig)
+    answers a batch: it identified it in the subscriber callback, and sent
+    the interrupt and the empty flag of its release (zenoh does not order two
+    publishers, so their order is not checked here)."""
+    settings = _settings()
+    keys = Keys(settings.rig_id)
+    probe = Probe(session, keys)
+    service = DspService(settings, session, inline=inline)
+    pub = session.declare_publisher(keys.batch)
+    try:
+        pub.put(encode_batch(_batch(0)))
+        if not inline:
+            with pytest.raises(queue.Empty):
+                probe.events.get(timeout=0.5)
+            assert service.interrupt_seq == 0 and service.block.full  # waiting for the board's thread
+            return
+        got = dict([probe.events.get(timeout=5), probe.events.get(timeout=5)])
+        assert got["irq"].batch_seq == 0  # type: ignore[attr-defined]
+        assert got["flag"].state == "empty" and got["flag"].next_batch_seq == 1  # type: ignore[attr-defined]
+        assert not service.block.full and service.turnaround.stats().count == 1
+    finally:
+        pub.undeclare()
+        probe.close()
+        service.close()
 
 
 def test_a_batch_sent_again_gets_the_same_interrupt_again(session: zenoh.Session) -> None:

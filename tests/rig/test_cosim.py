@@ -107,3 +107,28 @@ def test_schedulers() -> None:
     real = RealTimeScheduler(stop)
     stop.set()
     assert not real.wait(3600.0)  # a stop ends a real-time wait at once
+
+
+def test_the_empty_flag_after_an_interrupt_is_not_a_late_flag() -> None:
+    """The DSP raises the interrupt, then flags the release: when the CPU's
+    next batch went out in between, that flag is the interrupt's echo, not
+    late; a flag for an earlier release still is."""
+    from controller.dsp_link import SentBatch
+    from protocol.messages import BlockFlag, Interrupt
+
+    run = run_cosim(controller={"duration_s": 0.5, "tf_download_samples": 0, "batch_size": 20}, dsp={"fft_width": 256, "emulated_latency_s": 0.0})
+    ctrl, link = run.controller, run.controller.link
+    k = link.next_seq
+    ctrl.latest_interrupt = Interrupt(seq=0, sim_time_s=0.0, batch_seq=k, confidence=1.0, compute_time_s=0.0)
+    link.in_flight = SentBatch(seq=k + 1, tick=0, sim_time_s=0.0, due_tick=0, deadline_tick=1)
+    link.next_seq = k + 2
+    late = link.counters.flags_late
+
+    def flag(next_seq: int) -> BlockFlag:
+        return BlockFlag(seq=0, sim_time_s=0.0, state="empty", next_batch_seq=next_seq, fft_width=256, batch_size=20)
+
+    ctrl._take_event("flag", flag(k + 1), 0.0)
+    assert link.counters.flags_late == late and link.in_flight is not None
+    ctrl.latest_interrupt = Interrupt(seq=0, sim_time_s=0.0, batch_seq=k - 1, confidence=1.0, compute_time_s=0.0)
+    ctrl._take_event("flag", flag(k + 1), 0.0)
+    assert link.counters.flags_late == late + 1
