@@ -28,9 +28,9 @@ from typing import Protocol
 
 import zenoh
 
-from service_kit.encodings import BATCH, JSON
 from protocol.keys import Keys
 from protocol.messages import Health
+from service_kit.encodings import BATCH, JSON
 from service_kit.runtime import HealthPublisher
 
 Sink = Callable[..., None]
@@ -57,9 +57,6 @@ class DspPort(Protocol):
     def publish_tf(self, payload: bytes) -> None:
         """``controller/tf``: a TF download as downloaded (for recorders and viewers)."""
         ...
-
-    def publish_tf(self, payload: bytes) -> None:
-        self._tf_pub.put(payload)
 
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None: ...
 

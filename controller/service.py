@@ -146,7 +146,13 @@ class ControllerService:
         )
         self.timing = TimingCounters()
         self.monitors = Monitors(
-            {"deadline": settings.policy_deadline, "stale": settings.policy_stale, "dsp_lost": settings.policy_dsp_lost, "overrun": settings.policy_overrun, "can_conflict": settings.policy_can_conflict}
+            {
+                "deadline": settings.policy_deadline,
+                "stale": settings.policy_stale,
+                "dsp_lost": settings.policy_dsp_lost,
+                "overrun": settings.policy_overrun,
+                "can_conflict": settings.policy_can_conflict,
+            }
         )
         self.tet = LatencyTracker()
         self.jitter = LatencyTracker()
@@ -172,7 +178,9 @@ class ControllerService:
             scenario = parse_scenario(text) if text.startswith("{") else load_scenario(text)
         self._w0 = stopwatch()
         self.faults: FaultStage | None = (
-            FaultStage.from_scenario(scenario, settings.sample_period_s, self.lockstep, lambda: self.stopwatch() - self._w0) if scenario is not None and scenario.faults else None
+            FaultStage.from_scenario(scenario, settings.sample_period_s, self.lockstep, lambda: self.stopwatch() - self._w0)
+            if scenario is not None and scenario.faults
+            else None
         )
         """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
         self.tick = 0
@@ -298,7 +306,13 @@ class ControllerService:
         return irq if irq.batch_seq in self._batch_sent_wall else REFUSED
 
     def _build_health(self, seq: int) -> Health:
-        counters = {**self.plant.counters.as_dict(), **self.link.counters.as_dict(), **self.timing.as_dict(), **self.realtime.as_counters(), **self._events.as_dict()}
+        counters = {
+            **self.plant.counters.as_dict(),
+            **self.link.counters.as_dict(),
+            **self.timing.as_dict(),
+            **self.realtime.as_counters(),
+            **self._events.as_dict(),
+        }
         if self.faults is not None:
             counters.update(self.faults.as_counters())
         counters["deadline_miss_run_max"] = self.miss_run_max
@@ -722,7 +736,13 @@ class ControllerService:
         return RunResult(
             ticks=self.tick,
             sim_time_s=self.tick * ts,
-            counters={**self.link.counters.as_dict(), **self.timing.as_dict(), **self.plant.counters.as_dict(), **self._events.as_dict(), **(self.faults.as_counters() if self.faults is not None else {})},
+            counters={
+                **self.link.counters.as_dict(),
+                **self.timing.as_dict(),
+                **self.plant.counters.as_dict(),
+                **self._events.as_dict(),
+                **(self.faults.as_counters() if self.faults is not None else {}),
+            },
             error=error,
             liveliness=self.liveliness,
         )
@@ -817,7 +837,11 @@ class ControllerService:
         if isinstance(self.record, RowCounter) or isinstance(self.timing_record, RowCounter):
             raise ValueError("this run keeps no record: set RALF_RECORD to save one")
         if self.faults is not None:
-            metadata["faults"] = {"scenario": self.faults.engine.scenario.model_dump(), "counters": self.faults.as_counters(), "events": [dataclasses.asdict(e) for e in self.faults.engine.events[:10000]]}
+            metadata["faults"] = {
+                "scenario": self.faults.engine.scenario.model_dump(),
+                "counters": self.faults.as_counters(),
+                "events": [dataclasses.asdict(e) for e in self.faults.engine.events[:10000]],
+            }
         self.record.save(path, self.settings.model_dump(), metadata)
         self.timing_record.save(path + ".timing", None, {"note": "wall-clock timing; differs run to run"})
         if self.tf_snapshots:
@@ -832,4 +856,3 @@ class ControllerService:
     def close(self) -> None:
         self.tf.join(timeout=3.0)
         self.port.close()
-

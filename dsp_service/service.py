@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import zenoh
 
 from dsp_service.board import Admission
-from dsp_service.core import DspCore, identifier_config
+from dsp_service.core import BlockState, DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
@@ -97,11 +97,11 @@ class DspService:
 
     # -- the core's state, as the tests and the composition read it ----------------------
     @property
-    def identifier(self):  # type: ignore[no-untyped-def]
+    def identifier(self):
         return self.core.identifier
 
     @property
-    def block(self):  # type: ignore[no-untyped-def]
+    def block(self):
         return self.core.block
 
     @property
@@ -117,14 +117,14 @@ class DspService:
         return self.core.interrupt_seq
 
     @property
-    def last_result(self):  # type: ignore[no-untyped-def]
+    def last_result(self):
         return self.core.last_result
 
     def budget_s(self, batch: SampleBatch) -> float:
         return self.core.budget_s(batch)
 
     # -- messages out -----------------------------------------------------------------
-    def _publish_flag(self, state: str) -> None:
+    def _publish_flag(self, state: BlockState) -> None:
         with self._out_lock:
             self._put_flag(self.core.flag(state))
 
@@ -143,7 +143,7 @@ class DspService:
             seq=seq,
             sim_time_s=self.core.last_sim_time,
             service="dsp",
-            state=state,  # type: ignore[arg-type]
+            state=state,
             counters=counters,
             latencies={"compute": self.compute_time.stats(), "batch_to_interrupt": self.turnaround.stats()},
             last_miss=self.core.block.last_violation,

@@ -60,10 +60,12 @@ class BlockFlag(Message):
     fft_width: Annotated[int, Field(ge=16, le=65536)]
     batch_size: Annotated[int, Field(ge=1, le=65536)]
     emulated_latency_s: LatencyS = Field(0.0, description="When the interrupt for the next batch is due, in simulated time after it is sent")
-    config_seq: Seq | None = Field(None, description="seq of the last ConfigChange the board applied (None: none yet); a CPU starts its run once its reset is applied")
+    config_seq: Seq | None = Field(
+        None, description="seq of the last ConfigChange the board applied (None: none yet); a CPU starts its run once its reset is applied"
+    )
 
     @model_validator(mode="after")
-    def _power_of_two(self) -> "BlockFlag":
+    def _power_of_two(self) -> BlockFlag:
         if self.fft_width & (self.fft_width - 1):
             raise ValueError(f"fft_width must be a power of two, got {self.fft_width}")
         return self
@@ -105,7 +107,7 @@ class Interrupt(Message):
     deadline_missed: bool = False
 
     @model_validator(mode="after")
-    def _pole_confidence_versioned(self) -> "Interrupt":
+    def _pole_confidence_versioned(self) -> Interrupt:
         if self.version == 1 and any(p.confidence is not None for p in self.poles):
             raise ValueError("a version-1 interrupt carries no per-pole confidence")
         return self
@@ -126,7 +128,7 @@ class ConfigChange(Message):
     request_id: RequestId | None = Field(None, description="Set by a tool that waits for the DSP's ConfigAck; forwarded unchanged by the controller")
 
     @model_validator(mode="after")
-    def _power_of_two(self) -> "ConfigChange":
+    def _power_of_two(self) -> ConfigChange:
         if self.fft_width is not None and self.fft_width & (self.fft_width - 1):
             raise ValueError(f"fft_width must be a power of two, got {self.fft_width}")
         return self
@@ -146,7 +148,9 @@ class ConfigAck(Message):
     emulated_latency_s: LatencyS
 
     @classmethod
-    def answering(cls, change: ConfigChange, accepted: bool, reason: str, fft_width: int, batch_size: int, alpha: float, emulated_latency_s: float) -> "ConfigAck":
+    def answering(
+        cls, change: ConfigChange, accepted: bool, reason: str, fft_width: int, batch_size: int, alpha: float, emulated_latency_s: float
+    ) -> ConfigAck:
         """The acknowledgement of ``change`` (reason cut to the field's length)."""
         return cls(
             seq=change.seq,
@@ -179,7 +183,7 @@ class TfSnapshot(Message):
     estimates: dict[Literal["H11", "H12", "H21", "H22", "Htot"], TransferFunction]
 
     @model_validator(mode="after")
-    def _lengths(self) -> "TfSnapshot":
+    def _lengths(self) -> TfSnapshot:
         n = len(self.freqs_hz)
         if len(self.valid) != n:
             raise ValueError("valid mask length differs from the frequency grid")
@@ -254,7 +258,7 @@ class ScenarioCommand(Message):
     adc_bits: Literal[12, 16, 20] | None = None
 
     @model_validator(mode="after")
-    def _value_present(self) -> "ScenarioCommand":
+    def _value_present(self) -> ScenarioCommand:
         needed = {"payload": self.payload_attached, "seed": self.seed, "adc_bits": self.adc_bits}[self.kind]
         if needed is None:
             raise ValueError(f"scenario command {self.kind!r} needs its value")

@@ -166,7 +166,11 @@ def _plant_health(app: PlantApplication, node: CanopenNode) -> Health:
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=0)
     return Health(
-        seq=0, sim_time_s=app.arm.time_s, service="plant", state="degraded" if app.held else "running", counters=counters,
+        seq=0,
+        sim_time_s=app.arm.time_s,
+        service="plant",
+        state="degraded" if app.held else "running",
+        counters=counters,
         latencies={"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats()},
         last_miss="valves held: SYNC watchdog" if app.held else None,
     )
@@ -176,8 +180,13 @@ def _dsp_health(core: DspCore) -> Health:
     counters = core.block.counters.as_dict()
     counters["interrupts"] = core.interrupt_seq
     return Health(
-        seq=0, sim_time_s=core.last_sim_time, service="dsp", state="degraded" if core.last_batch_missed else "running",
-        counters=counters, latencies={}, last_miss=core.block.last_violation,
+        seq=0,
+        sim_time_s=core.last_sim_time,
+        service="dsp",
+        state="degraded" if core.last_batch_missed else "running",
+        counters=counters,
+        latencies={},
+        last_miss=core.block.last_violation,
     )
 
 

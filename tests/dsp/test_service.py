@@ -41,8 +41,15 @@ def _settings(**kw: object) -> DspSettings:
 
 def _batch(seq: int, n: int = 20, rng: np.random.Generator | None = None) -> SampleBatch:
     rng = rng or np.random.default_rng(seq)
-    return SampleBatch(seq=seq, first_tick=seq * n, sample_rate_hz=200.0, sim_time_s=seq * n / 200.0, wall_time_s=time.time(),
-                       inputs=rng.standard_normal((2, n)), outputs=rng.standard_normal((2, n)))
+    return SampleBatch(
+        seq=seq,
+        first_tick=seq * n,
+        sample_rate_hz=200.0,
+        sim_time_s=seq * n / 200.0,
+        wall_time_s=time.time(),
+        inputs=rng.standard_normal((2, n)),
+        outputs=rng.standard_normal((2, n)),
+    )
 
 
 class Probe:
