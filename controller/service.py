@@ -286,12 +286,14 @@ class ControllerService:
         else:
             self._events.offer(kind, payload, decoder, MAX_BYTES[kind], arrival=arrival)
 
-    def _decode_flag(self, payload: bytes, board: bytes | None) -> BlockFlag | object:
+    def _decode_flag(self, payload: bytes, board: bytes | None) -> BlockFlag | object | None:
         """At the edge: the first flag after the run-start reset pairs the
         controller with its board (the DSP session's id, sent as the
         attachment); flags of any other board are refused."""
         flag = decode(BlockFlag, payload)
-        if self.paired_board is None and self._reset_sent and board:
+        if not self._reset_sent:
+            return None  # the board announcing itself before the run-start reset: expected, nothing to pair with yet (counted as handled)
+        if self.paired_board is None and board:
             self.paired_board = board
             log.info("paired with DSP board %s", board.decode(errors="replace"))
         return flag if board is not None and board == self.paired_board else REFUSED
