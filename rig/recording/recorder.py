@@ -26,6 +26,7 @@ from __future__ import annotations
 import base64
 import json
 import logging
+import os
 import queue
 import threading
 import time
@@ -48,6 +49,21 @@ log = logging.getLogger(__name__)
 
 DEFAULT_QUEUE_LIMIT = 200_000
 """Items waiting for the writer before new ones are dropped (about 1 min of a 200 Hz rig)."""
+
+
+WRITER_NICENESS = 10
+"""The writer thread's nice increment: it runs beside a real-time rig on the
+same cores, and whatever it does can wait; the loop's processes cannot."""
+
+
+def _yield_to_the_loop() -> None:
+    """Lower this thread's scheduling priority (Linux: niceness is per thread);
+    best effort, the recording is the same either way."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + WRITER_NICENESS))
+    except (AttributeError, OSError):  # not Linux, or not permitted
+        pass
 
 
 def _ns(t_s: float) -> int:
@@ -168,6 +184,7 @@ class Recorder:
             self.stats.dropped += 1
 
     def _run(self) -> None:
+        _yield_to_the_loop()
         while True:
             item = self._queue.get()
             if item is None:
