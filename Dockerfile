@@ -1,6 +1,6 @@
 # One image for the three services of the rig; docker-compose.yml picks the command.
 # It carries the contract, the service kit and the three boards, not the launcher
-# (`rig/`: ralf-hil up, bench, experiments, plots), which users run on the host.
+# (`workbench/`: ralf-hil up, bench, experiments, plots), which users run on the host.
 FROM python:3.11-slim
 
 ENV PYTHONUNBUFFERED=1 \

@@ -8,7 +8,7 @@ the one-thread co-simulation:
 
 * :class:`ZenohDspPort`: zenoh publishers, subscribers, the DSP's
   liveliness token, the TF query, the health publisher;
-* :class:`rig.cosim.DirectDspPort`: calls the DSP core directly; every
+* :class:`workbench.cosim.DirectDspPort`: calls the DSP core directly; every
   message still goes through its codec (batch codec, pydantic JSON).
 
 Events reach the controller through the ``sink(kind, payload, arrival,

@@ -16,7 +16,7 @@ time paces SYNC at absolute deadlines ``t0 + k Ts`` (no drift); lockstep
 (three processes) sends the next SYNC as soon as the tick is done and waits
 only for its handshake (SYNC -> TPDO; the interrupt of the batch in flight
 at its due tick, whenever it arrives), never for liveliness or the order in
-which messages arrive; the co-simulation (:mod:`rig.cosim`) runs the same
+which messages arrive; the co-simulation (:mod:`workbench.cosim`) runs the same
 code on simulated time with every answer already in. Before tick 0 the
 controller waits until the plant node is operational and the DSP has
 answered its reset (``startup_timeout_s``).

@@ -3,7 +3,7 @@ and interrupt (thesis §3.2.3, Fig. 3.5 steps 1-4), as one deterministic core.
 
 No zenoh, no threads, no clock of its own: the zenoh service
 (:mod:`dsp_service.service`) and the one-thread co-simulation
-(:mod:`rig.cosim`) both drive it, so both identify with the same code. The
+(:mod:`workbench.cosim`) both drive it, so both identify with the same code. The
 compute time of a step is measured with the injected ``perf_counter`` (it
 goes into the interrupt's ``compute_time_s`` and the budget check only; no
 estimate depends on it).

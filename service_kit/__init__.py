@@ -3,4 +3,4 @@ above the contract (``protocol``). Process lifecycle (settings from the
 command line, logging, SIGINT/SIGTERM, the zenoh session), the periodic
 health message, latency statistics, and the clock/scheduler every board's
 loop runs on (:mod:`service_kit.clock`). Nothing here imports a board or the
-launcher (``rig``)."""
+launcher (``workbench``)."""

@@ -188,10 +188,10 @@ def run_service(
     recorder: Any = None
     stop_recorder: Callable[[Any], None] = _no_recorder
     if any(a == "--record" or a.startswith("--record=") for a in args):
-        # The recorder is the launcher's (rig.recording), imported only when asked
+        # The recorder is the launcher's (workbench.recording), imported only when asked
         # for: the boards' own code never imports rig. It runs as a child process.
         try:
-            from rig.recording.attach import split_record_arg, start_recorder, stop_recorder
+            from workbench.recording.attach import split_record_arg, start_recorder, stop_recorder
         except ImportError as exc:  # a service image carries no launcher
             print(f"{prog}: --record needs the launcher's recorder (pip install 'ralf-hil[rig]'): {exc}", file=sys.stderr)
             return 2

@@ -9,7 +9,7 @@ import pytest
 from plant_emulator.model import PlantConfig
 from plant_emulator.service import plant_config
 from protocol.settings import ControllerSettings, PlantSettings
-from rig.campaign.spec import SpecError, SweepSpec, expand, load_spec, resolve, run_key
+from workbench.campaign.spec import SpecError, SweepSpec, expand, load_spec, resolve, run_key
 
 BASE = {"controller.duration_s": 2.0}
 

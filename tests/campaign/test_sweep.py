@@ -20,9 +20,9 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from rig.campaign import Engine, SweepSpec, run_sweep
-from rig.campaign.engine import current_engine, use_engine
-from rig.campaign.table import Journal
+from workbench.campaign import Engine, SweepSpec, run_sweep
+from workbench.campaign.engine import current_engine, use_engine
+from workbench.campaign.table import Journal
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -100,7 +100,7 @@ def test_a_different_seed_changes_the_measured_cost(engine: Engine, tmp_path: Pa
 
 
 def test_noise_vs_lag_quick(engine: Engine, tmp_path: Path) -> None:
-    from rig.experiments import run_experiment
+    from workbench.experiments import run_experiment
 
     with use_engine(engine):
         assert current_engine() is engine
@@ -174,7 +174,7 @@ def test_sweep_on_a_dask_scheduler_with_two_workers(tmp_path: Path) -> None:
             "grid:\n  plant.adc_bits: [12, 16, 20]\nseeds: [3]\n",
             encoding="utf-8",
         )
-        from rig.cli import main
+        from workbench.cli import main
 
         assert main(["sweep", str(spec), "--scheduler", address, "--out", str(tmp_path / "out"), "--no-progress"]) == 0
         rows = pq.read_table(tmp_path / "out" / "results.parquet").to_pylist()
@@ -187,7 +187,7 @@ def test_sweep_on_a_dask_scheduler_with_two_workers(tmp_path: Path) -> None:
 
 
 def test_cli_dry_run_and_bad_specs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from rig.cli import main
+    from workbench.cli import main
 
     spec = tmp_path / "s.toml"
     spec.write_text('name = "t"\n[base]\ncontroller.duration_s = 1\n[grid]\nplant.adc_bits = [12, 16]\nmode = ["lockstep", "onrig"]\n', encoding="utf-8")
@@ -203,8 +203,8 @@ def test_cli_dry_run_and_bad_specs(tmp_path: Path, capsys: pytest.CaptureFixture
 @pytest.mark.rig
 def test_onrig_mode_runs_the_three_process_rig(tmp_path: Path) -> None:
     """One point in the three-process mode (udp_multicast CAN: run inside the loopback namespace, as CI does)."""
-    from rig.campaign.modes import run_point
-    from rig.campaign.spec import expand
+    from workbench.campaign.modes import run_point
+    from workbench.campaign.spec import expand
 
     point = expand(
         SweepSpec(mode="onrig", base={"controller.duration_s": 2.0, "batch_size": 20, "controller.tf_download_samples": 0, "dsp.fft_width": 256, "seed": 5})
@@ -214,7 +214,7 @@ def test_onrig_mode_runs_the_three_process_rig(tmp_path: Path) -> None:
 
 
 def test_overhead_measurement_reports_every_figure(engine: Engine) -> None:
-    from rig.campaign.measure import overheads
+    from workbench.campaign.measure import overheads
 
     o = overheads(engine, n=4)
     assert set(o) == {"task_round_trip_overhead_s", "burst_wall_per_task_s", "result_1mb_extra_s", "result_8mb_extra_s"}

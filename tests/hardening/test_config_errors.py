@@ -151,10 +151,10 @@ def test_controller_with_no_can_interface_exits_2_with_one_line() -> None:
 
 @pytest.mark.parametrize("value", ["-5", "0", "nan"])
 def test_up_refuses_a_bad_duration(value: str) -> None:
-    proc = _run(["-m", "rig", "up", "--duration", value])
+    proc = _run(["-m", "workbench", "up", "--duration", value])
     assert proc.returncode == 2 and "--duration" in proc.stderr
 
 
 def test_reconfigure_fails_when_nothing_answers() -> None:
-    proc = _run(["-m", "rig", "reconfigure", "--connect", "tcp/127.0.0.1:1", "--fft-width", "1024", "--timeout", "1"])
+    proc = _run(["-m", "workbench", "reconfigure", "--connect", "tcp/127.0.0.1:1", "--fft-width", "1024", "--timeout", "1"])
     assert proc.returncode == 1 and "no acknowledgement" in proc.stderr.replace("\n", " ")

@@ -15,7 +15,7 @@ import zenoh
 from controller.record import load_record
 from protocol.keys import Keys
 from protocol.messages import Interrupt, encode
-from rig.composition import run_in_process
+from workbench.composition import run_in_process
 
 FLOOD = 5000
 

@@ -43,7 +43,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
         [
             sys.executable,
             "-m",
-            "rig",
+            "workbench",
             "up",
             "--clock",
             "lockstep",

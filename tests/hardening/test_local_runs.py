@@ -12,14 +12,14 @@ from pathlib import Path
 import pytest
 
 from protocol.settings import CommonSettings, load_settings
-from rig.cli import acquire_rig_lock
 from service_kit.transport import open_can_bus
+from workbench.cli import acquire_rig_lock
 
 
 def test_second_up_on_the_same_rig_id_refuses(tmp_path: Path) -> None:
     held = acquire_rig_lock("lock-test", str(tmp_path))
     try:
-        code = "import sys; from rig.cli import acquire_rig_lock; acquire_rig_lock('lock-test', sys.argv[1])"
+        code = "import sys; from workbench.cli import acquire_rig_lock; acquire_rig_lock('lock-test', sys.argv[1])"
         proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60, check=False)
         assert proc.returncode == 2 and "already running" in proc.stderr and f"pid {os.getpid()}" in proc.stderr
         other = subprocess.run(

@@ -13,9 +13,9 @@ import yaml
 
 from protocol.keys import SERVICES, Keys
 from protocol.rig_description import RIG, Channel, RigDescription, Service, json_models, keys_table, start_order, stop_order
-from rig.config_docs import KEYS_BEGIN, KEYS_END
-from rig.launcher import SERVICE_MODULES, START_ORDER, STOP_ORDER
 from service_kit.access import ROLES, acl_config, publishers
+from workbench.config_docs import KEYS_BEGIN, KEYS_END
+from workbench.launcher import SERVICE_MODULES, START_ORDER, STOP_ORDER
 
 ROOT = Path(__file__).resolve().parents[2]
 KEYS = Keys("desc")
@@ -106,4 +106,4 @@ def test_compose_file_follows_the_description() -> None:
 def test_design_doc_holds_the_generated_keys_table() -> None:
     text = (ROOT / "docs" / "design.md").read_text()
     section = text.split(KEYS_BEGIN, 1)[1].split(KEYS_END, 1)[0]
-    assert section == keys_table(), "regenerate it: python -c \"from rig.config_docs import write_keys_table; write_keys_table('docs/design.md')\""
+    assert section == keys_table(), "regenerate it: python -c \"from workbench.config_docs import write_keys_table; write_keys_table('docs/design.md')\""

@@ -27,7 +27,7 @@ def test_router_runs_the_rest_plugin_on_8000_with_its_generated_config_mounted(t
     config_in_container = cmd[cmd.index("-c") + 1]
     (mount,) = [v for v in router["volumes"] if config_in_container.startswith(v.split(":")[1])]
     # `ralf-hil credentials --out secrets` writes the file the router mounts
-    assert subprocess.run([sys.executable, "-m", "rig", "credentials", "--out", str(tmp_path)], check=False).returncode == 0
+    assert subprocess.run([sys.executable, "-m", "workbench", "credentials", "--out", str(tmp_path)], check=False).returncode == 0
     assert (tmp_path / Path(config_in_container).name).is_file(), mount
 
 

@@ -13,10 +13,10 @@ import cantools
 import numpy as np
 import pytest
 
-from rig.cosim import run_cosim
-from rig.recording.reader import Recording
-from rig.recording.replay import compare
 from tests.recording.support import CHANNELS_OF_A_RUN, read_validated
+from workbench.cosim import run_cosim
+from workbench.recording.reader import Recording
+from workbench.recording.replay import compare
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTROLLER = {"duration_s": 6.0, "tf_download_samples": 200, "batch_size": 20}
@@ -77,7 +77,7 @@ def test_doctor_finds_the_file_sound_and_a_damaged_one_not(recorded: dict[str, A
     from mcap import records
     from mcap.stream_reader import StreamReader
 
-    from rig.recording.doctor import check
+    from workbench.recording.doctor import check
 
     assert check(recorded["path"]) == []
     data = recorded["path"].read_bytes()

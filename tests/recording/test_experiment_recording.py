@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from rig.experiments.framework import ExperimentContext
-from rig.experiments.onrig.runner import RigRun, run_rig
-from rig.recording.reader import Recording
+from workbench.experiments.framework import ExperimentContext
+from workbench.experiments.onrig.runner import RigRun, run_rig
+from workbench.recording.reader import Recording
 
 
 @pytest.mark.timeout(180)
@@ -41,7 +41,7 @@ def test_a_cosimulated_run_is_recorded_too(tmp_path: Path) -> None:
 
 
 def test_the_campaign_job_carries_record_to_the_worker(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from rig.campaign import rigs
+    from workbench.campaign import rigs
 
     seen: list[bool] = []
     monkeypatch.setattr(rigs, "run_rig", lambda ctx, spec, in_process: seen.append(ctx.record) or "ran")
@@ -50,5 +50,5 @@ def test_the_campaign_job_carries_record_to_the_worker(tmp_path: Path, monkeypat
 
 
 def test_service_kit_imports_no_rig_module() -> None:
-    code = "import sys, service_kit.runtime, controller.service, dsp_service.service, plant_emulator.service; print(sorted(m for m in sys.modules if m == 'rig' or m.startswith('rig.')))"
+    code = "import sys, service_kit.runtime, controller.service, dsp_service.service, plant_emulator.service; print(sorted(m for m in sys.modules if m == 'workbench' or m.startswith('workbench.')))"
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"

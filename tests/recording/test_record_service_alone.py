@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from rig.launcher import terminate
-from rig.recording.reader import Recording
+from workbench.launcher import terminate
+from workbench.recording.reader import Recording
 
 
 def _free_port() -> int:
@@ -46,7 +46,7 @@ def test_record_a_plant_running_alone(tmp_path: Path) -> None:
         time.sleep(1.0)
         path = tmp_path / "plant.mcap"
         proc = subprocess.run(
-            [sys.executable, "-m", "rig", "record", str(path), "--connect", f"tcp/127.0.0.1:{zport}", "--duration", "4"],
+            [sys.executable, "-m", "workbench", "record", str(path), "--connect", f"tcp/127.0.0.1:{zport}", "--duration", "4"],
             env=env, capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         assert proc.returncode == 0, proc.stderr

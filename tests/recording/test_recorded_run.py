@@ -18,11 +18,11 @@ import cantools
 import numpy as np
 import pytest
 
-from rig.recording import foxglove
-from rig.recording.plot import FIGURES
-from rig.recording.reader import Recording
-from rig.recording.replay import compare, play_can, recorded_can_messages
 from tests.recording.support import CHANNELS_OF_A_RUN, read_validated
+from workbench.recording import foxglove
+from workbench.recording.plot import FIGURES
+from workbench.recording.reader import Recording
+from workbench.recording.replay import compare, play_can, recorded_can_messages
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM_S = 12.0
@@ -36,7 +36,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     can_port = 46000 + uuid.uuid4().int % 4000
     proc = subprocess.run(
         [
-            sys.executable, "-m", "rig", "up", "--clock", "lockstep", "--duration", "90", "--rig-id", rig_id,
+            sys.executable, "-m", "workbench", "up", "--clock", "lockstep", "--duration", "90", "--rig-id", rig_id,
             "--record", str(mcap_path), "--can-log", str(tmp / "run.asc"), "--json", str(tmp / "summary.json"), "--log-dir", str(tmp / "logs"),
             "--can-port", str(can_port), "--set", f"controller.duration_s={SIM_S}", "--set", "fft_width=512", "--set", "controller.tf_download_samples=400",
         ],
@@ -64,7 +64,7 @@ def test_up_prints_the_can_port_first_and_the_summary_on_stdout(run: dict[str, A
 
 
 def test_every_message_validates_against_its_channel_schema(run: dict[str, Any]) -> None:
-    from rig.recording.doctor import check
+    from workbench.recording.doctor import check
 
     assert check(run["path"]) == []  # CRCs, declarations, chunk ranges, statistics
     seen = read_validated(run["path"])
@@ -114,7 +114,7 @@ def test_replay_at_the_recorded_settings_is_bit_identical(run: dict[str, Any]) -
 def test_replay_cli_writes_its_report(run: dict[str, Any]) -> None:
     out = run["tmp"] / "replay"
     proc = subprocess.run(
-        [sys.executable, "-m", "rig", "replay", str(run["path"]), "--require-identical", "--out", str(out)], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "workbench", "replay", str(run["path"]), "--require-identical", "--out", str(out)], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 0, proc.stderr
     assert "**identical**" in proc.stdout
@@ -126,7 +126,7 @@ def test_plot_writes_the_figures(run: dict[str, Any]) -> None:
     out = run["tmp"] / "figures"
     layout = run["tmp"] / "layout.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "rig", "plot", str(run["path"]), "--out", str(out), "--foxglove-layout", str(layout)],
+        [sys.executable, "-m", "workbench", "plot", str(run["path"]), "--out", str(out), "--foxglove-layout", str(layout)],
         capture_output=True,
         text=True,
         timeout=120,
@@ -193,7 +193,7 @@ def test_replay_cli_plays_the_can_side_onto_udp_multicast(run: dict[str, Any]) -
     frames = [f for f in Recording.load(run["path"]).can_frames() if f["direction"] == "plant->controller"][:100]
     with can.Bus(interface="udp_multicast", channel="239.74.163.2", port=port, receive_own_messages=False) as rx:
         proc = subprocess.run(
-            [sys.executable, "-m", "rig", "replay", str(run["path"]), "--can", "--port", str(port), "--direction", "plant->controller", "--ignore-timestamps", "--gap", "0.001", "--limit", "100", "--max-wall", "30"],
+            [sys.executable, "-m", "workbench", "replay", str(run["path"]), "--can", "--port", str(port), "--direction", "plant->controller", "--ignore-timestamps", "--gap", "0.001", "--limit", "100", "--max-wall", "30"],
             capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         assert proc.returncode == 0, proc.stderr

@@ -18,9 +18,9 @@ from protocol import can_map
 from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, Interrupt, PoleParameters, encode
-from rig.recording import schemas
-from rig.recording.reader import Recording
-from rig.recording.recorder import Recorder
+from workbench.recording import schemas
+from workbench.recording.reader import Recording
+from workbench.recording.recorder import Recorder
 
 DBC = Path(__file__).resolve().parents[2] / "protocol" / "ralf.dbc"
 KEYS = Keys("unit")

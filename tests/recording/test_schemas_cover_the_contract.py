@@ -4,7 +4,7 @@ recorded run never files a valid message under ``/_undecodable``."""
 from __future__ import annotations
 
 from protocol.keys import Keys
-from rig.recording.schemas import BATCH_SUFFIX, model_for_key
+from workbench.recording.schemas import BATCH_SUFFIX, model_for_key
 
 JSON_KEYS = (
     "flag",

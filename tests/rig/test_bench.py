@@ -15,10 +15,10 @@ from typing import Any
 import pytest
 from rich.console import Console
 
-from rig import bench
-from rig.bench import items as bench_items
-from rig.bench.stats import machine_info, ratios, summarize
-from rig.cli import build_parser
+from workbench import bench
+from workbench.bench import items as bench_items
+from workbench.bench.stats import machine_info, ratios, summarize
+from workbench.cli import build_parser
 
 LATENCY_KEYS = ("n", "p50_us", "p99_us", "p999_us", "max_us")
 
@@ -158,7 +158,7 @@ def _check_latency(m: dict[str, Any]) -> None:
 
 @pytest.mark.timeout(120)
 def test_quick_floors_write_a_complete_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from rig.cli import main
+    from workbench.cli import main
 
     out = tmp_path / "bench.json"
     code = main(["bench", "--quick", "--floors-only", "--iterations", "30", "--json", str(out), "--log-dir", str(tmp_path / "logs")])

@@ -8,10 +8,10 @@ import threading
 import can
 import pytest
 
-import rig.composition
+import workbench.composition
 from controller.plant_link import PlantLink
 from protocol import can_map
-from rig.composition import run_in_process
+from workbench.composition import run_in_process
 
 
 @pytest.mark.timeout(120)
@@ -27,7 +27,7 @@ def test_a_rogue_sync_producer_fires_can_conflict_and_policy_stop_ends_the_run(m
             channels.append(self.bus.channel_id)  # type: ignore[attr-defined]
             opened.set()
 
-    monkeypatch.setattr(rig.composition, "PlantLink", SpiedLink)
+    monkeypatch.setattr(workbench.composition, "PlantLink", SpiedLink)
     stop = threading.Event()
 
     def produce() -> None:  # a second SYNC producer, 50 Hz, at most 150 frames

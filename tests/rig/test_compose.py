@@ -49,7 +49,7 @@ def test_compose_file_describes_router_and_three_services() -> None:
     assert router["image"].startswith("eclipse/zenoh")
     # the router reads the configuration `ralf-hil credentials` writes into ./secrets
     assert router["command"][:2] == ["-c", "/etc/ralf/zenoh-router.json5"] and "./secrets:/etc/ralf:ro" in router["volumes"]
-    from rig.cli import COMPOSE_PASSWORD_VARS
+    from workbench.cli import COMPOSE_PASSWORD_VARS
 
     for name in MODELS:
         env = services[name]["environment"]
@@ -82,7 +82,7 @@ def test_each_service_runs_without_the_launcher(module: str) -> None:
     launcher package and the plotting/terminal extras made unimportable."""
     code = (
         "import sys, runpy\n"
-        "for name in ('rig', 'matplotlib', 'rich'):\n"
+        "for name in ('workbench', 'matplotlib', 'rich'):\n"
         "    sys.modules[name] = None\n"
         f"sys.argv = ['{module}', '--help']\n"
         f"runpy.run_module('{module}', run_name='__main__')\n"
@@ -107,7 +107,7 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
     rig_id = f"compose-{uuid.uuid4().hex[:6]}"
     # The router as compose runs it: the configuration `ralf-hil credentials`
     # writes (authentication of every client, the rig's access rules), on loopback.
-    from rig.cli import write_compose_access
+    from workbench.cli import write_compose_access
 
     files = write_compose_access(tmp_path / "secrets", rig_id)
     router_cfg = zenoh.Config.from_file(str(files["router"]))
@@ -165,7 +165,7 @@ def test_docker_compose_itself_accepts_the_file_with_generated_credentials(tmp_p
     file resolves with the env file ``ralf-hil credentials`` writes, and
     refuses to resolve without it (the passwords are mandatory)."""
     out = tmp_path / "secrets"
-    assert subprocess.run([sys.executable, "-m", "rig", "credentials", "--out", str(out)], capture_output=True, check=False).returncode == 0
+    assert subprocess.run([sys.executable, "-m", "workbench", "credentials", "--out", str(out)], capture_output=True, check=False).returncode == 0
     compose = ["docker-compose", "-f", str(ROOT / "docker-compose.yml")]
     ok = subprocess.run([*compose, "--env-file", str(out / "ralf.env"), "config"], capture_output=True, text=True, check=False)
     assert ok.returncode == 0, ok.stderr

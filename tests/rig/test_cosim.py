@@ -1,4 +1,4 @@
-"""The direct co-simulation (rig.cosim): one thread, frames through the CAN
+"""The direct co-simulation (workbench.cosim): one thread, frames through the CAN
 codecs, the DSP's latency applied in simulated ticks; and the scheduler
 implementations it stands on."""
 
@@ -14,8 +14,8 @@ from dsp_service.core import DspCore
 from protocol.errors import ConfigError
 from protocol.messages import ConfigChange
 from protocol.settings import DspSettings
-from rig.cosim import run_cosim
 from service_kit.clock import LockstepScheduler, RealTimeScheduler, SimulatedScheduler
+from workbench.cosim import run_cosim
 
 
 def test_cosim_runs_every_board_in_this_thread_through_the_codecs() -> None:

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from protocol.can_map import EmcyCode
-from rig.composition import run_in_process
-from rig.cosim import run_cosim
-from rig.launcher import RigObserver, RigPlan, start_service, stop_service
+from workbench.composition import run_in_process
+from workbench.cosim import run_cosim
+from workbench.launcher import RigObserver, RigPlan, start_service, stop_service
 
 
 @pytest.mark.timeout(120)

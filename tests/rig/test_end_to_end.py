@@ -19,7 +19,7 @@ def _up(tmp_path: Path, *extra: str, duration: float = 8.0) -> tuple[subprocess.
         [
             sys.executable,
             "-m",
-            "rig",
+            "workbench",
             "up",
             "--duration",
             str(duration),

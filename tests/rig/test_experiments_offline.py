@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.experiments import (
+from workbench.experiments import (
     Experiment,
     UnknownExperimentError,
     framework,
@@ -17,7 +17,7 @@ from rig.experiments import (
     run_all,
     run_experiment,
 )
-from rig.experiments import cli as exp_cli
+from workbench.experiments import cli as exp_cli
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 OFFLINE = ("oatf-response", "fwhm-error", "vrm", "simulation")
@@ -72,7 +72,7 @@ def test_list_output(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_ralf_hil_knows_the_experiment_command(capsys: pytest.CaptureFixture[str]) -> None:
-    from rig.cli import main
+    from workbench.cli import main
 
     assert main(["experiment", "--list"]) == 0
     assert "oatf-response" in capsys.readouterr().out
@@ -113,13 +113,13 @@ def test_all_reports_errors_in_the_index(tmp_path: Path, monkeypatch: pytest.Mon
 
     monkeypatch.setitem(framework._REGISTRY, "zz-boom", Experiment("zz-boom", "§0", "fails", boom))
     monkeypatch.setitem(framework._REGISTRY, "zz-tiny", Experiment("zz-tiny", "§0", "works", tiny))
-    monkeypatch.setitem(framework._BROKEN, "rig.experiments.zz_broken", "ImportError: no such thing")
+    monkeypatch.setitem(framework._BROKEN, "workbench.experiments.zz_broken", "ImportError: no such thing")
     outcomes, index = run_all(tmp_path, names=["zz-boom", "zz-tiny"], show_progress=False)
     assert [o.status for o in outcomes] == ["error", "ok"]
     text = index.read_text(encoding="utf-8")
     assert "error: RuntimeError: deliberate failure" in text
     assert "[report](zz-tiny/report.md)" in text and "[error](zz-boom/error.txt)" in text
-    assert "rig.experiments.zz_broken" in text
+    assert "workbench.experiments.zz_broken" in text
     assert "deliberate failure" in (tmp_path / "zz-boom" / "error.txt").read_text(encoding="utf-8")
     data = json.loads((tmp_path / "index.json").read_text(encoding="utf-8"))
     assert [e["status"] for e in data["experiments"]] == ["error", "ok"]

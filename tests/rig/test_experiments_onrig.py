@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.experiments import framework, get_experiment, list_experiments, run_experiment
-from rig.experiments.framework import ExperimentContext
-from rig.experiments.onrig.runner import RigRun, RigRunError, costs_over, lap_seconds, run_rig
+from workbench.experiments import framework, get_experiment, list_experiments, run_experiment
+from workbench.experiments.framework import ExperimentContext
+from workbench.experiments.onrig.runner import RigRun, RigRunError, costs_over, lap_seconds, run_rig
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ONRIG = ("verify", "pi-spectrogram", "battery", "reduced-damping", "id-lag")
@@ -56,7 +56,7 @@ def test_onrig_experiments_are_registered() -> None:
         assert name in names
         exp = get_experiment(name)
         assert exp.needs_rig and exp.section and "\n" not in exp.description
-        assert exp.module.startswith("rig.experiments.onrig.")
+        assert exp.module.startswith("workbench.experiments.onrig.")
     assert not [m for m in framework.broken_modules() if ".onrig" in m]
 
 

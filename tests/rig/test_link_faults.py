@@ -18,9 +18,9 @@ from controller.service import ControllerService
 from dsp_service.core import DspCore
 from plant_emulator.node import CanopenNode
 from plant_emulator.service import PlantApplication, node_config
-from rig.cosim import DirectCanWire, DirectDspPort, run_cosim, settings_for
 from service_kit.clock import SimulatedScheduler
 from service_kit.link_faults import FaultEngine, Jitter, ScenarioError, load_scenario, parse_scenario, uniform
+from workbench.cosim import DirectCanWire, DirectDspPort, run_cosim, settings_for
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "scenarios"
 FAST = {"tf_download_samples": 0, "batch_size": 20}
@@ -193,7 +193,7 @@ def test_rpdo_outage_trips_the_watchdog_while_sync_keeps_coming() -> None:
 def test_a_faulted_cosim_equals_the_faulted_one_process_lockstep_run() -> None:
     """The same scenario in the co-simulation and in lockstep over the virtual
     CAN bus and a zenoh session with the real DSP service: the same record."""
-    from rig.composition import run_in_process
+    from workbench.composition import run_in_process
 
     faults = scenario(
         {"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 1.5, "drop": 1.0},
@@ -220,8 +220,8 @@ def test_a_faulted_cosim_equals_the_faulted_one_process_lockstep_run() -> None:
 
 
 def test_timing_test_report_gives_verdicts_percentiles_and_histograms(tmp_path: Path) -> None:
-    from rig.cli import main
-    from rig.timing_test.report import run_lengths
+    from workbench.cli import main
+    from workbench.timing_test.report import run_lengths
 
     assert run_lengths([0, 1, 1, 0, 1, 0, 0, 1, 1, 1]) == [2, 1, 3] and run_lengths([]) == []
     spec = tmp_path / "s.json"
@@ -267,7 +267,7 @@ def test_in_real_time_a_delayed_interrupt_is_held_then_applied_late() -> None:
     """Real time (one process, virtual CAN, in-process zenoh): interrupts
     delayed 300 ms, twice the deadline, are misses, then applied (not lost).
     Counts only, no time is asserted."""
-    from rig.composition import run_in_process
+    from workbench.composition import run_in_process
 
     faults = scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 0.5, "stop_s": 1.5, "delay_s": 0.3})
     run = run_in_process(controller={"duration_s": 2.5, **FAST, "fault_scenario": faults}, dsp=dict(FAST_DSP), common={"clock": "realtime"})
@@ -279,7 +279,7 @@ def test_in_real_time_a_delayed_interrupt_is_held_then_applied_late() -> None:
 
 
 def test_the_up_summary_verdict_reads_the_controller_health() -> None:
-    from rig.timing_test.report import health_verdict
+    from workbench.timing_test.report import health_verdict
 
     run = _cosim(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 1.3, "drop": 1.0}))
     health = run.health["controller"].model_dump()

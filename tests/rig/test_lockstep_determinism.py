@@ -1,8 +1,8 @@
 """Lockstep is a co-simulation master: with the same seed and settings the
 run records are bit-identical between two three-process runs, with the host
 loaded by one CPU burner per core during one of them, between three
-processes and one (rig.composition), and between three processes and the
-direct co-simulation (rig.cosim). The step boundary is the handshake, so
+processes and one (workbench.composition), and between three processes and the
+direct co-simulation (workbench.cosim). The step boundary is the handshake, so
 none of this depends on when messages arrive."""
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def _three_processes(tmp: Path, name: str, seed: int) -> Path:
         [
             sys.executable,
             "-m",
-            "rig",
+            "workbench",
             "up",
             "--clock",
             "lockstep",
@@ -56,7 +56,7 @@ def _three_processes(tmp: Path, name: str, seed: int) -> Path:
 
 
 def _one_process(tmp: Path, name: str, seed: int) -> Path:
-    from rig.composition import run_in_process
+    from workbench.composition import run_in_process
 
     record = tmp / name / "run"
     record.parent.mkdir(parents=True)
@@ -67,7 +67,7 @@ def _one_process(tmp: Path, name: str, seed: int) -> Path:
 
 
 def _cosim(tmp: Path, name: str, seed: int) -> Path:
-    from rig.cosim import run_cosim
+    from workbench.cosim import run_cosim
 
     record = tmp / name / "run"
     record.parent.mkdir(parents=True)

@@ -20,7 +20,7 @@ from rich.console import Console
 from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, LatencyStats, encode
-from rig import monitor
+from workbench import monitor
 
 
 def _free_port() -> int:
@@ -139,7 +139,7 @@ def test_lost_liveliness_is_shown(service: FakeService) -> None:
 
 @pytest.mark.timeout(60)
 def test_cli_once_json(service: FakeService, capsys: pytest.CaptureFixture[str]) -> None:
-    from rig.cli import main
+    from workbench.cli import main
 
     code = main(["monitor", "--once", "--rig-id", service.rig_id, "--connect", f"{service.endpoint}, ", "--window", "1.5", "--json"])
     out = capsys.readouterr().out
@@ -160,7 +160,7 @@ def test_env_settings_are_honoured(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_no_endpoint_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(ConfigError, match="--connect"):
         monitor.monitor_settings("x")
-    from rig.cli import main
+    from workbench.cli import main
 
     assert main(["monitor", "--once", "--rig-id", "x"]) == 2
     assert "--connect" in capsys.readouterr().err
@@ -168,7 +168,7 @@ def test_no_endpoint_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def test_nothing_heard_exits_1(capsys: pytest.CaptureFixture[str]) -> None:
-    from rig.cli import main
+    from workbench.cli import main
 
     # a rig id nobody uses, on a port nobody listens on: the peer keeps retrying, hears nothing
     code = main(["monitor", "--once", "--rig-id", f"none-{uuid.uuid4().hex[:6]}", "--connect", f"tcp/127.0.0.1:{_free_port()}", "--window", "0.5"])

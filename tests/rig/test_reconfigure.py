@@ -10,7 +10,7 @@ import zenoh
 
 from protocol.keys import Keys
 from protocol.messages import ConfigChange, encode
-from rig.composition import run_in_process
+from workbench.composition import run_in_process
 
 
 def test_batch_size_and_fft_width_change_while_running() -> None:
@@ -38,7 +38,7 @@ def test_batch_size_and_fft_width_change_while_running() -> None:
 
 
 def test_reconfigure_tool_gets_the_dsp_acknowledgement_or_its_refusal() -> None:
-    from rig.cli import wait_for_ack
+    from workbench.cli import wait_for_ack
 
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')

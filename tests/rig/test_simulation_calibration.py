@@ -8,7 +8,7 @@ import numpy as np
 
 from controller.metrics import rms_costs
 from controller.trajectory import load_trajectory, sample_trajectory
-from rig.experiments.offline.simulation import (
+from workbench.experiments.offline.simulation import (
     SimulationModel,
     estimator_ratio_bound,
     simulate,

@@ -1,0 +1,808 @@
+"""The bench items. Each fills a result dict progressively, so what was
+measured before a failure is still reported; each cleans up (sessions,
+buses, child processes) whatever happens.
+
+Result of an item::
+
+    {"status": "ok" | "partial" | "failed" | "skipped",
+     "measurements": {name: measurement, ...},   # in display order
+     "config": {...}, "notes": [...], "errors": [...], "skipped": [...]}
+
+A measurement is either a latency summary (``kind: "latency"``, µs:
+``n, p50_us, p99_us, p999_us, max_us`` ...) or a scalar (``kind: "scalar"``,
+``value``, ``unit``); either may name its ``floor`` (another measurement of
+the same item, or a fixed reference given as ``floor_value``) and carry the
+``ratio`` measured/floor (a dict by percentile for latencies).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from workbench.bench.pingers import (
+    CanPinger,
+    DspPinger,
+    PlantPinger,
+    UdpPinger,
+    ZenohPinger,
+    batch_size_bytes,
+    can_bus,
+    interleave,
+    zenoh_session,
+)
+from workbench.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_can_port, private_rig_id, tail
+from workbench.bench.stats import from_latency_stats, ratio, ratios, summarize
+from workbench.timing_test.report import health_verdict
+
+CAN_GROUP = "239.74.163.2"
+DSP_FFT_WIDTH = 2048
+BATCH_SAMPLES = 20
+
+
+class Skip(Exception):
+    """A measurement cannot run yet (a module it needs is missing)."""
+
+
+@dataclass
+class BenchContext:
+    quick: bool = False
+    duration_s: float = 10.0
+    iterations: int = 2000
+    warmup: int = 100
+    log_dir: Path = field(default_factory=lambda: Path("/tmp"))
+    floors_only: bool = False
+    say: Callable[[str], None] = lambda text: None
+    rates: tuple[tuple[float, float | None], ...] = ()
+    """realtime: (rate Hz, seconds or None = ``duration_s``) per run (empty: 200 Hz and 1 kHz)."""
+    batch_period_s: float = 0.2
+    """realtime: batch size = this many seconds of samples (> the DSP's 100 ms emulated latency: slack for the deadline)."""
+    floor_s: float = 5.0
+    """realtime: seconds of the sleep-only loop per rate (at most the run's own)."""
+    burners: int = 0
+    """realtime: CPU-burning processes running during the floor and the rig (a loaded host)."""
+    rt_priority: int = 0
+    cpu_affinity: str = ""
+    """realtime: RALF_RT_PRIORITY / RALF_CPU_AFFINITY for the controller and the plant (opt-in measures)."""
+
+
+def new_result() -> dict[str, Any]:
+    return {"status": "ok", "measurements": {}, "config": {}, "notes": [], "errors": [], "skipped": []}
+
+
+def requires(*modules: str) -> None:
+    """Raise :class:`Skip` naming the first module that does not import."""
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            raise Skip(f"{module} does not import yet ({type(exc).__name__}: {exc})") from None
+
+
+def latency(summary: Mapping[str, Any], floor: str | None = None, floor_summary: Mapping[str, Any] | None = None, **extra: Any) -> dict[str, Any]:
+    entry: dict[str, Any] = {"kind": "latency", **summary}
+    if floor is not None:
+        entry["floor"] = floor
+        entry["ratio"] = ratios(summary, floor_summary) if floor_summary is not None else None
+    entry.update(extra)
+    return entry
+
+
+def latency_vs_value(summary: Mapping[str, Any], floor: str, floor_value_us: float, **extra: Any) -> dict[str, Any]:
+    entry: dict[str, Any] = {"kind": "latency", **summary, "floor": floor, "floor_value_us": floor_value_us}
+    entry["ratio"] = {key[:-3]: ratio(summary.get(key), floor_value_us) for key in ("p50_us", "p99_us", "p999_us", "max_us")}
+    entry.update(extra)
+    return entry
+
+
+def scalar(value: float | int | None, unit: str, floor: str | None = None, floor_value: float | None = None, **extra: Any) -> dict[str, Any]:
+    entry: dict[str, Any] = {"kind": "scalar", "value": value, "unit": unit}
+    if floor is not None:
+        entry["floor"] = floor
+        entry["floor_value"] = floor_value
+        entry["ratio"] = ratio(value, floor_value) if value is not None else None
+    entry.update(extra)
+    return entry
+
+
+def _measure_pingers(ctx: BenchContext, pingers: list[Any]) -> dict[str, list[float]]:
+    ctx.say(f"  {ctx.iterations} round trips each of {', '.join(p.name for p in pingers)}")
+    return interleave(pingers, ctx.iterations, ctx.warmup)
+
+
+# --- 1. zenoh -------------------------------------------------------------------------------------
+
+
+def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Batch -> interrupt through the real DSP service vs bare zenoh and bare UDP ping-pong."""
+    size = batch_size_bytes(BATCH_SAMPLES)
+    rig_id = private_rig_id("zenoh")
+    echo_port, dsp_port = free_tcp_port(), free_tcp_port()
+    ping, pong = f"ralf/{rig_id}/bench/ping", f"ralf/{rig_id}/bench/pong"
+    result["config"] = {
+        "rig_id": rig_id,
+        "payload_bytes": size,
+        "batch": f"{BATCH_SAMPLES} samples, 2 inputs, 2 outputs, float64",
+        "dsp": {"RALF_EMULATED_LATENCY_S": "0", "fft_width": DSP_FFT_WIDTH},
+        "qos": "express=True, congestion_control=BLOCK, priority=REAL_TIME",
+        "iterations": ctx.iterations,
+        "warmup": ctx.warmup,
+    }
+    with ExitStack() as stack:
+        udp = stack.enter_context(Child.peer("udp-echo", log_dir=ctx.log_dir))
+        zecho = stack.enter_context(Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{echo_port}", "--ping", ping, "--pong", pong, log_dir=ctx.log_dir))
+        dsp: Child | None = None
+        if ctx.floors_only:
+            result["notes"].append("--floors-only: the DSP service was not started")
+        else:
+            try:
+                requires("dsp_service.service")
+                env = clean_env(
+                    {
+                        "RALF_RIG_ID": rig_id,
+                        "RALF_ZENOH_MODE": "peer",
+                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{dsp_port}",
+                        "RALF_EMULATED_LATENCY_S": "0",
+                        "RALF_FFT_WIDTH": str(DSP_FFT_WIDTH),
+                        "RALF_BATCH_SIZE": str(BATCH_SAMPLES),
+                        "RALF_LOG_LEVEL": "WARNING",
+                    }
+                )
+                dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp", log_dir=ctx.log_dir))
+            except Skip as exc:
+                result["skipped"].append(f"dsp_batch_to_interrupt: {exc}")
+        udp_port = int(udp.read_tagged("READY", 30)["port"])
+        zecho.read_tagged("READY", 30)
+        endpoints = [f"tcp/127.0.0.1:{echo_port}"] + ([f"tcp/127.0.0.1:{dsp_port}"] if dsp else [])
+        session = zenoh_session(connect=endpoints)
+        stack.callback(session.close)
+        zp = ZenohPinger(session, ping, pong, size)
+        stack.callback(zp.close)
+        up = UdpPinger(udp_port, size)
+        stack.callback(up.close)
+        zp.connect()
+        pingers: list[Any] = [zp, up]
+        dp: DspPinger | None = None
+        if dsp is not None:
+            dp = DspPinger(session, rig_id, samples=BATCH_SAMPLES)
+            stack.callback(dp.close)
+            try:
+                ctx.say("  waiting for the DSP service's empty flag")
+                dp.wait_empty(60.0, alive=dsp.alive)
+                # fill the DSP's history once (N / l batches) so every timed step is a full one
+                for _ in range(math.ceil(DSP_FFT_WIDTH / BATCH_SAMPLES) + 10):
+                    dp.once()
+                dp.compute_s.clear()
+                dp.flag_wait_s.clear()
+                pingers.insert(0, dp)
+            except BenchError as exc:
+                result["errors"].append(f"dsp_batch_to_interrupt: {exc}; {dsp.describe_failure()}")
+                dp = None
+        samples = _measure_pingers(ctx, pingers)
+    m = result["measurements"]
+    udp_s = summarize(samples["udp_pingpong"])
+    zen_s = summarize(samples["zenoh_pingpong"])
+    if dp is not None:
+        rtt = samples[dp.name]
+        dsp_s = summarize(rtt)
+        m["dsp_batch_to_interrupt"] = latency(dsp_s, "zenoh_pingpong", zen_s, vs_udp=ratios(dsp_s, udp_s))
+        compute = dp.compute_s[-len(rtt) :]
+        m["dsp_compute"] = latency(summarize(compute), note="Interrupt.compute_time_s: the identifier step inside the service")
+        overhead = [max(r - c, 0.0) for r, c in zip(rtt, compute)]
+        m["dsp_rtt_minus_compute"] = latency(
+            summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead"
+        )
+        if dp.bad:
+            result["notes"].append(f"{dp.bad} undecodable flag/interrupt payloads")
+    m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)
+    m["udp_pingpong"] = latency(udp_s)
+    result["notes"].append("Round trips interleaved in blocks of 50 so a figure and its floors see the same machine state.")
+    result["notes"].append(
+        "zenoh arrivals are stamped in the subscriber callback (decoding and the hand-off to the measuring thread are not timed); UDP after recv()."
+    )
+
+
+# --- 2. CAN ---------------------------------------------------------------------------------------
+
+
+def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """SYNC -> TPDO1 through the plant node (lockstep) vs bare udp_multicast ping-pong."""
+    rig_id = private_rig_id("can")
+    floor_port = private_can_port(rig_id + "-floor")
+    plant_port = private_can_port(rig_id)
+    if plant_port == floor_port:
+        plant_port += 1
+    result["config"] = {
+        "rig_id": rig_id,
+        "interface": f"udp_multicast {CAN_GROUP}",
+        "floor_port": floor_port,
+        "plant_port": plant_port,
+        "frames": "SYNC (1 byte) -> TPDO1 (8 bytes); floor: 8-byte request -> 8-byte reply",
+        "plant": {"RALF_CLOCK": "lockstep", "RALF_WATCHDOG_PERIODS": "200"},
+        "iterations": ctx.iterations,
+        "warmup": ctx.warmup,
+    }
+    with ExitStack() as stack:
+        echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(floor_port), log_dir=ctx.log_dir))
+        plant: Child | None = None
+        if ctx.floors_only:
+            result["notes"].append("--floors-only: the plant service was not started")
+        else:
+            try:
+                requires("plant_emulator.service")
+                env = clean_env(
+                    {
+                        "RALF_RIG_ID": rig_id,
+                        "RALF_ZENOH_MODE": "peer",
+                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{free_tcp_port()}",
+                        "RALF_CAN_INTERFACE": "udp_multicast",
+                        "RALF_CAN_CHANNEL": CAN_GROUP,
+                        "RALF_CAN_PORT": str(plant_port),
+                        "RALF_CLOCK": "lockstep",
+                        "RALF_WATCHDOG_PERIODS": "200",
+                        "RALF_LOG_LEVEL": "WARNING",
+                    }
+                )
+                plant = stack.enter_context(Child([sys.executable, "-m", "plant_emulator"], env=env, name="plant", log_dir=ctx.log_dir))
+            except Skip as exc:
+                result["skipped"].append(f"plant_sync_to_tpdo: {exc}")
+        echo.read_tagged("READY", 30)
+        floor_bus = can_bus(floor_port, [0x181], CAN_GROUP)
+        stack.callback(floor_bus.shutdown)
+        cp = CanPinger(floor_bus)
+        cp.connect()
+        pingers: list[Any] = [cp]
+        if plant is not None:
+            from protocol import can_map
+
+            ids = can_map.cob_ids(can_map.DEFAULT_NODE_ID)
+            plant_bus = can_bus(plant_port, [ids["tpdo1"], ids["heartbeat"]], CAN_GROUP)
+            stack.callback(plant_bus.shutdown)
+            pp = PlantPinger(plant_bus)
+            try:
+                ctx.say("  waiting for the plant node's heartbeat")
+                pp.start(60.0, alive=plant.alive)
+                pingers.insert(0, pp)
+            except BenchError as exc:
+                result["errors"].append(f"plant_sync_to_tpdo: {exc}; {plant.describe_failure()}")
+        samples = _measure_pingers(ctx, pingers)
+    m = result["measurements"]
+    floor = summarize(samples["can_pingpong"])
+    if "plant_sync_to_tpdo" in samples:
+        m["plant_sync_to_tpdo"] = latency(summarize(samples["plant_sync_to_tpdo"]), "can_pingpong", floor, note="includes one lockstep model step per SYNC")
+    m["can_pingpong"] = latency(floor)
+    result["notes"].append("Own frames come back on udp_multicast; both masters filter them (can_filters) and read them off the socket.")
+
+
+# --- shared: short floors and a whole rig ------------------------------------------------------------
+
+
+def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
+    """A short bare udp_multicast ping-pong (the floor of one control tick)."""
+    port = private_can_port(private_rig_id("canfloor"))
+    with ExitStack() as stack:
+        echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(port), log_dir=ctx.log_dir))
+        echo.read_tagged("READY", 30)
+        bus = can_bus(port, [0x181], CAN_GROUP)
+        stack.callback(bus.shutdown)
+        cp = CanPinger(bus)
+        cp.connect()
+        return summarize(interleave([cp], iterations, min(ctx.warmup, 50))["can_pingpong"])
+
+
+def sleep_floor(ctx: BenchContext, rate_hz: float, seconds: float) -> dict[str, Any]:
+    with Child.peer("sleep-jitter", "--rate", str(rate_hz), "--seconds", str(seconds), name=f"sleep-jitter-{rate_hz:g}", log_dir=ctx.log_dir) as child:
+        return child.read_tagged("RESULT", seconds + 30)
+
+
+def listen_config(port: int) -> Any:
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    return config
+
+
+def run_rig(
+    ctx: BenchContext,
+    rig_id: str,
+    clock: str,
+    common: Mapping[str, str],
+    overrides: Mapping[str, Mapping[str, str]],
+    stop_after_running_s: float | None,
+    timeout_s: float,
+) -> dict[str, Any]:
+    """The three services as local processes (workbench.launcher), watched on zenoh.
+
+    Ends when the controller exits, or ``stop_after_running_s`` after its
+    first tick; always stops every service. Returns the statuses with their
+    arrival times, the last snapshot (health, liveliness) and exit codes.
+    """
+    from workbench.launcher import RigPlan, supervise
+    from workbench.monitor import RigWatch
+
+    plan = RigPlan.local(rig_id=rig_id, clock=clock, overrides=overrides, common=common)
+    log_dir = ctx.log_dir / rig_id
+    out: dict[str, Any] = {"failure": None, "exit_codes": {}, "log_dir": str(log_dir)}
+    watch = RigWatch(rig_id, listen_config(plan.zenoh_port), history=True)
+
+    def latest() -> Any:
+        history = watch.history()
+        return history[-1][1] if history else None
+
+    try:
+        sup = supervise(plan, log_dir, latest, run_for_s=stop_after_running_s, timeout_s=timeout_s, poll_s=0.1)
+        out["failure"] = sup.failure or None
+        out["exit_codes"] = sup.exit_codes
+        out["startup_s"] = sup.startup_s
+        time.sleep(0.3)
+        out["snapshot"] = watch.snapshot()
+        out["history"] = watch.history()
+    finally:
+        watch.close()
+    if out["failure"]:
+        out["logs"] = {name: tail(p.log_path, 6) for name, p in sup.procs.items()}
+    return out
+
+
+def _progress(history: list[tuple[float, Any]]) -> dict[str, float] | None:
+    """Ticks per wall second and simulated seconds per wall second between
+    the first status after the first tick and the last status."""
+    running = [(t, s) for t, s in history if s.ticks > 0]
+    if len(running) < 2:
+        return None
+    (t0, s0), (t1, s1) = running[0], running[-1]
+    span = t1 - t0
+    if span <= 0:
+        return None
+    return {"ticks_per_s": (s1.ticks - s0.ticks) / span, "sim_per_wall": (s1.sim_time_s - s0.sim_time_s) / span, "wall_s": span, "ticks": s1.ticks}
+
+
+# --- 3. real time -------------------------------------------------------------------------------------
+
+
+BURN_LIMIT_S = 3600.0
+"""A CPU burner ends by itself after this long even if the bench could not stop it."""
+
+
+@contextmanager
+def cpu_burners(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
+    """``n`` CPU-burning processes (a loaded host), each bounded in time, killed by PID on exit."""
+    code = f"import time\nend = time.monotonic() + {BURN_LIMIT_S}\nwhile time.monotonic() < end:\n    pass\n"
+    procs = [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait(timeout=10)
+
+
+def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """The whole rig in real time at each rate (``ctx.rates``, default 200 Hz and
+    1 kHz for ``duration_s``), optionally with CPU burners running."""
+    requires("plant_emulator.service", "controller.service", "dsp_service.service")
+    m = result["measurements"]
+    runs = ctx.rates or ((200.0, None), (1000.0, None))
+    result["config"] = {
+        "duration_s": ctx.duration_s,
+        "rates_hz": [r for r, _ in runs],
+        "batch_period_s": ctx.batch_period_s,
+        "burners": ctx.burners,
+        "rt_priority": ctx.rt_priority,
+        "cpu_affinity": ctx.cpu_affinity,
+        "runs": {},
+    }
+    for rate, seconds in runs:
+        duration = seconds if seconds is not None else ctx.duration_s
+        tag = f"{rate:g}Hz"
+        batch = max(1, round(ctx.batch_period_s * rate))  # batch period > the DSP's emulated latency: the deadline has slack
+        latency_s = 0.1
+        rig_id = private_rig_id(f"rt{rate:g}")
+        common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
+        if ctx.rt_priority:
+            common["RALF_RT_PRIORITY"] = str(ctx.rt_priority)
+        if ctx.cpu_affinity:
+            common["RALF_CPU_AFFINITY"] = ctx.cpu_affinity
+        record = ctx.log_dir / rig_id / "controller-record"
+        overrides = {
+            "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RECORD": str(record)},
+            "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
+        }
+        result["config"]["runs"][tag] = {
+            "rig_id": rig_id,
+            "duration_s": duration,
+            "batch_size": batch,
+            "batch_period_s": batch / rate,
+            "emulated_latency_s": latency_s,
+            "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}},
+        }
+        try:
+            with cpu_burners(ctx.burners):
+                floor_s = min(duration, ctx.floor_s)
+                ctx.say(
+                    f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else "")
+                )
+                sleep = sleep_floor(ctx, rate, floor_s)
+                canf = can_floor(ctx, max(200, ctx.iterations // 2))
+                ctx.say(f"  {tag}: three-process rig for {duration:g} s")
+                run = run_rig(ctx, rig_id, "realtime", common, overrides, None, duration + 90)
+        except BenchError as exc:
+            result["errors"].append(f"{tag}: {exc}")
+            continue
+        result["config"]["runs"][tag].update(exit_codes=run["exit_codes"], log_dir=run["log_dir"])
+        if run["failure"]:
+            result["errors"].append(f"{tag}: {run['failure']}; logs: {run.get('logs')}")
+        ctrl = run["snapshot"]["services"]["controller"]["health"]
+        progress = _progress(run["history"])
+        if progress is None or ctrl is None:
+            result["errors"].append(f"{tag}: no controller status/health received")
+            continue
+        status = run["history"][-1][1]
+        lat, counters = ctrl["latencies"], ctrl["counters"]
+        m[f"{tag} loop_rate"] = scalar(
+            progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz
+        )
+        m[f"{tag} sleep_jitter (floor)"] = latency(sleep["jitter"], note="a process that only sleeps to t0 + k/rate")
+        m[f"{tag} sync_jitter"] = latency(from_latency_stats(lat["sync_jitter"]), f"{tag} sleep_jitter (floor)", sleep["jitter"])
+        timing = _timing_record(record)
+        if timing is not None:
+            _timing_measurements(m, result["notes"], tag, timing, 1.0 / rate, sleep)
+        else:
+            result["notes"].append(f"{tag}: no controller timing record at {record}.timing.npz (SYNC period jitter not computed)")
+        m[f"{tag} can_pingpong (floor)"] = latency(canf)
+        m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
+        if lat["batch_to_interrupt"]["count"]:
+            m[f"{tag} batch_to_interrupt"] = latency_vs_value(
+                from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6
+            )
+        else:
+            result["errors"].append(f"{tag}: no interrupt came back from the DSP")
+        ticks = max(int(status.ticks), 1)
+        overruns = int(counters.get("overruns", status.overruns))
+        m[f"{tag} overruns"] = scalar(overruns, "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=overruns / ticks, ticks=ticks)
+        sleep_per_tick = sleep["overruns"] / max(int(sleep.get("ticks", 1)), 1)
+        m[f"{tag} overruns per tick"] = scalar(
+            overruns / ticks,
+            "per tick",
+            "sleep loop's overruns per tick",
+            sleep_per_tick if sleep_per_tick > 0 else None,
+            sleep_overruns=sleep["overruns"],
+            sleep_ticks=sleep.get("ticks"),
+            note="target (1 kHz, idle host): at most 2x the sleep loop's",
+        )
+        m[f"{tag} tpdo_timeouts"] = scalar(
+            int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held"
+        )
+        m[f"{tag} deadline_misses"] = scalar(
+            int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts
+        )
+        dsp_h = run["snapshot"]["services"]["dsp"]["health"]
+        if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
+            m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
+        result["config"]["runs"][tag]["controller_counters"] = counters
+        verdict = health_verdict(ctrl)  # the same criteria as `up` and `timing-test` (docs/timing-faults.md)
+        if verdict:
+            result["config"]["runs"][tag]["verdict"] = verdict
+            result["notes"].append(f"{tag}: timing verdict {verdict}")
+        rt = {k: counters[k] for k in ("rt_fifo_priority", "rt_pinned_cpus", "rt_gc_frozen") if k in counters}
+        if rt:
+            result["notes"].append(f"{tag}: real-time measures in effect in the controller: {rt}")
+        if progress["ticks_per_s"] < 0.98 * rate or lat["sync_jitter"]["p50"] > 1.0 / rate:
+            result["notes"].append(
+                f"{tag}: the loop fell behind its absolute schedule t0 + k*Ts ({progress['ticks_per_s']:.0f} of {rate:g} ticks/s); "
+                "sync_jitter then measures accumulated lateness, not per-tick jitter"
+            )
+    result["notes"].append(
+        "batch_to_interrupt is the controller's own figure: from publishing a batch to its interrupt arriving (stamped in the zenoh callback), emulated latency included."
+    )
+    if not m:
+        result["status"] = "failed"
+
+
+def _timing_record(record: Path) -> dict[str, Any] | None:
+    """The controller's per-tick timing (RALF_RECORD): tick, sync_wall_s, tet_s, and its settings."""
+    import numpy as np
+
+    npz = Path(str(record) + ".timing.npz")
+    if not npz.exists():
+        return None
+    with np.load(npz, allow_pickle=False) as data:
+        out: dict[str, Any] = {name: np.asarray(data[name]) for name in ("tick", "sync_wall_s", "tet_s")}
+    try:
+        out["config"] = json.loads(Path(str(record) + ".json").read_text())["config"]
+    except (OSError, ValueError, KeyError):
+        out["config"] = {}
+    return out
+
+
+def _timing_measurements(m: dict[str, Any], notes: list[str], tag: str, timing: Mapping[str, Any], ts: float, sleep: Mapping[str, Any]) -> None:
+    """SYNC period jitter (|interval - Ts|, the CANopen sense) beside the sleep loop's,
+    the worst SYNC intervals, and the TET of the ticks that download transfer functions."""
+    import numpy as np
+
+    starts, tet, ticks = timing["sync_wall_s"], timing["tet_s"], timing["tick"]
+    if starts.size < 3:
+        return
+    intervals = np.diff(starts)
+    m[f"{tag} sync_period_jitter"] = latency(
+        summarize(np.abs(intervals - ts)),
+        f"{tag} sleep_period_jitter (floor)",
+        sleep["period_jitter"],
+        note="|SYNC interval - Ts| from the controller's timing record",
+    )
+    m[f"{tag} sleep_period_jitter (floor)"] = latency(sleep["period_jitter"])
+    worst = np.argsort(intervals)[-3:][::-1]
+    notes.append(f"{tag}: longest SYNC intervals " + ", ".join(f"{intervals[i] * 1e3:.1f} ms before tick {int(ticks[i + 1])}" for i in worst))
+    every = int(timing["config"].get("tf_download_samples") or 0)
+    if every:
+        at = (ticks > 0) & (ticks % every == 0)
+        if at.any():
+            m[f"{tag} tet at TF-download ticks"] = latency(
+                summarize(tet[at]), "tet of the other ticks", summarize(tet[~at]), note=f"ticks that also download transfer functions (every {every} samples)"
+            )
+
+
+# --- 4. lockstep --------------------------------------------------------------------------------------
+
+
+def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Simulated seconds per wall second: three processes, and one process if workbench.composition exists."""
+    requires("plant_emulator.service", "controller.service", "dsp_service.service")
+    m = result["measurements"]
+    rate = 200.0
+    ctx.say("  floor: bare CAN ping-pong (a lockstep tick needs at least one)")
+    canf = can_floor(ctx, max(200, ctx.iterations // 2))
+    ceiling = (1.0 / rate) / (canf["p50_us"] * 1e-6)
+    rig_id = private_rig_id("lock")
+    overrides = {"controller": {"RALF_DURATION_S": "3600"}}
+    result["config"] = {
+        "rig_id": rig_id,
+        "rate_hz": rate,
+        "wall_s": ctx.duration_s,
+        "controller": {"RALF_DURATION_S": "3600 (stopped after the wall time)"},
+        "dsp_emulated_latency_s": "default (0.1 s simulated)",
+    }
+    ctx.say(f"  three-process rig in lockstep for {ctx.duration_s:g} s")
+    run = run_rig(ctx, rig_id, "lockstep", {"RALF_HEALTH_PERIOD_S": "0.5"}, overrides, ctx.duration_s, ctx.duration_s + 90)
+    result["config"]["exit_codes"] = run["exit_codes"]
+    if run["failure"]:
+        result["errors"].append(f"three-process: {run['failure']}; logs: {run.get('logs')}")
+    progress = _progress(run["history"])
+    three: float | None = None
+    m["can_pingpong (floor)"] = latency(canf)
+    if progress is None:
+        result["errors"].append("three-process: no controller progress seen")
+    else:
+        three = progress["sim_per_wall"]
+        m["three_process sim_s/wall_s"] = scalar(
+            three, "x", "CAN-bound ceiling (one bare round trip per tick)", ceiling, ticks_per_s=progress["ticks_per_s"], over_wall_s=progress["wall_s"]
+        )
+        ctrl = run["snapshot"]["services"]["controller"]["health"]
+        if ctrl:
+            m["three_process tet"] = latency(
+                from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick"
+            )
+    _bench_cosim(ctx, result, three)
+    try:
+        requires("workbench.composition")
+    except Skip as exc:
+        result["skipped"].append(f"one_process: {exc}")
+        return
+    comp = importlib.import_module("workbench.composition")
+    if not hasattr(comp, "run_in_process"):
+        result["skipped"].append("one_process: workbench.composition has no run_in_process yet")
+        return
+    sim_s = max(2.0, min(600.0, (three or 5.0) * ctx.duration_s))
+    ctx.say(f"  one-process composition: {sim_s:.0f} s simulated")
+    try:
+        with Child.peer("composition", "--sim-s", f"{sim_s:.3f}", log_dir=ctx.log_dir) as child:
+            out = child.read_tagged("RESULT", ctx.duration_s * 10 + 120)
+    except BenchError as exc:
+        result["errors"].append(f"one_process: {exc}")
+        return
+    if out.get("error"):
+        result["errors"].append(f"one_process: run ended with {out['error']}")
+    one = out["sim_time_s"] / out["wall_time_s"] if out["wall_time_s"] > 0 else None
+    m["one_process sim_s/wall_s"] = scalar(
+        one, "x", "three-process", three, sim_time_s=out["sim_time_s"], wall_time_s=out["wall_time_s"], note="wall time includes the run's start-up"
+    )
+    m["one_process tet"] = latency(from_latency_stats(out["tet"]), "can_pingpong (floor)", canf, note="virtual bus in one process: no socket round trip")
+
+
+COSIM_TARGET = 100.0
+"""The co-simulation should run the default loop at least this many times faster than real time."""
+
+
+def _bench_cosim(ctx: BenchContext, result: dict[str, Any], three: float | None) -> None:
+    """The direct co-simulation (workbench.cosim) of the default loop (default settings), in this process."""
+    try:
+        requires("workbench.cosim")
+    except Skip as exc:
+        result["skipped"].append(f"cosim: {exc}")
+        return
+    from workbench.cosim import run_cosim
+
+    sim_s = 10.0 if ctx.quick else 60.0
+    ctx.say(f"  co-simulation of the default loop: {sim_s:.0f} s simulated, one thread")
+    run = run_cosim(controller={"duration_s": sim_s})
+    if run.result.error:
+        result["errors"].append(f"cosim: run ended with {run.result.error}")
+    rate = run.result.sim_time_s / run.wall_time_s if run.wall_time_s > 0 else None
+    m = result["measurements"]
+    m["cosim sim_s/wall_s"] = scalar(
+        rate, "x", "target", COSIM_TARGET, sim_time_s=run.result.sim_time_s, wall_time_s=run.wall_time_s, note="wall time includes start-up"
+    )
+    if three:
+        m["cosim vs three_process"] = scalar(rate, "x", "three_process sim_s/wall_s", three)
+    m["cosim tet"] = latency(
+        from_latency_stats(run.controller.tet.stats().model_dump()),
+        note="wall time per co-simulated tick: plant step, controller tick, codecs (the DSP step in its batch's tick)",
+    )
+
+
+def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """The co-simulation alone: simulated s per wall s and per CPU s against the
+    100x target, µs per tick, and where a tick goes (:mod:`workbench.bench.cosim_parts`)."""
+    import os
+
+    requires("workbench.cosim")
+    from workbench.bench.cosim_parts import cosim_parts
+    from workbench.cosim import run_cosim
+
+    sim_s = 10.0 if ctx.quick else 60.0
+    ctx.say(f"  co-simulation of the default loop: {sim_s:.0f} s simulated, one thread (after a 1 s warm-up)")
+    run_cosim(controller={"duration_s": 1.0})
+    cpu = time.process_time()
+    run = run_cosim(controller={"duration_s": sim_s})
+    cpu = time.process_time() - cpu
+    if run.result.error:
+        result["errors"].append(f"cosim: run ended with {run.result.error}")
+    ticks = max(run.result.ticks, 1)
+    m = result["measurements"]
+    m["cosim sim_s/wall_s"] = scalar(
+        run.result.sim_time_s / run.wall_time_s,
+        "x",
+        "target",
+        COSIM_TARGET,
+        sim_time_s=run.result.sim_time_s,
+        wall_time_s=run.wall_time_s,
+        note="wall time includes start-up",
+    )
+    m["cosim sim_s/cpu_s"] = scalar(
+        run.result.sim_time_s / cpu if cpu > 0 else None, "x", "target", COSIM_TARGET, cpu_s=cpu, note="process CPU time: what the run costs on a shared host"
+    )
+    tick_budget_us = 1e6 / 200.0 / COSIM_TARGET
+    m["cosim wall per tick"] = scalar(run.wall_time_s / ticks * 1e6, "us", "100x budget", tick_budget_us)
+    m["cosim cpu per tick"] = scalar(cpu / ticks * 1e6, "us", "100x budget", tick_budget_us)
+    parts = cosim_parts(5.0 if ctx.quick else 20.0)
+    result["parts"] = parts
+    for name, us in parts["parts_us_per_tick"].items():
+        m[f"  {name}"] = scalar(us, "us", "100x budget", tick_budget_us, share=parts["parts_share"][name])
+    result["config"] = {
+        "sim_s": sim_s,
+        "controller": "default loop (default settings)",
+        "parts_sim_s": 5.0 if ctx.quick else 20.0,
+        "load_average": os.getloadavg(),
+    }
+    result["notes"].append(
+        "cosim parts: instrumented run (perf_counter wrappers, adaptive OATF), inclusive wall µs per tick; the service's share is the rest of the run"
+    )
+
+
+# --- 5. DSP -------------------------------------------------------------------------------------------
+
+
+def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """dsp_service.bench.bench_identifier(n=2048) against its numpy floor and the C40's 100 ms."""
+    requires("dsp_service.bench")
+    module = importlib.import_module("dsp_service.bench")
+    repeats = 30 if ctx.quick else 200
+    ctx.say(f"  bench_identifier(n=2048, repeats={repeats})")
+    raw = module.bench_identifier(n=2048, repeats=repeats)
+    result["raw"] = raw
+    result["config"] = {"n": 2048, "repeats": repeats}
+    step = {"n": raw["repeats"], "p50_us": raw["step_p50_us"], "p99_us": raw["step_p99_us"]}
+    floor = {"n": raw["repeats"], "p50_us": raw["floor_p50_us"], "p99_us": raw["floor_p99_us"]}
+    m = result["measurements"]
+    m["identifier_step"] = latency(step, "numpy_floor", floor, poles_found=raw.get("poles_found"))
+    m["numpy_floor"] = latency(floor, note="4 rfft + 8 cross-spectra, bare numpy")
+    if raw.get("floor_unbatched_p50_us"):
+        m["numpy_floor_unbatched"] = latency(
+            {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see dsp_service.bench)"
+        )
+    m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
+    if raw.get("step_numpy_p50_us"):
+        ref = {"n": raw["repeats"], "p50_us": raw["step_numpy_p50_us"]}
+        m["identifier_step_numpy"] = latency(ref, "numpy_floor", floor, note="the numpy reference path (IdentifierConfig.kernel='numpy'), same run")
+    if hasattr(module, "bench_stages"):
+        stages = module.bench_stages(n=2048, repeats=repeats)
+        result["stages"] = stages
+        ctx.say(
+            "  stages of the compiled step (p50 us, / floor): "
+            + ", ".join(
+                f"{k} {stages[k]:.1f} ({stages[k] / stages['floor']:.2f})" for k in ("fft", "average", "solve", "smooth", "peaks", "poles", "python", "step")
+            )
+        )
+    if hasattr(module, "bench_sizes"):
+        rows = module.bench_sizes(repeats=repeats)
+        result["sizes"] = rows
+        for line in module.format_report(rows, result.get("stages") or {}).splitlines()[: len(rows) + 1]:
+            ctx.say("  " + line)
+        for r in rows:
+            m[f"identifier_step N={r['n']}"] = latency(
+                {"n": r["repeats"], "p50_us": r["step_p50_us"], "p99_us": r["step_p99_us"]},
+                "numpy_floor",
+                {"n": r["repeats"], "p50_us": r["floor_p50_us"], "p99_us": r["floor_p99_us"]},
+            )
+        big = rows[-1]
+        # a 1 kHz loop sends a batch at least every 1 ms: the step must fit in that period
+        m[f"identifier_step N={big['n']} vs 1 kHz"] = latency_vs_value(
+            {"n": big["repeats"], "p50_us": big["step_p50_us"], "p99_us": big["step_p99_us"]}, "1 ms (1 kHz batch period, l = 1)", 1000.0
+        )
+
+
+def bench_hotpath(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Controller tick and plant step in a micro-benchmark (workbench.bench.hotpath) against the 100 µs target and CAN ping-pong."""
+    from workbench.bench import hotpath
+
+    n = 500 if ctx.quick else 3000
+    ctx.say(f"  controller tick and plant step, {n} calls each, and their parts")
+    raw = hotpath.bench_hotpath(n=n, warmup=100)
+    result["config"] = {"n": n, "oatf_mode": "adaptive", "target_us": hotpath.TARGET_US}
+    m = result["measurements"]
+    for name, stats in raw.items():
+        m[name.strip()] = latency_vs_value(stats, "100 µs target", hotpath.TARGET_US) if not name.startswith(" ") else latency(stats)
+
+
+def bench_dsp_rigs(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """How many 200 Hz rigs one DSP process serves (:mod:`workbench.bench.dsp_rigs`)."""
+    requires("dsp_service.service")
+    from workbench.bench.dsp_rigs import bench_dsp_rigs as run
+
+    run(ctx, result)
+
+
+ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
+    "zenoh": bench_zenoh,
+    "can": bench_can,
+    "realtime": bench_realtime,
+    "lockstep": bench_lockstep,
+    "cosim": bench_cosim,
+    "dsp": bench_dsp,
+    "dsp-rigs": bench_dsp_rigs,
+    "hotpath": bench_hotpath,
+}
+FLOOR_ITEMS = ("zenoh", "can")
+
+
+def run_item(name: str, ctx: BenchContext) -> dict[str, Any]:
+    """Run one item; a failure or a missing dependency is reported, never raised."""
+    result = new_result()
+    started = time.monotonic()
+    try:
+        ITEMS[name](ctx, result)
+    except Skip as exc:
+        result["status"] = "skipped"
+        result["skipped"].append(str(exc))
+    except Exception as exc:  # report, keep going with the next item
+        result["errors"].append(f"{type(exc).__name__}: {exc}")
+    if result["status"] != "skipped":
+        if result["errors"]:
+            result["status"] = "failed"
+        elif result["skipped"]:
+            result["status"] = "partial"
+    result["wall_s"] = round(time.monotonic() - started, 3)
+    return result

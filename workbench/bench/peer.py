@@ -1,0 +1,195 @@
+"""Helper processes of the bench: the far end of each floor measurement,
+and measurements that must run in a process of their own.
+
+``python -m workbench.bench.peer MODE ...``, MODE one of:
+
+* ``udp-echo``: bare UDP echo on a loopback port of its own;
+* ``zenoh-echo``: zenoh peer that republishes every ping on the pong key
+  (express, BLOCK congestion control, real-time priority: the QoS of the
+  DSP's interrupts), from inside the subscriber callback;
+* ``can-echo``: python-can ``udp_multicast`` node answering a request frame
+  with an 8-byte reply frame (own echoes filtered);
+* ``sleep-jitter``: a loop that only sleeps to absolute deadlines at a given
+  rate, the floor of the controller's SYNC jitter;
+* ``composition``: one lockstep run of :func:`workbench.composition.run_in_process`.
+
+Echo helpers print ``READY <json>`` on stdout once they serve and run until
+SIGTERM/SIGINT, then close their session or bus; measurement helpers print
+``RESULT <json>`` and exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import socket
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+
+def _stop_event() -> threading.Event:
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    return stop
+
+
+def _say(tag: str, payload: dict[str, Any]) -> None:
+    sys.stdout.write(f"{tag} {json.dumps(payload)}\n")
+    sys.stdout.flush()
+
+
+def udp_echo(args: argparse.Namespace) -> int:
+    stop = _stop_event()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.settimeout(0.2)
+        _say("READY", {"port": sock.getsockname()[1]})
+        while not stop.is_set():
+            try:
+                data, addr = sock.recvfrom(65536)
+            except TimeoutError:
+                continue
+            sock.sendto(data, addr)
+    return 0
+
+
+def zenoh_echo(args: argparse.Namespace) -> int:
+    import zenoh
+
+    stop = _stop_event()
+    zenoh.init_log_from_env_or("error")
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps([args.listen]))
+    session = zenoh.open(config)
+    try:
+        pong = session.declare_publisher(args.pong, congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME, express=True)
+        sub = session.declare_subscriber(args.ping, lambda sample: pong.put(sample.payload.to_bytes()))
+        _say("READY", {"listen": args.listen})
+        stop.wait()
+        sub.undeclare()
+        pong.undeclare()
+    finally:
+        session.close()
+    return 0
+
+
+def can_echo(args: argparse.Namespace) -> int:
+    import can
+
+    stop = _stop_event()
+    request = int(args.request_id, 0)
+    reply = int(args.reply_id, 0)
+    bus = can.Bus(
+        interface="udp_multicast",
+        channel=args.channel,
+        port=args.port,
+        receive_own_messages=False,
+        can_filters=[{"can_id": request, "can_mask": 0x7FF, "extended": False}],
+    )
+    try:
+        _say("READY", {"port": args.port})
+        while not stop.is_set():
+            msg = bus.recv(timeout=0.2)
+            if msg is None or msg.arbitration_id != request:
+                continue
+            data = bytes(msg.data[:8]).ljust(8, b"\x00")
+            bus.send(can.Message(arbitration_id=reply, data=data, is_extended_id=False))
+    finally:
+        bus.shutdown()
+    return 0
+
+
+def sleep_jitter(args: argparse.Namespace) -> int:
+    """Sleep to absolute deadlines t0 + k/rate exactly as the controller's
+    real-time loop does, and record |wake - scheduled|."""
+    from workbench.bench.stats import summarize
+
+    period = 1.0 / args.rate
+    n = max(1, int(round(args.seconds * args.rate)))
+    jitter = []
+    starts = []
+    overruns = 0
+    t0 = time.monotonic() + 0.01
+    for k in range(n):
+        scheduled = t0 + k * period
+        delay = scheduled - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        start = time.monotonic()
+        starts.append(start)
+        jitter.append(abs(start - scheduled))
+        if start > scheduled + period:
+            overruns += 1
+    wall = time.monotonic() - t0
+    period_jitter = [abs(b - a - period) for a, b in zip(starts, starts[1:])] or [0.0]
+    _say(
+        "RESULT",
+        {
+            "jitter": summarize(jitter),
+            "period_jitter": summarize(period_jitter),
+            "overruns": overruns,
+            "ticks": n,
+            "loop_rate_hz": n / wall if wall > 0 else 0.0,
+        },
+    )
+    return 0
+
+
+def composition(args: argparse.Namespace) -> int:
+    from workbench import composition as comp
+
+    run = comp.run_in_process(controller={"duration_s": args.sim_s})
+    result = run.result
+    tet = run.controller.tet.stats()
+    _say(
+        "RESULT",
+        {
+            "sim_time_s": result.sim_time_s,
+            "wall_time_s": run.wall_time_s,
+            "ticks": result.ticks,
+            "error": result.error,
+            "tet": tet.model_dump(),
+        },
+    )
+    return 0 if result.error is None else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m workbench.bench.peer", description="helper processes of ralf-hil bench")
+    sub = parser.add_subparsers(dest="mode", required=True)
+    sub.add_parser("udp-echo", help="bare UDP echo on loopback").set_defaults(func=udp_echo)
+    z = sub.add_parser("zenoh-echo", help="zenoh ping -> pong echo")
+    z.add_argument("--listen", required=True, help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7450")
+    z.add_argument("--ping", required=True, help="key expression of pings")
+    z.add_argument("--pong", required=True, help="key expression of pongs")
+    z.set_defaults(func=zenoh_echo)
+    c = sub.add_parser("can-echo", help="udp_multicast request -> reply echo")
+    c.add_argument("--channel", default="239.74.163.2")
+    c.add_argument("--port", type=int, required=True)
+    c.add_argument("--request-id", default="0x080")
+    c.add_argument("--reply-id", default="0x181")
+    c.set_defaults(func=can_echo)
+    s = sub.add_parser("sleep-jitter", help="absolute-deadline sleep loop")
+    s.add_argument("--rate", type=float, required=True)
+    s.add_argument("--seconds", type=float, required=True)
+    s.set_defaults(func=sleep_jitter)
+    p = sub.add_parser("composition", help="one-process lockstep rig run")
+    p.add_argument("--sim-s", type=float, required=True)
+    p.set_defaults(func=composition)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,164 @@
+"""Run modes: how one resolved run is carried out.
+
+A run mode is a function ``(RunPoint) -> dict`` (the metrics row, see
+:mod:`workbench.campaign.metrics`), registered under a name with
+:func:`register_mode`; a spec picks one per run (``mode:``, default
+:data:`DEFAULT_MODE`). The function runs on a Dask worker, so it must be
+importable there (a module-level function of an installed module) and must
+choose every bit of per-run plumbing itself: the point's rig id
+(``sw-<key>``, its own ``ralf/<rig-id>`` namespace), the bus, the records.
+
+``lockstep`` (default)
+    The three services composed in one process (:func:`workbench.composition.run_in_process`):
+    python-can's in-process ``virtual`` bus, an in-process zenoh session, one
+    plant step per SYNC. Deterministic for given settings, also on a loaded
+    host: no SYNC is ever resent (the virtual bus loses none; a late answer
+    resent would step the plant twice), and the plant's heartbeat and the
+    SYNC may be as late as the lockstep timeout (``controller.lockstep_timeout_s``)
+    before the controller declares a fault or the plant's watchdog holds the
+    valves (``valves_held_samples`` in the row counts any). No network.
+``onrig``
+    The three-process rig of the experiments (:func:`workbench.experiments.onrig.runner.run_rig`):
+    separate processes over zenoh on loopback and CAN over ``udp_multicast``
+    (run it inside the loopback-only namespace, ``.ci/loopback-netns``), lockstep.
+
+``cosim`` (the default)
+    The three boards co-simulated in one thread (:func:`workbench.cosim.run_cosim`),
+    bit-identical to the three-process lockstep rig.
+
+Adding a mode is one registration::
+
+    @register_mode("NAME")
+    def run_name(point: RunPoint) -> dict[str, Any]:
+        ...
+        return run_metrics(columns, truth, counters, sample_period_s=..., wall_s=...)
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from workbench.campaign.metrics import run_metrics
+from workbench.campaign.spec import DEFAULT_MODE, VOLATILE, RunPoint
+
+__all__ = ["DEFAULT_MODE", "RunFailed", "RunMode", "get_mode", "known_modes", "register_mode", "run_point"]
+
+RunMode = Callable[[RunPoint], dict[str, Any]]
+
+_MODES: dict[str, RunMode] = {}
+
+
+class RunFailed(RuntimeError):
+    """The rig ran but ended with a fault (the controller's error)."""
+
+
+def register_mode(name: str) -> Callable[[RunMode], RunMode]:
+    """Register ``fn(point) -> metrics row`` as run mode ``name`` (decorator)."""
+
+    def deco(fn: RunMode) -> RunMode:
+        old = _MODES.get(name)
+        if old is not None and (old.__module__, old.__qualname__) != (fn.__module__, fn.__qualname__):
+            raise ValueError(f"run mode {name!r} is already registered by {old.__module__}")
+        _MODES[name] = fn
+        return fn
+
+    return deco
+
+
+def known_modes() -> list[str]:
+    return sorted(_MODES)
+
+
+def get_mode(name: str) -> RunMode:
+    try:
+        return _MODES[name]
+    except KeyError:
+        raise KeyError(f"unknown run mode {name!r}; known: {', '.join(known_modes())}") from None
+
+
+def run_point(point: RunPoint) -> dict[str, Any]:
+    """Worker entry: the point's mode, run."""
+    return get_mode(point.mode)(point)
+
+
+def _own(settings: dict[str, Any]) -> dict[str, Any]:
+    """A service's settings without the plumbing and the clock the mode chooses."""
+    return {k: v for k, v in settings.items() if k not in VOLATILE and k != "clock"}
+
+
+def _load_npz(path: Path) -> dict[str, np.ndarray] | None:
+    if not path.exists():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+def _one_process_row(point: RunPoint, run_rig: Callable[..., Any], controller: dict[str, Any], plant: dict[str, Any], common: dict[str, Any]) -> dict[str, Any]:
+    """Run one rig in this process (``run_rig``: the co-simulation or the one-process
+    composition, the same signature), the plant's truth through a temporary file; its row."""
+    s = point.settings
+    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
+        truth_path = Path(tmp) / "truth.npz"
+        started = time.perf_counter()
+        run = run_rig(controller=controller, plant={**plant, "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
+        wall = time.perf_counter() - started
+        if run.result.error:
+            raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")
+        truth = _load_npz(truth_path)
+    columns = run.controller.record.to_columns()
+    period = 1.0 / float(s["controller"]["sample_rate_hz"])
+    return run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+
+
+@register_mode("cosim")
+def run_cosim_point(point: RunPoint) -> dict[str, Any]:
+    """The three boards co-simulated in one thread (:mod:`workbench.cosim`): bit-identical to the
+    three-process lockstep rig, no processes, no sockets, so runs on one worker never disturb
+    each other and a loaded host changes only the wall time."""
+    from workbench.cosim import run_cosim
+
+    s = point.settings
+    return _one_process_row(point, run_cosim, _own(s["controller"]), _own(s["plant"]), {"rig_id": point.rig_id})
+
+
+@register_mode("lockstep")
+def run_lockstep(point: RunPoint) -> dict[str, Any]:
+    """One process, lockstep, in-process bus and zenoh session (see the module doc)."""
+    from workbench.composition import run_in_process
+
+    s = point.settings
+    controller = _own(s["controller"])
+    # Wall-clock supervision of the plant's heartbeat means nothing for a lockstep run's result;
+    # on a loaded host the heartbeat thread can starve for over a second (measured: 1.0-3.2 s
+    # with four rigs on two cores) and the run would end in a fault. Allow the lockstep timeout.
+    timeout_s = float(controller["lockstep_timeout_s"])
+    controller["plant_heartbeat_timeout_s"] = max(float(controller["plant_heartbeat_timeout_s"]), timeout_s)
+    # Likewise the plant's SYNC watchdog (2 s of wall time in lockstep): tripped, it holds the valves.
+    plant = _own(s["plant"])
+    plant["watchdog_periods"] = max(int(plant["watchdog_periods"]), math.ceil(timeout_s * float(s["plant"]["sample_rate_hz"])))
+    common = {"clock": "lockstep", "can_interface": "virtual", "can_channel": f"{point.rig_id}-{uuid.uuid4().hex[:6]}", "rig_id": point.rig_id}
+    return _one_process_row(point, run_in_process, controller, plant, common)
+
+
+@register_mode("onrig")
+def run_onrig(point: RunPoint) -> dict[str, Any]:
+    """Three processes (plant, controller, DSP) over zenoh and udp_multicast CAN, lockstep."""
+    from rich.console import Console
+
+    from workbench.experiments.framework import ExperimentContext
+    from workbench.experiments.onrig.runner import RigRun, run_rig
+
+    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
+        ctx = ExperimentContext(out_dir=Path(tmp), mode="lockstep", show_progress=False, console=Console(stderr=True, quiet=True))
+        spec = RigRun(point.rig_id, controller=point.changed("controller"), plant=point.changed("plant"), dsp=point.changed("dsp"))
+        res = run_rig(ctx, spec, in_process=False)
+        counters = res.record.metadata.get("result", {}).get("counters", {})
+        return run_metrics(res.record.columns, res.truth, counters, sample_period_s=res.sample_period_s, wall_s=res.wall_time_s)

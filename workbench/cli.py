@@ -1,0 +1,505 @@
+"""``ralf-hil``: the umbrella command (up, and the tools built on the rig)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pydantic_settings import BaseSettings
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from protocol.keys import validate_rig_id
+from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+from workbench import bench, campaign, experiments, monitor, timing_test
+from workbench.hostinfo import host_info, host_line
+from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
+from workbench.recording import cli as recording_cli
+from workbench.recording.tap import RigRecording
+from workbench.timing_test.report import health_verdict
+
+console = Console(stderr=True)
+
+
+SETTINGS_MODELS: dict[str, type[BaseSettings]] = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
+
+
+def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
+    """``service.name=value`` (or ``name=value`` for every service that has
+    that setting) -> environment per service. Unknown names are refused."""
+    out: dict[str, dict[str, str]] = {"dsp": {}, "plant": {}, "controller": {}}
+    for item in items:
+        target, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"ralf-hil: --set {item!r}: expected [service.]NAME=VALUE")
+        service, dot, name = target.rpartition(".")
+        name = name.strip().lower().removeprefix("ralf_")
+        if dot and service not in out:
+            raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
+        services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
+        if not services or any(name not in SETTINGS_MODELS[svc].model_fields for svc in services):
+            raise SystemExit(
+                f"ralf-hil: --set {item!r}: {name!r} is not a setting of {' or '.join(services or SETTINGS_MODELS)} (see ralf-plant/ralf-controller/ralf-dsp --help)"
+            )
+        for svc in services:
+            out[svc][f"RALF_{name.upper()}"] = value
+    return out
+
+
+def status_line(observer: RigObserver, elapsed: float) -> Text:
+    s = observer.status
+    alive = " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
+    if s is None:
+        return Text(f"[{elapsed:6.1f} s] waiting for the controller…  {alive}")
+    freq = f"{s.latest_frequency_hz:.2f} Hz" if s.latest_frequency_hz else "–"
+    return Text(
+        f"[{elapsed:6.1f} s] sim {s.sim_time_s:8.2f} s | loop {s.loop_rate_hz:6.1f} Hz | batches {s.batches_sent} | "
+        f"interrupts {s.interrupts} | f1 {freq} | misses {s.deadline_misses} | overruns {s.overruns} | {alive}"
+    )
+
+
+def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float) -> dict[str, Any]:
+    s = observer.status
+    summary: dict[str, Any] = {
+        "wall_time_s": round(elapsed, 3),
+        "exit_codes": exit_codes,
+        "controller": s.model_dump(exclude={"wall_time_s"}) if s else None,
+        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in observer.health.items()},
+        "liveliness_events": observer.events,
+        "undecodable_messages": observer.bad_messages,
+        "host": host_info(),  # the machine the numbers were measured on (workbench/hostinfo.py)
+    }
+    return summary
+
+
+def print_summary(summary: dict[str, Any]) -> None:
+    table = Table(title="ralf-hil run summary", show_header=True)
+    table.add_column("item")
+    table.add_column("value", justify="right")
+    table.add_row("wall time", f"{summary['wall_time_s']:.1f} s")
+    if summary.get("startup_s") is not None:
+        table.add_row("start-up (launch to first tick)", f"{summary['startup_s']:.1f} s")
+    if summary.get("control_wall_s") is not None:
+        table.add_row("control time (wall)", f"{summary['control_wall_s']:.1f} s")
+    c = summary["controller"]
+    if c:
+        table.add_row("simulated time", f"{c['sim_time_s']:.2f} s")
+        table.add_row("control ticks", str(c["ticks"]))
+        table.add_row("loop rate", f"{c['loop_rate_hz']:.1f} Hz")
+        table.add_row("batches sent", str(c["batches_sent"]))
+        table.add_row("interrupts", str(c["interrupts"]))
+        f = c["latest_frequency_hz"]
+        table.add_row("latest identified f1", f"{f:.3f} Hz" if f else "–")
+        table.add_row("deadline misses", str(c["deadline_misses"]))
+        table.add_row("overruns", str(c["overruns"]))
+    for name, health in summary["health"].items():
+        for lname, stats in health["latencies"].items():
+            if stats["count"]:
+                table.add_row(
+                    f"{name} {lname}",
+                    f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
+                )
+    for name, health in summary["health"].items():
+        counters = health.get("counters", {})
+        if "rt_gc_frozen" in counters:
+            fifo = counters.get("rt_fifo_priority", 0)
+            table.add_row(
+                f"{name} real-time measures",
+                f"{'SCHED_FIFO ' + str(fifo) if fifo else 'normal scheduler'}, "
+                f"{str(counters.get('rt_pinned_cpus', 0)) + ' CPU(s) pinned' if counters.get('rt_pinned_cpus') else 'not pinned'}, "
+                f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
+            )
+    table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
+    if summary.get("host"):
+        table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
+    verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
+    if verdict:
+        table.add_row("timing verdict", verdict)
+    if summary.get("recording"):
+        r = summary["recording"]
+        table.add_row(
+            "recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable"
+        )
+    Console().print(table)  # the summary is the command's result: stdout
+
+
+STARTUP_ALLOWANCE_S = 120.0
+"""``ralf-hil up``: a rig whose controller has not ticked this long after the launch has failed."""
+
+
+def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
+    """Hold this host's lock of ``rig_id`` for as long as the returned file
+    stays open: a second ``ralf-hil up`` of the same rig id on this host
+    would share its CAN port and zenoh keys, so it is refused (exit 2)."""
+    import fcntl
+
+    path = Path(directory or tempfile.gettempdir()) / f"ralf-hil-{rig_id}.lock"
+    handle = open(path, "a+")  # noqa: SIM115 (held open for the run)
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.seek(0)
+        holder = handle.read().strip() or "another process"
+        handle.close()
+        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({holder}); stop it or choose another --rig-id[/red]")
+        raise SystemExit(2) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()}")
+    handle.flush()
+    return handle
+
+
+def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
+    """Fresh zenoh credentials for this run: every service, the launcher's
+    observer and tools authenticate with their role's password, and every
+    node applies the rig's access rules (service_kit/access.py). Writes the
+    credentials file (owner-only) and ``tool.env``, the variables that let
+    ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
+    from service_kit.access import generate_credentials, role_env, write_credentials_file
+
+    credentials = generate_credentials()
+    path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
+    plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="true", RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower())
+    for role in ("dsp", "plant", "controller", "launcher"):
+        plan.service_env.setdefault(role, {}).update(role_env(role, credentials))
+    tool_env = directory / "tool.env"
+    fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{k}={v}\n" for k, v in {**role_env("tool", credentials), "RALF_RIG_ID": plan.rig_id}.items())
+    return tool_env
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    try:
+        validate_rig_id(args.rig_id)
+    except ValueError as exc:
+        raise SystemExit(f"ralf-hil up: {exc}") from None
+    if args.duration is not None and not args.duration > 0:
+        raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
+    overrides = _parse_overrides(args.set)
+    if args.clock == "cosim":
+        return _up_cosim(args, overrides)
+    _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
+    plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides, common={"RALF_CAN_PORT": str(args.can_port)} if args.can_port else None)
+    log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    tool_env = provision_access(plan, log_dir)  # credentials of this run, access rules on
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    observer = RigObserver(plan)
+    console.print(
+        f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
+    )
+    live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
+    said_ready = False
+
+    def on_poll(sup: Supervision, _status: object) -> None:
+        nonlocal said_ready
+        if sup.ready_at is not None and not said_ready:
+            said_ready = True
+            live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)")
+        live.update(status_line(observer, time.monotonic() - sup.started))
+
+    recording: RigRecording | None = None
+    try:
+        if args.record:  # the tap starts before the services, so it holds their start-up
+            recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock)
+        # Before any service starts (their Python start-up takes a second or more), so a bus
+        # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
+        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
+        with live:
+            sup = supervise(
+                plan, log_dir, lambda: observer.status, run_for_s=args.duration, startup_timeout_s=STARTUP_ALLOWANCE_S, stop=stop, on_poll=on_poll, poll_s=0.25
+            )
+        if not console.is_terminal:
+            console.print(status_line(observer, time.monotonic() - sup.started))
+        time.sleep(0.2)  # let the last health messages arrive
+        summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
+        if recording is not None:
+            summary["recording"] = {"path": args.record, **recording.close().as_dict()}
+            recording = None
+    finally:
+        if recording is not None:  # an error on the way: the file is still closed
+            recording.close()
+        observer.close()
+    summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
+    summary["control_wall_s"] = round(sup.control_s, 3)
+    print_summary(summary)
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2))
+    failure = sup.failure
+    status = summary["controller"]
+    if not failure and (status is None or status["ticks"] == 0):
+        failure = "the controller made no progress (0 control ticks)"
+    if failure:
+        console.print(f"[red]rig failed: {failure}[/red]")
+    bad = {k: v for k, v in sup.exit_codes.items() if v != 0}
+    for name in bad:
+        console.print(f"[red]{name} exited with {bad[name]}; last log lines:[/red]\n{tail(sup.procs[name].log_path)}")
+    return 1 if (failure or bad) else 0
+
+
+def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
+    """``ralf-hil up --clock cosim``: the three boards co-simulated in this
+    process, one thread (:mod:`workbench.cosim`); ``--duration`` is simulated time."""
+    from protocol.errors import ConfigError
+    from protocol.messages import ControllerStatus, decode
+    from workbench.cosim import run_cosim
+
+    own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
+    if args.duration is not None and "duration_s" not in own["controller"]:
+        own["controller"]["duration_s"] = str(args.duration)
+    started = time.monotonic()
+    console.print("co-simulating plant, controller and DSP in one thread (no processes, no network)")
+    if args.can_log and not args.record:
+        console.print("[red]ralf-hil up: --can-log goes with --record[/red]")
+        return 2
+    try:
+        run = run_cosim(
+            controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
+            record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None,
+        )  # fmt: skip
+    except (ConfigError, ValueError) as exc:
+        console.print(f"[red]ralf-hil up: {exc}[/red]")
+        return 2
+    wall = time.monotonic() - started
+    status = decode(ControllerStatus, run.controller.port.status) if getattr(run.controller.port, "status", None) else None  # type: ignore[attr-defined]
+    summary: dict[str, Any] = {
+        "wall_time_s": round(wall, 3),
+        "exit_codes": {"controller": 0 if run.result.error is None else 3},
+        "controller": status.model_dump(exclude={"wall_time_s"}) if status else None,
+        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in run.health.items()},
+        "liveliness_events": [],
+        "undecodable_messages": 0,
+        "startup_s": 0.0,
+        "control_wall_s": round(wall, 3),
+        "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+        "host": host_info(),
+    }
+    console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
+    if args.record:
+        summary["recording"] = {"path": args.record, "can_log": args.can_log, **(run.recording or {})}
+        console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
+    print_summary(summary)
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2))
+    if run.result.error or run.result.ticks == 0:
+        console.print(f"[red]rig failed: {run.result.error or 'the controller made no progress (0 control ticks)'}[/red]")
+        return 1
+    return 0
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite number of seconds above zero."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if math.isnan(value):
+        raise argparse.ArgumentTypeError("NaN (not a number) is not a duration")
+    if not 0 < value <= 1e7:
+        raise argparse.ArgumentTypeError(f"{text} s: give a duration above 0 and at most 1e7 s")
+    return value
+
+
+def wait_for_ack(session: Any, keys: Any, change: Any, timeout_s: float) -> Any:
+    """Send ``change`` to the controller and wait for the DSP's
+    :class:`~protocol.messages.ConfigAck` carrying its ``request_id``; None if
+    nothing answers within ``timeout_s``."""
+    from protocol.errors import ProtocolError
+    from protocol.messages import ConfigAck, decode, encode
+    from service_kit.encodings import JSON
+
+    got: list[Any] = []
+    answered = threading.Event()
+
+    def on_ack(sample: Any) -> None:
+        try:
+            ack = decode(ConfigAck, sample.payload.to_bytes())
+        except ProtocolError:
+            return
+        if ack.request_id == change.request_id:
+            got.append(ack)
+            answered.set()
+
+    sub = session.declare_subscriber(keys.dsp_config_ack, on_ack)
+    try:
+        deadline = time.monotonic() + timeout_s
+        # Resend until answered: the tool's session may take a moment to find
+        # the controller, and a command nobody received is not an error yet.
+        while not answered.is_set() and time.monotonic() < deadline:
+            session.put(keys.controller_command, encode(change), encoding=JSON)
+            answered.wait(min(0.5, max(0.0, deadline - time.monotonic())))
+    finally:
+        sub.undeclare()
+    return got[0] if got else None
+
+
+def cmd_reconfigure(args: argparse.Namespace) -> int:
+    """Send a run-time configuration change to a running controller, which
+    applies the batch size and forwards the rest to the DSP; succeed only
+    when the DSP acknowledges it."""
+    import uuid
+
+    from protocol.errors import ConfigError
+    from protocol.keys import Keys
+    from protocol.messages import ConfigChange
+    from protocol.settings import CommonSettings, load_settings
+    from service_kit.transport import open_zenoh
+
+    try:
+        change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha, request_id=uuid.uuid4().hex)
+    except ValueError as exc:
+        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+        return 2
+    if change.fft_width is None and change.batch_size is None and change.alpha is None:
+        console.print("[red]ralf-hil reconfigure: give --fft-width, --batch-size or --alpha[/red]")
+        return 2
+    overrides = {"rig_id": args.rig_id}
+    if args.connect:
+        overrides["zenoh_connect"] = args.connect
+    try:
+        settings = load_settings(CommonSettings, overrides)
+    except ConfigError as exc:
+        console.print(f"[red]{exc}[/red]")
+        return 2
+    try:
+        session = open_zenoh(settings, retry_for_s=0.0)
+    except ConfigError as exc:
+        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+        return 2
+    wanted = change.model_dump(include={"fft_width", "batch_size", "alpha"}, exclude_none=True)
+    try:
+        ack = wait_for_ack(session, Keys(settings.rig_id), change, args.timeout)
+    finally:
+        session.close()
+    if ack is None:
+        console.print(
+            f"[red]ralf-hil reconfigure: no acknowledgement from the DSP of rig {settings.rig_id!r} within {args.timeout:g} s "
+            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?); {wanted} not applied[/red]"
+        )
+        return 1
+    if not ack.accepted:
+        console.print(f"[red]ralf-hil reconfigure: the DSP refused {wanted}: {ack.reason}[/red]")
+        return 1
+    console.print(f"applied on rig {settings.rig_id!r}: {wanted}; the DSP now runs N={ack.fft_width}, l={ack.batch_size}, alpha={ack.alpha:g}")
+    return 0
+
+
+COMPOSE_PASSWORD_VARS = {
+    "controller": "ZENOH_PASSWORD_CONTROLLER",
+    "dsp": "ZENOH_PASSWORD_DSP",
+    "plant": "ZENOH_PASSWORD_PLANT",
+    "tool": "ZENOH_PASSWORD_TOOL",
+    "tester": "ZENOH_PASSWORD_TESTER",
+}
+"""The variables docker-compose.yml takes the services' passwords from (not
+``RALF_*``: they are compose's, never a service's)."""
+
+
+def write_compose_access(out: Path, rig_id: str = "default", scenarios: bool = False, mounted_at: str = "/etc/ralf") -> dict[str, Path]:
+    """Credentials for the distributed rig: the router's configuration
+    (authentication of every client and the rig's access rules), its
+    credentials file, and ``ralf.env`` for ``docker compose --env-file``."""
+    from protocol.keys import Keys
+    from service_kit.access import generate_credentials, router_config, write_credentials_file
+
+    credentials = generate_credentials()
+    out.mkdir(parents=True, exist_ok=True)
+    creds = write_credentials_file(out / "zenoh-credentials.txt", credentials)
+    router = out / "zenoh-router.json5"
+    router.write_text(json.dumps(router_config(Keys(rig_id), f"{mounted_at}/zenoh-credentials.txt", scenarios=scenarios), indent=2) + "\n")
+    env = out / "ralf.env"
+    fd = os.open(env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.writelines(f"{var}={credentials[role]}\n" for role, var in COMPOSE_PASSWORD_VARS.items())
+    return {"credentials": creds, "router": router, "env": env}
+
+
+def cmd_credentials(args: argparse.Namespace) -> int:
+    try:
+        validate_rig_id(args.rig_id)
+    except ValueError as exc:
+        console.print(f"[red]ralf-hil credentials: {exc}[/red]")
+        return 2
+    files = write_compose_access(Path(args.out), args.rig_id, args.scenarios)
+    console.print(f"wrote {', '.join(str(p) for p in files.values())}; start the rig with: docker compose --env-file {files['env']} up --build")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
+    up.add_argument(
+        "--duration",
+        type=positive_seconds,
+        default=None,
+        help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds",
+    )
+    up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
+    up.add_argument(
+        "--clock",
+        choices=("realtime", "lockstep", "cosim"),
+        default="realtime",
+        help="realtime (default), lockstep (three processes, handshake-stepped) or cosim (one thread, bit-identical to lockstep)",
+    )
+    up.add_argument(
+        "--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)"
+    )
+    up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
+    up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
+    up.add_argument(
+        "--record",
+        default=None,
+        metavar="RUN.mcap",
+        help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file",
+    )
+    up.add_argument(
+        "--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)"
+    )
+    up.add_argument(
+        "--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)"
+    )
+    up.set_defaults(func=cmd_up)
+    rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")
+    rc.add_argument("--rig-id", default="default")
+    rc.add_argument("--connect", default="", help="zenoh endpoint(s) of the rig, e.g. the one `ralf-hil up` prints")
+    rc.add_argument("--fft-width", type=int, default=None, help="DSP FFT width N (power of two; zeroes its history)")
+    rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")
+    rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
+    rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
+    rc.set_defaults(func=cmd_reconfigure)
+    cr = sub.add_parser("credentials", help="generate zenoh credentials and the router's access rules for docker compose")
+    cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
+    cr.add_argument("--rig-id", default="default")
+    cr.add_argument("--scenarios", action="store_true", help="accept scenario commands on the plant's test port (from the tester role)")
+    cr.set_defaults(func=cmd_credentials)
+    for module in (bench, monitor, experiments, campaign, recording_cli):
+        module.register(sub)
+    timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

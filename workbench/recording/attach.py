@@ -1,0 +1,78 @@
+"""``--record RUN.mcap`` for a service started on its own (``ralf-plant``,
+``ralf-controller``, ``ralf-dsp``): a ``ralf-hil record`` child process
+connected to the service's own zenoh endpoints and its CAN bus, so the
+recording runs beside the service, never inside its loop. (The service's
+``RALF_RECORD`` / ``--set record=`` is its own npz record, unrelated.)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+RECORD_FLAG = "--record"
+
+
+def split_record_arg(argv: Sequence[str] | None) -> tuple[str | None, list[str] | None]:
+    """``(path, argv without --record PATH)``; ``argv`` None means ``sys.argv[1:]``."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    path: str | None = None
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        a = args[i]
+        if a == RECORD_FLAG and i + 1 < len(args):
+            path = args[i + 1]
+            i += 2
+            continue
+        if a.startswith(RECORD_FLAG + "="):
+            path = a.split("=", 1)[1]
+        else:
+            out.append(a)
+        i += 1
+    return path, (out if path is not None or argv is not None else None)
+
+
+def _env_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple, dict)):
+        return json.dumps(value)
+    return str(value)
+
+
+def recorder_env(settings: BaseModel) -> dict[str, str]:
+    """The child's environment: the caller's, then every setting of the
+    service as ``RALF_*`` (its ``--set`` overrides included), then zenoh
+    pointed at the service's own endpoints."""
+    env = dict(os.environ)
+    for name, value in settings.model_dump(mode="json").items():
+        if value is not None:
+            env[f"RALF_{name.upper()}"] = _env_value(value)
+    endpoints = [e for e in (getattr(settings, "zenoh_listen", "") + "," + getattr(settings, "zenoh_connect", "")).split(",") if e.strip()]
+    env["RALF_ZENOH_CONNECT"] = ",".join(e.strip().replace("0.0.0.0", "127.0.0.1") for e in endpoints)
+    env["RALF_ZENOH_LISTEN"] = ""
+    env["RALF_ZENOH_MODE"] = "peer" if getattr(settings, "zenoh_mode", "peer") == "peer" else "client"
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def start_recorder(settings: BaseModel, path: str) -> subprocess.Popen[bytes]:
+    """Start ``ralf-hil record PATH`` beside the service (stops on SIGTERM)."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    return subprocess.Popen([sys.executable, "-m", "workbench", "record", path], env=recorder_env(settings), stdin=subprocess.DEVNULL)
+
+
+def stop_recorder(proc: subprocess.Popen[bytes] | None) -> None:
+    if proc is None:
+        return
+    from workbench.launcher import terminate
+
+    terminate(proc, timeout_s=30.0)

@@ -1,0 +1,120 @@
+"""Reading a recording back with the ``mcap`` library: the run's metadata,
+its messages by topic in log-time order, and the series the replay and the
+plots use (batches, interrupts, truth, TF downloads, CAN frames)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.reader import make_reader
+
+from workbench.recording import schemas
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """One message: its topic, schema name, log and publish time (ns) and decoded JSON."""
+
+    topic: str
+    schema: str
+    log_time_ns: int
+    publish_time_ns: int
+    data: dict[str, Any]
+
+
+@dataclass
+class Recording:
+    """A whole recording in memory (runs of minutes: tens of MB of JSON)."""
+
+    path: Path
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    messages: list[Recorded] = field(default_factory=list)
+
+    @classmethod
+    def load(cls, path: str | Path, only: Iterable[str] | None = None) -> Recording:
+        """Read ``path``; ``only``: topic suffixes to keep (``"dsp/batch"``, ``"can"``, ...), all by default.
+        (A long run's CAN frames are most of the file: leave them out when they are not needed.)"""
+        rec = cls(Path(path))
+        wanted = None if only is None else tuple(only)
+        with open(rec.path, "rb") as f:
+            reader = make_reader(f)
+            for meta in reader.iter_metadata():
+                rec.metadata[meta.name] = dict(meta.metadata)
+            summary = reader.get_summary()
+            topics = None
+            if wanted is not None and summary is not None:
+                topics = [
+                    c.topic for c in summary.channels.values() if any(c.topic == schemas.CAN_TOPIC if w == "can" else c.topic.endswith("/" + w) for w in wanted)
+                ]
+            for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
+                rec.messages.append(Recorded(channel.topic, schema.name if schema else "", message.log_time, message.publish_time, json.loads(message.data)))
+        return rec
+
+    # -- metadata -----------------------------------------------------------------------
+    @property
+    def rig_id(self) -> str:
+        run = self.metadata.get("ralf.run", {})
+        if "rig_id" in run:
+            return run["rig_id"]
+        for m in self.messages:
+            parts = m.topic.strip("/").split("/")
+            if len(parts) >= 3 and parts[0] == "ralf":
+                return parts[1]
+        return "default"
+
+    def settings(self, service: str) -> dict[str, Any]:
+        """A service's recorded settings (decoded from the metadata's JSON values)."""
+        raw = self.metadata.get(f"ralf.settings.{service}", {})
+        out: dict[str, Any] = {}
+        for k, v in raw.items():
+            try:
+                out[k] = json.loads(v)
+            except json.JSONDecodeError:
+                out[k] = v
+        return out
+
+    # -- messages -----------------------------------------------------------------------
+    def topic(self, suffix: str) -> str:
+        return schemas.CAN_TOPIC if suffix == "can" else f"/ralf/{self.rig_id}/{suffix}"
+
+    def iter(self, *suffixes: str) -> Iterator[Recorded]:
+        topics = {self.topic(s) for s in suffixes}
+        return (m for m in self.messages if m.topic in topics)
+
+    def data(self, suffix: str) -> list[dict[str, Any]]:
+        return [m.data for m in self.iter(suffix)]
+
+    def topics(self) -> dict[str, int]:
+        counts: dict[str, int] = {}
+        for m in self.messages:
+            counts[m.topic] = counts.get(m.topic, 0) + 1
+        return counts
+
+    # -- series ---------------------------------------------------------------------------
+    def truth(self) -> dict[str, np.ndarray]:
+        """Ground truth as arrays: ``sim_time_s``, ``modal_frequencies_hz`` (n, modes), ``deflections_in``, ``theta_rad`` (n, 2)."""
+        rows = self.data("plant/truth")
+        if not rows:
+            return {}
+        modes = min(len(r["modal_frequencies_hz"]) for r in rows)
+        return {
+            "sim_time_s": np.array([r["sim_time_s"] for r in rows], dtype=float),
+            "modal_frequencies_hz": np.array([r["modal_frequencies_hz"][:modes] for r in rows], dtype=float).reshape(len(rows), modes),
+            "deflections_in": np.array([r["deflections_in"] for r in rows], dtype=float),
+            "theta_rad": np.array([r["theta_rad"] for r in rows], dtype=float),
+            "payload_attached": np.array([r["payload_attached"] for r in rows], dtype=bool),
+        }
+
+    def interrupts(self) -> list[dict[str, Any]]:
+        return self.data("dsp/interrupt")
+
+    def tf_downloads(self) -> list[dict[str, Any]]:
+        return self.data("controller/tf")
+
+    def can_frames(self) -> list[dict[str, Any]]:
+        return self.data("can")

@@ -1,0 +1,84 @@
+"""``ralf-hil timing-test SCENARIO``: run a rig under a scenario's link
+faults and judge its timing against acceptance criteria.
+
+The scenario file (:class:`service_kit.link_faults.Scenario`) names the
+faults, the mode (``cosim``, ``lockstep``: the one-process rig on a
+virtual CAN bus and an in-process zenoh session, or ``realtime``: the same
+on the wall clock), the duration, settings per service and the criteria.
+The report (:mod:`workbench.timing_test.report`): Markdown, JSON and PNG
+histograms in ``--out``; exit code 0 if every criterion passes, 1 if one
+fails, 2 if the run could not be made.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from service_kit.link_faults import Scenario, ScenarioError, load_scenario
+from workbench.hostinfo import host_info
+from workbench.timing_test.report import Criteria, evaluate, write_report
+
+log = logging.getLogger(__name__)
+
+
+def run_scenario(scenario: Scenario, duration_s: float | None = None, mode: str | None = None) -> Any:
+    """Run the rig of ``scenario`` (cosim, or the one-process rig in lockstep/real time)."""
+    mode = mode or scenario.mode
+    cfg = scenario.settings
+    controller = {**cfg.get("controller", {}), "duration_s": duration_s or scenario.duration_s, "fault_scenario": scenario.model_dump_json()}
+    if mode == "cosim":
+        from workbench.cosim import run_cosim
+
+        return run_cosim(controller=controller, plant=cfg.get("plant"), dsp=cfg.get("dsp"))
+    from workbench.composition import run_in_process
+
+    return run_in_process(controller=controller, plant=cfg.get("plant"), dsp=cfg.get("dsp"), common={"clock": mode})
+
+
+def cmd_timing_test(args: argparse.Namespace) -> int:
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        print(f"ralf-hil timing-test: {exc}")
+        return 2
+    a = scenario.acceptance
+    criteria = Criteria(
+        wakeup_p99_us=args.wakeup_p99_us if args.wakeup_p99_us is not None else a.wakeup_p99_us,
+        wakeup_p999_us=args.wakeup_p999_us if args.wakeup_p999_us is not None else a.wakeup_p999_us,
+        max_consecutive_misses=args.max_consecutive_misses if args.max_consecutive_misses is not None else a.max_consecutive_misses,
+    )
+    host_before = host_info()
+    run = run_scenario(scenario, args.duration, args.mode)
+    host_after = host_info()
+    verdict = evaluate(run.controller, criteria, mode=args.mode or scenario.mode)
+    out = Path(args.out)
+    report = {
+        "scenario": json.loads(scenario.model_dump_json()),
+        "mode": args.mode or scenario.mode,
+        "error": run.result.error,
+        "ticks": run.result.ticks,
+        "wall_time_s": run.wall_time_s,
+        "host": {**host_before, "load_average_after": host_after["load_average"]},
+        **verdict,
+    }
+    paths = write_report(report, run.controller, out)
+    print(f"timing test {scenario.name}: {'PASS' if report['passed'] else 'FAIL'}; report {paths[0]}")
+    for c in report["criteria"]:
+        print(f"  {c['name']}: {c['value']} (limit {c['limit']}) {c['verdict']}")
+    return 0 if report["passed"] and run.result.error is None else 1
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("timing-test", help="run a rig under a scenario's link faults and judge its timing (report: Markdown, JSON, PNG)")
+    p.add_argument("scenario", help="scenario file (YAML or JSON), see docs/timing-faults.md")
+    p.add_argument("--out", default="timing-report", help="report directory (default: timing-report)")
+    p.add_argument("--mode", choices=["cosim", "lockstep", "realtime"], default=None, help="override the scenario's mode")
+    p.add_argument("--duration", type=float, default=None, help="override the scenario's duration (simulated s)")
+    p.add_argument("--wakeup-p99-us", type=float, default=None, help="criterion: wake-up latency p99 (us; default 250)")
+    p.add_argument("--wakeup-p999-us", type=float, default=None, help="criterion: wake-up latency p99.9 (us; default 1000)")
+    p.add_argument("--max-consecutive-misses", type=int, default=None, help="criterion: longest run of consecutive deadline misses (default 1)")
+    p.set_defaults(func=cmd_timing_test)
