@@ -10,9 +10,9 @@ import difflib
 import math
 import os
 import re
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
@@ -20,6 +20,13 @@ from protocol.keys import validate_rig_id
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 _Hz = Annotated[float, Field(gt=0, le=2500)]
+
+
+def _numeric(annotation: Any) -> bool:
+    """Whether a field's type holds numbers (float, int, or containers/unions of them)."""
+    if annotation in (float, int):
+        return True
+    return any(_numeric(arg) for arg in get_args(annotation))
 
 
 def _is_nan(value: Any) -> bool:
@@ -73,9 +80,13 @@ class CommonSettings(BaseSettings):
 
     @field_validator("*", mode="before")
     @classmethod
-    def _no_nan(cls, value: Any) -> Any:
+    def _no_nan(cls, value: Any, info: ValidationInfo) -> Any:
         # A NaN passes neither gt nor le, and pydantic would report it as
-        # "should be <= 5000": say what it is instead.
+        # "should be <= 5000": say what it is instead. Only where a number is
+        # expected: "NaN" is a fine rig id or file name.
+        field = cls.model_fields.get(info.field_name or "")
+        if field is not None and not _numeric(field.annotation):
+            return value
         if _is_nan(value) or (isinstance(value, (list, tuple)) and any(_is_nan(v) for v in value)):
             raise ValueError("NaN (not a number) is not a valid value; give a finite number")
         return value
