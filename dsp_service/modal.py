@@ -85,6 +85,8 @@ import numpy as np
 import scipy.signal
 from numpy.typing import NDArray
 
+from dsp_service.ratfit import denominator_lstsq
+
 _TINY = float(np.finfo(np.float64).tiny)
 _SQRT_HALF = math.sqrt(0.5)
 TWO_PI = 2.0 * math.pi
@@ -793,16 +795,10 @@ def fit_mode_transient(
         rw = (rhs * w[None, :]).reshape(m * b)
         M = np.vstack([Aw.real, Aw.imag])
         r = np.concatenate([rw.real, rw.imag])
-        scale = np.abs(M).max(axis=0)
-        scale[scale <= 0.0] = 1.0
-        try:
-            x, *_ = np.linalg.lstsq(M / scale, r, rcond=None)
-        except np.linalg.LinAlgError:
+        den = denominator_lstsq(M, r)
+        if den is None:
             return None
-        x = x / scale
-        a1, a0 = float(x[0]), float(x[1])
-        if not (a0 > 0.0 and math.isfinite(a0) and math.isfinite(a1)):
-            return None
+        a1, a0 = den
     wn = math.sqrt(a0)
     zeta = a1 / (2.0 * wn)
     if not 0.0 < zeta < 1.0:

@@ -27,6 +27,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 
+def denominator_lstsq(M: NDArray[np.float64], r: NDArray[np.float64]) -> tuple[float, float] | None:
+    """The least-squares solve shared by the second-order fits: ``M x = r`` with
+    column scaling, read as the denominator ``s^2 + a1 s + a0`` (the first two
+    unknowns); None when the solve fails or the denominator is not a stable,
+    finite second-order one (``a0 <= 0``)."""
+    scale = np.abs(M).max(axis=0)
+    scale[scale <= 0.0] = 1.0  # an all-zero column: its unknown is 0 either way
+    try:
+        x, *_ = np.linalg.lstsq(M / scale, r, rcond=None)
+    except np.linalg.LinAlgError:
+        return None
+    x = x / scale
+    a1, a0 = float(x[0]), float(x[1])
+    if not (a0 > 0.0 and math.isfinite(a0) and math.isfinite(a1)):
+        return None
+    return a1, a0
+
+
 def fit_mode(
     freqs_hz: NDArray[np.float64],
     responses: NDArray[np.complex128],
@@ -66,15 +84,10 @@ def fit_mode(
         r2 = rhs.reshape(m * b)
         M = np.vstack([A2.real, A2.imag])
         r = np.concatenate([r2.real, r2.imag])
-        scale = np.maximum(np.abs(M).max(axis=0), 1e-300)
-        try:
-            x, *_ = np.linalg.lstsq(M / scale, r, rcond=None)
-        except np.linalg.LinAlgError:
+        den = denominator_lstsq(M, r)
+        if den is None:
             return None
-        x = x / scale
-        a1, a0 = float(x[0]), float(x[1])
-        if not (a0 > 0.0 and math.isfinite(a0) and math.isfinite(a1)):
-            return None
+        a1, a0 = den
     assert a0 is not None  # the loop runs at least once and sets a0 or returns
     wn = math.sqrt(a0)
     zeta = a1 / (2.0 * wn)
