@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
+import textwrap
 import threading
 
 import pytest
 
-from service_kit.realtime import apply_realtime, parse_cpus
+from service_kit.realtime import GIL_SWITCH_INTERVAL_S, apply_realtime, parse_cpus
 
 
 def test_parse_cpus() -> None:
@@ -35,3 +39,34 @@ def test_measures_on_a_thread_of_their_own_fall_back_cleanly() -> None:
     assert ok.fifo_priority == 1 or any("SCHED_FIFO" in n for n in ok.notes)  # type: ignore[union-attr]
     assert missing.cpus == () and missing.fifo_priority == 0 and any("not available" in n for n in missing.notes)  # type: ignore[union-attr]
     assert ok.as_counters()["rt_gc_frozen"] == 1  # type: ignore[union-attr]
+
+
+def test_whole_process_moves_the_other_threads_below_the_loop() -> None:
+    """In a process of its own (the measure changes process-wide state): with
+    SCHED_FIFO granted, a thread started before the measure ends up at FIFO one
+    level below the loop, and the GIL switch interval drops; refused, nothing
+    moves and the refusal is reported."""
+    code = textwrap.dedent(
+        """
+        import json, os, sys, threading
+        from service_kit.realtime import apply_realtime
+        ready, done = threading.Event(), threading.Event()
+        tid = []
+        def idle():
+            tid.append(threading.get_native_id()); ready.set(); done.wait(10)
+        t = threading.Thread(target=idle); t.start(); ready.wait(10)
+        m = apply_realtime(priority=2, whole_process=True, freeze_gc=False)
+        other = os.sched_getscheduler(tid[0]), os.sched_getparam(tid[0]).sched_priority
+        done.set(); t.join(10)
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        print(json.dumps({"fifo": m.fifo_priority, "threads": m.fifo_threads, "switch": sys.getswitchinterval(),
+                          "other": other, "FIFO": os.SCHED_FIFO, "notes": list(m.notes), "counters": m.as_counters()}))
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    if r["fifo"]:
+        assert r["threads"] >= 1 and r["other"] == [r["FIFO"], 1]
+        assert r["switch"] == pytest.approx(GIL_SWITCH_INTERVAL_S) and r["counters"]["rt_switch_interval_us"] == 200
+    else:
+        assert r["threads"] == 0 and r["other"][0] != r["FIFO"] and any("SCHED_FIFO" in n for n in r["notes"])

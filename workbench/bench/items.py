@@ -300,7 +300,8 @@ def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
 
 
 def sleep_floor(ctx: BenchContext, rate_hz: float, seconds: float) -> dict[str, Any]:
-    with Child.peer("sleep-jitter", "--rate", str(rate_hz), "--seconds", str(seconds), name=f"sleep-jitter-{rate_hz:g}", log_dir=ctx.log_dir) as child:
+    rt = ("--rt-priority", str(ctx.rt_priority), "--cpu-affinity", ctx.cpu_affinity)
+    with Child.peer("sleep-jitter", "--rate", str(rate_hz), "--seconds", str(seconds), *rt, name=f"sleep-jitter-{rate_hz:g}", log_dir=ctx.log_dir) as child:
         return child.read_tagged("RESULT", seconds + 30)
 
 
@@ -436,6 +437,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
                     f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else "")
                 )
                 sleep = sleep_floor(ctx, rate, floor_s)
+                result["notes"].append(f"{tag}: the sleep-only floor ran with {sleep.get('realtime', 'the normal scheduler')}")
                 canf = can_floor(ctx, max(200, ctx.iterations // 2))
                 ctx.say(f"  {tag}: three-process rig for {duration:g} s")
                 run = run_rig(ctx, rig_id, "realtime", common, overrides, None, duration + 90)
@@ -464,6 +466,9 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
             result["notes"].append(f"{tag}: no controller timing record at {record}.timing.npz (SYNC period jitter not computed)")
         m[f"{tag} can_pingpong (floor)"] = latency(canf)
         m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
+        for hop, note in (("sync_to_tpdo", "SYNC sent -> TPDO1 received: CAN out, the plant, CAN back"), ("tick_compute", "TPDO1 -> tick done")):
+            if lat.get(f"hop_{hop}", {}).get("count"):
+                m[f"{tag} tet: {hop}"] = latency(from_latency_stats(lat[f"hop_{hop}"]), f"{tag} can_pingpong (floor)", canf, note=note)
         if lat["batch_to_interrupt"]["count"]:
             m[f"{tag} batch_to_interrupt"] = latency_vs_value(
                 from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6
@@ -497,7 +502,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         if verdict:
             result["config"]["runs"][tag]["verdict"] = verdict
             result["notes"].append(f"{tag}: timing verdict {verdict}")
-        rt = {k: counters[k] for k in ("rt_fifo_priority", "rt_pinned_cpus", "rt_gc_frozen") if k in counters}
+        rt = {k: v for k, v in counters.items() if k.startswith("rt_")}
         if rt:
             result["notes"].append(f"{tag}: real-time measures in effect in the controller: {rt}")
         if progress["ticks_per_s"] < 0.98 * rate or lat["sync_jitter"]["p50"] > 1.0 / rate:

@@ -109,8 +109,11 @@ def can_echo(args: argparse.Namespace) -> int:
 def sleep_jitter(args: argparse.Namespace) -> int:
     """Sleep to absolute deadlines t0 + k/rate exactly as the controller's
     real-time loop does, and record |wake - scheduled|."""
+    from service_kit.realtime import apply_realtime
     from workbench.bench.stats import summarize
 
+    # The floor runs under the same real-time measures as the rig it is compared with.
+    measures = apply_realtime(args.rt_priority, args.cpu_affinity, whole_process=True)
     period = 1.0 / args.rate
     n = max(1, int(round(args.seconds * args.rate)))
     jitter = []
@@ -137,6 +140,7 @@ def sleep_jitter(args: argparse.Namespace) -> int:
             "overruns": overruns,
             "ticks": n,
             "loop_rate_hz": n / wall if wall > 0 else 0.0,
+            "realtime": measures.describe(),
         },
     )
     return 0
@@ -179,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("sleep-jitter", help="absolute-deadline sleep loop")
     s.add_argument("--rate", type=float, required=True)
     s.add_argument("--seconds", type=float, required=True)
+    s.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority, as the rig's RALF_RT_PRIORITY (0: normal scheduler)")
+    s.add_argument("--cpu-affinity", default="", help="CPUs to pin to, as the rig's RALF_CPU_AFFINITY")
     s.set_defaults(func=sleep_jitter)
     p = sub.add_parser("composition", help="one-process lockstep rig run")
     p.add_argument("--sim-s", type=float, required=True)
