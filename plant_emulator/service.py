@@ -127,6 +127,7 @@ class PlantApplication:
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
+        self._side_channels_due = False
 
     # -- time ----------------------------------------------------------------------------
     def _catch_up(self) -> None:
@@ -142,6 +143,7 @@ class PlantApplication:
 
     # -- NodeApplication ---------------------------------------------------------------------
     def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        self.flush_side_channels()
         arrived = self.stopwatch()
         if self._last_sync_wall is not None:
             self.sync_interval.add(arrived - self._last_sync_wall)
@@ -159,15 +161,26 @@ class PlantApplication:
         self.syncs += 1
         self._apply_scenario()
         reading = self.arm.sample()
-        self._publish_side_channels()
+        self._side_channels_due = True  # published once the TPDO is out (flush_side_channels)
         return reading.codes, reading.saturated
 
+    def flush_side_channels(self) -> None:
+        """Publish what the last SYNC left for the test port (ground truth,
+        hard-stop events) off the SYNC -> TPDO1 path: the node's runner calls
+        it once the TPDO is sent, and every callback calls it before the arm
+        moves on, so the truth is the SYNC's state whoever calls first."""
+        if self._side_channels_due:
+            self._side_channels_due = False
+            self._publish_side_channels()
+
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
+        self.flush_side_channels()
         self._catch_up()
         if not self.held:
             self.arm.set_valve_voltages(np.asarray(volts, dtype=np.float64))
 
     def on_watchdog(self, tripped: bool) -> None:
+        self.flush_side_channels()
         self._catch_up()
         self.held = tripped
         if tripped:
@@ -326,8 +339,9 @@ def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: th
     measures = apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=True) if settings.clock == "realtime" else RealtimeMeasures()
     health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
-        run_node(bus, node, stop, clock)  # type: ignore[arg-type]
+        run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
     finally:
+        app.flush_side_channels()
         if settings.record:
             app.save_truth(settings.record)
         health.stop()

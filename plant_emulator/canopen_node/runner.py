@@ -21,6 +21,7 @@ def run_node(
     clock: Callable[[], float] = time.monotonic,
     *,
     max_wait_s: float = 0.02,
+    after_send: Callable[[], None] | None = None,
 ) -> None:
     """Serve ``node`` on ``bus`` until ``stop`` is set (returns within ``max_wait_s``).
 
@@ -29,6 +30,8 @@ def run_node(
     answered at once (SYNC -> TPDO latency is one ``handle`` call). Send
     errors are logged and counted, never raised. The bus belongs to the
     caller (open and shut it there; :func:`node_can_filters` suits it).
+    ``after_send`` runs after each received frame's answer is on the bus
+    (the application's work that must not delay the answer).
     """
 
     def send(frames: list[can.Message]) -> None:
@@ -56,4 +59,6 @@ def run_node(
         now = clock()
         if msg is not None:
             send(node.handle(msg, now))
+            if after_send is not None:
+                after_send()
         send(node.poll(now))
