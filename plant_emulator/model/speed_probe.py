@@ -159,6 +159,42 @@ def corner_ring_energy(speed_in_s: float, payload: bool = False, window_s: float
     return float(np.sum(seg**2) / FS)
 
 
+def joint_acceleration_demand(speed_in_s: float, payload: bool = False) -> list[float]:
+    """Largest |θ''| (rad/s², joint 1, joint 2) over a noiseless lap under the PI: what the
+    corners ask of the cylinders (to compare with what 1000 psi can give)."""
+    run = closed_loop(payload=payload, speed_in_s=speed_in_s, config=PlantConfig(payload_attached=payload, sensor_noise=False))
+    acc = np.gradient(np.gradient(run.theta, 1.0 / FS, axis=0), 1.0 / FS, axis=0)
+    return [round(float(x), 3) for x in np.abs(acc).max(axis=0)]
+
+
+PSI_PA = 6894.757
+SUPPLY_PSI = 1000.0
+"""Thesis §3.1: the cylinders run at 1000 psi."""
+PISTON_IN2 = 2.0
+"""The piston area the model's oil column k_c1 assumes (docs/plant-model.md, parameters); cylinder 2 taken alike."""
+
+
+def pressure_limited_acceleration(payload: bool = False, speed_in_s: float = 5.0) -> list[float]:
+    """Smallest joint acceleration (rad/s², joint 1, joint 2) that the full supply pressure on a
+    piston can give beyond gravity, over the lap's configurations: ``(P_s A lever − |gravity torque|)
+    / rigid inertia`` about each joint (joint 1 carries the whole arm, joint 2 link 2 and the tip;
+    the coupling torques of the other joint's motion left out, an estimate)."""
+    from plant_emulator.model.modes import L1_M, consts
+
+    k = consts(PlantConfig().structure, payload)
+    tr = kin.sample_trajectory(dt_s=1.0 / FS, speed_in_s=speed_in_s)
+    t1, t2 = tr.theta1_rad, tr.theta2_rad
+    force_n = SUPPLY_PSI * PSI_PA * PISTON_IN2 * (0.0254**2)
+    lever1 = np.asarray(kin.CYLINDER1.lever_in_per_rad(t1)) * 0.0254
+    lever2 = np.asarray(kin.CYLINDER2.lever_in_per_rad(t2)) * 0.0254
+    inertia1 = k.I1 + k.Mt * L1_M**2 + k.Ia + 2.0 * L1_M * k.S * np.cos(t2)
+    gravity1 = k.g * np.abs(k.A1 * np.cos(t1) + k.S * np.cos(t1 + t2))
+    gravity2 = k.g * np.abs(k.S * np.cos(t1 + t2))
+    a1 = (force_n * lever1 - gravity1) / inertia1
+    a2 = (force_n * lever2 - gravity2) / k.Ia
+    return [round(float(a1.min()), 2), round(float(a2.min()), 2)]
+
+
 def linear_corner_ratio() -> float:
     """4 in/s over 5 in/s RMS for corner-driven vibration of a linear plant: (4/5) sqrt(T5 / T4)."""
     t5 = kin.sample_trajectory(dt_s=1.0 / FS, speed_in_s=5.0).t_s[-1]
@@ -194,6 +230,8 @@ def main(argv: list[str] | None = None) -> None:
     out: dict[str, Any] = {
         "linear_corner_ratio": round(linear_corner_ratio(), 3),
         "thesis_ratio_4_over_5": THESIS_RATIO_4_OVER_5,
+        "pressure_limited_acceleration_rad_s2": {f"{'payload' if p else 'nopayload'}": pressure_limited_acceleration(p) for p in PAYLOADS},
+        "peak_joint_acceleration_rad_s2": {f"{s:g}in_s_{'payload' if p else 'nopayload'}": joint_acceleration_demand(s, p) for s in SPEEDS for p in PAYLOADS},
         "variants": {},
     }
     for v in chosen:
