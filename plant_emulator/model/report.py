@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -53,11 +54,38 @@ class LoopRun:
     hard_stops: int
 
 
-def closed_loop(payload: bool = False, laps: int = 1, seed: int = 0, speed_in_s: float | None = None) -> LoopRun:
-    """The inspection loop under PI joint control at 200 Hz, plant in lockstep."""
+def blend_setpoints(ref: npt.NDArray[np.float64], window_s: float) -> npt.NDArray[np.float64]:
+    """Joint set-points averaged over a centred window of ``window_s`` (an odd
+    number of samples, ends held): each corner's velocity step becomes a ramp
+    over the window, i.e. a bounded set-point acceleration."""
+    half = int(round(window_s * FS / 2.0))
+    if half <= 0:
+        return ref
+    kernel = np.ones(2 * half + 1) / (2 * half + 1)
+    pad = np.pad(ref, ((half, half), (0, 0)), mode="edge")
+    return np.stack([np.convolve(pad[:, j], kernel, mode="valid") for j in range(ref.shape[1])], axis=1)
+
+
+def closed_loop(
+    payload: bool = False,
+    laps: int = 1,
+    seed: int = 0,
+    speed_in_s: float | None = None,
+    *,
+    config: PlantConfig | None = None,
+    blend_s: float = 0.0,
+    integrator_window_rad: float = INTEGRATOR_WINDOW_RAD,
+    shape_volts: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None = None,
+) -> LoopRun:
+    """The inspection loop under PI joint control at 200 Hz, plant in lockstep.
+
+    The keyword-only hooks serve ``speed_probe`` (what-if variants of the loop):
+    ``config`` replaces ``PlantConfig(seed, payload)``, ``blend_s`` smooths the
+    set-points (:func:`blend_setpoints`), ``integrator_window_rad`` = 0 turns the
+    integrator off, ``shape_volts`` maps the PI's output before the valves."""
     tr = kin.sample_trajectory(dt_s=1.0 / FS, speed_in_s=speed_in_s)
-    ref = np.tile(np.stack([tr.theta1_rad, tr.theta2_rad], axis=1), (laps, 1))
-    arm = RalfArm(PlantConfig(seed=seed, payload_attached=payload))
+    ref = blend_setpoints(np.tile(np.stack([tr.theta1_rad, tr.theta2_rad], axis=1), (laps, 1)), blend_s)
+    arm = RalfArm(config if config is not None else PlantConfig(seed=seed, payload_attached=payload))
     n = ref.shape[0]
     integ = np.zeros(2)
     out = {k: np.empty((n, 2)) for k in ("theta", "volts", "true", "read", "f")}
@@ -65,8 +93,10 @@ def closed_loop(payload: bool = False, laps: int = 1, seed: int = 0, speed_in_s:
         v = arm.sample().values_in
         th = np.array([kin.CYLINDER1.angle(v[0]), kin.CYLINDER2.angle(v[1])])
         err = ref[k] - th
-        integ = np.where(np.abs(err) < INTEGRATOR_WINDOW_RAD, integ * (1 - 1e-4) + err / FS, integ)
+        integ = np.where(np.abs(err) < integrator_window_rad, integ * (1 - 1e-4) + err / FS, integ)
         u = KP * err + KI * integ
+        if shape_volts is not None:
+            u = shape_volts(u)
         arm.set_valve_voltages(u)
         t = arm.truth()
         out["theta"][k] = t.theta_rad

@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from workbench.experiments import (
@@ -214,3 +215,26 @@ def test_simulation(tmp_path: Path) -> None:
     assert math.isclose(res["results"]["trajectory"]["noise_std_used_rad"], 1.41e-4 * math.sqrt(20), rel_tol=0.01)
     assert res["results"]["designs"]["group3/OATF 50 Hz"]["delay_samples"] == res["results"]["designs"]["group2/OATF 50 Hz"]["delay_samples"] == 2
     assert (tmp_path / "records" / "simulation_g1_g2.npz").is_file()
+    # the acceleration read three ways: only the 200 Hz estimators give the noise's ratio (13.8), none group 1's (26.5) with it
+    rd = res["results"]["acceleration_readings"]
+    assert rd["estimators_200hz"]["group1_ratio_rad_s"] < 16.3
+    assert abs(rd["estimators_200hz"]["noise_part_ratio_rad_s"] / rd["thesis"]["noise_part_ratio_rad_s"] - 1.0) < 0.15
+    assert rd["estimators_400hz"]["group1_ratio_rad_s"] > 22.0 and rd["estimators_400hz"]["noise_part_ratio_rad_s"] > 20.0
+    assert rd["model_state_derivatives"]["noise_part_ratio_rad_s"] > 50.0
+
+
+def test_simulation_fine_log_is_the_same_run_sampled_finer() -> None:
+    from workbench.experiments.offline.simulation import SimulationModel, simulate
+
+    model = SimulationModel()
+    t = np.arange(400) * model.sample_period_s
+    sp = np.stack([np.stack([1.2 + 0.05 * np.sin(2 * np.pi * 0.7 * t), 0.8 + 0.04 * np.minimum(t, 1.0)], axis=1)])
+    coarse = simulate(model, sp)
+    fine = simulate(model, sp, log_substeps=2)
+    assert np.allclose(fine["deflection_fine_in"][:, ::2], coarse["deflection_in"], rtol=0, atol=1e-12)
+    assert np.allclose(fine["deflection_in"], coarse["deflection_in"], rtol=0, atol=1e-12)
+    # the model's own derivative equals the slope of its own deflection between sub-samples
+    slope = np.diff(fine["deflection_fine_in"][0], axis=0) / (model.sample_period_s / 2)
+    central = 0.5 * (slope[1::2] + slope[2::2])  # at the coarse samples 1 .. n-1
+    rate = coarse["deflection_rate_in_s"][0, 1:]
+    assert np.allclose(central, rate, atol=0.02 * np.abs(rate).max())
