@@ -134,6 +134,14 @@ class IdentifierConfig(pydantic.BaseModel):
     arx_prefilter_order: int = pydantic.Field(4, ge=1, le=8, description="Butterworth order of the ARX band-pass.")
     arx_steiglitz_mcbride: bool = pydantic.Field(True, description="ARX channels filtered by 1/Â (removes the equation-error bias).")
     arx_huber_k: float = pydantic.Field(1.5, ge=0, description="ARX bounded influence: errors beyond k·σ enter at k·σ (0: plain least squares).")
+    arx_confident_strength: float = pydantic.Field(
+        0.25,
+        gt=0,
+        le=1,
+        description="An ARX pole's confidence is the model's fill times min(1, relative modal strength / this): "
+        "a pole at least this strong relative to the strongest is fully confident (the second mode, which "
+        "dominates link 2, is weaker than the first in the model's strength but well identified).",
+    )
     arx_max_damping: float = pydantic.Field(0.25, gt=0, lt=1, description="ARX poles more damped than this are not modes.")
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
         "exponential",
@@ -605,7 +613,7 @@ class Identifier:
                 magnitude=p.strength,
                 prominence_db=20.0 * math.log10(max(p.relative_strength, 1e-12)),
                 source="arx",
-                confidence=fill * p.relative_strength,
+                confidence=fill * min(1.0, p.relative_strength / self.cfg.arx_confident_strength),
             )
             for p in arx.poles()
         )
