@@ -121,6 +121,10 @@ def test_identifier_facade_reports_arx_poles_with_confidence() -> None:
     assert res.poles and res.poles[0].source == "arx"
     assert 0.0 < res.confidence <= 1.0 and all(0.0 <= p.confidence <= 1.0 for p in res.poles)
     assert min(abs(p.frequency_hz - 3.6) for p in res.poles) < 0.1
+    # the rig configuration: the first mode first, and the second, weaker mode confident enough for an OATF stage (≥ 0.5)
+    assert [p.frequency_hz for p in res.poles] == sorted(p.frequency_hz for p in res.poles)
+    second = min(res.poles, key=lambda p: abs(p.frequency_hz - 9.0))
+    assert abs(second.frequency_hz - 9.0) < 0.2 and second.confidence >= 0.5
     idf.restart_history()  # a gap: the model is kept
     assert idf.arx is not None and idf.arx.samples > 0
 
