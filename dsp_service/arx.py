@@ -168,19 +168,16 @@ class RecursiveArx:
         xf, self._zi = scipy.signal.sosfilt(self._sos, x, axis=-1, zi=self._zi)
         if self._scale is None:
             rms = np.sqrt(np.mean(xf * xf, axis=1))
-            if not np.all(rms > 0):
-                self._tail = np.hstack([self._tail, xf])[:, -self._lag :]
+            if not np.all(rms > 0):  # a silent channel: no scale yet; keep the (decimated) samples as the regressors' past
+                self._tail = np.hstack([self._tail, self._decimate(xf)])[:, -self._lag :]
                 return self.theta
             self._scale = 1.0 / rms
+            self._tail *= self._scale[:, None]  # the past kept from silent batches, in the same scaled units
         xf = xf * self._scale[:, None]
-        d = self.cfg.decimation
-        if d > 1:  # keep the samples whose running index is a multiple of D (the phase carries across batches)
-            first = (-self._phase) % d
-            self._phase = (self._phase + n) % d
-            xf = xf[:, first::d]
-            n = xf.shape[1]
-            if n == 0:
-                return self.theta
+        xf = self._decimate(xf)
+        n = xf.shape[1]
+        if n == 0:
+            return self.theta
         if self.cfg.steiglitz_mcbride:
             xf = self._sm_filter(xf)
         ext = np.hstack([self._tail, xf])  # (4, lag + n)
@@ -228,6 +225,15 @@ class RecursiveArx:
         self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
+
+    def _decimate(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Every D-th sample by its running index (the phase carries across batches)."""
+        d = self.cfg.decimation
+        if d == 1:
+            return x
+        first = (-self._phase) % d
+        self._phase = (self._phase + x.shape[1]) % d
+        return x[:, first::d]
 
     def _sm_filter(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Filter the (band-passed, decimated, scaled) channels by ``1/Â``.

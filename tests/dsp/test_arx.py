@@ -275,3 +275,38 @@ def test_poles_ordered_by_frequency_first_mode_first() -> None:
         m.update(u[:, s : s + 20], y[:, s : s + 20])
     f = [p.frequency_hz for p in m.poles()]
     assert f == sorted(f) and abs(f[0] - 3.6) < 0.05
+
+
+def test_a_silent_first_batch_keeps_the_decimation_phase() -> None:
+    """A first batch with a silent channel (no scale yet) is not regressed, but its decimated samples are the
+    regressors' past and the decimation phase carries on: equal to one ``lstsq`` over the later samples."""
+    rng = np.random.default_rng(21)
+    d, lag = 3, 3
+    cfg = ArxConfig(na=3, nb=2, forgetting=0.98, ridge=1e-3, decimation=d, band_hz=(2.0, 20.0))
+    u, y = rng.standard_normal((2, 200)), rng.standard_normal((2, 200))
+    u[:, :23] = 0.0  # silent inputs in the first batch
+    m = RecursiveArx(cfg)
+    for s in range(0, 200, 23):
+        m.update(u[:, s : s + 23], y[:, s : s + 23])
+    sos = ss.butter(cfg.prefilter_order, cfg.band_hz, btype="bandpass", fs=cfg.sample_rate_hz, output="sos")
+    xf = ss.sosfilt(sos, np.vstack([u, y]), axis=-1)
+    xf *= (1.0 / np.sqrt(np.mean(xf[:, 23:46] ** 2, axis=1)))[:, None]  # the scale of the first batch with signal
+    xd = xf[:, ::d]
+    first = 8  # decimated index of raw sample 24, the first after the silent batch
+    p = cfg.n_params
+    rows, tgt, w = [], [], []
+    n = xd.shape[1] - first
+    for j in range(2):
+        for k in range(n):
+            t = first + k
+            phi = np.zeros(p)
+            phi[:3] = -xd[2 + j, t - 1 - np.arange(3)]
+            for i in range(2):
+                phi[3 + 4 * j + 2 * i : 3 + 4 * j + 2 * i + 2] = xd[i, t - 1 - np.arange(2)]
+            rows.append(phi)
+            tgt.append(xd[2 + j, t])
+            w.append(cfg.forgetting ** ((n - 1 - k) / 2))
+    A = np.vstack([np.array(rows) * np.array(w)[:, None], math.sqrt(cfg.ridge) * np.eye(p)])
+    b = np.concatenate([np.array(tgt) * np.array(w), np.zeros(p)])
+    assert m.samples == n and lag <= first
+    np.testing.assert_allclose(m.theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-8, atol=1e-10)
