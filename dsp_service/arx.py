@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import cast
+from typing import Literal, cast
 
 import numpy as np
 import pydantic
@@ -76,15 +76,39 @@ class ArxConfig(pydantic.BaseModel):
     max_damping: float = pydantic.Field(0.5, gt=0, lt=1, description="Poles more damped than this are not modes.")
     min_relative_strength: float = pydantic.Field(0.1, ge=0, le=1, description="Drop poles whose modal peak is below this × the strongest's.")
     max_poles: int = pydantic.Field(4, ge=1, le=16)
+    decimation: int = pydantic.Field(
+        1, ge=1, le=16, description="Regress every D-th band-passed sample: the model runs at fs/D (the band-pass must end below its Nyquist)."
+    )
+    steiglitz_mcbride: bool = pydantic.Field(
+        False,
+        description="Filter the regression's channels by 1/Â (the current stable denominator): the equation error becomes the output error, "
+        "which removes the ARX bias under white output noise (Steiglitz–McBride, recursive form).",
+    )
+    huber_k: float = pydantic.Field(
+        0.0,
+        ge=0,
+        description="Bounded influence: a sample whose a-priori equation error exceeds k·σ (σ: the weighted residual rms) is "
+        "down-weighted to k·σ (Huber); 0 = plain least squares.",
+    )
+    order_by: Literal["strength", "frequency"] = pydantic.Field(
+        "strength", description="Order of the reported poles: strongest first, or lowest frequency first (the first mode first)."
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> ArxConfig:
         lo, hi = self.band_hz
         if not 0 < lo < hi < self.sample_rate_hz / 2:
             raise ValueError(f"band_hz must satisfy 0 < low < high < Nyquist, got {self.band_hz}")
+        if hi >= self.model_rate_hz / 2:
+            raise ValueError(f"band_hz must end below the decimated Nyquist {self.model_rate_hz / 2:g} Hz, got {self.band_hz}")
         if self.search_min_hz >= self.search_max_hz:
             raise ValueError("search_min_hz must be below search_max_hz")
         return self
+
+    @property
+    def model_rate_hz(self) -> float:
+        """The model's sample rate ``fs / D``."""
+        return self.sample_rate_hz / self.decimation
 
     @property
     def n_params(self) -> int:
@@ -92,7 +116,7 @@ class ArxConfig(pydantic.BaseModel):
 
     @property
     def memory_samples(self) -> float:
-        """Effective memory ``1/(1 − λ)`` (samples; inf without forgetting)."""
+        """Effective memory ``1/(1 − λ)`` (model samples, at ``fs / D``; inf without forgetting)."""
         return math.inf if self.forgetting >= 1.0 else 1.0 / (1.0 - self.forgetting)
 
 
@@ -126,7 +150,11 @@ class RecursiveArx:
         self._tail = np.zeros((4, self._lag))  # last filtered samples (u1, u2, y1, y2)
         self._scale: NDArray[np.float64] | None = None
         self.samples = 0  #: samples regressed since the reset
-        self._skip = 0  #: samples still to filter without regressing (after a gap)
+        self._skip = 0  #: model samples still to filter without regressing (after a gap)
+        self._phase = 0  #: raw samples filtered so far, modulo the decimation
+        self._sm_a = np.zeros(c.na + 1)  #: the Steiglitz–McBride prefilter's denominator (starts as 1)
+        self._sm_a[0] = 1.0
+        self._sm_zi = np.zeros((4, c.na))
         self.residual_power = 0.0  #: weighted mean squared one-step equation error (scaled units)
         self._weight_sum = 0.0
 
@@ -140,11 +168,18 @@ class RecursiveArx:
         xf, self._zi = scipy.signal.sosfilt(self._sos, x, axis=-1, zi=self._zi)
         if self._scale is None:
             rms = np.sqrt(np.mean(xf * xf, axis=1))
-            if not np.all(rms > 0):
-                self._tail = np.hstack([self._tail, xf])[:, -self._lag :]
+            if not np.all(rms > 0):  # a silent channel: no scale yet; keep the (decimated) samples as the regressors' past
+                self._tail = np.hstack([self._tail, self._decimate(xf)])[:, -self._lag :]
                 return self.theta
             self._scale = 1.0 / rms
+            self._tail *= self._scale[:, None]  # the past kept from silent batches, in the same scaled units
         xf = xf * self._scale[:, None]
+        xf = self._decimate(xf)
+        n = xf.shape[1]
+        if n == 0:
+            return self.theta
+        if self.cfg.steiglitz_mcbride:
+            xf = self._sm_filter(xf)
         ext = np.hstack([self._tail, xf])  # (4, lag + n)
         self._tail = ext[:, -self._lag :].copy()
         if self._skip:
@@ -168,6 +203,12 @@ class RecursiveArx:
         rows[n:, na + 2 * nb : p] = U
         rows[:n, p] = ext[2][t]
         rows[n:, p] = ext[3][t]
+        if c.huber_k > 0 and self.samples >= c.memory_samples and self.residual_power > 0:
+            # bounded influence (Huber): σ is the model's weighted residual rms; an impulsive disturbance the inputs do
+            # not explain (the payload released or picked up kicks the links) enters with at most k·σ per sample
+            e = rows[:, p] - rows[:, :p] @ self.theta  # a-priori equation errors, both outputs
+            lim = c.huber_k * math.sqrt(self.residual_power)
+            rows *= np.minimum(1.0, lim / np.maximum(np.abs(e), 1e-300))[:, None]
         lam = c.forgetting
         w = np.sqrt(lam ** (n - 1 - np.arange(n, dtype=np.float64)))
         rows[:n] *= w[:, None]
@@ -180,16 +221,43 @@ class RecursiveArx:
         r = cast(NDArray[np.float64], np.linalg.qr(stacked, mode="r"))
         self.R = r[: p + 1]
         self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
-        self.samples += n
+        self.samples += n  # model samples (at fs / D)
         self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
 
+    def _decimate(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Every D-th sample by its running index (the phase carries across batches)."""
+        d = self.cfg.decimation
+        if d == 1:
+            return x
+        first = (-self._phase) % d
+        self._phase = (self._phase + x.shape[1]) % d
+        return x[:, first::d]
+
+    def _sm_filter(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Filter the (band-passed, decimated, scaled) channels by ``1/Â``.
+
+        ``Â`` is the model's once it has filled its memory, its roots pulled in to
+        ``|z| ≤ 0.97`` (bandwidth expansion ``Â(q) → Â(ρ q)``): the prefilter is
+        always stable and never rings longer than ~33 model samples, whatever
+        a spurious root of the model does; it only needs to approximate ``A``.
+        """
+        if self.samples >= 2.0 * min(self.cfg.memory_samples, 1e9):
+            a = self.a
+            r = float(np.max(np.abs(np.roots(a)))) if a.size > 1 else 0.0
+            if np.isfinite(r):
+                rho = min(1.0, 0.97 / r) if r > 0 else 1.0
+                self._sm_a = a * rho ** np.arange(a.size)
+        xs, self._sm_zi = scipy.signal.lfilter([1.0], self._sm_a, x, axis=-1, zi=self._sm_zi)
+        return cast(NDArray[np.float64], xs)
+
     def restart(self) -> None:
         """A gap in the data: keep the model, restart the filters and skip the regressors that span the gap."""
         self._zi.fill(0.0)
+        self._sm_zi.fill(0.0)
         self._tail.fill(0.0)
-        self._skip = self._lag + int(2 * self.cfg.sample_rate_hz / self.cfg.band_hz[0])
+        self._skip = self._lag + int(2 * self.cfg.model_rate_hz / self.cfg.band_hz[0])
 
     # ---------------------------------------------------------------- model
     @property
@@ -208,7 +276,7 @@ class RecursiveArx:
 
     def frequency_response(self, freqs_hz: NDArray[np.float64]) -> NDArray[np.complex128]:
         """``H`` ``(4, len(freqs))``, rows H11, H12, H21, H22 (input i → output j), of the model."""
-        fs = self.cfg.sample_rate_hz
+        fs = self.cfg.model_rate_hz
         a = self.a
         out = []
         for i in range(2):
@@ -225,7 +293,7 @@ class RecursiveArx:
         z = np.roots(a)
         if z.size == 0:
             return ()
-        fs = c.sample_rate_hz
+        fs = c.model_rate_hz
         keep = (z.imag > 0) & (np.abs(z) < 1.0) & (np.abs(z) > 0)
         zk = z[keep]
         if zk.size == 0:
@@ -249,7 +317,7 @@ class RecursiveArx:
         strength = np.sqrt(np.sum(np.abs(num / den) ** 2, axis=0)) / np.maximum(1.0 - np.abs(zk), 1e-12)
         top = float(strength.max())
         rel = strength / top if top > 0 else np.zeros_like(strength)
-        order = np.argsort(-strength)
+        order = np.argsort(fn) if c.order_by == "frequency" else np.argsort(-strength)
         out = [ArxPole(float(fn[k]), float(zeta[k]), float(strength[k]), float(rel[k])) for k in order if rel[k] >= c.min_relative_strength]
         return tuple(out[: c.max_poles])
 

@@ -126,9 +126,23 @@ class IdentifierConfig(pydantic.BaseModel):
         "'transient' unless given); 'arx': from the recursive QR-form ARX model "
         "(dsp_service.arx; the ETFE still serves the downloads).",
     )
-    arx_forgetting: float = pydantic.Field(0.99, gt=0.5, le=1, description="ARX forgetting factor per sample.")
-    arx_na: int = pydantic.Field(16, ge=2, le=40, description="ARX denominator order.")
-    arx_nb: int = pydantic.Field(12, ge=1, le=40, description="ARX numerator order.")
+    arx_forgetting: float = pydantic.Field(0.98, gt=0.5, le=1, description="ARX forgetting factor per model sample (at fs / arx_decimation).")
+    arx_na: int = pydantic.Field(10, ge=2, le=40, description="ARX denominator order.")
+    arx_nb: int = pydantic.Field(8, ge=1, le=40, description="ARX numerator order.")
+    arx_decimation: int = pydantic.Field(4, ge=1, le=16, description="ARX model rate fs / D (the band-pass ends below its Nyquist).")
+    arx_band_hz: tuple[float, float] = pydantic.Field((2.0, 15.0), description="ARX band-pass on every channel (Hz).")
+    arx_prefilter_order: int = pydantic.Field(4, ge=1, le=8, description="Butterworth order of the ARX band-pass.")
+    arx_steiglitz_mcbride: bool = pydantic.Field(True, description="ARX channels filtered by 1/Â (removes the equation-error bias).")
+    arx_huber_k: float = pydantic.Field(1.5, ge=0, description="ARX bounded influence: errors beyond k·σ enter at k·σ (0: plain least squares).")
+    arx_confident_strength: float = pydantic.Field(
+        0.25,
+        gt=0,
+        le=1,
+        description="An ARX pole's confidence is the model's fill times min(1, relative modal strength / this): "
+        "a pole at least this strong relative to the strongest is fully confident (the second mode, which "
+        "dominates link 2, is weaker than the first in the model's strength but well identified).",
+    )
+    arx_max_damping: float = pydantic.Field(0.25, gt=0, lt=1, description="ARX poles more damped than this are not modes.")
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
         "exponential",
         description="Spectra averaging: exponential [2-9], linear (equal weights, Welch), "
@@ -383,9 +397,15 @@ class Identifier:
                     na=c.arx_na,
                     nb=c.arx_nb,
                     forgetting=c.arx_forgetting,
+                    decimation=c.arx_decimation,
+                    band_hz=c.arx_band_hz,
+                    prefilter_order=c.arx_prefilter_order,
+                    steiglitz_mcbride=c.arx_steiglitz_mcbride,
+                    huber_k=c.arx_huber_k,
+                    max_damping=c.arx_max_damping,
+                    order_by="frequency",
                     search_min_hz=c.search_min_hz,
                     search_max_hz=c.search_max_hz,
-                    band_hz=(max(1.0, c.search_min_hz), min(30.0, 0.9 * c.sample_rate_hz / 2)),
                     max_poles=c.max_peaks,
                 )
             )
@@ -593,7 +613,7 @@ class Identifier:
                 magnitude=p.strength,
                 prominence_db=20.0 * math.log10(max(p.relative_strength, 1e-12)),
                 source="arx",
-                confidence=fill * p.relative_strength,
+                confidence=fill * min(1.0, p.relative_strength / self.cfg.arx_confident_strength),
             )
             for p in arx.poles()
         )

@@ -121,6 +121,10 @@ def test_identifier_facade_reports_arx_poles_with_confidence() -> None:
     assert res.poles and res.poles[0].source == "arx"
     assert 0.0 < res.confidence <= 1.0 and all(0.0 <= p.confidence <= 1.0 for p in res.poles)
     assert min(abs(p.frequency_hz - 3.6) for p in res.poles) < 0.1
+    # the rig configuration: the first mode first, and the second, weaker mode confident enough for an OATF stage (≥ 0.5)
+    assert [p.frequency_hz for p in res.poles] == sorted(p.frequency_hz for p in res.poles)
+    second = min(res.poles, key=lambda p: abs(p.frequency_hz - 9.0))
+    assert abs(second.frequency_hz - 9.0) < 0.2 and second.confidence >= 0.5
     idf.restart_history()  # a gap: the model is kept
     assert idf.arx is not None and idf.arx.samples > 0
 
@@ -177,3 +181,132 @@ def test_pole_strength_equals_scipy_residuez() -> None:
 
 def fs_log(z: complex) -> complex:
     return FS * np.log(z)
+
+
+# ---------------------------------------------------------------- the rig configuration: decimation, Steiglitz–McBride, Huber
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_decimated_recursion_equals_batch_least_squares_of_the_decimated_filtered_data(d: int) -> None:
+    """Every D-th band-passed sample (the phase carried across uneven batches) against one ``lstsq``."""
+    rng = np.random.default_rng(5)
+    cfg = ArxConfig(na=3, nb=2, forgetting=0.97, ridge=1e-3, decimation=d, band_hz=(2.0, 20.0))
+    m = RecursiveArx(cfg)
+    n_raw = 299
+    u, y = rng.standard_normal((2, n_raw)), rng.standard_normal((2, n_raw))
+    for s in range(0, n_raw, 23):
+        m.update(u[:, s : s + 23], y[:, s : s + 23])
+    sos = ss.butter(cfg.prefilter_order, cfg.band_hz, btype="bandpass", fs=cfg.sample_rate_hz, output="sos")
+    xf = ss.sosfilt(sos, np.vstack([u, y]), axis=-1)
+    xf *= (1.0 / np.sqrt(np.mean(xf[:, :23] ** 2, axis=1)))[:, None]
+    xd = xf[:, ::d]
+    lag, n, p = 3, xd.shape[1], cfg.n_params
+    ext = np.hstack([np.zeros((4, lag)), xd])
+    rows, tgt, w = [], [], []
+    for j in range(2):
+        for k in range(n):
+            t = lag + k
+            phi = np.zeros(p)
+            phi[:3] = -ext[2 + j, t - 1 - np.arange(3)]
+            for i in range(2):
+                phi[3 + 4 * j + 2 * i : 3 + 4 * j + 2 * i + 2] = ext[i, t - 1 - np.arange(2)]
+            rows.append(phi)
+            tgt.append(ext[2 + j, t])
+            w.append(cfg.forgetting ** ((n - 1 - k) / 2))
+    A = np.vstack([np.array(rows) * np.array(w)[:, None], math.sqrt(cfg.ridge) * np.eye(p)])
+    b = np.concatenate([np.array(tgt) * np.array(w), np.zeros(p)])
+    np.testing.assert_allclose(m.theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-8, atol=1e-10)
+    assert m.samples == n
+
+
+def test_band_must_end_below_the_decimated_nyquist() -> None:
+    with pytest.raises(ValueError, match="decimated Nyquist"):
+        ArxConfig(decimation=4, band_hz=(2.0, 30.0))  # 200 Hz / 4: Nyquist 25 Hz
+
+
+def _pole_errors(m: RecursiveArx) -> list[tuple[float, float]]:
+    out = []
+    for f, z in _true_poles():
+        p = min(m.poles(), key=lambda q: abs(q.frequency_hz - f))
+        out.append((abs(p.frequency_hz / f - 1), abs(p.damping_ratio / z - 1)))
+    return out
+
+
+def _rig_config(**kw: object) -> ArxConfig:
+    base: dict[str, object] = {"decimation": 4, "band_hz": (2.0, 15.0), "prefilter_order": 4, "na": 10, "nb": 8, "forgetting": 0.995, "max_damping": 0.25}
+    return ArxConfig.model_validate({**base, **kw})
+
+
+def test_steiglitz_mcbride_removes_the_equation_error_bias_of_the_damping() -> None:
+    """10 % white output noise and the exact orders (two modes: na 4, nb 4): the plain ARX's equation error is
+    coloured (``A v``) and its poles biased; filtering by 1/Â brings both modes' f and ζ onto the truth (the ZOH
+    model of known modes, ``scipy.signal.cont2discrete``, in ``synth``)."""
+    _, u, y = dataset(40000, seed=11, noise=0.10)
+    models = {sm: RecursiveArx(_rig_config(na=4, nb=4, steiglitz_mcbride=sm)) for sm in (False, True)}
+    for s in range(0, u.shape[1], 20):
+        for m in models.values():
+            m.update(u[:, s : s + 20], y[:, s : s + 20])
+    plain, sm = _pole_errors(models[False]), _pole_errors(models[True])
+    assert all(fe < 0.005 and ze < 0.05 for fe, ze in sm)
+    assert all(ze > 0.2 for _, ze in plain)  # the bias this removes
+
+
+def test_huber_weighting_bounds_the_influence_of_kicks() -> None:
+    """Impulsive output disturbances (kicks the inputs do not explain, 200 × the noise) move the plain
+    model's first mode; with the Huber stage it stays on the truth."""
+    _, u, y = dataset(30000, seed=12, noise=0.02)
+    rng = np.random.default_rng(13)
+    kicks = rng.choice(np.arange(4000, 30000), size=40, replace=False)
+    y = y.copy()
+    y[:, kicks] += 200 * 0.02 * y.std(axis=1, keepdims=True) * rng.choice([-1.0, 1.0], size=(2, kicks.size))
+    models = {k: RecursiveArx(_rig_config(steiglitz_mcbride=True, huber_k=k)) for k in (0.0, 1.5)}
+    for s in range(0, u.shape[1], 20):
+        for m in models.values():
+            m.update(u[:, s : s + 20], y[:, s : s + 20])
+    robust, plain = _pole_errors(models[1.5]), _pole_errors(models[0.0])
+    assert all(fe < 0.01 and ze < 0.2 for fe, ze in robust)
+    assert robust[0][0] + robust[0][1] < plain[0][0] + plain[0][1]
+
+
+def test_poles_ordered_by_frequency_first_mode_first() -> None:
+    _, u, y = dataset(20000, seed=1, noise=0.02)
+    m = RecursiveArx(_rig_config(order_by="frequency", min_relative_strength=0.0, max_poles=8))
+    for s in range(0, u.shape[1], 20):
+        m.update(u[:, s : s + 20], y[:, s : s + 20])
+    f = [p.frequency_hz for p in m.poles()]
+    assert f == sorted(f) and abs(f[0] - 3.6) < 0.05
+
+
+def test_a_silent_first_batch_keeps_the_decimation_phase() -> None:
+    """A first batch with a silent channel (no scale yet) is not regressed, but its decimated samples are the
+    regressors' past and the decimation phase carries on: equal to one ``lstsq`` over the later samples."""
+    rng = np.random.default_rng(21)
+    d, lag = 3, 3
+    cfg = ArxConfig(na=3, nb=2, forgetting=0.98, ridge=1e-3, decimation=d, band_hz=(2.0, 20.0))
+    u, y = rng.standard_normal((2, 200)), rng.standard_normal((2, 200))
+    u[:, :23] = 0.0  # silent inputs in the first batch
+    m = RecursiveArx(cfg)
+    for s in range(0, 200, 23):
+        m.update(u[:, s : s + 23], y[:, s : s + 23])
+    sos = ss.butter(cfg.prefilter_order, cfg.band_hz, btype="bandpass", fs=cfg.sample_rate_hz, output="sos")
+    xf = ss.sosfilt(sos, np.vstack([u, y]), axis=-1)
+    xf *= (1.0 / np.sqrt(np.mean(xf[:, 23:46] ** 2, axis=1)))[:, None]  # the scale of the first batch with signal
+    xd = xf[:, ::d]
+    first = 8  # decimated index of raw sample 24, the first after the silent batch
+    p = cfg.n_params
+    rows, tgt, w = [], [], []
+    n = xd.shape[1] - first
+    for j in range(2):
+        for k in range(n):
+            t = first + k
+            phi = np.zeros(p)
+            phi[:3] = -xd[2 + j, t - 1 - np.arange(3)]
+            for i in range(2):
+                phi[3 + 4 * j + 2 * i : 3 + 4 * j + 2 * i + 2] = xd[i, t - 1 - np.arange(2)]
+            rows.append(phi)
+            tgt.append(xd[2 + j, t])
+            w.append(cfg.forgetting ** ((n - 1 - k) / 2))
+    A = np.vstack([np.array(rows) * np.array(w)[:, None], math.sqrt(cfg.ridge) * np.eye(p)])
+    b = np.concatenate([np.array(tgt) * np.array(w), np.zeros(p)])
+    assert m.samples == n and lag <= first
+    np.testing.assert_allclose(m.theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-8, atol=1e-10)

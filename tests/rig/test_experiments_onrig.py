@@ -174,7 +174,9 @@ def test_reduced_damping_quick(tmp_path: Path) -> None:
     results = _run("reduced-damping", out)
     _check_structure(out, results, ["Runs", "Costs"], ["costs", "adaptation", "apex"])
     r = results["results"]
-    assert r["adaptation"]["design_changes"] > 0 and r["adaptation"]["first_change_s"] >= 2048 / 200.0
+    # the adaptive runs follow the recursive ARX, whose first poles come before the ETFE's history is full
+    assert results["results"]["runs"]["adaptive"]["settings"]["dsp"]["identifier"] == "arx"
+    assert r["adaptation"]["design_changes"] > 0 and 0 < r["adaptation"]["first_change_s"] < 18.0
     late = r["costs"]["after the first adaptation"]
     for link in (0, 1):
         assert late["adaptive"]["velocity_pct"][link] < late["fixed10"]["velocity_pct"][link]

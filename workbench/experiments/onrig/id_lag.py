@@ -88,8 +88,11 @@ SETTINGS: tuple[tuple[int, float, str], ...] = (
 """(N, α, identifier); the first is the thesis's; ``arx``: the recursive ARX model's poles (N, α then only shape the downloads)."""
 THESIS_SETTING = (2048, 0.1, "etfe")
 QUICK_SETTINGS: tuple[tuple[int, float, str], ...] = ((1024, 0.05, "etfe"),)
-ARX_FORGETTING = IdentifierConfig().arx_forgetting
-"""The ARX identifier's forgetting factor per sample (its default; memory 1/(1 − λ) samples)."""
+_ARX = IdentifierConfig()
+ARX_FORGETTING = _ARX.arx_forgetting
+"""The ARX identifier's forgetting factor per model sample (its default; memory 1/(1 − λ) model samples)."""
+ARX_MEMORY_S = _ARX.arx_decimation / (_ARX.sample_rate_hz * (1.0 - ARX_FORGETTING))
+"""The ARX model's memory in seconds (1/(1 − λ) samples at fs / D)."""
 
 # the small loop: a corner of the inspection loop and its bottom edge's direction
 _START = (-19.437, 196.612)
@@ -215,7 +218,7 @@ def _name(n: int, alpha: float, method: str = "etfe") -> str:
 
 def _label(d: dict[str, Any]) -> str:
     if d.get("identifier", "etfe") == "arx":
-        return f"ARX (λ {ARX_FORGETTING:g}/sample)"
+        return f"ARX (λ {ARX_FORGETTING:g}, memory {ARX_MEMORY_S:.2g} s)"
     suffix = "" if d.get("identifier", "etfe") == "etfe" else f", {d['identifier']}"
     return f"N = {d['fft_width']}, α = {d['alpha']:g}{suffix}"
 
@@ -256,7 +259,8 @@ def run(ctx: ExperimentContext) -> Report:
             dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing_window": smoothing_window(n), "identifier": m},
             label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" + ("" if m == "etfe" else f", {m}")
             if m != "arx"
-            else f"recursive ARX, λ = {ARX_FORGETTING:g} per sample, l = {THESIS_BATCH_SIZE}",
+            else f"recursive ARX (fs/{_ARX.arx_decimation}, na {_ARX.arx_na}, nb {_ARX.arx_nb}, Steiglitz–McBride, Huber k {_ARX.arx_huber_k:g}), "
+            f"λ = {ARX_FORGETTING:g} per model sample (memory {ARX_MEMORY_S:.2g} s), l = {THESIS_BATCH_SIZE}",
         )
         for n, a, m in settings
     ]

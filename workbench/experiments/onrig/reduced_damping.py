@@ -9,7 +9,10 @@ first 18 s):
 * OATF fixed at 10 Hz, design ζ = 0.01 (tuned wrong: the first mode is 3.7–4.6 Hz);
 * OATF starting at 10 Hz, design ζ = 0.01, then adaptive (the identified first
   pole, confidence ≥ 0.2; T1 = π/ω_d of the 10 Hz design kept, only the
-  coefficients change).
+  coefficients change), with one stage and with a stage per confident pole,
+  both following the best identifier (the recursive ARX, ``RALF_IDENTIFIER=arx``:
+  it resolves both modes; the thesis's ETFE follows the first mode 4–9 % off
+  and lets the second, which dominates link 2, go unshaped).
 
 Compared (§4.2.1 costs, ``controller.metrics``, per link, absolute and in % of
 the unfiltered run) over the whole run, over the second lap (the identifier
@@ -53,13 +56,19 @@ RUNS = (
     ("adaptive2", {"oatf_mode": "adaptive", "oatf_frequency_hz": WRONG_HZ, "oatf_damping": DESIGN_ZETA, "oatf_max_stages": 2}),
     ("adaptive_zeta", {"oatf_mode": "adaptive", "oatf_frequency_hz": WRONG_HZ, "oatf_damping": DESIGN_ZETA, "oatf_adapt_damping": True}),
 )
-DSP_SETTINGS: dict[str, dict[str, str]] = {"adaptive_zeta": {"identifier": "etfe-transient"}}
-"""Per-run DSP settings on top of the thesis's: the damping-adapting run takes its ζ from the transient-fit ETFE."""
+DSP_SETTINGS: dict[str, dict[str, str]] = {
+    "adaptive": {"identifier": "arx"},
+    "adaptive2": {"identifier": "arx"},
+    "adaptive_zeta": {"identifier": "etfe-transient"},
+}
+"""Per-run DSP settings on top of the thesis's: the frequency-adapting runs follow the best identifier (the
+recursive ARX: both modes, the first within about 1 % on id-lag); the damping-adapting run takes its ζ
+from the transient-fit ETFE."""
 LABELS = {
     "unfiltered": "unfiltered",
     "fixed10": f"fixed {WRONG_HZ:g} Hz, ζ {DESIGN_ZETA:g}",
-    "adaptive": f"{WRONG_HZ:g} Hz then adaptive, ζ {DESIGN_ZETA:g}",
-    "adaptive2": f"{WRONG_HZ:g} Hz then adaptive, a stage per confident pole (≤ 2), ζ {DESIGN_ZETA:g}",
+    "adaptive": f"{WRONG_HZ:g} Hz then adaptive (ARX), ζ {DESIGN_ZETA:g}",
+    "adaptive2": f"{WRONG_HZ:g} Hz then adaptive (ARX), a stage per confident pole (≤ 2), ζ {DESIGN_ZETA:g}",
     "adaptive_zeta": f"{WRONG_HZ:g} Hz, ζ {DESIGN_ZETA:g} then adaptive frequency and damping (etfe-transient)",
 }
 
@@ -145,9 +154,9 @@ def run(ctx: ExperimentContext) -> Report:
     rep.heading("Runs")
     rep.text(
         f"{len(RUNS)} runs at {SPEED:g} in/s, payload removed, {duration:.1f} s each ({'the first 18 s of a lap' if quick else '2 laps of ' + format(lap, '.1f') + ' s'}), "
-        f"{'one process each' if quick else 'three processes each, two rigs at a time'}, {ctx.mode}: unfiltered; OATF fixed at {WRONG_HZ:g} Hz; OATF starting at {WRONG_HZ:g} Hz then adaptive (one stage; a stage per confident pole; one stage adapting its design damping too, "
+        f"{'one process each' if quick else 'three processes each, two rigs at a time'}, {ctx.mode}: unfiltered; OATF fixed at {WRONG_HZ:g} Hz; OATF starting at {WRONG_HZ:g} Hz then adaptive (one stage and a stage per confident pole, both following the recursive ARX identifier's poles; one stage adapting its design damping too, "
         f"to the transient-fit ETFE's ζ); "
-        f"both OATFs designed for ζ = {DESIGN_ZETA:g} at the outer location, T1 = π/ω_d of the {WRONG_HZ:g} Hz design. DSP: N = 2048, α = 0.1, l = {THESIS_BATCH_SIZE}. "
+        f"both OATFs designed for ζ = {DESIGN_ZETA:g} at the outer location, T1 = π/ω_d of the {WRONG_HZ:g} Hz design. DSP: N = 2048, α = 0.1, l = {THESIS_BATCH_SIZE} (the ETFE's downloads; the adaptive runs' poles from the ARX). "
         f"Apex: the samples with the true θ2 in its lowest {APEX_QUANTILE:.0%} (θ2 ≤ {rep.results['apex']['theta2_threshold_rad']:.3f} rad), where the true first mode is "
         f"{true1[apex].min():.2f}–{true1[apex].max():.2f} Hz (elsewhere {true1[~apex].min():.2f}–{true1[~apex].max():.2f} Hz)."
     )
@@ -192,11 +201,14 @@ def run(ctx: ExperimentContext) -> Report:
         true1.min() - 1.0 <= adapt["median_hz_after_first_change"] <= true1.max() + 1.0,
         f"{adapt['median_hz_after_first_change']:.2f} Hz; true first mode {true1.min():.2f}–{true1.max():.2f} Hz",
     )
-    ad_better = [pv(late, "adaptive", j) < pv(late, "fixed10", j) for j in (0, 1)]
+    # one stage follows the first mode only; link 2's lap-2 velocity is mostly the second mode (5-10 Hz), which
+    # only a stage per confident pole shapes (thesis §5.3), so the check is on that filter, as the next one
+    ad_better = [pv(late, "adaptive2", j) < pv(late, "fixed10", j) for j in (0, 1)]
     rep.check(
-        f"{late}: the adaptive OATF lowers RMS deflection velocity below the fixed 10 Hz one, both links",
+        f"{late}: the adaptive OATF with a stage per confident pole lowers RMS deflection velocity below the fixed 10 Hz one, both links",
         all(ad_better),
-        f"link 1 {pv(late, 'adaptive', 0):.1f} vs {pv(late, 'fixed10', 0):.1f} %, link 2 {pv(late, 'adaptive', 1):.1f} vs {pv(late, 'fixed10', 1):.1f} %",
+        f"link 1 {pv(late, 'adaptive2', 0):.1f} vs {pv(late, 'fixed10', 0):.1f} %, link 2 {pv(late, 'adaptive2', 1):.1f} vs {pv(late, 'fixed10', 1):.1f} %; "
+        f"one stage: {pv(late, 'adaptive', 0):.1f} / {pv(late, 'adaptive', 1):.1f} %",
     )
     gain_apex = [pv("apex, whole run", "fixed10", j) - pv("apex, whole run", "adaptive", j) for j in (0, 1)]
     gain_whole = [pv("whole run", "fixed10", j) - pv("whole run", "adaptive", j) for j in (0, 1)]
