@@ -173,7 +173,10 @@ class Report:
     def attach(self, path: str | Path, description: str) -> Report:
         """List a file the experiment wrote (a run record, raw data) in the report and results.json."""
         p = Path(path)
-        rel = p.relative_to(self.out_dir) if p.is_absolute() and p.is_relative_to(self.out_dir) else p
+        try:  # relative to the report, whether the paths came absolute or relative to the working directory
+            rel = p.resolve().relative_to(Path(self.out_dir).resolve())
+        except ValueError:
+            rel = p
         self.attachments.append({"path": str(rel), "description": description})
         return self
 
