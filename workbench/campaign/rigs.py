@@ -20,7 +20,7 @@ import numpy as np
 from rich.console import Console
 
 from workbench.campaign.engine import Engine, current_engine
-from workbench.experiments.framework import ClockMode, Experiment, ExperimentContext
+from workbench.experiments.framework import ClockMode, Experiment, ExperimentContext, run_layout
 from workbench.experiments.onrig.runner import RigResult, RigRun, RigRunError, run_rig
 
 __all__ = ["RigJob", "map_rigs"]
@@ -85,11 +85,7 @@ def map_rigs(
         raise ValueError(f"run names must be unique: {names}")
     eng = engine or current_engine()
     total = sum(s.expected_sim_s() for s in specs)
-    ctx.log(
-        f"{len(specs)} run(s), {total:.0f} s simulated, "
-        + ("one process each" if in_process else "three processes each")
-        + f", {ctx.mode}, on {eng.describe()}"
-    )
+    ctx.log(f"{len(specs)} run(s), {total:.0f} s simulated, " + run_layout(ctx.mode, in_process) + f", {ctx.mode}, on {eng.describe()}")
     jobs = [RigJob(str(ctx.out_dir.resolve()), ctx.mode, ctx.experiment, s, in_process, ctx.record) for s in specs]
     outcomes = eng.map(run_rig_job, jobs, keys=[f"rig-{n}" for n in names], description=description, console=ctx.console, show_progress=ctx.show_progress)
     failed = [(specs[o.index].name, o.error) for o in outcomes if not o.ok]

@@ -171,6 +171,16 @@ def get_experiment(name: str) -> Experiment:
 # --------------------------------------------------------------------------- context
 
 
+def run_layout(mode: str, in_process: bool, *, parallel: str = "") -> str:
+    """How an experiment's runs were executed, for its report: a co-simulated
+    run is one thread, whatever the quick flag says about on-rig runs."""
+    if mode == "cosim":
+        text = "co-simulated, one thread each (workbench.cosim)"
+    else:
+        text = "one process each (workbench.composition)" if in_process else "three processes each (workbench.launcher)"
+    return text + (f", {parallel}" if parallel else "")
+
+
 @dataclass
 class ExperimentContext:
     """What an experiment gets from the runner."""

@@ -37,7 +37,7 @@ import numpy as np
 
 from controller.oatf import OatfConfig, OatfFilter, design_stage
 from workbench.campaign.rigs import map_rigs
-from workbench.experiments.framework import ExperimentContext, experiment
+from workbench.experiments.framework import ExperimentContext, experiment, run_layout
 from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 
@@ -198,9 +198,7 @@ def run(ctx: ExperimentContext) -> Report:
 
     # ---------------------------------------------------------------- report
     rep.heading("Runs")
-    mode_text = (
-        "one process each (workbench.composition)" if quick else "three processes each (workbench.launcher), one run per campaign-engine worker at a time"
-    )
+    mode_text = run_layout(ctx.mode, quick, parallel="one run per campaign-engine worker at a time")
     rep.text(
         f"{len(results)} runs, {mode_text}, {ctx.mode}. "
         + (

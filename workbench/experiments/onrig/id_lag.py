@@ -50,7 +50,7 @@ import numpy as np
 from controller.trajectory import WaypointTrajectory, sample_trajectory
 from dsp_service.identifier import IdentifierConfig
 from plant_emulator.model.modes import modal_parameters
-from workbench.experiments.framework import ExperimentContext, experiment
+from workbench.experiments.framework import ExperimentContext, experiment, run_layout
 from workbench.experiments.onrig.runner import (
     THESIS_BATCH_SIZE,
     RigResult,
@@ -305,7 +305,7 @@ def run(ctx: ExperimentContext) -> Report:
     th0 = rows_data[thesis_key]["events"][0]
     rep.heading("Runs")
     rep.text(
-        f"{len(runs)} run(s) ({'one process each' if quick else 'three processes each, two rigs at a time'}, {ctx.mode}), PI only, OATF off, along a small closed loop of "
+        f"{len(runs)} run(s) ({run_layout(ctx.mode, quick, parallel='two rigs at a time')}, {ctx.mode}), PI only, OATF off, along a small closed loop of "
         f"irregular square teeth ({len(sampled.joints.phi) / FS_HZ:.1f} s per lap at {SPEED:g} in/s; `records/{traj_path.name}`), where the true first mode stays in "
         f"{f_load.min():.3f}–{f_load.max():.3f} Hz with the payload and {f_free.min():.3f}–{f_free.max():.3f} Hz without (model, along the set-points). "
         f"The payload starts attached and is released / picked up again at {', '.join(f'{e:g}' for e in events)} s (`RALF_SCENARIO`); the run ends at {duration:g} s. "

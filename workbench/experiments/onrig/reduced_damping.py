@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from workbench.experiments.framework import ExperimentContext, experiment
+from workbench.experiments.framework import ExperimentContext, experiment, run_layout
 from workbench.experiments.onrig.battery import adaptive_summary
 from workbench.experiments.onrig.runner import (
     THESIS_BATCH_SIZE,
@@ -154,7 +154,7 @@ def run(ctx: ExperimentContext) -> Report:
     rep.heading("Runs")
     rep.text(
         f"{len(RUNS)} runs at {SPEED:g} in/s, payload removed, {duration:.1f} s each ({'the first 18 s of a lap' if quick else '2 laps of ' + format(lap, '.1f') + ' s'}), "
-        f"{'one process each' if quick else 'three processes each, two rigs at a time'}, {ctx.mode}: unfiltered; OATF fixed at {WRONG_HZ:g} Hz; OATF starting at {WRONG_HZ:g} Hz then adaptive (one stage and a stage per confident pole, both following the recursive ARX identifier's poles; one stage adapting its design damping too, "
+        f"{run_layout(ctx.mode, quick, parallel='two rigs at a time')}, {ctx.mode}: unfiltered; OATF fixed at {WRONG_HZ:g} Hz; OATF starting at {WRONG_HZ:g} Hz then adaptive (one stage and a stage per confident pole, both following the recursive ARX identifier's poles; one stage adapting its design damping too, "
         f"to the transient-fit ETFE's ζ); "
         f"both OATFs designed for ζ = {DESIGN_ZETA:g} at the outer location, T1 = π/ω_d of the {WRONG_HZ:g} Hz design. DSP: N = 2048, α = 0.1, l = {THESIS_BATCH_SIZE} (the ETFE's downloads; the adaptive runs' poles from the ARX). "
         f"Apex: the samples with the true θ2 in its lowest {APEX_QUANTILE:.0%} (θ2 ≤ {rep.results['apex']['theta2_threshold_rad']:.3f} rad), where the true first mode is "
