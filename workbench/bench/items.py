@@ -182,6 +182,8 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
                 for _ in range(math.ceil(DSP_FFT_WIDTH / BATCH_SAMPLES) + 10):
                     dp.once()
                 dp.compute_s.clear()
+                dp.out_s.clear()
+                dp.back_s.clear()
                 dp.flag_wait_s.clear()
                 pingers.insert(0, dp)
             except BenchError as exc:
@@ -201,6 +203,12 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
         m["dsp_rtt_minus_compute"] = latency(
             summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead"
         )
+        # the same round trip split at the interrupt's construction (Unix stamps of the batch and the interrupt)
+        m["dsp_out_minus_compute"] = latency(
+            summarize([max(x, 0.0) for x in dp.out_s[-len(rtt) :]]),
+            note="batch put -> interrupt built, less the step: transport, the DSP's callback, batch decode, admission, the step's Python",
+        )
+        m["dsp_back"] = latency(summarize([max(x, 0.0) for x in dp.back_s[-len(rtt) :]]), note="interrupt built -> arrived here: encode, put, transport")
         if dp.bad:
             result["notes"].append(f"{dp.bad} undecodable flag/interrupt payloads")
     m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)

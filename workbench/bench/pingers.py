@@ -205,7 +205,7 @@ def can_bus(port: int, reply_ids: list[int], channel: str = "239.74.163.2") -> c
 # --- through the services --------------------------------------------------------------------
 
 
-def sample_batch(seq: int, n: int = 20, rate_hz: float = 200.0, seed: int = 0) -> SampleBatch:
+def sample_batch(seq: int, n: int = 20, rate_hz: float = 200.0, seed: int = 0, wall_time_s: float | None = None) -> SampleBatch:
     """A 2-in/2-out batch of ``n`` samples, contiguous with batch ``seq - 1``."""
     rng = np.random.default_rng(seed + seq)
     return SampleBatch(
@@ -213,7 +213,7 @@ def sample_batch(seq: int, n: int = 20, rate_hz: float = 200.0, seed: int = 0) -
         first_tick=seq * n,
         sample_rate_hz=rate_hz,
         sim_time_s=seq * n / rate_hz,
-        wall_time_s=time.time(),
+        wall_time_s=time.time() if wall_time_s is None else wall_time_s,
         inputs=rng.standard_normal((2, n)),
         outputs=rng.standard_normal((2, n)),
     )
@@ -227,7 +227,14 @@ class DspPinger:
     """Acts as the controller against a running DSP service: wait for the
     empty flag, send a batch, time until its interrupt, then wait for the
     next empty flag (not timed). Keeps the DSP's own compute time of every
-    step (``Interrupt.compute_time_s``)."""
+    step (``Interrupt.compute_time_s``) and splits each round trip at the
+    interrupt's construction, from the Unix stamps both messages carry (the
+    batch's ``wall_time_s``, set here as it is sent, and the interrupt's,
+    set by the DSP right after the step): ``out_s`` = batch put -> interrupt
+    built, less the step (transport, the DSP's callback, decode, admission,
+    the step's Python glue), ``back_s`` = interrupt built -> its arrival here
+    (encode, put, transport). One host, one clock: the split is exact to the
+    clock's resolution."""
 
     name = "dsp_batch_to_interrupt"
 
@@ -246,7 +253,10 @@ class DspPinger:
         self.seq = 0
         self.empty_for: int | None = None  # next_batch_seq of the latest empty flag seen
         self.compute_s: list[float] = []
+        self.out_s: list[float] = []
+        self.back_s: list[float] = []
         self.flag_wait_s: list[float] = []
+        self._unix_minus_perf = time.time() - _perf()
         self.bad = 0
 
     def _next(self, deadline: float) -> tuple[str, Any, float] | None:
@@ -286,9 +296,9 @@ class DspPinger:
         self.wait_empty(self.timeout_s)
         self.flag_wait_s.append(_perf() - t_flag)
         seq = self.seq
-        batch = sample_batch(seq, self.samples, self.rate_hz)
-        payload = encode_batch(batch)
         deadline = time.monotonic() + self.timeout_s
+        sent_unix = time.time()
+        payload = encode_batch(sample_batch(seq, self.samples, self.rate_hz, wall_time_s=sent_unix))
         t0 = _perf()
         self.pub.put(payload)
         while True:
@@ -299,6 +309,8 @@ class DspPinger:
             if kind == "irq" and msg.batch_seq == seq:
                 rtt = arrived - t0
                 self.compute_s.append(msg.compute_time_s)
+                self.out_s.append(msg.wall_time_s - sent_unix - msg.compute_time_s)
+                self.back_s.append(arrived + self._unix_minus_perf - msg.wall_time_s)
                 self.seq = seq + 1
                 return rtt
             if kind == "flag" and msg.state == "empty":
