@@ -108,7 +108,20 @@ class ZenohPinger:
 
     name = "zenoh_pingpong"
 
-    def __init__(self, session: zenoh.Session, ping: str, pong: str, size: int, timeout_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        ping: str,
+        pong: str,
+        size: int,
+        timeout_s: float = 2.0,
+        name: str | None = None,
+        prepare: Callable[[], object] | None = None,
+    ) -> None:
+        if name is not None:
+            self.name = name
+        self.prepare = prepare
+        """Run before each timed round trip, untimed (the work a DSP round trip does between two batches)."""
         self.size = max(size, _SEQ.size)
         self.timeout_s = timeout_s
         # arrival is stamped in zenoh's callback: the figure is the transport's, not our thread hand-off's
@@ -133,6 +146,8 @@ class ZenohPinger:
                     raise BenchError(f"zenoh echo did not answer within {within_s:.0f} s") from None
 
     def once(self) -> float:
+        if self.prepare is not None:
+            self.prepare()
         self.seq += 1
         head = _SEQ.pack(self.seq)
         payload = head + bytes(self.size - _SEQ.size)
@@ -205,7 +220,7 @@ def can_bus(port: int, reply_ids: list[int], channel: str = "239.74.163.2") -> c
 # --- through the services --------------------------------------------------------------------
 
 
-def sample_batch(seq: int, n: int = 20, rate_hz: float = 200.0, seed: int = 0, wall_time_s: float | None = None) -> SampleBatch:
+def sample_batch(seq: int, n: int = 20, rate_hz: float = 200.0, seed: int = 0) -> SampleBatch:
     """A 2-in/2-out batch of ``n`` samples, contiguous with batch ``seq - 1``."""
     rng = np.random.default_rng(seed + seq)
     return SampleBatch(
@@ -213,7 +228,7 @@ def sample_batch(seq: int, n: int = 20, rate_hz: float = 200.0, seed: int = 0, w
         first_tick=seq * n,
         sample_rate_hz=rate_hz,
         sim_time_s=seq * n / rate_hz,
-        wall_time_s=time.time() if wall_time_s is None else wall_time_s,
+        wall_time_s=time.time(),
         inputs=rng.standard_normal((2, n)),
         outputs=rng.standard_normal((2, n)),
     )
@@ -228,13 +243,14 @@ class DspPinger:
     empty flag, send a batch, time until its interrupt, then wait for the
     next empty flag (not timed). Keeps the DSP's own compute time of every
     step (``Interrupt.compute_time_s``) and splits each round trip at the
-    interrupt's construction, from the Unix stamps both messages carry (the
-    batch's ``wall_time_s``, set here as it is sent, and the interrupt's,
-    set by the DSP right after the step): ``out_s`` = batch put -> interrupt
-    built, less the step (transport, the DSP's callback, decode, admission,
-    the step's Python glue), ``back_s`` = interrupt built -> its arrival here
-    (encode, put, transport). One host, one clock: the split is exact to the
-    clock's resolution."""
+    interrupt's construction, from the Unix stamp the interrupt carries
+    (``wall_time_s``, set by the DSP right after the step) brought onto this
+    process's ``perf_counter``: ``out_s`` = batch put -> interrupt built,
+    less the step (transport, the DSP's callback, decode, admission, the
+    step's Python glue), ``back_s`` = interrupt built -> its arrival here
+    (encode, put, transport); ``out_s + back_s`` is the round trip less the
+    step. One host, one clock (to its resolution and any slew since the
+    pinger started)."""
 
     name = "dsp_batch_to_interrupt"
 
@@ -296,9 +312,9 @@ class DspPinger:
         self.wait_empty(self.timeout_s)
         self.flag_wait_s.append(_perf() - t_flag)
         seq = self.seq
+        batch = sample_batch(seq, self.samples, self.rate_hz)
+        payload = encode_batch(batch)
         deadline = time.monotonic() + self.timeout_s
-        sent_unix = time.time()
-        payload = encode_batch(sample_batch(seq, self.samples, self.rate_hz, wall_time_s=sent_unix))
         t0 = _perf()
         self.pub.put(payload)
         while True:
@@ -309,8 +325,9 @@ class DspPinger:
             if kind == "irq" and msg.batch_seq == seq:
                 rtt = arrived - t0
                 self.compute_s.append(msg.compute_time_s)
-                self.out_s.append(msg.wall_time_s - sent_unix - msg.compute_time_s)
-                self.back_s.append(arrived + self._unix_minus_perf - msg.wall_time_s)
+                built = msg.wall_time_s - self._unix_minus_perf  # on this process's perf_counter
+                self.out_s.append(built - t0 - msg.compute_time_s)
+                self.back_s.append(arrived - built)
                 self.seq = seq + 1
                 return rtt
             if kind == "flag" and msg.state == "empty":
