@@ -304,6 +304,10 @@ def test_an_inline_board_answers_in_zenohs_thread_and_raises_the_interrupt_befor
         got = dict([probe.events.get(timeout=5), probe.events.get(timeout=5)])
         assert got["irq"].batch_seq == 0  # type: ignore[attr-defined]
         assert got["flag"].state == "empty" and got["flag"].next_batch_seq == 1  # type: ignore[attr-defined]
+        # the bookkeeping comes after both puts, on the callback's thread: wait for it (bounded)
+        deadline = time.monotonic() + 5.0
+        while service.turnaround.stats().count == 0 and time.monotonic() < deadline:
+            time.sleep(0.001)
         assert not service.block.full and service.turnaround.stats().count == 1
     finally:
         pub.undeclare()
