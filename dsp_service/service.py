@@ -220,13 +220,14 @@ class DspService:
         The block is released before the interrupt goes (the CPU may send
         its next batch as soon as the interrupt is in, and the interrupt
         means the block is empty: :meth:`controller.dsp_link.DspLink.on_interrupt`);
-        the empty flag, built at the release, follows the interrupt so that
-        it is not on the batch -> interrupt path, and the bookkeeping comes last."""
+        the empty flag, its fields taken at the release and the message built
+        after the interrupt is out, follows the interrupt so that it is not on
+        the batch -> interrupt path, and the bookkeeping comes last."""
         self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
         with self._out_lock:
-            flag = self.core.release()
+            flag = self.core.release_state()
             self._put_interrupt(held.interrupt)
-            self._put_flag(flag)
+            self._put_flag(self.core.flag_of(flag))
         self.turnaround.add(self.scheduler.now() - held.arrival)
         self.compute_time.add(held.interrupt.compute_time_s)
 

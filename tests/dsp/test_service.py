@@ -304,6 +304,10 @@ def test_an_inline_board_answers_in_zenohs_thread_and_raises_the_interrupt_befor
         got = dict([probe.events.get(timeout=5), probe.events.get(timeout=5)])
         assert got["irq"].batch_seq == 0  # type: ignore[attr-defined]
         assert got["flag"].state == "empty" and got["flag"].next_batch_seq == 1  # type: ignore[attr-defined]
+        # the bookkeeping comes after both puts, on the callback's thread: wait for it (bounded)
+        deadline = time.monotonic() + 5.0
+        while service.turnaround.stats().count == 0 and time.monotonic() < deadline:
+            time.sleep(0.001)
         assert not service.block.full and service.turnaround.stats().count == 1
     finally:
         pub.undeclare()
@@ -405,3 +409,60 @@ def test_access_rules_cover_every_rig_a_dsp_serves() -> None:
             subjects = {s for p in acl["policies"] if denied[0] in p["rules"] for s in p["subjects"]}
             allowed = "role dsp" if key != keys.batch else "role controller"
             assert allowed not in subjects and "role tool" in subjects
+
+
+def test_the_empty_flag_built_after_the_interrupt_describes_the_block_as_released() -> None:
+    """The board takes the flag's fields at the release and builds the message
+    after the interrupt is out: a batch admitted in between changes neither
+    its expected sequence number nor the flags' numbering."""
+    from dsp_service.core import DspCore
+
+    core = DspCore(_settings())
+    first = core.admit(_batch(0))
+    core.process(_batch(0), first)
+    released = core.release_state()
+    assert core.admit(_batch(1)).accepted and core.block.full  # the CPU's next batch, before the flag is built
+    flag = core.flag_of(released)
+    assert (flag.state, flag.next_batch_seq, flag.seq) == ("empty", 1, released.seq)
+    assert core.flag("full").seq == released.seq + 1
+    eager = DspCore(_settings())
+    eager.process(_batch(0), eager.admit(_batch(0)))
+    assert eager.release().model_dump(exclude={"wall_time_s"}) == flag.model_dump(exclude={"wall_time_s"})
+
+
+@pytest.mark.parametrize("value", [0.25, 1.5, -0.3, -0.0, 0.0, 1.0, float("inf"), float("-inf"), np.float64(0.7), np.float64(-2.0)])
+def test_the_interrupt_clamps_as_numpy_clip_does(value: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The interrupt's confidence and valid fraction are clamped with min/max
+    (numpy's scalar ufuncs cost ~9 us each on the batch path): the same
+    values as ``np.clip`` to the bit, -0.0 included."""
+    import dataclasses
+
+    from dsp_service.core import DspCore
+
+    core = DspCore(_settings())
+    real_step = core.identifier.step
+    monkeypatch.setattr(core.identifier, "step", lambda: dataclasses.replace(real_step(), confidence=value, valid_fraction=value))
+    irq = core.process(_batch(0), core.admit(_batch(0)))
+    expected = float(np.clip(value, 0.0, 1.0))
+    for got in (irq.confidence, irq.valid_fraction):
+        assert np.float64(got).tobytes() == np.float64(expected).tobytes()
+
+
+def test_the_bench_splits_a_batch_round_trip_at_the_interrupts_construction(session: zenoh.Session) -> None:
+    """``ralf-hil bench``'s DSP pinger splits each round trip at the
+    interrupt's construction (its ``wall_time_s``): the two parts and the
+    step add up to the round trip, and the return part is not negative."""
+    from workbench.bench.pingers import DspPinger
+
+    settings = _settings()
+    with _running_board(session, settings, inline=True):
+        pinger = DspPinger(session, settings.rig_id, samples=20)
+        try:
+            pinger.wait_empty(5.0)
+            rtts = [pinger.once() for _ in range(5)]
+        finally:
+            pinger.close()
+    assert len(pinger.out_s) == len(pinger.back_s) == len(pinger.compute_s) == 5
+    for rtt, out, back, compute in zip(rtts, pinger.out_s, pinger.back_s, pinger.compute_s):
+        assert out + back + compute == pytest.approx(rtt, abs=1e-5)  # one clock (Unix stamps ~1e-7 s apart at 1.7e9 s)
+        assert back > -1e-5

@@ -183,3 +183,30 @@ def test_quick_floors_write_a_complete_report(tmp_path: Path, capsys: pytest.Cap
     _check_latency(can_item["measurements"]["can_pingpong"])
     assert report["wall_s"] > 0
     assert "zenoh_pingpong" in printed.out and "can_pingpong" in printed.out  # the table
+
+
+@pytest.mark.timeout(60)
+def test_the_paced_zenoh_echo_holds_each_answer_as_asked(tmp_path: Path) -> None:
+    """The paced floor's echo busy-waits the hold it was given (``--hold-key``,
+    acknowledged) before each answer, and the pinger runs its untimed work
+    before each round trip: every round trip lasts at least the hold."""
+    from workbench.bench.pingers import ZenohPinger, zenoh_session
+    from workbench.bench.procs import Child, free_tcp_port, private_rig_id
+
+    rig = private_rig_id("paced")
+    port = free_tcp_port()
+    ping, pong, hold = f"ralf/{rig}/bench/ping", f"ralf/{rig}/bench/pong", f"ralf/{rig}/bench/hold"
+    prepared: list[int] = []
+    with Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{port}", "--ping", ping, "--pong", pong, "--hold-key", hold, log_dir=tmp_path) as echo:
+        echo.read_tagged("READY", 30)
+        session = zenoh_session(connect=[f"tcp/127.0.0.1:{port}"])
+        try:
+            pinger = ZenohPinger(session, ping, pong, 64, prepare=lambda: prepared.append(1))
+            pinger.connect()
+            bench_items.set_echo_hold(session, hold, 0.003)
+            rtts = [pinger.once() for _ in range(5)]
+            pinger.close()
+        finally:
+            session.close()
+    assert len(prepared) == 5
+    assert min(rtts) >= 0.003  # a lower bound: a loaded host only makes it longer

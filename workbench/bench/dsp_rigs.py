@@ -11,7 +11,11 @@ is *served* when no rig missed (no turnaround over the budget, no batch due
 while its block was still full). The DSP process's CPU time per batch,
 measured over each rung, gives the figure a loaded core would reach
 (``rigs_per_core_by_cpu``): an extrapolation from measured numbers, labelled
-as such. Nothing here asserts a time.
+as such. Then one rig at 1 kHz with N = 8192, driven the same way with
+batches of l = 1, 2 and 5 samples (batch periods of 1, 2 and 5 ms), each
+against a DSP process of its own: the shortest batch period it sustains
+through zenoh, and its step's time alone. A driven rig takes an interrupt
+as its block emptied, as the controller does. Nothing here asserts a time.
 """
 
 from __future__ import annotations
@@ -25,16 +29,21 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import Any
 
-from protocol.batch_codec import encode_batch
+import numpy as np
+
+from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, Interrupt, decode
-from workbench.bench.pingers import sample_batch, zenoh_session
+from workbench.bench.pingers import zenoh_session
 from workbench.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_rig_id
 from workbench.bench.stats import summarize
 
 RATE_HZ = 200.0
 FFT_WIDTH = 2048
 BATCH = 30  #: DspSettings' default batch size: a 150 ms batch period at 200 Hz
+FAST_RATE_HZ = 1000.0
+FAST_FFT_WIDTH = 8192
+FAST_BATCHES = (1, 2, 5)  #: l at 1 kHz: batch periods of 1, 2 and 5 ms (l = 1: a batch per sample)
 
 
 @dataclass
@@ -44,8 +53,26 @@ class _Rig:
     empty_for: int = -1  #: next_batch_seq of the latest empty flag
     sent_at: float | None = None
     next_due: float = 0.0
+    tick: int = 0  #: first tick of the next batch (batches are contiguous whatever their size)
     turnaround: list[float] = field(default_factory=list)
+    compute: list[float] = field(default_factory=list)
     full_when_due: int = 0
+
+
+def _batch(rig: _Rig, n: int, rate_hz: float, seed: int) -> SampleBatch:
+    """The rig's next batch of ``n`` samples, contiguous with its last."""
+    rng = np.random.default_rng(seed * 1_000_003 + rig.seq)
+    batch = SampleBatch(
+        seq=rig.seq,
+        first_tick=rig.tick,
+        sample_rate_hz=rate_hz,
+        sim_time_s=rig.tick / rate_hz,
+        wall_time_s=time.time(),
+        inputs=rng.standard_normal((2, n)),
+        outputs=rng.standard_normal((2, n)),
+    )
+    rig.tick += n
+    return batch
 
 
 def _cpu_s(pid: int) -> float:
@@ -56,24 +83,59 @@ def _cpu_s(pid: int) -> float:
 
 
 def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
-    """The rungs above; results per rung and the largest rung served."""
+    """The rungs above; results per rung and the largest rung served. Then one rig at
+    1 kHz with N = 8192 for each batch size of :data:`FAST_BATCHES` (l = 1: a batch per
+    sample, a 1 ms budget): the shortest batch period one DSP sustains at that width."""
     rungs = (1, 4, 16) if ctx.quick else (1, 4, 16, 32, 64)
     seconds = 2.0 if ctx.quick else 6.0
-    total = max(rungs)
-    period = BATCH / RATE_HZ
-    base = private_rig_id("rigs")
-    ids = [f"{base}-{i}" for i in range(total)]
-    port = free_tcp_port()
     result["config"] = {
-        "rigs_served_by_the_process": total,
+        "rigs_served_by_the_process": max(rungs),
         "rungs": list(rungs),
         "seconds_per_rung": seconds,
         "fft_width": FFT_WIDTH,
         "batch": BATCH,
         "rate_hz": RATE_HZ,
-        "budget_ms": period * 1e3,
+        "budget_ms": BATCH / RATE_HZ * 1e3,
+        "fast": {"rate_hz": FAST_RATE_HZ, "fft_width": FAST_FFT_WIDTH, "batches": list(FAST_BATCHES)},
     }
     m = result["measurements"]
+    served, per_batch = _ladder(ctx, m, "", rungs, seconds, RATE_HZ, FFT_WIDTH, BATCH)
+    m["rigs_per_core_by_cpu"] = {
+        "kind": "scalar",
+        "value": round(BATCH / RATE_HZ / per_batch[0], 1),
+        "unit": "rigs",
+        "note": f"extrapolated: batch period / DSP CPU time per batch at {per_batch[1]} rigs",
+    }
+    m["rigs_served"] = {
+        "kind": "scalar",
+        "value": served,
+        "unit": "rigs",
+        "note": f"largest rung with no late or missed interrupt (rungs {list(rungs)}, N = {FFT_WIDTH}, 200 Hz, l = {BATCH})",
+    }
+    shortest = None
+    for batch in FAST_BATCHES:
+        label = f"{FAST_RATE_HZ / 1e3:g} kHz N={FAST_FFT_WIDTH} l={batch}: "
+        if _ladder(ctx, m, label, (1,), seconds, FAST_RATE_HZ, FAST_FFT_WIDTH, batch)[0] and shortest is None:
+            shortest = batch
+    m[f"{FAST_RATE_HZ / 1e3:g} kHz N={FAST_FFT_WIDTH}: shortest batch period served"] = {
+        "kind": "scalar",
+        "value": None if shortest is None else shortest / FAST_RATE_HZ * 1e3,
+        "unit": "ms",
+        "note": f"the smallest l of {list(FAST_BATCHES)} with no late or missed interrupt, through zenoh (the step alone: dsp_compute_p50_us)",
+    }
+
+
+def _ladder(
+    ctx: Any, m: dict[str, Any], label: str, rungs: tuple[int, ...], seconds: float, rate_hz: float, fft_width: int, batch: int
+) -> tuple[int, tuple[float, int]]:
+    """One DSP process serving ``max(rungs)`` rigs, driven rung by rung; fills ``m``;
+    returns the largest rung served and (DSP CPU s per batch, rigs) of the last rung."""
+    total = max(rungs)
+    period = batch / rate_hz
+    fill = max(batch, 30)  # the history is filled with batches of at least 30 samples (l = 1 would take N round trips)
+    base = private_rig_id("rigs")
+    ids = [f"{base}-{i}" for i in range(total)]
+    port = free_tcp_port()
     with ExitStack() as stack:
         env = clean_env(
             {
@@ -82,8 +144,9 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
                 "RALF_ZENOH_MODE": "peer",
                 "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{port}",
                 "RALF_EMULATED_LATENCY_S": "0",
-                "RALF_FFT_WIDTH": str(FFT_WIDTH),
-                "RALF_BATCH_SIZE": str(BATCH),
+                "RALF_SAMPLE_RATE_HZ": str(rate_hz),
+                "RALF_FFT_WIDTH": str(fft_width),
+                "RALF_BATCH_SIZE": str(batch),
                 "RALF_LOG_LEVEL": "WARNING",
             }
         )
@@ -123,10 +186,14 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
                     irq = decode(Interrupt, payload)
                     if rig.sent_at is not None and irq.batch_seq == rig.seq - 1:
                         rig.turnaround.append(arrived - rig.sent_at)
+                        rig.compute.append(irq.compute_time_s)
                         rig.sent_at = None
+                        # the interrupt says the block is empty again, as the controller takes it
+                        # (controller.dsp_link.DspLink.on_interrupt); the flag that follows says it too
+                        rig.empty_for = max(rig.empty_for, irq.batch_seq + 1)
 
-        def send(rig: _Rig, i: int) -> None:
-            payload = encode_batch(sample_batch(rig.seq, BATCH, RATE_HZ, seed=i))
+        def send(rig: _Rig, i: int, n: int = batch) -> None:
+            payload = encode_batch(_batch(rig, n, rate_hz, seed=i))
             rig.sent_at = perf()  # before the put: the interrupt may be stamped before put() returns
             rig.seq += 1
             pubs[i].put(payload)
@@ -139,12 +206,12 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
             take(perf() + 0.2)
         # fill each rig's history once (closed loop), so every timed step is a full one
         for i, rig in enumerate(rigs[: max(rungs)]):
-            for _ in range(math.ceil(FFT_WIDTH / BATCH)):
+            for _ in range(math.ceil(fft_width / fill)):
                 while rig.empty_for < rig.seq:
                     if perf() > deadline + 300.0:
                         raise BenchError("history fill stalled")
                     take(perf() + 0.05)
-                send(rig, i)
+                send(rig, i, fill)
         take(perf() + 0.5)
         served = 0
         per_batch = (math.nan, 0)
@@ -152,6 +219,7 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
             active = rigs[:k]
             for j, rig in enumerate(active):
                 rig.turnaround.clear()
+                rig.compute.clear()
                 rig.full_when_due = 0
                 rig.next_due = perf() + period * j / k  # spread the rigs over the period
             cpu0, t0 = _cpu_s(dsp.popen.pid), perf()
@@ -186,26 +254,17 @@ def bench_dsp_rigs(ctx: Any, result: dict[str, Any]) -> None:
                 "behind": behind,
                 "dsp_cpu_fraction": cpu / wall,
                 "dsp_cpu_per_batch_us": cpu / batches * 1e6,
+                "dsp_compute_p50_us": float(np.median([c for r in active for c in r.compute])) * 1e6,
             }
-            m[f"{k} rigs: batch_to_interrupt"] = entry
+            m[f"{label}{k} rigs: batch_to_interrupt"] = entry
             ctx.say(
-                f"  {k:>3} rigs: {batches} batches, p99 {entry['p99_us'] / 1e3:.2f} ms (budget {period * 1e3:.0f} ms), "
+                f"  {label}{k:>3} rigs: {batches} batches, p50 {entry['p50_us'] / 1e3:.2f} ms, p99 {entry['p99_us'] / 1e3:.2f} ms "
+                f"(budget {period * 1e3:g} ms), step p50 {entry['dsp_compute_p50_us'] / 1e3:.2f} ms, "
                 f"late {late}, behind {behind}, DSP CPU {cpu / wall:.0%} of one core"
             )
             if late == 0 and behind == 0:
                 served = k
             per_batch = (cpu / batches, k)
-        m["rigs_per_core_by_cpu"] = {
-            "kind": "scalar",
-            "value": round(period / per_batch[0], 1),
-            "unit": "rigs",
-            "note": f"extrapolated: batch period / DSP CPU time per batch at {per_batch[1]} rigs",
-        }
-        m["rigs_served"] = {
-            "kind": "scalar",
-            "value": served,
-            "unit": "rigs",
-            "note": f"largest rung with no late or missed interrupt (rungs {list(rungs)}, N = {FFT_WIDTH}, 200 Hz, l = {BATCH})",
-        }
         for pub in pubs:
             pub.undeclare()
+    return served, per_batch

@@ -29,6 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from protocol.batch_codec import encode_batch
 from workbench.bench.pingers import (
     CanPinger,
     DspPinger,
@@ -38,6 +41,7 @@ from workbench.bench.pingers import (
     batch_size_bytes,
     can_bus,
     interleave,
+    sample_batch,
     zenoh_session,
 )
 from workbench.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_can_port, private_rig_id, tail
@@ -122,12 +126,39 @@ def _measure_pingers(ctx: BenchContext, pingers: list[Any]) -> dict[str, list[fl
 # --- 1. zenoh -------------------------------------------------------------------------------------
 
 
+def _batch_work() -> None:
+    """What the DSP pinger does between two round trips (untimed): build and encode a batch."""
+    encode_batch(sample_batch(0, BATCH_SAMPLES))
+
+
+def set_echo_hold(session: Any, key: str, hold_s: float, within_s: float = 10.0) -> None:
+    """Set a zenoh echo's hold (``--hold-key``) and wait for its acknowledgement."""
+    import queue
+
+    acks: queue.SimpleQueue[str] = queue.SimpleQueue()
+    text = f"{hold_s * 1e6:.3f}"
+    sub = session.declare_subscriber(key + "/ack", lambda sample: acks.put(sample.payload.to_string()))
+    try:
+        deadline = time.monotonic() + within_s
+        while time.monotonic() < deadline:
+            session.put(key, text)
+            try:
+                if acks.get(timeout=0.2) == text:
+                    return
+            except queue.Empty:
+                continue
+        raise BenchError(f"the paced zenoh echo did not take its hold within {within_s:.0f} s")
+    finally:
+        sub.undeclare()
+
+
 def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
     """Batch -> interrupt through the real DSP service vs bare zenoh and bare UDP ping-pong."""
     size = batch_size_bytes(BATCH_SAMPLES)
     rig_id = private_rig_id("zenoh")
-    echo_port, dsp_port = free_tcp_port(), free_tcp_port()
+    echo_port, paced_port, dsp_port = free_tcp_port(), free_tcp_port(), free_tcp_port()
     ping, pong = f"ralf/{rig_id}/bench/ping", f"ralf/{rig_id}/bench/pong"
+    paced_ping, paced_pong, hold_key = f"ralf/{rig_id}/bench/paced/ping", f"ralf/{rig_id}/bench/paced/pong", f"ralf/{rig_id}/bench/paced/hold"
     result["config"] = {
         "rig_id": rig_id,
         "payload_bytes": size,
@@ -141,6 +172,7 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
         udp = stack.enter_context(Child.peer("udp-echo", log_dir=ctx.log_dir))
         zecho = stack.enter_context(Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{echo_port}", "--ping", ping, "--pong", pong, log_dir=ctx.log_dir))
         dsp: Child | None = None
+        paced_echo: Child | None = None
         if ctx.floors_only:
             result["notes"].append("--floors-only: the DSP service was not started")
         else:
@@ -158,11 +190,21 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
                     }
                 )
                 dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp", log_dir=ctx.log_dir))
+                paced_echo = stack.enter_context(
+                    Child.peer(
+                        "zenoh-echo",
+                        *("--listen", f"tcp/127.0.0.1:{paced_port}", "--ping", paced_ping, "--pong", paced_pong, "--hold-key", hold_key),
+                        name="zenoh-echo-paced",
+                        log_dir=ctx.log_dir,
+                    )
+                )
             except Skip as exc:
                 result["skipped"].append(f"dsp_batch_to_interrupt: {exc}")
         udp_port = int(udp.read_tagged("READY", 30)["port"])
         zecho.read_tagged("READY", 30)
-        endpoints = [f"tcp/127.0.0.1:{echo_port}"] + ([f"tcp/127.0.0.1:{dsp_port}"] if dsp else [])
+        if paced_echo is not None:
+            paced_echo.read_tagged("READY", 30)
+        endpoints = [f"tcp/127.0.0.1:{echo_port}"] + ([f"tcp/127.0.0.1:{dsp_port}", f"tcp/127.0.0.1:{paced_port}"] if dsp else [])
         session = zenoh_session(connect=endpoints)
         stack.callback(session.close)
         zp = ZenohPinger(session, ping, pong, size)
@@ -172,6 +214,8 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
         zp.connect()
         pingers: list[Any] = [zp, up]
         dp: DspPinger | None = None
+        paced: ZenohPinger | None = None
+        hold_s = 0.0
         if dsp is not None:
             dp = DspPinger(session, rig_id, samples=BATCH_SAMPLES)
             stack.callback(dp.close)
@@ -181,12 +225,27 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
                 # fill the DSP's history once (N / l batches) so every timed step is a full one
                 for _ in range(math.ceil(DSP_FFT_WIDTH / BATCH_SAMPLES) + 10):
                     dp.once()
+                hold_s = float(np.median(dp.compute_s[-50:]))
                 dp.compute_s.clear()
+                dp.out_s.clear()
+                dp.back_s.clear()
                 dp.flag_wait_s.clear()
                 pingers.insert(0, dp)
             except BenchError as exc:
                 result["errors"].append(f"dsp_batch_to_interrupt: {exc}; {dsp.describe_failure()}")
                 dp = None
+        if dp is not None:
+            # The same ping-pong paced as a DSP round trip: the echo holds its callback for the
+            # DSP's step (its p50, busy) and the pinger builds a batch between round trips (untimed).
+            try:
+                paced = ZenohPinger(session, paced_ping, paced_pong, size, name="zenoh_pingpong_paced", prepare=_batch_work)
+                stack.callback(paced.close)
+                set_echo_hold(session, hold_key, hold_s)
+                paced.connect()
+                pingers.insert(2, paced)
+            except BenchError as exc:
+                result["errors"].append(f"zenoh_pingpong_paced: {exc}")
+                paced = None
         samples = _measure_pingers(ctx, pingers)
     m = result["measurements"]
     udp_s = summarize(samples["udp_pingpong"])
@@ -201,6 +260,22 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
         m["dsp_rtt_minus_compute"] = latency(
             summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead"
         )
+        # the same round trip split at the interrupt's construction (Unix stamps of the batch and the interrupt)
+        m["dsp_out_minus_compute"] = latency(
+            summarize([max(x, 0.0) for x in dp.out_s[-len(rtt) :]]),
+            note="batch put -> interrupt built, less the step: transport, the DSP's callback, batch decode, admission, the step's Python",
+        )
+        m["dsp_back"] = latency(summarize([max(x, 0.0) for x in dp.back_s[-len(rtt) :]]), note="interrupt built -> arrived here: encode, put, transport")
+        if paced is not None:
+            paced_s = summarize(samples[paced.name])
+            paced_floor = summarize([max(r - hold_s, 0.0) for r in samples[paced.name]])
+            m["zenoh_pingpong_paced"] = latency(
+                paced_s, note=f"the echo busy {hold_s * 1e6:.0f} us in its callback (the step's p50), a batch built between round trips"
+            )
+            m["zenoh_paced_minus_hold"] = latency(paced_floor, "zenoh_pingpong", zen_s, note="the paced ping-pong less the echo's hold")
+            m["dsp_rtt_minus_compute_vs_paced"] = latency(
+                summarize(overhead), "zenoh_paced_minus_hold", paced_floor, note="dsp_rtt_minus_compute against the paced ping-pong less its hold"
+            )
         if dp.bad:
             result["notes"].append(f"{dp.bad} undecodable flag/interrupt payloads")
     m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)

@@ -6,7 +6,9 @@ and measurements that must run in a process of their own.
 * ``udp-echo``: bare UDP echo on a loopback port of its own;
 * ``zenoh-echo``: zenoh peer that republishes every ping on the pong key
   (express, BLOCK congestion control, real-time priority: the QoS of the
-  DSP's interrupts), from inside the subscriber callback;
+  DSP's interrupts), from inside the subscriber callback (``--hold-us``:
+  after busy-waiting that long there, as the DSP's step holds its callback;
+  ``--hold-key``: set at run time);
 * ``can-echo``: python-can ``udp_multicast`` node answering a request frame
   with an 8-byte reply frame (own echoes filtered);
 * ``sleep-jitter``: a loop that only sleeps to absolute deadlines at a given
@@ -70,9 +72,32 @@ def zenoh_echo(args: argparse.Namespace) -> int:
     session = zenoh.open(config)
     try:
         pong = session.declare_publisher(args.pong, congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME, express=True)
-        sub = session.declare_subscriber(args.ping, lambda sample: pong.put(sample.payload.to_bytes()))
+        hold = [args.hold_us * 1e-6]
+
+        def echo(sample: Any) -> None:
+            payload = sample.payload.to_bytes()
+            if hold[0] > 0:  # busy, in zenoh's callback: as the DSP's step holds its callback thread
+                until = time.perf_counter() + hold[0]
+                while time.perf_counter() < until:
+                    pass
+            pong.put(payload)
+
+        def set_hold(sample: Any) -> None:
+            text = sample.payload.to_string()
+            try:
+                value = float(text)
+            except ValueError:
+                return
+            if 0.0 <= value <= 1e6:
+                hold[0] = value * 1e-6
+                session.put(args.hold_key + "/ack", text)
+
+        sub = session.declare_subscriber(args.ping, echo)
+        hold_sub = session.declare_subscriber(args.hold_key, set_hold) if args.hold_key else None
         _say("READY", {"listen": args.listen})
         stop.wait()
+        if hold_sub is not None:
+            hold_sub.undeclare()
         sub.undeclare()
         pong.undeclare()
     finally:
@@ -173,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
     z.add_argument("--listen", required=True, help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7450")
     z.add_argument("--ping", required=True, help="key expression of pings")
     z.add_argument("--pong", required=True, help="key expression of pongs")
+    z.add_argument("--hold-us", type=float, default=0.0, help="busy-wait this long in the callback before answering (the DSP's step)")
+    z.add_argument("--hold-key", default="", help="a put of a number (µs) here sets --hold-us; acknowledged on KEY/ack")
     z.set_defaults(func=zenoh_echo)
     c = sub.add_parser("can-echo", help="udp_multicast request -> reply echo")
     c.add_argument("--channel", default="239.74.163.2")

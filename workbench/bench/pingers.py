@@ -108,7 +108,20 @@ class ZenohPinger:
 
     name = "zenoh_pingpong"
 
-    def __init__(self, session: zenoh.Session, ping: str, pong: str, size: int, timeout_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        ping: str,
+        pong: str,
+        size: int,
+        timeout_s: float = 2.0,
+        name: str | None = None,
+        prepare: Callable[[], object] | None = None,
+    ) -> None:
+        if name is not None:
+            self.name = name
+        self.prepare = prepare
+        """Run before each timed round trip, untimed (the work a DSP round trip does between two batches)."""
         self.size = max(size, _SEQ.size)
         self.timeout_s = timeout_s
         # arrival is stamped in zenoh's callback: the figure is the transport's, not our thread hand-off's
@@ -133,6 +146,8 @@ class ZenohPinger:
                     raise BenchError(f"zenoh echo did not answer within {within_s:.0f} s") from None
 
     def once(self) -> float:
+        if self.prepare is not None:
+            self.prepare()
         self.seq += 1
         head = _SEQ.pack(self.seq)
         payload = head + bytes(self.size - _SEQ.size)
@@ -227,7 +242,15 @@ class DspPinger:
     """Acts as the controller against a running DSP service: wait for the
     empty flag, send a batch, time until its interrupt, then wait for the
     next empty flag (not timed). Keeps the DSP's own compute time of every
-    step (``Interrupt.compute_time_s``)."""
+    step (``Interrupt.compute_time_s``) and splits each round trip at the
+    interrupt's construction, from the Unix stamp the interrupt carries
+    (``wall_time_s``, set by the DSP right after the step) brought onto this
+    process's ``perf_counter``: ``out_s`` = batch put -> interrupt built,
+    less the step (transport, the DSP's callback, decode, admission, the
+    step's Python glue), ``back_s`` = interrupt built -> its arrival here
+    (encode, put, transport); ``out_s + back_s`` is the round trip less the
+    step. One host, one clock (to its resolution and any slew since the
+    pinger started)."""
 
     name = "dsp_batch_to_interrupt"
 
@@ -246,7 +269,10 @@ class DspPinger:
         self.seq = 0
         self.empty_for: int | None = None  # next_batch_seq of the latest empty flag seen
         self.compute_s: list[float] = []
+        self.out_s: list[float] = []
+        self.back_s: list[float] = []
         self.flag_wait_s: list[float] = []
+        self._unix_minus_perf = time.time() - _perf()
         self.bad = 0
 
     def _next(self, deadline: float) -> tuple[str, Any, float] | None:
@@ -299,6 +325,9 @@ class DspPinger:
             if kind == "irq" and msg.batch_seq == seq:
                 rtt = arrived - t0
                 self.compute_s.append(msg.compute_time_s)
+                built = msg.wall_time_s - self._unix_minus_perf  # on this process's perf_counter
+                self.out_s.append(built - t0 - msg.compute_time_s)
+                self.back_s.append(arrived - built)
                 self.seq = seq + 1
                 return rtt
             if kind == "flag" and msg.state == "empty":
