@@ -360,6 +360,8 @@ class OatfFilter:
         self._stages: tuple[StageDesign, ...] = ()
         self._delays: IntArray = np.zeros(1, dtype=np.int64)
         self._weights: FloatArray = np.ones(1)
+        self._tap_rows: IntArray = np.arange(self._capacity, dtype=np.int64)[:, None]
+        """Per head position, the delay-line rows of the taps: ``(head - delays) % capacity``."""
         self.update_modes(frequencies_hz, zetas)
         self.reset(initial)
 
@@ -412,7 +414,10 @@ class OatfFilter:
         """
         stages = self.design(frequencies_hz, zetas)
         self._stages = stages
-        self._delays, self._weights = cascade_kernel(stages)
+        delays, self._weights = cascade_kernel(stages)
+        if not np.array_equal(delays, self._delays) or self._tap_rows.shape[1] != delays.size:
+            self._tap_rows = (np.arange(self._capacity)[:, None] - delays[None, :]) % self._capacity
+        self._delays = delays
         return stages
 
     # -- state -----------------------------------------------------------------
@@ -433,10 +438,19 @@ class OatfFilter:
             xv = x  # already one float64 per channel: skip broadcast_to's view machinery
         else:
             xv = np.broadcast_to(np.asarray(x, dtype=float), (self.n_channels,))
-        self._head = (self._head + 1) % self._capacity
-        self._buf[self._head] = xv
-        taps = self._buf[(self._head - self._delays) % self._capacity]
-        return self._weights @ taps
+        head = self._head = (self._head + 1) % self._capacity
+        self._buf[head] = xv
+        return self._weights @ self._buf[self._tap_rows[head]]
+
+    def step_values(self, x: list[float]) -> list[float]:
+        """:meth:`step` on one float per channel, returning floats (the loop's
+        per-tick form): the same delay line, taps and weighted sum (the same
+        numpy product, so the same bits), without the array round trips."""
+        head = self._head = (self._head + 1) % self._capacity
+        buf = self._buf
+        buf[head] = x
+        out: list[float] = (self._weights @ buf[self._tap_rows[head]]).tolist()
+        return out
 
     def process(self, block: npt.ArrayLike) -> FloatArray:
         """Filter a block ``(n_samples, n_channels)`` (or 1-D for one channel) with the current design."""
