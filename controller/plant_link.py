@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import math
-import struct
 import threading
 import time
 from collections import deque
@@ -42,8 +41,6 @@ from protocol.can_map import (
 )
 from protocol.errors import FrameError
 
-_RPDO1: Final = struct.Struct("<2h")
-"""RPDO1 payload: two left-justified INT16 words (protocol.can_map.encode_analog_outputs)."""
 _DAC_SHIFT: Final = can_map.DAC12.shift(16)
 _SYNC_PAYLOADS: Final = [b""] + [can_map.encode_sync(c) for c in range(1, can_map.SYNC_COUNTER_OVERFLOW + 1)]
 """SYNC payload per counter value (1..240), encoded once."""
@@ -242,7 +239,7 @@ class PlantLink:
         12 bits, so ``code << 4`` always fits the INT16 word); returns which
         were clipped."""
         (c0, c1), (s0, s1) = can_map.DAC12_VALUES(volts)
-        self._send(self._rpdo1, _RPDO1.pack(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
+        self._send(self._rpdo1, can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
         counters = self.counters
         counters.rpdos_sent += 1
         counters.outputs_clipped += s0 + s1

@@ -449,3 +449,11 @@ def decode_analog_inputs_16_values(data: bytes | bytearray) -> tuple[int, int, i
     _check_len(data, 8, "TPDO1")
     w0, w1, w2, w3 = _TPDO1_WORDS.unpack(data)
     return w0, w1, w2, w3
+
+
+_RPDO1_WORDS: Final = struct.Struct("<2h")
+
+
+def encode_analog_outputs_values(w0: int, w1: int) -> bytes:
+    """:func:`encode_analog_outputs` of two plain ints (left-justified INT16 words)."""
+    return _pack(_RPDO1_WORDS, "RPDO1", w0, w1)
