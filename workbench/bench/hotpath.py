@@ -8,7 +8,9 @@
   (the CANopen node's ``handle``, as the plant service runs it);
 
 and their parts, so each choice of means can be measured (``ralf-hil bench
---only hotpath``; ``python -m workbench.bench.hotpath`` prints the table).
+--only hotpath``; ``python -m workbench.bench.hotpath`` prints the table;
+``python -m workbench.bench.hotpath --controller-side [SECONDS]`` the
+controller's share of a co-simulated tick in CPU time, :func:`controller_side_cpu`).
 """
 
 from __future__ import annotations
@@ -115,7 +117,82 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
     return results
 
 
+def controller_side_cpu(sim_s: float = 10.0) -> dict[str, float]:
+    """The controller's side of a co-simulated tick in CPU time: one
+    :func:`workbench.cosim.run_cosim`-like run of ``sim_s`` simulated seconds
+    (adaptive OATF), the thread's CPU time less the CPU time spent inside the
+    wire (the plant node's ``handle`` and ``poll`` included) and the DSP port
+    and core, each read with ``time.thread_time`` around those calls only
+    (~4 a tick; half of each wrapper's two clock reads is taken off the
+    controller's share). CPU time, not wall time: on a shared host the wall
+    clock measures the other work as much as this code."""
+    from collections import defaultdict
+
+    from controller.plant_link import PlantLink
+    from controller.service import ControllerService
+    from dsp_service.core import DspCore
+    from service_kit.clock import SimulatedScheduler
+    from workbench.cosim import DirectCanWire, DirectDspPort, settings_for
+
+    cs, ps, ds = settings_for({"oatf_mode": "adaptive", "duration_s": sim_s})
+    scheduler = SimulatedScheduler()
+    app = PlantApplication(ps, clock=scheduler.now)
+    wire = DirectCanWire(CanopenNode(app, node_config(ps)), scheduler)
+    port = DirectDspPort(DspCore(ds))
+    ctrl = ControllerService(cs, None, PlantLink(wire, cs.node_id, clock=scheduler.now), port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type]
+    spent: defaultdict[str, float] = defaultdict(float)
+    calls = [0]
+    clock = time.thread_time
+
+    def timed(obj: Any, name: str, key: str) -> None:
+        fn: Callable[..., Any] = getattr(obj, name)
+
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[key] += clock() - t0
+                calls[0] += 1
+
+        setattr(obj, name, wrapper)
+
+    for name in ("send", "recv"):
+        timed(wire, name, "plant")
+    for name in ("send_batch", "send_config", "download_tf", "send_status"):
+        timed(port, name, "dsp")
+    t0 = clock()
+    try:
+        ticks = max(1, ctrl.run(scheduler.stop).ticks)
+    finally:
+        ctrl.close()
+    total = clock() - t0
+    n = 20000
+    t1 = clock()
+    for _ in range(n):
+        clock()
+    read = (clock() - t1) / n
+    controller = total - spent["plant"] - spent["dsp"] - calls[0] * read
+    return {
+        "ticks": ticks,
+        "cpu_us_per_tick": total / ticks * 1e6,
+        "plant_us_per_tick": spent["plant"] / ticks * 1e6,
+        "dsp_us_per_tick": spent["dsp"] / ticks * 1e6,
+        "controller_us_per_tick": controller / ticks * 1e6,
+    }
+
+
 def main() -> None:
+    import sys
+
+    if len(sys.argv) > 1 and sys.argv[1] == "--controller-side":
+        controller_side_cpu(1.0)  # warm-up: imports, compiled kernels
+        r = controller_side_cpu(float(sys.argv[2]) if len(sys.argv) > 2 else 10.0)
+        print(
+            f"{r['ticks']:.0f} ticks, CPU per tick: {r['cpu_us_per_tick']:.1f} µs = controller {r['controller_us_per_tick']:.1f}"
+            f" + plant node and wire {r['plant_us_per_tick']:.1f} + DSP port and core {r['dsp_us_per_tick']:.1f}"
+        )
+        return
     for name, r in bench_hotpath().items():
         ratio = r["p50_us"] / TARGET_US
         flag = "" if name.startswith(" ") else f"  ({ratio:.2f}x the {TARGET_US:.0f} µs target: {'met' if ratio <= 1.0 else 'not met'})"
