@@ -9,6 +9,8 @@ controlled phi [A.7, A.8].
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,17 +42,35 @@ _TRIANGLES: tuple[tuple[float, float, float, float], ...] = tuple(
     (cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.retracted_length_in, cyl.offset_rad) for cyl in CYLINDERS
 )
 """:meth:`PinTriangle.angle`'s constant sub-expressions, evaluated as it evaluates them."""
+_pow = math.pow
+_arccos = np.arccos
 
 
 def _angle(extension: float, tri: tuple[float, float, float, float]) -> float:
     """:meth:`PinTriangle.angle` on one float, the same IEEE operations in the
-    same order: the square as a numpy float64 power and the arc cosine as the
-    numpy ufunc (which may differ from ``math.acos`` where numpy dispatches a
-    SIMD kernel); the clip as min/max (identical for finite values)."""
+    same order: the square as numpy's float64 power computes it (the C
+    library's ``pow``, which ``math.pow`` calls too; not always ``x * x``)
+    and the arc cosine as the numpy ufunc (which may differ from
+    ``math.acos`` where numpy dispatches a SIMD kernel); the clip as min/max
+    (identical for finite values)."""
     pq2, two_pq, retracted, offset = tri
-    length = np.float64(extension + retracted)
-    cos_gamma = float((pq2 - length**2) / two_pq)
-    return float(np.arccos(min(1.0, max(-1.0, cos_gamma)))) - offset
+    cos_gamma = (pq2 - _pow(extension + retracted, 2.0)) / two_pq
+    return float(_arccos(min(1.0, max(-1.0, cos_gamma)))) - offset
+
+
+def measure_values(w: Sequence[int]) -> tuple[float, ...]:
+    """The engineering values of four TPDO1 words (plain ints) as floats:
+    ``(volts 1-4, extension 1-2, deflection 1-2, theta 1-2, phi 1-2)``
+    (in, rad; [A.7, A.8]). The loop's per-tick form of :func:`measure`,
+    which is built from it."""
+    lsb = WORD16_VOLTS_PER_LSB
+    (vpu0, c0), (vpu1, c1), (vpu2, c2), (vpu3, c3) = _CHANNELS
+    w0, w1, w2, w3 = w
+    v0, v1, v2, v3 = w0 * lsb, w1 * lsb, w2 * lsb, w3 * lsb
+    e0, e1 = v0 / vpu0 + c0, v1 / vpu1 + c1
+    t1 = _angle(e0, _TRIANGLES[0])
+    t2 = _angle(e1, _TRIANGLES[1])
+    return (v0, v1, v2, v3, e0, e1, v2 / vpu2 + c2, v3 / vpu3 + c3, t1, t2, t1 - DELTA_RAD, t2 + DELTA_RAD)
 
 
 def measure(words: npt.ArrayLike) -> Measurement:
@@ -60,15 +80,12 @@ def measure(words: npt.ArrayLike) -> Measurement:
     w = raw.tolist()
     if len(w) != len(_CHANNELS) or raw.ndim != 1:
         raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
-    volts = [x * WORD16_VOLTS_PER_LSB for x in w]
-    values = [v / vpu + centre for v, (vpu, centre) in zip(volts, _CHANNELS, strict=True)]
-    t1 = _angle(values[0], _TRIANGLES[0])
-    t2 = _angle(values[1], _TRIANGLES[1])
+    v0, v1, v2, v3, e0, e1, d0, d1, t1, t2, p1, p2 = measure_values(w)
     return Measurement(
         words=raw,
-        volts=np.array(volts, dtype=np.float64),
-        extension_in=np.array(values[:2], dtype=np.float64),
+        volts=np.array((v0, v1, v2, v3), dtype=np.float64),
+        extension_in=np.array((e0, e1), dtype=np.float64),
         theta_rad=np.array((t1, t2), dtype=np.float64),
-        phi_rad=np.array((t1 - DELTA_RAD, t2 + DELTA_RAD), dtype=np.float64),
-        deflection_in=np.array(values[2:], dtype=np.float64),
+        phi_rad=np.array((p1, p2), dtype=np.float64),
+        deflection_in=np.array((d0, d1), dtype=np.float64),
     )

@@ -16,14 +16,48 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from controller.engineering import Measurement, measure
+from controller.engineering import Measurement, measure_values
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
 from controller.trajectory import SampledTrajectory
-from protocol.can_map import DAC12
+from protocol.can_map import DAC12, DAC12_VALUES
 from protocol.messages import Interrupt
 
 FloatArray = npt.NDArray[np.float64]
+
+ROW_NAMES: tuple[str, ...] = (
+    "t_s",
+    "phi_ref1",
+    "phi_ref2",
+    "phi_shaped1",
+    "phi_shaped2",
+    "phi1",
+    "phi2",
+    "theta1",
+    "theta2",
+    "ext1_in",
+    "ext2_in",
+    "defl1_in",
+    "defl2_in",
+    "ai1_word",
+    "ai2_word",
+    "ai3_word",
+    "ai4_word",
+    "ai1_v",
+    "ai2_v",
+    "ai3_v",
+    "ai4_v",
+    "u1_v",
+    "u2_v",
+    "pi1_v",
+    "pi2_v",
+)
+"""The values of :meth:`ControlLaw.step_row`, in its order (the run record's
+columns from ``t_s`` to ``pi2_v``; ``tick`` and ``oatf_hz`` are not in it)."""
+ROW_VOLTS = ROW_NAMES.index("u1_v")
+"""``row[ROW_VOLTS:ROW_VOLTS + 2]``: the valve voltages after D/A quantization."""
+ROW_DEFLECTIONS = ROW_NAMES.index("defl1_in")
+"""``row[ROW_DEFLECTIONS:ROW_DEFLECTIONS + 2]``: the two link deflections (in)."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +96,10 @@ class ControlLaw:
         self.trajectory = trajectory
         self.setpoints = self.trajectory.joints.phi
         self.lap_ticks = len(self.setpoints)
+        self._setpoint_rows: list[list[float]] = self.setpoints.tolist()
+        self._ts = config.sample_period_s
+        self._outer = config.oatf_location == "outer"
+        self._dac_lsb = DAC12.lsb_v
         self.pi = PIController(PIConfig(sample_period_s=config.sample_period_s))
         self.degraded = False
         self.oatf: OatfFilter | None = None
@@ -84,23 +122,54 @@ class ControlLaw:
         """phi set-points at ``tick``; the closed loop repeats lap after lap."""
         return np.asarray(self.setpoints[tick % self.lap_ticks], dtype=np.float64)
 
+    def _compute(self, tick: int, w: list[int]) -> tuple[list[Any], bool, bool]:
+        """One tick on plain floats: the row of :meth:`step_row` and whether
+        each D/A channel saturated. Engineering values [A.7, A.8], set-point,
+        OATF (§3.3, [3-34]), PI (§4), 12-bit D/A: the same IEEE operations in
+        the same order as the numpy forms (bit for bit their values)."""
+        v0, v1, v2, v3, e0, e1, d0, d1, th1, th2, phi1, phi2 = measure_values(w)
+        ref1, ref2 = self._setpoint_rows[tick % self.lap_ticks]
+        oatf = self.oatf
+        sh1, sh2 = ref1, ref2
+        if oatf is not None and self._outer:
+            sh1, sh2 = oatf.step_values([ref1, ref2])
+        u = self.pi.step_values([sh1 - phi1, sh2 - phi2])
+        if oatf is not None and not self._outer:
+            fs = DAC12.full_scale_v
+            u = [min(max(x, -fs), fs) for x in oatf.step_values(u)]
+        (c0, c1), (s0, s1) = DAC12_VALUES(u)
+        lsb = self._dac_lsb
+        row = [tick * self._ts, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, *w, v0, v1, v2, v3, c0 * lsb, c1 * lsb, u[0], u[1]]
+        return row, s0, s1
+
+    def step_row(self, tick: int, words: list[int]) -> list[Any]:
+        """One tick from the four TPDO1 words (plain ints): the values named
+        by :data:`ROW_NAMES`, as floats (the words as ints). What the loop
+        runs each tick; :meth:`step` is the same computation returned as arrays."""
+        return self._compute(tick, words)[0]
+
     def step(self, tick: int, words: npt.ArrayLike) -> TickOutput:
-        m = measure(words)
-        ref = self.setpoint(tick)
-        shaped = ref
-        if self.oatf is not None and self.config.oatf_location == "outer":
-            shaped = self.oatf.step(ref)
-        u = self.pi.update(shaped, m.phi_rad)
-        if self.oatf is not None and self.config.oatf_location == "inner":
-            u = np.clip(self.oatf.step(u), -DAC12.full_scale_v, DAC12.full_scale_v)
-        q = DAC12.quantize(u)
+        raw = np.asarray(words, dtype=np.int64)
+        w = raw.tolist()
+        if len(w) != 4 or raw.ndim != 1:
+            raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
+        row, s0, s1 = self._compute(tick, w)
+        _, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, _, _, _, _, v0, v1, v2, v3, u1, u2, pi1, pi2 = row
+        m = Measurement(
+            words=raw,
+            volts=np.array((v0, v1, v2, v3), dtype=np.float64),
+            extension_in=np.array((e0, e1), dtype=np.float64),
+            theta_rad=np.array((th1, th2), dtype=np.float64),
+            phi_rad=np.array((phi1, phi2), dtype=np.float64),
+            deflection_in=np.array((d0, d1), dtype=np.float64),
+        )
         return TickOutput(
-            volts=DAC12.to_volts(q.counts),
-            clipped=q.saturated,
+            volts=np.array((u1, u2), dtype=np.float64),
+            clipped=np.array((s0, s1), dtype=np.bool_),
             measurement=m,
-            setpoint_rad=ref,
-            shaped_setpoint_rad=np.asarray(shaped, dtype=np.float64),
-            pi_output_v=np.asarray(u, dtype=np.float64),
+            setpoint_rad=np.array((ref1, ref2), dtype=np.float64),
+            shaped_setpoint_rad=np.array((sh1, sh2), dtype=np.float64),
+            pi_output_v=np.array((pi1, pi2), dtype=np.float64),
         )
 
     def set_degraded(self, degraded: bool) -> None:

@@ -49,6 +49,8 @@ class Monitors:
     @property
     def degraded(self) -> bool:
         """True while a monitor with policy ``degrade`` is firing."""
+        if not self.active:  # the per-tick case: nothing firing
+            return False
         return any(self.policies.get(m) == "degrade" for m in self.active)
 
     def fire(self, monitor: str, detail: str) -> None:

@@ -206,6 +206,13 @@ def cascade_kernel(stages: Sequence[StageDesign]) -> tuple[IntArray, FloatArray]
 
     With no stages the kernel is the identity (delay 0, weight 1).
     """
+    if len(stages) == 1:
+        # One stage (the thesis's runs): its own taps, the zero ones left out,
+        # exactly what the convolution below gives (1.0 * a is a).
+        s = stages[0]
+        n = s.delay_samples
+        taps = [(d, a) for d, a in zip((0, n, 2 * n), s.coefficients, strict=True) if a != 0.0]
+        return np.array([d for d, _ in taps], dtype=np.int64), np.array([a for _, a in taps], dtype=np.float64)
     dense = np.ones(1)
     for s in stages:
         poly = np.zeros(2 * s.delay_samples + 1)
@@ -360,6 +367,9 @@ class OatfFilter:
         self._stages: tuple[StageDesign, ...] = ()
         self._delays: IntArray = np.zeros(1, dtype=np.int64)
         self._weights: FloatArray = np.ones(1)
+        self._tap_rows: IntArray = np.arange(self._capacity, dtype=np.int64)[:, None]
+        """Per head position, the delay-line rows of the taps: ``(head - delays) % capacity``."""
+        self._tap_row_list: list[IntArray] = list(self._tap_rows)
         self.update_modes(frequencies_hz, zetas)
         self.reset(initial)
 
@@ -412,7 +422,11 @@ class OatfFilter:
         """
         stages = self.design(frequencies_hz, zetas)
         self._stages = stages
-        self._delays, self._weights = cascade_kernel(stages)
+        delays, self._weights = cascade_kernel(stages)
+        if delays.shape != self._delays.shape or bool((delays != self._delays).any()):
+            self._tap_rows = (np.arange(self._capacity)[:, None] - delays[None, :]) % self._capacity
+            self._tap_row_list = list(self._tap_rows)
+        self._delays = delays
         return stages
 
     # -- state -----------------------------------------------------------------
@@ -433,10 +447,20 @@ class OatfFilter:
             xv = x  # already one float64 per channel: skip broadcast_to's view machinery
         else:
             xv = np.broadcast_to(np.asarray(x, dtype=float), (self.n_channels,))
-        self._head = (self._head + 1) % self._capacity
-        self._buf[self._head] = xv
-        taps = self._buf[(self._head - self._delays) % self._capacity]
-        return self._weights @ taps
+        head = self._head = (self._head + 1) % self._capacity
+        self._buf[head] = xv
+        return self._weights @ self._buf[self._tap_rows[head]]
+
+    def step_values(self, x: list[float]) -> list[float]:
+        """:meth:`step` on one float per channel, returning floats (the loop's
+        per-tick form): the same delay line, taps and weighted sum (BLAS's
+        matrix-vector product through ``ndarray.dot``, as ``@`` calls it: the
+        same bits), with fewer array round trips."""
+        head = self._head = (self._head + 1) % self._capacity
+        buf = self._buf
+        buf[head] = x
+        out: list[float] = self._weights.dot(buf.take(self._tap_row_list[head], 0)).tolist()
+        return out
 
     def process(self, block: npt.ArrayLike) -> FloatArray:
         """Filter a block ``(n_samples, n_channels)`` (or 1-D for one channel) with the current design."""

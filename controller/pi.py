@@ -45,6 +45,7 @@ The raw sum remains available (``integral_time_scaled=False``) for comparison;
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -133,7 +134,6 @@ class PIController:
 
     def __init__(self, config: PIConfig | None = None) -> None:
         self.config: PIConfig = config or PIConfig()
-        n = self.config.n_joints
         self._kp = self.config.kp_v_per_rad
         self._ki = self.config.ki_v_per_rad
         self._kp_list: list[float] = self._kp.tolist()
@@ -141,17 +141,50 @@ class PIController:
         self._decay = 1.0 - self.config.forgetting_factor
         self._scale = self.config.integral_scale
         self._limit = self.config.output_limit_v
-        self.integral: FloatArray = np.zeros(n)
+        self._threshold = self.config.integrate_threshold_rad
+        self._anti_windup = self.config.anti_windup
+        self._floor = self._limit * (1.0 - 1e-12)
+        self.reset()
+
+    # The last tick's terms, kept per joint as Python floats by the per-tick
+    # step and read as arrays (built on access: the loop itself never needs them).
+    @property
+    def integral(self) -> FloatArray:
         """Windowed error sum ``I`` per joint (rad*s if time-scaled, else rad)."""
-        self.error: FloatArray = np.zeros(n)
-        self.p_term_v: FloatArray = np.zeros(n)
-        self.i_term_v: FloatArray = np.zeros(n)
-        self.output_v: FloatArray = np.zeros(n)
-        self.saturated: BoolArray = np.zeros(n, dtype=bool)
-        self.integrating: BoolArray = np.zeros(n, dtype=bool)
+        return np.array(self._integral, dtype=np.float64)
+
+    def _term(self, k: int, dtype: type) -> npt.NDArray[Any]:
+        return np.array([t[k] for t in self._terms], dtype=dtype)
+
+    @property
+    def error(self) -> FloatArray:
+        return self._term(0, np.float64)
+
+    @property
+    def p_term_v(self) -> FloatArray:
+        return self._term(1, np.float64)
+
+    @property
+    def i_term_v(self) -> FloatArray:
+        return self._term(2, np.float64)
+
+    @property
+    def output_v(self) -> FloatArray:
+        return self._term(3, np.float64)
+
+    @property
+    def saturated(self) -> BoolArray:
+        return self._term(4, np.bool_)
+
+    @property
+    def integrating(self) -> BoolArray:
         """Whether the last tick's error was admitted whole into the sum."""
-        self.windup_limited: BoolArray = np.zeros(n, dtype=bool)
+        return self._term(5, np.bool_)
+
+    @property
+    def windup_limited(self) -> BoolArray:
         """Whether anti-windup cut the last tick's increment (at the D/A limit)."""
+        return self._term(6, np.bool_)
 
     @property
     def n_joints(self) -> int:
@@ -160,14 +193,12 @@ class PIController:
     def reset(self, integral: npt.ArrayLike | None = None) -> None:
         """Clear the integrator (or preset it, e.g. for a bumpless start) and the last-tick terms."""
         n = self.n_joints
-        self.integral = np.zeros(n) if integral is None else np.broadcast_to(np.asarray(integral, float), (n,)).copy()
-        self.error = np.zeros(n)
-        self.p_term_v = np.zeros(n)
-        self.i_term_v = self._ki * self.integral
-        self.output_v = np.zeros(n)
-        self.saturated = np.zeros(n, dtype=bool)
-        self.integrating = np.zeros(n, dtype=bool)
-        self.windup_limited = np.zeros(n, dtype=bool)
+        values = np.zeros(n) if integral is None else np.broadcast_to(np.asarray(integral, float), (n,))
+        self._integral: list[float] = values.tolist()
+        self._terms: list[tuple[float, float, float, float, bool, bool, bool]] = [
+            (0.0, 0.0, i_term, 0.0, False, False, False) for i_term in (self._ki * values).tolist()
+        ]
+        """Per joint, the last tick's (error, P term, I term, output, saturated, integrating, windup-limited)."""
 
     def update(self, setpoint_rad: npt.ArrayLike, measured_rad: npt.ArrayLike) -> FloatArray:
         """One control tick from set-points and measurements (rad); returns volts."""
@@ -181,56 +212,52 @@ class PIController:
         that would carry ``Kp e + Ki I`` past the D/A limit is cut at the
         limit (an increment pulling back from saturation is never cut).
 
-        Computed per joint on plain floats (the same IEEE operations in the
-        same order as :meth:`step_vectorised`, so bit-identical to it, at a
-        fraction of the cost of a dozen numpy calls on 2-vectors).
+        :meth:`step_values` on the errors as floats (the same IEEE operations
+        in the same order as :meth:`step_vectorised`, so bit-identical to it).
         """
         n = self.n_joints
         if type(error_rad) is np.ndarray and error_rad.dtype == np.float64 and error_rad.shape == (n,):
             errors = error_rad.tolist()  # the common case: skip broadcast_to's view machinery
         else:
             errors = np.broadcast_to(np.asarray(error_rad, dtype=float), (n,)).tolist()
-        if not all(math.isfinite(x) for x in errors):
-            raise ValueError(f"non-finite angle error {np.asarray(errors)!r}")
+        return np.array(self.step_values(errors), dtype=np.float64)
+
+    def step_values(self, errors: list[float]) -> list[float]:
+        """:meth:`step` on plain floats, one per joint (the loop's per-tick
+        form, thesis §4): returns the clipped valve voltages as floats. The
+        state is kept as floats too; a dozen numpy calls on 2-vectors cost
+        more than the arithmetic itself."""
+        for x in errors:
+            if not math.isfinite(x):
+                raise ValueError(f"non-finite angle error {np.asarray(errors)!r}")
         kp, ki, limit = self._kp_list, self._ki_list, self._limit
-        decay, scale, threshold = self._decay, self._scale, self.config.integrate_threshold_rad
-        anti_windup = self.config.anti_windup
-        floor = limit * (1.0 - 1e-12)
-        old = self.integral.tolist()
-        integral, p_terms, i_terms, outputs, saturated, integrating, limited_all = [], [], [], [], [], [], []
-        for j in range(n):
-            e = errors[j]
+        decay, scale, threshold = self._decay, self._scale, self._threshold
+        anti_windup, floor = self._anti_windup, self._floor
+        old = self._integral
+        integral: list[float] = []
+        terms = []
+        for j, e in enumerate(errors):
             decayed = decay * old[j]
             p = kp[j] * e
             admit = abs(e) <= threshold
             value = decayed + scale * e if admit else decayed
             limited = False
+            kij = ki[j]
             if anti_windup:
-                if ki[j] > 0.0:
-                    hi, lo = (limit - p) / ki[j], (-limit - p) / ki[j]
+                if kij > 0.0:
+                    hi, lo = (limit - p) / kij, (-limit - p) / kij
                 else:
                     hi, lo = math.inf, -math.inf
                 cut = max(decayed, min(value, hi)) if value > decayed else min(decayed, max(value, lo))
                 limited = cut != value
                 value = cut
-            i_term = ki[j] * value
+            i_term = kij * value
             unclipped = p + i_term
             integral.append(value)
-            p_terms.append(p)
-            i_terms.append(i_term)
-            outputs.append(min(max(unclipped, -limit), limit))
-            saturated.append(abs(unclipped) >= floor)
-            integrating.append(admit and not limited)
-            limited_all.append(limited)
-        self.integral = np.array(integral)
-        self.error = np.array(errors)
-        self.p_term_v = np.array(p_terms)
-        self.i_term_v = np.array(i_terms)
-        self.output_v = np.array(outputs)
-        self.saturated = np.array(saturated, dtype=bool)
-        self.integrating = np.array(integrating, dtype=bool)
-        self.windup_limited = np.array(limited_all, dtype=bool)
-        return self.output_v.copy()
+            terms.append((e, p, i_term, min(max(unclipped, -limit), limit), abs(unclipped) >= floor, admit and not limited, limited))
+        self._integral = integral
+        self._terms = terms
+        return [t[3] for t in terms]
 
     def step_vectorised(self, error_rad: npt.ArrayLike) -> FloatArray:
         """One control tick from the angle errors ``e = r - y`` (rad); returns volts.
@@ -263,13 +290,19 @@ class PIController:
             )
             limited = cut != integral
             integral = cut
-        self.integral = integral
         unclipped = p + self._ki * integral
-        self.error = e
-        self.p_term_v = p
-        self.i_term_v = self._ki * integral
-        self.output_v = np.clip(unclipped, -self._limit, self._limit)
-        self.saturated = np.abs(unclipped) >= self._limit * (1.0 - 1e-12)
-        self.integrating = admit & ~limited
-        self.windup_limited = limited
-        return self.output_v.copy()
+        output = np.clip(unclipped, -self._limit, self._limit)
+        self._integral = integral.tolist()
+        self._terms = list(
+            zip(
+                e.tolist(),
+                p.tolist(),
+                (self._ki * integral).tolist(),
+                output.tolist(),
+                (np.abs(unclipped) >= self._limit * (1.0 - 1e-12)).tolist(),
+                (admit & ~limited).tolist(),
+                limited.tolist(),
+                strict=True,
+            )
+        )
+        return output

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import math
-import struct
 import threading
 import time
 from collections import deque
@@ -42,9 +41,9 @@ from protocol.can_map import (
 )
 from protocol.errors import FrameError
 
-_RPDO1: Final = struct.Struct("<2h")
-"""RPDO1 payload: two left-justified INT16 words (protocol.can_map.encode_analog_outputs)."""
 _DAC_SHIFT: Final = can_map.DAC12.shift(16)
+_SYNC_PAYLOADS: Final = [b""] + [can_map.encode_sync(c) for c in range(1, can_map.SYNC_COUNTER_OVERFLOW + 1)]
+"""SYNC payload per counter value (1..240), encoded once."""
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +123,7 @@ class PlantLink:
     last_heartbeat: float | None = None
     emergencies: deque[can_map.Emergency] = field(default_factory=lambda: deque(maxlen=256))
     """the latest emergencies (all are counted in ``counters.emergencies``)"""
-    _pending_tpdo: npt.NDArray[np.int64] | None = None
+    _pending_tpdo: tuple[int, int, int, int] | None = None
 
     def __post_init__(self) -> None:
         ids = can_map.cob_ids(self.node_id)
@@ -148,9 +147,10 @@ class PlantLink:
         return float(self.clock())  # type: ignore[operator]
 
     def _send(self, arbitration_id: int, data: bytes) -> None:
-        sent = self._sent.get(arbitration_id)
-        if sent is not None and self._echoes:
-            sent.append(bytes(data))
+        if self._echoes:
+            sent = self._sent.get(arbitration_id)
+            if sent is not None:
+                sent.append(bytes(data))
         self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
 
     def _log_limited(self, kind: str, fmt: str, *args: object) -> None:
@@ -179,6 +179,8 @@ class PlantLink:
 
     def take_conflicts(self) -> list[str]:
         """Conflicts seen since the last call (foreign master frames, the plant's conflict EMCYs)."""
+        if not self._conflicts:
+            return []
         out = list(self._conflicts)
         self._conflicts.clear()
         return out
@@ -211,10 +213,10 @@ class PlantLink:
         if self._pending_tpdo is not None:
             self._pending_tpdo = None
             self.counters.stale_tpdos += 1
-        self.sync_counter = can_map.next_sync_counter(self.sync_counter)
-        self._send(can_map.SYNC_COB_ID, can_map.encode_sync(self.sync_counter))
+        counter = self.sync_counter = can_map.next_sync_counter(self.sync_counter)
+        self._send(can_map.SYNC_COB_ID, _SYNC_PAYLOADS[counter])
         self.counters.syncs_sent += 1
-        return self.sync_counter
+        return counter
 
     def skip_sync(self) -> None:
         """Fault injection: advance the SYNC counter without sending the frame."""
@@ -223,36 +225,45 @@ class PlantLink:
     def send_outputs(self, volts: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """RPDO1 with two valve voltages; returns which were clipped to the D/A range."""
         if type(volts) is np.ndarray and volts.dtype == np.float64 and volts.shape == (2,):
-            # The control law's own type: can_map.volts_to_output_frame on plain ints
-            # (the codes are clipped to 12 bits, so code << 4 always fits the INT16 word).
-            q = can_map.DAC12.quantize(volts)
-            c0, c1 = q.counts.tolist()
-            data = _RPDO1.pack(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT)
-            clipped = q.saturated
-            s0, s1 = clipped.tolist()
-            n_clipped = int(s0) + int(s1)
-        else:
-            data, clipped = can_map.volts_to_output_frame(volts)
-            n_clipped = int(np.count_nonzero(clipped))
+            s0, s1 = self.send_output_values(volts.tolist())
+            return np.array((s0, s1), dtype=np.bool_)
+        data, clipped = can_map.volts_to_output_frame(volts)
         self._send(self._rpdo1, data)
         self.counters.rpdos_sent += 1
-        self.counters.outputs_clipped += n_clipped
+        self.counters.outputs_clipped += int(np.count_nonzero(clipped))
         return clipped
+
+    def send_output_values(self, volts: list[float]) -> tuple[bool, bool]:
+        """:meth:`send_outputs` of two plain floats (the loop's per-tick form):
+        can_map.volts_to_output_frame on plain ints (the codes are clipped to
+        12 bits, so ``code << 4`` always fits the INT16 word); returns which
+        were clipped."""
+        (c0, c1), (s0, s1) = can_map.DAC12_VALUES(volts)
+        self._send(self._rpdo1, can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
+        counters = self.counters
+        counters.rpdos_sent += 1
+        counters.outputs_clipped += s0 + s1
+        return s0, s1
 
     def _dispatch(self, msg: can.Message) -> None:
         """Handle one received frame (TPDO kept for the caller, others consumed)."""
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
+        if msg.arbitration_id == self._tpdo1:  # the per-tick frame first (never a master's COB-ID)
+            try:
+                words = can_map.decode_analog_inputs_16_values(msg.data)
+            except (FrameError, ValueError) as exc:
+                self._malformed(msg, exc)
+                return
+            if self._pending_tpdo is not None:
+                self.counters.extra_tpdos += 1
+            self._pending_tpdo = words
+            self.counters.tpdos += 1
+            return
         if self._check_foreign(msg):
             return
         try:
-            if msg.arbitration_id == self._tpdo1:
-                words = can_map.decode_analog_inputs_16(msg.data)
-                if self._pending_tpdo is not None:
-                    self.counters.extra_tpdos += 1
-                self._pending_tpdo = words
-                self.counters.tpdos += 1
-            elif msg.arbitration_id == self._heartbeat:
+            if msg.arbitration_id == self._heartbeat:
                 self.node_state = can_map.decode_heartbeat(msg.data)
                 self.last_heartbeat = self._now()
                 if self.node_state is NmtState.BOOT_UP:
@@ -269,8 +280,11 @@ class PlantLink:
                     self.counters.conflict_emcys += 1
                     self._conflict(f"plant EMCY {emcy.name}: the plant sees a second master")
         except (FrameError, ValueError) as exc:
-            self.counters.malformed += 1
-            self._log_limited(f"malformed:{msg.arbitration_id:x}", "malformed frame 0x%03x from the plant: %s", msg.arbitration_id, exc)
+            self._malformed(msg, exc)
+
+    def _malformed(self, msg: can.Message, exc: Exception) -> None:
+        self.counters.malformed += 1
+        self._log_limited(f"malformed:{msg.arbitration_id:x}", "malformed frame 0x%03x from the plant: %s", msg.arbitration_id, exc)
 
     def _recv(self, timeout: float) -> can.Message | None:
         """One frame, or None; what the bus cannot decode is counted and dropped
@@ -300,8 +314,13 @@ class PlantLink:
             self._dispatch(msg)
             timeout = 0.0
 
-    def wait_tpdo(self, timeout: float) -> npt.NDArray[np.int64] | None:
-        """The TPDO answering the last SYNC, or None after ``timeout`` seconds."""
+    def wait_tpdo(self, timeout: float) -> tuple[int, int, int, int] | None:
+        """The TPDO answering the last SYNC (its four words, plain ints), or
+        None after ``timeout`` seconds."""
+        words = self._pending_tpdo
+        if words is not None:
+            self._pending_tpdo = None
+            return words
         deadline = self._now() + timeout
         while self._pending_tpdo is None:
             remaining = deadline - self._now()

@@ -22,7 +22,7 @@ import os
 import re
 import shutil
 import zipfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,6 +34,8 @@ __all__ = ["RECORD_FORMAT", "RECORD_VERSION", "ChunkedRecord", "ColumnBuffer", "
 
 RECORD_FORMAT = "ralf-hil-run-record"
 RECORD_VERSION = 1
+ROW_BLOCK = 1024
+"""Rows :meth:`ColumnBuffer.append_row` keeps before storing them in the columns at once."""
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 
 
@@ -174,6 +176,9 @@ class ColumnBuffer:
         self._capacity = max(1, int(capacity))
         self._data: dict[str, npt.NDArray[Any]] = {n: np.zeros(self._capacity, dtype=dt) for n, dt in spec.items()}
         self._n = 0
+        self._rows: list[Sequence[Any]] = []
+        """Rows given by :meth:`append_row`, not yet stored in the columns."""
+        self._width = len(self._data)
 
     @property
     def names(self) -> list[str]:
@@ -184,10 +189,40 @@ class ColumnBuffer:
         return self._capacity
 
     def __len__(self) -> int:
-        return self._n
+        return self._n + len(self._rows)
+
+    def append_row(self, values: Sequence[Any]) -> None:
+        """Store one tick given as one scalar per column in the order of
+        :attr:`names` (the loop's per-tick form: no mapping built or matched).
+        The values are stored as :meth:`append` stores them; the sequence is
+        kept until then, so it must not be changed afterwards."""
+        if len(values) != self._width:
+            raise ValueError(f"append_row needs {self._width} values (one per column), got {len(values)}")
+        rows = self._rows
+        rows.append(values)
+        if len(rows) >= ROW_BLOCK:
+            self._settle()
+
+    def _settle(self) -> None:
+        """Store the rows kept by :meth:`append_row` in the columns (one slice
+        assignment per column: each value converted to the column's dtype as a
+        scalar store would)."""
+        rows = self._rows
+        if not rows:
+            return
+        n = len(rows)
+        while self._n + n > self._capacity:
+            self._grow()
+        i = self._n
+        for arr, values in zip(self._data.values(), zip(*rows, strict=True), strict=True):
+            arr[i : i + n] = values
+        self._n = i + n
+        self._rows = []
 
     def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
         """Store one tick: a mapping and/or keywords giving one scalar per column."""
+        if self._rows:
+            self._settle()
         vals = {**row, **values} if row is not None else values
         if vals.keys() != self._data.keys():
             missing = sorted(set(self._data) - set(vals))
@@ -209,17 +244,20 @@ class ColumnBuffer:
 
     def column(self, name: str) -> npt.NDArray[Any]:
         """A read-only view of the filled part of one column."""
+        self._settle()
         view = self._data[name][: self._n]
         view.flags.writeable = False
         return view
 
     def to_columns(self) -> dict[str, npt.NDArray[Any]]:
         """Copies of the filled part of every column (safe to keep after further appends)."""
+        self._settle()
         return {name: arr[: self._n].copy() for name, arr in self._data.items()}
 
     def clear(self) -> None:
         """Forget the rows; keep the allocated capacity."""
         self._n = 0
+        self._rows = []
 
     def save(self, path: str | Path, config: Any = None, metadata: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
         """:func:`save_record` of the filled rows."""
@@ -243,6 +281,9 @@ class RowCounter:
         return self._n
 
     def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
+        self._n += 1
+
+    def append_row(self, values: Sequence[Any]) -> None:
         self._n += 1
 
 
@@ -276,6 +317,12 @@ class ChunkedRecord:
 
     def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
         self._buffer.append(row, **values)
+        if len(self._buffer) >= self._chunk:
+            self.flush()
+
+    def append_row(self, values: Sequence[Any]) -> None:
+        """:meth:`ColumnBuffer.append_row` into the current chunk."""
+        self._buffer.append_row(values)
         if len(self._buffer) >= self._chunk:
             self.flush()
 

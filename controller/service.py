@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import threading
 import time
 from array import array
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,7 +44,7 @@ from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
 from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
 from controller.hop_timing import HopTimer
-from controller.loop import ControlLaw
+from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.monitors import Monitors, MonitorStop
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from controller.record import ChunkedRecord, ColumnBuffer, RowCounter
@@ -75,6 +77,10 @@ dropped); the DSP answers a repeated batch with the interrupt it raised for
 it, or takes it if it never arrived."""
 RESET_RESEND_S = 1.0
 """Start-up: resend the run's reset to the DSP this often until it answers."""
+RATE_WINDOW = 200
+"""Ticks over which the status's loop rate is measured."""
+RECORD_EXTRA: tuple[str, ...] = ("oatf_hz", "irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence")
+"""The run record's columns after the law's row (:data:`controller.loop.ROW_NAMES`); ``tick`` is last."""
 
 
 @dataclass
@@ -198,7 +204,7 @@ class ControllerService:
         """Which real-time measures are in effect for the loop (service_kit.realtime)."""
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.liveliness: list[tuple[float, str, bool]] = []
-        self._last_words = np.zeros(4, dtype=np.int64)
+        self._last_words: tuple[int, ...] = (0, 0, 0, 0)
         self._config_seq = int.from_bytes(os.urandom(4), "little") >> 2
         """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._reset_sent = False
@@ -221,8 +227,14 @@ class ControllerService:
         self._dsp_acked = False
         """The DSP flagged its block full since the last batch went out (it has the batch)."""
         self._last_status = 0.0
-        self._rate_window: list[float] = []
-        columns = {**{name: np.float64 for name in self._record_names()}, "tick": np.int64}
+        self._rate_window: deque[float] = deque(maxlen=RATE_WINDOW)
+        names = self._record_names()
+        if names != [*ROW_NAMES, *RECORD_EXTRA]:
+            raise RuntimeError(f"the record's columns {names} are not the law's row and the service's extras in order")
+        columns = {**{name: np.float64 for name in names}, "tick": np.int64}
+        self._irq_source: Interrupt | None = None
+        self._irq_columns: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, 0.0)
+        """f_id_hz, f_id2_hz, zeta_id, id_confidence of ``_irq_source`` (the latest interrupt)."""
         timing_columns = {"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}
         # RALF_RECORD set: streamed to disk in chunks. Unset: nothing is kept (flat
         # memory), unless the caller reads the columns (keep_record: in-process runs).
@@ -340,8 +352,9 @@ class ControllerService:
             last_miss=self.monitors.last or self.last_miss,
         )
 
-    def _publish_status(self, finished: bool = False) -> None:
-        now = self.stopwatch()
+    def _publish_status(self, finished: bool = False, now: float | None = None) -> None:
+        if now is None:
+            now = self.stopwatch()
         if not finished and now - self._last_status < 0.25:
             return
         rate = 0.0
@@ -438,8 +451,9 @@ class ControllerService:
         self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
-        for kind, message, arrival in self._events.drain(limit=self._events.capacity):
-            self._take_event(kind, message, arrival)
+        if len(self._events):  # nothing queued on almost every tick: no queue.Empty raised and caught
+            for kind, message, arrival in self._events.drain(limit=self._events.capacity):
+                self._take_event(kind, message, arrival)
         if self.faults is not None and not self.lockstep:
             self._held_interrupts.extend(self.faults.interrupts_due())  # type: ignore[arg-type]
             for payload in self.faults.batches_due():
@@ -508,6 +522,8 @@ class ControllerService:
         sent = self.link.in_flight
         if lockstep and sent is not None and self.tick >= sent.due_tick:
             self._wait_for_interrupt(sent.seq)
+        if not self._held_interrupts:
+            return False
         applied = False
         keep: list[Interrupt] = []
         for irq in self._held_interrupts:
@@ -603,39 +619,46 @@ class ControllerService:
         self.timing.stale_ticks += int(stale)
 
     # -- the loop -----------------------------------------------------------------------
-    def _tick(self, words: np.ndarray) -> None:
+    def _tick(self, words: tuple[int, ...]) -> None:
         self._drain_events()
         applied = self._apply_interrupts()
-        out = self.law.step(self.tick, words)
+        tick = self.tick
+        law, link = self.law, self.link
+        row = law.step_row(tick, list(words))
+        volts = row[ROW_VOLTS : ROW_VOLTS + 2]
         if self.faults is None:
-            self.plant.send_outputs(out.volts)
+            self.plant.send_output_values(volts)
         else:
-            for volts in self.faults.rpdo(self.tick, out.volts):
-                self.plant.send_outputs(volts)
-        if self.lockstep and (self._n_ticks is None or self.tick + 1 < self._n_ticks):
+            for faulted in self.faults.rpdo(tick, np.array(volts, dtype=np.float64)):
+                self.plant.send_outputs(faulted)
+        if self.lockstep and (self._n_ticks is None or tick + 1 < self._n_ticks):
             # Lockstep: the next SYNC follows the D/A frame at once (the node takes
             # them in this order, as before), so the plant steps while this tick's
             # bookkeeping runs. Nothing below reaches the plant.
-            self._emit_sync(self.tick + 1)
-            self._sync_sent_for = self.tick + 1
-        self.link.add_sample(self.tick, out.volts, out.measurement.deflection_in)
-        self.tf.on_tick(self.tick, self.link.in_flight is None, self.dsp_alive)
-        self._maybe_send_batch()
-        if self.link.check_deadline(self.tick):
-            self.last_miss = f"batch {self.link.in_flight.seq if self.link.in_flight else '?'}: no interrupt within {self.link.deadline * 1e3:.0f} ms ({self._blame_batch()})"
+            self._emit_sync(tick + 1)
+            self._sync_sent_for = tick + 1
+        # add_sample reads both with np.asarray: lists of floats are what it stores
+        link.add_sample(tick, volts, row[ROW_DEFLECTIONS : ROW_DEFLECTIONS + 2])  # type: ignore[arg-type]
+        self.tf.on_tick(tick, link.in_flight is None, self.dsp_alive)
+        if link.ready():
+            self._maybe_send_batch()
+        if link.in_flight is not None and link.check_deadline(tick):
+            self.last_miss = f"batch {link.in_flight.seq if link.in_flight else '?'}: no interrupt within {link.deadline * 1e3:.0f} ms ({self._blame_batch()})"
             self.monitors.fire("deadline", self.last_miss)
         self._check_stale()
-        self.law.set_degraded(self.monitors.degraded)
-        row = self.law.record_row(self.tick, out)
-        row["irq_applied"] = float(applied)
-        row["stale"] = float(self.stale)
+        law.set_degraded(self.monitors.degraded)
         irq = self.latest_interrupt
-        poles = irq.poles if irq is not None else ()
-        row["f_id_hz"] = poles[0].frequency_hz if poles else float("nan")
-        row["f_id2_hz"] = poles[1].frequency_hz if len(poles) > 1 else float("nan")
-        row["zeta_id"] = poles[0].damping_ratio if poles else float("nan")
-        row["id_confidence"] = irq.confidence if irq is not None else 0.0
-        self.record.append(row)
+        if irq is not self._irq_source:
+            self._irq_source = irq
+            poles = irq.poles if irq is not None else ()
+            self._irq_columns = (
+                poles[0].frequency_hz if poles else math.nan,
+                poles[1].frequency_hz if len(poles) > 1 else math.nan,
+                poles[0].damping_ratio if poles else math.nan,
+                irq.confidence if irq is not None else 0.0,
+            )
+        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale), *self._irq_columns, tick))
+        self.record.append_row(row)
 
     def run(self, stop: threading.Event) -> RunResult:
         """Start the plant node, wait for the DSP, and run until the duration,
@@ -667,57 +690,63 @@ class ControllerService:
             hops = self.hops
             raw, hop_capacity = hops.raw, hops.capacity
             ns = self._stopwatch_ns
+            injection = self.injection
+            tet, timing_record, rate_window = self.tet, self.timing_record, self._rate_window
+            stopwatch, plant = self.stopwatch, self.plant
             while not stop.is_set() and (n_ticks is None or self.tick < n_ticks):
-                stall = self.injection.stall_now(self.tick)
-                if stall:
-                    log.warning("fault injection: the loop stalls for %.2f s", stall)
-                    stop.wait(stall)
-                behind = schedule.periods_behind(self.tick)
-                if behind:
-                    # Hopelessly behind (a stall, or a rate the host cannot hold): those
-                    # sample instants are gone. Skip them (counted) instead of running
-                    # ticks back to back; the DSP sees the gap and restarts its history.
-                    self.tick += behind
-                    self.timing.schedule_resyncs += 1
-                    self.timing.periods_skipped += behind
-                    log.warning("loop %d periods late: schedule re-based, samples skipped", behind)
-                    if n_ticks is not None and self.tick >= n_ticks:
-                        break
-                if not schedule.wait(self.tick):
+                if injection.stall_at_tick is not None:
+                    stall = injection.stall_now(self.tick)
+                    if stall:
+                        log.warning("fault injection: the loop stalls for %.2f s", stall)
+                        stop.wait(stall)
+                if not lockstep:
+                    behind = schedule.periods_behind(self.tick)
+                    if behind:
+                        # Hopelessly behind (a stall, or a rate the host cannot hold): those
+                        # sample instants are gone. Skip them (counted) instead of running
+                        # ticks back to back; the DSP sees the gap and restarts its history.
+                        self.tick += behind
+                        self.timing.schedule_resyncs += 1
+                        self.timing.periods_skipped += behind
+                        log.warning("loop %d periods late: schedule re-based, samples skipped", behind)
+                        if n_ticks is not None and self.tick >= n_ticks:
+                            break
+                tick = self.tick
+                if not schedule.wait(tick):
                     break
-                start = self.clock.now()
-                w_start = self.stopwatch()
+                w_start = stopwatch()
                 sync_ns = ns()
-                if self._sync_sent_for != self.tick:
-                    self._emit_sync(self.tick)
-                wakeup_ns = -1 if lockstep else wakeups.measure(start, schedule.due(self.tick))
+                if self._sync_sent_for != tick:
+                    self._emit_sync(tick)
+                wakeup_ns = -1 if lockstep else wakeups.measure(self.clock.now(), schedule.due(tick))
                 if faults is None:
-                    words = self._lockstep_sample() if lockstep else self.plant.wait_tpdo(TPDO_WINDOW * ts)
+                    words = self._lockstep_sample() if lockstep else plant.wait_tpdo(TPDO_WINDOW * ts)
                 else:
                     words = self._faulted_sample(faults, ts)
                 tpdo_ns = ns()
-                policy.sample(self.tick, words is not None)
                 if words is None:
+                    policy.sample(tick, False)
                     words = self._last_words  # hold the last sample for a missed TPDO
+                else:
+                    policy.missed_in_row = 0  # policy.sample(tick, True)
                 self._last_words = words
                 self._tick(words)
-                w_end = self.stopwatch()
+                w_end = stopwatch()
                 j = (hops.n % hop_capacity) << 2  # per-hop stamps, inline (controller/hop_timing.py)
                 raw[j] = wakeup_ns
                 raw[j + 1] = sync_ns
                 raw[j + 2] = tpdo_ns
                 raw[j + 3] = ns()
                 hops.n += 1
-                self.tet.add(w_end - w_start)
-                self.timing_record.append(tick=self.tick, sync_wall_s=w_start - w0, tet_s=w_end - w_start)
-                overran = schedule.overran(self.tick)
-                policy.after_tick(self.tick, overran, w_end - w_start, hops.blame_tick() if overran else "")
-                self.tick += 1
-                self._rate_window.append(w_end)
-                if len(self._rate_window) > 200:
-                    del self._rate_window[0]
+                tet_s = w_end - w_start
+                tet.add(tet_s)
+                timing_record.append_row((tick, w_start - w0, tet_s))
+                overran = not lockstep and schedule.overran(tick)
+                policy.after_tick(tick, overran, tet_s, hops.blame_tick() if overran else "")
+                self.tick = tick + 1
+                rate_window.append(w_end)
                 policy.check_plant()
-                self._publish_status()
+                self._publish_status(now=w_end)
         except PlantFault as exc:
             error = str(exc)
             log.error("plant fault: %s; valves to zero", error)
@@ -751,6 +780,9 @@ class ControllerService:
 
     def _emit_sync(self, tick: int) -> None:
         """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
+        if self.faults is None and not self.injection.sync_drop_every:
+            self.plant.send_sync()
+            return
         if self.injection.drop_sync(tick):
             self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
             self.timing.syncs_dropped += 1
@@ -764,7 +796,7 @@ class ControllerService:
                 self.clock.wait(delay)
         self.plant.send_sync()
 
-    def _faulted_sample(self, faults: FaultStage, ts: float) -> np.ndarray | None:
+    def _faulted_sample(self, faults: FaultStage, ts: float) -> tuple[int, ...] | None:
         """This tick's TPDO1 through the link faults: None when its SYNC or it was lost."""
         if not faults.expects_tpdo(self.tick):
             if not self.lockstep:
@@ -780,21 +812,26 @@ class ControllerService:
             self.clock.wait(delay)
         return words
 
-    def _lockstep_sample(self) -> np.ndarray:
+    def _lockstep_sample(self) -> tuple[int, ...]:
         """Lockstep: the TPDO for this tick, however long the plant takes. A
         SYNC lost on the bus gets no answer; after ``LOCKSTEP_RETRY_FRACTION``
         of the timeout the SYNC is sent again (the node sees a counter gap and steps once), until
         ``lockstep_timeout_s``."""
-        deadline = self.clock.now() + self.settings.lockstep_timeout_s
+        timeout = self.settings.lockstep_timeout_s
+        deadline = self.clock.now() + timeout
+        # The first wait is the retry interval: (now + timeout) - now >= that fraction of it.
+        words = self.plant.wait_tpdo(LOCKSTEP_RETRY_FRACTION * timeout)
+        if words is not None:
+            return words
         while True:
-            retry = min(LOCKSTEP_RETRY_FRACTION * self.settings.lockstep_timeout_s, max(0.0, deadline - self.clock.now()))
+            if self.clock.now() >= deadline or self.clock.stopping:
+                raise PlantFault(f"plant did not answer SYNC at tick {self.tick} within {timeout:.1f} s")
+            self.timing.sync_retries += 1
+            self.plant.send_sync()
+            retry = min(LOCKSTEP_RETRY_FRACTION * timeout, max(0.0, deadline - self.clock.now()))
             words = self.plant.wait_tpdo(retry)
             if words is not None:
                 return words
-            if self.clock.now() >= deadline or self.clock.stopping:
-                raise PlantFault(f"plant did not answer SYNC at tick {self.tick} within {self.settings.lockstep_timeout_s:.1f} s")
-            self.timing.sync_retries += 1
-            self.plant.send_sync()
 
     def _wait_for_dsp(self, stop: threading.Event, timeout: float) -> None:
         """Tell the DSP a new run starts (sequence numbers from 0, history

@@ -56,7 +56,8 @@ class TickPolicy:
 
     def check_plant(self) -> None:
         """Heartbeat lost or the node out of OPERATIONAL: a plant fault."""
-        if self.plant.heartbeat_age() > self.heartbeat_timeout_s:
-            raise PlantFault(f"plant heartbeat lost for {self.plant.heartbeat_age():.2f} s")
-        if self.plant.node_state not in (None, NmtState.OPERATIONAL):
+        age = self.plant.heartbeat_age()
+        if age > self.heartbeat_timeout_s:
+            raise PlantFault(f"plant heartbeat lost for {age:.2f} s")
+        if self.plant.node_state is not NmtState.OPERATIONAL and self.plant.node_state is not None:
             raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {self.plant.node_state.name})")

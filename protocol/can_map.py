@@ -403,3 +403,57 @@ def decode_emcy(data: bytes | bytearray) -> Emergency:
     _check_len(data, 8, "EMCY")
     code, register, vendor = _EMCY.unpack(bytes(data))
     return Emergency(code=code, register=register, vendor=vendor)
+
+
+# --- per-tick forms on plain numbers (the controller's hot path) ------------------
+
+
+class ValueQuantizer:
+    """:meth:`ConverterScale.quantize` of a few plain floats, its constants
+    read once: the same rule (round half to even, clip to the end codes and
+    flag; NaN flagged, code 0) returning ``(codes, saturated)`` as lists of
+    plain ints and bools, without building arrays."""
+
+    __slots__ = ("_bound", "_cmax", "_cmin", "_lsb")
+
+    def __init__(self, scale: ConverterScale) -> None:
+        self._bound = 2.0 * scale.full_scale_v
+        self._lsb = scale.lsb_v
+        self._cmin = scale.code_min
+        self._cmax = scale.code_max
+
+    def __call__(self, values: list[float]) -> tuple[list[int], list[bool]]:
+        bound, lsb, cmin, cmax = self._bound, self._lsb, self._cmin, self._cmax
+        codes: list[int] = []
+        flags: list[bool] = []
+        for x in values:
+            if x != x:  # NaN
+                codes.append(0)
+                flags.append(True)
+                continue
+            code = round(min(bound, max(-bound, x)) / lsb)
+            flags.append(code < cmin or code > cmax)
+            codes.append(min(cmax, max(cmin, code)))
+        return codes, flags
+
+
+DAC12_VALUES: Final[ValueQuantizer] = ValueQuantizer(DAC12)
+""":data:`DAC12`'s quantization of plain floats (the controller's per-tick D/A)."""
+
+
+_TPDO1_WORDS: Final = struct.Struct("<4h")
+
+
+def decode_analog_inputs_16_values(data: bytes | bytearray) -> tuple[int, int, int, int]:
+    """:func:`decode_analog_inputs_16` as a tuple of plain ints (no array)."""
+    _check_len(data, 8, "TPDO1")
+    w0, w1, w2, w3 = _TPDO1_WORDS.unpack(data)
+    return w0, w1, w2, w3
+
+
+_RPDO1_WORDS: Final = struct.Struct("<2h")
+
+
+def encode_analog_outputs_values(w0: int, w1: int) -> bytes:
+    """:func:`encode_analog_outputs` of two plain ints (left-justified INT16 words)."""
+    return _pack(_RPDO1_WORDS, "RPDO1", w0, w1)

@@ -6,7 +6,7 @@ tick made of many small calls).
 Parts: the plant node (``handle`` and ``poll``, through the wire), the
 wire's own work, the controller's :class:`~controller.plant_link.PlantLink`
 (frame encode/decode, dispatch; the node's time subtracted), the control law
-(``law.step``: engineering, trajectory, OATF, PI, D/A), its record row, the
+(``law.step_row``: engineering, trajectory, OATF, PI, D/A, the record row), the
 DSP port and core, the DSP link, the run record, and what is left: the
 controller service's own per-tick work (``controller/service.py``). The
 wrappers cost ~0.3 µs per call; the parts are inclusive wall times, the
@@ -67,15 +67,14 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
     _wrap(node, "poll", "node", acc)
     _wrap(wire, "send", "wire", acc)
     _wrap(wire, "recv", "wire", acc)
-    for name in ("send_outputs", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
+    for name in ("send_outputs", "send_output_values", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
         _wrap(link, name, "link", acc)
-    _wrap(ctrl.law, "step", "law.step (engineering, trajectory, OATF, PI, D/A)", acc)
-    _wrap(ctrl.law, "record_row", "law.record_row", acc)
+    _wrap(ctrl.law, "step_row", "law.step_row (engineering, trajectory, OATF, PI, D/A)", acc)
     for name in ("send_batch", "send_config", "download_tf", "send_status"):
         _wrap(port, name, "DSP port and core (batch codec, identification)", acc)
     for name in ("add_sample", "take_batch", "check_deadline"):
         _wrap(ctrl.link, name, "DspLink", acc)
-    _wrap(ctrl.record, "append", "run record append", acc)
+    _wrap(ctrl.record, "append_row", "run record append", acc)
     started, cpu = time.perf_counter(), time.process_time()
     try:
         result = ctrl.run(scheduler.stop)

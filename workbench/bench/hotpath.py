@@ -1,12 +1,16 @@
 """Micro-benchmark of the two hot paths of a tick, in this process, no I/O:
 
 * controller tick: TPDO1 decode -> engineering conversion -> trajectory ->
-  OATF -> PI -> D/A quantization -> RPDO1 encode -> batch append -> record row;
+  OATF -> PI -> D/A quantization -> RPDO1 encode -> batch append -> record
+  row appended (the per-tick forms the controller service runs: plain ints
+  and floats, :meth:`ControlLaw.step_row`, :meth:`ColumnBuffer.append_row`);
 * plant step: SYNC frame -> one period of dynamics -> sensors -> A/D -> TPDO1 frame
   (the CANopen node's ``handle``, as the plant service runs it);
 
 and their parts, so each choice of means can be measured (``ralf-hil bench
---only hotpath``; ``python -m workbench.bench.hotpath`` prints the table).
+--only hotpath``; ``python -m workbench.bench.hotpath`` prints the table;
+``python -m workbench.bench.hotpath --controller-side [SECONDS]`` the
+controller's share of a co-simulated tick in CPU time, :func:`controller_side_cpu`).
 """
 
 from __future__ import annotations
@@ -20,9 +24,10 @@ import numpy as np
 
 from controller.config import build_trajectory, law_config
 from controller.dsp_link import DspLink
-from controller.engineering import measure
-from controller.loop import ControlLaw
+from controller.engineering import measure, measure_values
+from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.record import ColumnBuffer
+from controller.service import RECORD_EXTRA
 from plant_emulator.node import CanopenNode
 from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
@@ -50,9 +55,8 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
     cs = ControllerSettings(oatf_mode=oatf_mode, duration_s=3600.0, can_interface="virtual")
     law = ControlLaw(law_config(cs), build_trajectory(cs))
     link = DspLink(sample_rate_hz=cs.sample_rate_hz, batch_size=cs.batch_size)
-    probe = law.record_row(0, law.step(0, np.zeros(4)))
-    record = ColumnBuffer({name: (np.int64 if name == "tick" else np.float64) for name in probe}, capacity=4096)
-    law.pi.reset()
+    names = [*ROW_NAMES, *RECORD_EXTRA, "tick"]  # the controller service's run record
+    record = ColumnBuffer({name: (np.int64 if name == "tick" else np.float64) for name in names}, capacity=4096)
     ps = PlantSettings(clock="lockstep", can_interface="virtual")
     app = PlantApplication(ps)
     node = CanopenNode(app, node_config(ps))
@@ -67,39 +71,128 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
     frames = node.handle(sync_frame(), 0.0)
     tpdo = next(f for f in frames if f.arbitration_id == ids["tpdo1"])
     words = can_map.decode_analog_inputs_16(tpdo.data)
+    word_list = list(can_map.decode_analog_inputs_16_values(tpdo.data))
+    shift = can_map.DAC12.shift(16)
 
     def controller_tick(i: int) -> None:
-        w = can_map.decode_analog_inputs_16(tpdo.data)
-        out = law.step(i, w)
-        can_map.volts_to_output_frame(out.volts)
-        link.add_sample(i, out.volts, out.measurement.deflection_in)
+        w = can_map.decode_analog_inputs_16_values(tpdo.data)
+        row = law.step_row(i, list(w))
+        volts = row[ROW_VOLTS : ROW_VOLTS + 2]
+        (c0, c1), _ = can_map.DAC12_VALUES(volts)
+        can_map.encode_analog_outputs_values(c0 << shift, c1 << shift)
+        link.add_sample(i, volts, row[ROW_DEFLECTIONS : ROW_DEFLECTIONS + 2])  # type: ignore[arg-type]
         if link.pending >= 4096:
             link._pending.clear()  # noqa: SLF001 - keep the FIFO bounded without sending
             link._pending_ticks.clear()  # noqa: SLF001
-        record.append(law.record_row(i, out))
+        row.extend((law.oatf_frequency_hz, 0.0, 0.0, float("nan"), float("nan"), float("nan"), 0.0, i))
+        record.append_row(row)
+        if len(record) >= 4096:
+            record.clear()
 
     def plant_step(i: int) -> None:
         node.handle(sync_frame(), i * ps.sample_period_s)
 
     out = law.step(0, words)
+    errors = (out.setpoint_rad - out.measurement.phi_rad).tolist()
     results = {
         "controller tick": _timed(controller_tick, n, warmup),
         "plant step (SYNC -> TPDO1)": _timed(plant_step, n, warmup),
         "  tpdo decode": _timed(lambda i: can_map.decode_analog_inputs_16(tpdo.data), n, warmup),
-        "  engineering (measure)": _timed(lambda i: measure(words), n, warmup),
-        "  law.step (measure+trajectory+OATF+PI+D/A)": _timed(lambda i: law.step(i, words), n, warmup),
-        "  PI update": _timed(lambda i: law.pi.update(out.setpoint_rad, out.measurement.phi_rad), n, warmup),
+        "  tpdo decode (ints)": _timed(lambda i: can_map.decode_analog_inputs_16_values(tpdo.data), n, warmup),
+        "  engineering (measure, arrays)": _timed(lambda i: measure(words), n, warmup),
+        "  engineering (measure_values)": _timed(lambda i: measure_values(word_list), n, warmup),
+        "  law.step (arrays: measure+trajectory+OATF+PI+D/A)": _timed(lambda i: law.step(i, words), n, warmup),
+        "  law.step_row (floats: the same)": _timed(lambda i: law.step_row(i, word_list), n, warmup),
+        "  PI update (arrays)": _timed(lambda i: law.pi.update(out.setpoint_rad, out.measurement.phi_rad), n, warmup),
+        "  PI step_values (floats)": _timed(lambda i: law.pi.step_values(errors), n, warmup),
         "  rpdo encode": _timed(lambda i: can_map.volts_to_output_frame(out.volts), n, warmup),
-        "  record row": _timed(lambda i: law.record_row(i, out), n, warmup),
+        "  record row (dict from arrays)": _timed(lambda i: law.record_row(i, out), n, warmup),
         "  arm.advance(Ts)": _timed(lambda i: app.arm.advance(ps.sample_period_s), n, warmup),
         "  arm.sample (sensors, A/D)": _timed(lambda i: app.arm.sample(), n, warmup),
     }
     if law.oatf is not None:
-        results["  OATF step"] = _timed(lambda i: law.oatf.step(out.setpoint_rad), n, warmup)  # type: ignore[union-attr]
+        results["  OATF step (arrays)"] = _timed(lambda i: law.oatf.step(out.setpoint_rad), n, warmup)  # type: ignore[union-attr]
+        setpoint = out.setpoint_rad.tolist()
+        results["  OATF step_values (floats)"] = _timed(lambda i: law.oatf.step_values(setpoint), n, warmup)  # type: ignore[union-attr]
     return results
 
 
+def controller_side_cpu(sim_s: float = 10.0) -> dict[str, float]:
+    """The controller's side of a co-simulated tick in CPU time: one
+    :func:`workbench.cosim.run_cosim`-like run of ``sim_s`` simulated seconds
+    (adaptive OATF), the thread's CPU time less the CPU time spent inside the
+    wire (the plant node's ``handle`` and ``poll`` included) and the DSP port
+    and core, each read with ``time.thread_time`` around those calls only
+    (~4 a tick; half of each wrapper's two clock reads is taken off the
+    controller's share). CPU time, not wall time: on a shared host the wall
+    clock measures the other work as much as this code."""
+    from collections import defaultdict
+
+    from controller.plant_link import PlantLink
+    from controller.service import ControllerService
+    from dsp_service.core import DspCore
+    from service_kit.clock import SimulatedScheduler
+    from workbench.cosim import DirectCanWire, DirectDspPort, settings_for
+
+    cs, ps, ds = settings_for({"oatf_mode": "adaptive", "duration_s": sim_s})
+    scheduler = SimulatedScheduler()
+    app = PlantApplication(ps, clock=scheduler.now)
+    wire = DirectCanWire(CanopenNode(app, node_config(ps)), scheduler)
+    port = DirectDspPort(DspCore(ds))
+    ctrl = ControllerService(cs, None, PlantLink(wire, cs.node_id, clock=scheduler.now), port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type]
+    spent: defaultdict[str, float] = defaultdict(float)
+    calls = [0]
+    clock = time.thread_time
+
+    def timed(obj: Any, name: str, key: str) -> None:
+        fn: Callable[..., Any] = getattr(obj, name)
+
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[key] += clock() - t0
+                calls[0] += 1
+
+        setattr(obj, name, wrapper)
+
+    for name in ("send", "recv"):
+        timed(wire, name, "plant")
+    for name in ("send_batch", "send_config", "download_tf", "send_status"):
+        timed(port, name, "dsp")
+    t0 = clock()
+    try:
+        ticks = max(1, ctrl.run(scheduler.stop).ticks)
+    finally:
+        ctrl.close()
+    total = clock() - t0
+    n = 20000
+    t1 = clock()
+    for _ in range(n):
+        clock()
+    read = (clock() - t1) / n
+    controller = total - spent["plant"] - spent["dsp"] - calls[0] * read
+    return {
+        "ticks": ticks,
+        "cpu_us_per_tick": total / ticks * 1e6,
+        "plant_us_per_tick": spent["plant"] / ticks * 1e6,
+        "dsp_us_per_tick": spent["dsp"] / ticks * 1e6,
+        "controller_us_per_tick": controller / ticks * 1e6,
+    }
+
+
 def main() -> None:
+    import sys
+
+    if len(sys.argv) > 1 and sys.argv[1] == "--controller-side":
+        controller_side_cpu(1.0)  # warm-up: imports, compiled kernels
+        r = controller_side_cpu(float(sys.argv[2]) if len(sys.argv) > 2 else 10.0)
+        print(
+            f"{r['ticks']:.0f} ticks, CPU per tick: {r['cpu_us_per_tick']:.1f} µs = controller {r['controller_us_per_tick']:.1f}"
+            f" + plant node and wire {r['plant_us_per_tick']:.1f} + DSP port and core {r['dsp_us_per_tick']:.1f}"
+        )
+        return
     for name, r in bench_hotpath().items():
         ratio = r["p50_us"] / TARGET_US
         flag = "" if name.startswith(" ") else f"  ({ratio:.2f}x the {TARGET_US:.0f} µs target: {'met' if ratio <= 1.0 else 'not met'})"

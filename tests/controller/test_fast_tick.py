@@ -1,0 +1,211 @@
+"""The controller's per-tick forms on plain numbers equal the array forms bit
+for bit: the law's row (engineering [A.7, A.8], OATF [3-34], PI, 12-bit D/A)
+against a reference assembled from the numpy APIs (``PinTriangle.angle``,
+``AnalogChannel.from_volts``, ``OatfFilter.step``, ``PIController.step_vectorised``,
+``ConverterScale.quantize`` on arrays); the record's row append against the
+mapping append; the TPDO1/RPDO1 codecs and the D/A quantizer against
+``protocol.can_map``'s array codecs."""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import numpy as np
+import pytest
+
+from controller.config import build_trajectory, law_config
+from controller.engineering import measure, measure_values
+from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
+from controller.oatf import OatfConfig, OatfFilter, StageDesign, cascade_kernel, design_stage
+from controller.pi import PIController
+from controller.record import ROW_BLOCK, ChunkedRecord, ColumnBuffer, RowCounter
+from protocol import can_map, geometry
+from protocol.settings import ControllerSettings
+from protocol.signals import ANALOG_INPUTS
+
+
+def _bits(values: list[Any]) -> list[Any]:
+    """Values compared by their IEEE bits (NaN equal to itself, -0.0 not 0.0)."""
+    return [struct.pack("<d", v) if isinstance(v, float) else v for v in values]
+
+
+def _reference_measure(w: list[int]) -> tuple[float, ...]:
+    volts = [x * can_map.WORD16_VOLTS_PER_LSB for x in w]
+    values = [float(ch.from_volts(v)) for ch, v in zip(ANALOG_INPUTS, volts, strict=True)]
+    t1, t2 = (float(c.angle(values[i])) for i, c in enumerate(geometry.CYLINDERS))
+    p1, p2 = (float(p) for p in geometry.theta_to_phi(t1, t2))
+    return (*volts, values[0], values[1], values[2], values[3], t1, t2, p1, p2)
+
+
+def test_measure_values_is_the_array_reference() -> None:
+    rng = np.random.default_rng(3)
+    words = rng.integers(-32768, 32768, size=(4000, 4)).tolist() + [[-32768] * 4, [32767] * 4, [0] * 4]
+    for w in words:
+        assert _bits(list(measure_values(w))) == _bits(list(_reference_measure(w)))
+        m = measure(np.array(w))
+        v = measure_values(w)
+        assert m.volts.tolist() == list(v[:4]) and m.theta_rad.tolist() == list(v[8:10]) and m.phi_rad.tolist() == list(v[10:12])
+
+
+class _ReferenceLaw:
+    """The law as the array forms compute it (thesis §4: set-point -> OATF -> PI -> OATF -> D/A)."""
+
+    def __init__(self, law: ControlLaw) -> None:
+        self.law = law
+        cfg = law.config
+        self.pi = PIController(law.pi.config)
+        self.oatf = None
+        if law.oatf is not None:
+            self.oatf = OatfFilter([cfg.oatf_frequency_hz], n_channels=2, config=cfg.oatf, initial=law.setpoints[0] if cfg.oatf_location == "outer" else 0.0)
+
+    def row(self, tick: int, w: list[int]) -> list[Any]:
+        v0, v1, v2, v3, e0, e1, d0, d1, t1, t2, p1, p2 = _reference_measure(w)
+        ref = np.asarray(self.law.setpoints[tick % self.law.lap_ticks], dtype=np.float64)
+        shaped = ref
+        outer = self.law.config.oatf_location == "outer"
+        if self.oatf is not None and outer:
+            shaped = self.oatf.step(ref)
+        u = self.pi.step_vectorised(np.asarray(shaped) - np.array([p1, p2]))
+        if self.oatf is not None and not outer:
+            u = np.clip(self.oatf.step(u), -can_map.DAC12.full_scale_v, can_map.DAC12.full_scale_v)
+        q = can_map.DAC12.quantize(np.concatenate([u, np.zeros(8)]))  # > 8 values: numpy's own path
+        volts = can_map.DAC12.to_volts(q.counts[:2])
+        return [
+            tick * self.law.config.sample_period_s,
+            *ref.tolist(),
+            *np.asarray(shaped).tolist(),
+            p1,
+            p2,
+            t1,
+            t2,
+            e0,
+            e1,
+            d0,
+            d1,
+            *w,
+            v0,
+            v1,
+            v2,
+            v3,
+            *volts.tolist(),
+            *u.tolist(),
+        ]
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"oatf_mode": "adaptive"},
+        {"oatf_mode": "fixed", "oatf_location": "inner"},
+        {"oatf_mode": "off"},
+        {"oatf_mode": "adaptive", "oatf_max_stages": 3},
+    ],
+)
+def test_step_row_is_the_array_reference(settings: dict[str, Any]) -> None:
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", **settings)
+    law = ControlLaw(law_config(cs), build_trajectory(cs))
+    ref = _ReferenceLaw(law)
+    rng = np.random.default_rng(7)
+    centre = [int(x) for x in can_map.decode_analog_inputs_16(can_map.encode_analog_inputs_16([9000, 9000, 0, 0]))]
+    for tick in range(600):
+        w = [int(c + d) for c, d in zip(centre, rng.integers(-3000, 3000, size=4), strict=True)]
+        if tick == 300 and law.oatf is not None:  # a redesign mid-run (two stages where allowed)
+            freqs = [3.1, 7.7][: law.oatf.config.max_stages]
+            law.oatf.update_modes(freqs)
+            assert ref.oatf is not None
+            ref.oatf.update_modes(freqs)
+        row = law.step_row(tick, w)
+        assert len(row) == len(ROW_NAMES)
+        assert _bits(row) == _bits(ref.row(tick, w)), tick
+        assert row[ROW_VOLTS : ROW_VOLTS + 2] == row[ROW_NAMES.index("u1_v") : ROW_NAMES.index("u2_v") + 1]
+        assert row[ROW_DEFLECTIONS] == row[ROW_NAMES.index("defl1_in")]
+
+
+def test_step_and_record_row_are_built_from_step_row() -> None:
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="adaptive")
+    a = ControlLaw(law_config(cs), build_trajectory(cs))
+    b = ControlLaw(law_config(cs), build_trajectory(cs))
+    for tick in range(50):
+        w = [9000 + tick, 8000 - tick, 100, -100]
+        rec = a.record_row(tick, a.step(tick, np.array(w)))
+        row = b.step_row(tick, w)
+        assert [rec[name] for name in ROW_NAMES] == row and rec["tick"] == tick
+
+
+def test_oatf_step_values_equals_step_for_every_cascade() -> None:
+    rng = np.random.default_rng(5)
+    for freqs in ([4.4], [3.0, 9.5], [2.5, 6.0, 11.0]):
+        cfg = OatfConfig(max_stages=len(freqs))
+        a = OatfFilter(freqs, n_channels=2, config=cfg, initial=0.3)
+        b = OatfFilter(freqs, n_channels=2, config=cfg, initial=0.3)
+        for k in range(1000):
+            x = rng.normal(size=2)
+            assert a.step(x).tolist() == b.step_values(x.tolist())
+            if k == 500:
+                a.update_modes([f * 1.1 for f in freqs])
+                b.update_modes([f * 1.1 for f in freqs])
+
+
+def test_one_stage_kernel_is_the_convolution() -> None:
+    for f in (1.5, 4.4, 9.9, 19.0):
+        stage = design_stage(f, 0.09, 0.005)
+        delays, weights = cascade_kernel([stage])
+        n = stage.delay_samples
+        poly = np.zeros(2 * n + 1)
+        poly[[0, n, 2 * n]] = stage.coefficients
+        dense = np.convolve(np.ones(1), poly)
+        assert delays.tolist() == np.flatnonzero(dense).tolist() and weights.tolist() == dense[np.flatnonzero(dense)].tolist()
+    zero_middle = StageDesign(4.0, 0.0, 3, 0.005, (0.5, 0.0, 0.5))
+    delays, weights = cascade_kernel([zero_middle])
+    assert delays.tolist() == [0, 6] and weights.tolist() == [0.5, 0.5]
+
+
+def test_quantizer_and_codecs_match_the_array_forms() -> None:
+    rng = np.random.default_rng(11)
+    values = rng.normal(scale=12.0, size=20000).tolist() + [math.nan, math.inf, -math.inf, 10.0, -10.0, 1e300, -0.0]
+    values += [k * can_map.DAC12.lsb_v + 0.5 * can_map.DAC12.lsb_v for k in range(-2100, 2100, 7)]  # halves: round to even
+    codes, flags = can_map.DAC12_VALUES(values)
+    q = can_map.DAC12.quantize(np.array(values))
+    assert codes == q.counts.tolist() and flags == q.saturated.tolist()
+    for _ in range(500):
+        words = rng.integers(-32768, 32768, size=4).tolist()
+        data = can_map.encode_analog_inputs_16(words)
+        assert list(can_map.decode_analog_inputs_16_values(data)) == can_map.decode_analog_inputs_16(data).tolist()
+        w0, w1 = (int(x) for x in rng.integers(-32768, 32768, size=2))
+        assert can_map.encode_analog_outputs_values(w0, w1) == can_map.encode_analog_outputs([w0, w1])
+    with pytest.raises(can_map.FrameError):
+        can_map.decode_analog_inputs_16_values(b"\x00" * 7)
+    with pytest.raises(ValueError):
+        can_map.encode_analog_outputs_values(40000, 0)
+
+
+def test_append_row_stores_what_append_stores(tmp_path: Any) -> None:
+    columns = {"a": np.float64, "b": np.float64, "flag": np.bool_, "tick": np.int64}
+    by_row, by_map = ColumnBuffer(columns, capacity=16), ColumnBuffer(columns, capacity=16)
+    chunked = ChunkedRecord(tmp_path / "r", columns, chunk_rows=700)
+    counter = RowCounter(columns)
+    rng = np.random.default_rng(2)
+    n = 3 * ROW_BLOCK + 17
+    for i in range(n):
+        row = [float(rng.normal()), math.nan if i % 97 == 0 else i * 0.5, i % 3 == 0, i]
+        if i == ROW_BLOCK + 5:
+            by_row.append(dict(zip(columns, row, strict=True)))  # a mapping between rows keeps the order
+        else:
+            by_row.append_row(row)
+        by_map.append(dict(zip(columns, row, strict=True)))
+        chunked.append_row(row)
+        counter.append_row(row)
+        if i == 100:
+            assert len(by_row) == 101 and by_row.column("tick").tolist() == list(range(101))
+    assert len(by_row) == len(by_map) == len(chunked) == len(counter) == n
+    got, want, streamed = by_row.to_columns(), by_map.to_columns(), chunked.to_columns()
+    for name in columns:
+        assert got[name].dtype == want[name].dtype == streamed[name].dtype
+        assert got[name].tobytes() == want[name].tobytes() == streamed[name].tobytes()
+    chunked.close()
+    with pytest.raises(ValueError, match="one per column"):
+        by_row.append_row([1.0, 2.0])
+    by_row.clear()
+    assert len(by_row) == 0
