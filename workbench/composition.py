@@ -10,6 +10,7 @@ import json
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +24,35 @@ from plant_emulator.service import serve as serve_plant
 from protocol.keys import Keys
 from protocol.messages import Health, decode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+
+
+@dataclass
+class TickAction:
+    """The controller's injection stage with one action added: ``action`` runs
+    in the loop's thread before tick ``tick``, once (lockstep: the rig waits
+    for it, so what it sends is in from that tick on, however loaded the host).
+    The settings' own injections (``inject_stall_*``, SYNC drops) still apply."""
+
+    base: Any
+    tick: int
+    action: Callable[[], None]
+    done: bool = False
+
+    @property
+    def stall_at_tick(self) -> int:
+        return self.tick if not self.done else (self.base.stall_at_tick if self.base.stall_at_tick is not None else -1)
+
+    def stall_now(self, tick: int) -> float:
+        if not self.done and tick >= self.tick:
+            self.done = True
+            self.action()
+        return float(self.base.stall_now(tick))
+
+    def drop_sync(self, tick: int) -> bool:
+        return bool(self.base.drop_sync(tick))
+
+    def __getattr__(self, name: str) -> Any:  # the base's other knobs (sync_drop_every, stall_s)
+        return getattr(self.base, name)
 
 
 @dataclass
@@ -52,9 +82,14 @@ def run_in_process(
     dsp: dict[str, Any] | None = None,
     common: dict[str, Any] | None = None,
     session: zenoh.Session | None = None,
+    at_tick: tuple[int, Callable[[], None]] | None = None,
 ) -> InProcessRun:
     """Run one rig to the controller's end (``duration_s`` or ``repeats``
-    must be set) in lockstep unless ``common`` says otherwise."""
+    must be set) in lockstep unless ``common`` says otherwise.
+
+    ``at_tick = (n, action)``: ``action()`` runs in the controller's loop
+    before tick ``n`` (:class:`TickAction`): a command or an attack that
+    lands at a known tick, not at a wall-clock moment."""
     channel = f"ralf-{uuid.uuid4().hex[:8]}"
     base = {"clock": "lockstep", "can_interface": "virtual", "can_channel": channel, "rig_id": f"local-{channel[5:]}", **(common or {})}
     cs = ControllerSettings(**{**base, **(controller or {})})
@@ -80,6 +115,8 @@ def run_in_process(
         threading.Thread(target=dsp_service.run, args=(stop,), name="dsp", daemon=True),
     ]
     ctrl = ControllerService(cs, sess, PlantLink(ctrl_bus, cs.node_id), keep_record=True)  # callers read controller.record
+    if at_tick is not None:
+        ctrl.injection = TickAction(ctrl.injection, *at_tick)  # type: ignore[assignment]
     started = time.monotonic()
     try:
         for t in threads:

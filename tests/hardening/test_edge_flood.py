@@ -6,7 +6,6 @@ undisturbed run's, so nothing of them reached the control."""
 from __future__ import annotations
 
 import json
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -40,21 +39,20 @@ def _run(tmp: Path, name: str, attack: bool) -> tuple[dict[str, int], Path]:
         for payload in forged:
             session.put(keys.interrupt, payload)
 
-    timer = threading.Timer(0.5, attack_now) if attack else None
     try:
-        if timer:
-            timer.start()
+        # The attack runs in the loop before tick 100 (same session: each put is delivered
+        # before it returns); the plant's watchdog is given room for the loop's pause.
         run = run_in_process(
             controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"},
+            plant={"watchdog_periods": 10000},
             dsp={"fft_width": 256},
             common={"rig_id": rig_id},
             session=session,
+            at_tick=(100, attack_now) if attack else None,
         )
         run.controller.save(str(record), run.result)
         assert run.result.counters["sync_retries"] == 0
     finally:
-        if timer:
-            timer.join()
         session.close()
     return run.result.counters, record
 

@@ -20,15 +20,15 @@ def test_batch_size_and_fft_width_change_while_running() -> None:
     config.insert_json5("listen/endpoints", json.dumps([]))
     session = zenoh.open(config)
     rig_id = "reconf-test"
-    timer = threading.Timer(
-        1.0,
-        lambda: session.put(Keys(rig_id).controller_command, encode(ConfigChange(seq=0, sim_time_s=0.0, batch_size=40, fft_width=256))),
-    )
-    try:
-        timer.start()
-        run = run_in_process(controller={"duration_s": 12.0, "tf_download_samples": 0}, common={"rig_id": rig_id}, session=session)
+    command = encode(ConfigChange(seq=0, sim_time_s=0.0, batch_size=40, fft_width=256))
+    try:  # sent in the loop before tick 200 (same session: delivered before the put returns)
+        run = run_in_process(
+            controller={"duration_s": 12.0, "tf_download_samples": 0},
+            common={"rig_id": rig_id},
+            session=session,
+            at_tick=(200, lambda: session.put(Keys(rig_id).controller_command, command)),
+        )
     finally:
-        timer.cancel()
         session.close()
     assert run.result.counters["reconfigurations"] == 1
     assert run.controller.link.batch_size == 40
@@ -51,12 +51,27 @@ def test_reconfigure_tool_gets_the_dsp_acknowledgement_or_its_refusal() -> None:
     def tool() -> None:
         acks.append(wait_for_ack(session, Keys(rig_id), ConfigChange(seq=0, sim_time_s=0.0, fft_width=256, request_id="t1"), 8.0))
 
-    timer = threading.Timer(1.0, tool)
+    sent = threading.Event()
+    seen = session.declare_subscriber(Keys(rig_id).controller_command, lambda _sample: sent.set())
+    thread = threading.Thread(target=tool, name="reconfigure-tool")
+
+    def start_tool() -> None:
+        """Before tick 200: the tool starts and the loop waits until its command is in."""
+        thread.start()
+        assert sent.wait(30.0), "the tool sent nothing"
+
     try:
-        timer.start()
-        run_in_process(controller={"duration_s": 12.0, "tf_download_samples": 0}, dsp={"search_max_hz": 40.0}, common={"rig_id": rig_id}, session=session)
+        run_in_process(
+            controller={"duration_s": 12.0, "tf_download_samples": 0},
+            dsp={"search_max_hz": 40.0},
+            common={"rig_id": rig_id},
+            session=session,
+            at_tick=(200, start_tool),
+        )
     finally:
-        timer.join()
+        if thread.is_alive() or thread.ident is not None:
+            thread.join(30.0)
+        seen.undeclare()
         session.close()
     (ok,) = acks
     assert ok is not None and ok.accepted and ok.request_id == "t1" and ok.fft_width == 256  # type: ignore[attr-defined]
