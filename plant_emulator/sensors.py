@@ -46,7 +46,7 @@ analog std above.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -66,22 +66,73 @@ _MAPS: tuple[tuple[float, float], ...] = tuple((float(v), float(c)) for v, c in 
 """Normal deviates drawn at a time for the per-step deflection noise."""
 
 
-@dataclass(frozen=True)
 class SensorReading:
-    """One A/D conversion of the four analog inputs (TPDO1 order)."""
+    """One A/D conversion of the four analog inputs (TPDO1 order).
 
-    time_s: float
-    codes: npt.NDArray[np.int64]
-    """Converter codes, ``-2**(bits-1) .. 2**(bits-1)-1``."""
-    saturated: npt.NDArray[np.bool_]
-    """Channels clipped at full scale."""
-    volts: npt.NDArray[np.float64]
-    """The quantized voltages, ``codes * LSB``: what a receiver reconstructs."""
-    analog_volts: npt.NDArray[np.float64]
-    """The voltages at the converter's input (noise included, before rounding)."""
-    values_in: npt.NDArray[np.float64]
-    """``volts`` in engineering units (in): extensions 1-2, deflections 1-2."""
-    bits: int
+    Built from plain floats and ints (what a tick needs: ``code_list`` and
+    ``saturated_list``, the node packs them into TPDO1); the arrays below are
+    made from them when first read, and kept."""
+
+    __slots__ = ("time_s", "bits", "code_list", "saturated_list", "_analog", "_lsb", "_arrays")
+
+    def __init__(self, time_s: float, code_list: list[int], saturated_list: list[bool], analog_volts: list[float], lsb_v: float, bits: int) -> None:
+        self.time_s = time_s
+        self.bits = bits
+        self.code_list = code_list
+        """Converter codes as ints, ``-2**(bits-1) .. 2**(bits-1)-1``."""
+        self.saturated_list = saturated_list
+        """Channels clipped at full scale, as bools."""
+        self._analog = analog_volts
+        self._lsb = lsb_v
+        self._arrays: dict[str, npt.NDArray[Any]] = {}
+
+    def _array(self, name: str) -> npt.NDArray[Any]:
+        a = self._arrays.get(name)
+        if a is None:
+            if name == "codes":
+                a = np.array(self.code_list, dtype=np.int64)
+            elif name == "saturated":
+                a = np.array(self.saturated_list, dtype=np.bool_)
+            elif name == "volts":
+                a = np.array(self._volts(), dtype=np.float64)
+            elif name == "analog_volts":
+                a = np.array(self._analog, dtype=np.float64)
+            else:
+                a = np.array([v / vpu + centre for v, (vpu, centre) in zip(self._volts(), _MAPS, strict=True)], dtype=np.float64)
+            self._arrays[name] = a
+        return a
+
+    def _volts(self) -> list[float]:
+        lsb = self._lsb
+        return [float(c) * lsb for c in self.code_list]
+
+    @property
+    def codes(self) -> npt.NDArray[np.int64]:
+        """Converter codes, ``-2**(bits-1) .. 2**(bits-1)-1``."""
+        return self._array("codes")
+
+    @property
+    def saturated(self) -> npt.NDArray[np.bool_]:
+        """Channels clipped at full scale."""
+        return self._array("saturated")
+
+    @property
+    def volts(self) -> npt.NDArray[np.float64]:
+        """The quantized voltages, ``codes * LSB``: what a receiver reconstructs."""
+        return self._array("volts")
+
+    @property
+    def analog_volts(self) -> npt.NDArray[np.float64]:
+        """The voltages at the converter's input (noise included, before rounding)."""
+        return self._array("analog_volts")
+
+    @property
+    def values_in(self) -> npt.NDArray[np.float64]:
+        """``volts`` in engineering units (in): extensions 1-2, deflections 1-2."""
+        return self._array("values_in")
+
+    def __repr__(self) -> str:
+        return f"SensorReading(time_s={self.time_s!r}, codes={self.code_list!r}, saturated={self.saturated_list!r}, bits={self.bits})"
 
 
 def analog_noise_std(total_std: float, lsb: float) -> float:
@@ -179,24 +230,12 @@ def read_inputs(
     already in them); the extensions get their per-sample noise here."""
     # Plain floats, element by element: the same IEEE operations as the
     # array form ``(values - centre) * vpu`` etc., without numpy's per-call cost.
-    values = [float(extensions_in[0]), float(extensions_in[1]), float(deflections_in[0]), float(deflections_in[1])]
+    x0, x1 = extensions_in
     if rng is not None:
         n0, n1 = rng.standard_normal(2).tolist()
-        values[0] += extension_noise_std_in[0] * n0
-        values[1] += extension_noise_std_in[1] * n1
-    analog_l = [(x - centre) * vpu for x, (vpu, centre) in zip(values, _MAPS, strict=True)]
-    q = scale.quantize(np.array(analog_l, dtype=np.float64))
-    lsb = scale.lsb_v
-    volts_l = [float(c) * lsb for c in q.counts.tolist()]
-    analog = np.array(analog_l, dtype=np.float64)
-    volts = np.array(volts_l, dtype=np.float64)
-    vals = np.array([v / vpu + centre for v, (vpu, centre) in zip(volts_l, _MAPS, strict=True)], dtype=np.float64)
-    return SensorReading(
-        time_s=time_s,
-        codes=q.counts,
-        saturated=q.saturated,
-        volts=volts,
-        analog_volts=analog,
-        values_in=vals,
-        bits=scale.bits,
-    )
+        x0 = float(x0) + extension_noise_std_in[0] * n0
+        x1 = float(x1) + extension_noise_std_in[1] * n1
+    (v0, c0), (v1, c1), (v2, c2), (v3, c3) = _MAPS
+    analog = [(float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3]
+    codes, flags = scale.quantize_floats(analog)
+    return SensorReading(time_s, codes, flags, analog, scale.lsb_v, scale.bits)

@@ -141,7 +141,7 @@ class PlantApplication:
             self.arm.advance(dt)
 
     # -- NodeApplication ---------------------------------------------------------------------
-    def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    def on_sync(self, counter: int) -> tuple[list[int], list[bool]]:
         arrived = self.stopwatch()
         if self._last_sync_wall is not None:
             self.sync_interval.add(arrived - self._last_sync_wall)
@@ -151,7 +151,7 @@ class PlantApplication:
         finally:
             self.sync_service.add(self.stopwatch() - arrived)
 
-    def _sample_on_sync(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    def _sample_on_sync(self) -> tuple[list[int], list[bool]]:
         if self.settings.clock == "lockstep":
             self.arm.advance(self.sample_period_s)
         else:
@@ -160,7 +160,7 @@ class PlantApplication:
         self._apply_scenario()
         reading = self.arm.sample()
         self._publish_side_channels()
-        return reading.codes, reading.saturated
+        return reading.code_list, reading.saturated_list  # plain ints and bools: the node packs them as they are
 
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
         self._catch_up()

@@ -36,7 +36,9 @@ from __future__ import annotations
 
 import enum
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Final
 
 import numpy as np
@@ -177,15 +179,16 @@ class ConverterScale:
         if self.full_scale_v <= 0:
             raise ValueError("full scale must be positive")
 
-    @property
+    # Computed once per scale (read on every conversion of a tick).
+    @cached_property
     def lsb_v(self) -> float:
         return 2.0 * self.full_scale_v / (1 << self.bits)
 
-    @property
+    @cached_property
     def code_min(self) -> int:
         return -(1 << (self.bits - 1))
 
-    @property
+    @cached_property
     def code_max(self) -> int:
         return (1 << (self.bits - 1)) - 1
 
@@ -205,10 +208,16 @@ class ConverterScale:
         return Quantized(counts=codes, saturated=np.asarray(saturated))
 
     def _quantize_small(self, values: list[float]) -> Quantized:
-        """:meth:`quantize` on a few floats (the 2-/4-vectors of a tick): the
-        same operations per element, without numpy's per-call overhead.
-        ``round`` rounds half to even like ``np.rint``; min/max clip like
-        ``np.clip`` for every non-NaN value (NaN is handled first)."""
+        """:meth:`quantize` on a few floats (the 2-/4-vectors of a tick)."""
+        counts, flags = self.quantize_floats(values)
+        return Quantized(counts=np.array(counts, dtype=np.int64), saturated=np.array(flags, dtype=np.bool_))
+
+    def quantize_floats(self, values: Iterable[float]) -> tuple[list[int], list[bool]]:
+        """:meth:`quantize` on plain floats, giving plain ints and bools: the
+        same operations per element without numpy's per-call overhead (the
+        2-/4-vectors of a tick). ``round`` rounds half to even like
+        ``np.rint``; min/max clip like ``np.clip`` for every non-NaN value
+        (NaN is handled first)."""
         bound = 2.0 * self.full_scale_v
         lsb = self.lsb_v
         cmin, cmax = self.code_min, self.code_max
@@ -222,7 +231,7 @@ class ConverterScale:
             code = round(min(bound, max(-bound, x)) / lsb)
             flags.append(code < cmin or code > cmax)
             counts.append(min(cmax, max(cmin, code)))
-        return Quantized(counts=np.array(counts, dtype=np.int64), saturated=np.array(flags, dtype=np.bool_))
+        return counts, flags
 
     def to_volts(self, counts: npt.ArrayLike) -> npt.NDArray[np.float64]:
         return np.asarray(counts, dtype=np.float64) * self.lsb_v

@@ -156,10 +156,11 @@ LSS_FIRST_COB_ID: Final[int] = 0x780
 class NodeApplication(Protocol):
     """What the node needs from the plant (implemented by the plant service)."""
 
-    def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-        """Advance the plant to this SYNC and sample it: (codes int64 (4,) at
-        the current ADC resolution, saturated bool (4,)). ``counter`` is the
-        SYNC counter (1..240), or 0 for SYNCs without counter."""
+    def on_sync(self, counter: int) -> tuple[Sequence[int] | npt.NDArray[np.int64], Sequence[bool] | npt.NDArray[np.bool_]]:
+        """Advance the plant to this SYNC and sample it: (codes at the current
+        ADC resolution, saturated flags), four each: int64 and bool arrays, or
+        lists of ints and bools (the plant's own, taken as they are).
+        ``counter`` is the SYNC counter (1..240), or 0 for SYNCs without counter."""
         ...
 
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
@@ -212,6 +213,15 @@ _DAC_SHIFT: Final = DAC12.shift(16)
 """DAC12's constants, read once (its properties compute them on every access)."""
 _RPDO1: Final = struct.Struct("<2h")
 """RPDO1 payload: two left-justified INT16 words (as protocol.can_map.decode_analog_outputs, length already checked)."""
+
+
+def _ints4(x: list[Any]) -> bool:
+    """Four plain ints (bools are not codes)."""
+    return len(x) == N_ANALOG_INPUTS and type(x[0]) is int and type(x[1]) is int and type(x[2]) is int and type(x[3]) is int
+
+
+def _bools4(x: list[Any]) -> bool:
+    return len(x) == N_ANALOG_INPUTS and type(x[0]) is bool and type(x[1]) is bool and type(x[2]) is bool and type(x[3]) is bool
 
 
 class CanopenNode:
@@ -721,9 +731,14 @@ class CanopenNode:
         result = self._call_app("on_sync", self.app.on_sync, counter)
         if result is None:
             return
+        codes: list[int]
+        saturated: list[bool]
         try:
             raw_codes, raw_sat = result
-            if (
+            if type(raw_codes) is list and type(raw_sat) is list and _ints4(raw_codes) and _bools4(raw_sat):
+                codes = raw_codes  # the plant's own A/D output: plain ints and bools already
+                saturated = raw_sat
+            elif (
                 type(raw_codes) is np.ndarray
                 and raw_codes.dtype == np.int64
                 and raw_codes.shape == (N_ANALOG_INPUTS,)
@@ -732,8 +747,8 @@ class CanopenNode:
                 and raw_sat.shape == (N_ANALOG_INPUTS,)
             ):
                 # The application's own types (the plant's A/D): plain ints and bools from here on.
-                codes: list[int] = raw_codes.tolist()
-                saturated: list[bool] = raw_sat.tolist()
+                codes = raw_codes.tolist()
+                saturated = raw_sat.tolist()
             else:
                 arr = np.asarray(raw_codes)
                 sat_arr = np.asarray(raw_sat, dtype=bool).reshape(N_ANALOG_INPUTS)
