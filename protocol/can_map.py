@@ -307,8 +307,11 @@ def sync_gap(previous: int, current: int) -> int:
 
 def encode_analog_inputs_16(words: npt.ArrayLike) -> bytes:
     """TPDO1 payload from four left-justified INT16 words."""
-    if type(words) is list and len(words) == N_ANALOG_INPUTS and all(type(x) is int for x in words):
-        return _pack(_INT16X4, "TPDO1", *words)  # plain ints (the node's path): no array round trip
+    if type(words) is list and len(words) == N_ANALOG_INPUTS:
+        try:
+            return _INT16X4.pack(*words)  # plain ints (the node's path): no array round trip
+        except struct.error:
+            pass  # not four INT16 integers: the checked path below converts or says why
     w = np.asarray(words, dtype=np.int64)
     if w.shape != (N_ANALOG_INPUTS,):
         raise ValueError(f"TPDO1 carries {N_ANALOG_INPUTS} inputs, got shape {w.shape}")

@@ -8,12 +8,15 @@ shortcuts, on inputs chosen to hit its edges."""
 from __future__ import annotations
 
 import math
+import struct
+from typing import Any
 
 import can
 import numpy as np
 import pytest
 
-from plant_emulator.canopen_node import CanopenNode
+from plant_emulator.canopen_node import CanopenNode, NodeConfig
+from plant_emulator.canopen_node.frames import Frame
 from plant_emulator.model import PlantConfig, RalfArm
 from protocol.can_map import ConverterScale, NmtCommand, decode_analog_inputs_16, encode_nmt
 from protocol.signals import ANALOG_INPUTS
@@ -108,3 +111,116 @@ def test_the_node_takes_list_codes_as_it_takes_arrays() -> None:
     assert _tpdos(_FloatListApp(volts)) == reference
     words = decode_analog_inputs_16(next(data for cob, data in reference if cob == TPDO1))
     np.testing.assert_array_equal(words >> 4, ConverterScale(12).quantize(np.array(volts)).counts)
+
+
+# --- the direct wire's path through the node: exchange == handle + poll ------------------
+
+
+def _random_traffic(seed: int, n: int) -> list[tuple[float, int, bytes]]:
+    """Frames a master (and a few rogue stations) might send, with their times:
+    NMT commands, SYNC with and without counter (gaps, repeats), RPDO1 words
+    inside and beyond the valve limit, wrong lengths, SDO reads and writes of
+    the configuration (0x1017, 0x2002, 0x2003, 0x1400 sub 5, 0x2001, 0x6411),
+    TIME, foreign and unknown COB-IDs; time steps that let the heartbeat and
+    the watchdog fire."""
+    rng = np.random.default_rng(seed)
+    t = 0.0
+    counter = 0
+    out: list[tuple[float, int, bytes]] = [(0.0, 0x000, bytes([0x01, 1]))]
+    sdo_writes = [
+        (0x1017, 0, 2, [20, 50, 0]),
+        (0x2002, 0, 4, None),
+        (0x2003, 0, 2, [3, 5, 0]),
+        (0x1400, 5, 2, [0, 15, 40]),
+        (0x2001, 0, 1, [12, 16, 20]),
+        (0x6411, 1, 2, [0x1230, -0x7000 & 0xFFFF]),
+        (0x1003, 0, 1, [0]),
+    ]
+    for _ in range(n):
+        t += float(rng.choice([0.0, 0.001, 0.005, 0.005, 0.005, 0.012, 0.04, 0.2]))
+        r = rng.random()
+        if r < 0.45:
+            counter = counter % 240 + 1 if rng.random() > 0.05 else int(rng.integers(1, 241))
+            out.append((t, 0x080, bytes([counter]) if rng.random() > 0.03 else b""))
+        elif r < 0.85:
+            words = rng.integers(-32768, 32768, 2)
+            if rng.random() < 0.5:
+                words = (rng.integers(-2048, 2048, 2) << 4) // int(rng.choice([1, 1, 4]))
+            data = struct.pack("<2h", *(int(w) for w in words))
+            out.append((t, 0x201, data if rng.random() > 0.03 else data[:3]))
+        elif r < 0.9:
+            index, sub, size, choices = sdo_writes[int(rng.integers(len(sdo_writes)))]
+            if index == 0x2002:
+                payload = struct.pack("<f", float(rng.choice([10.0, 4.5, 2.0, 0.0])))
+            else:
+                value = int(rng.choice(choices))  # type: ignore[arg-type]
+                payload = value.to_bytes(size, "little", signed=False)
+            cmd = 0x23 | ((4 - size) << 2)
+            out.append((t, 0x601, struct.pack("<BHB", cmd, index, sub) + payload.ljust(4, b"\x00")))
+        elif r < 0.93:
+            out.append((t, 0x601, struct.pack("<BHB4x", 0x40, int(rng.choice([0x6401, 0x6402, 0x6411, 0x1001, 0x2010])), int(rng.integers(0, 5)))))
+        elif r < 0.96:
+            cmd = int(rng.choice([0x01, 0x01, 0x01, 0x01, 0x02, 0x80, 0x81, 0x82, 0x7F]))
+            out.append((t, 0x000, bytes([cmd, int(rng.choice([0, 1, 1, 9]))])))
+        else:
+            out.append((t, int(rng.choice([0x100, 0x182, 0x181, 0x7E5, 0x2A1, 0x301])), bytes(rng.integers(0, 256, int(rng.integers(0, 9))).tolist())))
+    return out
+
+
+def _as_tuples(frames: list[Any]) -> list[tuple[int, bytes, float]]:
+    return [(f.arbitration_id, bytes(f.data), f.timestamp) for f in frames]
+
+
+def _od_values(node: CanopenNode) -> dict[tuple[int, int], Any]:
+    return {(e.index, e.sub): node.od.get(e.index, e.sub) for e in node.od}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exchange_is_handle_then_poll(seed: int) -> None:
+    traffic = _random_traffic(seed, 700)
+    apps = (FakeApp(), FakeApp())
+    cfg = NodeConfig(heartbeat_ms=20, watchdog_periods=3 if seed % 2 else 5)
+    general, direct = CanopenNode(apps[0], cfg), CanopenNode(apps[1], cfg)
+    out_general = _as_tuples(general.poll(0.0))
+    out_direct = _as_tuples(direct.poll_frames(0.0))
+    for t, cob_id, data in traffic:
+        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+        out_general += _as_tuples(general.handle(msg, t) + general.poll(t))
+        out_direct += _as_tuples(direct.exchange(cob_id, bytearray(data), t))
+        if seed % 3 == 0:  # the timers between frames too
+            out_general += _as_tuples(general.poll(t + 0.003))
+            out_direct += _as_tuples(direct.poll_frames(t + 0.003))
+    assert out_direct == out_general
+    assert direct.counters.as_dict() == general.counters.as_dict()
+    assert _od_values(direct) == _od_values(general)
+    assert [o.tolist() for o in apps[1].outputs] == [o.tolist() for o in apps[0].outputs]
+    assert direct.state == general.state and direct.watchdog_tripped == general.watchdog_tripped
+    np.testing.assert_array_equal(direct.outputs_v, general.outputs_v)
+    # the traffic reached the places it is meant to test
+    c = general.counters
+    assert c.samples > 30 and c.outputs_applied > 30 and c.clipped_outputs > 0 and c.tx["heartbeat"] > 5 and c.malformed_total > 0
+    assert c.sdo.downloads > 5 and c.tx["emcy"] > 3
+    if seed % 2:
+        assert c.watchdog_trips > 0
+
+
+def test_frames_read_like_python_can_messages() -> None:
+    node = CanopenNode(FakeApp())
+    node.exchange(0x000, bytes([0x01, 1]), 0.0)
+    (tpdo,) = node.exchange(0x080, bytes([1]), 0.005)
+    msg = tpdo.to_message()
+    assert isinstance(msg, can.Message) and msg.arbitration_id == tpdo.arbitration_id == TPDO1
+    assert bytes(msg.data) == tpdo.data and msg.dlc == tpdo.dlc == 8 and msg.timestamp == tpdo.timestamp == 0.005
+    for flag in ("is_extended_id", "is_remote_frame", "is_error_frame", "is_fd"):
+        assert getattr(tpdo, flag) is False is getattr(msg, flag)
+    assert tpdo == Frame(TPDO1, tpdo.data, 0.005) and tpdo != Frame(TPDO1, tpdo.data, 0.01)
+    assert "0x181" in repr(tpdo)
+
+
+def test_od_store_writes_quiet_process_data_only() -> None:
+    node = CanopenNode(FakeApp())
+    generation = node.od.generation
+    node.od.store(((0x6401, 1), (0x6401, 2)), (16, -32))
+    assert node.od.get(0x6401, 1) == 16 and node.od.get(0x6401, 2) == -32 and node.od.generation == generation
+    with pytest.raises(ValueError):
+        node.od.store(((0x6401, 1),), (1, 2))
