@@ -127,11 +127,15 @@ class PlantApplication:
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
+        self.lockstep = settings.clock == "lockstep"
+        """Each SYNC advances the arm one sample period (else: the wall clock, ``_catch_up``)."""
+        self.realtime = settings.clock == "realtime"
+        self._recording_truth = bool(settings.record)
 
     # -- time ----------------------------------------------------------------------------
     def _catch_up(self) -> None:
         """Real time: integrate the model up to the wall clock."""
-        if self.settings.clock != "realtime":
+        if not self.realtime:
             return
         now = self.clock()
         if self.t0 is None:
@@ -142,30 +146,32 @@ class PlantApplication:
 
     # -- NodeApplication ---------------------------------------------------------------------
     def on_sync(self, counter: int) -> tuple[list[int], list[bool]]:
+        """Advance to this SYNC (one sample period in lockstep, up to the clock
+        in real time), apply the scenario commands due, sample the sensors."""
         arrived = self.stopwatch()
         if self._last_sync_wall is not None:
             self.sync_interval.add(arrived - self._last_sync_wall)
         self._last_sync_wall = arrived
         try:
-            return self._sample_on_sync()
+            if self.lockstep:
+                self.arm.advance(self.sample_period_s)
+            else:
+                self._catch_up()
+            self.syncs += 1
+            if self.scenario or self.scenario_inbox.qsize():
+                self._apply_scenario()
+            reading = self.arm.sample()
+            if self.publish_truth is not None or self._recording_truth or self.arm.hard_stop_count != self._hard_stops_seen:
+                self._publish_side_channels()
+            return reading.code_list, reading.saturated_list  # plain ints and bools: the node packs them as they are
         finally:
             self.sync_service.add(self.stopwatch() - arrived)
 
-    def _sample_on_sync(self) -> tuple[list[int], list[bool]]:
-        if self.settings.clock == "lockstep":
-            self.arm.advance(self.sample_period_s)
-        else:
-            self._catch_up()
-        self.syncs += 1
-        self._apply_scenario()
-        reading = self.arm.sample()
-        self._publish_side_channels()
-        return reading.code_list, reading.saturated_list  # plain ints and bools: the node packs them as they are
-
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
-        self._catch_up()
+        if self.realtime:
+            self._catch_up()
         if not self.held:
-            self.arm.set_valve_voltages(np.asarray(volts, dtype=np.float64))
+            self.arm.set_valve_voltages(volts if type(volts) is np.ndarray and volts.dtype == np.float64 else np.asarray(volts, dtype=np.float64))
 
     def on_watchdog(self, tripped: bool) -> None:
         self._catch_up()

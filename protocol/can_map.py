@@ -216,9 +216,11 @@ class ConverterScale:
         """:meth:`quantize` on plain floats, giving plain ints and bools: the
         same operations per element without numpy's per-call overhead (the
         2-/4-vectors of a tick). ``round`` rounds half to even like
-        ``np.rint``; min/max clip like ``np.clip`` for every non-NaN value
-        (NaN is handled first)."""
-        bound = 2.0 * self.full_scale_v
+        ``np.rint``; the conditional expressions clip like ``np.clip`` for
+        every non-NaN value (NaN is handled first): each is what
+        ``min(hi, max(lo, x))`` returns, without the two calls."""
+        hi = 2.0 * self.full_scale_v
+        lo = -hi
         lsb = self.lsb_v
         cmin, cmax = self.code_min, self.code_max
         counts: list[int] = []
@@ -228,9 +230,17 @@ class ConverterScale:
                 counts.append(0)
                 flags.append(True)
                 continue
-            code = round(min(bound, max(-bound, x)) / lsb)
-            flags.append(code < cmin or code > cmax)
-            counts.append(min(cmax, max(cmin, code)))
+            x = x if x > lo else lo
+            code = round((x if x < hi else hi) / lsb)
+            if code < cmin:
+                flags.append(True)
+                counts.append(cmin)
+            elif code > cmax:
+                flags.append(True)
+                counts.append(cmax)
+            else:
+                flags.append(False)
+                counts.append(code)
         return counts, flags
 
     def to_volts(self, counts: npt.ArrayLike) -> npt.NDArray[np.float64]:

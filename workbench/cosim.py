@@ -83,8 +83,11 @@ class DirectCanWire:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             self._take(self.node.handle(msg, now))
             self._take(self.node.poll(now))
-        else:
-            self._take(self.node.exchange(msg.arbitration_id, msg.data, now))
+            return
+        frames = self.node.exchange(msg.arbitration_id, msg.data, now)
+        if frames:
+            self._to_master.extend(frames)
+            self.frames_to_master += len(frames)
 
     def send_frame(self, arbitration_id: int, data: bytes) -> None:
         """:meth:`send` of a standard data frame given by its COB-ID and payload."""
@@ -92,11 +95,16 @@ class DirectCanWire:
         self._take(self.node.exchange(arbitration_id, data, self.scheduler.now()))
 
     def recv(self, timeout: float | None = None) -> Frame | can.Message | None:
-        if not self._to_master:
+        waiting = self._to_master
+        if not waiting:
             if timeout:
                 self.scheduler.wait(timeout)
-            self._take(self.node.poll_frames(self.scheduler.now()))
-        return self._to_master.popleft() if self._to_master else None
+            frames = self.node.poll_frames(self.scheduler.now())
+            if not frames:
+                return None
+            waiting.extend(frames)
+            self.frames_to_master += len(frames)
+        return waiting.popleft()
 
     def shutdown(self) -> None:
         self._to_master.clear()

@@ -211,6 +211,7 @@ _ZERO_VOLTS: Final[tuple[float, float]] = (0.0, 0.0)
 _IN16_KEYS: Final = tuple((OD_ANALOG_INPUT_16, sub) for sub in range(1, N_ANALOG_INPUTS + 1))
 _IN32_KEYS: Final = tuple((OD_ANALOG_INPUT_32, sub) for sub in range(1, N_ANALOG_INPUTS + 1))
 _OUT16_KEYS: Final = tuple((OD_ANALOG_OUTPUT_16, sub) for sub in range(1, N_ANALOG_OUTPUTS + 1))
+_IN_KEYS: Final = _IN16_KEYS + _IN32_KEYS
 """The process-data entries written on every sample and RPDO."""
 _INPUT_SATURATED: Final = int(EmcyCode.INPUT_SATURATED)
 _OUTPUT_CLIPPED: Final = int(EmcyCode.OUTPUT_CLIPPED)
@@ -232,15 +233,6 @@ def _dac_bounds(limit_v: float) -> tuple[int, int]:
     return max(-limit_code, _DAC_CODE_MIN), min(limit_code, _DAC_CODE_MAX)
 
 
-def _ints4(x: list[Any]) -> bool:
-    """Four plain ints (bools are not codes)."""
-    return len(x) == N_ANALOG_INPUTS and type(x[0]) is int and type(x[1]) is int and type(x[2]) is int and type(x[3]) is int
-
-
-def _bools4(x: list[Any]) -> bool:
-    return len(x) == N_ANALOG_INPUTS and type(x[0]) is bool and type(x[1]) is bool and type(x[2]) is bool and type(x[3]) is bool
-
-
 class CanopenNode:
     """The CANopen slave state machine. See the module docstring."""
 
@@ -253,6 +245,10 @@ class CanopenNode:
         self.od = ObjectDictionary.from_table(object_table(self.cfg), self.node_id)
         self.od.quiet = frozenset({OD_ANALOG_INPUT_16, OD_ANALOG_INPUT_32, OD_ANALOG_OUTPUT_16})
         self._conf_generation = -1
+        self._quiet_until = -math.inf
+        """No timer is due before this simulated time (see :meth:`poll_frames`)..."""
+        self._quiet_generation = -1
+        """...unless the object dictionary changed since (its ``generation``)."""
         self._conf: tuple[int, float, float, float, float, float, int, int, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0)
         self.sdo = SdoServer(self.od)
         self.counters.sdo = self.sdo.counters
@@ -289,6 +285,7 @@ class CanopenNode:
         """Process one received frame; returns the frames to transmit."""
         with self._lock:
             self._now = now
+            self._quiet_until = -math.inf  # the frame may restart a timer: the next poll runs them
             try:
                 self._dispatch(msg, now)
             except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
@@ -306,9 +303,15 @@ class CanopenNode:
         """:meth:`poll`, the frames as the node made them (see :class:`Frame`)."""
         with self._lock:
             self._now = now
+            if self.quick_poll and now < self._quiet_until and not self._outbox and self.od.generation == self._quiet_generation:
+                return []  # no timer due before _quiet_until (worked out by the last _timers)
             self._timers(now)
             out, self._outbox = self._outbox, []
             return out
+
+    quick_poll = True
+    """Let :meth:`poll_frames` return at once before the earliest time a timer
+    can be due (False: run the timers on every poll; tests compare the two)."""
 
     def exchange(self, cob_id: int, data: bytes | bytearray, now: float) -> list[Frame]:
         """:meth:`handle` of a standard data frame followed by :meth:`poll` at the
@@ -319,7 +322,12 @@ class CanopenNode:
             self._now = now
             data = bytes(data)
             try:
-                self._dispatch_data(cob_id, data, now)
+                if cob_id == self._sync_id:  # the two frames of every tick first (_dispatch_data's order otherwise)
+                    self._on_sync(cob_id, data, now)
+                elif cob_id == self._rpdo1_id:
+                    self._on_rpdo(cob_id, data, now)
+                else:
+                    self._dispatch_data(cob_id, data, now)
             except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
                 self.counters.internal_errors += 1
                 log.exception("node %d: internal error handling frame 0x%03X [%s]", self.node_id, cob_id, data.hex(" "))
@@ -592,7 +600,8 @@ class CanopenNode:
         if self.state is NmtState.STOPPED:
             self.counters.rx["sync_stopped"] += 1
             return
-        overflow = self._config()[6]
+        conf = self._config()
+        overflow = conf[6]
         missed = 0
         conflict = ""
         if not data:
@@ -630,10 +639,14 @@ class CanopenNode:
         if not data:
             self._last_sync_counter = 0
         self.counters.sync_received += 1
-        self._check_sync_conflict(conflict)
+        if conflict or _SYNC_CONFLICT in self._faults:
+            self._check_sync_conflict(conflict)
         if self.state is not NmtState.OPERATIONAL:
             return
-        self._check_rpdo_conflict(missed)
+        if conf[4] > 0:
+            self._check_rpdo_conflict(missed)
+        else:
+            self._rpdos_in_period = 0  # RPDO1 not declared cyclic: nothing to check (as _check_rpdo_conflict)
         if self._tripped and self._trip_cause == "sync":
             self._recover(now)
         self._wd_last = now
@@ -774,15 +787,32 @@ class CanopenNode:
     # --- process data -----------------------------------------------------------------
 
     def _sample(self, counter: int) -> None:
-        result = self._call_app("on_sync", self.app.on_sync, counter)
+        try:
+            result = self.app.on_sync(counter)
+        except Exception:  # noqa: BLE001 - as _call_app: the app's bug must not take the bus down
+            self._app_failed("on_sync")
+            return
         if result is None:
             return
         codes: list[int]
         saturated: list[bool]
         try:
             raw_codes, raw_sat = result
-            if type(raw_codes) is list and type(raw_sat) is list and _ints4(raw_codes) and _bools4(raw_sat):
-                codes = raw_codes  # the plant's own A/D output: plain ints and bools already
+            if (
+                type(raw_codes) is list
+                and type(raw_sat) is list
+                and len(raw_codes) == N_ANALOG_INPUTS
+                and len(raw_sat) == N_ANALOG_INPUTS
+                and type(raw_codes[0]) is int
+                and type(raw_codes[1]) is int
+                and type(raw_codes[2]) is int
+                and type(raw_codes[3]) is int
+                and type(raw_sat[0]) is bool
+                and type(raw_sat[1]) is bool
+                and type(raw_sat[2]) is bool
+                and type(raw_sat[3]) is bool
+            ):
+                codes = raw_codes  # the plant's own A/D output: four plain ints and bools already
                 saturated = raw_sat
             elif (
                 type(raw_codes) is np.ndarray
@@ -812,11 +842,11 @@ class CanopenNode:
             return
         bits = self._config()[0]
         lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-        if min(codes) < lo or max(codes) > hi:
+        c0, c1, c2, c3 = codes
+        if not (lo <= c0 <= hi and lo <= c1 <= hi and lo <= c2 <= hi and lo <= c3 <= hi):
             self.counters.app_codes_clipped += 1
             self._log_once("app:codes", "node %d: on_sync codes %s outside %d-bit range, clipped", self.node_id, np.array(codes, dtype=np.int64), bits)
-            codes = [min(hi, max(lo, c)) for c in codes]
-        c0, c1, c2, c3 = codes
+            c0, c1, c2, c3 = (min(hi, max(lo, c)) for c in codes)
         if bits <= 16:
             s16 = 16 - bits
             words16 = [c0 << s16, c1 << s16, c2 << s16, c3 << s16]
@@ -824,16 +854,15 @@ class CanopenNode:
             s16 = bits - 16
             words16 = [c0 >> s16, c1 >> s16, c2 >> s16, c3 >> s16]
         s32 = 32 - bits
-        words32 = [c0 << s32, c1 << s32, c2 << s32, c3 << s32]
-        store = self.od.store
-        store(_IN16_KEYS, words16)
-        store(_IN32_KEYS, words32)
-        self._emit(self._tpdo1_id, encode_analog_inputs_16(words16), "tpdo1")
+        w0, w1, w2, w3 = c0 << s32, c1 << s32, c2 << s32, c3 << s32
+        self.od.store(_IN_KEYS, (*words16, w0, w1, w2, w3))
+        counters = self.counters
+        counters.tx["tpdo1"] += 1  # _emit, inline
+        self._outbox.append(Frame(self._tpdo1_id, encode_analog_inputs_16(words16), self._now))
         if bits > 16:
-            tpdo2, tpdo3 = encode_analog_inputs_32(words32)
+            tpdo2, tpdo3 = encode_analog_inputs_32([w0, w1, w2, w3])
             self._emit(self.ids["tpdo2"], tpdo2, "tpdo2")
             self._emit(self.ids["tpdo3"], tpdo3, "tpdo3")
-        counters = self.counters
         counters.samples += 1
         s0, s1, s2, s3 = saturated
         if s0 or s1 or s2 or s3:
@@ -869,7 +898,10 @@ class CanopenNode:
         v0, v1 = float(min(hi, max(lo, c0))) * lsb, float(min(hi, max(lo, c1))) * lsb
         self._outputs_v = (v0, v1)
         self.counters.outputs_applied += 1
-        self._call_app("on_outputs", self.app.on_outputs, np.array((v0, v1), dtype=np.float64))
+        try:
+            self.app.on_outputs(np.array((v0, v1), dtype=np.float64))
+        except Exception:  # noqa: BLE001 - as _call_app
+            self._app_failed("on_outputs")
         if clip0 or clip1:
             self.counters.clipped_outputs += 1
             self._set_fault(_OUTPUT_CLIPPED, True, bytes([int(clip0) | (int(clip1) << 1)]))
@@ -976,14 +1008,18 @@ class CanopenNode:
                 self.counters.heartbeat_late += 1
                 hb_next = now + period
             self._hb_next = hb_next
-        if self.state is not NmtState.OPERATIONAL or self._tripped:
-            return
-        sync_timeout, rpdo_timeout = conf[5], conf[4]
-        wd_last, rpdo_last = self._wd_last, self._rpdo_last
-        if (wd_last is not None and sync_timeout > 0 and now >= wd_last + sync_timeout) or (
-            rpdo_last is not None and rpdo_timeout > 0 and now >= rpdo_last + rpdo_timeout
-        ):
-            self._trip(now)
+        quiet = self._hb_next if period > 0 and self._hb_next is not None else math.inf
+        if self.state is NmtState.OPERATIONAL and not self._tripped:
+            sync_timeout, rpdo_timeout = conf[5], conf[4]
+            wd_last, rpdo_last = self._wd_last, self._rpdo_last
+            sync_due = wd_last + sync_timeout if wd_last is not None and sync_timeout > 0 else math.inf
+            rpdo_due = rpdo_last + rpdo_timeout if rpdo_last is not None and rpdo_timeout > 0 else math.inf
+            if now >= sync_due or now >= rpdo_due:
+                self._trip(now)  # held from now on: no watchdog deadline until it recovers
+            else:
+                quiet = min(quiet, sync_due, rpdo_due)
+        self._quiet_until = quiet
+        self._quiet_generation = self.od.generation
 
     def _emit(self, cob_id: int, data: bytes, kind: str) -> None:
         self.counters.tx[kind] += 1
@@ -1014,8 +1050,12 @@ class CanopenNode:
         try:
             return fn(*args)
         except Exception:  # noqa: BLE001 - the app's bug must not take the bus down
-            self.counters.app_errors += 1
-            if f"app:{name}" not in self._logged:
-                self._logged.add(f"app:{name}")
-                log.exception("node %d: application callback %s failed (further failures only counted)", self.node_id, name)
+            self._app_failed(name)
             return None
+
+    def _app_failed(self, name: str) -> None:
+        """An application callback raised (called from inside its ``except``): counted, logged once."""
+        self.counters.app_errors += 1
+        if f"app:{name}" not in self._logged:
+            self._logged.add(f"app:{name}")
+            log.exception("node %d: application callback %s failed (further failures only counted)", self.node_id, name)

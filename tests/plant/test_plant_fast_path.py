@@ -178,24 +178,30 @@ def _od_values(node: CanopenNode) -> dict[tuple[int, int], Any]:
 @pytest.mark.parametrize("seed", range(6))
 def test_exchange_is_handle_then_poll(seed: int) -> None:
     traffic = _random_traffic(seed, 700)
-    apps = (FakeApp(), FakeApp())
+    apps = (FakeApp(), FakeApp(), FakeApp())
     cfg = NodeConfig(heartbeat_ms=20, watchdog_periods=3 if seed % 2 else 5)
-    general, direct = CanopenNode(apps[0], cfg), CanopenNode(apps[1], cfg)
+    general, direct, quick = (CanopenNode(app, cfg) for app in apps)
+    general.quick_poll = False  # the reference runs every timer on every poll
     out_general = _as_tuples(general.poll(0.0))
     out_direct = _as_tuples(direct.poll_frames(0.0))
+    out_quick = _as_tuples(quick.poll(0.0))
     for t, cob_id, data in traffic:
         msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
         out_general += _as_tuples(general.handle(msg, t) + general.poll(t))
         out_direct += _as_tuples(direct.exchange(cob_id, bytearray(data), t))
-        if seed % 3 == 0:  # the timers between frames too
-            out_general += _as_tuples(general.poll(t + 0.003))
-            out_direct += _as_tuples(direct.poll_frames(t + 0.003))
+        out_quick += _as_tuples(quick.handle(msg, t) + quick.poll(t))
+        for dt in (0.003, 0.011) if seed % 3 == 0 else ():  # the timers between frames too
+            out_general += _as_tuples(general.poll(t + dt))
+            out_direct += _as_tuples(direct.poll_frames(t + dt))
+            out_quick += _as_tuples(quick.poll(t + dt))
     assert out_direct == out_general
-    assert direct.counters.as_dict() == general.counters.as_dict()
-    assert _od_values(direct) == _od_values(general)
-    assert [o.tolist() for o in apps[1].outputs] == [o.tolist() for o in apps[0].outputs]
-    assert direct.state == general.state and direct.watchdog_tripped == general.watchdog_tripped
-    np.testing.assert_array_equal(direct.outputs_v, general.outputs_v)
+    assert out_quick == out_general
+    for node, app in ((direct, apps[1]), (quick, apps[2])):
+        assert node.counters.as_dict() == general.counters.as_dict()
+        assert _od_values(node) == _od_values(general)
+        assert [o.tolist() for o in app.outputs] == [o.tolist() for o in apps[0].outputs]
+        assert node.state == general.state and node.watchdog_tripped == general.watchdog_tripped
+        np.testing.assert_array_equal(node.outputs_v, general.outputs_v)
     # the traffic reached the places it is meant to test
     c = general.counters
     assert c.samples > 30 and c.outputs_applied > 30 and c.clipped_outputs > 0 and c.tx["heartbeat"] > 5 and c.malformed_total > 0
@@ -224,3 +230,20 @@ def test_od_store_writes_quiet_process_data_only() -> None:
     assert node.od.get(0x6401, 1) == 16 and node.od.get(0x6401, 2) == -32 and node.od.generation == generation
     with pytest.raises(ValueError):
         node.od.store(((0x6401, 1),), (1, 2))
+
+
+def test_a_quick_poll_sees_a_dictionary_changed_behind_its_back() -> None:
+    """The heartbeat period written straight into the object dictionary (no
+    frame through the node) restarts the heartbeat at the next poll, as a
+    poll that runs every timer does."""
+    out = []
+    for quick in (False, True):
+        node = CanopenNode(FakeApp(), NodeConfig(heartbeat_ms=100))
+        node.quick_poll = quick
+        frames = node.poll_frames(0.0) + node.poll_frames(0.01)
+        node.od.write(0x1017, 0, (20).to_bytes(2, "little"))
+        for k in range(2, 60):
+            frames += node.poll_frames(0.005 * k)
+        out.append(_as_tuples(frames))
+    assert out[1] == out[0]
+    assert len([f for f in out[0] if f[0] == 0x701]) >= 10
