@@ -55,7 +55,7 @@ import scipy.linalg
 from protocol.can_map import ConverterScale
 from protocol.signals import ANALOG_INPUTS
 
-__all__ = ["AntiAliasFilter", "NoiseSources", "SensorReading", "analog_noise_std", "channel_lsb_in", "read_inputs"]
+__all__ = ["AntiAliasFilter", "BlockNormals", "NoiseSources", "SensorReading", "analog_noise_std", "channel_lsb_in", "read_inputs"]
 
 NOISE_BLOCK = 512
 _VPU = np.array([ch.volts_per_unit for ch in ANALOG_INPUTS], dtype=np.float64)
@@ -202,7 +202,7 @@ class NoiseSources:
     def reseed(self, seed: int) -> None:
         process, sample = np.random.SeedSequence(int(seed)).spawn(2)
         self.process = np.random.Generator(np.random.PCG64(process))
-        self.sample = np.random.Generator(np.random.PCG64(sample))
+        self.sample = BlockNormals(np.random.Generator(np.random.PCG64(sample)))
         self._block: list[float] = []
         self._next = 0
 
@@ -216,13 +216,53 @@ class NoiseSources:
         return self._block[i], self._block[i + 1]
 
 
+class BlockNormals:
+    """Standard normal deviates from ``generator``, drawn :data:`NOISE_BLOCK`
+    at a time and handed out in order: the same numbers, in the same order,
+    as drawing them from the generator one call at a time (numpy's
+    ``standard_normal(n)`` fills its output with n successive draws), without
+    a call into numpy and an array per sample. Everything drawn from it goes
+    through the block, so its stream stays the generator's."""
+
+    def __init__(self, generator: np.random.Generator) -> None:
+        self.generator = generator
+        self._block: list[float] = []
+        self._next = 0
+
+    def pair(self) -> tuple[float, float]:
+        """The next two deviates."""
+        i = self._next
+        block = self._block
+        if i + 2 > len(block):
+            return self._take(2)  # type: ignore[return-value]
+        self._next = i + 2
+        return block[i], block[i + 1]
+
+    def _take(self, n: int) -> list[float]:
+        out: list[float] = []
+        while len(out) < n:
+            if self._next >= len(self._block):
+                self._block = self.generator.standard_normal(NOISE_BLOCK).tolist()
+                self._next = 0
+            k = min(n - len(out), len(self._block) - self._next)
+            out += self._block[self._next : self._next + k]
+            self._next += k
+        return out
+
+    def standard_normal(self, size: int | None = None) -> Any:
+        """As :meth:`numpy.random.Generator.standard_normal` (a float, or a 1-D array of ``size``)."""
+        if size is None:
+            return self._take(1)[0]
+        return np.array(self._take(int(size)), dtype=np.float64)
+
+
 def read_inputs(
     time_s: float,
     extensions_in: tuple[float, float],
     deflections_in: tuple[float, float],
     extension_noise_std_in: tuple[float, float],
     scale: ConverterScale,
-    rng: np.random.Generator | None,
+    rng: BlockNormals | np.random.Generator | None,
 ) -> SensorReading:
     """Convert the four engineering values (in) to a :class:`SensorReading`.
 
@@ -232,7 +272,7 @@ def read_inputs(
     # array form ``(values - centre) * vpu`` etc., without numpy's per-call cost.
     x0, x1 = extensions_in
     if rng is not None:
-        n0, n1 = rng.standard_normal(2).tolist()
+        n0, n1 = rng.pair() if type(rng) is BlockNormals else rng.standard_normal(2).tolist()
         x0 = float(x0) + extension_noise_std_in[0] * n0
         x1 = float(x1) + extension_noise_std_in[1] * n1
     (v0, c0), (v1, c1), (v2, c2), (v3, c3) = _MAPS

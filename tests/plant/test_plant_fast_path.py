@@ -247,3 +247,44 @@ def test_a_quick_poll_sees_a_dictionary_changed_behind_its_back() -> None:
         out.append(_as_tuples(frames))
     assert out[1] == out[0]
     assert len([f for f in out[0] if f[0] == 0x701]) >= 10
+
+
+# --- the application's per-SYNC bookkeeping ------------------------------------------------
+
+
+def test_block_normals_are_the_generators_stream() -> None:
+    from plant_emulator.sensors import NOISE_BLOCK, BlockNormals
+
+    reference = np.random.default_rng(11)
+    blocked = BlockNormals(np.random.default_rng(11))
+    drawn: list[float] = []
+    expected: list[float] = []
+    for k in range(3 * NOISE_BLOCK):
+        if k % 97 == 5:
+            drawn += blocked.standard_normal(7).tolist()  # other sizes, across block edges
+            expected += reference.standard_normal(7).tolist()
+        elif k % 101 == 3:
+            drawn.append(blocked.standard_normal())
+            expected.append(float(reference.standard_normal()))
+        else:
+            drawn += blocked.pair()
+            expected += reference.standard_normal(2).tolist()
+    assert drawn == expected
+
+
+@pytest.mark.parametrize("capacity", [64, 65536])
+def test_deferred_latency_reads_as_the_plain_tracker(capacity: int) -> None:
+    from plant_emulator.service import DeferredLatency
+    from service_kit.runtime import LatencyTracker
+
+    plain, deferred = LatencyTracker(capacity), DeferredLatency(capacity)
+    deferred.FLUSH_AT = 50  # flush inside the run too
+    rng = np.random.default_rng(5)
+    for k in range(3):
+        for x in rng.exponential(1e-4, 37 + 71 * k).tolist():
+            plain.add(x)
+            deferred.add(x)
+        assert deferred.count == plain.count
+        np.testing.assert_array_equal(deferred.values(), plain.values())
+        assert deferred.stats() == plain.stats()
+    assert DeferredLatency().stats() == LatencyTracker().stats()
