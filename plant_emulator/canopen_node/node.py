@@ -211,7 +211,6 @@ _ZERO_VOLTS: Final[tuple[float, float]] = (0.0, 0.0)
 _IN16_KEYS: Final = tuple((OD_ANALOG_INPUT_16, sub) for sub in range(1, N_ANALOG_INPUTS + 1))
 _IN32_KEYS: Final = tuple((OD_ANALOG_INPUT_32, sub) for sub in range(1, N_ANALOG_INPUTS + 1))
 _OUT16_KEYS: Final = tuple((OD_ANALOG_OUTPUT_16, sub) for sub in range(1, N_ANALOG_OUTPUTS + 1))
-_IN_KEYS: Final = _IN16_KEYS + _IN32_KEYS
 """The process-data entries written on every sample and RPDO."""
 _INPUT_SATURATED: Final = int(EmcyCode.INPUT_SATURATED)
 _OUTPUT_CLIPPED: Final = int(EmcyCode.OUTPUT_CLIPPED)
@@ -274,8 +273,13 @@ class CanopenNode:
         self._own_ids = frozenset(self.ids[k] for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat"))
         self._sync_id, self._rpdo1_id, self._nmt_id = self.ids["sync"], self.ids["rpdo1"], self.ids["nmt"]
         self._tpdo1_id, self._hb_id = self.ids["tpdo1"], self.ids["heartbeat"]
-        for key in _IN16_KEYS + _IN32_KEYS + _OUT16_KEYS:
-            assert key in self.od and key[0] in self.od.quiet, key
+        # The process data (0x6401, 0x6402, 0x6411) lives in these lists, which the
+        # object dictionary serves through getters: written on every sample and
+        # RPDO, read only by SDO uploads (no dictionary write per tick).
+        self._process_defaults = {key: self.od.get(*key) for key in _IN16_KEYS + _IN32_KEYS + _OUT16_KEYS}
+        self._in16: list[int] = [int(self._process_defaults[k]) for k in _IN16_KEYS]
+        self._in32: list[int] = [int(self._process_defaults[k]) for k in _IN32_KEYS]
+        self._out16: list[int] = [int(self._process_defaults[k]) for k in _OUT16_KEYS]
         self._install_hooks()
         self._boot()
 
@@ -426,6 +430,11 @@ class CanopenNode:
 
     def _install_hooks(self) -> None:
         od = self.od
+        for i in range(N_ANALOG_INPUTS):
+            od.getter(OD_ANALOG_INPUT_16, i + 1, self._process_value("_in16", i))
+            od.getter(OD_ANALOG_INPUT_32, i + 1, self._process_value("_in32", i))
+        for i in range(N_ANALOG_OUTPUTS):
+            od.getter(OD_ANALOG_OUTPUT_16, i + 1, self._process_value("_out16", i))
         od.getter(0x1001, 0, lambda: self.error_register)
         diag: Sequence[Callable[[], Value]] = (
             lambda: self.counters.sync_received,
@@ -447,6 +456,15 @@ class CanopenNode:
         od.on_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, self._write_rpdo_timer)
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             od.on_write(OD_ANALOG_OUTPUT_16, sub, self._output_writer(sub))
+
+    def _process_value(self, words: str, i: int) -> Callable[[], Value]:
+        """The getter of one process-data entry: word ``i`` of the node's list ``words``."""
+
+        def get() -> Value:
+            value: int = getattr(self, words)[i]
+            return value
+
+        return get
 
     def _write_error_history(self, value: Value) -> None:
         if value != 0:
@@ -770,6 +788,11 @@ class CanopenNode:
         self._faults.clear()
         self._error_history.clear()
         self.od.restore_defaults(None if application else range(0x1000, 0x2000))
+        if application:  # the process data too (served from the node's lists)
+            d = self._process_defaults
+            self._in16 = [int(d[k]) for k in _IN16_KEYS]
+            self._in32 = [int(d[k]) for k in _IN32_KEYS]
+            self._out16 = [int(d[k]) for k in _OUT16_KEYS]
         if application:
             bits, period = self.adc_bits, int(self.od.get(OD_SAMPLE_PERIOD))
             if bits != old_bits:
@@ -855,12 +878,13 @@ class CanopenNode:
             words16 = [c0 >> s16, c1 >> s16, c2 >> s16, c3 >> s16]
         s32 = 32 - bits
         w0, w1, w2, w3 = c0 << s32, c1 << s32, c2 << s32, c3 << s32
-        self.od.store(_IN_KEYS, (*words16, w0, w1, w2, w3))
+        self._in16 = words16
+        self._in32 = words32 = [w0, w1, w2, w3]
         counters = self.counters
         counters.tx["tpdo1"] += 1  # _emit, inline
         self._outbox.append(Frame(self._tpdo1_id, encode_analog_inputs_16(words16), self._now))
         if bits > 16:
-            tpdo2, tpdo3 = encode_analog_inputs_32([w0, w1, w2, w3])
+            tpdo2, tpdo3 = encode_analog_inputs_32(words32)
             self._emit(self.ids["tpdo2"], tpdo2, "tpdo2")
             self._emit(self.ids["tpdo3"], tpdo3, "tpdo3")
         counters.samples += 1
@@ -875,7 +899,7 @@ class CanopenNode:
         return np.array([int(self.od.get(OD_ANALOG_OUTPUT_16, s)) for s in range(1, N_ANALOG_OUTPUTS + 1)], dtype=np.int64)
 
     def _zero_outputs(self) -> None:
-        self.od.store(_OUT16_KEYS, (0, 0))
+        self._out16 = [0, 0]
         self._outputs_v = _ZERO_VOLTS
 
     def _apply_outputs(self, words: npt.ArrayLike, limit_v: float | None = None) -> None:
@@ -888,7 +912,7 @@ class CanopenNode:
     def _apply_words(self, w0: int, w1: int, conf: tuple[int, float, float, float, float, float, int, int, int]) -> None:
         """Two RPDO1 words to the valves: D/A codes (the 4 padding bits
         dropped), clipped to the valve limit's codes (``conf``'s last two)."""
-        self.od.store(_OUT16_KEYS, (w0, w1))
+        self._out16 = [w0, w1]
         lo, hi = conf[7], conf[8]
         lsb = _DAC_LSB
         # Plain ints: the code's int -> float conversion and the product by one LSB are

@@ -13,7 +13,7 @@ from __future__ import annotations
 import enum
 import math
 import struct
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -291,13 +291,6 @@ class ObjectDictionary:
         self._values[(index, sub)] = value
         if index not in self.quiet:
             self.generation += 1
-
-    def store(self, keys: Sequence[tuple[int, int]], values: Sequence[Value]) -> None:
-        """``set`` of several entries of ``quiet`` indices at once (the node's
-        process data, every sample): no checks, ``generation`` untouched."""
-        v = self._values
-        for key, value in zip(keys, values, strict=True):
-            v[key] = value
 
     # --- SDO view --------------------------------------------------------------
 

@@ -223,13 +223,35 @@ def test_frames_read_like_python_can_messages() -> None:
     assert "0x181" in repr(tpdo)
 
 
-def test_od_store_writes_quiet_process_data_only() -> None:
-    node = CanopenNode(FakeApp())
-    generation = node.od.generation
-    node.od.store(((0x6401, 1), (0x6401, 2)), (16, -32))
-    assert node.od.get(0x6401, 1) == 16 and node.od.get(0x6401, 2) == -32 and node.od.generation == generation
-    with pytest.raises(ValueError):
-        node.od.store(((0x6401, 1),), (1, 2))
+def _sdo_read(node: CanopenNode, index: int, sub: int, t: float) -> int:
+    (reply,) = (f for f in node.exchange(0x601, struct.pack("<BHB4x", 0x40, index, sub), t) if f.arbitration_id == 0x581)
+    assert reply.data[0] & 0xE3 == 0x43, reply
+    n = 4 - ((reply.data[0] >> 2) & 3)
+    return int.from_bytes(reply.data[4 : 4 + n], "little", signed=True)
+
+
+def test_process_data_reads_back_by_sdo_and_resets_with_the_node() -> None:
+    """0x6401/0x6402/0x6411, kept by the node and served to SDO: the last
+    sample's words and the last RPDO's, the table's defaults after
+    RESET_NODE, unchanged by RESET_COMMUNICATION (which resets 0x1000-0x1FFF only)."""
+    app = FakeApp((1.0, -2.5, 9.99, -10.0))
+    app.bits = 20
+    node = CanopenNode(app, NodeConfig(adc_bits=20))
+    defaults = {(i, s): _sdo_read(node, i, s, 0.0) for i, s in ((0x6401, 1), (0x6402, 3), (0x6411, 2))}
+    node.exchange(0x000, bytes([0x01, 1]), 0.0)
+    frames = node.exchange(0x080, bytes([1]), 0.005)
+    tpdo1 = decode_analog_inputs_16(next(f.data for f in frames if f.arbitration_id == TPDO1))
+    codes = ConverterScale(20).quantize(np.array(app.volts)).counts
+    node.exchange(0x201, struct.pack("<2h", 0x1230, -0x7000), 0.006)
+    outputs = [0x1230, -0x7000]
+    for t in (0.007, 0.008):
+        assert [_sdo_read(node, 0x6401, s, t) for s in range(1, 5)] == tpdo1.tolist() == (codes >> 4).tolist()
+        assert [_sdo_read(node, 0x6402, s, t) for s in range(1, 5)] == (codes << 12).tolist()
+        assert [_sdo_read(node, 0x6411, s, t) for s in (1, 2)] == outputs
+        node.exchange(0x000, bytes([0x82, 1]), t)  # RESET_COMMUNICATION: the inputs stay,
+        outputs = [0, 0]  # the outputs go to 0 V as the node leaves OPERATIONAL
+    node.exchange(0x000, bytes([0x81, 1]), 0.01)  # RESET_NODE: every object to its default
+    assert {(i, s): _sdo_read(node, i, s, 0.011) for i, s in defaults} == defaults
 
 
 def test_a_quick_poll_sees_a_dictionary_changed_behind_its_back() -> None:
