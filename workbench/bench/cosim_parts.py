@@ -3,7 +3,7 @@ the same way, with the calls the controller service makes into each part
 timed by wrappers (no profiler: a profiler's per-call cost would distort a
 tick made of many small calls).
 
-Parts: the plant node (``handle`` and ``poll``, through the wire), the
+Parts: the plant node (``exchange`` and ``poll_frames``, through the wire), the
 wire's own work, the controller's :class:`~controller.plant_link.PlantLink`
 (frame encode/decode, dispatch; the node's time subtracted), the control law
 (``law.step``: engineering, trajectory, OATF, PI, D/A), its record row, the
@@ -31,7 +31,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
 
-NODE = "plant node (handle + poll)"
+NODE = "plant node (exchange + poll_frames)"
 WIRE = "DirectCanWire own"
 LINK = "PlantLink own (RPDO encode, TPDO decode, dispatch)"
 SERVICE = "ControllerService own (controller/service.py)"
@@ -71,8 +71,8 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
     link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
     ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
     acc: defaultdict[str, float] = defaultdict(float)
-    _wrap(node, "handle", "node", acc)
-    _wrap(node, "poll", "node", acc)
+    for name in ("handle", "exchange", "poll_frames"):  # the wire's entries, and handle (poll runs poll_frames)
+        _wrap(node, name, "node", acc)
     _wrap(wire, "send", "wire", acc)
     _wrap(wire, "recv", "wire", acc)
     for name in ("send_outputs", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
@@ -91,7 +91,7 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
         ctrl.close()
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
     ticks = max(result.ticks, 1)
-    parts = {NODE: acc.pop("node"), WIRE: acc.pop("wire"), LINK: acc.pop("link")}
+    parts = {NODE: acc.pop("node", 0.0), WIRE: acc.pop("wire"), LINK: acc.pop("link")}
     parts[WIRE] -= parts[NODE]
     parts[LINK] -= parts[WIRE] + parts[NODE]
     parts.update(acc)
