@@ -46,7 +46,7 @@ analog std above.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -55,7 +55,7 @@ import scipy.linalg
 from protocol.can_map import ConverterScale
 from protocol.signals import ANALOG_INPUTS
 
-__all__ = ["AntiAliasFilter", "NoiseSources", "SensorReading", "analog_noise_std", "channel_lsb_in", "read_inputs"]
+__all__ = ["AntiAliasFilter", "BlockNormals", "NoiseSources", "SensorReading", "analog_noise_std", "channel_lsb_in", "read_inputs"]
 
 NOISE_BLOCK = 512
 _VPU = np.array([ch.volts_per_unit for ch in ANALOG_INPUTS], dtype=np.float64)
@@ -66,22 +66,73 @@ _MAPS: tuple[tuple[float, float], ...] = tuple((float(v), float(c)) for v, c in 
 """Normal deviates drawn at a time for the per-step deflection noise."""
 
 
-@dataclass(frozen=True)
 class SensorReading:
-    """One A/D conversion of the four analog inputs (TPDO1 order)."""
+    """One A/D conversion of the four analog inputs (TPDO1 order).
 
-    time_s: float
-    codes: npt.NDArray[np.int64]
-    """Converter codes, ``-2**(bits-1) .. 2**(bits-1)-1``."""
-    saturated: npt.NDArray[np.bool_]
-    """Channels clipped at full scale."""
-    volts: npt.NDArray[np.float64]
-    """The quantized voltages, ``codes * LSB``: what a receiver reconstructs."""
-    analog_volts: npt.NDArray[np.float64]
-    """The voltages at the converter's input (noise included, before rounding)."""
-    values_in: npt.NDArray[np.float64]
-    """``volts`` in engineering units (in): extensions 1-2, deflections 1-2."""
-    bits: int
+    Built from plain floats and ints (what a tick needs: ``code_list`` and
+    ``saturated_list``, the node packs them into TPDO1); the arrays below are
+    made from them when first read, and kept."""
+
+    __slots__ = ("time_s", "bits", "code_list", "saturated_list", "_analog", "_lsb", "_arrays")
+
+    def __init__(self, time_s: float, code_list: list[int], saturated_list: list[bool], analog_volts: list[float], lsb_v: float, bits: int) -> None:
+        self.time_s = time_s
+        self.bits = bits
+        self.code_list = code_list
+        """Converter codes as ints, ``-2**(bits-1) .. 2**(bits-1)-1``."""
+        self.saturated_list = saturated_list
+        """Channels clipped at full scale, as bools."""
+        self._analog = analog_volts
+        self._lsb = lsb_v
+        self._arrays: dict[str, npt.NDArray[Any]] = {}
+
+    def _array(self, name: str) -> npt.NDArray[Any]:
+        a = self._arrays.get(name)
+        if a is None:
+            if name == "codes":
+                a = np.array(self.code_list, dtype=np.int64)
+            elif name == "saturated":
+                a = np.array(self.saturated_list, dtype=np.bool_)
+            elif name == "volts":
+                a = np.array(self._volts(), dtype=np.float64)
+            elif name == "analog_volts":
+                a = np.array(self._analog, dtype=np.float64)
+            else:
+                a = np.array([v / vpu + centre for v, (vpu, centre) in zip(self._volts(), _MAPS, strict=True)], dtype=np.float64)
+            self._arrays[name] = a
+        return a
+
+    def _volts(self) -> list[float]:
+        lsb = self._lsb
+        return [float(c) * lsb for c in self.code_list]
+
+    @property
+    def codes(self) -> npt.NDArray[np.int64]:
+        """Converter codes, ``-2**(bits-1) .. 2**(bits-1)-1``."""
+        return self._array("codes")
+
+    @property
+    def saturated(self) -> npt.NDArray[np.bool_]:
+        """Channels clipped at full scale."""
+        return self._array("saturated")
+
+    @property
+    def volts(self) -> npt.NDArray[np.float64]:
+        """The quantized voltages, ``codes * LSB``: what a receiver reconstructs."""
+        return self._array("volts")
+
+    @property
+    def analog_volts(self) -> npt.NDArray[np.float64]:
+        """The voltages at the converter's input (noise included, before rounding)."""
+        return self._array("analog_volts")
+
+    @property
+    def values_in(self) -> npt.NDArray[np.float64]:
+        """``volts`` in engineering units (in): extensions 1-2, deflections 1-2."""
+        return self._array("values_in")
+
+    def __repr__(self) -> str:
+        return f"SensorReading(time_s={self.time_s!r}, codes={self.code_list!r}, saturated={self.saturated_list!r}, bits={self.bits})"
 
 
 def analog_noise_std(total_std: float, lsb: float) -> float:
@@ -151,7 +202,7 @@ class NoiseSources:
     def reseed(self, seed: int) -> None:
         process, sample = np.random.SeedSequence(int(seed)).spawn(2)
         self.process = np.random.Generator(np.random.PCG64(process))
-        self.sample = np.random.Generator(np.random.PCG64(sample))
+        self.sample = BlockNormals(np.random.Generator(np.random.PCG64(sample)))
         self._block: list[float] = []
         self._next = 0
 
@@ -165,13 +216,53 @@ class NoiseSources:
         return self._block[i], self._block[i + 1]
 
 
+class BlockNormals:
+    """Standard normal deviates from ``generator``, drawn :data:`NOISE_BLOCK`
+    at a time and handed out in order: the same numbers, in the same order,
+    as drawing them from the generator one call at a time (numpy's
+    ``standard_normal(n)`` fills its output with n successive draws), without
+    a call into numpy and an array per sample. Everything drawn from it goes
+    through the block, so its stream stays the generator's."""
+
+    def __init__(self, generator: np.random.Generator) -> None:
+        self.generator = generator
+        self._block: list[float] = []
+        self._next = 0
+
+    def pair(self) -> tuple[float, float]:
+        """The next two deviates."""
+        i = self._next
+        block = self._block
+        if i + 2 > len(block):
+            return self._take(2)  # type: ignore[return-value]
+        self._next = i + 2
+        return block[i], block[i + 1]
+
+    def _take(self, n: int) -> list[float]:
+        out: list[float] = []
+        while len(out) < n:
+            if self._next >= len(self._block):
+                self._block = self.generator.standard_normal(NOISE_BLOCK).tolist()
+                self._next = 0
+            k = min(n - len(out), len(self._block) - self._next)
+            out += self._block[self._next : self._next + k]
+            self._next += k
+        return out
+
+    def standard_normal(self, size: int | None = None) -> Any:
+        """As :meth:`numpy.random.Generator.standard_normal` (a float, or a 1-D array of ``size``)."""
+        if size is None:
+            return self._take(1)[0]
+        return np.array(self._take(int(size)), dtype=np.float64)
+
+
 def read_inputs(
     time_s: float,
     extensions_in: tuple[float, float],
     deflections_in: tuple[float, float],
     extension_noise_std_in: tuple[float, float],
     scale: ConverterScale,
-    rng: np.random.Generator | None,
+    rng: BlockNormals | np.random.Generator | None,
 ) -> SensorReading:
     """Convert the four engineering values (in) to a :class:`SensorReading`.
 
@@ -179,24 +270,12 @@ def read_inputs(
     already in them); the extensions get their per-sample noise here."""
     # Plain floats, element by element: the same IEEE operations as the
     # array form ``(values - centre) * vpu`` etc., without numpy's per-call cost.
-    values = [float(extensions_in[0]), float(extensions_in[1]), float(deflections_in[0]), float(deflections_in[1])]
+    x0, x1 = extensions_in
     if rng is not None:
-        n0, n1 = rng.standard_normal(2).tolist()
-        values[0] += extension_noise_std_in[0] * n0
-        values[1] += extension_noise_std_in[1] * n1
-    analog_l = [(x - centre) * vpu for x, (vpu, centre) in zip(values, _MAPS, strict=True)]
-    q = scale.quantize(np.array(analog_l, dtype=np.float64))
-    lsb = scale.lsb_v
-    volts_l = [float(c) * lsb for c in q.counts.tolist()]
-    analog = np.array(analog_l, dtype=np.float64)
-    volts = np.array(volts_l, dtype=np.float64)
-    vals = np.array([v / vpu + centre for v, (vpu, centre) in zip(volts_l, _MAPS, strict=True)], dtype=np.float64)
-    return SensorReading(
-        time_s=time_s,
-        codes=q.counts,
-        saturated=q.saturated,
-        volts=volts,
-        analog_volts=analog,
-        values_in=vals,
-        bits=scale.bits,
-    )
+        n0, n1 = rng.pair() if type(rng) is BlockNormals else rng.standard_normal(2).tolist()
+        x0 = float(x0) + extension_noise_std_in[0] * n0
+        x1 = float(x1) + extension_noise_std_in[1] * n1
+    (v0, c0), (v1, c1), (v2, c2), (v3, c3) = _MAPS
+    analog = [(float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3]
+    codes, flags = scale.quantize_floats(analog)
+    return SensorReading(time_s, codes, flags, analog, scale.lsb_v, scale.bits)

@@ -36,7 +36,9 @@ from __future__ import annotations
 
 import enum
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Final
 
 import numpy as np
@@ -177,15 +179,16 @@ class ConverterScale:
         if self.full_scale_v <= 0:
             raise ValueError("full scale must be positive")
 
-    @property
+    # Computed once per scale (read on every conversion of a tick).
+    @cached_property
     def lsb_v(self) -> float:
         return 2.0 * self.full_scale_v / (1 << self.bits)
 
-    @property
+    @cached_property
     def code_min(self) -> int:
         return -(1 << (self.bits - 1))
 
-    @property
+    @cached_property
     def code_max(self) -> int:
         return (1 << (self.bits - 1)) - 1
 
@@ -205,11 +208,19 @@ class ConverterScale:
         return Quantized(counts=codes, saturated=np.asarray(saturated))
 
     def _quantize_small(self, values: list[float]) -> Quantized:
-        """:meth:`quantize` on a few floats (the 2-/4-vectors of a tick): the
-        same operations per element, without numpy's per-call overhead.
-        ``round`` rounds half to even like ``np.rint``; min/max clip like
-        ``np.clip`` for every non-NaN value (NaN is handled first)."""
-        bound = 2.0 * self.full_scale_v
+        """:meth:`quantize` on a few floats (the 2-/4-vectors of a tick)."""
+        counts, flags = self.quantize_floats(values)
+        return Quantized(counts=np.array(counts, dtype=np.int64), saturated=np.array(flags, dtype=np.bool_))
+
+    def quantize_floats(self, values: Iterable[float]) -> tuple[list[int], list[bool]]:
+        """:meth:`quantize` on plain floats, giving plain ints and bools: the
+        same operations per element without numpy's per-call overhead (the
+        2-/4-vectors of a tick). ``round`` rounds half to even like
+        ``np.rint``; the conditional expressions clip like ``np.clip`` for
+        every non-NaN value (NaN is handled first): each is what
+        ``min(hi, max(lo, x))`` returns, without the two calls."""
+        hi = 2.0 * self.full_scale_v
+        lo = -hi
         lsb = self.lsb_v
         cmin, cmax = self.code_min, self.code_max
         counts: list[int] = []
@@ -219,10 +230,18 @@ class ConverterScale:
                 counts.append(0)
                 flags.append(True)
                 continue
-            code = round(min(bound, max(-bound, x)) / lsb)
-            flags.append(code < cmin or code > cmax)
-            counts.append(min(cmax, max(cmin, code)))
-        return Quantized(counts=np.array(counts, dtype=np.int64), saturated=np.array(flags, dtype=np.bool_))
+            x = x if x > lo else lo
+            code = round((x if x < hi else hi) / lsb)
+            if code < cmin:
+                flags.append(True)
+                counts.append(cmin)
+            elif code > cmax:
+                flags.append(True)
+                counts.append(cmax)
+            else:
+                flags.append(False)
+                counts.append(code)
+        return counts, flags
 
     def to_volts(self, counts: npt.ArrayLike) -> npt.NDArray[np.float64]:
         return np.asarray(counts, dtype=np.float64) * self.lsb_v
@@ -298,8 +317,11 @@ def sync_gap(previous: int, current: int) -> int:
 
 def encode_analog_inputs_16(words: npt.ArrayLike) -> bytes:
     """TPDO1 payload from four left-justified INT16 words."""
-    if type(words) is list and len(words) == N_ANALOG_INPUTS and all(type(x) is int for x in words):
-        return _pack(_INT16X4, "TPDO1", *words)  # plain ints (the node's path): no array round trip
+    if type(words) is list and len(words) == N_ANALOG_INPUTS:
+        try:
+            return _INT16X4.pack(*words)  # plain ints (the node's path): no array round trip
+        except struct.error:
+            pass  # not four INT16 integers: the checked path below converts or says why
     w = np.asarray(words, dtype=np.int64)
     if w.shape != (N_ANALOG_INPUTS,):
         raise ValueError(f"TPDO1 carries {N_ANALOG_INPUTS} inputs, got shape {w.shape}")

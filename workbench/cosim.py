@@ -37,6 +37,7 @@ import can
 from controller.plant_link import PlantLink
 from controller.service import ControllerService, RunResult
 from dsp_service.core import DspCore
+from plant_emulator.canopen_node.frames import Frame
 from plant_emulator.node import CanopenNode
 from plant_emulator.service import PlantApplication, node_config
 from protocol.batch_codec import decode_batch
@@ -52,31 +53,58 @@ class DirectCanWire:
     ``send`` delivers the frame to the node at the scheduler's time and
     keeps whatever the node answers (and whatever its timers produce) for
     ``recv``. ``recv`` with nothing waiting lets ``timeout`` of simulated
-    time pass (runs the node's timers then): waiting *is* time passing."""
+    time pass (runs the node's timers then): waiting *is* time passing.
+
+    A standard data frame goes to the node as its COB-ID and bytes
+    (:meth:`CanopenNode.exchange`: the node's ``handle`` and ``poll`` in one
+    call), and the node's answers come back as its
+    :class:`~plant_emulator.canopen_node.frames.Frame` objects, which read
+    like :class:`can.Message` for a CANopen master: no python-can object is
+    built on the plant's side, while every payload is still packed and
+    unpacked by the :mod:`protocol.can_map` codecs at both ends. A master
+    that has no message to hand may call :meth:`send_frame` with the COB-ID
+    and payload itself."""
 
     def __init__(self, node: CanopenNode, scheduler: SimulatedScheduler) -> None:
         self.node = node
         self.scheduler = scheduler
-        self._to_master: deque[can.Message] = deque()
+        self._to_master: deque[Frame | can.Message] = deque()
         self.frames_to_node = 0
         self.frames_to_master = 0
 
-    def _take(self, frames: list[can.Message]) -> None:
-        self._to_master.extend(frames)
-        self.frames_to_master += len(frames)
+    def _take(self, frames: list[Frame] | list[can.Message]) -> None:
+        if frames:
+            self._to_master.extend(frames)
+            self.frames_to_master += len(frames)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        now = self.scheduler.now()
         self.frames_to_node += 1
-        self._take(self.node.handle(msg, now))
-        self._take(self.node.poll(now))
+        now = self.scheduler.now()
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            self._take(self.node.handle(msg, now))
+            self._take(self.node.poll(now))
+            return
+        frames = self.node.exchange(msg.arbitration_id, msg.data, now)
+        if frames:
+            self._to_master.extend(frames)
+            self.frames_to_master += len(frames)
 
-    def recv(self, timeout: float | None = None) -> can.Message | None:
-        if not self._to_master:
+    def send_frame(self, arbitration_id: int, data: bytes) -> None:
+        """:meth:`send` of a standard data frame given by its COB-ID and payload."""
+        self.frames_to_node += 1
+        self._take(self.node.exchange(arbitration_id, data, self.scheduler.now()))
+
+    def recv(self, timeout: float | None = None) -> Frame | can.Message | None:
+        waiting = self._to_master
+        if not waiting:
             if timeout:
                 self.scheduler.wait(timeout)
-            self._take(self.node.poll(self.scheduler.now()))
-        return self._to_master.popleft() if self._to_master else None
+            frames = self.node.poll_frames(self.scheduler.now())
+            if not frames:
+                return None
+            waiting.extend(frames)
+            self.frames_to_master += len(frames)
+        return waiting.popleft()
 
     def shutdown(self) -> None:
         self._to_master.clear()

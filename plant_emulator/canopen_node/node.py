@@ -105,6 +105,7 @@ import numpy.typing as npt
 
 from plant_emulator.canopen_node.config import NodeConfig
 from plant_emulator.canopen_node.counters import NodeCounters
+from plant_emulator.canopen_node.frames import Frame
 from plant_emulator.canopen_node.objects import PDO_NO_RTR, PDO_NOT_VALID, object_table
 from plant_emulator.canopen_node.od import (
     ObjectDictionary,
@@ -156,10 +157,11 @@ LSS_FIRST_COB_ID: Final[int] = 0x780
 class NodeApplication(Protocol):
     """What the node needs from the plant (implemented by the plant service)."""
 
-    def on_sync(self, counter: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-        """Advance the plant to this SYNC and sample it: (codes int64 (4,) at
-        the current ADC resolution, saturated bool (4,)). ``counter`` is the
-        SYNC counter (1..240), or 0 for SYNCs without counter."""
+    def on_sync(self, counter: int) -> tuple[Sequence[int] | npt.NDArray[np.int64], Sequence[bool] | npt.NDArray[np.bool_]]:
+        """Advance the plant to this SYNC and sample it: (codes at the current
+        ADC resolution, saturated flags), four each: int64 and bool arrays, or
+        lists of ints and bools (the plant's own, taken as they are).
+        ``counter`` is the SYNC counter (1..240), or 0 for SYNCs without counter."""
         ...
 
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
@@ -205,6 +207,16 @@ def node_can_filters(node_id: int = DEFAULT_NODE_ID) -> list[can.typechecking.Ca
 
 
 _ZERO_OUTPUTS: Final = np.zeros(N_ANALOG_OUTPUTS)
+_ZERO_VOLTS: Final[tuple[float, float]] = (0.0, 0.0)
+_IN16_KEYS: Final = tuple((OD_ANALOG_INPUT_16, sub) for sub in range(1, N_ANALOG_INPUTS + 1))
+_IN32_KEYS: Final = tuple((OD_ANALOG_INPUT_32, sub) for sub in range(1, N_ANALOG_INPUTS + 1))
+_OUT16_KEYS: Final = tuple((OD_ANALOG_OUTPUT_16, sub) for sub in range(1, N_ANALOG_OUTPUTS + 1))
+"""The process-data entries written on every sample and RPDO."""
+_INPUT_SATURATED: Final = int(EmcyCode.INPUT_SATURATED)
+_OUTPUT_CLIPPED: Final = int(EmcyCode.OUTPUT_CLIPPED)
+_PDO_LENGTH: Final = int(EmcyCode.PDO_LENGTH)
+_SYNC_CONFLICT: Final = int(EmcyCode.SYNC_CONFLICT)
+_RPDO_CONFLICT: Final = int(EmcyCode.RPDO_CONFLICT)
 _DAC_LSB: Final = DAC12.lsb_v
 _DAC_CODE_MIN: Final = DAC12.code_min
 _DAC_CODE_MAX: Final = DAC12.code_max
@@ -212,6 +224,12 @@ _DAC_SHIFT: Final = DAC12.shift(16)
 """DAC12's constants, read once (its properties compute them on every access)."""
 _RPDO1: Final = struct.Struct("<2h")
 """RPDO1 payload: two left-justified INT16 words (as protocol.can_map.decode_analog_outputs, length already checked)."""
+
+
+def _dac_bounds(limit_v: float) -> tuple[int, int]:
+    """The lowest and highest D/A code a valve voltage limit allows."""
+    limit_code = int(math.floor(limit_v / _DAC_LSB + 1e-9))
+    return max(-limit_code, _DAC_CODE_MIN), min(limit_code, _DAC_CODE_MAX)
 
 
 class CanopenNode:
@@ -226,12 +244,16 @@ class CanopenNode:
         self.od = ObjectDictionary.from_table(object_table(self.cfg), self.node_id)
         self.od.quiet = frozenset({OD_ANALOG_INPUT_16, OD_ANALOG_INPUT_32, OD_ANALOG_OUTPUT_16})
         self._conf_generation = -1
-        self._conf: tuple[int, float, float, float, float, float, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
+        self._quiet_until = -math.inf
+        """No timer is due before this simulated time (see :meth:`poll_frames`)..."""
+        self._quiet_generation = -1
+        """...unless the object dictionary changed since (its ``generation``)."""
+        self._conf: tuple[int, float, float, float, float, float, int, int, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0)
         self.sdo = SdoServer(self.od)
         self.counters.sdo = self.sdo.counters
         self.state = NmtState.BOOT_UP
         self._lock = threading.RLock()
-        self._outbox: list[can.Message] = []
+        self._outbox: list[Frame] = []
         self._now = 0.0
         self._logged: set[str] = set()
         self._faults: dict[int, bytes] = {}
@@ -246,8 +268,18 @@ class CanopenNode:
         self._rpdo_conflict_clean = 0
         self._last_sync_counter: int | None = None
         self._hb_next: float | None = None
-        self._outputs_v = _ZERO_OUTPUTS.copy()
+        self._outputs_v = _ZERO_VOLTS
+        """valve voltages as last given to the application (floats)"""
         self._own_ids = frozenset(self.ids[k] for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat"))
+        self._sync_id, self._rpdo1_id, self._nmt_id = self.ids["sync"], self.ids["rpdo1"], self.ids["nmt"]
+        self._tpdo1_id, self._hb_id = self.ids["tpdo1"], self.ids["heartbeat"]
+        # The process data (0x6401, 0x6402, 0x6411) lives in these lists, which the
+        # object dictionary serves through getters: written on every sample and
+        # RPDO, read only by SDO uploads (no dictionary write per tick).
+        self._process_defaults = {key: self.od.get(*key) for key in _IN16_KEYS + _IN32_KEYS + _OUT16_KEYS}
+        self._in16: list[int] = [int(self._process_defaults[k]) for k in _IN16_KEYS]
+        self._in32: list[int] = [int(self._process_defaults[k]) for k in _IN32_KEYS]
+        self._out16: list[int] = [int(self._process_defaults[k]) for k in _OUT16_KEYS]
         self._install_hooks()
         self._boot()
 
@@ -257,6 +289,7 @@ class CanopenNode:
         """Process one received frame; returns the frames to transmit."""
         with self._lock:
             self._now = now
+            self._quiet_until = -math.inf  # the frame may restart a timer: the next poll runs them
             try:
                 self._dispatch(msg, now)
             except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
@@ -268,20 +301,43 @@ class CanopenNode:
     def poll(self, now: float) -> list[can.Message]:
         """Run the timers (heartbeat producer, SYNC watchdog); returns frames to transmit.
         Call it at least every few milliseconds, or at :meth:`next_deadline`."""
+        return [f.to_message() for f in self.poll_frames(now)]
+
+    def poll_frames(self, now: float) -> list[Frame]:
+        """:meth:`poll`, the frames as the node made them (see :class:`Frame`)."""
         with self._lock:
             self._now = now
-            self._start_timers(now)
-            period = self.heartbeat_period_s
-            if period > 0 and self._hb_next is not None and now >= self._hb_next:
-                self._emit(self.ids["heartbeat"], encode_heartbeat(self.state), "heartbeat")
-                self._hb_next += period
-                if self._hb_next <= now:
-                    self.counters.heartbeat_late += 1
-                    self._hb_next = now + period
-            deadline = self._watchdog_deadline()
-            if deadline is not None and now >= deadline:
-                self._trip(now)
-            return self._drain()
+            if self.quick_poll and now < self._quiet_until and not self._outbox and self.od.generation == self._quiet_generation:
+                return []  # no timer due before _quiet_until (worked out by the last _timers)
+            self._timers(now)
+            out, self._outbox = self._outbox, []
+            return out
+
+    quick_poll = True
+    """Let :meth:`poll_frames` return at once before the earliest time a timer
+    can be due (False: run the timers on every poll; tests compare the two)."""
+
+    def exchange(self, cob_id: int, data: bytes | bytearray, now: float) -> list[Frame]:
+        """:meth:`handle` of a standard data frame followed by :meth:`poll` at the
+        same ``now``, in one call and without python-can objects (the
+        co-simulation's direct wire): the same state changes, the same frames
+        in the same order."""
+        with self._lock:
+            self._now = now
+            data = bytes(data)
+            try:
+                if cob_id == self._sync_id:  # the two frames of every tick first (_dispatch_data's order otherwise)
+                    self._on_sync(cob_id, data, now)
+                elif cob_id == self._rpdo1_id:
+                    self._on_rpdo(cob_id, data, now)
+                else:
+                    self._dispatch_data(cob_id, data, now)
+            except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
+                self.counters.internal_errors += 1
+                log.exception("node %d: internal error handling frame 0x%03X [%s]", self.node_id, cob_id, data.hex(" "))
+            self._timers(now)
+            out, self._outbox = self._outbox, []
+            return out
 
     def next_deadline(self) -> float | None:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
@@ -307,23 +363,28 @@ class CanopenNode:
     @property
     def outputs_v(self) -> npt.NDArray[np.float64]:
         """Valve voltages as last given to the application."""
-        return self._outputs_v.copy()
+        return np.array(self._outputs_v, dtype=np.float64)
 
-    def _config(self) -> tuple[int, float, float, float, float, float, int]:
+    def _config(self) -> tuple[int, float, float, float, float, float, int, int, int]:
         """The configuration read every tick (A/D bits, valve limit, sample period,
-        heartbeat period, RPDO1 timer, watchdog timeout, SYNC overflow), read
-        from the object dictionary again whenever it changed (its ``generation``)."""
+        heartbeat period, RPDO1 timer, watchdog timeout, SYNC overflow, and the
+        D/A codes the valve limit allows, lowest and highest), read from the
+        object dictionary again whenever it changed (its ``generation``)."""
         od = self.od
         if od.generation != self._conf_generation:
             period = int(od.get(OD_SAMPLE_PERIOD)) * 1e-6
+            limit = float(od.get(OD_VALVE_LIMIT))
+            code_lo, code_hi = _dac_bounds(limit)
             self._conf = (
                 int(od.get(OD_ADC_RESOLUTION)),
-                float(od.get(OD_VALVE_LIMIT)),
+                limit,
                 period,
                 int(od.get(0x1017)) * 1e-3,
                 int(od.get(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)) * 1e-3,
                 int(od.get(OD_WATCHDOG_PERIODS)) * period,
                 int(od.get(0x1019)),
+                code_lo,
+                code_hi,
             )
             self._conf_generation = od.generation
         return self._conf
@@ -369,6 +430,11 @@ class CanopenNode:
 
     def _install_hooks(self) -> None:
         od = self.od
+        for i in range(N_ANALOG_INPUTS):
+            od.getter(OD_ANALOG_INPUT_16, i + 1, self._process_value("_in16", i))
+            od.getter(OD_ANALOG_INPUT_32, i + 1, self._process_value("_in32", i))
+        for i in range(N_ANALOG_OUTPUTS):
+            od.getter(OD_ANALOG_OUTPUT_16, i + 1, self._process_value("_out16", i))
         od.getter(0x1001, 0, lambda: self.error_register)
         diag: Sequence[Callable[[], Value]] = (
             lambda: self.counters.sync_received,
@@ -390,6 +456,15 @@ class CanopenNode:
         od.on_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, self._write_rpdo_timer)
         for sub in range(1, N_ANALOG_OUTPUTS + 1):
             od.on_write(OD_ANALOG_OUTPUT_16, sub, self._output_writer(sub))
+
+    def _process_value(self, words: str, i: int) -> Callable[[], Value]:
+        """The getter of one process-data entry: word ``i`` of the node's list ``words``."""
+
+        def get() -> Value:
+            value: int = getattr(self, words)[i]
+            return value
+
+        return get
 
     def _write_error_history(self, value: Value) -> None:
         if value != 0:
@@ -480,44 +555,49 @@ class CanopenNode:
             self.counters.rx["extended"] += 1
             return
         cob_id = msg.arbitration_id
-        ours = cob_id < LSS_FIRST_COB_ID and (cob_id & 0x7F) == self.node_id
         if msg.is_remote_frame:
+            ours = cob_id < LSS_FIRST_COB_ID and (cob_id & 0x7F) == self.node_id
             if ours or cob_id in (self.ids["nmt"], self.ids["sync"]):
-                self._malformed("rtr", msg, "remote frames (node guarding, PDO requests) are not supported")
+                self._malformed("rtr", cob_id, bytes(msg.data), "remote frames (node guarding, PDO requests) are not supported")
             else:
                 self.counters.rx["foreign"] += 1
             return
-        data = bytes(msg.data)
-        if cob_id == self.ids["nmt"]:
-            self._on_nmt(msg, data)
-        elif cob_id == self.ids["sync"]:
-            self._on_sync(msg, data, now)
+        self._dispatch_data(cob_id, bytes(msg.data), now)
+
+    def _dispatch_data(self, cob_id: int, data: bytes, now: float) -> None:
+        """A standard data frame, by COB-ID."""
+        if cob_id == self._sync_id:
+            self._on_sync(cob_id, data, now)
+            return
+        ours = cob_id < LSS_FIRST_COB_ID and (cob_id & 0x7F) == self.node_id
+        if cob_id == self._rpdo1_id:
+            self._on_rpdo(cob_id, data, now)
+        elif cob_id == self._nmt_id:
+            self._on_nmt(cob_id, data)
         elif cob_id == TIME_COB_ID:
             self.counters.rx["time"] += 1
         elif not ours:
             self.counters.rx["foreign"] += 1
-        elif cob_id == self.ids["rpdo1"]:
-            self._on_rpdo(msg, data, now)
         elif cob_id == self.ids["sdo_rx"]:
-            self._on_sdo(msg, data)
+            self._on_sdo(cob_id, data)
         elif cob_id in self._own_ids:
             self.counters.rx["own_cob_id"] += 1
         else:
-            self._malformed("unknown_cob_id", msg, "no such object on this node")
+            self._malformed("unknown_cob_id", cob_id, data, "no such object on this node")
 
-    def _on_nmt(self, msg: can.Message, data: bytes) -> None:
+    def _on_nmt(self, cob_id: int, data: bytes) -> None:
         self.counters.rx["nmt"] += 1
         if len(data) != 2:
-            self._malformed("nmt_dlc", msg, f"NMT takes 2 bytes, got {len(data)}")
+            self._malformed("nmt_dlc", cob_id, data, f"NMT takes 2 bytes, got {len(data)}")
             return
         try:
             command = NmtCommand(data[0])
         except ValueError:
-            self._malformed("nmt_command", msg, f"unknown NMT command 0x{data[0]:02X}")
+            self._malformed("nmt_command", cob_id, data, f"unknown NMT command 0x{data[0]:02X}")
             return
         target = data[1]
         if target > 127:
-            self._malformed("nmt_node_id", msg, f"NMT node id {target} outside 0..127")
+            self._malformed("nmt_node_id", cob_id, data, f"NMT node id {target} outside 0..127")
             return
         if target not in (0, self.node_id):
             self.counters.rx["nmt_other_node"] += 1
@@ -533,12 +613,13 @@ class CanopenNode:
         elif command is NmtCommand.RESET_COMMUNICATION:
             self._reset(application=False)
 
-    def _on_sync(self, msg: can.Message, data: bytes, now: float) -> None:
+    def _on_sync(self, cob_id: int, data: bytes, now: float) -> None:
         self.counters.rx["sync"] += 1
         if self.state is NmtState.STOPPED:
             self.counters.rx["sync_stopped"] += 1
             return
-        overflow = self._config()[6]
+        conf = self._config()
+        overflow = conf[6]
         missed = 0
         conflict = ""
         if not data:
@@ -547,14 +628,14 @@ class CanopenNode:
                 conflict = "a SYNC without counter among SYNCs with counter"
         else:
             if overflow == 0:
-                self._malformed("sync_dlc", msg, "0x1019 = 0: SYNC without counter expected (DLC 0)")
+                self._malformed("sync_dlc", cob_id, data, "0x1019 = 0: SYNC without counter expected (DLC 0)")
                 return
             if len(data) != 1:
-                self._malformed("sync_dlc", msg, f"SYNC with counter takes 1 byte, got {len(data)}")
+                self._malformed("sync_dlc", cob_id, data, f"SYNC with counter takes 1 byte, got {len(data)}")
                 return
             counter = data[0]
             if not 1 <= counter <= overflow:
-                self._malformed("sync_counter", msg, f"SYNC counter {counter} outside 1..{overflow}")
+                self._malformed("sync_counter", cob_id, data, f"SYNC counter {counter} outside 1..{overflow}")
                 return
             prev = self._last_sync_counter
             if prev == 0:
@@ -576,10 +657,14 @@ class CanopenNode:
         if not data:
             self._last_sync_counter = 0
         self.counters.sync_received += 1
-        self._check_sync_conflict(conflict)
+        if conflict or _SYNC_CONFLICT in self._faults:
+            self._check_sync_conflict(conflict)
         if self.state is not NmtState.OPERATIONAL:
             return
-        self._check_rpdo_conflict(missed)
+        if conf[4] > 0:
+            self._check_rpdo_conflict(missed)
+        else:
+            self._rpdos_in_period = 0  # RPDO1 not declared cyclic: nothing to check (as _check_rpdo_conflict)
         if self._tripped and self._trip_cause == "sync":
             self._recover(now)
         self._wd_last = now
@@ -594,7 +679,7 @@ class CanopenNode:
             if int(EmcyCode.SYNC_CONFLICT) not in self._faults:
                 log.warning("node %d: %s: a second SYNC producer on the bus?", self.node_id, conflict)
             self._set_fault(EmcyCode.SYNC_CONFLICT, True, bytes([self._last_sync_counter or 0]))
-        elif int(EmcyCode.SYNC_CONFLICT) in self._faults:
+        elif _SYNC_CONFLICT in self._faults:
             self._sync_conflict_clean += 1
             if self._sync_conflict_clean >= CONFLICT_CLEAR_PERIODS:
                 self._set_fault(EmcyCode.SYNC_CONFLICT, False)
@@ -605,7 +690,7 @@ class CanopenNode:
         counter says were lost) means a second producer: EMCY RPDO_CONFLICT
         until CONFLICT_CLEAR_PERIODS clean periods."""
         n, self._rpdos_in_period = self._rpdos_in_period, 0
-        if self.rpdo_timeout_s <= 0:
+        if self._config()[4] <= 0:
             return  # RPDO1 not declared cyclic: event-driven masters may send several per period
         if n > 1 + missed:
             self.counters.rpdo_conflicts += 1
@@ -613,21 +698,22 @@ class CanopenNode:
             if int(EmcyCode.RPDO_CONFLICT) not in self._faults:
                 log.warning("node %d: %d RPDO1 in one SYNC period: a second RPDO producer on the bus?", self.node_id, n)
             self._set_fault(EmcyCode.RPDO_CONFLICT, True, bytes([min(n, 255)]))
-        elif int(EmcyCode.RPDO_CONFLICT) in self._faults:
+        elif _RPDO_CONFLICT in self._faults:
             self._rpdo_conflict_clean += 1
             if self._rpdo_conflict_clean >= CONFLICT_CLEAR_PERIODS:
                 self._set_fault(EmcyCode.RPDO_CONFLICT, False)
 
-    def _on_rpdo(self, msg: can.Message, data: bytes, now: float) -> None:
+    def _on_rpdo(self, cob_id: int, data: bytes, now: float) -> None:
         self.counters.rx["rpdo"] += 1
         if self.state is not NmtState.OPERATIONAL:
-            self._malformed("rpdo_not_operational", msg, f"RPDO in {self.state.name}, PDOs need NMT START")
+            self._malformed("rpdo_not_operational", cob_id, data, f"RPDO in {self.state.name}, PDOs need NMT START")
             return
         if len(data) != 4:
-            self._malformed("rpdo_dlc", msg, f"RPDO1 takes 4 bytes, got {len(data)}")
+            self._malformed("rpdo_dlc", cob_id, data, f"RPDO1 takes 4 bytes, got {len(data)}")
             self._set_fault(EmcyCode.PDO_LENGTH, True, bytes([len(data) & 0xFF]))
             return
-        self._set_fault(EmcyCode.PDO_LENGTH, False)
+        if _PDO_LENGTH in self._faults:
+            self._set_fault(_PDO_LENGTH, False)
         if self._tripped:
             self.counters.outputs_held += 1
             if self._trip_cause == "rpdo":
@@ -635,15 +721,16 @@ class CanopenNode:
             return
         self._rpdo_last = now
         self._rpdos_in_period += 1  # held frames (tripped) are not counted
-        self._apply_outputs(_RPDO1.unpack(bytes(data)))
+        w0, w1 = _RPDO1.unpack(data)
+        self._apply_words(w0, w1, self._config())
 
-    def _on_sdo(self, msg: can.Message, data: bytes) -> None:
+    def _on_sdo(self, cob_id: int, data: bytes) -> None:
         self.counters.rx["sdo"] += 1
         if self.state is NmtState.STOPPED:
-            self._malformed("sdo_stopped", msg, "SDO is not served in STOPPED")
+            self._malformed("sdo_stopped", cob_id, data, "SDO is not served in STOPPED")
             return
         if len(data) != 8:
-            self._malformed("sdo_dlc", msg, f"SDO requests take 8 bytes, got {len(data)}")
+            self._malformed("sdo_dlc", cob_id, data, f"SDO requests take 8 bytes, got {len(data)}")
             return
         response = self.sdo.handle(data)
         if response is not None:
@@ -692,7 +779,7 @@ class CanopenNode:
         old_bits, old_period = self.adc_bits, int(self.od.get(OD_SAMPLE_PERIOD))
         was_operational = self.state is NmtState.OPERATIONAL
         self.state = NmtState.BOOT_UP  # no EMCY from the tear-down: the boot-up says it all
-        if was_operational or self._tripped or np.any(self._outputs_v):
+        if was_operational or self._tripped or any(self._outputs_v):
             if self._tripped:
                 self._tripped = False
                 self._call_app("on_watchdog", self.app.on_watchdog, False)
@@ -701,6 +788,11 @@ class CanopenNode:
         self._faults.clear()
         self._error_history.clear()
         self.od.restore_defaults(None if application else range(0x1000, 0x2000))
+        if application:  # the process data too (served from the node's lists)
+            d = self._process_defaults
+            self._in16 = [int(d[k]) for k in _IN16_KEYS]
+            self._in32 = [int(d[k]) for k in _IN32_KEYS]
+            self._out16 = [int(d[k]) for k in _OUT16_KEYS]
         if application:
             bits, period = self.adc_bits, int(self.od.get(OD_SAMPLE_PERIOD))
             if bits != old_bits:
@@ -718,12 +810,34 @@ class CanopenNode:
     # --- process data -----------------------------------------------------------------
 
     def _sample(self, counter: int) -> None:
-        result = self._call_app("on_sync", self.app.on_sync, counter)
+        try:
+            result = self.app.on_sync(counter)
+        except Exception:  # noqa: BLE001 - as _call_app: the app's bug must not take the bus down
+            self._app_failed("on_sync")
+            return
         if result is None:
             return
+        codes: list[int]
+        saturated: list[bool]
         try:
             raw_codes, raw_sat = result
             if (
+                type(raw_codes) is list
+                and type(raw_sat) is list
+                and len(raw_codes) == N_ANALOG_INPUTS
+                and len(raw_sat) == N_ANALOG_INPUTS
+                and type(raw_codes[0]) is int
+                and type(raw_codes[1]) is int
+                and type(raw_codes[2]) is int
+                and type(raw_codes[3]) is int
+                and type(raw_sat[0]) is bool
+                and type(raw_sat[1]) is bool
+                and type(raw_sat[2]) is bool
+                and type(raw_sat[3]) is bool
+            ):
+                codes = raw_codes  # the plant's own A/D output: four plain ints and bools already
+                saturated = raw_sat
+            elif (
                 type(raw_codes) is np.ndarray
                 and raw_codes.dtype == np.int64
                 and raw_codes.shape == (N_ANALOG_INPUTS,)
@@ -732,8 +846,8 @@ class CanopenNode:
                 and raw_sat.shape == (N_ANALOG_INPUTS,)
             ):
                 # The application's own types (the plant's A/D): plain ints and bools from here on.
-                codes: list[int] = raw_codes.tolist()
-                saturated: list[bool] = raw_sat.tolist()
+                codes = raw_codes.tolist()
+                saturated = raw_sat.tolist()
             else:
                 arr = np.asarray(raw_codes)
                 sat_arr = np.asarray(raw_sat, dtype=bool).reshape(N_ANALOG_INPUTS)
@@ -749,68 +863,74 @@ class CanopenNode:
             self.counters.app_errors += 1
             self._log_once("app:on_sync_result", "node %d: on_sync returned unusable data: %s", self.node_id, e)
             return
-        bits = self.adc_bits
+        bits = self._config()[0]
         lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-        if min(codes) < lo or max(codes) > hi:
+        c0, c1, c2, c3 = codes
+        if not (lo <= c0 <= hi and lo <= c1 <= hi and lo <= c2 <= hi and lo <= c3 <= hi):
             self.counters.app_codes_clipped += 1
             self._log_once("app:codes", "node %d: on_sync codes %s outside %d-bit range, clipped", self.node_id, np.array(codes, dtype=np.int64), bits)
-            codes = [min(hi, max(lo, c)) for c in codes]
+            c0, c1, c2, c3 = (min(hi, max(lo, c)) for c in codes)
         if bits <= 16:
             s16 = 16 - bits
-            words16 = [c << s16 for c in codes]
+            words16 = [c0 << s16, c1 << s16, c2 << s16, c3 << s16]
         else:
             s16 = bits - 16
-            words16 = [c >> s16 for c in codes]
+            words16 = [c0 >> s16, c1 >> s16, c2 >> s16, c3 >> s16]
         s32 = 32 - bits
-        words32 = [c << s32 for c in codes]
-        od_set = self.od.set
-        for sub in range(1, N_ANALOG_INPUTS + 1):
-            od_set(OD_ANALOG_INPUT_16, sub, words16[sub - 1])
-            od_set(OD_ANALOG_INPUT_32, sub, words32[sub - 1])
-        self._emit(self.ids["tpdo1"], encode_analog_inputs_16(words16), "tpdo1")
+        w0, w1, w2, w3 = c0 << s32, c1 << s32, c2 << s32, c3 << s32
+        self._in16 = words16
+        self._in32 = words32 = [w0, w1, w2, w3]
+        counters = self.counters
+        counters.tx["tpdo1"] += 1  # _emit, inline
+        self._outbox.append(Frame(self._tpdo1_id, encode_analog_inputs_16(words16), self._now))
         if bits > 16:
             tpdo2, tpdo3 = encode_analog_inputs_32(words32)
             self._emit(self.ids["tpdo2"], tpdo2, "tpdo2")
             self._emit(self.ids["tpdo3"], tpdo3, "tpdo3")
-        self.counters.samples += 1
-        n_sat = 0
-        mask = 0
-        for i, flag in enumerate(saturated):
-            if flag:
-                n_sat += 1
-                mask |= 1 << i
-        self.counters.saturated_samples += n_sat
-        self._set_fault(EmcyCode.INPUT_SATURATED, n_sat > 0, bytes([mask]))
+        counters.samples += 1
+        s0, s1, s2, s3 = saturated
+        if s0 or s1 or s2 or s3:
+            counters.saturated_samples += int(s0) + int(s1) + int(s2) + int(s3)
+            self._set_fault(_INPUT_SATURATED, True, bytes([int(s0) | int(s1) << 1 | int(s2) << 2 | int(s3) << 3]))
+        elif _INPUT_SATURATED in self._faults:
+            self._set_fault(_INPUT_SATURATED, False)
 
     def _output_words(self) -> npt.NDArray[np.int64]:
         return np.array([int(self.od.get(OD_ANALOG_OUTPUT_16, s)) for s in range(1, N_ANALOG_OUTPUTS + 1)], dtype=np.int64)
 
     def _zero_outputs(self) -> None:
-        for sub in range(1, N_ANALOG_OUTPUTS + 1):
-            self.od.set(OD_ANALOG_OUTPUT_16, sub, 0)
-        self._outputs_v = _ZERO_OUTPUTS.copy()
+        self._out16 = [0, 0]
+        self._outputs_v = _ZERO_VOLTS
 
     def _apply_outputs(self, words: npt.ArrayLike, limit_v: float | None = None) -> None:
         w = words.tolist() if isinstance(words, np.ndarray) else [int(x) for x in words]  # type: ignore[union-attr,arg-type]  # ArrayLike admits no iteration in numpy's stubs
-        for sub in range(1, N_ANALOG_OUTPUTS + 1):
-            self.od.set(OD_ANALOG_OUTPUT_16, sub, int(w[sub - 1]))
-        limit = self.valve_limit_v if limit_v is None else limit_v
+        conf = self._config()
+        if limit_v is not None:
+            conf = conf[:7] + _dac_bounds(limit_v)
+        self._apply_words(int(w[0]), int(w[1]), conf)
+
+    def _apply_words(self, w0: int, w1: int, conf: tuple[int, float, float, float, float, float, int, int, int]) -> None:
+        """Two RPDO1 words to the valves: D/A codes (the 4 padding bits
+        dropped), clipped to the valve limit's codes (``conf``'s last two)."""
+        self._out16 = [w0, w1]
+        lo, hi = conf[7], conf[8]
         lsb = _DAC_LSB
-        limit_code = int(math.floor(limit / lsb + 1e-9))
-        lo, hi = max(-limit_code, _DAC_CODE_MIN), min(limit_code, _DAC_CODE_MAX)
-        shift = _DAC_SHIFT
         # Plain ints: the code's int -> float conversion and the product by one LSB are
         # the same IEEE operations numpy does on the int64 array.
-        c0, c1 = w[0] >> shift, w[1] >> shift
+        c0, c1 = w0 >> _DAC_SHIFT, w1 >> _DAC_SHIFT
         clip0, clip1 = c0 < lo or c0 > hi, c1 < lo or c1 > hi
-        volts = np.array([float(min(hi, max(lo, c0))) * lsb, float(min(hi, max(lo, c1))) * lsb], dtype=np.float64)
-        self._outputs_v = volts
+        v0, v1 = float(min(hi, max(lo, c0))) * lsb, float(min(hi, max(lo, c1))) * lsb
+        self._outputs_v = (v0, v1)
         self.counters.outputs_applied += 1
-        self._call_app("on_outputs", self.app.on_outputs, volts.copy())
+        try:
+            self.app.on_outputs(np.array((v0, v1), dtype=np.float64))
+        except Exception:  # noqa: BLE001 - as _call_app
+            self._app_failed("on_outputs")
         if clip0 or clip1:
             self.counters.clipped_outputs += 1
-        mask = int(clip0) | (int(clip1) << 1)
-        self._set_fault(EmcyCode.OUTPUT_CLIPPED, clip0 or clip1, bytes([mask]))
+            self._set_fault(_OUTPUT_CLIPPED, True, bytes([int(clip0) | (int(clip1) << 1)]))
+        elif _OUTPUT_CLIPPED in self._faults:
+            self._set_fault(_OUTPUT_CLIPPED, False)
 
     # --- watchdog ------------------------------------------------------------------------
 
@@ -895,23 +1015,53 @@ class CanopenNode:
             if period > 0:
                 self._hb_next = now + period
 
+    def _timers(self, now: float) -> None:
+        """What :meth:`poll` does: start the heartbeat if it is not running,
+        send it when due, trip the watchdog at its deadline (:meth:`_deadlines`,
+        inline: this runs after every frame)."""
+        conf = self._config()
+        period = conf[3]
+        hb_next = self._hb_next
+        if hb_next is None:
+            if period > 0:
+                self._hb_next = now + period  # first beat one period from now
+        elif period > 0 and now >= hb_next:
+            self._emit(self._hb_id, encode_heartbeat(self.state), "heartbeat")
+            hb_next += period
+            if hb_next <= now:
+                self.counters.heartbeat_late += 1
+                hb_next = now + period
+            self._hb_next = hb_next
+        quiet = self._hb_next if period > 0 and self._hb_next is not None else math.inf
+        if self.state is NmtState.OPERATIONAL and not self._tripped:
+            sync_timeout, rpdo_timeout = conf[5], conf[4]
+            wd_last, rpdo_last = self._wd_last, self._rpdo_last
+            sync_due = wd_last + sync_timeout if wd_last is not None and sync_timeout > 0 else math.inf
+            rpdo_due = rpdo_last + rpdo_timeout if rpdo_last is not None and rpdo_timeout > 0 else math.inf
+            if now >= sync_due or now >= rpdo_due:
+                self._trip(now)  # held from now on: no watchdog deadline until it recovers
+            else:
+                quiet = min(quiet, sync_due, rpdo_due)
+        self._quiet_until = quiet
+        self._quiet_generation = self.od.generation
+
     def _emit(self, cob_id: int, data: bytes, kind: str) -> None:
         self.counters.tx[kind] += 1
-        self._outbox.append(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, timestamp=self._now))
+        self._outbox.append(Frame(cob_id, data, self._now))
 
     def _drain(self) -> list[can.Message]:
         out, self._outbox = self._outbox, []
-        return out
+        return [f.to_message() for f in out]
 
-    def _malformed(self, kind: str, msg: can.Message, why: str) -> None:
+    def _malformed(self, kind: str, cob_id: int, data: bytes, why: str) -> None:
         self.counters.malformed[kind] += 1
         self._log_once(
             kind,
             "node %d: ignored %s frame id 0x%03X data [%s]: %s (further ones are only counted)",
             self.node_id,
             kind,
-            msg.arbitration_id,
-            bytes(msg.data).hex(" "),
+            cob_id,
+            data.hex(" "),
             why,
         )
 
@@ -924,8 +1074,12 @@ class CanopenNode:
         try:
             return fn(*args)
         except Exception:  # noqa: BLE001 - the app's bug must not take the bus down
-            self.counters.app_errors += 1
-            if f"app:{name}" not in self._logged:
-                self._logged.add(f"app:{name}")
-                log.exception("node %d: application callback %s failed (further failures only counted)", self.node_id, name)
+            self._app_failed(name)
             return None
+
+    def _app_failed(self, name: str) -> None:
+        """An application callback raised (called from inside its ``except``): counted, logged once."""
+        self.counters.app_errors += 1
+        if f"app:{name}" not in self._logged:
+            self._logged.add(f"app:{name}")
+            log.exception("node %d: application callback %s failed (further failures only counted)", self.node_id, name)

@@ -3,7 +3,7 @@ the same way, with the calls the controller service makes into each part
 timed by wrappers (no profiler: a profiler's per-call cost would distort a
 tick made of many small calls).
 
-Parts: the plant node (``handle`` and ``poll``, through the wire), the
+Parts: the plant node (``exchange`` and ``poll_frames``, through the wire), the
 wire's own work, the controller's :class:`~controller.plant_link.PlantLink`
 (frame encode/decode, dispatch; the node's time subtracted), the control law
 (``law.step_row``: engineering, trajectory, OATF, PI, D/A, the record row), the
@@ -13,6 +13,14 @@ wrappers cost ~0.3 µs per call; the parts are inclusive wall times, the
 service's share the rest of the run's wall time.
 
 ``python -m workbench.bench.cosim_parts [SECONDS]`` prints the table.
+
+The plant side alone (:func:`plant_side`, ``python -m workbench.bench.cosim_parts
+--plant [SECONDS]``): the wire calls of one co-simulation (each ``send`` with
+its frame, each ``recv`` with its timeout, and the simulated time of each)
+are captured, then replayed into a fresh plant (the same node, application
+and wire, so the plant takes the same path through the same states) in a
+loop with nothing else in it; CPU time per tick, the best of several rounds.
+The run is deterministic, so what changes between two builds is the code.
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
 
-NODE = "plant node (handle + poll)"
+NODE = "plant node (exchange + poll_frames)"
 WIRE = "DirectCanWire own"
 LINK = "PlantLink own (RPDO encode, TPDO decode, dispatch)"
 SERVICE = "ControllerService own (controller/service.py)"
@@ -63,8 +71,8 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
     link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
     ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
     acc: defaultdict[str, float] = defaultdict(float)
-    _wrap(node, "handle", "node", acc)
-    _wrap(node, "poll", "node", acc)
+    for name in ("handle", "exchange", "poll_frames"):  # the wire's entries, and handle (poll runs poll_frames)
+        _wrap(node, name, "node", acc)
     _wrap(wire, "send", "wire", acc)
     _wrap(wire, "recv", "wire", acc)
     for name in ("send_outputs", "send_output_values", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
@@ -82,7 +90,7 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
         ctrl.close()
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
     ticks = max(result.ticks, 1)
-    parts = {NODE: acc.pop("node"), WIRE: acc.pop("wire"), LINK: acc.pop("link")}
+    parts = {NODE: acc.pop("node", 0.0), WIRE: acc.pop("wire"), LINK: acc.pop("link")}
     parts[WIRE] -= parts[NODE]
     parts[LINK] -= parts[WIRE] + parts[NODE]
     parts.update(acc)
@@ -96,8 +104,80 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
     }
 
 
+def _plant(sim_s: float) -> tuple[Any, Any, Any, Any, Any, Any]:
+    from plant_emulator.node import CanopenNode
+    from plant_emulator.service import PlantApplication, node_config
+    from service_kit.clock import SimulatedScheduler
+    from workbench.cosim import DirectCanWire, settings_for
+
+    cs, ps, ds = settings_for({"oatf_mode": "adaptive", "duration_s": sim_s})
+    scheduler = SimulatedScheduler()
+    app = PlantApplication(ps, clock=scheduler.now)
+    node = CanopenNode(app, node_config(ps))
+    return cs, ds, scheduler, app, node, DirectCanWire(node, scheduler)
+
+
+def capture_wire_calls(sim_s: float) -> tuple[list[tuple[bool, float, Any]], int]:
+    """One co-simulation of ``sim_s`` s: every call the controller makes on the
+    CAN wire, as (is_recv, simulated time, frame sent or recv timeout); and the ticks."""
+    from controller.plant_link import PlantLink
+    from controller.service import ControllerService
+    from dsp_service.core import DspCore
+    from workbench.cosim import DirectDspPort
+
+    cs, ds, scheduler, _app, _node, wire = _plant(sim_s)
+    calls: list[tuple[bool, float, Any]] = []
+    send, recv = wire.send, wire.recv
+    now = scheduler.now
+
+    def sending(msg: Any, timeout: float | None = None) -> None:
+        calls.append((False, now(), msg))
+        send(msg, timeout)
+
+    def receiving(timeout: float | None = None) -> Any:
+        calls.append((True, now(), timeout))
+        return recv(timeout)
+
+    wire.send, wire.recv = sending, receiving
+    link = PlantLink(wire, cs.node_id, clock=now)
+    ctrl = ControllerService(cs, None, link, port=DirectDspPort(DspCore(ds)), scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
+    try:
+        result = ctrl.run(scheduler.stop)
+    finally:
+        ctrl.close()
+    return calls, result.ticks
+
+
+def plant_side(sim_s: float = 10.0, rounds: int = 5) -> dict[str, Any]:
+    """The plant side of a co-simulated tick (node, application, arm, wire),
+    replayed alone: CPU and wall µs per tick of each round, and the best."""
+    calls, ticks = capture_wire_calls(sim_s)
+    cpu_us: list[float] = []
+    wall_us: list[float] = []
+    for _ in range(rounds):
+        _cs, _ds, scheduler, _app, _node, wire = _plant(sim_s)
+        send, recv, at = wire.send, wire.recv, scheduler.advance_to
+        started, cpu = time.perf_counter(), time.process_time()
+        for is_recv, t, arg in calls:
+            at(t)
+            if is_recv:
+                recv(arg)
+            else:
+                send(arg)
+        cpu_us.append((time.process_time() - cpu) / ticks * 1e6)
+        wall_us.append((time.perf_counter() - started) / ticks * 1e6)
+    return {"ticks": ticks, "calls": len(calls), "cpu_us_per_tick": cpu_us, "wall_us_per_tick": wall_us, "best_cpu_us": min(cpu_us)}
+
+
 def main() -> None:
-    sim_s = float(sys.argv[1]) if len(sys.argv) > 1 else 20.0
+    args = sys.argv[1:]
+    if args[:1] == ["--plant"]:
+        out = plant_side(float(args[1]) if len(args) > 1 else 10.0)
+        rounds = ", ".join(f"{c:.1f}" for c in out["cpu_us_per_tick"])
+        print(f"plant side (node + application + arm + wire), {out['ticks']} ticks, {out['calls']} wire calls replayed")
+        print(f"  CPU µs per tick: best {out['best_cpu_us']:.1f} (rounds {rounds}); wall best {min(out['wall_us_per_tick']):.1f}")
+        return
+    sim_s = float(args[0]) if args else 20.0
     cosim_parts(1.0)  # warm-up: imports, compiled kernels
     out = cosim_parts(sim_s)
     print(f"{out['ticks']} ticks: {out['wall_us_per_tick']:.0f} µs wall, {out['cpu_us_per_tick']:.0f} µs CPU per tick (instrumented)")

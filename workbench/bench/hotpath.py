@@ -5,7 +5,9 @@
   row appended (the per-tick forms the controller service runs: plain ints
   and floats, :meth:`ControlLaw.step_row`, :meth:`ColumnBuffer.append_row`);
 * plant step: SYNC frame -> one period of dynamics -> sensors -> A/D -> TPDO1 frame
-  (the CANopen node's ``handle``, as the plant service runs it);
+  (the CANopen node's ``handle``, as the plant service runs it; and its
+  ``exchange``, as the co-simulation's direct wire calls it, no python-can
+  message either way);
 
 and their parts, so each choice of means can be measured (``ralf-hil bench
 --only hotpath``; ``python -m workbench.bench.hotpath`` prints the table;
@@ -92,11 +94,16 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
     def plant_step(i: int) -> None:
         node.handle(sync_frame(), i * ps.sample_period_s)
 
+    def plant_step_direct(i: int) -> None:
+        counter[0] = can_map.next_sync_counter(counter[0])
+        node.exchange(can_map.SYNC_COB_ID, can_map.encode_sync(counter[0]), i * ps.sample_period_s)
+
     out = law.step(0, words)
     errors = (out.setpoint_rad - out.measurement.phi_rad).tolist()
     results = {
         "controller tick": _timed(controller_tick, n, warmup),
         "plant step (SYNC -> TPDO1)": _timed(plant_step, n, warmup),
+        "  plant step, direct wire (CanopenNode.exchange)": _timed(plant_step_direct, n, warmup),
         "  tpdo decode": _timed(lambda i: can_map.decode_analog_inputs_16(tpdo.data), n, warmup),
         "  tpdo decode (ints)": _timed(lambda i: can_map.decode_analog_inputs_16_values(tpdo.data), n, warmup),
         "  engineering (measure, arrays)": _timed(lambda i: measure(words), n, warmup),

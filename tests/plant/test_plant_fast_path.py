@@ -1,0 +1,312 @@
+"""The plant's float/int fast paths give what the general paths give, value for value.
+
+Each fast path of a co-simulated tick (plain floats and ints instead of
+numpy on the 4-vectors, frames without python-can objects in the direct
+wire, cached configuration) is compared here with the general path it
+shortcuts, on inputs chosen to hit its edges."""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+
+from plant_emulator.canopen_node import CanopenNode, NodeConfig
+from plant_emulator.canopen_node.frames import Frame
+from plant_emulator.model import PlantConfig, RalfArm
+from protocol.can_map import ConverterScale, NmtCommand, decode_analog_inputs_16, encode_nmt
+from protocol.signals import ANALOG_INPUTS
+from tests.plant.support import FakeApp
+
+TPDO1 = 0x181
+
+
+def _special_volts(scale: ConverterScale) -> list[float]:
+    """Half-LSB boundaries and their neighbours, the ends, NaN, ±inf, ±0 and huge values."""
+    lsb = scale.lsb_v
+    out = [0.0, -0.0, math.nan, math.inf, -math.inf, 1e300, -1e300, scale.full_scale_v, -scale.full_scale_v]
+    for k in (-(2 ** (scale.bits - 1)) - 1, -3, -1, 0, 1, 2, 7, 2 ** (scale.bits - 1) - 1, 2 ** (scale.bits - 1)):
+        edge = (k + 0.5) * lsb
+        out += [edge, math.nextafter(edge, math.inf), math.nextafter(edge, -math.inf)]
+    return out
+
+
+@pytest.mark.parametrize("bits", [12, 16, 20, 32])
+def test_quantize_floats_equals_the_array_path(bits: int) -> None:
+    scale = ConverterScale(bits)
+    rng = np.random.default_rng(bits)
+    values = _special_volts(scale) + (rng.standard_normal(2000) * 7.0).tolist() + (rng.uniform(-25, 25, 500)).tolist()
+    counts, flags = scale.quantize_floats(values)
+    reference = scale.quantize(np.array(values))  # > 8 values: numpy's rint/clip path
+    assert len(values) > 8
+    assert [type(c) for c in counts] == [int] * len(values) and [type(f) for f in flags] == [bool] * len(values)
+    np.testing.assert_array_equal(np.array(counts, dtype=np.int64), reference.counts)
+    np.testing.assert_array_equal(np.array(flags), reference.saturated)
+
+
+def test_converter_constants_are_cached_and_right() -> None:
+    scale = ConverterScale(12)
+    assert scale.lsb_v == 20.0 / 4096 and scale.code_min == -2048 and scale.code_max == 2047
+    assert scale.lsb_v is scale.lsb_v
+    assert scale == ConverterScale(12) and hash(scale) == hash(ConverterScale(12))
+
+
+@pytest.mark.parametrize("noise", [True, False])
+def test_sensor_reading_arrays_are_its_lists(noise: bool) -> None:
+    arm = RalfArm(PlantConfig(seed=3, sensor_noise=noise))
+    arm.set_valve_voltages(np.array([2.0, -1.5]))
+    vpu = np.array([ch.volts_per_unit for ch in ANALOG_INPUTS])
+    centre = np.array([ch.centre for ch in ANALOG_INPUTS])
+    for _ in range(50):
+        arm.advance(0.005)
+        r = arm.sample()
+        assert r.codes.dtype == np.int64 and r.saturated.dtype == np.bool_
+        np.testing.assert_array_equal(r.codes, r.code_list)
+        np.testing.assert_array_equal(r.saturated, r.saturated_list)
+        lsb = ConverterScale(r.bits).lsb_v
+        np.testing.assert_array_equal(r.volts, r.codes.astype(np.float64) * lsb)
+        np.testing.assert_array_equal(r.values_in, r.volts / vpu + centre)
+        q = ConverterScale(r.bits).quantize(np.concatenate([r.analog_volts] * 3))  # the array path
+        np.testing.assert_array_equal(q.counts[:4], r.codes)
+        assert r.codes is r.codes  # made once, kept
+    assert "codes=" in repr(r)
+
+
+class _ListApp(FakeApp):
+    """The same plant stand-in handing its codes as lists (as the plant service does)."""
+
+    def on_sync(self, counter: int) -> tuple[list[int], list[bool]]:  # type: ignore[override]
+        codes, sat = super().on_sync(counter)
+        return codes.tolist(), sat.tolist()
+
+
+class _FloatListApp(FakeApp):
+    def on_sync(self, counter: int) -> tuple[list[float], list[bool]]:  # type: ignore[override]
+        codes, sat = super().on_sync(counter)
+        return [float(c) + 0.25 for c in codes.tolist()], sat.tolist()
+
+
+def _tpdos(app: FakeApp, bits: int = 12) -> list[tuple[int, bytes]]:
+    app.bits = bits
+    node = CanopenNode(app)
+    node.handle(can.Message(arbitration_id=0, data=encode_nmt(NmtCommand.START, 1), is_extended_id=False), 0.0)
+    out = []
+    for k in range(1, 6):
+        app.saturated = np.array([k % 2 == 0, False, k == 3, False])
+        frames = node.handle(can.Message(arbitration_id=0x80, data=bytes([k]), is_extended_id=False), 0.005 * k)
+        out += [(f.arbitration_id, bytes(f.data)) for f in frames]
+    return out
+
+
+def test_the_node_takes_list_codes_as_it_takes_arrays() -> None:
+    volts = (1.0, -2.5, 9.99, -10.0)
+    reference = _tpdos(FakeApp(volts))
+    assert _tpdos(_ListApp(volts)) == reference
+    assert {cob for cob, _ in reference} == {TPDO1, 0x81}  # TPDO1s and the saturation EMCYs
+    # floats in a list are not codes: the general path rounds them (+0.25 rounds away)
+    assert _tpdos(_FloatListApp(volts)) == reference
+    words = decode_analog_inputs_16(next(data for cob, data in reference if cob == TPDO1))
+    np.testing.assert_array_equal(words >> 4, ConverterScale(12).quantize(np.array(volts)).counts)
+
+
+# --- the direct wire's path through the node: exchange == handle + poll ------------------
+
+
+def _random_traffic(seed: int, n: int) -> list[tuple[float, int, bytes]]:
+    """Frames a master (and a few rogue stations) might send, with their times:
+    NMT commands, SYNC with and without counter (gaps, repeats), RPDO1 words
+    inside and beyond the valve limit, wrong lengths, SDO reads and writes of
+    the configuration (0x1017, 0x2002, 0x2003, 0x1400 sub 5, 0x2001, 0x6411),
+    TIME, foreign and unknown COB-IDs; time steps that let the heartbeat and
+    the watchdog fire."""
+    rng = np.random.default_rng(seed)
+    t = 0.0
+    counter = 0
+    out: list[tuple[float, int, bytes]] = [(0.0, 0x000, bytes([0x01, 1]))]
+    sdo_writes = [
+        (0x1017, 0, 2, [20, 50, 0]),
+        (0x2002, 0, 4, None),
+        (0x2003, 0, 2, [3, 5, 0]),
+        (0x1400, 5, 2, [0, 15, 40]),
+        (0x2001, 0, 1, [12, 16, 20]),
+        (0x6411, 1, 2, [0x1230, -0x7000 & 0xFFFF]),
+        (0x1003, 0, 1, [0]),
+    ]
+    for _ in range(n):
+        t += float(rng.choice([0.0, 0.001, 0.005, 0.005, 0.005, 0.012, 0.04, 0.2]))
+        r = rng.random()
+        if r < 0.45:
+            counter = counter % 240 + 1 if rng.random() > 0.05 else int(rng.integers(1, 241))
+            out.append((t, 0x080, bytes([counter]) if rng.random() > 0.03 else b""))
+        elif r < 0.85:
+            words = rng.integers(-32768, 32768, 2)
+            if rng.random() < 0.5:
+                words = (rng.integers(-2048, 2048, 2) << 4) // int(rng.choice([1, 1, 4]))
+            data = struct.pack("<2h", *(int(w) for w in words))
+            out.append((t, 0x201, data if rng.random() > 0.03 else data[:3]))
+        elif r < 0.9:
+            index, sub, size, choices = sdo_writes[int(rng.integers(len(sdo_writes)))]
+            if index == 0x2002:
+                payload = struct.pack("<f", float(rng.choice([10.0, 4.5, 2.0, 0.0])))
+            else:
+                value = int(rng.choice(choices))  # type: ignore[arg-type]
+                payload = value.to_bytes(size, "little", signed=False)
+            cmd = 0x23 | ((4 - size) << 2)
+            out.append((t, 0x601, struct.pack("<BHB", cmd, index, sub) + payload.ljust(4, b"\x00")))
+        elif r < 0.93:
+            out.append((t, 0x601, struct.pack("<BHB4x", 0x40, int(rng.choice([0x6401, 0x6402, 0x6411, 0x1001, 0x2010])), int(rng.integers(0, 5)))))
+        elif r < 0.96:
+            cmd = int(rng.choice([0x01, 0x01, 0x01, 0x01, 0x02, 0x80, 0x81, 0x82, 0x7F]))
+            out.append((t, 0x000, bytes([cmd, int(rng.choice([0, 1, 1, 9]))])))
+        else:
+            out.append((t, int(rng.choice([0x100, 0x182, 0x181, 0x7E5, 0x2A1, 0x301])), bytes(rng.integers(0, 256, int(rng.integers(0, 9))).tolist())))
+    return out
+
+
+def _as_tuples(frames: list[Any]) -> list[tuple[int, bytes, float]]:
+    return [(f.arbitration_id, bytes(f.data), f.timestamp) for f in frames]
+
+
+def _od_values(node: CanopenNode) -> dict[tuple[int, int], Any]:
+    return {(e.index, e.sub): node.od.get(e.index, e.sub) for e in node.od}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exchange_is_handle_then_poll(seed: int) -> None:
+    traffic = _random_traffic(seed, 700)
+    apps = (FakeApp(), FakeApp(), FakeApp())
+    cfg = NodeConfig(heartbeat_ms=20, watchdog_periods=3 if seed % 2 else 5)
+    general, direct, quick = (CanopenNode(app, cfg) for app in apps)
+    general.quick_poll = False  # the reference runs every timer on every poll
+    out_general = _as_tuples(general.poll(0.0))
+    out_direct = _as_tuples(direct.poll_frames(0.0))
+    out_quick = _as_tuples(quick.poll(0.0))
+    for t, cob_id, data in traffic:
+        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+        out_general += _as_tuples(general.handle(msg, t) + general.poll(t))
+        out_direct += _as_tuples(direct.exchange(cob_id, bytearray(data), t))
+        out_quick += _as_tuples(quick.handle(msg, t) + quick.poll(t))
+        for dt in (0.003, 0.011) if seed % 3 == 0 else ():  # the timers between frames too
+            out_general += _as_tuples(general.poll(t + dt))
+            out_direct += _as_tuples(direct.poll_frames(t + dt))
+            out_quick += _as_tuples(quick.poll(t + dt))
+    assert out_direct == out_general
+    assert out_quick == out_general
+    for node, app in ((direct, apps[1]), (quick, apps[2])):
+        assert node.counters.as_dict() == general.counters.as_dict()
+        assert _od_values(node) == _od_values(general)
+        assert [o.tolist() for o in app.outputs] == [o.tolist() for o in apps[0].outputs]
+        assert node.state == general.state and node.watchdog_tripped == general.watchdog_tripped
+        np.testing.assert_array_equal(node.outputs_v, general.outputs_v)
+    # the traffic reached the places it is meant to test
+    c = general.counters
+    assert c.samples > 30 and c.outputs_applied > 30 and c.clipped_outputs > 0 and c.tx["heartbeat"] > 5 and c.malformed_total > 0
+    assert c.sdo.downloads > 5 and c.tx["emcy"] > 3
+    if seed % 2:
+        assert c.watchdog_trips > 0
+
+
+def test_frames_read_like_python_can_messages() -> None:
+    node = CanopenNode(FakeApp())
+    node.exchange(0x000, bytes([0x01, 1]), 0.0)
+    (tpdo,) = node.exchange(0x080, bytes([1]), 0.005)
+    msg = tpdo.to_message()
+    assert isinstance(msg, can.Message) and msg.arbitration_id == tpdo.arbitration_id == TPDO1
+    assert bytes(msg.data) == tpdo.data and msg.dlc == tpdo.dlc == 8 and msg.timestamp == tpdo.timestamp == 0.005
+    for flag in ("is_extended_id", "is_remote_frame", "is_error_frame", "is_fd"):
+        assert getattr(tpdo, flag) is False is getattr(msg, flag)
+    assert tpdo == Frame(TPDO1, tpdo.data, 0.005) and tpdo != Frame(TPDO1, tpdo.data, 0.01)
+    assert "0x181" in repr(tpdo)
+
+
+def _sdo_read(node: CanopenNode, index: int, sub: int, t: float) -> int:
+    (reply,) = (f for f in node.exchange(0x601, struct.pack("<BHB4x", 0x40, index, sub), t) if f.arbitration_id == 0x581)
+    assert reply.data[0] & 0xE3 == 0x43, reply
+    n = 4 - ((reply.data[0] >> 2) & 3)
+    return int.from_bytes(reply.data[4 : 4 + n], "little", signed=True)
+
+
+def test_process_data_reads_back_by_sdo_and_resets_with_the_node() -> None:
+    """0x6401/0x6402/0x6411, kept by the node and served to SDO: the last
+    sample's words and the last RPDO's, the table's defaults after
+    RESET_NODE, unchanged by RESET_COMMUNICATION (which resets 0x1000-0x1FFF only)."""
+    app = FakeApp((1.0, -2.5, 9.99, -10.0))
+    app.bits = 20
+    node = CanopenNode(app, NodeConfig(adc_bits=20))
+    defaults = {(i, s): _sdo_read(node, i, s, 0.0) for i, s in ((0x6401, 1), (0x6402, 3), (0x6411, 2))}
+    node.exchange(0x000, bytes([0x01, 1]), 0.0)
+    frames = node.exchange(0x080, bytes([1]), 0.005)
+    tpdo1 = decode_analog_inputs_16(next(f.data for f in frames if f.arbitration_id == TPDO1))
+    codes = ConverterScale(20).quantize(np.array(app.volts)).counts
+    node.exchange(0x201, struct.pack("<2h", 0x1230, -0x7000), 0.006)
+    outputs = [0x1230, -0x7000]
+    for t in (0.007, 0.008):
+        assert [_sdo_read(node, 0x6401, s, t) for s in range(1, 5)] == tpdo1.tolist() == (codes >> 4).tolist()
+        assert [_sdo_read(node, 0x6402, s, t) for s in range(1, 5)] == (codes << 12).tolist()
+        assert [_sdo_read(node, 0x6411, s, t) for s in (1, 2)] == outputs
+        node.exchange(0x000, bytes([0x82, 1]), t)  # RESET_COMMUNICATION: the inputs stay,
+        outputs = [0, 0]  # the outputs go to 0 V as the node leaves OPERATIONAL
+    node.exchange(0x000, bytes([0x81, 1]), 0.01)  # RESET_NODE: every object to its default
+    assert {(i, s): _sdo_read(node, i, s, 0.011) for i, s in defaults} == defaults
+
+
+def test_a_quick_poll_sees_a_dictionary_changed_behind_its_back() -> None:
+    """The heartbeat period written straight into the object dictionary (no
+    frame through the node) restarts the heartbeat at the next poll, as a
+    poll that runs every timer does."""
+    out = []
+    for quick in (False, True):
+        node = CanopenNode(FakeApp(), NodeConfig(heartbeat_ms=100))
+        node.quick_poll = quick
+        frames = node.poll_frames(0.0) + node.poll_frames(0.01)
+        node.od.write(0x1017, 0, (20).to_bytes(2, "little"))
+        for k in range(2, 60):
+            frames += node.poll_frames(0.005 * k)
+        out.append(_as_tuples(frames))
+    assert out[1] == out[0]
+    assert len([f for f in out[0] if f[0] == 0x701]) >= 10
+
+
+# --- the application's per-SYNC bookkeeping ------------------------------------------------
+
+
+def test_block_normals_are_the_generators_stream() -> None:
+    from plant_emulator.sensors import NOISE_BLOCK, BlockNormals
+
+    reference = np.random.default_rng(11)
+    blocked = BlockNormals(np.random.default_rng(11))
+    drawn: list[float] = []
+    expected: list[float] = []
+    for k in range(3 * NOISE_BLOCK):
+        if k % 97 == 5:
+            drawn += blocked.standard_normal(7).tolist()  # other sizes, across block edges
+            expected += reference.standard_normal(7).tolist()
+        elif k % 101 == 3:
+            drawn.append(blocked.standard_normal())
+            expected.append(float(reference.standard_normal()))
+        else:
+            drawn += blocked.pair()
+            expected += reference.standard_normal(2).tolist()
+    assert drawn == expected
+
+
+@pytest.mark.parametrize("capacity", [64, 65536])
+def test_deferred_latency_reads_as_the_plain_tracker(capacity: int) -> None:
+    from plant_emulator.service import DeferredLatency
+    from service_kit.runtime import LatencyTracker
+
+    plain, deferred = LatencyTracker(capacity), DeferredLatency(capacity)
+    deferred.FLUSH_AT = 50  # flush inside the run too
+    rng = np.random.default_rng(5)
+    for k in range(3):
+        for x in rng.exponential(1e-4, 37 + 71 * k).tolist():
+            plain.add(x)
+            deferred.add(x)
+        assert deferred.count == plain.count
+        np.testing.assert_array_equal(deferred.values(), plain.values())
+        assert deferred.stats() == plain.stats()
+    assert DeferredLatency().stats() == LatencyTracker().stats()
