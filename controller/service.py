@@ -172,6 +172,9 @@ class ControllerService:
         self.miss_run_max = 0
         """The longest run of consecutive batches that missed their deadline."""
         self.policy: TickPolicy | None = None
+        self.owns_process = True
+        """The service runs in a process of its own (False in the one-process composition):
+        under SCHED_FIFO its real-time measures may then move the process's other threads."""
         """The per-tick checks of the running loop (controller/tick_policy.py)."""
         self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
         self.injection = LegacyInjection(
@@ -679,7 +682,7 @@ class ControllerService:
             self.plant.start_node(timeout=s.startup_timeout_s, stop=stop, sample_period_s=ts)
             self._wait_for_dsp(stop, timeout=s.startup_timeout_s)
             if not lockstep:
-                self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=True)
+                self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=self.owns_process)
             self.ready_at = self.stopwatch()
             schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
             schedule.start()

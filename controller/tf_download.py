@@ -19,6 +19,7 @@ from controller.dsp_port import DspPort
 from protocol.errors import ProtocolError
 from protocol.messages import TfSnapshot, decode
 from service_kit.clock import Scheduler
+from service_kit.realtime import lower_current_thread
 
 log = logging.getLogger(__name__)
 
@@ -52,10 +53,14 @@ class TfDownloader:
         elif dsp_alive:
             self.due = False
             if self._thread is None or not self._thread.is_alive():
-                self._thread = threading.Thread(target=self.download, name="tf-download", daemon=True)
+                self._thread = threading.Thread(target=self._download_below_the_loop, name="tf-download", daemon=True)
                 self._thread.start()
             else:
                 self.counters.tf_download_failures += 1  # the previous download is still under way
+
+    def _download_below_the_loop(self) -> None:
+        lower_current_thread()  # started by the loop: one FIFO level below it, if it runs FIFO
+        self.download()
 
     def download(self) -> None:
         c = self.counters

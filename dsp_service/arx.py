@@ -245,8 +245,8 @@ class RecursiveArx:
         """
         if self.samples >= 2.0 * min(self.cfg.memory_samples, 1e9):
             a = self.a
-            r = float(np.max(np.abs(np.roots(a)))) if a.size > 1 else 0.0
-            if np.isfinite(r):
+            r = float(np.max(np.abs(np.roots(a)))) if a.size > 1 and np.all(np.isfinite(a)) else float("nan")
+            if np.isfinite(r):  # a non-finite model keeps the last prefilter
                 rho = min(1.0, 0.97 / r) if r > 0 else 1.0
                 self._sm_a = a * rho ** np.arange(a.size)
         xs, self._sm_zi = scipy.signal.lfilter([1.0], self._sm_a, x, axis=-1, zi=self._sm_zi)

@@ -109,6 +109,20 @@ KernelName = Literal["numpy", "numba"]  #: IdentifierConfig.kernel
 WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
 
+def arx_rate_and_band(sample_rate_hz: float, decimation: int, band_hz: tuple[float, float]) -> tuple[int, tuple[float, float]]:
+    """The ARX model's decimation and band-pass for a loop at ``sample_rate_hz``.
+
+    The settings name a band (2–15 Hz) and a decimation (4) chosen at the
+    thesis's 200 Hz; at a lower rate the band's top is kept at most 0.35 fs and
+    the decimation lowered until the band ends below 0.8 of the model's
+    Nyquist (fs / D / 2), so every rate the settings allow builds a model (at
+    200 Hz and above: the settings as given)."""
+    lo, hi = band_hz
+    hi = min(hi, 0.35 * sample_rate_hz)
+    d = max(1, min(decimation, int(sample_rate_hz // (2.5 * hi))))
+    return d, (min(lo, 0.5 * hi), hi)
+
+
 class IdentifierConfig(pydantic.BaseModel):
     """Run-time parameters of the identifier (all validated; the model is immutable)."""
 
@@ -397,8 +411,7 @@ class Identifier:
                     na=c.arx_na,
                     nb=c.arx_nb,
                     forgetting=c.arx_forgetting,
-                    decimation=c.arx_decimation,
-                    band_hz=c.arx_band_hz,
+                    **dict(zip(("decimation", "band_hz"), arx_rate_and_band(c.sample_rate_hz, c.arx_decimation, c.arx_band_hz), strict=True)),
                     prefilter_order=c.arx_prefilter_order,
                     steiglitz_mcbride=c.arx_steiglitz_mcbride,
                     huber_k=c.arx_huber_k,

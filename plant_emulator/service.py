@@ -249,10 +249,12 @@ class PlantApplication:
         arm by this much (the watchdog's unit in both modes)."""
         if not 1e-4 <= period_s <= 1.0:
             raise ValueError(f"sample period {period_s} s outside 0.1 ms..1 s")
+        self.flush_side_channels()  # the last SYNC's events keep their order
         self.sample_period_s = period_s
         self._event("sample_period", f"sample period set to {period_s * 1e3:.3f} ms by SDO")
 
     def on_adc_bits(self, bits: int) -> None:
+        self.flush_side_channels()
         self.arm.set_adc_bits(bits)
         self._event("adc_bits", f"A/D resolution set to {bits} bits by SDO")
 
@@ -382,8 +384,18 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     )
 
 
-def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: threading.Event, scheduler: Scheduler | None = None) -> None:
-    """Run the node on ``bus`` until ``stop``; the test port on ``session``."""
+def serve(
+    settings: PlantSettings,
+    session: zenoh.Session,
+    bus: object,
+    stop: threading.Event,
+    scheduler: Scheduler | None = None,
+    *,
+    owns_process: bool = True,
+) -> None:
+    """Run the node on ``bus`` until ``stop``; the test port on ``session``.
+    ``owns_process``: False when other services share the process (the
+    one-process composition): the real-time measures then stay on this thread."""
     from plant_emulator.node import run_node
 
     clock = (scheduler or scheduler_for(settings.clock, stop)).now
@@ -391,7 +403,7 @@ def serve(settings: PlantSettings, session: zenoh.Session, bus: object, stop: th
     app = PlantApplication(settings, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
     app.scenario_inbox = port.inbox
     node = CanopenNode(app, node_config(settings))
-    measures = apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=True) if settings.clock == "realtime" else RealtimeMeasures()
+    measures = apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process) if settings.clock == "realtime" else RealtimeMeasures()
     health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]

@@ -144,3 +144,20 @@ def _fifo_other_threads(priority: int, notes: list[str]) -> int:
             if not isinstance(exc, ProcessLookupError):
                 notes.append(f"thread {tid} kept the normal scheduler: {exc}")
     return moved
+
+
+def lower_current_thread() -> bool:
+    """A helper thread (health, TF download, recorder) started by a FIFO loop
+    inherits the loop's policy and priority; called first thing in such a
+    thread, it steps one FIFO level below the loop (threads at the same FIFO
+    priority are not time-sliced, so the helper would hold the loop's core
+    until it blocks). Returns True when the thread was lowered; a thread on
+    the normal scheduler is left alone."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_FIFO:
+            return False
+        prio = os.sched_getparam(0).sched_priority
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(max(prio - 1, os.sched_get_priority_min(os.SCHED_FIFO))))
+        return True
+    except (AttributeError, OSError):
+        return False

@@ -134,6 +134,9 @@ class HealthPublisher:
         self._seq += 1
 
     def _run(self) -> None:
+        from service_kit.realtime import lower_current_thread
+
+        lower_current_thread()  # started by a FIFO loop: one level below it
         while not self._stop.wait(self._period):
             try:
                 self.publish_now()

@@ -49,7 +49,7 @@ def test_whole_process_moves_the_other_threads_below_the_loop() -> None:
     code = textwrap.dedent(
         """
         import json, os, sys, threading
-        from service_kit.realtime import apply_realtime
+        from service_kit.realtime import apply_realtime, lower_current_thread
         ready, done = threading.Event(), threading.Event()
         tid = []
         def idle():
@@ -57,16 +57,24 @@ def test_whole_process_moves_the_other_threads_below_the_loop() -> None:
         t = threading.Thread(target=idle); t.start(); ready.wait(10)
         m = apply_realtime(priority=2, whole_process=True, freeze_gc=False)
         other = os.sched_getscheduler(tid[0]), os.sched_getparam(tid[0]).sched_priority
+        later = []
+        def helper():  # started by the FIFO loop: inherits its priority, then steps below it
+            inherited = os.sched_getparam(0).sched_priority
+            lowered = lower_current_thread()
+            later.append((inherited, lowered, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+        h = threading.Thread(target=helper); h.start(); h.join(10)
         done.set(); t.join(10)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         print(json.dumps({"fifo": m.fifo_priority, "threads": m.fifo_threads, "switch": sys.getswitchinterval(),
-                          "other": other, "FIFO": os.SCHED_FIFO, "notes": list(m.notes), "counters": m.as_counters()}))
+                          "other": other, "later": later[0], "FIFO": os.SCHED_FIFO, "notes": list(m.notes), "counters": m.as_counters()}))
         """
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     r = json.loads(out.stdout.strip().splitlines()[-1])
     if r["fifo"]:
         assert r["threads"] >= 1 and r["other"] == [r["FIFO"], 1]
+        assert r["later"] == [2, True, r["FIFO"], 1]  # a helper started later: one level below the loop
         assert r["switch"] == pytest.approx(GIL_SWITCH_INTERVAL_S) and r["counters"]["rt_switch_interval_us"] == 200
     else:
         assert r["threads"] == 0 and r["other"][0] != r["FIFO"] and any("SCHED_FIFO" in n for n in r["notes"])
+        assert r["later"][1] is False  # nothing to lower on the normal scheduler

@@ -52,6 +52,8 @@ class TickAction:
         return bool(self.base.drop_sync(tick))
 
     def __getattr__(self, name: str) -> Any:  # the base's other knobs (sync_drop_every, stall_s)
+        if name == "base":  # not yet set (a copy or unpickling under way): no recursion
+            raise AttributeError(name)
         return getattr(self.base, name)
 
 
@@ -111,10 +113,11 @@ def run_in_process(
     ctrl_bus = can.Bus(interface="virtual", channel=channel)
     dsp_service = DspService(ds, sess)
     threads = [
-        threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), name="plant", daemon=True),
+        threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), kwargs={"owns_process": False}, name="plant", daemon=True),
         threading.Thread(target=dsp_service.run, args=(stop,), name="dsp", daemon=True),
     ]
     ctrl = ControllerService(cs, sess, PlantLink(ctrl_bus, cs.node_id), keep_record=True)  # callers read controller.record
+    ctrl.owns_process = False  # the services share this process: real-time measures stay on each loop's thread
     if at_tick is not None:
         ctrl.injection = TickAction(ctrl.injection, *at_tick)  # type: ignore[assignment]
     started = time.monotonic()

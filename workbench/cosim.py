@@ -283,6 +283,7 @@ def run_cosim(
         result = ctrl.run(scheduler.stop)
     finally:
         ctrl.close()
+        app.flush_side_channels()  # the last SYNC's truth, if no frame after it flushed it
         if ps.record:
             app.save_truth(ps.record)
     wall = time.monotonic() - started

@@ -310,3 +310,18 @@ def test_a_silent_first_batch_keeps_the_decimation_phase() -> None:
     b = np.concatenate([np.array(tgt) * np.array(w), np.zeros(p)])
     assert m.samples == n and lag <= first
     np.testing.assert_allclose(m.theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("fs", [20.0, 50.0, 100.0, 200.0, 1000.0, 5000.0])
+def test_every_sample_rate_the_settings_allow_builds_an_arx_identifier(fs: float) -> None:
+    """The band (2-15 Hz) and decimation (4) are the 200 Hz choice; at a lower rate the
+    band's top stays at most 0.35 fs and the decimation below what the band allows,
+    and 200 Hz and above keep the settings as given."""
+    from dsp_service.identifier import arx_rate_and_band
+
+    d, (lo, hi) = arx_rate_and_band(fs, 4, (2.0, 15.0))
+    assert 0 < lo < hi < 0.8 * fs / d / 2
+    if fs >= 200:
+        assert (d, (lo, hi)) == (4, (2.0, 15.0))
+    search = {"search_max_hz": min(40.0, 0.45 * fs), "fft_width": 4096 if fs > 1000 else 256}  # the ETFE's own limits
+    Identifier(IdentifierConfig(sample_rate_hz=fs, method="arx", **search))
