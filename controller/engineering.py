@@ -80,7 +80,12 @@ def measure(words: npt.ArrayLike) -> Measurement:
     w = raw.tolist()
     if len(w) != len(_CHANNELS) or raw.ndim != 1:
         raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
-    v0, v1, v2, v3, e0, e1, d0, d1, t1, t2, p1, p2 = measure_values(w)
+    return measurement_of(raw, measure_values(w))
+
+
+def measurement_of(raw: npt.NDArray[np.int64], values: Sequence[float]) -> Measurement:
+    """The array form of :func:`measure_values`' tuple for the words ``raw``."""
+    v0, v1, v2, v3, e0, e1, d0, d1, t1, t2, p1, p2 = values
     return Measurement(
         words=raw,
         volts=np.array((v0, v1, v2, v3), dtype=np.float64),

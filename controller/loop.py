@@ -16,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from controller.engineering import Measurement, measure_values
+from controller.engineering import Measurement, measure_values, measurement_of
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
 from controller.trajectory import SampledTrajectory
@@ -155,14 +155,7 @@ class ControlLaw:
             raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
         row, s0, s1 = self._compute(tick, w)
         _, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, _, _, _, _, v0, v1, v2, v3, u1, u2, pi1, pi2 = row
-        m = Measurement(
-            words=raw,
-            volts=np.array((v0, v1, v2, v3), dtype=np.float64),
-            extension_in=np.array((e0, e1), dtype=np.float64),
-            theta_rad=np.array((th1, th2), dtype=np.float64),
-            phi_rad=np.array((phi1, phi2), dtype=np.float64),
-            deflection_in=np.array((d0, d1), dtype=np.float64),
-        )
+        m = measurement_of(raw, (v0, v1, v2, v3, e0, e1, d0, d1, th1, th2, phi1, phi2))
         return TickOutput(
             volts=np.array((u1, u2), dtype=np.float64),
             clipped=np.array((s0, s1), dtype=np.bool_),

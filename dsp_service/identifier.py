@@ -405,13 +405,15 @@ class Identifier:
         self._arx: RecursiveArx | None = None
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         if c.method == "arx":
+            decimation, band = arx_rate_and_band(c.sample_rate_hz, c.arx_decimation, c.arx_band_hz)
             self._arx = RecursiveArx(
                 ArxConfig(
                     sample_rate_hz=c.sample_rate_hz,
                     na=c.arx_na,
                     nb=c.arx_nb,
                     forgetting=c.arx_forgetting,
-                    **dict(zip(("decimation", "band_hz"), arx_rate_and_band(c.sample_rate_hz, c.arx_decimation, c.arx_band_hz), strict=True)),
+                    decimation=decimation,
+                    band_hz=band,
                     prefilter_order=c.arx_prefilter_order,
                     steiglitz_mcbride=c.arx_steiglitz_mcbride,
                     huber_k=c.arx_huber_k,
