@@ -5,13 +5,16 @@ the loop leave the collector's generations, so its pauses stay short).
 
 SCHED_FIFO and affinity are opt-in (settings ``rt_priority`` and
 ``cpu_affinity``): a FIFO thread that never sleeps would starve a shared
-machine. With SCHED_FIFO, the process's other threads (zenoh's runtime,
-whose callbacks run Python, and the health publisher) get FIFO one level
-below the loop, and the interpreter's GIL switch interval drops to
-``GIL_SWITCH_INTERVAL_S``: otherwise a normal-priority thread holding the
-GIL, preempted by any other process on the machine, keeps the FIFO loop
-waiting (priority inversion through the GIL), and a loop that wants the GIL
-back waits the default 5 ms switch interval. Each measure reports whether it took effect; the services put that
+machine. With SCHED_FIFO, the interpreter's GIL switch interval drops to
+``GIL_SWITCH_INTERVAL_S``: a FIFO loop that wants the GIL back from one of
+zenoh's callback threads would otherwise wait out CPython's default 5 ms.
+Helper threads the loop starts later inherit its FIFO priority; each steps
+one level below it first thing (:func:`lower_current_thread`), since
+threads at one FIFO priority are not time-sliced. The process's other
+threads (zenoh's runtime) stay on the normal scheduler: moved to FIFO they
+ran into the kernel's real-time throttling (50 ms stalls each second) in
+the acceptance runs (docs/timing.md).
+Each measure reports whether it took effect; the services put that
 into their health counters and log it, and ``ralf-hil up`` prints it.
 """
 
@@ -21,7 +24,6 @@ import gc
 import logging
 import os
 import sys
-import threading
 from dataclasses import dataclass
 
 log = logging.getLogger(__name__)
@@ -36,8 +38,6 @@ class RealtimeMeasures:
 
     fifo_priority: int = 0
     """SCHED_FIFO priority in effect (0: the normal scheduler)."""
-    fifo_threads: int = 0
-    """Other threads of the process moved to SCHED_FIFO one level below."""
     switch_interval_s: float = 0.0
     """The GIL switch interval set (0: left at the interpreter's default)."""
     cpus: tuple[int, ...] = ()
@@ -49,7 +49,6 @@ class RealtimeMeasures:
     def as_counters(self) -> dict[str, int]:
         return {
             "rt_fifo_priority": self.fifo_priority,
-            "rt_fifo_threads": self.fifo_threads,
             "rt_switch_interval_us": round(self.switch_interval_s * 1e6),
             "rt_pinned_cpus": len(self.cpus),
             "rt_gc_frozen": int(self.gc_frozen),
@@ -57,8 +56,6 @@ class RealtimeMeasures:
 
     def describe(self) -> str:
         parts = [f"SCHED_FIFO {self.fifo_priority}" if self.fifo_priority else "normal scheduler"]
-        if self.fifo_threads:
-            parts.append(f"{self.fifo_threads} other threads at FIFO {max(self.fifo_priority - 1, 1)}")
         if self.switch_interval_s:
             parts.append(f"GIL switch interval {self.switch_interval_s * 1e3:g} ms")
         parts.append(f"pinned to CPU {','.join(map(str, self.cpus))}" if self.cpus else "not pinned")
@@ -82,8 +79,8 @@ def apply_realtime(priority: int = 0, cpu_affinity: str = "", freeze_gc: bool = 
     the system refuses (it is reported in ``notes`` instead).
 
     ``whole_process``: a service's loop thread in a process of its own. With
-    SCHED_FIFO granted, the process's other threads follow one level below
-    and the GIL switch interval drops (see the module's docstring)."""
+    SCHED_FIFO granted, the process-wide GIL switch interval drops (see the
+    module's docstring)."""
     notes: list[str] = []
     fifo = 0
     if priority > 0:
@@ -94,10 +91,8 @@ def apply_realtime(priority: int = 0, cpu_affinity: str = "", freeze_gc: bool = 
             fifo = prio
         except (AttributeError, OSError) as exc:
             notes.append(f"SCHED_FIFO refused: {exc}")
-    fifo_threads = 0
     switch = 0.0
     if fifo and whole_process:
-        fifo_threads = _fifo_other_threads(max(fifo - 1, 1), notes)
         switch = min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S)
         sys.setswitchinterval(switch)
     cpus: tuple[int, ...] = ()
@@ -118,32 +113,9 @@ def apply_realtime(priority: int = 0, cpu_affinity: str = "", freeze_gc: bool = 
         gc.collect()
         gc.freeze()
         frozen = True
-    measures = RealtimeMeasures(fifo_priority=fifo, fifo_threads=fifo_threads, switch_interval_s=switch, cpus=cpus, gc_frozen=frozen, notes=tuple(notes))
+    measures = RealtimeMeasures(fifo_priority=fifo, switch_interval_s=switch, cpus=cpus, gc_frozen=frozen, notes=tuple(notes))
     log.info("real-time measures: %s", measures.describe())
     return measures
-
-
-def _fifo_other_threads(priority: int, notes: list[str]) -> int:
-    """Move the process's other threads (listed in ``/proc/self/task``) to
-    SCHED_FIFO ``priority``; returns how many moved. Threads started later
-    inherit their creator's policy."""
-    me = threading.get_native_id()
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError as exc:
-        notes.append(f"threads not listed: {exc}")
-        return 0
-    moved = 0
-    for tid in tids:
-        if tid == me:
-            continue
-        try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
-            moved += 1
-        except OSError as exc:  # the thread ended meanwhile, or the system refuses
-            if not isinstance(exc, ProcessLookupError):
-                notes.append(f"thread {tid} kept the normal scheduler: {exc}")
-    return moved
 
 
 def lower_current_thread() -> bool:

@@ -41,11 +41,12 @@ def test_measures_on_a_thread_of_their_own_fall_back_cleanly() -> None:
     assert ok.as_counters()["rt_gc_frozen"] == 1  # type: ignore[union-attr]
 
 
-def test_whole_process_moves_the_other_threads_below_the_loop() -> None:
+def test_whole_process_drops_the_switch_interval_and_helpers_step_below_the_loop() -> None:
     """In a process of its own (the measure changes process-wide state): with
-    SCHED_FIFO granted, a thread started before the measure ends up at FIFO one
-    level below the loop, and the GIL switch interval drops; refused, nothing
-    moves and the refusal is reported."""
+    SCHED_FIFO granted, the GIL switch interval drops, a thread started before
+    the measure stays on the normal scheduler, and a helper the loop starts
+    later steps one FIFO level below it; refused, nothing moves and the
+    refusal is reported."""
     code = textwrap.dedent(
         """
         import json, os, sys, threading
@@ -65,16 +66,16 @@ def test_whole_process_moves_the_other_threads_below_the_loop() -> None:
         h = threading.Thread(target=helper); h.start(); h.join(10)
         done.set(); t.join(10)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        print(json.dumps({"fifo": m.fifo_priority, "threads": m.fifo_threads, "switch": sys.getswitchinterval(),
+        print(json.dumps({"fifo": m.fifo_priority, "switch": sys.getswitchinterval(),
                           "other": other, "later": later[0], "FIFO": os.SCHED_FIFO, "notes": list(m.notes), "counters": m.as_counters()}))
         """
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     r = json.loads(out.stdout.strip().splitlines()[-1])
     if r["fifo"]:
-        assert r["threads"] >= 1 and r["other"] == [r["FIFO"], 1]
+        assert r["other"][0] != r["FIFO"]  # zenoh's threads stay on the normal scheduler
         assert r["later"] == [2, True, r["FIFO"], 1]  # a helper started later: one level below the loop
         assert r["switch"] == pytest.approx(GIL_SWITCH_INTERVAL_S) and r["counters"]["rt_switch_interval_us"] == 200
     else:
-        assert r["threads"] == 0 and r["other"][0] != r["FIFO"] and any("SCHED_FIFO" in n for n in r["notes"])
+        assert r["other"][0] != r["FIFO"] and any("SCHED_FIFO" in n for n in r["notes"])
         assert r["later"][1] is False  # nothing to lower on the normal scheduler
