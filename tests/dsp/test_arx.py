@@ -22,6 +22,31 @@ def _true_poles() -> list[tuple[float, float]]:
     return [(f, z) for f, z in MODES]
 
 
+def _weighted_ridge_lstsq(x: np.ndarray, cfg: ArxConfig) -> np.ndarray:
+    """The ARX regression of the (filtered, scaled) channels ``x`` (u1, u2, y1, y2)
+    rebuilt row by row and solved in one go: each output's row at sample t holds
+    -y_j(t-1..t-na) and u_i(t-1..t-nb) in the model's own slots, weighted by
+    λ^((n-1-k)/2); the ridge δ (the information never decays below δ I)."""
+    na, nb, p = cfg.na, cfg.nb, cfg.n_params
+    lag, n = max(na, nb), x.shape[1]
+    ext = np.hstack([np.zeros((4, lag)), x])
+    rows, tgt, w = [], [], []
+    for j in range(2):
+        for k in range(n):
+            t = lag + k
+            phi = np.zeros(p)
+            phi[:na] = -ext[2 + j, t - 1 - np.arange(na)]
+            for i in range(2):
+                start = na + 2 * nb * j + nb * i
+                phi[start : start + nb] = ext[i, t - 1 - np.arange(nb)]
+            rows.append(phi)
+            tgt.append(ext[2 + j, t])
+            w.append(cfg.forgetting ** ((n - 1 - k) / 2))
+    A = np.vstack([np.array(rows) * np.array(w)[:, None], math.sqrt(cfg.ridge) * np.eye(p)])
+    b = np.concatenate([np.array(tgt) * np.array(w), np.zeros(p)])
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
 def test_recursion_equals_batch_weighted_ridge_least_squares() -> None:
     rng = np.random.default_rng(0)
     cfg = ArxConfig(na=4, nb=3, forgetting=0.98, ridge=1e-3)
@@ -34,25 +59,7 @@ def test_recursion_equals_batch_weighted_ridge_least_squares() -> None:
     x = np.vstack([u, y])
     xf = ss.sosfilt(ref._sos, x, axis=-1)
     xf *= (1.0 / np.sqrt(np.mean(xf[:, :23] ** 2, axis=1)))[:, None]
-    lag, n, p = 4, 300, cfg.n_params
-    ext = np.hstack([np.zeros((4, lag)), xf])
-    rows, tgt, w = [], [], []
-    for j in range(2):
-        for k in range(n):
-            t = lag + k
-            phi = np.zeros(p)
-            phi[:4] = -ext[2 + j, t - 1 - np.arange(4)]
-            for i in range(2):
-                phi[4 + 6 * j + 3 * i : 4 + 6 * j + 3 * i + 3] = ext[i, t - 1 - np.arange(3)]
-            rows.append(phi)
-            tgt.append(ext[2 + j, t])
-            w.append(cfg.forgetting ** ((n - 1 - k) / 2))
-    A = np.array(rows) * np.array(w)[:, None]
-    b = np.array(tgt) * np.array(w)
-    # ridge: δ λ^n from the start plus δ (1 − λ^l) per batch = δ (the information never decays below δ I)
-    A = np.vstack([A, math.sqrt(cfg.ridge) * np.eye(p)])
-    b = np.concatenate([b, np.zeros(p)])
-    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    theta = _weighted_ridge_lstsq(xf, cfg)
     np.testing.assert_allclose(m.theta, theta, rtol=1e-8, atol=1e-10)
 
 
@@ -200,23 +207,8 @@ def test_decimated_recursion_equals_batch_least_squares_of_the_decimated_filtere
     xf = ss.sosfilt(sos, np.vstack([u, y]), axis=-1)
     xf *= (1.0 / np.sqrt(np.mean(xf[:, :23] ** 2, axis=1)))[:, None]
     xd = xf[:, ::d]
-    lag, n, p = 3, xd.shape[1], cfg.n_params
-    ext = np.hstack([np.zeros((4, lag)), xd])
-    rows, tgt, w = [], [], []
-    for j in range(2):
-        for k in range(n):
-            t = lag + k
-            phi = np.zeros(p)
-            phi[:3] = -ext[2 + j, t - 1 - np.arange(3)]
-            for i in range(2):
-                phi[3 + 4 * j + 2 * i : 3 + 4 * j + 2 * i + 2] = ext[i, t - 1 - np.arange(2)]
-            rows.append(phi)
-            tgt.append(ext[2 + j, t])
-            w.append(cfg.forgetting ** ((n - 1 - k) / 2))
-    A = np.vstack([np.array(rows) * np.array(w)[:, None], math.sqrt(cfg.ridge) * np.eye(p)])
-    b = np.concatenate([np.array(tgt) * np.array(w), np.zeros(p)])
-    np.testing.assert_allclose(m.theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-8, atol=1e-10)
-    assert m.samples == n
+    np.testing.assert_allclose(m.theta, _weighted_ridge_lstsq(xd, cfg), rtol=1e-8, atol=1e-10)
+    assert m.samples == xd.shape[1]
 
 
 def test_band_must_end_below_the_decimated_nyquist() -> None:
