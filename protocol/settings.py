@@ -77,6 +77,10 @@ class CommonSettings(BaseSettings):
         le=32,
         description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)",
     )
+    can_own_frame_filter: bool = Field(
+        True,
+        description="udp_multicast: send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); off: python-can's stock bus, which reads them back",
+    )
 
     @field_validator("*", mode="before")
     @classmethod

@@ -15,6 +15,7 @@ import zenoh
 from protocol.errors import TransportError
 from protocol.settings import CommonSettings
 from service_kit.access import insert_access
+from service_kit.can_udp import LoopFreeUdpMulticastBus
 
 log = logging.getLogger(__name__)
 
@@ -83,13 +84,18 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
 def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:
     """Open the CAN bus named by the settings (udp_multicast, virtual,
     socketcan...). udp_multicast frames get the TTL ``can_multicast_ttl``:
-    0 (the default) keeps them on this host."""
+    0 (the default) keeps them on this host. With ``can_own_frame_filter``
+    (the default) udp_multicast is :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`,
+    wire-compatible with python-can's, which does not read its own frames back."""
     options: dict[str, Any] = {"interface": settings.can_interface, "channel": settings.can_channel}
     if settings.can_interface == "udp_multicast":
         options["port"] = settings.can_port
         options["hop_limit"] = settings.can_multicast_ttl
     options.update(kwargs)
     try:
+        if settings.can_interface == "udp_multicast" and settings.can_own_frame_filter:
+            del options["interface"]
+            return LoopFreeUdpMulticastBus(**options)
         return can.Bus(**options)
     except Exception as exc:  # python-can raises several types by interface
         detail = " ".join(str(exc).split()) or type(exc).__name__

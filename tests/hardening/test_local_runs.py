@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from protocol.settings import CommonSettings, load_settings
+from service_kit.can_udp import LoopFreeUdpMulticastBus
 from service_kit.transport import open_can_bus
 from workbench.cli import acquire_rig_lock
 
@@ -33,17 +34,23 @@ def test_second_up_on_the_same_rig_id_refuses(tmp_path: Path) -> None:
 
 
 def _ttl(bus: object) -> int:
+    if isinstance(bus, LoopFreeUdpMulticastBus):
+        return bus.multicast_ttl()
     sock: socket.socket = bus._multicast._socket  # type: ignore[attr-defined]
     return int(sock.getsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL))
 
 
+@pytest.mark.parametrize("own_frame_filter", [True, False], ids=["loop-free-bus", "python-can-bus"])
 @pytest.mark.parametrize(("setting", "ttl"), [(None, 0), ("1", 1)])
-def test_can_multicast_ttl_keeps_local_runs_on_the_host(setting: str | None, ttl: int, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_can_multicast_ttl_keeps_local_runs_on_the_host(setting: str | None, ttl: int, own_frame_filter: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     for name in list(os.environ):
         if name.startswith("RALF_"):
             monkeypatch.delenv(name)
-    overrides = {"can_port": 43999} if setting is None else {"can_port": 43999, "can_multicast_ttl": setting}
+    overrides: dict[str, object] = {"can_port": 43999, "can_own_frame_filter": own_frame_filter}
+    if setting is not None:
+        overrides["can_multicast_ttl"] = setting
     bus = open_can_bus(load_settings(CommonSettings, overrides))
+    assert isinstance(bus, LoopFreeUdpMulticastBus) == own_frame_filter
     try:
         assert _ttl(bus) == ttl
     finally:

@@ -61,7 +61,7 @@ def test_up_prints_the_can_port_first_and_the_summary_on_stdout(run: dict[str, A
     assert f"CAN udp_multicast port {run['can_port']}," in lines[0]  # --can-port, printed before any service starts
     assert "run summary" in run["stdout"] and "recording" in run["stdout"]
     rec = run["summary"]["recording"]
-    assert rec["dropped"] == 0 and rec["undecodable"] == 0 and rec["can_frames"] > 3 * SIM_S * 200
+    assert rec["dropped"] == 0 and rec["undecodable"] == 0 and rec["can_socket_drops"] == 0 and rec["can_frames"] > 3 * SIM_S * 200
 
 
 def test_every_message_validates_against_its_channel_schema(run: dict[str, Any]) -> None:

@@ -78,6 +78,8 @@ class RecorderStats(Counters):
     undecodable: int = 0
     dropped: int = 0
     """Items the full queue refused (the writer fell behind)."""
+    can_socket_drops: int = 0
+    """CAN frames the kernel dropped before the tap read them (a full socket buffer; Linux, loop-free bus)."""
 
 
 class Recorder:

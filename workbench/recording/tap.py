@@ -212,6 +212,7 @@ class RigRecording:
 
     def close(self) -> Any:
         self.tap.close()
+        self.recorder.stats.can_socket_drops = int(getattr(self.bus, "kernel_drops", 0))
         self.bus.shutdown()
         return self.recorder.close()
 
@@ -236,6 +237,11 @@ def _widen_receive_buffer(bus: can.BusABC) -> None:
     """Best effort: a larger ``SO_RCVBUF`` on a ``udp_multicast`` bus's socket."""
     import socket as _socket
 
+    from service_kit.can_udp import LoopFreeUdpMulticastBus
+
+    if isinstance(bus, LoopFreeUdpMulticastBus):
+        bus.set_receive_buffer(TAP_RCVBUF_BYTES)
+        return
     sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
     if not isinstance(sock, _socket.socket):
         return
