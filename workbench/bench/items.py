@@ -308,6 +308,10 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
     }
     with ExitStack() as stack:
         echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(floor_port), log_dir=ctx.log_dir))
+        stock_port = floor_port + 2 if floor_port + 2 != plant_port else floor_port + 4
+        stock_echo = stack.enter_context(
+            Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(stock_port), "--bus", "stock", name="can-echo-stock", log_dir=ctx.log_dir)
+        )
         plant: Child | None = None
         if ctx.floors_only:
             result["notes"].append("--floors-only: the plant service was not started")
@@ -335,7 +339,13 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
         stack.callback(floor_bus.shutdown)
         cp = CanPinger(floor_bus)
         cp.connect()
-        pingers: list[Any] = [cp]
+        stock_echo.read_tagged("READY", 30)
+        stock_bus = can_bus(stock_port, [0x181], CAN_GROUP, loop_free=False)
+        stack.callback(stock_bus.shutdown)
+        cp_stock = CanPinger(stock_bus)
+        cp_stock.name = STOCK_PINGPONG
+        cp_stock.connect()
+        pingers: list[Any] = [cp, cp_stock]
         if plant is not None:
             from protocol import can_map
 
@@ -355,14 +365,24 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
     if "plant_sync_to_tpdo" in samples:
         m["plant_sync_to_tpdo"] = latency(summarize(samples["plant_sync_to_tpdo"]), "can_pingpong", floor, note="includes one lockstep model step per SYNC")
     m["can_pingpong"] = latency(floor)
-    result["notes"].append("Own frames come back on udp_multicast; both masters filter them (can_filters) and read them off the socket.")
+    stock = summarize(samples[STOCK_PINGPONG])
+    m[STOCK_PINGPONG] = latency(stock, "can_pingpong", floor)
+    if "plant_sync_to_tpdo" in samples:
+        m["plant_sync_to_tpdo vs stock bus"] = latency(summarize(samples["plant_sync_to_tpdo"]), STOCK_PINGPONG, stock)
+    result["notes"].append(
+        "can_pingpong and the plant run on the rig's bus (service_kit/can_udp.py: own frames dropped in the kernel); "
+        "the stock row is the same round trip on python-can's udp_multicast, which reads its own frames back and drops them (can_filters)."
+    )
 
 
 # --- shared: short floors and a whole rig ------------------------------------------------------------
 
 
+STOCK_PINGPONG = "can_pingpong (python-can stock bus)"
+
+
 def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
-    """A short bare udp_multicast ping-pong (the floor of one control tick)."""
+    """A short bare udp_multicast ping-pong on the rig's bus (the floor of one control tick)."""
     port = private_can_port(private_rig_id("canfloor"))
     with ExitStack() as stack:
         echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(port), log_dir=ctx.log_dir))

@@ -9,7 +9,7 @@ and measurements that must run in a process of their own.
   DSP's interrupts), from inside the subscriber callback (``--hold-us``:
   after busy-waiting that long there, as the DSP's step holds its callback;
   ``--hold-key``: set at run time);
-* ``can-echo``: python-can ``udp_multicast`` node answering a request frame
+* ``can-echo``: a ``udp_multicast`` node (the rig's loop-free bus or python-can's stock one) answering a request frame
   with an 8-byte reply frame (own echoes filtered);
 * ``sleep-jitter``: a loop that only sleeps to absolute deadlines at a given
   rate, the floor of the controller's SYNC jitter;
@@ -111,13 +111,9 @@ def can_echo(args: argparse.Namespace) -> int:
     stop = _stop_event()
     request = int(args.request_id, 0)
     reply = int(args.reply_id, 0)
-    bus = can.Bus(
-        interface="udp_multicast",
-        channel=args.channel,
-        port=args.port,
-        receive_own_messages=False,
-        can_filters=[{"can_id": request, "can_mask": 0x7FF, "extended": False}],
-    )
+    from workbench.bench.pingers import can_bus
+
+    bus = can_bus(args.port, [request], args.channel, loop_free=args.bus == "loop-free")
     try:
         _say("READY", {"port": args.port})
         while not stop.is_set():
@@ -206,6 +202,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--port", type=int, required=True)
     c.add_argument("--request-id", default="0x080")
     c.add_argument("--reply-id", default="0x181")
+    c.add_argument(
+        "--bus",
+        choices=("loop-free", "stock"),
+        default="loop-free",
+        help="loop-free: the rig's bus (service_kit/can_udp.py); stock: python-can's udp_multicast",
+    )
     c.set_defaults(func=can_echo)
     s = sub.add_parser("sleep-jitter", help="absolute-deadline sleep loop")
     s.add_argument("--rate", type=float, required=True)

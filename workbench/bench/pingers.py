@@ -22,6 +22,7 @@ from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, Interrupt, decode
+from service_kit.can_udp import LoopFreeUdpMulticastBus
 from workbench.bench.procs import BenchError
 
 _SEQ = struct.Struct("<Q")
@@ -205,16 +206,15 @@ class CanPinger:
         return rtt
 
 
-def can_bus(port: int, reply_ids: list[int], channel: str = "239.74.163.2") -> can.BusABC:
-    """A udp_multicast bus on a private port that keeps only ``reply_ids``
-    (udp_multicast hands a sender its own frames back: they are read and dropped)."""
-    return can.Bus(
-        interface="udp_multicast",
-        channel=channel,
-        port=port,
-        receive_own_messages=False,
-        can_filters=[{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in reply_ids],
-    )
+def can_bus(port: int, reply_ids: list[int], channel: str = "239.74.163.2", *, loop_free: bool = True) -> can.BusABC:
+    """A udp_multicast bus on a private port that keeps only ``reply_ids``.
+    ``loop_free`` (the rig's default transport,
+    :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`) never reads its own
+    frames back; python-can's stock bus does, and reads and drops them."""
+    filters = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in reply_ids]
+    if loop_free:
+        return LoopFreeUdpMulticastBus(channel=channel, port=port, hop_limit=0, can_filters=filters)
+    return can.Bus(interface="udp_multicast", channel=channel, port=port, hop_limit=0, receive_own_messages=False, can_filters=filters)
 
 
 # --- through the services --------------------------------------------------------------------
