@@ -109,6 +109,25 @@ def test_schedulers() -> None:
     assert not real.wait(3600.0)  # a stop ends a real-time wait at once
 
 
+def test_a_real_time_wait_ends_at_its_deadline_and_a_later_stop_ends_it_early() -> None:
+    import time
+
+    from service_kit.clock import SLEEP_SLICE_S
+
+    stop = threading.Event()
+    real = RealTimeScheduler(stop)
+    for span in (0.2 * SLEEP_SLICE_S, 3 * SLEEP_SLICE_S):  # only the final sleep; the event, then the sleep
+        deadline = real.now() + span
+        assert real.wait_until(deadline)
+        assert real.now() >= deadline  # never early
+    timer = threading.Timer(0.05, stop.set)
+    timer.start()
+    started = real.now()
+    assert not real.wait(600.0)  # a stop while waiting ends the wait (within a slice), reported as stopping
+    assert real.now() - started < 300.0
+    timer.join()
+
+
 def test_the_empty_flag_after_an_interrupt_is_not_a_late_flag() -> None:
     """The DSP raises the interrupt, then flags the release: when the CPU's
     next batch went out in between, that flag is the interrupt's echo, not
