@@ -110,7 +110,6 @@ def test_schedulers() -> None:
 
 
 def test_a_real_time_wait_ends_at_its_deadline_and_a_later_stop_ends_it_early() -> None:
-    import time
 
     from service_kit.clock import SLEEP_SLICE_S
 
