@@ -81,6 +81,39 @@ def install_stop_handlers() -> threading.Event:
     return stop
 
 
+HEALTH_PERCENTILES = (50.0, 99.0, 99.9)
+
+
+def sorted_percentiles(data: np.ndarray, qs: Sequence[float] = HEALTH_PERCENTILES) -> tuple[float, ...]:
+    """``np.percentile(data, qs)`` (its default linear method, bit for bit),
+    from one in-place ``data.sort()`` and a few float operations per
+    percentile. ``data`` (float64, no NaN, not empty) is left sorted.
+
+    Why not ``np.percentile``: it partitions the array in one C call that
+    holds the GIL, 1.7 ms for the 65536 samples of a full tracker; twelve
+    trackers in one health message kept a SCHED_FIFO loop from the GIL for
+    ~20 ms twice a second (a C call cannot be pre-empted by the switch
+    interval). numpy's sort takes 0.26 ms for the same array."""
+    data.sort()
+    n = data.size
+    top = data[n - 1]
+    out = []
+    for q in qs:
+        v = (n - 1) * (q / 100.0)  # the linear method's virtual index
+        if v >= n - 1:
+            out.append(float(top))
+            continue
+        if v < 0:
+            out.append(float(data[0]))
+            continue
+        i = int(v // 1)
+        a, b = float(data[i]), float(data[i + 1])
+        t = v - i
+        d = b - a
+        out.append(b - d * (1 - t) if t >= 0.5 else a + d * t)  # numpy's _lerp
+    return tuple(out)
+
+
 class LatencyTracker:
     """Keeps the most recent ``capacity`` samples of one latency (seconds)
     and summarises them as p50/p99/p99.9/max; the maximum and count cover
@@ -91,6 +124,7 @@ class LatencyTracker:
         self._n = 0
         self._max = 0.0
         self._lock = threading.Lock()
+        self._stats: LatencyStats | None = None
 
     def add(self, seconds: float) -> None:
         with self._lock:
@@ -107,11 +141,20 @@ class LatencyTracker:
             return self._buf[: min(self._n, self._buf.size)].copy()
 
     def stats(self) -> LatencyStats:
-        data = self.values()
+        """p50/p99/p99.9 of the kept samples (:func:`sorted_percentiles`), the
+        run's count and maximum; the same samples give the same answer without
+        recomputing it (health asks every period, often with nothing new)."""
+        with self._lock:
+            n, top = self._n, self._max
+            cached = self._stats
+            if cached is not None and cached.count == n:
+                return cached
+            data = self._buf[: min(n, self._buf.size)].copy()
         if data.size == 0:
             return LatencyStats(count=0, p50=0.0, p99=0.0, p999=0.0, max=0.0)
-        p50, p99, p999 = np.percentile(data, [50.0, 99.0, 99.9])
-        return LatencyStats(count=self._n, p50=float(p50), p99=float(p99), p999=float(p999), max=self._max)
+        p50, p99, p999 = sorted_percentiles(data)
+        stats = self._stats = LatencyStats(count=n, p50=p50, p99=p99, p999=p999, max=top)
+        return stats
 
 
 class HealthPublisher:
