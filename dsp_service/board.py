@@ -59,6 +59,10 @@ class Admission:
     reason: str = ""
 
 
+ACCEPTED = Admission(True)
+"""The admission of a batch that follows the previous one (the usual case, built once)."""
+
+
 @dataclass
 class BatchBlock:
     """The batch memory block and the sequence bookkeeping around it."""
@@ -107,6 +111,8 @@ class BatchBlock:
         self.next_tick = batch.first_tick + batch.n_samples
         self.counters.batches_accepted += 1
         self.counters.samples_accepted += batch.n_samples
+        if not restart and not reason:
+            return ACCEPTED
         return Admission(True, restart_history=restart, reason=reason)
 
     def release(self) -> None:

@@ -264,6 +264,16 @@ def test_nan_anywhere_is_rejected(batch: SampleBatch, data: st.DataObject) -> No
     _reject(payload, "non-finite")
 
 
+def test_finite_samples_whose_sum_overflows_are_accepted() -> None:
+    # the decoder sums the samples first; an overflowing sum of finite samples is not a rejection
+    big = np.full((2, 5), np.finfo(np.float64).max)
+    batch = decode_batch(encode_batch(_batch(2, 2, 5, inputs=big, outputs=-big)))
+    assert _bits(batch.inputs) == _bits(big) and _bits(batch.outputs) == _bits(-big)
+    payload = bytearray(encode_batch(_batch(2, 2, 5, inputs=big, outputs=big)))
+    struct.pack_into("<d", payload, HEADER_SIZE + 8 * 13, math.inf)
+    _reject(payload, "non-finite")
+
+
 def test_decode_error_is_a_protocol_error() -> None:
     assert issubclass(BatchDecodeError, ProtocolError)
     assert issubclass(BatchDecodeError, ValueError)
