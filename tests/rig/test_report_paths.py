@@ -23,3 +23,15 @@ def test_attachments_are_relative_to_the_report(tmp_path: Path, monkeypatch: pyt
     listed = report.attachments[0]["path"]
     assert listed == os.path.join("records", "run.npz")
     assert str(tmp_path) not in report.markdown() and str(tmp_path) not in str(report.as_json())
+
+
+def test_a_file_beside_the_report_folder_is_listed_relative_too(tmp_path: Path) -> None:
+    out = tmp_path / "results" / "exp"
+    out.mkdir(parents=True)
+    shared = tmp_path / "results" / "shared" / "truth.npz"  # e.g. a campaign's common file
+    shared.parent.mkdir()
+    shared.write_bytes(b"")
+    report = Report(out, "title", name="exp")
+    report.attach(shared, "the plant's truth")
+    assert report.attachments[0]["path"] == "../shared/truth.npz"
+    assert str(tmp_path) not in report.markdown() and str(tmp_path) not in str(report.as_json())

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -174,10 +175,10 @@ class Report:
         """List a file the experiment wrote (a run record, raw data) in the report and results.json."""
         p = Path(path)
         try:  # relative to the report, whether the paths came absolute or relative to the working directory
-            rel = p.resolve().relative_to(Path(self.out_dir).resolve())
-        except ValueError:
-            rel = p
-        self.attachments.append({"path": str(rel), "description": description})
+            rel = os.path.relpath(p.resolve(), Path(self.out_dir).resolve())  # "../x" for a file beside the folder
+        except ValueError:  # another drive (Windows): no relative path exists
+            rel = str(p)
+        self.attachments.append({"path": Path(rel).as_posix(), "description": description})
         return self
 
     def check(self, name: str, passed: bool, detail: str = "") -> bool:
