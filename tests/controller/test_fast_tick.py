@@ -209,3 +209,66 @@ def test_append_row_stores_what_append_stores(tmp_path: Any) -> None:
         by_row.append_row([1.0, 2.0])
     by_row.clear()
     assert len(by_row) == 0
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"oatf_mode": "adaptive"},
+        {"oatf_mode": "fixed", "oatf_location": "inner"},
+        {"oatf_mode": "off"},
+        {"oatf_mode": "adaptive", "oatf_max_stages": 3},
+    ],
+)
+def test_compiled_tick_is_the_python_form(settings: dict[str, Any]) -> None:
+    """controller/fast_tick.py's one compiled call against ``ControlLaw._compute``
+    (itself tested against the array forms above): the row, the D/A codes and
+    their flags, and the state both leave (the OATF's delay line and head, the
+    PI's integrator and terms), over words that saturate the D/A and cut the
+    integrator, through a redesign and across a lap's end."""
+    from controller import fast_tick
+
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", **settings)
+    a = ControlLaw(law_config(cs), build_trajectory(cs))
+    b = ControlLaw(law_config(cs), build_trajectory(cs))
+    assert a.compiled and fast_tick.blas_matches()
+    rng = np.random.default_rng(11)
+    for n, tick in enumerate([*range(400), *range(a.lap_ticks - 50, a.lap_ticks + 50)]):
+        spread = 200 if n % 3 else 20000  # small errors (the integrator admits them) and wild ones (D/A saturates)
+        w = [int(x) for x in np.clip(np.array([9000, 9000, 0, 0]) + rng.integers(-spread, spread, size=4), -32768, 32767)]
+        if n == 200 and a.oatf is not None and b.oatf is not None:
+            freqs = [3.1, 7.7][: a.oatf.config.max_stages]
+            a.oatf.update_modes(freqs)
+            b.oatf.update_modes(freqs)
+        a.tick_compiled(tick, *w)
+        row = a.row.tolist()
+        ref, s0, s1 = b._compute(tick, w)
+        assert _bits(row) == _bits([float(x) for x in ref]), tick
+        codes = [round(ref[ROW_VOLTS] / can_map.DAC12.lsb_v), round(ref[ROW_VOLTS + 1] / can_map.DAC12.lsb_v)]
+        assert a.codes.tolist() == [*codes, int(s0), int(s1)]
+        assert _bits(a.pi.state.tolist()) == _bits(b.pi.state.tolist())
+        if a.oatf is not None and b.oatf is not None:
+            assert a.oatf._head == b.oatf._head and np.array_equal(a.oatf._buf, b.oatf._buf)
+
+
+def test_compiled_tick_fills_angles_once_and_refuses_non_finite_errors() -> None:
+    from controller import fast_tick
+
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="off")
+    law = ControlLaw(law_config(cs), build_trajectory(cs))
+    w = [12345, -4321, 7, -7]
+    law.tick_compiled(0, *w)
+    assert fast_tick.ANGLE_TABLE[0, w[0] + 32768] == measure_values(w)[8]
+    assert fast_tick.ANGLE_TABLE[1, w[1] + 32768] == measure_values(w)[9]
+    law._sp[1] = np.nan  # a set-point that is not a number: the PI refuses it as its Python form does
+    before = law.pi.state.copy()
+    with pytest.raises(ValueError, match="non-finite angle error"):
+        law.tick_compiled(1, *w)
+    assert np.array_equal(law.pi.state, before)
+
+
+def test_pmin_pmax_keep_pythons_tie_rule() -> None:
+    from controller.fast_tick import _pmax, _pmin
+
+    for a, b in ((0.0, -0.0), (-0.0, 0.0), (1.0, 2.0), (2.0, 1.0), (-math.inf, 3.0)):
+        assert _bits([_pmin(a, b), _pmax(a, b)]) == _bits([min(a, b), max(a, b)])
