@@ -142,6 +142,9 @@ class PlantLink:
         self._foreign_kind = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
         self._conflicts: deque[str] = deque(maxlen=CONFLICT_MEMORY)
         self._logged_at: dict[str, float] = {}
+        self._send_frame = getattr(self.bus, "send_frame", None)
+        """A wire that takes a standard data frame as COB-ID and payload (the
+        co-simulation's :class:`workbench.cosim.DirectCanWire`): no can.Message built."""
 
     def _now(self) -> float:
         return float(self.clock())  # type: ignore[operator]
@@ -151,6 +154,9 @@ class PlantLink:
             sent = self._sent.get(arbitration_id)
             if sent is not None:
                 sent.append(bytes(data))
+        if self._send_frame is not None:
+            self._send_frame(arbitration_id, data)
+            return
         self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
 
     def _log_limited(self, kind: str, fmt: str, *args: object) -> None:
@@ -244,6 +250,15 @@ class PlantLink:
         counters.rpdos_sent += 1
         counters.outputs_clipped += s0 + s1
         return s0, s1
+
+    def send_output_codes(self, c0: int, c1: int) -> None:
+        """RPDO1 of two D/A codes already quantized by the law
+        (:func:`controller.fast_tick.law_tick`, in ``DAC12``'s range):
+        :meth:`send_output_values` of the volts ``c * lsb`` those codes stand
+        for, which quantizes them back to ``c0, c1`` and never clips (tested),
+        without the round trip through volts."""
+        self._send(self._rpdo1, can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
+        self.counters.rpdos_sent += 1
 
     def _dispatch(self, msg: can.Message) -> None:
         """Handle one received frame (TPDO kept for the caller, others consumed)."""

@@ -272,3 +272,32 @@ def test_pmin_pmax_keep_pythons_tie_rule() -> None:
 
     for a, b in ((0.0, -0.0), (-0.0, 0.0), (1.0, 2.0), (2.0, 1.0), (-math.inf, 3.0)):
         assert _bits([_pmin(a, b), _pmax(a, b)]) == _bits([min(a, b), max(a, b)])
+
+
+class _Wire:
+    """A bus stand-in keeping what a link sends: python-can messages, or COB-ID and payload given directly."""
+
+    def __init__(self, direct: bool) -> None:
+        self.frames: list[tuple[int, bytes]] = []
+        if direct:
+            self.send_frame = lambda cob_id, data: self.frames.append((cob_id, bytes(data)))
+
+    def send(self, msg: Any, timeout: float | None = None) -> None:
+        self.frames.append((msg.arbitration_id, bytes(msg.data)))
+
+
+def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
+    """Every 12-bit D/A code: the RPDO1 the law's codes give (on a direct wire,
+    no can.Message) is the frame and the counters of send_output_values of
+    the volts those codes stand for, which quantizes them back unclipped."""
+    from controller.plant_link import PlantLink
+
+    lsb = can_map.DAC12.lsb_v
+    codes = list(range(can_map.DAC12.code_min, can_map.DAC12.code_max + 1))
+    a, b = PlantLink(_Wire(direct=True), 1), PlantLink(_Wire(direct=False), 1)  # type: ignore[arg-type]
+    for c0, c1 in zip(codes, reversed(codes), strict=True):
+        a.send_output_codes(c0, c1)
+        assert b.send_output_values([c0 * lsb, c1 * lsb]) == (False, False)
+    assert a.bus.frames == b.bus.frames  # type: ignore[attr-defined]
+    assert a.counters == b.counters and a.counters.outputs_clipped == 0
+    assert a.bus.frames[0] == (0x201, can_map.encode_analog_outputs([codes[0] << 4, codes[-1] << 4]))  # type: ignore[attr-defined]
