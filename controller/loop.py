@@ -113,14 +113,28 @@ class ControlLaw:
             self.supervisor = OatfSupervisor(self.oatf)
         self.compiled = self.pi.n_joints == 2 and fast_tick.warm_up()
         """The tick runs as one compiled call (controller/fast_tick.py); False: the Python form."""
-        self.row = np.zeros(len(ROW_NAMES))
+        # The compiled tick's state in two arrays (fast_tick.law_tick): the PI's
+        # state, the OATF's head and the row are views into them, so the
+        # Python forms and the compiled one read and write the same numbers.
+        f = fast_tick
+        data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks)
+        data[: f.PI_STATE] = f.law_consts(self.pi, self._ts)
+        if self.pi.state.shape == (f.ROW - f.PI_STATE,):
+            data[f.PI_STATE : f.ROW] = self.pi.state
+            self.pi.state = data[f.PI_STATE : f.ROW]
+        data[f.SETPOINTS :] = np.asarray(self.setpoints, dtype=np.float64).ravel()
+        self._data = data
+        self._sp = data[f.SETPOINTS :].reshape(self.lap_ticks, 2)
+        self.row = data[f.ROW : f.SETPOINTS]
         """The compiled tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
-        self.codes = np.zeros(4, dtype=np.int64)
+        self.ints = np.zeros(6, dtype=np.int64)
+        self.codes = self.ints[:4]
         """The compiled tick's D/A codes and saturation flags ``(c0, c1, s0, s1)``."""
-        self._consts = fast_tick.law_consts(self.pi, self._ts)
-        self._sp = np.ascontiguousarray(self.setpoints, dtype=np.float64)
-        self._mode = 0 if self.oatf is None else (1 if self._outer else 2)
-        self._no_oatf = (np.zeros((1, 2)), np.zeros((1, 1), dtype=np.int64), np.ones(1), np.zeros(1, dtype=np.int64))
+        self.ints[f.MODE] = 0 if self.oatf is None else (1 if self._outer else 2)
+        if self.oatf is not None:
+            self.ints[f.HEAD] = self.oatf.head_state[0]
+            self.oatf.head_state = self.ints[f.HEAD : f.HEAD + 1]
+        self._no_oatf = (np.zeros((1, 2)), np.zeros((1, 1), dtype=np.int64), np.ones(1))
 
     @property
     def oatf_frequency_hz(self) -> float:
@@ -159,17 +173,13 @@ class ControlLaw:
         hold the result. Only when :attr:`compiled`."""
         oatf = self.oatf
         if oatf is not None:
-            buf, rows, weights, head = oatf._buf, oatf._tap_rows, oatf._weights, oatf.head_state
+            buf, rows, weights = oatf._buf, oatf._tap_rows, oatf._weights
         else:
-            buf, rows, weights, head = self._no_oatf
-        status = fast_tick.law_tick(
-            tick, w0, w1, w2, w3, fast_tick.ANGLE_TABLE, self._sp, self._mode, buf, rows, weights, head, self.pi.state, self._consts, self.row, self.codes
-        )
+            buf, rows, weights = self._no_oatf
+        status = fast_tick.law_tick(tick, w0, w1, w2, w3, fast_tick.ANGLE_TABLE, self._data, self.ints, buf, rows, weights)
         if status == fast_tick.MISSING_ANGLE:  # a word seen for the first time: its angle, then the tick
             fast_tick.fill_angles(w0, w1)
-            status = fast_tick.law_tick(
-                tick, w0, w1, w2, w3, fast_tick.ANGLE_TABLE, self._sp, self._mode, buf, rows, weights, head, self.pi.state, self._consts, self.row, self.codes
-            )
+            status = fast_tick.law_tick(tick, w0, w1, w2, w3, fast_tick.ANGLE_TABLE, self._data, self.ints, buf, rows, weights)
         if status == fast_tick.NON_FINITE:
             raise ValueError(f"non-finite angle error {np.asarray(self.row[:2].tolist())!r}")
         if status < 0:
