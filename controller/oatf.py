@@ -432,7 +432,7 @@ class OatfFilter:
         stages = self.design(frequencies_hz, zetas)
         self._stages = stages
         delays, self._weights = cascade_kernel(stages)
-        if delays.shape != self._delays.shape or bool((delays != self._delays).any()):
+        if delays.shape != self._delays.shape or delays.tolist() != self._delays.tolist():  # a few ints: lists compare faster than arrays
             self._tap_rows = (np.arange(self._capacity)[:, None] - delays[None, :]) % self._capacity
             self._tap_row_list = list(self._tap_rows)
         self._delays = delays

@@ -275,20 +275,23 @@ def test_pmin_pmax_keep_pythons_tie_rule() -> None:
 
 
 class _Wire:
-    """A bus stand-in keeping what a link sends: python-can messages, or COB-ID and payload given directly."""
+    """A bus stand-in keeping what a link sends (a direct one, like the co-simulation's wire, offers ``send_frame``)."""
 
     def __init__(self, direct: bool) -> None:
         self.frames: list[tuple[int, bytes]] = []
+        self.kinds: set[str] = set()
         if direct:
-            self.send_frame = lambda cob_id, data: self.frames.append((cob_id, bytes(data)))
+            self.send_frame = lambda cob_id, data: None
 
     def send(self, msg: Any, timeout: float | None = None) -> None:
+        assert not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame) and msg.dlc == len(msg.data)
+        self.kinds.add(type(msg).__name__)
         self.frames.append((msg.arbitration_id, bytes(msg.data)))
 
 
 def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
-    """Every 12-bit D/A code: the RPDO1 the law's codes give (on a direct wire,
-    no can.Message) is the frame and the counters of send_output_values of
+    """Every 12-bit D/A code: the RPDO1 the law's codes give (on a direct wire
+    as a WireFrame, no can.Message) is the frame and the counters of send_output_values of
     the volts those codes stand for, which quantizes them back unclipped."""
     from controller.plant_link import PlantLink
 
@@ -299,5 +302,6 @@ def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
         a.send_output_codes(c0, c1)
         assert b.send_output_values([c0 * lsb, c1 * lsb]) == (False, False)
     assert a.bus.frames == b.bus.frames  # type: ignore[attr-defined]
+    assert a.bus.kinds == {"WireFrame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
     assert a.counters == b.counters and a.counters.outputs_clipped == 0
     assert a.bus.frames[0] == (0x201, can_map.encode_analog_outputs([codes[0] << 4, codes[-1] << 4]))  # type: ignore[attr-defined]
