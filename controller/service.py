@@ -213,6 +213,8 @@ class ControllerService:
         self._reset_sent = False
         """The run-start reset went out: the next flag pairs the controller with its board."""
         self._events = Inbox("controller", capacity=256)  # decoded at the edge (zenoh's threads), bounded (service_kit/inbox.py)
+        self._events_waiting = False
+        """The port's sink queued something since the loop last drained the inbox."""
         self.paired_board: bytes | None = None
         """The DSP board (session id) this controller takes flags and interrupts from."""
         self._flags_seen = 0
@@ -292,6 +294,7 @@ class ControllerService:
         size-capped, decoded and checked here, then queued (service_kit/inbox.py)."""
         if kind == "alive":
             self._events.put("alive", payload == b"1", arrival)
+            self._events_waiting = True
             return
         decoder = self._decoders.get(kind)
         if decoder is None:
@@ -300,6 +303,7 @@ class ControllerService:
             self._events.offer(kind, payload, decoder, MAX_BYTES[kind], attachment=attachment, use_attachment=True, arrival=arrival)
         else:
             self._events.offer(kind, payload, decoder, MAX_BYTES[kind], arrival=arrival)
+        self._events_waiting = True  # after the item: the loop clears this before it drains
 
     def _decode_flag(self, payload: bytes, board: bytes | None) -> BlockFlag | object | None:
         """At the edge: the first flag after the run-start reset pairs the
@@ -454,9 +458,15 @@ class ControllerService:
         self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
-        if len(self._events):  # nothing queued on almost every tick: no queue.Empty raised and caught
-            for kind, message, arrival in self._events.drain(limit=self._events.capacity):
-                self._take_event(kind, message, arrival)
+        # Nothing queued on almost every tick: the flag (set by the port's sink after
+        # each item, cleared here before draining) spares asking the queue's lock.
+        if self._events_waiting:
+            self._events_waiting = False
+            if len(self._events):
+                for kind, message, arrival in self._events.drain(limit=self._events.capacity):
+                    self._take_event(kind, message, arrival)
+                if len(self._events):
+                    self._events_waiting = True  # more than one drain's limit: the next tick takes the rest
         if self.faults is not None and not self.lockstep:
             self._held_interrupts.extend(self.faults.interrupts_due())  # type: ignore[arg-type]
             for payload in self.faults.batches_due():
