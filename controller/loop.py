@@ -10,6 +10,7 @@ model in one.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -139,9 +140,9 @@ class ControlLaw:
     @property
     def oatf_frequency_hz(self) -> float:
         """The OATF's current design frequency (NaN when off)."""
-        if self.oatf is None or not self.oatf.stages:
-            return float("nan")
-        return float(self.oatf.stages[0].frequency_hz)
+        oatf = self.oatf
+        stages = oatf._stages if oatf is not None else ()  # read every tick: one attribute, not two properties
+        return float(stages[0].frequency_hz) if stages else math.nan
 
     def setpoint(self, tick: int) -> FloatArray:
         """phi set-points at ``tick``; the closed loop repeats lap after lap."""
