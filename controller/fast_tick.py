@@ -75,6 +75,14 @@ HEAD = 5
 """ints[HEAD]: the OATF's delay-line head (:attr:`controller.oatf.OatfFilter.head_state`)."""
 
 
+def _jit(fn: Any) -> Any:
+    """``@njit(cache=True)``; compiled in memory only where numba finds no writable cache location."""
+    try:
+        return njit(cache=True)(fn)
+    except RuntimeError:
+        return njit(fn)
+
+
 def _fma_intrinsic(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
     """``a * b + c`` rounded once (llvm.fma: exact on every target)."""
     sig = types.float64(types.float64, types.float64, types.float64)
@@ -90,19 +98,19 @@ def _fma_intrinsic(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
 _fma: Any = intrinsic(_fma_intrinsic)
 
 
-@njit(cache=True)
+@_jit
 def _pmin(a: float, b: float) -> float:
     """Python's ``min(a, b)``: ``a`` unless ``b < a``."""
     return b if b < a else a
 
 
-@njit(cache=True)
+@_jit
 def _pmax(a: float, b: float) -> float:
     """Python's ``max(a, b)``: ``a`` unless ``b > a``."""
     return b if b > a else a
 
 
-@njit(cache=True)
+@_jit
 def oatf_dot(weights: np.ndarray, buf: np.ndarray, rows: np.ndarray, j: int) -> float:
     """``weights.dot(buf.take(rows, 0))[j]`` as OpenBLAS's ``dgemv`` computes it (see the module docstring)."""
     k = weights.shape[0]
@@ -118,7 +126,7 @@ def oatf_dot(weights: np.ndarray, buf: np.ndarray, rows: np.ndarray, j: int) -> 
     return t
 
 
-@njit(cache=True)
+@_jit
 def _oatf_step(buf: np.ndarray, tap_rows: np.ndarray, weights: np.ndarray, ints: np.ndarray, x0: float, x1: float) -> tuple[float, float]:
     """:meth:`OatfFilter.step_values` of two channels: push, then the weighted taps (the head in ``ints[HEAD]``)."""
     head = (ints[HEAD] + 1) % buf.shape[0]
@@ -129,7 +137,7 @@ def _oatf_step(buf: np.ndarray, tap_rows: np.ndarray, weights: np.ndarray, ints:
     return oatf_dot(weights, buf, rows, 0), oatf_dot(weights, buf, rows, 1)
 
 
-@njit(cache=True)
+@_jit
 def law_tick(
     tick: int,
     w0: int,

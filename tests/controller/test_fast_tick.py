@@ -305,3 +305,17 @@ def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
     assert a.bus.kinds == {"WireFrame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
     assert a.counters == b.counters and a.counters.outputs_clipped == 0
     assert a.bus.frames[0] == (0x201, can_map.encode_analog_outputs([codes[0] << 4, codes[-1] << 4]))  # type: ignore[attr-defined]
+
+
+def test_a_host_whose_blas_differs_keeps_the_python_form(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the BLAS check fails the law is not compiled and runs ``_compute``: the same rows."""
+    from controller import fast_tick
+
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="adaptive")
+    compiled = ControlLaw(law_config(cs), build_trajectory(cs))
+    monkeypatch.setattr(fast_tick, "_checked", False)
+    plain = ControlLaw(law_config(cs), build_trajectory(cs))
+    assert compiled.compiled and not plain.compiled
+    for tick in range(200):
+        w = [9000 + 16 * (tick % 7), 9000 - 16 * (tick % 5), 32 * (tick % 3), -48]
+        assert _bits(compiled.step_row(tick, w)) == _bits(plain.step_row(tick, w))
