@@ -45,6 +45,7 @@ The raw sum remains available (``integral_time_scaled=False``) for comparison;
 from __future__ import annotations
 
 import math
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -204,7 +205,7 @@ class PIController:
 
     def _store(self, integral: list[float], terms: list[tuple[float, float, float, float, bool, bool, bool]]) -> None:
         """The integrator and, per joint, the last tick's (error, P term, I term, output, saturated, integrating, windup-limited)."""
-        self.state[:] = [*integral, *(float(x) for t in terms for x in t)]
+        self.state[:] = [*integral, *chain.from_iterable(terms)]  # bools stored as 1.0 / 0.0
 
     def update(self, setpoint_rad: npt.ArrayLike, measured_rad: npt.ArrayLike) -> FloatArray:
         """One control tick from set-points and measurements (rad); returns volts."""
