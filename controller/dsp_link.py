@@ -80,7 +80,7 @@ class DspLink:
     next_seq: int = 0
     in_flight: SentBatch | None = None
     _pending_ticks: deque[int] = field(default_factory=deque)
-    _pending: deque[np.ndarray] = field(default_factory=deque)
+    _pending: deque[tuple[float, ...]] = field(default_factory=deque)
     _dropped_since_last: int = 0
     _last_tick: int | None = None
     missed_current: bool = False
@@ -116,7 +116,7 @@ class DspLink:
             self._dropped_since_last += lost
         self._last_tick = tick
         self._pending_ticks.append(tick)
-        self._pending.append(np.concatenate([np.asarray(commands, float), np.asarray(deflections, float)]))
+        self._pending.append((*commands, *deflections))  # float64 values: take_batch reads them with np.array(dtype=float)
         self.counters.samples_added += 1
         while len(self._pending) > self.max_pending:
             self._pending.popleft()

@@ -10,12 +10,14 @@ model in one.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from controller import fast_tick
 from controller.engineering import Measurement, measure_values, measurement_of
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
@@ -110,13 +112,37 @@ class ControlLaw:
             initial = self.setpoints[0] if config.oatf_location == "outer" else 0.0
             self.oatf = OatfFilter([config.oatf_frequency_hz], n_channels=2, config=config.oatf, initial=initial)
             self.supervisor = OatfSupervisor(self.oatf)
+        self.compiled = self.pi.n_joints == 2 and fast_tick.warm_up()
+        """The tick runs as one compiled call (controller/fast_tick.py); False: the Python form."""
+        # The compiled tick's state in two arrays (fast_tick.law_tick): the PI's
+        # state, the OATF's head and the row are views into them, so the
+        # Python forms and the compiled one read and write the same numbers.
+        f = fast_tick
+        data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks)
+        data[: f.PI_STATE] = f.law_consts(self.pi, self._ts)
+        if self.pi.state.shape == (f.ROW - f.PI_STATE,):
+            data[f.PI_STATE : f.ROW] = self.pi.state
+            self.pi.state = data[f.PI_STATE : f.ROW]
+        data[f.SETPOINTS :] = np.asarray(self.setpoints, dtype=np.float64).ravel()
+        self._data = data
+        self._sp = data[f.SETPOINTS :].reshape(self.lap_ticks, 2)
+        self.row = data[f.ROW : f.SETPOINTS]
+        """The compiled tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
+        self.ints = np.zeros(6, dtype=np.int64)
+        self.codes = self.ints[:4]
+        """The compiled tick's D/A codes and saturation flags ``(c0, c1, s0, s1)``."""
+        self.ints[f.MODE] = 0 if self.oatf is None else (1 if self._outer else 2)
+        if self.oatf is not None:
+            self.ints[f.HEAD] = self.oatf.head_state[0]
+            self.oatf.head_state = self.ints[f.HEAD : f.HEAD + 1]
+        self._no_oatf = (np.zeros((1, 2)), np.zeros((1, 1), dtype=np.int64), np.ones(1))
 
     @property
     def oatf_frequency_hz(self) -> float:
         """The OATF's current design frequency (NaN when off)."""
-        if self.oatf is None or not self.oatf.stages:
-            return float("nan")
-        return float(self.oatf.stages[0].frequency_hz)
+        oatf = self.oatf
+        stages = oatf._stages if oatf is not None else ()  # read every tick: one attribute, not two properties
+        return float(stages[0].frequency_hz) if stages else math.nan
 
     def setpoint(self, tick: int) -> FloatArray:
         """phi set-points at ``tick``; the closed loop repeats lap after lap."""
@@ -142,18 +168,48 @@ class ControlLaw:
         row = [tick * self._ts, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, *w, v0, v1, v2, v3, c0 * lsb, c1 * lsb, u[0], u[1]]
         return row, s0, s1
 
+    def tick_compiled(self, tick: int, w0: int, w1: int, w2: int, w3: int) -> None:
+        """One tick as :meth:`_compute` makes it, in one compiled call
+        (:func:`controller.fast_tick.law_tick`): :attr:`row` and :attr:`codes`
+        hold the result. Only when :attr:`compiled`."""
+        oatf = self.oatf
+        if oatf is not None:
+            buf, rows, weights = oatf._buf, oatf._tap_rows, oatf._weights
+        else:
+            buf, rows, weights = self._no_oatf
+        status = fast_tick.law_tick(tick, w0, w1, w2, w3, fast_tick.ANGLE_TABLE, self._data, self.ints, buf, rows, weights)
+        if status == fast_tick.MISSING_ANGLE:  # a word seen for the first time: its angle, then the tick
+            fast_tick.fill_angles(w0, w1)
+            status = fast_tick.law_tick(tick, w0, w1, w2, w3, fast_tick.ANGLE_TABLE, self._data, self.ints, buf, rows, weights)
+        if status == fast_tick.NON_FINITE:
+            raise ValueError(f"non-finite angle error {np.asarray(self.row[:2].tolist())!r}")
+        if status < 0:
+            raise RuntimeError(f"the compiled tick failed with status {status}")
+
+    def _row_and_flags(self, tick: int, w: list[int]) -> tuple[list[Any], bool, bool]:
+        """:meth:`_compute`, compiled when :attr:`compiled`: the same values."""
+        if not self.compiled:
+            return self._compute(tick, w)
+        w0, w1, w2, w3 = w
+        self.tick_compiled(tick, w0, w1, w2, w3)
+        row = self.row.tolist()
+        row[13:17] = w
+        _, _, s0, s1 = self.codes.tolist()
+        return row, bool(s0), bool(s1)
+
     def step_row(self, tick: int, words: list[int]) -> list[Any]:
         """One tick from the four TPDO1 words (plain ints): the values named
-        by :data:`ROW_NAMES`, as floats (the words as ints). What the loop
-        runs each tick; :meth:`step` is the same computation returned as arrays."""
-        return self._compute(tick, words)[0]
+        by :data:`ROW_NAMES`, as floats (the words as ints). :meth:`step` is
+        the same computation returned as arrays; the loop runs
+        :meth:`tick_compiled` where it can."""
+        return self._row_and_flags(tick, words)[0]
 
     def step(self, tick: int, words: npt.ArrayLike) -> TickOutput:
         raw = np.asarray(words, dtype=np.int64)
         w = raw.tolist()
         if len(w) != 4 or raw.ndim != 1:
             raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
-        row, s0, s1 = self._compute(tick, w)
+        row, s0, s1 = self._row_and_flags(tick, w)
         _, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, _, _, _, _, v0, v1, v2, v3, u1, u2, pi1, pi2 = row
         m = measurement_of(raw, (v0, v1, v2, v3, e0, e1, d0, d1, th1, th2, phi1, phi2))
         return TickOutput(

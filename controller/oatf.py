@@ -363,15 +363,24 @@ class OatfFilter:
         self.n_channels = n_channels
         self._capacity = self.config.capacity_samples
         self._buf: FloatArray = np.zeros((self._capacity, n_channels))
-        self._head = 0
+        self.head_state: IntArray = np.zeros(1, dtype=np.int64)
+        """``[head]``: the delay line's newest row (an array: the compiled tick, controller/fast_tick.py, moves it in place)."""
         self._stages: tuple[StageDesign, ...] = ()
         self._delays: IntArray = np.zeros(1, dtype=np.int64)
         self._weights: FloatArray = np.ones(1)
-        self._tap_rows: IntArray = np.arange(self._capacity, dtype=np.int64)[:, None]
+        self._tap_rows: IntArray = np.ascontiguousarray(np.arange(self._capacity, dtype=np.int64)[:, None])
         """Per head position, the delay-line rows of the taps: ``(head - delays) % capacity``."""
         self._tap_row_list: list[IntArray] = list(self._tap_rows)
         self.update_modes(frequencies_hz, zetas)
         self.reset(initial)
+
+    @property
+    def _head(self) -> int:
+        return int(self.head_state[0])
+
+    @_head.setter
+    def _head(self, value: int) -> None:
+        self.head_state[0] = value
 
     # -- design ----------------------------------------------------------------
     @property
@@ -423,7 +432,7 @@ class OatfFilter:
         stages = self.design(frequencies_hz, zetas)
         self._stages = stages
         delays, self._weights = cascade_kernel(stages)
-        if delays.shape != self._delays.shape or bool((delays != self._delays).any()):
+        if delays.shape != self._delays.shape or delays.tolist() != self._delays.tolist():  # a few ints: lists compare faster than arrays
             self._tap_rows = (np.arange(self._capacity)[:, None] - delays[None, :]) % self._capacity
             self._tap_row_list = list(self._tap_rows)
         self._delays = delays

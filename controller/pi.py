@@ -45,6 +45,7 @@ The raw sum remains available (``integral_time_scaled=False``) for comparison;
 from __future__ import annotations
 
 import math
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -144,17 +145,23 @@ class PIController:
         self._threshold = self.config.integrate_threshold_rad
         self._anti_windup = self.config.anti_windup
         self._floor = self._limit * (1.0 - 1e-12)
+        self.state: FloatArray = np.zeros(8 * self.config.n_joints)
+        """Integrator per joint, then each joint's last terms (see the properties)."""
         self.reset()
 
-    # The last tick's terms, kept per joint as Python floats by the per-tick
-    # step and read as arrays (built on access: the loop itself never needs them).
+    # The state, in one float64 array (the compiled tick, controller/fast_tick.py,
+    # writes it in place): the integrator per joint, then per joint the last
+    # tick's terms (error, P term, I term, output, saturated, integrating,
+    # windup-limited; the flags as 1.0/0.0). Read as arrays on access: the
+    # loop itself never needs them.
     @property
     def integral(self) -> FloatArray:
         """Windowed error sum ``I`` per joint (rad*s if time-scaled, else rad)."""
-        return np.array(self._integral, dtype=np.float64)
+        return self.state[: self.n_joints].copy()
 
     def _term(self, k: int, dtype: type) -> npt.NDArray[Any]:
-        return np.array([t[k] for t in self._terms], dtype=dtype)
+        n = self.n_joints
+        return self.state[n + k : n + 7 * n : 7].astype(dtype)
 
     @property
     def error(self) -> FloatArray:
@@ -194,11 +201,11 @@ class PIController:
         """Clear the integrator (or preset it, e.g. for a bumpless start) and the last-tick terms."""
         n = self.n_joints
         values = np.zeros(n) if integral is None else np.broadcast_to(np.asarray(integral, float), (n,))
-        self._integral: list[float] = values.tolist()
-        self._terms: list[tuple[float, float, float, float, bool, bool, bool]] = [
-            (0.0, 0.0, i_term, 0.0, False, False, False) for i_term in (self._ki * values).tolist()
-        ]
-        """Per joint, the last tick's (error, P term, I term, output, saturated, integrating, windup-limited)."""
+        self._store(values.tolist(), [(0.0, 0.0, i_term, 0.0, False, False, False) for i_term in (self._ki * values).tolist()])
+
+    def _store(self, integral: list[float], terms: list[tuple[float, float, float, float, bool, bool, bool]]) -> None:
+        """The integrator and, per joint, the last tick's (error, P term, I term, output, saturated, integrating, windup-limited)."""
+        self.state[:] = [*integral, *chain.from_iterable(terms)]  # bools stored as 1.0 / 0.0
 
     def update(self, setpoint_rad: npt.ArrayLike, measured_rad: npt.ArrayLike) -> FloatArray:
         """One control tick from set-points and measurements (rad); returns volts."""
@@ -233,7 +240,7 @@ class PIController:
         kp, ki, limit = self._kp_list, self._ki_list, self._limit
         decay, scale, threshold = self._decay, self._scale, self._threshold
         anti_windup, floor = self._anti_windup, self._floor
-        old = self._integral
+        old = self.state[: self.n_joints].tolist()
         integral: list[float] = []
         terms = []
         for j, e in enumerate(errors):
@@ -255,8 +262,7 @@ class PIController:
             unclipped = p + i_term
             integral.append(value)
             terms.append((e, p, i_term, min(max(unclipped, -limit), limit), abs(unclipped) >= floor, admit and not limited, limited))
-        self._integral = integral
-        self._terms = terms
+        self._store(integral, terms)
         return [t[3] for t in terms]
 
     def step_vectorised(self, error_rad: npt.ArrayLike) -> FloatArray:
@@ -292,17 +298,19 @@ class PIController:
             integral = cut
         unclipped = p + self._ki * integral
         output = np.clip(unclipped, -self._limit, self._limit)
-        self._integral = integral.tolist()
-        self._terms = list(
-            zip(
-                e.tolist(),
-                p.tolist(),
-                (self._ki * integral).tolist(),
-                output.tolist(),
-                (np.abs(unclipped) >= self._limit * (1.0 - 1e-12)).tolist(),
-                (admit & ~limited).tolist(),
-                limited.tolist(),
-                strict=True,
-            )
+        self._store(
+            integral.tolist(),
+            list(
+                zip(
+                    e.tolist(),
+                    p.tolist(),
+                    (self._ki * integral).tolist(),
+                    output.tolist(),
+                    (np.abs(unclipped) >= self._limit * (1.0 - 1e-12)).tolist(),
+                    (admit & ~limited).tolist(),
+                    limited.tolist(),
+                    strict=True,
+                )
+            ),
         )
         return output

@@ -73,6 +73,33 @@ def echoing_bus(bus: can.BusABC) -> bool:
     return type(bus).__name__ == "UdpMulticastBus" or bool(getattr(bus, "receive_own_messages", False))
 
 
+class WireFrame:
+    """A standard CAN data frame as a wire in this process reads it: the
+    fields of :class:`can.Message` a CANopen node looks at (COB-ID, payload,
+    ``dlc``, the ``is_*`` flags, all false), without python-can's constructor
+    and its checks (the link's own frames: COB-IDs and payloads from the
+    :mod:`protocol.can_map` codecs)."""
+
+    __slots__ = ("arbitration_id", "data")
+
+    is_extended_id = False
+    is_remote_frame = False
+    is_error_frame = False
+    is_fd = False
+    timestamp = 0.0
+
+    def __init__(self, arbitration_id: int, data: bytes) -> None:
+        self.arbitration_id = arbitration_id
+        self.data = data
+
+    @property
+    def dlc(self) -> int:
+        return len(self.data)
+
+    def __repr__(self) -> str:
+        return f"WireFrame(arbitration_id=0x{self.arbitration_id:03X}, data={self.data.hex(' ')!r})"
+
+
 class _RxError(Exception):
     """One receive failed (already counted and logged)."""
 
@@ -142,6 +169,10 @@ class PlantLink:
         self._foreign_kind = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
         self._conflicts: deque[str] = deque(maxlen=CONFLICT_MEMORY)
         self._logged_at: dict[str, float] = {}
+        self._direct = hasattr(self.bus, "send_frame")
+        """A wire in this process that reads a frame's fields only (the
+        co-simulation's :class:`workbench.cosim.DirectCanWire`, which also offers
+        ``send_frame``): it is handed :class:`WireFrame` objects, no can.Message built."""
 
     def _now(self) -> float:
         return float(self.clock())  # type: ignore[operator]
@@ -151,6 +182,9 @@ class PlantLink:
             sent = self._sent.get(arbitration_id)
             if sent is not None:
                 sent.append(bytes(data))
+        if self._direct:
+            self.bus.send(WireFrame(arbitration_id, data))  # type: ignore[arg-type]
+            return
         self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
 
     def _log_limited(self, kind: str, fmt: str, *args: object) -> None:
@@ -244,6 +278,15 @@ class PlantLink:
         counters.rpdos_sent += 1
         counters.outputs_clipped += s0 + s1
         return s0, s1
+
+    def send_output_codes(self, c0: int, c1: int) -> None:
+        """RPDO1 of two D/A codes already quantized by the law
+        (:func:`controller.fast_tick.law_tick`, in ``DAC12``'s range):
+        :meth:`send_output_values` of the volts ``c * lsb`` those codes stand
+        for, which quantizes them back to ``c0, c1`` and never clips (tested),
+        without the round trip through volts."""
+        self._send(self._rpdo1, can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
+        self.counters.rpdos_sent += 1
 
     def _dispatch(self, msg: can.Message) -> None:
         """Handle one received frame (TPDO kept for the caller, others consumed)."""

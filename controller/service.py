@@ -213,6 +213,8 @@ class ControllerService:
         self._reset_sent = False
         """The run-start reset went out: the next flag pairs the controller with its board."""
         self._events = Inbox("controller", capacity=256)  # decoded at the edge (zenoh's threads), bounded (service_kit/inbox.py)
+        self._events_waiting = False
+        """The port's sink queued something since the loop last drained the inbox."""
         self.paired_board: bytes | None = None
         """The DSP board (session id) this controller takes flags and interrupts from."""
         self._flags_seen = 0
@@ -292,6 +294,7 @@ class ControllerService:
         size-capped, decoded and checked here, then queued (service_kit/inbox.py)."""
         if kind == "alive":
             self._events.put("alive", payload == b"1", arrival)
+            self._events_waiting = True
             return
         decoder = self._decoders.get(kind)
         if decoder is None:
@@ -300,6 +303,7 @@ class ControllerService:
             self._events.offer(kind, payload, decoder, MAX_BYTES[kind], attachment=attachment, use_attachment=True, arrival=arrival)
         else:
             self._events.offer(kind, payload, decoder, MAX_BYTES[kind], arrival=arrival)
+        self._events_waiting = True  # after the item: the loop clears this before it drains
 
     def _decode_flag(self, payload: bytes, board: bytes | None) -> BlockFlag | object | None:
         """At the edge: the first flag after the run-start reset pairs the
@@ -454,9 +458,15 @@ class ControllerService:
         self.timing.reconfigurations += 1
 
     def _drain_events(self) -> None:
-        if len(self._events):  # nothing queued on almost every tick: no queue.Empty raised and caught
-            for kind, message, arrival in self._events.drain(limit=self._events.capacity):
-                self._take_event(kind, message, arrival)
+        # Nothing queued on almost every tick: the flag (set by the port's sink after
+        # each item, cleared here before draining) spares asking the queue's lock.
+        if self._events_waiting:
+            self._events_waiting = False
+            if len(self._events):
+                for kind, message, arrival in self._events.drain(limit=self._events.capacity):
+                    self._take_event(kind, message, arrival)
+                if len(self._events):
+                    self._events_waiting = True  # more than one drain's limit: the next tick takes the rest
         if self.faults is not None and not self.lockstep:
             self._held_interrupts.extend(self.faults.interrupts_due())  # type: ignore[arg-type]
             for payload in self.faults.batches_due():
@@ -624,15 +634,26 @@ class ControllerService:
     # -- the loop -----------------------------------------------------------------------
     def _tick(self, words: tuple[int, ...]) -> None:
         self._drain_events()
-        applied = self._apply_interrupts()
         tick = self.tick
         law, link = self.law, self.link
-        row = law.step_row(tick, list(words))
-        volts = row[ROW_VOLTS : ROW_VOLTS + 2]
-        if self.faults is None:
-            self.plant.send_output_values(volts)
+        sent = link.in_flight
+        # _apply_interrupts has nothing to do unless a batch's interrupt is due or one is held
+        applied = self._apply_interrupts() if self._held_interrupts or (sent is not None and self.lockstep and tick >= sent.due_tick) else False
+        faults = self.faults
+        if law.compiled:  # the law in one compiled call (controller/fast_tick.py): the same values
+            w0, w1, w2, w3 = words
+            law.tick_compiled(tick, w0, w1, w2, w3)
+            row: list[Any] = law.row.tolist()  # the words as floats: the record stores them as float64 all the same
+            if faults is None:
+                c0, c1, _, _ = law.codes.tolist()
+                self.plant.send_output_codes(c0, c1)
         else:
-            for faulted in self.faults.rpdo(tick, np.array(volts, dtype=np.float64)):
+            row = law.step_row(tick, list(words))
+            if faults is None:
+                self.plant.send_output_values(row[ROW_VOLTS : ROW_VOLTS + 2])
+        volts = row[ROW_VOLTS : ROW_VOLTS + 2]
+        if faults is not None:
+            for faulted in faults.rpdo(tick, np.array(volts, dtype=np.float64)):
                 self.plant.send_outputs(faulted)
         if self.lockstep and (self._n_ticks is None or tick + 1 < self._n_ticks):
             # Lockstep: the next SYNC follows the D/A frame at once (the node takes
@@ -642,14 +663,18 @@ class ControllerService:
             self._sync_sent_for = tick + 1
         # add_sample reads both with np.asarray: lists of floats are what it stores
         link.add_sample(tick, volts, row[ROW_DEFLECTIONS : ROW_DEFLECTIONS + 2])  # type: ignore[arg-type]
-        self.tf.on_tick(tick, link.in_flight is None, self.dsp_alive)
+        tf = self.tf
+        if tf.due or (tf.every_samples and tick > 0 and tick % tf.every_samples == 0):  # on_tick does nothing otherwise
+            tf.on_tick(tick, link.in_flight is None, self.dsp_alive)
         if link.ready():
             self._maybe_send_batch()
         if link.in_flight is not None and link.check_deadline(tick):
             self.last_miss = f"batch {link.in_flight.seq if link.in_flight else '?'}: no interrupt within {link.deadline * 1e3:.0f} ms ({self._blame_batch()})"
             self.monitors.fire("deadline", self.last_miss)
         self._check_stale()
-        law.set_degraded(self.monitors.degraded)
+        degraded = self.monitors.degraded
+        if degraded != law.degraded:  # set_degraded of the same state changes nothing
+            law.set_degraded(degraded)
         irq = self.latest_interrupt
         if irq is not self._irq_source:
             self._irq_source = irq

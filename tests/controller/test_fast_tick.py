@@ -209,3 +209,113 @@ def test_append_row_stores_what_append_stores(tmp_path: Any) -> None:
         by_row.append_row([1.0, 2.0])
     by_row.clear()
     assert len(by_row) == 0
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"oatf_mode": "adaptive"},
+        {"oatf_mode": "fixed", "oatf_location": "inner"},
+        {"oatf_mode": "off"},
+        {"oatf_mode": "adaptive", "oatf_max_stages": 3},
+    ],
+)
+def test_compiled_tick_is_the_python_form(settings: dict[str, Any]) -> None:
+    """controller/fast_tick.py's one compiled call against ``ControlLaw._compute``
+    (itself tested against the array forms above): the row, the D/A codes and
+    their flags, and the state both leave (the OATF's delay line and head, the
+    PI's integrator and terms), over words that saturate the D/A and cut the
+    integrator, through a redesign and across a lap's end."""
+    from controller import fast_tick
+
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", **settings)
+    a = ControlLaw(law_config(cs), build_trajectory(cs))
+    b = ControlLaw(law_config(cs), build_trajectory(cs))
+    assert a.compiled and fast_tick.blas_matches()
+    rng = np.random.default_rng(11)
+    for n, tick in enumerate([*range(400), *range(a.lap_ticks - 50, a.lap_ticks + 50)]):
+        spread = 200 if n % 3 else 20000  # small errors (the integrator admits them) and wild ones (D/A saturates)
+        w = [int(x) for x in np.clip(np.array([9000, 9000, 0, 0]) + rng.integers(-spread, spread, size=4), -32768, 32767)]
+        if n == 200 and a.oatf is not None and b.oatf is not None:
+            freqs = [3.1, 7.7][: a.oatf.config.max_stages]
+            a.oatf.update_modes(freqs)
+            b.oatf.update_modes(freqs)
+        a.tick_compiled(tick, *w)
+        row = a.row.tolist()
+        ref, s0, s1 = b._compute(tick, w)
+        assert _bits(row) == _bits([float(x) for x in ref]), tick
+        codes = [round(ref[ROW_VOLTS] / can_map.DAC12.lsb_v), round(ref[ROW_VOLTS + 1] / can_map.DAC12.lsb_v)]
+        assert a.codes.tolist() == [*codes, int(s0), int(s1)]
+        assert _bits(a.pi.state.tolist()) == _bits(b.pi.state.tolist())
+        if a.oatf is not None and b.oatf is not None:
+            assert a.oatf._head == b.oatf._head and np.array_equal(a.oatf._buf, b.oatf._buf)
+
+
+def test_compiled_tick_fills_angles_once_and_refuses_non_finite_errors() -> None:
+    from controller import fast_tick
+
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="off")
+    law = ControlLaw(law_config(cs), build_trajectory(cs))
+    w = [12345, -4321, 7, -7]
+    law.tick_compiled(0, *w)
+    assert fast_tick.ANGLE_TABLE[0, w[0] + 32768] == measure_values(w)[8]
+    assert fast_tick.ANGLE_TABLE[1, w[1] + 32768] == measure_values(w)[9]
+    law._sp[1] = np.nan  # a set-point that is not a number: the PI refuses it as its Python form does
+    before = law.pi.state.copy()
+    with pytest.raises(ValueError, match="non-finite angle error"):
+        law.tick_compiled(1, *w)
+    assert np.array_equal(law.pi.state, before)
+
+
+def test_pmin_pmax_keep_pythons_tie_rule() -> None:
+    from controller.fast_tick import _pmax, _pmin
+
+    for a, b in ((0.0, -0.0), (-0.0, 0.0), (1.0, 2.0), (2.0, 1.0), (-math.inf, 3.0)):
+        assert _bits([_pmin(a, b), _pmax(a, b)]) == _bits([min(a, b), max(a, b)])
+
+
+class _Wire:
+    """A bus stand-in keeping what a link sends (a direct one, like the co-simulation's wire, offers ``send_frame``)."""
+
+    def __init__(self, direct: bool) -> None:
+        self.frames: list[tuple[int, bytes]] = []
+        self.kinds: set[str] = set()
+        if direct:
+            self.send_frame = lambda cob_id, data: None
+
+    def send(self, msg: Any, timeout: float | None = None) -> None:
+        assert not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame) and msg.dlc == len(msg.data)
+        self.kinds.add(type(msg).__name__)
+        self.frames.append((msg.arbitration_id, bytes(msg.data)))
+
+
+def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
+    """Every 12-bit D/A code: the RPDO1 the law's codes give (on a direct wire
+    as a WireFrame, no can.Message) is the frame and the counters of send_output_values of
+    the volts those codes stand for, which quantizes them back unclipped."""
+    from controller.plant_link import PlantLink
+
+    lsb = can_map.DAC12.lsb_v
+    codes = list(range(can_map.DAC12.code_min, can_map.DAC12.code_max + 1))
+    a, b = PlantLink(_Wire(direct=True), 1), PlantLink(_Wire(direct=False), 1)  # type: ignore[arg-type]
+    for c0, c1 in zip(codes, reversed(codes), strict=True):
+        a.send_output_codes(c0, c1)
+        assert b.send_output_values([c0 * lsb, c1 * lsb]) == (False, False)
+    assert a.bus.frames == b.bus.frames  # type: ignore[attr-defined]
+    assert a.bus.kinds == {"WireFrame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
+    assert a.counters == b.counters and a.counters.outputs_clipped == 0
+    assert a.bus.frames[0] == (0x201, can_map.encode_analog_outputs([codes[0] << 4, codes[-1] << 4]))  # type: ignore[attr-defined]
+
+
+def test_a_host_whose_blas_differs_keeps_the_python_form(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the BLAS check fails the law is not compiled and runs ``_compute``: the same rows."""
+    from controller import fast_tick
+
+    cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="adaptive")
+    compiled = ControlLaw(law_config(cs), build_trajectory(cs))
+    monkeypatch.setattr(fast_tick, "_checked", False)
+    plain = ControlLaw(law_config(cs), build_trajectory(cs))
+    assert compiled.compiled and not plain.compiled
+    for tick in range(200):
+        w = [9000 + 16 * (tick % 7), 9000 - 16 * (tick % 5), 32 * (tick % 3), -48]
+        assert _bits(compiled.step_row(tick, w)) == _bits(plain.step_row(tick, w))

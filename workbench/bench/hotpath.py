@@ -3,7 +3,8 @@
 * controller tick: TPDO1 decode -> engineering conversion -> trajectory ->
   OATF -> PI -> D/A quantization -> RPDO1 encode -> batch append -> record
   row appended (the per-tick forms the controller service runs: plain ints
-  and floats, :meth:`ControlLaw.step_row`, :meth:`ColumnBuffer.append_row`);
+  and floats, :meth:`ControlLaw.tick_compiled` (one compiled call,
+  controller/fast_tick.py), :meth:`ColumnBuffer.append_row`);
 * plant step: SYNC frame -> one period of dynamics -> sensors -> A/D -> TPDO1 frame
   (the CANopen node's ``handle``, as the plant service runs it; and its
   ``exchange``, as the co-simulation's direct wire calls it, no python-can
@@ -77,12 +78,17 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
     shift = can_map.DAC12.shift(16)
 
     def controller_tick(i: int) -> None:
-        w = can_map.decode_analog_inputs_16_values(tpdo.data)
-        row = law.step_row(i, list(w))
+        w0, w1, w2, w3 = can_map.decode_analog_inputs_16_values(tpdo.data)
+        if law.compiled:  # as the service runs it: the law in one compiled call, RPDO1 from its codes
+            law.tick_compiled(i, w0, w1, w2, w3)
+            row = law.row.tolist()
+            c0, c1, _, _ = law.codes.tolist()
+        else:
+            row = law.step_row(i, [w0, w1, w2, w3])
+            (c0, c1), _ = can_map.DAC12_VALUES(row[ROW_VOLTS : ROW_VOLTS + 2])
         volts = row[ROW_VOLTS : ROW_VOLTS + 2]
-        (c0, c1), _ = can_map.DAC12_VALUES(volts)
         can_map.encode_analog_outputs_values(c0 << shift, c1 << shift)
-        link.add_sample(i, volts, row[ROW_DEFLECTIONS : ROW_DEFLECTIONS + 2])  # type: ignore[arg-type]
+        link.add_sample(i, volts, row[ROW_DEFLECTIONS : ROW_DEFLECTIONS + 2])
         if link.pending >= 4096:
             link._pending.clear()  # noqa: SLF001 - keep the FIFO bounded without sending
             link._pending_ticks.clear()  # noqa: SLF001
@@ -110,6 +116,8 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         "  engineering (measure_values)": _timed(lambda i: measure_values(word_list), n, warmup),
         "  law.step (arrays: measure+trajectory+OATF+PI+D/A)": _timed(lambda i: law.step(i, words), n, warmup),
         "  law.step_row (floats: the same)": _timed(lambda i: law.step_row(i, word_list), n, warmup),
+        "  law._compute (the Python per-tick form)": _timed(lambda i: law._compute(i, word_list), n, warmup),  # noqa: SLF001
+        "  law.tick_compiled (one numba call: the same)": _timed(lambda i: law.tick_compiled(i, *word_list), n, warmup),
         "  PI update (arrays)": _timed(lambda i: law.pi.update(out.setpoint_rad, out.measurement.phi_rad), n, warmup),
         "  PI step_values (floats)": _timed(lambda i: law.pi.step_values(errors), n, warmup),
         "  rpdo encode": _timed(lambda i: can_map.volts_to_output_frame(out.volts), n, warmup),
