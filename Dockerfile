@@ -15,7 +15,7 @@ COPY controller ./controller
 COPY service_kit ./service_kit
 COPY dsp_service ./dsp_service
 RUN pip install ".[fast]" && useradd --create-home ralf \
-    && python -c "from dsp_service.kernel import warm_up as dsp; from plant_emulator.model.compiled import warm_up as plant; dsp(); plant()"
+    && python -c "from dsp_service.kernel import warm_up as dsp; from plant_emulator.model.compiled import warm_up as plant; from controller.fast_tick import warm_up as ctrl; dsp(); plant(); ctrl()"
 USER ralf
 WORKDIR /home/ralf
 
