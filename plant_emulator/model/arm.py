@@ -54,6 +54,7 @@ from plant_emulator.model.modes import (
     coefficients_scalar,
     consts,
     modal_parameters,
+    modal_parameters_scalar,
     static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
@@ -376,12 +377,13 @@ class RalfArm:
 
     def truth(self) -> GroundTruth:
         t1, t2 = self._theta
-        p1, p2 = kin.theta_to_phi(t1, t2)
+        p1, p2 = t1 - kin.DELTA_RAD, t2 + kin.DELTA_RAD  # kin.theta_to_phi on floats
         w = self._deflections()
         wd = (L1_M * self._beta_dot[0] / kin.INCH, L2_M * self._beta_dot[1] / kin.INCH)
         ws = self._static_beta(t1, t2)
-        f, z = modal_parameters(t1, t2, self._payload, self.cfg.structure)
-        xr, yr = kin.forward(t1, t2)
+        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)  # modal_parameters on floats: the same bits
+        t12 = t1 + t2
+        xr, yr = kin.A1_IN * math.cos(t1) + kin.A2_IN * math.cos(t12), kin.A1_IN * math.sin(t1) + kin.A2_IN * math.sin(t12)  # kin.forward on floats
         tip = self._tip(t1, t2)
         fo = self._aa.outputs()
         return GroundTruth(
