@@ -339,6 +339,18 @@ class CanopenNode:
             out, self._outbox = self._outbox, []
             return out
 
+    @property
+    def own_cob_ids(self) -> frozenset[int]:
+        """The COB-IDs this node transmits on (EMCY, TPDO1-3, SDO reply, heartbeat):
+        a standard data frame with one of them received is our own frame back."""
+        return self._own_ids
+
+    def count_own_echo(self) -> None:
+        """What :meth:`handle` does with a standard data frame of :attr:`own_cob_ids`
+        (counts it in ``rx['own_cob_id']``, nothing else), for a runner that recognised it."""
+        with self._lock:
+            self.counters.rx["own_cob_id"] += 1
+
     def next_deadline(self) -> float | None:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
         with self._lock:

@@ -43,6 +43,7 @@ def run_node(
                 if node.counters.tx_errors == 1 or node.counters.tx_errors % 1000 == 0:
                     log.warning("node %d: send failed (%d so far): %s", node.node_id, node.counters.tx_errors, e)
 
+    own_ids = node.own_cob_ids
     send(node.poll(clock()))
     while not stop.is_set():
         now = clock()
@@ -58,7 +59,15 @@ def run_node(
             continue
         now = clock()
         if msg is not None:
-            send(node.handle(msg, now))
-            if after_send is not None:
-                after_send()
+            if msg.arbitration_id in own_ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+                # Our own frame back from the bus (udp_multicast loops every frame back to its
+                # sender): counted as handle counts it, without handle's and poll's work, so the
+                # node is back in recv sooner for the next SYNC (nothing in it can change a timer).
+                node.count_own_echo()
+                if deadline is None or now < deadline:
+                    continue
+            else:
+                send(node.handle(msg, now))
+                if after_send is not None:
+                    after_send()
         send(node.poll(now))
