@@ -310,3 +310,21 @@ def test_deferred_latency_reads_as_the_plain_tracker(capacity: int) -> None:
         np.testing.assert_array_equal(deferred.values(), plain.values())
         assert deferred.stats() == plain.stats()
     assert DeferredLatency().stats() == LatencyTracker().stats()
+
+
+def test_counting_an_own_echo_is_what_handle_does_with_it() -> None:
+    """The runner's shortcut for our own frames back from udp_multicast (node.count_own_echo) leaves the node as handle + poll leaves it."""
+    handled, counted = CanopenNode(FakeApp()), CanopenNode(FakeApp())
+    for node in (handled, counted):
+        node.exchange(0x000, bytes([0x01, 1]), 0.0)
+        node.exchange(0x080, bytes([1]), 0.005)
+    assert handled.own_cob_ids == frozenset({0x81, 0x181, 0x281, 0x381, 0x581, 0x701})
+    for k, cob_id in enumerate(sorted(handled.own_cob_ids)):
+        t = 0.006 + 0.0001 * k
+        msg = can.Message(arbitration_id=cob_id, data=bytes(8), is_extended_id=False)
+        assert handled.handle(msg, t) == [] and handled.poll(t) == []
+        counted.count_own_echo()
+        assert counted.poll(t) == []
+        assert counted.counters.as_dict() == handled.counters.as_dict()
+        assert counted.next_deadline() == handled.next_deadline()
+    assert counted.counters.rx["own_cob_id"] == 6
