@@ -312,6 +312,14 @@ class RalfArm:
         )
         self._ma = tuple(np.array(m, dtype=np.float64) for m in self._modal_args)
         self._st = np.zeros(20)
+        self._stv = memoryview(self._st)
+        """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
+        self._st_current = False
+        """The compiled state ``_st`` holds the arm's state (else only the attributes do)."""
+        self._attrs_current = True
+        """The attributes (``_axes``, ``_theta`` ... ``_aa.state``) hold it (else only ``_st`` does):
+        between compiled periods the state stays in ``_st``, and the attributes are
+        unpacked from it only when something reads them (:meth:`_attrs`)."""
         self._noise_src: list[float] | None = None
         self._noise_arr = np.zeros(0)
 
@@ -360,8 +368,11 @@ class RalfArm:
         total = self._pending_ns + int(round(dt * NS_PER_S))
         n, self._pending_ns = divmod(total, self._h_ns)
         if not self.compiled_steps:
-            for _ in range(n):
-                self._step()
+            if n:
+                self._attrs()
+                for _ in range(n):
+                    self._step()
+                self._st_current = False
         elif n:
             self._run_steps(n)
 
@@ -371,11 +382,18 @@ class RalfArm:
 
     def sample(self) -> SensorReading:
         """A/D conversion of the four inputs now (on SYNC)."""
-        ext = (self._axes[0].extension_in, self._axes[1].extension_in)
         rng = self._noise.sample if self.cfg.sensor_noise else None
-        return read_inputs(self.time_s, ext, self._aa.outputs(), self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
+        if self._attrs_current:
+            ext = (self._axes[0].extension_in, self._axes[1].extension_in)
+            aa = self._aa.outputs()
+        else:  # the same floats, read straight from the compiled state (extensions 0 and 3, filter outputs 16 and 18)
+            v = self._stv
+            ext = (v[0], v[3])
+            aa = (v[16], v[18])
+        return read_inputs(self.time_s, ext, aa, self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
 
     def truth(self) -> GroundTruth:
+        self._attrs()
         t1, t2 = self._theta
         p1, p2 = t1 - kin.DELTA_RAD, t2 + kin.DELTA_RAD  # kin.theta_to_phi on floats
         w = self._deflections()
@@ -476,27 +494,15 @@ class RalfArm:
         return self._cache
 
     def _run_steps(self, n: int) -> None:
-        """``n`` internal steps through :func:`._period_kernel.advance_steps`:
-        the state in, the kernel, the state back out (the same state as ``n``
-        calls of :meth:`_step`)."""
+        """``n`` internal steps through :func:`._period_kernel.advance_steps`
+        on the compiled state ``_st`` (the same state as ``n`` calls of
+        :meth:`_step`). The state stays there between calls: packed from the
+        attributes only when they changed (:meth:`_step`), unpacked only when
+        read (:meth:`_attrs`)."""
+        if not self._st_current:
+            self._pack_state()
+        self._attrs_current = False
         st = self._st
-        a0, a1 = self._axes
-        aa = self._aa.state
-        st[:] = (
-            a0.extension_in,
-            a0.velocity_in_s,
-            a0.stop_side,
-            a1.extension_in,
-            a1.velocity_in_s,
-            a1.stop_side,
-            *self._theta,
-            *self._theta_dot,
-            *self._beta,
-            *self._beta_dot,
-            *self._frac,
-            *aa[0],
-            *aa[1],
-        )
         noise = self._noise
         noisy = self.cfg.sensor_noise
         volts0, volts1 = self._volts
@@ -522,7 +528,34 @@ class RalfArm:
                     if arrived:
                         self._stop_counts[j] += 1
                         self._events.append(HardStop(time_s=t_end, joint=j, side=side, speed_in_s=speed))
-        (e0, v0, s0, e1, v1, s1, t0, t1, td0, td1, b0, b1, bd0, bd1, f0, f1, x00, x01, x10, x11) = st.tolist()
+
+    def _pack_state(self) -> None:
+        """The attributes into ``_st`` (the kernel's layout, ``_period_kernel``'s docstring)."""
+        a0, a1 = self._axes
+        aa = self._aa.state
+        self._st[:] = (
+            a0.extension_in,
+            a0.velocity_in_s,
+            a0.stop_side,
+            a1.extension_in,
+            a1.velocity_in_s,
+            a1.stop_side,
+            *self._theta,
+            *self._theta_dot,
+            *self._beta,
+            *self._beta_dot,
+            *self._frac,
+            *aa[0],
+            *aa[1],
+        )
+        self._st_current = True
+
+    def _attrs(self) -> None:
+        """Bring the attributes up to date from ``_st`` if only it holds the state."""
+        if self._attrs_current:
+            return
+        (e0, v0, s0, e1, v1, s1, t0, t1, td0, td1, b0, b1, bd0, bd1, f0, f1, x00, x01, x10, x11) = self._st.tolist()
+        a0, a1 = self._axes
         a0.extension_in, a0.velocity_in_s, a0.stop_side = e0, v0, int(s0)
         a1.extension_in, a1.velocity_in_s, a1.stop_side = e1, v1, int(s1)
         self._theta = [t0, t1]
@@ -531,6 +564,7 @@ class RalfArm:
         self._beta_dot = [bd0, bd1]
         self._frac = (f0, f1)
         self._aa.state = [[x00, x01], [x10, x11]]
+        self._attrs_current = True
 
     def _step(self) -> None:
         h = self._h
