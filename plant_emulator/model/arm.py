@@ -312,7 +312,7 @@ class RalfArm:
         )
         self._ma = tuple(np.array(m, dtype=np.float64) for m in self._modal_args)
         self._st = np.zeros(20)
-        self._stv = memoryview(self._st)
+        self._stv = memoryview(self._st)  # type: ignore[arg-type]  # numpy arrays are buffers; its stubs do not say so
         """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
         self._st_current = False
         """The compiled state ``_st`` holds the arm's state (else only the attributes do)."""
