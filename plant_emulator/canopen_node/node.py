@@ -354,6 +354,10 @@ class CanopenNode:
     def next_deadline(self) -> float | None:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
         with self._lock:
+            if self.quick_poll and not self._outbox and self._quiet_until != -math.inf and self.od.generation == self._quiet_generation:
+                # what the last _timers worked out: the heartbeat and watchdog deadlines (nothing changed since)
+                quiet = self._quiet_until
+                return None if quiet == math.inf else quiet
             times = [t for t in (self._hb_next, self._watchdog_deadline()) if t is not None]
             if self._outbox:
                 times.append(self._now)

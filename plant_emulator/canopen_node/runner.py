@@ -27,7 +27,8 @@ def run_node(
 
     Receives with a timeout bounded by the node's next deadline, so the
     heartbeat and watchdog run on time; every received frame is handled and
-    answered at once (SYNC -> TPDO latency is one ``handle`` call). Send
+    answered at once (SYNC -> TPDO latency is one :meth:`CanopenNode.exchange`
+    call: ``handle`` and ``poll`` in one). Send
     errors are logged and counted, never raised. The bus belongs to the
     caller (open and shut it there; :func:`node_can_filters` suits it).
     ``after_send`` runs after each received frame's answer is on the bus
@@ -66,8 +67,13 @@ def run_node(
                 node.count_own_echo()
                 if deadline is None or now < deadline:
                     continue
-            else:
+            elif msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
                 send(node.handle(msg, now))
                 if after_send is not None:
                     after_send()
+            else:  # a standard data frame: handle + poll in one call (the same frames, in the same order)
+                send([f.to_message() for f in node.exchange(msg.arbitration_id, msg.data, now)])
+                if after_send is not None:
+                    after_send()
+                continue
         send(node.poll(now))

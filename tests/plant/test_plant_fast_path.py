@@ -190,6 +190,7 @@ def test_exchange_is_handle_then_poll(seed: int) -> None:
         out_general += _as_tuples(general.handle(msg, t) + general.poll(t))
         out_direct += _as_tuples(direct.exchange(cob_id, bytearray(data), t))
         out_quick += _as_tuples(quick.handle(msg, t) + quick.poll(t))
+        assert direct.next_deadline() == quick.next_deadline() == general.next_deadline()  # the quiet time, or worked out afresh
         for dt in (0.003, 0.011) if seed % 3 == 0 else ():  # the timers between frames too
             out_general += _as_tuples(general.poll(t + dt))
             out_direct += _as_tuples(direct.poll_frames(t + dt))
