@@ -279,3 +279,45 @@ def read_inputs(
     analog = [(float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3]
     codes, flags = scale.quantize_floats(analog)
     return SensorReading(time_s, codes, flags, analog, scale.lsb_v, scale.bits)
+
+
+def read_codes(
+    extensions_in: tuple[float, float],
+    deflections_in: tuple[float, float],
+    extension_noise_std_in: tuple[float, float],
+    scale: ConverterScale,
+    rng: BlockNormals | None,
+) -> tuple[list[int], list[bool]]:
+    """:func:`read_inputs`' codes and saturation flags only (what a SYNC's
+    TPDO1 carries), without the :class:`SensorReading`: the same float
+    operations in the same order, :meth:`ConverterScale.quantize_floats`
+    written out for the four channels, the same deviates drawn."""
+    x0, x1 = extensions_in
+    if rng is not None:
+        n0, n1 = rng.pair()
+        x0 = float(x0) + extension_noise_std_in[0] * n0
+        x1 = float(x1) + extension_noise_std_in[1] * n1
+    (v0, c0), (v1, c1), (v2, c2), (v3, c3) = _MAPS
+    hi = 2.0 * scale.full_scale_v
+    lo = -hi
+    lsb = scale.lsb_v
+    cmin, cmax = scale.code_min, scale.code_max
+    codes: list[int] = []
+    flags: list[bool] = []
+    for x in ((float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3):
+        if x != x:  # NaN
+            codes.append(0)
+            flags.append(True)
+            continue
+        x = x if x > lo else lo
+        code = round((x if x < hi else hi) / lsb)
+        if code < cmin:
+            codes.append(cmin)
+            flags.append(True)
+        elif code > cmax:
+            codes.append(cmax)
+            flags.append(True)
+        else:
+            codes.append(code)
+            flags.append(False)
+    return codes, flags

@@ -280,6 +280,8 @@ class CanopenNode:
         self._in16: list[int] = [int(self._process_defaults[k]) for k in _IN16_KEYS]
         self._in32: list[int] = [int(self._process_defaults[k]) for k in _IN32_KEYS]
         self._out16: list[int] = [int(self._process_defaults[k]) for k in _OUT16_KEYS]
+        self._on_output_values: Callable[[float, float], None] | None = getattr(app, "on_output_values", None)
+        """The application's optional float form of ``on_outputs`` (two plain floats, no array per RPDO)."""
         self._install_hooks()
         self._boot()
 
@@ -939,7 +941,11 @@ class CanopenNode:
         self._outputs_v = (v0, v1)
         self.counters.outputs_applied += 1
         try:
-            self.app.on_outputs(np.array((v0, v1), dtype=np.float64))
+            values = self._on_output_values
+            if values is not None:
+                values(v0, v1)
+            else:
+                self.app.on_outputs(np.array((v0, v1), dtype=np.float64))
         except Exception:  # noqa: BLE001 - as _call_app
             self._app_failed("on_outputs")
         if clip0 or clip1:

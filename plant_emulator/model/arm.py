@@ -57,7 +57,7 @@ from plant_emulator.model.modes import (
     modal_parameters_scalar,
     static_deflection_in,
 )
-from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
+from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_codes, read_inputs
 from protocol.can_map import FULL_SCALE_V, ConverterScale
 
 __all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm", "modal_parameters"]
@@ -360,6 +360,13 @@ class RalfArm:
         v = np.clip(v, -FULL_SCALE_V, FULL_SCALE_V)
         self._volts = [float(v[0]), float(v[1])]
 
+    def set_valve_values(self, volts0: float, volts1: float) -> None:
+        """:meth:`set_valve_voltages` given two floats (no array)."""
+        if math.isfinite(volts0) and math.isfinite(volts1):
+            self._volts = [min(FULL_SCALE_V, max(-FULL_SCALE_V, volts0)), min(FULL_SCALE_V, max(-FULL_SCALE_V, volts1))]
+        else:
+            self.set_valve_voltages(np.array((volts0, volts1), dtype=np.float64))  # raises as it does
+
     def advance(self, dt: float) -> None:
         """Integrate ``dt`` seconds (``dt >= 0``) in fixed internal steps,
         carrying the remainder to the next call."""
@@ -391,6 +398,19 @@ class RalfArm:
             ext = (v[0], v[3])
             aa = (v[16], v[18])
         return read_inputs(self.time_s, ext, aa, self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
+
+    def sample_codes(self) -> tuple[list[int], list[bool]]:
+        """:meth:`sample`'s codes and saturation flags as lists (``code_list``,
+        ``saturated_list``), without the reading object: what a SYNC's TPDO1
+        needs. The same conversion and the same noise drawn as :meth:`sample`."""
+        if self._attrs_current:
+            ext = (self._axes[0].extension_in, self._axes[1].extension_in)
+            aa = self._aa.outputs()
+        else:
+            v = self._stv
+            ext = (v[0], v[3])
+            aa = (v[16], v[18])
+        return read_codes(ext, aa, self._ext_noise, self._scale, self._noise.sample if self.cfg.sensor_noise else None)  # type: ignore[arg-type]
 
     def truth(self) -> GroundTruth:
         self._attrs()
