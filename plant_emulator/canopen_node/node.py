@@ -937,7 +937,9 @@ class CanopenNode:
         # the same IEEE operations numpy does on the int64 array.
         c0, c1 = w0 >> _DAC_SHIFT, w1 >> _DAC_SHIFT
         clip0, clip1 = c0 < lo or c0 > hi, c1 < lo or c1 > hi
-        v0, v1 = float(min(hi, max(lo, c0))) * lsb, float(min(hi, max(lo, c1))) * lsb
+        # min(hi, max(lo, c)) written out (ints: the same values)
+        v0 = float(lo if c0 < lo else (hi if c0 > hi else c0)) * lsb
+        v1 = float(lo if c1 < lo else (hi if c1 > hi else c1)) * lsb
         self._outputs_v = (v0, v1)
         self.counters.outputs_applied += 1
         try:
@@ -1062,8 +1064,11 @@ class CanopenNode:
             rpdo_due = rpdo_last + rpdo_timeout if rpdo_last is not None and rpdo_timeout > 0 else math.inf
             if now >= sync_due or now >= rpdo_due:
                 self._trip(now)  # held from now on: no watchdog deadline until it recovers
-            else:
-                quiet = min(quiet, sync_due, rpdo_due)
+            else:  # min(quiet, sync_due, rpdo_due), written out
+                if sync_due < quiet:
+                    quiet = sync_due
+                if rpdo_due < quiet:
+                    quiet = rpdo_due
         self._quiet_until = quiet
         self._quiet_generation = self.od.generation
 

@@ -363,7 +363,8 @@ class RalfArm:
     def set_valve_values(self, volts0: float, volts1: float) -> None:
         """:meth:`set_valve_voltages` given two floats (no array)."""
         if math.isfinite(volts0) and math.isfinite(volts1):
-            self._volts = [min(FULL_SCALE_V, max(-FULL_SCALE_V, volts0)), min(FULL_SCALE_V, max(-FULL_SCALE_V, volts1))]
+            lo, hi = -FULL_SCALE_V, FULL_SCALE_V  # min(hi, max(lo, v)) written out: the same floats, signed zeros included
+            self._volts = [hi if volts0 > hi else (lo if volts0 < lo else volts0), hi if volts1 > hi else (lo if volts1 < lo else volts1)]
         else:
             self.set_valve_voltages(np.array((volts0, volts1), dtype=np.float64))  # raises as it does
 
