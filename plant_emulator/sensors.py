@@ -45,6 +45,7 @@ analog std above.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -146,6 +147,27 @@ def channel_lsb_in(channel: int, bits: int) -> float:
     return ConverterScale(bits).lsb_v / ANALOG_INPUTS[channel].volts_per_unit
 
 
+@functools.lru_cache(maxsize=8)
+def _zoh_butterworth(cutoff_hz: float, step_s: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
+    """The filter's exact ZOH discretisation (Ad, Bd) and its output variance
+    per unit-variance input, worked out once per (cutoff, step): every plant
+    built in a process (a campaign's co-simulations) shares them, and the
+    matrix exponential's BLAS call, which leaves a BLAS worker thread
+    spinning on a core for a while, runs once."""
+    wc = 2.0 * math.pi * cutoff_hz
+    A = np.array([[0.0, 1.0], [-wc * wc, -math.sqrt(2.0) * wc]])
+    B = np.array([[0.0], [wc * wc]])
+    # exact ZOH: expm of the augmented matrix [[A, B], [0, 0]] h
+    aug = np.zeros((3, 3))
+    aug[:2, :2] = A
+    aug[:2, 2:] = B
+    ed = scipy.linalg.expm(aug * step_s)
+    ad, bd = ed[:2, :2].copy(), ed[:2, 2].copy()
+    # output (x1) variance per unit-variance white input held over each step
+    P = scipy.linalg.solve_discrete_lyapunov(ad, np.outer(bd, bd))
+    return ad, bd, float(P[0, 0])
+
+
 class AntiAliasFilter:
     """Two independent 2nd-order Butterworth low-passes (the two deflection
     channels), discretised exactly for a fixed step with zero-order-hold input."""
@@ -155,22 +177,12 @@ class AntiAliasFilter:
             raise ValueError("anti-alias cutoff must be positive")
         self.cutoff_hz = float(cutoff_hz)
         self.step_s = float(step_s)
-        wc = 2.0 * math.pi * cutoff_hz
-        A = np.array([[0.0, 1.0], [-wc * wc, -math.sqrt(2.0) * wc]])
-        B = np.array([[0.0], [wc * wc]])
-        # exact ZOH: expm of the augmented matrix [[A, B], [0, 0]] h
-        aug = np.zeros((3, 3))
-        aug[:2, :2] = A
-        aug[:2, 2:] = B
-        ed = scipy.linalg.expm(aug * step_s)
-        self.Ad = ed[:2, :2]
-        self.Bd = ed[:2, 2]
+        ad, bd, self.output_var_per_input_var = _zoh_butterworth(self.cutoff_hz, self.step_s)
+        self.Ad = ad.copy()
+        self.Bd = bd.copy()
         a = self.Ad
         b = self.Bd
         self._c = (float(a[0, 0]), float(a[0, 1]), float(a[1, 0]), float(a[1, 1]), float(b[0]), float(b[1]))
-        # output (x1) variance per unit-variance white input held over each step
-        P = scipy.linalg.solve_discrete_lyapunov(self.Ad, np.outer(self.Bd, self.Bd))
-        self.output_var_per_input_var = float(P[0, 0])
         self.state = [[0.0, 0.0], [0.0, 0.0]]
 
     def reset(self, outputs: tuple[float, float]) -> None:
@@ -279,3 +291,45 @@ def read_inputs(
     analog = [(float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3]
     codes, flags = scale.quantize_floats(analog)
     return SensorReading(time_s, codes, flags, analog, scale.lsb_v, scale.bits)
+
+
+def read_codes(
+    extensions_in: tuple[float, float],
+    deflections_in: tuple[float, float],
+    extension_noise_std_in: tuple[float, float],
+    scale: ConverterScale,
+    rng: BlockNormals | None,
+) -> tuple[list[int], list[bool]]:
+    """:func:`read_inputs`' codes and saturation flags only (what a SYNC's
+    TPDO1 carries), without the :class:`SensorReading`: the same float
+    operations in the same order, :meth:`ConverterScale.quantize_floats`
+    written out for the four channels, the same deviates drawn."""
+    x0, x1 = extensions_in
+    if rng is not None:
+        n0, n1 = rng.pair()
+        x0 = float(x0) + extension_noise_std_in[0] * n0
+        x1 = float(x1) + extension_noise_std_in[1] * n1
+    (v0, c0), (v1, c1), (v2, c2), (v3, c3) = _MAPS
+    hi = 2.0 * scale.full_scale_v
+    lo = -hi
+    lsb = scale.lsb_v
+    cmin, cmax = scale.code_min, scale.code_max
+    codes: list[int] = []
+    flags: list[bool] = []
+    for x in ((float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3):
+        if x != x:  # NaN
+            codes.append(0)
+            flags.append(True)
+            continue
+        x = x if x > lo else lo
+        code = round((x if x < hi else hi) / lsb)
+        if code < cmin:
+            codes.append(cmin)
+            flags.append(True)
+        elif code > cmax:
+            codes.append(cmax)
+            flags.append(True)
+        else:
+            codes.append(code)
+            flags.append(False)
+    return codes, flags

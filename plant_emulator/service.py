@@ -208,12 +208,12 @@ class PlantApplication:
             else:
                 self._catch_up()
             self.syncs += 1
-            if self.scenario or self.scenario_inbox.qsize():
+            if self.scenario or self.scenario_inbox.queue:  # the queue's deque, read without its lock: nothing queued is the common case
                 self._apply_scenario()
-            reading = self.arm.sample()
+            codes, saturated = self.arm.sample_codes()
             if self.publish_truth is not None or self._recording_truth or self.arm.hard_stop_count != self._hard_stops_seen:
                 self._side_channels_due = True  # published once the TPDO is out (flush_side_channels)
-            return reading.code_list, reading.saturated_list  # plain ints and bools: the node packs them as they are
+            return codes, saturated  # plain ints and bools: the node packs them as they are
         finally:
             self.sync_service.add(self.stopwatch() - arrived)
 
@@ -233,6 +233,15 @@ class PlantApplication:
             self._catch_up()
         if not self.held:
             self.arm.set_valve_voltages(volts if type(volts) is np.ndarray and volts.dtype == np.float64 else np.asarray(volts, dtype=np.float64))
+
+    def on_output_values(self, volts0: float, volts1: float) -> None:
+        """:meth:`on_outputs` given the two voltages as floats (the node's RPDO1 path)."""
+        if self._side_channels_due:
+            self.flush_side_channels()
+        if self.realtime:
+            self._catch_up()
+        if not self.held:
+            self.arm.set_valve_values(volts0, volts1)
 
     def on_watchdog(self, tripped: bool) -> None:
         self.flush_side_channels()

@@ -280,6 +280,8 @@ class CanopenNode:
         self._in16: list[int] = [int(self._process_defaults[k]) for k in _IN16_KEYS]
         self._in32: list[int] = [int(self._process_defaults[k]) for k in _IN32_KEYS]
         self._out16: list[int] = [int(self._process_defaults[k]) for k in _OUT16_KEYS]
+        self._on_output_values: Callable[[float, float], None] | None = getattr(app, "on_output_values", None)
+        """The application's optional float form of ``on_outputs`` (two plain floats, no array per RPDO)."""
         self._install_hooks()
         self._boot()
 
@@ -339,9 +341,25 @@ class CanopenNode:
             out, self._outbox = self._outbox, []
             return out
 
+    @property
+    def own_cob_ids(self) -> frozenset[int]:
+        """The COB-IDs this node transmits on (EMCY, TPDO1-3, SDO reply, heartbeat):
+        a standard data frame with one of them received is our own frame back."""
+        return self._own_ids
+
+    def count_own_echo(self) -> None:
+        """What :meth:`handle` does with a standard data frame of :attr:`own_cob_ids`
+        (counts it in ``rx['own_cob_id']``, nothing else), for a runner that recognised it."""
+        with self._lock:
+            self.counters.rx["own_cob_id"] += 1
+
     def next_deadline(self) -> float | None:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
         with self._lock:
+            if self.quick_poll and not self._outbox and self._quiet_until != -math.inf and self.od.generation == self._quiet_generation:
+                # what the last _timers worked out: the heartbeat and watchdog deadlines (nothing changed since)
+                quiet = self._quiet_until
+                return None if quiet == math.inf else quiet
             times = [t for t in (self._hb_next, self._watchdog_deadline()) if t is not None]
             if self._outbox:
                 times.append(self._now)
@@ -919,11 +937,17 @@ class CanopenNode:
         # the same IEEE operations numpy does on the int64 array.
         c0, c1 = w0 >> _DAC_SHIFT, w1 >> _DAC_SHIFT
         clip0, clip1 = c0 < lo or c0 > hi, c1 < lo or c1 > hi
-        v0, v1 = float(min(hi, max(lo, c0))) * lsb, float(min(hi, max(lo, c1))) * lsb
+        # min(hi, max(lo, c)) written out (ints: the same values)
+        v0 = float(lo if c0 < lo else (hi if c0 > hi else c0)) * lsb
+        v1 = float(lo if c1 < lo else (hi if c1 > hi else c1)) * lsb
         self._outputs_v = (v0, v1)
         self.counters.outputs_applied += 1
         try:
-            self.app.on_outputs(np.array((v0, v1), dtype=np.float64))
+            values = self._on_output_values
+            if values is not None:
+                values(v0, v1)
+            else:
+                self.app.on_outputs(np.array((v0, v1), dtype=np.float64))
         except Exception:  # noqa: BLE001 - as _call_app
             self._app_failed("on_outputs")
         if clip0 or clip1:
@@ -1040,8 +1064,11 @@ class CanopenNode:
             rpdo_due = rpdo_last + rpdo_timeout if rpdo_last is not None and rpdo_timeout > 0 else math.inf
             if now >= sync_due or now >= rpdo_due:
                 self._trip(now)  # held from now on: no watchdog deadline until it recovers
-            else:
-                quiet = min(quiet, sync_due, rpdo_due)
+            else:  # min(quiet, sync_due, rpdo_due), written out
+                if sync_due < quiet:
+                    quiet = sync_due
+                if rpdo_due < quiet:
+                    quiet = rpdo_due
         self._quiet_until = quiet
         self._quiet_generation = self.od.generation
 

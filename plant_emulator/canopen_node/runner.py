@@ -27,7 +27,8 @@ def run_node(
 
     Receives with a timeout bounded by the node's next deadline, so the
     heartbeat and watchdog run on time; every received frame is handled and
-    answered at once (SYNC -> TPDO latency is one ``handle`` call). Send
+    answered at once (SYNC -> TPDO latency is one :meth:`CanopenNode.exchange`
+    call: ``handle`` and ``poll`` in one). Send
     errors are logged and counted, never raised. The bus belongs to the
     caller (open and shut it there; :func:`node_can_filters` suits it).
     ``after_send`` runs after each received frame's answer is on the bus
@@ -43,6 +44,7 @@ def run_node(
                 if node.counters.tx_errors == 1 or node.counters.tx_errors % 1000 == 0:
                     log.warning("node %d: send failed (%d so far): %s", node.node_id, node.counters.tx_errors, e)
 
+    own_ids = node.own_cob_ids
     send(node.poll(clock()))
     while not stop.is_set():
         now = clock()
@@ -58,7 +60,20 @@ def run_node(
             continue
         now = clock()
         if msg is not None:
-            send(node.handle(msg, now))
-            if after_send is not None:
-                after_send()
+            if msg.arbitration_id in own_ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+                # Our own frame back from the bus (udp_multicast loops every frame back to its
+                # sender): counted as handle counts it, without handle's and poll's work, so the
+                # node is back in recv sooner for the next SYNC (nothing in it can change a timer).
+                node.count_own_echo()
+                if deadline is None or now < deadline:
+                    continue
+            elif msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+                send(node.handle(msg, now))
+                if after_send is not None:
+                    after_send()
+            else:  # a standard data frame: handle + poll in one call (the same frames, in the same order)
+                send([f.to_message() for f in node.exchange(msg.arbitration_id, msg.data, now)])
+                if after_send is not None:
+                    after_send()
+                continue
         send(node.poll(now))

@@ -54,9 +54,10 @@ from plant_emulator.model.modes import (
     coefficients_scalar,
     consts,
     modal_parameters,
+    modal_parameters_scalar,
     static_deflection_in,
 )
-from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_inputs
+from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_codes, read_inputs
 from protocol.can_map import FULL_SCALE_V, ConverterScale
 
 __all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm", "modal_parameters"]
@@ -311,6 +312,14 @@ class RalfArm:
         )
         self._ma = tuple(np.array(m, dtype=np.float64) for m in self._modal_args)
         self._st = np.zeros(20)
+        self._stv = memoryview(self._st)  # type: ignore[arg-type]  # numpy arrays are buffers; its stubs do not say so
+        """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
+        self._st_current = False
+        """The compiled state ``_st`` holds the arm's state (else only the attributes do)."""
+        self._attrs_current = True
+        """The attributes (``_axes``, ``_theta`` ... ``_aa.state``) hold it (else only ``_st`` does):
+        between compiled periods the state stays in ``_st``, and the attributes are
+        unpacked from it only when something reads them (:meth:`_attrs`)."""
         self._noise_src: list[float] | None = None
         self._noise_arr = np.zeros(0)
 
@@ -351,6 +360,14 @@ class RalfArm:
         v = np.clip(v, -FULL_SCALE_V, FULL_SCALE_V)
         self._volts = [float(v[0]), float(v[1])]
 
+    def set_valve_values(self, volts0: float, volts1: float) -> None:
+        """:meth:`set_valve_voltages` given two floats (no array)."""
+        if math.isfinite(volts0) and math.isfinite(volts1):
+            lo, hi = -FULL_SCALE_V, FULL_SCALE_V  # min(hi, max(lo, v)) written out: the same floats, signed zeros included
+            self._volts = [hi if volts0 > hi else (lo if volts0 < lo else volts0), hi if volts1 > hi else (lo if volts1 < lo else volts1)]
+        else:
+            self.set_valve_voltages(np.array((volts0, volts1), dtype=np.float64))  # raises as it does
+
     def advance(self, dt: float) -> None:
         """Integrate ``dt`` seconds (``dt >= 0``) in fixed internal steps,
         carrying the remainder to the next call."""
@@ -359,8 +376,11 @@ class RalfArm:
         total = self._pending_ns + int(round(dt * NS_PER_S))
         n, self._pending_ns = divmod(total, self._h_ns)
         if not self.compiled_steps:
-            for _ in range(n):
-                self._step()
+            if n:
+                self._attrs()
+                for _ in range(n):
+                    self._step()
+                self._st_current = False
         elif n:
             self._run_steps(n)
 
@@ -370,18 +390,39 @@ class RalfArm:
 
     def sample(self) -> SensorReading:
         """A/D conversion of the four inputs now (on SYNC)."""
-        ext = (self._axes[0].extension_in, self._axes[1].extension_in)
         rng = self._noise.sample if self.cfg.sensor_noise else None
-        return read_inputs(self.time_s, ext, self._aa.outputs(), self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
+        if self._attrs_current:
+            ext = (self._axes[0].extension_in, self._axes[1].extension_in)
+            aa = self._aa.outputs()
+        else:  # the same floats, read straight from the compiled state (extensions 0 and 3, filter outputs 16 and 18)
+            v = self._stv
+            ext = (v[0], v[3])
+            aa = (v[16], v[18])
+        return read_inputs(self.time_s, ext, aa, self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
+
+    def sample_codes(self) -> tuple[list[int], list[bool]]:
+        """:meth:`sample`'s codes and saturation flags as lists (``code_list``,
+        ``saturated_list``), without the reading object: what a SYNC's TPDO1
+        needs. The same conversion and the same noise drawn as :meth:`sample`."""
+        if self._attrs_current:
+            ext = (self._axes[0].extension_in, self._axes[1].extension_in)
+            aa = self._aa.outputs()
+        else:
+            v = self._stv
+            ext = (v[0], v[3])
+            aa = (v[16], v[18])
+        return read_codes(ext, aa, self._ext_noise, self._scale, self._noise.sample if self.cfg.sensor_noise else None)  # type: ignore[arg-type]
 
     def truth(self) -> GroundTruth:
+        self._attrs()
         t1, t2 = self._theta
-        p1, p2 = kin.theta_to_phi(t1, t2)
+        p1, p2 = t1 - kin.DELTA_RAD, t2 + kin.DELTA_RAD  # kin.theta_to_phi on floats
         w = self._deflections()
         wd = (L1_M * self._beta_dot[0] / kin.INCH, L2_M * self._beta_dot[1] / kin.INCH)
         ws = self._static_beta(t1, t2)
-        f, z = modal_parameters(t1, t2, self._payload, self.cfg.structure)
-        xr, yr = kin.forward(t1, t2)
+        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)  # modal_parameters on floats: the same bits
+        t12 = t1 + t2
+        xr, yr = kin.A1_IN * math.cos(t1) + kin.A2_IN * math.cos(t12), kin.A1_IN * math.sin(t1) + kin.A2_IN * math.sin(t12)  # kin.forward on floats
         tip = self._tip(t1, t2)
         fo = self._aa.outputs()
         return GroundTruth(
@@ -474,27 +515,15 @@ class RalfArm:
         return self._cache
 
     def _run_steps(self, n: int) -> None:
-        """``n`` internal steps through :func:`._period_kernel.advance_steps`:
-        the state in, the kernel, the state back out (the same state as ``n``
-        calls of :meth:`_step`)."""
+        """``n`` internal steps through :func:`._period_kernel.advance_steps`
+        on the compiled state ``_st`` (the same state as ``n`` calls of
+        :meth:`_step`). The state stays there between calls: packed from the
+        attributes only when they changed (:meth:`_step`), unpacked only when
+        read (:meth:`_attrs`)."""
+        if not self._st_current:
+            self._pack_state()
+        self._attrs_current = False
         st = self._st
-        a0, a1 = self._axes
-        aa = self._aa.state
-        st[:] = (
-            a0.extension_in,
-            a0.velocity_in_s,
-            a0.stop_side,
-            a1.extension_in,
-            a1.velocity_in_s,
-            a1.stop_side,
-            *self._theta,
-            *self._theta_dot,
-            *self._beta,
-            *self._beta_dot,
-            *self._frac,
-            *aa[0],
-            *aa[1],
-        )
         noise = self._noise
         noisy = self.cfg.sensor_noise
         volts0, volts1 = self._volts
@@ -520,7 +549,34 @@ class RalfArm:
                     if arrived:
                         self._stop_counts[j] += 1
                         self._events.append(HardStop(time_s=t_end, joint=j, side=side, speed_in_s=speed))
-        (e0, v0, s0, e1, v1, s1, t0, t1, td0, td1, b0, b1, bd0, bd1, f0, f1, x00, x01, x10, x11) = st.tolist()
+
+    def _pack_state(self) -> None:
+        """The attributes into ``_st`` (the kernel's layout, ``_period_kernel``'s docstring)."""
+        a0, a1 = self._axes
+        aa = self._aa.state
+        self._st[:] = (
+            a0.extension_in,
+            a0.velocity_in_s,
+            a0.stop_side,
+            a1.extension_in,
+            a1.velocity_in_s,
+            a1.stop_side,
+            *self._theta,
+            *self._theta_dot,
+            *self._beta,
+            *self._beta_dot,
+            *self._frac,
+            *aa[0],
+            *aa[1],
+        )
+        self._st_current = True
+
+    def _attrs(self) -> None:
+        """Bring the attributes up to date from ``_st`` if only it holds the state."""
+        if self._attrs_current:
+            return
+        (e0, v0, s0, e1, v1, s1, t0, t1, td0, td1, b0, b1, bd0, bd1, f0, f1, x00, x01, x10, x11) = self._st.tolist()
+        a0, a1 = self._axes
         a0.extension_in, a0.velocity_in_s, a0.stop_side = e0, v0, int(s0)
         a1.extension_in, a1.velocity_in_s, a1.stop_side = e1, v1, int(s1)
         self._theta = [t0, t1]
@@ -529,6 +585,7 @@ class RalfArm:
         self._beta_dot = [bd0, bd1]
         self._frac = (f0, f1)
         self._aa.state = [[x00, x01], [x10, x11]]
+        self._attrs_current = True
 
     def _step(self) -> None:
         h = self._h

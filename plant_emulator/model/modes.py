@@ -299,6 +299,30 @@ def modal_parameters(
     return freqs, zetas
 
 
+def modal_parameters_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """:func:`modal_parameters` for one configuration on floats (``k``: the
+    structure's :func:`consts`, payload in or out): the same operations on the
+    same values (:func:`coefficients_scalar`, the eigenvalues of :func:`eig2`,
+    ``sqrt(max(w^2, 0)) / 2 pi``), so the same frequencies bit for bit
+    (tests/plant), without numpy's per-call cost on 0-d arrays (the ground
+    truth asks for them once per truth period)."""
+    M11, M12, M22, K11, K12, K22 = coefficients_scalar(k, theta1, theta2)[:6]
+    a = M11 * M22 - M12 * M12
+    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
+    c = K11 * K22 - K12 * K12
+    d = b * b - 4.0 * a * c
+    disc = math.sqrt(_maximum0(d))
+    lam1 = (-b - disc) / (2.0 * a)
+    lam2 = (-b + disc) / (2.0 * a)
+    two_pi = 2.0 * np.pi
+    return (math.sqrt(_maximum0(lam1)) / two_pi, math.sqrt(_maximum0(lam2)) / two_pi), (k.z1, k.z2)
+
+
+def _maximum0(x: float) -> float:
+    """``np.maximum(x, 0.0)`` on a float: ``x`` when positive or NaN, else 0.0 (-0.0 included, as numpy gives)."""
+    return x if x > 0.0 or x != x else 0.0
+
+
 def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:
     """Mode shapes as tip deflections (in) per unit modal coordinate, shape
     (..., 2 links, 2 modes), each column scaled to unit largest entry."""

@@ -184,3 +184,20 @@ def test_free_vibration_shows_the_modal_frequency_and_damping() -> None:
     assert p[2] == pytest.approx(f_true[0], rel=0.01)
     assert p[3] == pytest.approx(z_true[0], rel=0.05)
     assert p[3] == pytest.approx(0.09, abs=0.01)
+
+
+@pytest.mark.parametrize("payload", [False, True])
+def test_scalar_modal_parameters_are_the_array_ones_bit_for_bit(payload: bool, loop: kin.TrajectorySamples) -> None:
+    """The ground truth's per-configuration path (floats) gives the vectorised function's numbers exactly."""
+    rng = np.random.default_rng(7)
+    lo, hi = kin.JOINT_LIMITS_RAD
+    t1 = np.concatenate([loop.theta1_rad[::7], rng.uniform(lo[0], lo[1], 300)])
+    t2 = np.concatenate([loop.theta2_rad[::7], rng.uniform(hi[0], hi[1], 300)])
+    k = modes.consts(modes.DEFAULT_STRUCTURE, payload)
+    f, z = modes.modal_parameters(t1, t2, payload=payload)
+    for i in range(t1.size):
+        fs, zs = modes.modal_parameters_scalar(k, float(t1[i]), float(t2[i]))
+        assert fs == tuple(f[i].tolist()) and zs == tuple(z[i].tolist())
+    for x in (-0.0, 0.0, -1e-300, 1e-300, -2.0, 3.0, math.nan, math.inf, -math.inf):  # np.maximum's edges, signed zero included
+        want, got = float(np.maximum(np.array(x), 0.0)), modes._maximum0(x)
+        assert (math.isnan(want) and math.isnan(got)) or (want == got and math.copysign(1.0, want) == math.copysign(1.0, got))

@@ -55,3 +55,21 @@ def test_both_implementations_run_without_numba_too() -> None:
     fast._advance_steps = _period_kernel.advance_steps_py
     _drive(ref, fast, 60, np.array([[3.0, -2.0], [-10.0, 10.0]]))
     assert math.isfinite(fast.truth().theta_rad[0])
+
+
+def test_the_state_handed_between_the_compiled_and_the_python_step() -> None:
+    """The compiled period keeps the state in its vector between calls (unpacked only when read):
+    switching to the Python step and back, sampling without asking for the truth, gives the reference's readings."""
+    ref, mixed = _pair(PlantConfig(seed=6))
+    rng = np.random.default_rng(9)
+    for k in range(300):
+        v = rng.uniform(-4.0, 4.0, 2)
+        mixed.compiled_steps = (k // 7) % 3 != 1  # runs of compiled periods, then Python ones
+        for arm in (ref, mixed):
+            arm.set_valve_voltages(v)
+            arm.advance(0.005)
+        ra, rb = ref.sample(), mixed.sample()
+        assert ra.code_list == rb.code_list and ra.values_in.tolist() == rb.values_in.tolist(), k
+        if k % 50 == 49:
+            assert ref.truth().as_dict() == mixed.truth().as_dict(), k
+    assert ref.truth().as_dict() == mixed.truth().as_dict()

@@ -190,6 +190,7 @@ def test_exchange_is_handle_then_poll(seed: int) -> None:
         out_general += _as_tuples(general.handle(msg, t) + general.poll(t))
         out_direct += _as_tuples(direct.exchange(cob_id, bytearray(data), t))
         out_quick += _as_tuples(quick.handle(msg, t) + quick.poll(t))
+        assert direct.next_deadline() == quick.next_deadline() == general.next_deadline()  # the quiet time, or worked out afresh
         for dt in (0.003, 0.011) if seed % 3 == 0 else ():  # the timers between frames too
             out_general += _as_tuples(general.poll(t + dt))
             out_direct += _as_tuples(direct.poll_frames(t + dt))
@@ -310,3 +311,58 @@ def test_deferred_latency_reads_as_the_plain_tracker(capacity: int) -> None:
         np.testing.assert_array_equal(deferred.values(), plain.values())
         assert deferred.stats() == plain.stats()
     assert DeferredLatency().stats() == LatencyTracker().stats()
+
+
+def test_counting_an_own_echo_is_what_handle_does_with_it() -> None:
+    """The runner's shortcut for our own frames back from udp_multicast (node.count_own_echo) leaves the node as handle + poll leaves it."""
+    handled, counted = CanopenNode(FakeApp()), CanopenNode(FakeApp())
+    for node in (handled, counted):
+        node.exchange(0x000, bytes([0x01, 1]), 0.0)
+        node.exchange(0x080, bytes([1]), 0.005)
+    assert handled.own_cob_ids == frozenset({0x81, 0x181, 0x281, 0x381, 0x581, 0x701})
+    for k, cob_id in enumerate(sorted(handled.own_cob_ids)):
+        t = 0.006 + 0.0001 * k
+        msg = can.Message(arbitration_id=cob_id, data=bytes(8), is_extended_id=False)
+        assert handled.handle(msg, t) == [] and handled.poll(t) == []
+        counted.count_own_echo()
+        assert counted.poll(t) == []
+        assert counted.counters.as_dict() == handled.counters.as_dict()
+        assert counted.next_deadline() == handled.next_deadline()
+    assert counted.counters.rx["own_cob_id"] == 6
+
+
+@pytest.mark.parametrize("noise", [True, False])
+def test_sample_codes_are_the_readings_lists(noise: bool) -> None:
+    """The SYNC path's codes (RalfArm.sample_codes, sensors.read_codes) are sample()'s, the same deviates drawn, through saturation."""
+    a, b = RalfArm(PlantConfig(seed=5, sensor_noise=noise)), RalfArm(PlantConfig(seed=5, sensor_noise=noise))
+    rng = np.random.default_rng(2)
+    saturated = 0
+    for k in range(400):
+        v = np.array([10.0, -10.0]) if k < 150 else rng.uniform(-3.0, 3.0, 2)  # onto a stop: saturated channels
+        for arm in (a, b):
+            arm.set_valve_voltages(v)
+            arm.advance(0.005)
+        r = a.sample()
+        codes, flags = b.sample_codes()
+        assert codes == r.code_list and flags == r.saturated_list, k
+        assert [type(c) for c in codes] == [int] * 4 and [type(f) for f in flags] == [bool] * 4
+        saturated += any(flags)
+    assert a.truth().as_dict() == b.truth().as_dict()
+    assert saturated > 0
+
+
+def test_output_values_are_set_as_the_output_array_is() -> None:
+    """The node's float form of on_outputs (PlantApplication.on_output_values, RalfArm.set_valve_values) holds what the array form holds."""
+    from plant_emulator.service import PlantApplication
+    from protocol.settings import PlantSettings
+
+    settings = PlantSettings(clock="lockstep", can_interface="virtual")
+    by_array, by_values = PlantApplication(settings), PlantApplication(settings)
+    for v0, v1 in ((0.0, -0.0), (9.995, -10.0), (12.5, -1e9), (3.25, 0.00488)):
+        by_array.on_outputs(np.array([v0, v1]))
+        by_values.on_output_values(v0, v1)
+        assert by_values.arm._volts == by_array.arm._volts and [math.copysign(1, x) for x in by_values.arm._volts] == [
+            math.copysign(1, x) for x in by_array.arm._volts
+        ]
+    with pytest.raises(ValueError, match="finite"):
+        by_values.arm.set_valve_values(math.nan, 0.0)

@@ -104,6 +104,7 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         counter[0] = can_map.next_sync_counter(counter[0])
         node.exchange(can_map.SYNC_COB_ID, can_map.encode_sync(counter[0]), i * ps.sample_period_s)
 
+    rpdo_payloads = (can_map.encode_analog_outputs_values(0x0100, -0x0100), can_map.encode_analog_outputs_values(-0x0200, 0x0080))
     out = law.step(0, words)
     errors = (out.setpoint_rad - out.measurement.phi_rad).tolist()
     results = {
@@ -124,6 +125,10 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         "  record row (dict from arrays)": _timed(lambda i: law.record_row(i, out), n, warmup),
         "  arm.advance(Ts)": _timed(lambda i: app.arm.advance(ps.sample_period_s), n, warmup),
         "  arm.sample (sensors, A/D)": _timed(lambda i: app.arm.sample(), n, warmup),
+        "  arm.sample_codes (the SYNC path's A/D codes)": _timed(lambda i: app.arm.sample_codes(), n, warmup),
+        "  plant RPDO1 apply, direct wire (CanopenNode.exchange)": _timed(
+            lambda i: node.exchange(ids["rpdo1"], rpdo_payloads[i % 2], i * ps.sample_period_s), n, warmup
+        ),
     }
     if law.oatf is not None:
         results["  OATF step (arrays)"] = _timed(lambda i: law.oatf.step(out.setpoint_rad), n, warmup)  # type: ignore[union-attr]
