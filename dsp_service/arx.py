@@ -226,6 +226,27 @@ class RecursiveArx:
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
 
+    def discount(self, gamma: float) -> None:
+        """Weigh every sample regressed so far by ``γ`` more (``0 < γ ≤ 1``): a covariance reset after a change.
+
+        In the square-root information form this is ``R ← √γ R`` (the
+        information and the residual scale together, so ``θ`` is kept as a
+        prior of weight ``γ``), then one QR with the rows
+        ``(δ (1 − γ))^(1/2) [I_p | 0]`` that keep the ridge at ``δ``: the result
+        equals the batch ridge least squares with the old rows weighted by
+        ``γ`` (tested against ``numpy.linalg.lstsq``). Orthogonal operations
+        only, fixed cost. The sample count (the model's fill) is kept."""
+        if not 0.0 < gamma <= 1.0:
+            raise ValueError(f"gamma must be in (0, 1], got {gamma}")
+        c = self.cfg
+        p = c.n_params
+        ridge = np.zeros((p, p + 1))
+        ridge[:, :p] = math.sqrt(c.ridge * (1.0 - gamma)) * np.eye(p)
+        r = cast(NDArray[np.float64], np.linalg.qr(np.vstack([math.sqrt(gamma) * self.R, ridge]), mode="r"))
+        self.R = r[: p + 1]
+        self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
+        self._weight_sum *= gamma
+
     def _decimate(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Every D-th sample by its running index (the phase carries across batches)."""
         d = self.cfg.decimation
