@@ -13,7 +13,7 @@ import pytest
 import scipy.signal as ss
 
 from dsp_service.arx import ArxConfig, RecursiveArx
-from dsp_service.identifier import Identifier, IdentifierConfig
+from dsp_service.identifier import Identifier, IdentifierConfig, arx_config
 
 from .synth import FS, MODES, dataset, make_system
 
@@ -148,6 +148,32 @@ def test_a_discount_at_the_change_removes_most_of_a_long_memorys_lag() -> None:
     fast = _settle_after_step(RecursiveArx(ArxConfig(forgetting=0.999)), discount_at_step=1e-3, noise=0.01)
     assert slow > 5.0
     assert fast < 3.0
+
+
+def test_the_change_detector_fires_at_the_step_and_makes_a_long_memory_fast() -> None:
+    """The rig configuration with a 2 s memory (λ 0.995 at 50 Hz): the CUSUM of the a-priori error level
+    fires within 0.5 s after the step of the first mode, and its discount removes the long memory's lag."""
+    cfg = arx_config(IdentifierConfig(method="arx", arx_forgetting=0.995))
+    plain = _settle_after_step(RecursiveArx(cfg))
+    m = RecursiveArx(cfg.model_copy(update={"change_detection": True}))
+    detected = _settle_after_step(m)
+    assert m.changes_detected >= 1
+    assert plain > 3.0
+    assert detected <= 1.5
+    # when: replay the same data and note the batch of each alarm
+    n = 12000
+    _, u, _ = dataset(n, seed=2)
+    y = np.hstack([make_system().simulate(u)[:, : n // 2], make_system(modes=((3.6 * 0.905, 0.09), MODES[1])).simulate(u)[:, n // 2 :]])
+    y += 0.02 * y.std(axis=1, keepdims=True) * np.random.default_rng(9).standard_normal(y.shape)
+    m = RecursiveArx(cfg.model_copy(update={"change_detection": True}))
+    alarms = []
+    for s in range(0, n, 20):
+        before = m.changes_detected
+        m.update(u[:, s : s + 20], y[:, s : s + 20])
+        if m.changes_detected > before:
+            alarms.append((s + 20) / FS)
+    step = n / 2 / FS
+    assert any(step < a <= step + 0.5 for a in alarms)
 
 
 def test_bounded_cost_and_long_run_stays_sound() -> None:
