@@ -188,6 +188,29 @@ def test_bounded_cost_and_long_run_stays_sound() -> None:
     assert m.R.shape == (m.cfg.n_params + 1,) * 2
 
 
+def test_long_run_with_changes_and_discounts_stays_sound() -> None:
+    """100 000 samples of a plant (``scipy.signal.lfilter``) switching every 10 000 samples, with the change
+    detector discounting: it fires only just after switches, and R stays finite and triangular, θ finite."""
+    rng = np.random.default_rng(5)
+    m = RecursiveArx(ArxConfig(na=4, nb=2, forgetting=0.999, change_detection=True))
+    u = rng.standard_normal((2, 100_000))
+    y = np.empty_like(u)
+    for k, s in enumerate(range(0, 100_000, 10_000)):
+        a = [1, -1.6, 0.8] if k % 2 == 0 else [1, -1.2, 0.7]
+        y[:, s : s + 10_000] = ss.lfilter([0, 0.1], a, u[:, s : s + 10_000], axis=-1)
+    y += 0.01 * rng.standard_normal(y.shape)
+    alarms = []
+    for s in range(0, 100_000, 50):
+        before = m.changes_detected
+        m.update(u[:, s : s + 50], y[:, s : s + 50])
+        if m.changes_detected > before:
+            alarms.append(s)
+    # every alarm within 0.5 s after a switch (no false alarm on this stationary white-input plant), most switches found
+    assert all(0 <= a % 10_000 <= 100 for a in alarms)
+    assert len({a // 10_000 for a in alarms}) >= 5
+    assert np.all(np.isfinite(m.R)) and np.allclose(m.R, np.triu(m.R)) and np.all(np.isfinite(m.theta))
+
+
 def test_identifier_facade_reports_arx_poles_with_confidence() -> None:
     _, u, y = dataset(12000, seed=4, noise=0.02)
     idf = Identifier(IdentifierConfig(fft_width=1024, method="arx", smoothing_window=9))
