@@ -378,6 +378,8 @@ def run(ctx: ExperimentContext) -> Report:
             "change_detection": series_delays(t_r, held(detected, t_r.size, THESIS_BATCH_SIZE), true_r, events),
             "change_alarms_s": alarms,
         }
+        for key in ("as_run", "reset_at_the_event", "change_detection"):
+            arx_replay[key].pop("median_series")  # the delays are the results; the series would triple the file
     thesis_key = _name(*THESIS_SETTING) if THESIS_SETTING in settings else _name(*settings[0])
     complete = {k: v for k, v in rows_data.items() if v["settled_events"] == len(events)}
     best_key = min(complete, key=lambda k: (complete[k]["median_settle_2pct_s"], complete[k]["median_rel_error_end"])) if complete else None
