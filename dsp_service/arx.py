@@ -90,6 +90,16 @@ class ArxConfig(pydantic.BaseModel):
         description="Bounded influence: a sample whose a-priori equation error exceeds k·σ (σ: the weighted residual rms) is "
         "down-weighted to k·σ (Huber); 0 = plain least squares.",
     )
+    change_detection: bool = pydantic.Field(
+        False,
+        description="Detect a change of the plant (CUSUM of the log a-priori error level) and discount the old data at it: "
+        "fast after a change, the forgetting factor's memory when steady.",
+    )
+    change_drift: float = pydantic.Field(1.0, gt=0, description="CUSUM drift ν per batch on ln(error level / its running mean).")
+    change_threshold: float = pydantic.Field(5.0, gt=0, description="CUSUM alarm threshold h.")
+    change_discount: float = pydantic.Field(0.01, gt=0, le=1, description="Weight γ left on the data before a detected change.")
+    change_reference_s: float = pydantic.Field(5.0, gt=0, description="Span of the running mean of the log error level (s).")
+    change_refractory_s: float = pydantic.Field(2.0, ge=0, description="No new alarm for this long after one (s).")
     order_by: Literal["strength", "frequency"] = pydantic.Field(
         "strength", description="Order of the reported poles: strongest first, or lowest frequency first (the first mode first)."
     )
@@ -157,6 +167,11 @@ class RecursiveArx:
         self._sm_zi = np.zeros((4, c.na))
         self.residual_power = 0.0  #: weighted mean squared one-step equation error (scaled units)
         self._weight_sum = 0.0
+        self.change_statistic = 0.0  #: the change detector's CUSUM S
+        self.changes_detected = 0  #: alarms since the reset (each discounted the model)
+        self._ref_log = 0.0
+        self._ref_count = 0
+        self._since_alarm = 1 << 60
 
     # ------------------------------------------------------------------ data
     def update(self, inputs: NDArray[np.float64], outputs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -203,10 +218,13 @@ class RecursiveArx:
         rows[n:, na + 2 * nb : p] = U
         rows[:n, p] = ext[2][t]
         rows[n:, p] = ext[3][t]
-        if c.huber_k > 0 and self.samples >= c.memory_samples and self.residual_power > 0:
+        ready = self.samples >= c.memory_samples and self.residual_power > 0
+        e = rows[:, p] - rows[:, :p] @ self.theta if ready else None  # a-priori equation errors, both outputs
+        if c.change_detection and e is not None:
+            self._detect_change(e, n)
+        if c.huber_k > 0 and e is not None:
             # bounded influence (Huber): σ is the model's weighted residual rms; an impulsive disturbance the inputs do
             # not explain (the payload released or picked up kicks the links) enters with at most k·σ per sample
-            e = rows[:, p] - rows[:, :p] @ self.theta  # a-priori equation errors, both outputs
             lim = c.huber_k * math.sqrt(self.residual_power)
             rows *= np.minimum(1.0, lim / np.maximum(np.abs(e), 1e-300))[:, None]
         lam = c.forgetting
@@ -225,6 +243,59 @@ class RecursiveArx:
         self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
+
+    def _detect_change(self, e: NDArray[np.float64], n: int) -> None:
+        """CUSUM of the log error ratio on the batch's a-priori errors ``e``; at an alarm, :meth:`discount`.
+
+        ``z`` = the batch's mean of ``min(e²/σ², 50)`` (σ² the residual power),
+        ``g = ln z − r`` with ``r`` the running mean of ``ln z`` over
+        ``change_reference_s`` (the steady level: the a-priori errors of a model
+        that fits stay near it whatever their distribution),
+        ``S ← max(0, S + g − ν)``; ``S > h`` is a change (Page's test on a
+        shift of the log error level). After an alarm the test rests for
+        ``change_refractory_s`` (the new model converging raises the errors
+        too). Detection starts once the reference has run for its own span."""
+        c = self.cfg
+        z = float(np.mean(np.minimum(e * e / self.residual_power, 50.0)))
+        if not z > 0:
+            return
+        lz = math.log(z)
+        ref_samples = c.change_reference_s * c.model_rate_hz
+        if self._ref_count == 0:
+            self._ref_log = lz
+        g = lz - self._ref_log
+        self._ref_log += (lz - self._ref_log) * min(1.0, n / ref_samples)
+        self._ref_count += n
+        self._since_alarm += n
+        if self._ref_count < ref_samples or self._since_alarm < c.change_refractory_s * c.model_rate_hz:
+            return
+        self.change_statistic = max(0.0, self.change_statistic + g - c.change_drift)
+        if self.change_statistic > c.change_threshold:
+            self.change_statistic = 0.0
+            self._since_alarm = 0
+            self.changes_detected += 1
+            self.discount(c.change_discount)
+
+    def discount(self, gamma: float) -> None:
+        """Weigh every sample regressed so far by ``γ`` more (``0 < γ ≤ 1``): a covariance reset after a change.
+
+        In the square-root information form this is ``R ← √γ R`` (the
+        information and the residual scale together, so ``θ`` is kept as a
+        prior of weight ``γ``), then one QR with the rows
+        ``(δ (1 − γ))^(1/2) [I_p | 0]`` that keep the ridge at ``δ``: the result
+        equals the batch ridge least squares with the old rows weighted by
+        ``γ`` (tested against ``numpy.linalg.lstsq``). Orthogonal operations
+        only, fixed cost. The sample count (the model's fill) is kept."""
+        if not 0.0 < gamma <= 1.0:
+            raise ValueError(f"gamma must be in (0, 1], got {gamma}")
+        c = self.cfg
+        p = c.n_params
+        ridge = np.zeros((p, p + 1))
+        ridge[:, :p] = math.sqrt(c.ridge * (1.0 - gamma)) * np.eye(p)
+        r = cast(NDArray[np.float64], np.linalg.qr(np.vstack([math.sqrt(gamma) * self.R, ridge]), mode="r"))
+        self.R = r[: p + 1]
+        self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
+        self._weight_sum *= gamma
 
     def _decimate(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Every D-th sample by its running index (the phase carries across batches)."""

@@ -123,6 +123,28 @@ def arx_rate_and_band(sample_rate_hz: float, decimation: int, band_hz: tuple[flo
     return d, (min(lo, 0.5 * hi), hi)
 
 
+def arx_config(c: IdentifierConfig) -> ArxConfig:
+    """The recursive ARX model's configuration of ``method='arx'`` (the rig configuration, docs/identification.md §5)."""
+    decimation, band = arx_rate_and_band(c.sample_rate_hz, c.arx_decimation, c.arx_band_hz)
+    return ArxConfig(
+        sample_rate_hz=c.sample_rate_hz,
+        na=c.arx_na,
+        nb=c.arx_nb,
+        forgetting=c.arx_forgetting,
+        decimation=decimation,
+        band_hz=band,
+        prefilter_order=c.arx_prefilter_order,
+        steiglitz_mcbride=c.arx_steiglitz_mcbride,
+        huber_k=c.arx_huber_k,
+        max_damping=c.arx_max_damping,
+        change_detection=c.arx_change_detection,
+        order_by="frequency",
+        search_min_hz=c.search_min_hz,
+        search_max_hz=c.search_max_hz,
+        max_poles=c.max_peaks,
+    )
+
+
 class IdentifierConfig(pydantic.BaseModel):
     """Run-time parameters of the identifier (all validated; the model is immutable)."""
 
@@ -157,6 +179,12 @@ class IdentifierConfig(pydantic.BaseModel):
         "dominates link 2, is weaker than the first in the model's strength but well identified).",
     )
     arx_max_damping: float = pydantic.Field(0.25, gt=0, lt=1, description="ARX poles more damped than this are not modes.")
+    arx_change_detection: bool = pydantic.Field(
+        False,
+        description="ARX change detector (CUSUM of the a-priori error level; discounts the old data at an alarm, "
+        "dsp_service.arx). Off in the rig configuration: on the rig it gains less than the noise of the measure "
+        "(docs/identification.md §5a).",
+    )
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
         "exponential",
         description="Spectra averaging: exponential [2-9], linear (equal weights, Welch), "
@@ -405,25 +433,7 @@ class Identifier:
         self._arx: RecursiveArx | None = None
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         if c.method == "arx":
-            decimation, band = arx_rate_and_band(c.sample_rate_hz, c.arx_decimation, c.arx_band_hz)
-            self._arx = RecursiveArx(
-                ArxConfig(
-                    sample_rate_hz=c.sample_rate_hz,
-                    na=c.arx_na,
-                    nb=c.arx_nb,
-                    forgetting=c.arx_forgetting,
-                    decimation=decimation,
-                    band_hz=band,
-                    prefilter_order=c.arx_prefilter_order,
-                    steiglitz_mcbride=c.arx_steiglitz_mcbride,
-                    huber_k=c.arx_huber_k,
-                    max_damping=c.arx_max_damping,
-                    order_by="frequency",
-                    search_min_hz=c.search_min_hz,
-                    search_max_hz=c.search_max_hz,
-                    max_poles=c.max_peaks,
-                )
-            )
+            self._arx = RecursiveArx(arx_config(c))
 
     def _build_fused(self, n_range: int) -> None:
         """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""

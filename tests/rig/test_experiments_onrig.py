@@ -189,7 +189,7 @@ def test_id_lag_quick(tmp_path: Path) -> None:
     results = _run("id-lag", out)
     _check_structure(out, results, ["Runs"], ["settings", "trajectory", "events_s", "best_setting"])
     r = results["results"]
-    (d,) = r["settings"].values()
+    d = r["settings"]["n1024_a0p05"]
     assert d["events_applied_s"] == pytest.approx(r["events_s"], abs=0.06)
     (e,) = d["events"]
     assert e["kind"] == "release" and e["step_pct"] > 4.0  # releasing the payload raises the first mode
@@ -197,4 +197,10 @@ def test_id_lag_quick(tmp_path: Path) -> None:
     assert 0 < e["delay_50pct_s"] < math.inf
     assert 0 < e["settle_2pct_s"] < math.inf
     assert e["delay_50pct_s"] <= e["settle_2pct_s"]
+    assert e["settle_2pct_s"] <= e["stays_2pct_s"]  # staying up to the next event is the stricter reading
+    # the DSP's ARX replayed from the record is the DSP's own, and with a reset at the event it can be compared
+    rp = r["arx_replay"]
+    assert rp["max_difference_to_the_record_hz"] <= 1e-9
+    assert rp["as_run"]["median_settle_2pct_s"] == pytest.approx(r["settings"]["arx"]["median_settle_2pct_s"], abs=0.2)
+    assert set(rp) >= {"reset_at_the_event", "change_detection", "change_alarms_s"}
     assert (out / "records" / "idlag_trajectory.json").is_file()
