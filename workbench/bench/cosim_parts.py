@@ -6,7 +6,7 @@ tick made of many small calls).
 Parts: the plant node (``exchange`` and ``poll_frames``, through the wire), the
 wire's own work, the controller's :class:`~controller.plant_link.PlantLink`
 (frame encode/decode, dispatch; the node's time subtracted), the control law
-(``law.step_row``: engineering, trajectory, OATF, PI, D/A, the record row), the
+(``law.tick_compiled``, or ``law.step_row`` where the compiled law is off: engineering, trajectory, OATF, PI, D/A), the
 DSP port and core, the DSP link, the run record, and what is left: the
 controller service's own per-tick work (``controller/service.py``). The
 wrappers cost ~0.3 µs per call; the parts are inclusive wall times, the
@@ -35,6 +35,7 @@ NODE = "plant node (exchange + poll_frames)"
 WIRE = "DirectCanWire own"
 LINK = "PlantLink own (RPDO encode, TPDO decode, dispatch)"
 SERVICE = "ControllerService own (controller/service.py)"
+LAW = "control law (engineering, trajectory, OATF, PI, D/A)"
 
 
 def _wrap(obj: Any, name: str, key: str, acc: defaultdict[str, float]) -> None:
@@ -75,9 +76,10 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
         _wrap(node, name, "node", acc)
     _wrap(wire, "send", "wire", acc)
     _wrap(wire, "recv", "wire", acc)
-    for name in ("send_outputs", "send_output_values", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
+    for name in ("send_outputs", "send_output_values", "send_output_codes", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
         _wrap(link, name, "link", acc)
-    _wrap(ctrl.law, "step_row", "law.step_row (engineering, trajectory, OATF, PI, D/A)", acc)
+    for name in ("step_row", "tick_compiled"):  # the Python per-tick form, or the compiled call (controller/fast_tick.py)
+        _wrap(ctrl.law, name, LAW, acc)
     for name in ("send_batch", "send_config", "download_tf", "send_status"):
         _wrap(port, name, "DSP port and core (batch codec, identification)", acc)
     for name in ("add_sample", "take_batch", "check_deadline"):
