@@ -412,7 +412,11 @@ def serve(
     app = PlantApplication(settings, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
     app.scenario_inbox = port.inbox
     node = CanopenNode(app, node_config(settings))
-    measures = apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process) if settings.clock == "realtime" else RealtimeMeasures()
+    measures = (
+        apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
+        if settings.clock == "realtime"
+        else RealtimeMeasures()
+    )
     health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]

@@ -61,6 +61,12 @@ class CommonSettings(BaseSettings):
     cpu_affinity: str = Field(
         "", max_length=256, description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)"
     )
+    rt_cpu_latency_us: int = Field(
+        -1,
+        ge=-1,
+        le=1_000_000,
+        description="Real time: hold the CPUs' wake-up latency within this many us through PM QoS (/dev/cpu_dma_latency) where permitted; 0 = idle CPUs poll (-1 = off)",
+    )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
     zenoh_user: str = Field(
         "",

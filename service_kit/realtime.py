@@ -1,10 +1,12 @@
 """What Linux offers a real-time loop, applied where permitted, with a clean
 fallback where not: ``SCHED_FIFO`` (``os.sched_setscheduler``), CPU affinity
-(``os.sched_setaffinity``) and ``gc.freeze()`` (objects alive at the start of
-the loop leave the collector's generations, so its pauses stay short).
+(``os.sched_setaffinity``), a PM QoS bound on the CPUs' wake-up latency
+(``/dev/cpu_dma_latency``, as cyclictest holds it) and ``gc.freeze()``
+(objects alive at the start of the loop leave the collector's generations,
+so its pauses stay short).
 
-SCHED_FIFO and affinity are opt-in (settings ``rt_priority`` and
-``cpu_affinity``): a FIFO thread that never sleeps would starve a shared
+SCHED_FIFO, affinity and the wake-up latency are opt-in (settings
+``rt_priority``, ``cpu_affinity`` and ``rt_cpu_latency_us``): a FIFO thread that never sleeps would starve a shared
 machine. With SCHED_FIFO, the interpreter's GIL switch interval drops to
 ``GIL_SWITCH_INTERVAL_S``: a FIFO loop that wants the GIL back from one of
 zenoh's callback threads would otherwise wait out CPython's default 5 ms.
@@ -23,6 +25,7 @@ from __future__ import annotations
 import gc
 import logging
 import os
+import struct
 import sys
 from dataclasses import dataclass
 
@@ -30,6 +33,12 @@ log = logging.getLogger(__name__)
 
 GIL_SWITCH_INTERVAL_S = 0.0002
 """The GIL switch interval under SCHED_FIFO (CPython's default is 5 ms)."""
+
+CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"
+"""Linux PM QoS: while a process holds this open with a value written, no
+CPU enters an idle state whose exit latency exceeds that many µs."""
+_cpu_latency_fd: int | None = None
+_cpu_latency_us: int = -1
 
 
 @dataclass(frozen=True)
@@ -43,6 +52,8 @@ class RealtimeMeasures:
     cpus: tuple[int, ...] = ()
     """CPUs the thread is pinned to (empty: not pinned)."""
     gc_frozen: bool = False
+    cpu_latency_us: int = -1
+    """The CPU wake-up latency bound held through PM QoS (-1: the system's idle states left alone)."""
     notes: tuple[str, ...] = ()
     """Why a requested measure did not take effect."""
 
@@ -52,6 +63,7 @@ class RealtimeMeasures:
             "rt_switch_interval_us": round(self.switch_interval_s * 1e6),
             "rt_pinned_cpus": len(self.cpus),
             "rt_gc_frozen": int(self.gc_frozen),
+            "rt_cpu_latency_us": self.cpu_latency_us,
         }
 
     def describe(self) -> str:
@@ -60,6 +72,8 @@ class RealtimeMeasures:
             parts.append(f"GIL switch interval {self.switch_interval_s * 1e3:g} ms")
         parts.append(f"pinned to CPU {','.join(map(str, self.cpus))}" if self.cpus else "not pinned")
         parts.append("gc frozen" if self.gc_frozen else "gc not frozen")
+        if self.cpu_latency_us >= 0:
+            parts.append(f"CPU wake-up latency <= {self.cpu_latency_us} us (PM QoS)")
         return ", ".join(parts) + (f" ({'; '.join(self.notes)})" if self.notes else "")
 
 
@@ -74,13 +88,40 @@ def parse_cpus(text: str) -> tuple[int, ...]:
     return tuple(sorted(set(cpus)))
 
 
-def apply_realtime(priority: int = 0, cpu_affinity: str = "", freeze_gc: bool = True, *, whole_process: bool = False) -> RealtimeMeasures:
+def hold_cpu_latency(us: int, device: str | None = None) -> int:
+    """Ask PM QoS to keep every CPU's wake-up latency within ``us`` µs for as
+    long as this process lives (``/dev/cpu_dma_latency``, root; the request
+    ends when the process exits). 0 keeps idle CPUs polling instead of
+    halting: on a virtual machine a halted vCPU costs a VM exit and entry at
+    every wake-up, which the rig pays twice per control tick (SYNC to the
+    plant, TPDO1 back) and a sleep-only loop once. Returns the bound in
+    effect (the lowest asked for in this process); raises OSError where
+    refused."""
+    global _cpu_latency_fd, _cpu_latency_us
+    if _cpu_latency_fd is not None and 0 <= _cpu_latency_us <= us:
+        return _cpu_latency_us
+    fd = os.open(device or CPU_LATENCY_DEVICE, os.O_WRONLY)
+    try:
+        os.write(fd, struct.pack("i", us))
+    except OSError:
+        os.close(fd)
+        raise
+    if _cpu_latency_fd is not None:
+        os.close(_cpu_latency_fd)
+    _cpu_latency_fd, _cpu_latency_us = fd, us
+    return us
+
+
+def apply_realtime(
+    priority: int = 0, cpu_affinity: str = "", freeze_gc: bool = True, *, whole_process: bool = False, cpu_latency_us: int = -1
+) -> RealtimeMeasures:
     """Apply the measures to the calling thread; never raises for a measure
     the system refuses (it is reported in ``notes`` instead).
 
     ``whole_process``: a service's loop thread in a process of its own. With
     SCHED_FIFO granted, the process-wide GIL switch interval drops (see the
-    module's docstring)."""
+    module's docstring). ``cpu_latency_us`` >= 0: :func:`hold_cpu_latency`
+    (process-wide, opt-in: idle CPUs then poll instead of halting)."""
     notes: list[str] = []
     fifo = 0
     if priority > 0:
@@ -108,12 +149,18 @@ def apply_realtime(priority: int = 0, cpu_affinity: str = "", freeze_gc: bool = 
                 cpus = tuple(sorted(chosen))
         except (AttributeError, OSError) as exc:
             notes.append(f"affinity refused: {exc}")
+    latency = -1
+    if cpu_latency_us >= 0:
+        try:
+            latency = hold_cpu_latency(cpu_latency_us)
+        except OSError as exc:
+            notes.append(f"PM QoS CPU latency refused: {exc}")
     frozen = False
     if freeze_gc:
         gc.collect()
         gc.freeze()
         frozen = True
-    measures = RealtimeMeasures(fifo_priority=fifo, switch_interval_s=switch, cpus=cpus, gc_frozen=frozen, notes=tuple(notes))
+    measures = RealtimeMeasures(fifo_priority=fifo, switch_interval_s=switch, cpus=cpus, gc_frozen=frozen, cpu_latency_us=latency, notes=tuple(notes))
     log.info("real-time measures: %s", measures.describe())
     return measures
 

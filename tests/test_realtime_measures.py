@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -79,3 +80,32 @@ def test_whole_process_drops_the_switch_interval_and_helpers_step_below_the_loop
     else:
         assert r["other"][0] != r["FIFO"] and any("SCHED_FIFO" in n for n in r["notes"])
         assert r["later"][1] is False  # nothing to lower on the normal scheduler
+
+
+def test_pm_qos_cpu_latency_is_written_held_and_refusals_are_notes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """hold_cpu_latency writes the bound as PM QoS reads it (a native int32)
+    and keeps the file open (closing it would end the request); a lower
+    bound replaces a higher one, a higher one keeps the lower; where the
+    device is refused, apply_realtime notes it and goes on."""
+    import struct
+
+    from service_kit import realtime
+
+    monkeypatch.setattr(realtime, "_cpu_latency_fd", None)
+    monkeypatch.setattr(realtime, "_cpu_latency_us", -1)
+    device = tmp_path / "cpu_dma_latency"
+    device.write_bytes(b"")
+    assert realtime.hold_cpu_latency(20, device=str(device)) == 20
+    assert struct.unpack("i", device.read_bytes()[:4]) == (20,)
+    fd = realtime._cpu_latency_fd
+    assert fd is not None and os.fstat(fd)  # still open: the request lasts while the process lives
+    assert realtime.hold_cpu_latency(50, device=str(device)) == 20  # the stricter bound stays
+    assert realtime.hold_cpu_latency(0, device=str(device)) == 0
+    assert struct.unpack("i", device.read_bytes()[-4:]) == (0,)
+    os.close(realtime._cpu_latency_fd)  # type: ignore[arg-type]
+    monkeypatch.setattr(realtime, "_cpu_latency_fd", None)
+    monkeypatch.setattr(realtime, "_cpu_latency_us", -1)
+    monkeypatch.setattr(realtime, "CPU_LATENCY_DEVICE", str(tmp_path / "missing"))
+    m = realtime.apply_realtime(cpu_latency_us=0, freeze_gc=False)
+    assert m.cpu_latency_us == -1 and any("PM QoS" in n for n in m.notes)
+    assert m.as_counters()["rt_cpu_latency_us"] == -1

@@ -66,6 +66,7 @@ def options_from_args(args: argparse.Namespace) -> dict[str, Any]:
         "burners": args.burners,
         "rt_priority": args.rt_priority,
         "cpu_affinity": args.cpu_affinity,
+        "rt_cpu_latency_us": args.rt_cpu_latency_us,
     }
 
 
@@ -86,6 +87,7 @@ def run_bench(options: dict[str, Any], log_dir: Path | None = None, say: Any = N
         burners=options.get("burners", 0),
         rt_priority=options.get("rt_priority", 0),
         cpu_affinity=options.get("cpu_affinity", ""),
+        rt_cpu_latency_us=options.get("rt_cpu_latency_us", -1),
     )
     report: dict[str, Any] = {"schema": SCHEMA, "machine": machine_info(), "options": {**options, "log_dir": str(log_dir)}, "items": {}}
     started = time.monotonic()
@@ -301,6 +303,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     rt.add_argument(
         "--cpu-affinity", type=_cpus, default="", metavar="CPUS", help="RALF_CPU_AFFINITY for the controller and plant, e.g. 1 or 0-1 (default: not pinned)"
+    )
+    rt.add_argument(
+        "--rt-cpu-latency-us",
+        type=int,
+        default=-1,
+        metavar="US",
+        help="RALF_RT_CPU_LATENCY_US for the controller and plant, and the same for the sleep-only floor: "
+        "a PM QoS bound on CPU wake-up latency (0: idle CPUs poll; default -1: off)",
     )
     p.add_argument("--json", default=DEFAULT_JSON, metavar="PATH", help=f"write the results here (default {DEFAULT_JSON})")
     p.add_argument("--log-dir", default=None, help="where helper and service logs go (default: a temporary directory)")

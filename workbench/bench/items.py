@@ -77,6 +77,8 @@ class BenchContext:
     rt_priority: int = 0
     cpu_affinity: str = ""
     """realtime: RALF_RT_PRIORITY / RALF_CPU_AFFINITY for the controller and the plant (opt-in measures)."""
+    rt_cpu_latency_us: int = -1
+    """realtime: RALF_RT_CPU_LATENCY_US for the controller and the plant, and the sleep-only floor's (-1: off)."""
 
 
 def new_result() -> dict[str, Any]:
@@ -395,7 +397,7 @@ def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
 
 
 def sleep_floor(ctx: BenchContext, rate_hz: float, seconds: float) -> dict[str, Any]:
-    rt = ("--rt-priority", str(ctx.rt_priority), "--cpu-affinity", ctx.cpu_affinity)
+    rt = ("--rt-priority", str(ctx.rt_priority), "--cpu-affinity", ctx.cpu_affinity, "--cpu-latency-us", str(ctx.rt_cpu_latency_us))
     with Child.peer("sleep-jitter", "--rate", str(rate_hz), "--seconds", str(seconds), *rt, name=f"sleep-jitter-{rate_hz:g}", log_dir=ctx.log_dir) as child:
         return child.read_tagged("RESULT", seconds + 30)
 
@@ -499,6 +501,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         "burners": ctx.burners,
         "rt_priority": ctx.rt_priority,
         "cpu_affinity": ctx.cpu_affinity,
+        "rt_cpu_latency_us": ctx.rt_cpu_latency_us,
         "runs": {},
     }
     for rate, seconds in runs:
@@ -512,6 +515,8 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
             common["RALF_RT_PRIORITY"] = str(ctx.rt_priority)
         if ctx.cpu_affinity:
             common["RALF_CPU_AFFINITY"] = ctx.cpu_affinity
+        if ctx.rt_cpu_latency_us >= 0:
+            common["RALF_RT_CPU_LATENCY_US"] = str(ctx.rt_cpu_latency_us)
         record = ctx.log_dir / rig_id / "controller-record"
         overrides = {
             "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RECORD": str(record)},

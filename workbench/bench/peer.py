@@ -134,7 +134,7 @@ def sleep_jitter(args: argparse.Namespace) -> int:
     from workbench.bench.stats import summarize
 
     # The floor runs under the same real-time measures as the rig it is compared with.
-    measures = apply_realtime(args.rt_priority, args.cpu_affinity, whole_process=True)
+    measures = apply_realtime(args.rt_priority, args.cpu_affinity, whole_process=True, cpu_latency_us=args.cpu_latency_us)
     period = 1.0 / args.rate
     n = max(1, int(round(args.seconds * args.rate)))
     jitter = []
@@ -214,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seconds", type=float, required=True)
     s.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority, as the rig's RALF_RT_PRIORITY (0: normal scheduler)")
     s.add_argument("--cpu-affinity", default="", help="CPUs to pin to, as the rig's RALF_CPU_AFFINITY")
+    s.add_argument("--cpu-latency-us", type=int, default=-1, help="PM QoS CPU wake-up latency bound, as the rig's RALF_RT_CPU_LATENCY_US (-1: off)")
     s.set_defaults(func=sleep_jitter)
     p = sub.add_parser("composition", help="one-process lockstep rig run")
     p.add_argument("--sim-s", type=float, required=True)
