@@ -790,37 +790,50 @@ class Identifier:
         vrm_first = c.damping_method == "vrm"
         source = c.peak_source
         pole_list = []
-        bare = object.__new__  # an instance without running the frozen __init__
-        proms = self._k_prom[:nf].tolist()
-        for prom, (f_peak, m_peak, zf, _ok, fn, zv) in zip(proms, out[:nf].tolist()):
+        bare, set_dict = object.__new__, object.__setattr__  # an instance without running the frozen __init__
+        # whole buffers to lists (one conversion each, no slice objects)
+        proms = self._k_prom.tolist()
+        rows = out.tolist()
+        for i in range(nf):
+            prom = proms[i]
+            f_peak, m_peak, zf, _ok, fn, zv = rows[i]
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
             zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
             first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
             chosen = first if first is not None else second
             # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
             pole = bare(PoleEstimate)
-            pole.__dict__.update(
-                frequency_hz=f_peak,
-                damping_ratio=chosen if chosen is not None else 0.0,
-                damping_fwhm=zeta_fwhm,
-                damping_vrm=zeta_vrm,
-                natural_frequency_vrm_hz=fn_vrm,
-                magnitude=m_peak,
-                prominence_db=prom,
-                source=source,
-                damping_defined=chosen is not None,
-                confidence=float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
-                damping_fit=None,
+            set_dict(
+                pole,
+                "__dict__",
+                {
+                    "frequency_hz": f_peak,
+                    "damping_ratio": chosen if chosen is not None else 0.0,
+                    "damping_fwhm": zeta_fwhm,
+                    "damping_vrm": zeta_vrm,
+                    "natural_frequency_vrm_hz": fn_vrm,
+                    "magnitude": m_peak,
+                    "prominence_db": prom,
+                    "source": source,
+                    "damping_defined": chosen is not None,
+                    "confidence": float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
+                    "damping_fit": None,
+                },
             )
             pole_list.append(pole)
-        conf = base * proms[0] / (proms[0] + p0) if confident else 0.0
+        prom = proms[0]
+        conf = base * prom / (prom + p0) if confident else 0.0
         result = bare(IdentificationResult)
-        result.__dict__.update(
-            poles=tuple(pole_list),
-            confidence=float(min(1.0, max(0.0, conf))),
-            valid_fraction=valid_fraction,
-            samples_in_history=in_history,
-            effective_averages=float(n_eff),
+        set_dict(
+            result,
+            "__dict__",
+            {
+                "poles": tuple(pole_list),
+                "confidence": float(min(1.0, max(0.0, conf))),
+                "valid_fraction": valid_fraction,
+                "samples_in_history": in_history,
+                "effective_averages": float(n_eff),
+            },
         )
         return result
 

@@ -101,12 +101,16 @@ def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
 @njit(cache=True, error_model="numpy", nogil=True)
 def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) -> None:
     """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
-    C-contiguous ring buffer itself (unit stride known to the compiler: the loop vectorizes)."""
+    C-contiguous ring buffer itself. Each row goes through 1-D views: on the 2-D indices the
+    compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192); the same
+    elementwise roundings either way."""
     rows, n = out.shape
     for r in range(rows):
         m = means[r]
+        src = buf[r, head : head + n]
+        dst = out[r]
         for i in range(n):
-            out[r, i] = (buf[r, head + i] - m) * window[i]
+            dst[i] = (src[i] - m) * window[i]
 
 
 @njit(cache=True, error_model="numpy")
