@@ -314,9 +314,15 @@ def read_codes(
     lo = -hi
     lsb = scale.lsb_v
     cmin, cmax = scale.code_min, scale.code_max
+    a0, a1, a2, a3 = (float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3
+    if lo < a0 < hi and lo < a1 < hi and lo < a2 < hi and lo < a3 < hi:  # the common case (NaN fails every comparison)
+        # inside the rails the loop below rounds x / lsb as it is: the same codes
+        k0, k1, k2, k3 = round(a0 / lsb), round(a1 / lsb), round(a2 / lsb), round(a3 / lsb)
+        if cmin <= k0 <= cmax and cmin <= k1 <= cmax and cmin <= k2 <= cmax and cmin <= k3 <= cmax:
+            return [k0, k1, k2, k3], [False, False, False, False]
     codes: list[int] = []
     flags: list[bool] = []
-    for x in ((float(x0) - c0) * v0, (float(x1) - c1) * v1, (float(deflections_in[0]) - c2) * v2, (float(deflections_in[1]) - c3) * v3):
+    for x in (a0, a1, a2, a3):
         if x != x:  # NaN
             codes.append(0)
             flags.append(True)

@@ -308,16 +308,16 @@ class PlantApplication:
         if not wanted or rate <= 0 or self.arm.time_s + 1e-12 < self._next_truth_s:
             return
         self._next_truth_s = self.arm.time_s + 1.0 / rate
-        truth = self.arm.truth()
+        freqs, damping, deflections, theta, tip, payload = self.arm.truth_summary()  # arm.truth()'s fields, only those published
         message = GroundTruth(
             seq=self._truth_seq,
             sim_time_s=self.arm.time_s,
-            modal_frequencies_hz=tuple(float(f) for f in truth.modal_frequencies_hz),
-            damping_ratios=tuple(float(z) for z in truth.damping_ratios),
-            deflections_in=(float(truth.deflections_in[0]), float(truth.deflections_in[1])),
-            theta_rad=(float(truth.theta_rad[0]), float(truth.theta_rad[1])),
-            tip_in=(float(truth.tip_in[0]), float(truth.tip_in[1])),
-            payload_attached=bool(truth.payload_attached),
+            modal_frequencies_hz=freqs,
+            damping_ratios=damping,
+            deflections_in=(float(deflections[0]), float(deflections[1])),
+            theta_rad=(float(theta[0]), float(theta[1])),
+            tip_in=(float(tip[0]), float(tip[1])),
+            payload_attached=bool(payload),
             valves_held=self.held,
         )
         if self.publish_truth is not None:

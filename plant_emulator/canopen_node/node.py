@@ -142,7 +142,6 @@ from protocol.can_map import (
     encode_analog_inputs_32,
     encode_emcy,
     encode_heartbeat,
-    sync_gap,
 )
 
 log = logging.getLogger(__name__)
@@ -216,6 +215,9 @@ _INPUT_SATURATED: Final = int(EmcyCode.INPUT_SATURATED)
 _OUTPUT_CLIPPED: Final = int(EmcyCode.OUTPUT_CLIPPED)
 _PDO_LENGTH: Final = int(EmcyCode.PDO_LENGTH)
 _SYNC_CONFLICT: Final = int(EmcyCode.SYNC_CONFLICT)
+_OPERATIONAL: Final = NmtState.OPERATIONAL
+_STOPPED: Final = NmtState.STOPPED
+"""The states the SYNC, RPDO and timer paths test on every frame, as module names (no enum class lookup each time)."""
 _RPDO_CONFLICT: Final = int(EmcyCode.RPDO_CONFLICT)
 _DAC_LSB: Final = DAC12.lsb_v
 _DAC_CODE_MIN: Final = DAC12.code_min
@@ -633,7 +635,7 @@ class CanopenNode:
 
     def _on_sync(self, cob_id: int, data: bytes, now: float) -> None:
         self.counters.rx["sync"] += 1
-        if self.state is NmtState.STOPPED:
+        if self.state is _STOPPED:
             self.counters.rx["sync_stopped"] += 1
             return
         conf = self._config()
@@ -663,7 +665,7 @@ class CanopenNode:
                     self.counters.sync_repeats += 1
                     conflict = f"SYNC counter {counter} repeated"
                 else:
-                    gap = sync_gap(prev, counter)
+                    gap = (counter - prev - 1) % SYNC_COUNTER_OVERFLOW  # sync_gap(prev, counter), counter != prev: inline
                     if gap >= overflow // 2:
                         conflict = f"SYNC counter went back from {prev} to {counter}"
                     elif gap:
@@ -677,7 +679,7 @@ class CanopenNode:
         self.counters.sync_received += 1
         if conflict or _SYNC_CONFLICT in self._faults:
             self._check_sync_conflict(conflict)
-        if self.state is not NmtState.OPERATIONAL:
+        if self.state is not _OPERATIONAL:
             return
         if conf[4] > 0:
             self._check_rpdo_conflict(missed)
@@ -723,7 +725,7 @@ class CanopenNode:
 
     def _on_rpdo(self, cob_id: int, data: bytes, now: float) -> None:
         self.counters.rx["rpdo"] += 1
-        if self.state is not NmtState.OPERATIONAL:
+        if self.state is not _OPERATIONAL:
             self._malformed("rpdo_not_operational", cob_id, data, f"RPDO in {self.state.name}, PDOs need NMT START")
             return
         if len(data) != 4:
@@ -1057,7 +1059,7 @@ class CanopenNode:
                 hb_next = now + period
             self._hb_next = hb_next
         quiet = self._hb_next if period > 0 and self._hb_next is not None else math.inf
-        if self.state is NmtState.OPERATIONAL and not self._tripped:
+        if self.state is _OPERATIONAL and not self._tripped:
             sync_timeout, rpdo_timeout = conf[5], conf[4]
             wd_last, rpdo_last = self._wd_last, self._rpdo_last
             sync_due = wd_last + sync_timeout if wd_last is not None and sync_timeout > 0 else math.inf

@@ -449,6 +449,25 @@ class RalfArm:
             adc_bits=self._scale.bits,
         )
 
+    def truth_summary(
+        self,
+    ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]:
+        """What the plant publishes of :meth:`truth` (modal frequencies, damping
+        ratios, deflections, joint angles, tip, payload), computed as
+        :meth:`truth` computes them (the same calls on the same state: the same
+        bits) without the rest: the 20 Hz ground truth of a run costs a third."""
+        self._attrs()
+        t1, t2 = self._theta
+        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)
+        return (
+            tuple(float(x) for x in f),
+            tuple(float(x) for x in z),
+            self._deflections(),
+            (t1, t2),
+            self._tip(t1, t2),
+            self._payload,
+        )
+
     def attach_payload(self, attached: bool) -> None:
         """Pick up (True) or release (False) the payload now: the mass,
         modes and static load change at once; positions and velocities of the

@@ -366,3 +366,51 @@ def test_output_values_are_set_as_the_output_array_is() -> None:
         ]
     with pytest.raises(ValueError, match="finite"):
         by_values.arm.set_valve_values(math.nan, 0.0)
+
+
+def test_read_codes_quantizes_as_the_converter_at_the_rails() -> None:
+    """read_codes' in-range shortcut and its loop give ConverterScale.quantize_floats' codes and flags at and around both rails, NaN and inf included."""
+    from plant_emulator import sensors
+    from protocol.can_map import ConverterScale
+
+    for bits in (12, 16):
+        scale = ConverterScale(bits)
+        (v0, c0), (v1, c1), (v2, c2), (v3, c3) = sensors._MAPS
+        hi, lsb = 2.0 * scale.full_scale_v, scale.lsb_v
+        targets = [
+            0.0,
+            hi,
+            -hi,
+            math.nextafter(hi, 0.0),
+            math.nextafter(-hi, 0.0),
+            hi - 0.5 * lsb,
+            -hi + 0.5 * lsb,
+            (scale.code_max + 0.5) * lsb,
+            1e9,
+            math.nan,
+            math.inf,
+            -math.inf,
+        ]
+        for t in targets:
+            for k in range(4):  # the target volts on one channel, the others at 0.1 V
+                volts = [0.1] * 4
+                volts[k] = t
+                ext = (volts[0] / v0 + c0, volts[1] / v1 + c1)
+                defl = (volts[2] / v2 + c2, volts[3] / v3 + c3)
+                analog = [(ext[0] - c0) * v0, (ext[1] - c1) * v1, (defl[0] - c2) * v2, (defl[1] - c3) * v3]
+                assert sensors.read_codes(ext, defl, (0.0, 0.0), scale, None) == scale.quantize_floats(analog), (bits, t, k)
+
+
+def test_truth_summary_is_truths_published_fields() -> None:
+    """RalfArm.truth_summary (what the plant publishes at its truth rate) holds truth()'s values bit for bit, payload on and off."""
+    arm = RalfArm(PlantConfig(seed=3))
+    rng = np.random.default_rng(4)
+    for k in range(60):
+        arm.set_valve_voltages(rng.uniform(-4.0, 4.0, 2))
+        arm.advance(0.005)
+        if k == 30:
+            arm.attach_payload(True)
+        freqs, damping, deflections, theta, tip, payload = arm.truth_summary()
+        t = arm.truth()
+        assert freqs == tuple(float(f) for f in t.modal_frequencies_hz) and damping == tuple(float(z) for z in t.damping_ratios), k
+        assert (deflections, theta, tip, payload) == (t.deflections_in, t.theta_rad, t.tip_in, t.payload_attached), k
