@@ -281,7 +281,11 @@ class _Wire:
         self.frames: list[tuple[int, bytes]] = []
         self.kinds: set[str] = set()
         if direct:
-            self.send_frame = lambda cob_id, data: None
+            self.send_frame = self._send_frame
+
+    def _send_frame(self, cob_id: int, data: bytes) -> None:
+        self.kinds.add("send_frame")
+        self.frames.append((cob_id, bytes(data)))
 
     def send(self, msg: Any, timeout: float | None = None) -> None:
         assert not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame) and msg.dlc == len(msg.data)
@@ -291,7 +295,7 @@ class _Wire:
 
 def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
     """Every 12-bit D/A code: the RPDO1 the law's codes give (on a direct wire
-    as a WireFrame, no can.Message) is the frame and the counters of send_output_values of
+    through its ``send_frame``, no frame object built) is the frame and the counters of send_output_values of
     the volts those codes stand for, which quantizes them back unclipped."""
     from controller.plant_link import PlantLink
 
@@ -302,7 +306,7 @@ def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
         a.send_output_codes(c0, c1)
         assert b.send_output_values([c0 * lsb, c1 * lsb]) == (False, False)
     assert a.bus.frames == b.bus.frames  # type: ignore[attr-defined]
-    assert a.bus.kinds == {"WireFrame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
+    assert a.bus.kinds == {"send_frame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
     assert a.counters == b.counters and a.counters.outputs_clipped == 0
     assert a.bus.frames[0] == (0x201, can_map.encode_analog_outputs([codes[0] << 4, codes[-1] << 4]))  # type: ignore[attr-defined]
 
