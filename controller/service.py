@@ -192,6 +192,8 @@ class ControllerService:
             else None
         )
         """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
+        self._ts = settings.sample_period_s
+        self._stale_after_s = settings.stale_after_s
         self.tick = 0
         self.latest_frequency_hz: float | None = None
         self.latest_interrupt: Interrupt | None = None
@@ -617,19 +619,24 @@ class ControllerService:
         """Stale: no fresh confident estimate for ``stale_after_s``. Before the
         first one, the clock starts once the DSP's history can be full (N
         samples): no estimate can exist earlier."""
-        if self.last_fresh_tick == 0 and self.tick < self.link.dsp_fft_width:
-            return
-        start = self.last_fresh_tick or self.link.dsp_fft_width
-        age = (self.tick - start) * self.settings.sample_period_s
-        stale = age > self.settings.stale_after_s
-        if stale and not self.stale:
-            self.timing.stale_episodes += 1
-            self.last_miss = f"parameters stale at tick {self.tick} ({age:.2f} s without a fresh estimate)"
-            self.monitors.fire("stale", self.last_miss)
-        elif self.stale and not stale:
+        tick, fresh = self.tick, self.last_fresh_tick
+        if fresh == 0:
+            fresh = self.link.dsp_fft_width
+            if tick < fresh:
+                return
+        age = (tick - fresh) * self._ts  # the settings' values, read once (a property per tick cost more than the rest)
+        stale = age > self._stale_after_s
+        was = self.stale
+        if stale:
+            if not was:
+                self.timing.stale_episodes += 1
+                self.last_miss = f"parameters stale at tick {tick} ({age:.2f} s without a fresh estimate)"
+                self.monitors.fire("stale", self.last_miss)
+                self.stale = True
+            self.timing.stale_ticks += 1
+        elif was:
             self.monitors.clear("stale")
-        self.stale = stale
-        self.timing.stale_ticks += int(stale)
+            self.stale = False
 
     # -- the loop -----------------------------------------------------------------------
     def _tick(self, words: tuple[int, ...]) -> None:
