@@ -194,6 +194,7 @@ class ControllerService:
         """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
         self._ts = settings.sample_period_s
         self._stale_after_s = settings.stale_after_s
+        self._lockstep_timeout_s = settings.lockstep_timeout_s
         self.tick = 0
         self.latest_frequency_hz: float | None = None
         self.latest_interrupt: Interrupt | None = None
@@ -852,7 +853,7 @@ class ControllerService:
         SYNC lost on the bus gets no answer; after ``LOCKSTEP_RETRY_FRACTION``
         of the timeout the SYNC is sent again (the node sees a counter gap and steps once), until
         ``lockstep_timeout_s``."""
-        timeout = self.settings.lockstep_timeout_s
+        timeout = self._lockstep_timeout_s
         deadline = self.clock.now() + timeout
         # The first wait is the retry interval: (now + timeout) - now >= that fraction of it.
         words = self.plant.wait_tpdo(LOCKSTEP_RETRY_FRACTION * timeout)
