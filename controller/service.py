@@ -77,6 +77,8 @@ dropped); the DSP answers a repeated batch with the interrupt it raised for
 it, or takes it if it never arrived."""
 RESET_RESEND_S = 1.0
 """Start-up: resend the run's reset to the DSP this often until it answers."""
+STATUS_PERIOD_S = 0.25
+"""The controller's status goes out at most this often (stopwatch seconds)."""
 RATE_WINDOW = 200
 """Ticks over which the status's loop rate is measured."""
 RECORD_EXTRA: tuple[str, ...] = ("oatf_hz", "irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence")
@@ -365,7 +367,7 @@ class ControllerService:
     def _publish_status(self, finished: bool = False, now: float | None = None) -> None:
         if now is None:
             now = self.stopwatch()
-        if not finished and now - self._last_status < 0.25:
+        if not finished and now - self._last_status < STATUS_PERIOD_S:
             return
         rate = 0.0
         if len(self._rate_window) >= 2:
@@ -782,7 +784,8 @@ class ControllerService:
                 self.tick = tick + 1
                 rate_window.append(w_end)
                 policy.check_plant()
-                self._publish_status(now=w_end)
+                if w_end - self._last_status >= STATUS_PERIOD_S:  # _publish_status's own test, without the call on every tick
+                    self._publish_status(now=w_end)
         except PlantFault as exc:
             error = str(exc)
             log.error("plant fault: %s; valves to zero", error)
