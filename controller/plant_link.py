@@ -143,10 +143,12 @@ class PlantLink:
         self._foreign_kind = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
         self._conflicts: deque[str] = deque(maxlen=CONFLICT_MEMORY)
         self._logged_at: dict[str, float] = {}
-        self._send_frame: Callable[[int, bytes], None] | None = getattr(self.bus, "send_frame", None)
-        """A wire in this process that takes a standard data frame as its COB-ID
-        and payload (the co-simulation's :class:`workbench.cosim.DirectCanWire`):
-        no frame object built on the per-tick path (0.4 us a frame), no can.Message."""
+        self._send_frame: Callable[[int, bytes], None] | None = self.bus.send_frame if callable(getattr(type(self.bus), "send_frame", None)) else None  # type: ignore[attr-defined]
+        """A wire in this process whose class takes a standard data frame as its
+        COB-ID and payload (the co-simulation's :class:`workbench.cosim.DirectCanWire`):
+        no frame object built on the per-tick path (0.4 us a frame), no can.Message.
+        Asked of the class, so a wrapper that forwards other attributes (the
+        recording wire) still sees every frame through its ``send``."""
         self._direct = self._send_frame is not None
 
     def _now(self) -> float:
