@@ -104,21 +104,25 @@ class DspLink:
 
     def add_sample(self, tick: int, commands: np.ndarray, deflections: np.ndarray) -> None:
         """Queue one tick's sample: inputs = D/A commands, outputs = deflections."""
-        if self._last_tick is not None and tick != self._last_tick + 1:
-            if tick <= self._last_tick:
-                raise ValueError(f"ticks must increase: {self._last_tick} then {tick}")
+        last = self._last_tick
+        pending = self._pending
+        if last is not None and tick != last + 1:
+            if tick <= last:
+                raise ValueError(f"ticks must increase: {last} then {tick}")
             # Sample instants were skipped (a late real-time loop): what waits is
             # cut off by the gap, so it goes too, and the next batch says so.
-            lost = len(self._pending) + (tick - self._last_tick - 1)
-            self._pending.clear()
+            lost = len(pending) + (tick - last - 1)
+            pending.clear()
             self._pending_ticks.clear()
             self.counters.samples_dropped += lost
             self._dropped_since_last += lost
         self._last_tick = tick
         self._pending_ticks.append(tick)
-        self._pending.append((*commands, *deflections))  # float64 values: take_batch reads them with np.array(dtype=float)
+        pending.append((*commands, *deflections))  # float64 values: take_batch reads them with np.array(dtype=float)
         self.counters.samples_added += 1
-        while len(self._pending) > self.max_pending:
+        if len(pending) <= self.batch_size and self.max_pending_override is None:
+            return  # within the default bound max(batch_size, N): no property asked on most ticks
+        while len(pending) > self.max_pending:
             self._pending.popleft()
             self._pending_ticks.popleft()
             self.counters.samples_dropped += 1

@@ -77,6 +77,8 @@ dropped); the DSP answers a repeated batch with the interrupt it raised for
 it, or takes it if it never arrived."""
 RESET_RESEND_S = 1.0
 """Start-up: resend the run's reset to the DSP this often until it answers."""
+STATUS_PERIOD_S = 0.25
+"""The controller's status goes out at most this often (stopwatch seconds)."""
 RATE_WINDOW = 200
 """Ticks over which the status's loop rate is measured."""
 RECORD_EXTRA: tuple[str, ...] = ("oatf_hz", "irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence")
@@ -192,6 +194,9 @@ class ControllerService:
             else None
         )
         """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
+        self._ts = settings.sample_period_s
+        self._stale_after_s = settings.stale_after_s
+        self._lockstep_timeout_s = settings.lockstep_timeout_s
         self.tick = 0
         self.latest_frequency_hz: float | None = None
         self.latest_interrupt: Interrupt | None = None
@@ -362,7 +367,7 @@ class ControllerService:
     def _publish_status(self, finished: bool = False, now: float | None = None) -> None:
         if now is None:
             now = self.stopwatch()
-        if not finished and now - self._last_status < 0.25:
+        if not finished and now - self._last_status < STATUS_PERIOD_S:
             return
         rate = 0.0
         if len(self._rate_window) >= 2:
@@ -617,19 +622,24 @@ class ControllerService:
         """Stale: no fresh confident estimate for ``stale_after_s``. Before the
         first one, the clock starts once the DSP's history can be full (N
         samples): no estimate can exist earlier."""
-        if self.last_fresh_tick == 0 and self.tick < self.link.dsp_fft_width:
-            return
-        start = self.last_fresh_tick or self.link.dsp_fft_width
-        age = (self.tick - start) * self.settings.sample_period_s
-        stale = age > self.settings.stale_after_s
-        if stale and not self.stale:
-            self.timing.stale_episodes += 1
-            self.last_miss = f"parameters stale at tick {self.tick} ({age:.2f} s without a fresh estimate)"
-            self.monitors.fire("stale", self.last_miss)
-        elif self.stale and not stale:
+        tick, fresh = self.tick, self.last_fresh_tick
+        if fresh == 0:
+            fresh = self.link.dsp_fft_width
+            if tick < fresh:
+                return
+        age = (tick - fresh) * self._ts  # the settings' values, read once (a property per tick cost more than the rest)
+        stale = age > self._stale_after_s
+        was = self.stale
+        if stale:
+            if not was:
+                self.timing.stale_episodes += 1
+                self.last_miss = f"parameters stale at tick {tick} ({age:.2f} s without a fresh estimate)"
+                self.monitors.fire("stale", self.last_miss)
+                self.stale = True
+            self.timing.stale_ticks += 1
+        elif was:
             self.monitors.clear("stale")
-        self.stale = stale
-        self.timing.stale_ticks += int(stale)
+            self.stale = False
 
     # -- the loop -----------------------------------------------------------------------
     def _tick(self, words: tuple[int, ...]) -> None:
@@ -774,7 +784,8 @@ class ControllerService:
                 self.tick = tick + 1
                 rate_window.append(w_end)
                 policy.check_plant()
-                self._publish_status(now=w_end)
+                if w_end - self._last_status >= STATUS_PERIOD_S:  # _publish_status's own test, without the call on every tick
+                    self._publish_status(now=w_end)
         except PlantFault as exc:
             error = str(exc)
             log.error("plant fault: %s; valves to zero", error)
@@ -845,7 +856,7 @@ class ControllerService:
         SYNC lost on the bus gets no answer; after ``LOCKSTEP_RETRY_FRACTION``
         of the timeout the SYNC is sent again (the node sees a counter gap and steps once), until
         ``lockstep_timeout_s``."""
-        timeout = self.settings.lockstep_timeout_s
+        timeout = self._lockstep_timeout_s
         deadline = self.clock.now() + timeout
         # The first wait is the retry interval: (now + timeout) - now >= that fraction of it.
         words = self.plant.wait_tpdo(LOCKSTEP_RETRY_FRACTION * timeout)

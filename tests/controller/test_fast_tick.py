@@ -277,32 +277,54 @@ def test_pmin_pmax_keep_pythons_tie_rule() -> None:
 class _Wire:
     """A bus stand-in keeping what a link sends (a direct one, like the co-simulation's wire, offers ``send_frame``)."""
 
-    def __init__(self, direct: bool) -> None:
+    def __init__(self) -> None:
         self.frames: list[tuple[int, bytes]] = []
         self.kinds: set[str] = set()
-        if direct:
-            self.send_frame = lambda cob_id, data: None
 
     def send(self, msg: Any, timeout: float | None = None) -> None:
         assert not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame) and msg.dlc == len(msg.data)
         self.kinds.add(type(msg).__name__)
         self.frames.append((msg.arbitration_id, bytes(msg.data)))
 
+    def recv(self, timeout: float | None = None) -> None:
+        return None
+
+
+class _DirectWire(_Wire):
+    def send_frame(self, cob_id: int, data: bytes) -> None:
+        self.kinds.add("send_frame")
+        self.frames.append((cob_id, bytes(data)))
+
+
+class _Forwarding:
+    """A wrapper forwarding what it does not define (as the recording wire does): frames go through its send."""
+
+    def __init__(self, inner: _Wire) -> None:
+        self.inner = inner
+        self.sent = 0
+
+    def send(self, msg: Any, timeout: float | None = None) -> None:
+        self.sent += 1
+        self.inner.send(msg, timeout)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
 
 def test_send_output_codes_is_send_output_values_of_the_codes_volts() -> None:
     """Every 12-bit D/A code: the RPDO1 the law's codes give (on a direct wire
-    as a WireFrame, no can.Message) is the frame and the counters of send_output_values of
+    through its ``send_frame``, no frame object built) is the frame and the counters of send_output_values of
     the volts those codes stand for, which quantizes them back unclipped."""
     from controller.plant_link import PlantLink
 
     lsb = can_map.DAC12.lsb_v
     codes = list(range(can_map.DAC12.code_min, can_map.DAC12.code_max + 1))
-    a, b = PlantLink(_Wire(direct=True), 1), PlantLink(_Wire(direct=False), 1)  # type: ignore[arg-type]
+    a, b = PlantLink(_DirectWire(), 1), PlantLink(_Wire(), 1)  # type: ignore[arg-type]
     for c0, c1 in zip(codes, reversed(codes), strict=True):
         a.send_output_codes(c0, c1)
         assert b.send_output_values([c0 * lsb, c1 * lsb]) == (False, False)
     assert a.bus.frames == b.bus.frames  # type: ignore[attr-defined]
-    assert a.bus.kinds == {"WireFrame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
+    assert a.bus.kinds == {"send_frame"} and b.bus.kinds == {"Message"}  # type: ignore[attr-defined]
     assert a.counters == b.counters and a.counters.outputs_clipped == 0
     assert a.bus.frames[0] == (0x201, can_map.encode_analog_outputs([codes[0] << 4, codes[-1] << 4]))  # type: ignore[attr-defined]
 
@@ -319,3 +341,15 @@ def test_a_host_whose_blas_differs_keeps_the_python_form(monkeypatch: pytest.Mon
     for tick in range(200):
         w = [9000 + 16 * (tick % 7), 9000 - 16 * (tick % 5), 32 * (tick % 3), -48]
         assert _bits(compiled.step_row(tick, w)) == _bits(plain.step_row(tick, w))
+
+
+def test_a_wrapper_that_forwards_send_frame_still_sees_every_frame() -> None:
+    """The link takes the direct path only when the wire's class offers send_frame, so a
+    forwarding wrapper around a direct wire (the co-simulation's recording) gets every frame."""
+    from controller.plant_link import PlantLink
+
+    wrapper = _Forwarding(_DirectWire())
+    link = PlantLink(wrapper, 1)  # type: ignore[arg-type]
+    link.send_output_codes(100, -100)
+    link.send_sync()
+    assert wrapper.sent == 2 and wrapper.inner.kinds == {"Message"}

@@ -57,9 +57,11 @@ def test_unit_dc_gain_and_zero_at_design_mode_for_any_integer_delay(f: float, ze
         stage = design_stage(f, zeta, TS, delay_samples=n1)
     except OatfDesignError:
         reject()  # w_d n1 Ts a multiple of 2 pi with no damping: 0/0
-    assert sum(stage.coefficients) == pytest.approx(1.0, abs=1e-12)
-    assert abs(transfer_function(1.0, [stage])) == pytest.approx(1.0, abs=1e-9)
     scale = stage.abs_coefficient_sum
+    # Summing coefficients of size ~scale rounds at ~scale * eps (near-degenerate
+    # designs reach 1e5: f=66.671875, zeta=1e-05, n1=24 sums to 1 - 7e-12).
+    assert sum(stage.coefficients) == pytest.approx(1.0, abs=1e-12 * max(1.0, scale))
+    assert abs(transfer_function(1.0, [stage])) == pytest.approx(1.0, abs=1e-9)
     assert abs(transfer_function(pole_z(f, zeta, TS), [stage])) < 1e-9 * scale
     amps, times = kernel_impulses([stage])
     assert residual_vibration(amps, times, f, zeta) < 1e-9 * scale

@@ -69,13 +69,13 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
     node = CanopenNode(app, node_config(ps))
     wire = DirectCanWire(node, scheduler)
     port = DirectDspPort(DspCore(ds))
-    link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
-    ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
     acc: defaultdict[str, float] = defaultdict(float)
     for name in ("handle", "exchange", "poll_frames"):  # the wire's entries, and handle (poll runs poll_frames)
         _wrap(node, name, "node", acc)
-    _wrap(wire, "send", "wire", acc)
-    _wrap(wire, "recv", "wire", acc)
+    for name in ("send", "send_frame", "recv"):  # before the link is built: it keeps the wire's send_frame
+        _wrap(wire, name, "wire", acc)
+    link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
+    ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
     for name in ("send_outputs", "send_output_values", "send_output_codes", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
         _wrap(link, name, "link", acc)
     for name in ("step_row", "tick_compiled"):  # the Python per-tick form, or the compiled call (controller/fast_tick.py)
@@ -121,7 +121,8 @@ def _plant(sim_s: float) -> tuple[Any, Any, Any, Any, Any, Any]:
 
 def capture_wire_calls(sim_s: float) -> tuple[list[tuple[bool, float, Any]], int]:
     """One co-simulation of ``sim_s`` s: every call the controller makes on the
-    CAN wire, as (is_recv, simulated time, frame sent or recv timeout); and the ticks."""
+    CAN wire, as (is_recv, simulated time, frame sent, ``(cob_id, data)`` given
+    to ``send_frame``, or recv timeout); and the ticks."""
     from controller.plant_link import PlantLink
     from controller.service import ControllerService
     from dsp_service.core import DspCore
@@ -129,18 +130,22 @@ def capture_wire_calls(sim_s: float) -> tuple[list[tuple[bool, float, Any]], int
 
     cs, ds, scheduler, _app, _node, wire = _plant(sim_s)
     calls: list[tuple[bool, float, Any]] = []
-    send, recv = wire.send, wire.recv
+    send, send_frame, recv = wire.send, wire.send_frame, wire.recv
     now = scheduler.now
 
     def sending(msg: Any, timeout: float | None = None) -> None:
         calls.append((False, now(), msg))
         send(msg, timeout)
 
+    def sending_frame(arbitration_id: int, data: bytes) -> None:
+        calls.append((False, now(), (arbitration_id, data)))
+        send_frame(arbitration_id, data)
+
     def receiving(timeout: float | None = None) -> Any:
         calls.append((True, now(), timeout))
         return recv(timeout)
 
-    wire.send, wire.recv = sending, receiving
+    wire.send, wire.send_frame, wire.recv = sending, sending_frame, receiving
     link = PlantLink(wire, cs.node_id, clock=now)
     ctrl = ControllerService(cs, None, link, port=DirectDspPort(DspCore(ds)), scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
     try:
@@ -158,12 +163,14 @@ def plant_side(sim_s: float = 10.0, rounds: int = 5) -> dict[str, Any]:
     wall_us: list[float] = []
     for _ in range(rounds):
         _cs, _ds, scheduler, _app, _node, wire = _plant(sim_s)
-        send, recv, at = wire.send, wire.recv, scheduler.advance_to
+        send, send_frame, recv, at = wire.send, wire.send_frame, wire.recv, scheduler.advance_to
         started, cpu = time.perf_counter(), time.process_time()
         for is_recv, t, arg in calls:
             at(t)
             if is_recv:
                 recv(arg)
+            elif type(arg) is tuple:
+                send_frame(*arg)
             else:
                 send(arg)
         cpu_us.append((time.process_time() - cpu) / ticks * 1e6)
