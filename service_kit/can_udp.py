@@ -99,6 +99,9 @@ class LoopFreeUdpMulticastBus(can.BusABC):
     """``udp_multicast`` on the wire, without reading back its own frames
     (module docstring). Arguments as python-can's ``UdpMulticastBus``:
     ``channel`` the group, ``port``, ``hop_limit`` the TTL;
+    ``receive_own_messages`` hands its own frames back (the kernel's
+    multicast loop delivers them; python-can's udp_multicast refuses the
+    option);
     ``receive_buffer_bytes`` a larger ``SO_RCVBUF`` (best effort) for a
     reader that must keep up with a lockstep rig's back-to-back frames.
     :attr:`kernel_drops` counts the datagrams the kernel dropped because the
@@ -116,8 +119,8 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         receive_buffer_bytes: int = 0,
         **kwargs: Any,
     ) -> None:
-        if receive_own_messages:
-            raise can.CanInterfaceNotImplementedError("receiving own messages is not supported (udp_multicast neither)")
+        self.receive_own_messages = receive_own_messages
+        """True: its own frames come back, as the multicast loop delivers them (nothing is dropped)."""
         version = ipaddress.ip_address(channel).version
         family = socket.AF_INET if version == 4 else socket.AF_INET6
         self.channel_info = f"{channel}:{port} (udp_multicast, own frames filtered)"
@@ -140,7 +143,7 @@ class LoopFreeUdpMulticastBus(can.BusABC):
             self._source = self._tx.getsockname()[:2]
             self.kernel_filter = False
             """True once the own-frame filter runs in the kernel."""
-            if kernel_filter:
+            if kernel_filter and not receive_own_messages:
                 try:
                     attach_filter(self._rx, own_frame_filter(self._source, family))
                     self.kernel_filter = True
@@ -184,7 +187,7 @@ class LoopFreeUdpMulticastBus(can.BusABC):
                 data, anc, _flags, sender = self._rx.recvmsg(_MAX_DATAGRAM, _ANCILLARY)
             except (BlockingIOError, InterruptedError):
                 return None
-            if not self.kernel_filter and sender[:2] == self._source:
+            if not self.kernel_filter and not self.receive_own_messages and sender[:2] == self._source:
                 self.own_frames_dropped += 1
                 continue
             timestamp = 0.0

@@ -129,3 +129,29 @@ def test_registered_as_a_python_can_interface() -> None:
         assert isinstance(bus, LoopFreeUdpMulticastBus)
     finally:
         bus.shutdown()
+
+
+def test_receive_own_messages_hands_its_frames_back_and_says_so() -> None:
+    from controller.plant_link import echoing_bus
+
+    port = _port(0) + 1
+    try:
+        own = LoopFreeUdpMulticastBus(channel=GROUP, port=port, hop_limit=0, receive_own_messages=True)
+    except Exception as e:  # noqa: BLE001
+        pytest.skip(f"udp_multicast unavailable on this host: {e}")
+    quiet = LoopFreeUdpMulticastBus(channel=GROUP, port=port, hop_limit=0)
+    try:
+        own.send(can.Message(arbitration_id=0x7FF, data=b"probe", is_extended_id=False))
+        got = _frames(own, 1.0)
+        if not got:
+            pytest.skip("no IPv4 multicast delivery on loopback")
+        assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(0x7FF, b"probe")]
+        assert not own.kernel_filter and own.own_frames_dropped == 0
+        assert echoing_bus(own) and not echoing_bus(quiet)  # the controller matches echoes only where they come back
+        assert [m.arbitration_id for m in _frames(quiet)] == [0x7FF]  # the peer saw it once
+        quiet.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+        assert [m.arbitration_id for m in _frames(own)] == [0x181]  # the peer's frame reaches it
+        assert _frames(quiet, 0.2) == []  # and the peer, without the option, never reads its own
+    finally:
+        own.shutdown()
+        quiet.shutdown()
