@@ -13,13 +13,13 @@ construction where a compiler could change the arithmetic:
   recomputed: it is looked up in a table filled, one word at a time the
   first time the word is seen, by :func:`controller.engineering.measure_values`
   itself (65536 words per channel at most);
-* the OATF's weighted sum is what ``ndarray.dot`` (BLAS ``dgemv``) computes
-  for a vector times a ``(k, 2)`` matrix: per output, pairs of taps as
-  ``fma(w_i, x_i, w_{i+1} x_{i+1})`` added to the sum, the last ``k mod 4``
-  taps fused one by one (:func:`oatf_dot`). That is the library's kernel on
-  the host, not a law of nature, so :func:`blas_matches` checks it against
-  ``ndarray.dot`` when the kernels are warmed up and the law keeps the
-  Python form where it does not hold;
+* the OATF's weighted sum is the one :meth:`controller.oatf.OatfFilter.step_values`
+  defines: products added left to right, each rounded (:func:`oatf_dot`).
+  No BLAS kernel takes part, so the bits do not depend on the host's
+  library; :func:`sum_matches` still checks the compiled sum against the
+  Python one when the kernels are warmed up (a compiler that fused a
+  multiply-add would fail it), and the law keeps the Python form where it
+  does not hold;
 * everything else is the same IEEE operations in the same order (numba
   without fastmath: no reassociation, no contraction into FMA); Python's
   ``min``/``max`` are spelled out as the comparisons they make (the first
@@ -27,7 +27,7 @@ construction where a compiler could change the arithmetic:
   ``round`` as ``np.rint`` (both round half to even; the codes are small).
 
 :func:`warm_up` compiles (or loads from numba's on-disk cache) the kernel
-and runs the BLAS check.
+and runs the sum check.
 """
 
 from __future__ import annotations
@@ -36,16 +36,13 @@ import math
 from typing import Any
 
 import numpy as np
-from llvmlite import ir
 from numba import njit
-from numba.core import types
-from numba.extending import intrinsic
 
 from controller.engineering import _CHANNELS, measure_values
 from protocol.can_map import DAC12, WORD16_VOLTS_PER_LSB
 from protocol.geometry import DELTA_RAD
 
-__all__ = ["ANGLE_TABLE", "blas_matches", "fill_angles", "law_consts", "law_tick", "oatf_dot", "warm_up"]
+__all__ = ["ANGLE_TABLE", "fill_angles", "law_consts", "law_tick", "oatf_dot", "sum_matches", "warm_up"]
 
 ANGLE_TABLE: np.ndarray = np.full((2, 65536), np.nan)
 """theta1, theta2 (rad) per INT16 word of channels 1 and 2 (index ``word + 32768``); NaN: not computed yet."""
@@ -83,21 +80,6 @@ def _jit(fn: Any) -> Any:
         return njit(fn)
 
 
-def _fma_intrinsic(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
-    """``a * b + c`` rounded once (llvm.fma: exact on every target)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        double = ir.DoubleType()
-        fn = builder.module.declare_intrinsic("llvm.fma", [double], ir.FunctionType(double, [double, double, double]))
-        return builder.call(fn, args)
-
-    return sig, codegen
-
-
-_fma: Any = intrinsic(_fma_intrinsic)
-
-
 @_jit
 def _pmin(a: float, b: float) -> float:
     """Python's ``min(a, b)``: ``a`` unless ``b < a``."""
@@ -112,17 +94,11 @@ def _pmax(a: float, b: float) -> float:
 
 @_jit
 def oatf_dot(weights: np.ndarray, buf: np.ndarray, rows: np.ndarray, j: int) -> float:
-    """``weights.dot(buf.take(rows, 0))[j]`` as OpenBLAS's ``dgemv`` computes it (see the module docstring)."""
-    k = weights.shape[0]
-    t = 0.0
-    i = 0
-    while i + 4 <= k:
-        t = t + _fma(weights[i], buf[rows[i], j], weights[i + 1] * buf[rows[i + 1], j])
-        t = t + _fma(weights[i + 2], buf[rows[i + 2], j], weights[i + 3] * buf[rows[i + 3], j])
-        i += 4
-    while i < k:
-        t = _fma(weights[i], buf[rows[i], j], t)
-        i += 1
+    """Channel ``j`` of the OATF's weighted taps [3-34], ``w0 x0 + w1 x1 + ...`` left to
+    right (:meth:`controller.oatf.OatfFilter.step_values`' order and roundings)."""
+    t = weights[0] * buf[rows[0], j]
+    for i in range(1, weights.shape[0]):
+        t = t + weights[i] * buf[rows[i], j]
     return t
 
 
@@ -315,9 +291,10 @@ def law_consts(pi: Any, sample_period_s: float) -> np.ndarray:
 _checked: bool | None = None
 
 
-def blas_matches(samples: int = 64, max_taps: int = 12) -> bool:
-    """Whether :func:`oatf_dot` gives ``ndarray.dot``'s bits on this host
-    (random weights and delay lines, 1 to ``max_taps`` taps); computed once."""
+def sum_matches(samples: int = 64, max_taps: int = 12) -> bool:
+    """Whether :func:`oatf_dot` gives the bits of the Python sum
+    (:meth:`controller.oatf.OatfFilter.step_values`) on this host: random
+    weights and delay lines, 1 to ``max_taps`` taps; computed once."""
     global _checked
     if _checked is None:
         rng = np.random.default_rng(20240521)
@@ -327,7 +304,10 @@ def blas_matches(samples: int = 64, max_taps: int = 12) -> bool:
                 w = rng.normal(size=k)
                 buf = rng.normal(size=(k + 3, 2))
                 rows = rng.permutation(k + 3)[:k].astype(np.int64)
-                ref = w.dot(buf.take(rows, 0)).tolist()
+                taps = buf.take(rows, 0).tolist()
+                ref = [w[0] * v for v in taps[0]]
+                for i in range(1, k):
+                    ref = [o + w[i] * v for o, v in zip(ref, taps[i], strict=True)]
                 if [oatf_dot(w, buf, rows, 0), oatf_dot(w, buf, rows, 1)] != ref:
                     ok = False
                     break
@@ -352,8 +332,8 @@ _filled_12_bit = False
 
 
 def warm_up() -> bool:
-    """Compile (or load from the cache) :func:`law_tick`, check the BLAS
-    form (:func:`blas_matches`) and fill the 12-bit words' angles; False:
+    """Compile (or load from the cache) :func:`law_tick`, check the
+    sum (:func:`sum_matches`) and fill the 12-bit words' angles; False:
     the law keeps its Python form."""
     try:
         fill_12_bit_angles()
@@ -361,6 +341,6 @@ def warm_up() -> bool:
         ints = np.zeros(6, dtype=np.int64)
         ints[MODE] = 1
         law_tick(0, 0, 0, 0, 0, ANGLE_TABLE, data, ints, np.zeros((4, 2)), np.zeros((4, 1), dtype=np.int64), np.ones(1))
-        return blas_matches()
+        return sum_matches()
     except Exception:  # noqa: BLE001 - numba's errors are many; the Python form gives the same floats
         return False

@@ -377,6 +377,8 @@ class OatfFilter:
         self._stages: tuple[StageDesign, ...] = ()
         self._delays: IntArray = np.zeros(1, dtype=np.int64)
         self._weights: FloatArray = np.ones(1)
+        self._weight_list: list[float] = [1.0]
+        """``_weights`` as floats (the per-tick sums read them)."""
         self._tap_rows: IntArray = np.ascontiguousarray(np.arange(self._capacity, dtype=np.int64)[:, None])
         """Per head position, the delay-line rows of the taps: ``(head - delays) % capacity``."""
         self._tap_row_list: list[IntArray] = list(self._tap_rows)
@@ -441,6 +443,7 @@ class OatfFilter:
         stages = self.design(frequencies_hz, zetas)
         self._stages = stages
         delays, self._weights = cascade_kernel(stages)
+        self._weight_list = self._weights.tolist()
         if delays.shape != self._delays.shape or delays.tolist() != self._delays.tolist():  # a few ints: lists compare faster than arrays
             self._tap_rows = (np.arange(self._capacity)[:, None] - delays[None, :]) % self._capacity
             self._tap_row_list = list(self._tap_rows)
@@ -467,17 +470,33 @@ class OatfFilter:
             xv = np.broadcast_to(np.asarray(x, dtype=float), (self.n_channels,))
         head = self._head = (self._head + 1) % self._capacity
         self._buf[head] = xv
-        return self._weights @ self._buf[self._tap_rows[head]]
+        taps = self._buf[self._tap_rows[head]]
+        w = self._weight_list
+        out = w[0] * taps[0]
+        for i in range(1, len(w)):
+            out = out + w[i] * taps[i]
+        return out
 
     def step_values(self, x: list[float]) -> list[float]:
         """:meth:`step` on one float per channel, returning floats (the loop's
-        per-tick form): the same delay line, taps and weighted sum (BLAS's
-        matrix-vector product through ``ndarray.dot``, as ``@`` calls it: the
-        same bits), with fewer array round trips."""
+        per-tick form): the same delay line, taps and weighted sum, in the
+        same order, with fewer array round trips.
+
+        The weighted sum [3-34] is defined as ``w0 x0 + w1 x1 + ...`` added
+        left to right, one rounding per product and per sum (no fused
+        multiply-add, no BLAS): :meth:`step`, :meth:`process` and the
+        compiled tick (controller/fast_tick.py) compute exactly this, so a
+        run's record is the same on every host whatever its BLAS kernel."""
         head = self._head = (self._head + 1) % self._capacity
         buf = self._buf
         buf[head] = x
-        out: list[float] = self._weights.dot(buf.take(self._tap_row_list[head], 0)).tolist()
+        taps = buf.take(self._tap_row_list[head], 0).tolist()
+        w = self._weight_list
+        w0 = w[0]
+        out = [w0 * v for v in taps[0]]
+        for i in range(1, len(w)):
+            wi = w[i]
+            out = [o + wi * v for o, v in zip(out, taps[i], strict=True)]
         return out
 
     def process(self, block: npt.ArrayLike) -> FloatArray:
@@ -490,8 +509,9 @@ class OatfFilter:
         n = xb.shape[0]
         past = self._capacity - 1
         ext = np.concatenate([self.history(past), xb])
-        out = np.zeros_like(xb)
-        for d, w in zip(self._delays, self._weights, strict=True):
+        d0 = int(self._delays[0])
+        out = self._weights[0] * ext[past - d0 : past - d0 + n]  # the taps in step_values' order
+        for d, w in zip(self._delays[1:], self._weights[1:], strict=True):
             out += w * ext[past - d : past - d + n]
         keep = min(n, self._capacity)
         idx = (self._head + 1 + np.arange(n - keep, n)) % self._capacity
