@@ -301,6 +301,25 @@ def _dither_name(amplitude_v: float) -> str:
     return f"arx_dither_{1e3 * amplitude_v:g}mv".replace(".", "p")
 
 
+STEADY_AFTER_S = 8.0
+"""The steady stretch of an event's interval starts this long after it (the estimator's floor, :func:`steady_share`)."""
+
+
+def steady_share(t: np.ndarray, f: np.ndarray, true1: np.ndarray, events: Sequence[float], tolerance: float = TOLERANCE) -> float:
+    """The share of the time from ``STEADY_AFTER_S`` after each event to the next (or the end, less the median's
+    half window) in which the centred running median of ``f`` is within ``tolerance`` of the truth: the
+    estimator's floor against the criterion, with no change to follow. Below 1, no reset can make the
+    2-s hold certain."""
+    tm, m = centred_median(t, f, MEDIAN_HALF_S)
+    truth = np.interp(tm, t, true1)
+    ends = [*events[1:], float(t[-1])]
+    sel = np.zeros(tm.size, dtype=bool)
+    for a, b in zip(events, ends):
+        sel |= (tm >= a + STEADY_AFTER_S) & (tm < b - MEDIAN_HALF_S)
+    ok = sel & np.isfinite(m)
+    return float(np.mean(np.abs(m[ok] - truth[ok]) / truth[ok] <= tolerance)) if ok.any() else float("nan")
+
+
 def arx_replays(res: RigResult, events: Sequence[float]) -> dict[str, Any]:
     """The DSP's ARX replayed from one run's record (:func:`replay_arx`): as run, reset at the true events
     (γ ``ORACLE_GAMMA``), and with its change detector; the delays of each (:func:`series_delays`)."""
@@ -318,10 +337,11 @@ def arx_replays(res: RigResult, events: Sequence[float]) -> dict[str, Any]:
     }
     for key in ("as_run", "reset_at_the_event", "change_detection"):
         out[key].pop("median_series")  # the delays are the results; the series would triple the file
+    out["steady_within_2pct"] = steady_share(t_r, held(replayed, t_r.size, THESIS_BATCH_SIZE), true_r, events)
     return out
 
 
-def dither_study(base: RigResult, runs: Sequence[RigResult], amplitudes: Sequence[float], events: Sequence[float]) -> dict[str, Any]:
+def dither_study(base: RigResult, base_arx: dict[str, Any], runs: Sequence[RigResult], amplitudes: Sequence[float], events: Sequence[float]) -> dict[str, Any]:
     """Cost and benefit of the valve commands' dither: per amplitude, the §4.2.1 costs over the whole run
     (RMS deflection velocity and acceleration per link, :func:`costs_over`) against the undithered ARX run
     ``base`` (the same seed and trajectory; with the OATF off the identifier does not act on the plant, so
@@ -350,7 +370,7 @@ def dither_study(base: RigResult, runs: Sequence[RigResult], amplitudes: Sequenc
                 "arx": arx_replays(r, events),
             }
         )
-    return {"base": {"velocity_rms": base_cost["velocity_rms"], "acceleration_rms": base_cost["acceleration_rms"]}, "runs": rows}
+    return {"base": {"velocity_rms": base_cost["velocity_rms"], "acceleration_rms": base_cost["acceleration_rms"], "arx": base_arx}, "runs": rows}
 
 
 def _report_dither(rep: Report, dither: dict[str, Any], events: Sequence[float], quick: bool) -> None:
@@ -369,7 +389,22 @@ def _report_dither(rep: Report, dither: dict[str, Any], events: Sequence[float],
         "(replayed from each record)."
     )
     base = dither["base"]
-    rows = [["none", "–", *base["velocity_rms"], "1 / 1", "1 / 1", "–", "–", "–", "–", "–"]]
+    b_arx = dither["base"]["arx"]
+    rows = [
+        [
+            "none",
+            "–",
+            *base["velocity_rms"],
+            "1 / 1",
+            "1 / 1",
+            ", ".join(f"{e['settle_2pct_s']:.1f}" for e in b_arx["as_run"]["events"]),
+            b_arx["as_run"]["median_settle_2pct_s"],
+            b_arx["reset_at_the_event"]["median_settle_2pct_s"],
+            b_arx["change_detection"]["median_settle_2pct_s"],
+            100 * b_arx["steady_within_2pct"],
+            100 * b_arx["as_run"]["median_rel_error_end"],
+        ]
+    ]
     for d in dither["runs"]:
         a = d["arx"]
         rows.append(
@@ -383,6 +418,7 @@ def _report_dither(rep: Report, dither: dict[str, Any], events: Sequence[float],
                 a["as_run"]["median_settle_2pct_s"],
                 a["reset_at_the_event"]["median_settle_2pct_s"],
                 a["change_detection"]["median_settle_2pct_s"],
+                100 * a["steady_within_2pct"],
                 100 * a["as_run"]["median_rel_error_end"],
             ]
         )
@@ -398,6 +434,7 @@ def _report_dither(rep: Report, dither: dict[str, Any], events: Sequence[float],
             "median, as run (s)",
             "median, reset at the event (s)",
             "median, change detector (s)",
+            f"steady: time within 2 % from {STEADY_AFTER_S:g} s after each event (%)",
             "error at the end (%)",
         ],
         rows,
@@ -520,7 +557,7 @@ def run(ctx: ExperimentContext) -> Report:
         if m == "arx":
             arx_replay = arx_replays(r, events)
     arx_run = next(r for (_n, _a, m), r in zip(settings, runs) if m == "arx")
-    dither = dither_study(arx_run, dither_runs, amplitudes, events)
+    dither = dither_study(arx_run, arx_replay, dither_runs, amplitudes, events)
     thesis_key = _name(*THESIS_SETTING) if THESIS_SETTING in settings else _name(*settings[0])
     complete = {k: v for k, v in rows_data.items() if v["settled_events"] == len(events)}
     best_key = min(complete, key=lambda k: (complete[k]["median_settle_2pct_s"], complete[k]["median_rel_error_end"])) if complete else None
