@@ -209,6 +209,13 @@ class ControllerSettings(CommonSettings):
     dither_band_hz: tuple[_Hz, _Hz] = Field((2.0, 7.0), description="The dither's band: every bin of its period in this range")
     dither_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the dither's random phases (each valve its own)")
 
+    @field_validator("dither_band_hz")
+    @classmethod
+    def _dither_band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] < value[1]:
+            raise ValueError(f"the dither band must run from a lower to a higher frequency, got {value[0]:g}, {value[1]:g}")
+        return value
+
     @field_validator("oatf_band_hz", "dither_band_hz", mode="before")
     @classmethod
     def _band_text(cls, value: Any) -> Any:

@@ -75,3 +75,11 @@ def test_the_dither_reaches_the_d_a_only_when_on() -> None:
     lsb = 20.0 / 4096
     np.testing.assert_allclose(on[:, :2] - off[:, :2], table, atol=lsb)
     assert np.sqrt(np.mean((on[:, :2] - off[:, :2]) ** 2)) > 0.3
+
+
+def test_the_settings_refuse_a_reversed_dither_band() -> None:
+    from protocol.settings import ConfigError, load_settings
+
+    with pytest.raises(ConfigError, match="dither band"):
+        load_settings(ControllerSettings, {"dither_band_hz": "7,2"})
+    assert load_settings(ControllerSettings, {"dither_band_hz": "3,6"}).dither_band_hz == (3.0, 6.0)

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from controller.excitation import DitherConfig
 from controller.trajectory import WaypointTrajectory, sample_trajectory
 from dsp_service.arx import RecursiveArx
 from dsp_service.identifier import IdentifierConfig, arx_config
@@ -100,6 +101,8 @@ GOAL_S = 1.0
 ORACLE_GAMMA = 1e-3
 """The weight the replayed ARX's reset at the true event time leaves on the data before it (``RecursiveArx.discount``)."""
 _ARX = IdentifierConfig()
+_DITHER = DitherConfig()
+"""The dither's default band and period (the runs set only its amplitude)."""
 ARX_FORGETTING = _ARX.arx_forgetting
 """The ARX identifier's forgetting factor per model sample (its default; memory 1/(1 − λ) model samples)."""
 ARX_MEMORY_S = _ARX.arx_decimation / (_ARX.sample_rate_hz * (1.0 - ARX_FORGETTING))
@@ -381,7 +384,8 @@ def _report_dither(rep: Report, dither: dict[str, Any], events: Sequence[float],
     rep.text(
         "The payload kick rings the second mode, and on the return stroke nothing excites the first for seconds, so the data after a "
         "change may hold no information about the new first mode. The controller's opt-in dither (`RALF_DITHER_AMPLITUDE_V`, "
-        "`controller/excitation.py`: a periodic multisine, flat over every bin of its 20.48-s period in 2–7 Hz, independent random phases per "
+        f"`controller/excitation.py`: a periodic multisine, flat over every bin of its {_DITHER.period_ticks / FS_HZ:g}-s period in "
+        f"{_DITHER.band_hz[0]:g}–{_DITHER.band_hz[1]:g} Hz, independent random phases per "
         "valve) is added to both valve commands after the PI, before the D/A, so the DSP's inputs carry it. Same seed, trajectory and "
         "events as the ARX run above; with the OATF off the identifier does not act on the plant, so the dither is the only difference. "
         "**Cost**: RMS deflection velocity and acceleration over the whole run (the §4.2.1 metrics), against the undithered run. "
