@@ -67,3 +67,31 @@ def test_the_check_fails_when_the_estimate_invents_a_second_mode() -> None:
     bad = pairs[0]
     assert split_agreement([ok] * 4 + [bad])["passed"]
     assert not split_agreement([ok] * 3 + [bad] * 2)["passed"]
+
+
+def _result(theta: np.ndarray, t: np.ndarray) -> object:
+    """A RigResult with a given true configuration over time and white valve commands."""
+    from pathlib import Path
+
+    from workbench.experiments.onrig.runner import RigResult, RigRun
+
+    rng = np.random.default_rng(1)
+    record = {"t_s": t, "u1_v": rng.normal(size=t.size), "u2_v": rng.normal(size=t.size)}
+    truth = {"sim_time_s": t, "theta_rad": theta, "modal_frequencies_hz": np.ones((t.size, 2))}
+    return RigResult(RigRun("x"), record, truth, None, Path("x"), Path("x"), 0.0, False, "cosim")  # type: ignore[arg-type]
+
+
+def test_the_window_response_of_a_fixed_configuration_is_the_plant_s_own() -> None:
+    """Averaging over a window where nothing moves gives back ``frequency_response`` at that configuration
+    (weights sum to one); a moving configuration gives a different response."""
+    from plant_emulator.model.modes import frequency_response
+    from workbench.experiments.onrig.pi_spectrogram import window_response
+
+    t = np.arange(4000) * 0.005
+    fixed = np.tile([1.2, 0.4], (t.size, 1))
+    h, tk, w = window_response(_result(fixed, t), 19.0, FREQS, payload=True)  # type: ignore[arg-type]
+    np.testing.assert_allclose(h, frequency_response(1.2, 0.4, FREQS, payload=True), rtol=1e-12, atol=1e-15)
+    assert tk.min() >= 19.0 - 2048 / 200.0 and tk.max() <= 19.0 and np.all(w > 0)
+    moving = np.column_stack([np.full(t.size, 1.2), np.linspace(0.2, 0.9, t.size)])
+    h2, _, _ = window_response(_result(moving, t), 19.0, FREQS, payload=True)  # type: ignore[arg-type]
+    assert np.max(np.abs(h2 - h)) > 0.1 * np.max(np.abs(h))
