@@ -587,7 +587,8 @@ def run(ctx: ExperimentContext) -> Report:
     th2_thr = float(np.quantile(th2, APEX_QUANTILE))
     splits = {r.spec.name: apex_split(r, apex) for r in all_runs}
     errors = {r.spec.name: identification_errors(r, apex, t_first + 2.0) for r in all_runs}
-    split_runs = (all_runs[0].spec.name, PAYLOAD_RUN)  # checked at the thesis's resolution (Welch segments widen the peaks), both payload states
+    # checked at the thesis's resolution (Welch segments widen the peaks), both payload states (the payload run: full mode only)
+    split_runs = tuple(n for n in (all_runs[0].spec.name, PAYLOAD_RUN) if n in splits)
 
     # ------------------------------------------------------------------ plain spectrogram of link-2 deflection
     x = np.asarray(rec["defl2_in"], dtype=float)
