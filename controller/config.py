@@ -5,6 +5,7 @@ trajectory lap, and the run's length."""
 
 from __future__ import annotations
 
+from controller.excitation import DitherConfig
 from controller.loop import LawConfig
 from controller.oatf import OatfConfig
 from controller.trajectory import DEFAULT_TRAJECTORY_PATH, SampledTrajectory, load_trajectory, sample_trajectory
@@ -13,7 +14,8 @@ from protocol.settings import ControllerSettings
 
 def law_config(settings: ControllerSettings) -> LawConfig:
     """The control law's configuration: sample period and the OATF's mode,
-    place, initial design and fallback, and its design rules (thesis §4.1)."""
+    place, initial design and fallback, and its design rules (thesis §4.1);
+    the valve commands' dither (off by default, :mod:`controller.excitation`)."""
     ts = settings.sample_period_s
     oatf = OatfConfig(
         sample_period_s=ts,
@@ -32,6 +34,7 @@ def law_config(settings: ControllerSettings) -> LawConfig:
         oatf_frequency_hz=settings.oatf_frequency_hz,
         oatf_fallback=settings.oatf_fallback,
         oatf=oatf if settings.oatf_mode != "off" else None,
+        dither=DitherConfig(amplitude_v=settings.dither_amplitude_v, band_hz=settings.dither_band_hz, seed=settings.dither_seed),
     )
 
 

@@ -70,6 +70,10 @@ MODE = 4
 """ints[MODE]: the OATF's place (0 none, 1 outer, 2 inner)."""
 HEAD = 5
 """ints[HEAD]: the OATF's delay-line head (:attr:`controller.oatf.OatfFilter.head_state`)."""
+DITHER = 6
+"""ints[DITHER]: the dither table's length in ticks (0: none); the table, (d0, d1) per tick, follows the set-points in ``data``."""
+N_INTS = 7
+"""The length of ``ints``."""
 
 
 def _jit(fn: Any) -> Any:
@@ -132,9 +136,11 @@ def law_tick(
     (integrator per joint, then per joint the last terms: error, P, I,
     output, saturated, integrating, limited), the row (the values of
     :data:`controller.loop.ROW_NAMES`, the words as floats), the lap's
-    set-points. ``ints`` (int64): the D/A codes and their saturation flags
-    ``(c0, c1, s0, s1)``, the OATF mode (0 none, 1 outer, 2 inner), the
-    head of its delay line ``obuf`` (moved in place). Few arguments: each
+    set-points, then the dither table (``ints[DITHER]`` ticks of two valve
+    values, :mod:`controller.excitation`). ``ints`` (int64, :data:`N_INTS`): the
+    D/A codes and their saturation flags ``(c0, c1, s0, s1)``, the OATF mode
+    (0 none, 1 outer, 2 inner), the head of its delay line ``obuf`` (moved in
+    place), the dither's length. Few arguments: each
     array costs the dispatcher ~0.1 µs. Returns 0, or a negative status
     (``MISSING_ANGLE``; ``NON_FINITE``: ``row[0:2]`` then holds the errors)."""
     consts = data[:PI_STATE]
@@ -156,7 +162,9 @@ def law_tick(
     delta = consts[c + 9]
     phi1 = t1 - delta
     phi2 = t2 + delta
-    k = SETPOINTS + 2 * (tick % ((data.shape[0] - SETPOINTS) // 2))
+    n_dither = ints[DITHER]
+    lap = (data.shape[0] - SETPOINTS - 2 * n_dither) // 2
+    k = SETPOINTS + 2 * (tick % lap)
     ref1 = data[k]
     ref2 = data[k + 1]
     sh1, sh2 = ref1, ref2
@@ -213,8 +221,13 @@ def law_tick(
         f0, f1 = _oatf_step(obuf, orows, oweights, ints, u0, u1)
         u0 = _pmin(_pmax(f0, -fs), fs)
         u1 = _pmin(_pmax(f1, -fs), fs)
+    x0, x1 = u0, u1
+    if n_dither > 0:
+        kd = SETPOINTS + 2 * lap + 2 * (tick % n_dither)
+        x0 = u0 + data[kd]
+        x1 = u1 + data[kd + 1]
     for j in range(2):
-        x = u0 if j == 0 else u1
+        x = x0 if j == 0 else x1
         if x != x:
             code = 0.0
             sat = 1
@@ -338,7 +351,7 @@ def warm_up() -> bool:
     try:
         fill_12_bit_angles()
         data = np.ones(SETPOINTS + 2)
-        ints = np.zeros(6, dtype=np.int64)
+        ints = np.zeros(N_INTS, dtype=np.int64)
         ints[MODE] = 1
         law_tick(0, 0, 0, 0, 0, ANGLE_TABLE, data, ints, np.zeros((4, 2)), np.zeros((4, 1), dtype=np.int64), np.ones(1))
         return sum_matches()

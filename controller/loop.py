@@ -19,6 +19,7 @@ import numpy.typing as npt
 
 from controller import fast_tick
 from controller.engineering import Measurement, measure_values, measurement_of
+from controller.excitation import DitherConfig, dither_table
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
 from controller.trajectory import SampledTrajectory
@@ -75,6 +76,8 @@ class LawConfig:
     oatf_fallback: Literal["last", "fixed"] = "last"
     oatf: OatfConfig | None = None
     """The OATF's design rules (None: off)."""
+    dither: DitherConfig = DitherConfig()
+    """Persistent excitation added to the valve commands before the D/A (:mod:`controller.excitation`; off by default)."""
 
 
 @dataclass(frozen=True)
@@ -118,20 +121,25 @@ class ControlLaw:
         # state, the OATF's head and the row are views into them, so the
         # Python forms and the compiled one read and write the same numbers.
         f = fast_tick
-        data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks)
+        dither = dither_table(config.dither, self._ts) if config.dither.enabled else np.zeros((0, 2))
+        self._dither_rows: list[list[float]] = dither.tolist()
+        """Per tick ``tick % len``: the valve commands' dither (V); empty: none (:mod:`controller.excitation`)."""
+        data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks + dither.size)
         data[: f.PI_STATE] = f.law_consts(self.pi, self._ts)
         if self.pi.state.shape == (f.ROW - f.PI_STATE,):
             data[f.PI_STATE : f.ROW] = self.pi.state
             self.pi.state = data[f.PI_STATE : f.ROW]
-        data[f.SETPOINTS :] = np.asarray(self.setpoints, dtype=np.float64).ravel()
+        data[f.SETPOINTS : f.SETPOINTS + 2 * self.lap_ticks] = np.asarray(self.setpoints, dtype=np.float64).ravel()
+        data[f.SETPOINTS + 2 * self.lap_ticks :] = dither.ravel()
         self._data = data
-        self._sp = data[f.SETPOINTS :].reshape(self.lap_ticks, 2)
+        self._sp = data[f.SETPOINTS : f.SETPOINTS + 2 * self.lap_ticks].reshape(self.lap_ticks, 2)
         self.row = data[f.ROW : f.SETPOINTS]
         """The compiled tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
-        self.ints = np.zeros(6, dtype=np.int64)
+        self.ints = np.zeros(f.N_INTS, dtype=np.int64)
         self.codes = self.ints[:4]
         """The compiled tick's D/A codes and saturation flags ``(c0, c1, s0, s1)``."""
         self.ints[f.MODE] = 0 if self.oatf is None else (1 if self._outer else 2)
+        self.ints[f.DITHER] = len(self._dither_rows)
         if self.oatf is not None:
             self.ints[f.HEAD] = self.oatf.head_state[0]
             self.oatf.head_state = self.ints[f.HEAD : f.HEAD + 1]
@@ -163,7 +171,12 @@ class ControlLaw:
         if oatf is not None and not self._outer:
             fs = DAC12.full_scale_v
             u = [min(max(x, -fs), fs) for x in oatf.step_values(u)]
-        (c0, c1), (s0, s1) = DAC12_VALUES(u)
+        dither = self._dither_rows
+        if dither:  # persistent excitation, after the PI and an inner OATF: what the D/A sends (and the DSP sees)
+            x0, x1 = dither[tick % len(dither)]
+            (c0, c1), (s0, s1) = DAC12_VALUES([u[0] + x0, u[1] + x1])
+        else:
+            (c0, c1), (s0, s1) = DAC12_VALUES(u)
         lsb = self._dac_lsb
         row = [tick * self._ts, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, *w, v0, v1, v2, v3, c0 * lsb, c1 * lsb, u[0], u[1]]
         return row, s0, s1

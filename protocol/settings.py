@@ -200,8 +200,23 @@ class ControllerSettings(CommonSettings):
     )
     oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
     oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
+    dither_amplitude_v: float = Field(
+        0.0,
+        ge=0,
+        le=2.0,
+        description="Persistent excitation: RMS (V) of a multisine added to each valve command before the D/A, for the identifier (0 = off; see docs/identification.md)",
+    )
+    dither_band_hz: tuple[_Hz, _Hz] = Field((2.0, 7.0), description="The dither's band: every bin of its period in this range")
+    dither_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the dither's random phases (each valve its own)")
 
-    @field_validator("oatf_band_hz", mode="before")
+    @field_validator("dither_band_hz")
+    @classmethod
+    def _dither_band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] < value[1]:
+            raise ValueError(f"the dither band must run from a lower to a higher frequency, got {value[0]:g}, {value[1]:g}")
+        return value
+
+    @field_validator("oatf_band_hz", "dither_band_hz", mode="before")
     @classmethod
     def _band_text(cls, value: Any) -> Any:
         # --set oatf_band_hz=... arrives as text (the env source JSON-decodes it

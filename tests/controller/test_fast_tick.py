@@ -17,6 +17,7 @@ import pytest
 
 from controller.config import build_trajectory, law_config
 from controller.engineering import measure, measure_values
+from controller.excitation import dither_table
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.oatf import OatfConfig, OatfFilter, StageDesign, cascade_kernel, design_stage
 from controller.pi import PIController
@@ -70,7 +71,12 @@ class _ReferenceLaw:
         u = self.pi.step_vectorised(np.asarray(shaped) - np.array([p1, p2]))
         if self.oatf is not None and not outer:
             u = np.clip(self.oatf.step(u), -can_map.DAC12.full_scale_v, can_map.DAC12.full_scale_v)
-        q = can_map.DAC12.quantize(np.concatenate([u, np.zeros(8)]))  # > 8 values: numpy's own path
+        d = self.law.config.dither
+        if d.enabled:  # the dither before the D/A (controller.excitation)
+            table = dither_table(d, self.law.config.sample_period_s)
+            q = can_map.DAC12.quantize(np.concatenate([u + table[tick % len(table)], np.zeros(8)]))
+        else:
+            q = can_map.DAC12.quantize(np.concatenate([u, np.zeros(8)]))  # > 8 values: numpy's own path
         volts = can_map.DAC12.to_volts(q.counts[:2])
         return [
             tick * self.law.config.sample_period_s,
@@ -101,6 +107,8 @@ class _ReferenceLaw:
         {"oatf_mode": "fixed", "oatf_location": "inner"},
         {"oatf_mode": "off"},
         {"oatf_mode": "adaptive", "oatf_max_stages": 3},
+        {"oatf_mode": "off", "dither_amplitude_v": 0.3},
+        {"oatf_mode": "fixed", "oatf_location": "inner", "dither_amplitude_v": 0.5, "dither_seed": 9},
     ],
 )
 def test_step_row_is_the_array_reference(settings: dict[str, Any]) -> None:
@@ -218,6 +226,8 @@ def test_append_row_stores_what_append_stores(tmp_path: Any) -> None:
         {"oatf_mode": "fixed", "oatf_location": "inner"},
         {"oatf_mode": "off"},
         {"oatf_mode": "adaptive", "oatf_max_stages": 3},
+        {"oatf_mode": "off", "dither_amplitude_v": 0.3},
+        {"oatf_mode": "fixed", "oatf_location": "inner", "dither_amplitude_v": 0.5, "dither_seed": 9},
     ],
 )
 def test_compiled_tick_is_the_python_form(settings: dict[str, Any]) -> None:

@@ -72,11 +72,13 @@ def _has_upper(metadata: list[Any]) -> bool:
 
 @pytest.mark.parametrize("model", settings_models(), ids=lambda c: c.__name__)
 def test_every_numeric_setting_is_bounded(model: type[CommonSettings]) -> None:
-    unbounded = [name for name, field in _numeric_fields(model) if not _has_upper(field.metadata) and name != "oatf_band_hz"]
+    bands = ("oatf_band_hz", "dither_band_hz")  # pairs of bounded frequencies (_Hz): checked below
+    unbounded = [name for name, field in _numeric_fields(model) if not _has_upper(field.metadata) and name not in bands]
     assert unbounded == []
-    assert "greater than 2500" in _error(ControllerSettings, oatf_band_hz="1,1e9") or "less than or equal to 2500" in _error(
-        ControllerSettings, oatf_band_hz="1,1e9"
-    )
+    for band in bands:
+        assert "greater than 2500" in _error(ControllerSettings, **{band: "1,1e9"}) or "less than or equal to 2500" in _error(
+            ControllerSettings, **{band: "1,1e9"}
+        )
 
 
 def test_message_fields_are_bounded() -> None:

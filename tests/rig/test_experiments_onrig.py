@@ -204,3 +204,9 @@ def test_id_lag_quick(tmp_path: Path) -> None:
     assert rp["as_run"]["median_settle_2pct_s"] == pytest.approx(r["settings"]["arx"]["median_settle_2pct_s"], abs=0.2)
     assert set(rp) >= {"reset_at_the_event", "change_detection", "change_alarms_s"}
     assert (out / "records" / "idlag_trajectory.json").is_file()
+    # the dithered ARX run: the D/A carried the dither, and it made the links move more (its cost)
+    (dd,) = r["dither"]["runs"]
+    assert dd["amplitude_v"] == 0.01
+    assert dd["sent_rms_v"] == pytest.approx([0.01, 0.01], rel=0.2)
+    assert all(x > 1.0 for x in dd["velocity_ratio"])
+    assert dd["arx"]["max_difference_to_the_record_hz"] <= 1e-9
