@@ -2,8 +2,8 @@
 
 The thesis chose the ETFE because an iterative estimator's compute could not
 be bounded per batch (§2.2, §5.3). This one keeps that promise: one batch of
-``l`` samples costs one Householder QR of a ``(2p + 1 + 2l) × (p + 1)``
-matrix (``p`` parameters), whatever the data.
+``l`` samples costs ``2l + p`` Givens row updates of the ``(p + 1) × (p + 1)``
+triangular factor (``p`` parameters), whatever the data.
 
 Model (equation error, shared denominator: the modes are the plant's, common to
 all four transfer functions)::
@@ -29,6 +29,8 @@ round-off of plain RLS's ``P`` update (which loses symmetry and positive
 definiteness over ~10⁵ iterations, as the thesis warns) cannot build up;
 ``θ`` is a back-substitution on ``R``. The result equals the batch
 exponentially weighted ridge least squares (tested against ``numpy.linalg.lstsq``).
+The rotations, the back-substitution and the a-priori errors run in
+:mod:`dsp_service.arx_kernel`, in one defined order: the same bits on every host.
 
 Before the regression every channel goes through the same band-pass
 (``scipy.signal`` Butterworth, state carried across batches): the same LTI
@@ -54,9 +56,11 @@ from typing import Literal, cast
 
 import numpy as np
 import pydantic
-import scipy.linalg
 import scipy.signal
 from numpy.typing import NDArray
+
+from dsp_service import arx_kernel
+from dsp_service.arx_kernel import absorb_rows, back_substitute, equation_errors
 
 
 class ArxConfig(pydantic.BaseModel):
@@ -148,6 +152,7 @@ class RecursiveArx:
         c = self.cfg
         self._sos = scipy.signal.butter(c.prefilter_order, c.band_hz, btype="bandpass", fs=c.sample_rate_hz, output="sos")
         self._lag = max(c.na, c.nb)
+        arx_kernel.warm_up()  # compiled (or loaded from numba's cache) before the first batch
         self.reset()
 
     def reset(self) -> None:
@@ -219,7 +224,10 @@ class RecursiveArx:
         rows[:n, p] = ext[2][t]
         rows[n:, p] = ext[3][t]
         ready = self.samples >= c.memory_samples and self.residual_power > 0
-        e = rows[:, p] - rows[:, :p] @ self.theta if ready else None  # a-priori equation errors, both outputs
+        e: NDArray[np.float64] | None = None
+        if ready:  # a-priori equation errors, both outputs
+            e = np.empty(2 * n)
+            equation_errors(rows, self.theta, e)
         if c.change_detection and e is not None:
             self._detect_change(e, n)
         if c.huber_k > 0 and e is not None:
@@ -232,13 +240,7 @@ class RecursiveArx:
         rows[:n] *= w[:, None]
         rows[n:] *= w[:, None]
         decay = lam**n
-        ridge = np.zeros((p, p + 1))
-        ridge[:, :p] = math.sqrt(c.ridge * (1.0 - decay)) * np.eye(p)
-        stacked = np.vstack([math.sqrt(decay) * self.R, rows, ridge])
-        # mode="r" returns R alone; numpy's stub types every mode as the (Q, R) pair
-        r = cast(NDArray[np.float64], np.linalg.qr(stacked, mode="r"))
-        self.R = r[: p + 1]
-        self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
+        self._absorb(decay, rows)
         self.samples += n  # model samples (at fs / D)
         self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
@@ -288,14 +290,27 @@ class RecursiveArx:
         only, fixed cost. The sample count (the model's fill) is kept."""
         if not 0.0 < gamma <= 1.0:
             raise ValueError(f"gamma must be in (0, 1], got {gamma}")
-        c = self.cfg
-        p = c.n_params
-        ridge = np.zeros((p, p + 1))
-        ridge[:, :p] = math.sqrt(c.ridge * (1.0 - gamma)) * np.eye(p)
-        r = cast(NDArray[np.float64], np.linalg.qr(np.vstack([math.sqrt(gamma) * self.R, ridge]), mode="r"))
-        self.R = r[: p + 1]
-        self.theta = scipy.linalg.solve_triangular(self.R[:p, :p], self.R[:p, p], check_finite=False)
+        self._absorb(gamma, None)
         self._weight_sum *= gamma
+
+    def _absorb(self, decay: float, rows: NDArray[np.float64] | None) -> None:
+        """``R ←`` the triangular factor of ``[√decay R; rows; (δ (1 − decay))^(1/2) [I_p | 0]]``, then ``θ``.
+
+        Givens rotations in one defined order (:mod:`dsp_service.arx_kernel`):
+        the same bits on every host; ``rows`` is consumed as scratch."""
+        p = self.cfg.n_params
+        r = self.R * math.sqrt(decay)
+        if rows is not None:
+            absorb_rows(r, rows)
+        floor = math.sqrt(self.cfg.ridge * (1.0 - decay))
+        if floor > 0.0:
+            ridge = np.zeros((p, p + 1))
+            ridge[:, :p] = floor * np.eye(p)
+            absorb_rows(r, ridge)
+        self.R = r
+        theta = np.empty(p)
+        back_substitute(r, theta)
+        self.theta = theta
 
     def _decimate(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Every D-th sample by its running index (the phase carries across batches)."""
