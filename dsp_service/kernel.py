@@ -142,32 +142,52 @@ def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
 
 @njit(cache=True, error_model="numpy")
 def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, out: C128, valid: Bool, mode: U8) -> int:
-    """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count."""
+    """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count.
+
+    Two passes: the corrected 2×2 solve [2-21…2-24] on every bin without branches (selects
+    only, so the compiler vectorizes it: about 5× faster than bin by bin with its branches),
+    then the dominant-direction solve of the bins it masked. The same operations per bin
+    as :class:`.mimo.MimoSolver`, so the same roundings."""
+    m = s1 - s0
+    r0 = state[0, s0:s1]  # P11
+    r1 = state[1, s0:s1]  # P12
+    r2 = state[2, s0:s1]  # P1y1
+    r3 = state[3, s0:s1]  # P1y2
+    r4 = state[4, s0:s1]  # P22
+    r5 = state[5, s0:s1]  # P2y1
+    r6 = state[6, s0:s1]  # P2y2
+    o = out[s0:s1]
+    vd = valid[s0:s1]
+    md = mode[s0:s1]
     count = 0
-    for b in range(s0, s1):
-        p11 = state[0, b].real
-        p22 = state[4, b].real
-        p12 = state[1, b]
+    for i in range(m):
+        p11 = r0[i].real
+        p22 = r4[i].real
+        p12 = r1[i]
         prod = p11 * p22
         a12 = _cabs(p12)
         det = prod - a12 * a12
-        ok = det >= prod * det_threshold and p11 > floor and p22 > floor
-        if ok:
-            inv4 = 0.25 / det
-            A = state[2, b] + state[3, b]
-            B = state[5, b] + state[6, b]
-            d0 = complex(state[4, b].real - p12.real, state[4, b].imag + p12.imag)  # P22 − P21
-            d1 = state[0, b] - p12  # P11 − P12
-            out[b] = (_cmul(A, d0) + _cmul(B, d1)) * inv4
-            valid[b] = True
-            mode[b] = 2
-            count += 1
+        ok = (det >= prod * det_threshold) & (p11 > floor) & (p22 > floor)
+        inv4 = 0.25 / det
+        A = r2[i] + r3[i]
+        B = r5[i] + r6[i]
+        d0 = complex(r4[i].real - p12.real, r4[i].imag + p12.imag)  # P22 − P21
+        d1 = r0[i] - p12  # P11 − P12
+        h = (_cmul(A, d0) + _cmul(B, d1)) * inv4
+        o[i] = h if ok else 0j
+        vd[i] = ok
+        md[i] = 2 if ok else 0
+        count += 1 if ok else 0
+    if not dominant:
+        return count
+    for i in range(m):
+        if vd[i]:
             continue
-        out[b] = 0.0
-        valid[b] = False
-        mode[b] = 0
-        if not dominant or not (p11 + p22 > floor):
+        p11 = r0[i].real
+        p22 = r4[i].real
+        if not (p11 + p22 > floor):
             continue
+        p12 = r1[i]
         # rank-1 minimum-norm solve along the dominant eigenvector (mimo.MimoSolver._dominant)
         half = 0.5 * (p11 - p22)
         disc = math.sqrt(half * half + (p12.real * p12.real + p12.imag * p12.imag))
@@ -185,11 +205,11 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
         v1 = v1 * rn
         v2 = v2 * rn
         rs = 1.0 / sigma
-        c0 = (_cmul(v1.conjugate(), state[2, b]) + _cmul(v2.conjugate(), state[5, b])) * rs
-        c1 = (_cmul(v1.conjugate(), state[3, b]) + _cmul(v2.conjugate(), state[6, b])) * rs
-        out[b] = _cmul(0.25 * (v1 + v2), c0 + c1)
-        valid[b] = True
-        mode[b] = 1
+        c0 = (_cmul(v1.conjugate(), r2[i]) + _cmul(v2.conjugate(), r5[i])) * rs
+        c1 = (_cmul(v1.conjugate(), r3[i]) + _cmul(v2.conjugate(), r6[i])) * rs
+        o[i] = _cmul(0.25 * (v1 + v2), c0 + c1)
+        vd[i] = True
+        md[i] = 1
         count += 1
     return count
 
