@@ -263,6 +263,57 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
     return n_valid
 
 
+_BLOCK = 16  #: bins per block of the peak search's walks
+
+
+@njit(cache=True, error_model="numpy")
+def _blocks(v: F64) -> tuple[F64, F64]:
+    """Minimum and maximum of each block of ``_BLOCK`` bins of ``v`` (the last one shorter); a
+    block holding a NaN gets a NaN maximum, so that a walk goes through it bin by bin."""
+    size = v.size
+    nb = (size + _BLOCK - 1) // _BLOCK
+    bmin = np.empty(nb)
+    bmax = np.empty(nb)
+    for q in range(nb):
+        a0 = q * _BLOCK
+        a1 = min(a0 + _BLOCK, size)
+        mn = v[a0]
+        mx = v[a0]
+        for i in range(a0 + 1, a1):
+            x = v[i]
+            mn = x if x < mn else mn
+            mx = x if (x > mx or x != x) else mx
+        bmin[q] = mn
+        bmax[q] = mx
+    return bmin, bmax
+
+
+@njit(cache=True, error_model="numpy")
+def _walk_min(v: F64, bmin: F64, bmax: F64, p: int, hp: float, step: int) -> float:
+    """Minimum of ``v`` from ``p`` towards ``step`` (−1 left, +1 right) while ``v <= hp``: scipy's
+    prominence walk, whole blocks (``bmin``, ``bmax`` of ``_BLOCK`` bins) at a time where the
+    block's maximum is no higher than ``hp``."""
+    size = v.size
+    low = hp
+    j = p
+    while 0 <= j < size:
+        q = j // _BLOCK
+        r = j - q * _BLOCK
+        if (r == (_BLOCK - 1 if step < 0 else 0)) and (step < 0 or j + _BLOCK <= size) and bmax[q] <= hp:
+            mn = bmin[q]
+            if mn < low:
+                low = mn
+            j += step * _BLOCK
+            continue
+        x = v[j]
+        if not x <= hp:
+            break
+        if x < low:
+            low = x
+        j += step
+    return low
+
+
 @njit(cache=True, error_model="numpy")
 def _peaks(
     hs: C128, vs: Bool, n_valid: int, w_lin: F64, weighted: bool, ratio: float, want: int, v: F64, order_buf: Intp, found_idx: Intp, found_prom: F64
@@ -271,17 +322,21 @@ def _peaks(
     size = hs.size
     if size < 3 or n_valid == 0:
         return 0
-    vmin = np.inf
-    for i in range(size):
-        a = _cabs(hs[i])
-        if a < _TINY:
-            a = _TINY
-        if weighted:
-            a *= w_lin[i]
-        v[i] = a
-        if vs[i] and a < vmin:
-            vmin = a
+    # the magnitudes in a loop of their own (no branches: it vectorizes, 4-8x faster than with
+    # the smallest valid value tracked in it), that minimum only where bins are invalid
+    if weighted:
+        for i in range(size):
+            a = _cabs(hs[i])
+            v[i] = (_TINY if a < _TINY else a) * w_lin[i]
+    else:
+        for i in range(size):
+            a = _cabs(hs[i])
+            v[i] = _TINY if a < _TINY else a
     if n_valid < size:
+        vmin = np.inf
+        for i in range(size):
+            if vs[i] and v[i] < vmin:
+                vmin = v[i]
         for i in range(size):
             if not vs[i]:
                 v[i] = vmin
@@ -306,21 +361,12 @@ def _peaks(
         for q in range(m):
             height[q] = v[idx[q]]
         order = np.argsort(height, kind="mergesort")[::-1]  # highest first, ties: the later first
+        bmin, bmax = _blocks(v)
         for q in range(m):
             p = idx[order[q]]
             hp = v[p]
-            lmin = hp
-            j = p
-            while j >= 0 and v[j] <= hp:
-                if v[j] < lmin:
-                    lmin = v[j]
-                j -= 1
-            rmin = hp
-            j = p
-            while j < size and v[j] <= hp:
-                if v[j] < rmin:
-                    rmin = v[j]
-                j += 1
+            lmin = _walk_min(v, bmin, bmax, p, hp, -1)
+            rmin = _walk_min(v, bmin, bmax, p, hp, 1)
             base = lmin if lmin > rmin else rmin
             if hp >= base * ratio:
                 found_idx[nf] = p
