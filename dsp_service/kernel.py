@@ -979,6 +979,40 @@ def _zeta_fwhm(bw: float, fp: float, exact: bool) -> float:
 
 
 @njit(cache=True, error_model="numpy")
+def _vrm_lambdas(g: F64) -> None:
+    """``g[9]``, ``g[10]``, ``g[11]`` ← Re λ, Im λ and the weight ``|den|`` of each VRM triplet
+    (Appendix C, :func:`.modal.vrm_lambda`) from its squared frequencies ``g[0:3]`` and H
+    values ``g[3:9]`` (re, im at a, b, c). Contiguous rows and no branches, so the compiler
+    vectorizes the loop, divisions included; a zero ``den`` gives inf or NaN, which
+    :func:`_vrm` skips by its zero weight, as the one-loop form did before dividing."""
+    f2a = g[0]
+    f2b = g[1]
+    f2c = g[2]
+    ar = g[3]
+    ai = g[4]
+    br = g[5]
+    bi = g[6]
+    cr = g[7]
+    ci = g[8]
+    lre = g[9]
+    lim = g[10]
+    wt = g[11]
+    for q in range(lre.size):
+        cab = f2c[q] - f2a[q]
+        bab = f2b[q] - f2a[q]
+        dba = complex(br[q] - ar[q], bi[q] - ai[q])
+        dca = complex(cr[q] - ar[q], ci[q] - ai[q])
+        fb = f2b[q] * cab
+        fc = f2c[q] * bab
+        den = complex(dba.real * cab - dca.real * bab, dba.imag * cab - dca.imag * bab)
+        num = complex(dba.real * fb - dca.real * fc, dba.imag * fb - dca.imag * fc)
+        wt[q] = _cabs(den)
+        lam = _cdiv(num, den)
+        lre[q] = lam.real
+        lim[q] = lam.imag
+
+
+@njit(cache=True, error_model="numpy")
 def _vrm(
     hd: C128,
     fd: F64,
@@ -1010,32 +1044,42 @@ def _vrm(
     s = max(1, int(np.rint(h / m)))
     if m * s > h:
         m = h // s
+    # Three passes, the same arithmetic per triplet and the same sums in the same order as
+    # one loop: the triplets' squared frequencies and H values gathered into contiguous
+    # rows, λ and the weight of every triplet (:func:`_vrm_lambdas`, vectorized; with the
+    # gathers in it the compiler left it scalar), then the good ones summed.
+    nq = n_tri[m]
+    g = np.empty((12, nq))
+    tm = tri[m]
+    for q in range(nq):
+        a = k + s * tm[q, 0]
+        b = k + s * tm[q, 1]
+        c = k + s * tm[q, 2]
+        g[0, q] = fd[a] * fd[a]
+        g[1, q] = fd[b] * fd[b]
+        g[2, q] = fd[c] * fd[c]
+        g[3, q] = hd[a].real
+        g[4, q] = hd[a].imag
+        g[5, q] = hd[b].real
+        g[6, q] = hd[b].imag
+        g[7, q] = hd[c].real
+        g[8, q] = hd[c].imag
+    _vrm_lambdas(g)
+    lre = g[9]
+    lim = g[10]
+    wt = g[11]
+    bounded = 0.0 < c_max < np.inf
     wr = 0.0
     wi = 0.0
     ws = 0.0
     used = 0
-    for q in range(n_tri[m]):
-        a = k + s * tri[m, q, 0]
-        b = k + s * tri[m, q, 1]
-        c = k + s * tri[m, q, 2]
-        f2a = fd[a] * fd[a]
-        f2b = fd[b] * fd[b]
-        f2c = fd[c] * fd[c]
-        cab = f2c - f2a
-        bab = f2b - f2a
-        dba = hd[b] - hd[a]
-        dca = hd[c] - hd[a]
-        fb = f2b * cab
-        fc = f2c * bab
-        den = complex(dba.real * cab - dca.real * bab, dba.imag * cab - dca.imag * bab)
-        num = complex(dba.real * fb - dca.real * fc, dba.imag * fb - dca.imag * fc)
-        w = _cabs(den)
+    for q in range(nq):
+        w = wt[q]
         if w == 0.0:
             continue
-        lam = _cdiv(num, den)
-        re = lam.real
-        im = lam.imag
-        if 0.0 < c_max < np.inf:
+        re = lre[q]
+        im = lim[q]
+        if bounded:
             good = im <= re * c_max
         else:
             good = re > 0.0
