@@ -463,16 +463,11 @@ class Identifier:
                 self._k_ia = self._k_ib = 0
         else:
             self._k_ia = self._k_ib = 0
-        self._k_ffts_f = self._est.ffts.view(np.float64)  # (re, im) float views for the averaging
-        self._k_state_f = self._avg.state.view(np.float64)
+        self._k_ffts_f = self._est.ffts.view(np.float64)  # (re, im) float view for the averaging
         self._k_zeros_f = np.zeros_like(self._k_ffts_f)
         self._k_hs = np.empty(n_range, dtype=np.complex128)
         self._k_vs = np.empty(n_range, dtype=bool)
         self._k_w = self._w_lin if self._w_lin is not None else np.ones(n_range)
-        self._k_order = np.empty(n_range, dtype=np.intp)
-        self._k_idx = np.empty(self.cfg.max_peaks, dtype=np.intp)
-        self._k_prom = np.empty(self.cfg.max_peaks)
-        self._k_stats = np.zeros(4)
         # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
         self._k_do_poles = self.cfg.damping_method not in ("fit", "transient")
         ref, vrm = self._refiner, self._vrm
@@ -486,10 +481,9 @@ class Identifier:
         for m, t in enumerate(tris):
             self._k_tri[m, : t.shape[0]] = t
         self._k_mag = np.empty(max(self._n_sl, n_range))
-        self._k_out = np.empty((self.cfg.max_peaks, 6))
         kernel.warm_up()
         # Every argument of the compiled step but the snapshot and its weight is fixed
-        # until the next _build: packed once here, so a step makes one call of 27
+        # until the next _build: packed once here, so a step makes one call of 11
         # arguments to the compiled overload itself (no per-call type resolution).
         c, sl = self.cfg, self._sl
         fp = np.zeros(kernel.N_FP)
@@ -517,33 +511,26 @@ class Identifier:
         ):
             ip[i] = int(value)
         solver = self._solver
-        self._k_args = (
+        # the constants, scratch and outputs packed into three flat arrays (kernel.pack_arguments);
+        # the attributes become views into them, so the Python side reads the same names
+        fk, ik, fw, views = kernel.pack_arguments(
             fp,
             ip,
-            self._k_state_f,
-            self._avg.state,
-            solver.source,
-            solver.valid,
-            solver.mode,
             self._k_coef,
-            self._k_starts,
             self._k_coef_t,
-            self._k_hs,
-            self._k_vs,
             self._k_w,
-            self._v,
-            self._k_order,
-            self._k_idx,
-            self._k_prom,
-            self._k_stats,
             self._f_sl,
             self._f_range,
             self._k_pinv,
+            self._k_starts,
             self._k_tri,
             self._k_ntri,
-            self._k_mag,
-            self._k_out,
+            self._k_mag.size,
         )
+        self._k_coef, self._k_coef_t, self._k_w, self._k_pinv = views["coef"], views["coef_t"], views["w_lin"], views["pinv"]
+        self._k_starts, self._k_tri, self._k_ntri, self._k_order = views["starts"], views["tri"], views["n_tri"], views["order"]
+        self._k_idx, self._k_prom, self._k_stats, self._k_mag, self._k_out = views["idx"], views["prom"], views["stats"], views["mag"], views["out"]
+        self._k_args = (fk, ik, fw, self._avg.state, solver.source, solver.valid, solver.mode, self._k_hs, self._k_vs)
         # resolved with no snapshot (weight 0 on a zero state: nothing changes)
         self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
         self._k_fft = rfft_rows

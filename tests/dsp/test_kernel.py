@@ -138,3 +138,37 @@ def test_compiled_step_returns_ordinary_result_objects() -> None:
     assert rebuilt == r and [dataclasses.asdict(p) for p in r.poles] == [dataclasses.asdict(p) for p in rebuilt.poles]
     with pytest.raises(dataclasses.FrozenInstanceError):
         r.poles[0].frequency_hz = 1.0  # type: ignore[misc]  # writing the frozen field is the test
+
+
+def _walk_bin_by_bin(v: np.ndarray, p: int, step: int) -> float:
+    """scipy's prominence walk (``_peak_prominences``), one bin at a time."""
+    hp, low, j = v[p], v[p], p
+    while 0 <= j < v.size and v[j] <= hp:
+        low = min(low, v[j])
+        j += step
+    return float(low)
+
+
+@pytest.mark.parametrize("size", [3, 15, 16, 17, 33, 404, 809])
+def test_the_block_walk_of_the_peak_search_equals_the_walk_bin_by_bin(size: int) -> None:
+    """kernel._walk_min crosses whole blocks: the same minimum as the bin-by-bin walk, from every
+    start, on rough data, on plateaus (repeated values) and with NaN (a NaN stops the walk)."""
+    from dsp_service import kernel
+
+    rng = np.random.default_rng(size)
+    cases = [rng.random(size), np.round(rng.random(size) * 4.0) / 4.0, np.sort(rng.random(size))]
+    with_nan = rng.random(size)
+    with_nan[rng.integers(0, size, 1 + size // 20)] = np.nan
+    cases.append(with_nan)
+    for v in cases:
+        nb = (size + kernel._BLOCK - 1) // kernel._BLOCK
+        blocks = [v[q * kernel._BLOCK : (q + 1) * kernel._BLOCK] for q in range(nb)]
+        bmin, bmax = kernel._blocks(v)
+        clean = [not np.any(np.isnan(b)) for b in blocks]
+        assert [np.isnan(x) for x in bmax] == [not c for c in clean]
+        assert all(bmin[q] == b.min() and bmax[q] == b.max() for q, b in enumerate(blocks) if clean[q])
+        for p in range(size):
+            if np.isnan(v[p]):
+                continue
+            for step in (-1, 1):
+                assert kernel._walk_min(v, bmin, bmax, p, float(v[p]), step) == _walk_bin_by_bin(v, p, step), (p, step)
