@@ -48,7 +48,7 @@ by ~80 % and shifts it by ~1.5 bins; VRM reads λ as a viscous mode
 Cost (see :mod:`.bench`): everything that depends only on the
 configuration (windows, frequency grids, weights, smoothing plan, views of
 the averaged spectra) is prepared in ``_build``. With ``kernel='numba'``
-(the default) a step is the channel means (one BLAS product), one compiled
+(the default) a step is one compiled
 detrend/window pass, the four FFTs and one compiled call
 (:func:`.kernel.step`: averaging, the ``H_tot`` solve with its dominant
 branch, smoothing, peak search, refinement, FWHM and VRM), compiled when the
@@ -739,7 +739,7 @@ class Identifier:
             weight = avg.next_weight()
             buf, head = hist._buf, hist._head
             # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
-            self._k_detrend_ring(buf, head, buf[:, head : head + n_hist] @ est._ones_over_n, est.window, est._tmp)
+            self._k_detrend_ring(buf, head, est.means, est.window, est._tmp)
             self._k_fft(est._tmp, est.ffts)
             X = self._k_ffts_f
             avg.account(self._pending)

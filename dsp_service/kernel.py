@@ -89,25 +89,69 @@ def _cabs(z: complex) -> float:
 
 
 @njit(cache=True, error_model="numpy")
+def row_mean(src: F64) -> float:
+    """The mean of a 1-D row in one defined order (the channel means of detrend='constant').
+
+    Eight running sums, sample ``i`` into sum ``i mod 8`` in order, combined as
+    ``((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))``, then divided by ``n``.
+    A BLAS product (``x @ ones / n``, what this replaced) rounds as the host's
+    kernel blocks it, which made an identification differ between hosts; eight
+    independent sums still vectorize, and their bits do not depend on how."""
+    n = src.shape[0]
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+    n8 = n - n % 8
+    for i in range(0, n8, 8):
+        s0 += src[i]
+        s1 += src[i + 1]
+        s2 += src[i + 2]
+        s3 += src[i + 3]
+        s4 += src[i + 4]
+        s5 += src[i + 5]
+        s6 += src[i + 6]
+        s7 += src[i + 7]
+    t = n - n8
+    if t > 0:
+        s0 += src[n8]
+    if t > 1:
+        s1 += src[n8 + 1]
+    if t > 2:
+        s2 += src[n8 + 2]
+    if t > 3:
+        s3 += src[n8 + 3]
+    if t > 4:
+        s4 += src[n8 + 4]
+    if t > 5:
+        s5 += src[n8 + 5]
+    if t > 6:
+        s6 += src[n8 + 6]
+    return (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))) / n
+
+
+@njit(cache=True, error_model="numpy")
 def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
-    """``out = (x − means[:, None]) · window`` (spectra.SpectralEstimator.snapshot's two passes in one)."""
+    """``means[r]`` = :func:`row_mean` of row ``r``; ``out = (x − means[:, None]) · window``
+    (spectra.SpectralEstimator.snapshot's passes in one)."""
     rows, n = x.shape
     for r in range(rows):
-        m = means[r]
+        src = x[r]
+        m = row_mean(src)
+        means[r] = m
+        dst = out[r]
         for i in range(n):
-            out[r, i] = (x[r, i] - m) * window[i]
+            dst[i] = (src[i] - m) * window[i]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) -> None:
     """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
-    C-contiguous ring buffer itself. Each row goes through 1-D views: on the 2-D indices the
-    compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192); the same
-    elementwise roundings either way."""
+    C-contiguous ring buffer itself (``means`` is written). Each row goes through 1-D views: on
+    the 2-D indices the compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192);
+    the same elementwise roundings either way."""
     rows, n = out.shape
     for r in range(rows):
-        m = means[r]
         src = buf[r, head : head + n]
+        m = row_mean(src)
+        means[r] = m
         dst = out[r]
         for i in range(n):
             dst[i] = (src[i] - m) * window[i]
@@ -785,7 +829,7 @@ def warm_up() -> None:
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
     hist = ring[:, 3 : 3 + 2 * k - 2]  # a slice of the history's ring buffer, as the identifier passes it
-    detrend_window(hist, hist @ np.ones(2 * k - 2), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
+    detrend_window(hist, np.empty(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     detrend_window_ring(ring, 3, np.zeros(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)

@@ -265,6 +265,24 @@ def refine_peak(mag: NDArray[np.float64], k: int) -> tuple[float, float]:
     return 0.0, math.log(max(float(mag[k]), _TINY))
 
 
+def parabola_fit_rows(r: int) -> NDArray[np.float64]:
+    """The least-squares parabola ``c0 + c1 j + c2 j²`` on ``j = −r … r`` as a ``(3, 2r + 1)``
+    matrix (the pseudo-inverse of ``[1, j, j²]``), in closed form.
+
+    On the symmetric grid the normal equations split: ``c1 = Σ j y / S2`` and
+    ``[c0, c2]`` from ``[[n, S2], [S2, S4]]`` (``S2 = Σ j²``, ``S4 = Σ j⁴``,
+    integers), so each weight is one integer over another, rounded once. An
+    SVD (``numpy.linalg.pinv``, which this replaced) rounds as the host's
+    LAPACK kernel does, and its last bit reached the identified magnitudes."""
+    j = np.arange(-r, r + 1, dtype=np.int64)
+    n = 2 * r + 1
+    s2 = int(np.sum(j * j))
+    s4 = int(np.sum(j**4))
+    det = n * s4 - s2 * s2
+    jj = j * j
+    return np.vstack([(s4 - s2 * jj) / det, j / s2, (n * jj - s2) / det]).astype(np.float64)
+
+
 class PeakRefiner:
     """Least-squares parabola on ``ln |H|`` over ``±r`` bins around a peak bin (precomputed fits).
 
@@ -277,10 +295,7 @@ class PeakRefiner:
 
     def __init__(self, r_max: int = 8) -> None:
         self.r_max = int(r_max)
-        self._pinv: dict[int, NDArray[np.float64]] = {}
-        for r in range(1, self.r_max + 1):
-            j = np.arange(-r, r + 1, dtype=np.float64)
-            self._pinv[r] = np.linalg.pinv(np.vstack([np.ones_like(j), j, j * j]).T)
+        self._pinv: dict[int, NDArray[np.float64]] = {r: parabola_fit_rows(r) for r in range(1, self.r_max + 1)}
 
     def refine(self, mag: NDArray[np.float64], k: int, r: int) -> tuple[float, float]:
         """``(δ, ln peak)``: vertex offset in bins (|δ| ≤ r) and its log magnitude.

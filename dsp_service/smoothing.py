@@ -26,10 +26,10 @@ estimates upward (§2.4.1); see the identifier's ``estimate_on_smoothed``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from fractions import Fraction
 from typing import TypeVar, cast
 
 import numpy as np
-import scipy.signal
 from numpy.lib.stride_tricks import as_strided
 from numpy.typing import NDArray
 
@@ -64,6 +64,30 @@ def _as_float(a: NDArray[np.inexact]) -> NDArray[np.float64]:
     return cast(NDArray[np.float64], a)
 
 
+def savgol_dot_coeffs(window: int, order: int, pos: int) -> NDArray[np.float64]:
+    """``scipy.signal.savgol_coeffs(window, order, pos=pos, use="dot")``, each coefficient the
+    correctly rounded value of the exact one.
+
+    The least-squares polynomial of degree ``order`` through ``window`` points,
+    evaluated at point ``pos``: ``c_j = Σ_i z_i (j − pos)^i`` with ``(AᵀA) z = e₀``,
+    ``A_ji = (j − pos)^i``, solved in rational arithmetic. scipy solves it by
+    LAPACK least squares, which rounds as the host's kernel does; the last
+    bit of the smoothing coefficients reached the identified peaks."""
+    x = [j - pos for j in range(window)]
+    m = order + 1
+    # normal equations (AᵀA) z = e₀, exact; Gauss-Jordan with rational pivots (AᵀA is positive definite)
+    a = [[Fraction(sum(xj ** (r + c) for xj in x)) for c in range(m)] + [Fraction(int(r == 0))] for r in range(m)]
+    for col in range(m):
+        piv = a[col][col]
+        a[col] = [v / piv for v in a[col]]
+        for r in range(m):
+            if r != col and a[r][col] != 0:
+                f = a[r][col]
+                a[r] = [v - f * w for v, w in zip(a[r], a[col], strict=True)]
+    z = [a[r][m] for r in range(m)]
+    return np.array([float(sum(zi * Fraction(xj) ** i for i, zi in enumerate(z))) for xj in x], dtype=np.float64)
+
+
 class FrequencySmoother:
     """Savitzky–Golay smoother over ``n_bins`` bins; ``window <= 1`` means off (identity)."""
 
@@ -84,10 +108,10 @@ class FrequencySmoother:
         w, h = self.window, self.window // 2
         self.half = h
         # 'dot' coefficients: estimate at window position pos = Σ c[j] x[start + j]
-        self.centre = scipy.signal.savgol_coeffs(w, self.order, pos=h, use="dot")
+        self.centre = savgol_dot_coeffs(w, self.order, h)
         self._all_valid = np.ones(self.n_bins, dtype=bool)
-        self.edge_lo = np.stack([scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h)]) if h else np.zeros((0, w))
-        self.edge_hi = np.stack([scipy.signal.savgol_coeffs(w, self.order, pos=k, use="dot") for k in range(h + 1, w)]) if h else np.zeros((0, w))
+        self.edge_lo = np.stack([savgol_dot_coeffs(w, self.order, k) for k in range(h)]) if h else np.zeros((0, w))
+        self.edge_hi = np.stack([savgol_dot_coeffs(w, self.order, k) for k in range(h + 1, w)]) if h else np.zeros((0, w))
         # first bin of the fitting window used for each output bin
         self._starts = np.clip(np.arange(self.n_bins) - h, 0, self.n_bins - w)
 

@@ -36,6 +36,7 @@ from numpy.lib.stride_tricks import as_strided
 from numpy.typing import NDArray
 
 from .history import N_CHANNELS
+from .kernel import detrend_window
 
 try:  # scipy's pocketfft binding: the same transform as numpy's (bit for bit), without its Python layer
     from scipy.fft._pocketfft.pypocketfft import r2c as _r2c
@@ -89,7 +90,8 @@ class SpectralEstimator:
         self.window = make_window(window, self.n)
         self.n_bins = self.n // 2 + 1
         self.freqs = rfft_frequencies(self.n, self.sample_rate_hz)
-        self._ones_over_n = np.full(self.n, 1.0 / self.n)
+        self.means = np.zeros(N_CHANNELS)
+        """The last snapshot's channel means (detrend='constant')."""
         self._tmp = np.empty((N_CHANNELS, self.n))
         k = self.n_bins
         # FFT rows u1, u2, y1, y2 and a zero fifth row: the strided view
@@ -114,9 +116,10 @@ class SpectralEstimator:
         ``conj(U_i)`` so the averager's weight costs nothing extra.
         """
         x = history
-        means = x @ self._ones_over_n  # (4,) channel means (detrend='constant')
-        tmp = np.subtract(x, means[:, None], out=self._tmp)  # detrend, then window (scipy's order)
-        tmp *= self.window
+        # detrend='constant', then window (scipy's order): the channel means in the one defined
+        # order of dsp_service.kernel.row_mean, so every identifier rounds alike on every host
+        detrend_window(x, self.means, self.window, self._tmp)
+        tmp = self._tmp
         X = rfft_rows(tmp, self.ffts)
         xc = np.conjugate(X[0:2], out=self._conj2)
         if scale != 1.0:
