@@ -17,7 +17,8 @@ from typing import Any
 
 from controller.dsp_port import DspPort
 from protocol.errors import ProtocolError
-from protocol.messages import TfSnapshot, decode
+from protocol.messages import TfSnapshot
+from protocol.tf_codec import decode_tf
 from service_kit.clock import Scheduler
 from service_kit.realtime import lower_current_thread
 
@@ -79,7 +80,7 @@ class TfDownloader:
             return
         for reply in replies:
             try:
-                self.snapshots.append(decode(TfSnapshot, reply))
+                self.snapshots.append(decode_tf(reply))
                 if not self.keep_all:
                     del self.snapshots[:-1]  # nothing will save them: keep the latest only
                 c.tf_downloads += 1
