@@ -9,7 +9,7 @@ the one-thread co-simulation:
 * :class:`ZenohDspPort`: zenoh publishers, subscribers, the DSP's
   liveliness token, the TF query, the health publisher;
 * :class:`workbench.cosim.DirectDspPort`: calls the DSP core directly; every
-  message still goes through its codec (batch codec, pydantic JSON).
+  message still goes through its codec (batch and TF codecs, pydantic JSON).
 
 Events reach the controller through the ``sink(kind, payload, arrival,
 attachment=None)`` it hands to :meth:`DspPort.connect`: ``kind`` is
@@ -30,7 +30,7 @@ import zenoh
 
 from protocol.keys import Keys
 from protocol.messages import Health
-from service_kit.encodings import BATCH, JSON
+from service_kit.encodings import BATCH, JSON, TF
 from service_kit.runtime import HealthPublisher
 
 Sink = Callable[..., None]
@@ -51,11 +51,11 @@ class DspPort(Protocol):
     def send_status(self, payload: bytes) -> None: ...
 
     def download_tf(self, timeout_s: float) -> list[bytes]:
-        """The encoded TfSnapshot answers (may raise on a dying transport)."""
+        """The TfSnapshot answers, as received (:mod:`protocol.tf_codec`; may raise on a dying transport)."""
         ...
 
     def publish_tf(self, payload: bytes) -> None:
-        """``controller/tf``: a TF download as downloaded (for recorders and viewers)."""
+        """``controller/tf``: a TF download as downloaded, binary (for recorders and viewers)."""
         ...
 
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None: ...
@@ -75,7 +75,7 @@ class ZenohDspPort:
         self._batch_pub = session.declare_publisher(self.keys.batch, encoding=BATCH, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._config_pub = session.declare_publisher(self.keys.dsp_config, encoding=JSON, congestion_control=block)
         self._status_pub = session.declare_publisher(self.keys.controller_status, encoding=JSON)
-        self._tf_pub = session.declare_publisher(self.keys.tf_downloads, encoding=JSON)
+        self._tf_pub = session.declare_publisher(self.keys.tf_downloads, encoding=TF)
         self._subs: list[object] = []
         self._token: object | None = None
         self._health: HealthPublisher | None = None

@@ -270,13 +270,13 @@ class DspCore:
             estimates: dict[TfName, TransferFunction] = {}
             for name in TF_NAMES:
                 h = np.nan_to_num(np.asarray(getattr(tf, name)), nan=0.0, posinf=0.0, neginf=0.0)
-                estimates[name] = TransferFunction(magnitude=tuple(np.abs(h).tolist()), phase_rad=tuple(np.angle(h).tolist()))
+                estimates[name] = TransferFunction(magnitude=np.abs(h), phase_rad=np.angle(h))
             snap = TfSnapshot(
                 seq=self.tf_seq,
                 sim_time_s=self.last_sim_time,
                 batch_seq=self.last_batch_seq,
-                freqs_hz=tuple(np.asarray(tf.freqs_hz, dtype=float).tolist()),
-                valid=tuple(bool(v) for v in np.asarray(tf.valid)),
+                freqs_hz=np.array(tf.freqs_hz, dtype=np.float64),  # copies: the snapshot outlives the lock
+                valid=np.array(tf.valid, dtype=np.bool_),
                 estimates=estimates,
             )
             self.tf_seq += 1

@@ -29,8 +29,9 @@ from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import DspSettings
+from protocol.tf_codec import encode_tf
 from service_kit.clock import RealTimeScheduler, Scheduler
-from service_kit.encodings import JSON
+from service_kit.encodings import JSON, TF
 from service_kit.inbox import Inbox
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
@@ -198,13 +199,14 @@ class DspService:
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
         try:
-            query.reply(self.keys.tf, encode(self.snapshot()), encoding=JSON)
+            query.reply(self.keys.tf, encode_tf(self.snapshot()), encoding=TF)
         except Exception as exc:  # never let a query kill zenoh's thread
             log.exception("TF query failed")
             query.reply_err(str(exc).encode())
 
     def snapshot(self) -> TfSnapshot:
-        """The current transfer-function estimates (magnitude and phase)."""
+        """The current transfer-function estimates (magnitude and phase); a
+        query gets them in the binary layout of :mod:`protocol.tf_codec`."""
         return self.core.snapshot()
 
     def apply_config(self, change: ConfigChange) -> None:

@@ -15,6 +15,10 @@ class BatchDecodeError(ProtocolError):
     """A sample-batch payload that is truncated or inconsistent with its header."""
 
 
+class TfDecodeError(ProtocolError):
+    """A transfer-function snapshot payload that breaks its binary layout (protocol/tf_codec.py)."""
+
+
 class ConfigError(ValueError):
     """A configuration value that cannot work (caught at start-up, never mid-run)."""
 

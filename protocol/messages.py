@@ -1,4 +1,6 @@
-"""Control messages exchanged over zenoh, as pydantic v2 models in JSON.
+"""Control messages exchanged over zenoh, as pydantic v2 models in JSON
+(and :class:`TfSnapshot`, typed arrays in the binary layout of
+:mod:`protocol.tf_codec`).
 
 Every message that crosses a process carries a sequence number, the
 simulated time and the sender's wall-clock time (docs/design.md, "Time"),
@@ -10,9 +12,13 @@ latencies.  Decoding validates everything; a bad payload raises
 from __future__ import annotations
 
 import time
-from typing import Annotated, Final, Literal, TypeVar
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Annotated, Any, Final, Literal, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from protocol.errors import ProtocolError
@@ -165,39 +171,119 @@ class ConfigAck(Message):
         )
 
 
-class TransferFunction(BaseModel):
-    """Magnitude and phase of one estimate over the frequency grid."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    magnitude: Annotated[tuple[FiniteFloat, ...], Field(max_length=MAX_BINS)]
-    phase_rad: Annotated[tuple[FiniteFloat, ...], Field(max_length=MAX_BINS)]
+TfName = Literal["H11", "H12", "H21", "H22", "Htot"]
+TF_NAMES: Final[tuple[TfName, ...]] = ("H11", "H12", "H21", "H22", "Htot")
+"""The estimates a :class:`TfSnapshot` may carry, in their wire order (:mod:`protocol.tf_codec`)."""
 
 
-class TfSnapshot(Message):
-    """The DSP's current transfer-function estimates, for spectrograms."""
+def _tf_array(name: str, value: object, dtype: type) -> npt.NDArray[Any]:
+    """A read-only 1-D array of ``dtype`` (no copy if ``value`` is one already)."""
+    arr: npt.NDArray[Any] = np.asarray(value, dtype=dtype)
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
+    if arr.flags.writeable:
+        if arr is value:
+            arr = arr.copy()  # the caller's array stays writable and ours does not change under us
+        arr.flags.writeable = False
+    return arr
 
-    batch_seq: Seq
-    freqs_hz: Annotated[tuple[FiniteFloat, ...], Field(max_length=MAX_BINS)]
-    valid: Annotated[tuple[bool, ...], Field(max_length=MAX_BINS)]
-    estimates: dict[Literal["H11", "H12", "H21", "H22", "Htot"], TransferFunction]
 
-    @model_validator(mode="after")
-    def _lengths(self) -> TfSnapshot:
-        n = len(self.freqs_hz)
-        if len(self.valid) != n:
+@dataclass(frozen=True, eq=False)
+class TransferFunction:
+    """Magnitude and phase (rad) of one estimate over the frequency grid, as float64 arrays."""
+
+    magnitude: npt.NDArray[np.float64]
+    phase_rad: npt.NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "magnitude", _tf_array("magnitude", self.magnitude, np.float64))
+        object.__setattr__(self, "phase_rad", _tf_array("phase_rad", self.phase_rad, np.float64))
+        if self.magnitude.size != self.phase_rad.size:
+            raise ValueError(f"magnitude has {self.magnitude.size} bins, phase {self.phase_rad.size}")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TransferFunction):
+            return NotImplemented
+        return np.array_equal(self.magnitude, other.magnitude) and np.array_equal(self.phase_rad, other.phase_rad)
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True, eq=False)
+class TfSnapshot:
+    """The DSP's current transfer-function estimates (thesis §4.2.2: the CPU
+    downloads them every ``tf_download_samples`` samples, for spectrograms).
+
+    Binary on the wire (:mod:`protocol.tf_codec`: a versioned header and
+    little-endian float64 arrays, decoded straight into numpy, no Python float
+    per bin). The arrays are read-only, one value per frequency bin:
+
+    * ``freqs_hz``: the frequency grid (float64);
+    * ``valid``: where the estimates are defined (bool);
+    * ``estimates``: by name (``H11`` ... ``Htot``), magnitude and phase (float64).
+
+    ``seq`` numbers the DSP's snapshots from 0, ``batch_seq`` is the last batch
+    they include, ``sim_time_s`` its simulated time and ``wall_time_s`` the
+    DSP's wall clock when it took the snapshot (docs/design.md, "Time").
+    Construction checks shapes and names; the codec checks values
+    (finite, within :data:`MAX_ABS`).
+    """
+
+    seq: int
+    sim_time_s: float
+    batch_seq: int
+    freqs_hz: npt.NDArray[np.float64]
+    valid: npt.NDArray[np.bool_]
+    estimates: Mapping[TfName, TransferFunction]
+    wall_time_s: float = field(default_factory=time.time)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "freqs_hz", _tf_array("freqs_hz", self.freqs_hz, np.float64))
+        object.__setattr__(self, "valid", _tf_array("valid", self.valid, np.bool_))
+        n = self.freqs_hz.size
+        if n > MAX_BINS:
+            raise ValueError(f"a snapshot holds at most {MAX_BINS} bins, got {n}")
+        if self.valid.size != n:
             raise ValueError("valid mask length differs from the frequency grid")
         for name, tf in self.estimates.items():
-            if len(tf.magnitude) != n or len(tf.phase_rad) != n:
+            if name not in TF_NAMES:
+                raise ValueError(f"unknown estimate {name!r} (known: {', '.join(TF_NAMES)})")
+            if not isinstance(tf, TransferFunction):
+                raise ValueError(f"{name} is not a TransferFunction")
+            if tf.magnitude.size != n:
                 raise ValueError(f"{name} length differs from the frequency grid")
-        return self
+        object.__setattr__(self, "estimates", MappingProxyType(dict(self.estimates)))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TfSnapshot):
+            return NotImplemented
+        return (
+            (self.seq, self.sim_time_s, self.wall_time_s, self.batch_seq) == (other.seq, other.sim_time_s, other.wall_time_s, other.batch_seq)
+            and np.array_equal(self.freqs_hz, other.freqs_hz)
+            and np.array_equal(self.valid, other.valid)
+            and dict(self.estimates) == dict(other.estimates)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
 
     def as_arrays(self) -> dict[str, np.ndarray]:
         """Complex arrays by name, plus ``freqs_hz`` and ``valid``."""
-        out: dict[str, np.ndarray] = {"freqs_hz": np.asarray(self.freqs_hz), "valid": np.asarray(self.valid)}
+        out: dict[str, np.ndarray] = {"freqs_hz": self.freqs_hz, "valid": self.valid}
         for name, tf in self.estimates.items():
-            out[name] = np.asarray(tf.magnitude) * np.exp(1j * np.asarray(tf.phase_rad))
+            out[name] = tf.magnitude * np.exp(1j * tf.phase_rad)
         return out
+
+    def as_json(self) -> dict[str, Any]:
+        """The snapshot as plain JSON values (lists of floats): how a recording stores it."""
+        return {
+            "seq": self.seq,
+            "sim_time_s": self.sim_time_s,
+            "wall_time_s": self.wall_time_s,
+            "batch_seq": self.batch_seq,
+            "freqs_hz": self.freqs_hz.tolist(),
+            "valid": self.valid.tolist(),
+            "estimates": {name: {"magnitude": tf.magnitude.tolist(), "phase_rad": tf.phase_rad.tolist()} for name, tf in self.estimates.items()},
+        }
 
 
 class LatencyStats(BaseModel):

@@ -36,11 +36,10 @@ from protocol.messages import (
     Interrupt,
     PlantEvent,
     ScenarioCommand,
-    TfSnapshot,
 )
 
 ChannelKind = Literal["publication", "queryable", "liveliness"]
-Payload = type[BaseModel] | Literal["batch", "token"]
+Payload = type[BaseModel] | Literal["batch", "tf", "token"]
 
 
 @dataclass(frozen=True)
@@ -67,7 +66,8 @@ class Channel:
     """The key below ``ralf/<rig-id>/``; ``{service}`` stands for each service."""
     kind: ChannelKind
     payload: Payload
-    """The pydantic message, ``"batch"`` (:mod:`protocol.batch_codec`) or ``"token"``."""
+    """The pydantic message, ``"batch"`` (:mod:`protocol.batch_codec`), ``"tf"``
+    (a :class:`~protocol.messages.TfSnapshot` in :mod:`protocol.tf_codec`) or ``"token"``."""
     senders: tuple[str, ...]
     """Roles that may publish it (or answer it, for a queryable); ``{service}``
     means the service named in the key."""
@@ -133,14 +133,14 @@ RIG: Final[RigDescription] = RigDescription(
         Channel("dsp/interrupt", "publication", Interrupt, ("dsp",), ("controller",), "identified modes of one batch (the C40's interrupt)"),
         Channel("dsp/config", "publication", ConfigChange, ("controller",), ("dsp",), "identifier settings changed at run time"),
         Channel("dsp/config_ack", "publication", ConfigAck, ("dsp",), ("controller", "tool"), "a configuration change taken or refused"),
-        Channel("dsp/tf", "queryable", TfSnapshot, ("dsp",), ("controller", "tool"), "the identified transfer functions, on request"),
+        Channel("dsp/tf", "queryable", "tf", ("dsp",), ("controller", "tool"), "the identified transfer functions, on request (binary, protocol.tf_codec)"),
         Channel("plant/truth", "publication", GroundTruth, ("plant",), ("tester",), "the emulated arm's true state (test port)"),
         Channel(
             "plant/scenario", "publication", ScenarioCommand, ("tester",), ("plant",), "scenario commands (payload, faults)", gated_by="zenoh_acl_scenarios"
         ),
         Channel("plant/events", "publication", PlantEvent, ("plant",), ("tester", "launcher"), "hard stops, watchdog, clipping (test port)"),
         Channel("controller/status", "publication", ControllerStatus, ("controller",), ("launcher", "tool"), "the control loop's status"),
-        Channel("controller/tf", "publication", TfSnapshot, ("controller",), ("tool",), "each TF download, as downloaded"),
+        Channel("controller/tf", "publication", "tf", ("controller",), ("tool",), "each TF download, as downloaded (binary, protocol.tf_codec)"),
         Channel("controller/command", "publication", ConfigChange, ("tool", "tester"), ("controller",), "run-time reconfiguration (ralf-hil reconfigure)"),
         Channel("health/{service}", "publication", Health, ("{service}",), ("launcher", "tool"), "counters, latencies and state of each service"),
         Channel("alive/{service}", "liveliness", "token", ("{service}",), ("launcher", "controller"), "liveliness token of each service"),
@@ -179,6 +179,8 @@ def keys_table(rig: RigDescription = RIG) -> str:
     def payload(c: Channel) -> str:
         if c.payload == "batch":
             return "sample batch (binary)"
+        if c.payload == "tf":
+            return "`TfSnapshot` (binary)"
         if c.payload == "token":
             return "liveliness token"
         assert isinstance(c.payload, type)

@@ -7,16 +7,20 @@ from typing import Final
 
 import zenoh
 
-from protocol.encodings import BATCH_MIME, BATCH_SCHEMA, JSON_MIME, mime_for
+from protocol.encodings import BATCH_MIME, BATCH_SCHEMA, JSON_MIME, TF_MIME, TF_SCHEMA, mime_for
 
 JSON: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_JSON
 """Every control message (BlockFlag, Interrupt, Health, ...)."""
 BATCH: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(BATCH_SCHEMA)
 """The binary sample batch of :mod:`protocol.batch_codec`."""
 
-assert str(JSON) == JSON_MIME and str(BATCH) == BATCH_MIME, "contract and zenoh encodings disagree"
+TF: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(TF_SCHEMA)
+"""The binary transfer-function snapshot of :mod:`protocol.tf_codec`."""
+
+assert str(JSON) == JSON_MIME and str(BATCH) == BATCH_MIME and str(TF) == TF_MIME, "contract and zenoh encodings disagree"
 
 
 def encoding_for(key: str) -> zenoh.Encoding:
     """The zenoh encoding the contract uses on ``key``."""
-    return BATCH if mime_for(key) == BATCH_MIME else JSON
+    mime = mime_for(key)
+    return BATCH if mime == BATCH_MIME else TF if mime == TF_MIME else JSON

@@ -28,6 +28,11 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
     config.insert_json5("mode", json.dumps(settings.zenoh_mode))
     config.insert_json5("scouting/multicast/enabled", json.dumps(settings.zenoh_multicast_scouting))
     config.insert_json5("transport/link/tx/lease", json.dumps(settings.zenoh_lease_ms))
+    # zenoh moves payloads over 3 KB (batches, TF snapshots) through shared
+    # memory, and by default builds its 16 MiB pool at the first such put: in
+    # real time, ~5.5 ms inside one tick of the loop (docs/timing.md). Built
+    # when the session opens instead; the same transport afterwards.
+    config.insert_json5("transport/shared_memory/mode", json.dumps("init"))
     connect = settings.endpoints("connect")
     listen = settings.endpoints("listen")
     if connect:

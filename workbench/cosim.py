@@ -44,6 +44,7 @@ from protocol.batch_codec import decode_batch
 from protocol.errors import ConfigError, ProtocolError
 from protocol.messages import ConfigChange, Health, decode, encode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, load_settings
+from protocol.tf_codec import encode_tf
 from service_kit.clock import SimulatedScheduler
 
 
@@ -160,7 +161,7 @@ class DirectDspPort:
         self.status = payload
 
     def download_tf(self, timeout_s: float) -> list[bytes]:
-        return [encode(self.core.snapshot())]
+        return [encode_tf(self.core.snapshot())]
 
     def publish_tf(self, payload: bytes) -> None:
         pass  # no observers in one thread (workbench.recording.cosim_tap records it when asked)

@@ -17,9 +17,11 @@ import zenoh
 
 from dsp_service.service import DspService
 from protocol.batch_codec import SampleBatch, encode_batch
+from protocol.encodings import TF_MIME
 from protocol.keys import Keys
-from protocol.messages import BlockFlag, ConfigChange, Interrupt, TfSnapshot, decode, encode
+from protocol.messages import BlockFlag, ConfigChange, Interrupt, decode, encode
 from protocol.settings import DspSettings
+from protocol.tf_codec import decode_tf
 
 
 @pytest.fixture
@@ -196,7 +198,8 @@ def test_tf_queryable_returns_the_current_estimates(session: zenoh.Session) -> N
         for seq in range(30):
             service.process_batch(_batch(seq, rng=rng))
         replies = list(session.get(Keys(settings.rig_id).tf, timeout=5.0))
-        snap = decode(TfSnapshot, replies[0].ok.payload.to_bytes())
+        assert str(replies[0].ok.encoding) == TF_MIME
+        snap = decode_tf(replies[0].ok.payload.to_bytes())
         assert set(snap.estimates) == {"H11", "H12", "H21", "H22", "Htot"}
         assert len(snap.freqs_hz) == 129 and snap.freqs_hz[1] == pytest.approx(200.0 / 256)
         assert snap.batch_seq == 29

@@ -50,27 +50,6 @@ latency_stats = st.builds(m.LatencyStats, count=counts, p50=nonneg, p99=nonneg, 
 
 
 @st.composite
-def tf_snapshots(draw: st.DrawFn) -> m.TfSnapshot:
-    n = draw(st.integers(min_value=0, max_value=12))
-    vec = st.lists(finite, min_size=n, max_size=n).map(tuple)
-    names = draw(st.lists(st.sampled_from(["H11", "H12", "H21", "H22", "Htot"]), unique=True))
-    return m.TfSnapshot(
-        **{k: draw(v) for k, v in _header().items()},
-        batch_seq=draw(seqs),
-        freqs_hz=draw(vec),
-        valid=tuple(draw(st.lists(st.booleans(), min_size=n, max_size=n))),
-        estimates={name: m.TransferFunction(magnitude=draw(vec), phase_rad=draw(vec)) for name in names},
-    )
-
-
-@st.composite
-def transfer_functions(draw: st.DrawFn) -> m.TransferFunction:
-    n = draw(st.integers(min_value=0, max_value=12))
-    vec = st.lists(finite, min_size=n, max_size=n).map(tuple)
-    return m.TransferFunction(magnitude=draw(vec), phase_rad=draw(vec))
-
-
-@st.composite
 def scenario_commands(draw: st.DrawFn) -> m.ScenarioCommand:
     kind = draw(st.sampled_from(["payload", "seed", "adc_bits"]))
     values = {
@@ -127,8 +106,6 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
         alpha=st.floats(min_value=0.0, max_value=1.0, exclude_min=True),
         emulated_latency_s=latency,
     ),
-    m.TransferFunction: transfer_functions(),
-    m.TfSnapshot: tf_snapshots(),
     m.LatencyStats: latency_stats,
     m.Health: st.builds(
         m.Health,
@@ -236,22 +213,6 @@ def test_wall_time_defaults_to_now_and_models_are_frozen() -> None:
         msg.seq = 2  # type: ignore[misc]
 
 
-def test_tf_snapshot_as_arrays() -> None:
-    snap = m.TfSnapshot(
-        seq=0,
-        sim_time_s=0.0,
-        batch_seq=3,
-        freqs_hz=(1.0, 2.0, 3.0),
-        valid=(True, False, True),
-        estimates={"H11": m.TransferFunction(magnitude=(1.0, 2.0, 0.5), phase_rad=(0.0, math.pi / 2, -math.pi))},
-    )
-    arrays = m.decode(m.TfSnapshot, m.encode(snap)).as_arrays()
-    assert set(arrays) == {"freqs_hz", "valid", "H11"}
-    np.testing.assert_array_equal(arrays["freqs_hz"], [1.0, 2.0, 3.0])
-    np.testing.assert_array_equal(arrays["valid"], [True, False, True])
-    np.testing.assert_allclose(arrays["H11"], [1.0, 2j, -0.5], atol=1e-15)
-
-
 def test_protocol_error_is_a_value_error() -> None:
     assert issubclass(ProtocolError, ValueError)
 
@@ -273,16 +234,6 @@ VALID: dict[type[BaseModel], dict[str, Any]] = {
         "batch_size": 30,
         "alpha": 0.1,
         "emulated_latency_s": 0.1,
-    },
-    m.TransferFunction: {"magnitude": [1.0], "phase_rad": [0.0]},
-    m.TfSnapshot: {
-        "seq": 1,
-        "sim_time_s": 0.5,
-        "wall_time_s": 1.0,
-        "batch_seq": 0,
-        "freqs_hz": [1.0, 2.0],
-        "valid": [True, False],
-        "estimates": {"Htot": {"magnitude": [1.0, 2.0], "phase_rad": [0.0, 0.1]}},
     },
     m.LatencyStats: {"count": 3, "p50": 0.1, "p99": 0.2, "p999": 0.3, "max": 0.4},
     m.Health: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "service": "dsp", "counters": {"batches": 3}},
@@ -395,8 +346,6 @@ WRONG_TYPES = [
     (m.ScenarioCommand, "kind", "gravity"),
     (m.ScenarioCommand, "seed", "7"),
     (m.ScenarioCommand, "adc_bits", 14),
-    (m.TfSnapshot, "valid", [1, 0]),
-    (m.TfSnapshot, "estimates", {"H33": {"magnitude": [1.0, 2.0], "phase_rad": [0.0, 0.1]}}),
     (m.ControllerStatus, "ticks", -1),
     (m.ControllerStatus, "finished", None),
     (m.PlantEvent, "kind", None),
@@ -445,10 +394,6 @@ def test_non_finite_numbers_are_rejected(model: type[BaseModel], field: str) -> 
         (m.GroundTruth, ("deflections_in", 0)),
         (m.GroundTruth, ("theta_rad", 1)),
         (m.GroundTruth, ("tip_in", 0)),
-        (m.TfSnapshot, ("freqs_hz", 1)),
-        (m.TfSnapshot, ("estimates", "Htot", "magnitude", 0)),
-        (m.TfSnapshot, ("estimates", "Htot", "phase_rad", 1)),
-        (m.TransferFunction, ("magnitude", 0)),
     ],
     ids=lambda x: getattr(x, "__name__", "-".join(map(str, x)) if isinstance(x, tuple) else x),
 )
@@ -481,7 +426,6 @@ def test_extra_fields_are_rejected(model: type[BaseModel]) -> None:
 
 def test_extra_fields_in_nested_models_are_rejected() -> None:
     _rejects(m.Interrupt, _with(m.Interrupt, poles=[{"frequency_hz": 4.4, "damping_ratio": 0.1, "q": 1}]), "poles.0.q")
-    _rejects(m.TfSnapshot, _with(m.TfSnapshot, estimates={"Htot": {"magnitude": [1.0, 2.0], "phase_rad": [0.0, 0.1], "x": []}}), "Htot.x")
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)
@@ -542,37 +486,6 @@ def test_config_change_limits(field: str, value: Any) -> None:
 def test_config_change_all_optional() -> None:
     change = m.decode(m.ConfigChange, _payload({"seq": 0, "sim_time_s": 0.0}))
     assert (change.fft_width, change.batch_size, change.alpha, change.emulated_latency_s) == (None, None, None, None)
-
-
-@pytest.mark.parametrize(
-    "changes,needle",
-    [
-        ({"valid": [True]}, "valid mask length"),
-        ({"valid": [True, False, True]}, "valid mask length"),
-        ({"freqs_hz": [1.0]}, "differs from the frequency grid"),
-        ({"estimates": {"H12": {"magnitude": [1.0], "phase_rad": [0.0, 0.1]}}}, "H12 length differs"),
-        ({"estimates": {"H21": {"magnitude": [1.0, 2.0], "phase_rad": [0.0]}}}, "H21 length differs"),
-        ({"estimates": {"Htot": {"magnitude": [1.0, 2.0], "phase_rad": [0.0, 0.1]}, "H22": {"magnitude": [], "phase_rad": []}}}, "H22 length differs"),
-    ],
-)
-def test_tf_snapshot_mismatched_lengths(changes: dict[str, Any], needle: str) -> None:
-    _rejects(m.TfSnapshot, _with(m.TfSnapshot, **changes), needle)
-
-
-@FAST
-@given(n=st.integers(0, 6), extra=st.integers(1, 3), which=st.sampled_from(["valid", "magnitude", "phase_rad"]))
-def test_tf_snapshot_any_length_mismatch_is_rejected(n: int, extra: int, which: str) -> None:
-    lengths = {"valid": n, "magnitude": n, "phase_rad": n}
-    lengths[which] = n + extra
-    doc = {
-        "seq": 0,
-        "sim_time_s": 0.0,
-        "batch_seq": 0,
-        "freqs_hz": [float(i) for i in range(n)],
-        "valid": [True] * lengths["valid"],
-        "estimates": {"H11": {"magnitude": [1.0] * lengths["magnitude"], "phase_rad": [0.0] * lengths["phase_rad"]}},
-    }
-    _rejects(m.TfSnapshot, _payload(doc), "length")
 
 
 @pytest.mark.parametrize(

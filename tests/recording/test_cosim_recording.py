@@ -45,7 +45,7 @@ def test_the_file_holds_every_channel_validated_against_its_schema(recorded: dic
     counts, meta = seen.counts, seen.metadata
     for suffix in CHANNELS_OF_A_RUN:
         assert counts.get(f"/ralf/cosimrec/{suffix}", 0) > 0, suffix
-    assert set(seen.encodings.values()) == {"application/json", "application/octet-stream;ralf-batch-v1"}
+    assert set(seen.encodings.values()) == {"application/json", "application/octet-stream;ralf-batch-v1", "application/octet-stream;ralf-tf-v1"}
     ticks = int(CONTROLLER["duration_s"] * 200)
     assert counts["/can"] >= 3 * ticks  # SYNC, TPDO1, RPDO1 each tick
     assert meta["ralf.run"]["clock"] == "cosim"

@@ -71,8 +71,9 @@ def test_every_message_validates_against_its_channel_schema(run: dict[str, Any])
     seen = read_validated(run["path"])
     counts, meta, encodings = seen.counts, seen.metadata, dict(seen.encodings)
     root = f"/ralf/{run['rig_id']}"
-    # every publisher tags its payload: JSON, or the named binary batch encoding
+    # every publisher tags its payload: JSON, or the named binary batch and TF snapshot encodings
     assert encodings.pop(f"{root}/dsp/batch") == "application/octet-stream;ralf-batch-v1"
+    assert encodings.pop(f"{root}/controller/tf") == "application/octet-stream;ralf-tf-v1"
     assert set(encodings.values()) == {"application/json"}, encodings
     for suffix in (*CHANNELS_OF_A_RUN, "alive"):
         assert counts.get(f"{root}/{suffix}", 0) > 0, suffix

@@ -208,3 +208,38 @@ def test_seeking_and_streaming_readers_agree_with_crcs_checked(recording: tuple[
     with open(path, "rb") as f:
         streaming = [(c.topic, m.log_time, m.data) for _, c, m in NonSeekingReader(f, validate_crcs=True).iter_messages()]
     assert sorted(seeking) == sorted(streaming) and len(streaming) == N_RECORDS
+
+
+def test_tf_snapshots_are_recorded_as_typed_arrays_and_bad_ones_kept_aside(tmp_path: Path) -> None:
+    """controller/tf travels binary (protocol.tf_codec); the recording holds it
+    decoded, bit for bit, validated by its schema; a malformed one goes to
+    /_undecodable, counted."""
+    from protocol.messages import TfSnapshot, TransferFunction
+    from protocol.tf_codec import encode_tf
+
+    rng = np.random.default_rng(3)
+    snap = TfSnapshot(
+        seq=2,
+        sim_time_s=5.0,
+        wall_time_s=1.7e9,
+        batch_seq=24,
+        freqs_hz=np.arange(9) * 0.5,
+        valid=rng.random(9) > 0.5,
+        estimates={name: TransferFunction(rng.random(9) * 1e3, rng.uniform(-np.pi, np.pi, 9)) for name in ("H11", "Htot")},
+    )
+    payload = encode_tf(snap)
+    path = tmp_path / "tf.mcap"
+    rec = Recorder(path, decode_can=False)
+    rec.on_message(KEYS.tf_downloads, payload, wall_time_s=1001.0, encoding="application/octet-stream;ralf-tf-v1")
+    rec.on_message(KEYS.tf_downloads, payload[:-1], wall_time_s=1001.5)
+    stats = rec.close()
+    assert (stats.messages, stats.undecodable) == (1, 1)
+    back = Recording.load(path)
+    (row,) = back.tf_downloads()
+    jsonschema.validate(row, schemas.TF_SCHEMA)
+    assert row == json.loads(json.dumps(snap.as_json()))
+    for name, tf in snap.estimates.items():
+        assert np.array_equal(np.array(row["estimates"][name]["magnitude"]).view(np.uint64), tf.magnitude.view(np.uint64))
+    assert back.topics()["/_undecodable"] == 1
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({**row, "estimates": {"H33": row["estimates"]["H11"]}}, schemas.TF_SCHEMA)

@@ -29,7 +29,7 @@ import can
 
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, encode
-from service_kit.encodings import BATCH, JSON
+from service_kit.encodings import BATCH, JSON, TF
 from workbench.recording.recorder import Recorder
 from workbench.recording.schemas import TO_CONTROLLER, TO_PLANT
 
@@ -115,7 +115,7 @@ class RecordingDspPort:
         self.inner.send_status(payload)
 
     def publish_tf(self, payload: bytes) -> None:
-        self._put(self.keys.tf_downloads, payload, str(JSON))
+        self._put(self.keys.tf_downloads, payload, str(TF))
         self.inner.publish_tf(payload)
 
     def __getattr__(self, name: str) -> Any:

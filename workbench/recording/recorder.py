@@ -14,7 +14,8 @@ real-time path pays a tuple and a queue put:
 ``ralf/<rig>/**`` and a python-can listener; a one-thread co-simulation can
 call the same three methods directly. The writer thread validates each JSON
 payload against its key's pydantic model (a payload that fails goes to
-``/_undecodable``, counted), decodes batches into typed arrays, and writes
+``/_undecodable``, counted), decodes batches and TF snapshots into typed
+arrays, and writes
 the MCAP records; run metadata goes in with :meth:`Recorder.add_metadata`.
 When the queue is full (the writer cannot keep up) items are dropped and
 counted, never waited for. Optionally the CAN side is also written in
@@ -42,6 +43,7 @@ from protocol.batch_codec import decode_batch
 from protocol.can_map import DEFAULT_NODE_ID
 from protocol.errors import ProtocolError
 from protocol.messages import decode
+from protocol.tf_codec import decode_tf
 from service_kit.counters import Counters
 from workbench.recording import schemas
 
@@ -271,6 +273,9 @@ class Recorder:
                     "outputs": b.outputs.tolist(),
                 }
                 self._emit(topic, schemas.BATCH_SCHEMA, record, wall, publish_s=b.wall_time_s, metadata={"zenoh_key": key, "zenoh_encoding": encoding})
+            elif schemas.is_tf_key(key):
+                snap = decode_tf(payload)
+                self._emit(topic, schemas.TF_SCHEMA, snap.as_json(), wall, publish_s=snap.wall_time_s, metadata={"zenoh_key": key, "zenoh_encoding": encoding})
             else:
                 model = schemas.model_for_key(key)
                 if model is None:

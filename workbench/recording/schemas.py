@@ -14,7 +14,7 @@ Topics (``<rig>`` the rig id; every zenoh key becomes the topic ``/`` + key)::
     /ralf/<rig>/plant/scenario        scenario commands               ralf.ScenarioCommand
     /ralf/<rig>/plant/events          plant events                    ralf.PlantEvent
     /ralf/<rig>/controller/status     controller status               ralf.ControllerStatus
-    /ralf/<rig>/controller/tf         TF downloads                    ralf.TfSnapshot
+    /ralf/<rig>/controller/tf         TF downloads, typed arrays      ralf.TfSnapshot
     /ralf/<rig>/controller/command    run-time commands               ralf.ConfigChange
     /ralf/<rig>/health/<service>      health                          ralf.Health
     /ralf/<rig>/alive                 liveliness changes              ralf.Liveliness
@@ -23,7 +23,9 @@ Topics (``<rig>`` the rig id; every zenoh key becomes the topic ``/`` + key)::
 Every message is JSON (MCAP message encoding ``json``) with a JSON schema
 (schema encoding ``jsonschema``): the pydantic models' own schemas for the
 control messages, so a recorded message validates against its channel's
-schema, and Foxglove and the ``mcap`` tools show every field.
+schema, and Foxglove and the ``mcap`` tools show every field. The two binary
+payloads, sample batches and TF snapshots, are recorded decoded, their
+float64 arrays as JSON arrays of numbers (:data:`BATCH_SCHEMA`, :data:`TF_SCHEMA`).
 """
 
 from __future__ import annotations
@@ -33,9 +35,7 @@ from typing import Any, Final, Literal
 from pydantic import BaseModel
 
 from protocol import can_map
-from protocol.messages import (
-    Health,
-)
+from protocol.messages import TF_NAMES, Health
 from protocol.rig_description import json_models
 
 CAN_TOPIC: Final[str] = "/can"
@@ -53,6 +53,7 @@ MODELS_BY_SUFFIX: Final[dict[str, type[BaseModel]]] = json_models()
 """The JSON messages of the contract, by key below ``ralf/<rig>/`` (health/* apart)."""
 
 BATCH_SUFFIX: Final[str] = "dsp/batch"
+TF_SUFFIXES: Final[tuple[str, ...]] = ("controller/tf", "dsp/tf")
 
 
 def topic_for_key(key: str) -> str:
@@ -74,6 +75,12 @@ def model_for_key(key: str) -> type[BaseModel] | None:
 def is_batch_key(key: str) -> bool:
     parts = key.strip("/").split("/")
     return len(parts) == 4 and parts[0] == "ralf" and "/".join(parts[2:]) == BATCH_SUFFIX
+
+
+def is_tf_key(key: str) -> bool:
+    """A key that carries TF snapshots (:mod:`protocol.tf_codec`): ``controller/tf`` (and ``dsp/tf`` replies)."""
+    parts = key.strip("/").split("/")
+    return len(parts) == 4 and parts[0] == "ralf" and "/".join(parts[2:]) in TF_SUFFIXES
 
 
 def schema_of(model: type[BaseModel]) -> dict[str, Any]:
@@ -120,6 +127,34 @@ BATCH_SCHEMA: Final[dict[str, Any]] = {
         "outputs": {**_NUMBER_ROWS, "description": "the measured tip deflections (in), one array per link"},
     },
     "required": ["seq", "first_tick", "n_samples", "dropped_before", "sample_rate_hz", "sim_time_s", "wall_time_s", "inputs", "outputs"],
+    "additionalProperties": False,
+}
+
+_FLOATS: Final[dict[str, Any]] = {"type": "array", "items": {"type": "number"}}
+
+TF_SCHEMA: Final[dict[str, Any]] = {
+    "title": "ralf.TfSnapshot",
+    "description": "A transfer-function download (protocol.tf_codec), decoded: one float64 array per quantity, one value per frequency bin",
+    "type": "object",
+    "properties": {
+        "seq": {"type": "integer", "minimum": 0, "description": "the DSP's snapshot number, from 0"},
+        "sim_time_s": {"type": "number", "minimum": 0},
+        "wall_time_s": {"type": "number", "minimum": 0, "description": "the DSP's wall clock when taken (Unix s)"},
+        "batch_seq": {"type": "integer", "minimum": 0, "description": "the last batch the estimates include"},
+        "freqs_hz": {**_FLOATS, "description": "the frequency grid (Hz)"},
+        "valid": {"type": "array", "items": {"type": "boolean"}, "description": "where the estimates are defined"},
+        "estimates": {
+            "type": "object",
+            "propertyNames": {"enum": list(TF_NAMES)},
+            "additionalProperties": {
+                "type": "object",
+                "properties": {"magnitude": _FLOATS, "phase_rad": {**_FLOATS, "description": "phase (rad)"}},
+                "required": ["magnitude", "phase_rad"],
+                "additionalProperties": False,
+            },
+        },
+    },
+    "required": ["seq", "sim_time_s", "wall_time_s", "batch_seq", "freqs_hz", "valid", "estimates"],
     "additionalProperties": False,
 }
 
