@@ -139,15 +139,25 @@ class DspLink:
             self.block_empty = False
             return
         self.dsp_fft_width = flag.fft_width
-        if flag.next_batch_seq == self.next_seq:
+        self._on_empty(flag.next_batch_seq)
+
+    def on_released(self, interrupt: Interrupt) -> None:
+        """An interrupt the controller does not take (a link fault dropped it
+        after it came) still says that the board released its block, empty and
+        expecting ``batch_seq + 1``: taken as that empty flag (as the flag
+        older boards sent after every interrupt), never as the interrupt."""
+        self._on_empty(interrupt.batch_seq + 1)
+
+    def _on_empty(self, next_batch_seq: int) -> None:
+        if next_batch_seq == self.next_seq:
             self.block_empty = True  # the batch in flight (if any) stays so until its interrupt arrives
         elif self.in_flight is None:
             # Nothing in flight and the DSP expects another number: it (or we)
             # restarted, or a batch was lost. Follow the DSP.
             self.counters.resyncs += 1
-            self.next_seq = flag.next_batch_seq
+            self.next_seq = next_batch_seq
             self.block_empty = True
-        elif flag.next_batch_seq == self.next_seq - 1:
+        elif next_batch_seq == self.next_seq - 1:
             self.counters.flags_late += 1  # overtaken by our next batch
         else:
             self.counters.flags_stale += 1
@@ -195,7 +205,9 @@ class DspLink:
         return sent, batch
 
     def on_interrupt(self, interrupt: Interrupt) -> SentBatch | None:
-        """Match an interrupt to the batch in flight; returns that batch."""
+        """Match an interrupt to the batch in flight; returns that batch. The
+        interrupt is also the block's empty flag (the board sends no separate
+        flag after it): the block is empty and the next batch may go."""
         sent = self.in_flight
         if sent is None or interrupt.batch_seq != sent.seq:
             self.counters.interrupts_unexpected += 1

@@ -410,7 +410,10 @@ class ControllerService:
                 if self.faults is None:
                     self._held_interrupts.append(irq)
                 else:
-                    self._held_interrupts.extend(self.faults.interrupt(irq, irq.batch_seq))  # type: ignore[arg-type]
+                    taken = self.faults.interrupt(irq, irq.batch_seq)
+                    if not taken and self.faults.lost(irq.batch_seq):
+                        self.link.on_released(irq)  # dropped: its block-empty part still holds (no flag follows it)
+                    self._held_interrupts.extend(taken)  # type: ignore[arg-type]
             elif kind == "command":
                 self.reconfigure(payload)
             elif kind == "alive":

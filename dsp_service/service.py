@@ -2,8 +2,8 @@
 
 Subscribes to sample batches and run-time configuration, runs one
 identification step per batch (:class:`dsp_service.core.DspCore`), and
-answers with the block flag and the interrupt carrying the pole parameters
-(thesis §3.2.3, Fig. 3.5). Serving several rigs, each board's work happens
+answers with the interrupt carrying the pole parameters, which also flags
+the block empty again (thesis §3.2.3, Fig. 3.5 step 4: one message). Serving several rigs, each board's work happens
 on its own thread, never in zenoh callbacks (one rig's batch never waits for
 another's); a board serving one rig (``inline``) identifies in zenoh's batch
 callback, so no thread wake-up lies on the batch -> interrupt path.
@@ -217,19 +217,24 @@ class DspService:
         return _Held(interrupt, arrival + self.core.due_after(interrupt, self.settings.clock == "realtime"), arrival)
 
     def _raise(self, held: _Held) -> None:
-        """Fig. 3.5 step 4: release the block, raise the interrupt, flag the block empty.
+        """Fig. 3.5 step 4: release the block and raise the interrupt, one message.
 
-        The block is released before the interrupt goes (the CPU may send
-        its next batch as soon as the interrupt is in, and the interrupt
-        means the block is empty: :meth:`controller.dsp_link.DspLink.on_interrupt`);
-        the empty flag, its fields taken at the release and the message built
-        after the interrupt is out, follows the interrupt so that it is not on
-        the batch -> interrupt path, and the bookkeeping comes last."""
+        The interrupt *is* the block-empty flag of its batch: the board
+        releases the block before it raises the interrupt, so an interrupt for
+        batch ``k`` says the block is empty and batch ``k + 1`` is expected
+        (:meth:`controller.dsp_link.DspLink.on_interrupt` takes it so). No
+        separate empty flag follows it (one put per batch on the batch ->
+        interrupt path, nothing behind it in zenoh's callback); flags still
+        go at start, after every config change, on a re-announce and after an
+        internal error, and a controller takes a trailing flag of an older
+        board as the echo it is (``ControllerService._echoes_interrupt``).
+        The bookkeeping comes after the put."""
         self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
+        core = self.core
         with self._out_lock:
-            flag = self.core.release_state()
-            self._put_interrupt(held.interrupt)
-            self._put_flag(self.core.flag_of(flag))
+            with core.block_lock:
+                core.block.release()
+            self._irq_pub.put(encode(held.interrupt), attachment=self.board_id)
         self.turnaround.add(self.scheduler.now() - held.arrival)
         self.compute_time.add(held.interrupt.compute_time_s)
 
@@ -253,8 +258,7 @@ class DspService:
             self.core.block.counters.interrupts_repeated += 1
             log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
             with self._out_lock:
-                self._put_interrupt(self._last_raised)
-                self._put_flag(self.core.flag("empty"))
+                self._put_interrupt(self._last_raised)  # the same interrupt: the block is empty again
         elif event.kind == "config" and event.change is not None:
             change = event.change  # decoded (and counted if invalid) by the inbox
             refused = ""

@@ -58,7 +58,11 @@ class BlockFlag(Message):
 
     ``empty`` invites the next batch; ``full`` acknowledges a batch being
     processed. ``next_batch_seq`` is the batch sequence number the DSP
-    expects next.
+    expects next. After a batch the :class:`Interrupt` is the empty flag
+    (batch ``k``'s interrupt: empty, ``k + 1`` expected) and no flag follows
+    it; flags go at start, after a config change, as a re-announce and after
+    an internal error. A receiver takes a flag an older board sends after
+    every interrupt as an echo of it.
     """
 
     state: Literal["empty", "full"]
@@ -99,6 +103,9 @@ pole, first mode first, each with its own ``confidence``; decoders read version 
 class Interrupt(Message):
     """The DSP's interrupt after processing a batch (Fig. 3.5 step 4).
 
+    The board releases the block before it raises the interrupt, so the
+    interrupt also flags the block empty, expecting batch ``batch_seq + 1``
+    (one message per batch, no separate :class:`BlockFlag`).
     ``poles``: every confident pole, the first mode first (version 2).
     """
 

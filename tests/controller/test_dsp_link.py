@@ -5,6 +5,7 @@ deadline misses and lost interrupts."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from controller.dsp_link import LOST_AFTER_DEADLINES, DspLink
 from protocol.batch_codec import SampleBatch, decode_batch, encode_batch
@@ -20,10 +21,13 @@ def irq(batch_seq: int) -> Interrupt:
 
 
 class FakeDsp:
-    """Takes a batch, answers ``busy_ticks`` later with flag then interrupt."""
+    """Takes a batch, answers ``busy_ticks`` later with the interrupt (which is
+    the block's empty flag); ``with_flags``: an older board, whose empty flag
+    comes first."""
 
-    def __init__(self, busy_ticks: int) -> None:
+    def __init__(self, busy_ticks: int, with_flags: bool = True) -> None:
         self.busy_ticks = busy_ticks
+        self.with_flags = with_flags
         self.received: list[SampleBatch] = []
         self.answer_at: int | None = None
 
@@ -34,7 +38,8 @@ class FakeDsp:
     def maybe_answer(self, tick: int, link: DspLink) -> None:
         if self.answer_at is not None and tick >= self.answer_at:
             last = self.received[-1].seq
-            link.on_flag(flag(last + 1))
+            if self.with_flags:
+                link.on_flag(flag(last + 1))
             link.on_interrupt(irq(last))
             self.answer_at = None
 
@@ -50,9 +55,10 @@ def drive(link: DspLink, dsp: FakeDsp, ticks: int) -> None:
         link.check_deadline(tick)
 
 
-def test_batches_in_order_and_every_sample_delivered_once() -> None:
+@pytest.mark.parametrize("with_flags", [True, False])
+def test_batches_in_order_and_every_sample_delivered_once(with_flags: bool) -> None:
     link = DspLink(sample_rate_hz=200.0, batch_size=20)
-    dsp = FakeDsp(busy_ticks=5)
+    dsp = FakeDsp(busy_ticks=5, with_flags=with_flags)
     drive(link, dsp, 1000)
     seqs = [b.seq for b in dsp.received]
     assert seqs == list(range(len(seqs)))
@@ -118,6 +124,25 @@ def test_stale_flags_and_unexpected_interrupts_are_counted() -> None:
     link.on_flag(flag(7))
     assert not link.block_empty and link.counters.flags_stale == 1
     assert link.on_interrupt(irq(3)) is None and link.counters.interrupts_unexpected == 1
+
+
+def test_an_interrupt_dropped_on_the_link_still_empties_the_block_it_released() -> None:
+    """A link fault dropped batch 0's interrupt after it came: the link does
+    not take it as the interrupt (batch 0 stays in flight until declared
+    lost), but the board did release its block, expecting batch 1."""
+    link = DspLink(sample_rate_hz=200.0, batch_size=1)
+    link.on_flag(flag(0))
+    link.add_sample(0, np.zeros(2), np.zeros(2))
+    assert link.take_batch(0, 0.0) is not None
+    assert not link.block_empty
+    link.on_released(irq(0))
+    assert link.block_empty and link.in_flight is not None and link.counters.interrupts == 0
+    link.declare_lost()
+    link.add_sample(1, np.zeros(2), np.zeros(2))
+    taken = link.take_batch(1, 0.005)
+    assert taken is not None and taken[0].seq == 1
+    link.on_released(irq(0))  # a stale one: overtaken by batch 1, counted as late
+    assert not link.block_empty and link.counters.flags_late == 1
 
 
 def test_with_nothing_in_flight_the_dsp_sequence_wins() -> None:

@@ -255,8 +255,11 @@ def unix_minus_perf(reads: int = 15) -> float:
 
 class DspPinger:
     """Acts as the controller against a running DSP service: wait for the
-    empty flag, send a batch, time until its interrupt, then wait for the
-    next empty flag (not timed). Keeps the DSP's own compute time of every
+    block to be empty, send a batch, time until its interrupt. As for the
+    controller (:meth:`controller.dsp_link.DspLink.on_interrupt`), an
+    interrupt flags the block empty for the next batch; an empty flag (the
+    board's first, or one an older board sends after each interrupt) is taken
+    too. Keeps the DSP's own compute time of every
     step (``Interrupt.compute_time_s``) and splits each round trip at the
     interrupt's construction, from the Unix stamp the interrupt carries
     (``wall_time_s``, set by the DSP right after the step) brought onto this
@@ -318,7 +321,7 @@ class DspPinger:
                 raise BenchError(f"DSP flagged no empty block for batch {self.seq} within {timeout_s:.0f} s")
             kind, msg, _ = event
             if kind == "flag" and msg.state == "empty":
-                self.empty_for = msg.next_batch_seq
+                self.empty_for = max(msg.next_batch_seq, self.empty_for or 0)
                 if msg.next_batch_seq > self.seq:
                     self.seq = msg.next_batch_seq  # a DSP that saw batches before us
 
@@ -339,6 +342,7 @@ class DspPinger:
             kind, msg, arrived = event
             if kind == "irq" and msg.batch_seq == seq:
                 rtt = arrived - t0
+                self.empty_for = seq + 1  # the interrupt is the block's empty flag (Fig. 3.5 step 4)
                 self.compute_s.append(msg.compute_time_s)
                 built = msg.wall_time_s - self._unix_minus_perf  # on this process's perf_counter
                 self.out_s.append(built - t0 - msg.compute_time_s)
@@ -346,7 +350,7 @@ class DspPinger:
                 self.seq = seq + 1
                 return rtt
             if kind == "flag" and msg.state == "empty":
-                self.empty_for = msg.next_batch_seq
+                self.empty_for = max(msg.next_batch_seq, self.empty_for or 0)
 
     def close(self) -> None:
         for sub in self.subs:
