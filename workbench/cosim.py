@@ -13,7 +13,7 @@ plant's :class:`~plant_emulator.node.CanopenNode` with its
   still encoded and decoded by the CANopen codecs (12-bit words packed
   into TPDO1, D/A words into RPDO1, SYNC counters, heartbeats, SDO);
 * zenoh: :class:`DirectDspPort` decodes each batch with the batch codec,
-  runs the DSP core on it and hands the encoded flag and interrupt back
+  runs the DSP core on it and hands the encoded interrupt back
   (pydantic JSON both ways); TF downloads and configuration likewise.
 
 No threads, no queues between threads, no sockets, no zenoh. Time is a
@@ -142,10 +142,8 @@ class DirectDspPort:
         if not admission.accepted:
             return
         interrupt = self.core.process(batch, admission)
-        now = self._clock()
-        flag = self.core.release()  # the interrupt, then the flag of the release: as the DSP service sends them
-        self._sink("interrupt", encode(interrupt), now, self.board_id)
-        self._sink("flag", encode(flag), now, self.board_id)
+        self.core.release()  # the interrupt is the block's empty flag: one message, as the DSP service sends it
+        self._sink("interrupt", encode(interrupt), self._clock(), self.board_id)
 
     def send_config(self, payload: bytes) -> None:
         try:
