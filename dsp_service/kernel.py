@@ -92,7 +92,8 @@ def _cabs(z: complex) -> float:
 def row_mean(src: F64) -> float:
     """The mean of a 1-D row in one defined order (the channel means of detrend='constant').
 
-    Eight running sums, sample ``i`` into sum ``i mod 8`` in order, combined as
+    Eight running sums, sample ``i`` into sum ``i mod 8`` in order (a tail past the last
+    multiple of 8 into sum 0), combined as
     ``((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))``, then divided by ``n``.
     A BLAS product (``x @ ones / n``, what this replaced) rounds as the host's
     kernel blocks it, which made an identification differ between hosts; eight
@@ -109,21 +110,8 @@ def row_mean(src: F64) -> float:
         s5 += src[i + 5]
         s6 += src[i + 6]
         s7 += src[i + 7]
-    t = n - n8
-    if t > 0:
-        s0 += src[n8]
-    if t > 1:
-        s1 += src[n8 + 1]
-    if t > 2:
-        s2 += src[n8 + 2]
-    if t > 3:
-        s3 += src[n8 + 3]
-    if t > 4:
-        s4 += src[n8 + 4]
-    if t > 5:
-        s5 += src[n8 + 5]
-    if t > 6:
-        s6 += src[n8 + 6]
+    for i in range(n8, n):  # a tail (N not a multiple of 8) goes to the first sum, in order
+        s0 += src[i]
     return (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))) / n
 
 

@@ -53,7 +53,7 @@ def _downloader(port: FakePort, counters: SimpleNamespace) -> TfDownloader:
 
 
 def _wait_idle(dl: TfDownloader) -> None:
-    for _ in range(500):
+    for _ in range(6000):  # up to 60 s: a starved host is slow, not wrong
         if not dl._busy:
             return
         threading.Event().wait(0.01)
