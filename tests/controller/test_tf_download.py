@@ -77,7 +77,7 @@ def test_one_worker_serves_every_download_and_a_busy_one_counts_as_failed() -> N
     assert c.tf_download_failures == 1
     port.gate.set()
     _wait_idle(dl)
-    dl.join(timeout=2.0)
+    dl.join(timeout=30.0)
     assert dl._thread is not None and not dl._thread.is_alive()
     assert c.tf_downloads == 3 and [s.seq for s in dl.snapshots] == [0, 1, 2]
     assert port.published == payloads  # republished as downloaded
@@ -92,6 +92,6 @@ def test_a_malformed_snapshot_is_counted_and_dropped() -> None:
     for tick in (10, 20):
         dl.on_tick(tick, dsp_idle=False, dsp_alive=True)
         _wait_idle(dl)
-    dl.join(timeout=2.0)
+    dl.join(timeout=30.0)
     assert (c.undecodable, c.tf_download_failures, c.tf_downloads) == (2, 2, 0)
     assert dl.snapshots == [] and port.published == []
