@@ -60,15 +60,21 @@ def _wait_idle(dl: TfDownloader) -> None:
     raise AssertionError("the download did not finish")
 
 
-def test_one_worker_serves_every_download_and_a_busy_one_counts_as_failed() -> None:
-    payloads = [_payload(0), _payload(1), _payload(2)]
-    port = FakePort(list(payloads))
+def _download_twice(replies: list[bytes]) -> tuple[FakePort, SimpleNamespace, TfDownloader]:
+    """A real-time downloader whose port answers at once, after downloads at ticks 10 and 20."""
+    port = FakePort(list(replies))
     c = _counters()
     dl = _downloader(port, c)
     port.gate.set()
     for tick in (10, 20):
         dl.on_tick(tick, dsp_idle=False, dsp_alive=True)
         _wait_idle(dl)
+    return port, c, dl
+
+
+def test_one_worker_serves_every_download_and_a_busy_one_counts_as_failed() -> None:
+    payloads = [_payload(0), _payload(1), _payload(2)]
+    port, c, dl = _download_twice(payloads)
     assert c.tf_downloads == 2 and c.tf_download_failures == 0
     assert len(port.threads) == 1  # the same worker thread both times
     port.gate.clear()
@@ -85,13 +91,7 @@ def test_one_worker_serves_every_download_and_a_busy_one_counts_as_failed() -> N
 
 def test_a_malformed_snapshot_is_counted_and_dropped() -> None:
     good = _payload(0)
-    port = FakePort([good[:-3], good[:4] + b"\x09" + good[5:]])  # truncated; a version this build does not read
-    c = _counters()
-    dl = _downloader(port, c)
-    port.gate.set()
-    for tick in (10, 20):
-        dl.on_tick(tick, dsp_idle=False, dsp_alive=True)
-        _wait_idle(dl)
+    port, c, dl = _download_twice([good[:-3], good[:4] + b"\x09" + good[5:]])  # truncated; a version this build does not read
     dl.join(timeout=30.0)
     assert (c.undecodable, c.tf_download_failures, c.tf_downloads) == (2, 2, 0)
     assert dl.snapshots == [] and port.published == []
