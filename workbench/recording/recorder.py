@@ -107,6 +107,7 @@ class Recorder:
         self._file: IO[bytes] = open(self.path, "wb")
         self._writer = Writer(self._file, compression=compression)
         self._writer.start(profile=schemas.PROFILE, library="ralf-hil recorder (mcap-python)")
+        self._file.flush()  # the header on disk now: a started recording is a file a user (or a test) can see
         self._channels: dict[tuple[str, str], int] = {}
         self._schemas: dict[str, int] = {}
         self._sequence: dict[int, int] = {}
