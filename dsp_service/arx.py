@@ -107,6 +107,29 @@ class ArxConfig(pydantic.BaseModel):
     order_by: Literal["strength", "frequency"] = pydantic.Field(
         "strength", description="Order of the reported poles: strongest first, or lowest frequency first (the first mode first)."
     )
+    regime_bank: int = pydantic.Field(
+        0,
+        ge=0,
+        le=8,
+        description="Regimes the model remembers (0 = off): snapshots of its own settled information, learned on line; "
+        "when a remembered model explains the current batches markedly better than the live one, the live one "
+        "becomes it (a switch between plant regimes already seen, see the module doc).",
+    )
+    bank_error_s: float = pydantic.Field(0.2, gt=0, description="Time constant (s) of the error powers the bank compares.")
+    bank_switch_ratio: float = pydantic.Field(
+        0.7, gt=0, lt=1, description="Switch when a remembered model of another regime has an error power below this × the live model's ..."
+    )
+    bank_switch_batches: int = pydantic.Field(3, ge=1, description="... in this many consecutive batches.")
+    bank_settle_s: float = pydantic.Field(
+        4.0, gt=0, description="A snapshot is stored only after the live model has run this long calm (no switch, no error burst)."
+    )
+    bank_signature_poles: int = pydantic.Field(2, ge=1, le=4, description="A regime's signature: its first this many poles' frequencies.")
+    bank_signature_tol: float = pydantic.Field(
+        0.03, gt=0, lt=0.5, description="Two models are the same regime when every signature pole agrees within this (relative)."
+    )
+    bank_calm_factor: float = pydantic.Field(
+        3.0, gt=1, description="Calm: the live model's short error power is below this × its long-run level (over change_reference_s)."
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> ArxConfig:
@@ -132,6 +155,19 @@ class ArxConfig(pydantic.BaseModel):
     def memory_samples(self) -> float:
         """Effective memory ``1/(1 − λ)`` (model samples, at ``fs / D``; inf without forgetting)."""
         return math.inf if self.forgetting >= 1.0 else 1.0 / (1.0 - self.forgetting)
+
+
+@dataclass
+class _Regime:
+    """A remembered model: the live model's square-root information and residual scale at a calm moment."""
+
+    R: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    residual_power: float
+    weight_sum: float
+    used: int
+    power: float = 0.0  #: its short a-priori error power on the current data (the bank's comparison)
+    signature: NDArray[np.float64] | None = None  #: its first poles' frequencies (Hz): which regime it is
 
 
 @dataclass(frozen=True)
@@ -177,6 +213,14 @@ class RecursiveArx:
         self._ref_log = 0.0
         self._ref_count = 0
         self._since_alarm = 1 << 60
+        self.bank: list[_Regime] = []  #: the remembered regimes (at most ``regime_bank``)
+        self.bank_switches = 0  #: switches to a remembered regime since the reset
+        self._live_power = 0.0  #: the live model's short error power (bank_error_s)
+        self._live_level = 0.0  #: its long-run level (change_reference_s)
+        self._calm = 0  #: model samples the live model has run calm since its last switch or burst
+        self._pending: _Regime | None = None  #: the snapshot taken bank_settle_s ago, stored if calm since
+        self._hold = 0
+        self._clock = 0  #: model samples regressed (the bank's clock; an entry's last use)
 
     # ------------------------------------------------------------------ data
     def update(self, inputs: NDArray[np.float64], outputs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -230,6 +274,12 @@ class RecursiveArx:
             equation_errors(rows, self.theta, e)
         if c.change_detection and e is not None:
             self._detect_change(e, n)
+        switched = False
+        if c.regime_bank and e is not None:
+            switched = self._bank_step(rows, e, n)
+        if switched:  # the remembered model takes this batch's rows as its own a-priori errors say
+            e = np.empty(2 * n)
+            equation_errors(rows, self.theta, e)
         if c.huber_k > 0 and e is not None:
             # bounded influence (Huber): σ is the model's weighted residual rms; an impulsive disturbance the inputs do
             # not explain (the payload released or picked up kicks the links) enters with at most k·σ per sample
@@ -245,6 +295,117 @@ class RecursiveArx:
         self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
+
+    # ---------------------------------------------------------------- the regime bank
+    def _snapshot(self) -> _Regime:
+        return _Regime(self.R.copy(), self.theta.copy(), self.residual_power, self._weight_sum, self._clock)
+
+    def _bank_step(self, rows: NDArray[np.float64], e: NDArray[np.float64], n: int) -> bool:
+        """One batch of the regime bank (before the batch is absorbed); True when the live model switched.
+
+        Every remembered model's a-priori equation errors on this batch's rows
+        (``rows`` unweighted, ``e`` the live model's) give per model a short error
+        power ``P ← β P + (1 − β) mean(e²)`` (``β = exp(−n / (τ f_m))``, τ
+        ``bank_error_s``). **Switch**: a remembered ``P_k`` below
+        ``bank_switch_ratio`` × the live ``P`` in ``bank_switch_batches``
+        consecutive batches: the live information (``R``, ``θ``, σ²) becomes the
+        remembered one. After a payload step the kick rings the new regime's
+        second mode, which the new regime's ``A`` predicts and the old one's does
+        not: its equation errors, not a detector, say which regime the data are in.
+        **Store**: every ``bank_settle_s`` the live model's snapshot taken one
+        period earlier is stored, if the live model ran *calm* all that period
+        (short error power ≤ ``bank_calm_factor`` × its σ², no switch): into the
+        remembered model whose error power is within a factor
+        1/``bank_switch_ratio`` of the live one's (the same regime: refreshed),
+        else as a new regime (the least recently used one evicted when full).
+        Cost per batch: ``regime_bank`` × ``2n p`` multiply-adds; the bank is
+        ``regime_bank`` copies of ``R``: bounded."""
+        c = self.cfg
+        beta = math.exp(-n / (c.bank_error_s * c.model_rate_hz))
+        err = np.empty(2 * n)
+        powers = []
+        for reg in self.bank:
+            equation_errors(rows, reg.theta, err)
+            reg.power = beta * reg.power + (1.0 - beta) * float(np.mean(err * err))
+            powers.append(reg.power)
+        e2 = float(np.mean(e * e))
+        self._live_power = beta * self._live_power + (1.0 - beta) * e2
+        gamma = math.exp(-n / (c.change_reference_s * c.model_rate_hz))
+        self._live_level = e2 if self._clock == 0 else gamma * self._live_level + (1.0 - gamma) * e2
+        self._clock += n
+        best = int(np.argmin(powers)) if powers else -1
+        if (
+            best >= 0
+            and powers[best] < c.bank_switch_ratio * self._live_power
+            and not self._same_regime(self.bank[best].signature, self._signature(self.theta))
+        ):
+            self._hold += 1
+        else:
+            self._hold = 0
+        if self._hold >= c.bank_switch_batches:
+            reg = self.bank[best]
+            self.R = reg.R.copy()
+            self.theta = reg.theta.copy()
+            self.residual_power = reg.residual_power
+            self._weight_sum = reg.weight_sum
+            reg.used = self._clock
+            self._live_power = reg.power
+            self._hold = 0
+            self._calm = 0
+            self._pending = None
+            self.bank_switches += 1
+            return True
+        if self._live_power <= c.bank_calm_factor * self._live_level:
+            self._calm += n
+        else:
+            self._calm = 0
+            self._pending = None
+        period = int(round(c.bank_settle_s * c.model_rate_hz))
+        if self._calm >= period:
+            if self._pending is not None:
+                self._store(self._pending)
+            self._pending = self._snapshot()
+            self._calm = 0
+        return False
+
+    def _signature(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The frequencies (Hz) of the first ``bank_signature_poles`` modal poles of the model ``theta`` (NaN-padded)."""
+        live = self.theta
+        self.theta = theta
+        try:
+            f = [p.frequency_hz for p in self.poles()]
+        finally:
+            self.theta = live
+        k = self.cfg.bank_signature_poles
+        return np.array((f + [math.nan] * k)[:k])
+
+    def _same_regime(self, f: NDArray[np.float64] | None, g: NDArray[np.float64] | None) -> bool:
+        """Two signatures name the same regime: every pole within ``bank_signature_tol`` (relative) of the other's."""
+        if f is None or g is None:
+            return False
+        if not (np.all(np.isfinite(f)) and np.all(np.isfinite(g))):
+            return False
+        return bool(np.all(np.abs(f - g) <= self.cfg.bank_signature_tol * g))
+
+    def _store(self, snap: _Regime) -> None:
+        """``snap`` (taken one settle period ago) into the bank, if the live model still has its signature (it did not
+        drift meanwhile: a settled regime, not a model half-way through a change): it refreshes the remembered regime
+        with the same signature, else it is a new one (the least recently used evicted when the bank is full)."""
+        c = self.cfg
+        sig = self._signature(snap.theta)
+        if not self._same_regime(sig, self._signature(self.theta)):
+            return
+        snap.signature = sig
+        snap.power = self._live_power
+        snap.used = self._clock
+        match = [k for k, reg in enumerate(self.bank) if self._same_regime(sig, reg.signature)]
+        if match:
+            self.bank[match[0]] = snap
+        elif len(self.bank) < c.regime_bank:
+            self.bank.append(snap)
+        else:
+            k = min(range(len(self.bank)), key=lambda i: self.bank[i].used)
+            self.bank[k] = snap
 
     def _detect_change(self, e: NDArray[np.float64], n: int) -> None:
         """CUSUM of the log error ratio on the batch's a-priori errors ``e``; at an alarm, :meth:`discount`.
