@@ -46,6 +46,22 @@ transfer functions, ``√(Σ_ij |r_ij,k|²) / (1 − |z_k|)`` with ``r_ij,k`` th
 residue of ``B_ij/A`` at ``z_k``; poles weaker than ``min_relative_strength``
 of the strongest are dropped (the extra poles of an over-parametrised ``A``
 model noise, not modes).
+
+Regime bank (``regime_bank`` > 0, off by default). A plant that switches between
+regimes it has shown before (the payload attached or not) need not be learned
+again: the model keeps up to ``regime_bank`` snapshots of its own square-root
+information ``(R, θ, σ²)`` taken when it ran calm, each named by its signature
+(the frequencies of its first poles), and evaluates every snapshot's a-priori
+equation errors ``y − φᵀθ_k`` on each batch's regression rows. When a snapshot
+of another regime explains the batches markedly better than the live model
+(short error power below ``bank_switch_ratio`` × the live one's in
+``bank_switch_batches`` consecutive batches) the live information *becomes*
+that snapshot, and the recursion continues from it (multiple-model switching;
+the selection is the prediction-error comparison of the bank, not a separate
+detector). Learned on line from the batches alone, bounded per batch
+(``regime_bank`` × ``2 l p`` multiply-adds for the errors; a snapshot is a copy
+of ``R``), and the information is still only ever replaced by the triangular
+factor of a least-squares problem: nothing accumulates across hours.
 """
 
 from __future__ import annotations
@@ -122,6 +138,9 @@ class ArxConfig(pydantic.BaseModel):
     bank_switch_batches: int = pydantic.Field(3, ge=1, description="... in this many consecutive batches.")
     bank_settle_s: float = pydantic.Field(
         4.0, gt=0, description="A snapshot is stored only after the live model has run this long calm (no switch, no error burst)."
+    )
+    bank_hold_s: float = pydantic.Field(
+        1.0, ge=0, description="After a switch the remembered model is held unchanged this long (the change's transient is not in the model class)."
     )
     bank_signature_poles: int = pydantic.Field(2, ge=1, le=4, description="A regime's signature: its first this many poles' frequencies.")
     bank_signature_tol: float = pydantic.Field(
@@ -220,6 +239,7 @@ class RecursiveArx:
         self._calm = 0  #: model samples the live model has run calm since its last switch or burst
         self._pending: _Regime | None = None  #: the snapshot taken bank_settle_s ago, stored if calm since
         self._hold = 0
+        self._frozen = 0  #: model samples the live model is still held unchanged after a switch
         self._clock = 0  #: model samples regressed (the bank's clock; an entry's last use)
 
     # ------------------------------------------------------------------ data
@@ -277,9 +297,14 @@ class RecursiveArx:
         switched = False
         if c.regime_bank and e is not None:
             switched = self._bank_step(rows, e, n)
-        if switched:  # the remembered model takes this batch's rows as its own a-priori errors say
-            e = np.empty(2 * n)
-            equation_errors(rows, self.theta, e)
+        if switched:
+            self._frozen = int(round(c.bank_hold_s * c.model_rate_hz))
+        if self._frozen > 0:
+            # just after a switch the batches hold the change's own transient (the payload's kick and load step through
+            # the band-pass), which no model of the class explains: the remembered model is kept as it is meanwhile
+            self._frozen -= n
+            self.samples += n
+            return self.theta
         if c.huber_k > 0 and e is not None:
             # bounded influence (Huber): σ is the model's weighted residual rms; an impulsive disturbance the inputs do
             # not explain (the payload released or picked up kicks the links) enters with at most k·σ per sample
