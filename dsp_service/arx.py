@@ -52,7 +52,8 @@ regimes it has shown before (the payload attached or not) need not be learned
 again: the model keeps up to ``regime_bank`` snapshots of its own square-root
 information ``(R, θ, σ²)`` taken when it ran calm, each named by its signature
 (the frequencies of its first poles), and evaluates every snapshot's a-priori
-equation errors ``y − φᵀθ_k`` on each batch's regression rows. When a snapshot
+equation errors ``y − φᵀθ_k`` on each batch's band-passed regression rows (before
+the live model's ``1/Â``, which would favour the live model). When a snapshot
 of another regime explains the batches markedly better than the live model
 (short error power below ``bank_switch_ratio`` × the live one's in
 ``bank_switch_batches`` consecutive batches) the live information *becomes*
@@ -218,6 +219,7 @@ class RecursiveArx:
         self.theta = np.zeros(p)
         self._zi = np.zeros((self._sos.shape[0], 4, 2))
         self._tail = np.zeros((4, self._lag))  # last filtered samples (u1, u2, y1, y2)
+        self._tail_bp = np.zeros((4, self._lag))  # the same before the 1/Â prefilter
         self._scale: NDArray[np.float64] | None = None
         self.samples = 0  #: samples regressed since the reset
         self._skip = 0  #: model samples still to filter without regressing (after a gap)
@@ -253,15 +255,20 @@ class RecursiveArx:
         if self._scale is None:
             rms = np.sqrt(np.mean(xf * xf, axis=1))
             if not np.all(rms > 0):  # a silent channel: no scale yet; keep the (decimated) samples as the regressors' past
-                self._tail = np.hstack([self._tail, self._decimate(xf)])[:, -self._lag :]
+                dec = self._decimate(xf)
+                self._tail = np.hstack([self._tail, dec])[:, -self._lag :]
+                self._tail_bp = np.hstack([self._tail_bp, dec])[:, -self._lag :]
                 return self.theta
             self._scale = 1.0 / rms
             self._tail *= self._scale[:, None]  # the past kept from silent batches, in the same scaled units
+            self._tail_bp *= self._scale[:, None]
         xf = xf * self._scale[:, None]
         xf = self._decimate(xf)
         n = xf.shape[1]
         if n == 0:
             return self.theta
+        ext_bp = np.hstack([self._tail_bp, xf])  # the band-passed channels before 1/Â (the regime bank compares on them)
+        self._tail_bp = ext_bp[:, -self._lag :].copy()
         if self.cfg.steiglitz_mcbride:
             xf = self._sm_filter(xf)
         ext = np.hstack([self._tail, xf])  # (4, lag + n)
@@ -269,24 +276,12 @@ class RecursiveArx:
         if self._skip:
             drop = min(self._skip, n)
             self._skip -= drop
-            ext, n = ext[:, drop:], n - drop
+            ext, ext_bp, n = ext[:, drop:], ext_bp[:, drop:], n - drop
             if n == 0:
                 return self.theta
         c = self.cfg
-        na, nb, lag = c.na, c.nb, self._lag
         p = c.n_params
-        # regressors: row t of output j: [−y_j(t−1..t−na), (u1, u2)(t−1..t−nb) in block j]
-        t = lag + np.arange(n)
-        ky = t[:, None] - 1 - np.arange(na)[None, :]
-        ku = t[:, None] - 1 - np.arange(nb)[None, :]
-        U = np.hstack([ext[0][ku], ext[1][ku]])  # (n, 2 nb)
-        rows = np.zeros((2 * n, p + 1))
-        rows[:n, :na] = -ext[2][ky]
-        rows[n:, :na] = -ext[3][ky]
-        rows[:n, na : na + 2 * nb] = U
-        rows[n:, na + 2 * nb : p] = U
-        rows[:n, p] = ext[2][t]
-        rows[n:, p] = ext[3][t]
+        rows = self._rows(ext, n)
         ready = self.samples >= c.memory_samples and self.residual_power > 0
         e: NDArray[np.float64] | None = None
         if ready:  # a-priori equation errors, both outputs
@@ -296,7 +291,12 @@ class RecursiveArx:
             self._detect_change(e, n)
         switched = False
         if c.regime_bank and e is not None:
-            switched = self._bank_step(rows, e, n)
+            # compared on the band-passed rows before the live model's 1/Â: with the live prefilter the rows favour the
+            # live model (after the release at 62 s in id-lag the remembered model then looked worse for ~1 s)
+            rb = self._rows(ext_bp, n)
+            eb = np.empty(2 * n)
+            equation_errors(rb, self.theta, eb)
+            switched = self._bank_step(rb, eb, n)
         if switched:
             self._frozen = int(round(c.bank_hold_s * c.model_rate_hz))
         if self._frozen > 0:
@@ -321,6 +321,24 @@ class RecursiveArx:
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
 
+    def _rows(self, ext: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+        """The batch's ``2n × (p + 1)`` regression rows ``[φ | y]`` from ``ext`` (``(4, lag + n)``: u1, u2, y1, y2)."""
+        c = self.cfg
+        na, nb, lag, p = c.na, c.nb, self._lag, c.n_params
+        # regressors: row t of output j: [−y_j(t−1..t−na), (u1, u2)(t−1..t−nb) in block j]
+        t = lag + np.arange(n)
+        ky = t[:, None] - 1 - np.arange(na)[None, :]
+        ku = t[:, None] - 1 - np.arange(nb)[None, :]
+        U = np.hstack([ext[0][ku], ext[1][ku]])  # (n, 2 nb)
+        rows = np.zeros((2 * n, p + 1))
+        rows[:n, :na] = -ext[2][ky]
+        rows[n:, :na] = -ext[3][ky]
+        rows[:n, na : na + 2 * nb] = U
+        rows[n:, na + 2 * nb : p] = U
+        rows[:n, p] = ext[2][t]
+        rows[n:, p] = ext[3][t]
+        return rows
+
     # ---------------------------------------------------------------- the regime bank
     def _snapshot(self) -> _Regime:
         return _Regime(self.R.copy(), self.theta.copy(), self.residual_power, self._weight_sum, self._clock)
@@ -328,8 +346,8 @@ class RecursiveArx:
     def _bank_step(self, rows: NDArray[np.float64], e: NDArray[np.float64], n: int) -> bool:
         """One batch of the regime bank (before the batch is absorbed); True when the live model switched.
 
-        Every remembered model's a-priori equation errors on this batch's rows
-        (``rows`` unweighted, ``e`` the live model's) give per model a short error
+        Every remembered model's a-priori equation errors on this batch's band-passed rows
+        (``rows`` unweighted, before the ``1/Â`` prefilter; ``e`` the live model's on the same rows) give per model a short error
         power ``P ← β P + (1 − β) mean(e²)`` (``β = exp(−n / (τ f_m))``, τ
         ``bank_error_s``). **Switch**: a remembered ``P_k`` below
         ``bank_switch_ratio`` × the live ``P`` in ``bank_switch_batches``
@@ -529,6 +547,7 @@ class RecursiveArx:
         self._zi.fill(0.0)
         self._sm_zi.fill(0.0)
         self._tail.fill(0.0)
+        self._tail_bp.fill(0.0)
         self._skip = self._lag + int(2 * self.cfg.model_rate_hz / self.cfg.band_hz[0])
 
     # ---------------------------------------------------------------- model
