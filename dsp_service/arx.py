@@ -46,6 +46,23 @@ transfer functions, ``√(Σ_ij |r_ij,k|²) / (1 − |z_k|)`` with ``r_ij,k`` th
 residue of ``B_ij/A`` at ``z_k``; poles weaker than ``min_relative_strength``
 of the strongest are dropped (the extra poles of an over-parametrised ``A``
 model noise, not modes).
+
+Regime bank (``regime_bank`` > 0, off by default). A plant that switches between
+regimes it has shown before (the payload attached or not) need not be learned
+again: the model keeps up to ``regime_bank`` snapshots of its own square-root
+information ``(R, θ, σ²)`` taken when it ran calm, each named by its signature
+(the frequencies of its first poles), and evaluates every snapshot's a-priori
+equation errors ``y − φᵀθ_k`` on each batch's band-passed regression rows (before
+the live model's ``1/Â``, which would favour the live model). When a snapshot
+of another regime explains the batches markedly better than the live model
+(short error power below ``bank_switch_ratio`` × the live one's in
+``bank_switch_batches`` consecutive batches) the live information *becomes*
+that snapshot, and the recursion continues from it (multiple-model switching;
+the selection is the prediction-error comparison of the bank, not a separate
+detector). Learned on line from the batches alone, bounded per batch
+(``regime_bank`` × ``2 l p`` multiply-adds for the errors; a snapshot is a copy
+of ``R``), and the information is still only ever replaced by the triangular
+factor of a least-squares problem: nothing accumulates across hours.
 """
 
 from __future__ import annotations
@@ -107,6 +124,32 @@ class ArxConfig(pydantic.BaseModel):
     order_by: Literal["strength", "frequency"] = pydantic.Field(
         "strength", description="Order of the reported poles: strongest first, or lowest frequency first (the first mode first)."
     )
+    regime_bank: int = pydantic.Field(
+        0,
+        ge=0,
+        le=8,
+        description="Regimes the model remembers (0 = off): snapshots of its own settled information, learned on line; "
+        "when a remembered model explains the current batches markedly better than the live one, the live one "
+        "becomes it (a switch between plant regimes already seen, see the module doc).",
+    )
+    bank_error_s: float = pydantic.Field(0.2, gt=0, description="Time constant (s) of the error powers the bank compares.")
+    bank_switch_ratio: float = pydantic.Field(
+        0.7, gt=0, lt=1, description="Switch when a remembered model of another regime has an error power below this × the live model's ..."
+    )
+    bank_switch_batches: int = pydantic.Field(3, ge=1, description="... in this many consecutive batches.")
+    bank_settle_s: float = pydantic.Field(
+        4.0, gt=0, description="A snapshot is stored only after the live model has run this long calm (no switch, no error burst)."
+    )
+    bank_hold_s: float = pydantic.Field(
+        1.0, ge=0, description="After a switch the remembered model is held unchanged this long (the change's transient is not in the model class)."
+    )
+    bank_signature_poles: int = pydantic.Field(2, ge=1, le=4, description="A regime's signature: its first this many poles' frequencies.")
+    bank_signature_tol: float = pydantic.Field(
+        0.03, gt=0, lt=0.5, description="Two models are the same regime when every signature pole agrees within this (relative)."
+    )
+    bank_calm_factor: float = pydantic.Field(
+        3.0, gt=1, description="Calm: the live model's short error power is below this × its long-run level (over change_reference_s)."
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> ArxConfig:
@@ -132,6 +175,19 @@ class ArxConfig(pydantic.BaseModel):
     def memory_samples(self) -> float:
         """Effective memory ``1/(1 − λ)`` (model samples, at ``fs / D``; inf without forgetting)."""
         return math.inf if self.forgetting >= 1.0 else 1.0 / (1.0 - self.forgetting)
+
+
+@dataclass
+class _Regime:
+    """A remembered model: the live model's square-root information and residual scale at a calm moment."""
+
+    R: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    residual_power: float
+    weight_sum: float
+    used: int
+    power: float = 0.0  #: its short a-priori error power on the current data (the bank's comparison)
+    signature: NDArray[np.float64] | None = None  #: its first poles' frequencies (Hz): which regime it is
 
 
 @dataclass(frozen=True)
@@ -163,6 +219,7 @@ class RecursiveArx:
         self.theta = np.zeros(p)
         self._zi = np.zeros((self._sos.shape[0], 4, 2))
         self._tail = np.zeros((4, self._lag))  # last filtered samples (u1, u2, y1, y2)
+        self._tail_bp = np.zeros((4, self._lag))  # the same before the 1/Â prefilter
         self._scale: NDArray[np.float64] | None = None
         self.samples = 0  #: samples regressed since the reset
         self._skip = 0  #: model samples still to filter without regressing (after a gap)
@@ -177,6 +234,15 @@ class RecursiveArx:
         self._ref_log = 0.0
         self._ref_count = 0
         self._since_alarm = 1 << 60
+        self.bank: list[_Regime] = []  #: the remembered regimes (at most ``regime_bank``)
+        self.bank_switches = 0  #: switches to a remembered regime since the reset
+        self._live_power = 0.0  #: the live model's short error power (bank_error_s)
+        self._live_level = 0.0  #: its long-run level (change_reference_s)
+        self._calm = 0  #: model samples the live model has run calm since its last switch or burst
+        self._pending: _Regime | None = None  #: the snapshot taken bank_settle_s ago, stored if calm since
+        self._hold = 0
+        self._frozen = 0  #: model samples the live model is still held unchanged after a switch
+        self._clock = 0  #: model samples regressed (the bank's clock; an entry's last use)
 
     # ------------------------------------------------------------------ data
     def update(self, inputs: NDArray[np.float64], outputs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -189,15 +255,20 @@ class RecursiveArx:
         if self._scale is None:
             rms = np.sqrt(np.mean(xf * xf, axis=1))
             if not np.all(rms > 0):  # a silent channel: no scale yet; keep the (decimated) samples as the regressors' past
-                self._tail = np.hstack([self._tail, self._decimate(xf)])[:, -self._lag :]
+                dec = self._decimate(xf)
+                self._tail = np.hstack([self._tail, dec])[:, -self._lag :]
+                self._tail_bp = np.hstack([self._tail_bp, dec])[:, -self._lag :]
                 return self.theta
             self._scale = 1.0 / rms
             self._tail *= self._scale[:, None]  # the past kept from silent batches, in the same scaled units
+            self._tail_bp *= self._scale[:, None]
         xf = xf * self._scale[:, None]
         xf = self._decimate(xf)
         n = xf.shape[1]
         if n == 0:
             return self.theta
+        ext_bp = np.hstack([self._tail_bp, xf])  # the band-passed channels before 1/Â (the regime bank compares on them)
+        self._tail_bp = ext_bp[:, -self._lag :].copy()
         if self.cfg.steiglitz_mcbride:
             xf = self._sm_filter(xf)
         ext = np.hstack([self._tail, xf])  # (4, lag + n)
@@ -205,24 +276,12 @@ class RecursiveArx:
         if self._skip:
             drop = min(self._skip, n)
             self._skip -= drop
-            ext, n = ext[:, drop:], n - drop
+            ext, ext_bp, n = ext[:, drop:], ext_bp[:, drop:], n - drop
             if n == 0:
                 return self.theta
         c = self.cfg
-        na, nb, lag = c.na, c.nb, self._lag
         p = c.n_params
-        # regressors: row t of output j: [−y_j(t−1..t−na), (u1, u2)(t−1..t−nb) in block j]
-        t = lag + np.arange(n)
-        ky = t[:, None] - 1 - np.arange(na)[None, :]
-        ku = t[:, None] - 1 - np.arange(nb)[None, :]
-        U = np.hstack([ext[0][ku], ext[1][ku]])  # (n, 2 nb)
-        rows = np.zeros((2 * n, p + 1))
-        rows[:n, :na] = -ext[2][ky]
-        rows[n:, :na] = -ext[3][ky]
-        rows[:n, na : na + 2 * nb] = U
-        rows[n:, na + 2 * nb : p] = U
-        rows[:n, p] = ext[2][t]
-        rows[n:, p] = ext[3][t]
+        rows = self._rows(ext, n)
         ready = self.samples >= c.memory_samples and self.residual_power > 0
         e: NDArray[np.float64] | None = None
         if ready:  # a-priori equation errors, both outputs
@@ -230,6 +289,22 @@ class RecursiveArx:
             equation_errors(rows, self.theta, e)
         if c.change_detection and e is not None:
             self._detect_change(e, n)
+        switched = False
+        if c.regime_bank and e is not None:
+            # compared on the band-passed rows before the live model's 1/Â: with the live prefilter the rows favour the
+            # live model (after the release at 62 s in id-lag the remembered model then looked worse for ~1 s)
+            rb = self._rows(ext_bp, n)
+            eb = np.empty(2 * n)
+            equation_errors(rb, self.theta, eb)
+            switched = self._bank_step(rb, eb, n)
+        if switched:
+            self._frozen = int(round(c.bank_hold_s * c.model_rate_hz))
+        if self._frozen > 0:
+            # just after a switch the batches hold the change's own transient (the payload's kick and load step through
+            # the band-pass), which no model of the class explains: the remembered model is kept as it is meanwhile
+            self._frozen -= n
+            self.samples += n
+            return self.theta
         if c.huber_k > 0 and e is not None:
             # bounded influence (Huber): σ is the model's weighted residual rms; an impulsive disturbance the inputs do
             # not explain (the payload released or picked up kicks the links) enters with at most k·σ per sample
@@ -245,6 +320,135 @@ class RecursiveArx:
         self._weight_sum = decay * self._weight_sum + float(np.sum(w * w))
         self.residual_power = float(self.R[p, p] ** 2) / (2.0 * max(self._weight_sum, 1e-300))
         return self.theta
+
+    def _rows(self, ext: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+        """The batch's ``2n × (p + 1)`` regression rows ``[φ | y]`` from ``ext`` (``(4, lag + n)``: u1, u2, y1, y2)."""
+        c = self.cfg
+        na, nb, lag, p = c.na, c.nb, self._lag, c.n_params
+        # regressors: row t of output j: [−y_j(t−1..t−na), (u1, u2)(t−1..t−nb) in block j]
+        t = lag + np.arange(n)
+        ky = t[:, None] - 1 - np.arange(na)[None, :]
+        ku = t[:, None] - 1 - np.arange(nb)[None, :]
+        U = np.hstack([ext[0][ku], ext[1][ku]])  # (n, 2 nb)
+        rows = np.zeros((2 * n, p + 1))
+        rows[:n, :na] = -ext[2][ky]
+        rows[n:, :na] = -ext[3][ky]
+        rows[:n, na : na + 2 * nb] = U
+        rows[n:, na + 2 * nb : p] = U
+        rows[:n, p] = ext[2][t]
+        rows[n:, p] = ext[3][t]
+        return rows
+
+    # ---------------------------------------------------------------- the regime bank
+    def _snapshot(self) -> _Regime:
+        return _Regime(self.R.copy(), self.theta.copy(), self.residual_power, self._weight_sum, self._clock)
+
+    def _bank_step(self, rows: NDArray[np.float64], e: NDArray[np.float64], n: int) -> bool:
+        """One batch of the regime bank (before the batch is absorbed); True when the live model switched.
+
+        Every remembered model's a-priori equation errors on this batch's band-passed rows
+        (``rows`` unweighted, before the ``1/Â`` prefilter; ``e`` the live model's on the same rows) give per model a short error
+        power ``P ← β P + (1 − β) mean(e²)`` (``β = exp(−n / (τ f_m))``, τ
+        ``bank_error_s``). **Switch**: a remembered ``P_k`` below
+        ``bank_switch_ratio`` × the live ``P`` in ``bank_switch_batches``
+        consecutive batches: the live information (``R``, ``θ``, σ²) becomes the
+        remembered one. After a payload step the kick rings the new regime's
+        second mode, which the new regime's ``A`` predicts and the old one's does
+        not: its equation errors, not a detector, say which regime the data are in.
+        **Store**: every ``bank_settle_s`` the live model's snapshot taken one
+        period earlier is stored, if the live model ran *calm* all that period
+        (short error power ≤ ``bank_calm_factor`` × its σ², no switch): into the
+        remembered model whose error power is within a factor
+        1/``bank_switch_ratio`` of the live one's (the same regime: refreshed),
+        else as a new regime (the least recently used one evicted when full).
+        Cost per batch: ``regime_bank`` × ``2n p`` multiply-adds; the bank is
+        ``regime_bank`` copies of ``R``: bounded."""
+        c = self.cfg
+        beta = math.exp(-n / (c.bank_error_s * c.model_rate_hz))
+        err = np.empty(2 * n)
+        powers = []
+        for reg in self.bank:
+            equation_errors(rows, reg.theta, err)
+            reg.power = beta * reg.power + (1.0 - beta) * float(np.mean(err * err))
+            powers.append(reg.power)
+        e2 = float(np.mean(e * e))
+        self._live_power = beta * self._live_power + (1.0 - beta) * e2
+        gamma = math.exp(-n / (c.change_reference_s * c.model_rate_hz))
+        self._live_level = e2 if self._clock == 0 else gamma * self._live_level + (1.0 - gamma) * e2
+        self._clock += n
+        best = int(np.argmin(powers)) if powers else -1
+        if (
+            best >= 0
+            and powers[best] < c.bank_switch_ratio * self._live_power
+            and not self._same_regime(self.bank[best].signature, self._signature(self.theta))
+        ):
+            self._hold += 1
+        else:
+            self._hold = 0
+        if self._hold >= c.bank_switch_batches:
+            reg = self.bank[best]
+            self.R = reg.R.copy()
+            self.theta = reg.theta.copy()
+            self.residual_power = reg.residual_power
+            self._weight_sum = reg.weight_sum
+            reg.used = self._clock
+            self._live_power = reg.power
+            self._hold = 0
+            self._calm = 0
+            self._pending = None
+            self.bank_switches += 1
+            return True
+        if self._live_power <= c.bank_calm_factor * self._live_level:
+            self._calm += n
+        else:
+            self._calm = 0
+            self._pending = None
+        period = int(round(c.bank_settle_s * c.model_rate_hz))
+        if self._calm >= period:
+            if self._pending is not None:
+                self._store(self._pending)
+            self._pending = self._snapshot()
+            self._calm = 0
+        return False
+
+    def _signature(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The frequencies (Hz) of the first ``bank_signature_poles`` modal poles of the model ``theta`` (NaN-padded)."""
+        live = self.theta
+        self.theta = theta
+        try:
+            f = [p.frequency_hz for p in self.poles()]
+        finally:
+            self.theta = live
+        k = self.cfg.bank_signature_poles
+        return np.array((f + [math.nan] * k)[:k])
+
+    def _same_regime(self, f: NDArray[np.float64] | None, g: NDArray[np.float64] | None) -> bool:
+        """Two signatures name the same regime: every pole within ``bank_signature_tol`` (relative) of the other's."""
+        if f is None or g is None:
+            return False
+        if not (np.all(np.isfinite(f)) and np.all(np.isfinite(g))):
+            return False
+        return bool(np.all(np.abs(f - g) <= self.cfg.bank_signature_tol * g))
+
+    def _store(self, snap: _Regime) -> None:
+        """``snap`` (taken one settle period ago) into the bank, if the live model still has its signature (it did not
+        drift meanwhile: a settled regime, not a model half-way through a change): it refreshes the remembered regime
+        with the same signature, else it is a new one (the least recently used evicted when the bank is full)."""
+        c = self.cfg
+        sig = self._signature(snap.theta)
+        if not self._same_regime(sig, self._signature(self.theta)):
+            return
+        snap.signature = sig
+        snap.power = self._live_power
+        snap.used = self._clock
+        match = [k for k, reg in enumerate(self.bank) if self._same_regime(sig, reg.signature)]
+        if match:
+            self.bank[match[0]] = snap
+        elif len(self.bank) < c.regime_bank:
+            self.bank.append(snap)
+        else:
+            k = min(range(len(self.bank)), key=lambda i: self.bank[i].used)
+            self.bank[k] = snap
 
     def _detect_change(self, e: NDArray[np.float64], n: int) -> None:
         """CUSUM of the log error ratio on the batch's a-priori errors ``e``; at an alarm, :meth:`discount`.
@@ -343,6 +547,7 @@ class RecursiveArx:
         self._zi.fill(0.0)
         self._sm_zi.fill(0.0)
         self._tail.fill(0.0)
+        self._tail_bp.fill(0.0)
         self._skip = self._lag + int(2 * self.cfg.model_rate_hz / self.cfg.band_hz[0])
 
     # ---------------------------------------------------------------- model

@@ -138,6 +138,7 @@ def arx_config(c: IdentifierConfig) -> ArxConfig:
         huber_k=c.arx_huber_k,
         max_damping=c.arx_max_damping,
         change_detection=c.arx_change_detection,
+        regime_bank=c.arx_regime_bank,
         order_by="frequency",
         search_min_hz=c.search_min_hz,
         search_max_hz=c.search_max_hz,
@@ -184,6 +185,13 @@ class IdentifierConfig(pydantic.BaseModel):
         description="ARX change detector (CUSUM of the a-priori error level; discounts the old data at an alarm, "
         "dsp_service.arx). Off in the rig configuration: on the rig it gains less than the noise of the measure "
         "(docs/identification.md §5a).",
+    )
+    arx_regime_bank: int = pydantic.Field(
+        0,
+        ge=0,
+        le=8,
+        description="ARX regimes remembered on line (0 = off): the live model switches to a remembered one that explains "
+        "the batches markedly better (dsp_service.arx, docs/identification.md §5c).",
     )
     averaging: Literal["exponential", "linear", "rls"] = pydantic.Field(
         "exponential",
