@@ -70,6 +70,7 @@ def identifier_config(settings: DspSettings) -> IdentifierConfig:
         fft_width=settings.fft_width,
         averaging=settings.averaging,
         method=settings.identifier,
+        arx_regime_bank=settings.arx_regime_bank,
         alpha=settings.alpha,
         rls_forgetting=1.0 - settings.alpha,
         solver=settings.solver,

@@ -240,6 +240,12 @@ class DspSettings(CommonSettings):
         "etfe",
         description="Poles from the ETFE peak search (the thesis), the ETFE with Welch segments and fitted damping, the ETFE with the transient-aware damping fit, or the recursive QR-form ARX model (see docs/identification.md)",
     )
+    arx_regime_bank: int = Field(
+        0,
+        ge=0,
+        le=8,
+        description="With identifier arx: regimes the model remembers on line (0 = off); after a change into a regime seen before it switches to the remembered model within ~0.5 s (docs/identification.md section 5c)",
+    )
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
     smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")

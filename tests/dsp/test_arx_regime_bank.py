@@ -97,3 +97,12 @@ def test_off_by_default_and_the_bank_stays_bounded_and_sound() -> None:
     for r in [m.R, *(reg.R for reg in m.bank)]:
         assert np.all(np.isfinite(r)) and np.allclose(r, np.triu(r))
     assert np.all(np.isfinite(m.theta))
+
+
+def test_the_service_setting_reaches_the_identifier() -> None:
+    """``RALF_ARX_REGIME_BANK`` (a DspSettings field) is the identifier's ``arx_regime_bank``: the bank runs on the rig, not only in replays."""
+    from dsp_service.core import identifier_config
+    from protocol.settings import DspSettings
+
+    assert identifier_config(DspSettings(identifier="arx", arx_regime_bank=4)).arx_regime_bank == 4
+    assert identifier_config(DspSettings()).arx_regime_bank == 0

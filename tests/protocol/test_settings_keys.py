@@ -94,6 +94,7 @@ def test_describe_lists_every_field(model: type[CommonSettings]) -> None:
         (DspSettings, "RALF_FFT_WIDTH", "4096", "fft_width", 4096),
         (DspSettings, "RALF_SOLVER", "uncorrelated", "solver", "uncorrelated"),
         (DspSettings, "RALF_BUDGET_S", "0.02", "budget_s", 0.02),
+        (DspSettings, "RALF_ARX_REGIME_BANK", "4", "arx_regime_bank", 4),
     ],
 )
 def test_environment_values_are_parsed(clean_env: pytest.MonkeyPatch, model: type[CommonSettings], var: str, raw: str, field: str, expected: Any) -> None:
