@@ -247,6 +247,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["step"][i] = perf() - t0
         floor = float(idf._k_stats[3])
         n_valid, nf = int(idf._k_stats[1]), int(idf._k_stats[2])
+        all_sl = int(idf._k_stats[0]) == sl.stop - sl.start
         state = avg.state.copy()
         hb = idf.history
         buf, head = hb._buf, hb._head
@@ -268,7 +269,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["solve"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_coef_t, idf._k_ia, idf._k_ib)
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_ia, idf._k_ib, all_sl)
             t["smooth"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()

@@ -455,11 +455,12 @@ class Identifier:
         else:
             self._k_coef = np.ones((n_range, 1))
             self._k_starts = np.arange(lo, hi, dtype=np.intp)
-        self._k_coef_t = np.ascontiguousarray(self._k_coef.T)
         steps = np.flatnonzero(np.diff(self._k_starts) == 1)  # consecutive rows of a sliding window
         if steps.size:
             self._k_ia, self._k_ib = int(steps[0]), int(steps[-1]) + 2
-            if not np.array_equal(self._k_starts[self._k_ia : self._k_ib], self._k_starts[self._k_ia] + np.arange(self._k_ib - self._k_ia)):
+            ia, ib = self._k_ia, self._k_ib
+            # the kernel's interior passes need a sliding window of one row (the centre row)
+            if not (np.array_equal(self._k_starts[ia:ib], self._k_starts[ia] + np.arange(ib - ia)) and (self._k_coef[ia:ib] == self._k_coef[ia]).all()):
                 self._k_ia = self._k_ib = 0
         else:
             self._k_ia = self._k_ib = 0
@@ -517,7 +518,6 @@ class Identifier:
             fp,
             ip,
             self._k_coef,
-            self._k_coef_t,
             self._k_w,
             self._f_sl,
             self._f_range,
@@ -527,7 +527,7 @@ class Identifier:
             self._k_ntri,
             self._k_mag.size,
         )
-        self._k_coef, self._k_coef_t, self._k_w, self._k_pinv = views["coef"], views["coef_t"], views["w_lin"], views["pinv"]
+        self._k_coef, self._k_w, self._k_pinv = views["coef"], views["w_lin"], views["pinv"]
         self._k_starts, self._k_tri, self._k_ntri, self._k_order = views["starts"], views["tri"], views["n_tri"], views["order"]
         self._k_idx, self._k_prom, self._k_stats, self._k_mag, self._k_out = views["idx"], views["prom"], views["stats"], views["mag"], views["out"]
         self._k_args = (fk, ik, fw, self._avg.state, solver.source, solver.valid, solver.mode, self._k_hs, self._k_vs)

@@ -247,27 +247,29 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
 
 
 @njit(cache=True, error_model="numpy")
-def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, hs: C128, vs: Bool, coef_t: F64, ia: int, ib: int) -> int:
+def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, hs: C128, vs: Bool, ia: int, ib: int, all_valid: bool) -> int:
     """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
 
-    Each output bin sums its window in order ``j = 0 … w−1``. The rows ``ia … ib−1``
-    (the interior, ``starts[i] = starts[ia] + i − ia``) run as ``w`` contiguous
-    passes over the bins (``coef_t`` = ``coef`` transposed), the edge rows one by one."""
+    Each output bin sums its window in order ``j = 0 … w−1`` from 0.0. The rows ``ia … ib−1``
+    (the interior: ``starts[i] = starts[ia] + i − ia`` and every row equal to ``coef[ia]``, the
+    centre row; the Identifier sets ``ia``, ``ib`` so) run as ``w`` passes ``hs += c_j·src[… + j]``
+    over the (re, im) floats, one coefficient per pass (a scaled add on contiguous floats, no
+    shuffles), the edge rows one by one. ``all_valid``: every bin of the solved slice is valid,
+    so every window is (it lies within the slice), and the validity count is skipped."""
     w = coef.shape[1]
     m = hi - lo
-    re = np.zeros(m)
-    im = np.zeros(m)
     if ib > ia:
-        s0 = starts[ia]
-        cnt = ib - ia
+        s0 = 2 * starts[ia]
+        cnt = 2 * (ib - ia)
+        sf = src.view(np.float64)
+        out = hs.view(np.float64)[2 * ia : 2 * ib]
+        for t in range(cnt):
+            out[t] = 0.0
         for j in range(w):
-            cr = coef_t[j, ia:ib]
-            x = src[s0 + j : s0 + j + cnt]
-            rr = re[ia:ib]
-            ii = im[ia:ib]
-            for i in range(cnt):
-                rr[i] += cr[i] * x[i].real
-                ii[i] += cr[i] * x[i].imag
+            cj = coef[ia, j]
+            x = sf[s0 + 2 * j : s0 + 2 * j + cnt]
+            for t in range(cnt):
+                out[t] += cj * x[t]
     for i in range(m):
         if ia <= i < ib:
             continue
@@ -277,8 +279,11 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
         for j in range(w):
             a += coef[i, j] * src[st + j].real
             b += coef[i, j] * src[st + j].imag
-        re[i] = a
-        im[i] = b
+        hs[i] = complex(a, b)
+    if all_valid:
+        for i in range(m):
+            vs[i] = True
+        return m
     a = starts[0]
     b = starts[m - 1] + w
     bad = np.zeros(b - a + 1, dtype=np.intp)  # invalid raw bins before each position
@@ -286,7 +291,6 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
         bad[q - a + 1] = bad[q - a] + (0 if valid[q] else 1)
     n_valid = 0
     for i in range(m):
-        hs[i] = complex(re[i], im[i])
         s = starts[i] - a
         ok = bad[s + w] == bad[s]
         vs[i] = ok
@@ -447,7 +451,6 @@ def post_fft(
     hi: int,
     coef: F64,
     starts: Intp,
-    coef_t: F64,
     ia: int,
     ib: int,
     hs: C128,
@@ -468,7 +471,9 @@ def post_fft(
     mean_power = (s11 + s22) / (2 * n_bins)
     floor = power_floor * mean_power + _TINY
     n_sl_valid = _solve_tot(state, s0, s1, floor, det_threshold, dominant, src, valid, mode)
-    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, coef_t, ia, ib)
+    # every bin of the slice valid (the usual case): so is every window, which lies within it
+    all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[hi - lo - 1] + coef.shape[1] <= s1
+    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ia, ib, all_valid)
     nf = _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom)
     stats[0] = n_sl_valid
     stats[1] = n_valid
@@ -495,7 +500,6 @@ def step(
     hi: int,
     coef: F64,
     starts: Intp,
-    coef_t: F64,
     ia: int,
     ib: int,
     hs: C128,
@@ -547,7 +551,6 @@ def step(
         hi,
         coef,
         starts,
-        coef_t,
         ia,
         ib,
         hs,
@@ -650,7 +653,6 @@ FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7
     IK_TRI_Q,
     IK_N_MAG,
     IK_COEF,
-    IK_COEF_T,
     IK_W_LIN,
     IK_F_SL,
     IK_F_RANGE,
@@ -666,14 +668,13 @@ FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7
     IK_MAG,
     IK_OUT,
     IK_END,
-) = range(N_IP, N_IP + 22)
+) = range(N_IP, N_IP + 21)
 
 
 def pack_arguments(
     fp: F64,
     ip: Intp,
     coef: F64,
-    coef_t: F64,
     w_lin: F64,
     f_sl: F64,
     f_range: F64,
@@ -689,10 +690,10 @@ def pack_arguments(
     ``prom``, ``stats``, ``mag``, ``out``: what a step writes)."""
     m = coef.shape[0]
     want = int(ip[IP_WANT])
-    f_parts = [("coef", coef), ("coef_t", coef_t), ("w_lin", w_lin), ("f_sl", f_sl), ("f_range", f_range), ("pinv", pinv)]
+    f_parts = [("coef", coef), ("w_lin", w_lin), ("f_sl", f_sl), ("f_range", f_range), ("pinv", pinv)]
     i_parts = [("starts", starts), ("tri", tri), ("n_tri", n_tri), ("order", np.zeros(m, dtype=np.intp)), ("idx", np.zeros(want, dtype=np.intp))]
     w_parts = [("v", np.zeros(m)), ("prom", np.zeros(want)), ("stats", np.zeros(4)), ("mag", np.zeros(n_mag)), ("out", np.zeros((want, 6)))]
-    slots = {"coef": IK_COEF, "coef_t": IK_COEF_T, "w_lin": IK_W_LIN, "f_sl": IK_F_SL, "f_range": IK_F_RANGE, "pinv": IK_PINV}
+    slots = {"coef": IK_COEF, "w_lin": IK_W_LIN, "f_sl": IK_F_SL, "f_range": IK_F_RANGE, "pinv": IK_PINV}
     slots.update({"starts": IK_STARTS, "tri": IK_TRI, "n_tri": IK_N_TRI, "order": IK_ORDER, "idx": IK_IDX})
     slots.update({"v": IK_V, "prom": IK_PROM, "stats": IK_STATS, "mag": IK_MAG, "out": IK_OUT})
     ik_head = np.zeros(IK_END, dtype=np.intp)
@@ -736,8 +737,6 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
     tq = ik[IK_TRI_Q]
     o = ik[IK_COEF]
     coef = fk[o : o + m * w].reshape((m, w))
-    o = ik[IK_COEF_T]
-    coef_t = fk[o : o + m * w].reshape((w, m))
     o = ik[IK_PINV]
     pinv = fk[o : o + (r_max + 1) * 3 * (2 * r_max + 1)].reshape((r_max + 1, 3, 2 * r_max + 1))
     o = ik[IK_TRI]
@@ -762,7 +761,6 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
         ik[IP_HI],
         coef,
         ik[ik[IK_STARTS] : ik[IK_STARTS] + m],
-        coef_t,
         ik[IP_IA],
         ik[IP_IB],
         hs,
@@ -843,7 +841,6 @@ def warm_up() -> None:
                 10 + n_range,
                 np.ones((n_range, 3)) / 3.0,
                 np.arange(9, 9 + n_range, dtype=np.intp),
-                np.ones((3, n_range)) / 3.0,
                 0,
                 n_range,
                 np.zeros(n_range, dtype=np.complex128),
@@ -883,7 +880,6 @@ def warm_up() -> None:
             fp,
             ip,
             np.ones((n_range, 3)) / 3.0,
-            np.ones((3, n_range)) / 3.0,
             np.ones(n_range),
             np.arange(k, dtype=np.float64),
             np.arange(10.0, 10.0 + n_range),
