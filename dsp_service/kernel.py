@@ -687,12 +687,14 @@ def pack_arguments(
     """``(fk, ik, fw, views)`` for :func:`step_packed`: the scalars ``fp`` (``FP_*``) and ``ip``
     (``IP_*``) and the constant arrays copied in, scratch and outputs allocated; ``views`` names
     every packed array as a view into them (``coef`` … ``n_tri``, and ``order``, ``idx``, ``v``,
-    ``prom``, ``stats``, ``mag``, ``out``: what a step writes)."""
+    ``prom``, ``stats``, ``mag``, ``out``: what a step writes, and ``tail``: ``prom``, ``stats`` and
+    ``out`` as one flat view, in this order)."""
     m = coef.shape[0]
     want = int(ip[IP_WANT])
     f_parts = [("coef", coef), ("w_lin", w_lin), ("f_sl", f_sl), ("f_range", f_range), ("pinv", pinv)]
     i_parts = [("starts", starts), ("tri", tri), ("n_tri", n_tri), ("order", np.zeros(m, dtype=np.intp)), ("idx", np.zeros(want, dtype=np.intp))]
-    w_parts = [("v", np.zeros(m)), ("prom", np.zeros(want)), ("stats", np.zeros(4)), ("mag", np.zeros(n_mag)), ("out", np.zeros((want, 6)))]
+    # prom, stats and out last and in this order: the Identifier reads them with one tolist ("tail")
+    w_parts = [("v", np.zeros(m)), ("mag", np.zeros(n_mag)), ("prom", np.zeros(want)), ("stats", np.zeros(4)), ("out", np.zeros((want, 6)))]
     slots = {"coef": IK_COEF, "w_lin": IK_W_LIN, "f_sl": IK_F_SL, "f_range": IK_F_RANGE, "pinv": IK_PINV}
     slots.update({"starts": IK_STARTS, "tri": IK_TRI, "n_tri": IK_N_TRI, "order": IK_ORDER, "idx": IK_IDX})
     slots.update({"v": IK_V, "prom": IK_PROM, "stats": IK_STATS, "mag": IK_MAG, "out": IK_OUT})
@@ -720,6 +722,7 @@ def pack_arguments(
             view = flat[at : at + arr.size].reshape(arr.shape)
             view[...] = arr
             views[name] = view
+    views["tail"] = fw[int(ik_head[IK_PROM]) :]
     return fk, ik, fw, views
 
 
