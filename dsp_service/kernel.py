@@ -379,33 +379,60 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
     return count
 
 
-@njit(cache=True, error_model="numpy")
-def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, hs: C128, vs: Bool, ia: int, ib: int, all_valid: bool) -> int:
-    """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]``; ``vs[i]`` = window all valid.
+@intrinsic
+def _fir_blocks_intrinsic(typingctx: Any, x: Any, off: Any, taps: Any, out: Any, nblk: Any) -> tuple[Any, Callable[..., Any]] | None:
+    """``out[t] = Σ_j taps[j]·x[off + 2j + t]`` for ``t < 16·nblk``, each sum from 0.0 in order
+    ``j = 0 … w−1`` (a multiply, then an add: no fused multiply-add): the Savitzky–Golay interior
+    on (re, im) floats, whose window advances one bin (two floats) per tap. Sixteen outputs per
+    step in two 8-wide vector registers, kept there through the ``w`` taps (the pass-per-tap
+    form loaded and stored every output once per tap)."""
+    if not (all(_is_c_f64_row(t) for t in (x, taps, out)) and isinstance(off, types.Integer) and isinstance(nblk, types.Integer)):
+        return None
+    sig = types.void(x, off, taps, out, nblk)
 
-    Each output bin sums its window in order ``j = 0 … w−1`` from 0.0. The rows ``ia … ib−1``
-    (the interior: ``starts[i] = starts[ia] + i − ia`` and every row equal to ``coef[ia]``, the
-    centre row; the Identifier sets ``ia``, ``ib`` so) run as ``w`` passes ``hs += c_j·src[… + j]``
-    over the (re, im) floats, one coefficient per pass (a scaled add on contiguous floats, no
-    shuffles), the edge rows one by one. ``all_valid``: every bin of the solved slice is valid,
-    so every window is (it lies within the slice), and the validity count is skipped."""
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        ax = context.make_array(signature.args[0])(context, builder, args[0])
+        at = context.make_array(signature.args[2])(context, builder, args[2])
+        ao = context.make_array(signature.args[3])(context, builder, args[3])
+        off, n = args[1], args[4]
+        i32 = ir.IntType(32)
+        v8 = ir.VectorType(ir.DoubleType(), 8)
+        undef = ir.Constant(v8, ir.Undefined)
+        w = cgutils.unpack_tuple(builder, at.shape, 1)[0]
+        accs = [cgutils.alloca_once(builder, v8) for _ in range(2)]
+
+        def const(like: Any, value: int) -> Any:
+            return ir.Constant(like.type, value)
+
+        with cgutils.for_range(builder, n) as blk:
+            first = builder.mul(blk.index, const(blk.index, 16))
+            base = builder.add(off, first)
+            for acc in accs:
+                builder.store(ir.Constant(v8, [0.0] * 8), acc)
+            with cgutils.for_range(builder, w) as tap:
+                cj = builder.load(builder.gep(at.data, [tap.index]))
+                c8 = builder.shuffle_vector(builder.insert_element(undef, cj, ir.Constant(i32, 0)), undef, ir.Constant(ir.VectorType(i32, 8), [0] * 8))
+                at_tap = builder.add(base, builder.mul(tap.index, const(tap.index, 2)))
+                for h, acc in enumerate(accs):
+                    ptr = builder.gep(ax.data, [builder.add(at_tap, const(at_tap, 8 * h))])
+                    v = builder.load(builder.bitcast(ptr, v8.as_pointer()), align=8)
+                    builder.store(builder.fadd(builder.load(acc), builder.fmul(c8, v)), acc)
+            for h, acc in enumerate(accs):
+                ptr = builder.gep(ao.data, [builder.add(first, const(first, 8 * h))])
+                builder.store(builder.load(acc), builder.bitcast(ptr, v8.as_pointer()), align=8)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+_fir_blocks = cast(Callable[[F64, int, F64, F64, int], None], _fir_blocks_intrinsic)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _smooth_rows(src: C128, coef: F64, starts: Intp, hs: C128, i0: int, i1: int) -> None:
+    """Rows ``i0 … i1−1`` of :func:`_smooth` one by one (each its own coefficients)."""
     w = coef.shape[1]
-    m = hi - lo
-    if ib > ia:
-        s0 = 2 * starts[ia]
-        cnt = 2 * (ib - ia)
-        sf = src.view(np.float64)
-        out = hs.view(np.float64)[2 * ia : 2 * ib]
-        for t in range(cnt):
-            out[t] = 0.0
-        for j in range(w):
-            cj = coef[ia, j]
-            x = sf[s0 + 2 * j : s0 + 2 * j + cnt]
-            for t in range(cnt):
-                out[t] += cj * x[t]
-    for i in range(m):
-        if ia <= i < ib:
-            continue
+    for i in range(i0, i1):
         st = starts[i]
         a = 0.0
         b = 0.0
@@ -413,6 +440,39 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
             a += coef[i, j] * src[st + j].real
             b += coef[i, j] * src[st + j].imag
         hs[i] = complex(a, b)
+
+
+@njit(cache=True, error_model="numpy")
+def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, hs: C128, vs: Bool, ia: int, ib: int, all_valid: bool) -> int:
+    """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]`` (§2.4.1); ``vs[i]`` =
+    window all valid.
+
+    Each output bin sums its window in order ``j = 0 … w−1`` from 0.0. The rows ``ia … ib−1``
+    (the interior: ``starts[i] = starts[ia] + i − ia`` and every row equal to ``coef[ia]``, the
+    centre row; the Identifier sets ``ia``, ``ib`` so) are one filter over the (re, im) floats
+    (:func:`_fir_blocks`, sixteen floats at a time, the last few here), the edge rows one by
+    one. ``all_valid``: every bin of the solved slice is valid, so every window is (it lies
+    within the slice), and the validity count is skipped."""
+    w = coef.shape[1]
+    m = hi - lo
+    if ib > ia:
+        s0 = 2 * starts[ia]
+        cnt = 2 * (ib - ia)
+        sf = src.view(np.float64)
+        out = hs.view(np.float64)[2 * ia : 2 * ib]
+        taps = coef[ia]
+        nblk = cnt // 16
+        _fir_blocks(sf, s0, taps, out, nblk)
+        for t in range(16 * nblk, cnt):
+            a = 0.0
+            for j in range(w):
+                a += taps[j] * sf[s0 + 2 * j + t]
+            out[t] = a
+    if ib > ia:  # the edge rows around the interior
+        _smooth_rows(src, coef, starts, hs, 0, ia)
+        _smooth_rows(src, coef, starts, hs, ib, m)
+    else:
+        _smooth_rows(src, coef, starts, hs, 0, m)
     if all_valid:
         for i in range(m):
             vs[i] = True

@@ -211,3 +211,38 @@ def test_the_vector_averaging_is_the_scalar_loop_bit_for_bit(n_bins: int) -> Non
         sums = kernel._accumulate(X, c, ours)
         assert sums == scalar(X, c, ref)
         assert np.array_equal(ours.view(np.int64), ref.view(np.int64))
+
+
+@pytest.mark.parametrize("w,m", [(17, 404), (17, 23), (9, 100), (3, 8), (1, 37), (31, 250)])
+def test_the_smoothing_filter_is_each_windows_sum_in_order(w: int, m: int) -> None:
+    """kernel._smooth (the interior as one filter over the (re, im) floats, sixteen at a time;
+    the edge rows one by one) gives each output bin its window's sum in tap order from 0.0,
+    bit for bit, whatever m and w leave for the scalar remainder; and the validity with and
+    without the all-valid shortcut."""
+    from dsp_service import kernel
+
+    rng = np.random.default_rng(w * 1000 + m)
+    h = w // 2
+    k = m + 2 * w + 5
+    src = rng.standard_normal(k) + 1j * rng.standard_normal(k)
+    lo = 2  # rows 0 … h−1 of the range are edge rows (their own coefficients, start 0)
+    centre = rng.standard_normal(w)
+    n_edge = min(h, m)
+    coef = np.vstack([rng.standard_normal((n_edge, w)), np.tile(centre, (m - n_edge, 1))])
+    starts = np.array([0] * n_edge + list(range(1, 1 + m - n_edge)), dtype=np.intp)
+    ia, ib = (n_edge, m) if m - n_edge >= 2 else (0, 0)
+    for all_valid in (True, False):
+        valid = np.ones(k, dtype=bool)
+        if not all_valid:
+            valid[rng.integers(0, k, 3)] = False
+        hs = np.full(m, np.nan + 0j)
+        vs = np.zeros(m, dtype=bool)
+        n_valid = kernel._smooth(src, valid, lo, lo + m, coef, starts, hs, vs, ia, ib, all_valid)
+        for i in range(m):
+            a = b = 0.0
+            for j in range(w):
+                a += float(coef[i, j]) * float(src[starts[i] + j].real)
+                b += float(coef[i, j]) * float(src[starts[i] + j].imag)
+            assert hs[i].real == a and hs[i].imag == b, i
+            assert vs[i] == bool(valid[starts[i] : starts[i] + w].all())
+        assert n_valid == int(vs.sum())
