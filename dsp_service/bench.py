@@ -274,7 +274,18 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
         for i in range(start, stop):
             t0 = perf()
             K._peaks(
-                idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio, c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom
+                idf._k_hs,
+                idf._k_vs,
+                n_valid,
+                idf._k_w,
+                idf._w_lin is not None,
+                idf._prom_ratio,
+                c.max_peaks,
+                idf._v,
+                idf._k_order,
+                idf._k_idx,
+                idf._k_prom,
+                idf._k_mag,
             )
             t["poles"][i] = 0.0
             t["peaks"][i] = perf() - t0

@@ -493,16 +493,25 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
 
 
 _BLOCK = 16  #: bins per block of the peak search's walks
+_SELECT_MAX = 16  #: up to this many local maxima the peak search picks the highest one by one
 
 
 @njit(cache=True, error_model="numpy")
 def _blocks(v: F64) -> tuple[F64, F64]:
     """Minimum and maximum of each block of ``_BLOCK`` bins of ``v`` (the last one shorter); a
     block holding a NaN gets a NaN maximum, so that a walk goes through it bin by bin."""
-    size = v.size
-    nb = (size + _BLOCK - 1) // _BLOCK
+    nb = (v.size + _BLOCK - 1) // _BLOCK
     bmin = np.empty(nb)
     bmax = np.empty(nb)
+    _blocks_into(v, bmin, bmax)
+    return bmin, bmax
+
+
+@njit(cache=True, error_model="numpy")
+def _blocks_into(v: F64, bmin: F64, bmax: F64) -> None:
+    """:func:`_blocks` into ``bmin``, ``bmax`` (at least ``ceil(v.size / _BLOCK)`` long)."""
+    size = v.size
+    nb = (size + _BLOCK - 1) // _BLOCK
     for q in range(nb):
         a0 = q * _BLOCK
         a1 = min(a0 + _BLOCK, size)
@@ -514,7 +523,6 @@ def _blocks(v: F64) -> tuple[F64, F64]:
             mx = x if (x > mx or x != x) else mx
         bmin[q] = mn
         bmax[q] = mx
-    return bmin, bmax
 
 
 @njit(cache=True, error_model="numpy")
@@ -545,9 +553,26 @@ def _walk_min(v: F64, bmin: F64, bmax: F64, p: int, hp: float, step: int) -> flo
 
 @njit(cache=True, error_model="numpy")
 def _peaks(
-    hs: C128, vs: Bool, n_valid: int, w_lin: F64, weighted: bool, ratio: float, want: int, v: F64, order_buf: Intp, found_idx: Intp, found_prom: F64
+    hs: C128,
+    vs: Bool,
+    n_valid: int,
+    w_lin: F64,
+    weighted: bool,
+    ratio: float,
+    want: int,
+    v: F64,
+    order_buf: Intp,
+    found_idx: Intp,
+    found_prom: F64,
+    scratch: F64,
 ) -> int:
-    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many."""
+    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many.
+
+    The local maxima are tried highest first (ties: the later first), each against its
+    prominence; with at most ``_SELECT_MAX`` maxima (the smoothed spectrum's usual few) by
+    picking the highest untried one at a time, with no allocation (``order_buf`` holds the
+    maxima and their marks, ``scratch`` the walks' block extremes, at least ``2·ceil(hs.size /
+    _BLOCK)`` floats); with more, in the order of a stable sort of their heights."""
     size = hs.size
     if size < 3 or n_valid == 0:
         return 0
@@ -585,14 +610,32 @@ def _peaks(
         i += 1
     nf = 0
     if m:
-        idx = order_buf[:m].copy()
-        height = np.empty(m)
+        nb = (size + _BLOCK - 1) // _BLOCK
+        bmin = scratch[:nb]
+        bmax = scratch[nb : 2 * nb]
+        _blocks_into(v, bmin, bmax)
+        idx = order_buf[:m]
+        if m <= _SELECT_MAX:
+            tried = order_buf[m : 2 * m]  # m ≤ (size − 1) / 2: within order_buf
+            for q in range(m):
+                tried[q] = 0
+        else:
+            height = np.empty(m)
+            for q in range(m):
+                height[q] = v[idx[q]]
+            order = np.argsort(height, kind="mergesort")[::-1]  # highest first, ties: the later first
         for q in range(m):
-            height[q] = v[idx[q]]
-        order = np.argsort(height, kind="mergesort")[::-1]  # highest first, ties: the later first
-        bmin, bmax = _blocks(v)
-        for q in range(m):
-            p = idx[order[q]]
+            if m <= _SELECT_MAX:
+                best = -1
+                hb = 0.0
+                for t in range(m):  # the highest untried maximum; of equal ones the later (>=)
+                    if tried[t] == 0 and (best < 0 or v[idx[t]] >= hb):
+                        best = t
+                        hb = v[idx[t]]
+                tried[best] = 1
+                p = idx[best]
+            else:
+                p = idx[order[q]]
             hp = v[p]
             lmin = _walk_min(v, bmin, bmax, p, hp, -1)
             rmin = _walk_min(v, bmin, bmax, p, hp, 1)
@@ -657,9 +700,10 @@ def post_fft(
     found_idx: Intp,
     found_prom: F64,
     stats: F64,
+    scratch: F64,
 ) -> None:
     """Stages 1–4 (module doc) in one call. ``stats`` ← (valid count on the slice, valid smoothed
-    bins, peaks found, floor)."""
+    bins, peaks found, floor); ``scratch``: the peak search's (:func:`_peaks`)."""
     s11, s22 = _accumulate(X, c, state_f)
     mean_power = (s11 + s22) / (2 * n_bins)
     floor = power_floor * mean_power + _TINY
@@ -667,7 +711,7 @@ def post_fft(
     # every bin of the slice valid (the usual case): so is every window, which lies within it
     all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[hi - lo - 1] + coef.shape[1] <= s1
     n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ia, ib, all_valid)
-    nf = _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom)
+    nf = _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, scratch)
     stats[0] = n_sl_valid
     stats[1] = n_valid
     stats[2] = nf
@@ -757,6 +801,7 @@ def step(
         found_idx,
         found_prom,
         stats,
+        mag,  # free until the poles' stage: the peak search's scratch
     )
     nf = int(stats[2])
     if not do_poles or nf == 0:

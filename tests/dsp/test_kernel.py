@@ -246,3 +246,40 @@ def test_the_smoothing_filter_is_each_windows_sum_in_order(w: int, m: int) -> No
             assert hs[i].real == a and hs[i].imag == b, i
             assert vs[i] == bool(valid[starts[i] : starts[i] + w].all())
         assert n_valid == int(vs.sum())
+
+
+@pytest.mark.parametrize("n_max", [1, 2, 5, 16, 17, 40])
+def test_the_peak_search_tries_the_maxima_highest_first_and_of_equal_ones_the_later(n_max: int) -> None:
+    """kernel._peaks picks the highest untried maximum one at a time (up to _SELECT_MAX maxima)
+    or follows a stable sort (more): both the order of scipy's maxima sorted by height, highest
+    first, equal heights the later first, with the prominence walk of scipy."""
+    from scipy.signal._peak_finding_utils import _local_maxima_1d
+
+    from dsp_service import kernel
+
+    rng = np.random.default_rng(n_max)
+    size = 8 * n_max + 9
+    for trial in range(20):
+        mag = np.full(size, 1.0)
+        heights = rng.choice([2.0, 3.0, 5.0], n_max) if trial % 2 else rng.uniform(2.0, 9.0, n_max)
+        for q, hgt in enumerate(heights):
+            mag[8 * q + 4] = hgt  # lone maxima; a dip of depth trial-dependent between them
+            mag[8 * q + 8] = 1.0 + 0.05 * rng.integers(0, 3)
+        hs = mag.astype(np.complex128)
+        want = int(rng.integers(1, n_max + 1))
+        ratio = float(rng.choice([1.0001, 2.5, 4.0]))
+        v = np.empty(size)
+        order, idx, prom = np.zeros(size, dtype=np.intp), np.zeros(want, dtype=np.intp), np.zeros(want)
+        nf = kernel._peaks(hs, np.ones(size, dtype=bool), size, np.ones(size), False, ratio, want, v, order, idx, prom, np.empty(size))
+        maxima = np.asarray(_local_maxima_1d(v)[0])
+        ranked = maxima[np.argsort(v[maxima], kind="mergesort")[::-1]]
+        expected = []
+        for p in ranked:
+            base = max(_walk_bin_by_bin(v, int(p), -1), _walk_bin_by_bin(v, int(p), 1))
+            if v[p] >= base * ratio:
+                expected.append((int(p), 20.0 * math.log10(v[p] / base)))
+                if len(expected) == want:
+                    break
+        if expected:
+            assert nf == len(expected)
+            assert list(zip(idx[:nf].tolist(), prom[:nf].tolist())) == expected
