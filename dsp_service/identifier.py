@@ -50,7 +50,7 @@ configuration (windows, frequency grids, weights, smoothing plan, views of
 the averaged spectra) is prepared in ``_build``. With ``kernel='numba'``
 (the default) a step is one compiled
 detrend/window pass, the four FFTs and one compiled call
-(:func:`.kernel.step`: averaging, the ``H_tot`` solve with its dominant
+(:func:`.kernel.step_packed`: averaging, the ``H_tot`` solve with its dominant
 branch, smoothing, peak search, refinement, FWHM and VRM), compiled when the
 Identifier is built. ``kernel='numpy'`` is the reference path: about
 seventy numpy calls on arrays of at most a few thousand elements, none in

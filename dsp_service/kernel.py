@@ -1,7 +1,7 @@
 """The compiled identification step (``IdentifierConfig.kernel = 'numba'``, the default).
 
-:func:`detrend_window` (before the FFTs) and one call of :func:`step` (after
-them) do what the numpy reference path (:mod:`.spectra`, :mod:`.mimo`,
+:func:`detrend_window_ring` (before the FFTs) and one call of :func:`step_packed`
+(after them) do what the numpy reference path (:mod:`.spectra`, :mod:`.mimo`,
 :mod:`.smoothing`, :mod:`.modal`, :meth:`.Identifier._find_peaks`,
 :meth:`.Identifier._poles`) does in about seventy small numpy calls:
 
@@ -668,193 +668,7 @@ def _peaks(
     return 1
 
 
-@njit(cache=True, error_model="numpy")
-def post_fft(
-    X: F64,
-    c: float,
-    state_f: F64,
-    state: C128,
-    n_bins: int,
-    power_floor: float,
-    s0: int,
-    s1: int,
-    det_threshold: float,
-    dominant: bool,
-    src: C128,
-    valid: Bool,
-    mode: U8,
-    lo: int,
-    hi: int,
-    coef: F64,
-    starts: Intp,
-    ia: int,
-    ib: int,
-    hs: C128,
-    vs: Bool,
-    w_lin: F64,
-    weighted: bool,
-    ratio: float,
-    want: int,
-    v: F64,
-    order_buf: Intp,
-    found_idx: Intp,
-    found_prom: F64,
-    stats: F64,
-    scratch: F64,
-) -> None:
-    """Stages 1–4 (module doc) in one call. ``stats`` ← (valid count on the slice, valid smoothed
-    bins, peaks found, floor); ``scratch``: the peak search's (:func:`_peaks`)."""
-    s11, s22 = _accumulate(X, c, state_f)
-    mean_power = (s11 + s22) / (2 * n_bins)
-    floor = power_floor * mean_power + _TINY
-    n_sl_valid = _solve_tot(state, s0, s1, floor, det_threshold, dominant, src, valid, mode)
-    # every bin of the slice valid (the usual case): so is every window, which lies within it
-    all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[hi - lo - 1] + coef.shape[1] <= s1
-    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ia, ib, all_valid)
-    nf = _peaks(hs, vs, n_valid, w_lin, weighted, ratio, want, v, order_buf, found_idx, found_prom, scratch)
-    stats[0] = n_sl_valid
-    stats[1] = n_valid
-    stats[2] = nf
-    stats[3] = floor
-
-
-@njit(cache=True, error_model="numpy")
-def step(
-    X: F64,
-    c: float,
-    state_f: F64,
-    state: C128,
-    n_bins: int,
-    power_floor: float,
-    s0: int,
-    s1: int,
-    det_threshold: float,
-    dominant: bool,
-    src: C128,
-    valid: Bool,
-    mode: U8,
-    lo: int,
-    hi: int,
-    coef: F64,
-    starts: Intp,
-    ia: int,
-    ib: int,
-    hs: C128,
-    vs: Bool,
-    w_lin: F64,
-    weighted: bool,
-    ratio: float,
-    want: int,
-    v: F64,
-    order_buf: Intp,
-    found_idx: Intp,
-    found_prom: F64,
-    stats: F64,
-    do_poles: bool,
-    on_smoothed: bool,
-    f_sl: F64,
-    f_range: F64,
-    relocate: int,
-    fwhm_exact: bool,
-    pinv: F64,
-    r_max: int,
-    m_max: int,
-    band_factor: float,
-    zeta_max: float,
-    c_max: float,
-    viscous: bool,
-    tri: Intp,
-    n_tri: Intp,
-    mag: F64,
-    out: F64,
-) -> None:
-    """:func:`post_fft`, then (``do_poles``) :func:`poles` of the peaks found, on the smoothed
-    (``on_smoothed``) or the solved spectrum."""
-    post_fft(
-        X,
-        c,
-        state_f,
-        state,
-        n_bins,
-        power_floor,
-        s0,
-        s1,
-        det_threshold,
-        dominant,
-        src,
-        valid,
-        mode,
-        lo,
-        hi,
-        coef,
-        starts,
-        ia,
-        ib,
-        hs,
-        vs,
-        w_lin,
-        weighted,
-        ratio,
-        want,
-        v,
-        order_buf,
-        found_idx,
-        found_prom,
-        stats,
-        mag,  # free until the poles' stage: the peak search's scratch
-    )
-    nf = int(stats[2])
-    if not do_poles or nf == 0:
-        return
-    if on_smoothed:
-        poles(
-            hs,
-            vs,
-            int(stats[1]) == hs.size,
-            f_range,
-            0,
-            found_idx,
-            nf,
-            relocate,
-            fwhm_exact,
-            pinv,
-            r_max,
-            m_max,
-            band_factor,
-            zeta_max,
-            c_max,
-            viscous,
-            tri,
-            n_tri,
-            mag[: hs.size],
-            out,
-        )
-    else:
-        poles(
-            src[s0:s1],
-            valid[s0:s1],
-            int(stats[0]) == s1 - s0,
-            f_sl,
-            lo - s0,
-            found_idx,
-            nf,
-            relocate,
-            fwhm_exact,
-            pinv,
-            r_max,
-            m_max,
-            band_factor,
-            zeta_max,
-            c_max,
-            viscous,
-            tri,
-            n_tri,
-            mag[: s1 - s0],
-            out,
-        )
-
-
-# Packed arguments of :func:`step_packed`: everything :func:`step` takes but the snapshot, its
+# Packed arguments of :func:`step_packed`: everything the stages take but the snapshot, its
 # weight and the arrays other objects own (the averages, the solver's H_tot, mask and mode) and
 # the smoothed spectrum, in three flat arrays: ``fk`` (float constants: the scalars ``FP_*``,
 # then the smoothing rows, weights, frequency grids, refinement pseudo-inverses), ``ik`` (intp:
@@ -966,73 +780,95 @@ def pack_arguments(
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: C128, valid: Bool, mode: U8, hs: C128, vs: Bool) -> None:
-    """:func:`step` on the packed arguments of :func:`pack_arguments` (views into ``fk``, ``ik``,
-    ``fw``; ``state_f`` is ``state``'s float view). Releases the GIL: the boards of several
-    rigs in one process step on several cores."""
+    """The compiled step after the FFTs (module doc, stages 1–5) on the packed arguments of
+    :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``): the snapshot ``X`` (float view,
+    ``(4, 2K)``) averaged with weight ``c`` into ``state``, ``H_tot`` solved on the slice into
+    ``src`` (``valid``, ``mode``), smoothed over the search range into ``hs`` (``vs``), the
+    peaks searched and (``IP_DO_POLES``) their poles estimated on the smoothed
+    (``IP_ON_SMOOTHED``) or the solved spectrum. ``stats`` ← (valid count on the slice, valid
+    smoothed bins, peaks found, power floor).
+
+    The stages are called from here directly: through two more levels of functions of 32 and
+    48 arguments (not inlined), every array argument was passed as its seven fields and
+    reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
+    one process step on several cores."""
     m = ik[IP_HI] - ik[IP_LO]
     w = ik[IK_W]
     want = ik[IP_WANT]
     r_max = ik[IP_R_MAX]
-    n_sl = ik[IK_N_SL]
     tm = ik[IK_TRI_M]
     tq = ik[IK_TRI_Q]
+    s0 = ik[IP_S0]
+    s1 = ik[IP_S1]
+    lo = ik[IP_LO]
+    hi = ik[IP_HI]
     o = ik[IK_COEF]
     coef = fk[o : o + m * w].reshape((m, w))
+    starts = ik[ik[IK_STARTS] : ik[IK_STARTS] + m]
+    idx = ik[ik[IK_IDX] : ik[IK_IDX] + want]
+    prom = fw[ik[IK_PROM] : ik[IK_PROM] + want]
+    stats = fw[ik[IK_STATS] : ik[IK_STATS] + 4]
+    mag = fw[ik[IK_MAG] : ik[IK_MAG] + ik[IK_N_MAG]]
+    # 1. the seven spectra into the averages, and the power floor
+    s11, s22 = _accumulate(X, c, state.view(np.float64))
+    mean_power = (s11 + s22) / (2 * ik[IP_BINS])
+    floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
+    # 2. H_tot on the slice
+    n_sl_valid = _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode)
+    # 3. smoothing: every bin of the slice valid (the usual case), so is every window, which lies within it
+    all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[m - 1] + w <= s1
+    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ik[IP_IA], ik[IP_IB], all_valid)
+    # 4. peaks (the poles' |H| buffer, free until stage 5, as scratch)
+    v = fw[ik[IK_V] : ik[IK_V] + m]
+    order = ik[ik[IK_ORDER] : ik[IK_ORDER] + m]
+    w_lin = fk[ik[IK_W_LIN] : ik[IK_W_LIN] + m]
+    nf = _peaks(hs, vs, n_valid, w_lin, ik[IP_WEIGHTED] != 0, fk[FP_RATIO], want, v, order, idx, prom, mag)
+    stats[0] = n_sl_valid
+    stats[1] = n_valid
+    stats[2] = nf
+    stats[3] = floor
+    if ik[IP_DO_POLES] == 0 or nf == 0:
+        return
+    # 5. refinement, FWHM and VRM of the peaks
     o = ik[IK_PINV]
     pinv = fk[o : o + (r_max + 1) * 3 * (2 * r_max + 1)].reshape((r_max + 1, 3, 2 * r_max + 1))
     o = ik[IK_TRI]
     tri = ik[o : o + tm * tq * 3].reshape((tm, tq, 3))
+    n_tri = ik[ik[IK_N_TRI] : ik[IK_N_TRI] + tm]
     o = ik[IK_OUT]
     out = fw[o : o + want * 6].reshape((want, 6))
-    step(
-        X,
-        c,
-        state.view(np.float64),
-        state,
-        ik[IP_BINS],
-        fk[FP_POWER_FLOOR],
-        ik[IP_S0],
-        ik[IP_S1],
-        fk[FP_DET],
-        ik[IP_DOMINANT] != 0,
-        src,
-        valid,
-        mode,
-        ik[IP_LO],
-        ik[IP_HI],
-        coef,
-        ik[ik[IK_STARTS] : ik[IK_STARTS] + m],
-        ik[IP_IA],
-        ik[IP_IB],
-        hs,
-        vs,
-        fk[ik[IK_W_LIN] : ik[IK_W_LIN] + m],
-        ik[IP_WEIGHTED] != 0,
-        fk[FP_RATIO],
-        want,
-        fw[ik[IK_V] : ik[IK_V] + m],
-        ik[ik[IK_ORDER] : ik[IK_ORDER] + m],
-        ik[ik[IK_IDX] : ik[IK_IDX] + want],
-        fw[ik[IK_PROM] : ik[IK_PROM] + want],
-        fw[ik[IK_STATS] : ik[IK_STATS] + 4],
-        ik[IP_DO_POLES] != 0,
-        ik[IP_ON_SMOOTHED] != 0,
-        fk[ik[IK_F_SL] : ik[IK_F_SL] + n_sl],
-        fk[ik[IK_F_RANGE] : ik[IK_F_RANGE] + m],
-        ik[IP_RELOCATE],
-        ik[IP_FWHM_EXACT] != 0,
-        pinv,
-        r_max,
-        ik[IP_M_MAX],
-        fk[FP_BAND],
-        fk[FP_ZETA_MAX],
-        fk[FP_C_MAX],
-        ik[IP_VISCOUS] != 0,
-        tri,
-        ik[ik[IK_N_TRI] : ik[IK_N_TRI] + tm],
-        fw[ik[IK_MAG] : ik[IK_MAG] + ik[IK_N_MAG]],
-        out,
-    )
+    relocate, exact, m_max, viscous = ik[IP_RELOCATE], ik[IP_FWHM_EXACT] != 0, ik[IP_M_MAX], ik[IP_VISCOUS] != 0
+    band, zeta_max, c_max = fk[FP_BAND], fk[FP_ZETA_MAX], fk[FP_C_MAX]
+    if ik[IP_ON_SMOOTHED] != 0:
+        f_range = fk[ik[IK_F_RANGE] : ik[IK_F_RANGE] + m]
+        all_smoothed = n_valid == m
+        poles(hs, vs, all_smoothed, f_range, 0, idx, nf, relocate, exact, pinv, r_max, m_max, band, zeta_max, c_max, viscous, tri, n_tri, mag[:m], out)
+    else:
+        f_sl = fk[ik[IK_F_SL] : ik[IK_F_SL] + ik[IK_N_SL]]
+        all_sl = n_sl_valid == s1 - s0
+        sl_src, sl_valid = src[s0:s1], valid[s0:s1]
+        poles(
+            sl_src,
+            sl_valid,
+            all_sl,
+            f_sl,
+            lo - s0,
+            idx,
+            nf,
+            relocate,
+            exact,
+            pinv,
+            r_max,
+            m_max,
+            band,
+            zeta_max,
+            c_max,
+            viscous,
+            tri,
+            n_tri,
+            mag[: s1 - s0],
+            out,
+        )
 
 
 def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]:
@@ -1051,7 +887,8 @@ def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) :func:`step` with the types the identifier passes."""
+    """Compile (or load from numba's cache) :func:`detrend_window_ring` and :func:`step_packed`
+    (and what they call) with the types the identifier passes."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
@@ -1062,57 +899,6 @@ def warm_up() -> None:
     state = np.zeros((7, k), dtype=np.complex128)
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
-    for do_poles in (True, False):
-        for _ in range(3):
-            step(
-                X.view(np.float64),
-                1.0,
-                state.view(np.float64),
-                state,
-                k,
-                1e-12,
-                0,
-                k,
-                1e-3,
-                True,
-                np.zeros(k, dtype=np.complex128),
-                np.zeros(k, dtype=np.bool_),
-                np.zeros(k, dtype=np.uint8),
-                10,
-                10 + n_range,
-                np.ones((n_range, 3)) / 3.0,
-                np.arange(9, 9 + n_range, dtype=np.intp),
-                0,
-                n_range,
-                np.zeros(n_range, dtype=np.complex128),
-                np.zeros(n_range, dtype=np.bool_),
-                np.ones(n_range),
-                True,
-                1.0,
-                2,
-                np.zeros(n_range),
-                np.zeros(n_range, dtype=np.intp),
-                np.zeros(2, dtype=np.intp),
-                np.zeros(2),
-                np.zeros(4),
-                do_poles,
-                not do_poles,
-                np.arange(k, dtype=np.float64),
-                np.arange(10.0, 10.0 + n_range),
-                1,
-                True,
-                np.zeros((2, 3, 3)),
-                1,
-                1,
-                1.5,
-                0.5,
-                1.0,
-                True,
-                tri,
-                np.array([0, 1], dtype=np.intp),
-                np.empty(k),
-                np.empty((2, 6)),
-            )
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
     ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)
     for smoothed in (0, 1):
