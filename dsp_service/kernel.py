@@ -274,7 +274,7 @@ def _accumulate_blocks_intrinsic(typingctx: Any, X: Any, c: Any, state: Any, nbl
 _accumulate_blocks = cast(Callable[[F64, float, F64, int], tuple[float, float]], _accumulate_blocks_intrinsic)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
     """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra (the exponential [2-9] or linear
     average of the raw spectra, unnormalised: :class:`.spectra.SpectralAverager`); returns
@@ -305,7 +305,7 @@ def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
     return s11, s22
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, out: C128, valid: Bool, mode: U8) -> int:
     """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count.
 
@@ -442,7 +442,7 @@ def _smooth_rows(src: C128, coef: F64, starts: Intp, hs: C128, i0: int, i1: int)
         hs[i] = complex(a, b)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, hs: C128, vs: Bool, ia: int, ib: int, all_valid: bool) -> int:
     """Savitzky–Golay rows ``coef[i]`` over ``src[starts[i] …]`` into ``hs[i]`` (§2.4.1); ``vs[i]`` =
     window all valid.
@@ -551,7 +551,7 @@ def _walk_min(v: F64, bmin: F64, bmax: F64, p: int, hp: float, step: int) -> flo
     return low
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _peaks(
     hs: C128,
     vs: Bool,
@@ -1163,7 +1163,7 @@ def _vrm(
     return False, 0.0, 0.0, used
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def poles(
     hd: C128,
     vd: Bool,
