@@ -27,6 +27,14 @@ order (a few ulps). The tests compare every output with the numpy path to
 1e-12. Compiled with ``cache=True``; :func:`warm_up` (called when the
 Identifier is built) compiles or loads everything with the types a step
 passes, so no batch pays compilation.
+
+Three loops are written as explicit 8-wide vector code (LLVM intrinsics:
+:func:`_lane_sums4`, :func:`_accumulate_blocks`, :func:`_fir_blocks`), where
+the compiler left the plain loop scalar or slow. Each lane does the scalar
+loop's operations in the scalar loop's order (no reassociation, no contraction
+beyond the explicit fused multiply-adds), so the results are the scalar
+definitions' bit for bit on any x86-64 host (the tests pin each to it); on a
+CPU without 512-bit vectors LLVM splits the vectors, with the same results.
 """
 
 from __future__ import annotations
