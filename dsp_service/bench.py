@@ -247,6 +247,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["step"][i] = perf() - t0
         floor = float(idf._k_stats[3])
         n_valid, nf = int(idf._k_stats[1]), int(idf._k_stats[2])
+        all_sl = int(idf._k_stats[0]) == sl.stop - sl.start
         state = avg.state.copy()
         hb = idf.history
         buf, head = hb._buf, hb._head
@@ -268,12 +269,23 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["solve"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_coef_t, idf._k_ia, idf._k_ib)
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_ia, idf._k_ib, all_sl)
             t["smooth"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
             K._peaks(
-                idf._k_hs, idf._k_vs, n_valid, idf._k_w, idf._w_lin is not None, idf._prom_ratio, c.max_peaks, idf._v, idf._k_order, idf._k_idx, idf._k_prom
+                idf._k_hs,
+                idf._k_vs,
+                n_valid,
+                idf._k_w,
+                idf._w_lin is not None,
+                idf._prom_ratio,
+                c.max_peaks,
+                idf._v,
+                idf._k_order,
+                idf._k_idx,
+                idf._k_prom,
+                idf._k_mag,
             )
             t["poles"][i] = 0.0
             t["peaks"][i] = perf() - t0

@@ -50,7 +50,7 @@ configuration (windows, frequency grids, weights, smoothing plan, views of
 the averaged spectra) is prepared in ``_build``. With ``kernel='numba'``
 (the default) a step is one compiled
 detrend/window pass, the four FFTs and one compiled call
-(:func:`.kernel.step`: averaging, the ``H_tot`` solve with its dominant
+(:func:`.kernel.step_packed`: averaging, the ``H_tot`` solve with its dominant
 branch, smoothing, peak search, refinement, FWHM and VRM), compiled when the
 Identifier is built. ``kernel='numpy'`` is the reference path: about
 seventy numpy calls on arrays of at most a few thousand elements, none in
@@ -96,7 +96,7 @@ from .spectra import (
     SegmentedSpectralEstimator,
     SpectralAverager,
     SpectralEstimator,
-    rfft_rows,
+    rfft_rows_bound,
     scale_spectra,
     welch_equivalent_averages,
 )
@@ -463,11 +463,12 @@ class Identifier:
         else:
             self._k_coef = np.ones((n_range, 1))
             self._k_starts = np.arange(lo, hi, dtype=np.intp)
-        self._k_coef_t = np.ascontiguousarray(self._k_coef.T)
         steps = np.flatnonzero(np.diff(self._k_starts) == 1)  # consecutive rows of a sliding window
         if steps.size:
             self._k_ia, self._k_ib = int(steps[0]), int(steps[-1]) + 2
-            if not np.array_equal(self._k_starts[self._k_ia : self._k_ib], self._k_starts[self._k_ia] + np.arange(self._k_ib - self._k_ia)):
+            ia, ib = self._k_ia, self._k_ib
+            # the kernel's interior passes need a sliding window of one row (the centre row)
+            if not (np.array_equal(self._k_starts[ia:ib], self._k_starts[ia] + np.arange(ib - ia)) and (self._k_coef[ia:ib] == self._k_coef[ia]).all()):
                 self._k_ia = self._k_ib = 0
         else:
             self._k_ia = self._k_ib = 0
@@ -525,7 +526,6 @@ class Identifier:
             fp,
             ip,
             self._k_coef,
-            self._k_coef_t,
             self._k_w,
             self._f_sl,
             self._f_range,
@@ -535,14 +535,20 @@ class Identifier:
             self._k_ntri,
             self._k_mag.size,
         )
-        self._k_coef, self._k_coef_t, self._k_w, self._k_pinv = views["coef"], views["coef_t"], views["w_lin"], views["pinv"]
+        self._k_coef, self._k_w, self._k_pinv = views["coef"], views["w_lin"], views["pinv"]
         self._k_starts, self._k_tri, self._k_ntri, self._k_order = views["starts"], views["tri"], views["n_tri"], views["order"]
         self._k_idx, self._k_prom, self._k_stats, self._k_mag, self._k_out = views["idx"], views["prom"], views["stats"], views["mag"], views["out"]
         self._k_args = (fk, ik, fw, self._avg.state, solver.source, solver.valid, solver.mode, self._k_hs, self._k_vs)
         # resolved with no snapshot (weight 0 on a zero state: nothing changes)
         self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
-        self._k_fft = rfft_rows
-        self._k_detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (self.history._buf, 0, np.zeros(4), self._est.window, self._est._tmp))
+        est = self._est
+        self._k_fft, self._k_fft_args = rfft_rows_bound(est._tmp, est.ffts)
+        self._k_dtr_args = (est.means, est.window, est._tmp)
+        self._k_detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (self.history._buf, 0, *self._k_dtr_args))
+        # what _step_fused reads of the configuration (fixed until the next _build; set_alpha changes none of it)
+        self._k_early = not c.wait_for_full_history
+        self._k_want, self._k_n_range, self._k_tail = c.max_peaks, n_range, views["tail"]
+        self._k_pole_consts = (c.confidence_prominence_db, c.damping_method == "vrm", c.peak_source)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the compiled step; the constructor already does."""
@@ -731,71 +737,74 @@ class Identifier:
         return self._with_confidence(poles, peaks, n_eff, valid_fraction)
 
     def _step_fused(self) -> IdentificationResult:
-        """:meth:`_step_etfe` with stages 2–5 up to the peaks in one compiled call (:mod:`.kernel`)."""
-        c = self.cfg
-        avg = self._avg
-        hist = self.history
-        solver = self._solver
-        sl = self._sl
-        lo = self._lo
+        """:meth:`_step_etfe` with stages 2–5 in one compiled call (:mod:`.kernel`).
+
+        Everything the call needs but the snapshot and its weight is fixed until the next
+        :meth:`_build` and read from a few prepared tuples (``_k_*``); the kernel's counters,
+        prominences and poles are read with one ``tolist`` (``_k_tail``)."""
+        hist, avg = self.history, self._avg
         seen, n_hist = hist._seen, hist._n  # hist.samples_seen, hist.n (the properties, without their calls)
-        new = seen > 0 and (seen >= n_hist or not c.wait_for_full_history)
-        if not new and avg.updates == 0:
-            return IdentificationResult((), 0.0, 0.0, hist.samples_in_history, 0.0)
-        est = self._est
-        if new:
-            weight = avg.next_weight()
-            buf, head = hist._buf, hist._head
-            # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
-            self._k_detrend_ring(buf, head, est.means, est.window, est._tmp)
-            self._k_fft(est._tmp, est.ffts)
-            X = self._k_ffts_f
-            avg.account(self._pending)
+        if seen > 0 and (seen >= n_hist or self._k_early):
+            weight = avg.take(self._pending)  # next_weight and account: the kernel adds the snapshot
             self._pending = 0
+            # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
+            self._k_detrend_ring(hist._buf, hist._head, *self._k_dtr_args)
+            self._k_fft(*self._k_fft_args)
+            self._k_call(self._k_ffts_f, weight, *self._k_args)
+        elif avg.updates == 0:
+            return IdentificationResult((), 0.0, 0.0, min(seen, n_hist), 0.0)
         else:  # no new snapshot: solve the averages as they are
-            X = self._k_zeros_f
-            weight = 0.0
-        stats, out = self._k_stats, self._k_out
-        on_smoothed, do_poles = c.estimate_on_smoothed, self._k_do_poles
-        self._k_call(X, weight, *self._k_args)
-        f_sl_valid, f_valid, f_nf, solver._floor = stats.tolist()
-        n_sl_valid, n_valid, nf = int(f_sl_valid), int(f_valid), int(f_nf)
-        solver.valid_count = n_sl_valid
-        n_range = self._k_vs.size
+            self._k_call(self._k_zeros_f, 0.0, *self._k_args)
+        want = self._k_want
+        vals = self._k_tail.tolist()  # prominences[want], stats[4], poles[want × 6]
+        f_sl_valid, f_valid, f_nf, floor = vals[want : want + 4]
+        solver = self._solver
+        solver._floor = floor
+        solver.valid_count = n_sl_valid = int(f_sl_valid)
+        n_valid, nf = int(f_valid), int(f_nf)
+        n_range = self._k_n_range
         if nf == 0:
             return self._result([], (), n_valid, n_range)
-        if not do_poles:  # the rational fit: the numpy pole stage
-            peaks = list(zip(self._k_idx[:nf].tolist(), self._k_prom[:nf].tolist()))
-            if on_smoothed:
+        if not self._k_do_poles:  # the rational fit: the numpy pole stage
+            peaks = list(zip(self._k_idx[:nf].tolist(), vals[:nf]))
+            sl = self._sl
+            if self.cfg.estimate_on_smoothed:
                 hs, vs = self._k_hs, self._k_vs
                 poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
             else:
                 src_sl, valid_sl = solver.source[sl], solver.valid[sl]
-                poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, n_sl_valid == self._n_sl)
+                poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, self._lo - sl.start, n_sl_valid == self._n_sl)
             return self._result(peaks, poles, n_valid, n_range)
         # _result's confidences, computed before the poles are made
         # (self.effective_averages, SpectralAverager.effective_averages, inline)
-        kish = avg._sum_c * avg._sum_c / avg._sum_c2 if avg._sum_c2 > 0.0 else 0.0
-        n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / avg._sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
+        sum_c, sum_c2 = avg._sum_c, avg._sum_c2
+        kish = sum_c * sum_c / sum_c2 if sum_c2 > 0.0 else 0.0
+        n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
         valid_fraction = n_valid / n_range
-        in_history = min(seen, n_hist)  # hist.samples_in_history
-        p0 = c.confidence_prominence_db
+        in_history = seen if seen < n_hist else n_hist  # hist.samples_in_history
+        p0, vrm_first, source = self._k_pole_consts
         confident = n_eff > 1.0
         base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / n_hist) if confident else 0.0
-        vrm_first = c.damping_method == "vrm"
-        source = c.peak_source
         pole_list = []
         bare, set_dict = object.__new__, object.__setattr__  # an instance without running the frozen __init__
-        # whole buffers to lists (one conversion each, no slice objects)
-        proms = self._k_prom.tolist()
-        rows = out.tolist()
-        for i in range(nf):
-            prom = proms[i]
-            f_peak, m_peak, zf, _ok, fn, zv = rows[i]
+        o = want + 4
+        for prom in vals[:nf]:
+            f_peak, m_peak, zf, _ok, fn, zv = vals[o : o + 6]
+            o += 6
             zeta_fwhm = None if zf != zf else zf  # NaN: undefined
-            zeta_vrm, fn_vrm = (None, None) if zv != zv else (zv, fn)
-            first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
-            chosen = first if first is not None else second
+            if zv != zv:
+                zeta_vrm = fn_vrm = None
+            else:
+                zeta_vrm, fn_vrm = zv, fn
+            if vrm_first:
+                chosen = zeta_vrm if zeta_vrm is not None else zeta_fwhm
+            else:
+                chosen = zeta_fwhm if zeta_fwhm is not None else zeta_vrm
+            if confident:
+                conf = base * prom / (prom + p0)
+                conf = conf if conf < 1.0 else 1.0  # min(1.0, conf)
+            else:
+                conf = 0.0
             # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
             pole = bare(PoleEstimate)
             set_dict(
@@ -811,23 +820,28 @@ class Identifier:
                     "prominence_db": prom,
                     "source": source,
                     "damping_defined": chosen is not None,
-                    "confidence": float(min(1.0, base * prom / (prom + p0))) if confident else 0.0,
+                    "confidence": conf,
                     "damping_fit": None,
                 },
             )
             pole_list.append(pole)
-        prom = proms[0]
-        conf = base * prom / (prom + p0) if confident else 0.0
+        if confident:
+            prom = vals[0]
+            conf = base * prom / (prom + p0)
+            conf = conf if conf > 0.0 else 0.0  # min(1.0, max(0.0, conf)), NaN and -0.0 alike
+            conf = conf if conf < 1.0 else 1.0
+        else:
+            conf = 0.0
         result = bare(IdentificationResult)
         set_dict(
             result,
             "__dict__",
             {
                 "poles": tuple(pole_list),
-                "confidence": float(min(1.0, max(0.0, conf))),
+                "confidence": conf,
                 "valid_fraction": valid_fraction,
                 "samples_in_history": in_history,
-                "effective_averages": float(n_eff),
+                "effective_averages": n_eff,
             },
         )
         return result

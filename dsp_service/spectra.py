@@ -28,7 +28,8 @@ running mean (``α_k = 1/k``, i.e. Welch's average over segments).
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 import numpy as np
 import scipy.signal
@@ -72,6 +73,14 @@ def rfft_rows(x: NDArray[np.float64], out: NDArray[np.complex128] | None = None)
     if _r2c is not None:
         return _r2c(x, (x.ndim - 1,), True, 0, out, 1)
     return np.fft.rfft(x, axis=-1, out=out)
+
+
+def rfft_rows_bound(x: NDArray[np.float64], out: NDArray[np.complex128]) -> tuple[Callable[..., Any], tuple[Any, ...]]:
+    """``(f, args)`` such that ``f(*args)`` is ``rfft_rows(x, out)``, for a caller that repeats the
+    call on the same arrays: pocketfft's binding itself, without the wrapper's Python frame."""
+    if _r2c is not None:
+        return _r2c, (x, (x.ndim - 1,), True, 0, out, 1)
+    return rfft_rows, (x, out)
 
 
 class SpectralEstimator:
@@ -307,6 +316,25 @@ class SpectralAverager:
         self._sum_c += c
         self._sum_c2 += c * c
         self._sum_cl += c * float(new_samples)
+
+    def take(self, new_samples: int) -> float:
+        """:meth:`next_weight`, then :meth:`account`, in one call: the weight of a snapshot the
+        caller adds to :attr:`state` itself (the compiled step). The usual exponential update
+        (no rescale) inline, the rest through :meth:`next_weight`; the same arithmetic."""
+        alpha = self.alpha
+        if self.updates and self.method == "exponential" and alpha < 1.0:
+            c = self._c / (1.0 - alpha)
+            if c > self._RESCALE_AT:
+                c = self.next_weight()  # rescales, from the same self._c
+            else:
+                self._c = c
+        else:
+            c = self.next_weight()
+        self.updates += 1
+        self._sum_c += c
+        self._sum_c2 += c * c
+        self._sum_cl += c * float(new_samples)
+        return c
 
     def update(self, new: NDArray[np.complex128], new_samples: int) -> None:
         """Blend in one (unweighted) snapshot; ``new_samples`` = samples appended since the last one."""

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from dsp_service.kernel import detrend_window, row_mean
+from dsp_service.kernel import detrend_window, detrend_window_ring, row_mean
 from dsp_service.modal import parabola_fit_rows
 from dsp_service.smoothing import savgol_dot_coeffs
 
@@ -60,3 +60,21 @@ def test_detrend_window_writes_the_means_it_removed() -> None:
     detrend_window(x, means, window, out)
     assert means.tolist() == [row_mean(row) for row in x]
     np.testing.assert_allclose(out, (x - x.mean(axis=1, keepdims=True)) * window, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [8, 13, 64, 512, 2051])
+def test_the_ring_detrend_takes_row_means_to_the_bit(n: int) -> None:
+    """detrend_window_ring's vector lane sums (four rows at once) are row_mean's, bit for bit,
+    and its output is detrend_window's, at every head position tried."""
+    rng = np.random.default_rng(n)
+    buf = rng.normal(5.0, 3.0, size=(4, 2 * n))
+    window = np.hanning(n)
+    for head in sorted({0, 1, 7, n // 2, n - 1}):
+        means, out = np.empty(4), np.empty((4, n))
+        detrend_window_ring(buf, head, means, window, out)
+        view = buf[:, head : head + n]
+        assert means.tolist() == [row_mean(np.ascontiguousarray(row)) for row in view]
+        ref_means, ref_out = np.empty(4), np.empty((4, n))
+        detrend_window(view, ref_means, window, ref_out)
+        assert means.tolist() == ref_means.tolist()
+        assert np.array_equal(out, ref_out)

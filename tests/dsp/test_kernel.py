@@ -172,3 +172,114 @@ def test_the_block_walk_of_the_peak_search_equals_the_walk_bin_by_bin(size: int)
                 continue
             for step in (-1, 1):
                 assert kernel._walk_min(v, bmin, bmax, p, float(v[p]), step) == _walk_bin_by_bin(v, p, step), (p, step)
+
+
+@pytest.mark.parametrize("n_bins", [1, 4, 5, 6, 7, 257, 1025])
+def test_the_vector_averaging_is_the_scalar_loop_bit_for_bit(n_bins: int) -> None:
+    """kernel._accumulate (four bins of all seven spectra per vector step, the power-floor sums
+    in the same loop) equals its scalar definition, ``state[r] += (conj(X_i)·c)·X_j`` bin by bin
+    with numpy's fused multiply-adds and the sums in bin order, to the bit: every K mod 4, values
+    over 80 decades, weights from tiny to huge."""
+    from numba import njit
+
+    from dsp_service import kernel
+
+    fma = kernel._fma
+
+    @njit
+    def scalar(X: np.ndarray, c: float, state: np.ndarray) -> tuple[float, float]:
+        k = X.shape[1] // 2
+        for r in range(7):
+            i, j = (0, r) if r < 4 else (1, r - 3)
+            for b in range(k):
+                ur = X[i, 2 * b] * c
+                ui = -X[i, 2 * b + 1] * c
+                br, bi = X[j, 2 * b], X[j, 2 * b + 1]
+                state[r, 2 * b] += fma(ur, br, -(ui * bi))
+                state[r, 2 * b + 1] += fma(ur, bi, ui * br)
+        s11 = s22 = 0.0
+        for b in range(k):
+            s11 += state[0, 2 * b]
+            s22 += state[4, 2 * b]
+        return s11, s22
+
+    rng = np.random.default_rng(n_bins)
+    X = rng.standard_normal((4, 2 * n_bins)) * np.exp(rng.uniform(-90.0, 90.0, (4, 2 * n_bins)))
+    state0 = rng.standard_normal((7, 2 * n_bins)) * np.exp(rng.uniform(-90.0, 90.0, (7, 2 * n_bins)))
+    for c in (1.0, 0.7, 1e-300, 3.3e50, 0.0):
+        ours, ref = state0.copy(), state0.copy()
+        sums = kernel._accumulate(X, c, ours)
+        assert sums == scalar(X, c, ref)
+        assert np.array_equal(ours.view(np.int64), ref.view(np.int64))
+
+
+@pytest.mark.parametrize("w,m", [(17, 404), (17, 23), (9, 100), (3, 8), (1, 37), (31, 250)])
+def test_the_smoothing_filter_is_each_windows_sum_in_order(w: int, m: int) -> None:
+    """kernel._smooth (the interior as one filter over the (re, im) floats, sixteen at a time;
+    the edge rows one by one) gives each output bin its window's sum in tap order from 0.0,
+    bit for bit, whatever m and w leave for the scalar remainder; and the validity with and
+    without the all-valid shortcut."""
+    from dsp_service import kernel
+
+    rng = np.random.default_rng(w * 1000 + m)
+    h = w // 2
+    k = m + 2 * w + 5
+    src = rng.standard_normal(k) + 1j * rng.standard_normal(k)
+    lo = 2  # rows 0 … h−1 of the range are edge rows (their own coefficients, start 0)
+    centre = rng.standard_normal(w)
+    n_edge = min(h, m)
+    coef = np.vstack([rng.standard_normal((n_edge, w)), np.tile(centre, (m - n_edge, 1))])
+    starts = np.array([0] * n_edge + list(range(1, 1 + m - n_edge)), dtype=np.intp)
+    ia, ib = (n_edge, m) if m - n_edge >= 2 else (0, 0)
+    for all_valid in (True, False):
+        valid = np.ones(k, dtype=bool)
+        if not all_valid:
+            valid[rng.integers(0, k, 3)] = False
+        hs = np.full(m, np.nan + 0j)
+        vs = np.zeros(m, dtype=bool)
+        n_valid = kernel._smooth(src, valid, lo, lo + m, coef, starts, hs, vs, ia, ib, all_valid)
+        for i in range(m):
+            a = b = 0.0
+            for j in range(w):
+                a += float(coef[i, j]) * float(src[starts[i] + j].real)
+                b += float(coef[i, j]) * float(src[starts[i] + j].imag)
+            assert hs[i].real == a and hs[i].imag == b, i
+            assert vs[i] == bool(valid[starts[i] : starts[i] + w].all())
+        assert n_valid == int(vs.sum())
+
+
+@pytest.mark.parametrize("n_max", [1, 2, 5, 16, 17, 40])
+def test_the_peak_search_tries_the_maxima_highest_first_and_of_equal_ones_the_later(n_max: int) -> None:
+    """kernel._peaks picks the highest untried maximum one at a time (up to _SELECT_MAX maxima)
+    or follows a stable sort (more): both the order of scipy's maxima sorted by height, highest
+    first, equal heights the later first, with the prominence walk of scipy."""
+    from scipy.signal._peak_finding_utils import _local_maxima_1d
+
+    from dsp_service import kernel
+
+    rng = np.random.default_rng(n_max)
+    size = 8 * n_max + 9
+    for trial in range(20):
+        mag = np.full(size, 1.0)
+        heights = rng.choice([2.0, 3.0, 5.0], n_max) if trial % 2 else rng.uniform(2.0, 9.0, n_max)
+        for q, hgt in enumerate(heights):
+            mag[8 * q + 4] = hgt  # lone maxima; a dip of depth trial-dependent between them
+            mag[8 * q + 8] = 1.0 + 0.05 * rng.integers(0, 3)
+        hs = mag.astype(np.complex128)
+        want = int(rng.integers(1, n_max + 1))
+        ratio = float(rng.choice([1.0001, 2.5, 4.0]))
+        v = np.empty(size)
+        order, idx, prom = np.zeros(size, dtype=np.intp), np.zeros(want, dtype=np.intp), np.zeros(want)
+        nf = kernel._peaks(hs, np.ones(size, dtype=bool), size, np.ones(size), False, ratio, want, v, order, idx, prom, np.empty(size))
+        maxima = np.asarray(_local_maxima_1d(v)[0])
+        ranked = maxima[np.argsort(v[maxima], kind="mergesort")[::-1]]
+        expected = []
+        for p in ranked:
+            base = max(_walk_bin_by_bin(v, int(p), -1), _walk_bin_by_bin(v, int(p), 1))
+            if v[p] >= base * ratio:
+                expected.append((int(p), 20.0 * math.log10(v[p] / base)))
+                if len(expected) == want:
+                    break
+        if expected:
+            assert nf == len(expected)
+            assert list(zip(idx[:nf].tolist(), prom[:nf].tolist())) == expected
