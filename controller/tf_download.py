@@ -24,7 +24,7 @@ from protocol.errors import ProtocolError
 from protocol.messages import TfSnapshot
 from protocol.tf_codec import decode_tf
 from service_kit.clock import Scheduler
-from service_kit.realtime import lower_current_thread
+from service_kit.realtime import helper_priority, lower_current_thread
 
 log = logging.getLogger(__name__)
 
@@ -66,12 +66,12 @@ class TfDownloader:
                 return
             self._busy = True
             if self._thread is None:
-                self._thread = threading.Thread(target=self._worker, name="tf-download", daemon=True)
+                self._thread = threading.Thread(target=self._worker, args=(helper_priority(),), name="tf-download", daemon=True)
                 self._thread.start()
             self._wake.set()
 
-    def _worker(self) -> None:
-        lower_current_thread()  # started by the loop: one FIFO level below it, if it runs FIFO
+    def _worker(self, priority: int) -> None:
+        lower_current_thread(priority)  # started by the loop: one FIFO level below it, if it runs FIFO
         while True:
             self._wake.wait()
             self._wake.clear()
