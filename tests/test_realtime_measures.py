@@ -117,13 +117,14 @@ def test_pm_qos_cpu_latency_is_written_held_and_refusals_are_notes(tmp_path: Pat
     assert m.as_counters()["rt_cpu_latency_us"] == -1
 
 
-def test_zenoh_builds_its_shared_memory_pool_when_the_session_opens() -> None:
-    """zenoh moves payloads over its threshold (a batch, a TF snapshot) through a
-    shared-memory pool; built lazily, the pool cost the loop's tick that first
-    needed it ~5.5 ms. Every service's session builds it at open instead."""
+def test_zenoh_sessions_use_no_shared_memory() -> None:
+    """zenoh's shared-memory transport maps (mlock) a 16 MiB pool at a
+    process's first large put and again in each peer at its first large
+    receive: 12-19 ms with the process's mmap lock held, in the controller
+    at its first batch. The rig's sessions move every payload over their
+    links instead."""
     from protocol.settings import CommonSettings
     from service_kit.transport import zenoh_config
 
     shm = json.loads(zenoh_config(CommonSettings()).get_json("transport/shared_memory"))
-    assert shm["mode"] == "init"
-    assert shm["transport_optimization"]["enabled"]  # the same transport as before, only built earlier
+    assert shm["enabled"] is False
