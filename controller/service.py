@@ -721,6 +721,7 @@ class ControllerService:
             self._wait_for_dsp(stop, timeout=s.startup_timeout_s)
             if not lockstep:
                 self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=self.owns_process, cpu_latency_us=s.rt_cpu_latency_us)
+                self.tf.start_worker()  # before tick 0, one FIFO level below the loop
             self.ready_at = self.stopwatch()
             schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
             schedule.start()
