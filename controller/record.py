@@ -25,7 +25,7 @@ import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import numpy.typing as npt
@@ -295,19 +295,30 @@ class ChunkedRecord:
     :class:`ColumnBuffer` of ``chunk_rows``; each full chunk is appended to one
     raw file per column in ``<path>.parts/``. :meth:`save` writes the usual
     ``<path>.npz`` (each column streamed into its zip member, never loaded
-    whole) and ``<path>.json``, then removes the parts. Memory stays at one
-    chunk whatever the run's length; the files are what :func:`load_record`
-    reads, byte for byte the same columns as :func:`save_record` would write."""
+    whole) and ``<path>.json``, then removes the parts. Memory stays at two
+    chunks whatever the run's length; the files are what :func:`load_record`
+    reads, byte for byte the same columns as :func:`save_record` would write.
+
+    A full chunk is not written in the row that fills it: rows go on into a
+    second buffer, and each of the next rows writes one column of the full
+    chunk (in column order; the chunk is done after as many rows as there are
+    columns, far fewer than a chunk's rows). Written at once, a 4096-row chunk
+    of the controller's record and of its timing record cost the 1 kHz loop's
+    tick ~1 ms, an overrun every 4.1 s (docs/timing.md)."""
 
     def __init__(self, path: str | Path, columns: Iterable[str] | Mapping[str, npt.DTypeLike], chunk_rows: int = 4096) -> None:
         self._buffer = ColumnBuffer(columns, capacity=chunk_rows)
+        self._spare = ColumnBuffer(columns, capacity=chunk_rows)
+        """The full chunk being written (its columns in ``_pending``), else an empty buffer for the next."""
+        self._pending: list[tuple[BinaryIO, npt.NDArray[Any]]] = []
+        self._pending_rows = 0
         self._chunk = max(1, int(chunk_rows))
         npz_path, _ = _paths(path)
         self._path = path
         self._parts = npz_path.with_name(npz_path.name[: -len(".npz")] + ".parts")
         self._parts.mkdir(parents=True, exist_ok=True)
         self._dtypes = {name: self._buffer.column(name).dtype for name in self._buffer.names}
-        self._files = {name: open(self._parts / f"{name}.bin", "wb") for name in self._buffer.names}  # noqa: SIM115 (closed in save/close)
+        self._files: dict[str, BinaryIO] = {name: open(self._parts / f"{name}.bin", "wb") for name in self._buffer.names}  # noqa: SIM115 (closed in save/close)
         self._flushed = 0
         self.chunks_written = 0
 
@@ -316,21 +327,48 @@ class ChunkedRecord:
         return self._buffer.names
 
     def __len__(self) -> int:
-        return self._flushed + len(self._buffer)
+        return self._flushed + self._pending_rows + len(self._buffer)
 
     def append(self, row: Mapping[str, Any] | None = None, /, **values: Any) -> None:
         self._buffer.append(row, **values)
-        if len(self._buffer) >= self._chunk:
-            self.flush()
+        self._after_row()
 
     def append_row(self, values: Sequence[Any]) -> None:
         """:meth:`ColumnBuffer.append_row` into the current chunk."""
         self._buffer.append_row(values)
+        self._after_row()
+
+    def _after_row(self) -> None:
+        if self._pending:
+            self._write_pending(1)
         if len(self._buffer) >= self._chunk:
-            self.flush()
+            self._rotate()
+
+    def _rotate(self) -> None:
+        """The full chunk's columns queued for the next rows to write; rows go
+        on into the spare buffer."""
+        self._write_pending(len(self._pending))  # the chunk before (done long since with chunks of thousands of rows)
+        full = self._buffer
+        self._buffer, self._spare = self._spare, full
+        self._pending_rows = len(full)
+        self._pending = [(self._files[name], full.column(name)) for name in full.names]
+
+    def _write_pending(self, columns: int) -> None:
+        """Write up to ``columns`` of the full chunk's columns; the chunk done, its buffer is the spare."""
+        pending = self._pending
+        for _ in range(min(columns, len(pending))):
+            fh, column = pending.pop(0)
+            fh.write(column.tobytes())
+            fh.flush()
+        if not pending and self._pending_rows:
+            self._flushed += self._pending_rows
+            self._pending_rows = 0
+            self._spare.clear()
+            self.chunks_written += 1
 
     def flush(self) -> None:
-        """Append the buffered rows to the parts files."""
+        """Append every buffered row to the parts files."""
+        self._write_pending(len(self._pending))
         n = len(self._buffer)
         if not n:
             return
@@ -366,6 +404,7 @@ class ChunkedRecord:
 
     def close(self) -> None:
         """Drop the parts without saving."""
+        self._pending = []
         for fh in self._files.values():
             fh.close()
         shutil.rmtree(self._parts, ignore_errors=True)

@@ -721,6 +721,7 @@ class ControllerService:
             self._wait_for_dsp(stop, timeout=s.startup_timeout_s)
             if not lockstep:
                 self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=self.owns_process, cpu_latency_us=s.rt_cpu_latency_us)
+                self.tf.start_worker()  # before tick 0, one FIFO level below the loop
             self.ready_at = self.stopwatch()
             schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
             schedule.start()
@@ -925,6 +926,8 @@ class ControllerService:
             }
         self.record.save(path, self.settings.model_dump(), metadata)
         self.timing_record.save(path + ".timing", None, {"note": "wall-clock timing; differs run to run"})
+        if not self.lockstep and self.hops.n:
+            self._save_hops(path + ".hops.npz")
         if self.tf_snapshots:
             freqs = np.asarray(self.tf_snapshots[-1].freqs_hz)
             same = [s for s in self.tf_snapshots if len(s.freqs_hz) == freqs.size]
@@ -933,6 +936,21 @@ class ControllerService:
                 columns[f"{name}_mag"] = np.array([s.estimates[name].magnitude for s in same])
             arrays = {k: v for k, v in columns.items()}
             np.savez_compressed(path + ".tf.npz", freqs_hz=freqs, **arrays)  # type: ignore[arg-type]
+
+    def _save_hops(self, path: str) -> None:
+        """Real time: the tick path's raw per-hop stamps (wall clock, differs run to
+        run; beside the timing record, never in the run record): per tick run, the
+        last ``capacity`` of them in the order of the timing record's last rows, the
+        wake-up lateness (ns, -1 not measured) and the stopwatch ns
+        (``time.perf_counter_ns``: CLOCK_MONOTONIC, what ``perf record -k
+        CLOCK_MONOTONIC`` stamps) of the SYNC sent, the TPDO1 in and the tick
+        done, so an overrun can be set against a system trace."""
+        hops = self.hops
+        m = min(hops.n, hops.capacity)
+        raw = np.frombuffer(hops.raw, dtype=np.int64)[: 4 * m].reshape(m, 4)
+        if hops.n > hops.capacity:  # the ring wrapped: its oldest row is the next to be written
+            raw = np.roll(raw, -(hops.n % hops.capacity), axis=0)
+        np.savez(path, wakeup_ns=raw[:, 0], sync_ns=raw[:, 1], tpdo_ns=raw[:, 2], done_ns=raw[:, 3])
 
     def close(self) -> None:
         self.tf.join(timeout=3.0)

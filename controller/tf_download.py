@@ -24,7 +24,7 @@ from protocol.errors import ProtocolError
 from protocol.messages import TfSnapshot
 from protocol.tf_codec import decode_tf
 from service_kit.clock import Scheduler
-from service_kit.realtime import lower_current_thread
+from service_kit.realtime import helper_priority, lower_current_thread
 
 log = logging.getLogger(__name__)
 
@@ -65,13 +65,21 @@ class TfDownloader:
                 self.counters.tf_download_failures += 1  # the previous download is still under way
                 return
             self._busy = True
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._worker, name="tf-download", daemon=True)
-                self._thread.start()
+            self.start_worker()  # started before the loop's first tick (run): nothing to do here then
             self._wake.set()
 
-    def _worker(self) -> None:
-        lower_current_thread()  # started by the loop: one FIFO level below it, if it runs FIFO
+    def start_worker(self) -> None:
+        """Start the real-time download worker if it is not running. The loop
+        calls it before its first tick, once its real-time measures are in
+        effect: ``Thread.start`` waits for the new thread to run, and the new
+        thread starts on the normal scheduler (the loop's FIFO resets on
+        fork), so inside a tick it could wait behind any other process."""
+        if self._thread is None and not self.lockstep:
+            self._thread = threading.Thread(target=self._worker, args=(helper_priority(),), name="tf-download", daemon=True)
+            self._thread.start()
+
+    def _worker(self, priority: int) -> None:
+        lower_current_thread(priority)  # started by the loop: one FIFO level below it, if it runs FIFO
         while True:
             self._wake.wait()
             self._wake.clear()

@@ -10,12 +10,19 @@ SCHED_FIFO, affinity and the wake-up latency are opt-in (settings
 machine. With SCHED_FIFO, the interpreter's GIL switch interval drops to
 ``GIL_SWITCH_INTERVAL_S``: a FIFO loop that wants the GIL back from one of
 zenoh's callback threads would otherwise wait out CPython's default 5 ms.
-Helper threads the loop starts later inherit its FIFO priority; each steps
-one level below it first thing (:func:`lower_current_thread`), since
-threads at one FIFO priority are not time-sliced. The process's other
-threads (zenoh's runtime) stay on the normal scheduler: moved to FIFO they
-ran into the kernel's real-time throttling (50 ms stalls each second) in
-the acceptance runs (docs/timing.md).
+The loop's thread takes FIFO with ``SCHED_RESET_ON_FORK``: a thread created
+from it later starts on the normal scheduler. zenoh creates threads lazily
+(its runtimes' workers, the first time a path needs them): without the flag
+one inherited the loop's FIFO priority, and at the controller's first batch
+it spent 12-19 ms at that priority mapping (``mlock``) a shared-memory
+segment while the loop waited (docs/timing.md). The process's other threads
+(zenoh's runtime) stay on the normal scheduler: moved to FIFO they ran into
+the kernel's real-time throttling (50 ms stalls each second) in the
+acceptance runs (docs/timing.md). The loop's own helper threads (health, TF
+download) run FIFO one level below it: the loop asks :func:`helper_priority`
+before starting one, and the helper takes it first thing
+(:func:`lower_current_thread`), since threads at one FIFO priority are not
+time-sliced.
 Each measure reports whether it took effect; the services put that
 into their health counters and log it, and ``ralf-hil up`` prints it.
 """
@@ -39,6 +46,35 @@ CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"
 CPU enters an idle state whose exit latency exceeds that many µs."""
 _cpu_latency_fd: int | None = None
 _cpu_latency_us: int = -1
+
+_RESET_ON_FORK: int = getattr(os, "SCHED_RESET_ON_FORK", 0)
+"""Linux: or-ed into a policy, threads created by the thread start on the
+normal scheduler instead of inheriting its real-time policy (and
+``sched_getscheduler`` returns it or-ed in)."""
+
+
+def _fifo_priority_of_current_thread() -> int:
+    """The calling thread's SCHED_FIFO priority (0: not FIFO)."""
+    try:
+        if os.sched_getscheduler(0) & ~_RESET_ON_FORK != os.SCHED_FIFO:
+            return 0
+        return int(os.sched_getparam(0).sched_priority)
+    except (AttributeError, OSError):
+        return 0
+
+
+def _set_fifo(priority: int) -> None:
+    """SCHED_FIFO at ``priority`` for the calling thread, threads it creates
+    later starting on the normal scheduler (``SCHED_RESET_ON_FORK`` where the
+    system has it)."""
+    param = os.sched_param(priority)
+    if _RESET_ON_FORK:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | _RESET_ON_FORK, param)
+            return
+        except OSError:
+            pass
+    os.sched_setscheduler(0, os.SCHED_FIFO, param)
 
 
 @dataclass(frozen=True)
@@ -128,7 +164,7 @@ def apply_realtime(
         try:
             lo, hi = os.sched_get_priority_min(os.SCHED_FIFO), os.sched_get_priority_max(os.SCHED_FIFO)
             prio = min(max(priority, lo), hi)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+            _set_fifo(prio)
             fifo = prio
         except (AttributeError, OSError) as exc:
             notes.append(f"SCHED_FIFO refused: {exc}")
@@ -165,18 +201,38 @@ def apply_realtime(
     return measures
 
 
-def lower_current_thread() -> bool:
-    """A helper thread (health, TF download, recorder) started by a FIFO loop
-    inherits the loop's policy and priority; called first thing in such a
-    thread, it steps one FIFO level below the loop (threads at the same FIFO
-    priority are not time-sliced, so the helper would hold the loop's core
-    until it blocks). Returns True when the thread was lowered; a thread on
-    the normal scheduler is left alone."""
+def helper_priority() -> int:
+    """Called by a loop about to start a helper thread (health, TF download):
+    the FIFO priority the helper is to take, one level below the caller's
+    (0: the caller is not FIFO, the helper stays on the normal scheduler).
+    Pass it to :func:`lower_current_thread` in the helper."""
+    prio = _fifo_priority_of_current_thread()
+    if not prio:
+        return 0
     try:
-        if os.sched_getscheduler(0) != os.SCHED_FIFO:
+        return max(prio - 1, os.sched_get_priority_min(os.SCHED_FIFO))
+    except (AttributeError, OSError):
+        return 0
+
+
+def lower_current_thread(priority: int | None = None) -> bool:
+    """A helper thread (health, TF download, recorder) started by a FIFO loop
+    runs one FIFO level below the loop (threads at the same FIFO priority are
+    not time-sliced, so the helper would hold the loop's core until it
+    blocks). ``priority``: what the loop's :func:`helper_priority` gave when it
+    started the helper (the loop's FIFO is not inherited: it resets on fork);
+    0 leaves the thread on the normal scheduler. None: a thread that inherited
+    FIFO steps one level below what it inherited. Called first thing in the
+    helper; returns True when the thread now runs FIFO below its loop."""
+    try:
+        if priority is None:
+            inherited = _fifo_priority_of_current_thread()
+            if not inherited:
+                return False
+            priority = max(inherited - 1, os.sched_get_priority_min(os.SCHED_FIFO))
+        if priority <= 0:
             return False
-        prio = os.sched_getparam(0).sched_priority
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(max(prio - 1, os.sched_get_priority_min(os.SCHED_FIFO))))
+        _set_fifo(priority)
         return True
     except (AttributeError, OSError):
         return False

@@ -176,8 +176,12 @@ class HealthPublisher:
         self._seq = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="health", daemon=True)
+        self._priority = 0
 
     def start(self) -> HealthPublisher:
+        from service_kit.realtime import helper_priority
+
+        self._priority = helper_priority()  # started by a FIFO loop: one level below it
         self._thread.start()
         return self
 
@@ -188,7 +192,7 @@ class HealthPublisher:
     def _run(self) -> None:
         from service_kit.realtime import lower_current_thread
 
-        lower_current_thread()  # started by a FIFO loop: one level below it
+        lower_current_thread(self._priority)  # started by a FIFO loop: one level below it
         while not self._stop.wait(self._period):
             try:
                 self.publish_now()

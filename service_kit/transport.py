@@ -28,11 +28,16 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
     config.insert_json5("mode", json.dumps(settings.zenoh_mode))
     config.insert_json5("scouting/multicast/enabled", json.dumps(settings.zenoh_multicast_scouting))
     config.insert_json5("transport/link/tx/lease", json.dumps(settings.zenoh_lease_ms))
-    # zenoh moves payloads over 3 KB (batches, TF snapshots) through shared
-    # memory, and by default builds its 16 MiB pool at the first such put: in
-    # real time, ~5.5 ms inside one tick of the loop (docs/timing.md). Built
-    # when the session opens instead; the same transport afterwards.
-    config.insert_json5("transport/shared_memory/mode", json.dumps("init"))
+    # No shared-memory transport: zenoh would move payloads over 3 KB (a
+    # batch, a TF snapshot) through a 16 MiB pool, which it creates at the
+    # first such put and maps with mlock (every page faulted in while the
+    # process's mmap lock is held: 12-19 ms in the controller at its first
+    # batch, the loop blocked in the kernel meanwhile; ~30 ms in the DSP at its
+    # first TF snapshot; the peer pays again when it first maps the pool), and
+    # runs two watchdog threads per process at 20 and 10 Hz. Over loopback TCP
+    # a 6 KB batch or a 91 KB snapshot costs zenoh's I/O threads a copy, not
+    # the loop (docs/timing.md, "The 1 kHz overruns: where they fall").
+    config.insert_json5("transport/shared_memory/enabled", "false")
     connect = settings.endpoints("connect")
     listen = settings.endpoints("listen")
     if connect:

@@ -45,13 +45,15 @@ def test_measures_on_a_thread_of_their_own_fall_back_cleanly() -> None:
 def test_whole_process_drops_the_switch_interval_and_helpers_step_below_the_loop() -> None:
     """In a process of its own (the measure changes process-wide state): with
     SCHED_FIFO granted, the GIL switch interval drops, a thread started before
-    the measure stays on the normal scheduler, and a helper the loop starts
-    later steps one FIFO level below it; refused, nothing moves and the
+    the measure stays on the normal scheduler, a thread the loop creates later
+    (zenoh creates its runtime's threads lazily) starts on the normal
+    scheduler instead of inheriting the loop's FIFO, and a helper the loop
+    starts steps one FIFO level below it; refused, nothing moves and the
     refusal is reported."""
     code = textwrap.dedent(
         """
         import json, os, sys, threading
-        from service_kit.realtime import apply_realtime, lower_current_thread
+        from service_kit.realtime import apply_realtime, helper_priority, lower_current_thread
         ready, done = threading.Event(), threading.Event()
         tid = []
         def idle():
@@ -59,27 +61,31 @@ def test_whole_process_drops_the_switch_interval_and_helpers_step_below_the_loop
         t = threading.Thread(target=idle); t.start(); ready.wait(10)
         m = apply_realtime(priority=2, whole_process=True, freeze_gc=False)
         other = os.sched_getscheduler(tid[0]), os.sched_getparam(tid[0]).sched_priority
+        created = []
+        def lazy():  # a thread the loop creates later (zenoh's, say): the loop's FIFO is not inherited
+            created.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+        z = threading.Thread(target=lazy); z.start(); z.join(10)
         later = []
-        def helper():  # started by the FIFO loop: inherits its priority, then steps below it
-            inherited = os.sched_getparam(0).sched_priority
-            lowered = lower_current_thread()
-            later.append((inherited, lowered, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
-        h = threading.Thread(target=helper); h.start(); h.join(10)
+        def helper(priority):  # the loop's helper: one level below the loop
+            lowered = lower_current_thread(priority)
+            later.append((priority, lowered, os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_getparam(0).sched_priority))
+        h = threading.Thread(target=helper, args=(helper_priority(),)); h.start(); h.join(10)
         done.set(); t.join(10)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        print(json.dumps({"fifo": m.fifo_priority, "switch": sys.getswitchinterval(),
-                          "other": other, "later": later[0], "FIFO": os.SCHED_FIFO, "notes": list(m.notes), "counters": m.as_counters()}))
+        print(json.dumps({"fifo": m.fifo_priority, "switch": sys.getswitchinterval(), "other": other, "created": created[0],
+                          "later": later[0], "FIFO": os.SCHED_FIFO, "notes": list(m.notes), "counters": m.as_counters()}))
         """
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     r = json.loads(out.stdout.strip().splitlines()[-1])
     if r["fifo"]:
         assert r["other"][0] != r["FIFO"]  # zenoh's threads stay on the normal scheduler
-        assert r["later"] == [2, True, r["FIFO"], 1]  # a helper started later: one level below the loop
+        assert r["created"] == [os.SCHED_OTHER, 0]  # so do those created after the loop went FIFO
+        assert r["later"] == [1, True, r["FIFO"], 1]  # a helper started by the loop: one level below it
         assert r["switch"] == pytest.approx(GIL_SWITCH_INTERVAL_S) and r["counters"]["rt_switch_interval_us"] == 200
     else:
         assert r["other"][0] != r["FIFO"] and any("SCHED_FIFO" in n for n in r["notes"])
-        assert r["later"][1] is False  # nothing to lower on the normal scheduler
+        assert r["later"][:2] == [0, False]  # nothing to lower on the normal scheduler
 
 
 def test_pm_qos_cpu_latency_is_written_held_and_refusals_are_notes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -111,13 +117,14 @@ def test_pm_qos_cpu_latency_is_written_held_and_refusals_are_notes(tmp_path: Pat
     assert m.as_counters()["rt_cpu_latency_us"] == -1
 
 
-def test_zenoh_builds_its_shared_memory_pool_when_the_session_opens() -> None:
-    """zenoh moves payloads over its threshold (a batch, a TF snapshot) through a
-    shared-memory pool; built lazily, the pool cost the loop's tick that first
-    needed it ~5.5 ms. Every service's session builds it at open instead."""
+def test_zenoh_sessions_use_no_shared_memory() -> None:
+    """zenoh's shared-memory transport maps (mlock) a 16 MiB pool at a
+    process's first large put and again in each peer at its first large
+    receive: 12-19 ms with the process's mmap lock held, in the controller
+    at its first batch. The rig's sessions move every payload over their
+    links instead."""
     from protocol.settings import CommonSettings
     from service_kit.transport import zenoh_config
 
     shm = json.loads(zenoh_config(CommonSettings()).get_json("transport/shared_memory"))
-    assert shm["mode"] == "init"
-    assert shm["transport_optimization"]["enabled"]  # the same transport as before, only built earlier
+    assert shm["enabled"] is False

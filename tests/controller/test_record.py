@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from controller.oatf import OatfConfig
 from controller.pi import PIConfig
-from controller.record import RECORD_FORMAT, ColumnBuffer, load_record, save_record
+from controller.record import RECORD_FORMAT, ChunkedRecord, ColumnBuffer, load_record, save_record
 
 
 def test_round_trip(tmp_path: Path) -> None:
@@ -98,3 +98,33 @@ def test_column_buffer_equals_list_append(rows: list[tuple[float, int]], capacit
     cols = buf.to_columns()
     np.testing.assert_array_equal(cols["x"], np.array([r[0] for r in rows], dtype=float))
     np.testing.assert_array_equal(cols["k"], np.array([r[1] for r in rows], dtype=np.int64))
+
+
+def test_a_full_chunk_is_written_one_column_per_row_and_the_record_is_unchanged(tmp_path: Path) -> None:
+    """The row that fills a chunk writes nothing; each later row writes at most
+    one of its columns, so no tick pays for the whole chunk; the parts and the
+    saved record are byte for byte what the rows make, whatever the chunk size."""
+    columns = {"a": np.float64, "b": np.int64, "flag": np.bool_, "c": np.float32}
+    rng = np.random.default_rng(3)
+    rows = [[float(rng.normal()), int(i), bool(i % 3 == 0), float(i) * 0.25] for i in range(53)]
+    want = ColumnBuffer(columns, capacity=4)
+    for row in rows:
+        want.append_row(list(row))
+    for chunk in (1, 2, 4, 5, 64):
+        rec = ChunkedRecord(tmp_path / f"r{chunk}", columns, chunk_rows=chunk)
+        parts = tmp_path / f"r{chunk}.parts"
+        written = 0
+        for i, row in enumerate(rows):
+            if i == 20:
+                rec.append(dict(zip(columns, row, strict=True)))  # the mapping form takes the same path
+            else:
+                rec.append_row(list(row))
+            size = sum(f.stat().st_size for f in parts.iterdir())
+            if chunk >= len(columns):  # (a chunk of fewer rows than columns finishes the one before at once)
+                assert size - written <= chunk * 8  # at most one column of one chunk per row
+            written = size
+            assert len(rec) == i + 1
+        rec.save()
+        got = load_record(tmp_path / f"r{chunk}").columns
+        for name, column in want.to_columns().items():
+            assert got[name].dtype == column.dtype and got[name].tobytes() == column.tobytes()

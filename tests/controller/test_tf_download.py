@@ -95,3 +95,25 @@ def test_a_malformed_snapshot_is_counted_and_dropped() -> None:
     dl.join(timeout=30.0)
     assert (c.undecodable, c.tf_download_failures, c.tf_downloads) == (2, 2, 0)
     assert dl.snapshots == [] and port.published == []
+
+
+def test_the_worker_can_start_before_the_first_download() -> None:
+    """The loop starts the worker before its first tick (a thread started inside
+    a tick makes the tick wait for it to run); the downloads then use it, and
+    a lockstep downloader never starts one."""
+    port = FakePort([_payload(0)])
+    c = _counters()
+    dl = _downloader(port, c)
+    dl.start_worker()
+    worker = dl._thread
+    assert worker is not None and worker.is_alive()
+    dl.start_worker()
+    assert dl._thread is worker  # started once
+    port.gate.set()
+    dl.on_tick(10, dsp_idle=False, dsp_alive=True)
+    _wait_idle(dl)
+    assert c.tf_downloads == 1 and port.threads == {worker.name + str(worker.ident)}
+    dl.join(timeout=30.0)
+    lockstep = TfDownloader(port, RealTimeScheduler(), c, lockstep=True, every_samples=10, lockstep_timeout_s=1.0, resend_s=0.1, keep_all=True)  # type: ignore[arg-type]
+    lockstep.start_worker()
+    assert lockstep._thread is None
