@@ -240,7 +240,7 @@ class RecursiveArx:
         self._live_level = 0.0  #: its long-run level (change_reference_s)
         self._calm = 0  #: model samples the live model has run calm since its last switch or burst
         self._pending: _Regime | None = None  #: the snapshot taken bank_settle_s ago, stored if calm since
-        self._hold = 0
+        self._better_batches = 0  #: consecutive batches in which one remembered model of another regime explained the data markedly better
         self._frozen = 0  #: model samples the live model is still held unchanged after a switch
         self._clock = 0  #: model samples regressed (the bank's clock; an entry's last use)
 
@@ -382,10 +382,10 @@ class RecursiveArx:
             and powers[best] < c.bank_switch_ratio * self._live_power
             and not self._same_regime(self.bank[best].signature, self._signature(self.theta))
         ):
-            self._hold += 1
+            self._better_batches += 1
         else:
-            self._hold = 0
-        if self._hold >= c.bank_switch_batches:
+            self._better_batches = 0
+        if self._better_batches >= c.bank_switch_batches:
             reg = self.bank[best]
             self.R = reg.R.copy()
             self.theta = reg.theta.copy()
@@ -393,7 +393,7 @@ class RecursiveArx:
             self._weight_sum = reg.weight_sum
             reg.used = self._clock
             self._live_power = reg.power
-            self._hold = 0
+            self._better_batches = 0
             self._calm = 0
             self._pending = None
             self.bank_switches += 1

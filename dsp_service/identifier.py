@@ -745,7 +745,7 @@ class Identifier:
         hist, avg = self.history, self._avg
         seen, n_hist = hist._seen, hist._n  # hist.samples_seen, hist.n (the properties, without their calls)
         if seen > 0 and (seen >= n_hist or self._k_early):
-            weight = avg.take(self._pending)  # next_weight and account: the kernel adds the snapshot
+            weight = avg.take(self._pending)  # next_weight and the bookkeeping: the kernel adds the snapshot
             self._pending = 0
             # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
             self._k_detrend_ring(hist._buf, hist._head, *self._k_dtr_args)

@@ -301,24 +301,18 @@ class SpectralAverager:
 
     def add(self, weighted: NDArray[np.complex128], new_samples: int) -> None:
         """Accumulate a snapshot already multiplied by :meth:`next_weight`."""
-        c = self._c
         self.state += weighted
-        self.updates += 1
-        self._sum_c += c
-        self._sum_c2 += c * c
-        self._sum_cl += c * float(new_samples)
+        self._account(self._c, new_samples)
 
-    def account(self, new_samples: int) -> None:
-        """:meth:`add`'s bookkeeping only, for a caller that added the weighted snapshot to
-        :attr:`state` itself (the compiled step, :mod:`.kernel`)."""
-        c = self._c
+    def _account(self, c: float, new_samples: int) -> None:
+        """The bookkeeping of one snapshot of weight ``c`` (its state already added)."""
         self.updates += 1
         self._sum_c += c
         self._sum_c2 += c * c
         self._sum_cl += c * float(new_samples)
 
     def take(self, new_samples: int) -> float:
-        """:meth:`next_weight`, then :meth:`account`, in one call: the weight of a snapshot the
+        """:meth:`next_weight`, then :meth:`add`'s bookkeeping, in one call: the weight of a snapshot the
         caller adds to :attr:`state` itself (the compiled step). The usual exponential update
         (no rescale) inline, the rest through :meth:`next_weight`; the same arithmetic."""
         alpha = self.alpha
@@ -330,10 +324,7 @@ class SpectralAverager:
                 self._c = c
         else:
             c = self.next_weight()
-        self.updates += 1
-        self._sum_c += c
-        self._sum_c2 += c * c
-        self._sum_cl += c * float(new_samples)
+        self._account(c, new_samples)
         return c
 
     def update(self, new: NDArray[np.complex128], new_samples: int) -> None:

@@ -215,21 +215,15 @@ def helper_priority() -> int:
         return 0
 
 
-def lower_current_thread(priority: int | None = None) -> bool:
-    """A helper thread (health, TF download, recorder) started by a FIFO loop
-    runs one FIFO level below the loop (threads at the same FIFO priority are
-    not time-sliced, so the helper would hold the loop's core until it
-    blocks). ``priority``: what the loop's :func:`helper_priority` gave when it
-    started the helper (the loop's FIFO is not inherited: it resets on fork);
-    0 leaves the thread on the normal scheduler. None: a thread that inherited
-    FIFO steps one level below what it inherited. Called first thing in the
-    helper; returns True when the thread now runs FIFO below its loop."""
+def lower_current_thread(priority: int) -> bool:
+    """A helper thread (health, TF download) started by a FIFO loop runs one
+    FIFO level below the loop (threads at the same FIFO priority are not
+    time-sliced, so the helper would hold the loop's core until it blocks).
+    ``priority``: what the loop's :func:`helper_priority` gave when it started
+    the helper (the loop's FIFO is not inherited: it resets on fork); 0 leaves
+    the thread on the normal scheduler. Called first thing in the helper;
+    returns True when the thread now runs FIFO below its loop."""
     try:
-        if priority is None:
-            inherited = _fifo_priority_of_current_thread()
-            if not inherited:
-                return False
-            priority = max(inherited - 1, os.sched_get_priority_min(os.SCHED_FIFO))
         if priority <= 0:
             return False
         _set_fifo(priority)
