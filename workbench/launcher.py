@@ -35,10 +35,25 @@ START_ORDER = start_order()
 STOP_ORDER = stop_order()
 
 
+def free_tcp_ports(count: int) -> list[int]:
+    """``count`` distinct free TCP ports on 127.0.0.1.
+
+    Every socket stays bound until all are chosen: the kernel may hand out
+    a port again as soon as its socket closes, and two services of one rig
+    given the same port fail with "Address already in use" (seen once in
+    the suite: the controller's listener took the launcher's port)."""
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_STREAM) for _ in range(count)]
+    try:
+        for sock in socks:
+            sock.bind(("127.0.0.1", 0))
+        return [int(sock.getsockname()[1]) for sock in socks]
+    finally:
+        for sock in socks:
+            sock.close()
+
+
 def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+    return free_tcp_ports(1)[0]
 
 
 def can_port_for(rig_id: str) -> int:
@@ -65,8 +80,8 @@ class RigPlan:
         overrides: Mapping[str, Mapping[str, str]] | None = None,
         common: Mapping[str, str] | None = None,
     ) -> RigPlan:
-        port = free_tcp_port()
-        service_ports = {name: free_tcp_port() for name in SERVICE_MODULES}
+        port, *ports = free_tcp_ports(1 + len(SERVICE_MODULES))
+        service_ports = dict(zip(SERVICE_MODULES, ports, strict=True))
         env = {
             "RALF_RIG_ID": rig_id,
             "RALF_ZENOH_MODE": "peer",

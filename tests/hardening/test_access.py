@@ -6,7 +6,6 @@ each protected key arrive only where the rules allow them."""
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -24,15 +23,10 @@ from service_kit.access import (
     publishers,
     write_credentials_file,
 )
+from workbench.launcher import free_tcp_port
 
 RIG = "acl-test"
 KEYS = Keys(RIG)
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _config(listen: str | None = None, connect: str | None = None) -> zenoh.Config:
@@ -67,7 +61,7 @@ class Receiver:
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, dict[str, str], Receiver, Path]]:
     creds = generate_credentials()
     path = write_credentials_file(tmp_path_factory.mktemp("acl") / "credentials.txt", creds)
-    endpoint = f"tcp/127.0.0.1:{_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     node = zenoh.open(insert_access(_config(listen=endpoint), RIG, "dsp", creds["dsp"], str(path), acl=True))
     receiver = Receiver(node)
     try:

@@ -15,7 +15,7 @@ from protocol.keys import SERVICES, Keys
 from protocol.rig_description import RIG, Channel, RigDescription, Service, json_models, keys_table, start_order, stop_order
 from service_kit.access import ROLES, acl_config, publishers
 from workbench.config_docs import KEYS_BEGIN, KEYS_END
-from workbench.launcher import SERVICE_MODULES, START_ORDER, STOP_ORDER
+from workbench.launcher import SERVICE_MODULES, START_ORDER, STOP_ORDER, RigPlan, free_tcp_ports
 
 ROOT = Path(__file__).resolve().parents[2]
 KEYS = Keys("desc")
@@ -107,3 +107,14 @@ def test_design_doc_holds_the_generated_keys_table() -> None:
     text = (ROOT / "docs" / "design.md").read_text()
     section = text.split(KEYS_BEGIN, 1)[1].split(KEYS_END, 1)[0]
     assert section == keys_table(), "regenerate it: python -c \"from workbench.config_docs import write_keys_table; write_keys_table('docs/design.md')\""
+
+
+def test_a_local_plan_gives_every_listener_its_own_port() -> None:
+    """The launcher's listener and each service's are distinct in every plan
+    (they were drawn one socket at a time, and the kernel may hand a closed
+    port out again: a controller once failed on the launcher's port)."""
+    for _ in range(200):
+        plan = RigPlan.local("ports")
+        ports = [plan.zenoh_port, *plan.service_ports.values()]
+        assert len(set(ports)) == len(ports), ports
+    assert len(set(free_tcp_ports(64))) == 64

@@ -5,7 +5,6 @@ namespace) is recorded with its health, liveliness and CAN frames."""
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -14,20 +13,14 @@ from pathlib import Path
 
 import pytest
 
-from workbench.launcher import terminate
+from workbench.launcher import free_tcp_port, terminate
 from workbench.recording.reader import Recording
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.mark.timeout(120)
 def test_record_a_plant_running_alone(tmp_path: Path) -> None:
     rig_id = f"alone-{uuid.uuid4().hex[:6]}"
-    zport, can_port = _free_port(), 45000 + os.getpid() % 5000
+    zport, can_port = free_tcp_port(), 45000 + os.getpid() % 5000
     env = {
         **os.environ,
         "RALF_RIG_ID": rig_id,
@@ -70,7 +63,7 @@ def test_a_service_records_itself_with_record_flag(tmp_path: Path) -> None:
     path = tmp_path / "dsp.mcap"
     env = {**os.environ, "RALF_RIG_ID": rig_id, "RALF_HEALTH_PERIOD_S": "0.5", "RALF_CAN_PORT": str(45000 + (os.getpid() + 7) % 5000), "PYTHONUNBUFFERED": "1"}
     dsp = subprocess.Popen(
-        [sys.executable, "-m", "dsp_service", "--set", "fft_width=1024", "--record", str(path), "--set", f"zenoh_listen=tcp/127.0.0.1:{_free_port()}"],
+        [sys.executable, "-m", "dsp_service", "--set", "fft_width=1024", "--record", str(path), "--set", f"zenoh_listen=tcp/127.0.0.1:{free_tcp_port()}"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
     )  # fmt: skip
     try:

@@ -191,7 +191,8 @@ def test_the_paced_zenoh_echo_holds_each_answer_as_asked(tmp_path: Path) -> None
     acknowledged) before each answer, and the pinger runs its untimed work
     before each round trip: every round trip lasts at least the hold."""
     from workbench.bench.pingers import ZenohPinger, zenoh_session
-    from workbench.bench.procs import Child, free_tcp_port, private_rig_id
+    from workbench.bench.procs import Child, private_rig_id
+    from workbench.launcher import free_tcp_port
 
     rig = private_rig_id("paced")
     port = free_tcp_port()

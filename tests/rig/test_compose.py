@@ -11,7 +11,6 @@ import queue
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -25,6 +24,7 @@ import zenoh
 from protocol.keys import Keys
 from protocol.messages import ControllerStatus, decode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+from workbench.launcher import free_tcp_port
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
@@ -33,12 +33,6 @@ COMMANDS = {"ralf-dsp": "dsp_service", "ralf-plant": "plant_emulator", "ralf-con
 
 def _compose() -> dict:
     return yaml.safe_load((ROOT / "docker-compose.yml").read_text())
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def test_compose_file_describes_router_and_three_services() -> None:
@@ -103,7 +97,7 @@ def test_console_scripts_are_declared() -> None:
 @pytest.mark.timeout(120)
 def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
     doc = _compose()
-    port = _free_port()
+    port = free_tcp_port()
     rig_id = f"compose-{uuid.uuid4().hex[:6]}"
     # The router as compose runs it: the configuration `ralf-hil credentials`
     # writes (authentication of every client, the rig's access rules), on loopback.

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import io
 import json
-import socket
 import threading
 import time
 import uuid
@@ -21,12 +20,7 @@ from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, LatencyStats, encode
 from workbench import monitor
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from workbench.launcher import free_tcp_port
 
 
 @dataclass
@@ -49,7 +43,7 @@ def _clean_ralf_env(monkeypatch: pytest.MonkeyPatch) -> None:
 @pytest.fixture
 def service() -> Iterator[FakeService]:
     rig_id = f"mon-{uuid.uuid4().hex[:8]}"
-    port = _free_port()
+    port = free_tcp_port()
     keys = Keys(rig_id)
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
@@ -171,6 +165,6 @@ def test_nothing_heard_exits_1(capsys: pytest.CaptureFixture[str]) -> None:
     from workbench.cli import main
 
     # a rig id nobody uses, on a port nobody listens on: the peer keeps retrying, hears nothing
-    code = main(["monitor", "--once", "--rig-id", f"none-{uuid.uuid4().hex[:6]}", "--connect", f"tcp/127.0.0.1:{_free_port()}", "--window", "0.5"])
+    code = main(["monitor", "--once", "--rig-id", f"none-{uuid.uuid4().hex[:6]}", "--connect", f"tcp/127.0.0.1:{free_tcp_port()}", "--window", "0.5"])
     assert code == 1
     assert "nothing heard" in capsys.readouterr().err

@@ -35,8 +35,9 @@ from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, Interrupt, decode
 from workbench.bench.pingers import zenoh_session
-from workbench.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_rig_id
+from workbench.bench.procs import BenchError, Child, clean_env, private_rig_id
 from workbench.bench.stats import summarize
+from workbench.launcher import free_tcp_port
 
 RATE_HZ = 200.0
 FFT_WIDTH = 2048

@@ -44,8 +44,9 @@ from workbench.bench.pingers import (
     sample_batch,
     zenoh_session,
 )
-from workbench.bench.procs import BenchError, Child, clean_env, free_tcp_port, private_can_port, private_rig_id, tail
+from workbench.bench.procs import BenchError, Child, clean_env, private_can_port, private_rig_id, tail
 from workbench.bench.stats import from_latency_stats, ratio, ratios, summarize
+from workbench.launcher import free_tcp_port, free_tcp_ports
 from workbench.timing_test.report import health_verdict
 
 CAN_GROUP = "239.74.163.2"
@@ -158,7 +159,7 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
     """Batch -> interrupt through the real DSP service vs bare zenoh and bare UDP ping-pong."""
     size = batch_size_bytes(BATCH_SAMPLES)
     rig_id = private_rig_id("zenoh")
-    echo_port, paced_port, dsp_port = free_tcp_port(), free_tcp_port(), free_tcp_port()
+    echo_port, paced_port, dsp_port = free_tcp_ports(3)
     ping, pong = f"ralf/{rig_id}/bench/ping", f"ralf/{rig_id}/bench/pong"
     paced_ping, paced_pong, hold_key = f"ralf/{rig_id}/bench/paced/ping", f"ralf/{rig_id}/bench/paced/pong", f"ralf/{rig_id}/bench/paced/hold"
     result["config"] = {

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import select
-import socket
 import subprocess
 import sys
 import tempfile
@@ -19,12 +18,6 @@ from typing import Any
 
 class BenchError(RuntimeError):
     """A benchmark could not run (a helper did not start, a reply never came)."""
-
-
-def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def private_rig_id(prefix: str) -> str:
