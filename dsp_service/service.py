@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import zenoh
 
@@ -27,7 +28,7 @@ from dsp_service.core import BlockState, DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
-from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode
+from protocol.messages import BlockFlag, ConfigChange, Health, Interrupt, TfSnapshot, decode, encode, encode_fields
 from protocol.settings import DspSettings
 from protocol.tf_codec import encode_tf
 from service_kit.clock import RealTimeScheduler, Scheduler
@@ -58,11 +59,17 @@ class _Event:
 
 @dataclass
 class _Held:
-    """An interrupt computed and waiting for its due time (the block stays full)."""
+    """An interrupt computed and waiting for its due time (the block stays full):
+    its fields (:meth:`DspCore.process_fields`) and its wire bytes."""
 
-    interrupt: Interrupt
+    fields: dict[str, Any]
+    payload: bytes
     due: float
     arrival: float
+
+    @property
+    def batch_seq(self) -> int:
+        return int(self.fields["batch_seq"])
 
 
 class DspService:
@@ -82,7 +89,7 @@ class DspService:
         self.turnaround = LatencyTracker()
         self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
         self._held: _Held | None = None
-        self._last_raised: Interrupt | None = None
+        self._last_raised: _Held | None = None
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
@@ -131,9 +138,6 @@ class DspService:
 
     def _put_flag(self, flag: BlockFlag) -> None:
         self._flag_pub.put(encode(flag), attachment=self.board_id)
-
-    def _put_interrupt(self, interrupt: Interrupt) -> None:
-        self._irq_pub.put(encode(interrupt), attachment=self.board_id)
 
     def _build_health(self, seq: int) -> Health:
         counters = self.core.block.counters.as_dict()
@@ -192,7 +196,7 @@ class DspService:
             self._internal_error("batch", exc)
             return None
         if self.scheduler.now() >= held.due:
-            self._raise(held)  # latency 0: raised here, no thread on the path
+            self._raise_safely(held)  # latency 0: raised here, no thread on the path
         else:
             self._events.put("batch", _Event("held", held=held, arrival=arrival))  # the board's thread holds it until due
         return None
@@ -213,10 +217,11 @@ class DspService:
         self.core.apply_config(change)
 
     def _compute(self, batch: SampleBatch, admission: Admission, arrival: float) -> _Held:
-        interrupt = self.core.process(batch, admission)
-        return _Held(interrupt, arrival + self.core.due_after(interrupt, self.settings.clock == "realtime"), arrival)
+        fields = self.core.process_fields(batch, admission)
+        due = arrival + self.core.due_after(fields["compute_time_s"], self.settings.clock == "realtime")
+        return _Held(fields, encode_fields(fields), due, arrival)
 
-    def _raise(self, held: _Held) -> None:
+    def _raise(self, held: _Held) -> Interrupt:
         """Fig. 3.5 step 4: release the block and raise the interrupt, one message.
 
         The interrupt *is* the block-empty flag of its batch: the board
@@ -228,15 +233,30 @@ class DspService:
         go at start, after every config change, on a re-announce and after an
         internal error, and a controller takes a trailing flag of an older
         board as the echo it is (``ControllerService._echoes_interrupt``).
-        The bookkeeping comes after the put."""
-        self._last_raised = held.interrupt  # before the release: a resend seeing an empty block finds it
+        The bookkeeping comes after the put, and so does the interrupt's own
+        validation: its bytes were made from its fields by pydantic's
+        serializer (:func:`protocol.messages.encode_fields`) and the model is
+        built from the same fields once they are out, so a field the model
+        refuses is raised here (an internal error, counted and reported by
+        the caller) as the controller refuses the payload (counted there).
+        Returns the validated interrupt."""
+        self._last_raised = held  # before the release: a resend seeing an empty block finds it
         core = self.core
         with self._out_lock:
             with core.block_lock:
                 core.block.release()
-            self._irq_pub.put(encode(held.interrupt), attachment=self.board_id)
+            self._irq_pub.put(held.payload, attachment=self.board_id)
         self.turnaround.add(self.scheduler.now() - held.arrival)
-        self.compute_time.add(held.interrupt.compute_time_s)
+        self.compute_time.add(held.fields["compute_time_s"])
+        return Interrupt(**held.fields)
+
+    def _raise_safely(self, held: _Held) -> None:
+        """:meth:`_raise` where nothing may escape (zenoh's callback, the board's
+        loop): an interrupt the model refuses is an internal error."""
+        try:
+            self._raise(held)
+        except Exception as exc:
+            self._internal_error("interrupt", exc)
 
     def process_batch(self, batch: SampleBatch, admission: Admission | None = None) -> Interrupt | None:
         """One pass of Fig. 3.5 steps 3-4 for a batch (admitted here unless it
@@ -245,9 +265,7 @@ class DspService:
             admission = self.core.admit(batch)
         if not admission.accepted:
             return None
-        held = self._compute(batch, admission, self.scheduler.now())
-        self._raise(held)
-        return held.interrupt
+        return self._raise(self._compute(batch, admission, self.scheduler.now()))
 
     def _handle(self, event: _Event) -> None:
         if event.kind == "batch" and event.batch is not None and event.admission is not None:
@@ -258,7 +276,7 @@ class DspService:
             self.core.block.counters.interrupts_repeated += 1
             log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
             with self._out_lock:
-                self._put_interrupt(self._last_raised)  # the same interrupt: the block is empty again
+                self._irq_pub.put(self._last_raised.payload, attachment=self.board_id)  # the same interrupt: the block is empty again
         elif event.kind == "config" and event.change is not None:
             change = event.change  # decoded (and counted if invalid) by the inbox
             refused = ""
@@ -299,7 +317,7 @@ class DspService:
             now = self.scheduler.now()
             if self._held is not None and now >= self._held.due:
                 held, self._held = self._held, None
-                self._raise(held)
+                self._raise_safely(held)
                 last_flag = now
                 continue
             timeout = MAX_WAIT_S if self._held is None else min(MAX_WAIT_S, max(0.0, self._held.due - now))

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Final, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
+import pydantic_core
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from protocol.errors import ProtocolError
@@ -372,6 +373,22 @@ def encode(message: BaseModel) -> bytes:
     """JSON bytes of a message (``message.model_dump_json().encode()``, the same
     bytes, from the model's compiled serializer without the str round trip)."""
     return message.__pydantic_serializer__.to_json(message)
+
+
+def encode_fields(fields: Mapping[str, Any]) -> bytes:
+    """JSON bytes of a message given as its fields, with pydantic's own
+    serializer (``pydantic_core.to_json``) and no validation: for a sender's
+    hot path whose receiver validates at the boundary (:func:`decode`).
+
+    ``fields`` must hold every field of the model, in the model's order, as
+    plain Python values (``float`` subclasses serialize as floats, numpy
+    integers do not serialize at all); the bytes are then those of
+    ``encode(Model(**fields))`` (tested for :class:`Interrupt` against the
+    model on the identifier's real output). The DSP sends its interrupt so and
+    validates the model after the put (``dsp_service.service``): ~1.7 us
+    instead of ~6 us (build + encode) warm, and three to five times that
+    cold, on the batch -> interrupt path."""
+    return pydantic_core.to_json(fields)
 
 
 def decode(model: type[M], payload: bytes | bytearray | memoryview) -> M:

@@ -3,6 +3,7 @@ interrupts in order, protocol violations, run-time reconfiguration, TF queries."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import queue
 import threading
@@ -18,6 +19,7 @@ import zenoh
 from dsp_service.service import REANNOUNCE_S, DspService
 from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.encodings import TF_MIME
+from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, Interrupt, decode, encode
 from protocol.settings import DspSettings
@@ -352,15 +354,15 @@ def test_one_process_serves_several_rigs_and_a_stuck_rig_delays_no_other(session
     settings = _settings(rig_id=slow, serve_rigs=",".join(fast))
     assert settings.rig_ids == (slow, *fast)
     entered, release = threading.Event(), threading.Event()
-    original = DspCore.process
+    original = DspCore.process_fields
 
-    def process(core: DspCore, batch: SampleBatch, admission: object) -> Interrupt:
+    def process_fields(core: DspCore, batch: SampleBatch, admission: object) -> dict[str, object]:
         if core.settings.rig_id == slow:
             entered.set()
             assert release.wait(30.0), "the stuck rig was never released"
         return original(core, batch, admission)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(DspCore, "process", process)
+    monkeypatch.setattr(DspCore, "process_fields", process_fields)
     probes = {rig: Probe(session, Keys(rig)) for rig in (slow, *fast)}
     pubs = {rig: session.declare_publisher(Keys(rig).batch) for rig in (slow, *fast)}
     stop = threading.Event()
@@ -477,3 +479,66 @@ def test_the_bench_splits_a_batch_round_trip_at_the_interrupts_construction(sess
         # the split point lies inside the round trip: the interrupt was built after the batch
         # was sent and its step ran, and before it arrived; the step is part of the round trip
         assert out > -1e-5 and back > -1e-5 and 0 < compute < rtt
+
+
+@pytest.mark.parametrize("identifier", ["etfe", "etfe-welch", "etfe-transient", "arx"])
+def test_the_interrupts_wire_bytes_are_the_models(identifier: str) -> None:
+    """The board puts the interrupt's bytes made from its fields by pydantic's
+    serializer and validates the model after the put: for every identifier,
+    over batches with poles and without, the bytes are those of
+    ``encode(Interrupt(**fields))`` and decode to the same interrupt."""
+    from dsp_service.core import DspCore
+    from protocol.messages import encode_fields
+
+    core = DspCore(_settings(identifier=identifier, fft_width=256))
+    rng = np.random.default_rng(7)
+    t = np.arange(40 * 20) / 200.0
+    drive = rng.standard_normal((2, t.size))
+    response = np.vstack([np.convolve(drive[0], np.exp(-t[:60] * 3) * np.sin(2 * np.pi * 6 * t[:60]))[: t.size], drive[1] * 0.5])
+    poles_seen = 0
+    for seq in range(40):
+        sl = slice(seq * 20, (seq + 1) * 20)
+        batch = dataclasses.replace(_batch(seq), inputs=drive[:, sl].copy(), outputs=response[:, sl].copy())
+        fields = core.process_fields(batch, core.admit(batch))
+        core.release()
+        model = Interrupt(**fields)
+        poles_seen += len(model.poles)
+        assert encode_fields(fields) == encode(model)
+        assert decode(Interrupt, encode_fields(fields)) == model
+    assert poles_seen > 0
+
+
+@pytest.mark.parametrize("inline", [False, True])
+def test_an_interrupt_the_model_refuses_is_an_internal_error_and_the_board_goes_on(
+    session: zenoh.Session, monkeypatch: pytest.MonkeyPatch, inline: bool
+) -> None:
+    """The interrupt is validated after its put: a field the model refuses (a
+    board bug, here a confidence of 2) is counted as an internal error, the
+    block is released with an empty flag, and the next batch is answered."""
+    from dsp_service.core import DspCore
+
+    original = DspCore.process_fields
+
+    def process_fields(core: DspCore, batch: SampleBatch, admission: object) -> dict[str, object]:
+        fields = original(core, batch, admission)  # type: ignore[arg-type]
+        return {**fields, "confidence": 2.0} if batch.seq == 0 else fields
+
+    monkeypatch.setattr(DspCore, "process_fields", process_fields)
+    keys = Keys(_settings().rig_id)
+    raw: queue.Queue[bytes] = queue.Queue()
+    sub = session.declare_subscriber(keys.interrupt, lambda s: raw.put(s.payload.to_bytes()))
+    try:
+        with _running_board(session, _settings(rig_id=keys.rig_id), publisher=True, inline=inline) as board:
+            assert board.probe.next("flag", timeout=10.0).state == "empty"  # type: ignore[attr-defined]
+            assert board.pub is not None
+            board.pub.put(encode_batch(_batch(0)))
+            with pytest.raises(ProtocolError, match="confidence"):
+                decode(Interrupt, raw.get(timeout=5.0))  # what a controller would refuse (and count)
+            flag = board.probe.next("flag")
+            assert flag.state == "empty" and flag.next_batch_seq == 1  # type: ignore[attr-defined]
+            assert board.service.core.block.counters.internal_errors == 1
+            board.pub.put(encode_batch(_batch(1)))
+            irq = board.probe.next("irq")
+            assert isinstance(irq, Interrupt) and irq.batch_seq == 1
+    finally:
+        sub.undeclare()
