@@ -228,6 +228,7 @@ class ControllerService:
         self._last_batch: bytes | None = None
         self._irq_arrival: dict[int, float] = {}
         self._held_interrupts: list[Interrupt] = []
+        self._dropped_arrived: set[int] = set()  # batches whose interrupt came and a link fault dropped (lockstep waits for it)
         self._batch_sent_wall: dict[int, float] = {}
         self._batch_sent_unix: dict[int, tuple[float, int]] = {}
         """Per batch in flight: Unix time sent (the batch path's first stamp) and its sample count."""
@@ -413,6 +414,9 @@ class ControllerService:
                     taken = self.faults.interrupt(irq, irq.batch_seq)
                     if not taken and self.faults.lost(irq.batch_seq):
                         self.link.on_released(irq)  # dropped: its block-empty part still holds (no flag follows it)
+                        self._dropped_arrived.add(irq.batch_seq)
+                        if len(self._dropped_arrived) > 64:  # a free-running run never waits for them
+                            self._dropped_arrived.discard(min(self._dropped_arrived))
                     self._held_interrupts.extend(taken)  # type: ignore[arg-type]
             elif kind == "command":
                 self.reconfigure(payload)
@@ -492,12 +496,30 @@ class ControllerService:
         long it takes to arrive (the DSP's presence is not asked), up to
         ``lockstep_timeout_s``: then it is declared lost."""
         if self.faults is not None and self.faults.lost(seq):
+            if not self._dsp_never_got(seq):
+                # Only the interrupt was dropped: it still releases the DSP's block, and the
+                # next batch waits for that, so the handshake waits for it to come (and be
+                # dropped) here, not whenever the DSP's thread gets to it.
+                self._await_interrupt(seq, lambda: seq in self._dropped_arrived)
+                self._dropped_arrived.discard(seq)
             self._fault_lost(seq)
             return
+        if not self._await_interrupt(seq, lambda: any(irq.batch_seq == seq for irq in self._held_interrupts)):
+            # It will not come: count it lost, fire the deadline monitor, go on without it.
+            self.link.declare_lost()
+            self._note_batch(True)
+            self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
+            self.monitors.fire("deadline", self.last_miss)
+
+    def _await_interrupt(self, seq: int, arrived: Callable[[], bool]) -> bool:
+        """Take DSP-side events until ``arrived()`` (the interrupt of batch ``seq``
+        is in), resending the batch every ``BATCH_RESEND_S``; False after
+        ``lockstep_timeout_s``, at a stop, or at once when the port answers
+        synchronously and it is not in."""
         deadline = self.clock.now() + self.settings.lockstep_timeout_s
         resend_at = self.clock.now() + BATCH_RESEND_S
         self.timing.lockstep_waits += 1
-        while not any(irq.batch_seq == seq for irq in self._held_interrupts):
+        while not arrived():
             if not self.port.synchronous and self._last_batch is not None and self.clock.now() >= resend_at:
                 self.port.send_batch(self._last_batch)
                 self.timing.batch_resends += 1
@@ -505,14 +527,10 @@ class ControllerService:
             remaining = deadline - self.clock.now()
             event = self._next_event(min(remaining, 0.1)) if remaining > 0 and not self.clock.stopping else None
             if event is None and (remaining <= 0 or self.port.synchronous or self.clock.stopping):
-                # It will not come: count it lost, fire the deadline monitor, go on without it.
-                self.link.declare_lost()
-                self._note_batch(True)
-                self.last_miss = f"batch {seq}: no interrupt within {self.settings.lockstep_timeout_s:.1f} s (lockstep); declared lost"
-                self.monitors.fire("deadline", self.last_miss)
-                return
+                return False
             if event is not None:
                 self._take_event(*event)
+        return True
 
     def _fault_lost(self, seq: int) -> None:
         """Lockstep: batch ``seq`` or its interrupt was dropped by a link fault,
