@@ -496,13 +496,14 @@ class ControllerService:
         long it takes to arrive (the DSP's presence is not asked), up to
         ``lockstep_timeout_s``: then it is declared lost."""
         if self.faults is not None and self.faults.lost(seq):
+            came = True
             if not self._dsp_never_got(seq):
                 # Only the interrupt was dropped: it still releases the DSP's block, and the
                 # next batch waits for that, so the handshake waits for it to come (and be
                 # dropped) here, not whenever the DSP's thread gets to it.
-                self._await_interrupt(seq, lambda: seq in self._dropped_arrived)
+                came = self._await_interrupt(seq, lambda: seq in self._dropped_arrived)
                 self._dropped_arrived.discard(seq)
-            self._fault_lost(seq)
+            self._fault_lost(seq, answered=came)
             return
         if not self._await_interrupt(seq, lambda: any(irq.batch_seq == seq for irq in self._held_interrupts)):
             # It will not come: count it lost, fire the deadline monitor, go on without it.
@@ -532,9 +533,11 @@ class ControllerService:
                 self._take_event(*event)
         return True
 
-    def _fault_lost(self, seq: int) -> None:
+    def _fault_lost(self, seq: int, answered: bool = True) -> None:
         """Lockstep: batch ``seq`` or its interrupt was dropped by a link fault,
-        so it is lost at its due tick, without waiting. A batch that never
+        so it is lost at its due tick (once a dropped interrupt has come:
+        ``answered`` False if the board did not answer within
+        ``lockstep_timeout_s`` either, which the miss says). A batch that never
         reached the DSP leaves its block empty and expecting ``seq`` (the flag
         the CPU reads, Fig. 3.5): the next batch takes that number again and
         says its samples are missing, so the DSP restarts its history."""
@@ -547,6 +550,8 @@ class ControllerService:
             self.link.block_empty = True
             self.link.note_lost_samples(sent[1] if sent is not None else 0)
         self.last_miss = f"batch {seq}: interrupt lost at its due tick {self.tick} ({self.faults.blame(seq)})"
+        if not answered:
+            self.last_miss += f"; the board did not answer within {self.settings.lockstep_timeout_s:.1f} s either"
         self.monitors.fire("deadline", self.last_miss)
 
     def _dsp_never_got(self, seq: int) -> bool:
@@ -615,6 +620,7 @@ class ControllerService:
         self._last_batch = payload
         self._dsp_acked = False
         if self.faults is not None:
+            self._dropped_arrived.discard(sent.seq)  # a number taken again (a lost batch, a DSP restart) starts clean
             send, shift = self.faults.batch(sent.seq, self.tick, payload)
             if shift and self.link.in_flight is sent:
                 self.link.in_flight = dataclasses.replace(sent, due_tick=sent.due_tick + shift)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import zenoh
+from pydantic import ValidationError
 
 from dsp_service.board import Admission
 from dsp_service.core import BlockState, DspCore, identifier_config
@@ -221,7 +222,7 @@ class DspService:
         due = arrival + self.core.due_after(fields["compute_time_s"], self.settings.clock == "realtime")
         return _Held(fields, encode_fields(fields), due, arrival)
 
-    def _raise(self, held: _Held) -> Interrupt:
+    def _raise(self, held: _Held) -> Interrupt | None:
         """Fig. 3.5 step 4: release the block and raise the interrupt, one message.
 
         The interrupt *is* the block-empty flag of its batch: the board
@@ -237,9 +238,11 @@ class DspService:
         validation: its bytes were made from its fields by pydantic's
         serializer (:func:`protocol.messages.encode_fields`) and the model is
         built from the same fields once they are out, so a field the model
-        refuses is raised here (an internal error, counted and reported by
-        the caller) as the controller refuses the payload (counted there).
-        Returns the validated interrupt."""
+        refuses is an internal error here (counted, reported, an empty flag
+        sent; the block is already released) as the controller refuses the
+        payload (counted there), and a resend of that batch is not answered
+        with the same bytes again. Returns the validated interrupt (None if
+        it was refused)."""
         self._last_raised = held  # before the release: a resend seeing an empty block finds it
         core = self.core
         with self._out_lock:
@@ -248,11 +251,27 @@ class DspService:
             self._irq_pub.put(held.payload, attachment=self.board_id)
         self.turnaround.add(self.scheduler.now() - held.arrival)
         self.compute_time.add(held.fields["compute_time_s"])
-        return Interrupt(**held.fields)
+        try:
+            return Interrupt(**held.fields)
+        except ValidationError as exc:
+            self._last_raised = None
+            self._refused_interrupt(held, exc)
+            return None
+
+    def _refused_interrupt(self, held: _Held, exc: ValidationError) -> None:
+        """The interrupt just sent is one the model refuses (a board bug): counted
+        and reported as an internal error, and an empty flag tells the
+        controller, which refused the payload, where the block stands."""
+        core = self.core
+        core.block.counters.internal_errors += 1
+        core.block.last_violation = f"internal error: the interrupt of batch {held.batch_seq} is invalid: {exc.errors()[0]['msg']}"
+        log.error("sent an interrupt the protocol refuses (batch %d): %s", held.batch_seq, exc)
+        with self._out_lock:
+            self._put_flag(core.flag("full" if core.block.full else "empty"))
 
     def _raise_safely(self, held: _Held) -> None:
         """:meth:`_raise` where nothing may escape (zenoh's callback, the board's
-        loop): an interrupt the model refuses is an internal error."""
+        loop): anything else that fails on the way out is an internal error too."""
         try:
             self._raise(held)
         except Exception as exc:

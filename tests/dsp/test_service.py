@@ -537,6 +537,9 @@ def test_an_interrupt_the_model_refuses_is_an_internal_error_and_the_board_goes_
             flag = board.probe.next("flag")
             assert flag.state == "empty" and flag.next_batch_seq == 1  # type: ignore[attr-defined]
             assert board.service.core.block.counters.internal_errors == 1
+            board.pub.put(encode_batch(_batch(0)))  # the CPU resends it: the refused bytes are not sent again
+            with pytest.raises(queue.Empty):
+                raw.get(timeout=0.5)
             board.pub.put(encode_batch(_batch(1)))
             irq = board.probe.next("irq")
             assert isinstance(irq, Interrupt) and irq.batch_seq == 1

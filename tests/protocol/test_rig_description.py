@@ -7,6 +7,7 @@ from __future__ import annotations
 import inspect
 import tomllib
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 import yaml
@@ -109,12 +110,43 @@ def test_design_doc_holds_the_generated_keys_table() -> None:
     assert section == keys_table(), "regenerate it: python -c \"from workbench.config_docs import write_keys_table; write_keys_table('docs/design.md')\""
 
 
-def test_a_local_plan_gives_every_listener_its_own_port() -> None:
-    """The launcher's listener and each service's are distinct in every plan
-    (they were drawn one socket at a time, and the kernel may hand a closed
-    port out again: a controller once failed on the launcher's port)."""
-    for _ in range(200):
-        plan = RigPlan.local("ports")
-        ports = [plan.zenoh_port, *plan.service_ports.values()]
-        assert len(set(ports)) == len(ports), ports
+class _ReusingSockets:
+    """Sockets of a kernel that hands out the lowest free port, a just-closed
+    one included (Linux may hand a closed port out again at once)."""
+
+    bound: ClassVar[set[int]] = set()
+
+    def __init__(self, *args: object) -> None:
+        self.port: int | None = None
+
+    def bind(self, address: tuple[str, int]) -> None:
+        self.port = next(p for p in range(50000, 60000) if p not in self.bound)
+        self.bound.add(self.port)
+
+    def getsockname(self) -> tuple[str, int]:
+        assert self.port is not None
+        return ("127.0.0.1", self.port)
+
+    def close(self) -> None:
+        self.bound.discard(self.port)  # type: ignore[arg-type]
+
+    def __enter__(self) -> _ReusingSockets:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def test_a_local_plan_gives_every_listener_its_own_port(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The launcher's listener and each service's are distinct even when the
+    kernel hands a closed port out again at once (drawn one socket at a time,
+    a controller once failed on the launcher's port): every socket stays
+    bound until all are chosen."""
+    import workbench.launcher as launcher
+
+    monkeypatch.setattr(launcher.socket, "socket", _ReusingSockets)
+    plan = RigPlan.local("ports")
+    ports = [plan.zenoh_port, *plan.service_ports.values()]
+    assert len(set(ports)) == len(ports) == 1 + len(SERVICE_MODULES), ports
     assert len(set(free_tcp_ports(64))) == 64
+    assert not _ReusingSockets.bound  # all closed again
