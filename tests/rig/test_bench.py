@@ -12,6 +12,7 @@ import unittest.mock
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from rich.console import Console
 
@@ -211,3 +212,32 @@ def test_the_paced_zenoh_echo_holds_each_answer_as_asked(tmp_path: Path) -> None
             session.close()
     assert len(prepared) == 5
     assert min(rtts) >= 0.003  # a lower bound: a loaded host only makes it longer
+
+
+def test_a_paced_pinger_starts_its_round_trips_one_period_apart() -> None:
+    """The paced floor sleeps so that each round trip starts one period after
+    the last (none when the last took longer), as a loop's ticks start."""
+    from workbench.bench.pingers import PacedPinger
+
+    now = [0.0]
+    starts: list[float] = []
+
+    class Inner:
+        name = "inner"
+
+        def once(self) -> float:
+            starts.append(now[0])
+            now[0] += 0.0003 if len(starts) != 3 else 0.007  # the third round trip overruns the period
+            return 0.0003
+
+    def sleep(s: float) -> None:
+        assert s > 0
+        now[0] += s
+
+    paced = PacedPinger(Inner(), 0.005, clock=lambda: now[0], sleep=sleep)
+    for _ in range(5):
+        paced.once()
+    assert paced.name == "inner paced"
+    assert np.allclose(np.diff(starts), [0.005, 0.005, 0.007, 0.005])
+    with pytest.raises(ValueError):
+        PacedPinger(Inner(), 0.0)

@@ -35,6 +35,7 @@ from protocol.batch_codec import encode_batch
 from workbench.bench.pingers import (
     CanPinger,
     DspPinger,
+    PacedPinger,
     PlantPinger,
     UdpPinger,
     ZenohPinger,
@@ -384,8 +385,10 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
 STOCK_PINGPONG = "can_pingpong (python-can stock bus)"
 
 
-def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
-    """A short bare udp_multicast ping-pong on the rig's bus (the floor of one control tick)."""
+def can_floor(ctx: BenchContext, iterations: int, period_s: float = 0.0) -> dict[str, Any]:
+    """A short bare udp_multicast ping-pong on the rig's bus (the floor of one
+    control tick); with ``period_s`` its round trips start that far apart, as
+    a real-time loop's ticks do (:class:`PacedPinger`)."""
     port = private_can_port(private_rig_id("canfloor"))
     with ExitStack() as stack:
         echo = stack.enter_context(Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(port), log_dir=ctx.log_dir))
@@ -394,7 +397,8 @@ def can_floor(ctx: BenchContext, iterations: int) -> dict[str, Any]:
         stack.callback(bus.shutdown)
         cp = CanPinger(bus)
         cp.connect()
-        return summarize(interleave([cp], iterations, min(ctx.warmup, 50))["can_pingpong"])
+        pinger: CanPinger | PacedPinger = PacedPinger(cp, period_s) if period_s > 0 else cp
+        return summarize(interleave([pinger], iterations, min(ctx.warmup, 50))[pinger.name])
 
 
 def sleep_floor(ctx: BenchContext, rate_hz: float, seconds: float) -> dict[str, Any]:
@@ -540,6 +544,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
                 sleep = sleep_floor(ctx, rate, floor_s)
                 result["notes"].append(f"{tag}: the sleep-only floor ran with {sleep.get('realtime', 'the normal scheduler')}")
                 canf = can_floor(ctx, max(200, ctx.iterations // 2))
+                canf_paced = can_floor(ctx, 200, 1.0 / rate)
                 ctx.say(f"  {tag}: three-process rig for {duration:g} s")
                 run = run_rig(ctx, rig_id, "realtime", common, overrides, None, duration + 90)
         except BenchError as exc:
@@ -570,6 +575,10 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         for hop, note in (("sync_to_tpdo", "SYNC sent -> TPDO1 received: CAN out, the plant, CAN back"), ("tick_compute", "TPDO1 -> tick done")):
             if lat.get(f"hop_{hop}", {}).get("count"):
                 m[f"{tag} tet: {hop}"] = latency(from_latency_stats(lat[f"hop_{hop}"]), f"{tag} can_pingpong (floor)", canf, note=note)
+        paced_name = f"{tag} can_pingpong paced at the loop's period (floor)"
+        m[paced_name] = latency(canf_paced, note="the same ping-pong, each round trip started one period after the last (the CPUs idle between, as the loop's)")
+        if lat.get("hop_sync_to_tpdo", {}).get("count"):
+            m[f"{tag} tet: sync_to_tpdo vs paced"] = latency(from_latency_stats(lat["hop_sync_to_tpdo"]), paced_name, canf_paced)
         if lat["batch_to_interrupt"]["count"]:
             m[f"{tag} batch_to_interrupt"] = latency_vs_value(
                 from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6

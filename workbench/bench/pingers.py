@@ -207,6 +207,33 @@ class CanPinger:
         return rtt
 
 
+class PacedPinger:
+    """Another pinger's round trips started ``period_s`` apart, sleeping in
+    between, as a real-time loop starts its ticks: the floor for a loop that
+    idles between ticks. A back-to-back ping-pong keeps both ends' CPUs and
+    caches warm; on this project's VM the bare CAN ping-pong took ~50 µs back
+    to back, 140-190 µs started every 1 ms and 360-510 µs every 5 ms
+    (docs/timing.md, "Eighth landing")."""
+
+    def __init__(self, inner: Pinger, period_s: float, clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep) -> None:
+        if not period_s > 0:
+            raise ValueError(f"period_s must be positive, got {period_s}")
+        self.inner = inner
+        self.period_s = period_s
+        self.name = f"{inner.name} paced"
+        self._clock = clock
+        self._sleep = sleep
+        self._last: float | None = None
+
+    def once(self) -> float:
+        if self._last is not None:
+            delay = self._last + self.period_s - self._clock()
+            if delay > 0:
+                self._sleep(delay)
+        self._last = self._clock()
+        return self.inner.once()
+
+
 def can_bus(port: int, reply_ids: list[int], channel: str = "239.74.163.2", *, loop_free: bool = True) -> can.BusABC:
     """A udp_multicast bus on a private port that keeps only ``reply_ids``.
     ``loop_free`` (the rig's default transport,
