@@ -414,9 +414,10 @@ class ControllerService:
                     taken = self.faults.interrupt(irq, irq.batch_seq)
                     if not taken and self.faults.lost(irq.batch_seq):
                         self.link.on_released(irq)  # dropped: its block-empty part still holds (no flag follows it)
-                        self._dropped_arrived.add(irq.batch_seq)
-                        if len(self._dropped_arrived) > 64:  # a free-running run never waits for them
-                            self._dropped_arrived.discard(min(self._dropped_arrived))
+                        if self.lockstep:  # its due tick waits for it (real time never does)
+                            self._dropped_arrived.add(irq.batch_seq)
+                            if len(self._dropped_arrived) > 64:  # one that came after its wait timed out
+                                self._dropped_arrived.discard(min(self._dropped_arrived))
                     self._held_interrupts.extend(taken)  # type: ignore[arg-type]
             elif kind == "command":
                 self.reconfigure(payload)

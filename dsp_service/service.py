@@ -255,19 +255,8 @@ class DspService:
             return Interrupt(**held.fields)
         except ValidationError as exc:
             self._last_raised = None
-            self._refused_interrupt(held, exc)
+            self._internal_error(f"interrupt (batch {held.batch_seq}, sent and refused by the model)", exc, release=False)
             return None
-
-    def _refused_interrupt(self, held: _Held, exc: ValidationError) -> None:
-        """The interrupt just sent is one the model refuses (a board bug): counted
-        and reported as an internal error, and an empty flag tells the
-        controller, which refused the payload, where the block stands."""
-        core = self.core
-        core.block.counters.internal_errors += 1
-        core.block.last_violation = f"internal error: the interrupt of batch {held.batch_seq} is invalid: {exc.errors()[0]['msg']}"
-        log.error("sent an interrupt the protocol refuses (batch %d): %s", held.batch_seq, exc)
-        with self._out_lock:
-            self._put_flag(core.flag("full" if core.block.full else "empty"))
 
     def _raise_safely(self, held: _Held) -> None:
         """:meth:`_raise` where nothing may escape (zenoh's callback, the board's
@@ -318,12 +307,16 @@ class DspService:
             self._held = None
             self._internal_error(event.kind, exc)
 
-    def _internal_error(self, kind: str, exc: Exception) -> None:
-        self.core.block.counters.internal_errors += 1
-        self.core.block.last_violation = f"internal error on a {kind}: {exc!r}"
-        log.exception("internal error while handling a %s; block released", kind)
+    def _internal_error(self, kind: str, exc: Exception, release: bool = True) -> None:
+        """Counted and reported; an empty flag tells the controller where the
+        block stands (``release``: released first; False when it already is,
+        e.g. an interrupt refused after its put)."""
+        core = self.core
+        core.block.counters.internal_errors += 1
+        core.block.last_violation = f"internal error on a {kind}: {exc!r}"
+        log.exception("internal error while handling a %s; block %s", kind, "released" if release else "left as it is")
         with self._out_lock:
-            self._put_flag(self.core.release())
+            self._put_flag(core.release() if release else core.flag("full" if core.block.full else "empty"))
 
     def run(self, stop: threading.Event) -> None:
         """Serve until ``stop`` is set (seen within :data:`MAX_WAIT_S`, whatever is held)."""
