@@ -63,13 +63,25 @@ detector). Learned on line from the batches alone, bounded per batch
 (``regime_bank`` × ``2 l p`` multiply-adds for the errors; a snapshot is a copy
 of ``R``), and the information is still only ever replaced by the triangular
 factor of a least-squares problem: nothing accumulates across hours.
+
+Carried across runs (:meth:`RecursiveArx.bank_state`, :meth:`RecursiveArx.load_bank`,
+:func:`save_regime_bank`, :func:`load_regime_bank`): what the bank learned in one run
+(a calibration lap through the regimes, or yesterday's run of the same rig) seeds
+the next, so a change into a regime the *rig* has shown before is followed within the
+switch time even when the current run has not shown it yet. The state holds the
+channel scales the entries' ``θ`` and ``R`` are in (the loading model adopts them
+before its first batch) and the model structure it belongs to; a bank of another
+structure is refused, never adapted.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import zipfile
 from dataclasses import dataclass
-from typing import Literal, cast
+from pathlib import Path
+from typing import Any, Literal, cast
 
 import numpy as np
 import pydantic
@@ -188,6 +200,93 @@ class _Regime:
     used: int
     power: float = 0.0  #: its short a-priori error power on the current data (the bank's comparison)
     signature: NDArray[np.float64] | None = None  #: its first poles' frequencies (Hz): which regime it is
+
+
+BANK_MODEL_FIELDS: tuple[str, ...] = (
+    "sample_rate_hz",
+    "na",
+    "nb",
+    "band_hz",
+    "prefilter_order",
+    "decimation",
+    "steiglitz_mcbride",
+    "forgetting",
+    "bank_signature_poles",
+)
+"""The :class:`ArxConfig` fields a remembered regime's ``R`` and ``θ`` depend on: a bank carries them and is
+loaded only into a model whose fields are equal."""
+
+BANK_FILE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class RegimeBankState:
+    """What a regime bank remembers, to seed another model (another run of the same rig).
+
+    ``scale``: the channel scales (u1, u2, y1, y2) the entries are in; per entry ``k``:
+    ``R[k]`` (upper-triangular ``(p + 1) × (p + 1)`` square-root information), ``theta[k]``,
+    ``residual_power[k]``, ``weight_sum[k]`` and ``signature[k]`` (its first poles' Hz);
+    ``model``: the :data:`BANK_MODEL_FIELDS` of the model that learned it."""
+
+    model: dict[str, Any]
+    scale: NDArray[np.float64]
+    R: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    residual_power: NDArray[np.float64]
+    weight_sum: NDArray[np.float64]
+    signature: NDArray[np.float64]
+
+    @property
+    def regimes(self) -> int:
+        return int(self.theta.shape[0])
+
+
+def bank_model_fields(cfg: ArxConfig) -> dict[str, Any]:
+    """``cfg``'s :data:`BANK_MODEL_FIELDS` as plain JSON values (tuples as lists)."""
+    dumped = cfg.model_dump(mode="json")
+    return {k: dumped[k] for k in BANK_MODEL_FIELDS}
+
+
+def save_regime_bank(path: str | Path, state: RegimeBankState) -> None:
+    """Write ``state`` to an ``.npz`` file (no pickles; the model fields as JSON); atomically (a temporary
+    file renamed over ``path``), so a stop while writing leaves the previous bank, never half of one."""
+    target = Path(path)
+    tmp = target.with_name(target.name + ".tmp")
+    with tmp.open("wb") as fh:
+        np.savez(
+            fh,
+            version=np.array(BANK_FILE_VERSION),
+            model=np.array(json.dumps(state.model, sort_keys=True)),
+            scale=state.scale,
+            R=state.R,
+            theta=state.theta,
+            residual_power=state.residual_power,
+            weight_sum=state.weight_sum,
+            signature=state.signature,
+        )
+    tmp.replace(target)
+
+
+def load_regime_bank(path: str | Path) -> RegimeBankState:
+    """Read a bank written by :func:`save_regime_bank`; ``ValueError`` naming what is wrong with a file that is
+    not one (unreadable, another version, missing or malformed arrays). Whether it fits a model is
+    :meth:`RecursiveArx.load_bank`'s check."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: not a regime bank file ({type(exc).__name__}: {exc})") from None
+    missing = [k for k in ("version", "model", "scale", "R", "theta", "residual_power", "weight_sum", "signature") if k not in arrays]
+    if missing:
+        raise ValueError(f"{path}: not a regime bank file (missing {', '.join(missing)})")
+    if int(arrays["version"]) != BANK_FILE_VERSION:
+        raise ValueError(f"{path}: regime bank version {int(arrays['version'])}, this build reads {BANK_FILE_VERSION}")
+    try:
+        model = json.loads(str(arrays["model"]))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: the bank's model fields are not JSON ({exc})") from None
+    f8 = {k: np.asarray(arrays[k], dtype=np.float64) for k in ("scale", "R", "theta", "residual_power", "weight_sum", "signature")}
+    return RegimeBankState(model=model, **f8)
 
 
 @dataclass(frozen=True)
@@ -449,6 +548,71 @@ class RecursiveArx:
         else:
             k = min(range(len(self.bank)), key=lambda i: self.bank[i].used)
             self.bank[k] = snap
+
+    def bank_state(self) -> RegimeBankState:
+        """The bank as it stands, to seed another model (:meth:`load_bank`); ``ValueError`` before the first
+        batch with signal (no channel scales yet, so nothing could have been learned)."""
+        if self._scale is None:
+            raise ValueError("the model has seen no batch with signal yet: no channel scales, no regimes")
+        p, k = self.cfg.n_params, self.cfg.bank_signature_poles
+        bank = self.bank
+        return RegimeBankState(
+            model=bank_model_fields(self.cfg),
+            scale=self._scale.copy(),
+            R=np.array([reg.R for reg in bank]).reshape(len(bank), p + 1, p + 1),
+            theta=np.array([reg.theta for reg in bank]).reshape(len(bank), p),
+            residual_power=np.array([reg.residual_power for reg in bank], dtype=np.float64),
+            weight_sum=np.array([reg.weight_sum for reg in bank], dtype=np.float64),
+            signature=np.array([reg.signature if reg.signature is not None else np.full(k, math.nan) for reg in bank]).reshape(len(bank), k),
+        )
+
+    def load_bank(self, state: RegimeBankState) -> None:
+        """Seed the bank with ``state`` (another run's :meth:`bank_state`), before the first batch with signal:
+        the model adopts the channel scales the entries are in. ``ValueError`` (the model unchanged) when the
+        bank is off (``regime_bank`` 0), the model has already fixed other scales, the state belongs to
+        another model structure (:data:`BANK_MODEL_FIELDS`) or holds more regimes than this bank keeps, or
+        an entry is malformed (shapes, non-finite values, ``R`` not upper-triangular, a non-positive
+        residual power). The entries count as used now; the live model starts as it would without them."""
+        c = self.cfg
+        if not c.regime_bank:
+            raise ValueError("this model keeps no regime bank (regime_bank 0)")
+        mine = bank_model_fields(c)
+        differ = sorted(k for k in BANK_MODEL_FIELDS if state.model.get(k) != mine[k])
+        if differ:
+            raise ValueError(
+                "the bank was learned by another model structure: " + ", ".join(f"{k} {state.model.get(k)!r} (this model {mine[k]!r})" for k in differ)
+            )
+        p, k, n = c.n_params, c.bank_signature_poles, state.regimes
+        if n > c.regime_bank:
+            raise ValueError(f"the bank holds {n} regimes, this model keeps {c.regime_bank}")
+        shapes = {"scale": (4,), "R": (n, p + 1, p + 1), "theta": (n, p), "residual_power": (n,), "weight_sum": (n,), "signature": (n, k)}
+        for name, shape in shapes.items():
+            got = getattr(state, name).shape
+            if got != shape:
+                raise ValueError(f"bank {name} has shape {got}, this model needs {shape}")
+        if not (np.all(np.isfinite(state.scale)) and np.all(state.scale > 0)):
+            raise ValueError("bank channel scales must be finite and positive")
+        for name in ("R", "theta", "residual_power", "weight_sum"):
+            if not np.all(np.isfinite(getattr(state, name))):
+                raise ValueError(f"bank {name} holds non-finite values")
+        if np.any(np.tril(state.R, -1) != 0.0):
+            raise ValueError("bank R is not upper-triangular")
+        if np.any(state.residual_power <= 0) or np.any(state.weight_sum <= 0):
+            raise ValueError("bank residual powers and weight sums must be positive")
+        if self._scale is not None and not np.array_equal(self._scale, state.scale):
+            raise ValueError("the model has fixed its own channel scales already: load a bank before the first batch")
+        self._scale = state.scale.astype(np.float64, copy=True)
+        self.bank = [
+            _Regime(
+                state.R[i].copy(),
+                state.theta[i].copy(),
+                float(state.residual_power[i]),
+                float(state.weight_sum[i]),
+                self._clock,
+                signature=state.signature[i].copy(),
+            )
+            for i in range(n)
+        ]
 
     def _detect_change(self, e: NDArray[np.float64], n: int) -> None:
         """CUSUM of the log error ratio on the batch's a-priori errors ``e``; at an alarm, :meth:`discount`.

@@ -74,7 +74,7 @@ import numpy as np
 import pydantic
 from numpy.typing import NDArray
 
-from .arx import ArxConfig, RecursiveArx
+from .arx import ArxConfig, RecursiveArx, RegimeBankState
 from .history import HistoryBuffer
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
@@ -370,6 +370,7 @@ class Identifier:
 
     def __init__(self, cfg: IdentifierConfig | None = None) -> None:
         self.cfg = cfg if cfg is not None else IdentifierConfig()
+        self._arx_seed: RegimeBankState | None = None
         self._build()
 
     # ------------------------------------------------------------ configure
@@ -442,6 +443,8 @@ class Identifier:
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         if c.method == "arx":
             self._arx = RecursiveArx(arx_config(c))
+            if self._arx_seed is not None:  # a rebuilt model (reset, new N) starts from the carried bank again
+                self._arx.load_bank(self._arx_seed)
 
     def _build_fused(self, n_range: int) -> None:
         """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""
@@ -655,6 +658,26 @@ class Identifier:
     def arx(self) -> RecursiveArx | None:
         """The recursive ARX model (``method='arx'``), else None."""
         return self._arx
+
+    def seed_arx_bank(self, state: RegimeBankState) -> None:
+        """Seed the ARX model's regime bank with another run's (:meth:`RecursiveArx.load_bank`, before the first
+        batch), and again whenever the model is rebuilt; ``ValueError`` without an ARX model with a bank, or for
+        a bank that does not fit it (the model unchanged)."""
+        if self._arx is None:
+            raise ValueError("a regime bank needs identifier 'arx'")
+        self._arx.load_bank(state)
+        self._arx_seed = state
+
+    def arx_bank_state(self) -> RegimeBankState | None:
+        """The ARX model's regime bank as it stands (to carry into another run), None without an ARX model,
+        without a bank or before its first batch with signal."""
+        arx = self._arx
+        if arx is None or not arx.cfg.regime_bank:
+            return None
+        try:
+            return arx.bank_state()
+        except ValueError:
+            return None
 
     def _with_confidence(self, poles: tuple[PoleEstimate, ...], peaks: Any, n_eff: float, valid_fraction: float) -> IdentificationResult:
         """The step's result: the overall confidence from the valid fraction, the

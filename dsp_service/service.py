@@ -24,6 +24,7 @@ from typing import Any
 import zenoh
 from pydantic import ValidationError
 
+from dsp_service.bank_file import load_bank, save_bank
 from dsp_service.board import Admission
 from dsp_service.core import BlockState, DspCore, identifier_config
 from protocol.batch_codec import SampleBatch, decode_batch
@@ -85,6 +86,7 @@ class DspService:
         self.session = session
         self.keys = Keys(settings.rig_id)
         self.core = DspCore(settings)
+        load_bank(self.core.identifier, settings)  # RALF_ARX_REGIME_BANK_FILE: the regimes earlier runs learned
         self.scheduler: Scheduler = scheduler or RealTimeScheduler()
         self.compute_time = LatencyTracker()
         self.turnaround = LatencyTracker()
@@ -346,6 +348,10 @@ class DspService:
 
     def close(self) -> None:
         self._health.stop()
+        try:
+            save_bank(self.core.identifier, self.settings)
+        except OSError as exc:  # a full disk or a gone directory must not keep the board from stopping
+            log.error("could not write the regime bank %s: %s", self.settings.regime_bank_path(), exc)
         for sub in self._subs:
             sub.undeclare()
         self._queryable.undeclare()

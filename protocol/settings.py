@@ -246,6 +246,13 @@ class DspSettings(CommonSettings):
         le=8,
         description="With identifier arx: regimes the model remembers on line (0 = off); after a change into a regime seen before it switches to the remembered model within ~0.5 s (docs/identification.md section 5c)",
     )
+    arx_regime_bank_file: str = Field(
+        "",
+        description="With arx_regime_bank > 0: an .npz file of remembered regimes carried across runs, loaded when the board starts "
+        "(if it exists; a bank of another model structure is refused) and written when it stops, so a change into a regime an "
+        "earlier run has shown is followed within ~0.5 s from the first (docs/identification.md section 5d); "
+        "{rig_id} in the path is replaced by each served rig's id",
+    )
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
     smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
@@ -285,7 +292,16 @@ class DspSettings(CommonSettings):
     def _checks(self) -> DspSettings:
         if self.search_max_hz <= self.search_min_hz:
             raise ValueError("search_max_hz must exceed search_min_hz")
+        if self.arx_regime_bank_file:
+            if self.identifier != "arx" or self.arx_regime_bank == 0:
+                raise ValueError("arx_regime_bank_file needs identifier 'arx' and arx_regime_bank > 0")
+            if len(self.rig_ids) > 1 and "{rig_id}" not in self.arx_regime_bank_file:
+                raise ValueError("arx_regime_bank_file must contain {rig_id} when the process serves several rigs (one bank per rig)")
         return self
+
+    def regime_bank_path(self) -> str:
+        """:attr:`arx_regime_bank_file` for this board's rig (``{rig_id}`` replaced); empty when unset."""
+        return self.arx_regime_bank_file.replace("{rig_id}", self.rig_id)
 
 
 def settings_models() -> tuple[type[CommonSettings], ...]:

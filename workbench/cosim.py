@@ -36,6 +36,7 @@ import can
 
 from controller.plant_link import PlantLink
 from controller.service import ControllerService, RunResult
+from dsp_service.bank_file import load_bank, save_bank
 from dsp_service.core import DspCore
 from plant_emulator.canopen_node.frames import Frame
 from plant_emulator.node import CanopenNode
@@ -271,6 +272,7 @@ def run_cosim(
     node = CanopenNode(app, node_config(ps))
     wire: Any = DirectCanWire(node, scheduler)
     core = DspCore(ds)
+    load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
     port: Any = DirectDspPort(core)
     if recording is not None:
         app.publish_truth, app.publish_event = recording.truth, recording.event
@@ -286,6 +288,7 @@ def run_cosim(
         if ps.record:
             app.save_truth(ps.record)
     wall = time.monotonic() - started
+    save_bank(core.identifier, ds)  # and at its stop
     health = {"plant": _plant_health(app, node), "dsp": _dsp_health(core)}
     ctrl_health = port.health()
     if ctrl_health is not None:

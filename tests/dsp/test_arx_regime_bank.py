@@ -7,11 +7,15 @@ off: the first mode +9.5 %, the second 9 → 6 Hz); the truth is the modes the Z
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 
-from dsp_service.arx import RecursiveArx
+from dsp_service.arx import RecursiveArx, load_regime_bank, save_regime_bank
 from dsp_service.identifier import IdentifierConfig, arx_config
 
 from .synth import FS, MODES, correlated_inputs, make_system
@@ -106,3 +110,154 @@ def test_the_service_setting_reaches_the_identifier() -> None:
 
     assert identifier_config(DspSettings(identifier="arx", arx_regime_bank=4)).arx_regime_bank == 4
     assert identifier_config(DspSettings()).arx_regime_bank == 0
+
+
+# --- the bank carried across runs (arx_regime_bank_file) ---------------------------------------------------
+
+
+def _learned_bank(regimes: int = 4) -> tuple[Any, Any]:
+    """A model that ran A, B (30 s each, noise realisation 4): its bank holds both regimes."""
+    cfg = arx_config(IdentifierConfig(method="arx", arx_regime_bank=regimes))
+    u, y, _ = _alternating(2, noise_seed=4)
+    m = RecursiveArx(cfg)
+    _run(m, u, y)
+    return cfg, m.bank_state()
+
+
+def test_a_bank_carried_from_an_earlier_run_follows_the_first_change_within_a_second() -> None:
+    """The bank an earlier run learned (A then B, another noise realisation), loaded before the first batch of a new
+    run A, B: at the new run's first change, into a regime *this* run has not shown, the model switches within 1 s
+    and its first pole is within 2 % in ≤ 1 s, where the bank learned in the run alone (nothing of B yet) takes at
+    least twice as long; the same three realisations as above."""
+    cfg, state = _learned_bank()
+    assert state.regimes == 2
+    change = SEGMENT
+    for seed in (5, 6, 7):
+        u, y, f1 = _alternating(2, noise_seed=seed)
+        carried = RecursiveArx(cfg)
+        carried.load_bank(state)
+        f, switches = _run(carried, u, y)
+        assert any(0 < s - change <= FS for s in switches), switches
+        cold_f, cold_switches = _run(RecursiveArx(cfg), u, y)
+        assert not any(s > change for s in cold_switches)  # learned in the run: B is new, nothing to recall
+        assert _settle_s(f, f1, change) <= 1.0
+        assert _settle_s(cold_f, f1, change) >= 2.0 * max(_settle_s(f, f1, change), 0.5)
+
+
+def test_a_bank_file_round_trips_bit_for_bit(tmp_path: Path) -> None:
+    """``save_regime_bank`` / ``load_regime_bank``: the same arrays to the bit and the same model fields; a model
+    seeded from the file runs exactly as one seeded from the state in memory."""
+    cfg, state = _learned_bank()
+    path = tmp_path / "bank.npz"
+    save_regime_bank(path, state)
+    assert not (tmp_path / "bank.npz.tmp").exists()  # written beside, then renamed over
+    back = load_regime_bank(path)
+    assert back.model == state.model
+    for name in ("scale", "R", "theta", "residual_power", "weight_sum", "signature"):
+        assert np.array_equal(getattr(back, name), getattr(state, name), equal_nan=True), name
+    u, y, _ = _alternating(1, noise_seed=9)
+    a, b = RecursiveArx(cfg), RecursiveArx(cfg)
+    a.load_bank(state)
+    b.load_bank(back)
+    fa, sa = _run(a, u[:, :4000], y[:, :4000])
+    fb, sb = _run(b, u[:, :4000], y[:, :4000])
+    assert np.array_equal(fa, fb, equal_nan=True) and sa == sb and np.array_equal(a.theta, b.theta)
+
+
+def _altered(state: Any, **changes: Any) -> Any:
+    return dataclasses.replace(state, **changes)
+
+
+def test_a_bank_that_does_not_fit_is_refused_and_the_model_is_unchanged(tmp_path: Path) -> None:
+    cfg, state = _learned_bank()
+    r_bad = state.R.copy()
+    r_bad[0, 1, 0] = 1.0
+    theta_nan = state.theta.copy()
+    theta_nan[0, 0] = math.nan
+    cases = [
+        (RecursiveArx(cfg.model_copy(update={"regime_bank": 0})), state, "keeps no regime bank"),
+        (RecursiveArx(cfg.model_copy(update={"na": cfg.na - 2})), state, "another model structure: na"),
+        (RecursiveArx(cfg.model_copy(update={"forgetting": 0.99})), state, "forgetting"),
+        (RecursiveArx(cfg.model_copy(update={"regime_bank": 1})), state, "holds 2 regimes, this model keeps 1"),
+        (RecursiveArx(cfg), _altered(state, R=r_bad), "not upper-triangular"),
+        (RecursiveArx(cfg), _altered(state, theta=theta_nan), "non-finite"),
+        (RecursiveArx(cfg), _altered(state, residual_power=-state.residual_power), "must be positive"),
+        (RecursiveArx(cfg), _altered(state, scale=np.zeros(4)), "scales must be finite and positive"),
+        (RecursiveArx(cfg), _altered(state, theta=state.theta[:, :-1]), "shape"),
+    ]
+    for model, bad, match in cases:
+        with pytest.raises(ValueError, match=match):
+            model.load_bank(bad)
+        assert model.bank == []
+    started = RecursiveArx(cfg)  # has fixed its own channel scales from its first batch
+    u, y, _ = _alternating(1, noise_seed=9)
+    started.update(u[:, :BATCH], y[:, :BATCH])
+    with pytest.raises(ValueError, match="before the first batch"):
+        started.load_bank(state)
+    with pytest.raises(ValueError, match="no batch with signal"):
+        RecursiveArx(cfg).bank_state()
+    for content, match in ((b"not a zip", "not a regime bank file"), (None, "missing")):
+        path = tmp_path / "bad.npz"
+        if content is None:
+            np.savez(path, version=np.array(1))
+        else:
+            path.write_bytes(content)
+        with pytest.raises(ValueError, match=match):
+            load_regime_bank(path)
+    newer = tmp_path / "newer.npz"
+    save_regime_bank(newer, state)
+    with np.load(newer) as z:
+        arrays = dict(z)
+    arrays["version"] = np.array(99)
+    np.savez(newer, **arrays)
+    with pytest.raises(ValueError, match="version 99"):
+        load_regime_bank(newer)
+
+
+def test_the_board_loads_the_bank_file_at_its_start_and_writes_it_at_its_stop(tmp_path: Path) -> None:
+    """``RALF_ARX_REGIME_BANK_FILE`` through the board's edge (:mod:`dsp_service.bank_file`, what the DSP service
+    and the co-simulation call): no file yet is a first run; the stop writes what the model learned; the next
+    start seeds the identifier with it, and a rebuilt model (reset, new N) starts from it again; a file that is
+    not a bank, or a bank of another structure, stops the start with a ConfigError naming the file."""
+    from dsp_service.bank_file import load_bank, save_bank
+    from dsp_service.core import identifier_config
+    from dsp_service.identifier import Identifier
+    from protocol.errors import ConfigError
+    from protocol.settings import DspSettings
+
+    path = tmp_path / "{rig_id}-bank.npz"
+    settings = DspSettings(rig_id="lab", identifier="arx", arx_regime_bank=4, arx_regime_bank_file=str(path))
+    assert settings.regime_bank_path() == str(tmp_path / "lab-bank.npz")
+    first = Identifier(identifier_config(settings))
+    assert load_bank(first, settings) is False  # a first run: nothing to load
+    assert save_bank(first, settings) is False  # nothing learned yet: no file written
+    u, y, _ = _alternating(2, noise_seed=4)
+    for k in range(u.shape[1] // BATCH):
+        first.push(u[:, k * BATCH : (k + 1) * BATCH], y[:, k * BATCH : (k + 1) * BATCH])
+        first.step()
+    assert first.arx is not None and len(first.arx.bank) == 2
+    assert save_bank(first, settings) is True
+    second = Identifier(identifier_config(settings))
+    assert load_bank(second, settings) is True
+    assert second.arx is not None and len(second.arx.bank) == 2
+    assert np.array_equal(second.arx.bank[0].theta, first.arx.bank[0].theta)
+    second.reset()
+    assert len(second.arx.bank) == 2  # the rebuilt model starts from the carried bank again
+    other = DspSettings(rig_id="lab", identifier="arx", arx_regime_bank=1, arx_regime_bank_file=str(path))
+    with pytest.raises(ConfigError, match="lab-bank.npz.*holds 2 regimes"):
+        load_bank(Identifier(identifier_config(other)), other)
+    (tmp_path / "lab-bank.npz").write_bytes(b"garbage")
+    with pytest.raises(ConfigError, match="not a regime bank file"):
+        load_bank(Identifier(identifier_config(settings)), settings)
+
+
+def test_the_bank_file_setting_is_checked_when_the_settings_load() -> None:
+    from protocol.settings import DspSettings
+
+    with pytest.raises(ValueError, match="needs identifier 'arx' and arx_regime_bank > 0"):
+        DspSettings(arx_regime_bank_file="bank.npz")
+    with pytest.raises(ValueError, match="needs identifier 'arx' and arx_regime_bank > 0"):
+        DspSettings(identifier="arx", arx_regime_bank_file="bank.npz")
+    with pytest.raises(ValueError, match="must contain \\{rig_id\\}"):
+        DspSettings(identifier="arx", arx_regime_bank=2, serve_rigs="b", arx_regime_bank_file="bank.npz")
+    DspSettings(identifier="arx", arx_regime_bank=2, serve_rigs="b", arx_regime_bank_file="{rig_id}.npz")

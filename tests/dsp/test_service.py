@@ -11,6 +11,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -545,3 +546,27 @@ def test_an_interrupt_the_model_refuses_is_an_internal_error_and_the_board_goes_
             assert isinstance(irq, Interrupt) and irq.batch_seq == 1
     finally:
         sub.undeclare()
+
+
+def test_the_service_loads_its_regime_bank_file_at_start_and_writes_it_at_close(session: zenoh.Session, tmp_path: Path) -> None:
+    """``RALF_ARX_REGIME_BANK_FILE`` on the service: a bank file there is in the identifier before the first
+    batch, the batches processed feed it, and close() writes it back (atomically: no temporary left)."""
+    from dsp_service.arx import load_regime_bank, save_regime_bank
+
+    from .test_arx_regime_bank import _learned_bank
+
+    _cfg, state = _learned_bank()
+    path = tmp_path / "bank.npz"
+    save_regime_bank(path, state)
+    before = path.stat().st_mtime_ns
+    settings = _settings(fft_width=2048, identifier="arx", arx_regime_bank=4, arx_regime_bank_file=str(path))
+    service = DspService(settings, session)
+    try:
+        arx = service.identifier.arx
+        assert arx is not None and len(arx.bank) == 2
+        assert service.process_batch(_batch(0)) is not None
+    finally:
+        time.sleep(0.01)
+        service.close()
+    assert path.stat().st_mtime_ns > before and not (tmp_path / "bank.npz.tmp").exists()
+    assert load_regime_bank(path).regimes == 2
