@@ -78,6 +78,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -211,10 +213,19 @@ BANK_MODEL_FIELDS: tuple[str, ...] = (
     "decimation",
     "steiglitz_mcbride",
     "forgetting",
+    "ridge",
+    "search_min_hz",
+    "search_max_hz",
+    "max_damping",
+    "min_relative_strength",
+    "max_poles",
+    "order_by",
     "bank_signature_poles",
 )
-"""The :class:`ArxConfig` fields a remembered regime's ``R`` and ``θ`` depend on: a bank carries them and is
-loaded only into a model whose fields are equal."""
+"""The :class:`ArxConfig` fields a remembered regime depends on: its ``R`` and ``θ`` (the model, its
+forgetting and ridge) and its signature (the poles :meth:`RecursiveArx.poles` reports: the search band,
+damping, strength, count and order). A bank carries them and is loaded only into a model whose fields
+are equal."""
 
 BANK_FILE_VERSION = 1
 
@@ -248,23 +259,41 @@ def bank_model_fields(cfg: ArxConfig) -> dict[str, Any]:
 
 
 def save_regime_bank(path: str | Path, state: RegimeBankState) -> None:
-    """Write ``state`` to an ``.npz`` file (no pickles; the model fields as JSON); atomically (a temporary
-    file renamed over ``path``), so a stop while writing leaves the previous bank, never half of one."""
+    """Write ``state`` to an ``.npz`` file (no pickles; the model fields as JSON), crash-safe: into a
+    temporary file of its own in the same directory, flushed to disk, then renamed over ``path`` (and the
+    directory synced), so a stop or a power loss while writing leaves the previous bank, never part of one.
+    On an error the temporary file is removed and the error raised."""
     target = Path(path)
-    tmp = target.with_name(target.name + ".tmp")
-    with tmp.open("wb") as fh:
-        np.savez(
-            fh,
-            version=np.array(BANK_FILE_VERSION),
-            model=np.array(json.dumps(state.model, sort_keys=True)),
-            scale=state.scale,
-            R=state.R,
-            theta=state.theta,
-            residual_power=state.residual_power,
-            weight_sum=state.weight_sum,
-            signature=state.signature,
-        )
-    tmp.replace(target)
+    fd, tmp_name = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(
+                fh,
+                version=np.array(BANK_FILE_VERSION),
+                model=np.array(json.dumps(state.model, sort_keys=True)),
+                scale=state.scale,
+                R=state.R,
+                theta=state.theta,
+                residual_power=state.residual_power,
+                weight_sum=state.weight_sum,
+                signature=state.signature,
+            )
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp_name, target)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    try:  # the rename itself on disk (best effort: not every filesystem lets a directory be synced)
+        dir_fd = os.open(target.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dir_fd)
+    except OSError:
+        pass
+    finally:
+        os.close(dir_fd)
 
 
 def load_regime_bank(path: str | Path) -> RegimeBankState:
@@ -279,12 +308,21 @@ def load_regime_bank(path: str | Path) -> RegimeBankState:
     missing = [k for k in ("version", "model", "scale", "R", "theta", "residual_power", "weight_sum", "signature") if k not in arrays]
     if missing:
         raise ValueError(f"{path}: not a regime bank file (missing {', '.join(missing)})")
-    if int(arrays["version"]) != BANK_FILE_VERSION:
-        raise ValueError(f"{path}: regime bank version {int(arrays['version'])}, this build reads {BANK_FILE_VERSION}")
+    version = arrays["version"]
+    if version.ndim != 0 or version.dtype.kind not in "iu":
+        raise ValueError(f"{path}: not a regime bank file (version is not an integer scalar)")
+    if int(version) != BANK_FILE_VERSION:
+        raise ValueError(f"{path}: regime bank version {int(version)}, this build reads {BANK_FILE_VERSION}")
+    if arrays["model"].ndim != 0 or arrays["model"].dtype.kind != "U":
+        raise ValueError(f"{path}: not a regime bank file (model is not a string)")
     try:
         model = json.loads(str(arrays["model"]))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: the bank's model fields are not JSON ({exc})") from None
+    if not isinstance(model, dict):
+        raise ValueError(f"{path}: the bank's model fields are not a JSON object")
+    if any(arrays[k].dtype.kind not in "fiu" for k in ("scale", "R", "theta", "residual_power", "weight_sum", "signature")):
+        raise ValueError(f"{path}: not a regime bank file (a numeric array holds something else)")
     f8 = {k: np.asarray(arrays[k], dtype=np.float64) for k in ("scale", "R", "theta", "residual_power", "weight_sum", "signature")}
     return RegimeBankState(model=model, **f8)
 
@@ -572,7 +610,8 @@ class RecursiveArx:
         bank is off (``regime_bank`` 0), the model has already fixed other scales, the state belongs to
         another model structure (:data:`BANK_MODEL_FIELDS`) or holds more regimes than this bank keeps, or
         an entry is malformed (shapes, non-finite values, ``R`` not upper-triangular, a non-positive
-        residual power). The entries count as used now; the live model starts as it would without them."""
+        residual power). The entries count as used now. The live model itself starts empty as before, but in the
+        carried scales instead of its own first batch's (its ridge is relative to them)."""
         c = self.cfg
         if not c.regime_bank:
             raise ValueError("this model keeps no regime bank (regime_bank 0)")
@@ -601,6 +640,10 @@ class RecursiveArx:
             raise ValueError("bank residual powers and weight sums must be positive")
         if self._scale is not None and not np.array_equal(self._scale, state.scale):
             raise ValueError("the model has fixed its own channel scales already: load a bank before the first batch")
+        if self._scale is None:
+            # the past kept from silent batches goes into the same scaled units, as update() does when it fixes its own
+            self._tail *= state.scale[:, None]
+            self._tail_bp *= state.scale[:, None]
         self._scale = state.scale.astype(np.float64, copy=True)
         self.bank = [
             _Regime(

@@ -375,7 +375,10 @@ class Identifier:
 
     # ------------------------------------------------------------ configure
     def _build(self) -> None:
-        """(Re)allocate everything that depends only on the configuration."""
+        """(Re)allocate everything that depends only on the configuration. The regimes an ARX bank has
+        learned are the plant's, not the history's: a rebuilt model starts from them (else from the bank
+        carried in, :meth:`seed_arx_bank`)."""
+        carried = self.arx_bank_state() if getattr(self, "_arx", None) is not None else None
         c = self.cfg
         n = c.fft_width
         self.history = HistoryBuffer(n)
@@ -443,8 +446,9 @@ class Identifier:
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         if c.method == "arx":
             self._arx = RecursiveArx(arx_config(c))
-            if self._arx_seed is not None:  # a rebuilt model (reset, new N) starts from the carried bank again
-                self._arx.load_bank(self._arx_seed)
+            seed = carried if carried is not None and carried.regimes else self._arx_seed
+            if seed is not None:
+                self._arx.load_bank(seed)
 
     def _build_fused(self, n_range: int) -> None:
         """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""
@@ -566,7 +570,7 @@ class Identifier:
         self._build()
 
     def reset(self) -> None:
-        """Zero the history and the averages, keeping the configuration."""
+        """Zero the history and the averages, keeping the configuration (and what an ARX regime bank learned)."""
         self._build()
 
     def restart_history(self) -> None:

@@ -320,6 +320,16 @@ class DspService:
         with self._out_lock:
             self._put_flag(core.release() if release else core.flag("full" if core.block.full else "empty"))
 
+    def _save_bank(self) -> None:
+        """Write the ARX regime bank (``RALF_ARX_REGIME_BANK_FILE``) once no batch can come any more (the
+        subscribers are gone) and under the identifier's lock (a batch identified in zenoh's thread a moment
+        ago has finished with it). A full disk or a gone directory is logged; the board still stops."""
+        try:
+            with self.core.tf_lock:
+                save_bank(self.core.identifier, self.settings)
+        except OSError as exc:
+            log.error("could not write the regime bank %s: %s", self.settings.regime_bank_path(), exc)
+
     def run(self, stop: threading.Event) -> None:
         """Serve until ``stop`` is set (seen within :data:`MAX_WAIT_S`, whatever is held)."""
         if isinstance(self.scheduler, RealTimeScheduler):
@@ -348,12 +358,9 @@ class DspService:
 
     def close(self) -> None:
         self._health.stop()
-        try:
-            save_bank(self.core.identifier, self.settings)
-        except OSError as exc:  # a full disk or a gone directory must not keep the board from stopping
-            log.error("could not write the regime bank %s: %s", self.settings.regime_bank_path(), exc)
         for sub in self._subs:
             sub.undeclare()
+        self._save_bank()
         self._queryable.undeclare()
         self._token.undeclare()
         self._flag_pub.undeclare()

@@ -178,6 +178,8 @@ def test_a_bank_that_does_not_fit_is_refused_and_the_model_is_unchanged(tmp_path
         (RecursiveArx(cfg.model_copy(update={"regime_bank": 0})), state, "keeps no regime bank"),
         (RecursiveArx(cfg.model_copy(update={"na": cfg.na - 2})), state, "another model structure: na"),
         (RecursiveArx(cfg.model_copy(update={"forgetting": 0.99})), state, "forgetting"),
+        (RecursiveArx(cfg.model_copy(update={"search_min_hz": 4.0})), state, "search_min_hz"),  # the signatures' poles
+        (RecursiveArx(cfg.model_copy(update={"ridge": 1e-3})), state, "ridge"),
         (RecursiveArx(cfg.model_copy(update={"regime_bank": 1})), state, "holds 2 regimes, this model keeps 1"),
         (RecursiveArx(cfg), _altered(state, R=r_bad), "not upper-triangular"),
         (RecursiveArx(cfg), _altered(state, theta=theta_nan), "non-finite"),
@@ -207,11 +209,59 @@ def test_a_bank_that_does_not_fit_is_refused_and_the_model_is_unchanged(tmp_path
     newer = tmp_path / "newer.npz"
     save_regime_bank(newer, state)
     with np.load(newer) as z:
-        arrays = dict(z)
-    arrays["version"] = np.array(99)
-    np.savez(newer, **arrays)
-    with pytest.raises(ValueError, match="version 99"):
-        load_regime_bank(newer)
+        good = dict(z)
+    for change, match in (
+        ({"version": np.array(99)}, "version 99"),
+        ({"version": np.array([1, 1])}, "version is not an integer scalar"),
+        ({"model": np.array("[1, 2]")}, "not a JSON object"),
+        ({"model": np.array(3.0)}, "model is not a string"),
+        ({"theta": np.array(["x"])}, "numeric array"),
+    ):
+        np.savez(newer, **{**good, **change})
+        with pytest.raises(ValueError, match=match):
+            load_regime_bank(newer)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "newer.npz"]  # no temporary file left by the writes
+
+
+def test_the_past_kept_from_silent_batches_takes_the_carried_scales() -> None:
+    """A model that has filtered silent batches (a channel still zero: no scales of its own yet) keeps their
+    past unscaled; loading a bank then puts that past into the carried scales, as fixing its own would."""
+    cfg, state = _learned_bank()
+    u, y, _ = _alternating(1, noise_seed=9)
+    u = u[:, : 4 * BATCH].copy()
+    u[1] = 0.0  # valve 2 silent: the model cannot fix its scales yet
+    m = RecursiveArx(cfg)
+    m.update(u[:, :BATCH], y[:, :BATCH])
+    kept, kept_bp = m._tail.copy(), m._tail_bp.copy()
+    assert np.any(kept != 0.0)
+    m.load_bank(state)
+    assert np.array_equal(m._tail, kept * state.scale[:, None]) and np.array_equal(m._tail_bp, kept_bp * state.scale[:, None])
+
+
+def test_what_the_bank_learned_in_the_run_survives_a_rebuild_of_the_model() -> None:
+    """A reset or a new N rebuilds the identifier's ARX: it starts from the regimes the bank holds then (learned
+    in this run, beyond what was carried in), not from the carried bank alone."""
+    from dsp_service.identifier import Identifier
+
+    _cfg, state = _learned_bank()
+    one = dataclasses.replace(
+        state, R=state.R[:1], theta=state.theta[:1], residual_power=state.residual_power[:1], weight_sum=state.weight_sum[:1], signature=state.signature[:1]
+    )
+    ident = Identifier(IdentifierConfig(method="arx", arx_regime_bank=4))
+    ident.seed_arx_bank(one)
+    u, y, _ = _alternating(2, noise_seed=5)
+    for k in range(u.shape[1] // BATCH):
+        ident.push(u[:, k * BATCH : (k + 1) * BATCH], y[:, k * BATCH : (k + 1) * BATCH])
+        ident.step()
+    assert ident.arx is not None
+    learned = [reg.theta.copy() for reg in ident.arx.bank]
+    assert len(learned) == 2  # the carried regime and the one this run showed
+    ident.set_fft_width(1024)
+    assert ident.arx is not None
+    rebuilt = [reg.theta for reg in ident.arx.bank]
+    assert len(rebuilt) == 2 and all(np.array_equal(a, b) for a, b in zip(rebuilt, learned))
+    ident.reset()
+    assert ident.arx is not None and len(ident.arx.bank) == 2
 
 
 def test_the_board_loads_the_bank_file_at_its_start_and_writes_it_at_its_stop(tmp_path: Path) -> None:
@@ -242,7 +292,7 @@ def test_the_board_loads_the_bank_file_at_its_start_and_writes_it_at_its_stop(tm
     assert second.arx is not None and len(second.arx.bank) == 2
     assert np.array_equal(second.arx.bank[0].theta, first.arx.bank[0].theta)
     second.reset()
-    assert len(second.arx.bank) == 2  # the rebuilt model starts from the carried bank again
+    assert second.arx is not None and len(second.arx.bank) == 2  # the rebuilt model starts from the bank again
     other = DspSettings(rig_id="lab", identifier="arx", arx_regime_bank=1, arx_regime_bank_file=str(path))
     with pytest.raises(ConfigError, match="lab-bank.npz.*holds 2 regimes"):
         load_bank(Identifier(identifier_config(other)), other)
@@ -261,3 +311,21 @@ def test_the_bank_file_setting_is_checked_when_the_settings_load() -> None:
     with pytest.raises(ValueError, match="must contain \\{rig_id\\}"):
         DspSettings(identifier="arx", arx_regime_bank=2, serve_rigs="b", arx_regime_bank_file="bank.npz")
     DspSettings(identifier="arx", arx_regime_bank=2, serve_rigs="b", arx_regime_bank_file="{rig_id}.npz")
+
+
+def test_the_co_simulation_loads_and_writes_the_bank_file_as_the_service_does(tmp_path: Path) -> None:
+    """``run_cosim`` with ``arx_regime_bank_file``: the file is loaded before the first batch and written at the end,
+    so a co-simulation and the three-process rig carry a bank the same way."""
+    from workbench.cosim import run_cosim
+
+    _cfg, state = _learned_bank()
+    path = tmp_path / "bank.npz"
+    dsp = {"identifier": "arx", "arx_regime_bank": 4, "arx_regime_bank_file": str(path)}
+    run_cosim(controller={"duration_s": 2.0, "tf_download_samples": 0}, dsp=dsp)
+    first = load_regime_bank(path)  # a first run: learned from nothing, written with the scales it fixed
+    assert first.regimes == 0 and np.all(first.scale > 0)
+    save_regime_bank(path, state)
+    run = run_cosim(controller={"duration_s": 2.0, "tf_download_samples": 0}, dsp=dsp)
+    arx = run.dsp.identifier.arx
+    assert arx is not None and len(arx.bank) == 2 and np.array_equal(arx.bank[0].theta, state.theta[0])
+    assert np.array_equal(load_regime_bank(path).theta, state.theta)

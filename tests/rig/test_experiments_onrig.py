@@ -203,6 +203,9 @@ def test_id_lag_quick(tmp_path: Path) -> None:
     assert rp["max_difference_to_the_record_hz"] <= 1e-9
     assert rp["as_run"]["median_settle_2pct_s"] == pytest.approx(r["settings"]["arx"]["median_settle_2pct_s"], abs=0.2)
     assert set(rp) >= {"reset_at_the_event", "change_detection", "change_alarms_s"}
+    # the bank of a calibration run (another noise seed, its event 10 s later) carried in: reported, checked in full runs
+    assert rp["carried_bank"]["events_s"] == [r["events_s"][0] + 10.0] and rp["carried_bank"]["seed"] != d["run"]["settings"]["plant"]["seed"]
+    assert len(rp["regime_bank_carried"]["events"]) == 1
     assert (out / "records" / "idlag_trajectory.json").is_file()
     # the dithered ARX run: the D/A carried the dither, and it made the links move more (its cost)
     (dd,) = r["dither"]["runs"]

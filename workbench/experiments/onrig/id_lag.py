@@ -101,6 +101,10 @@ GOAL_S = 1.0
 """Issue #12's goal for the fast recursive identifier: within 2 % of the new first mode ≤ 1 s after the payload step."""
 REGIME_BANK = 4
 """Regimes the replayed ARX with a regime bank remembers (``arx_regime_bank``, docs/identification.md §5c)."""
+
+CALIBRATION_SHIFT_S = 10.0
+"""The calibration run's payload events come this much later than the run's (half their spacing): its regimes
+are learned at other points of the loop, with another sensor-noise seed (docs/identification.md §5d)."""
 ORACLE_GAMMA = 1e-3
 """The weight the replayed ARX's reset at the true event time leaves on the data before it (``RecursiveArx.discount``)."""
 _ARX = IdentifierConfig()
@@ -389,7 +393,12 @@ def arx_replays(res: RigResult, events: Sequence[float], calibration: RigResult 
         )
         out["regime_bank_carried"] = series_delays(t_r, held(carried, t_r.size, THESIS_BATCH_SIZE), true_r, events)
         out["carried_switches_s"] = carried_switches
-        out["carried_bank"] = {"regimes": carried_bank.regimes, "signatures_hz": carried_bank.signature.tolist(), "seed": calibration.spec.plant.get("seed")}
+        out["carried_bank"] = {
+            "regimes": carried_bank.regimes,
+            "signatures_hz": carried_bank.signature.tolist(),
+            "seed": calibration.spec.plant.get("seed"),
+            "events_s": [float(e["at_sim_time_s"]) for e in json.loads(str(calibration.spec.plant.get("scenario", "[]")))],
+        }
         keys.append("regime_bank_carried")
     for key in keys:
         out[key].pop("median_series")  # the delays are the results; the series would triple the file
@@ -582,12 +591,19 @@ def run(ctx: ExperimentContext) -> Report:
         )
         for amp in amplitudes
     ]
+    calibration_events = [at + CALIBRATION_SHIFT_S for at in events]
     calibration_spec = RigRun(
         "arx_calibration",
         controller=dict(arx_spec.controller),
-        plant={**arx_spec.plant, "seed": seed + 1},
+        plant={
+            **arx_spec.plant,
+            "seed": seed + 1,
+            "scenario": json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(calibration_events)]),
+        },
         dsp=dict(arx_spec.dsp),
-        label=f"{arx_spec.label}; calibration run (sensor-noise seed {seed + 1})",
+        label=f"{arx_spec.label}; calibration run (sensor-noise seed {seed + 1}, payload events at "
+        + ", ".join(f"{at:g}" for at in calibration_events)
+        + " s)",
     )
     all_runs = run_rigs(ctx, [*specs, *dither_specs, calibration_spec], in_process=quick, description="id-lag runs")
     runs, dither_runs, calibration_run = all_runs[: len(specs)], all_runs[len(specs) : -1], all_runs[-1]
@@ -805,20 +821,30 @@ def run(ctx: ExperimentContext) -> Report:
             carried = arx_replay["regime_bank_carried"]
             cb = arx_replay["carried_bank"]
             rep.text(
-                f"The calibration run: the same rig, trajectory and events with another sensor-noise seed; its ARX (replayed with "
+                "The calibration run: the same rig and trajectory, another sensor-noise seed, and the payload events "
+                f"{CALIBRATION_SHIFT_S:g} s later than this run's (at "
+                + ", ".join(f"{at:g}" for at in cb["events_s"])
+                + " s: midway between them, so its regimes are learned at other points of the loop); its ARX (replayed with "
                 f"`arx_regime_bank` {REGIME_BANK}) ended with {cb['regimes']} regime(s), signatures "
                 + "; ".join(" / ".join(f"{f:.2f}" for f in sig) + " Hz" for sig in cb["signatures_hz"])
                 + ". Loaded before this run's first batch (as `RALF_ARX_REGIME_BANK_FILE` loads the bank an earlier run wrote), the model "
                 "switched at " + (", ".join(f"{a:.1f}" for a in arx_replay["carried_switches_s"]) or "no time") + " s."
             )
             settle_all = [e["settle_2pct_s"] for e in carried["events"]]
-            rep.check(
-                f"issue #12's goal with the regime bank carried from a calibration run: within 2 % in ≤ {GOAL_S:g} s after every payload "
-                "step, the first included",
-                all(x <= GOAL_S for x in settle_all),
-                "per event " + ", ".join(f"{x:.1f}" for x in settle_all) + f" s; learned in the run alone, the first event "
-                f"{arx_replay['regime_bank']['events'][0]['settle_2pct_s']:.1f} s",
-            )
+            stays = [e["stays_2pct_s"] for e in carried["events"]]
+            if quick:
+                rep.text(
+                    "(--quick: the calibration run is too short for its bank to store both regimes, so the carried bank is reported but "
+                    "not checked; the full run checks it.)"
+                )
+            else:
+                rep.check(
+                    f"issue #12's goal with the regime bank carried from a calibration run: within 2 % in ≤ {GOAL_S:g} s after every payload "
+                    "step, the first included",
+                    all(x <= GOAL_S for x in settle_all),
+                    "per event " + ", ".join(f"{x:.1f}" for x in settle_all) + " s (delay to stay within 2 %: " + ", ".join(f"{x:.1f}" for x in stays) + " s); "
+                    f"learned in the run alone, the first event {arx_replay['regime_bank']['events'][0]['settle_2pct_s']:.1f} s",
+                )
     _report_dither(rep, dither, events, quick)
     fig = _delay_figure(rows_data, len(events))
     rep.figure(
