@@ -301,6 +301,9 @@ def load_regime_bank(path: str | Path) -> RegimeBankState:
     not one (unreadable, another version, missing or malformed arrays). Whether it fits a model is
     :meth:`RecursiveArx.load_bank`'s check."""
     try:
+        with open(path, "rb") as fh:
+            if fh.read(4) != b"PK\x03\x04":
+                raise ValueError("not an .npz archive")
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:

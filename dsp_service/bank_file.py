@@ -29,7 +29,7 @@ def load_bank(identifier: Identifier, settings: DspSettings) -> bool:
         state = load_regime_bank(path)
         identifier.seed_arx_bank(state)
     except ValueError as exc:
-        raise ConfigError(f"arx_regime_bank_file {path}: {exc}") from None
+        raise ConfigError(f"arx_regime_bank_file: {exc}") from None  # the message names the file
     log.info("regime bank %s loaded: %d regime(s), signatures %s Hz", path, state.regimes, state.signature.round(3).tolist())
     return True
 

@@ -294,10 +294,10 @@ def test_the_board_loads_the_bank_file_at_its_start_and_writes_it_at_its_stop(tm
     second.reset()
     assert second.arx is not None and len(second.arx.bank) == 2  # the rebuilt model starts from the bank again
     other = DspSettings(rig_id="lab", identifier="arx", arx_regime_bank=1, arx_regime_bank_file=str(path))
-    with pytest.raises(ConfigError, match="lab-bank.npz.*holds 2 regimes"):
+    with pytest.raises(ConfigError, match="holds 2 regimes"):
         load_bank(Identifier(identifier_config(other)), other)
     (tmp_path / "lab-bank.npz").write_bytes(b"garbage")
-    with pytest.raises(ConfigError, match="not a regime bank file"):
+    with pytest.raises(ConfigError, match="lab-bank.npz: not a regime bank file \\(ValueError: not an .npz archive\\)"):
         load_bank(Identifier(identifier_config(settings)), settings)
 
 
