@@ -80,7 +80,6 @@ import json
 import math
 import os
 import tempfile
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, cast
@@ -266,6 +265,14 @@ def save_regime_bank(path: str | Path, state: RegimeBankState) -> None:
     target = Path(path)
     fd, tmp_name = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=target.parent)
     try:
+        # mkstemp makes the file 0600: keep the mode of the bank it replaces, else what the umask gives a new file
+        try:
+            mode = target.stat().st_mode & 0o777
+        except OSError:
+            umask = os.umask(0)
+            os.umask(umask)
+            mode = 0o666 & ~umask
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as fh:
             np.savez(
                 fh,
@@ -306,11 +313,13 @@ def load_regime_bank(path: str | Path) -> RegimeBankState:
                 raise ValueError("not an .npz archive")
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+    except Exception as exc:  # whatever a damaged or hand-made archive raises (zip, zlib, npy format errors) is a bad file
         raise ValueError(f"{path}: not a regime bank file ({type(exc).__name__}: {exc})") from None
     missing = [k for k in ("version", "model", "scale", "R", "theta", "residual_power", "weight_sum", "signature") if k not in arrays]
     if missing:
         raise ValueError(f"{path}: not a regime bank file (missing {', '.join(missing)})")
+    if not all(isinstance(v, np.ndarray) for v in arrays.values()):
+        raise ValueError(f"{path}: not a regime bank file (a member is not an array)")
     version = arrays["version"]
     if version.ndim != 0 or version.dtype.kind not in "iu":
         raise ValueError(f"{path}: not a regime bank file (version is not an integer scalar)")
@@ -320,8 +329,8 @@ def load_regime_bank(path: str | Path) -> RegimeBankState:
         raise ValueError(f"{path}: not a regime bank file (model is not a string)")
     try:
         model = json.loads(str(arrays["model"]))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: the bank's model fields are not JSON ({exc})") from None
+    except (ValueError, RecursionError) as exc:
+        raise ValueError(f"{path}: the bank's model fields are not JSON ({type(exc).__name__})") from None
     if not isinstance(model, dict):
         raise ValueError(f"{path}: the bank's model fields are not a JSON object")
     if any(arrays[k].dtype.kind not in "fiu" for k in ("scale", "R", "theta", "residual_power", "weight_sum", "signature")):

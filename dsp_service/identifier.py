@@ -66,6 +66,7 @@ rounding (tests/dsp/test_kernel.py: 1e-12 on every output).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
@@ -100,6 +101,8 @@ from .spectra import (
     scale_spectra,
     welch_equivalent_averages,
 )
+
+log = logging.getLogger(__name__)
 
 _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
@@ -448,7 +451,10 @@ class Identifier:
             self._arx = RecursiveArx(arx_config(c))
             seed = carried if carried is not None and carried.regimes else self._arx_seed
             if seed is not None:
-                self._arx.load_bank(seed)
+                try:
+                    self._arx.load_bank(seed)
+                except ValueError as exc:  # not expected (the same model fields); never let a rebuild fail half-way
+                    log.warning("the rebuilt ARX model starts without its regime bank: %s", exc)
 
     def _build_fused(self, n_range: int) -> None:
         """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""

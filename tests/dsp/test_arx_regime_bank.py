@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -220,7 +222,33 @@ def test_a_bank_that_does_not_fit_is_refused_and_the_model_is_unchanged(tmp_path
         np.savez(newer, **{**good, **change})
         with pytest.raises(ValueError, match=match):
             load_regime_bank(newer)
+    np.savez(newer, **{**good, "model": np.array("[" * 100000 + "]" * 100000)})
+    with pytest.raises(ValueError, match="not JSON"):
+        load_regime_bank(newer)
+    raw = tmp_path / "raw.npz"  # a hand-made archive whose members are not .npy arrays
+    with zipfile.ZipFile(raw, "w") as z:
+        for name in good:
+            z.writestr(name, b"1")
+    with pytest.raises(ValueError, match="not an array"):
+        load_regime_bank(raw)
+    raw.unlink()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "newer.npz"]  # no temporary file left by the writes
+
+
+def test_a_written_bank_keeps_the_mode_of_the_file_it_replaces(tmp_path: Path) -> None:
+    """The crash-safe write goes through a private temporary file (0600); the bank keeps the mode of the file it
+    replaces, and a new one gets what the umask gives a new file (readable by the other users of a rig host)."""
+    _cfg, state = _learned_bank()
+    path = tmp_path / "bank.npz"
+    umask = os.umask(0o022)
+    try:
+        save_regime_bank(path, state)
+        assert path.stat().st_mode & 0o777 == 0o644
+        path.chmod(0o640)
+        save_regime_bank(path, state)
+        assert path.stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(umask)
 
 
 def test_the_past_kept_from_silent_batches_takes_the_carried_scales() -> None:
