@@ -227,6 +227,8 @@ damping, strength, count and order). A bank carries them and is loaded only into
 are equal."""
 
 BANK_FILE_VERSION = 1
+_BANK_ARRAYS = ("scale", "R", "theta", "residual_power", "weight_sum", "signature")
+"""The float arrays of a :class:`RegimeBankState`, as a bank file holds them beside its version and model."""
 
 
 @dataclass(frozen=True)
@@ -278,12 +280,7 @@ def save_regime_bank(path: str | Path, state: RegimeBankState) -> None:
                 fh,
                 version=np.array(BANK_FILE_VERSION),
                 model=np.array(json.dumps(state.model, sort_keys=True)),
-                scale=state.scale,
-                R=state.R,
-                theta=state.theta,
-                residual_power=state.residual_power,
-                weight_sum=state.weight_sum,
-                signature=state.signature,
+                **{k: getattr(state, k) for k in _BANK_ARRAYS},
             )
             fh.flush()
             os.fsync(fh.fileno())
@@ -315,7 +312,7 @@ def load_regime_bank(path: str | Path) -> RegimeBankState:
             arrays = {k: z[k] for k in z.files}
     except Exception as exc:  # whatever a damaged or hand-made archive raises (zip, zlib, npy format errors) is a bad file
         raise ValueError(f"{path}: not a regime bank file ({type(exc).__name__}: {exc})") from None
-    missing = [k for k in ("version", "model", "scale", "R", "theta", "residual_power", "weight_sum", "signature") if k not in arrays]
+    missing = [k for k in ("version", "model", *_BANK_ARRAYS) if k not in arrays]
     if missing:
         raise ValueError(f"{path}: not a regime bank file (missing {', '.join(missing)})")
     if not all(isinstance(v, np.ndarray) for v in arrays.values()):
@@ -333,9 +330,9 @@ def load_regime_bank(path: str | Path) -> RegimeBankState:
         raise ValueError(f"{path}: the bank's model fields are not JSON ({type(exc).__name__})") from None
     if not isinstance(model, dict):
         raise ValueError(f"{path}: the bank's model fields are not a JSON object")
-    if any(arrays[k].dtype.kind not in "fiu" for k in ("scale", "R", "theta", "residual_power", "weight_sum", "signature")):
+    if any(arrays[k].dtype.kind not in "fiu" for k in _BANK_ARRAYS):
         raise ValueError(f"{path}: not a regime bank file (a numeric array holds something else)")
-    f8 = {k: np.asarray(arrays[k], dtype=np.float64) for k in ("scale", "R", "theta", "residual_power", "weight_sum", "signature")}
+    f8 = {k: np.asarray(arrays[k], dtype=np.float64) for k in _BANK_ARRAYS}
     return RegimeBankState(model=model, **f8)
 
 

@@ -36,11 +36,16 @@ def load_bank(identifier: Identifier, settings: DspSettings) -> bool:
 
 def save_bank(identifier: Identifier, settings: DspSettings) -> bool:
     """Write ``identifier``'s ARX bank to the settings' file (True); nothing when no file is set or the model
-    has learned nothing yet (no batch with signal: an earlier file is kept)."""
+    has learned nothing yet (no batch with signal: an earlier file is kept). A full disk or a gone directory
+    is logged (False): the board still stops, and its run's results stand; only the next run's bank is lost."""
     path = settings.regime_bank_path()
     state = identifier.arx_bank_state() if path else None
     if state is None:
         return False
-    save_regime_bank(path, state)
+    try:
+        save_regime_bank(path, state)
+    except OSError as exc:
+        log.error("could not write the regime bank %s: %s", path, exc)
+        return False
     log.info("regime bank %s written: %d regime(s)", path, state.regimes)
     return True

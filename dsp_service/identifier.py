@@ -374,6 +374,7 @@ class Identifier:
     def __init__(self, cfg: IdentifierConfig | None = None) -> None:
         self.cfg = cfg if cfg is not None else IdentifierConfig()
         self._arx_seed: RegimeBankState | None = None
+        self._arx: RecursiveArx | None = None
         self._build()
 
     # ------------------------------------------------------------ configure
@@ -381,7 +382,7 @@ class Identifier:
         """(Re)allocate everything that depends only on the configuration. The regimes an ARX bank has
         learned are the plant's, not the history's: a rebuilt model starts from them (else from the bank
         carried in, :meth:`seed_arx_bank`)."""
-        carried = self.arx_bank_state() if getattr(self, "_arx", None) is not None else None
+        carried = self.arx_bank_state()
         c = self.cfg
         n = c.fft_width
         self.history = HistoryBuffer(n)
@@ -445,7 +446,7 @@ class Identifier:
         if self._fused:
             self._build_fused(n_range)
         self._pending = 0
-        self._arx: RecursiveArx | None = None
+        self._arx = None
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         if c.method == "arx":
             self._arx = RecursiveArx(arx_config(c))

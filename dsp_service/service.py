@@ -323,12 +323,9 @@ class DspService:
     def _save_bank(self) -> None:
         """Write the ARX regime bank (``RALF_ARX_REGIME_BANK_FILE``) once no batch can come any more (the
         subscribers are gone) and under the identifier's lock (a batch identified in zenoh's thread a moment
-        ago has finished with it). A full disk or a gone directory is logged; the board still stops."""
-        try:
-            with self.core.tf_lock:
-                save_bank(self.core.identifier, self.settings)
-        except OSError as exc:
-            log.error("could not write the regime bank %s: %s", self.settings.regime_bank_path(), exc)
+        ago has finished with it)."""
+        with self.core.tf_lock:
+            save_bank(self.core.identifier, self.settings)
 
     def run(self, stop: threading.Event) -> None:
         """Serve until ``stop`` is set (seen within :data:`MAX_WAIT_S`, whatever is held)."""

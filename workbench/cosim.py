@@ -26,7 +26,6 @@ lockstep run with the same settings bit for bit (tested).
 
 from __future__ import annotations
 
-import logging
 import time
 import uuid
 from collections import deque
@@ -48,8 +47,6 @@ from protocol.messages import ConfigChange, Health, decode, encode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, load_settings
 from protocol.tf_codec import encode_tf
 from service_kit.clock import SimulatedScheduler
-
-log = logging.getLogger(__name__)
 
 
 class DirectCanWire:
@@ -291,10 +288,7 @@ def run_cosim(
         if ps.record:
             app.save_truth(ps.record)
     wall = time.monotonic() - started
-    try:
-        save_bank(core.identifier, ds)  # and at its stop
-    except OSError as exc:  # the run's result stands; only the bank for the next run is lost
-        log.error("could not write the regime bank %s: %s", ds.regime_bank_path(), exc)
+    save_bank(core.identifier, ds)  # and at its stop
     health = {"plant": _plant_health(app, node), "dsp": _dsp_health(core)}
     ctrl_health = port.health()
     if ctrl_health is not None:

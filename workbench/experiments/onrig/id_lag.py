@@ -44,7 +44,6 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -108,6 +107,8 @@ are learned at other points of the loop, with another sensor-noise seed (docs/id
 ORACLE_GAMMA = 1e-3
 """The weight the replayed ARX's reset at the true event time leaves on the data before it (``RecursiveArx.discount``)."""
 _ARX = IdentifierConfig()
+_BANKED = IdentifierConfig(method="arx", sample_rate_hz=FS_HZ, arx_regime_bank=REGIME_BANK)
+"""The DSP's ARX with a regime bank (docs/identification.md §5c-5d), as the replays build it."""
 _DITHER = DitherConfig()
 """The dither's default band and period (the runs set only its amplitude)."""
 ARX_FORGETTING = _ARX.arx_forgetting
@@ -251,6 +252,12 @@ def step_delays(res: RigResult, events_s: list[float], tolerance: float = TOLERA
     return out
 
 
+def payload_scenario(events: Sequence[float]) -> str:
+    """The plant's ``RALF_SCENARIO``: the payload (attached at the start) released at the first event, picked up
+    at the second, and so on."""
+    return json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(events)])
+
+
 def replay_arx(
     res: RigResult,
     batch_size: int,
@@ -273,21 +280,14 @@ def replay_arx(
     a change detector that knows the change time. ``bank``: the regime bank
     another run learned (:func:`learn_bank`), loaded before the first batch as
     the DSP loads ``arx_regime_bank_file``."""
-    model = _replayed_arx(res, batch_size, cfg, bank, discount_at_s, gamma)
-    return model.first_pole, model.alarms
+    first_pole, alarms, _model = _replayed_arx(res, batch_size, cfg, bank, discount_at_s, gamma)
+    return first_pole, alarms
 
 
-@dataclass
-class _Replay:
-    first_pole: np.ndarray
-    alarms: list[float]
-    model: RecursiveArx
-
-
-def learn_bank(res: RigResult, batch_size: int, regimes: int = REGIME_BANK) -> RegimeBankState:
-    """The regime bank the DSP's ARX (with ``arx_regime_bank`` ``regimes``) holds at the end of ``res``
-    (replayed from its record): what ``arx_regime_bank_file`` would carry out of that run."""
-    return _replayed_arx(res, batch_size, IdentifierConfig(method="arx", sample_rate_hz=FS_HZ, arx_regime_bank=regimes), None).model.bank_state()
+def learn_bank(res: RigResult, batch_size: int) -> RegimeBankState:
+    """The regime bank the DSP's ARX (``_BANKED``) holds at the end of ``res`` (replayed from its record):
+    what ``arx_regime_bank_file`` would carry out of that run."""
+    return _replayed_arx(res, batch_size, _BANKED, None)[2].bank_state()
 
 
 def _replayed_arx(
@@ -297,7 +297,7 @@ def _replayed_arx(
     bank: RegimeBankState | None,
     discount_at_s: Sequence[float] = (),
     gamma: float = ORACLE_GAMMA,
-) -> _Replay:
+) -> tuple[np.ndarray, list[float], RecursiveArx]:
     rec = res.record
     u = np.vstack([np.asarray(rec["u1_v"], dtype=float), np.asarray(rec["u2_v"], dtype=float)])
     y = np.vstack([np.asarray(rec["defl1_in"], dtype=float), np.asarray(rec["defl2_in"], dtype=float)])
@@ -319,7 +319,7 @@ def _replayed_arx(
             alarms.append((k + 1) * batch_size * dt)
         poles = arx.poles()
         f[k] = poles[0].frequency_hz if poles else np.nan
-    return _Replay(f, alarms, arx)
+    return f, alarms, arx
 
 
 def held(per_batch: np.ndarray, n_ticks: int, batch_size: int) -> np.ndarray:
@@ -374,7 +374,7 @@ def arx_replays(res: RigResult, events: Sequence[float], calibration: RigResult 
     replayed, _ = replay_arx(res, THESIS_BATCH_SIZE)
     reset, _ = replay_arx(res, THESIS_BATCH_SIZE, discount_at_s=applied_events(res))
     detected, alarms = replay_arx(res, THESIS_BATCH_SIZE, cfg=IdentifierConfig(method="arx", sample_rate_hz=FS_HZ, arx_change_detection=True))
-    banked, switches = replay_arx(res, THESIS_BATCH_SIZE, cfg=IdentifierConfig(method="arx", sample_rate_hz=FS_HZ, arx_regime_bank=REGIME_BANK))
+    banked, switches = replay_arx(res, THESIS_BATCH_SIZE, cfg=_BANKED)
     out: dict[str, Any] = {
         "max_difference_to_the_record_hz": replay_matches_record(res, replayed, THESIS_BATCH_SIZE),
         "gamma": ORACLE_GAMMA,
@@ -388,9 +388,7 @@ def arx_replays(res: RigResult, events: Sequence[float], calibration: RigResult 
     keys = ["as_run", "reset_at_the_event", "change_detection", "regime_bank"]
     if calibration is not None:
         carried_bank = learn_bank(calibration, THESIS_BATCH_SIZE)
-        carried, carried_switches = replay_arx(
-            res, THESIS_BATCH_SIZE, cfg=IdentifierConfig(method="arx", sample_rate_hz=FS_HZ, arx_regime_bank=REGIME_BANK), bank=carried_bank
-        )
+        carried, carried_switches = replay_arx(res, THESIS_BATCH_SIZE, cfg=_BANKED, bank=carried_bank)
         out["regime_bank_carried"] = series_delays(t_r, held(carried, t_r.size, THESIS_BATCH_SIZE), true_r, events)
         out["carried_switches_s"] = carried_switches
         out["carried_bank"] = {
@@ -558,7 +556,7 @@ def run(ctx: ExperimentContext) -> Report:
     f_free = modal_parameters(theta[:, 0], theta[:, 1], False)[0][:, 0]
     f_load = modal_parameters(theta[:, 0], theta[:, 1], True)[0][:, 0]
     seed = int(ctx.rng("plant-seed").integers(0, 2**31 - 1))
-    scenario = json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(events)])
+    scenario = payload_scenario(events)
     specs = [
         RigRun(
             _name(n, a, m),
@@ -598,7 +596,7 @@ def run(ctx: ExperimentContext) -> Report:
         plant={
             **arx_spec.plant,
             "seed": seed + 1,
-            "scenario": json.dumps([{"kind": "payload", "at_sim_time_s": at, "payload_attached": bool(i % 2)} for i, at in enumerate(calibration_events)]),
+            "scenario": payload_scenario(calibration_events),
         },
         dsp=dict(arx_spec.dsp),
         label=f"{arx_spec.label}; calibration run (sensor-noise seed {seed + 1}, payload events at "
