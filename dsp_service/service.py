@@ -98,6 +98,7 @@ class DspService:
         self._irq_pub = session.declare_publisher(self.keys.interrupt, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._ack_pub = session.declare_publisher(self.keys.dsp_config_ack, encoding=JSON, congestion_control=block)
         self.board_id = str(session.info.zid()).encode()  # sent with flags and interrupts: the controller pairs with one board
+        self._attachment = zenoh.ZBytes(self.board_id)  # converted once, not at every put
         self._subs = [
             session.declare_subscriber(self.keys.batch, self._events.subscriber("batch", self._on_batch_payload)),
             session.declare_subscriber(self.keys.dsp_config, self._events.subscriber("config", self._decode_config)),
@@ -140,7 +141,7 @@ class DspService:
             self._put_flag(self.core.flag(state))
 
     def _put_flag(self, flag: BlockFlag) -> None:
-        self._flag_pub.put(encode(flag), attachment=self.board_id)
+        self._flag_pub.put(encode(flag), attachment=self._attachment)
 
     def _build_health(self, seq: int) -> Health:
         counters = self.core.block.counters.as_dict()
@@ -250,7 +251,7 @@ class DspService:
         with self._out_lock:
             with core.block_lock:
                 core.block.release()
-            self._irq_pub.put(held.payload, attachment=self.board_id)
+            self._irq_pub.put(held.payload, attachment=self._attachment)
         self.turnaround.add(self.scheduler.now() - held.arrival)
         self.compute_time.add(held.fields["compute_time_s"])
         try:
@@ -286,7 +287,7 @@ class DspService:
             self.core.block.counters.interrupts_repeated += 1
             log.warning("batch %d came again: its interrupt is raised again", self._last_raised.batch_seq)
             with self._out_lock:
-                self._irq_pub.put(self._last_raised.payload, attachment=self.board_id)  # the same interrupt: the block is empty again
+                self._irq_pub.put(self._last_raised.payload, attachment=self._attachment)  # the same interrupt: the block is empty again
         elif event.kind == "config" and event.change is not None:
             change = event.change  # decoded (and counted if invalid) by the inbox
             refused = ""
