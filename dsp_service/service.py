@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass
+from time import perf_counter
 from typing import Any
 
 import zenoh
@@ -90,6 +91,9 @@ class DspService:
         self.scheduler: Scheduler = scheduler or RealTimeScheduler()
         self.compute_time = LatencyTracker()
         self.turnaround = LatencyTracker()
+        self.put_time = LatencyTracker()
+        """Wall time of the interrupt's put (zenoh hands the message to its transmit thread when the put
+        returns: docs/dsp-performance.md, "Seventh pass"); health's ``interrupt_put``."""
         self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
         self._held: _Held | None = None
         self._last_raised: _Held | None = None
@@ -154,7 +158,7 @@ class DspService:
             service="dsp",
             state=state,
             counters=counters,
-            latencies={"compute": self.compute_time.stats(), "batch_to_interrupt": self.turnaround.stats()},
+            latencies={"compute": self.compute_time.stats(), "batch_to_interrupt": self.turnaround.stats(), "interrupt_put": self.put_time.stats()},
             last_miss=self.core.block.last_violation,
         )
 
@@ -251,7 +255,10 @@ class DspService:
         with self._out_lock:
             with core.block_lock:
                 core.block.release()
+            started = perf_counter()
             self._irq_pub.put(held.payload, attachment=self._attachment)
+            put_s = perf_counter() - started
+        self.put_time.add(put_s)
         self.turnaround.add(self.scheduler.now() - held.arrival)
         self.compute_time.add(held.fields["compute_time_s"])
         try:

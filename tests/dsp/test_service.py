@@ -482,6 +482,30 @@ def test_the_bench_splits_a_batch_round_trip_at_the_interrupts_construction(sess
         assert out > -1e-5 and back > -1e-5 and 0 < compute < rtt
 
 
+def test_health_times_every_interrupt_put_and_the_bench_reads_it_after_a_measurement(session: zenoh.Session) -> None:
+    """The board's health carries ``interrupt_put`` (the wall time of each interrupt's put);
+    the bench's :class:`HealthWatch` returns the first health message after a given moment."""
+    from workbench.bench.pingers import DspPinger, HealthWatch
+
+    settings = _settings()
+    with _running_board(session, settings, inline=True) as board:
+        watch = HealthWatch(session, board.keys.health("dsp"))
+        pinger = DspPinger(session, settings.rig_id, samples=20)
+        try:
+            pinger.wait_empty(5.0)
+            rtts = [pinger.once() for _ in range(5)]
+            ended = time.monotonic()
+            health = watch.after(ended, timeout_s=5.0)
+        finally:
+            pinger.close()
+            watch.close()
+    assert health is not None and health.service == "dsp"
+    put = health.latencies["interrupt_put"]
+    assert put.count == 5 == health.latencies["batch_to_interrupt"].count
+    assert 0 < put.p50 <= put.max and len(rtts) == 5
+    assert board.service.put_time.count == 5
+
+
 @pytest.mark.parametrize("identifier", ["etfe", "etfe-welch", "etfe-transient", "arx"])
 def test_the_interrupts_wire_bytes_are_the_models(identifier: str) -> None:
     """The board puts the interrupt's bytes made from its fields by pydantic's

@@ -22,7 +22,7 @@ from protocol import can_map
 from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
-from protocol.messages import BlockFlag, Interrupt, decode
+from protocol.messages import BlockFlag, Health, Interrupt, decode
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 from workbench.bench.procs import BenchError
 
@@ -278,6 +278,33 @@ def unix_minus_perf(reads: int = 15) -> float:
         if b - a < best_width:
             best_width, best = b - a, unix - (a + b) / 2
     return best
+
+
+class HealthWatch:
+    """The latest health message of one service (e.g. the DSP's, read after a measurement
+    for what only the service itself can time, such as its interrupt's put)."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self._latest: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
+        self.sub = session.declare_subscriber(key, lambda s: self._latest.put((s.payload.to_bytes(), time.monotonic())))
+
+    def after(self, since: float, timeout_s: float) -> Health | None:
+        """The first health message that arrived after ``since`` (``time.monotonic``), waiting
+        up to ``timeout_s`` for it; None if none came or it did not decode."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                payload, arrived = self._latest.get(timeout=max(deadline - time.monotonic(), 0.0))
+            except queue.Empty:
+                return None
+            if arrived > since:
+                try:
+                    return decode(Health, payload)
+                except ProtocolError:
+                    return None
+
+    def close(self) -> None:
+        self.sub.undeclare()
 
 
 class DspPinger:
