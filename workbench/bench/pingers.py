@@ -281,8 +281,9 @@ def unix_minus_perf(reads: int = 15) -> float:
 
 
 class HealthWatch:
-    """The latest health message of one service (e.g. the DSP's, read after a measurement
-    for what only the service itself can time, such as its interrupt's put)."""
+    """One service's health messages as they arrive, each with its arrival time, so a caller can
+    take the first one after a measurement (e.g. the DSP's, for what only the service itself can
+    time, such as its interrupt's put). Health comes once per ``health_period_s``: a few dozen per bench item."""
 
     def __init__(self, session: zenoh.Session, key: str) -> None:
         self._latest: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
