@@ -27,8 +27,8 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
         try:
             log.info("controller up on rig %r: %s clock, %.0f Hz, OATF %s", settings.rig_id, settings.clock, settings.sample_rate_hz, settings.oatf_mode)
             result = service.run(stop)
-            if settings.record:
-                service.save(settings.record, result)
+            if settings.run_record:
+                service.save(settings.run_record, result)
             log.info("run ended after %d ticks (%.2f s simulated): %s", result.ticks, result.sim_time_s, result.counters)
         finally:
             service.close()

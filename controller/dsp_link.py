@@ -79,6 +79,8 @@ class DspLink:
     dsp_latency_s: float = 0.0
     next_seq: int = 0
     in_flight: SentBatch | None = None
+    last_answered: int | None = None
+    """The batch whose interrupt came last (a flag still expecting it is older than that interrupt)."""
     _pending_ticks: deque[int] = field(default_factory=deque)
     _pending: deque[tuple[float, ...]] = field(default_factory=deque)
     _dropped_since_last: int = 0
@@ -151,6 +153,14 @@ class DspLink:
     def _on_empty(self, next_batch_seq: int) -> None:
         if next_batch_seq == self.next_seq:
             self.block_empty = True  # the batch in flight (if any) stays so until its interrupt arrives
+        elif next_batch_seq == self.last_answered:
+            # The board said it expects a batch whose interrupt is already in: the
+            # flag left before that interrupt (an idle board's re-announce, on
+            # another publisher, overtaken by it). Following it would send the
+            # next samples under the answered number again: the board would take
+            # them for a resend, answer with the old interrupt and restart its
+            # history at the next batch (seen once in a loaded lockstep run).
+            self.counters.flags_late += 1
         elif self.in_flight is None:
             # Nothing in flight and the DSP expects another number: it (or we)
             # restarted, or a batch was lost. Follow the DSP.
@@ -215,6 +225,7 @@ class DspLink:
         self.in_flight = None
         self.block_empty = True  # the DSP releases the block before it raises the interrupt (Fig. 3.5 step 4)
         self.counters.interrupts += 1
+        self.last_answered = sent.seq
         return sent
 
     def note_lost_samples(self, n: int) -> None:

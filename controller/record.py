@@ -268,7 +268,7 @@ class ColumnBuffer:
 
 
 class RowCounter:
-    """The record sink of a run that keeps no record (``RALF_RECORD`` unset):
+    """The record sink of a run that keeps no record (``RALF_RUN_RECORD`` unset):
     it counts rows and stores nothing, so memory stays flat however long the
     run (a :class:`ColumnBuffer` would grow by ~3 MB a minute at 200 Hz)."""
 

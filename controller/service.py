@@ -247,17 +247,17 @@ class ControllerService:
         self._irq_columns: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, 0.0)
         """f_id_hz, f_id2_hz, zeta_id, id_confidence of ``_irq_source`` (the latest interrupt)."""
         timing_columns = {"tick": np.int64, "sync_wall_s": np.float64, "tet_s": np.float64}
-        # RALF_RECORD set: streamed to disk in chunks. Unset: nothing is kept (flat
+        # RALF_RUN_RECORD set: streamed to disk in chunks. Unset: nothing is kept (flat
         # memory), unless the caller reads the columns (keep_record: in-process runs).
-        self._keep_all = bool(settings.record) or keep_record
+        self._keep_all = bool(settings.run_record) or keep_record
         self.tf = TfDownloader(
             self.port, self.clock, self.timing, self.lockstep, settings.tf_download_samples, settings.lockstep_timeout_s, BATCH_RESEND_S, self._keep_all
         )
         self.record: ChunkedRecord | ColumnBuffer | RowCounter
         self.timing_record: ChunkedRecord | ColumnBuffer | RowCounter
-        if settings.record:
-            self.record = ChunkedRecord(settings.record, columns)
-            self.timing_record = ChunkedRecord(settings.record + ".timing", timing_columns)
+        if settings.run_record:
+            self.record = ChunkedRecord(settings.run_record, columns)
+            self.timing_record = ChunkedRecord(settings.run_record + ".timing", timing_columns)
         elif keep_record:
             self.record = ColumnBuffer(columns, capacity=4096)
             self.timing_record = ColumnBuffer(timing_columns, capacity=4096)
@@ -936,13 +936,14 @@ class ControllerService:
         self._config_seq += 1
         self._reset_sent = True
         self.link.next_seq = 0
+        self.link.last_answered = None
         self.port.send_config(encode(ConfigChange(seq=self._config_seq, sim_time_s=0.0, reset=True)))
 
     def save(self, path: str, result: RunResult) -> None:
         """Write the run record (deterministic columns), timing and TF downloads."""
         metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
         if isinstance(self.record, RowCounter) or isinstance(self.timing_record, RowCounter):
-            raise ValueError("this run keeps no record: set RALF_RECORD to save one")
+            raise ValueError("this run keeps no record: set RALF_RUN_RECORD to save one")
         if self.faults is not None:
             metadata["faults"] = {
                 "scenario": self.faults.engine.scenario.model_dump(),

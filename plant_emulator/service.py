@@ -21,10 +21,13 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import queue
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import numpy.typing as npt
@@ -35,6 +38,7 @@ from plant_emulator.node import CanopenNode, NodeConfig
 from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
+from protocol.record_paths import truth_file
 from protocol.settings import PlantSettings
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
@@ -177,7 +181,7 @@ class PlantApplication:
         self.lockstep = settings.clock == "lockstep"
         """Each SYNC advances the arm one sample period (else: the wall clock, ``_catch_up``)."""
         self.realtime = settings.clock == "realtime"
-        self._recording_truth = bool(settings.record)
+        self._recording_truth = bool(settings.truth_record)
         self._side_channels_due = False
 
     # -- time ----------------------------------------------------------------------------
@@ -304,7 +308,7 @@ class PlantApplication:
             self._event("hard_stop", f"{stops - self._hard_stops_seen} joint hard stop(s); total {stops}")
             self._hard_stops_seen = stops
         rate = self.settings.truth_rate_hz
-        wanted = self.publish_truth is not None or self.settings.record
+        wanted = self.publish_truth is not None or self.settings.truth_record
         if not wanted or rate <= 0 or self.arm.time_s + 1e-12 < self._next_truth_s:
             return
         self._next_truth_s = self.arm.time_s + 1.0 / rate
@@ -322,18 +326,30 @@ class PlantApplication:
         )
         if self.publish_truth is not None:
             self.publish_truth(message)
-        if self.settings.record:
+        if self.settings.truth_record:
             self.truth_log.append(message)
         self._truth_seq += 1
 
-    def save_truth(self, path: str) -> None:
-        """The ground truth recorded during the run, one row per truth sample."""
+    def save_truth(self, path: str) -> Path | None:
+        """The ground truth recorded during the run, one row per truth sample, in
+        ``PATH.truth.npz`` (:func:`protocol.record_paths.truth_file`: never a file
+        of the controller's record), written to a temporary name and renamed."""
         log_ = self.truth_log
         if not log_:
-            return
+            return None
+        target = truth_file(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(target.name + ".tmp")
         n_modes = min(len(t.modal_frequencies_hz) for t in log_)
+        with open(tmp, "wb") as fh:
+            self._write_truth(fh, log_, n_modes)
+        os.replace(tmp, target)
+        return target
+
+    @staticmethod
+    def _write_truth(fh: BinaryIO, log_: list[GroundTruth], n_modes: int) -> None:
         np.savez_compressed(
-            path,
+            fh,
             sim_time_s=np.array([t.sim_time_s for t in log_]),
             modal_frequencies_hz=np.array([t.modal_frequencies_hz[:n_modes] for t in log_]),
             damping_ratios=np.array([t.damping_ratios[:n_modes] for t in log_]),
@@ -422,8 +438,8 @@ def serve(
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
     finally:
         app.flush_side_channels()
-        if settings.record:
-            app.save_truth(settings.record)
+        if settings.truth_record:
+            app.save_truth(settings.truth_record)
         health.stop()
         port.close()
         log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())

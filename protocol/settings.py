@@ -12,7 +12,7 @@ import os
 import re
 from typing import Annotated, Any, Literal, get_args
 
-from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import Field, SecretStr, ValidationError, ValidationInfo, field_serializer, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
@@ -20,6 +20,8 @@ from protocol.keys import validate_rig_id
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 _Hz = Annotated[float, Field(gt=0, le=2500)]
+CREDENTIALS_FILE_MASK = "(set; path not recorded)"
+"""What a dump of the settings shows for a credentials file."""
 
 
 def _numeric(annotation: Any) -> bool:
@@ -73,8 +75,13 @@ class CommonSettings(BaseSettings):
         max_length=64,
         description="zenoh user name (transport/auth/usrpwd): the session's role, controller, dsp, plant, tool or tester (empty: no authentication)",
     )
-    zenoh_password: str = Field("", max_length=256, description="zenoh password of zenoh_user")
-    zenoh_credentials_file: str = Field("", description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted)")
+    zenoh_password: SecretStr = Field(
+        SecretStr(""), max_length=256, description="zenoh password of zenoh_user (a secret: shown and recorded as asterisks, never in clear)"
+    )
+    zenoh_credentials_file: str = Field(
+        "",
+        description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted); its path is not recorded",
+    )
     zenoh_acl: bool = Field(False, description="Apply the rig's access rules (service_kit/access.py): each role publishes only its own keys")
     zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
     can_multicast_ttl: int = Field(
@@ -105,6 +112,20 @@ class CommonSettings(BaseSettings):
     @classmethod
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
+
+    @field_serializer("zenoh_credentials_file")
+    def _credentials_path_unrecorded(self, value: str) -> str:
+        # Settings are dumped into recordings and run records, which users share:
+        # where the credentials live is no business of theirs.
+        return CREDENTIALS_FILE_MASK if value else ""
+
+    @model_validator(mode="after")
+    def _user_has_password(self) -> CommonSettings:
+        if self.zenoh_user and not self.zenoh_password.get_secret_value():
+            raise ValueError("RALF_ZENOH_USER is set without RALF_ZENOH_PASSWORD: a zenoh user needs its password")
+        if self.zenoh_password.get_secret_value() and not self.zenoh_user:
+            raise ValueError("RALF_ZENOH_PASSWORD is set without RALF_ZENOH_USER: give the user it belongs to")
+        return self
 
     @field_validator("zenoh_connect", "zenoh_listen")
     @classmethod
@@ -143,7 +164,9 @@ class PlantSettings(CommonSettings):
         "",
         description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]',
     )
-    record: str = Field("", description="Write the ground truth at truth_rate_hz to this .npz file when the plant stops")
+    truth_record: str = Field(
+        "", description="Write the ground truth at truth_rate_hz to PATH.truth.npz when the plant stops (the plant's only file; empty = none)"
+    )
 
     @field_validator("adc_bits", mode="before")
     @classmethod
@@ -181,7 +204,10 @@ class ControllerSettings(CommonSettings):
     )
     startup_timeout_s: float = Field(60.0, gt=0, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
     plant_heartbeat_timeout_s: float = Field(1.0, gt=0, le=60, description="Plant heartbeat older than this is a fault")
-    record: str = Field("", description="Write the run record (npz + JSON) to this path")
+    run_record: str = Field(
+        "",
+        description="Write the run record to PATH.npz and PATH.json, with PATH.timing.*, PATH.tf.npz (and PATH.hops.npz in real time) beside it (empty = none)",
+    )
     policy_deadline: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On an interrupt past its deadline")
     policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
     policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
@@ -314,6 +340,18 @@ def known_variables() -> set[str]:
     return {f"RALF_{name.upper()}" for model in settings_models() for name in model.model_fields}
 
 
+RETIRED: dict[str, str] = {
+    "record": "RALF_RECORD named two files (the plant's truth and the controller's record, the last to stop overwrote the other): "
+    "set RALF_RUN_RECORD (the controller's run record) and/or RALF_TRUTH_RECORD (the plant's ground truth) instead",
+}
+"""Settings no program reads any more, each with what replaces it (a retired name is refused, never ignored)."""
+
+
+def retired(name: str) -> str | None:
+    """Why the setting ``name`` (``RALF_NAME`` or ``name``) is refused, when it is a retired one."""
+    return RETIRED.get(name.strip().lower().removeprefix("ralf_"))
+
+
 def unknown_variables(environ: dict[str, str] | None = None) -> list[str]:
     """``RALF_*`` variables of ``environ`` that no program reads, each with
     the closest valid name: a misspelt setting is an error, never ignored.
@@ -325,6 +363,9 @@ def unknown_variables(environ: dict[str, str] | None = None) -> list[str]:
     for name in sorted(env):
         upper = name.upper()
         if not upper.startswith("RALF_") or upper in known:
+            continue
+        if retired(upper):
+            problems.append(f"  {name}: {retired(upper)}")
             continue
         close = difflib.get_close_matches(upper, known, n=1, cutoff=0.6)
         hint = f"; did you mean {close[0]}?" if close else "; see --help for the settings"
@@ -338,6 +379,9 @@ def load_settings(model: type[CommonSettings], overrides: dict[str, Any] | None 
     unknown = unknown_variables()
     if unknown:
         raise ConfigError("invalid configuration:\n" + "\n".join(unknown))
+    gone = [f"  {name}: {retired(name)}" for name in overrides or {} if retired(name)]
+    if gone:
+        raise ConfigError("invalid configuration:\n" + "\n".join(gone))
     try:
         return model(**(overrides or {}))
     except ValidationError as exc:

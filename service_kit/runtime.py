@@ -18,7 +18,7 @@ import zenoh
 
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
-from protocol.settings import CommonSettings, describe, load_settings
+from protocol.settings import CommonSettings, describe, load_settings, retired
 from service_kit.encodings import JSON
 
 S = TypeVar("S", bound=CommonSettings)
@@ -50,6 +50,8 @@ def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[s
     for item in args.set:
         name, sep, value = item.partition("=")
         name = name.strip().lower().removeprefix("ralf_")
+        if sep and name not in model.model_fields and retired(name):
+            parser.exit(2, f"{prog}: invalid configuration:\n  --set {name}: {retired(name)}\n")
         if not sep or name not in model.model_fields:
             parser.error(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(model.model_fields)}")
         overrides[name] = value

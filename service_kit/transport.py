@@ -48,7 +48,7 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config,
         settings.rig_id,
         user=settings.zenoh_user,
-        password=settings.zenoh_password,
+        password=settings.zenoh_password.get_secret_value(),
         credentials_file=settings.zenoh_credentials_file,
         acl=settings.zenoh_acl,
         scenarios=settings.zenoh_acl_scenarios,

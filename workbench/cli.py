@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import signal
 import sys
 import tempfile
@@ -22,10 +23,10 @@ from rich.table import Table
 from rich.text import Text
 
 from protocol.keys import validate_rig_id
-from protocol.settings import ControllerSettings, DspSettings, PlantSettings
-from workbench import bench, campaign, experiments, monitor, timing_test
+from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
+from workbench import bench, campaign, experiments, memory_slope, monitor, timing_test
 from workbench.hostinfo import host_info, host_line
-from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
+from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.timing_test.report import health_verdict
@@ -46,6 +47,8 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
             raise SystemExit(f"ralf-hil: --set {item!r}: expected [service.]NAME=VALUE")
         service, dot, name = target.rpartition(".")
         name = name.strip().lower().removeprefix("ralf_")
+        if retired(name):
+            raise SystemExit(f"ralf-hil: --set {item!r}: {retired(name)}")
         if dot and service not in out:
             raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
         services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
@@ -194,9 +197,32 @@ def cmd_up(args: argparse.Namespace) -> int:
         return _up_cosim(args, overrides)
     _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides, common={"RALF_CAN_PORT": str(args.can_port)} if args.can_port else None)
+    problems = plan_problems(plan)
+    if problems:
+        for line in problems:
+            console.print(f"[red]ralf-hil up: {line}[/red]", highlight=False, soft_wrap=True)
+        return 2
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     log_dir.mkdir(parents=True, exist_ok=True)
-    tool_env = provision_access(plan, log_dir)  # credentials of this run, access rules on
+    access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
+    try:
+        tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
+        return _up_supervised(args, plan, log_dir, tool_env)
+    finally:
+        if args.keep_credentials:
+            console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
+        else:
+            shutil.rmtree(access_dir, ignore_errors=True)
+
+
+def private_run_dir(prefix: str) -> Path:
+    """A fresh folder only its owner may enter (0700), for a run's credentials."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    path.chmod(0o700)
+    return path
+
+
+def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -464,6 +490,11 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
     up.add_argument(
+        "--keep-credentials",
+        action="store_true",
+        help="keep the run's zenoh credentials (an owner-only folder, printed at start) after it ends; by default they are removed at exit",
+    )
+    up.add_argument(
         "--record",
         default=None,
         metavar="RUN.mcap",
@@ -492,6 +523,7 @@ def build_parser() -> argparse.ArgumentParser:
     for module in (bench, monitor, experiments, campaign, recording_cli):
         module.register(sub)
     timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
+    memory_slope.register(sub)
     return parser
 
 

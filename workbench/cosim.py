@@ -285,8 +285,8 @@ def run_cosim(
     finally:
         ctrl.close()
         app.flush_side_channels()  # the last SYNC's truth, if no frame after it flushed it
-        if ps.record:
-            app.save_truth(ps.record)
+        if ps.truth_record:
+            app.save_truth(ps.truth_record)
     wall = time.monotonic() - started
     save_bank(core.identifier, ds)  # and at its stop
     health = {"plant": _plant_health(app, node), "dsp": _dsp_health(core)}

@@ -86,7 +86,7 @@ def test_a_run_that_never_ends_and_an_unknown_mode_are_refused() -> None:
 def test_the_key_is_the_resolved_identity_without_plumbing() -> None:
     _, s = resolve(BASE)
     key = run_key("lockstep", s)
-    _, explicit = resolve({**BASE, "plant.adc_bits": 12, "rig_id": "elsewhere", "can_port": 40000, "record": "x.npz"})
+    _, explicit = resolve({**BASE, "plant.adc_bits": 12, "rig_id": "elsewhere", "can_port": 40000, "run_record": "x.npz"})
     assert run_key("lockstep", explicit) == key  # defaults spelled out and plumbing change nothing
     _, other = resolve({**BASE, "plant.adc_bits": 16})
     assert run_key("lockstep", other) != key

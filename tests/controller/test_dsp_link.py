@@ -152,6 +152,29 @@ def test_with_nothing_in_flight_the_dsp_sequence_wins() -> None:
     assert link.block_empty and link.next_seq == 5 and link.counters.resyncs == 1
 
 
+def test_a_flag_older_than_the_interrupt_it_was_overtaken_by_is_not_followed() -> None:
+    """An idle board re-announces "empty, expecting k" on its flag publisher while
+    batch k is on its way; the flag can arrive after batch k's interrupt. With
+    nothing in flight then, following it would send the next samples as batch k
+    again (the board takes them for a resend of k and restarts its history at
+    k + 1): the link keeps its number and counts the flag late."""
+    link = DspLink(sample_rate_hz=200.0, batch_size=1)
+    link.on_flag(flag(0))
+    for k in range(3):
+        link.add_sample(k, np.zeros(2), np.zeros(2))
+        sent, _ = link.take_batch(k, k / 200.0)  # type: ignore[misc]
+        assert sent.seq == k
+        assert link.on_interrupt(irq(k)) is sent
+    link.on_flag(flag(2))  # the re-announce sent before batch 2 arrived
+    assert link.next_seq == 3 and link.counters.resyncs == 0 and link.counters.flags_late == 1
+    link.add_sample(3, np.zeros(2), np.zeros(2))
+    sent, _ = link.take_batch(3, 3 / 200.0)  # type: ignore[misc]
+    assert sent.seq == 3
+    link.on_interrupt(irq(3))
+    link.on_flag(flag(0))  # a board that restarted does expect another number: followed
+    assert link.next_seq == 0 and link.counters.resyncs == 1
+
+
 def test_lockstep_due_tick_follows_the_announced_latency() -> None:
     link = DspLink(sample_rate_hz=200.0, batch_size=20)
     link.on_flag(flag(0, latency=0.1))

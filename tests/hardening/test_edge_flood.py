@@ -43,7 +43,7 @@ def _run(tmp: Path, name: str, attack: bool) -> tuple[dict[str, int], Path]:
         # The attack runs in the loop before tick 100 (same session: each put is delivered
         # before it returns); the plant's watchdog is given room for the loop's pause.
         run = run_in_process(
-            controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"},
+            controller={"duration_s": 6.0, "tf_download_samples": 0, "run_record": str(record), "oatf_mode": "adaptive"},
             plant={"watchdog_periods": 10000},
             dsp={"fft_width": 256},
             common={"rig_id": rig_id},
@@ -105,7 +105,7 @@ def test_interrupts_and_flags_of_another_board_are_refused(tmp_path: Path) -> No
     record = tmp_path / "forged"
     try:
         run = run_in_process(
-            controller={"duration_s": 6.0, "tf_download_samples": 0, "record": str(record), "oatf_mode": "adaptive"},
+            controller={"duration_s": 6.0, "tf_download_samples": 0, "run_record": str(record), "oatf_mode": "adaptive"},
             dsp={"fft_width": 256},
             common={"rig_id": rig_id},
             session=session,

@@ -58,7 +58,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
             "--set",
             "controller.duration_s=8",
             "--set",
-            f"controller.record={record}",
+            f"controller.run_record={record}",
             "--set",
             "controller.oatf_mode=adaptive",
             "--set",

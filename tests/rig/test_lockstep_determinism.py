@@ -7,6 +7,7 @@ none of this depends on when messages arrive."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -30,7 +31,7 @@ def _three_processes(tmp: Path, name: str, seed: int) -> Path:
     record = tmp / name / "run"
     record.parent.mkdir(parents=True)
     sets = [f"controller.{k}={v}" for k, v in CONTROLLER.items()] + [f"dsp.{k}={v}" for k, v in DSP.items()]
-    sets += [f"controller.record={record}", f"plant.seed={seed}"]
+    sets += [f"controller.run_record={record}", f"plant.truth_record={record}", f"plant.seed={seed}"]
     proc = subprocess.run(
         [
             sys.executable,
@@ -60,7 +61,7 @@ def _one_process(tmp: Path, name: str, seed: int, controller: dict[str, object] 
 
     record = tmp / name / "run"
     record.parent.mkdir(parents=True)
-    run = run_in_process(controller=dict(controller or CONTROLLER), dsp=dict(DSP), plant={"seed": seed})
+    run = run_in_process(controller=dict(controller or CONTROLLER), dsp=dict(DSP), plant={"seed": seed, "truth_record": str(record)})
     assert run.result.error is None
     run.controller.save(str(record), run.result)
     return record
@@ -71,7 +72,7 @@ def _cosim(tmp: Path, name: str, seed: int, controller: dict[str, object] | None
 
     record = tmp / name / "run"
     record.parent.mkdir(parents=True)
-    run = run_cosim(controller=dict(controller or CONTROLLER), dsp=dict(DSP), plant={"seed": seed})
+    run = run_cosim(controller=dict(controller or CONTROLLER), dsp=dict(DSP), plant={"seed": seed, "truth_record": str(record)})
     assert run.result.error is None
     run.controller.save(str(record), run.result)
     return record
@@ -91,17 +92,44 @@ def _burners() -> Iterator[list[subprocess.Popen[bytes]]]:
             p.wait(timeout=10)
 
 
+WRITTEN = {"run.npz", "run.json", "run.timing.npz", "run.timing.json", "run.tf.npz", "run.truth.npz"}
+"""Every file a lockstep run leaves beside its record (a file not listed fails the comparison: nothing goes uncompared)."""
+WALL_CLOCK = {"run.timing.npz": ("sync_wall_s", "tet_s")}
+"""Columns that are wall-clock measurements, different in every run by nature (the rest of the file is compared)."""
+PER_RUN_CONFIG = {
+    *("rig_id", "zenoh_mode", "zenoh_connect", "zenoh_listen", "zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl"),
+    *("can_interface", "can_channel", "can_port", "run_record"),
+}
+"""The configuration that says where a run lives and how it is wired (keys, transports, ports, paths, credentials), not what it computes."""
+
+
+def _npz(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
 def _same(a: Path, b: Path) -> None:
+    """Every file of run ``a`` equals run ``b``'s: the record's columns, the TF downloads,
+    the plant's ground truth, the timing record's ticks and the sidecars' contents."""
+    files_a = {p.name for p in a.parent.iterdir() if p.is_file()}
+    files_b = {p.name for p in b.parent.iterdir() if p.is_file()}
+    assert files_a == files_b == WRITTEN, (files_a, files_b)
     first, second = load_record(a), load_record(b)
     assert len(first) == len(second) == 3200
-    assert first.columns.keys() == second.columns.keys()
     counters = (first.metadata["result"]["counters"], second.metadata["result"]["counters"])
-    for name in first.columns:
-        assert np.array_equal(first[name], second[name], equal_nan=True), (name, counters)
-    tf_a, tf_b = np.load(str(a) + ".tf.npz"), np.load(str(b) + ".tf.npz")
-    assert tf_a.files == tf_b.files and tf_a["sim_time_s"].size >= 5
-    for key in tf_a.files:
-        assert np.array_equal(tf_a[key], tf_b[key]), key
+    for name in WRITTEN - {"run.json", "run.timing.json"}:
+        x, y = _npz(a.parent / name), _npz(b.parent / name)
+        assert x.keys() == y.keys(), name
+        for key in set(x) - set(WALL_CLOCK.get(name, ())):
+            assert np.array_equal(x[key], y[key], equal_nan=True), (name, key, counters)
+    assert _npz(a.parent / "run.tf.npz")["sim_time_s"].size >= 5
+    assert _npz(a.parent / "run.truth.npz")["sim_time_s"].size >= 300
+    for name in ("run.json", "run.timing.json"):
+        x, y = (json.loads((r.parent / name).read_text()) for r in (a, b))
+        assert {k: v for k, v in x.items() if k not in ("config", "metadata")} == {k: v for k, v in y.items() if k not in ("config", "metadata")}, name
+        assert {k: v for k, v in x["config"].items() if k not in PER_RUN_CONFIG} == {k: v for k, v in y["config"].items() if k not in PER_RUN_CONFIG}, name
+    result_a, result_b = first.metadata["result"], second.metadata["result"]
+    assert (result_a["ticks"], result_a["sim_time_s"], result_a["error"]) == (result_b["ticks"], result_b["sim_time_s"], result_b["error"])
 
 
 def _worth_comparing(record: RunRecord) -> None:

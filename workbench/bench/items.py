@@ -539,7 +539,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
             common["RALF_RT_CPU_LATENCY_US"] = str(ctx.rt_cpu_latency_us)
         record = ctx.log_dir / rig_id / "controller-record"
         overrides = {
-            "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RECORD": str(record)},
+            "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RUN_RECORD": str(record)},
             "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
         }
         result["config"]["runs"][tag] = {
@@ -643,7 +643,7 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
 
 
 def _timing_record(record: Path) -> dict[str, Any] | None:
-    """The controller's per-tick timing (RALF_RECORD): tick, sync_wall_s, tet_s, and its settings."""
+    """The controller's per-tick timing (RALF_RUN_RECORD): tick, sync_wall_s, tet_s, and its settings."""
     import numpy as np
 
     npz = Path(str(record) + ".timing.npz")

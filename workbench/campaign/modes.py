@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from protocol.record_paths import truth_file
 from workbench.campaign.metrics import run_metrics
 from workbench.campaign.spec import DEFAULT_MODE, VOLATILE, RunPoint
 
@@ -106,9 +107,9 @@ def _one_process_row(point: RunPoint, run_rig: Callable[..., Any], controller: d
     composition, the same signature), the plant's truth through a temporary file; its row."""
     s = point.settings
     with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
-        truth_path = Path(tmp) / "truth.npz"
+        truth_path = truth_file(Path(tmp) / "run")
         started = time.perf_counter()
-        run = run_rig(controller=controller, plant={**plant, "record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
+        run = run_rig(controller=controller, plant={**plant, "truth_record": str(truth_path)}, dsp=_own(s["dsp"]), common=common)
         wall = time.perf_counter() - started
         if run.result.error:
             raise RunFailed(f"run {point.key} ended with a fault: {run.result.error}")

@@ -56,7 +56,19 @@ __all__ = [
 SERVICES: dict[str, type[CommonSettings]] = {"controller": ControllerSettings, "plant": PlantSettings, "dsp": DspSettings}
 
 VOLATILE = frozenset(
-    {"rig_id", "zenoh_mode", "zenoh_connect", "zenoh_listen", "zenoh_multicast_scouting", "can_interface", "can_channel", "can_port", "record", "log_level"}
+    {
+        "rig_id",
+        "zenoh_mode",
+        "zenoh_connect",
+        "zenoh_listen",
+        "zenoh_multicast_scouting",
+        "can_interface",
+        "can_channel",
+        "can_port",
+        "run_record",
+        "truth_record",
+        "log_level",
+    }
 )
 """Per-run plumbing the run mode chooses: not part of a run's identity (its key)."""
 

@@ -2,7 +2,7 @@
 ``ralf-controller``, ``ralf-dsp``): a ``ralf-hil record`` child process
 connected to the service's own zenoh endpoints and its CAN bus, so the
 recording runs beside the service, never inside its loop. (The service's
-``RALF_RECORD`` / ``--set record=`` is its own npz record, unrelated.)
+``RALF_RUN_RECORD`` / ``RALF_TRUTH_RECORD`` are the npz records, unrelated.)
 """
 
 from __future__ import annotations
@@ -56,6 +56,10 @@ def recorder_env(settings: BaseModel) -> dict[str, str]:
     for name, value in settings.model_dump(mode="json").items():
         if value is not None:
             env[f"RALF_{name.upper()}"] = _env_value(value)
+    # The dump masks the secrets (they are not for files); the child needs them as they are.
+    password = getattr(settings, "zenoh_password", None)
+    env["RALF_ZENOH_PASSWORD"] = password.get_secret_value() if password is not None else ""
+    env["RALF_ZENOH_CREDENTIALS_FILE"] = str(getattr(settings, "zenoh_credentials_file", ""))
     endpoints = [e for e in (getattr(settings, "zenoh_listen", "") + "," + getattr(settings, "zenoh_connect", "")).split(",") if e.strip()]
     env["RALF_ZENOH_CONNECT"] = ",".join(e.strip().replace("0.0.0.0", "127.0.0.1") for e in endpoints)
     env["RALF_ZENOH_LISTEN"] = ""

@@ -160,6 +160,8 @@ def resolve_settings_here(env_by_service: Mapping[str, Mapping[str, str]]) -> di
     session opens, the child of :func:`service_settings`)."""
     import os
 
+    from pydantic import ValidationError
+
     from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 
     models = {"dsp": DspSettings, "plant": PlantSettings, "controller": ControllerSettings}
@@ -174,8 +176,10 @@ def resolve_settings_here(env_by_service: Mapping[str, Mapping[str, str]]) -> di
             os.environ.update(env)
             try:
                 out[service] = model().model_dump(mode="json")
+            except ValidationError as exc:  # the messages only: an error's input may be a secret
+                out[service] = {"error": "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())}
             except Exception as exc:
-                out[service] = {"error": str(exc)}
+                out[service] = {"error": type(exc).__name__}
     finally:
         os.environ.clear()
         os.environ.update(saved)

@@ -19,9 +19,9 @@ The full rig (``--mode lockstep`` or ``--mode realtime``)
     experiment's clock mode (``ctx.mode``: ``lockstep`` by default, or
     ``realtime``), with a rig id and a CAN (udp_multicast) port of their own,
     so parallel runs never see each other's frames or keys. The
-    controller's ``RALF_RECORD`` writes ``records/<name>.npz/.json`` (plus
+    controller's ``RALF_RUN_RECORD`` writes ``records/<name>.npz/.json`` (plus
     ``.timing.*`` and ``.tf.npz`` with the transfer-function downloads) and
-    the plant's ``RALF_RECORD`` the ground truth ``records/<name>.truth.npz``,
+    the plant's ``RALF_TRUTH_RECORD`` the ground truth ``records/<name>.truth.npz``,
     both below the experiment's output directory; the services' logs go to
     ``records/logs/<name>/``. The runner waits for the controller to exit
     (it exits 0 after ``RALF_DURATION_S`` or ``RALF_REPEATS`` laps), then
@@ -315,8 +315,8 @@ def run_rig(
     for stale in (truth_path, Path(str(record_path) + ".tf.npz")):
         if stale.exists():
             stale.unlink()
-    controller = {**spec.controller, "record": str(record_path)}
-    plant = {**spec.plant, "record": str(truth_path)}
+    controller = {**spec.controller, "run_record": str(record_path)}
+    plant = {**spec.plant, "truth_record": str(truth_path)}
     dsp = dict(spec.dsp)
     expected = spec.expected_sim_s()
     if ctx.mode == "cosim":
@@ -345,8 +345,8 @@ def _run_in_process(
     common = {**spec.common, "clock": ctx.mode}
     run = run_in_process(
         controller={
-            **{k: v for k, v in controller.items() if k != "record"},
-            "record": str(record_path),
+            **{k: v for k, v in controller.items() if k != "run_record"},
+            "run_record": str(record_path),
         },  # the record streams to disk (controller.record.ChunkedRecord)
         plant=plant,
         dsp=dsp,
@@ -372,7 +372,7 @@ def _run_cosim(
     started = time.monotonic()
     try:
         run = run_cosim(
-            controller={k: v for k, v in controller.items() if k != "record"},
+            controller={k: v for k, v in controller.items() if k != "run_record"},
             plant=plant,
             dsp=dsp,
             common=dict(spec.common),
