@@ -90,6 +90,12 @@ class CommonSettings(BaseSettings):
         le=32,
         description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)",
     )
+    launcher_pid: int = Field(
+        0,
+        ge=0,
+        le=2**22,
+        description="End this service (as on SIGTERM) when its launcher, the parent process with this PID, ends by any signal (0 = off; ralf-hil up sets it)",
+    )
     can_own_frame_filter: bool = Field(
         True,
         description="udp_multicast: send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); off: python-can's stock bus, which reads them back",

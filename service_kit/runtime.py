@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -68,6 +69,46 @@ def configure_logging(level: str, service: str) -> None:
         format=f"%(asctime)s {service} %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+
+
+PR_SET_PDEATHSIG = 1
+"""prctl(2) option: the signal this process gets when its parent thread ends."""
+LAUNCHER_POLL_S = 0.5
+
+
+def follow_launcher(launcher_pid: int, stop: threading.Event, poll_s: float = LAUNCHER_POLL_S) -> threading.Thread | None:
+    """End with the launcher: when ``launcher_pid`` (this process's parent) ends,
+    by any signal, SIGKILL included, ``stop`` is set as a SIGTERM would set it.
+
+    Linux's parent-death signal (``prctl(PR_SET_PDEATHSIG, SIGTERM)``) delivers
+    SIGTERM the moment the parent ends; a thread also checks every ``poll_s``
+    that the parent is still ``launcher_pid`` (a re-parented process has
+    another), which covers a launcher that ended before the prctl and systems
+    without it. Returns the watching thread (None when ``launcher_pid`` is 0)."""
+    if not launcher_pid:
+        return None
+    log = logging.getLogger("runtime")
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+                log.warning("parent-death signal refused (errno %d); watching the launcher only", ctypes.get_errno())
+        except (OSError, AttributeError) as exc:
+            log.warning("parent-death signal unavailable (%s); watching the launcher only", exc)
+
+    def watch() -> None:
+        while not stop.is_set():
+            if os.getppid() != launcher_pid:
+                log.warning("the launcher (pid %d) is gone; stopping", launcher_pid)
+                stop.set()
+                return
+            stop.wait(poll_s)
+
+    thread = threading.Thread(target=watch, name="launcher-watch", daemon=True)
+    thread.start()
+    return thread
 
 
 def install_stop_handlers() -> threading.Event:
@@ -262,6 +303,7 @@ def run_service(
     settings = parse_service_args(prog, summary, model, args)
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
     stop = install_stop_handlers()
+    follow_launcher(settings.launcher_pid, stop)
     try:
         session = open_zenoh(settings)
     except ConfigError as exc:  # a TransportError: one line, exit 2

@@ -108,6 +108,7 @@ class RigPlan:
         env = dict(os.environ)
         env.update(self.common_env)
         env.update(self.service_env.get(service, {}))
+        env["RALF_LAUNCHER_PID"] = str(os.getpid())  # the service ends when this process does (service_kit.runtime.follow_launcher)
         env.setdefault("PYTHONUNBUFFERED", "1")
         return env
 

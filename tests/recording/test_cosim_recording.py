@@ -90,3 +90,34 @@ def test_doctor_finds_the_file_sound_and_a_damaged_one_not(recorded: dict[str, A
     assert any("crc" in p.lower() or "unreadable" in p for p in check(tmp_path / "flipped.mcap"))
     (tmp_path / "truncated.mcap").write_bytes(data[: len(data) - 4000])
     assert check(tmp_path / "truncated.mcap")
+
+
+def test_a_recording_cut_short_reads_up_to_the_cut_in_doctor_plot_and_replay(recorded: dict[str, Any], tmp_path: Path) -> None:
+    """A run killed by a signal leaves its MCAP without summary and ends inside a
+    record: doctor says where it ends, plot and replay read the intact messages
+    (the mcap library's stream reader counts them independently)."""
+    from mcap.stream_reader import StreamReader
+
+    from workbench.recording.doctor import check
+    from workbench.recording.plot import plot_all
+
+    whole = Path(recorded["path"]).read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: int(len(whole) * 0.6)])
+    intact = 0
+    try:
+        with open(cut, "rb") as fh:
+            for record in StreamReader(fh, record_size_limit=len(whole)).records:
+                intact += type(record).__name__ == "Message"
+    except Exception:  # noqa: BLE001 -- the reference stops at the cut, whatever it raises
+        pass
+    assert intact > 100
+    problems = check(cut)
+    assert len(problems) == 1 and problems[0].startswith("cut short") and f"{intact} messages" in problems[0], problems
+    rec = Recording.load(cut)
+    assert rec.cut and len(rec.messages) == intact and rec.metadata  # the metadata comes first in the file
+    assert [m.log_time_ns for m in rec.messages] == sorted(m.log_time_ns for m in rec.messages)
+    figures = plot_all(cut, tmp_path / "plots")
+    assert figures and all(p.exists() for p in figures)
+    comparison, identified = compare(Recording.load(cut, only=("dsp/config", "dsp/batch", "dsp/interrupt", "plant/truth")))
+    assert identified  # the batches before the cut were identified again

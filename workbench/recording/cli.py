@@ -89,6 +89,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     needs_can = bool(args.can or args.export_can)
     rec = Recording.load(args.path, only=None if needs_can else ("dsp/config", "dsp/batch", "dsp/interrupt", "plant/truth"))
+    if rec.cut:
+        console.print(f"{args.path}: {rec.cut}; replaying what it holds")
     did = False
     if args.export_can:
         n = export_can_log(rec, args.export_can)

@@ -64,7 +64,16 @@ def check(path: str | Path) -> list[str]:
                 elif isinstance(record, records.Statistics):
                     statistics = record
     except Exception as exc:  # noqa: BLE001 -- any failure to read is the finding: bad CRC, truncation, corrupt compression
-        return [*problems, f"unreadable: {type(exc).__name__}: {exc}".rstrip(": ")]
+        what = f"{type(exc).__name__}: {exc}".rstrip(": ")
+        if statistics is None and counts["chunks"] + sum(per_channel.values()) > 0:
+            # A recording cut by a signal: sound up to its last whole record.
+            span = 0.0 if first is None or last is None else (last - first) / 1e9
+            return [
+                *problems,
+                f"cut short: the file ({_size(path)} bytes) ends inside a record ({what}); {sum(per_channel.values())} messages in "
+                f"{counts['chunks']} whole chunks before it, {span:.1f} s of log time; no summary (plot and replay read it up to the cut)",
+            ]
+        return [*problems, f"unreadable: {what}"]
     if statistics is None:
         problems.append("no Statistics record in the summary")
     else:
@@ -126,3 +135,10 @@ def _check_statistics(
         problems.append("Statistics per-channel message counts differ from the messages in the file")
     if total and (stats.message_start_time, stats.message_end_time) != (first, last):
         problems.append(f"Statistics time range [{stats.message_start_time}, {stats.message_end_time}] but messages span [{first}, {last}]")
+
+
+def _size(path: str | Path) -> str:
+    try:
+        return str(Path(path).stat().st_size)
+    except OSError:
+        return "?"

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -251,6 +252,8 @@ def plot_timing(rec: Recording, out: Path) -> Path:
 def plot_all(path: str | Path, out_dir: str | Path) -> list[Path]:
     """Every figure of :data:`FIGURES` for the recording ``path`` into ``out_dir``."""
     rec = Recording.load(path)
+    if rec.cut:
+        print(f"{path}: {rec.cut}; plotting what it holds", file=sys.stderr)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     return [fn(rec, out) for fn in (plot_deflections, plot_joints, plot_modes, plot_tf_spectrogram, plot_timing)]

@@ -11,7 +11,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap import records as mcap_records
 from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
 
 from workbench.recording import schemas
 
@@ -34,6 +36,8 @@ class Recording:
     path: Path
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     messages: list[Recorded] = field(default_factory=list)
+    cut: str = ""
+    """Why and where the file ends early (a run cut by a signal leaves no summary); empty for a whole file."""
 
     @classmethod
     def load(cls, path: str | Path, only: Iterable[str] | None = None) -> Recording:
@@ -41,6 +45,16 @@ class Recording:
         (A long run's CAN frames are most of the file: leave them out when they are not needed.)"""
         rec = cls(Path(path))
         wanted = None if only is None else tuple(only)
+        try:
+            rec._load_indexed(wanted)
+        except Exception:  # noqa: BLE001 -- no usable summary (a run cut by a signal): read on up to the cut
+            rec.metadata, rec.messages = {}, []
+            rec.cut = read_up_to_cut(rec.path, rec.metadata, rec.messages, wanted)
+        return rec
+
+    def _load_indexed(self, wanted: tuple[str, ...] | None) -> None:
+        """The whole file through its summary (a file closed as it should be)."""
+        rec = self
         with open(rec.path, "rb") as f:
             reader = make_reader(f)
             for meta in reader.iter_metadata():
@@ -53,7 +67,6 @@ class Recording:
                 ]
             for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
                 rec.messages.append(Recorded(channel.topic, schema.name if schema else "", message.log_time, message.publish_time, json.loads(message.data)))
-        return rec
 
     # -- metadata -----------------------------------------------------------------------
     @property
@@ -118,3 +131,38 @@ class Recording:
 
     def can_frames(self) -> list[dict[str, Any]]:
         return self.data("can")
+
+
+def _wanted(topic: str, wanted: tuple[str, ...] | None) -> bool:
+    return wanted is None or any(topic == schemas.CAN_TOPIC if w == "can" else topic.endswith("/" + w) for w in wanted)
+
+
+def read_up_to_cut(path: Path, metadata: dict[str, dict[str, str]], messages: list[Recorded], wanted: tuple[str, ...] | None = None) -> str:
+    """Read a recording front to back with the ``mcap`` library's stream reader
+    (no summary, no seeking), keeping every record before the first one that
+    cannot be read (a truncated chunk, a length past the end); messages are
+    put in log-time order. Returns where the file ended, one line ("" when it
+    read to its footer)."""
+    channels: dict[int, tuple[str, str]] = {}
+    schema_names: dict[int, str] = {}
+    ended = ""
+    with open(path, "rb") as fh:
+        try:
+            for record in StreamReader(fh, record_size_limit=max(1, path.stat().st_size)).records:
+                if isinstance(record, mcap_records.Schema):
+                    schema_names[record.id] = record.name
+                elif isinstance(record, mcap_records.Channel):
+                    channels[record.id] = (record.topic, schema_names.get(record.schema_id, ""))
+                elif isinstance(record, mcap_records.Message):
+                    topic, schema = channels.get(record.channel_id, ("", ""))
+                    if topic and _wanted(topic, wanted):
+                        messages.append(Recorded(topic, schema, record.log_time, record.publish_time, json.loads(record.data)))
+                elif isinstance(record, mcap_records.Metadata):
+                    metadata[record.name] = dict(record.metadata)
+        except Exception as exc:  # noqa: BLE001 -- the first unreadable record is where the file ends
+            ended = type(exc).__name__
+    messages.sort(key=lambda m: m.log_time_ns)
+    if not ended:
+        return ""
+    span = (messages[-1].log_time_ns - messages[0].log_time_ns) / 1e9 if messages else 0.0
+    return f"cut short ({ended} after byte-complete records): {len(messages)} messages read, {span:.1f} s of log time"

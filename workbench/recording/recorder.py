@@ -84,6 +84,14 @@ class RecorderStats(Counters):
     """CAN frames the kernel dropped before the tap read them (a full socket buffer; Linux, loop-free bus)."""
 
 
+CHUNK_BYTES = 64 * 1024
+"""Records per chunk (uncompressed bytes): a chunk reaches the file about every
+second of a real-time run, so a recording cut by a signal (no summary, its last
+chunk half written) still reads up to a second or so before the cut
+(:func:`workbench.recording.reader.read_up_to_cut`). The mcap library's default,
+1 MiB, held the first minute of a run in memory."""
+
+
 class Recorder:
     """Write everything a run carries into one MCAP file (see the module doc)."""
 
@@ -105,7 +113,7 @@ class Recorder:
         self.stats = RecorderStats()
         self.clock = schemas.SyncClock(1.0 / sample_rate_hz)
         self._file: IO[bytes] = open(self.path, "wb")
-        self._writer = Writer(self._file, compression=compression)
+        self._writer = Writer(self._file, compression=compression, chunk_size=CHUNK_BYTES)
         self._writer.start(profile=schemas.PROFILE, library="ralf-hil recorder (mcap-python)")
         self._file.flush()  # the header on disk now: a started recording is a file a user (or a test) can see
         self._channels: dict[tuple[str, str], int] = {}
