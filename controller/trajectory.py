@@ -44,6 +44,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field
 
 from protocol import geometry
+from protocol.files import read_regular_text
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -103,7 +104,7 @@ class WaypointTrajectory(BaseModel):
 
 def load_trajectory(path: str | Path = DEFAULT_TRAJECTORY_PATH) -> WaypointTrajectory:
     """Read and validate a way-point JSON file."""
-    text = Path(path).read_text(encoding="utf-8")
+    text = read_regular_text(path)  # a FIFO or device named here must not block the start
     return WaypointTrajectory.model_validate(json.loads(text))
 
 

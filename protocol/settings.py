@@ -16,12 +16,41 @@ from pydantic import Field, SecretStr, ValidationError, ValidationInfo, field_se
 from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
+from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
-_Hz = Annotated[float, Field(gt=0, le=2500)]
+_Hz = Annotated[float, Field(ge=0.01, le=2500)]
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
 """What a dump of the settings shows for a credentials file."""
+
+
+def _regular_file(value: str) -> str:
+    """A setting naming a file to read: it must be a regular file (checked with
+    ``stat``, never opened: a FIFO would block the open, a device never end)."""
+    if value:
+        try:
+            check_regular_file(value)
+        except NotARegularFile as exc:
+            raise ValueError(str(exc)) from None
+    return value
+
+
+MAX_CPU = 4095
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """``"1"``, ``"0,1"`` or ``"0-1"`` -> CPU numbers; empty -> ()."""
+    cpus: list[int] = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        lo, sep, hi = part.partition("-")
+        if not lo.isdigit() or (sep and not hi.isdigit()):
+            raise ValueError(f"cpu_affinity {text!r}: expected CPU numbers like 1 or 0,1 or 0-1")
+        first, last = int(lo), int(hi) if sep else int(lo)
+        if last < first or last > MAX_CPU:
+            raise ValueError(f"cpu_affinity {text!r}: {part} is not a range of CPU numbers 0..{MAX_CPU}")
+        cpus.extend(range(first, last + 1))
+    return tuple(sorted(set(cpus)))
 
 
 def _numeric(annotation: Any) -> bool:
@@ -55,8 +84,8 @@ class CommonSettings(BaseSettings):
     can_port: int = Field(43113, ge=1, le=65535, description="UDP port of the udp_multicast interface (one per rig)")
     node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
-    sample_rate_hz: float = Field(200.0, gt=0, le=5000, description="Control and identification sample rate")
-    health_period_s: float = Field(1.0, gt=0, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
+    sample_rate_hz: float = Field(200.0, ge=1, le=5000, description="Control and identification sample rate")
+    health_period_s: float = Field(1.0, ge=0.01, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
     rt_priority: int = Field(
         0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)"
     )
@@ -119,6 +148,17 @@ class CommonSettings(BaseSettings):
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
 
+    @field_validator("cpu_affinity")
+    @classmethod
+    def _cpu_list(cls, value: str) -> str:
+        parse_cpus(value)  # refused here, before any bus or session opens
+        return value
+
+    @field_validator("zenoh_credentials_file")
+    @classmethod
+    def _credentials_file(cls, value: str) -> str:
+        return _regular_file(value)
+
     @field_serializer("zenoh_credentials_file")
     def _credentials_path_unrecorded(self, value: str) -> str:
         # Settings are dumped into recordings and run records, which users share:
@@ -162,7 +202,7 @@ class PlantSettings(CommonSettings):
     sensor_noise_scale: float = Field(
         1.0, ge=0, le=100, description="Scale of every sensor's analog noise std (1 = the thesis's rig, 0 = noiseless; quantization stays)"
     )
-    valve_time_constant_s: float = Field(0.01, gt=0, le=0.05, description="Valve-to-cylinder-velocity lag")
+    valve_time_constant_s: float = Field(0.01, ge=0.001, le=0.05, description="Valve-to-cylinder-velocity lag")
     truth_rate_hz: float = Field(20.0, ge=0, le=1000, description="Rate of ground truth on the test port (0 = off)")
     watchdog_periods: int = Field(5, ge=1, le=10000, description="SYNC periods without SYNC before the valves are held")
     heartbeat_ms: int = Field(100, ge=0, le=65535, description="CANopen heartbeat producer period (0 = off)")
@@ -186,30 +226,30 @@ class PlantSettings(CommonSettings):
 class ControllerSettings(CommonSettings):
     """The controller (``ralf-controller``), the emulated MVME CPU."""
 
-    duration_s: float | None = Field(None, gt=0, le=1e7, description="Stop after this much simulated time (default: after `repeats` passes)")
+    duration_s: float | None = Field(None, ge=0.01, le=1e7, description="Stop after this much simulated time (default: after `repeats` passes)")
     trajectory: str = Field("", description="Trajectory way-point JSON file (default: the thesis's inspection loop)")
-    tip_speed_in_s: float = Field(5.0, gt=0, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
+    tip_speed_in_s: float = Field(5.0, ge=0.01, le=20, description="Tip speed along the trajectory (thesis: 4 or 5 in/s)")
     repeats: int = Field(0, ge=0, le=100000, description="Passes around the trajectory before stopping (0 = until stopped)")
     batch_size: int = Field(
         30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)"
     )
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
     oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
-    oatf_frequency_hz: float = Field(4.4, gt=0, le=2500, description="OATF design frequency (initial value when adaptive)")
+    oatf_frequency_hz: float = Field(4.4, ge=0.1, le=2500, description="OATF design frequency (initial value when adaptive)")
     oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
-    oatf_delay_s: float | None = Field(None, gt=0, le=10, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
+    oatf_delay_s: float | None = Field(None, ge=0.001, le=10, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
     oatf_band_hz: tuple[_Hz, _Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
     oatf_min_confidence: float = Field(
         0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)"
     )
-    dsp_deadline_s: float | None = Field(None, gt=0, le=60, description="Interrupt deadline after a batch (default: the batch period)")
-    stale_after_s: float = Field(2.0, gt=0, le=3600, description="Parameters older than this are stale")
+    dsp_deadline_s: float | None = Field(None, ge=0.001, le=60, description="Interrupt deadline after a batch (default: the batch period)")
+    stale_after_s: float = Field(2.0, ge=0.01, le=3600, description="Parameters older than this are stale")
     tf_download_samples: int = Field(1000, ge=0, le=10**7, description="Download transfer functions every this many samples (0 = never)")
     lockstep_timeout_s: float = Field(
-        60.0, gt=0, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)"
+        60.0, ge=0.1, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)"
     )
-    startup_timeout_s: float = Field(60.0, gt=0, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
-    plant_heartbeat_timeout_s: float = Field(1.0, gt=0, le=60, description="Plant heartbeat older than this is a fault")
+    startup_timeout_s: float = Field(60.0, ge=0.1, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
+    plant_heartbeat_timeout_s: float = Field(1.0, ge=0.01, le=60, description="Plant heartbeat older than this is a fault")
     run_record: str = Field(
         "",
         description="Write the run record to PATH.npz and PATH.json, with PATH.timing.*, PATH.tf.npz (and PATH.hops.npz in real time) beside it (empty = none)",
@@ -241,6 +281,16 @@ class ControllerSettings(CommonSettings):
     dither_band_hz: tuple[_Hz, _Hz] = Field((2.0, 7.0), description="The dither's band: every bin of its period in this range")
     dither_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the dither's random phases (each valve its own)")
 
+    @field_validator("trajectory")
+    @classmethod
+    def _trajectory_file(cls, value: str) -> str:
+        return _regular_file(value)
+
+    @field_validator("fault_scenario")
+    @classmethod
+    def _fault_scenario_file(cls, value: str) -> str:
+        return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
+
     @field_validator("dither_band_hz")
     @classmethod
     def _dither_band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
@@ -266,7 +316,7 @@ class DspSettings(CommonSettings):
 
     fft_width: int = Field(2048, ge=32, le=65536, description="FFT width N (history length per channel)")
     batch_size: int = Field(30, ge=1, le=4096, description="Expected batch size l (sets the default compute budget; any size is accepted)")
-    alpha: float = Field(0.1, gt=0, le=1, description="Exponential averaging weight [2-9]")
+    alpha: float = Field(0.1, ge=1e-4, le=1, description="Exponential averaging weight [2-9]")
     averaging: Literal["exponential", "rls"] = Field("exponential", description="Spectral averaging method")
     identifier: Literal["etfe", "etfe-welch", "etfe-transient", "arx"] = Field(
         "etfe",
@@ -289,10 +339,10 @@ class DspSettings(CommonSettings):
     smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
-    budget_s: float | None = Field(None, gt=0, le=60, description="Compute-time budget per batch (default: the batch period)")
+    budget_s: float | None = Field(None, ge=0.001, le=60, description="Compute-time budget per batch (default: the batch period)")
     inject_delay_s: float = Field(0.0, ge=0, le=10, description="Fault injection: extra compute time per batch (a slowed board)")
     search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
-    search_max_hz: float = Field(40.0, gt=0, le=2500, description="Upper edge of the peak search")
+    search_max_hz: float = Field(40.0, ge=0.01, le=2500, description="Upper edge of the peak search")
     serve_rigs: str = Field(
         "", description="Further rig ids this one DSP process serves besides rig_id, comma-separated (each its own board: identifier, queue and thread)"
     )
@@ -312,6 +362,13 @@ class DspSettings(CommonSettings):
         """Every rig this process serves: ``rig_id`` first, then ``serve_rigs``."""
         extra = [r for r in self.serve_rigs.split(",") if r and r != self.rig_id]
         return (self.rig_id, *extra)
+
+    @field_validator("arx_regime_bank_file")
+    @classmethod
+    def _bank_file(cls, value: str) -> str:
+        if "{rig_id}" in value:
+            return value  # one file per rig: checked when each board opens its own
+        return _regular_file(value) if value and os.path.lexists(value) else value  # absent: written at the stop
 
     @field_validator("fft_width")
     @classmethod

@@ -36,6 +36,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from protocol.files import read_regular_text
+
 Link = Literal["can", "zenoh"]
 CAN_KINDS = ("sync", "tpdo", "rpdo")
 """CAN frames a fault can act on: the controller's SYNC, the plant's TPDO1 (A/D), the controller's RPDO1 (D/A)."""
@@ -180,7 +182,7 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read a scenario file (``.json``, ``.yaml``, ``.yml``)."""
     p = Path(path)
     try:
-        text = p.read_text()
+        text = read_regular_text(p)  # a FIFO or device named here must not block the start
     except OSError as exc:
         raise ScenarioError(f"cannot read scenario {p}: {exc}") from None
     return parse_scenario(text, yaml_ok=p.suffix.lower() != ".json")

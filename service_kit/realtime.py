@@ -36,6 +36,8 @@ import struct
 import sys
 from dataclasses import dataclass
 
+from protocol.settings import parse_cpus  # the one parser: settings refuse a bad list at load
+
 log = logging.getLogger(__name__)
 
 GIL_SWITCH_INTERVAL_S = 0.0002
@@ -111,17 +113,6 @@ class RealtimeMeasures:
         if self.cpu_latency_us >= 0:
             parts.append(f"CPU wake-up latency <= {self.cpu_latency_us} us (PM QoS)")
         return ", ".join(parts) + (f" ({'; '.join(self.notes)})" if self.notes else "")
-
-
-def parse_cpus(text: str) -> tuple[int, ...]:
-    """``"1"``, ``"0,1"`` or ``"0-1"`` -> CPU numbers; empty -> ()."""
-    cpus: list[int] = []
-    for part in (p.strip() for p in text.split(",") if p.strip()):
-        lo, sep, hi = part.partition("-")
-        if not lo.isdigit() or (sep and not hi.isdigit()):
-            raise ValueError(f"cpu_affinity {text!r}: expected CPU numbers like 1 or 0,1 or 0-1")
-        cpus.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
-    return tuple(sorted(set(cpus)))
 
 
 def hold_cpu_latency(us: int, device: str | None = None) -> int:

@@ -11,7 +11,7 @@ import sys
 from typing import Any
 
 import pytest
-from annotated_types import Le, Lt
+from annotated_types import Gt, Le, Lt
 
 from protocol import messages as m
 from protocol.errors import ConfigError, TransportError
@@ -79,6 +79,25 @@ def test_every_numeric_setting_is_bounded(model: type[CommonSettings]) -> None:
         assert "greater than 2500" in _error(ControllerSettings, **{band: "1,1e9"}) or "less than or equal to 2500" in _error(
             ControllerSettings, **{band: "1,1e9"}
         )
+
+
+@pytest.mark.parametrize("model", settings_models(), ids=lambda c: c.__name__)
+def test_no_positive_setting_accepts_a_vanishing_value(model: type[CommonSettings]) -> None:
+    """ "Greater than zero" let 1e-300 through (a health period of 1e-300 s sent
+    128,593 health messages in 19 s): every positive setting has a physical floor."""
+    vanishing = [name for name, field in _numeric_fields(model) if any(isinstance(x, Gt) and x.gt == 0 for x in field.metadata)]
+    assert vanishing == []
+    assert "greater than or equal to 0.01" in _error(model, health_period_s="1e-300")
+    if model is ControllerSettings:
+        assert "RALF_TIP_SPEED_IN_S" in _error(model, tip_speed_in_s="1e-300")
+
+
+def test_a_bad_cpu_list_ends_the_service_with_one_line_before_it_boots(tmp_path: Any) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")} | {"RALF_CPU_AFFINITY": "abc", "RALF_CAN_INTERFACE": "virtual"}
+    for module in ("controller", "plant_emulator", "dsp_service"):
+        proc = subprocess.run([sys.executable, "-m", module], env=env, capture_output=True, text=True, timeout=120, check=False)
+        assert proc.returncode == 2, proc.stderr
+        assert "RALF_CPU_AFFINITY" in proc.stderr and "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) <= 3, proc.stderr
 
 
 def test_message_fields_are_bounded() -> None:

@@ -4,6 +4,7 @@ overrides, and the zenoh key expressions of a rig (protocol.keys)."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -13,6 +14,8 @@ from hypothesis import strategies as st
 from protocol.errors import ConfigError
 from protocol.keys import SERVICES, Keys, validate_rig_id
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings
+
+LOOP = Path(__file__).resolve().parents[2] / "protocol" / "trajectories" / "inspection_loop.json"
 
 MODELS = [CommonSettings, PlantSettings, ControllerSettings, DspSettings]
 
@@ -90,7 +93,7 @@ def test_describe_lists_every_field(model: type[CommonSettings]) -> None:
         (ControllerSettings, "RALF_DURATION_S", "12.5", "duration_s", 12.5),
         (ControllerSettings, "RALF_OATF_DELAY_S", "0.1", "oatf_delay_s", 0.1),
         (ControllerSettings, "RALF_OATF_MODE", "adaptive", "oatf_mode", "adaptive"),
-        (ControllerSettings, "RALF_TRAJECTORY", "/tmp/loop.json", "trajectory", "/tmp/loop.json"),
+        (ControllerSettings, "RALF_TRAJECTORY", str(LOOP), "trajectory", str(LOOP)),
         (DspSettings, "RALF_FFT_WIDTH", "4096", "fft_width", 4096),
         (DspSettings, "RALF_SOLVER", "uncorrelated", "solver", "uncorrelated"),
         (DspSettings, "RALF_BUDGET_S", "0.02", "budget_s", 0.02),
@@ -146,6 +149,10 @@ BAD_ENV = [
     (CommonSettings, "RALF_SAMPLE_RATE_HZ", "5001"),
     (CommonSettings, "RALF_SAMPLE_RATE_HZ", "fast"),
     (CommonSettings, "RALF_HEALTH_PERIOD_S", "0"),
+    (CommonSettings, "RALF_HEALTH_PERIOD_S", "1e-300"),  # accepted once: 128,593 health messages in 19 s
+    (CommonSettings, "RALF_HEALTH_PERIOD_S", "0.005"),
+    (CommonSettings, "RALF_SAMPLE_RATE_HZ", "1e-300"),
+    (CommonSettings, "RALF_LAUNCHER_PID", "-1"),
     (CommonSettings, "RALF_LOG_LEVEL", "CHATTY"),
     (PlantSettings, "RALF_SEED", "-1"),
     (PlantSettings, "RALF_SEED", "1.5"),
@@ -158,6 +165,10 @@ BAD_ENV = [
     (ControllerSettings, "RALF_DURATION_S", "0"),
     (ControllerSettings, "RALF_DURATION_S", "abc"),
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "25"),
+    (ControllerSettings, "RALF_TIP_SPEED_IN_S", "1e-300"),  # was "Maximum allowed size exceeded" from the trajectory, no name
+    (ControllerSettings, "RALF_TIP_SPEED_IN_S", "0.005"),
+    (ControllerSettings, "RALF_STALE_AFTER_S", "1e-300"),
+    (ControllerSettings, "RALF_OATF_BAND_HZ", "[1e-300, 20]"),
     (ControllerSettings, "RALF_BATCH_SIZE", "0"),
     (ControllerSettings, "RALF_BATCH_SIZE", "4097"),
     (ControllerSettings, "RALF_OATF_MODE", "on"),
@@ -173,12 +184,60 @@ BAD_ENV = [
     (DspSettings, "RALF_FFT_WIDTH", "8"),
     (DspSettings, "RALF_FFT_WIDTH", "131072"),
     (DspSettings, "RALF_ALPHA", "0"),
+    (DspSettings, "RALF_ALPHA", "1e-300"),
     (DspSettings, "RALF_ALPHA", "1.01"),
     (DspSettings, "RALF_AVERAGING", "median"),
     (DspSettings, "RALF_SOLVER", "siso"),
     (DspSettings, "RALF_EMULATED_LATENCY_S", "11"),
     (DspSettings, "RALF_SMOOTHING_WINDOW", "-1"),
 ]
+
+
+def test_a_file_setting_naming_a_fifo_is_refused_at_load_without_opening_it(clean_env: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """RALF_TRAJECTORY as a FIFO blocked the controller in open() (no writer comes)
+    and it ignored SIGTERM for minutes: the type is checked with stat, never opened."""
+    fifo = tmp_path / "loop.fifo"
+    os.mkfifo(fifo)
+    for model, var in ((ControllerSettings, "RALF_TRAJECTORY"), (ControllerSettings, "RALF_FAULT_SCENARIO"), (PlantSettings, "RALF_ZENOH_CREDENTIALS_FILE")):
+        clean_env.setenv(var, str(fifo))
+        text = _config_error(model)
+        assert var in text and "is a FIFO, not a regular file" in text, text
+        clean_env.delenv(var)
+    clean_env.setenv("RALF_TRAJECTORY", str(tmp_path))
+    assert "is a directory" in _config_error(ControllerSettings)
+    clean_env.setenv("RALF_TRAJECTORY", "/dev/zero")
+    assert "is a character device" in _config_error(ControllerSettings)
+    clean_env.setenv("RALF_TRAJECTORY", str(tmp_path / "absent.json"))
+    assert "No such file" in _config_error(ControllerSettings)
+
+
+def test_a_fifo_swapped_in_after_the_check_does_not_block_the_read(tmp_path: Path) -> None:
+    from protocol.files import NotARegularFile, read_regular_text
+
+    fifo = tmp_path / "late.fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(NotARegularFile, match="FIFO"):
+        read_regular_text(fifo)
+    assert read_regular_text(LOOP).startswith("{") or read_regular_text(LOOP).lstrip().startswith("{")
+
+
+def test_a_zenoh_user_without_its_password_is_refused(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_ZENOH_USER", "controller")
+    text = _config_error(ControllerSettings)
+    assert "RALF_ZENOH_USER is set without RALF_ZENOH_PASSWORD" in text
+    clean_env.setenv("RALF_ZENOH_PASSWORD", "s3cret-enough")
+    settings = load_settings(ControllerSettings)
+    assert settings.zenoh_password.get_secret_value() == "s3cret-enough"
+    assert "s3cret-enough" not in repr(settings) + str(settings.model_dump()) + str(settings.model_dump(mode="json"))
+    clean_env.delenv("RALF_ZENOH_USER")
+    assert "RALF_ZENOH_PASSWORD is set without RALF_ZENOH_USER" in _config_error(ControllerSettings)
+
+
+def test_a_too_long_password_is_refused_without_showing_it(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_ZENOH_USER", "controller")
+    clean_env.setenv("RALF_ZENOH_PASSWORD", "p" * 300)
+    text = _config_error(ControllerSettings)
+    assert "RALF_ZENOH_PASSWORD" in text and "p" * 300 not in text
 
 
 @pytest.mark.parametrize("model,var,raw", BAD_ENV, ids=lambda x: x if isinstance(x, str) else x.__name__)
