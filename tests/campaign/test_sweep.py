@@ -200,6 +200,23 @@ def test_cli_dry_run_and_bad_specs(tmp_path: Path, capsys: pytest.CaptureFixture
     assert main(["sweep", str(tmp_path / "none.yaml")]) == 2
 
 
+def test_a_sweep_past_the_limit_asks_for_yes_and_its_dry_run_answers_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A 10^6-point sweep's --dry-run resolved every point before printing (a minute of
+    silence): past the limit it is counted, not resolved, and running it needs --yes."""
+    from workbench.campaign.cli import LARGE_SWEEP
+    from workbench.cli import main
+
+    spec = tmp_path / "huge.toml"
+    axis = ", ".join(str(i) for i in range(1000))
+    spec.write_text(f'name = "huge"\n[base]\ncontroller.duration_s = 1\n[grid]\nplant.seed = [{axis}]\ncontroller.dither_seed = [{axis}]\n')
+    assert main(["sweep", str(spec), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert f"1000000 run(s) planned, more than {LARGE_SWEEP}: not listed" in out
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out")]) == 2
+    assert "add --yes" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.rig
 def test_onrig_mode_runs_the_three_process_rig(tmp_path: Path) -> None:
     """One point in the three-process mode (udp_multicast CAN: run inside the loopback namespace, as CI does)."""

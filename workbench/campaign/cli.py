@@ -10,6 +10,8 @@ from typing import Any
 from rich.console import Console
 
 DEFAULT_OUT_ROOT = Path("sweep-results")
+LARGE_SWEEP = 10_000
+"""A sweep of more runs than this runs (or is listed by --dry-run) only with --yes."""
 
 
 def add_engine_arguments(p: argparse.ArgumentParser) -> None:
@@ -40,17 +42,25 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-resume", action="store_true", help="run every point again (default: skip the points DIR's journal has as ok)")
     p.add_argument("--dry-run", action="store_true", help="list the resolved runs and exit")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--yes", action="store_true", help=f"run (or, with --dry-run, list) a sweep of more than {LARGE_SWEEP} runs")
     p.set_defaults(func=cmd_sweep)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from workbench.campaign.engine import EngineError
-    from workbench.campaign.spec import SpecError, expand, load_spec
+    from workbench.campaign.spec import SpecError, expand, load_spec, planned_runs
     from workbench.campaign.sweep import run_sweep
 
     err = Console(stderr=True)
     try:
         spec = load_spec(args.spec)
+        planned = planned_runs(spec)
+        if planned > LARGE_SWEEP and not args.yes:
+            if args.dry_run:
+                print(f"{planned} run(s) planned, more than {LARGE_SWEEP}: not listed (add --yes to resolve and list them)")
+                return 0
+            err.print(f"ralf-hil sweep: {planned} runs planned, more than {LARGE_SWEEP}: add --yes to run them", highlight=False)
+            return 2
         points = expand(spec)
     except (OSError, SpecError) as exc:
         err.print(f"ralf-hil sweep: {exc}", highlight=False)

@@ -28,6 +28,7 @@ import functools
 import hashlib
 import itertools
 import json
+import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -266,6 +267,12 @@ def _axis_values(axis: str, value: Any) -> tuple[dict[str, Any], Any]:
     if axis in SPECIAL or "." in axis or any(axis in m.model_fields for m in SERVICES.values()):
         return {axis: value}, value
     raise SpecError(f"grid axis {axis!r} is not a setting; a bundle axis needs tables as values")
+
+
+def planned_runs(spec: SweepSpec) -> int:
+    """How many runs ``spec`` asks for, counted without resolving any (an upper
+    bound: :func:`expand` keeps duplicate points once)."""
+    return len(spec.points or [{}]) * math.prod(len(values) for values in spec.grid.values()) * len(spec.seed_list())
 
 
 def expand(spec: SweepSpec) -> list[RunPoint]:
