@@ -281,6 +281,14 @@ class ControllerSettings(CommonSettings):
     dither_band_hz: tuple[_Hz, _Hz] = Field((2.0, 7.0), description="The dither's band: every bin of its period in this range")
     dither_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the dither's random phases (each valve its own)")
 
+    @field_validator("run_record")
+    @classmethod
+    def _not_a_truth_name(cls, value: str) -> str:
+        stem = value.removesuffix(".npz").removesuffix(".json")
+        if stem.endswith(".truth"):
+            raise ValueError(f"{value!r}: a name ending in .truth is the plant's ground truth (RALF_TRUTH_RECORD writes PATH.truth.npz); choose another")
+        return value
+
     @field_validator("trajectory")
     @classmethod
     def _trajectory_file(cls, value: str) -> str:
