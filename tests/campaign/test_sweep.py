@@ -61,9 +61,11 @@ def test_map_keeps_order_and_reports_each_failure_without_losing_the_rest(engine
 
 
 def test_sweep_table_failure_row_resume_and_determinism(engine: Engine, tmp_path: Path) -> None:
+    broken = tmp_path / "broken.json"
+    broken.write_text('{"waypoints": "none"}', encoding="utf-8")  # a regular file (settings accept it), no trajectory (the run fails)
     spec = small_spec(
         grid={"plant.adc_bits": [12, 20]},
-        points=[{"label": "ok"}, {"label": "broken", "controller.trajectory": str(tmp_path / "missing.json")}],
+        points=[{"label": "ok"}, {"label": "broken", "controller.trajectory": str(broken)}],
         seeds=[7],
     )
     res = run_sweep(spec, tmp_path / "a", engine, show_progress=False)
@@ -73,7 +75,7 @@ def test_sweep_table_failure_row_resume_and_determinism(engine: Engine, tmp_path
     good = [r for r in table if r["point"] == "ok"]
     bad = [r for r in table if r["point"] == "broken"]
     assert all(r["status"] == "ok" and r["ticks"] == 400 and r["velocity_rms_1"] > 0 and r["true_velocity_rms_1"] > 0 for r in good)
-    assert all(r["status"] == "error" and "missing.json" in r["error"] and r["ticks"] is None for r in bad)
+    assert all(r["status"] == "error" and "WaypointTrajectory" in r["error"] and r["ticks"] is None for r in bad), bad
     assert {r["plant.adc_bits"] for r in good} == {12, 20} and all(r["plant.seed"] == 7 for r in table)
     assert all(r["rig_id"] == f"sw-{r['key']}" for r in table)
     # every setting is a column

@@ -8,6 +8,7 @@ equals an undisturbed run's."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -69,19 +70,22 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
         stderr=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         text=True,
+        env={**os.environ, "COLUMNS": "400"},  # one line per message: rich wraps at the terminal's width
     )
     assert proc.stderr is not None
     port = None
+    tool_env: Path | None = None
     for line in proc.stderr:
         m = re.search(r"zenoh tcp/127\.0\.0\.1:(\d+)", line)
-        if m:
-            port = int(m.group(1))
+        t = re.search(r"tools' credentials in (\S+)", line)
+        if m and t:
+            port, tool_env = int(m.group(1)), Path(t.group(1))  # the run's own owner-only folder
             break
-    assert port is not None
+    assert port is not None and tool_env is not None
     forged = 0
     session = None
     if attack:
-        env = dict(line.split("=", 1) for line in (logs / "tool.env").read_text().splitlines())
+        env = dict(line.split("=", 1) for line in tool_env.read_text().splitlines())
         config = zenoh.Config()
         config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
