@@ -71,6 +71,32 @@ def configure_logging(level: str, service: str) -> None:
     )
 
 
+M_MMAP_THRESHOLD = -3
+"""mallopt(3) parameter: allocations of at least this many bytes are mmapped (and unmapped at free)."""
+MMAP_THRESHOLD_BYTES = 128 * 1024
+"""glibc's initial threshold, kept fixed (see :func:`fix_malloc_threshold`)."""
+
+
+def fix_malloc_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Hold glibc's mmap threshold at ``threshold`` for the process's life.
+
+    glibc raises its threshold to the size of any mmapped block that is freed
+    (up to 32 MiB), after which mid-size blocks (numpy temporaries, zenoh's
+    buffers) come from the heap, where frees between long-lived blocks leave
+    holes: a real-time controller's heap grew ~0.6 MB/min with the bytes in
+    use flat (mallinfo2: arena +1.3 MB in 3 min, in-use unchanged); with the
+    threshold fixed both stayed flat. Setting it also stops the dynamic
+    adjustment. Returns False where there is no glibc ``mallopt``."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+
+    try:
+        return bool(ctypes.CDLL(None).mallopt(M_MMAP_THRESHOLD, int(threshold)))
+    except (OSError, AttributeError):
+        return False
+
+
 PR_SET_PDEATHSIG = 1
 """prctl(2) option: the signal this process gets when its parent thread ends."""
 LAUNCHER_POLL_S = 0.5
@@ -305,6 +331,7 @@ def run_service(
         record, stripped = split_record_arg(args)
         args = stripped if stripped is not None else args
     settings = parse_service_args(prog, summary, model, args)
+    fix_malloc_threshold()
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
     stop = install_stop_handlers()
     follow_launcher(settings.launcher_pid, stop)
