@@ -224,8 +224,8 @@ def private_run_dir(prefix: str) -> Path:
 
 def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path) -> int:
     stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a closed terminal too: services stopped, credentials removed
+        signal.signal(signum, lambda *_: stop.set())
     observer = RigObserver(plan)
     console.print(
         f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"

@@ -65,4 +65,4 @@ def test_the_services_malloc_threshold_stays_fixed_so_mid_size_blocks_leave_no_h
         return int(out.stdout.strip())
 
     assert mmapped("default") == 0  # glibc's dynamic threshold: the 512 KiB block came from the heap
-    assert mmapped("fixed") == 1  # fixed at 128 KiB: mapped, and returned to the system when freed
+    assert mmapped("fixed") == 1  # fixed at 64 KiB: mapped, and returned to the system when freed
