@@ -19,7 +19,6 @@ measured with an injected stopwatch.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import queue
@@ -35,10 +34,11 @@ import zenoh
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.node import CanopenNode, NodeConfig
-from protocol.errors import ConfigError, ProtocolError
+from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
+from protocol.scenario_setting import parse_scenario
 from protocol.settings import PlantSettings
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
@@ -123,25 +123,6 @@ def node_config(settings: PlantSettings) -> NodeConfig:
         watchdog_periods=periods,
         adc_bits=settings.adc_bits,
     )
-
-
-def parse_scenario(text: str) -> list[ScenarioCommand]:
-    """Scenario commands from the ``scenario`` setting (a JSON list)."""
-    if not text.strip():
-        return []
-    try:
-        items = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"RALF_SCENARIO is not JSON: {exc}") from None
-    if not isinstance(items, list):
-        raise ConfigError("RALF_SCENARIO must be a JSON list of commands")
-    commands = []
-    for seq, item in enumerate(items):
-        try:
-            commands.append(ScenarioCommand.model_validate({"seq": seq, "sim_time_s": 0.0, **item}))
-        except Exception as exc:
-            raise ConfigError(f"RALF_SCENARIO item {seq}: {exc}") from None
-    return commands
 
 
 class PlantApplication:

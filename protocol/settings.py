@@ -18,6 +18,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
+from protocol.scenario_setting import parse_scenario
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 _Hz = Annotated[float, Field(ge=0.01, le=2500)]
@@ -213,6 +214,15 @@ class PlantSettings(CommonSettings):
     truth_record: str = Field(
         "", description="Write the ground truth at truth_rate_hz to PATH.truth.npz when the plant stops (the plant's only file; empty = none)"
     )
+
+    @field_validator("scenario")
+    @classmethod
+    def _scenario_commands(cls, value: str) -> str:
+        try:
+            parse_scenario(value)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("RALF_SCENARIO ")) from None
+        return value
 
     @field_validator("adc_bits", mode="before")
     @classmethod

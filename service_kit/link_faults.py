@@ -174,8 +174,8 @@ def parse_scenario(text: str, *, yaml_ok: bool = True) -> Scenario:
             raise ScenarioError(f"scenario is neither JSON nor YAML: {exc}") from None
     try:
         return Scenario.model_validate(data)
-    except ValidationError as exc:
-        raise ScenarioError(f"invalid scenario: {exc}") from None
+    except ValidationError as exc:  # one line: each error's place and message
+        raise ScenarioError("invalid scenario: " + "; ".join(f"{'.'.join(map(str, e['loc'])) or 'scenario'}: {e['msg']}" for e in exc.errors())) from None
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -162,6 +162,8 @@ BAD_ENV = [
     (PlantSettings, "RALF_VALVE_TIME_CONSTANT_S", "0.1"),
     (PlantSettings, "RALF_WATCHDOG_PERIODS", "0"),
     (PlantSettings, "RALF_HEARTBEAT_MS", "-5"),
+    (PlantSettings, "RALF_SCENARIO", "abc"),  # refused after the plant's node was on the bus before
+    (PlantSettings, "RALF_SCENARIO", '[{"kind": "nope"}]'),
     (ControllerSettings, "RALF_DURATION_S", "0"),
     (ControllerSettings, "RALF_DURATION_S", "abc"),
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "25"),
