@@ -23,6 +23,8 @@ from protocol.scenario_setting import parse_scenario
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 _Hz = Annotated[float, Field(ge=0.01, le=2500)]
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
+ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "zenoh_acl_scenarios", "launcher_pid"})
+"""Who a run's sessions were and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
 """What a dump of the settings shows for a credentials file."""
 
 

@@ -19,6 +19,7 @@ from collections import Counter
 from pathlib import Path
 
 from mcap import records
+from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 
@@ -65,7 +66,7 @@ def check(path: str | Path) -> list[str]:
                     statistics = record
     except Exception as exc:  # noqa: BLE001 -- any failure to read is the finding: bad CRC, truncation, corrupt compression
         what = f"{type(exc).__name__}: {exc}".rstrip(": ")
-        if statistics is None and counts["chunks"] + sum(per_channel.values()) > 0:
+        if isinstance(exc, (EndOfFile, RecordLengthLimitExceeded)) and statistics is None and counts["chunks"] + sum(per_channel.values()) > 0:
             # A recording cut by a signal: sound up to its last whole record.
             span = 0.0 if first is None or last is None else (last - first) / 1e9
             return [
