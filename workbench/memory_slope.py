@@ -100,12 +100,30 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "memory-slope",
         help="run the rig and print each service's resident-memory slope (MB/min)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        description="Start the three services as `ralf-hil up` does, read each one's resident set every --every seconds "
+        "from --skip seconds after the first control tick to the end, and print its least-squares slope in MB/min.",
     )
-    p.add_argument("--duration", type=float, default=600.0, help="seconds of control (default 600)")
-    p.add_argument("--every", type=float, default=10.0, help="seconds between samples (default 10)")
-    p.add_argument("--skip", type=float, default=20.0, help="seconds after the first tick before the first sample (default 20)")
+    p.add_argument("--duration", type=_positive, default=600.0, help="seconds of control (default 600)")
+    p.add_argument("--every", type=_positive, default=10.0, help="seconds between samples (default 10)")
+    p.add_argument("--skip", type=_non_negative, default=20.0, help="seconds after the first tick before the first sample (default 20)")
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime")
     p.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     p.add_argument("--json", default=None, help="also write the result as JSON to this file")
     p.set_defaults(func=cmd_memory_slope)
+
+
+def _positive(text: str) -> float:
+    value = _non_negative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("must be above 0")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 <= value <= 1e6:  # NaN fails too
+        raise argparse.ArgumentTypeError(f"{text}: give seconds from 0 to 1e6")
+    return value
