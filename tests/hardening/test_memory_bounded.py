@@ -65,3 +65,13 @@ def test_the_services_malloc_threshold_stays_fixed_so_mid_size_blocks_leave_no_h
     it); every service fixes the threshold at start (``run_service``)."""
     assert int(_run(THRESHOLD_PROBE, "default")) == 0  # glibc's dynamic threshold: the 512 KiB block came from the heap
     assert int(_run(THRESHOLD_PROBE, "fixed")) == 1  # fixed at 64 KiB: mapped, and returned to the system when freed
+
+
+def test_memory_slope_is_the_least_squares_slope_per_minute() -> None:
+    from scipy.stats import linregress
+
+    from workbench.memory_slope import slope_mb_per_min
+
+    t = [20.0 + 10.0 * i for i in range(59)]
+    mb = [200.0 + 0.001 * s + 0.05 * ((i * 7919) % 13 - 6) for i, s in enumerate(t)]
+    assert abs(slope_mb_per_min(list(zip(t, mb, strict=True))) - linregress(t, mb).slope * 60.0) < 1e-12
