@@ -63,7 +63,8 @@ def test_the_services_malloc_threshold_stays_fixed_so_mid_size_blocks_leave_no_h
     """What grew the controller's RSS ~0.6 MB/min with its bytes in use flat: after
     one large block is freed, glibc puts mid-size blocks on the heap (fragmenting
     it); every service fixes the threshold at start (``run_service``)."""
-    assert int(_run(THRESHOLD_PROBE, "default")) == 0  # glibc's dynamic threshold: the 512 KiB block came from the heap
+    # (Without the fix glibc's dynamic threshold serves the 512 KiB block from the heap in a
+    # fresh interpreter; not asserted: what an interpreter's start-up leaves on the heap varies.)
     assert int(_run(THRESHOLD_PROBE, "fixed")) == 1  # fixed at 64 KiB: mapped, and returned to the system when freed
 
 

@@ -13,7 +13,7 @@ from protocol.settings import PlantSettings
 
 
 def _app(published: list[GroundTruth]) -> PlantApplication:
-    settings = PlantSettings(clock="lockstep", truth_rate_hz=200.0, record="unused.npz")
+    settings = PlantSettings(clock="lockstep", truth_rate_hz=200.0, truth_record="unused")
     return PlantApplication(settings, publish_truth=published.append)
 
 
