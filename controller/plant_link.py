@@ -41,6 +41,9 @@ from protocol.can_map import (
     NmtState,
 )
 from protocol.errors import FrameError
+from service_kit.can_udp import echoing_bus
+
+__all__ = ["PlantFault", "PlantLink", "PlantLinkCounters", "StopRequested", "echoing_bus"]
 
 _DAC_SHIFT: Final = can_map.DAC12.shift(16)
 _SYNC_PAYLOADS: Final = [b""] + [can_map.encode_sync(c) for c in range(1, can_map.SYNC_COUNTER_OVERFLOW + 1)]
@@ -65,13 +68,6 @@ class PlantFault(RuntimeError):
 
 class StopRequested(Exception):
     """SIGINT/SIGTERM arrived while waiting for the plant: not a fault."""
-
-
-def echoing_bus(bus: can.BusABC) -> bool:
-    """Whether ``bus`` hands a sender its own frames back: python-can's
-    udp_multicast always does (multicast loopback); others when opened with
-    ``receive_own_messages``."""
-    return type(bus).__name__ == "UdpMulticastBus" or bool(getattr(bus, "receive_own_messages", False))
 
 
 class _RxError(Exception):

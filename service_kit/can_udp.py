@@ -63,6 +63,13 @@ def _insn(code: int, jt: int, jf: int, k: int) -> bytes:
     return struct.pack("HBBI", code, jt, jf, k & 0xFFFFFFFF)
 
 
+def echoing_bus(bus: can.BusABC) -> bool:
+    """Whether ``bus`` hands a sender its own frames back: python-can's
+    udp_multicast always does (multicast loopback); others when opened with
+    ``receive_own_messages`` (:class:`LoopFreeUdpMulticastBus` never does unless asked)."""
+    return type(bus).__name__ == "UdpMulticastBus" or bool(getattr(bus, "receive_own_messages", False))
+
+
 def own_frame_filter(source: tuple[Any, ...], family: socket.AddressFamily) -> list[bytes]:
     """Classic BPF that drops a UDP datagram sent from ``source`` (address,
     port) and accepts every other: the UDP source port (offset 0 of a UDP
@@ -105,8 +112,9 @@ class LoopFreeUdpMulticastBus(can.BusABC):
     ``receive_buffer_bytes`` a larger ``SO_RCVBUF`` (best effort) for a
     reader that must keep up with a lockstep rig's back-to-back frames.
     :attr:`kernel_drops` counts the datagrams the kernel dropped because the
-    receive buffer was full (as of the last datagram read), so a loss is
-    never silent."""
+    receive buffer was full (as of the last datagram read), and
+    :attr:`fd_frames_dropped` the CAN FD frames received on a bus opened
+    without ``fd``, so a loss is never silent."""
 
     def __init__(
         self,
@@ -129,6 +137,8 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         """Own frames dropped after ``recvmsg`` (only where the kernel filter is not attached)."""
         self.kernel_drops = 0
         """Datagrams the kernel dropped for a full receive buffer (Linux ``SO_RXQ_OVFL``)."""
+        self.fd_frames_dropped = 0
+        """CAN FD frames received and dropped because the bus was opened without ``fd``."""
         self._rx = self._open_rx(family, channel, port)
         if receive_buffer_bytes > 0:
             self.set_receive_buffer(receive_buffer_bytes)
@@ -215,6 +225,7 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         except Exception as exc:
             raise can.CanOperationError("could not unpack received message") from exc
         if msg.is_fd and not self._fd:
+            self.fd_frames_dropped += 1
             return None, False
         return msg, False
 
