@@ -389,6 +389,10 @@ class CanopenNode:
         the rig's loop-free udp_multicast) every such frame is another node's."""
         with self._lock:
             self._echo_memory = {cob_id: deque(maxlen=ECHO_MEMORY) for cob_id in self._own_ids} if on else None
+            if self._echo_memory is not None:
+                for f in self._outbox:  # made before the bus was known (the boot-up), not sent yet
+                    if f.arbitration_id in self._echo_memory:
+                        self._echo_memory[f.arbitration_id].append(f.data)
 
     def own_cob_frame(self, cob_id: int, data: bytes | bytearray, now: float) -> list[Frame]:
         """What :meth:`handle` does with a standard data frame of :attr:`own_cob_ids`
