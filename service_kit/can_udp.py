@@ -136,7 +136,12 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         self.own_frames_dropped = 0
         """Own frames dropped after ``recvmsg`` (only where the kernel filter is not attached)."""
         self.kernel_drops = 0
-        """Datagrams the kernel dropped for a full receive buffer (Linux ``SO_RXQ_OVFL``)."""
+        """Datagrams the kernel dropped for a full receive buffer: the socket's drop count
+        (Linux ``SO_RXQ_OVFL``, as of the last datagram read) less this bus's own frames,
+        each of which the own-frame filter drops and the kernel counts as a drop too."""
+        self.socket_drops = 0
+        """The socket's drop count as the kernel reports it (own frames filtered out included)."""
+        self._frames_sent = 0
         self.fd_frames_dropped = 0
         """CAN FD frames received and dropped because the bus was opened without ``fd``."""
         self._rx = self._open_rx(family, channel, port)
@@ -206,7 +211,11 @@ class LoopFreeUdpMulticastBus(can.BusABC):
                     sec, nsec = _TIMESPEC.unpack(value)
                     timestamp = sec + nsec * 1e-9
                 elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL:
-                    self.kernel_drops = _U32.unpack(value[:4])[0]
+                    self.socket_drops = _U32.unpack(value[:4])[0]
+                    # A frame we sent is filtered (and counted) on its way back before any datagram
+                    # queued after it: the multicast loop delivers to every local socket at once.
+                    own = self._frames_sent if self.kernel_filter else 0
+                    self.kernel_drops = max(0, self.socket_drops - own)
             return data, sender, timestamp
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -237,6 +246,7 @@ class LoopFreeUdpMulticastBus(can.BusABC):
             sent = self._tx.send(data)
         except OSError as exc:
             raise can.CanOperationError(f"failed to send: {exc}") from exc
+        self._frames_sent += 1
         if sent < len(data):
             raise can.CanTimeoutError()
 
