@@ -15,9 +15,12 @@ queued for :meth:`PlantLink.take_conflicts`, which the service turns into the
 Frames that claim to come from the plant are judged too, once the run is
 going (after :meth:`PlantLink.start_node`):
 
-* **TPDO1**: the node sends one per SYNC. More TPDO1s than SYNCs sent (one
-  late answer allowed, :data:`TPDO_CREDIT_MAX`) means another node answers
-  on the plant's COB-ID: ``surplus_tpdos``, a conflict with both frames;
+* **TPDO1**: the node sends one per SYNC. More TPDO1s since the start
+  than SYNCs sent (and foreign SYNCs seen) means another node answers on
+  the plant's COB-ID: ``surplus_tpdos``, a conflict with both frames (late
+  answers, however many a stalled plant sends in a burst, never exceed the
+  SYNCs; each lost one leaves room for one forged frame, which the node
+  itself still reports by EMCY CAN_ID_COLLISION);
   a tick whose TPDO1 came twice before it was taken gets no sample
   (``ambiguous_samples``: the loop holds the last one).
 * **Heartbeat** other than OPERATIONAL, **conflict EMCYs** (SYNC_CONFLICT,
@@ -89,8 +92,6 @@ MAX_RX_ERRORS_PER_POLL: Final[int] = 64
 CONFLICT_MEMORY: Final[int] = 64
 """Conflict events kept until :meth:`PlantLink.take_conflicts` (older ones are only counted)."""
 CONFLICT_EMCYS: Final[frozenset[int]] = frozenset({int(can_map.EmcyCode.SYNC_CONFLICT), int(can_map.EmcyCode.RPDO_CONFLICT)})
-TPDO_CREDIT_MAX: Final[int] = 2
-"""SYNCs whose TPDO1 may still come: one answer may arrive after the next SYNC (late, not forged)."""
 PENDING_MEMORY: Final[int] = 16
 """Heartbeats and EMCYs held for the node's word on them (older ones are judged as they are)."""
 _SDO_SIZES: Final[dict[tuple[int, int], int]] = {
@@ -222,7 +223,7 @@ class PlantLink:
         self._running = False
         """True from a successful start_node until this link sends another NMT command: frames on the plant's COB-IDs are judged"""
         self._tpdo_credit = 0
-        self._last_tpdo: tuple[bytes, float] = (b"", 0.0)
+        self._last_tpdo: can.Message | None = None
         self._held: deque[_Held] = deque(maxlen=PENDING_MEMORY)
         self._configured: dict[tuple[int, int], int] = {}
         """values of the objects in _SDO_SIZES as this link configured or found them at start"""
@@ -297,7 +298,7 @@ class PlantLink:
             return True  # a command for another node: not ours to judge
         setattr(self.counters, f"foreign_{kind}", getattr(self.counters, f"foreign_{kind}") + 1)
         if kind == "sync":
-            self._tpdo_credit = min(self._tpdo_credit + 1, TPDO_CREDIT_MAX)  # the node answers it too
+            self._tpdo_credit += 1  # the node answers it too
         if kind == "sdo":
             return self._foreign_sdo(msg, data)
         what = {"sync": "SYNC", "nmt": "NMT command", "rpdo": "RPDO1"}[kind]
@@ -332,28 +333,27 @@ class PlantLink:
     # --- frames from the plant's COB-IDs, judged while running -------------------------------
 
     def _on_tpdo1(self, msg: can.Message, words: tuple[int, int, int, int]) -> None:
-        data = bytes(msg.data)
         if self._running:
             if self._tpdo_credit > 0:
                 self._tpdo_credit -= 1
             else:
                 self.counters.surplus_tpdos += 1
-                prev, prev_at = self._last_tpdo
+                prev = self._last_tpdo
                 self._conflict(
-                    f"surplus tpdo1: more TPDO1 than SYNCs, another node answers on the plant's COB-ID: "
-                    f"{self._stamp(msg)} after [{prev.hex(' ')}] at {prev_at:.6f} s"
+                    "surplus tpdo1: more TPDO1 than SYNCs, another node answers on the plant's COB-ID: "
+                    f"{self._stamp(msg)} after {self._stamp(prev) if prev is not None else 'none'}"
                 )
                 if self._pending_tpdo is not None:  # both still untaken: no telling which is the plant's
                     self._pending_tpdo = None
                     self.counters.ambiguous_samples += 1
-                    self._last_tpdo = (data, msg.timestamp or self._now())
+                    self._last_tpdo = msg
                     return
             if self._held:
                 self._judge_held(by_tpdo=True)
         if self._pending_tpdo is not None:
             self.counters.extra_tpdos += 1
         self._pending_tpdo = words
-        self._last_tpdo = (data, msg.timestamp or self._now())
+        self._last_tpdo = msg  # kept by reference: its evidence is written only for a surplus
 
     def _judge_held(self, by_tpdo: bool) -> None:
         """A TPDO1 answering a SYNC sent after a held frame (``by_tpdo``), or a SYNC left unanswered:
@@ -415,8 +415,7 @@ class PlantLink:
         counter = self.sync_counter = can_map.next_sync_counter(self.sync_counter)
         self._send(can_map.SYNC_COB_ID, _SYNC_PAYLOADS[counter])
         self.counters.syncs_sent += 1
-        if self._tpdo_credit < TPDO_CREDIT_MAX:
-            self._tpdo_credit += 1
+        self._tpdo_credit += 1  # SYNCs sent whose TPDO1 has not come (yet, or lost)
         return counter
 
     def skip_sync(self) -> None:

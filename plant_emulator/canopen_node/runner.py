@@ -57,7 +57,7 @@ def run_node(
 
     own_ids = node.own_cob_ids
     node.expect_echoes(echoing_bus(bus))
-    counted_bus = bus if hasattr(bus, "kernel_drops") else None
+    counted_bus = bus if hasattr(bus, "kernel_drops") and hasattr(bus, "fd_frames_dropped") else None
     counters = node.counters
     streak = 0
     send(node.poll(clock()))
@@ -85,7 +85,7 @@ def run_node(
         now = clock()
         if counted_bus is not None:
             counters.kernel_drops = int(counted_bus.kernel_drops)
-            counters.fd_frames_dropped = int(getattr(counted_bus, "fd_frames_dropped", 0))
+            counters.fd_frames_dropped = int(counted_bus.fd_frames_dropped)
         if msg is not None:
             if msg.arbitration_id in own_ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
                 # A frame on our own COB-IDs: our echo (udp_multicast loops frames back to their

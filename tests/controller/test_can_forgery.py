@@ -171,3 +171,58 @@ def test_a_stock_master_switching_the_heartbeat_off_is_seen_and_undone() -> None
     assert node.od.get(0x1017) == 20 and link.counters.comm_restores == 1
     assert link.counters.foreign_sdo == 2 and link.counters.foreign_sdo_reads == 1  # the read back is only counted
     assert [c for c in conflicts if c.startswith("foreign sdo: a write of 0x1017:0 = 0")]
+
+
+@pytest.mark.timeout(60)
+def test_late_answers_in_a_burst_are_not_a_surplus() -> None:
+    """A plant held up for 30 SYNCs answers them in one burst: late, not forged.
+    Before, two SYNCs of credit made the third of such a burst a "surplus" and
+    stopped a loaded real-time run. One more TPDO1 than SYNCs is a surplus."""
+    channel = f"ralf-burst-{uuid.uuid4().hex}"
+    node_bus, link_bus, rogue = (can.Bus(interface="virtual", channel=channel) for _ in range(3))
+    node = CanopenNode(FakeApp(), NodeConfig(heartbeat_ms=20, watchdog_periods=0))
+    hold, stop = threading.Event(), threading.Event()
+    held: list[can.Message] = []
+
+    def serve() -> None:  # the node's runner, except that SYNCs wait while ``hold`` is set
+        while not stop.is_set():
+            msg = node_bus.recv(0.005)
+            now = time.monotonic()
+            out = []
+            if msg is not None and msg.arbitration_id == 0x080 and hold.is_set():
+                held.append(msg)
+            elif msg is not None:
+                out = node.handle(msg, now)
+            if not hold.is_set() and held:
+                for m in held:
+                    out += node.handle(m, now)
+                held.clear()
+            for f in out + node.poll(now):
+                node_bus.send(f)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        link = PlantLink(link_bus, 1)
+        link.start_node(timeout=5.0, sample_period_s=0.005)
+        tick(link)
+        hold.set()
+        missed = 0
+        for _ in range(30):
+            link.send_sync()
+            missed += link.wait_tpdo(0.0) is None
+        deadline = time.monotonic() + 5.0
+        while len(held) < 30 and time.monotonic() < deadline:
+            time.sleep(0.002)
+        hold.clear()
+        settle(link, node, lambda: link.counters.tpdos >= 31)
+        assert missed == 30 and link.counters.tpdos == 31
+        assert link.counters.surplus_tpdos == 0 and not [c for c in link.take_conflicts() if c.startswith("surplus")]
+        rogue.send(frame(TPDO1, FORGED_WORDS))
+        settle(link, node, lambda: link.counters.surplus_tpdos >= 1)
+        assert link.counters.surplus_tpdos == 1
+    finally:
+        stop.set()
+        thread.join(10.0)
+        for bus in (node_bus, link_bus, rogue):
+            bus.shutdown()
