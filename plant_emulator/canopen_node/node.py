@@ -699,11 +699,11 @@ class CanopenNode:
             self._collision_last = None
             self._set_fault(EmcyCode.CAN_ID_COLLISION, False)
 
-    def _log_limited(self, key: str, now: float, fmt: str, *args: object) -> None:
+    def _log_limited(self, key: str, now: float, fmt: str, *args: object, level: int = logging.WARNING) -> None:
         last = self._logged_at.get(key)
         if last is None or now - last >= LOG_INTERVAL_S:
             self._logged_at[key] = now
-            log.warning(fmt, *args)
+            log.log(level, fmt, *args)
 
     def _on_nmt(self, cob_id: int, data: bytes) -> None:
         self.counters.rx["nmt"] += 1
@@ -868,6 +868,7 @@ class CanopenNode:
                     index,
                     data[3],
                     data[4:].hex(" "),
+                    level=logging.INFO,  # the master configures them at every start; it compares the counts
                 )
 
     # --- NMT ------------------------------------------------------------------------------
