@@ -19,7 +19,7 @@ import can
 import msgpack  # type: ignore[import-untyped]
 import pytest
 
-from controller.plant_link import PlantLink
+from controller.plant_link import PlantFault, PlantLink
 from plant_emulator.canopen_node import CanopenNode, NodeConfig, node_can_filters, run_node
 from plant_emulator.canopen_node.runner import RX_ERROR_STREAK_PAUSE
 from service_kit.can_udp import LoopFreeUdpMulticastBus
@@ -109,37 +109,31 @@ def udp_rig(port: int, small_buffer: bool = True) -> Iterator[tuple[PlantLink, C
         link_bus.shutdown()
 
 
-def _drained(read: object) -> None:
-    """Wait (bounded) until a counter stops moving: the reader has emptied its socket."""
-    last, still = -1, 0
-    deadline = time.monotonic() + 10.0
-    while still < 5 and time.monotonic() < deadline:
-        now = read()  # type: ignore[operator]
-        still = still + 1 if now == last else 0
-        last = now
-        time.sleep(0.02)
-
-
 @pytest.mark.timeout(120)
 def test_a_junk_flood_is_read_at_full_speed_with_every_datagram_accounted_for() -> None:
     """4,000 junk datagrams sent back to back: on each end every one is read and counted
     (``rx_errors``) or dropped by the kernel for a full buffer and counted
-    (``kernel_drops``, from SO_RXQ_OVFL); then every tick is answered."""
+    (``kernel_drops``, from SO_RXQ_OVFL); then every tick is answered. An SDO read
+    after the flood marks the end of it: once answered, the node has read all that
+    came before its request and the link all that came before the answer; a request
+    or answer the kernel dropped on the way (a full buffer) is one more drop on one
+    end, and the read is tried again."""
     port = _port()
     attacker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     attacker.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
     sent = 4000
+    lost_marks = 0
     try:
         with udp_rig(port) as (link, node, _):
             for k in range(sent):
                 attacker.sendto(JUNK[k % len(JUNK)], (GROUP, port))
-
-            def link_errors() -> int:
-                link.poll(0.0)
-                return link.counters.rx_errors
-
-            _drained(lambda: node.counters.rx_errors)
-            _drained(link_errors)
+            while True:
+                try:
+                    assert link.sdo_read(0x1000, 0, timeout=2.0) == 0x000C0191
+                    break
+                except PlantFault:
+                    lost_marks += 1
+                    assert lost_marks < 20
             answered = 0
             for _ in range(20):
                 link.send_sync()
@@ -150,9 +144,11 @@ def test_a_junk_flood_is_read_at_full_speed_with_every_datagram_accounted_for() 
     finally:
         attacker.close()
     assert answered == 20
-    assert node_counts["rx_errors"] + node_counts["kernel_drops"] == sent, node_counts
+    node_seen = node_counts["rx_errors"] + node_counts["kernel_drops"]
+    link_seen = link_counts["rx_errors"] + link_counts["kernel_drops"]
+    assert node_seen >= sent and link_seen >= sent, (node_counts, link_counts)
+    assert node_seen + link_seen == 2 * sent + lost_marks, (node_counts, link_counts, lost_marks)  # nothing unaccounted
     assert node_counts["kernel_drops"] > 0  # the small buffer did overflow: drops are counted, not silent
-    assert link_counts["rx_errors"] + link_counts["kernel_drops"] == sent, link_counts
 
 
 @pytest.mark.timeout(60)
@@ -169,7 +165,7 @@ def test_can_fd_frames_are_counted_not_silently_dropped() -> None:
             for _ in range(5):
                 fd_station.send(can.Message(arbitration_id=0x080, data=bytes(range(12)), is_fd=True, is_extended_id=False))
                 fd_station.send(can.Message(arbitration_id=0x601, data=bytes(16), is_fd=True, is_extended_id=False))
-            deadline = time.monotonic() + 5.0
+            deadline = time.monotonic() + 30.0  # a bound for a loaded host, not a figure
             while node_bus.fd_frames_dropped < 10 and time.monotonic() < deadline:
                 time.sleep(0.01)
             for _ in range(3):
