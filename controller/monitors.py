@@ -4,9 +4,10 @@ Each monitor (``deadline``: an interrupt later than its deadline;
 ``stale``: no fresh estimate for ``stale_after_s``; ``dsp_lost``: the DSP's
 liveliness token vanished; ``overrun``: a tick finished after the next was
 due; ``can_conflict``: another master on the CAN bus, i.e. a SYNC, NMT
-command, RPDO1 or SDO request this controller did not send, or the plant's
-SYNC_CONFLICT / RPDO_CONFLICT emergency, see :mod:`controller.plant_link`)
-has a policy:
+command, RPDO1 or SDO write this controller did not send, the plant's
+SYNC_CONFLICT / RPDO_CONFLICT emergency, or frames forged on the plant's
+COB-IDs (a second TPDO1 per SYNC, a heartbeat or EMCY the plant disowns),
+see :mod:`controller.plant_link`; its default policy is ``stop``) has a policy:
 
 * ``count``: count it, nothing else;
 * ``warn``: count it and log a warning (once per episode);

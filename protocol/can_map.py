@@ -122,8 +122,16 @@ class EmcyCode(enum.IntEnum):
     """An analog input reached full scale (saturation is flagged, never wrapped)."""
     PDO_LENGTH = 0x8210
     """A PDO with the wrong length was received and ignored."""
-    SYNC_TIMEOUT = 0x8250
-    """No SYNC for the watchdog time: valves held at zero (vendor use of the RPDO-timeout class)."""
+    SYNC_TIMEOUT = 0x8130
+    """No SYNC for the watchdog time: valves held at zero. CiA 301's "life guard error or heartbeat
+    error": the node's monitoring of its master (here by the SYNC it consumes) timed out."""
+    CAN_ID_COLLISION = 0x8150
+    """A frame on one of the node's own COB-IDs (heartbeat, EMCY, TPDO, SDO reply) that it did not
+    send: another node transmits with its identifiers (CiA 301 "CAN-ID collision"). Vendor bytes:
+    that frame's COB-ID (u16), its DLC and its first two data bytes."""
+    RPDO_TIMEOUT = 0x8250
+    """SYNC present but no RPDO1 within its event timer (0x1400 sub 5): valves held at zero
+    (CiA 301 "RPDO timeout")."""
     JOINT_LIMIT = 0xFF01
     """A joint reached a hard stop (manufacturer specific)."""
     SYNC_CONFLICT = 0xFF02
@@ -388,6 +396,17 @@ def decode_nmt(data: bytes | bytearray) -> tuple[NmtCommand, int]:
 
 def encode_heartbeat(state: NmtState) -> bytes:
     return bytes([int(state)])
+
+
+def encode_collision_evidence(cob_id: int, data: bytes | bytearray) -> bytes:
+    """The five vendor bytes of EMCY CAN_ID_COLLISION: the foreign frame's COB-ID (u16 LE), DLC, first two data bytes."""
+    return struct.pack("<HB", cob_id & 0x7FF, len(data) & 0xFF) + bytes(data[:2]).ljust(2, b"\x00")
+
+
+def decode_collision_evidence(vendor: bytes | bytearray) -> tuple[int, int, bytes]:
+    """(COB-ID, DLC, first data bytes, at most two and at most DLC) from EMCY CAN_ID_COLLISION's vendor bytes."""
+    cob_id, dlc = struct.unpack_from("<HB", bytes(vendor).ljust(5, b"\x00"))
+    return cob_id, dlc, bytes(vendor[3 : 3 + min(dlc, 2)])
 
 
 def decode_heartbeat(data: bytes | bytearray) -> NmtState:

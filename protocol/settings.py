@@ -271,7 +271,7 @@ class ControllerSettings(CommonSettings):
     policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
     policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
     policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field(
-        "warn", description="On another master's SYNC, NMT, RPDO1 or SDO frame on the CAN bus"
+        "stop", description="On another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames (TPDO1, heartbeat, EMCY) on the CAN bus"
     )
     inject_stall_at_s: float | None = Field(None, ge=0, le=1e7, description="Fault injection: freeze the loop at this simulated time...")
     inject_stall_s: float = Field(0.0, ge=0, le=60, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")

@@ -63,6 +63,13 @@ def _insn(code: int, jt: int, jf: int, k: int) -> bytes:
     return struct.pack("HBBI", code, jt, jf, k & 0xFFFFFFFF)
 
 
+def echoing_bus(bus: can.BusABC) -> bool:
+    """Whether ``bus`` hands a sender its own frames back: python-can's
+    udp_multicast always does (multicast loopback); others when opened with
+    ``receive_own_messages`` (:class:`LoopFreeUdpMulticastBus` never does unless asked)."""
+    return type(bus).__name__ == "UdpMulticastBus" or bool(getattr(bus, "receive_own_messages", False))
+
+
 def own_frame_filter(source: tuple[Any, ...], family: socket.AddressFamily) -> list[bytes]:
     """Classic BPF that drops a UDP datagram sent from ``source`` (address,
     port) and accepts every other: the UDP source port (offset 0 of a UDP
@@ -105,8 +112,9 @@ class LoopFreeUdpMulticastBus(can.BusABC):
     ``receive_buffer_bytes`` a larger ``SO_RCVBUF`` (best effort) for a
     reader that must keep up with a lockstep rig's back-to-back frames.
     :attr:`kernel_drops` counts the datagrams the kernel dropped because the
-    receive buffer was full (as of the last datagram read), so a loss is
-    never silent."""
+    receive buffer was full (as of the last datagram read), and
+    :attr:`fd_frames_dropped` the CAN FD frames received on a bus opened
+    without ``fd``, so a loss is never silent."""
 
     def __init__(
         self,
@@ -128,7 +136,14 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         self.own_frames_dropped = 0
         """Own frames dropped after ``recvmsg`` (only where the kernel filter is not attached)."""
         self.kernel_drops = 0
-        """Datagrams the kernel dropped for a full receive buffer (Linux ``SO_RXQ_OVFL``)."""
+        """Datagrams the kernel dropped for a full receive buffer: the socket's drop count
+        (Linux ``SO_RXQ_OVFL``, as of the last datagram read) less this bus's own frames,
+        each of which the own-frame filter drops and the kernel counts as a drop too."""
+        self.socket_drops = 0
+        """The socket's drop count as the kernel reports it (own frames filtered out included)."""
+        self._frames_sent = 0
+        self.fd_frames_dropped = 0
+        """CAN FD frames received and dropped because the bus was opened without ``fd``."""
         self._rx = self._open_rx(family, channel, port)
         if receive_buffer_bytes > 0:
             self.set_receive_buffer(receive_buffer_bytes)
@@ -196,7 +211,11 @@ class LoopFreeUdpMulticastBus(can.BusABC):
                     sec, nsec = _TIMESPEC.unpack(value)
                     timestamp = sec + nsec * 1e-9
                 elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL:
-                    self.kernel_drops = _U32.unpack(value[:4])[0]
+                    self.socket_drops = _U32.unpack(value[:4])[0]
+                    # A frame we sent is filtered (and counted) on its way back before any datagram
+                    # queued after it: the multicast loop delivers to every local socket at once.
+                    own = self._frames_sent if self.kernel_filter else 0
+                    self.kernel_drops = max(0, self.socket_drops - own)
             return data, sender, timestamp
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -215,6 +234,7 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         except Exception as exc:
             raise can.CanOperationError("could not unpack received message") from exc
         if msg.is_fd and not self._fd:
+            self.fd_frames_dropped += 1
             return None, False
         return msg, False
 
@@ -226,6 +246,7 @@ class LoopFreeUdpMulticastBus(can.BusABC):
             sent = self._tx.send(data)
         except OSError as exc:
             raise can.CanOperationError(f"failed to send: {exc}") from exc
+        self._frames_sent += 1
         if sent < len(data):
             raise can.CanTimeoutError()
 

@@ -14,12 +14,18 @@ class NodeCounters:
 
     rx: Counter[str] = field(default_factory=Counter)
     """frames received, by kind: nmt, sync, rpdo, sdo, time, foreign (other nodes), own_cob_id
-    (echoes of our frames), nmt_other_node, sync_stopped, error_frame, extended"""
+    (echoes of our frames), nmt_other_node, sync_stopped, sdo_stopped (SDO requests in STOPPED,
+    not answered), error_frame, extended"""
     tx: Counter[str] = field(default_factory=Counter)
     """frames produced, by kind: bootup, heartbeat, tpdo1, tpdo2, tpdo3, emcy, sdo"""
     malformed: Counter[str] = field(default_factory=Counter)
     """ignored frames, by kind: nmt_dlc, nmt_command, nmt_node_id, sync_dlc, sync_counter, rpdo_dlc,
-    rpdo_not_operational, sdo_dlc, sdo_stopped, unknown_cob_id, rtr"""
+    rpdo_not_operational, sdo_dlc, unknown_cob_id, rtr"""
+    impersonated: Counter[str] = field(default_factory=Counter)
+    """frames on our own COB-IDs that this node did not send (another node using its identifiers),
+    by kind: heartbeat, emcy, tpdo1, tpdo2, tpdo3, sdo_tx"""
+    comm_writes: Counter[str] = field(default_factory=Counter)
+    """successful SDO writes of communication objects, by index (``0x1017``): a master compares them with its own"""
     sync_received: int = 0
     """valid SYNCs (any state but STOPPED)"""
     sync_gaps: int = 0
@@ -60,6 +66,10 @@ class NodeCounters:
     """frames the runner failed to send"""
     rx_errors: int = 0
     """receive errors the runner saw (e.g. an undecodable udp_multicast datagram)"""
+    kernel_drops: int = 0
+    """datagrams the kernel dropped for a full receive buffer (the bus's ``kernel_drops``, Linux ``SO_RXQ_OVFL``)"""
+    fd_frames_dropped: int = 0
+    """CAN FD frames the bus received and dropped (the node speaks classic CAN; the bus's ``fd_frames_dropped``)"""
     internal_errors: int = 0
     """exceptions caught around the state machine (should stay 0)"""
     sdo: SdoCounters = field(default_factory=SdoCounters)
@@ -67,6 +77,10 @@ class NodeCounters:
     @property
     def malformed_total(self) -> int:
         return sum(dict.copy(self.malformed).values())
+
+    @property
+    def impersonated_total(self) -> int:
+        return sum(dict.copy(self.impersonated).values())
 
     def as_dict(self) -> dict[str, int]:
         """A flat, JSON-ready snapshot of ints: the scalar counters by name,
@@ -91,4 +105,5 @@ class NodeCounters:
             else:
                 out[f.name] = int(v)
         out["malformed"] = self.malformed_total
+        out["impersonated"] = self.impersonated_total
         return out

@@ -59,14 +59,14 @@ Behaviour (node id ``n``, see :mod:`protocol.can_map` for the frames):
 * **Watchdog**: armed by the first SYNC received in OPERATIONAL; when no SYNC
   arrives for 0x2003 periods of 0x2000 (default 5 x 5 ms) the node calls
   ``app.on_watchdog(True)`` (the app drives the valves to zero and holds),
-  sends EMCY SYNC_TIMEOUT (vendor byte 1 = 0) and holds further RPDOs
+  sends EMCY SYNC_TIMEOUT (0x8130, vendor byte 1 = 0) and holds further RPDOs
   (counted, not applied); the next SYNC calls ``app.on_watchdog(False)``,
   sends the reset EMCY and resumes (outputs stay at zero until the next
   RPDO). RPDO1 deadline monitoring (CiA 301: the RPDO event timer, 0x1400
   sub 5 in ms, 0 = off by default; the controller sets it to the watchdog
   time, and it is written only outside OPERATIONAL): no RPDO1 for that long
   after the first one trips the watchdog the same way even while SYNC keeps
-  coming (vendor byte 1 = 1, counted in ``rpdo_timeouts``), so somebody
+  coming (EMCY RPDO_TIMEOUT 0x8250, vendor byte 1 = 1, counted in ``rpdo_timeouts``), so somebody
   else's SYNC stream cannot keep the valves open for a controller that
   froze; the next RPDO1 releases it (that frame
   is held, the following one applies). 0x2003 = 0 disables the watchdog in
@@ -79,11 +79,25 @@ Behaviour (node id ``n``, see :mod:`protocol.can_map` for the frames):
   The application may raise its own faults (e.g. JOINT_LIMIT) with
   :meth:`CanopenNode.set_fault`.
 * **Malformed or misplaced frames** (wrong DLC, unknown COB-ID with our node
-  id, RPDO before START, bad NMT command, SYNC counter out of range, RTR,
-  SDO while stopped) are counted per kind in ``counters.malformed``, logged
-  once per kind at WARNING, and ignored. Frames of other nodes and echoes of
-  our own COB-IDs (udp_multicast loops them back) are counted in
-  ``counters.rx`` and ignored silently.
+  id, RPDO before START, bad NMT command, SYNC counter out of range, RTR)
+  are counted per kind in ``counters.malformed``, logged once per kind at
+  WARNING, and ignored. An SDO request in STOPPED is well formed: it is
+  not answered (CiA 301) and counted in ``counters.rx['sdo_stopped']``.
+  Frames of other nodes are counted in ``counters.rx`` and ignored.
+* **Frames on our own COB-IDs** (EMCY, TPDO1-3, SDO reply, heartbeat): on
+  a bus that hands a sender its frames back (:meth:`CanopenNode.expect_echoes`,
+  python-can's udp_multicast) the ones matching what we sent, in order,
+  are echoes (``rx['own_cob_id']``); every other one is another node
+  transmitting with our identifiers: counted per kind in
+  ``counters.impersonated``, logged at most every :data:`LOG_INTERVAL_S`,
+  and reported by EMCY CAN_ID_COLLISION (0x8150) carrying the frame's
+  COB-ID, DLC and first two data bytes, at most every
+  :data:`COLLISION_EMCY_INTERVAL_S`, reset after :data:`COLLISION_CLEAR_S`
+  without one. So a master that receives a heartbeat STOPPED, an EMCY or a
+  TPDO1 on our identifiers can tell it from ours.
+* **SDO writes of communication objects** (0x1000-0x1FFF) that succeed are
+  counted per index in ``counters.comm_writes`` and logged: the master
+  compares them with the writes it made itself.
 
 The node is not tied to a thread, but its public methods take an internal
 re-entrant lock, so an application may call :meth:`CanopenNode.set_fault`
@@ -96,6 +110,7 @@ import logging
 import math
 import struct
 import threading
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any, Final, Protocol
 
@@ -140,6 +155,7 @@ from protocol.can_map import (
     cob_ids,
     encode_analog_inputs_16,
     encode_analog_inputs_32,
+    encode_collision_evidence,
     encode_emcy,
     encode_heartbeat,
 )
@@ -148,6 +164,15 @@ log = logging.getLogger(__name__)
 
 CONFLICT_CLEAR_PERIODS: Final[int] = 10
 """Clean SYNC periods after which a SYNC or RPDO conflict EMCY is reset."""
+COLLISION_EMCY_INTERVAL_S: Final[float] = 0.1
+"""EMCY CAN_ID_COLLISION is sent for the first frame on our own COB-IDs that we did not send and then
+at most once per this interval, each with that frame's evidence (further ones only counted)."""
+COLLISION_CLEAR_S: Final[float] = 1.0
+"""CAN_ID_COLLISION is reset (EMCY 0x0000) at the first SYNC this long after the last such frame."""
+ECHO_MEMORY: Final[int] = 64
+"""Frames sent and not yet seen again, per COB-ID, on a bus that hands them back (udp_multicast)."""
+LOG_INTERVAL_S: Final[float] = 10.0
+"""Impersonated frames and SDO writes of communication objects are logged at most once per this interval per kind."""
 TIME_COB_ID: Final[int] = 0x100
 LSS_FIRST_COB_ID: Final[int] = 0x780
 """0x780.. (LSS 0x7E4/0x7E5 and friends) never belong to a node id."""
@@ -265,6 +290,13 @@ class CanopenNode:
         self._rpdo_last: float | None = None
         """last RPDO1 in OPERATIONAL: the watchdog's second input (armed by the first RPDO)"""
         self._trip_cause = "sync"
+        self._trip_code = 0
+        """the EMCY code of the current trip (SYNC_TIMEOUT or RPDO_TIMEOUT), 0 when none"""
+        self._echo_memory: dict[int, deque[bytes]] | None = None
+        """frames sent and not yet seen again, per COB-ID, while the bus echoes (expect_echoes)"""
+        self._collision_last: float | None = None
+        self._collision_emcy_at = -math.inf
+        self._logged_at: dict[str, float] = {}
         self._rpdos_in_period = 0
         self._sync_conflict_clean = 0
         self._rpdo_conflict_clean = 0
@@ -272,7 +304,8 @@ class CanopenNode:
         self._hb_next: float | None = None
         self._outputs_v = _ZERO_VOLTS
         """valve voltages as last given to the application (floats)"""
-        self._own_ids = frozenset(self.ids[k] for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat"))
+        self._own_kind = {self.ids[k]: k for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat")}
+        self._own_ids = frozenset(self._own_kind)
         self._sync_id, self._rpdo1_id, self._nmt_id = self.ids["sync"], self.ids["rpdo1"], self.ids["nmt"]
         self._tpdo1_id, self._hb_id = self.ids["tpdo1"], self.ids["heartbeat"]
         # The process data (0x6401, 0x6402, 0x6411) lives in these lists, which the
@@ -349,9 +382,31 @@ class CanopenNode:
         a standard data frame with one of them received is our own frame back."""
         return self._own_ids
 
-    def count_own_echo(self) -> None:
+    def expect_echoes(self, on: bool) -> None:
+        """Whether the bus hands the node its own frames back (python-can's
+        udp_multicast does): then frames on :attr:`own_cob_ids` matching the
+        ones sent, in order, are echoes; without echoes (virtual, SocketCAN,
+        the rig's loop-free udp_multicast) every such frame is another node's."""
+        with self._lock:
+            self._echo_memory = {cob_id: deque(maxlen=ECHO_MEMORY) for cob_id in self._own_ids} if on else None
+            if self._echo_memory is not None:
+                for f in self._outbox:  # made before the bus was known (the boot-up), not sent yet
+                    if f.arbitration_id in self._echo_memory:
+                        self._echo_memory[f.arbitration_id].append(f.data)
+
+    def own_cob_frame(self, cob_id: int, data: bytes | bytearray, now: float) -> list[Frame]:
         """What :meth:`handle` does with a standard data frame of :attr:`own_cob_ids`
-        (counts it in ``rx['own_cob_id']``, nothing else), for a runner that recognised it."""
+        (an echo of ours, or another node's frame on our identifiers), without
+        :meth:`poll`'s timers, for a runner that recognised the COB-ID; returns
+        the frames to send (an EMCY CAN_ID_COLLISION)."""
+        with self._lock:
+            self._now = now
+            self._own_cob(cob_id, bytes(data), now)
+            out, self._outbox = self._outbox, []
+            return out
+
+    def count_own_echo(self) -> None:
+        """Counts one echo of our own frames in ``rx['own_cob_id']``, nothing else."""
         with self._lock:
             self.counters.rx["own_cob_id"] += 1
 
@@ -463,6 +518,7 @@ class CanopenNode:
             lambda: self.counters.clipped_outputs,
             lambda: self.counters.malformed_total,
             lambda: sum(self.counters.sdo.aborts.values()),
+            lambda: self.counters.impersonated_total,
         )
         for sub, fn in enumerate(diag, start=1):
             od.getter(OD_DIAGNOSTICS, sub, fn)
@@ -601,9 +657,53 @@ class CanopenNode:
         elif cob_id == self.ids["sdo_rx"]:
             self._on_sdo(cob_id, data)
         elif cob_id in self._own_ids:
-            self.counters.rx["own_cob_id"] += 1
+            self._own_cob(cob_id, data, now)
         else:
             self._malformed("unknown_cob_id", cob_id, data, "no such object on this node")
+
+    def _own_cob(self, cob_id: int, data: bytes, now: float) -> None:
+        """A frame on one of our own COB-IDs: our echo, or another node impersonating us."""
+        memory = self._echo_memory
+        if memory is not None:
+            sent = memory[cob_id]
+            for i, d in enumerate(sent):
+                if d == data:  # echoes come back in send order: the ones before were lost
+                    for _ in range(i + 1):
+                        sent.popleft()
+                    self.counters.rx["own_cob_id"] += 1
+                    return
+        kind = self._own_kind[cob_id]
+        self.counters.impersonated[kind] += 1
+        self._collision_last = now
+        self._log_limited(
+            f"impersonated:{kind}",
+            now,
+            "node %d: a %s frame id 0x%03X [%s] this node did not send: another node uses its COB-IDs (%d such frames so far)",
+            self.node_id,
+            kind,
+            cob_id,
+            data.hex(" "),
+            sum(dict.copy(self.counters.impersonated).values()),
+        )
+        if now - self._collision_emcy_at >= COLLISION_EMCY_INTERVAL_S:
+            self._collision_emcy_at = now
+            vendor = encode_collision_evidence(cob_id, data)
+            code = int(EmcyCode.CAN_ID_COLLISION)
+            self._faults[code] = vendor
+            self._record_error(code, vendor)
+            self._emcy(code, vendor)  # each with its frame's evidence (rate-bounded), not once per episode
+
+    def _check_collision_clear(self, now: float) -> None:
+        last = self._collision_last
+        if last is not None and now - last >= COLLISION_CLEAR_S:
+            self._collision_last = None
+            self._set_fault(EmcyCode.CAN_ID_COLLISION, False)
+
+    def _log_limited(self, key: str, now: float, fmt: str, *args: object, level: int = logging.WARNING) -> None:
+        last = self._logged_at.get(key)
+        if last is None or now - last >= LOG_INTERVAL_S:
+            self._logged_at[key] = now
+            log.log(level, fmt, *args)
 
     def _on_nmt(self, cob_id: int, data: bytes) -> None:
         self.counters.rx["nmt"] += 1
@@ -679,6 +779,8 @@ class CanopenNode:
         self.counters.sync_received += 1
         if conflict or _SYNC_CONFLICT in self._faults:
             self._check_sync_conflict(conflict)
+        if self._collision_last is not None:
+            self._check_collision_clear(now)
         if self.state is not _OPERATIONAL:
             return
         if conf[4] > 0:
@@ -747,7 +849,7 @@ class CanopenNode:
     def _on_sdo(self, cob_id: int, data: bytes) -> None:
         self.counters.rx["sdo"] += 1
         if self.state is NmtState.STOPPED:
-            self._malformed("sdo_stopped", cob_id, data, "SDO is not served in STOPPED")
+            self.counters.rx["sdo_stopped"] += 1  # well formed; CiA 301 serves no SDO in STOPPED: no answer
             return
         if len(data) != 8:
             self._malformed("sdo_dlc", cob_id, data, f"SDO requests take 8 bytes, got {len(data)}")
@@ -755,6 +857,19 @@ class CanopenNode:
         response = self.sdo.handle(data)
         if response is not None:
             self._emit(self.ids["sdo_tx"], response, "sdo")
+            index = data[1] | data[2] << 8
+            if response[0] == 0x60 and data[0] >> 5 == 1 and 0x1000 <= index <= 0x1FFF:
+                self.counters.comm_writes[f"0x{index:04X}"] += 1
+                self._log_limited(
+                    f"comm_write:{index:04X}",
+                    self._now,
+                    "node %d: SDO write of communication object 0x%04X sub %d [%s]",
+                    self.node_id,
+                    index,
+                    data[3],
+                    data[4:].hex(" "),
+                    level=logging.INFO,  # the master configures them at every start; it compares the counts
+                )
 
     # --- NMT ------------------------------------------------------------------------------
 
@@ -790,7 +905,7 @@ class CanopenNode:
         if self._tripped:
             self._tripped = False
             self._call_app("on_watchdog", self.app.on_watchdog, False)
-            self._set_fault(EmcyCode.SYNC_TIMEOUT, False)
+            self._clear_trip_fault()
         self._zero_outputs()
         self._call_app("on_outputs", self.app.on_outputs, _ZERO_OUTPUTS.copy())
         self._set_fault(EmcyCode.OUTPUT_CLIPPED, False)
@@ -806,6 +921,8 @@ class CanopenNode:
             self._zero_outputs()
             self._call_app("on_outputs", self.app.on_outputs, _ZERO_OUTPUTS.copy())
         self._faults.clear()
+        self._trip_code = 0
+        self._collision_last = None
         self._error_history.clear()
         self.od.restore_defaults(None if application else range(0x1000, 0x2000))
         if application:  # the process data too (served from the node's lists)
@@ -902,7 +1019,10 @@ class CanopenNode:
         self._in32 = words32 = [w0, w1, w2, w3]
         counters = self.counters
         counters.tx["tpdo1"] += 1  # _emit, inline
-        self._outbox.append(Frame(self._tpdo1_id, encode_analog_inputs_16(words16), self._now))
+        tpdo1 = encode_analog_inputs_16(words16)
+        self._outbox.append(Frame(self._tpdo1_id, tpdo1, self._now))
+        if self._echo_memory is not None:
+            self._echo_memory[self._tpdo1_id].append(tpdo1)
         if bits > 16:
             tpdo2, tpdo3 = encode_analog_inputs_32(words32)
             self._emit(self.ids["tpdo2"], tpdo2, "tpdo2")
@@ -991,7 +1111,8 @@ class CanopenNode:
         self._zero_outputs()
         self._call_app("on_watchdog", self.app.on_watchdog, True)
         cause = 0 if self._trip_cause == "sync" else 1
-        self._set_fault(EmcyCode.SYNC_TIMEOUT, True, bytes([self._last_sync_counter or 0, cause]))
+        self._trip_code = int(EmcyCode.SYNC_TIMEOUT) if cause == 0 else int(EmcyCode.RPDO_TIMEOUT)
+        self._set_fault(self._trip_code, True, bytes([self._last_sync_counter or 0, cause]))
         self._set_fault(EmcyCode.OUTPUT_CLIPPED, False)
 
     def _recover(self, now: float) -> None:
@@ -1001,7 +1122,12 @@ class CanopenNode:
         self._wd_last = now
         self._rpdo_last = now if self._rpdo_last is not None else None
         self._call_app("on_watchdog", self.app.on_watchdog, False)
-        self._set_fault(EmcyCode.SYNC_TIMEOUT, False)
+        self._clear_trip_fault()
+
+    def _clear_trip_fault(self) -> None:
+        if self._trip_code:
+            self._set_fault(self._trip_code, False)
+            self._trip_code = 0
 
     # --- EMCY ------------------------------------------------------------------------------
 
@@ -1077,6 +1203,8 @@ class CanopenNode:
     def _emit(self, cob_id: int, data: bytes, kind: str) -> None:
         self.counters.tx[kind] += 1
         self._outbox.append(Frame(cob_id, data, self._now))
+        if self._echo_memory is not None:
+            self._echo_memory[cob_id].append(data)
 
     def _drain(self) -> list[can.Message]:
         out, self._outbox = self._outbox, []

@@ -50,6 +50,9 @@ DEVICE_TYPE_401: Final[int] = 0x000C0191
 
 PDO_NOT_VALID: Final[int] = 1 << 31
 PDO_NO_RTR: Final[int] = 1 << 30
+OBJ_FLAG_REFUSE_WRITE_ON_DOWNLOAD: Final[int] = 0x1
+"""CiA 306 ObjFlags bit 0: a configuration manager must not write the entry while it downloads
+a DCF (it does so in PRE-OPERATIONAL, where the outputs 0x6411 refuse writes)."""
 TRANSMISSION_SYNC: Final[int] = 1
 """TPDOs: synchronous, every SYNC."""
 TRANSMISSION_EVENT: Final[int] = 255
@@ -62,6 +65,7 @@ DIAGNOSTIC_NAMES: Final[tuple[str, ...]] = (
     "Clipped outputs",
     "Malformed frames",
     "SDO aborts",
+    "Impersonated frames",
 )
 """0x2010 sub 1.. (UNSIGNED32, wrap at 2**32)."""
 
@@ -122,9 +126,13 @@ def _array(
     unit: str = "",
     factor: float | None = None,
     description: str = "",
+    obj_flags: int = 0,
 ) -> ObjectDef:
     entries = [_sub0(index, n, sub0_name)]
-    entries += [Entry(index, i, f"{item} {i}", dtype, access, 0, pdo_mapping=pdo, unit=unit, factor=factor, description=description) for i in range(1, n + 1)]
+    entries += [
+        Entry(index, i, f"{item} {i}", dtype, access, 0, pdo_mapping=pdo, unit=unit, factor=factor, description=description, obj_flags=obj_flags)
+        for i in range(1, n + 1)
+    ]
     return ObjectDef(index, name, ObjectKind.ARRAY, tuple(entries))
 
 
@@ -246,7 +254,7 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             Access.RW,
             cfg.valve_limit_v,
             unit="V",
-            description="analog outputs are clipped to +-limit (0 < limit <= 10)",
+            description="analog outputs are clipped to +-limit (above 0, at most 10 V)",
         ),
         _var(
             OD_WATCHDOG_PERIODS,
@@ -300,6 +308,7 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             pdo=True,
             unit="V",
             factor=WORD16_VOLTS_PER_LSB,
-            description="left-justified D/A value; an SDO write applies it like RPDO1",
+            description="left-justified D/A value; an SDO write applies it like RPDO1, but only in OPERATIONAL with SYNC present (else abort 0x08000022)",
+            obj_flags=OBJ_FLAG_REFUSE_WRITE_ON_DOWNLOAD,
         ),
     )

@@ -152,8 +152,12 @@ class Entry:
     """The default is ``$NODEID + default`` (COB-IDs of the pre-defined connection set)."""
     unit: str = ""
     factor: float | None = None
-    """engineering value = raw * factor (written as the EDS ``Factor`` key, which the canopen package reads)"""
+    """engineering value = raw * factor (with ``unit`` and ``description`` in the EDS's units file, not in
+    the EDS: CiA 306 has no key for them; see :mod:`plant_emulator.canopen_node.eds`)"""
     description: str = ""
+    obj_flags: int = 0
+    """CiA 306 ``ObjFlags``: bit 0 "refuse write on download" (a configuration
+    manager writing a DCF, in PRE-OPERATIONAL, must leave the entry alone)."""
 
     def default_for(self, node_id: int) -> Value:
         if self.node_relative:

@@ -6,12 +6,19 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from typing import Final
 
 import can
 
 from plant_emulator.canopen_node.node import CanopenNode
+from service_kit.can_udp import echoing_bus
 
 log = logging.getLogger(__name__)
+
+RX_ERROR_STREAK_PAUSE: Final[int] = 256
+"""Receive errors in a row, with no frame or timeout between them, after which the loop waits 1 ms
+(a bus that fails every call, e.g. a closed socket, must not spin the CPU); junk datagrams from a
+flood are read back to back at full speed, each counted."""
 
 
 def run_node(
@@ -29,10 +36,14 @@ def run_node(
     heartbeat and watchdog run on time; every received frame is handled and
     answered at once (SYNC -> TPDO latency is one :meth:`CanopenNode.exchange`
     call: ``handle`` and ``poll`` in one). Send
-    errors are logged and counted, never raised. The bus belongs to the
-    caller (open and shut it there; :func:`node_can_filters` suits it).
-    ``after_send`` runs after each received frame's answer is on the bus
-    (the application's work that must not delay the answer).
+    errors are logged and counted, never raised; receive errors (an
+    undecodable udp_multicast datagram) are counted and the next frame read
+    at once. The bus's own loss counters (``kernel_drops``,
+    ``fd_frames_dropped`` of :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`)
+    are copied into the node's counters, so health reports them. The bus
+    belongs to the caller (open and shut it there; :func:`node_can_filters`
+    suits it). ``after_send`` runs after each received frame's answer is on
+    the bus (the application's work that must not delay the answer).
     """
 
     def send(frames: list[can.Message]) -> None:
@@ -45,6 +56,10 @@ def run_node(
                     log.warning("node %d: send failed (%d so far): %s", node.node_id, node.counters.tx_errors, e)
 
     own_ids = node.own_cob_ids
+    node.expect_echoes(echoing_bus(bus))
+    counted_bus = bus if hasattr(bus, "kernel_drops") and hasattr(bus, "fd_frames_dropped") else None
+    counters = node.counters
+    streak = 0
     send(node.poll(clock()))
     while not stop.is_set():
         now = clock()
@@ -53,18 +68,30 @@ def run_node(
         try:
             msg = bus.recv(timeout)
         except (can.CanError, OSError) as e:
-            node.counters.rx_errors += 1
-            if node.counters.rx_errors == 1 or node.counters.rx_errors % 1000 == 0:
-                log.warning("node %d: receive failed (%d so far): %s", node.node_id, node.counters.rx_errors, e)
-            stop.wait(0.001)  # a broken bus must not spin the CPU
+            counters.rx_errors += 1
+            if counters.rx_errors == 1 or counters.rx_errors % 1000 == 0:
+                log.warning("node %d: receive failed (%d so far): %s", node.node_id, counters.rx_errors, e)
+            streak += 1
+            if streak >= RX_ERROR_STREAK_PAUSE:
+                streak = 0
+                stop.wait(0.001)  # a broken bus must not spin the CPU
+            if counted_bus is not None:
+                counters.kernel_drops = int(counted_bus.kernel_drops)
+            now = clock()
+            if deadline is not None and now >= deadline:
+                send(node.poll(now))  # the heartbeat and the watchdog stay on time under a flood
             continue
+        streak = 0
         now = clock()
+        if counted_bus is not None:
+            counters.kernel_drops = int(counted_bus.kernel_drops)
+            counters.fd_frames_dropped = int(counted_bus.fd_frames_dropped)
         if msg is not None:
             if msg.arbitration_id in own_ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
-                # Our own frame back from the bus (udp_multicast loops every frame back to its
-                # sender): counted as handle counts it, without handle's and poll's work, so the
-                # node is back in recv sooner for the next SYNC (nothing in it can change a timer).
-                node.count_own_echo()
+                # A frame on our own COB-IDs: our echo (udp_multicast loops frames back to their
+                # sender) or another node using our identifiers (answered with an EMCY). Without
+                # handle's and poll's work, so the node is back in recv sooner for the next SYNC.
+                send([f.to_message() for f in node.own_cob_frame(msg.arbitration_id, msg.data, now)])
                 if deadline is None or now < deadline:
                     continue
             elif msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:

@@ -269,4 +269,4 @@ def test_a_foreign_sync_stream_cannot_hold_the_valves_open_for_a_frozen_controll
         link.poll(0.05)
         conflicts = link.take_conflicts()
     assert any(d.startswith("foreign sync") for d in conflicts)
-    assert any(e.code == EmcyCode.SYNC_TIMEOUT and e.vendor[1] == 1 for e in link.emergencies)
+    assert any(e.code == EmcyCode.RPDO_TIMEOUT and e.vendor[1] == 1 for e in link.emergencies)

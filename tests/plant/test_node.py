@@ -21,6 +21,7 @@ from plant_emulator.canopen_node import (
     object_table,
     render_eds,
 )
+from plant_emulator.canopen_node.eds import UNITS_FILE, real32_bits, render_units
 from plant_emulator.canopen_node.node import CONFLICT_CLEAR_PERIODS
 from plant_emulator.canopen_node.od import DataType, SdoAbortCode
 from plant_emulator.canopen_node.sdo_server import SdoServer
@@ -168,7 +169,9 @@ def test_nmt_transitions_and_pdo_only_when_operational() -> None:
     assert rig.app.outputs[-1].tolist() == [0.0, 0.0]
     assert rig.sync() == []
     assert rig.send(SDO_RX, struct.pack("<BHB4x", 0x40, 0x1000, 0)) == []
-    assert rig.node.counters.malformed["sdo_stopped"] == 1
+    # an SDO request in STOPPED is well formed: not answered (CiA 301), counted as such, not as malformed
+    assert rig.node.counters.rx["sdo_stopped"] == 1 and "sdo_stopped" not in rig.node.counters.malformed
+    assert rig.node.counters.malformed_total == 1  # the RPDO before START above, nothing more
     assert of(rig.run(rig.t + 0.1), HB)[-1].data == bytes([NmtState.STOPPED])
 
     rig.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
@@ -461,10 +464,14 @@ def test_malformed_frames_counted_logged_once_and_ignored(caplog: pytest.LogCapt
     # the next good RPDO clears the PDO length fault
     out = rig.send(RPDO1, encode_analog_outputs([0, 0]))
     assert emcys(out) == [(0, 0, struct.pack("<H", EmcyCode.PDO_LENGTH) + b"\x00" * 3)]
-    # other nodes' traffic and echoes of our own frames are not malformed
-    for cob_id in (0x182, 0x602, 0x702, TPDO1, EMCY, HB, SDO_TX, 0x7E5, 0x100):
+    # other nodes' traffic is not malformed, and neither are frames on our own COB-IDs, which on
+    # this bus (no echoes) another node sent: those are impersonation (see test_frames_on_our_own_cob_ids_*)
+    for cob_id in (0x182, 0x602, 0x702, 0x7E5, 0x100):
         assert rig.send(cob_id, [0] * 8) == []
-    assert rig.node.counters.rx["own_cob_id"] == 4 and rig.node.counters.rx["foreign"] == 4
+    assert rig.node.counters.rx["foreign"] == 4 and rig.node.counters.impersonated_total == 0
+    for cob_id in (TPDO1, EMCY, HB, SDO_TX):
+        rig.send(cob_id, [0] * 8)
+    assert rig.node.counters.impersonated_total == 4 and rig.node.counters.rx["own_cob_id"] == 0
     assert sum(rig.node.counters.malformed.values()) == sum(expected.values())
 
 
@@ -576,7 +583,8 @@ def test_sdo_server_transfers_and_abort_codes() -> None:
 
 
 def test_shipped_eds_is_rendered_from_the_table() -> None:
-    assert EDS.read_text() == render_eds(), "regenerate: python -m plant_emulator.canopen_node > protocol/ralf_io.eds"
+    assert EDS.read_text() == render_eds(), "regenerate: python -m plant_emulator.canopen_node --write protocol"
+    assert EDS.with_name(UNITS_FILE).read_text() == render_units(), "regenerate: python -m plant_emulator.canopen_node --write protocol"
 
 
 def test_eds_loads_in_canopen_and_agrees_with_the_running_dictionary() -> None:
@@ -591,6 +599,11 @@ def test_eds_loads_in_canopen_and_agrees_with_the_running_dictionary() -> None:
             assert var.data_type == int(e.dtype) and var.access_type == e.access.value
             assert var.pdo_mappable == e.pdo_mapping
             live = rig.node.od.get(e.index, e.sub)
+            if e.dtype is DataType.REAL32:  # CiA 306: the IEEE-754 bit pattern in hex, which canopen leaves undecoded
+                assert var.default_raw == real32_bits(float(live))
+                (default,) = struct.unpack(">f", int(var.default_raw, 16).to_bytes(4, "big"))
+                assert default == live and var.default is None
+                continue
             assert var.default == live, (hex(e.index), e.sub, var.default, live)
             if e.dtype is not DataType.VISIBLE_STRING:
                 assert rig.node.od.read(e.index, e.sub) == var.encode_raw(var.default)
@@ -744,9 +757,10 @@ def test_a_foreign_sync_stream_does_not_feed_the_watchdog_of_a_frozen_controller
         out += rig.send(SYNC, b"", dt=0.005)
         out += rig.node.poll(rig.t)  # as the runner does after each frame
     assert rig.node.watchdog_tripped and rig.app.watchdog == [True]
-    ((code, _, vendor),) = [e for e in emcys(out) if e[0] == EmcyCode.SYNC_TIMEOUT]
+    ((code, _, vendor),) = [e for e in emcys(out) if e[0] == EmcyCode.RPDO_TIMEOUT]  # CiA 301 0x8250: this one is an RPDO timeout
     assert vendor[1] == 1 and rig.node.counters.rpdo_timeouts == 1
-    trip = next(f for f in of(out, EMCY) if decode_emcy(f.data).code == EmcyCode.SYNC_TIMEOUT)
+    assert EmcyCode.SYNC_TIMEOUT not in [e[0] for e in emcys(out)]
+    trip = next(f for f in of(out, EMCY) if decode_emcy(f.data).code == EmcyCode.RPDO_TIMEOUT)
     assert 0.025 <= trip.timestamp - frozen_at <= 0.025 + 0.005 + 1e-9  # noticed at the first SYNC past the time
     assert rig.node.outputs_v.tolist() == [0.0, 0.0]
     assert rig.node.counters.sync_conflicts == 1  # and the mixed SYNC forms are reported

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from plant_emulator.canopen_node import CanopenNode, NodeConfig, SdoAbortCode, node_can_filters, run_node
+from plant_emulator.canopen_node.eds import apply_units
 from protocol.can_map import (
     ADC12,
     DAC12,
@@ -63,6 +64,7 @@ def test_canopen_master_drives_the_node() -> None:
     network.connect(interface="virtual", channel=channel, receive_own_messages=False)
     try:
         remote = network.add_node(1, str(EDS))
+        assert apply_units(remote.object_dictionary) > 0  # units and factors: the EDS's units file (CiA 306 has no key for them)
         with serving(node_bus, node):
             # boot-up seen by the master: PRE-OPERATIONAL
             assert wait_until(lambda: remote.nmt.state == "PRE-OPERATIONAL")
@@ -97,7 +99,7 @@ def test_canopen_master_drives_the_node() -> None:
             words = ADC12.quantize(app.volts).counts << 4
             assert raw == words.tolist()
             assert app.syncs == [1]
-            np.testing.assert_allclose([v.phys for v in t1.map], app.volts, atol=ADC12.lsb_v / 2)  # EDS Factor
+            np.testing.assert_allclose([v.phys for v in t1.map], app.volts, atol=ADC12.lsb_v / 2)  # the units file's factor
 
             # the same inputs by SDO
             ai = remote.sdo["Read analog input 16-bit"]

@@ -313,22 +313,29 @@ def test_deferred_latency_reads_as_the_plain_tracker(capacity: int) -> None:
     assert DeferredLatency().stats() == LatencyTracker().stats()
 
 
-def test_counting_an_own_echo_is_what_handle_does_with_it() -> None:
-    """The runner's shortcut for our own frames back from udp_multicast (node.count_own_echo) leaves the node as handle + poll leaves it."""
+@pytest.mark.parametrize("echoes", [True, False], ids=["echoing-bus", "quiet-bus"])
+def test_the_runners_own_cob_id_shortcut_is_what_handle_does(echoes: bool) -> None:
+    """The runner's shortcut for frames on our own COB-IDs (node.own_cob_frame) leaves the node
+    as handle + poll leave it, and sends the same frames: echoes of what it sent counted as
+    such (a bus that hands them back), anything else as impersonation with EMCY 0x8150."""
     handled, counted = CanopenNode(FakeApp()), CanopenNode(FakeApp())
     for node in (handled, counted):
+        node.expect_echoes(echoes)
         node.exchange(0x000, bytes([0x01, 1]), 0.0)
-        node.exchange(0x080, bytes([1]), 0.005)
+        sent = node.exchange(0x080, bytes([1]), 0.005)
     assert handled.own_cob_ids == frozenset({0x81, 0x181, 0x281, 0x381, 0x581, 0x701})
-    for k, cob_id in enumerate(sorted(handled.own_cob_ids)):
+    ours = [(f.arbitration_id, f.data) for f in sent]
+    others = [(cob_id, bytes(8)) for cob_id in sorted(handled.own_cob_ids)]
+    for k, (cob_id, data) in enumerate(ours + others):
         t = 0.006 + 0.0001 * k
-        msg = can.Message(arbitration_id=cob_id, data=bytes(8), is_extended_id=False)
-        assert handled.handle(msg, t) == [] and handled.poll(t) == []
-        counted.count_own_echo()
-        assert counted.poll(t) == []
+        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+        by_handle = [(m.arbitration_id, bytes(m.data)) for m in handled.handle(msg, t) + handled.poll(t)]
+        by_runner = [(f.arbitration_id, f.data) for f in counted.own_cob_frame(cob_id, data, t)] + [(m.arbitration_id, bytes(m.data)) for m in counted.poll(t)]
+        assert by_runner == by_handle
         assert counted.counters.as_dict() == handled.counters.as_dict()
         assert counted.next_deadline() == handled.next_deadline()
-    assert counted.counters.rx["own_cob_id"] == 6
+    assert counted.counters.rx["own_cob_id"] == (len(ours) if echoes else 0)
+    assert counted.counters.impersonated_total == len(others) + (0 if echoes else len(ours))
 
 
 @pytest.mark.parametrize("noise", [True, False])

@@ -195,3 +195,30 @@ def test_cantools_cli_decodes_a_candump_log(tmp_path: Path) -> None:
     assert out.count("TPDO1_AnalogInputs16(") == 30
     assert "EMCY_ErrorCode: OUTPUT_CLIPPED" in out and "HB_State: BOOT_UP" in out
     assert "Unknown" not in out
+
+
+def test_cantools_cli_decodes_sync_with_and_without_counter() -> None:
+    """The controller's SYNC (counter byte) and a stock master's (``canopen``'s
+    ``network.sync.start``: no data) through ``python -m cantools decode``.
+    A DBC message has one length, so the counter-less SYNC needs cantools'
+    ``--no-strict`` (its allow_truncated); the counter form decodes either way."""
+    frames = "  vcan0  080   [0]\n  vcan0  080   [1]  05\n  vcan0  081   [8]  30 81 11 01 07 01 04 00\n"
+
+    def decode(*flags: str) -> list[str]:
+        run = subprocess.run(
+            [sys.executable, "-m", "cantools", "decode", "--single-line", *flags, str(DBC)],
+            input=frames,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        )
+        return run.stdout.strip().splitlines()
+
+    without, with_counter, emcy = decode("--no-strict")
+    assert without.endswith(":: SYNC()")
+    assert with_counter.endswith(":: SYNC(SYNC_Counter: 5)")
+    assert "EMCY_ErrorCode: SYNC_TIMEOUT" in emcy  # 0x8130, CiA 301's life guard / heartbeat error
+    strict = decode()
+    assert strict[1].endswith(":: SYNC(SYNC_Counter: 5)")
+    assert "Wrong data size: 0 instead of 1 bytes" in strict[0]  # strict checks the DBC's one length
