@@ -14,7 +14,7 @@ import zenoh
 
 from protocol.errors import TransportError
 from protocol.settings import CommonSettings
-from service_kit.access import insert_access
+from service_kit.access import insert_access, parse_node_ids
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 
 log = logging.getLogger(__name__)
@@ -50,9 +50,12 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         user=settings.zenoh_user,
         password=settings.zenoh_password,
         credentials_file=settings.zenoh_credentials_file,
-        acl=settings.zenoh_acl,
+        # A client's one link is the one it opened to its router, which applies the rules.
+        acl=settings.zenoh_acl and settings.zenoh_mode != "client",
         scenarios=settings.zenoh_acl_scenarios,
         more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
+        node_id=settings.zenoh_id,
+        node_ids=parse_node_ids(settings.zenoh_node_ids),
     )
     return config
 

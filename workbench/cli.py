@@ -168,13 +168,19 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     node applies the rig's access rules (service_kit/access.py). Writes the
     credentials file (owner-only) and ``tool.env``, the variables that let
     ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
-    from service_kit.access import generate_credentials, role_env, write_credentials_file
+    from service_kit.access import format_node_ids, generate_credentials, generate_node_ids, role_env, write_credentials_file
 
     credentials = generate_credentials()
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
-    plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="true", RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower())
+    node_ids = generate_node_ids()
+    plan.common_env.update(
+        RALF_ZENOH_CREDENTIALS_FILE=str(path),
+        RALF_ZENOH_ACL="true",
+        RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower(),
+        RALF_ZENOH_NODE_IDS=format_node_ids(node_ids),
+    )
     for role in ("dsp", "plant", "controller", "launcher"):
-        plan.service_env.setdefault(role, {}).update(role_env(role, credentials))
+        plan.service_env.setdefault(role, {}).update(role_env(role, credentials), RALF_ZENOH_ID=node_ids[role])
     tool_env = directory / "tool.env"
     fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as fh:

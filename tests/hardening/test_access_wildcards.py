@@ -1,0 +1,121 @@
+"""The rig's access rules hold for any key expression: every role, with its
+own valid credentials, puts, deletes, publishes through a declared
+publisher, holds a liveliness token and answers queries on the wildcard
+(``*``, ``**``, another rig's chunk) and ``$*`` forms of every key of the
+rig, and on the exact keys it does not send; none of it reaches a node of
+the rig, while the same role's exact keys do. Against sessions configured
+as ``ralf-hil up`` configures them (peer mode) and as the compose router
+and its clients are (client mode). Loopback only, scouting off, one burst
+per role (a few hundred messages)."""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Iterator
+
+import pytest
+
+from protocol.keys import Keys
+from protocol.rig_description import RIG
+from service_kit.access import ROLES, sends
+from tests.hardening.zenoh_rig import PeerRig, RoutedRig, attacker, wait_peers
+
+pytestmark = pytest.mark.rig
+
+
+def forms(keys: Keys, key: str) -> list[str]:
+    """The key expressions that cover ``key`` without being it."""
+    parent, last = key.rsplit("/", 1)
+    suffix = key[len(keys.root) + 1 :]
+    out = [f"{parent}/*", f"{parent}/**", f"{keys.root}/**", f"ralf/*/{suffix}", "ralf/**", f"{parent}/{last[: max(1, len(last) - 2)]}$*"]
+    return list(dict.fromkeys(out))
+
+
+def protected(keys: Keys) -> dict[str, str]:
+    """Every key of the rig -> its channel kind."""
+    return {f"{keys.root}/{suffix}": channel.kind for suffix, channel, _ in RIG.expanded()}
+
+
+Rig = PeerRig | RoutedRig
+
+
+@pytest.fixture(scope="module", params=["peer", "client"])
+def rig(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    mode = request.param
+    rig_id = f"acl-wild-{mode}-{zlib.crc32(str(tmp_path_factory.getbasetemp()).encode()) % 100000}"
+    started: Rig = (PeerRig if mode == "peer" else RoutedRig).start(rig_id, tmp_path_factory.mktemp(f"acl-{mode}"))
+    try:
+        yield started
+    finally:
+        started.close()
+
+
+def _enforcers(rig: Rig) -> dict[str, object]:
+    """Where refusal is decided: every node in peer mode, the router in client mode."""
+    return {"router": rig.taps["router"]} if isinstance(rig, RoutedRig) else dict(rig.taps)
+
+
+@pytest.mark.parametrize("role", ROLES)
+def test_no_key_expression_reaches_the_rig_beyond_the_roles_own_keys(rig: Rig, role: str) -> None:
+    keys = rig.keys
+    mode = "client" if isinstance(rig, RoutedRig) else "peer"
+    tag = f"{mode}:{role}".encode()
+    own = sends(keys, role)
+    taps = rig.taps
+    start = {name: len(tap.got) for name, tap in taps.items()}
+    session = attacker(role, rig.credentials[role], rig.endpoints, mode)
+    handles: list[object] = []
+    try:
+        wait_peers(session, len(rig.endpoints))
+        attempts = 0
+        for key, kind in protected(keys).items():
+            for expr in [*forms(keys, key), key]:
+                session.put(expr, tag)
+                session.delete(expr, attachment=tag)
+                publisher = session.declare_publisher(expr)
+                publisher.put(tag + b"|pub")
+                handles.append(publisher)
+                handles.append(session.liveliness().declare_token(expr))
+                if kind == "queryable" and (expr != key or key not in own[kind]):
+                    # a session that also answers the exact key would answer for these too, rightly
+                    handles.append(session.declare_queryable(expr, lambda q: q.reply(q.key_expr, tag)))
+                attempts += 4
+        marker = tag + b"|marker"
+        if own["publication"]:
+            session.put(own["publication"][0], marker)
+            for name, tap in _enforcers(rig).items():
+                assert tap.wait_for(own["publication"][0], marker), f"{role}'s own key never reached {name}"
+        else:
+            for name in _enforcers(rig):
+                replies = list(session.get(f"{keys.root}/marker/{name}", timeout=20.0))
+                assert any(r.ok is not None for r in replies), f"no marker reply from {name}"
+        replies = [r.ok.payload.to_bytes() for r in taps["controller"].session.get(keys.tf, timeout=10.0) if r.ok is not None]
+    finally:
+        session.close()
+    if keys.tf in own["queryable"]:  # the answering role's exact queryable is answered
+        answerer = attacker(role, rig.credentials[role], rig.endpoints, mode)
+        try:
+            wait_peers(answerer, len(rig.endpoints))
+            queryable = answerer.declare_queryable(keys.tf, lambda q: q.reply(q.key_expr, tag + b"|exact"))
+            exact: list[bytes] = []
+            deadline = time.monotonic() + 20.0  # until the declaration has reached the querier
+            while not exact and time.monotonic() < deadline:
+                exact = [r.ok.payload.to_bytes() for r in taps["controller"].session.get(keys.tf, timeout=5.0) if r.ok is not None]
+            queryable.undeclare()
+        finally:
+            answerer.close()
+        assert exact == [tag + b"|exact"], exact
+    assert attempts > 300
+    allowed_samples = set(own["publication"])
+    allowed_tokens = set(own["liveliness"])
+    for name, tap in taps.items():
+        new = tap.got[start[name] :]
+        samples = {(k, kind) for k, kind, p, a in new if kind.startswith("sample") and (p.startswith(tag) or a == tag)}
+        tokens = {k for k, kind, _, _ in new if kind == "token:put"}
+        assert {k for k, _ in samples} <= allowed_samples, (name, sorted(samples))
+        assert tokens <= allowed_tokens, (name, sorted(tokens))
+        if name in _enforcers(rig):
+            assert {(k, f"sample:{op}") for k in allowed_samples for op in ("put", "delete")} <= samples, (name, sorted(samples))
+            assert allowed_tokens <= tokens, (name, sorted(tokens))
+    assert replies == [], replies
