@@ -79,6 +79,7 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
         "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in observer.health.items()},
         "liveliness_events": observer.events,
         "undecodable_messages": observer.bad_messages,
+        "health_refused": observer.health_refused,
         "host": host_info(),  # the machine the numbers were measured on (workbench/hostinfo.py)
     }
     return summary
@@ -122,6 +123,8 @@ def print_summary(summary: dict[str, Any]) -> None:
                 f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
             )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
+    if summary.get("health_refused"):
+        table.add_row("health refused", f"{summary['health_refused']} (the payload named another service than its key)")
     if summary.get("host"):
         table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
     verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
