@@ -91,9 +91,12 @@ def base_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterabl
     return config
 
 
-def attacker(role: str, password: str, endpoints: list[str], mode: str = "peer") -> zenoh.Session:
-    """A stock zenoh session, no access rules of its own, authenticated as ``role``."""
+def attacker(role: str, password: str, endpoints: list[str], mode: str = "peer", zid: str = "") -> zenoh.Session:
+    """A stock zenoh session, no access rules of its own, authenticated as
+    ``role`` (``zid``: claiming that zenoh id)."""
     config = base_config(mode, connect=endpoints)
+    if zid:
+        config.insert_json5("id", json.dumps(zid))
     config.insert_json5("transport/auth/usrpwd", json.dumps({"user": role, "password": password}))
     return zenoh.open(config)
 
@@ -119,6 +122,7 @@ class PeerRig:
     taps: dict[str, Tap]
     sessions: list[Any]
     observer: RigObserver
+    node_ids: dict[str, str]
 
     @classmethod
     def start(cls, rig_id: str, directory: Path) -> PeerRig:
@@ -144,7 +148,8 @@ class PeerRig:
         endpoints = [f"tcp/127.0.0.1:{plan.zenoh_port}"] + [f"tcp/127.0.0.1:{plan.service_ports[n]}" for n in SERVICES]
         for session in sessions:
             wait_peers(session, len(SERVICES))
-        return cls(keys, credentials, endpoints, taps, sessions, observer)
+        node_ids = dict(entry.split(":") for entry in plan.common_env["RALF_ZENOH_NODE_IDS"].split(","))
+        return cls(keys, credentials, endpoints, taps, sessions, observer, node_ids)
 
     def close(self) -> None:
         for tap in self.taps.values():
