@@ -75,7 +75,10 @@ class CommonSettings(BaseSettings):
     )
     zenoh_password: str = Field("", max_length=256, description="zenoh password of zenoh_user")
     zenoh_credentials_file: str = Field("", description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted)")
-    zenoh_acl: bool = Field(False, description="Apply the rig's access rules (service_kit/access.py): each role publishes only its own keys")
+    zenoh_acl: bool = Field(
+        False,
+        description="Apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys (a client leaves them to its router)",
+    )
     zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
     zenoh_id: str = Field(
         "", pattern=r"^([1-9a-f][0-9a-f]{0,31})?$", description="This session's zenoh id, 1-32 lowercase hex digits, the first not 0 (empty: random)"
