@@ -13,8 +13,9 @@ import can
 import zenoh
 
 from protocol.errors import TransportError
+from protocol.keys import Keys
 from protocol.settings import CommonSettings
-from service_kit.access import insert_access, parse_node_ids
+from service_kit.access import insert_access, parse_node_ids, tool_input_downsampling
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 
 log = logging.getLogger(__name__)
@@ -44,6 +45,8 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
+    rigs = [Keys(r) for r in (settings.rig_id, *getattr(settings, "rig_ids", ())[1:])]
+    config.insert_json5("downsampling", json.dumps(tool_input_downsampling(rigs)))
     insert_access(
         config,
         settings.rig_id,

@@ -199,3 +199,58 @@ def test_a_command_flood_on_a_running_controller_is_counted_and_the_flags_pass(t
     assert noisy.get("in_flag_dropped_full", 0) == 0 and noisy.get("in_interrupt_dropped_full", 0) == 0
     assert noisy["interrupts_applied"] == quiet["interrupts_applied"] > 0
     assert MAX_BYTES["command"] > len(encode(ConfigChange(seq=0, sim_time_s=0.0)))
+
+
+@pytest.mark.rig
+def test_zenoh_hands_a_service_at_most_the_tool_input_rate_from_a_flooding_link() -> None:
+    """A service's session as the rig configures it (``zenoh_config``) takes
+    at most ``TOOL_INPUT_MAX_HZ`` commands a second from one link: the rest
+    of a 20,000-put flood never reaches Python (so it costs the loop
+    nothing); flags, which no rate limits, all arrive."""
+    from protocol.settings import CommonSettings
+    from service_kit.access import TOOL_INPUT_MAX_HZ
+    from service_kit.transport import zenoh_config
+    from workbench.launcher import free_tcp_port
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    keys = Keys("tool-input-rate")
+    service = zenoh.open(zenoh_config(CommonSettings(rig_id=keys.rig_id, zenoh_listen=endpoint)))
+    got = {"command": 0, "flag": 0}
+    lock = __import__("threading").Lock()
+
+    def count(kind: str) -> object:
+        def on(_sample: zenoh.Sample) -> None:
+            with lock:
+                got[kind] += 1
+
+        return on
+
+    subs = [service.declare_subscriber(keys.controller_command, count("command")), service.declare_subscriber(keys.flag, count("flag"))]
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    tool = zenoh.open(config)
+    try:
+        command, flag = tool.declare_publisher(keys.controller_command), tool.declare_publisher(keys.flag)
+        deadline = time.monotonic() + 20
+        while not (command.matching_status.matching and flag.matching_status.matching) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        payload = encode(ConfigChange(seq=0, sim_time_s=0.0))
+        start = time.monotonic()
+        for n in range(FLOOD):
+            command.put(payload)
+            if n % 250 == 0:
+                flag.put(_flag(n))
+        flag.put(_flag(FLOOD))  # the last: everything before it on this link has been filtered or delivered
+        deadline = time.monotonic() + 20
+        while got["flag"] < FLOOD // 250 + 1 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        spent = time.monotonic() - start  # from the first put to (just after) the last arrival
+    finally:
+        tool.close()
+        for sub in subs:
+            sub.undeclare()
+        service.close()
+    assert got["flag"] == FLOOD // 250 + 1
+    assert 1 <= got["command"] <= TOOL_INPUT_MAX_HZ * spent + 1, (got, spent)
