@@ -232,7 +232,8 @@ def test_zenoh_hands_a_service_at_most_the_tool_input_rate_from_a_flooding_link(
     config.insert_json5("connect/endpoints", json.dumps([endpoint]))
     tool = zenoh.open(config)
     try:
-        command, flag = tool.declare_publisher(keys.controller_command), tool.declare_publisher(keys.flag)
+        # the flags block rather than drop when the flood fills the sender's queue
+        command, flag = tool.declare_publisher(keys.controller_command), tool.declare_publisher(keys.flag, congestion_control=zenoh.CongestionControl.BLOCK)
         deadline = time.monotonic() + 20
         while not (command.matching_status.matching and flag.matching_status.matching) and time.monotonic() < deadline:
             time.sleep(0.02)
