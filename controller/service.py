@@ -59,7 +59,7 @@ from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health,
 from protocol.settings import ControllerSettings
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.counters import Counters
-from service_kit.inbox import MAX_BYTES, REFUSED, Inbox, Item
+from service_kit.inbox import LIMITS, MAX_BYTES, REFUSED, Inbox, Item
 from service_kit.link_faults import Scenario, load_scenario, parse_scenario
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
@@ -217,7 +217,9 @@ class ControllerService:
         """ConfigChange numbers start at random, so a flag of an earlier run never acknowledges this one's reset."""
         self._reset_sent = False
         """The run-start reset went out: the next flag pairs the controller with its board."""
-        self._events = Inbox("controller", capacity=256)  # decoded at the edge (zenoh's threads), bounded (service_kit/inbox.py)
+        self._events = Inbox(
+            "controller", capacity=256, limits=LIMITS
+        )  # decoded at the edge (zenoh's threads), bounded, commands rate-limited (service_kit/inbox.py)
         self._events_waiting = False
         """The port's sink queued something since the loop last drained the inbox."""
         self.paired_board: bytes | None = None

@@ -36,7 +36,7 @@ from protocol.settings import DspSettings
 from protocol.tf_codec import encode_tf
 from service_kit.clock import RealTimeScheduler, Scheduler
 from service_kit.encodings import JSON, TF
-from service_kit.inbox import Inbox
+from service_kit.inbox import LIMITS, Inbox
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -94,7 +94,7 @@ class DspService:
         self.put_time = LatencyTracker()
         """Wall time of the interrupt's put (zenoh hands the message to its transmit thread when the put
         returns: docs/dsp-performance.md, "Seventh pass"); health's ``interrupt_put``."""
-        self._events = Inbox("dsp", capacity=64)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
+        self._events = Inbox("dsp", capacity=64, limits=LIMITS)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
         self._held: _Held | None = None
         self._last_raised: _Held | None = None
         block = zenoh.CongestionControl.BLOCK

@@ -20,12 +20,13 @@ Kinds:
 
 from __future__ import annotations
 
+import heapq
 from collections.abc import Iterable
 from typing import Any, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-__all__ = ["Scenario", "ScenarioEvent", "ScenarioTarget", "apply_event"]
+__all__ = ["PendingCommands", "Scenario", "ScenarioEvent", "ScenarioTarget", "apply_event"]
 
 
 class ScenarioTarget(Protocol):
@@ -136,3 +137,36 @@ class Scenario:
         if rest > 0:
             target.advance(rest)
         return done
+
+
+class PendingCommands:
+    """Scenario commands waiting for their simulated time, at most
+    ``capacity`` of them: one more is dropped and counted (``dropped``).
+    Kept in time order (ties: seq, then arrival), so asking what is due
+    looks at the earliest only: a tick with nothing due costs one comparison,
+    however many wait."""
+
+    def __init__(self, capacity: int = 64) -> None:
+        self.capacity = capacity
+        self._heap: list[tuple[float, int, int, Any]] = []
+        self._arrivals = 0
+        self.dropped = 0
+
+    def add(self, cmd: Any) -> bool:
+        """Keep a command (anything with ``at_sim_time_s`` and ``seq``); False if full."""
+        if len(self._heap) >= self.capacity:
+            self.dropped += 1
+            return False
+        heapq.heappush(self._heap, (float(cmd.at_sim_time_s), int(cmd.seq), self._arrivals, cmd))
+        self._arrivals += 1
+        return True
+
+    def due(self, now_s: float) -> list[Any]:
+        """The commands whose time has come (``<= now_s``), in time order, removed."""
+        out: list[Any] = []
+        while self._heap and self._heap[0][0] <= now_s + 1e-12:
+            out.append(heapq.heappop(self._heap)[3])
+        return out
+
+    def __len__(self) -> int:
+        return len(self._heap)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import logging
 import os
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -34,7 +33,7 @@ import zenoh
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.node import CanopenNode, NodeConfig
-from protocol.errors import ProtocolError
+from plant_emulator.scenario import PendingCommands
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
@@ -42,6 +41,7 @@ from protocol.scenario_setting import parse_scenario
 from protocol.settings import PlantSettings
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
+from service_kit.inbox import LIMITS, Inbox
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
@@ -125,6 +125,10 @@ def node_config(settings: PlantSettings) -> NodeConfig:
     )
 
 
+SCENARIO_PENDING = 64
+"""Scenario commands from the test port that may wait for their time at once."""
+
+
 class PlantApplication:
     """The node's application: the arm, its clock, scenario commands and the test port."""
 
@@ -145,7 +149,8 @@ class PlantApplication:
         self.held = False
         self.sample_period_s = settings.sample_period_s
         self.syncs = 0
-        self.scenario_inbox: queue.Queue[ScenarioCommand] = queue.Queue()
+        self.scenario_inbox = Inbox("plant", capacity=64, limits=LIMITS)
+        """Scenario commands from the test port: rate-limited, bounded, decoded in zenoh's thread (service_kit/inbox.py)."""
         self.publish_truth = publish_truth
         self.publish_event = publish_event
         self._truth_seq = 0
@@ -155,7 +160,11 @@ class PlantApplication:
         """Wall time between SYNCs as the node saw them."""
         self._last_sync_wall: float | None = None
         self.truth_log: list[GroundTruth] = []
-        self.scenario = parse_scenario(settings.scenario)
+        planned = parse_scenario(settings.scenario)
+        self.scenario = PendingCommands(capacity=SCENARIO_PENDING + len(planned))
+        """Scenario commands waiting for their time (the setting's and the test port's), bounded."""
+        for cmd in planned:
+            self.scenario.add(cmd)
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -193,7 +202,7 @@ class PlantApplication:
             else:
                 self._catch_up()
             self.syncs += 1
-            if self.scenario or self.scenario_inbox.queue:  # the queue's deque, read without its lock: nothing queued is the common case
+            if self.scenario or len(self.scenario_inbox):
                 self._apply_scenario()
             codes, saturated = self.arm.sample_codes()
             if self.publish_truth is not None or self._recording_truth or self.arm.hard_stop_count != self._hard_stops_seen:
@@ -254,19 +263,13 @@ class PlantApplication:
 
     # -- scenario and test port ------------------------------------------------------------
     def _apply_scenario(self) -> None:
-        inbox = self.scenario_inbox
-        while inbox.qsize():  # nothing queued (every tick but a few): no exception raised and caught
-            try:
-                self.scenario.append(inbox.get_nowait())
-            except queue.Empty:
-                break
-        if not self.scenario:
-            return
-        due = [c for c in self.scenario if c.at_sim_time_s <= self.arm.time_s + 1e-12]
+        if len(self.scenario_inbox):
+            for item in self.scenario_inbox.drain():
+                self.scenario.add(item.message)
+        due = self.scenario.due(self.arm.time_s)
         if not due:
             return
-        self.scenario = [c for c in self.scenario if c not in due]
-        for cmd in sorted(due, key=lambda c: (c.at_sim_time_s, c.seq)):
+        for cmd in due:
             if cmd.kind == "payload":
                 self.arm.attach_payload(bool(cmd.payload_attached))
                 self._event("payload", f"payload {'attached' if cmd.payload_attached else 'released'} at {self.arm.time_s:.3f} s")
@@ -348,19 +351,11 @@ class PlantTestPort:
     def __init__(self, settings: PlantSettings, session: zenoh.Session) -> None:
         self.keys = Keys(settings.rig_id)
         self.session = session
-        self.bad_scenarios = 0
         self._truth_pub = session.declare_publisher(self.keys.truth, encoding=JSON)
         self._event_pub = session.declare_publisher(self.keys.plant_events, encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK)
-        self.inbox: queue.Queue[ScenarioCommand] = queue.Queue()
-        self._sub = session.declare_subscriber(self.keys.scenario, self._on_scenario)
+        self.inbox = Inbox("plant", capacity=64, limits=LIMITS)
+        self._sub = session.declare_subscriber(self.keys.scenario, self.inbox.subscriber("scenario", lambda b: decode(ScenarioCommand, b)))
         self._token = session.liveliness().declare_token(self.keys.alive("plant"))
-
-    def _on_scenario(self, sample: zenoh.Sample) -> None:
-        try:
-            self.inbox.put(decode(ScenarioCommand, sample.payload.to_bytes()))
-        except ProtocolError as exc:
-            self.bad_scenarios += 1
-            log.warning("dropped an invalid scenario command: %s", exc)
 
     def publish_truth(self, truth: GroundTruth) -> None:
         self._truth_pub.put(encode(truth))
@@ -377,7 +372,8 @@ class PlantTestPort:
 
 def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort, measures: RealtimeMeasures | None = None) -> Health:
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
-    counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=port.bad_scenarios)
+    counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, scenario_pending_dropped=app.scenario.dropped)
+    counters.update(port.inbox.as_dict())
     counters.update((measures or RealtimeMeasures()).as_counters())
     return Health(
         seq=seq,

@@ -114,8 +114,20 @@ class CommonSettings(BaseSettings):
         "",
         description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted); its path is not recorded",
     )
-    zenoh_acl: bool = Field(False, description="Apply the rig's access rules (service_kit/access.py): each role publishes only its own keys")
+    zenoh_acl: bool = Field(
+        False,
+        description="Apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys (a client leaves them to its router)",
+    )
     zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
+    zenoh_id: str = Field(
+        "", pattern=r"^([1-9a-f][0-9a-f]{0,31})?$", description="This session's zenoh id, 1-32 lowercase hex digits, the first not 0 (empty: random)"
+    )
+    zenoh_node_ids: str = Field(
+        "",
+        max_length=1024,
+        pattern=r"^([a-z]+:[1-9a-f][0-9a-f]{0,31}(,[a-z]+:[1-9a-f][0-9a-f]{0,31})*)?$",
+        description="With zenoh_acl in peer mode: ROLE:ZID,... of the rig's own nodes, so a link this session opened is matched to its role",
+    )
     can_multicast_ttl: int = Field(
         0,
         ge=0,

@@ -4,32 +4,50 @@ and access control (``access_control``), generated from the rig's description (:
 Every session of a rig authenticates with a user name naming its role
 (:data:`ROLES`) and a password; a node that has the credentials file
 (``user:password`` lines) accepts only sessions that present one of them.
-The access rules then let each role publish only what its board publishes
-(:func:`publishers`): only the controller publishes batches, its status and
-the DSP's configuration; only the DSP publishes flags, interrupts,
-configuration acknowledgements and answers TF queries; only the plant
-publishes ground truth and plant events; each service only its own health
-and liveliness; tools (``ralf-hil reconfigure``) only commands; scenario
-commands only the ``tester`` role, and only where ``zenoh_acl_scenarios`` is
-on. Everything else (subscribing, querying) is allowed.
 
-The rules are applied by every receiving node on ``ingress`` (zenoh 1.x
+The access rules deny by default and allow each role exactly what the rig
+description says it does, on the exact keys (:func:`acl_config`):
+
+* sending (:data:`SEND_MESSAGES`): only the controller publishes batches,
+  its status and the DSP's configuration; only the DSP publishes flags,
+  interrupts and configuration acknowledgements and answers TF queries;
+  only the plant publishes ground truth and plant events; each service only
+  its own health and liveliness token; tools (``ralf-hil reconfigure``) only
+  commands; scenario commands only the ``tester`` role, and only where
+  ``zenoh_acl_scenarios`` is on;
+* reading (:data:`READ_MESSAGES`): each board subscribes to and queries
+  its declared inputs; the observer roles (:data:`OBSERVERS`) read the
+  whole rig.
+
+zenoh allows a message only if an allow rule's key expression *includes*
+the message's own key expression, so a put, delete, reply or token on a
+wildcard (``ralf/<rig>/dsp/*``, ``ralf/<rig>/**``, ``ralf/*/dsp/interrupt``,
+``ralf/<rig>/dsp/interr$*``) is refused even for the key's own sender:
+no allow rule is wider than one key.
+
+Every node applies the rules to every link, ingress and egress (zenoh 1.x
 peers do not relay, so the subject of a message is its originator; in
-client mode the router applies them). Schema: zenoh 1.10's ``AclConfig``
-(``enabled``, ``default_permission``, ``rules`` of ``id``/``permission``/
-``flows``/``messages``/``key_exprs``, ``subjects`` of ``id``/``usernames``,
-``policies`` of ``rules``/``subjects``), checked by experiment in
-``tests/hardening/test_access.py``.
+client mode the router applies them and the clients, whose one link is the
+one they opened to it, do not). A link's subject is the user name its
+opener authenticated with; the opener itself learns no user name, so the
+rig's own nodes are also known by their zenoh ids (``node_ids``), fresh
+for every run (:func:`generate_node_ids`). Schema: zenoh 1.10's
+``AclConfig`` (``enabled``, ``default_permission``, ``rules`` of
+``id``/``permission``/``flows``/``messages``/``key_exprs``, ``subjects`` of
+``id``/``usernames``/``zids``, ``policies`` of ``id``/``rules``/``subjects``),
+checked against running sessions in ``tests/hardening/test_access.py`` and
+``tests/hardening/test_access_wildcards.py``.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from protocol.keys import Keys
 from protocol.rig_description import RIG, Channel
@@ -51,39 +69,152 @@ def publishers(keys: Keys, scenarios: bool = False) -> dict[str, tuple[str, ...]
     return {f"{keys.root}/{suffix}": _senders(channel, senders, scenarios) for suffix, channel, senders in RIG.expanded() if channel.kind == "publication"}
 
 
-def _rule(rule_id: str, messages: Iterable[str], key_exprs: Iterable[str]) -> dict[str, Any]:
-    return {"id": rule_id, "permission": "deny", "flows": ["ingress"], "messages": list(messages), "key_exprs": list(key_exprs)}
-
-
-_DENIED_MESSAGES: dict[str, tuple[str, ...]] = {
+SEND_MESSAGES: Final[dict[str, tuple[str, ...]]] = {
     "publication": ("put", "delete"),
     "queryable": ("declare_queryable", "reply"),
     "liveliness": ("liveliness_token",),
 }
-"""What a role that is not a channel's sender may not do on it, per channel kind."""
+"""What a channel's senders do on it, per channel kind (zenoh 1.x ACL message names)."""
+
+READ_MESSAGES: Final[dict[str, tuple[str, ...]]] = {
+    "publication": ("declare_subscriber",),
+    "queryable": ("query",),
+    "liveliness": ("declare_liveliness_subscriber", "liveliness_query"),
+}
+"""What a channel's readers do on it, per channel kind."""
+
+DELIVERED_MESSAGES: Final[dict[str, tuple[str, ...]]] = {
+    "publication": ("put", "delete"),
+    "queryable": ("reply",),
+    "liveliness": ("liveliness_token",),
+}
+"""What a node hands on (egress) to a reader of a channel, per channel kind."""
+
+DECLARATIONS: Final[tuple[str, ...]] = ("declare_subscriber", "declare_queryable", "query", "declare_liveliness_subscriber", "liveliness_query")
+"""A node's own interest, declared to every session it talks to (egress, any key)."""
+
+OBSERVERS: Final[tuple[str, ...]] = RIG.tools
+"""Roles that may read the whole rig (``ralf/<rig>/**``): the launcher's
+observer (``up``'s summary, ``--record``'s tap), tools (``monitor``,
+``record``, ``reconfigure``'s acknowledgement) and test harnesses."""
 
 
-def acl_config(keys: Keys, scenarios: bool = False) -> dict[str, Any]:
-    """The ``access_control`` section of every node of the rig: on every
-    channel of the rig description, every role but its senders is denied
-    the channel kind's messages."""
+def sends(keys: Keys, role: str, scenarios: bool = False) -> dict[str, list[str]]:
+    """Channel kind -> the exact keys ``role`` sends on (publishes, answers,
+    holds a token on), as the rig description declares."""
+    out: dict[str, list[str]] = {kind: [] for kind in SEND_MESSAGES}
+    for suffix, channel, senders in RIG.expanded():
+        if role in _senders(channel, senders, scenarios):
+            out[channel.kind].append(f"{keys.root}/{suffix}")
+    return out
+
+
+def reads(keys: Keys, role: str) -> dict[str, list[str]]:
+    """Channel kind -> the key expressions ``role`` may read (subscribe,
+    query, watch tokens): a board its declared inputs, an observer the whole rig."""
+    if role in OBSERVERS:
+        return {kind: [f"{keys.root}/**"] for kind in READ_MESSAGES}
+    out: dict[str, list[str]] = {kind: [] for kind in READ_MESSAGES}
+    for suffix, channel, _ in RIG.expanded():
+        if role in channel.readers:
+            out[channel.kind].append(f"{keys.root}/{suffix}")
+    return out
+
+
+def _allow(rule_id: str, flow: str, messages: Iterable[str], key_exprs: Iterable[str]) -> dict[str, Any]:
+    return {"id": rule_id, "permission": "allow", "flows": [flow], "messages": list(messages), "key_exprs": list(key_exprs)}
+
+
+def _role_rules(keys: Keys, role: str, scenarios: bool, prefix: str) -> list[dict[str, Any]]:
     rules: list[dict[str, Any]] = []
-    policies: list[dict[str, Any]] = []
-    for n, (suffix, channel, senders) in enumerate(sorted(RIG.expanded(), key=lambda item: item[0])):
-        allowed = set(_senders(channel, senders, scenarios))
-        others = [role for role in ROLES if role not in allowed]
-        if not others:
+    sent, read = sends(keys, role, scenarios), reads(keys, role)
+    for kind in SEND_MESSAGES:
+        if sent[kind]:
+            rules.append(_allow(f"{prefix}{role} sends {kind}", "ingress", SEND_MESSAGES[kind], sent[kind]))
+        if read[kind]:
+            rules.append(_allow(f"{prefix}{role} reads {kind}", "ingress", READ_MESSAGES[kind], read[kind]))
+            rules.append(_allow(f"{prefix}{role} receives {kind}", "egress", DELIVERED_MESSAGES[kind], read[kind]))
+    return rules
+
+
+def acl_config(keys: Keys, scenarios: bool = False, node_ids: Mapping[str, str] | None = None, more_rigs: Iterable[Keys] = ()) -> dict[str, Any]:
+    """The ``access_control`` section of every node of the rig: deny by
+    default; each role (the session's authenticated user name) may send
+    what the rig description says it sends and read what it reads, on those
+    exact keys only, so no key expression (``*``, ``**``, ``$*``, another
+    rig's chunk) covers more: zenoh allows a message only if an allow rule's
+    key expression includes the message's whole key expression.
+
+    A node hands out (egress) to each role only what that role reads, and
+    declares its own interest (subscribers, queryables, queries) to all.
+
+    ``node_ids``: role -> zenoh id of the rig's own nodes (peer mode). A
+    node that *opened* a link learns no user name from it (zenoh's
+    user/password authentication proves the opener to the acceptor only),
+    so links to the rig's nodes are matched by their zenoh id as well, with
+    the same rules as the role. ``more_rigs``: further rigs the same
+    session serves (one DSP process for several rigs)."""
+    ids = dict(node_ids or {})
+    rules: list[dict[str, Any]] = [_allow("own declarations", "egress", DECLARATIONS, ["**"])]
+    subjects: list[dict[str, Any]] = [{"id": f"role {role}", "usernames": [role]} for role in ROLES]
+    subjects += [{"id": f"node {role}", "zids": [zid]} for role, zid in sorted(ids.items())]
+    policies: list[dict[str, Any]] = [{"id": "declarations", "rules": ["own declarations"], "subjects": [s["id"] for s in subjects]}]
+    rigs = [keys, *(k for k in more_rigs if k != keys)]
+    for role in ROLES:
+        role_rules = [rule for rig in rigs for rule in _role_rules(rig, role, scenarios, f"{rig.rig_id}: ")]
+        rules += role_rules
+        if role_rules:
+            policies.append({"id": role, "rules": [r["id"] for r in role_rules], "subjects": [f"role {role}"] + ([f"node {role}"] if role in ids else [])})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+def generate_node_ids(roles: Iterable[str] = (*RIG.service_names, "launcher")) -> dict[str, str]:
+    """A fresh zenoh id per node of a local rig (for one run): 32 hex digits
+    (the first never 0: zenoh refuses leading zeros)."""
+    return {role: f"{secrets.randbits(128) | (1 << 127):032x}" for role in roles}
+
+
+def format_node_ids(node_ids: Mapping[str, str]) -> str:
+    """``role:zid,...``, the form of ``RALF_ZENOH_NODE_IDS``."""
+    return ",".join(f"{role}:{zid}" for role, zid in node_ids.items())
+
+
+def parse_node_ids(text: str) -> dict[str, str]:
+    """The inverse of :func:`format_node_ids`; ValueError on a malformed entry."""
+    out: dict[str, str] = {}
+    for entry in (e.strip() for e in text.split(",")):
+        if not entry:
             continue
-        rule_id = f"{channel.kind} {n} {suffix}"
-        rules.append(_rule(rule_id, _DENIED_MESSAGES[channel.kind], [f"{keys.root}/{suffix}"]))
-        policies.append({"rules": [rule_id], "subjects": [f"role {role}" for role in others]})
-    return {
-        "enabled": True,
-        "default_permission": "allow",
-        "rules": rules,
-        "subjects": [{"id": f"role {role}", "usernames": [role]} for role in ROLES],
-        "policies": policies,
-    }
+        role, sep, zid = entry.partition(":")
+        if not sep or role not in ROLES or not _ZID.fullmatch(zid):
+            raise ValueError(f"{entry!r} is not ROLE:ZID with ROLE one of {', '.join(ROLES)} and ZID 1-32 lowercase hex digits, the first not 0")
+        out[role] = zid
+    return out
+
+
+_ZID = re.compile(r"[1-9a-f][0-9a-f]{0,31}")
+
+
+TOOL_INPUT_MAX_HZ: Final[float] = 50.0
+"""The most messages a second zenoh hands a service from one link on a key
+that only tools send (commands, scenario commands); the rest are dropped in
+zenoh's own thread, before any Python runs (not counted: zenoh keeps no
+count the application can read). The service's inbox then takes 10 at once
+and 10 a second and counts the rest (:data:`service_kit.inbox.LIMITS`)."""
+
+
+def tool_input_downsampling(rigs: Iterable[Keys]) -> list[dict[str, Any]]:
+    """The ``downsampling`` section of a service: on ingress, every key of
+    the rig that no board sends (so a person or a tool does) is limited to
+    :data:`TOOL_INPUT_MAX_HZ` per link, so a flood of an allowed message
+    costs the service's Python nothing beyond that rate."""
+    keys = [
+        f"{rig.root}/{suffix}"
+        for rig in rigs
+        for suffix, channel, senders in RIG.expanded()
+        if channel.kind == "publication" and senders and not set(senders) & set(RIG.service_names)
+    ]
+    return [{"id": "tool input", "flows": ["ingress"], "messages": ["put", "delete"], "rules": [{"key_expr": k, "freq": TOOL_INPUT_MAX_HZ} for k in keys]}]
 
 
 def generate_credentials(roles: Iterable[str] = ROLES) -> dict[str, str]:
@@ -140,10 +271,13 @@ def insert_access(
     acl: bool = False,
     scenarios: bool = False,
     more_rigs: Iterable[str] = (),
+    node_id: str = "",
+    node_ids: Mapping[str, str] | None = None,
 ) -> Any:
     """Add authentication and the rig's access rules to a ``zenoh.Config``
     (``more_rigs``: the rules of further rigs the same session serves, e.g.
-    one DSP process for several rigs)."""
+    one DSP process for several rigs; ``node_id``: this session's zenoh id;
+    ``node_ids``: those of the rig's nodes, see :func:`acl_config`)."""
     if user or credentials_file:
         usrpwd: dict[str, str] = {}
         if user:
@@ -151,18 +285,16 @@ def insert_access(
         if credentials_file:
             usrpwd["dictionary_file"] = credentials_file
         config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
+    if node_id:
+        config.insert_json5("id", json.dumps(node_id))
     if acl:
-        section = acl_config(Keys(rig_id), scenarios)
-        for n, other in enumerate(r for r in more_rigs if r != rig_id):
-            extra = acl_config(Keys(other), scenarios)
-            for rule in extra["rules"]:
-                rule["id"] = f"rig {n + 1} {rule['id']}"
-            for policy in extra["policies"]:
-                policy["rules"] = [f"rig {n + 1} {r}" for r in policy["rules"]]
-            section["rules"] += extra["rules"]
-            section["policies"] += extra["policies"]
+        section = acl_config(Keys(rig_id), scenarios, node_ids, [Keys(r) for r in more_rigs])
         config.insert_json5("access_control", json.dumps(section))
     return config
+
+
+def _on(value: str) -> bool:
+    return value.lower() in ("1", "true", "yes", "on")
 
 
 def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> Any:
@@ -174,8 +306,10 @@ def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> 
         user=env.get("RALF_ZENOH_USER", ""),
         password=env.get("RALF_ZENOH_PASSWORD", ""),
         credentials_file=env.get("RALF_ZENOH_CREDENTIALS_FILE", ""),
-        acl=env.get("RALF_ZENOH_ACL", "").lower() in ("1", "true", "yes", "on"),
-        scenarios=env.get("RALF_ZENOH_ACL_SCENARIOS", "").lower() in ("1", "true", "yes", "on"),
+        acl=_on(env.get("RALF_ZENOH_ACL", "")),
+        scenarios=_on(env.get("RALF_ZENOH_ACL_SCENARIOS", "")),
+        node_id=env.get("RALF_ZENOH_ID", ""),
+        node_ids=parse_node_ids(env.get("RALF_ZENOH_NODE_IDS", "")),
     )
 
 

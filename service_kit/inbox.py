@@ -4,7 +4,7 @@ and put into one bounded queue, every drop counted.
 
 One :class:`Inbox` per service; one :meth:`Inbox.subscriber` per key::
 
-    inbox = Inbox("controller", capacity=256)
+    inbox = Inbox("controller", capacity=256, limits=LIMITS)
     session.declare_subscriber(keys.flag, inbox.subscriber("flag", lambda b: decode(BlockFlag, b), MAX_BYTES["flag"]))
     ...
     for item in inbox.drain():          # on the control thread: decoded messages only
@@ -19,8 +19,14 @@ and reason per ``log_interval_s`` (:class:`RateLimitedLog`) when it is
   or ``ValueError``);
 * refused by the decoder's own check (it returned :data:`REFUSED`, e.g. an
   interrupt from a DSP session other than the paired one);
-* one too many: the queue is full (a flood); the newest is dropped, so a
-  flood costs the consumer at most ``capacity`` items.
+* over its kind's rate (:class:`Limit`, a token bucket of ``burst``
+  messages refilled at ``rate_per_s``), checked before the payload is
+  copied or parsed, so a flood of an allowed message costs each dropped
+  one a counter increment;
+* one too many: the queue is full, or its kind already holds its share of
+  the queue (``Limit.queued``), so one kind's flood cannot crowd another
+  out (commands never take the places of flags and interrupts); the newest
+  is dropped, so a flood costs the consumer at most ``capacity`` items.
 
 A decoder may also return ``None``: the payload was handled in the
 callback and nothing is queued (the DSP admits a batch to its block there).
@@ -34,13 +40,13 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final, NamedTuple
 
 from protocol.errors import ProtocolError
 
-__all__ = ["MAX_BYTES", "REFUSED", "Inbox", "InboxCounters", "Item", "RateLimitedLog"]
+__all__ = ["LIMITS", "MAX_BYTES", "REFUSED", "Inbox", "InboxCounters", "Item", "Limit", "RateLimitedLog", "TokenBucket"]
 
 KIB: Final[int] = 1024
 MAX_BYTES: Final[dict[str, int]] = {
@@ -73,6 +79,55 @@ REFUSED: Final = _Refused()
 """A decoder's answer for a well-formed payload it will not take (counted as ``refused``)."""
 
 
+@dataclass(frozen=True)
+class Limit:
+    """How much of one kind an inbox takes: at most ``burst`` at once and
+    ``rate_per_s`` sustained (a token bucket), and at most ``queued`` of
+    them waiting in the queue (None: the inbox's capacity)."""
+
+    rate_per_s: float
+    burst: int
+    queued: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.rate_per_s > 0 and self.burst >= 1 and (self.queued is None or self.queued >= 1)):
+            raise ValueError(f"a limit needs rate_per_s > 0, burst >= 1 and queued >= 1 or None, got {self}")
+
+
+LIMITS: Final[dict[str, Limit]] = {
+    "command": Limit(rate_per_s=10.0, burst=10, queued=4),
+    "config": Limit(rate_per_s=10.0, burst=10, queued=4),
+    "scenario": Limit(rate_per_s=10.0, burst=20, queued=20),
+}
+"""Rates and queue shares of the kinds a person or a tool sends: far above
+any honest use (``ralf-hil reconfigure`` sends one command, the controller
+forwards it as one configuration change; a scenario is a handful of
+commands), far below a flood. Flags, interrupts and batches have none:
+only their board may send them (service_kit/access.py) and the pairing
+checks refuse any other's."""
+
+
+class TokenBucket:
+    """``burst`` tokens, refilled at ``rate_per_s``; :meth:`take` spends one
+    if there is one. Time comes from the caller (pure, for tests)."""
+
+    def __init__(self, rate_per_s: float, burst: int) -> None:
+        self.rate_per_s = rate_per_s
+        self.burst = float(burst)
+        self.tokens = float(burst)
+        self.last: float | None = None
+
+    def take(self, now: float) -> bool:
+        if self.last is not None and now > self.last:
+            self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate_per_s)
+        if self.last is None or now > self.last:
+            self.last = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
 class Item(NamedTuple):
     kind: str
     message: Any
@@ -89,11 +144,12 @@ class InboxCounters:
     oversize: int = 0
     undecodable: int = 0
     refused: int = 0
+    dropped_rate: int = 0
     dropped_full: int = 0
 
     @property
     def dropped(self) -> int:
-        return self.oversize + self.undecodable + self.refused + self.dropped_full
+        return self.oversize + self.undecodable + self.refused + self.dropped_rate + self.dropped_full
 
 
 class RateLimitedLog:
@@ -125,18 +181,23 @@ class RateLimitedLog:
 
 @dataclass
 class Inbox:
-    """A bounded queue of decoded messages fed by zenoh callbacks."""
+    """A bounded queue of decoded messages fed by zenoh callbacks;
+    ``limits``: the rate and queue share of the kinds that have one."""
 
     name: str
     capacity: int = 256
     log_interval_s: float = 10.0
     clock: Callable[[], float] = time.monotonic
     logger: logging.Logger = field(default_factory=lambda: logging.getLogger("service_kit.inbox"))
+    limits: Mapping[str, Limit] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self._queue: queue.Queue[Item] = queue.Queue(maxsize=self.capacity)
         self._counters: dict[str, InboxCounters] = {}
         self._lock = threading.Lock()
+        self._buckets = {kind: TokenBucket(limit.rate_per_s, limit.burst) for kind, limit in self.limits.items()}
+        self._waiting: dict[str, int] = {}
+        """Items of each limited kind in the queue now."""
         self.log = RateLimitedLog(self.logger, self.log_interval_s, self.clock)
 
     # -- the edge (zenoh's threads) -------------------------------------------------------
@@ -170,6 +231,8 @@ class Inbox:
         ``arrival``: when it came, on the caller's clock (default: ``clock()``)."""
         arrival = self.clock() if arrival is None else arrival
         counters = self._count(kind)
+        if not self._within_rate(kind, counters, arrival):
+            return False
         size = len(payload) + (len(attachment) if attachment is not None else 0)
         if size > max_bytes or (attachment is not None and len(attachment) > MAX_ATTACHMENT):
             with self._lock:
@@ -201,18 +264,42 @@ class Inbox:
 
     def put(self, kind: str, message: Any, arrival: float | None = None) -> bool:
         """Queue an already decoded message (e.g. a liveliness change)."""
-        return self._put(self._count(kind), kind, message, self.clock() if arrival is None else arrival)
+        arrival = self.clock() if arrival is None else arrival
+        counters = self._count(kind)
+        return self._within_rate(kind, counters, arrival) and self._put(counters, kind, message, arrival)
+
+    def _within_rate(self, kind: str, counters: InboxCounters, now: float) -> bool:
+        bucket = self._buckets.get(kind)
+        if bucket is None:
+            return True
+        with self._lock:
+            taken = bucket.take(now)
+            if not taken:
+                counters.dropped_rate += 1
+        if not taken:
+            limit = self.limits[kind]
+            self.log.warning(f"{kind}:rate", "%s: over %g %s a second (burst %d): dropped one", self.name, limit.rate_per_s, kind, limit.burst)
+        return taken
 
     def _put(self, counters: InboxCounters, kind: str, message: Any, arrival: float) -> bool:
-        try:
-            self._queue.put_nowait(Item(kind, message, arrival))
-        except queue.Full:
-            with self._lock:
-                counters.dropped_full += 1
-            self.log.warning(f"{kind}:full", "%s: inbox full (%d items): dropped a %s", self.name, self.capacity, kind)
-            return False
+        limit = self.limits.get(kind)
+        share = limit.queued if limit is not None else None
         with self._lock:
-            counters.queued += 1
+            full = share is not None and self._waiting.get(kind, 0) >= share
+            if not full:
+                try:
+                    self._queue.put_nowait(Item(kind, message, arrival))
+                except queue.Full:
+                    full = True
+            if full:
+                counters.dropped_full += 1
+            else:
+                counters.queued += 1
+                if share is not None:
+                    self._waiting[kind] = self._waiting.get(kind, 0) + 1
+        if full:
+            self.log.warning(f"{kind}:full", "%s: inbox full (%d items, or this kind's share): dropped a %s", self.name, self.capacity, kind)
+            return False
         return True
 
     def refuse(self, kind: str, reason: str) -> None:
@@ -234,15 +321,21 @@ class Inbox:
     def get(self, timeout: float | None = None) -> Item | None:
         """The next item, waiting up to ``timeout`` (None: forever); None if none came."""
         try:
-            return self._queue.get(timeout=timeout)
+            return self._taken(self._queue.get(timeout=timeout))
         except queue.Empty:
             return None
 
     def get_nowait(self) -> Item | None:
         try:
-            return self._queue.get_nowait()
+            return self._taken(self._queue.get_nowait())
         except queue.Empty:
             return None
+
+    def _taken(self, item: Item) -> Item:
+        if item.kind in self._waiting:
+            with self._lock:
+                self._waiting[item.kind] -= 1
+        return item
 
     def drain(self, limit: int | None = None) -> list[Item]:
         """Every queued item (at most ``limit``), without waiting."""
@@ -269,7 +362,7 @@ class Inbox:
         total = 0
         with self._lock:
             for kind, c in sorted(self._counters.items()):
-                for what in ("oversize", "undecodable", "refused", "dropped_full"):
+                for what in ("oversize", "undecodable", "refused", "dropped_rate", "dropped_full"):
                     n = getattr(c, what)
                     total += n
                     if n:

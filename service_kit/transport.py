@@ -13,8 +13,9 @@ import can
 import zenoh
 
 from protocol.errors import TransportError
+from protocol.keys import Keys
 from protocol.settings import CommonSettings
-from service_kit.access import insert_access
+from service_kit.access import insert_access, parse_node_ids, tool_input_downsampling
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 
 log = logging.getLogger(__name__)
@@ -44,15 +45,20 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
+    rigs = [Keys(r) for r in (settings.rig_id, *getattr(settings, "rig_ids", ())[1:])]
+    config.insert_json5("downsampling", json.dumps(tool_input_downsampling(rigs)))
     insert_access(
         config,
         settings.rig_id,
         user=settings.zenoh_user,
         password=settings.zenoh_password.get_secret_value(),
         credentials_file=settings.zenoh_credentials_file,
-        acl=settings.zenoh_acl,
+        # A client's one link is the one it opened to its router, which applies the rules.
+        acl=settings.zenoh_acl and settings.zenoh_mode != "client",
         scenarios=settings.zenoh_acl_scenarios,
         more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
+        node_id=settings.zenoh_id,
+        node_ids=parse_node_ids(settings.zenoh_node_ids),
     )
     return config
 

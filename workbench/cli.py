@@ -82,6 +82,7 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
         "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in observer.health.items()},
         "liveliness_events": observer.events,
         "undecodable_messages": observer.bad_messages,
+        "health_refused": observer.health_refused,
         "host": host_info(),  # the machine the numbers were measured on (workbench/hostinfo.py)
     }
     return summary
@@ -125,6 +126,8 @@ def print_summary(summary: dict[str, Any]) -> None:
                 f"gc {'frozen' if counters['rt_gc_frozen'] else 'not frozen'}",
             )
     table.add_row("exit codes", ", ".join(f"{k}={v}" for k, v in summary["exit_codes"].items()))
+    if summary.get("health_refused"):
+        table.add_row("health refused", f"{summary['health_refused']} (the payload named another service than its key)")
     if summary.get("host"):
         table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
     verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
@@ -171,13 +174,19 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     node applies the rig's access rules (service_kit/access.py). Writes the
     credentials file (owner-only) and ``tool.env``, the variables that let
     ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
-    from service_kit.access import generate_credentials, role_env, write_credentials_file
+    from service_kit.access import format_node_ids, generate_credentials, generate_node_ids, role_env, write_credentials_file
 
     credentials = generate_credentials()
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
-    plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="true", RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower())
+    node_ids = generate_node_ids()
+    plan.common_env.update(
+        RALF_ZENOH_CREDENTIALS_FILE=str(path),
+        RALF_ZENOH_ACL="true",
+        RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower(),
+        RALF_ZENOH_NODE_IDS=format_node_ids(node_ids),
+    )
     for role in ("dsp", "plant", "controller", "launcher"):
-        plan.service_env.setdefault(role, {}).update(role_env(role, credentials))
+        plan.service_env.setdefault(role, {}).update(role_env(role, credentials), RALF_ZENOH_ID=node_ids[role])
     tool_env = directory / "tool.env"
     fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as fh:

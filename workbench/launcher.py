@@ -29,6 +29,7 @@ from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.rig_description import RIG, start_order, stop_order
 from service_kit.access import insert_access_from_env
+from workbench.monitor import health_key_service
 
 SERVICE_MODULES: dict[str, str] = {s.name: s.module for s in RIG.services}
 START_ORDER = start_order()
@@ -127,6 +128,8 @@ class RigObserver:
     alive: dict[str, bool] = field(default_factory=dict)
     events: list[str] = field(default_factory=list)
     bad_messages: int = 0
+    health_refused: int = 0
+    """Health payloads naming another service than the key they came on."""
 
     def __post_init__(self) -> None:
         keys = Keys(self.plan.rig_id)
@@ -159,8 +162,12 @@ class RigObserver:
         except ProtocolError:
             self.bad_messages += 1
             return
+        service = health_key_service(str(sample.key_expr))  # filed by its key, not by its claim
         with self._lock:
-            self.health[health.service] = health
+            if health.service != service:
+                self.health_refused += 1
+                return
+            self.health[service] = health
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         service = str(sample.key_expr).rsplit("/", 1)[-1]

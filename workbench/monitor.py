@@ -33,12 +33,21 @@ from protocol.settings import CommonSettings, load_settings
 from service_kit.transport import zenoh_config
 
 
+def health_key_service(key: str) -> str:
+    """The service a health sample is filed under: its key's last chunk
+    (``ralf/<rig>/health/<service>``), which the access rules let only that
+    service publish on, never the ``service`` the payload claims."""
+    return key.rsplit("/", 1)[-1]
+
+
 class RigWatch:
     """Subscribes to one rig's health, liveliness and controller status.
 
     Callbacks run on zenoh's threads and only decode and store, under a
     lock; :meth:`snapshot` gives a JSON-ready copy. With ``history`` every
     controller status is kept with its arrival time (``time.monotonic()``).
+    Health is filed by the key it arrived on; a payload naming another
+    service is refused and counted (``health_refused``).
     """
 
     def __init__(self, rig_id: str, config: zenoh.Config, history: bool = False) -> None:
@@ -55,6 +64,7 @@ class RigWatch:
         self.keep_history = history
         self.status_history: list[tuple[float, ControllerStatus]] = []
         self.bad_messages = 0
+        self.health_refused = 0
         self.messages = 0
         zenoh.init_log_from_env_or("error")
         self.session = zenoh.open(config)
@@ -76,10 +86,14 @@ class RigWatch:
             with self._lock:
                 self.bad_messages += 1
             return
+        service = health_key_service(str(sample.key_expr))
         with self._lock:
+            if health.service != service:
+                self.health_refused += 1
+                return
             self.messages += 1
-            self.health[health.service] = health
-            self.health_at[health.service] = time.time()
+            self.health[service] = health
+            self.health_at[service] = time.time()
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         try:
@@ -139,6 +153,7 @@ class RigWatch:
                 "events": list(self.events),
                 "messages": self.messages,
                 "bad_messages": self.bad_messages,
+                "health_refused": self.health_refused,
             }
 
     def close(self) -> None:
@@ -271,6 +286,8 @@ def render(snap: dict[str, Any]) -> RenderableType:
         parts.append(Text("liveliness: " + "; ".join(f"{_clock(e['time'])} {e['service']} {e['event']}" for e in recent)))
     if snap["bad_messages"]:
         parts.append(Text(f"undecodable messages: {snap['bad_messages']}", style="yellow"))
+    if snap.get("health_refused"):
+        parts.append(Text(f"health refused (payload names another service than its key): {snap['health_refused']}", style="yellow"))
     return Group(*parts)
 
 

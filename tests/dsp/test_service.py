@@ -406,21 +406,21 @@ def test_serve_rigs_are_validated() -> None:
 
 def test_access_rules_cover_every_rig_a_dsp_serves() -> None:
     """The DSP session's access control (service_kit.access) carries each served rig's rules:
-    on every rig's flag and interrupt keys only the dsp role may publish."""
+    on every rig's flag and interrupt keys only the dsp role may publish, on its batch key only the controller."""
     from service_kit.transport import zenoh_config
 
     settings = _settings(rig_id="r0", serve_rigs="r1,r2", zenoh_acl=True)
     acl = json.loads(zenoh_config(settings).get_json("access_control"))
     rule_ids = {r["id"]: r for r in acl["rules"]}
     assert len({r["id"] for r in acl["rules"]}) == len(acl["rules"])  # no id twice
+    assert acl["default_permission"] == "deny"
     for rig in ("r0", "r1", "r2"):
         keys = Keys(rig)
         for key in (keys.flag, keys.interrupt, keys.batch):
-            denied = [rid for rid, r in rule_ids.items() if key in r["key_exprs"]]
-            assert len(denied) == 1, (rig, key)
-            subjects = {s for p in acl["policies"] if denied[0] in p["rules"] for s in p["subjects"]}
-            allowed = "role dsp" if key != keys.batch else "role controller"
-            assert allowed not in subjects and "role tool" in subjects
+            senders = [rid for rid, r in rule_ids.items() if key in r["key_exprs"] and "put" in r["messages"] and r["flows"] == ["ingress"]]
+            assert len(senders) == 1, (rig, key)
+            subjects = {s for p in acl["policies"] if senders[0] in p["rules"] for s in p["subjects"]}
+            assert subjects == {"role dsp" if key != keys.batch else "role controller"}
 
 
 def test_the_empty_flag_built_after_the_interrupt_describes_the_block_as_released() -> None:

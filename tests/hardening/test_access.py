@@ -1,7 +1,8 @@
 """zenoh's own authentication and access control, as the rig configures it
 (service_kit.access), checked against a real zenoh 1.10 node on loopback: a
-session without valid credentials cannot connect, and each role's puts on
-each protected key arrive only where the rules allow them."""
+session without valid credentials cannot connect; the rules deny by
+default and no allow rule is wider than one key (what each role's sessions
+can and cannot do with them: tests/hardening/test_access_wildcards.py)."""
 
 from __future__ import annotations
 
@@ -18,9 +19,13 @@ from protocol.keys import Keys
 from service_kit.access import (
     ROLES,
     acl_config,
+    format_node_ids,
     generate_credentials,
+    generate_node_ids,
     insert_access,
+    parse_node_ids,
     publishers,
+    sends,
     write_credentials_file,
 )
 from workbench.launcher import free_tcp_port
@@ -93,33 +98,42 @@ def test_without_valid_credentials_nothing_connects(rig: tuple[str, dict[str, st
     assert all(payload != b"forged" for _, payload in receiver.got)
 
 
-PROTECTED = [KEYS.batch, KEYS.dsp_config, KEYS.interrupt, KEYS.flag, KEYS.truth, KEYS.health("dsp"), KEYS.controller_command, KEYS.scenario]
-
-
-@pytest.mark.parametrize("role", [r for r in ROLES if r != "dsp"])
-def test_each_role_publishes_only_its_own_keys(rig: tuple[str, dict[str, str], Receiver, Path], role: str) -> None:
-    endpoint, creds, receiver, _ = rig
-    allowed = publishers(KEYS)
-    session = _open_as(endpoint, role, creds[role])
-    try:
-        deadline = time.monotonic() + 10
-        while not list(session.info.peers_zid()) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        for key in PROTECTED:
-            session.put(key, f"{role}:{key}".encode())
-        marker = f"ralf/{RIG}/marker/{role}"
-        session.put(marker, b"end")  # same link, same priority: arrives after the others
-        assert receiver.wait_for(marker, b"end")
-    finally:
-        session.close()
-    for key in PROTECTED:
-        arrived = (key, f"{role}:{key}".encode()) in receiver.got
-        assert arrived == (role in allowed[key]), (role, key)
-
-
-def test_rules_cover_every_key_and_role() -> None:
+def test_rules_deny_by_default_and_allow_no_wider_than_a_key() -> None:
     config = acl_config(KEYS, scenarios=True)
-    protected = {k for rule in config["rules"] for k in rule["key_exprs"]}
-    assert set(publishers(KEYS)) <= protected | {k for k, roles in publishers(KEYS).items() if set(roles) == set(ROLES)}
+    assert config["default_permission"] == "deny"
+    assert all(rule["permission"] == "allow" for rule in config["rules"])
+    wide = {k for rule in config["rules"] for k in rule["key_exprs"] if "*" in k or "$" in k}
+    assert wide == {"**", f"{KEYS.root}/**"}
+    for rule in config["rules"]:
+        if "**" in rule["key_exprs"]:  # a node's own declarations, to everyone
+            assert rule["flows"] == ["egress"] and not {"put", "delete", "reply", "liveliness_token"} & set(rule["messages"]), rule
+        if f"{KEYS.root}/**" in rule["key_exprs"]:  # observers read the whole rig
+            assert not {"put", "delete", "declare_queryable", "liveliness_token"} & set(rule["messages"]) or rule["flows"] == ["egress"], rule
+
+
+def test_each_key_is_sent_by_its_declared_senders_only() -> None:
+    for key, roles in publishers(KEYS, scenarios=True).items():
+        for role in ROLES:
+            assert (key in sends(KEYS, role, scenarios=True)["publication"]) == (role in roles), (key, role)
     assert publishers(KEYS, scenarios=True)[KEYS.scenario] == ("tester",) and publishers(KEYS)[KEYS.scenario] == ()
-    assert {s["id"] for s in config["subjects"]} == {f"role {r}" for r in ROLES}
+    assert sends(KEYS, "dsp")["queryable"] == [KEYS.tf] and sends(KEYS, "dsp")["liveliness"] == [KEYS.alive("dsp")]
+    assert sends(KEYS, "launcher") == {"publication": [], "queryable": [], "liveliness": []}
+
+
+def test_rig_nodes_are_known_by_id_with_their_roles_rules() -> None:
+    ids = generate_node_ids()
+    assert all(len(z) == 32 and z[0] != "0" for z in ids.values()) and len(set(ids.values())) == len(ids)
+    assert parse_node_ids(format_node_ids(ids)) == ids
+    config = acl_config(KEYS, node_ids=ids)
+    by_id = {p["id"]: p for p in config["policies"]}
+    for role in ids:
+        assert f"node {role}" in by_id[role]["subjects"] and f"role {role}" in by_id[role]["subjects"]
+    for bad in ("dsp:0abc", "intruder:abc", "dsp", "dsp:xyz"):
+        with pytest.raises(ValueError):
+            parse_node_ids(bad)
+
+
+def test_more_rigs_get_their_own_rules() -> None:
+    config = acl_config(KEYS, more_rigs=[Keys("other")])
+    keys = {k for rule in config["rules"] for k in rule["key_exprs"]}
+    assert Keys("other").interrupt in keys and KEYS.interrupt in keys
