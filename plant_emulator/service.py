@@ -36,6 +36,7 @@ from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
+from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
 from service_kit.realtime import RealtimeMeasures, apply_realtime
@@ -419,6 +420,7 @@ def serve(
     )
     health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
+        readiness.mark_ready(settings.ready_file, log)  # kernels warm, node and test port up
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
     finally:
         app.flush_side_channels()
