@@ -98,7 +98,7 @@ def bad_inputs(image: str, network: str, env: dict[str, str]) -> dict[str, Any]:
             "-e",
             "RALF_ZENOH_MODE=client",
             "-e",
-            "RALF_ZENOH_CONNECT=tcp/zenoh-router:7447",
+            f"RALF_ZENOH_CONNECT=tcp/{env['router_ip']}:7447",
             "-e",
             "RALF_ZENOH_USER=plant",
             "-e",
@@ -160,7 +160,7 @@ def run(work: Path) -> int:
     ]
     logs = work / "logs"
     logs.mkdir(exist_ok=True)
-    record: dict[str, Any] = {"run_s": run_s, "healthy_after_s": {}, "exit": {}, "networks": {}, "problems": []}
+    record: dict[str, Any] = {"load_avg_before": os.getloadavg()[0], "run_s": run_s, "healthy_after_s": {}, "exit": {}, "networks": {}, "problems": []}
     t_up = time.monotonic()
     up = sh([*pc, "up", "-d", "--no-build"], 180)
     (logs / "podman-compose-up.log").write_text(up.stdout + up.stderr)
@@ -181,13 +181,17 @@ def run(work: Path) -> int:
                 record["healthy_after_s"][service] = round(time.monotonic() - t_up, 1)
         # bad input once the rig is up (or in time for the router's 30 s wait to end with the run)
         if bad is None and up.returncode == 0 and (len(record["healthy_after_s"]) == len(found) or time.monotonic() > end - 32):
-            bad = bad_inputs(image, f"{project}_cabinet", {"can_port": "43999"})
+            router_ip = sh(
+                ["podman", "inspect", "--format", f'{{{{(index .NetworkSettings.Networks "{project}_cabinet").IPAddress}}}}', found["zenoh-router"]["name"]], 20
+            )
+            bad = bad_inputs(image, f"{project}_cabinet", {"can_port": "43999", "router_ip": router_ip.stdout.strip()})
         if monitor is None and time.monotonic() > end - 8:
             monitor = watch(passwords)
         time.sleep(max(0.0, min(1.0, end - time.monotonic())))
     if monitor is None:
         monitor = watch(passwords)
     record["monitor"] = monitor
+    record["load_avg_after"] = os.getloadavg()[0]
     for service in ("controller", "plant", "dsp", "zenoh-router"):  # the controller first: its run summary is logged on SIGTERM
         if service in found:
             sh(["podman", "stop", "-t", "20", found[service]["name"]], 40)
@@ -286,6 +290,7 @@ def evaluate(work: Path) -> dict[str, Any]:
         "up_s": record.get("up_s"),
         "up_warnings": record.get("up_warnings", []),
         "run_s": record["run_s"],
+        "load_avg": [record.get("load_avg_before"), record.get("load_avg_after")],
     }
 
 
@@ -317,7 +322,8 @@ def write_results(result: dict[str, Any], out: Path) -> None:
         "in a loopback-only network namespace, on the compose file's two bridge networks",
         "(`cabinet`: router, plant, controller; `lab`: router, DSP).",
         "",
-        f"- Date: {result['date']}; machine: {result['machine']}",
+        f"- Date: {result['date']}; machine: {result['machine']}; load average (1 min) {result['load_avg'][0]:.1f} before the run, "
+        f"{result['load_avg'][1]:.1f} after (the host is shared: start-up times follow the load)",
         f"- Verdict: **{result['verdict']}**" + ("" if not result["failures"] else ": " + "; ".join(result["failures"])),
         f"- Run: {result['run_s']:.0f} s after `up`; controller {c.get('ticks', 0)} ticks, {c.get('batches_sent', 0)} batches, "
         f"{c.get('interrupts', 0)} interrupts, {c.get('deadline_misses', 0)} deadline misses, {c.get('overruns', 0)} overruns (misses reported, not asserted)",
