@@ -118,7 +118,8 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
                     f"{', '.join(answering)} accepts connections but refused the session (user {settings.zenoh_user or '-'}): wrong password or unknown user?"
                 )
             if time.monotonic() >= deadline:
-                raise TransportError(f"cannot open zenoh session ({where}): nothing answered for {retry_for_s:.0f} s: {text}") from None
+                what = "refused" if answering else "nothing answered"
+                raise TransportError(f"cannot open zenoh session ({where}): {what} for {retry_for_s:.0f} s: {text}") from None
             if stop is not None and stop.is_set():
                 raise TransportError(f"cannot open zenoh session ({where}): stopped while waiting: {text}") from None
             if time.monotonic() >= next_line:
