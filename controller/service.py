@@ -57,6 +57,7 @@ from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, ConfigChange, ControllerStatus, Health, Interrupt, TfSnapshot, decode, encode
 from protocol.settings import ControllerSettings
+from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.counters import Counters
 from service_kit.inbox import LIMITS, MAX_BYTES, REFUSED, Inbox, Item
@@ -750,6 +751,7 @@ class ControllerService:
                 self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=self.owns_process, cpu_latency_us=s.rt_cpu_latency_us)
                 self.tf.start_worker()  # before tick 0, one FIFO level below the loop
             self.ready_at = self.stopwatch()
+            readiness.mark_ready(s.ready_file, log)  # plant node started, DSP seen, kernels warm
             schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
             schedule.start()
             wakeups = WakeupMeter(ts, self.jitter, self.period_jitter)

@@ -11,6 +11,7 @@ import zenoh
 
 from dsp_service.service import DspService
 from protocol.settings import DspSettings
+from service_kit import readiness
 from service_kit.runtime import build_or_config_error, run_service
 
 log = logging.getLogger("dsp")
@@ -37,6 +38,7 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
         settings.alpha,
         settings.emulated_latency_s * 1e3,
     )
+    readiness.mark_ready(settings.ready_file, log)  # boards built (kernels warm), subscribed
     threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
     try:
         for thread in threads:

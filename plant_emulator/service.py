@@ -39,6 +39,7 @@ from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, 
 from protocol.record_paths import truth_file
 from protocol.scenario_setting import parse_scenario
 from protocol.settings import PlantSettings
+from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
 from service_kit.inbox import LIMITS, Inbox
@@ -412,6 +413,7 @@ def serve(
     )
     health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
+        readiness.mark_ready(settings.ready_file, log)  # kernels warm, node and test port up
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
     finally:
         app.flush_side_channels()

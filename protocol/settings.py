@@ -144,6 +144,11 @@ class CommonSettings(BaseSettings):
         True,
         description="udp_multicast: send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); off: python-can's stock bus, which reads them back",
     )
+    ready_file: str = Field(
+        "",
+        max_length=4096,
+        description="Write this file when the service is ready and remove it at exit; a healthcheck reads it (python -m service_kit.readiness FILE)",
+    )
 
     @field_validator("*", mode="before")
     @classmethod

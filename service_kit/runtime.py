@@ -20,6 +20,7 @@ import zenoh
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings, retired
+from service_kit import readiness
 from service_kit.encodings import JSON
 
 S = TypeVar("S", bound=CommonSettings)
@@ -335,11 +336,16 @@ def run_service(
     settings = parse_service_args(prog, summary, model, args)
     fix_malloc_threshold()
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
+    readiness.watch_compiles()  # before any kernel is touched: the ready line counts what compiled
+    readiness.clear(settings.ready_file)  # a previous run's, in a restarted container
     stop = install_stop_handlers()
     follow_launcher(settings.launcher_pid, stop)
     try:
-        session = open_zenoh(settings)
+        session = open_zenoh(settings, stop=stop)
     except ConfigError as exc:  # a TransportError: one line, exit 2
+        if stop.is_set():  # asked to stop while waiting for the router: a clean stop
+            logging.getLogger(prog).info("%s", exc)
+            return 0
         logging.getLogger(prog).error("%s", exc)
         return 2
     if record:
@@ -350,5 +356,6 @@ def run_service(
         logging.getLogger(prog).error("%s", exc)
         return 2
     finally:
+        readiness.clear(settings.ready_file)
         session.close()
         stop_recorder(recorder)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import logging
 import re
+import socket
+import threading
 import time
 from typing import Any
 
@@ -75,14 +77,39 @@ def zenoh_error_text(exc: BaseException) -> str:
     return " ".join(_RUST_WHERE.sub("", str(exc)).split())
 
 
-def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any = time.sleep) -> zenoh.Session:
+def _answering(endpoints: list[str], timeout_s: float = 1.0) -> list[str]:
+    """The tcp endpoints among ``endpoints`` that accept a TCP connection."""
+    up = []
+    for endpoint in endpoints:
+        m = re.fullmatch(r"tcp/\[?([^\]]+?)\]?:(\d+)(?:[?#].*)?", endpoint)
+        if m is None:
+            continue
+        try:
+            with socket.create_connection((m[1], int(m[2])), timeout=timeout_s):
+                up.append(endpoint)
+        except OSError:
+            pass
+    return up
+
+
+RETRY_LOG_EVERY_S = 10.0
+"""While waiting for its router, a client says so at the first try and then this often."""
+
+
+def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any = time.sleep, stop: threading.Event | None = None) -> zenoh.Session:
     """Open a zenoh session; a client retries while its router starts (only
-    that: any other failure raises :class:`TransportError` at once)."""
+    that: any other failure raises :class:`TransportError` at once). It logs
+    one line at the first failed try and one every :data:`RETRY_LOG_EVERY_S`;
+    the line says whether the router answers at all: one that accepts the
+    connection but refuses the session refused the credentials (or is not a
+    zenoh router). ``stop`` (SIGTERM) ends the wait with a TransportError."""
     global _zenoh_log_initialised
     if not _zenoh_log_initialised:
         zenoh.init_log_from_env_or("error")
         _zenoh_log_initialised = True
-    deadline = time.monotonic() + retry_for_s
+    started = time.monotonic()
+    deadline = started + retry_for_s
+    next_line = started
     where = f"mode {settings.zenoh_mode}, connect {settings.zenoh_connect or '-'}, listen {settings.zenoh_listen or '-'}"
     while True:
         try:
@@ -91,10 +118,23 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
             text = zenoh_error_text(exc)
             if _NOT_YET not in text:
                 raise TransportError(f"cannot open zenoh session ({where}): {text}") from None
+            answering = _answering(settings.endpoints("connect"))
+            if answering:
+                text = (
+                    f"{', '.join(answering)} accepts connections but refused the session (user {settings.zenoh_user or '-'}): wrong password or unknown user?"
+                )
             if time.monotonic() >= deadline:
-                raise TransportError(f"cannot open zenoh session ({where}): nothing answered for {retry_for_s:.0f} s: {text}") from None
-            log.warning("zenoh router not reachable yet (%s); retrying", text)
-            sleep(0.5)
+                what = "refused" if answering else "nothing answered"
+                raise TransportError(f"cannot open zenoh session ({where}): {what} for {retry_for_s:.0f} s: {text}") from None
+            if stop is not None and stop.is_set():
+                raise TransportError(f"cannot open zenoh session ({where}): stopped while waiting: {text}") from None
+            if time.monotonic() >= next_line:
+                log.warning("zenoh router not reachable yet (%s); retrying for up to %.0f s", text, max(0.0, deadline - time.monotonic()))
+                next_line = time.monotonic() + RETRY_LOG_EVERY_S
+            if stop is not None:
+                stop.wait(0.5)
+            else:
+                sleep(0.5)
 
 
 def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:

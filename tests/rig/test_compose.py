@@ -24,6 +24,7 @@ import zenoh
 from protocol.keys import Keys
 from protocol.messages import ControllerStatus, decode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+from service_kit.readiness import parse_ready_line
 from workbench.launcher import free_tcp_port
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -68,6 +69,60 @@ def test_dockerfile_copies_only_what_the_services_need() -> None:
     copied = set(re.findall(r"^COPY (\w+) ", text, flags=re.M))
     assert copied == {"protocol", "service_kit", "plant_emulator", "controller", "dsp_service"}
     assert re.search(r"pip install \"?\.", text)
+
+
+def _override() -> dict:
+    return yaml.safe_load((ROOT / "docker-compose.python-router.yml").read_text())
+
+
+def test_every_service_has_a_healthcheck_and_the_controller_starts_after_plant_and_dsp() -> None:
+    services = _compose()["services"]
+    for name in MODELS:
+        svc = services[name]
+        # the project's own cheap check, on the ready file the service writes
+        assert svc["healthcheck"]["test"] == ["CMD", "python", "-m", "service_kit.readiness", svc["environment"]["RALF_READY_FILE"]]
+    assert services["controller"]["depends_on"]["dsp"]["condition"] == "service_healthy"
+    assert services["controller"]["depends_on"]["plant"]["condition"] == "service_healthy"
+    assert "wget" in services["zenoh-router"]["healthcheck"]["test"]
+
+
+def test_the_dsp_sits_in_another_network_than_the_cabinet() -> None:
+    """As on another host: the DSP reaches the rig only through the router;
+    the CAN bus (udp_multicast, TTL 1) spans only the cabinet's segment."""
+    doc = _compose()
+    assert set(doc["networks"]) == {"cabinet", "lab"}
+    nets = {name: set(svc["networks"]) for name, svc in doc["services"].items()}
+    assert nets == {"zenoh-router": {"cabinet", "lab"}, "dsp": {"lab"}, "plant": {"cabinet"}, "controller": {"cabinet"}}
+    for name in ("plant", "controller"):
+        assert doc["services"][name]["environment"]["RALF_CAN_MULTICAST_TTL"] == "1"
+
+
+def test_the_override_replaces_only_the_router_on_the_same_config() -> None:
+    base, override = _compose()["services"]["zenoh-router"], _override()["services"]
+    assert set(override) == {"zenoh-router"}
+    router = override["zenoh-router"]
+    assert router["image"] == _compose()["services"]["dsp"]["image"]
+    assert router["command"][:3] == ["python", "-m", "service_kit.router"]
+    assert router["command"][3] == base["command"][base["command"].index("-c") + 1]
+    # strings: an override's string test replaces the base's (podman-compose appends lists)
+    assert isinstance(base["healthcheck"]["test"], str) and isinstance(router["healthcheck"]["test"], str)
+    assert router["healthcheck"]["test"].split()[-1] == router["command"][router["command"].index("--ready-file") + 1]
+
+
+def test_the_image_warms_all_four_kernels_as_the_run_user_from_its_home() -> None:
+    lines = [line.strip() for line in (ROOT / "Dockerfile").read_text().splitlines() if line.strip() and not line.startswith("#")]
+    user = lines.index("USER ralf")
+    home = lines.index("WORKDIR /home/ralf")
+    (warm,) = [i for i, line in enumerate(lines) if "warm_up" in line]
+    assert user < warm and home < warm
+    for module in ("dsp_service.kernel", "plant_emulator.model.compiled", "controller.fast_tick", "dsp_service.arx_kernel"):
+        assert f"from {module} import warm_up" in lines[warm]
+
+
+def test_the_build_context_leaves_secrets_and_local_state_out() -> None:
+    ignored = {line.strip() for line in (ROOT / ".dockerignore").read_text().splitlines() if line.strip() and not line.startswith("#")}
+    assert {"secrets/", ".venv/", ".git/", "**/*.env", "**/zenoh-credentials.txt"} <= ignored
+    assert "COPY . " not in (ROOT / "Dockerfile").read_text()
 
 
 @pytest.mark.parametrize("module", ["plant_emulator", "controller", "dsp_service"])
@@ -121,6 +176,7 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
             env["RALF_ZENOH_CONNECT"] = env["RALF_ZENOH_CONNECT"].replace("zenoh-router:7447", f"127.0.0.1:{port}")
             env["RALF_RIG_ID"] = rig_id
             env["RALF_CAN_PORT"] = can_port
+            env["RALF_READY_FILE"] = str(tmp_path / f"{name}.ready")  # the container's /tmp/ralf-ready
             cmd = svc["command"]
             exe = shutil.which(cmd[0]) or ""
             argv = [exe, *cmd[1:]] if exe else [sys.executable, "-m", COMMANDS[cmd[0]], *cmd[1:]]
@@ -137,6 +193,13 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
                 break
         logs = {n: (tmp_path / f"{n}.log").read_text(errors="replace") for n in procs}
         assert last is not None and last.interrupts >= 5, logs
+        for name, svc in doc["services"].items():
+            if name in procs:  # the compose healthcheck's command, on this process's ready file
+                test = [a.replace(svc["environment"]["RALF_READY_FILE"], str(tmp_path / f"{name}.ready")) for a in svc["healthcheck"]["test"][1:]]
+                assert subprocess.run([sys.executable, *test[1:]], capture_output=True, timeout=60).returncode == 0, name
+        for name in procs:
+            ready = parse_ready_line((tmp_path / f"{name}.log").read_text(errors="replace"))
+            assert ready is not None, logs[name]
     finally:
         for name in ("controller", "plant", "dsp"):
             if name in procs and procs[name].poll() is None:
@@ -151,6 +214,7 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
         sub.undeclare()
         router.close()
     assert codes == {"dsp": 0, "plant": 0, "controller": 0}, {n: (tmp_path / f"{n}.log").read_text(errors="replace")[-2000:] for n in procs}
+    assert not any((tmp_path / f"{n}.ready").exists() for n in procs)  # removed at exit
 
 
 @pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose (Debian's package) is not installed; .ci/run installs it")
@@ -166,5 +230,12 @@ def test_docker_compose_itself_accepts_the_file_with_generated_credentials(tmp_p
     resolved = yaml.safe_load(ok.stdout)
     assert set(resolved["services"]) == {"zenoh-router", "dsp", "plant", "controller"}
     assert all(svc["environment"]["RALF_ZENOH_PASSWORD"] for name, svc in resolved["services"].items() if name != "zenoh-router")
+    controller = resolved["services"]["controller"]
+    assert controller["depends_on"]["plant"]["condition"] == "service_healthy" and "healthcheck" in controller
+    both = [*compose, "-f", str(ROOT / "docker-compose.python-router.yml"), "--env-file", str(out / "ralf.env"), "config"]
+    merged = subprocess.run(both, capture_output=True, text=True, check=False)
+    assert merged.returncode == 0, merged.stderr
+    router = yaml.safe_load(merged.stdout)["services"]["zenoh-router"]
+    assert "service_kit.router" in router["command"] and "service_kit.readiness" in str(router["healthcheck"]["test"])
     bare = subprocess.run([*compose, "config"], capture_output=True, text=True, check=False, env={**os.environ, "ZENOH_PASSWORD_DSP": ""})
     assert bare.returncode != 0 and "ralf-hil credentials" in bare.stderr
