@@ -30,11 +30,13 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from plant_emulator.model import PlantConfig, RalfArm
+from plant_emulator.model import PlantConfig
 from plant_emulator.node import CanopenNode, NodeConfig
+from plant_emulator.plant_model import PlantModel, ReportsStepFaults, build_plant_model
+from protocol.can_map import EmcyCode
 from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import Keys
-from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
+from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.settings import PlantSettings
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
@@ -141,19 +143,25 @@ def parse_scenario(text: str) -> list[ScenarioCommand]:
 
 
 class PlantApplication:
-    """The node's application: the arm, its clock, scenario commands and the test port."""
+    """The node's application: the plant model (``arm``: the RALF arm or an
+    FMU, :mod:`plant_emulator.plant_model`), its clock, scenario commands and
+    the test port."""
 
     def __init__(
         self,
         settings: PlantSettings,
-        arm: RalfArm | None = None,
+        arm: PlantModel | None = None,
         clock: Callable[[], float] = time.monotonic,
         stopwatch: Callable[[], float] = time.perf_counter,
         publish_truth: Callable[[GroundTruth], None] | None = None,
         publish_event: Callable[[PlantEvent], None] | None = None,
     ) -> None:
         self.settings = settings
-        self.arm = arm or RalfArm(plant_config(settings))
+        self.arm: PlantModel = arm if arm is not None else build_plant_model(settings)
+        self.set_fault: Callable[[int, bool, bytes], None] | None = None
+        """Raises/clears a node EMCY (``CanopenNode.set_fault``), wired by whoever builds the node."""
+        if isinstance(self.arm, ReportsStepFaults):  # the FMU plant: its step can fail
+            self.arm.on_fault = self._model_fault
         self.clock = clock
         self.stopwatch = stopwatch
         self.t0: float | None = None
@@ -267,6 +275,27 @@ class PlantApplication:
         self.arm.set_adc_bits(bits)
         self._event("adc_bits", f"A/D resolution set to {bits} bits by SDO")
 
+    def _model_fault(self, cause: int, active: bool, detail: str) -> None:
+        """The model's step failed (``active``) or is good again: EMCY
+        PLANT_MODEL_FAULT (vendor byte 0: the cause) and a plant event."""
+        if self.set_fault is not None:
+            self.set_fault(EmcyCode.PLANT_MODEL_FAULT, active, bytes([cause & 0xFF]))
+        self._event("model_fault" if active else "model_fault_cleared", detail)
+
+    def model_health(self) -> tuple[dict[str, int], dict[str, LatencyStats], str | None]:
+        """The model's own counters, step latencies and last problem (none for the RALF arm)."""
+        counters = getattr(self.arm, "health_counters", None)
+        latencies = getattr(self.arm, "health_latencies", None)
+        return (
+            counters() if counters is not None else {},
+            latencies() if latencies is not None else {},
+            getattr(self.arm, "last_problem", None),
+        )
+
+    def close(self) -> None:
+        """Free the model (an FMU's instance and files); once the node has stopped."""
+        self.arm.close()
+
     # -- scenario and test port ------------------------------------------------------------
     def _apply_scenario(self) -> None:
         inbox = self.scenario_inbox
@@ -378,18 +407,24 @@ class PlantTestPort:
         self._event_pub.undeclare()
 
 
-def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort, measures: RealtimeMeasures | None = None) -> Health:
+def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort | None, measures: RealtimeMeasures | None = None) -> Health:
+    """The plant's health: the node's counters, the SYNC -> sample latency
+    (the model's step included) and, for an FMU, its step counters and times."""
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
-    counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=port.bad_scenarios)
+    counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=port.bad_scenarios if port is not None else 0)
     counters.update((measures or RealtimeMeasures()).as_counters())
+    model_counters, model_latencies, model_problem = app.model_health()
+    counters.update(model_counters)
+    latencies = {"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats(), **model_latencies}
+    failed = bool(getattr(app.arm, "fault_active", False))
     return Health(
         seq=seq,
         sim_time_s=app.arm.time_s,
         service="plant",
-        state="degraded" if app.held else "running",
+        state="degraded" if app.held or failed else "running",
         counters=counters,
-        latencies={"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats()},
-        last_miss="valves held: SYNC watchdog" if app.held else None,
+        latencies=latencies,
+        last_miss="valves held: SYNC watchdog" if app.held else model_problem,
     )
 
 
@@ -401,17 +436,26 @@ def serve(
     scheduler: Scheduler | None = None,
     *,
     owns_process: bool = True,
+    model: PlantModel | None = None,
 ) -> None:
     """Run the node on ``bus`` until ``stop``; the test port on ``session``.
     ``owns_process``: False when other services share the process (the
-    one-process composition): the real-time measures then stay on this thread."""
+    one-process composition): the real-time measures then stay on this thread.
+    ``model``: the plant model, already built (default: the one the settings
+    name, built here); freed when the node stops."""
     from plant_emulator.node import run_node
 
+    model = model if model is not None else build_plant_model(settings)
     clock = (scheduler or scheduler_for(settings.clock, stop)).now
-    port = PlantTestPort(settings, session)
-    app = PlantApplication(settings, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
+    try:
+        port = PlantTestPort(settings, session)
+    except BaseException:
+        model.close()
+        raise
+    app = PlantApplication(settings, arm=model, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
     app.scenario_inbox = port.inbox
     node = CanopenNode(app, node_config(settings))
+    app.set_fault = node.set_fault
     measures = (
         apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
         if settings.clock == "realtime"
@@ -426,4 +470,5 @@ def serve(
             app.save_truth(settings.record)
         health.stop()
         port.close()
+        app.close()
         log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())
