@@ -17,6 +17,7 @@ import tempfile
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from plant_emulator.fmu.instance import FmuRefused, read_description
 
@@ -54,7 +55,7 @@ def build_c_fmu(source_dir: str | Path, dest: str | Path, compiler: str = "gcc")
     return out
 
 
-def read_description_xml(path: Path) -> object:
+def read_description_xml(path: Path) -> Any:
     """The model description of a source directory (its XML file)."""
     import fmpy
 
