@@ -92,6 +92,10 @@ class DeferredLatency(LatencyTracker):
         self._flush()
         return super().values()
 
+    def stats(self) -> LatencyStats:
+        self._flush()
+        return super().stats()
+
 
 def plant_config(settings: PlantSettings) -> PlantConfig:
     return PlantConfig(

@@ -35,6 +35,7 @@ typedef struct {
     double s[2][6]; /* per channel: x, v, qa, qa', qb, qb' */
     uint64_t rng;
     long steps;
+    int fault_done;
     double time;
     fmi2CallbackFunctions cb;
 } Model;
@@ -129,6 +130,7 @@ static void start(Model *m) {
     m->rng = 0x9E3779B97F4A7C15ULL ^ (uint64_t)(uint32_t)m->i[SEED];
     if (m->rng == 0) m->rng = 1;
     m->steps = 0;
+    m->fault_done = 0;
     m->time = 0.0;
     outputs(m, 0);
 }
@@ -234,7 +236,8 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
             m->cb.logger(m->cb.componentEnvironment, "plant", fmi2Error, "error", "communication step %g s is not a whole number of 1 ms internal steps", h);
         return fmi2Error;
     }
-    int fault = m->steps == m->i[FAULT_STEP] ? m->i[FAULT_KIND] : 0;
+    int fault = (m->steps == m->i[FAULT_STEP] && !m->fault_done) ? m->i[FAULT_KIND] : 0;
+    if (fault) m->fault_done = 1; /* once: a repeated step is good */
     if (fault == 1) return fmi2Discard;
     if (fault == 2) return fmi2Error;
     double hi = h / (double)n;
