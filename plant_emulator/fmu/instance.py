@@ -19,8 +19,10 @@ the step.
 from __future__ import annotations
 
 import ctypes
+import logging
 import shutil
 import zipfile
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +30,8 @@ from plant_emulator.fmu.mapping import FmuMapping, Scalar
 from protocol.errors import ConfigError
 
 __all__ = ["FmuInstance", "FmuRefused", "check_fmu", "open_fmu"]
+
+log = logging.getLogger(__name__)
 
 STATUS_OK = 0
 STATUS_DISCARD = 2
@@ -64,6 +68,8 @@ class FmuInstance:
         self.version = description.fmiMajorVersion
         self._unzip_dir = unzip_dir
         self._closed = False
+        self.messages: deque[str] = deque(maxlen=16)
+        """The FMU's last warning and error log messages."""
         variables = {v.name: v for v in description.modelVariables}
         self.variables = variables
         cs = description.coSimulation
@@ -82,17 +88,18 @@ class FmuInstance:
             raise
         except Exception as exc:  # noqa: BLE001 - FMPy's FMICallException, or the FMU's own failure
             self.close()
-            raise FmuRefused(f"{path}: initialization failed ({_one_line(exc)})") from None
+            said = f": {self.last_message}" if self.messages else ""
+            raise FmuRefused(f"{path}: initialization failed ({_one_line(exc)}{said})") from None
         self._build_io()
 
     # -- setup -------------------------------------------------------------------------------
     def _instantiate_and_initialize(self, seed: int) -> None:
         fmu = self.fmu
         if self.version == 2:
-            fmu.instantiate()
+            fmu.instantiate(callbacks=self._fmi2_callbacks())
             fmu.setupExperiment(startTime=0.0)
         else:
-            fmu.instantiate()
+            fmu.instantiate(logMessage=self._log_fmi3)
         values: dict[str, Scalar] = {**self.mapping.parameters, **self.mapping.start}
         if self.mapping.seed_variable is not None:
             values[self.mapping.seed_variable] = int(seed)
@@ -105,6 +112,40 @@ class FmuInstance:
             fmu.enterInitializationMode(startTime=0.0)
             fmu.exitInitializationMode()
         self.fmu_initialized = True
+
+    def _fmi2_callbacks(self) -> Any:
+        """FMI 2.0 callbacks whose logger goes to this module's log (FMPy's
+        varargs proxy formats the message), kept alive with the instance."""
+        fmpy = _fmpy()
+        from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+        from fmpy.logging import addLoggerProxy
+
+        def logger(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
+            self._log(status, category, message)
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+        addLoggerProxy(ctypes.byref(callbacks))
+        self._callbacks = callbacks
+        return callbacks
+
+    def _log_fmi3(self, env: Any, status: int, category: bytes, message: bytes) -> None:
+        self._log(status, category, message)
+
+    def _log(self, status: int, category: bytes | None, message: bytes | None) -> None:
+        """An FMU's log message: kept (the last few, for the line that reports a
+        refusal or a fault) and logged at debug level."""
+        text = " ".join((message or b"").decode("utf-8", "replace").split())
+        if status >= 1:
+            self.messages.append(text)
+        log.debug("FMU %s [%s]: %s", self.path.name, (category or b"").decode("utf-8", "replace"), text)
+
+    @property
+    def last_message(self) -> str:
+        """The FMU's last warning or error message ('' if none)."""
+        return self.messages[-1] if self.messages else ""
 
     def _set_scalar(self, name: str, value: Scalar) -> None:
         var = self.variables[name]
@@ -298,7 +339,8 @@ def check_step(instance: FmuInstance, sample_period_s: float) -> None:
     status = instance.step(0.0, sample_period_s, 0.0, 0.0)
     if status != STATUS_OK:
         label = {STATUS_DISCARD: "discard", STATUS_ERROR: "error", 4: "fatal", STATUS_TERMINATED: "terminate"}.get(status, f"status {status}")
-        raise FmuRefused(f"{instance.path}: refuses a step of {sample_period_s * 1e3:g} ms (doStep returned {label})")
+        said = f": {instance.last_message}" if instance.last_message else ""
+        raise FmuRefused(f"{instance.path}: refuses a step of {sample_period_s * 1e3:g} ms (doStep returned {label}{said})")
 
 
 def check_fmu(path: str | Path, mapping: FmuMapping, sample_period_s: float, seed: int = 0) -> None:

@@ -222,7 +222,8 @@ class FmuPlant:
             cause = FAULT_ERROR
         self.failed = True
         label = "asked to terminate" if status == STATUS_TERMINATED else f"returned {'fatal' if status > STATUS_ERROR else 'error'}"
-        self._report(cause, True, f"FMU doStep at {t:.3f} s {label}: no further steps; outputs held")
+        said = f" ({self.instance.last_message})" if self.instance.last_message else ""
+        self._report(cause, True, f"FMU doStep at {t:.3f} s {label}{said}: no further steps; outputs held")
 
     def _report(self, cause: int, active: bool, detail: str) -> None:
         if active:
