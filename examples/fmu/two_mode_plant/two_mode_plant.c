@@ -109,12 +109,12 @@ static void defaults(Model *m) {
     m->r[FB0] = 11.5;
     m->r[ZETA_A] = 0.05;
     m->r[ZETA_B] = 0.03;
-    m->r[KF] = 0.03;
+    m->r[KF] = 0.01;
     m->r[GAIN1] = 15.0;
     m->r[GAIN2] = 7.0;
     m->r[TAU] = 0.01;
-    m->r[BA] = 0.5;
-    m->r[BB] = 0.5;
+    m->r[BA] = 5.0;
+    m->r[BB] = 3.0;
     m->r[X1_START] = 10.0;
     m->r[X2_START] = 10.0;
     m->r[NOISE_STD] = 0.0;

@@ -42,7 +42,7 @@ class Rig:
         self.counter = 0
         self.node.handle(can.Message(arbitration_id=0, data=can_map.encode_nmt(can_map.NmtCommand.START, 1), is_extended_id=False), 0.0)
 
-    def sync(self, volts: tuple[float, float] = (0.4, -0.3)) -> tuple[list[int], list[tuple[int, int, int]]]:
+    def sync(self, volts: tuple[float, float] = (0.05, -0.04)) -> tuple[list[int], list[tuple[int, int, int]]]:
         """One SYNC and the RPDO1 after it: the TPDO1's four codes and the EMCYs (code, register, cause byte)."""
         self.counter = can_map.next_sync_counter(self.counter)
         t = self.k * self.settings.sample_period_s
