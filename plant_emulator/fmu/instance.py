@@ -233,6 +233,11 @@ class FmuInstance:
                 fmu.freeInstance()  # frees the instance and unloads the library
             except Exception:  # noqa: BLE001, S110
                 pass
+        elif fmu is not None:  # loaded, never instantiated
+            try:
+                fmu.freeLibrary()
+            except Exception:  # noqa: BLE001, S110
+                pass
         shutil.rmtree(self._unzip_dir, ignore_errors=True)
 
 
