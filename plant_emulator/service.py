@@ -450,22 +450,22 @@ def serve(
     from plant_emulator.node import run_node
 
     model = model if model is not None else build_plant_model(settings)
-    clock = (scheduler or scheduler_for(settings.clock, stop)).now
     try:
+        clock = (scheduler or scheduler_for(settings.clock, stop)).now
         port = PlantTestPort(settings, session)
-    except BaseException:
+        app = PlantApplication(settings, arm=model, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
+        app.scenario_inbox = port.inbox
+        node = CanopenNode(app, node_config(settings))
+        app.set_fault = node.set_fault
+        measures = (
+            apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
+            if settings.clock == "realtime"
+            else RealtimeMeasures()
+        )
+        health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
+    except BaseException:  # the model (an FMU instance) freed on any failure before the node runs
         model.close()
         raise
-    app = PlantApplication(settings, arm=model, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
-    app.scenario_inbox = port.inbox
-    node = CanopenNode(app, node_config(settings))
-    app.set_fault = node.set_fault
-    measures = (
-        apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
-        if settings.clock == "realtime"
-        else RealtimeMeasures()
-    )
-    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
     try:
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
     finally:

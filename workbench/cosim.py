@@ -258,25 +258,25 @@ def run_cosim(
     for its ``ralf.run`` record); the run itself is unchanged."""
     cs, ps, ds = settings_for(controller, plant, dsp, common)
     model = build_plant_model(ps)  # a bad FMU is refused here (ConfigError), before anything runs
-    scheduler = SimulatedScheduler()
     try:
+        scheduler = SimulatedScheduler()
         recording = _recording(record, can_log, record_metadata, scheduler, cs, ps, ds)
-    except BaseException:
+        app = PlantApplication(ps, arm=model, clock=scheduler.now)
+        node = CanopenNode(app, node_config(ps))
+        app.set_fault = node.set_fault
+        wire: Any = DirectCanWire(node, scheduler)
+        core = DspCore(ds)
+        load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
+        port: Any = DirectDspPort(core)
+        if recording is not None:
+            app.publish_truth, app.publish_event = recording.truth, recording.event
+            wire, port = recording.wire(wire), recording.port(port)
+        link = PlantLink(wire, cs.node_id, clock=scheduler.now)
+        started = time.monotonic()
+        ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)
+    except BaseException:  # the model (an FMU instance) freed on any failure before the run
         model.close()
         raise
-    app = PlantApplication(ps, arm=model, clock=scheduler.now)
-    node = CanopenNode(app, node_config(ps))
-    app.set_fault = node.set_fault
-    wire: Any = DirectCanWire(node, scheduler)
-    core = DspCore(ds)
-    load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
-    port: Any = DirectDspPort(core)
-    if recording is not None:
-        app.publish_truth, app.publish_event = recording.truth, recording.event
-        wire, port = recording.wire(wire), recording.port(port)
-    link = PlantLink(wire, cs.node_id, clock=scheduler.now)
-    started = time.monotonic()
-    ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)
     try:
         result = ctrl.run(scheduler.stop)
     finally:
