@@ -138,3 +138,21 @@ def test_a_step_longer_than_the_period_is_the_plants_overrun(rig_with) -> None: 
     assert health.latencies["fmu_step"].max == pytest.approx(0.006)
     assert health.last_miss is not None and "longer than the 5 ms period" in health.last_miss
     assert health.latencies["sync_to_sample"].count == 22  # the step is inside the SYNC -> sample hop
+
+
+def test_the_fmu_is_instantiated_once_and_freed_on_stop(two_mode_fmu: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A co-simulation leaves nothing behind: the plant's FMU instance (and the
+    launcher-style check's throw-away one) terminated, freed, their files removed."""
+    import tempfile
+
+    from workbench.cosim import run_cosim
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    run = run_cosim(controller={"duration_s": 2.0}, plant=plant_settings(two_mode_fmu, write_mapping(tmp_path)))
+    plant = run.plant.arm
+    assert isinstance(plant, FmuPlant)
+    assert plant.steps_done == 400 and plant.instance._closed  # noqa: SLF001 - the instance's own record of its close
+    assert list(scratch.iterdir()) == []
+    plant.close()  # a second close is harmless
