@@ -217,6 +217,11 @@ class FmuInstance:
     def values(self) -> list[float]:
         return list(self._out_val)
 
+    @property
+    def closed(self) -> bool:
+        """Terminated and freed (:meth:`close` ran)."""
+        return self._closed
+
     def close(self) -> None:
         """Terminate and free the instance, unload its library, remove its files (once)."""
         if self._closed:

@@ -153,6 +153,6 @@ def test_the_fmu_is_instantiated_once_and_freed_on_stop(two_mode_fmu: Path, tmp_
     run = run_cosim(controller={"duration_s": 2.0}, plant=plant_settings(two_mode_fmu, write_mapping(tmp_path)))
     plant = run.plant.arm
     assert isinstance(plant, FmuPlant)
-    assert plant.steps_done == 400 and plant.instance._closed  # noqa: SLF001 - the instance's own record of its close
+    assert plant.steps_done == 400 and plant.instance.closed
     assert list(scratch.iterdir()) == []
     plant.close()  # a second close is harmless
