@@ -26,9 +26,9 @@ def test_the_fmu_plant_runs_in_real_time(two_mode_fmu: Path) -> None:
     plant = run.health["plant"]
     c = plant.counters
     assert c["samples"] == c["syncs_applied"] > 0 and c["app_errors"] == 0
-    # the plant's clock starts at the NMT start, before the controller's schedule: SYNC k (from 0) comes
-    # no earlier than k periods later on it, so the FMU has made at least k whole steps by then
-    assert c["fmu_steps"] >= c["syncs_applied"] - 1
+    # the plant's clock starts at SYNC 0: the steps cover the wall time from it to the last SYNC, one per
+    # period, so they fall short of the SYNC count only by SYNC 0's own lateness (a few periods on a loaded host)
+    assert c["fmu_steps"] >= 0.9 * c["syncs_applied"]
     assert c["fmu_step_errors"] == c["fmu_step_discards"] == c["fmu_non_finite_outputs"] == 0
     assert plant.latencies["fmu_step"].count == c["fmu_steps"]
     assert plant.latencies["sync_to_sample"].count == c["samples"]
