@@ -50,7 +50,6 @@ FAULT_DISCARD = 2
 FAULT_NON_FINITE = 3
 FAULT_TERMINATED = 4
 """The cause byte of the EMCY's vendor field (doStep Error/Fatal, Discard, a non-finite output, FMI 3.0 terminateSimulation)."""
-_CAUSE_NAMES = {FAULT_ERROR: "error", FAULT_DISCARD: "discard", FAULT_NON_FINITE: "non-finite output", FAULT_TERMINATED: "terminate"}
 
 FaultHook = Callable[[int, bool, str], None]
 """``on_fault(cause, active, detail)``: a fault appeared (``active``) or cleared."""
@@ -236,7 +235,3 @@ class FmuPlant:
         hook = self.on_fault
         if hook is not None:
             hook(cause, active, detail)
-
-
-def cause_name(cause: int) -> str:
-    return _CAUSE_NAMES.get(cause, str(cause))
