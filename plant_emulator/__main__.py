@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 import zenoh
 
+from plant_emulator.plant_model import build_plant_model
 from plant_emulator.service import serve
 from protocol.settings import PlantSettings
 from service_kit.runtime import run_service
@@ -17,12 +18,23 @@ log = logging.getLogger("plant")
 
 
 def serve_on_bus(settings: PlantSettings, session: zenoh.Session, stop: threading.Event) -> int:
-    bus = open_can_bus(settings)
+    model = build_plant_model(settings)  # a bad FMU is refused (one line, exit 2) before the bus opens
+    try:
+        bus = open_can_bus(settings)
+    except BaseException:
+        model.close()
+        raise
     try:
         log.info(
-            "plant up on rig %r: node %d on %s:%s, %s clock", settings.rig_id, settings.node_id, settings.can_interface, settings.can_channel, settings.clock
+            "plant up on rig %r: node %d on %s:%s, %s clock, model %s",
+            settings.rig_id,
+            settings.node_id,
+            settings.can_interface,
+            settings.can_channel,
+            settings.clock,
+            settings.model,
         )
-        serve(settings, session, bus, stop)
+        serve(settings, session, bus, stop, model=model)
     finally:
         bus.shutdown()
     return 0

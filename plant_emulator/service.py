@@ -31,11 +31,13 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from plant_emulator.model import PlantConfig, RalfArm
+from plant_emulator.model import PlantConfig
 from plant_emulator.node import CanopenNode, NodeConfig
+from plant_emulator.plant_model import PlantModel, ReportsStepFaults, build_plant_model
 from plant_emulator.scenario import PendingCommands
+from protocol.can_map import EmcyCode
 from protocol.keys import Keys
-from protocol.messages import GroundTruth, Health, PlantEvent, ScenarioCommand, decode, encode
+from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
 from protocol.scenario_setting import parse_scenario
 from protocol.settings import PlantSettings
@@ -95,6 +97,10 @@ class DeferredLatency(LatencyTracker):
         self._flush()
         return super().values()
 
+    def stats(self) -> LatencyStats:
+        self._flush()
+        return super().stats()
+
 
 def plant_config(settings: PlantSettings) -> PlantConfig:
     return PlantConfig(
@@ -131,19 +137,25 @@ SCENARIO_PENDING = 64
 
 
 class PlantApplication:
-    """The node's application: the arm, its clock, scenario commands and the test port."""
+    """The node's application: the plant model (``arm``: the RALF arm or an
+    FMU, :mod:`plant_emulator.plant_model`), its clock, scenario commands and
+    the test port."""
 
     def __init__(
         self,
         settings: PlantSettings,
-        arm: RalfArm | None = None,
+        arm: PlantModel | None = None,
         clock: Callable[[], float] = time.monotonic,
         stopwatch: Callable[[], float] = time.perf_counter,
         publish_truth: Callable[[GroundTruth], None] | None = None,
         publish_event: Callable[[PlantEvent], None] | None = None,
     ) -> None:
         self.settings = settings
-        self.arm = arm or RalfArm(plant_config(settings))
+        self.arm: PlantModel = arm if arm is not None else build_plant_model(settings)
+        self.set_fault: Callable[[int, bool, bytes], None] | None = None
+        """Raises/clears a node EMCY (``CanopenNode.set_fault``), wired by whoever builds the node."""
+        if isinstance(self.arm, ReportsStepFaults):  # the FMU plant: its step can fail
+            self.arm.on_fault = self._model_fault
         self.clock = clock
         self.stopwatch = stopwatch
         self.t0: float | None = None
@@ -262,6 +274,27 @@ class PlantApplication:
         self.arm.set_adc_bits(bits)
         self._event("adc_bits", f"A/D resolution set to {bits} bits by SDO")
 
+    def _model_fault(self, cause: int, active: bool, detail: str) -> None:
+        """The model's step failed (``active``) or is good again: EMCY
+        PLANT_MODEL_FAULT (vendor byte 0: the cause) and a plant event."""
+        if self.set_fault is not None:
+            self.set_fault(EmcyCode.PLANT_MODEL_FAULT, active, bytes([cause & 0xFF]))
+        self._event("model_fault" if active else "model_fault_cleared", detail)
+
+    def model_health(self) -> tuple[dict[str, int], dict[str, LatencyStats], str | None]:
+        """The model's own counters, step latencies and last problem (none for the RALF arm)."""
+        counters = getattr(self.arm, "health_counters", None)
+        latencies = getattr(self.arm, "health_latencies", None)
+        return (
+            counters() if counters is not None else {},
+            latencies() if latencies is not None else {},
+            getattr(self.arm, "last_problem", None),
+        )
+
+    def close(self) -> None:
+        """Free the model (an FMU's instance and files); once the node has stopped."""
+        self.arm.close()
+
     # -- scenario and test port ------------------------------------------------------------
     def _apply_scenario(self) -> None:
         if len(self.scenario_inbox):
@@ -371,19 +404,26 @@ class PlantTestPort:
         self._event_pub.undeclare()
 
 
-def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort, measures: RealtimeMeasures | None = None) -> Health:
+def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort | None, measures: RealtimeMeasures | None = None) -> Health:
+    """The plant's health: the node's counters, the SYNC -> sample latency
+    (the model's step included) and, for an FMU, its step counters and times."""
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, scenario_pending_dropped=app.scenario.dropped)
-    counters.update(port.inbox.as_dict())
+    if port is not None:
+        counters.update(port.inbox.as_dict())
     counters.update((measures or RealtimeMeasures()).as_counters())
+    model_counters, model_latencies, model_problem = app.model_health()
+    counters.update(model_counters)
+    latencies = {"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats(), **model_latencies}
+    failed = bool(getattr(app.arm, "fault_active", False))
     return Health(
         seq=seq,
         sim_time_s=app.arm.time_s,
         service="plant",
-        state="degraded" if app.held else "running",
+        state="degraded" if app.held or failed else "running",
         counters=counters,
-        latencies={"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats()},
-        last_miss="valves held: SYNC watchdog" if app.held else None,
+        latencies=latencies,
+        last_miss="valves held: SYNC watchdog" if app.held else model_problem,
     )
 
 
@@ -395,23 +435,32 @@ def serve(
     scheduler: Scheduler | None = None,
     *,
     owns_process: bool = True,
+    model: PlantModel | None = None,
 ) -> None:
     """Run the node on ``bus`` until ``stop``; the test port on ``session``.
     ``owns_process``: False when other services share the process (the
-    one-process composition): the real-time measures then stay on this thread."""
+    one-process composition): the real-time measures then stay on this thread.
+    ``model``: the plant model, already built (default: the one the settings
+    name, built here); freed when the node stops."""
     from plant_emulator.node import run_node
 
-    clock = (scheduler or scheduler_for(settings.clock, stop)).now
-    port = PlantTestPort(settings, session)
-    app = PlantApplication(settings, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
-    app.scenario_inbox = port.inbox
-    node = CanopenNode(app, node_config(settings))
-    measures = (
-        apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
-        if settings.clock == "realtime"
-        else RealtimeMeasures()
-    )
-    health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
+    model = model if model is not None else build_plant_model(settings)
+    try:
+        clock = (scheduler or scheduler_for(settings.clock, stop)).now
+        port = PlantTestPort(settings, session)
+        app = PlantApplication(settings, arm=model, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
+        app.scenario_inbox = port.inbox
+        node = CanopenNode(app, node_config(settings))
+        app.set_fault = node.set_fault
+        measures = (
+            apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
+            if settings.clock == "realtime"
+            else RealtimeMeasures()
+        )
+        health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
+    except BaseException:  # the model (an FMU instance) freed on any failure before the node runs
+        model.close()
+        raise
     try:
         readiness.mark_ready(settings.ready_file, log)  # kernels warm, node and test port up
         run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
@@ -421,4 +470,5 @@ def serve(
             app.save_truth(settings.truth_record)
         health.stop()
         port.close()
+        app.close()
         log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())

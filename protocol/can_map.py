@@ -139,6 +139,9 @@ class EmcyCode(enum.IntEnum):
     mixed): a second SYNC producer on the bus (manufacturer specific)."""
     RPDO_CONFLICT = 0xFF03
     """More RPDO1 frames in one SYNC period than SYNCs in it: a second RPDO producer (manufacturer specific)."""
+    PLANT_MODEL_FAULT = 0x6200
+    """The plant model's step failed (an FMU's doStep returned Discard, Error or Fatal, or non-finite
+    outputs): the last outputs are held (CiA 301 "user software"; vendor byte 0: the cause)."""
 
 
 def cob_ids(node_id: int = DEFAULT_NODE_ID) -> dict[str, int]:

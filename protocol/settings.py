@@ -243,6 +243,26 @@ class PlantSettings(CommonSettings):
             raise ValueError(str(exc).removeprefix("RALF_SCENARIO ")) from None
         return value
 
+    model: str = Field(
+        "ralf",
+        max_length=4096,
+        description="The plant behind the node: ralf (the built-in RALF arm) or fmu:PATH (an FMI 2.0/3.0 co-simulation FMU, docs/fmu-plant.md)",
+    )
+    fmu_mapping: str = Field("", max_length=4096, description="With model=fmu:PATH: the YAML file that maps the node's I/O to the FMU's variables")
+
+    @field_validator("model")
+    @classmethod
+    def _model(cls, value: str) -> str:
+        if value == "ralf" or (value.startswith("fmu:") and value.removeprefix("fmu:").strip()):
+            return value
+        raise ValueError(f"{value!r} is neither ralf nor fmu:PATH")
+
+    @model_validator(mode="after")
+    def _fmu_needs_mapping(self) -> PlantSettings:
+        if self.model.startswith("fmu:") and not self.fmu_mapping.strip():
+            raise ValueError("model=fmu:PATH needs fmu_mapping=MAP.yaml (docs/fmu-plant.md)")
+        return self
+
     @field_validator("adc_bits", mode="before")
     @classmethod
     def _adc_bits_text(cls, value: Any) -> Any:

@@ -194,6 +194,25 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     return tool_env
 
 
+def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
+    """An FMU plant (``plant.model=fmu:PATH``) is checked before anything
+    starts (:func:`plant_emulator.fmu.preflight`: file, FMI version and
+    kind, the mapping's variables, one step of the sample period on a
+    throw-away instance); a bad one is one line on stderr and exit 2."""
+    plant = {k.removeprefix("RALF_").lower(): v for k, v in overrides.get("plant", {}).items()}
+    if not str(plant.get("model", os.environ.get("RALF_MODEL", "ralf"))).startswith("fmu:"):
+        return
+    from plant_emulator.fmu import preflight
+    from protocol.errors import ConfigError
+    from protocol.settings import load_settings
+
+    try:
+        preflight(load_settings(PlantSettings, plant))
+    except ConfigError as exc:
+        print(f"ralf-hil up: plant refused: {' '.join(str(exc).split())}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -202,6 +221,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
+    refuse_bad_plant_model(overrides)  # before the rig lock, the logs and any service
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
     _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)

@@ -40,7 +40,8 @@ from dsp_service.bank_file import load_bank, save_bank
 from dsp_service.core import DspCore
 from plant_emulator.canopen_node.frames import Frame
 from plant_emulator.node import CanopenNode
-from plant_emulator.service import PlantApplication, node_config
+from plant_emulator.plant_model import build_plant_model
+from plant_emulator.service import PlantApplication, build_health, node_config
 from protocol.batch_codec import decode_batch
 from protocol.errors import ConfigError, ProtocolError
 from protocol.messages import ConfigChange, Health, decode, encode
@@ -191,17 +192,7 @@ class CosimRun:
 
 
 def _plant_health(app: PlantApplication, node: CanopenNode) -> Health:
-    counters = {k: int(v) for k, v in node.counters.as_dict().items()}
-    counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, bad_scenarios=0)
-    return Health(
-        seq=0,
-        sim_time_s=app.arm.time_s,
-        service="plant",
-        state="degraded" if app.held else "running",
-        counters=counters,
-        latencies={"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats()},
-        last_miss="valves held: SYNC watchdog" if app.held else None,
-    )
+    return build_health(0, app, node, None)
 
 
 def _dsp_health(core: DspCore) -> Health:
@@ -266,20 +257,26 @@ def run_cosim(
     python-can's ``.blf``/``.asc``/``.log``; ``record_metadata``: extra facts
     for its ``ralf.run`` record); the run itself is unchanged."""
     cs, ps, ds = settings_for(controller, plant, dsp, common)
-    scheduler = SimulatedScheduler()
-    recording = _recording(record, can_log, record_metadata, scheduler, cs, ps, ds)
-    app = PlantApplication(ps, clock=scheduler.now)
-    node = CanopenNode(app, node_config(ps))
-    wire: Any = DirectCanWire(node, scheduler)
-    core = DspCore(ds)
-    load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
-    port: Any = DirectDspPort(core)
-    if recording is not None:
-        app.publish_truth, app.publish_event = recording.truth, recording.event
-        wire, port = recording.wire(wire), recording.port(port)
-    link = PlantLink(wire, cs.node_id, clock=scheduler.now)
-    started = time.monotonic()
-    ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)
+    model = build_plant_model(ps)  # a bad FMU is refused here (ConfigError), before anything runs
+    try:
+        scheduler = SimulatedScheduler()
+        recording = _recording(record, can_log, record_metadata, scheduler, cs, ps, ds)
+        app = PlantApplication(ps, arm=model, clock=scheduler.now)
+        node = CanopenNode(app, node_config(ps))
+        app.set_fault = node.set_fault
+        wire: Any = DirectCanWire(node, scheduler)
+        core = DspCore(ds)
+        load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
+        port: Any = DirectDspPort(core)
+        if recording is not None:
+            app.publish_truth, app.publish_event = recording.truth, recording.event
+            wire, port = recording.wire(wire), recording.port(port)
+        link = PlantLink(wire, cs.node_id, clock=scheduler.now)
+        started = time.monotonic()
+        ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)
+    except BaseException:  # the model (an FMU instance) freed on any failure before the run
+        model.close()
+        raise
     try:
         result = ctrl.run(scheduler.stop)
     finally:
@@ -287,9 +284,11 @@ def run_cosim(
         app.flush_side_channels()  # the last SYNC's truth, if no frame after it flushed it
         if ps.truth_record:
             app.save_truth(ps.truth_record)
-    wall = time.monotonic() - started
+        wall = time.monotonic() - started
+        plant_health = _plant_health(app, node)
+        app.close()  # the model freed (an FMU's instance), as the plant service does on stop
     save_bank(core.identifier, ds)  # and at its stop
-    health = {"plant": _plant_health(app, node), "dsp": _dsp_health(core)}
+    health = {"plant": plant_health, "dsp": _dsp_health(core)}
     ctrl_health = port.health()
     if ctrl_health is not None:
         health["controller"] = ctrl_health

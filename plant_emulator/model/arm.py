@@ -485,6 +485,9 @@ class RalfArm:
             raise ValueError("seed must be non-negative")
         self._noise.reseed(int(seed))
 
+    def close(self) -> None:
+        """Nothing to free (:class:`~plant_emulator.plant_model.PlantModel`'s end of run)."""
+
     # -- internals ----------------------------------------------------------------------
     def _angle(self, j: int) -> float:
         retracted, p2q2, two_p_q, offset, _, _ = _JOINT[j]

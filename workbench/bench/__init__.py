@@ -20,6 +20,9 @@ Items (``--only``):
 * ``dsp-rigs``: how many 200 Hz rigs one DSP process serves (:mod:`workbench.bench.dsp_rigs`);
 * ``hotpath``: controller tick and plant step in a micro-benchmark
   (:mod:`workbench.bench.hotpath`) against the 100 µs target, with their parts.
+* ``fmu``: the FMU plant's SYNC -> TPDO1 step against the built-in arm's,
+  and the co-simulation's speed with the example FMU against 50x
+  (:mod:`workbench.bench.fmu_plant`).
 
 Nothing here asserts a time: the numbers are reported, with the machine
 they were measured on. Helper processes: :mod:`workbench.bench.peer`.

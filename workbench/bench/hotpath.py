@@ -31,8 +31,9 @@ from controller.engineering import measure, measure_values
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.record import ColumnBuffer
 from controller.service import RECORD_EXTRA
+from plant_emulator.model import RalfArm
 from plant_emulator.node import CanopenNode
-from plant_emulator.service import PlantApplication, node_config
+from plant_emulator.service import PlantApplication, node_config, plant_config
 from protocol import can_map
 from protocol.settings import ControllerSettings, PlantSettings
 
@@ -61,7 +62,8 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
     names = [*ROW_NAMES, *RECORD_EXTRA, "tick"]  # the controller service's run record
     record = ColumnBuffer({name: (np.int64 if name == "tick" else np.float64) for name in names}, capacity=4096)
     ps = PlantSettings(clock="lockstep", can_interface="virtual")
-    app = PlantApplication(ps)
+    arm = RalfArm(plant_config(ps))
+    app = PlantApplication(ps, arm=arm)
     node = CanopenNode(app, node_config(ps))
     ids = can_map.cob_ids(node.node_id)
     node.handle(can.Message(arbitration_id=can_map.NMT_COB_ID, data=can_map.encode_nmt(can_map.NmtCommand.START, node.node_id), is_extended_id=False), 0.0)
@@ -124,7 +126,7 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         "  rpdo encode": _timed(lambda i: can_map.volts_to_output_frame(out.volts), n, warmup),
         "  record row (dict from arrays)": _timed(lambda i: law.record_row(i, out), n, warmup),
         "  arm.advance(Ts)": _timed(lambda i: app.arm.advance(ps.sample_period_s), n, warmup),
-        "  arm.sample (sensors, A/D)": _timed(lambda i: app.arm.sample(), n, warmup),
+        "  arm.sample (sensors, A/D)": _timed(lambda i: arm.sample(), n, warmup),
         "  arm.sample_codes (the SYNC path's A/D codes)": _timed(lambda i: app.arm.sample_codes(), n, warmup),
         "  plant RPDO1 apply, direct wire (CanopenNode.exchange)": _timed(
             lambda i: node.exchange(ids["rpdo1"], rpdo_payloads[i % 2], i * ps.sample_period_s), n, warmup

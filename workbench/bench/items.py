@@ -910,6 +910,13 @@ def bench_dsp_rigs(ctx: BenchContext, result: dict[str, Any]) -> None:
     run(ctx, result)
 
 
+def bench_fmu(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """The FMU plant's step against the built-in arm's, and the co-simulation's speed with it (:mod:`workbench.bench.fmu_plant`)."""
+    from workbench.bench.fmu_plant import bench_fmu as run
+
+    run(ctx, result)
+
+
 ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "zenoh": bench_zenoh,
     "can": bench_can,
@@ -919,6 +926,7 @@ ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "dsp": bench_dsp,
     "dsp-rigs": bench_dsp_rigs,
     "hotpath": bench_hotpath,
+    "fmu": bench_fmu,
 }
 FLOOR_ITEMS = ("zenoh", "can")
 
