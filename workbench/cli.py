@@ -26,6 +26,7 @@ from protocol.settings import ControllerSettings, DspSettings, PlantSettings
 from workbench import bench, campaign, experiments, monitor, timing_test
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, supervise, tail
+from workbench.live import cli as live_cli
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.timing_test.report import health_verdict
@@ -523,6 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
     for module in (bench, monitor, experiments, campaign, recording_cli):
         module.register(sub)
     timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
+    live_cli.register(sub)  # ralf-hil live (workbench/live)
     return parser
 
 

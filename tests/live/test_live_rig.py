@@ -60,3 +60,51 @@ def test_live_view_of_a_running_rig_matches_its_recording(tmp_path: Path) -> Non
         topic = path.split(".", 1)[0]
         assert topic in live_topics and topic in recorded_topics, path
     assert {c["topic"] for c in got.channels.values()} >= {"/can", "/can/decoded/SYNC", f"/ralf/{RIG}/controller/tf", f"/ralf/{RIG}/health/controller"}
+
+
+def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:
+    """``ralf-hil live`` beside a rig it did not start (here ``ralf-hil up``'s, as ``docker compose``'s
+    would be): it joins with the tool role's credentials, taps zenoh and CAN, and serves them."""
+    import os
+    import re
+    import time
+
+    live_port = free_tcp_ports(1)[0]
+    up = subprocess.Popen(
+        [sys.executable, "-m", "workbench", "up", "--clock", "realtime", "--duration", "8", "--rig-id", "livejoin", "--log-dir", str(tmp_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    live = None
+    try:
+        assert up.stdout is not None
+        line = up.stdout.readline()
+        m = re.search(r"CAN udp_multicast port (\d+), zenoh (tcp/127\.0\.0\.1:\d+)", line)
+        assert m, line
+        deadline = time.monotonic() + 60
+        while not (tmp_path / "tool.env").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        env = {**os.environ, **dict(row.split("=", 1) for row in (tmp_path / "tool.env").read_text().splitlines() if "=" in row)}
+        live = subprocess.Popen(
+            [sys.executable, "-m", "workbench", "live", f"127.0.0.1:{live_port}", "--connect", m.group(2), "--can-port", m.group(1), "--duration", "40"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        )  # fmt: skip
+        got = asyncio.run(watch(f"ws://127.0.0.1:{live_port}", {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, 25.0, until_topic_count=2))
+    finally:
+        up.wait(timeout=120)
+        if live is not None:
+            live.terminate()
+            out, err = live.communicate(timeout=30)
+    assert {t for t, _, _ in got.messages} == {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, err[-2000:]
+    assert json.loads(out.strip().splitlines()[-1])["clients_seen"] == 1
+
+
+def test_ralf_hil_live_port_in_use_is_one_line() -> None:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        port = sock.getsockname()[1]
+        res = subprocess.run([sys.executable, "-m", "workbench", "live", str(port), "--duration", "1"], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2
+    assert res.stderr.strip().count("\n") == 0 and "Address already in use" in res.stderr, res.stderr

@@ -38,7 +38,10 @@ def _compose() -> dict:
 def test_compose_file_describes_router_and_three_services() -> None:
     doc = _compose()
     services = doc["services"]
-    assert set(services) == {"zenoh-router", "dsp", "plant", "controller"}
+    assert set(services) == {"zenoh-router", "dsp", "plant", "controller", "live"}
+    live = services["live"]  # the live view: only with --profile live, as the tool role, the host's loopback only
+    assert live["profiles"] == ["live"] and live["command"] == ["ralf-hil", "live"] and live["environment"]["RALF_ZENOH_USER"] == "tool"
+    assert live["environment"]["LIVE_ADDRESS"] == "0.0.0.0:8765" and live["ports"] == ["127.0.0.1:${LIVE_PORT:-8765}:8765"]
     router = services["zenoh-router"]
     assert router["image"].startswith("eclipse/zenoh")
     # the router reads the configuration `ralf-hil credentials` writes into ./secrets
@@ -164,7 +167,7 @@ def test_docker_compose_itself_accepts_the_file_with_generated_credentials(tmp_p
     ok = subprocess.run([*compose, "--env-file", str(out / "ralf.env"), "config"], capture_output=True, text=True, check=False)
     assert ok.returncode == 0, ok.stderr
     resolved = yaml.safe_load(ok.stdout)
-    assert set(resolved["services"]) == {"zenoh-router", "dsp", "plant", "controller"}
+    assert set(resolved["services"]) == {"zenoh-router", "dsp", "plant", "controller", "live"}
     assert all(svc["environment"]["RALF_ZENOH_PASSWORD"] for name, svc in resolved["services"].items() if name != "zenoh-router")
     bare = subprocess.run([*compose, "config"], capture_output=True, text=True, check=False, env={**os.environ, "ZENOH_PASSWORD_DSP": ""})
     assert bare.returncode != 0 and "ralf-hil credentials" in bare.stderr
