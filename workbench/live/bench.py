@@ -1,11 +1,11 @@
 """The live view's cost to the control loop: ``python -m workbench.live.bench``.
 
-Runs ``ralf-hil up`` (real time, 200 Hz, three processes) with ``--live``
-in pairs, one run without a client and one with a client subscribed to
-every topic (tests/live's spec client is not installed, so this one is the
-same few lines on ``websockets``), alternating which goes first, and prints
-each run's overruns, deadline misses, wake-up (SYNC lateness) p99 and TET
-p99 from its summary, and the medians per arm. Run it in the loopback-only
+Runs ``ralf-hil up`` (real time, 200 Hz, three processes) in rounds of
+three arms: without ``--live``, with ``--live`` and no client, and with a
+client subscribed to every topic (tests/live's spec client is not
+installed, so this one is the same few lines on ``websockets``), rotating
+which goes first, and prints each run's overruns, deadline misses, wake-up
+(SYNC lateness) p99 and TET p99 from its summary, and the medians per arm. Run it in the loopback-only
 namespace (``.ci/loopback-netns``): the rig's CAN bus is udp_multicast.
 """
 
@@ -55,12 +55,17 @@ async def _subscribe_all(url: str, until: float) -> int:
     return received
 
 
-def run_once(duration_s: float, with_client: bool, rate_hz: float) -> dict[str, Any]:
+ARMS = ("no view", "view, no client", "view, a client")
+
+
+def run_once(duration_s: float, arm: str, rate_hz: float) -> dict[str, Any]:
     port = free_tcp_ports(1)[0]
+    with_client = arm == ARMS[2]
     with tempfile.TemporaryDirectory(prefix="ralf-live-bench-") as tmp:
         out = Path(tmp) / "summary.json"
-        cmd = [sys.executable, "-m", "workbench", "up", "--duration", str(duration_s), "--rig-id", f"livebench{port}", "--live", str(port),
-               "--live-rate", str(rate_hz), "--json", str(out)]  # fmt: skip
+        cmd = [sys.executable, "-m", "workbench", "up", "--duration", str(duration_s), "--rig-id", f"livebench{port}", "--json", str(out)]
+        if arm != ARMS[0]:
+            cmd += ["--live", str(port), "--live-rate", str(rate_hz)]
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         received = asyncio.run(_subscribe_all(f"ws://127.0.0.1:{port}", time.monotonic() + duration_s + 120)) if with_client else 0
         proc.wait(timeout=duration_s + 180)
@@ -68,7 +73,7 @@ def run_once(duration_s: float, with_client: bool, rate_hz: float) -> dict[str, 
     c = summary["controller"] or {}
     lat = summary["health"]["controller"]["latencies"]
     return {
-        "client": with_client,
+        "arm": arm,
         "exit": proc.returncode,
         "ticks": c.get("ticks"),
         "overruns": c.get("overruns"),
@@ -84,23 +89,23 @@ def run_once(duration_s: float, with_client: bool, rate_hz: float) -> dict[str, 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m workbench.live.bench", description=__doc__)
     p.add_argument("--duration", type=float, default=20.0, help="seconds of control per run (default 20)")
-    p.add_argument("--pairs", type=int, default=2, help="pairs of runs, alternating the order (default 2)")
+    p.add_argument("--rounds", type=int, default=2, help="rounds of the three arms, the order rotated each round (default 2)")
     p.add_argument("--rate", type=float, default=20.0, help="the view's --live-rate (default 20)")
     args = p.parse_args(argv)
     rows = []
-    for i in range(args.pairs):
-        for with_client in (False, True) if i % 2 == 0 else (True, False):
-            row = run_once(args.duration, with_client, args.rate)
+    for i in range(args.rounds):
+        for arm in ARMS[i % 3 :] + ARMS[: i % 3]:
+            row = run_once(args.duration, arm, args.rate)
             rows.append(row)
             print(json.dumps(row), flush=True)
-    for arm in (False, True):
-        sel = [r for r in rows if r["client"] is arm]
+    for arm in ARMS:
+        sel = [r for r in rows if r["arm"] == arm]
         med = {
             k: statistics.median(r[k] for r in sel if r[k] is not None)
             for k in ("overruns", "deadline_misses", "wakeup_p99_us", "tet_p99_us")
             if any(r[k] is not None for r in sel)
         }
-        print(f"{'with a client   ' if arm else 'without a client'}: medians over {len(sel)} run(s): {med}")
+        print(f"{arm:16s}: medians over {len(sel)} run(s): {med}")
     return 0
 
 
