@@ -133,6 +133,9 @@ def print_summary(summary: dict[str, Any]) -> None:
         table.add_row(
             "recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable"
         )
+    if summary.get("live"):
+        v = summary["live"]
+        table.add_row("live view", f"{v['url']}: {v['published']} sent, {v['decimated']} decimated, {v['statuses']} statuses, {v['clients_seen']} client(s)")
     Console().print(table)  # the summary is the command's result: stdout
 
 
