@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import math
 import tempfile
 import threading
 import time
@@ -357,8 +358,13 @@ class HilRig:
                 self._publish_scenario(cmd)
 
         common = {**self.common, "rig_id": self.rig_id, "clock": self.clock, "can_interface": "virtual", "can_channel": self.can_channel}
+        plant = dict(self.plant_settings)
+        if self.clock == "lockstep":  # nor the plant's SYNC watchdog (wall time) hold the valves of a starved lockstep run
+            timeout = float(self.controller.get("lockstep_timeout_s", ControllerSettings.model_fields["lockstep_timeout_s"].default))
+            rate = float(self.common.get("sample_rate_hz", 200.0))
+            plant.setdefault("watchdog_periods", min(10_000, max(5, math.ceil(timeout * rate))))  # its upper bound
         run = run_in_process(
-            controller=self._controller_settings(duration_s), plant=self.plant_settings, dsp=self.dsp_settings, common=common, session=session,
+            controller=self._controller_settings(duration_s), plant=plant, dsp=self.dsp_settings, common=common, session=session,
             at_tick=(0, send_scenario) if pending else None,
         )  # fmt: skip
         return self._record(run, None)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import struct
 import time
 from dataclasses import dataclass, field
@@ -43,6 +44,7 @@ async def watch(url: str, topics: set[str] | None, seconds: float, *, connect_ti
     assert ws.subprotocol in SUBPROTOCOLS
     s = Session()
     subscriptions: dict[int, str] = {}
+    retried: set[int] = set()
     end = time.monotonic() + seconds
     async with ws:
         while time.monotonic() < end:
@@ -62,12 +64,23 @@ async def watch(url: str, topics: set[str] | None, seconds: float, *, connect_ti
                         if topics is None or ch["topic"] in topics:
                             new.append(ch)
                     if new:
-                        subs = [{"id": len(subscriptions) + i, "channelId": ch["id"]} for i, ch in enumerate(new)]
+                        first = max(subscriptions, default=-1) + 1
+                        subs = [{"id": first + i, "channelId": ch["id"]} for i, ch in enumerate(new)]
                         for sub, ch in zip(subs, new):
                             subscriptions[sub["id"]] = ch["topic"]
                         await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
                 elif op == "status":
                     s.statuses.append(msg)
+                    # foxglove-sdk 0.30 may answer a subscription sent right after a channel's
+                    # advertisement with this (a race in the server); subscribe to it again, once
+                    unknown = re.fullmatch(r"Unknown channel ID: (\d+)", str(msg.get("message", "")))
+                    if unknown and int(unknown.group(1)) in s.channels and int(unknown.group(1)) not in retried:
+                        channel_id = int(unknown.group(1))
+                        retried.add(channel_id)
+                        await asyncio.sleep(0.05)
+                        sub_id = max(subscriptions, default=-1) + 1
+                        subscriptions[sub_id] = s.channels[channel_id]["topic"]
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channel_id}]}))
             else:
                 opcode = frame[0]
                 if opcode == 0x01:

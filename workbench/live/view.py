@@ -140,7 +140,7 @@ class LiveView:
         self._channels: dict[str, Any] = {}
         self._last_sent: dict[str, float] = {}
         self._sim_ns = 0
-        self._last_time_broadcast = 0.0
+        self._last_time_broadcast = -1e18
         self._misses = 0
         self._last_miss: str | None = None
         self._closed = False
@@ -150,14 +150,23 @@ class LiveView:
         return f"ws://{self.host}:{self.port}"
 
     # -- the Mirror API (the recorder's writer thread) ----------------------------------------
-    def on_record(self, topic: str, title: str, schema: Mapping[str, Any], data: bytes, log_s: float) -> None:
-        if self._closed:
-            return
+    def accept(self, topic: str, log_s: float) -> bool:
+        """Decimation: a record of ``topic`` received at wall time ``log_s`` is wanted if the topic
+        sent none within 1/rate_hz s before (status topics always: their events are read)."""
         self.stats.records += 1
-        status_topic = topic.endswith(STATUS_TOPIC_SUFFIXES)
-        now = log_s  # the wall time the tap received it: decimation follows the arrivals, not this thread's backlog
-        if not status_topic and now - self._last_sent.get(topic, -1e9) < self.min_interval_s:
+        if self._closed:
+            return False
+        if topic.endswith(STATUS_TOPIC_SUFFIXES):
+            return True
+        if log_s - self._last_sent.get(topic, -1e18) < self.min_interval_s:
             self.stats.decimated += 1
+            return False
+        self._last_sent[topic] = log_s
+        return True
+
+    def on_record(self, topic: str, title: str, schema: Mapping[str, Any], data: bytes, log_s: float) -> None:
+        """Publish an accepted record (status topics: read for events, then decimated like the rest)."""
+        if self._closed:
             return
         try:
             record = json.loads(data)
@@ -167,20 +176,20 @@ class LiveView:
         sim = record.get("sim_time_s") if isinstance(record, dict) else None
         stamp = int(round(sim * 1e9)) if isinstance(sim, int | float) and sim >= 0 else self._sim_ns  # its own time, else the latest
         self._sim_ns = max(self._sim_ns, stamp)
-        if status_topic:
+        if topic.endswith(STATUS_TOPIC_SUFFIXES):
             self._status(topic, record)
-            if now - self._last_sent.get(topic, -1e9) < self.min_interval_s:
+            if log_s - self._last_sent.get(topic, -1e18) < self.min_interval_s:
                 self.stats.decimated += 1
                 return
-        self._last_sent[topic] = now
+            self._last_sent[topic] = log_s
         channel = self._channels.get(topic)
         if channel is None:
             schema_obj = self._foxglove.Schema(name=title, encoding="jsonschema", data=json.dumps(schema).encode())
             channel = self._channels[topic] = self._foxglove.Channel(topic, schema=schema_obj, message_encoding="json", context=self._context)
         channel.log(data, log_time=stamp)
         self.stats.published += 1
-        if now - self._last_time_broadcast >= self.min_interval_s:
-            self._last_time_broadcast = now
+        if log_s - self._last_time_broadcast >= self.min_interval_s:
+            self._last_time_broadcast = log_s
             self.server.broadcast_time(self._sim_ns)
 
     def _status(self, topic: str, record: Mapping[str, Any]) -> None:

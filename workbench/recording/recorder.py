@@ -86,7 +86,10 @@ class RecorderStats(Counters):
 
 class Mirror(Protocol):
     """Another consumer of the records (topic, schema title, JSON schema, JSON bytes, log time in s),
-    called from the writer thread: it must not block."""
+    called from the writer thread: it must not block. ``accept`` says first whether it wants a
+    record of ``topic`` arriving at ``log_s`` (without a file, a record nobody wants is not built)."""
+
+    def accept(self, topic: str, log_s: float) -> bool: ...
 
     def on_record(self, topic: str, title: str, schema: Mapping[str, Any], data: bytes, log_s: float) -> None: ...
 
@@ -193,6 +196,10 @@ class Recorder:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _skipped(self, topic: str, wall: float) -> bool:
+        """Without a file, a record the mirror does not want (decimated) is not built at all."""
+        return self._writer is None and self.mirror is not None and not self.mirror.accept(topic, wall)
+
     # -- the writer thread --------------------------------------------------------------
     def _put(self, item: tuple[Any, ...]) -> None:
         if self._closed:
@@ -251,7 +258,8 @@ class Recorder:
             "sim_time_s": sim_time,
             "tick": tick,
         }
-        self._emit(schemas.CAN_TOPIC, schemas.CAN_SCHEMA, record, wall)
+        if not self._skipped(schemas.CAN_TOPIC, wall):
+            self._emit(schemas.CAN_TOPIC, schemas.CAN_SCHEMA, record, wall)
         self.stats.can_frames += 1
         if self._dbc is not None and not extended:
             self._write_decoded(cob, data, wall, sim_time, tick)
@@ -265,6 +273,8 @@ class Recorder:
         assert self._dbc is not None
         try:
             message = self._dbc.get_message_by_frame_id(cob)
+            if self._skipped(f"{schemas.CAN_DECODED_PREFIX}/{message.name}", wall):
+                return
             signals = message.decode(data, decode_choices=False)
         except Exception:  # not in the DBC (another node id), or a frame it does not describe (SYNC without counter)
             return
@@ -273,6 +283,8 @@ class Recorder:
 
     def _write_message(self, key: str, payload: bytes, wall: float, encoding: str) -> None:
         topic = schemas.topic_for_key(key)
+        if self._skipped(topic, wall):
+            return
         try:
             if schemas.is_batch_key(key):
                 b = decode_batch(payload)
@@ -338,7 +350,7 @@ class Recorder:
         metadata: Mapping[str, str] | None = None,
     ) -> None:
         title = str(schema.get("title", schema_name))
-        if self.mirror is not None:
+        if self.mirror is not None and (self._writer is None or self.mirror.accept(topic, log_s)):  # without a file: accepted before it was built
             self.mirror.on_record(topic, title, schema, data, log_s)
         if self._writer is None:
             return
