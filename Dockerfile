@@ -1,7 +1,6 @@
 # One image for the three services of the rig; docker-compose.yml picks the command.
-# It carries the contract, the service kit and the three boards; the launcher's
-# dependencies (`workbench/`: ralf-hil up, bench, experiments, plots, live) only with
-# EXTRAS=fast,rig, the `live` service's build.
+# It carries the contract, the service kit and the three boards, not the launcher
+# (`workbench/`: ralf-hil up, bench, experiments, plots), which users run on the host.
 FROM python:3.11-slim
 
 ENV PYTHONUNBUFFERED=1 \
@@ -15,10 +14,7 @@ COPY plant_emulator ./plant_emulator
 COPY controller ./controller
 COPY service_kit ./service_kit
 COPY dsp_service ./dsp_service
-COPY workbench ./workbench
-# EXTRAS=fast,rig adds the launcher's tools (docker-compose.yml's `live` service: ralf-hil live).
-ARG EXTRAS=fast
-RUN pip install ".[${EXTRAS}]" && useradd --create-home ralf \
+RUN pip install ".[fast]" && useradd --create-home ralf \
     && python -c "from dsp_service.kernel import warm_up as dsp; from plant_emulator.model.compiled import warm_up as plant; from controller.fast_tick import warm_up as ctrl; dsp(); plant(); ctrl()"
 USER ralf
 WORKDIR /home/ralf
