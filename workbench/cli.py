@@ -27,6 +27,7 @@ from protocol.settings import ControllerSettings, DspSettings, PlantSettings, re
 from workbench import bench, campaign, experiments, memory_slope, monitor, timing_test
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
+from workbench.live import cli as live_cli
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.timing_test.report import health_verdict
@@ -138,6 +139,9 @@ def print_summary(summary: dict[str, Any]) -> None:
         table.add_row(
             "recording", f"{r['path']}: {r['can_frames']} CAN frames, {r['messages']} messages, {r['dropped']} dropped, {r['undecodable']} undecodable"
         )
+    if summary.get("live"):
+        v = summary["live"]
+        table.add_row("live view", f"{v['url']}: {v['published']} sent, {v['decimated']} decimated, {v['statuses']} statuses, {v['clients_seen']} client(s)")
     Console().print(table)  # the summary is the command's result: stdout
 
 
@@ -222,6 +226,8 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
     refuse_bad_plant_model(overrides)  # before the rig lock, the logs and any service
+    if args.live and args.clock == "cosim":
+        raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
     _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
@@ -233,11 +239,14 @@ def cmd_up(args: argparse.Namespace) -> int:
         return 2
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     log_dir.mkdir(parents=True, exist_ok=True)
+    live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
     try:
         tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
-        return _up_supervised(args, plan, log_dir, tool_env)
+        return _up_supervised(args, plan, log_dir, tool_env, live_view)
     finally:
+        if live_view is not None:
+            live_view.close()
         if args.keep_credentials:
             console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
         else:
@@ -251,7 +260,7 @@ def private_run_dir(prefix: str) -> Path:
     return path
 
 
-def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path) -> int:
+def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a closed terminal too: services stopped, credentials removed
         signal.signal(signum, lambda *_: stop.set())
@@ -271,8 +280,8 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
 
     recording: RigRecording | None = None
     try:
-        if args.record:  # the tap starts before the services, so it holds their start-up
-            recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock)
+        if args.record or live_view is not None:  # the tap starts before the services, so it holds their start-up
+            recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock, mirror=live_view)
         # Before any service starts (their Python start-up takes a second or more), so a bus
         # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
         print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
@@ -285,11 +294,17 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         time.sleep(0.2)  # let the last health messages arrive
         summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
         if recording is not None:
-            summary["recording"] = {"path": args.record, **recording.close().as_dict()}
+            stats = recording.close().as_dict()
+            if args.record:
+                summary["recording"] = {"path": args.record, **stats}
             recording = None
+        if live_view is not None:
+            summary["live"] = {"url": live_view.url, **live_view.close().as_dict()}
     finally:
         if recording is not None:  # an error on the way: the file is still closed
             recording.close()
+        if live_view is not None:
+            live_view.close()
         observer.close()
     summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
     summary["control_wall_s"] = round(sup.control_s, 3)
@@ -306,6 +321,21 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     for name in bad:
         console.print(f"[red]{name} exited with {bad[name]}; last log lines:[/red]\n{tail(sup.procs[name].log_path)}")
     return 1 if (failure or bad) else 0
+
+
+def _start_live(args: argparse.Namespace) -> Any:
+    """``--live [HOST:]PORT``: the live view's server (:mod:`workbench.live.view`), or None."""
+    if not args.live:
+        return None
+    from workbench.live.view import LiveView, LiveViewError, parse_address
+
+    try:
+        host, port = parse_address(args.live)
+        live = LiveView(host, port, rate_hz=args.live_rate)
+    except LiveViewError as exc:
+        raise SystemExit(f"ralf-hil up: {exc}") from None
+    console.print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket; layout docs/foxglove-layout.json), {args.live_rate:g} Hz per topic")
+    return live
 
 
 def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
@@ -533,6 +563,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)"
     )
     up.add_argument(
+        "--live",
+        default=None,
+        metavar="[HOST:]PORT",
+        help="serve the running rig over the Foxglove WebSocket protocol on this port (127.0.0.1 unless HOST is given): the recording's topics, live",
+    )
+    up.add_argument("--live-rate", type=float, default=20.0, metavar="HZ", help="with --live: at most this many messages per second per topic (default: 20)")
+    up.add_argument(
         "--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)"
     )
     up.set_defaults(func=cmd_up)
@@ -553,6 +590,7 @@ def build_parser() -> argparse.ArgumentParser:
         module.register(sub)
     timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
     memory_slope.register(sub)
+    live_cli.register(sub)  # ralf-hil live (workbench/live)
     return parser
 
 

@@ -92,7 +92,7 @@ def run_in_process(
     ``at_tick = (n, action)``: ``action()`` runs in the controller's loop
     before tick ``n`` (:class:`TickAction`): a command or an attack that
     lands at a known tick, not at a wall-clock moment."""
-    channel = f"ralf-{uuid.uuid4().hex[:8]}"
+    channel = str((common or {}).get("can_channel") or f"ralf-{uuid.uuid4().hex[:8]}")  # a channel the caller chose: its own bus can join
     base = {"clock": "lockstep", "can_interface": "virtual", "can_channel": channel, "rig_id": f"local-{channel[5:]}", **(common or {})}
     cs = ControllerSettings(**{**base, **(controller or {})})
     if cs.duration_s is None and cs.repeats == 0:

@@ -39,7 +39,11 @@ def _compose() -> dict:
 def test_compose_file_describes_router_and_three_services() -> None:
     doc = _compose()
     services = doc["services"]
-    assert set(services) == {"zenoh-router", "dsp", "plant", "controller"}
+    assert set(services) == {"zenoh-router", "dsp", "plant", "controller", "live"}
+    live = services["live"]  # the live view: only with --profile live, as the tool role, the host's loopback only
+    assert live["profiles"] == ["live"] and live["command"] == ["ralf-hil", "live"] and live["environment"]["RALF_ZENOH_USER"] == "tool"
+    assert live["environment"]["LIVE_ADDRESS"] == "0.0.0.0:8765" and live["ports"] == ["127.0.0.1:${LIVE_PORT:-8765}:8765"]
+    assert live["build"]["dockerfile"] == "Dockerfile.tools" and "COPY workbench " in (ROOT / "Dockerfile.tools").read_text()
     router = services["zenoh-router"]
     assert router["image"].startswith("eclipse/zenoh")
     # the router reads the configuration `ralf-hil credentials` writes into ./secrets
@@ -92,7 +96,7 @@ def test_the_dsp_sits_in_another_network_than_the_cabinet() -> None:
     doc = _compose()
     assert set(doc["networks"]) == {"cabinet", "lab"}
     nets = {name: set(svc["networks"]) for name, svc in doc["services"].items()}
-    assert nets == {"zenoh-router": {"cabinet", "lab"}, "dsp": {"lab"}, "plant": {"cabinet"}, "controller": {"cabinet"}}
+    assert nets == {"zenoh-router": {"cabinet", "lab"}, "dsp": {"lab"}, "plant": {"cabinet"}, "controller": {"cabinet"}, "live": {"cabinet"}}
     for name in ("plant", "controller"):
         assert doc["services"][name]["environment"]["RALF_CAN_MULTICAST_TTL"] == "1"
 
@@ -228,7 +232,7 @@ def test_docker_compose_itself_accepts_the_file_with_generated_credentials(tmp_p
     ok = subprocess.run([*compose, "--env-file", str(out / "ralf.env"), "config"], capture_output=True, text=True, check=False)
     assert ok.returncode == 0, ok.stderr
     resolved = yaml.safe_load(ok.stdout)
-    assert set(resolved["services"]) == {"zenoh-router", "dsp", "plant", "controller"}
+    assert set(resolved["services"]) == {"zenoh-router", "dsp", "plant", "controller", "live"}
     assert all(svc["environment"]["RALF_ZENOH_PASSWORD"] for name, svc in resolved["services"].items() if name != "zenoh-router")
     controller = resolved["services"]["controller"]
     assert controller["depends_on"]["plant"]["condition"] == "service_healthy" and "healthcheck" in controller

@@ -43,6 +43,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--dry-run", action="store_true", help="list the resolved runs and exit")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--yes", action="store_true", help=f"run (or, with --dry-run, list) a sweep of more than {LARGE_SWEEP} runs")
+    p.add_argument(
+        "--junit", default=None, metavar="FILE", help="also write the runs as JUnit XML (one test case per run, its settings and metrics as properties) for CI"
+    )
     p.set_defaults(func=cmd_sweep)
 
 
@@ -79,6 +82,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 2
     with engine:
         res = run_sweep(spec, out_dir, engine, resume=not args.no_resume, console=err, show_progress=not args.no_progress)
+    if args.junit:
+        from workbench.junit import sweep_suite, write_junit
+
+        err.print(f"JUnit XML: {write_junit(args.junit, [sweep_suite(spec.name, res.rows, res.wall_s)])}", highlight=False)
     err.print(
         f"{res.ran} run(s) in {res.wall_s:.1f} s ({res.runs_per_hour:.0f} runs/h), {res.skipped} skipped, {res.failed} failed; table: {res.parquet}, {res.csv}",
         highlight=False,

@@ -52,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also record every rig run (co-simulated or three-process) into DIR/records/<run>.mcap (ralf-hil replay/plot read them)",
     )
+    p.add_argument(
+        "--junit", default=None, metavar="FILE", help="also write the checks as JUnit XML (a test suite per experiment, a test case per check) for CI"
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -100,6 +103,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         out = Path(args.out) if args.out else DEFAULT_OUT_ROOT / ALL
         outcomes, index = run_all(out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record)
         err_console.print(f"index: {index}")
+        _write_junit(args, outcomes, err_console)
         return 0 if all(o.ok for o in outcomes) and not broken_modules() else 1
     try:
         get_experiment(args.name)
@@ -112,12 +116,20 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     except ExperimentError as exc:
         err_console.print(f"ralf-hil experiment: {exc}", highlight=False)
         return 2
+    _write_junit(args, [outcome], err_console)
     if outcome.status == "error":
         err_console.print(f"[red]{args.name} failed: {outcome.error}[/red] (traceback in {out / 'error.txt'})")
         return 1
     msg = f"{args.name}: {outcome.status}, checks {outcome.checks_passed}/{outcome.checks_total}, {outcome.runtime_s:.1f} s; report: {outcome.report_path}"
     err_console.print(msg if outcome.ok else f"[red]{msg}[/red]", highlight=False)
     return 0 if outcome.ok else 1
+
+
+def _write_junit(args: argparse.Namespace, outcomes: list[Any], console: Console) -> None:
+    if getattr(args, "junit", None):
+        from workbench.junit import experiment_suite, write_junit
+
+        console.print(f"JUnit XML: {write_junit(args.junit, [experiment_suite(o) for o in outcomes])}", highlight=False)
 
 
 def build_parser() -> argparse.ArgumentParser:

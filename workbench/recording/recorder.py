@@ -34,7 +34,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import can
 from mcap.writer import CompressionType, Writer
@@ -92,12 +92,22 @@ chunk half written) still reads up to a second or so before the cut
 1 MiB, held the first minute of a run in memory."""
 
 
+class Mirror(Protocol):
+    """Another consumer of the records (topic, schema title, JSON schema, JSON bytes, log time in s),
+    called from the writer thread: it must not block. ``accept`` says first whether it wants a
+    record of ``topic`` arriving at ``log_s`` (without a file, a record nobody wants is not built)."""
+
+    def accept(self, topic: str, log_s: float) -> bool: ...
+
+    def on_record(self, topic: str, title: str, schema: Mapping[str, Any], data: bytes, log_s: float) -> None: ...
+
+
 class Recorder:
     """Write everything a run carries into one MCAP file (see the module doc)."""
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | Path | None,
         *,
         sample_rate_hz: float = 200.0,
         node_id: int = DEFAULT_NODE_ID,
@@ -106,16 +116,22 @@ class Recorder:
         compression: CompressionType = CompressionType.ZSTD,
         autostart: bool = True,
         decode_can: bool = True,
+        mirror: Mirror | None = None,
     ) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self.node_id = node_id
         self.stats = RecorderStats()
         self.clock = schemas.SyncClock(1.0 / sample_rate_hz)
-        self._file: IO[bytes] = open(self.path, "wb")
-        self._writer = Writer(self._file, compression=compression, chunk_size=CHUNK_BYTES)
-        self._writer.start(profile=schemas.PROFILE, library="ralf-hil recorder (mcap-python)")
-        self._file.flush()  # the header on disk now: a started recording is a file a user (or a test) can see
+        self.mirror = mirror
+        """Also gets every record the file gets (the live view, :mod:`workbench.live`); ``path=None``: only it does."""
+        self.path = Path(path) if path is not None else None
+        self._file: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "wb")
+            self._writer = Writer(self._file, compression=compression, chunk_size=CHUNK_BYTES)
+            self._writer.start(profile=schemas.PROFILE, library="ralf-hil recorder (mcap-python)")
+            self._file.flush()  # the header on disk now: a started recording is a file a user (or a test) can see
         self._channels: dict[tuple[str, str], int] = {}
         self._schemas: dict[str, int] = {}
         self._sequence: dict[int, int] = {}
@@ -174,9 +190,10 @@ class Recorder:
         if self._thread.is_alive():
             log.error("recorder: the writer did not finish within %.0f s; %s may be incomplete", timeout_s, self.path)
             return self.stats
-        self._writer.add_metadata("ralf.recorder", {k: str(v) for k, v in self.stats.as_dict().items()})
-        self._writer.finish()
-        self._file.close()
+        if self._writer is not None and self._file is not None:
+            self._writer.add_metadata("ralf.recorder", {k: str(v) for k, v in self.stats.as_dict().items()})
+            self._writer.finish()
+            self._file.close()
         if self._can_log is not None:
             self._can_log.stop()
         return self.stats
@@ -186,6 +203,10 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def _skipped(self, topic: str, wall: float) -> bool:
+        """Without a file, a record the mirror does not want (decimated) is not built at all."""
+        return self._writer is None and self.mirror is not None and not self.mirror.accept(topic, wall)
 
     # -- the writer thread --------------------------------------------------------------
     def _put(self, item: tuple[Any, ...]) -> None:
@@ -224,7 +245,7 @@ class Recorder:
                 wall,
             )
             self.stats.liveliness += 1
-        elif kind == "meta":
+        elif kind == "meta" and self._writer is not None:
             self._writer.add_metadata(item[1], item[2])
 
     def _write_can(self, cob: int, data: bytes, wall: float, extended: bool, direction: str | None, sim_time: float | None, tick: int | None) -> None:
@@ -245,7 +266,8 @@ class Recorder:
             "sim_time_s": sim_time,
             "tick": tick,
         }
-        self._emit(schemas.CAN_TOPIC, schemas.CAN_SCHEMA, record, wall)
+        if not self._skipped(schemas.CAN_TOPIC, wall):
+            self._emit(schemas.CAN_TOPIC, schemas.CAN_SCHEMA, record, wall)
         self.stats.can_frames += 1
         if self._dbc is not None and not extended:
             self._write_decoded(cob, data, wall, sim_time, tick)
@@ -259,6 +281,8 @@ class Recorder:
         assert self._dbc is not None
         try:
             message = self._dbc.get_message_by_frame_id(cob)
+            if self._skipped(f"{schemas.CAN_DECODED_PREFIX}/{message.name}", wall):
+                return
             signals = message.decode(data, decode_choices=False)
         except Exception:  # not in the DBC (another node id), or a frame it does not describe (SYNC without counter)
             return
@@ -267,6 +291,8 @@ class Recorder:
 
     def _write_message(self, key: str, payload: bytes, wall: float, encoding: str) -> None:
         topic = schemas.topic_for_key(key)
+        if self._skipped(topic, wall):
+            return
         try:
             if schemas.is_batch_key(key):
                 b = decode_batch(payload)
@@ -332,6 +358,10 @@ class Recorder:
         metadata: Mapping[str, str] | None = None,
     ) -> None:
         title = str(schema.get("title", schema_name))
+        if self.mirror is not None and (self._writer is None or self.mirror.accept(topic, log_s)):  # without a file: accepted before it was built
+            self.mirror.on_record(topic, title, schema, data, log_s)
+        if self._writer is None:
+            return
         channel = self._channels.get((topic, title))
         if channel is None:
             schema_id = self._schemas.get(title)

@@ -200,14 +200,14 @@ class RigRecording:
     (it then holds their start-up frames and first messages); :meth:`close`
     after they stopped."""
 
-    def __init__(self, plan: Any, path: str, session: zenoh.Session, *, can_log: str | None = None, **extra: Any) -> None:
+    def __init__(self, plan: Any, path: str | None, session: zenoh.Session, *, can_log: str | None = None, mirror: Any = None, **extra: Any) -> None:
         from protocol.settings import CommonSettings
 
         env = {name: plan.env_for(name) for name in ("dsp", "plant", "controller")}
         settings = service_settings({name: {k: v for k, v in e.items() if k.startswith("RALF_")} for name, e in env.items()})
         rate = float(settings.get("controller", {}).get("sample_rate_hz", 200.0) or 200.0)
         node_id = int(settings.get("plant", {}).get("node_id", 1) or 1)
-        self.recorder = Recorder(path, sample_rate_hz=rate, node_id=node_id, can_log=can_log)
+        self.recorder = Recorder(path, sample_rate_hz=rate, node_id=node_id, can_log=can_log, mirror=mirror)  # mirror: the live view
         for name, values in run_metadata(plan.rig_id, settings, can_port=plan.can_port, **extra).items():
             self.recorder.add_metadata(name, values)
         common = CommonSettings(can_interface=plan.common_env["RALF_CAN_INTERFACE"], can_channel=plan.common_env["RALF_CAN_CHANNEL"], can_port=plan.can_port)

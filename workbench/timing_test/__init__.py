@@ -66,6 +66,10 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
         **verdict,
     }
     paths = write_report(report, run.controller, out)
+    if args.junit:
+        from workbench.junit import timing_suite, write_junit
+
+        print(f"JUnit XML: {write_junit(args.junit, [timing_suite(report)])}")
     print(f"timing test {scenario.name}: {'PASS' if report['passed'] else 'FAIL'}; report {paths[0]}")
     for c in report["criteria"]:
         print(f"  {c['name']}: {c['value']} (limit {c['limit']}) {c['verdict']}")
@@ -81,4 +85,5 @@ def register(subparsers: Any) -> None:
     p.add_argument("--wakeup-p99-us", type=float, default=None, help="criterion: wake-up latency p99 (us; default 250)")
     p.add_argument("--wakeup-p999-us", type=float, default=None, help="criterion: wake-up latency p99.9 (us; default 1000)")
     p.add_argument("--max-consecutive-misses", type=int, default=None, help="criterion: longest run of consecutive deadline misses (default 1)")
+    p.add_argument("--junit", default=None, metavar="FILE", help="also write the verdict as JUnit XML (one test case per criterion) for CI")
     p.set_defaults(func=cmd_timing_test)

@@ -1,0 +1,121 @@
+"""The ``rig`` fixture (workbench/pytest_plugin.py), tested as users meet it: test files
+run by pytest's own ``pytester`` with the plugin loaded from its ``pytest11`` entry point."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest_plugins = ["pytester"]
+
+
+def test_plugin_is_registered_by_its_entry_point(pytester: pytest.Pytester) -> None:
+    result = pytester.runpytest("--markers")
+    result.stdout.fnmatch_lines(["@pytest.mark.rig_clock(name)*", "@pytest.mark.rig_settings(*", "@pytest.mark.rig_faults(scenario)*"])
+    assert "ralf_hil" in {name for name, _ in pytester.parseconfig().pluginmanager.list_name_plugin()}
+
+
+def test_cosim_rig_with_settings_and_a_payload_command(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(
+        """
+        import pytest
+
+        @pytest.mark.rig_settings(controller={"oatf_mode": "adaptive"}, plant={"truth_rate_hz": 50.0})
+        def test_run(rig):
+            assert rig.clock == "cosim"
+            rig.plant.payload(attached=True, at_s=1.0)
+            record = rig.run(duration_s=3.0)
+            assert record.error is None and record.ticks == 600
+            assert [e.kind for e in record.events if e.kind == "payload"] == ["payload"]
+            assert not record.truth[0].payload_attached and record.truth[-1].payload_attached
+            assert len(record.truth) == 150
+            assert record.interrupts and record.interrupts[-1].batch_seq >= 15
+            assert record.recording.exists()
+            with pytest.raises(Exception, match="no CAN bus"):
+                rig.can.remote_node()
+        """
+    )
+    pytester.runpytest_subprocess().assert_outcomes(passed=1)
+
+
+def test_unknown_setting_is_one_clear_error(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(
+        """
+        import pytest
+
+        @pytest.mark.rig_settings(controller={"oatf_mod": "adaptive"})
+        def test_typo(rig):
+            rig.run(duration_s=1.0)
+
+        @pytest.mark.rig_settings(dsp={"fft_width": 3})
+        def test_bad_value(rig):
+            rig.run(duration_s=1.0)
+
+        @pytest.mark.rig_clock("wallclock")
+        def test_bad_clock(rig):
+            pass
+
+        @pytest.mark.rig_settings(common={"clock": "lockstep"})
+        def test_plumbing(rig):
+            pass
+        """
+    )
+    result = pytester.runpytest_subprocess()
+    result.assert_outcomes(errors=4)
+    result.stdout.fnmatch_lines(
+        [
+            "*rig fixture: 'oatf_mod' is not a setting of the controller (did you mean 'oatf_mode'?)*",
+            "*rig fixture: dsp: invalid configuration: RALF_FFT_WIDTH: Input should be greater than or equal to 32*",
+            "*rig fixture: unknown rig clock 'wallclock' (cosim, lockstep, realtime)*",
+            "*rig fixture: common.clock is chosen by the rig fixture*",
+        ]
+    )
+    assert "Traceback" not in result.stdout.str()
+
+
+def test_rig_clock_option_and_marker(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(
+        """
+        import pytest
+
+        def test_default(rig):
+            assert rig.clock == "lockstep"
+
+        @pytest.mark.rig_clock("cosim")
+        def test_marker_wins(rig):
+            assert rig.clock == "cosim"
+        """
+    )
+    pytester.runpytest_subprocess("--rig-clock", "lockstep").assert_outcomes(passed=2)
+
+
+def test_realtime_rig_can_bus_canopen_node_and_live_test_port(pytester: pytest.Pytester) -> None:
+    """While the one-process rig runs in real time: a stock canopen master reads the plant's
+    device type over SDO, the test's own bus sees SYNCs and TPDO1s, the test port's truth and
+    the DSP's interrupts arrive live, and a payload command published mid-run is applied."""
+    pytester.makepyfile(
+        """
+        import time
+        import pytest
+
+        @pytest.mark.rig_clock("realtime")
+        @pytest.mark.rig_settings(plant={"truth_rate_hz": 20.0})
+        def test_live(rig):
+            rig.start(duration_s=4.0)
+            node = rig.can.remote_node()
+            assert node.sdo[0x1000].raw == 0x000C0191
+            seen = set()
+            deadline = time.monotonic() + 30
+            while not {0x80, 0x181} <= seen and time.monotonic() < deadline:
+                msg = rig.can.recv(0.5)
+                if msg is not None:
+                    seen.add(msg.arbitration_id)
+            assert {0x80, 0x181} <= seen
+            rig.plant.payload(attached=True, at_s=0.0)
+            record = rig.wait(120)
+            assert record.error is None and record.clock == "realtime"
+            assert record.truth and record.interrupts
+            assert record.truth[-1].payload_attached
+            assert any(e.kind == "payload" for e in record.events)
+        """
+    )
+    pytester.runpytest_subprocess("-p", "no:cacheprovider").assert_outcomes(passed=1)

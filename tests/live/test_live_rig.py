@@ -1,0 +1,110 @@
+"""``ralf-hil up --live`` on a running three-process rig (lockstep, udp_multicast CAN: run in
+the loopback-only namespace), watched by the spec-written client and compared with the same
+run's recording."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from workbench.launcher import free_tcp_ports
+from workbench.recording.foxglove import message_paths
+from workbench.recording.reader import Recording
+
+from .ws_client import watch
+
+pytestmark = [pytest.mark.rig, pytest.mark.slow, pytest.mark.timeout(240)]
+RIG = "livetest"
+
+
+def test_live_view_of_a_running_rig_matches_its_recording(tmp_path: Path) -> None:
+    port = free_tcp_ports(1)[0]
+    cmd = [sys.executable, "-m", "workbench", "up", "--clock", "lockstep", "--duration", "6", "--rig-id", RIG,
+           "--live", f"127.0.0.1:{port}", "--live-rate", "50", "--record", str(tmp_path / "run.mcap"), "--json", str(tmp_path / "summary.json")]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        got = asyncio.run(watch(f"ws://127.0.0.1:{port}", None, 200.0, connect_timeout_s=60.0))
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-2000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["live"]["clients_seen"] == 1 and summary["live"]["published"] > 0
+    rec = Recording.load(tmp_path / "run.mcap", only=("plant/truth", "dsp/interrupt", "health/controller", "controller/status"))
+    recorded_truth = {m["seq"]: m for m in rec.data("plant/truth")}
+    recorded_irq = {m["seq"]: m for m in rec.data("dsp/interrupt")}
+    live_truth = [m for topic, _, m in got.messages if topic == f"/ralf/{RIG}/plant/truth"]
+    live_irq = [m for topic, _, m in got.messages if topic == f"/ralf/{RIG}/dsp/interrupt"]
+    assert len(live_truth) > 20 and len(live_irq) > 5
+    assert all(m == recorded_truth[m["seq"]] for m in live_truth)
+    assert all(m == recorded_irq[m["seq"]] for m in live_irq)
+    # every message's timestamp and the server's time are the simulated time
+    for topic, ts, m in got.messages:
+        if topic.startswith(f"/ralf/{RIG}/plant/truth"):
+            assert ts == round(m["sim_time_s"] * 1e9)
+    assert got.times == sorted(got.times) and got.times[-1] >= round(live_truth[-1]["sim_time_s"] * 1e9)
+    # the shipped layout's plots find their topics live as in the recording
+    live_topics = {c["topic"] for c in got.channels.values()}
+    with open(tmp_path / "run.mcap", "rb") as fh:
+        summary_ = make_reader(fh).get_summary()
+    assert summary_ is not None
+    recorded_topics = {c.topic for c in summary_.channels.values()}
+    for path in message_paths(RIG):
+        topic = path.split(".", 1)[0]
+        assert topic in live_topics and topic in recorded_topics, path
+    assert {c["topic"] for c in got.channels.values()} >= {"/can", "/can/decoded/SYNC", f"/ralf/{RIG}/controller/tf", f"/ralf/{RIG}/health/controller"}
+
+
+def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:
+    """``ralf-hil live`` beside a rig it did not start (here ``ralf-hil up``'s, as ``docker compose``'s
+    would be): it joins with the tool role's credentials, taps zenoh and CAN, and serves them."""
+    import os
+    import re
+    import time
+
+    live_port = free_tcp_ports(1)[0]
+    up = subprocess.Popen(
+        [sys.executable, "-m", "workbench", "up", "--clock", "realtime", "--duration", "8", "--rig-id", "livejoin", "--log-dir", str(tmp_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    live = None
+    try:
+        assert up.stdout is not None
+        line = up.stdout.readline()
+        m = re.search(r"CAN udp_multicast port (\d+), zenoh (tcp/127\.0\.0\.1:\d+)", line)
+        assert m, line
+        deadline = time.monotonic() + 60
+        while not (tmp_path / "tool.env").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        env = {**os.environ, **dict(row.split("=", 1) for row in (tmp_path / "tool.env").read_text().splitlines() if "=" in row)}
+        live = subprocess.Popen(
+            [sys.executable, "-m", "workbench", "live", f"127.0.0.1:{live_port}", "--connect", m.group(2), "--can-port", m.group(1), "--duration", "40"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        )  # fmt: skip
+        got = asyncio.run(watch(f"ws://127.0.0.1:{live_port}", {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, 25.0, until_topic_count=2))
+    finally:
+        up.wait(timeout=120)
+        if live is not None:
+            live.terminate()
+            out, err = live.communicate(timeout=30)
+    assert {t for t, _, _ in got.messages} == {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, err[-2000:]
+    assert json.loads(out.strip().splitlines()[-1])["clients_seen"] == 1
+
+
+def test_ralf_hil_live_port_in_use_is_one_line() -> None:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        port = sock.getsockname()[1]
+        res = subprocess.run([sys.executable, "-m", "workbench", "live", str(port), "--duration", "1"], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2
+    assert res.stderr.strip().count("\n") == 0 and "Address already in use" in res.stderr, res.stderr

@@ -1,0 +1,221 @@
+"""The running rig in Foxglove, live: ``ralf-hil up --live [HOST:]PORT``.
+
+A :class:`LiveView` is a :class:`~workbench.recording.recorder.Mirror` of the
+recorder: the recorder's writer thread (fed by the tap, outside the
+services) decodes every CAN frame and zenoh message into the recording's
+topics and JSON schemas (:mod:`workbench.recording.schemas`) and hands each
+record to the view as well as (or instead of) to the MCAP file. So the live
+topics, schema names and payloads are the recording's, byte for byte, and
+``docs/foxglove-layout.json`` shows either.
+
+What the view adds:
+
+* a ``foxglove-sdk`` WebSocket server (subprotocol ``foxglove.websocket.v1``)
+  on 127.0.0.1 unless another address is given, with the ``time``
+  capability: the server's time is the rig's simulated time, and every
+  message's timestamp is its simulated time (the SYNC tick of a CAN frame,
+  the ``sim_time_s`` of a message);
+* decimation: each topic at most ``rate_hz`` messages per second of wall
+  time, by the time the tap received them (a browser follows 20 Hz plots;
+  the rest is counted as decimated);
+* status messages: deadline misses and the controller's last miss, and
+  plant events (hard stops, watchdog, payload), as Foxglove status
+  notifications.
+
+It never waits: ``Channel.log`` queues each message per client in the SDK,
+which keeps at most ``backlog`` messages for a client and drops the oldest
+for a slow or stuck one (the SDK does not report how many; see
+:attr:`LiveStats`). The control loop runs in other processes; the view's
+cost is its share of the host's CPU (measured in docs/recording.md).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from foxglove.websocket import ServerListener
+
+from service_kit.counters import Counters
+
+DEFAULT_RATE_HZ = 20.0
+DEFAULT_BACKLOG = 256
+STATUS_TOPIC_SUFFIXES = ("/controller/status", "/health/controller", "/plant/events")
+
+
+class LiveViewError(RuntimeError):
+    """The view cannot serve (a bad address, a port in use)."""
+
+
+@dataclass
+class LiveStats(Counters):
+    """What the view did with the records it was handed."""
+
+    records: int = 0
+    published: int = 0
+    decimated: int = 0
+    """Records not sent because their topic had one within 1/rate_hz s (by design, not loss)."""
+    undecodable: int = 0
+    statuses: int = 0
+    subscriptions: int = 0
+    clients_seen: int = 0
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``PORT`` (loopback) or ``HOST:PORT``; a bad one raises :class:`LiveViewError`."""
+    host, sep, port_text = text.rpartition(":")
+    host = host.strip("[]") if sep else "127.0.0.1"
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise LiveViewError(f"--live {text!r}: expected [HOST:]PORT, e.g. 8765 or 0.0.0.0:8765") from None
+    if not 0 <= port <= 65535:
+        raise LiveViewError(f"--live {text!r}: port {port} is outside 0..65535")
+    if host != "localhost":
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:
+            raise LiveViewError(f"--live {text!r}: {host!r} is not an IP address (give one, e.g. 127.0.0.1 or 0.0.0.0)") from None
+    return host, port
+
+
+class _Listener(ServerListener):
+    """Counts subscriptions and clients (the SDK's ServerListener protocol)."""
+
+    def __init__(self, stats: LiveStats) -> None:
+        self.stats = stats
+        self._clients: set[int] = set()
+        self._lock = threading.Lock()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            self.stats.subscriptions += 1
+            if client.id not in self._clients:
+                self._clients.add(client.id)
+                self.stats.clients_seen += 1
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        pass
+
+
+class LiveView:
+    """The Foxglove WebSocket server of one rig (see the module doc)."""
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        *,
+        rate_hz: float = DEFAULT_RATE_HZ,
+        backlog: int = DEFAULT_BACKLOG,
+        name: str = "ralf-hil",
+    ) -> None:
+        import foxglove
+        from foxglove.websocket import Capability
+
+        if not rate_hz > 0:
+            raise LiveViewError(f"live rate must be positive, got {rate_hz}")
+        self.stats = LiveStats()
+        self.min_interval_s = 1.0 / rate_hz
+        self._foxglove = foxglove
+        self._context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(
+                name=name,
+                host=host,
+                port=port,
+                capabilities=[Capability.Time],
+                server_listener=_Listener(self.stats),
+                supported_encodings=["json"],
+                context=self._context,
+                message_backlog_size=backlog,
+            )
+        except RuntimeError as exc:
+            raise LiveViewError(f"cannot serve the live view on {host}:{port}: {str(exc).removeprefix('FoxgloveError: ')}") from None
+        self.host, self.port = host, int(self.server.port)
+        self._channels: dict[str, Any] = {}
+        self._last_sent: dict[str, float] = {}
+        self._sim_ns = 0
+        self._last_time_broadcast = -1e18
+        self._misses = 0
+        self._last_miss: str | None = None
+        self._closed = False
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    # -- the Mirror API (the recorder's writer thread) ----------------------------------------
+    def accept(self, topic: str, log_s: float) -> bool:
+        """Decimation: a record of ``topic`` received at wall time ``log_s`` is wanted if the topic
+        sent none within 1/rate_hz s before (status topics always: their events are read)."""
+        self.stats.records += 1
+        if self._closed:
+            return False
+        if topic.endswith(STATUS_TOPIC_SUFFIXES):
+            return True
+        if log_s - self._last_sent.get(topic, -1e18) < self.min_interval_s:
+            self.stats.decimated += 1
+            return False
+        self._last_sent[topic] = log_s
+        return True
+
+    def on_record(self, topic: str, title: str, schema: Mapping[str, Any], data: bytes, log_s: float) -> None:
+        """Publish an accepted record (status topics: read for events, then decimated like the rest)."""
+        if self._closed:
+            return
+        try:
+            record = json.loads(data)
+        except ValueError:
+            self.stats.undecodable += 1
+            return
+        sim = record.get("sim_time_s") if isinstance(record, dict) else None
+        stamp = int(round(sim * 1e9)) if isinstance(sim, int | float) and sim >= 0 else self._sim_ns  # its own time, else the latest
+        self._sim_ns = max(self._sim_ns, stamp)
+        if topic.endswith(STATUS_TOPIC_SUFFIXES):
+            self._status(topic, record)
+            if log_s - self._last_sent.get(topic, -1e18) < self.min_interval_s:
+                self.stats.decimated += 1
+                return
+            self._last_sent[topic] = log_s
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema_obj = self._foxglove.Schema(name=title, encoding="jsonschema", data=json.dumps(schema).encode())
+            channel = self._channels[topic] = self._foxglove.Channel(topic, schema=schema_obj, message_encoding="json", context=self._context)
+        channel.log(data, log_time=stamp)
+        self.stats.published += 1
+        if log_s - self._last_time_broadcast >= self.min_interval_s:
+            self._last_time_broadcast = log_s
+            self.server.broadcast_time(self._sim_ns)
+
+    def _status(self, topic: str, record: Mapping[str, Any]) -> None:
+        from foxglove.websocket import StatusLevel
+
+        t = f"{record.get('sim_time_s', 0.0):.2f} s"
+        if topic.endswith("/controller/status"):
+            misses = int(record.get("deadline_misses", 0))
+            if misses > self._misses:
+                self.server.publish_status(f"deadline: {misses} miss(es) so far (+{misses - self._misses}) at {t}", StatusLevel.Warning, "deadline")
+                self.stats.statuses += 1
+            self._misses = max(self._misses, misses)
+        elif topic.endswith("/health/controller"):
+            miss = record.get("last_miss")
+            if miss and miss != self._last_miss:
+                self.server.publish_status(f"deadline: {miss}", StatusLevel.Warning, "last_miss")
+                self.stats.statuses += 1
+            self._last_miss = miss
+        else:
+            kind = str(record.get("kind", ""))
+            level = StatusLevel.Warning if kind in ("hard_stop", "watchdog") else StatusLevel.Info
+            self.server.publish_status(f"plant {kind} at {t}: {record.get('detail', '')}", level, f"plant:{kind}")
+            self.stats.statuses += 1
+
+    def close(self) -> LiveStats:
+        if not self._closed:
+            self._closed = True
+            self.server.stop()
+        return self.stats
