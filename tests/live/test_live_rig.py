@@ -72,25 +72,31 @@ def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:
     live_port = free_tcp_ports(1)[0]
     up = subprocess.Popen(
         [sys.executable, "-m", "workbench", "up", "--clock", "realtime", "--duration", "8", "--rig-id", "livejoin", "--log-dir", str(tmp_path)],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env={**os.environ, "COLUMNS": "400"},  # one line per message: rich wraps at the terminal's width
     )  # fmt: skip
     live = None
     try:
         assert up.stdout is not None
-        line = up.stdout.readline()
-        m = re.search(r"CAN udp_multicast port (\d+), zenoh (tcp/127\.0\.0\.1:\d+)", line)
-        assert m, line
+        m = t = None
+        for line in up.stdout:  # the rig's ports, and the run's own owner-only credentials folder
+            m = m or re.search(r"CAN udp_multicast port (\d+), zenoh (tcp/127\.0\.0\.1:\d+)", line)
+            t = t or re.search(r"tools' credentials in (\S+)", line)
+            if m and t:
+                break
+        assert m and t, (m, t)
+        tool_env = Path(t.group(1))
         deadline = time.monotonic() + 60
-        while not (tmp_path / "tool.env").exists() and time.monotonic() < deadline:
+        while not tool_env.exists() and time.monotonic() < deadline:
             time.sleep(0.1)
-        env = {**os.environ, **dict(row.split("=", 1) for row in (tmp_path / "tool.env").read_text().splitlines() if "=" in row)}
+        env = {**os.environ, **dict(row.split("=", 1) for row in tool_env.read_text().splitlines() if "=" in row)}
         live = subprocess.Popen(
             [sys.executable, "-m", "workbench", "live", f"127.0.0.1:{live_port}", "--connect", m.group(2), "--can-port", m.group(1), "--duration", "40"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip
         got = asyncio.run(watch(f"ws://127.0.0.1:{live_port}", {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, 25.0, until_topic_count=2))
     finally:
-        up.wait(timeout=120)
+        up.communicate(timeout=120)  # drained: the rest of its output never fills the pipe
         if live is not None:
             live.terminate()
             out, err = live.communicate(timeout=30)
