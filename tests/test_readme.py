@@ -46,15 +46,34 @@ def test_readme_stays_a_short_manual() -> None:
 
 
 LINK = re.compile(r"\]\(([^)\s]+)\)")
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 
 def relative_links(page: Path) -> list[str]:
-    """The page's Markdown link targets that point into the repository (no URL, no bare anchor)."""
-    targets = (m.group(1).split("#", 1)[0] for m in LINK.finditer(page.read_text()))
-    return [t for t in targets if t and "://" not in t and not t.startswith("mailto:")]
+    """The page's Markdown link targets that point into the repository (no URL), anchors kept."""
+    targets = (m.group(1) for m in LINK.finditer(page.read_text()))
+    return [t for t in targets if "://" not in t and not t.startswith("mailto:")]
 
 
-@pytest.mark.parametrize("page", [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))], ids=lambda p: p.relative_to(ROOT).as_posix())
+def heading_anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives the page's headings: lower case, punctuation dropped, spaces as hyphens."""
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in re.findall(r"(?m)^#+ (.*)$", text)}
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_every_relative_link_points_to_an_existing_file(page: Path) -> None:
-    missing = [t for t in relative_links(page) if not (page.parent / t).exists()]
+    files = (t.split("#", 1)[0] for t in relative_links(page))
+    missing = [f for f in files if f and not (page.parent / f).exists()]
     assert not missing, f"{page.relative_to(ROOT)}: links to missing files: {missing}"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_anchor_into_a_page_names_one_of_its_headings(page: Path) -> None:
+    broken = []
+    for target in (t for t in relative_links(page) if "#" in t):
+        file, anchor = target.split("#", 1)
+        linked = page.parent / file if file else page
+        if linked.suffix == ".md" and linked.exists() and anchor not in heading_anchors(linked):
+            broken.append(target)
+    assert not broken, f"{page.relative_to(ROOT)}: anchors that name no heading: {broken}"
