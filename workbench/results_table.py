@@ -80,7 +80,7 @@ def _experiment_rows(results: Path) -> list[str]:
         figure = headline(data["results"]) if headline and "results" in data else ""
         checks = f"{e['checks_passed']}/{e['checks_total']} checks"
         text = f"{checks}; {figure}" if figure else checks
-        rows.append(f"| `experiment {e['name']}` ({e['section']}) | {text} | {e['runtime_s']:.1f} s, {index['mode']}, {date} |")
+        rows.append(f"| `experiment {e['name']}`, {e['section']} | {text} | {e['runtime_s']:.1f} s, {index['mode']}, {date} |")
     return rows
 
 
