@@ -77,3 +77,10 @@ def test_every_anchor_into_a_page_names_one_of_its_headings(page: Path) -> None:
         if linked.suffix == ".md" and linked.exists() and anchor not in heading_anchors(linked):
             broken.append(target)
     assert not broken, f"{page.relative_to(ROOT)}: anchors that name no heading: {broken}"
+
+
+def test_the_docs_index_lists_every_page() -> None:
+    index = ROOT / "docs" / "README.md"
+    linked = {t.split("#", 1)[0] for t in relative_links(index)}
+    unlisted = [p.name for p in PAGES[1:] if p != index and p.name not in linked]
+    assert not unlisted, f"docs/README.md does not list: {unlisted}"
