@@ -33,13 +33,27 @@ def results_folder(root: Path) -> Path:
 def test_rows_counts_and_figures_come_from_the_files(tmp_path: Path) -> None:
     table = figures_table(results_folder(tmp_path))
     assert "(seed 3, cosim): 2 of 3 experiments pass every check" in table
-    assert (
-        "| `experiment battery`, §4.2.3 | 4/4 checks; fixed OATF tuned right leaves 41–68 % of the unfiltered RMS deflection velocity | 11.8 s, cosim, 2026-12-02 |"
-        in table
-    )
-    assert "8/11 checks; identified first mode lags the true changes by 7.1 s (median) | 47.1 s, cosim, 2026-12-01 |" in table
-    assert "| `experiment vrm`, App. C | 3/3 checks | 2.3 s, cosim, — |" in table  # no results.json: no date, no figure
-    assert "compose" not in table  # no compose run.json: no row
+    assert "| `battery`, §4.2.3 | 4/4 checks; fixed OATF tuned right leaves 41–68 % of the unfiltered RMS deflection velocity | 2026-12-02, 11.8 s |" in table
+    assert "8/11 checks; identified first mode lags the true changes by 7.1 s (median) | 2026-12-01, 47.1 s |" in table
+    assert "| `vrm`, App. C | 3/3 checks | —, 2.3 s |" in table  # no results.json: no date, no figure
+    assert "compose" not in table and "bench" not in table  # no run.json, no bench report: no rows
+
+
+def test_bench_rows_come_from_the_latest_report(tmp_path: Path) -> None:
+    root = results_folder(tmp_path)
+    machine = {"date": "2026-12-03T04:10:04+00:00", "cpu_model": "AMD EPYC", "cores": 2, "load_average_at_start": [0.5, 0.4, 0.3]}
+    latency = {"p50_us": 31.4, "ratio": {"p50": 1.384}}
+    items = {
+        "dsp": {"measurements": {"identifier_step": latency}},
+        "realtime": {"measurements": {"1000Hz deadline_misses": {"value": 0, "batches_sent": 299}, "1000Hz overruns per tick": {"ratio": 1.63}}},
+    }
+    write(root / "bench" / "z-older.json", {"machine": {**machine, "date": "2026-11-01T00:00:00+00:00"}, "items": {}})
+    write(root / "bench" / "a-latest.json", {"machine": machine, "options": {"quick": False}, "items": items})
+    table = figures_table(root)
+    assert "`ralf-hil bench` (AMD EPYC, 2 cores, load 0.5 at the start)" in table
+    assert "| bench `dsp` | identification step (N = 2048) p50 31 µs, 1.38× its numpy floor | 2026-12-03 |" in table
+    assert "| bench `realtime` | 1000 Hz: 0 of 299 batches late; overruns 1.63× the sleep-only loop's | 2026-12-03 |" in table
+    assert "200 Hz" not in table and "`can`" not in table  # measured nowhere: no row
 
 
 def test_write_replaces_only_the_marked_part(tmp_path: Path) -> None:

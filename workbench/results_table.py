@@ -1,6 +1,7 @@
 """The README's "current figures" table, generated from the latest results
 under ``docs/results/`` (the experiments' ``index.json`` and ``results.json``
-files, the compose rig's ``run.json``).
+files, the latest ``ralf-hil bench --json`` report in ``bench/``, the compose
+rig's ``run.json``).
 
 ``python -m workbench.results_table`` prints the table;
 ``python -m workbench.results_table --write README.md`` replaces the text
@@ -80,7 +81,7 @@ def _experiment_rows(results: Path) -> list[str]:
         figure = headline(data["results"]) if headline and "results" in data else ""
         checks = f"{e['checks_passed']}/{e['checks_total']} checks"
         text = f"{checks}; {figure}" if figure else checks
-        rows.append(f"| `experiment {e['name']}`, {e['section']} | {text} | {e['runtime_s']:.1f} s, {index['mode']}, {date} |")
+        rows.append(f"| `{e['name']}`, {e['section']} | {text} | {date}, {e['runtime_s']:.1f} s |")
     return rows
 
 
@@ -96,21 +97,81 @@ def _compose_row(results: Path) -> list[str]:
         f"verdict {run['verdict']}; every container ready within {ready:.1f} s; {c['ticks']} ticks, "
         f"{c['batches_sent']} batches, {c['deadline_misses']} deadline misses; SYNC → TPDO1 p50 {1e3 * hop['p50']:.2f} ms"
     )
-    where = f"{run['run_s']:.0f} s, {run['date'][:10]}, {run['machine'].split(', ', 1)[-1]}"
-    return [f"| compose rig in CI ([details](docs/results/compose/README.md)) | {figure} | {where} |"]
+    where = f"{run['date'][:10]}, {run['machine'].split(', ', 1)[-1].split(', podman')[0]}, {run['run_s']:.0f} s"
+    return [f"| [compose rig in CI](docs/results/compose/README.md) | {figure} | {where} |"]
+
+
+def _measure(items: Mapping[str, Any], item: str, name: str) -> Mapping[str, Any] | None:
+    found = items.get(item, {}).get("measurements", {}).get(name)
+    return found if isinstance(found, Mapping) else None
+
+
+def _bench_figures(items: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """(item, figure) pairs of the bench report's headline measurements; an item it lacks is left out."""
+    rows = []
+    if m := _measure(items, "zenoh", "dsp_rtt_minus_compute"):
+        rows.append(("zenoh", f"batch → interrupt less the DSP's compute p50 {m['p50_us']:.0f} µs, {m['ratio']['p50']:.2f}× a bare zenoh ping-pong"))
+    if m := _measure(items, "can", "plant_sync_to_tpdo"):
+        rows.append(("can", f"SYNC → TPDO1 through the plant node p50 {m['p50_us']:.0f} µs, {m['ratio']['p50']:.2f}× a bare CAN ping-pong"))
+    for rate in ("200Hz", "1000Hz"):
+        misses, overruns = _measure(items, "realtime", f"{rate} deadline_misses"), _measure(items, "realtime", f"{rate} overruns per tick")
+        if misses and overruns:
+            hz = rate.removesuffix("Hz")
+            rows.append(
+                ("realtime", f"{hz} Hz: {misses['value']} of {misses['batches_sent']} batches late; overruns {overruns['ratio']:.2f}× the sleep-only loop's")
+            )
+    if m := _measure(items, "lockstep", "three_process sim_s/wall_s"):
+        rows.append(("lockstep", f"three processes {m['value']:.1f}× real time, {m['ratio']:.2f}× the CAN-bound ceiling"))
+    if m := _measure(items, "cosim", "cosim sim_s/wall_s"):
+        rows.append(("cosim", f"co-simulation {m['value']:.0f}× real time"))
+    if m := _measure(items, "dsp", "identifier_step"):
+        rows.append(("dsp", f"identification step (N = 2048) p50 {m['p50_us']:.0f} µs, {m['ratio']['p50']:.2f}× its numpy floor"))
+    if m := _measure(items, "dsp-rigs", "rigs_served"):
+        rows.append(("dsp-rigs", f"one DSP process serves {m['value']} rigs at 200 Hz (the largest number tried)"))
+    if m := _measure(items, "hotpath", "controller tick"):
+        rows.append(("hotpath", f"controller tick p50 {m['p50_us']:.1f} µs (target 100 µs)"))
+    return rows
+
+
+def _bench_report(results: Path) -> dict[str, Any] | None:
+    """The ``ralf-hil bench --json`` report under ``bench/`` measured last (by its machine's date)."""
+    reports = [_load(p) for p in sorted((results / "bench").glob("*.json"))]
+    return max(reports, key=lambda r: str(r["machine"]["date"])) if reports else None
+
+
+def _bench_rows(report: Mapping[str, Any] | None) -> list[str]:
+    if report is None:
+        return []
+    date = report["machine"]["date"][:10]
+    return [f"| bench `{item}` | {figure} | {date} |" for item, figure in _bench_figures(report["items"])]
+
+
+def _bench_line(report: Mapping[str, Any] | None) -> list[str]:
+    if report is None:
+        return []
+    m = report["machine"]
+    quick = " --quick" if report.get("options", {}).get("quick") else ""
+    return [
+        f"`ralf-hil bench{quick}` ({m['cpu_model']}, {m['cores']} cores, load {m['load_average_at_start'][0]:.1f} at the start): "
+        "ratios are to floors measured in the same run.",
+        "",
+    ]
 
 
 def figures_table(results: Path = RESULTS) -> str:
     """The Markdown table of today's figures (no trailing newline)."""
     index = _load(results / "index.json")
     ok = sum(1 for e in index["experiments"] if e["status"] == "ok")
+    bench = _bench_report(results)
     lines = [
         f"`ralf-hil experiment all` (seed {index['seed']}, {index['mode']}): {ok} of {len(index['experiments'])} experiments pass every check "
         "([reports](docs/results/index.md)).",
         "",
-        "| what | figure | run |",
+        *_bench_line(bench),
+        "| what | figure | measured |",
         "| --- | --- | --- |",
         *_experiment_rows(results),
+        *_bench_rows(bench),
         *_compose_row(results),
     ]
     return "\n".join(lines)
