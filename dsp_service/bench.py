@@ -20,7 +20,7 @@ same machine state:
   FFT and eight separate ``np.conj(X_a) * X_b``, the headline floor of this
   bench until it was found 20–45 % slower than the fused form; its ratio is
   ``ratio_products_p50``), ``floor_unbatched_p50_us`` (four separate FFT
-  calls, eight separate products: the issue's words taken literally) and
+  calls, eight separate products: the plainest reading of the work) and
   ``floor_numpy_p50_us`` (``np.fft.rfft`` itself and eight products).
 
 Timings alternate in blocks of ten (step, then each floor) so all see the

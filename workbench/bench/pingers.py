@@ -213,7 +213,7 @@ class PacedPinger:
     idles between ticks. A back-to-back ping-pong keeps both ends' CPUs and
     caches warm; on this project's VM the bare CAN ping-pong took ~50 µs back
     to back, 140-190 µs started every 1 ms and 360-510 µs every 5 ms
-    (docs/timing.md, "Eighth landing")."""
+    (docs/benchmarks.md)."""
 
     def __init__(self, inner: Pinger, period_s: float, clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep) -> None:
         if not period_s > 0:

@@ -76,8 +76,8 @@ VOLATILE = frozenset(
 SPECIAL = ("seed", "mode")
 
 DEFAULT_MODE = "cosim"
-"""The run mode of a spec that names none (:mod:`workbench.campaign.modes`; the one-thread
-co-simulation, once registered there as ``cosim``, is meant to replace it: change this line)."""
+"""The run mode of a spec that names none (:mod:`workbench.campaign.modes`): the one-thread
+co-simulation, bit-identical to the three-process lockstep rig."""
 
 
 class SpecError(ValueError):
