@@ -836,9 +836,10 @@ def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
 
 
 def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
-    """dsp_service.bench.bench_identifier(n=2048) against its numpy floor and the C40's 100 ms."""
-    requires("dsp_service.bench")
-    module = importlib.import_module("dsp_service.bench")
+    """workbench.bench.dsp_step.bench_identifier(n=2048) against its numpy floor and the C40's 100 ms."""
+    requires("dsp_service.identifier")
+    from workbench.bench import dsp_step as module
+
     repeats = 30 if ctx.quick else 200
     ctx.say(f"  bench_identifier(n=2048, repeats={repeats})")
     raw = module.bench_identifier(n=2048, repeats=repeats)
@@ -855,7 +856,7 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
         m["identifier_step vs products floor"] = latency(step, "numpy_floor_products", products)
     if raw.get("floor_unbatched_p50_us"):
         m["numpy_floor_unbatched"] = latency(
-            {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see dsp_service.bench)"
+            {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see workbench.bench.dsp_step)"
         )
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
     if raw.get("step_numpy_p50_us"):

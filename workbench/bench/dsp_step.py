@@ -13,7 +13,7 @@ same machine state:
   ``conj(X_a)·X_b`` (P11, P12, P1y1, P1y2, P21, P22, P2y1, P2y2: ``conj(U_i)``
   times each of the four rows) as **one** broadcast multiply into a
   preallocated ``(2, 4, n/2+1)`` array. The ratios use this floor. Its FFT is
-  :func:`.spectra.rfft_rows`, the one the step uses (numpy's pocketfft,
+  :func:`dsp_service.spectra.rfft_rows`, the one the step uses (numpy's pocketfft,
   called without ``np.fft.rfft``'s argument handling, identical results), so
   the ratio does not credit the step with a faster FFT. The slower forms of
   the same work, in the same blocks: ``floor_products_p50_us`` (the batched
@@ -46,8 +46,8 @@ from typing import TypedDict
 import numpy as np
 import scipy.signal
 
-from .identifier import Identifier, IdentifierConfig, KernelName
-from .spectra import rfft_rows
+from dsp_service.identifier import Identifier, IdentifierConfig, KernelName
+from dsp_service.spectra import rfft_rows
 
 C40_STEP_US = 100_000.0  #: the C40's ≈ 100 ms per 2×2 iteration (§2)
 _BATCH = 20
@@ -225,7 +225,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
     Identifier's glue: result objects, confidences, call overhead); and the
     bench's ``floor``.
     """
-    from . import kernel as K
+    from dsp_service import kernel as K
 
     idf, u, y, pos = _warmed(n, repeats, "numba")
     c, avg, est, sv, sl, vrm = idf.cfg, idf._avg, idf._est, idf._solver, idf._sl, idf._vrm
@@ -345,10 +345,3 @@ def format_report(rows: list[IdentifierBench], stages: dict[str, float]) -> str:
     for k in _STAGES:
         lines.append(f"  {k:<8} {stages[k]:>8.1f}  {stages[k] / f:>5.2f}")
     return "\n".join(lines)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    import json
-
-    print(json.dumps(bench_identifier(), indent=2))
-    print(format_report(bench_sizes(repeats=200), bench_stages(2048)))

@@ -1,6 +1,6 @@
 """Figures and numbers for docs/plant-model.md.
 
-``python -m plant_emulator.model.report [--out docs/img]`` draws:
+``ralf-hil plant report [--out docs/img]`` draws:
 
 * ``plant-modal-map.png``: first and second natural frequency over the
   workspace, without and with the payload, the inspection loop overlaid;
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from controller.metrics import rms_costs
 from plant_emulator.model import kinematics as kin
 from plant_emulator.model.arm import PlantConfig, RalfArm
 from plant_emulator.model.calibration import APEX_RAD, BOTTOM_RAD, metrics
@@ -158,8 +159,6 @@ def unfiltered_costs(seed: int = 0) -> dict[str, dict[str, object]]:
     """The battery's unfiltered runs (a) in the cheapest faithful form: one lap
     under PI, the deflections as the A/D reads them, the §4.2.1 costs
     (``controller.metrics``), against the thesis's Table 4-1 row (a)."""
-    from controller.metrics import rms_costs
-
     out: dict[str, dict[str, object]] = {}
     for (speed, payload), thesis in THESIS_UNFILTERED.items():
         run = closed_loop(payload=payload, seed=seed, speed_in_s=speed)

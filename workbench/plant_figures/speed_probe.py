@@ -2,7 +2,7 @@
 
 The thesis's unfiltered battery runs (Table 4-1 row a) vibrate 1.29–1.37 times
 *more* at 4 in/s than at 5 in/s; the emulation 0.75–0.80 times as much.
-``python -m plant_emulator.model.speed_probe`` runs the four unfiltered groups
+``ralf-hil plant speed-probe`` runs the four unfiltered groups
 (``report.closed_loop``: one lap from rest under the thesis's PI at 200 Hz, the
 deflections as the A/D reads them, the §4.2.1 velocity cost) for the model as
 it is and for what-if variants of the mechanisms that could make the vibration
@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from controller.metrics import deflection_velocity, rms_costs
 from plant_emulator.model import kinematics as kin
 from plant_emulator.model.arm import PlantConfig, RalfArm
-from plant_emulator.model.report import FS, INTEGRATOR_WINDOW_RAD, KI, KP, THESIS_UNFILTERED, closed_loop
+from workbench.plant_figures.report import FS, INTEGRATOR_WINDOW_RAD, KI, KP, THESIS_UNFILTERED, closed_loop
 
 FloatArray = npt.NDArray[np.float64]
 SPEEDS = (5.0, 4.0)
@@ -105,8 +106,6 @@ VARIANTS: tuple[Variant, ...] = (
 
 
 def _velocity_costs(variant: Variant, speed: float, payload: bool, seed: int) -> FloatArray:
-    from controller.metrics import rms_costs
-
     cfg = PlantConfig(seed=seed, payload_attached=payload, **variant.config)
     blend = variant.blend_s_at_5 * (speed / 5.0 if variant.blend_scales_with_speed else 1.0)
     run = closed_loop(
@@ -129,8 +128,6 @@ def corner_ring_energy(speed_in_s: float, payload: bool = False, window_s: float
     top row to way-point 2, turns down and runs on 5 in towards way-point 3:
     the loop's first corner, the trajectory from rest as in a lap.
     In a linear plant the energy is ∝ speed² (the velocity step is √2 v)."""
-    from controller.metrics import deflection_velocity
-
     x0, y0 = -26.383, 236.004  # way-point 1 of protocol/trajectories/inspection_loop.json
     d1 = np.array([-4.924, -0.868])  # towards way-point 2, 5 in
     d2 = np.array([0.869, -4.924])  # towards way-point 3, 5 in
