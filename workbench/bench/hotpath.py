@@ -33,7 +33,8 @@ from controller.record import ColumnBuffer
 from controller.service import RECORD_EXTRA
 from plant_emulator.model import RalfArm
 from plant_emulator.node import CanopenNode
-from plant_emulator.service import PlantApplication, node_config, plant_config
+from plant_emulator.plant_factory import plant_config
+from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
 from protocol.settings import ControllerSettings, PlantSettings
 
