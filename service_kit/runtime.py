@@ -10,7 +10,6 @@ import os
 import signal
 import sys
 import threading
-import time
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import Any, TypeVar
@@ -285,10 +284,6 @@ class HealthPublisher:
         except Exception:
             logging.getLogger("runtime").debug("final health publish failed", exc_info=True)
         self._pub.undeclare()
-
-
-def wall_time() -> float:
-    return time.time()
 
 
 def build_or_config_error(what: str, factory: Callable[[], T]) -> T:
