@@ -18,8 +18,6 @@ controller.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -290,14 +288,3 @@ def make_figures(out: Path) -> dict[str, object]:
     numbers["frf"] = frf
     numbers["unfiltered_battery"] = unfiltered_costs()
     return numbers
-
-
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="docs/img", help="directory for the PNGs")
-    args = ap.parse_args(argv)
-    print(json.dumps(make_figures(Path(args.out)), indent=1))
-
-
-if __name__ == "__main__":
-    main()

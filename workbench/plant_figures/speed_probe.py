@@ -22,7 +22,6 @@ equivalent for a velocity-source joint.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from collections.abc import Callable
@@ -218,12 +217,13 @@ THESIS_RATIO_4_OVER_5 = {
 }
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", nargs="*", default=None, help="variant names (default: all)")
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
-    chosen = [v for v in VARIANTS if args.only is None or v.name in args.only]
+def run_probe(only: list[str] | None = None, seed: int = 0, say: Callable[[str], None] = print) -> dict[str, Any]:
+    """The reference ratios, the acceleration figures and every variant in ``only``
+    (default: all), each variant's 4/5 ratio said as soon as it is measured."""
+    unknown = sorted(set(only or ()) - {v.name for v in VARIANTS})
+    if unknown:
+        raise ValueError(f"unknown variant(s) {', '.join(unknown)}; known: {', '.join(v.name for v in VARIANTS)}")
+    chosen = [v for v in VARIANTS if only is None or v.name in only]
     out: dict[str, Any] = {
         "linear_corner_ratio": round(linear_corner_ratio(), 3),
         "thesis_ratio_4_over_5": THESIS_RATIO_4_OVER_5,
@@ -232,10 +232,6 @@ def main(argv: list[str] | None = None) -> None:
         "variants": {},
     }
     for v in chosen:
-        out["variants"][v.name] = probe(v, args.seed)
-        print(v.name, json.dumps(out["variants"][v.name]["ratio_4_over_5"]), flush=True)
-    print(json.dumps(out, indent=1))
-
-
-if __name__ == "__main__":
-    main()
+        out["variants"][v.name] = probe(v, seed)
+        say(f"{v.name} {json.dumps(out['variants'][v.name]['ratio_4_over_5'])}")
+    return out

@@ -1,0 +1,7 @@
+"""``python -m plant_emulator.model.report`` ran the plant model's figures, which is now ``ralf-hil plant report``
+(the measurement tools are the launcher's, not the service's): it names it and exits 2."""
+
+from service_kit.moved import exit_moved
+
+if __name__ == "__main__":
+    exit_moved("python -m plant_emulator.model.report", "ralf-hil plant report")
