@@ -11,7 +11,7 @@ import queue
 import socket
 import struct
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import can
@@ -470,9 +470,3 @@ class PlantPinger:
             msg = self.bus.recv(timeout=remaining)
             if msg is not None and self._handle(msg):
                 return _perf() - t0
-
-
-def summarize_named(samples: Mapping[str, list[float]]) -> dict[str, dict[str, float | int]]:
-    from workbench.bench.stats import summarize
-
-    return {name: summarize(values) for name, values in samples.items()}

@@ -53,6 +53,7 @@ from controller.trajectory import WaypointTrajectory, sample_trajectory
 from dsp_service.arx import RecursiveArx, RegimeBankState
 from dsp_service.identifier import IdentifierConfig, arx_config
 from plant_emulator.model.modes import modal_parameters
+from workbench.campaign.rigs import run_rigs
 from workbench.experiments.framework import ExperimentContext, experiment, run_layout
 from workbench.experiments.onrig.runner import (
     THESIS_BATCH_SIZE,
@@ -60,7 +61,6 @@ from workbench.experiments.onrig.runner import (
     RigRun,
     centred_median,
     costs_over,
-    run_rigs,
 )
 from workbench.experiments.report import Report, new_figure
 

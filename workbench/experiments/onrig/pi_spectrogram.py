@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from scipy.signal import ShortTimeFFT
 from scipy.signal.windows import hann
 
+from workbench.campaign.rigs import run_rigs
 from workbench.experiments.framework import ExperimentContext, experiment
 from workbench.experiments.onrig.runner import (
     THESIS_BATCH_SIZE,
@@ -52,7 +53,6 @@ from workbench.experiments.onrig.runner import (
     RigRun,
     centred_median,
     lap_seconds,
-    run_rigs,
 )
 from workbench.experiments.report import Report, new_figure
 
