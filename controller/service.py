@@ -681,17 +681,12 @@ class ControllerService:
         # _apply_interrupts has nothing to do unless a batch's interrupt is due or one is held
         applied = self._apply_interrupts() if self._held_interrupts or (sent is not None and self.lockstep and tick >= sent.due_tick) else False
         faults = self.faults
-        if law.compiled:  # the law in one compiled call (controller/fast_tick.py): the same values
-            w0, w1, w2, w3 = words
-            law.tick_compiled(tick, w0, w1, w2, w3)
-            row: list[Any] = law.row.tolist()  # the words as floats: the record stores them as float64 all the same
-            if faults is None:
-                c0, c1, _, _ = law.codes.tolist()
-                self.plant.send_output_codes(c0, c1)
-        else:
-            row = law.step_row(tick, list(words))
-            if faults is None:
-                self.plant.send_output_values(row[ROW_VOLTS : ROW_VOLTS + 2])
+        w0, w1, w2, w3 = words
+        law.tick_compiled(tick, w0, w1, w2, w3)  # the law in one compiled call (controller/fast_tick.py)
+        row: list[Any] = law.row.tolist()  # the words as floats: the record stores them as float64 all the same
+        if faults is None:
+            c0, c1, _, _ = law.codes.tolist()
+            self.plant.send_output_codes(c0, c1)
         volts = row[ROW_VOLTS : ROW_VOLTS + 2]
         if faults is not None:
             for faulted in faults.rpdo(tick, np.array(volts, dtype=np.float64)):
