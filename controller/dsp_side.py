@@ -25,6 +25,7 @@ from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort
 from controller.fault_stage import FaultStage
 from controller.hop_timing import HopTimer
+from controller.interrupt_wait import InterruptWait
 from controller.loop import ControlLaw
 from controller.monitors import Monitors
 from controller.timing_counters import TimingCounters
@@ -36,11 +37,6 @@ from service_kit.runtime import LatencyTracker
 
 log = logging.getLogger(__name__)
 
-BATCH_RESEND_S = 5.0
-"""Lockstep: resend the batch in flight when its interrupt has not come this
-long after it was due (a message lost when a starved peer's zenoh session
-dropped); the DSP answers a repeated batch with the interrupt it raised for
-it, or takes it if it never arrived."""
 RESET_RESEND_S = 1.0
 """Start-up: resend the run's reset to the DSP this often until it answers."""
 
@@ -76,6 +72,7 @@ class DspSide:
         self._tick = tick
         """The loop's current tick."""
         self.inbox = DspInbox(lambda seq: seq in link.sent_wall, port.synchronous)
+        self.waiter = InterruptWait(port, link, clock, self.inbox, self.take_event, faults, timing, times.lockstep_timeout_s)
         self.irq_latency = LatencyTracker()
         self.hops = HopTimer()
         """Per-hop stamps of the tick and batch paths (controller/hop_timing.py)."""
@@ -189,7 +186,10 @@ class DspSide:
         link, tick = self.link, self._tick()
         sent = link.in_flight
         if self.lockstep and sent is not None and tick >= sent.due_tick:
-            self._wait_for_interrupt(sent.seq)
+            miss = self.waiter.wait(sent.seq, tick)
+            if miss is not None:
+                self.last_miss = miss
+                self.monitors.fire("deadline", miss)
         if not link.held:
             return False
         applied = False
@@ -233,75 +233,6 @@ class DspSide:
             self.last_fresh_tick = tick
         if self.law.apply_interrupt(irq):
             self.timing.oatf_updates += 1
-
-    def _wait_for_interrupt(self, seq: int) -> None:
-        """Lockstep: block until the interrupt of batch ``seq`` is in, however
-        long it takes to arrive (the DSP's presence is not asked), up to
-        ``lockstep_timeout_s``: then it is declared lost."""
-        link = self.link
-        if self.faults is not None and self.faults.lost(seq):
-            came = True
-            if not self._dsp_never_got(seq):
-                # Only the interrupt was dropped: it still releases the DSP's block, and the
-                # next batch waits for that, so the handshake waits for it to come (and be
-                # dropped) here, not whenever the DSP's thread gets to it.
-                came = self._await_interrupt(lambda: seq in link.dropped_arrived)
-                link.dropped_arrived.discard(seq)
-            self._fault_lost(seq, answered=came)
-            return
-        if not self._await_interrupt(lambda: any(irq.batch_seq == seq for irq in link.held)):
-            # It will not come: count it lost, fire the deadline monitor, go on without it.
-            link.declare_lost()
-            link.note_batch(True)
-            self.last_miss = f"batch {seq}: no interrupt within {self.times.lockstep_timeout_s:.1f} s (lockstep); declared lost"
-            self.monitors.fire("deadline", self.last_miss)
-
-    def _await_interrupt(self, arrived: Callable[[], bool]) -> bool:
-        """Take DSP-side events until ``arrived()``, resending the batch every
-        ``BATCH_RESEND_S``; False after ``lockstep_timeout_s``, at a stop, or
-        at once when the port answers synchronously and it is not in."""
-        clock, port = self.clock, self.port
-        deadline = clock.now() + self.times.lockstep_timeout_s
-        resend_at = clock.now() + BATCH_RESEND_S
-        self.timing.lockstep_waits += 1
-        while not arrived():
-            if not port.synchronous and self.link.last_payload is not None and clock.now() >= resend_at:
-                port.send_batch(self.link.last_payload)
-                self.timing.batch_resends += 1
-                resend_at = clock.now() + BATCH_RESEND_S
-            remaining = deadline - clock.now()
-            event = self.inbox.next_event(min(remaining, 0.1)) if remaining > 0 and not clock.stopping else None
-            if event is None and (remaining <= 0 or port.synchronous or clock.stopping):
-                return False
-            if event is not None:
-                self.take_event(*event)
-        return True
-
-    def _fault_lost(self, seq: int, answered: bool = True) -> None:
-        """Lockstep: batch ``seq`` or its interrupt was dropped by a link fault,
-        so it is lost at its due tick (once a dropped interrupt has come:
-        ``answered`` False if the board did not answer within
-        ``lockstep_timeout_s`` either, which the miss says). A batch that never
-        reached the DSP leaves its block empty and expecting ``seq`` (the flag
-        the CPU reads, Fig. 3.5): the next batch takes that number again and
-        says its samples are missing, so the DSP restarts its history."""
-        assert self.faults is not None
-        link = self.link
-        link.declare_lost()
-        link.note_batch(True)
-        sent = link.sent_unix.pop(seq, None)
-        if self.faults.engine.covers("batch") and self._dsp_never_got(seq):
-            link.next_seq = seq
-            link.block_empty = True
-            link.note_lost_samples(sent[1] if sent is not None else 0)
-        self.last_miss = f"batch {seq}: interrupt lost at its due tick {self._tick()} ({self.faults.blame(seq)})"
-        if not answered:
-            self.last_miss += f"; the board did not answer within {self.times.lockstep_timeout_s:.1f} s either"
-        self.monitors.fire("deadline", self.last_miss)
-
-    def _dsp_never_got(self, seq: int) -> bool:
-        assert self.faults is not None
-        return seq in self.faults.batches_dropped
 
     # -- batches ------------------------------------------------------------------------
     def send_batch(self, tick: int) -> None:

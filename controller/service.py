@@ -38,13 +38,15 @@ import zenoh
 from controller.config import build_trajectory, law_config, run_ticks
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
-from controller.dsp_side import BATCH_RESEND_S, DspSide, DspTimes
+from controller.dsp_side import DspSide, DspTimes
 from controller.fault_stage import FaultStage, LegacyInjection
+from controller.interrupt_wait import BATCH_RESEND_S
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.monitors import Monitors, MonitorStop
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from controller.run_files import make_records, save_run
 from controller.schedule import TickSchedule, WakeupMeter
+from controller.stale_watch import StaleWatch
 from controller.status import STATUS_PERIOD_S, StatusPublisher, build_health
 from controller.sync_driver import SyncDriver
 from controller.tf_download import TfDownloader
@@ -166,13 +168,11 @@ class ControllerService:
         self._w0 = stopwatch()
         self.faults = make_faults(s, scenario, self.lockstep, lambda: self.stopwatch() - self._w0)
         self.tick = 0
-        self.stale = False
+        self.stale_watch = StaleWatch(self.monitors, self.timing, s.sample_period_s, s.stale_after_s, self._note_miss)
         self.ready_at: float | None = None
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.realtime = RealtimeMeasures()
         """Which real-time measures are in effect for the loop (service_kit.realtime)."""
-        self._ts = s.sample_period_s
-        self._stale_after_s = s.stale_after_s
         self._n_ticks: int | None = None
         self._sync_sent_for = -1
         """Lockstep: the tick whose SYNC already went out at the end of the previous tick."""
@@ -235,28 +235,8 @@ class ControllerService:
         return self.link.batch_missed
 
     @property
-    def miss_run_max(self) -> int:
-        return self.link.miss_run_max
-
-    @property
-    def irq_latency(self) -> LatencyTracker:
-        return self.dsp.irq_latency
-
-    @property
     def paired_board(self) -> bytes | None:
         return self.dsp.inbox.paired_board
-
-    @property
-    def dsp_alive(self) -> bool:
-        return self.dsp.dsp_alive
-
-    @property
-    def liveliness(self) -> list[tuple[float, str, bool]]:
-        return self.dsp.liveliness
-
-    @property
-    def latest_frequency_hz(self) -> float | None:
-        return self.dsp.latest_frequency_hz
 
     @property
     def latest_interrupt(self) -> Interrupt | None:
@@ -274,6 +254,9 @@ class ControllerService:
     def last_miss(self, text: str | None) -> None:
         self.dsp.last_miss = text
 
+    def _note_miss(self, text: str) -> None:
+        self.dsp.last_miss = text
+
     @property
     def _events(self) -> Any:
         return self.dsp.inbox.events
@@ -284,40 +267,7 @@ class ControllerService:
     def _take_event(self, kind: str, payload: Any, arrival: float) -> None:
         self.dsp.take_event(kind, payload, arrival)
 
-    def reconfigure(self, change: Any) -> None:
-        """A run-time command (:meth:`DspSide.reconfigure`)."""
-        self.dsp.reconfigure(change)
-
-    def _build_health(self, seq: int) -> Any:
-        return build_health(self, seq)
-
-    def _publish_status(self, finished: bool = False, now: float | None = None) -> None:
-        self.status.publish(self, self.stopwatch() if now is None else now, finished)
-
     # -- the tick -----------------------------------------------------------------------
-    def _check_stale(self) -> None:
-        """Stale: no fresh confident estimate for ``stale_after_s``. Before the
-        first one, the clock starts once the DSP's history can be full (N
-        samples): no estimate can exist earlier."""
-        tick, fresh = self.tick, self.dsp.last_fresh_tick
-        if fresh == 0:
-            fresh = self.link.dsp_fft_width
-            if tick < fresh:
-                return
-        age = (tick - fresh) * self._ts  # the settings' values, read once (a property per tick cost more than the rest)
-        stale = age > self._stale_after_s
-        was = self.stale
-        if stale:
-            if not was:
-                self.timing.stale_episodes += 1
-                self.last_miss = f"parameters stale at tick {tick} ({age:.2f} s without a fresh estimate)"
-                self.monitors.fire("stale", self.last_miss)
-                self.stale = True
-            self.timing.stale_ticks += 1
-        elif was:
-            self.monitors.clear("stale")
-            self.stale = False
-
     def _tick(self, words: tuple[int, ...]) -> None:
         dsp = self.dsp
         dsp.drain()
@@ -353,11 +303,11 @@ class ControllerService:
         if link.in_flight is not None and link.check_deadline(tick):
             self.last_miss = f"batch {link.in_flight.seq if link.in_flight else '?'}: no interrupt within {link.deadline * 1e3:.0f} ms ({dsp.blame_batch()})"
             self.monitors.fire("deadline", self.last_miss)
-        self._check_stale()
+        self.stale_watch.check(tick, dsp.last_fresh_tick, link.dsp_fft_width)
         degraded = self.monitors.degraded
         if degraded != law.degraded:  # set_degraded of the same state changes nothing
             law.set_degraded(degraded)
-        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale), *self._interrupt_columns(), tick))
+        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale_watch.stale), *self._interrupt_columns(), tick))
         self.record.append_row(row)
 
     def _interrupt_columns(self) -> tuple[float, float, float, float]:
@@ -380,7 +330,7 @@ class ControllerService:
         the trajectory's end, ``stop``, or a plant fault."""
         if hasattr(self.clock, "stop"):
             self.clock.stop = stop
-        self.port.start_health(self.settings.health_period_s, self._build_health)
+        self.port.start_health(self.settings.health_period_s, lambda seq: build_health(self, seq))
         error: str | None = None
         self._n_ticks = run_ticks(self.settings, self.law.lap_ticks)
         try:
@@ -407,7 +357,7 @@ class ControllerService:
                 **(self.faults.as_counters() if self.faults is not None else {}),
             },
             error=error,
-            liveliness=self.liveliness,
+            liveliness=self.dsp.liveliness,
         )
 
     def _start(self, stop: threading.Event) -> None:
@@ -430,7 +380,7 @@ class ControllerService:
             self.plant.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
         except Exception:
             log.debug("could not zero the valves", exc_info=True)
-        self._publish_status(finished=True)
+        self.status.publish(self, self.stopwatch(), finished=True)
 
     def _skip_late(self, schedule: TickSchedule) -> bool:
         """Real time, hopelessly behind (a stall, or a rate the host cannot hold):
