@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import threading
 import time
@@ -89,6 +90,9 @@ class DspSide:
         self.flags_seen = 0
         self._unix_offset = time.time() - time.monotonic()
         """Unix - monotonic: converts the port's arrival stamps for the batch path's hops (real time)."""
+        self._irq_source: Interrupt | None = None
+        self._irq_columns: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, 0.0)
+        """f_id_hz, f_id2_hz, zeta_id, id_confidence of ``_irq_source`` (the latest interrupt)."""
 
     # -- taking messages in -----------------------------------------------------------
     def take_event(self, kind: str, payload: Any, arrival: float) -> None:
@@ -234,7 +238,30 @@ class DspSide:
         if self.law.apply_interrupt(irq):
             self.timing.oatf_updates += 1
 
+    def interrupt_columns(self) -> tuple[float, float, float, float]:
+        """The run record's f_id_hz, f_id2_hz, zeta_id, id_confidence of the latest interrupt (computed once per interrupt)."""
+        irq = self.latest_interrupt
+        if irq is not self._irq_source:
+            self._irq_source = irq
+            poles = irq.poles if irq is not None else ()
+            self._irq_columns = (
+                poles[0].frequency_hz if poles else math.nan,
+                poles[1].frequency_hz if len(poles) > 1 else math.nan,
+                poles[0].damping_ratio if poles else math.nan,
+                irq.confidence if irq is not None else 0.0,
+            )
+        return self._irq_columns
+
     # -- batches ------------------------------------------------------------------------
+    def after_sample(self, tick: int) -> None:
+        """The tick's sample is in the link: a batch out if one is ready; the deadline of the one in flight checked."""
+        link = self.link
+        if link.ready():
+            self.send_batch(tick)
+        if link.in_flight is not None and link.check_deadline(tick):
+            self.last_miss = f"batch {link.in_flight.seq if link.in_flight else '?'}: no interrupt within {link.deadline * 1e3:.0f} ms ({self.blame_batch()})"
+            self.monitors.fire("deadline", self.last_miss)
+
     def send_batch(self, tick: int) -> None:
         """The link's batch, if one is ready, out through the link faults (if any) and the port."""
         link = self.link

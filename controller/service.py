@@ -25,7 +25,6 @@ answered its reset (``startup_timeout_s``).
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -53,7 +52,7 @@ from controller.tf_download import TfDownloader
 from controller.tick_policy import TickPolicy
 from controller.timing_counters import TimingCounters
 from protocol.can_map import NmtCommand
-from protocol.messages import Interrupt, TfSnapshot
+from protocol.messages import TfSnapshot
 from protocol.settings import ControllerSettings
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
@@ -202,9 +201,6 @@ class ControllerService:
             lockstep_timeout_s=s.lockstep_timeout_s,
         )
         columns = record_columns(self.law, s.oatf_location)
-        self._irq_source: Interrupt | None = None
-        self._irq_columns: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, 0.0)
-        """f_id_hz, f_id2_hz, zeta_id, id_confidence of ``_irq_source`` (the latest interrupt)."""
         keep_all = bool(s.run_record) or keep_record
         self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.lockstep_timeout_s, BATCH_RESEND_S, keep_all)
         self.record, self.timing_record = make_records(s.run_record, keep_record, columns)
@@ -235,18 +231,6 @@ class ControllerService:
         return self.link.batch_missed
 
     @property
-    def paired_board(self) -> bytes | None:
-        return self.dsp.inbox.paired_board
-
-    @property
-    def latest_interrupt(self) -> Interrupt | None:
-        return self.dsp.latest_interrupt
-
-    @latest_interrupt.setter
-    def latest_interrupt(self, irq: Interrupt | None) -> None:
-        self.dsp.latest_interrupt = irq
-
-    @property
     def last_miss(self) -> str | None:
         return self.dsp.last_miss
 
@@ -256,16 +240,6 @@ class ControllerService:
 
     def _note_miss(self, text: str) -> None:
         self.dsp.last_miss = text
-
-    @property
-    def _events(self) -> Any:
-        return self.dsp.inbox.events
-
-    def _on_port_event(self, kind: str, payload: Any, arrival: float, attachment: Any = None) -> None:
-        self.dsp.inbox.on_port_event(kind, payload, arrival, attachment)
-
-    def _take_event(self, kind: str, payload: Any, arrival: float) -> None:
-        self.dsp.take_event(kind, payload, arrival)
 
     # -- the tick -----------------------------------------------------------------------
     def _tick(self, words: tuple[int, ...]) -> None:
@@ -298,31 +272,13 @@ class ControllerService:
         tf = self.tf
         if tf.due or (tf.every_samples and tick > 0 and tick % tf.every_samples == 0):  # on_tick does nothing otherwise
             tf.on_tick(tick, link.in_flight is None, dsp.dsp_alive)
-        if link.ready():
-            dsp.send_batch(tick)
-        if link.in_flight is not None and link.check_deadline(tick):
-            self.last_miss = f"batch {link.in_flight.seq if link.in_flight else '?'}: no interrupt within {link.deadline * 1e3:.0f} ms ({dsp.blame_batch()})"
-            self.monitors.fire("deadline", self.last_miss)
+        dsp.after_sample(tick)
         self.stale_watch.check(tick, dsp.last_fresh_tick, link.dsp_fft_width)
         degraded = self.monitors.degraded
         if degraded != law.degraded:  # set_degraded of the same state changes nothing
             law.set_degraded(degraded)
-        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale_watch.stale), *self._interrupt_columns(), tick))
+        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale_watch.stale), *dsp.interrupt_columns(), tick))
         self.record.append_row(row)
-
-    def _interrupt_columns(self) -> tuple[float, float, float, float]:
-        """f_id_hz, f_id2_hz, zeta_id, id_confidence of the latest interrupt (computed once per interrupt)."""
-        irq = self.dsp.latest_interrupt
-        if irq is not self._irq_source:
-            self._irq_source = irq
-            poles = irq.poles if irq is not None else ()
-            self._irq_columns = (
-                poles[0].frequency_hz if poles else math.nan,
-                poles[1].frequency_hz if len(poles) > 1 else math.nan,
-                poles[0].damping_ratio if poles else math.nan,
-                irq.confidence if irq is not None else 0.0,
-            )
-        return self._irq_columns
 
     # -- the run ------------------------------------------------------------------------
     def run(self, stop: threading.Event) -> RunResult:
@@ -353,7 +309,7 @@ class ControllerService:
                 **self.link.counters.as_dict(),
                 **self.timing.as_dict(),
                 **self.plant.counters.as_dict(),
-                **self._events.as_dict(),
+                **self.dsp.inbox.events.as_dict(),
                 **(self.faults.as_counters() if self.faults is not None else {}),
             },
             error=error,
