@@ -18,7 +18,6 @@ import numpy as np
 import numpy.typing as npt
 
 from controller import fast_tick
-from controller.engineering import Measurement, measurement_of
 from controller.excitation import DitherConfig, dither_table
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
@@ -77,19 +76,6 @@ class LawConfig:
     """The OATF's design rules (None: off)."""
     dither: DitherConfig = DitherConfig()
     """Persistent excitation added to the valve commands before the D/A (:mod:`controller.excitation`; off by default)."""
-
-
-@dataclass(frozen=True)
-class TickOutput:
-    """What one tick commands and what it records."""
-
-    volts: FloatArray
-    """Valve voltages after D/A quantization (what the plant receives)."""
-    clipped: npt.NDArray[np.bool_]
-    measurement: Measurement
-    setpoint_rad: FloatArray
-    shaped_setpoint_rad: FloatArray
-    pi_output_v: FloatArray
 
 
 class ControlLaw:
@@ -177,26 +163,8 @@ class ControlLaw:
 
     def step_row(self, tick: int, words: list[int]) -> list[Any]:
         """One tick from the four TPDO1 words (plain ints): the values named
-        by :data:`ROW_NAMES`, as floats (the words as ints). :meth:`step` is
-        the same tick returned as arrays."""
+        by :data:`ROW_NAMES`, as floats (the words as ints)."""
         return self._row_and_flags(tick, words)[0]
-
-    def step(self, tick: int, words: npt.ArrayLike) -> TickOutput:
-        raw = np.asarray(words, dtype=np.int64)
-        w = raw.tolist()
-        if len(w) != 4 or raw.ndim != 1:
-            raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
-        row, s0, s1 = self._row_and_flags(tick, w)
-        _, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, _, _, _, _, v0, v1, v2, v3, u1, u2, pi1, pi2 = row
-        m = measurement_of(raw, (v0, v1, v2, v3, e0, e1, d0, d1, th1, th2, phi1, phi2))
-        return TickOutput(
-            volts=np.array((u1, u2), dtype=np.float64),
-            clipped=np.array((s0, s1), dtype=np.bool_),
-            measurement=m,
-            setpoint_rad=np.array((ref1, ref2), dtype=np.float64),
-            shaped_setpoint_rad=np.array((sh1, sh2), dtype=np.float64),
-            pi_output_v=np.array((pi1, pi2), dtype=np.float64),
-        )
 
     def set_degraded(self, degraded: bool) -> None:
         """While degraded the OATF stops adapting; with the ``fixed`` fallback
@@ -210,49 +178,3 @@ class ControlLaw:
         if self.supervisor is None or self.config.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:
             return False
         return self.supervisor.offer_interrupt(interrupt)
-
-    def record_row(self, tick: int, out: TickOutput) -> dict[str, Any]:
-        """One row of the run record. The arrays are read with ``tolist`` (the
-        same float64 values as indexing them, as Python floats; the words as
-        ints, converted to float64 by the record exactly as int64 is): one
-        call per array instead of one numpy scalar per column."""
-        m = out.measurement
-        ref1, ref2 = out.setpoint_rad.tolist()
-        sh1, sh2 = out.shaped_setpoint_rad.tolist()
-        phi1, phi2 = m.phi_rad.tolist()
-        th1, th2 = m.theta_rad.tolist()
-        ext1, ext2 = m.extension_in.tolist()
-        d1, d2 = m.deflection_in.tolist()
-        w1, w2, w3, w4 = m.words.tolist()
-        v1, v2, v3, v4 = m.volts.tolist()
-        u1, u2 = out.volts.tolist()
-        pi1, pi2 = out.pi_output_v.tolist()
-        return {
-            "tick": tick,
-            "t_s": tick * self.config.sample_period_s,
-            "phi_ref1": ref1,
-            "phi_ref2": ref2,
-            "phi_shaped1": sh1,
-            "phi_shaped2": sh2,
-            "phi1": phi1,
-            "phi2": phi2,
-            "theta1": th1,
-            "theta2": th2,
-            "ext1_in": ext1,
-            "ext2_in": ext2,
-            "defl1_in": d1,
-            "defl2_in": d2,
-            "ai1_word": w1,
-            "ai2_word": w2,
-            "ai3_word": w3,
-            "ai4_word": w4,
-            "ai1_v": v1,
-            "ai2_v": v2,
-            "ai3_v": v3,
-            "ai4_v": v4,
-            "u1_v": u1,
-            "u2_v": u2,
-            "pi1_v": pi1,
-            "pi2_v": pi2,
-            "oatf_hz": self.oatf_frequency_hz,
-        }

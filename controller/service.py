@@ -117,16 +117,8 @@ def make_faults(settings: ControllerSettings, scenario: Scenario | None, lockste
     return FaultStage.from_scenario(scenario, settings.sample_period_s, lockstep, elapsed)
 
 
-def record_columns(law: ControlLaw, oatf_location: str) -> dict[str, type]:
-    """The run record's columns, checked against one row of the law (its state reset after)."""
-    probe = law.record_row(0, law.step(0, np.zeros(4)))
-    law.pi.reset()
-    if law.oatf is not None:
-        law.oatf.reset(law.setpoint(0) if oatf_location == "outer" else 0.0)
-    names = [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
-    if names != [*ROW_NAMES, *RECORD_EXTRA]:
-        raise RuntimeError(f"the record's columns {names} are not the law's row and the service's extras in order")
-    return {**{name: np.float64 for name in names}, "tick": np.int64}
+RECORD_COLUMNS: dict[str, type] = {**{name: np.float64 for name in (*ROW_NAMES, *RECORD_EXTRA)}, "tick": np.int64}
+"""The run record's columns: the law's row, the service's extras, the tick."""
 
 
 class ControllerService:
@@ -200,10 +192,9 @@ class ControllerService:
             sample_period_s=s.sample_period_s,
             lockstep_timeout_s=s.lockstep_timeout_s,
         )
-        columns = record_columns(self.law, s.oatf_location)
         keep_all = bool(s.run_record) or keep_record
         self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.lockstep_timeout_s, BATCH_RESEND_S, keep_all)
-        self.record, self.timing_record = make_records(s.run_record, keep_record, columns)
+        self.record, self.timing_record = make_records(s.run_record, keep_record, RECORD_COLUMNS)
         self.port.connect(self.dsp.inbox.on_port_event, self.clock.now)
 
     # -- views kept on the service (its health, the tests and the workbench read them) --

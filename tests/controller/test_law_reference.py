@@ -163,13 +163,3 @@ def test_the_tick_fills_angles_once_and_refuses_non_finite_errors() -> None:
     with pytest.raises(ValueError, match="non-finite angle error"):
         law.tick_compiled(1, *w)
     assert np.array_equal(law.pi.state, before)
-
-
-def test_step_and_record_row_read_the_tick() -> None:
-    a, b = _law(oatf_mode="adaptive"), _law(oatf_mode="adaptive")
-    for tick, w in enumerate(_words(50, spread=200, seed=4)):
-        rec = a.record_row(tick, a.step(tick, np.array(w)))
-        b.tick_compiled(tick, *w)
-        row = b.row.tolist()
-        assert [rec[name] for name in ROW_NAMES] == row
-        assert rec["oatf_hz"] == b.oatf_frequency_hz
