@@ -51,7 +51,6 @@ counters; each kind of bad input is logged at most once per
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import deque
@@ -64,6 +63,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.bus_watch import CONFLICT_EMCYS, ConflictLog, EchoFilter, ForeignMasters, HeldFrames
+from controller.node_start import configure_node, enter_operational, reset_communication, wait_for_node
 from controller.plant_errors import PlantFault, StopRequested
 from controller.sdo_client import SdoClient, download_request
 from protocol import can_map
@@ -177,7 +177,7 @@ class PlantLink:
         self._emcy = ids["emcy"]
         self._sdo_rx = ids["sdo_rx"]
         self._sdo_tx = ids["sdo_tx"]
-        self._bootups = 0
+        self.bootups = 0
         self._echoes = echoing_bus(self.bus)
         self._echo = EchoFilter((can_map.NMT_COB_ID, can_map.SYNC_COB_ID, self._rpdo1, self._sdo_rx), self._echoes)
         self._log = ConflictLog(self._now)
@@ -358,7 +358,7 @@ class PlantLink:
                     self._held.heartbeat_operational()
                 self.node_state = state
                 if state is NmtState.BOOT_UP:
-                    self._bootups += 1
+                    self.bootups += 1
             elif msg.arbitration_id == self._sdo_tx:
                 self._sdo.response = bytes(msg.data)
             elif msg.arbitration_id == self._emcy:
@@ -434,66 +434,15 @@ class PlantLink:
     def discard_pending(self) -> None:
         self._pending_tpdo = None
 
-    def wait_for_node(self, timeout: float, stop: threading.Event | None = None) -> NmtState:
-        """Wait for the node's heartbeat (its boot-up or a periodic one)."""
-        deadline = self._now() + timeout
-        while self.last_heartbeat is None:
-            if stop is not None and stop.is_set():
-                raise StopRequested("stopped while waiting for the plant")
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"no heartbeat from plant node {self.node_id} within {timeout:.1f} s: is ralf-plant running on the same CAN channel?")
-            self.poll(timeout=min(remaining, 0.1))
-        assert self.node_state is not None
-        return self.node_state
-
-    def reset_communication(self, timeout: float, stop: threading.Event | None = None) -> None:
-        """NMT RESET_COMMUNICATION, then wait for the node's boot-up: whatever
-        state an earlier (or a rogue) master left it in (STOPPED, a changed
-        heartbeat or 0x1019), it is PRE-OPERATIONAL with its communication
-        objects at their defaults afterwards. The application objects
-        (0x2000-0x2FFF, 0x6000-) keep their values: the plant is not reset."""
-        bootups = self._bootups
-        self.nmt(NmtCommand.RESET_COMMUNICATION)
-        self.counters.comm_resets += 1
-        deadline = self._now() + timeout
-        while self._bootups == bootups:
-            if stop is not None and stop.is_set():
-                raise StopRequested("stopped while resetting the plant node's communication")
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"plant node {self.node_id} did not boot up after NMT reset-communication within {timeout:.1f} s")
-            self.poll(timeout=min(remaining, 0.05))
-
     def start_node(self, timeout: float, stop: threading.Event | None = None, sample_period_s: float | None = None) -> None:
-        """Reset the node's communication (NMT, so a rogue STOP or another
-        master's settings do not block this run), configure its sample period
-        by SDO (object 0x2000, so plant, watchdog and controller agree on it)
-        and RPDO1's event timer (0x1400 sub 5 = the SYNC watchdog time, so a
-        foreign SYNC stream cannot keep the valves open if this controller
-        freezes), NMT start, then wait until the heartbeat says operational."""
-        self.wait_for_node(timeout, stop)
-        self.reset_communication(timeout, stop)
-        self._configured = {key: self._sdo.read(*key) for key in ((0x1017, 0), (0x1019, 0), (OD_WATCHDOG_PERIODS, 0))}
-        if sample_period_s is not None:
-            period_us = round(sample_period_s * 1e6)
-            self._sdo.write(OD_SAMPLE_PERIOD, 0, period_us)
-            # RPDO1 is cyclic from here on: its event timer (deadline monitoring) = the SYNC watchdog time
-            timer_ms = min(0xFFFF, math.ceil(self._configured[(OD_WATCHDOG_PERIODS, 0)] * sample_period_s * 1e3))
-            self._sdo.write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, timer_ms, 2)
-            self._configured[(OD_SAMPLE_PERIOD, 0)] = period_us
-            self._configured[(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)] = timer_ms
-        deadline = self._now() + timeout
-        self.nmt(NmtCommand.START)
-        while self.node_state != NmtState.OPERATIONAL:
-            if stop is not None and stop.is_set():
-                raise StopRequested("stopped while starting the plant")
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"plant node {self.node_id} did not become operational (state {self.node_state})")
-            self.poll(timeout=min(remaining, 0.05))
-            if self.node_state != NmtState.OPERATIONAL and self.counters.heartbeats and remaining < timeout / 2:
-                self.nmt(NmtCommand.START)
+        """Bring the node up for the run (:mod:`controller.node_start`): its
+        heartbeat, NMT reset-communication, the sample period and RPDO1's
+        event timer by SDO, NMT start, OPERATIONAL; then frames on the plant's
+        COB-IDs are judged."""
+        wait_for_node(self, timeout, stop)
+        reset_communication(self, timeout, stop)
+        self._configured = configure_node(self._sdo, sample_period_s)
+        enter_operational(self, timeout, stop)
         self.discard_pending()
         self._tpdo_credit = 0
         self._held.clear()
