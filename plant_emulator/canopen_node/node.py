@@ -95,10 +95,6 @@ def node_can_filters(node_id: int = DEFAULT_NODE_ID) -> list[can.typechecking.Ca
 class CanopenNode:
     """The CANopen slave: the object dictionary, the parts, and frames dispatched to them."""
 
-    quick_poll = True
-    """Let :meth:`poll_frames` return at once before the earliest time a timer
-    can be due (False: run the timers on every poll)."""
-
     def __init__(self, app: NodeApplication, cfg: NodeConfig | None = None) -> None:
         self.app = app
         self.cfg = cfg if cfg is not None else NodeConfig()
@@ -161,7 +157,7 @@ class CanopenNode:
         """:meth:`poll`, the frames as the node made them (see :class:`Frame`)."""
         with self._lock:
             self._outbox.now = now
-            if self.quick_poll and now < self._quiet_until and not self._outbox.frames and self.od.generation == self._quiet_generation:
+            if now < self._quiet_until and not self._outbox.frames and self.od.generation == self._quiet_generation:
                 return []  # no timer due before _quiet_until (worked out by the last _timers)
             self._timers(now)
             return self._outbox.take()
@@ -220,7 +216,7 @@ class CanopenNode:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
         with self._lock:
             pending = bool(self._outbox.frames)
-            if self.quick_poll and not pending and self._quiet_until != -math.inf and self.od.generation == self._quiet_generation:
+            if not pending and self._quiet_until != -math.inf and self.od.generation == self._quiet_generation:
                 # what the last _timers worked out: the heartbeat and watchdog deadlines (nothing changed since)
                 quiet = self._quiet_until
                 return None if quiet == math.inf else quiet
