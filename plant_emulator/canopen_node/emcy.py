@@ -1,10 +1,5 @@
-"""The EMCY producer (CiA 301): active faults, the error register 0x1001 and the error history 0x1003.
-
-A fault appearing sends one EMCY with its code (:class:`protocol.can_map.EmcyCode`)
-and pushes it onto 0x1003; clearing it sends the reset EMCY (code 0x0000)
-with the remaining error register and the cleared code in vendor bytes 0-1.
-EMCYs due while the node may not send them (STOPPED, boot-up) are counted
-as suppressed; the error register is kept all the same."""
+"""The EMCY producer (CiA 301): active faults, the error register 0x1001 and the error history 0x1003
+(docs/canopen.md, "Behaviour on the bus": EMCY)."""
 
 from __future__ import annotations
 

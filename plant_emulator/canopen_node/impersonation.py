@@ -1,14 +1,6 @@
-"""Frames on the node's own COB-IDs: echoes of its own, or another node using its identifiers.
-
-On a bus that hands a sender its frames back (python-can's udp_multicast),
-the frames matching what the node sent, in order, are echoes
-(``rx['own_cob_id']``). Every other frame on an own COB-ID (EMCY, TPDO1-3,
-SDO reply, heartbeat) is another node transmitting with this node's
-identifiers: counted per kind in ``counters.impersonated``, logged at most
-every :data:`~.transmit.LOG_INTERVAL_S`, and reported by EMCY
-CAN_ID_COLLISION (0x8150) carrying the frame's COB-ID, DLC and first two
-data bytes, at most every :data:`COLLISION_EMCY_INTERVAL_S`, reset after
-:data:`COLLISION_CLEAR_S` without one."""
+"""Frames on the node's own COB-IDs: echoes of its own on a bus that hands them back, or another
+node using its identifiers, answered with EMCY CAN_ID_COLLISION (docs/canopen.md, "Behaviour on
+the bus": Frames on our own COB-IDs)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,5 @@
-"""What the NMT state changes do to the node's parts.
-
-Boot-up (at construction and after RESET_NODE / RESET_COMMUNICATION) sends
-the boot-up heartbeat and enters PRE-OPERATIONAL. PDOs flow only in
-OPERATIONAL; SDO and EMCY in PRE-OPERATIONAL and OPERATIONAL; in STOPPED
-only NMT and heartbeat. Leaving OPERATIONAL drives both valves to 0 V
-(``on_outputs(zeros)``: CiA 401's output error mode) and ends a watchdog
-trip. RESET_NODE restores every object to its configured value (calling
-the application's resolution and sample-period hooks when they change),
-RESET_COMMUNICATION only 0x1000-0x1FFF."""
+"""What boot-up, the NMT state changes and the two resets do to the node's parts
+(docs/canopen.md, "Behaviour on the bus": NMT)."""
 
 from __future__ import annotations
 

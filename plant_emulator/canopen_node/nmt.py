@@ -1,11 +1,6 @@
-"""NMT slave (CiA 301): the node's state, the NMT commands it takes and its heartbeat producer.
-
-Commands address the node by its id or by broadcast 0: START -> OPERATIONAL,
-STOP -> STOPPED, ENTER_PRE_OPERATIONAL, RESET_NODE, RESET_COMMUNICATION.
-What a state change does to the other parts (valves to zero, watchdog
-disarmed, objects restored) is :mod:`~.lifecycle`'s. The heartbeat (period
-0x1017, ms, 0 = off) beats one period after boot-up or after 0x1017 is
-written, then every period; late beats are counted, not bunched up."""
+"""NMT slave (CiA 301): the node's state, the NMT commands it takes and its heartbeat producer
+(docs/canopen.md, "Behaviour on the bus": NMT, Heartbeat); what a state change does to the other
+parts is :mod:`~.lifecycle`'s."""
 
 from __future__ import annotations
 

@@ -1,20 +1,6 @@
-"""RPDO1 (CiA 401 analog outputs 0x6411 sub 1-2): the controller's valve commands to the plant.
-
-RPDO1 is transmission type 255, asynchronous: applied on receipt rather than
-at the next SYNC, because the MVME wrote its D/A as soon as it had computed
-the command, so the plant sees the valve change at the instant the
-controller produced it (a synchronous RPDO would add a whole sample of dead
-time the real rig did not have). Words are converted with DAC12 (the 4
-padding bits discarded) and clipped, in codes, to the valve voltage limit
-0x2002 (default 10 V); entering the clipped condition sends EMCY
-OUTPUT_CLIPPED once, leaving it the reset EMCY. An SDO write of 0x6411
-applies the outputs the same way (only in OPERATIONAL). Wrong-length RPDOs
-raise EMCY PDO_LENGTH (once per run of bad frames; cleared by the next good
-one). While RPDO1 is declared cyclic (its event timer 0x1400 sub 5 > 0),
-more RPDO1 frames in one SYNC period than SYNCs in it (1 + the SYNCs the
-counter says were lost) is a second RPDO producer: ``rpdo_conflicts`` and
-EMCY RPDO_CONFLICT, reset after :data:`~.sync.CONFLICT_CLEAR_PERIODS` clean
-periods; event-driven masters (event timer 0) may send as many as they like."""
+"""RPDO1 (CiA 401 analog outputs 0x6411 sub 1-2): the controller's valve commands to the plant,
+applied on receipt, clipped to the valve limit 0x2002, and a second RPDO producer told from the count
+per SYNC period (docs/canopen.md, "Behaviour on the bus": RPDO1)."""
 
 from __future__ import annotations
 

@@ -1,14 +1,5 @@
-"""SYNC consumer (CiA 301): the SYNC counter, its gaps, and a second SYNC producer told from the counter.
-
-SYNC with counter (DLC 1, counter 1..0x1019) and SYNC without counter (DLC 0,
-e.g. ``canopen``'s ``network.sync.start``) are both accepted with the default
-0x1019 = 240; 0x1019 = 0 accepts only SYNC without counter. A SYNC without
-counter is counter 0 for the application. Gaps are counted (as
-:func:`protocol.can_map.sync_gap`). What one producer cannot send (a
-repeated counter, a jump back by half the range or more, SYNC with and
-without counter mixed within one OPERATIONAL session) is a second SYNC
-producer: counted in ``sync_conflicts`` and EMCY SYNC_CONFLICT, reset after
-:data:`CONFLICT_CLEAR_PERIODS` clean SYNCs."""
+"""SYNC consumer (CiA 301): the SYNC counter, its gaps, and a second SYNC producer told from the counter
+(docs/canopen.md, "Behaviour on the bus": SYNC)."""
 
 from __future__ import annotations
 

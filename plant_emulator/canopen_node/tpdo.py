@@ -1,13 +1,5 @@
-"""TPDO1-3 (CiA 401 analog inputs): on each SYNC in OPERATIONAL, the plant's A/D codes onto the bus.
-
-``app.on_sync(counter)`` gives the codes at the ADC resolution (0x2001);
-TPDO1 carries 0x6401 (INT16, left-justified: ``code << (16 - bits)``; above
-16 bits the 16 most significant bits, ``code >> (bits - 16)``). Above 16
-bits TPDO2 and TPDO3 carry 0x6402 (INT32, ``code << (32 - bits)``) as well,
-so a 12-bit consumer of TPDO1 keeps working unchanged while a wide consumer
-reads TPDO2/3; their COB-IDs (0x1801/0x1802 sub 1) are marked valid only
-then. A saturated input raises EMCY INPUT_SATURATED (the channels as bits
-of vendor byte 0) until a sample without one."""
+"""TPDO1-3 (CiA 401 analog inputs 0x6401/0x6402): on each SYNC in OPERATIONAL, the plant's A/D
+codes onto the bus (docs/canopen.md, "Behaviour on the bus": TPDO1-3)."""
 
 from __future__ import annotations
 

@@ -1,19 +1,5 @@
-"""The SYNC watchdog and RPDO1 deadline monitoring: valves to zero when the master goes quiet.
-
-Armed by the first SYNC received in OPERATIONAL: when no SYNC arrives for
-0x2003 periods of 0x2000 (default 5 x 5 ms) the node trips: the application
-drives the valves to zero and holds (``on_watchdog(True)``), EMCY
-SYNC_TIMEOUT (0x8130, vendor byte 1 = 0) goes out and further RPDOs are held
-(counted, not applied); the next SYNC releases it (``on_watchdog(False)``,
-the reset EMCY; outputs stay at zero until the next RPDO). RPDO1 deadline
-monitoring (CiA 301's RPDO event timer, 0x1400 sub 5 in ms, 0 = off):
-armed by the first RPDO1, no RPDO1 for that long trips the same way even
-while SYNC keeps coming (EMCY RPDO_TIMEOUT 0x8250, vendor byte 1 = 1,
-counted in ``rpdo_timeouts``), so somebody else's SYNC stream cannot keep
-the valves open for a controller that froze; the next RPDO1 releases it
-(that frame is held, the following one applies). 0x2003 = 0 disables the
-watchdog in :class:`~.config.NodeConfig` only: an SDO write of 0 is refused
-(abort 0x08000022, counted in ``watchdog_disable_refused``)."""
+"""The SYNC watchdog and RPDO1 deadline monitoring: valves to zero when the master goes quiet
+(docs/canopen.md, "Behaviour on the bus": Watchdog)."""
 
 from __future__ import annotations
 
