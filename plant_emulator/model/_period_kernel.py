@@ -5,7 +5,11 @@ their exact lag solution with flow saturation and hard stops
 (:func:`cylinder_step`, :mod:`.hydraulics`), the pin triangles' law of
 cosines and lever arms (:func:`joint_angle_and_rate`), the flexible links'
 exact modal step at the mid configuration (:func:`links_step`, with
-:func:`._modal_kernel.modal_step`), the cameras' bending fractions
+:func:`modal_step`: the links' coefficients, thesis Ch. 3, as
+:func:`~plant_emulator.model.modes.coefficients_scalar`; their two
+M-orthonormal modes, the closed-form 2x2 generalized eigenproblem of
+:func:`~plant_emulator.model.modes.eig2_scalar`; each damped mode's exact
+step for a constant force), the cameras' bending fractions
 (:func:`camera_fractions`) and the deflection anti-alias filters with their
 input noise (:func:`antialias_step`). Compiled with numba, no fastmath (no
 FMA contraction, no reassociation; libm's transcendental functions), so the
@@ -22,7 +26,8 @@ The arrays are laid out by the named offsets below: the state ``st``
 (``ST_*``, :data:`STATE_SIZE` floats, updated in place), the hydraulic and
 joint parameters ``hp`` (``HP_*``), the sensor parameters ``sp`` (``SP_*``)
 and the modal step's constant arguments ``ma`` (``MA_*``, in
-:func:`._modal_kernel.modal_step`'s order).
+:func:`modal_step`'s order). One file, so numba's on-disk cache (keyed on
+this file) is renewed whenever any of it changes.
 """
 
 from __future__ import annotations
@@ -33,16 +38,12 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from plant_emulator.model import _modal_kernel
-
 try:  # numba is optional: the plain-Python functions give the same floats
     from numba import njit as _njit
     from numba.extending import register_jitable as _register_jitable
 except ImportError:  # pragma: no cover - depends on the environment
     _njit = None  # type: ignore[assignment]
     _register_jitable = None  # type: ignore[assignment]
-
-_modal = _modal_kernel.modal_step_jitable
 
 # --- the state vector st (per cylinder / joint / link j = 0, 1) ---------------------------
 ST_EXTENSION: Final = 0
@@ -129,6 +130,141 @@ def _jitable(fn: Any) -> Any:
     return fn if _register_jitable is None else _register_jitable(fn)
 
 
+# --- the flexible links' modal data at one configuration --------------------------------
+
+
+@_jitable
+def link_coefficients(
+    tm1: float,
+    tm2: float,
+    I1: float,
+    Mt: float,
+    S: float,
+    Ia: float,
+    A1: float,
+    kap: float,
+    kr1: float,
+    kc1: float,
+    kr2: float,
+    kbar_r2: float,
+    beta_c: float,
+    g: float,
+    offset1: float,
+    pq: float,
+    pq2: float,
+    inch: float,
+    l1: float,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float, float]:
+    """(M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2) at joint angles (tm1, tm2)."""
+    gamma = tm1 + offset1
+    length = math.sqrt(pq2 - 2.0 * pq * math.cos(gamma))
+    lever1_m = pq * math.sin(gamma) / length * inch
+    t12 = tm1 + tm2
+    c1 = math.cos(tm1)
+    s1 = math.sin(tm1)
+    c12 = math.cos(t12)
+    s12 = math.sin(t12)
+    c2 = math.cos(tm2)
+    sbar = math.sin(tm2 + beta_c)
+    LS = l1 * S
+    base = I1 + Mt * l1 * l1
+    M11 = base + 2.0 * kap * LS * c2 + kap * kap * Ia
+    M12 = LS * c2 + kap * Ia
+    M22 = Ia + 0.0 * c2
+    E11 = base + (1.0 + kap) * LS * c2 + kap * Ia
+    E12 = LS * c2 + kap * Ia
+    E21 = LS * c2 + Ia
+    E22 = Ia + 0.0 * c2
+    k1 = 1.0 / (1.0 / kr1 + 1.0 / (kc1 * lever1_m * lever1_m))
+    k2 = 1.0 / (1.0 / kr2 + 1.0 / (kbar_r2 * sbar * sbar))
+    gs = g * S * s12
+    K11 = k1 - g * A1 * s1 - kap * kap * gs
+    K12 = -kap * gs
+    K22 = k2 - gs
+    G1 = -g * (A1 * c1 + kap * S * c12)
+    G2 = -g * S * c12
+    return M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2
+
+
+@_jitable
+def mode_shape(lr: float, r: int, M11: float, M12: float, M22: float, K11: float, K12: float, K22: float) -> tuple[float, float]:
+    """The M-normalized eigenvector of eigenvalue ``lr`` (mode ``r`` = 0, 1) of K x = lr M x."""
+    r11 = K11 - lr * M11
+    r12 = K12 - lr * M12
+    r22 = K22 - lr * M22
+    if r11 * r11 + r12 * r12 >= r12 * r12 + r22 * r22:
+        x = -r12
+        y = r11
+    else:
+        x = r22
+        y = -r12
+    if x == 0.0 and y == 0.0:
+        if r == 0:
+            x = 1.0
+            y = 0.0
+        else:
+            x = 0.0
+            y = 1.0
+    norm = math.sqrt(x * x * M11 + 2.0 * x * y * M12 + y * y * M22)
+    return x / norm, y / norm
+
+
+@_jitable
+def mode_step(lr: float, zeta: float, h: float) -> tuple[float, float, float, float]:
+    """A damped mode's exact step over ``h``: (w^2, zeta w, e^(-zeta w h) cos(wd h), e^(-zeta w h) sin(wd h) / wd)."""
+    if lr < 0.0 or zeta * zeta > 1.0:  # math.sqrt's domain error, compiled or not
+        raise ValueError("math domain error")
+    w = math.sqrt(lr)
+    sig = zeta * w
+    wd = w * math.sqrt(1.0 - zeta * zeta)
+    e = math.exp(-sig * h)
+    return w * w, sig, e * math.cos(wd * h), e * math.sin(wd * h) / wd
+
+
+@_jitable
+def modal_step(
+    tm1: float,
+    tm2: float,
+    I1: float,
+    Mt: float,
+    S: float,
+    Ia: float,
+    A1: float,
+    kap: float,
+    kr1: float,
+    kc1: float,
+    kr2: float,
+    kbar_r2: float,
+    beta_c: float,
+    g: float,
+    z1: float,
+    z2: float,
+    h: float,
+    offset1: float,
+    pq: float,
+    pq2: float,
+    inch: float,
+    l1: float,
+) -> tuple[float, ...]:
+    """The 12 coefficients of :func:`link_coefficients`, the two mode shapes
+    (p11, p21, p12, p22) and the two modes' :func:`mode_step` (24 floats)."""
+    co = link_coefficients(tm1, tm2, I1, Mt, S, Ia, A1, kap, kr1, kc1, kr2, kbar_r2, beta_c, g, offset1, pq, pq2, inch, l1)
+    M11, M12, M22, K11, K12, K22 = co[0], co[1], co[2], co[3], co[4], co[5]
+    # the 2x2 generalized eigenvalues (eig2_scalar)
+    a = M11 * M22 - M12 * M12
+    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
+    c = K11 * K22 - K12 * K12
+    d = b * b - 4.0 * a * c
+    disc = math.sqrt(d) if d > 0.0 else 0.0
+    lam1 = (-b - disc) / (2.0 * a)
+    lam2 = (-b + disc) / (2.0 * a)
+    p11, p21 = mode_shape(lam1, 0, M11, M12, M22, K11, K12, K22)
+    p12, p22 = mode_shape(lam2, 1, M11, M12, M22, K11, K12, K22)
+    s1 = mode_step(lam1, z1, h)
+    s2 = mode_step(lam2, z2, h)
+    return (*co, p11, p21, p12, p22, *s1, *s2)
+
+
 @_jitable
 def cylinder_step(st: npt.NDArray[np.float64], hp: npt.NDArray[np.float64], j: int, volts: float) -> tuple[bool, float, int]:
     """Cylinder j over one step of constant valve voltage (:mod:`.hydraulics`): the
@@ -192,7 +328,7 @@ def joint_angle_and_rate(hp: npt.NDArray[np.float64], j: int, extension: float, 
 def links_step(st: npt.NDArray[np.float64], ma: npt.NDArray[np.float64], tm0: float, tm1: float, acc0: float, acc1: float) -> None:
     """The flexible links' exact modal step at the mid configuration (tm0, tm1)
     under the joints' acceleration: beta and beta' in ``st``."""
-    r = _modal(
+    r = modal_step(
         tm0,
         tm1,
         ma[0],

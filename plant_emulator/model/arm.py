@@ -221,7 +221,7 @@ def _sensor_parameters(zero: tuple[float, ...], noise_in: tuple[float, ...], aa:
 
 
 def _modal_arguments(k: Any, zetas: tuple[float, ...], h: float) -> npt.NDArray[np.float64]:
-    """The modal step's 20 constant arguments (``_modal_kernel.modal_step`` after the two angles)."""
+    """The modal step's 20 constant arguments (``_period_kernel.modal_step`` after the two angles)."""
     cyl = kin.CYLINDERS[0]
     z1, z2 = zetas[0], zetas[1]
     pin = (cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2)
