@@ -8,7 +8,7 @@ exact modal step at the mid configuration (:func:`links_step`, with
 :func:`modal_step`: the links' coefficients, thesis Ch. 3, as
 :func:`~plant_emulator.model.modes.coefficients_scalar`; their two
 M-orthonormal modes, the closed-form 2x2 generalized eigenproblem of
-:func:`~plant_emulator.model.modes.eig2_scalar`; each damped mode's exact
+:func:`~plant_emulator.model.modes.eig2`; each damped mode's exact
 step for a constant force), the cameras' bending fractions
 (:func:`camera_fractions`) and the deflection anti-alias filters with their
 input noise (:func:`antialias_step`). Compiled with numba, no fastmath (no
@@ -250,7 +250,7 @@ def modal_step(
     (p11, p21, p12, p22) and the two modes' :func:`mode_step` (24 floats)."""
     co = link_coefficients(tm1, tm2, I1, Mt, S, Ia, A1, kap, kr1, kc1, kr2, kbar_r2, beta_c, g, offset1, pq, pq2, inch, l1)
     M11, M12, M22, K11, K12, K22 = co[0], co[1], co[2], co[3], co[4], co[5]
-    # the 2x2 generalized eigenvalues (eig2_scalar)
+    # the 2x2 generalized eigenvalues (modes.eig2)
     a = M11 * M22 - M12 * M12
     b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
     c = K11 * K22 - K12 * K12
