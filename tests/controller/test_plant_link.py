@@ -81,7 +81,7 @@ def run_ticks(link: PlantLink, n: int, volts: tuple[float, float] = (0.5, -0.5))
     return answered
 
 
-# --- junk on the udp_multicast group (issue: one datagram killed the controller) ----------------
+# --- junk on the udp_multicast group (one datagram once killed the controller) ----------------
 
 
 JUNK: dict[str, bytes] = {

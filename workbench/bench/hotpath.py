@@ -11,13 +11,14 @@
   message either way);
 
 and their parts, so each choice of means can be measured (``ralf-hil bench
---only hotpath``; ``python -m workbench.bench.hotpath`` prints the table;
-``python -m workbench.bench.hotpath --controller-side [SECONDS]`` the
+--only hotpath``; ``ralf-hil measure hotpath`` prints the table;
+``ralf-hil measure hotpath --controller-side [SECONDS]`` the
 controller's share of a co-simulated tick in CPU time, :func:`controller_side_cpu`).
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Callable
 from typing import Any
@@ -33,7 +34,8 @@ from controller.record import ColumnBuffer
 from controller.service import RECORD_EXTRA
 from plant_emulator.model import RalfArm
 from plant_emulator.node import CanopenNode
-from plant_emulator.service import PlantApplication, node_config, plant_config
+from plant_emulator.plant_factory import plant_config
+from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
 from protocol.settings import ControllerSettings, PlantSettings
 
@@ -204,22 +206,23 @@ def controller_side_cpu(sim_s: float = 10.0) -> dict[str, float]:
     }
 
 
-def main() -> None:
-    import sys
-
-    if len(sys.argv) > 1 and sys.argv[1] == "--controller-side":
+def main(args: argparse.Namespace) -> int:
+    if args.controller_side is not None:
         controller_side_cpu(1.0)  # warm-up: imports, compiled kernels
-        r = controller_side_cpu(float(sys.argv[2]) if len(sys.argv) > 2 else 10.0)
+        r = controller_side_cpu(args.controller_side)
         print(
             f"{r['ticks']:.0f} ticks, CPU per tick: {r['cpu_us_per_tick']:.1f} µs = controller {r['controller_us_per_tick']:.1f}"
             f" + plant node and wire {r['plant_us_per_tick']:.1f} + DSP port and core {r['dsp_us_per_tick']:.1f}"
         )
-        return
+        return 0
     for name, r in bench_hotpath().items():
         ratio = r["p50_us"] / TARGET_US
         flag = "" if name.startswith(" ") else f"  ({ratio:.2f}x the {TARGET_US:.0f} µs target: {'met' if ratio <= 1.0 else 'not met'})"
         print(f"{name:48s} p50 {r['p50_us']:8.1f} µs   p99 {r['p99_us']:8.1f} µs{flag}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m workbench.bench.hotpath", "ralf-hil measure hotpath")
