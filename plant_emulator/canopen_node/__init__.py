@@ -1,19 +1,13 @@
 """The plant's CANopen (CiA 301 / CiA 401) slave, in the parts a CANopen stack has.
 
-Modules, each importing only those above it:
-
-* :mod:`~plant_emulator.canopen_node.config`: :class:`NodeConfig`, the power-on values;
-* :mod:`~plant_emulator.canopen_node.od`: object dictionary storage and types (data
-  and access types, :class:`SdoAbort`);
-* :mod:`~plant_emulator.canopen_node.objects`: this node's object table;
-* :mod:`~plant_emulator.canopen_node.eds`: the CiA 306 EDS writer (``python -m
-  plant_emulator.canopen_node > protocol/ralf_io.eds`` regenerates the shipped file);
-* :mod:`~plant_emulator.canopen_node.sdo_server`: the SDO server;
-* :mod:`~plant_emulator.canopen_node.counters`: what the node counts;
-* :mod:`~plant_emulator.canopen_node.node`: :class:`CanopenNode`, the NMT / SYNC /
-  PDO / EMCY / heartbeat state machine (pure: frames and times in, frames out);
-* :mod:`~plant_emulator.canopen_node.runner`: :func:`run_node`, the I/O loop on a
-  python-can bus.
+Modules, each importing only those above it (docs/canopen.md, "Code layout"):
+storage and configuration (:mod:`.config`, :mod:`.od`, :mod:`.objects`,
+:mod:`.eds`, :mod:`.sdo_server`, :mod:`.counters`, :mod:`.live_config`), the
+protocol's parts (:mod:`.emcy`, :mod:`.nmt`, :mod:`.sync`, :mod:`.watchdog`,
+:mod:`.tpdo`, :mod:`.rpdo`, :mod:`.impersonation`, :mod:`.application`,
+:mod:`.lifecycle`), :class:`CanopenNode` assembling them around the object
+dictionary (:mod:`.node`: pure, frames and times in, frames out) and
+:func:`run_node`, the I/O loop on a python-can bus (:mod:`.runner`).
 
 The OD indices both sides of the bus use live in :mod:`protocol.can_map`.
 """

@@ -5,7 +5,9 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field, fields
 
+from plant_emulator.canopen_node.od import ObjectDictionary
 from plant_emulator.canopen_node.sdo_server import SdoCounters
+from protocol.can_map import OD_DIAGNOSTICS
 
 
 @dataclass
@@ -107,3 +109,19 @@ class NodeCounters:
         out["malformed"] = self.malformed_total
         out["impersonated"] = self.impersonated_total
         return out
+
+
+def install_diagnostics(od: ObjectDictionary, c: NodeCounters) -> None:
+    """0x2010 sub 1-7 read the counters live: SYNCs received, SYNCs missed,
+    watchdog trips, clipped outputs, malformed frames, SDO aborts, impersonated frames."""
+    getters = (
+        lambda: c.sync_received,
+        lambda: c.syncs_missed,
+        lambda: c.watchdog_trips,
+        lambda: c.clipped_outputs,
+        lambda: c.malformed_total,
+        lambda: sum(c.sdo.aborts.values()),
+        lambda: c.impersonated_total,
+    )
+    for sub, fn in enumerate(getters, start=1):
+        od.getter(OD_DIAGNOSTICS, sub, fn)

@@ -136,12 +136,8 @@ def _array(
     return ObjectDef(index, name, ObjectKind.ARRAY, tuple(entries))
 
 
-def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
-    """Every object of the node, with the defaults of ``cfg`` (the EDS uses
-    the :class:`~plant_emulator.canopen_node.config.NodeConfig` defaults)."""
-    if cfg is None:
-        cfg = NodeConfig()
-    wide = cfg.adc_bits > 16
+def _device_objects(cfg: NodeConfig) -> tuple[ObjectDef, ...]:
+    """0x1000-0x1019: device type, error register and history, identity, heartbeat, SYNC."""
     return (
         _var(0x1000, "Device type", DataType.UNSIGNED32, Access.RO, DEVICE_TYPE_401, description="CiA 401 I/O module with analog inputs and outputs"),
         _var(0x1001, "Error register", DataType.UNSIGNED8, Access.RO, 0, description="bit 0 generic, 1 current, 2 voltage, 4 communication, 7 manufacturer"),
@@ -189,6 +185,13 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             high=240,
             description="240: SYNC with a counter 1..240 and SYNC without counter both accepted; 0: only SYNC without counter",
         ),
+    )
+
+
+def _pdo_objects(cfg: NodeConfig) -> tuple[ObjectDef, ...]:
+    """0x1400-0x1A02: RPDO1 and TPDO1-3 communication and mapping (TPDO2/3 valid above 16 bits)."""
+    wide = cfg.adc_bits > 16
+    return (
         ObjectDef(
             0x1400,
             "RPDO1 communication parameter",
@@ -225,6 +228,12 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
         _mapping(0x1A00, "TPDO1 mapping parameter", (_map_word(OD_ANALOG_INPUT_16, s, 16) for s in (1, 2, 3, 4))),
         _mapping(0x1A01, "TPDO2 mapping parameter", (_map_word(OD_ANALOG_INPUT_32, s, 32) for s in (1, 2))),
         _mapping(0x1A02, "TPDO3 mapping parameter", (_map_word(OD_ANALOG_INPUT_32, s, 32) for s in (3, 4))),
+    )
+
+
+def _manufacturer_objects(cfg: NodeConfig) -> tuple[ObjectDef, ...]:
+    """0x2000-0x2010: sample period, A/D resolution, valve limit, watchdog, diagnostics."""
+    return (
         _var(
             OD_SAMPLE_PERIOD,
             "Sample period",
@@ -271,6 +280,12 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             (_sub0(OD_DIAGNOSTICS, len(DIAGNOSTIC_NAMES)),)
             + tuple(Entry(OD_DIAGNOSTICS, i, name, DataType.UNSIGNED32, Access.RO, 0) for i, name in enumerate(DIAGNOSTIC_NAMES, start=1)),
         ),
+    )
+
+
+def _profile_objects() -> tuple[ObjectDef, ...]:
+    """0x6401, 0x6402, 0x6411: CiA 401 analog inputs and outputs."""
+    return (
         _array(
             OD_ANALOG_INPUT_16,
             "Read analog input 16-bit",
@@ -312,3 +327,11 @@ def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
             obj_flags=OBJ_FLAG_REFUSE_WRITE_ON_DOWNLOAD,
         ),
     )
+
+
+def object_table(cfg: NodeConfig | None = None) -> tuple[ObjectDef, ...]:
+    """Every object of the node, with the defaults of ``cfg`` (the EDS uses
+    the :class:`~plant_emulator.canopen_node.config.NodeConfig` defaults)."""
+    if cfg is None:
+        cfg = NodeConfig()
+    return _device_objects(cfg) + _pdo_objects(cfg) + _manufacturer_objects(cfg) + _profile_objects()

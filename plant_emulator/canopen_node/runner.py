@@ -21,6 +21,17 @@ RX_ERROR_STREAK_PAUSE: Final[int] = 256
 flood are read back to back at full speed, each counted."""
 
 
+def _send(bus: can.BusABC, node: CanopenNode, frames: list[can.Message]) -> None:
+    """Send each frame; failures are counted and logged (the first and every 1000th), never raised."""
+    for frame in frames:
+        try:
+            bus.send(frame)
+        except (can.CanError, OSError) as e:
+            node.counters.tx_errors += 1
+            if node.counters.tx_errors == 1 or node.counters.tx_errors % 1000 == 0:
+                log.warning("node %d: send failed (%d so far): %s", node.node_id, node.counters.tx_errors, e)
+
+
 def run_node(
     bus: can.BusABC,
     node: CanopenNode,
@@ -47,13 +58,7 @@ def run_node(
     """
 
     def send(frames: list[can.Message]) -> None:
-        for frame in frames:
-            try:
-                bus.send(frame)
-            except (can.CanError, OSError) as e:
-                node.counters.tx_errors += 1
-                if node.counters.tx_errors == 1 or node.counters.tx_errors % 1000 == 0:
-                    log.warning("node %d: send failed (%d so far): %s", node.node_id, node.counters.tx_errors, e)
+        _send(bus, node, frames)
 
     own_ids = node.own_cob_ids
     node.expect_echoes(echoing_bus(bus))

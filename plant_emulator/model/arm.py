@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from plant_emulator.model import _modal_kernel, _period_kernel
+from plant_emulator.model import _period_kernel as pk
 from plant_emulator.model import kinematics as kin
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
@@ -194,6 +194,40 @@ evaluate them (the same floats, each left-to-right product and sum kept):
 retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
 
 
+def _hydraulic_parameters(cfg: PlantConfig, h: float, axes: tuple[CylinderAxis, ...]) -> npt.NDArray[np.float64]:
+    """The period kernel's ``hp`` (``_period_kernel.HP_*``): step, valve lag, cylinders, pin triangles, switches."""
+    a0, a1 = axes
+    if a0.tau != a1.tau:  # pragma: no cover - both come from one setting
+        raise ValueError("the cylinders share one valve time constant")
+    hp = np.zeros(pk.HP_SIZE)
+    hp[pk.HP_STEP], hp[pk.HP_DECAY], hp[pk.HP_TAU] = h, math.exp(-h / a0.tau), a0.tau
+    for j, ax in enumerate(axes):
+        k = pk.HP_CYLINDER + 4 * j
+        hp[k + pk.CYL_GAIN], hp[k + pk.CYL_VMAX], hp[k + pk.CYL_LO], hp[k + pk.CYL_HI] = ax.gain, ax.vmax, ax.ext_lo, ax.ext_hi
+        hp[pk.HP_JOINT + 6 * j : pk.HP_JOINT + 6 * j + 6] = _JOINT[j]
+    hp[pk.HP_CAMERA_ON_LINK], hp[pk.HP_SENSOR_NOISE] = float(cfg.camera_on_link), float(cfg.sensor_noise)
+    return hp
+
+
+def _sensor_parameters(zero: tuple[float, ...], noise_in: tuple[float, ...], aa: AntiAliasFilter) -> npt.NDArray[np.float64]:
+    """The period kernel's ``sp`` (``_period_kernel.SP_*``): link lengths, sensor zeros and noise, the filter."""
+    sp = np.zeros(pk.SP_SIZE)
+    sp[pk.SP_LINK_LENGTH : pk.SP_LINK_LENGTH + 2] = L1_M, L2_M
+    sp[pk.SP_INCH] = kin.INCH
+    sp[pk.SP_ZERO : pk.SP_ZERO + 2] = zero
+    sp[pk.SP_NOISE_STD : pk.SP_NOISE_STD + 2] = noise_in
+    sp[pk.SP_FILTER : pk.SP_FILTER + 6] = aa._c
+    return sp
+
+
+def _modal_arguments(k: Any, zetas: tuple[float, ...], h: float) -> npt.NDArray[np.float64]:
+    """The modal step's 20 constant arguments (``_period_kernel.modal_step`` after the two angles)."""
+    cyl = kin.CYLINDERS[0]
+    z1, z2 = zetas[0], zetas[1]
+    pin = (cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2)
+    return np.array((k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, z1, z2, h, *pin, kin.INCH, L1_M), dtype=np.float64)
+
+
 class RalfArm:
     """RALF with its sensors: ``set_valve_voltages`` / ``advance`` / ``sample``.
 
@@ -229,38 +263,6 @@ class RalfArm:
         self._theta_dot = [0.0, 0.0]
         self._events: deque[HardStop] = deque(maxlen=MAX_EVENTS)
         self._stop_counts = [0, 0]
-        self._cache_key: tuple[float, float, bool] | None = None
-        self._cache: tuple[Any, ...] = ()
-        # modal_step's constant arguments, payload out / in
-        cyl = kin.CYLINDERS[0]
-        z1, z2 = self._zetas
-        self._modal_args = tuple(
-            (
-                k.I1,
-                k.Mt,
-                k.S,
-                k.Ia,
-                k.A1,
-                k.kappa,
-                k.kr1,
-                k.kc1,
-                k.kr2,
-                k.kbar_r2,
-                k.beta_c,
-                k.g,
-                z1,
-                z2,
-                self._h,
-                cyl.offset_rad,
-                cyl.p_in * cyl.q_in,
-                cyl.p_in**2 + cyl.q_in**2,
-                kin.INCH,
-                L1_M,
-            )
-            for k in self._consts
-        )
-        _modal_kernel.warm_up()
-        self._modal_step = _modal_kernel.modal_step  # compiled, or the same function in Python
         # flexible state at static equilibrium
         self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
         self._beta_dot = [0.0, 0.0]
@@ -281,45 +283,20 @@ class RalfArm:
         )
         self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
         # the compiled period (_period_kernel): its constant arguments and state vector
-        _period_kernel.warm_up()
-        self._advance_steps = _period_kernel.advance_steps
-        a0, a1 = self._axes
-        if a0.tau != a1.tau:  # pragma: no cover - both come from one setting
-            raise ValueError("the cylinders share one valve time constant")
-        self._hp = np.array(
-            [
-                self._h,
-                math.exp(-self._h / a0.tau),
-                a0.tau,
-                a0.gain,
-                a0.vmax,
-                a0.ext_lo,
-                a0.ext_hi,
-                a1.gain,
-                a1.vmax,
-                a1.ext_lo,
-                a1.ext_hi,
-                *_JOINT[0],
-                *_JOINT[1],
-                float(cfg.camera_on_link),
-                float(cfg.sensor_noise),
-            ],
-            dtype=np.float64,
-        )
-        self._sp = np.array(
-            [L1_M, L2_M, kin.INCH, self._zero[0], self._zero[1], self._defl_noise_in[0], self._defl_noise_in[1], *self._aa._c],
-            dtype=np.float64,
-        )
-        self._ma = tuple(np.array(m, dtype=np.float64) for m in self._modal_args)
-        self._st = np.zeros(20)
+        pk.warm_up()
+        self._advance_steps = pk.advance_steps
+        self._hp = _hydraulic_parameters(cfg, self._h, self._axes)
+        self._sp = _sensor_parameters(self._zero, self._defl_noise_in, self._aa)
+        self._ma = tuple(_modal_arguments(k, self._zetas, self._h) for k in self._consts)
+        """The modal step's constant arguments, payload out / in."""
+        self._st = np.zeros(pk.STATE_SIZE)
         self._stv = memoryview(self._st)  # type: ignore[arg-type]  # numpy arrays are buffers; its stubs do not say so
         """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
-        self._st_current = False
-        """The compiled state ``_st`` holds the arm's state (else only the attributes do)."""
+        self._pack_state()
         self._attrs_current = True
-        """The attributes (``_axes``, ``_theta`` ... ``_aa.state``) hold it (else only ``_st`` does):
-        between compiled periods the state stays in ``_st``, and the attributes are
-        unpacked from it only when something reads them (:meth:`_attrs`)."""
+        """The attributes (``_axes``, ``_theta`` ... ``_aa.state``) hold the state ``_st`` holds:
+        the compiled periods advance ``_st``, and the attributes are unpacked from it only
+        when something reads them (:meth:`_attrs`)."""
         self._noise_src: list[float] | None = None
         self._noise_arr = np.zeros(0)
 
@@ -375,43 +352,28 @@ class RalfArm:
             raise ValueError(f"advance needs a finite dt >= 0, got {dt!r}")
         total = self._pending_ns + int(round(dt * NS_PER_S))
         n, self._pending_ns = divmod(total, self._h_ns)
-        if not self.compiled_steps:
-            if n:
-                self._attrs()
-                for _ in range(n):
-                    self._step()
-                self._st_current = False
-        elif n:
+        if n:
             self._run_steps(n)
-
-    compiled_steps = True
-    """Run the internal steps in :mod:`._period_kernel` (False: :meth:`_step`, the
-    Python reference it equals bit for bit)."""
 
     def sample(self) -> SensorReading:
         """A/D conversion of the four inputs now (on SYNC)."""
         rng = self._noise.sample if self.cfg.sensor_noise else None
-        if self._attrs_current:
-            ext = (self._axes[0].extension_in, self._axes[1].extension_in)
-            aa = self._aa.outputs()
-        else:  # the same floats, read straight from the compiled state (extensions 0 and 3, filter outputs 16 and 18)
-            v = self._stv
-            ext = (v[0], v[3])
-            aa = (v[16], v[18])
+        ext, aa = self._sensed()
         return read_inputs(self.time_s, ext, aa, self._ext_noise, self._scale, rng)  # type: ignore[arg-type]
 
     def sample_codes(self) -> tuple[list[int], list[bool]]:
         """:meth:`sample`'s codes and saturation flags as lists (``code_list``,
         ``saturated_list``), without the reading object: what a SYNC's TPDO1
         needs. The same conversion and the same noise drawn as :meth:`sample`."""
-        if self._attrs_current:
-            ext = (self._axes[0].extension_in, self._axes[1].extension_in)
-            aa = self._aa.outputs()
-        else:
-            v = self._stv
-            ext = (v[0], v[3])
-            aa = (v[16], v[18])
+        ext, aa = self._sensed()
         return read_codes(ext, aa, self._ext_noise, self._scale, self._noise.sample if self.cfg.sensor_noise else None)  # type: ignore[arg-type]
+
+    def _sensed(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The A/D's analog inputs from the state: the cylinder extensions and the anti-alias filters' outputs."""
+        v = self._stv
+        ext = (v[pk.ST_EXTENSION], v[pk.ST_CYLINDER + pk.ST_EXTENSION])
+        aa = (v[pk.ST_ANTIALIAS], v[pk.ST_ANTIALIAS + 2])
+        return ext, aa
 
     def truth(self) -> GroundTruth:
         self._attrs()
@@ -473,7 +435,6 @@ class RalfArm:
         modes and static load change at once; positions and velocities of the
         links are continuous, so the arm rings about its new equilibrium."""
         self._payload = bool(attached)
-        self._cache_key = None
 
     def set_adc_bits(self, bits: int) -> None:
         """Change the A/D resolution (12, 16, 20 ...); the analog noise stays."""
@@ -528,22 +489,10 @@ class RalfArm:
         a12 = t1 + t2 + kap * b1 + b2
         return (kin.A1_IN * math.cos(a1) + kin.A2_IN * math.cos(a12), kin.A1_IN * math.sin(a1) + kin.A2_IN * math.sin(a12))
 
-    def _modal(self, tm1: float, tm2: float) -> tuple[Any, ...]:
-        key = (tm1, tm2, self._payload)
-        if key != self._cache_key:
-            r = self._modal_step(tm1, tm2, *self._modal_args[self._payload])
-            self._cache_key = key
-            self._cache = (r[:12], r[12:16], ((r[16], r[17], r[18], r[19]), (r[20], r[21], r[22], r[23])))
-        return self._cache
-
     def _run_steps(self, n: int) -> None:
         """``n`` internal steps through :func:`._period_kernel.advance_steps`
-        on the compiled state ``_st`` (the same state as ``n`` calls of
-        :meth:`_step`). The state stays there between calls: packed from the
-        attributes only when they changed (:meth:`_step`), unpacked only when
+        on the state ``_st``; the attributes are unpacked from it only when
         read (:meth:`_attrs`)."""
-        if not self._st_current:
-            self._pack_state()
         self._attrs_current = False
         st = self._st
         noise = self._noise
@@ -565,7 +514,7 @@ class RalfArm:
                 noise._next = nxt
             self._steps += done
             n -= done
-            if status == _period_kernel.STATUS_STOP:
+            if status == pk.STATUS_STOP:
                 t_end = self._steps * self._h_ns / NS_PER_S
                 for j, arrived, side, speed in ((0, arr0, side0, spd0), (1, arr1, side1, spd1)):
                     if arrived:
@@ -573,97 +522,28 @@ class RalfArm:
                         self._events.append(HardStop(time_s=t_end, joint=j, side=side, speed_in_s=speed))
 
     def _pack_state(self) -> None:
-        """The attributes into ``_st`` (the kernel's layout, ``_period_kernel``'s docstring)."""
-        a0, a1 = self._axes
-        aa = self._aa.state
-        self._st[:] = (
-            a0.extension_in,
-            a0.velocity_in_s,
-            a0.stop_side,
-            a1.extension_in,
-            a1.velocity_in_s,
-            a1.stop_side,
-            *self._theta,
-            *self._theta_dot,
-            *self._beta,
-            *self._beta_dot,
-            *self._frac,
-            *aa[0],
-            *aa[1],
-        )
-        self._st_current = True
+        """The attributes into ``_st`` (the kernel's layout, ``_period_kernel.ST_*``)."""
+        st = self._st
+        for j, ax in enumerate(self._axes):
+            k = pk.ST_CYLINDER * j
+            st[k + pk.ST_EXTENSION], st[k + pk.ST_VELOCITY], st[k + pk.ST_STOP_SIDE] = ax.extension_in, ax.velocity_in_s, ax.stop_side
+            st[pk.ST_THETA + j], st[pk.ST_THETA_DOT + j] = self._theta[j], self._theta_dot[j]
+            st[pk.ST_BETA + j], st[pk.ST_BETA_DOT + j] = self._beta[j], self._beta_dot[j]
+            st[pk.ST_FRACTION + j] = self._frac[j]
+            st[pk.ST_ANTIALIAS + 2 * j : pk.ST_ANTIALIAS + 2 * j + 2] = self._aa.state[j]
 
     def _attrs(self) -> None:
         """Bring the attributes up to date from ``_st`` if only it holds the state."""
         if self._attrs_current:
             return
-        (e0, v0, s0, e1, v1, s1, t0, t1, td0, td1, b0, b1, bd0, bd1, f0, f1, x00, x01, x10, x11) = self._st.tolist()
-        a0, a1 = self._axes
-        a0.extension_in, a0.velocity_in_s, a0.stop_side = e0, v0, int(s0)
-        a1.extension_in, a1.velocity_in_s, a1.stop_side = e1, v1, int(s1)
-        self._theta = [t0, t1]
-        self._theta_dot = [td0, td1]
-        self._beta = [b0, b1]
-        self._beta_dot = [bd0, bd1]
-        self._frac = (f0, f1)
-        self._aa.state = [[x00, x01], [x10, x11]]
+        st = self._st.tolist()
+        for j, ax in enumerate(self._axes):
+            k = pk.ST_CYLINDER * j
+            ax.extension_in, ax.velocity_in_s, ax.stop_side = st[k + pk.ST_EXTENSION], st[k + pk.ST_VELOCITY], int(st[k + pk.ST_STOP_SIDE])
+        self._theta = st[pk.ST_THETA : pk.ST_THETA + 2]
+        self._theta_dot = st[pk.ST_THETA_DOT : pk.ST_THETA_DOT + 2]
+        self._beta = st[pk.ST_BETA : pk.ST_BETA + 2]
+        self._beta_dot = st[pk.ST_BETA_DOT : pk.ST_BETA_DOT + 2]
+        self._frac = (st[pk.ST_FRACTION], st[pk.ST_FRACTION + 1])
+        self._aa.state = [st[pk.ST_ANTIALIAS : pk.ST_ANTIALIAS + 2], st[pk.ST_ANTIALIAS + 2 : pk.ST_ANTIALIAS + 4]]
         self._attrs_current = True
-
-    def _step(self) -> None:
-        h = self._h
-        t_end = (self._steps + 1) * self._h_ns / NS_PER_S
-        th0 = self._theta
-        thd0 = self._theta_dot
-        # 1. hydraulics
-        new_theta = [0.0, 0.0]
-        new_rate = [0.0, 0.0]
-        for j in (0, 1):
-            ax = self._axes[j]
-            r = ax.step(self._volts[j], h)
-            if r.arrived:
-                self._stop_counts[j] += 1
-                self._events.append(HardStop(time_s=t_end, joint=j, side=r.stop_side, speed_in_s=r.speed_before_in_s))
-            th = self._angle(j)
-            new_theta[j] = th
-            new_rate[j] = r.velocity_in_s / self._lever(j, th)
-        # 2. joint acceleration over the step
-        acc0 = (new_rate[0] - thd0[0]) / h
-        acc1 = (new_rate[1] - thd0[1]) / h
-        # 3. flexible links at the mid configuration
-        co, (p11, p21, p12, p22), steps = self._modal(0.5 * (th0[0] + new_theta[0]), 0.5 * (th0[1] + new_theta[1]))
-        M11, M12, M22 = co[0], co[1], co[2]
-        E11, E12, E21, E22, G1, G2 = co[6], co[7], co[8], co[9], co[10], co[11]
-        f1 = G1 - E11 * acc0 - E12 * acc1
-        f2 = G2 - E21 * acc0 - E22 * acc1
-        b1, b2 = self._beta
-        v1, v2 = self._beta_dot
-        mb1, mb2 = M11 * b1 + M12 * b2, M12 * b1 + M22 * b2
-        mv1, mv2 = M11 * v1 + M12 * v2, M12 * v1 + M22 * v2
-        f_0, f_1 = self._frac
-        w_old0, w_old1 = f_0 * L1_M * b1 / kin.INCH, f_1 * L2_M * b2 / kin.INCH  # _seen() before the step
-        nb1 = nb2 = nv1 = nv2 = 0.0
-        for (pa, pb), (w2, sig, c, s) in zip(((p11, p21), (p12, p22)), steps, strict=True):
-            eta = pa * mb1 + pb * mb2
-            eta_d = pa * mv1 + pb * mv2
-            xs = (pa * f1 + pb * f2) / w2
-            x0 = eta - xs
-            x1 = c * x0 + s * (eta_d + sig * x0) + xs
-            vv = c * eta_d - s * (sig * eta_d + w2 * x0)
-            nb1 += pa * x1
-            nb2 += pb * x1
-            nv1 += pa * vv
-            nv2 += pb * vv
-        self._beta = [nb1, nb2]
-        self._beta_dot = [nv1, nv2]
-        self._theta = new_theta
-        self._theta_dot = new_rate
-        # 4. anti-alias filters with the deflection noise at their input (the cameras see the bending)
-        self._frac = f_0, f_1 = self._fractions(new_theta[0], new_theta[1])
-        w_new0, w_new1 = f_0 * L1_M * nb1 / kin.INCH, f_1 * L2_M * nb2 / kin.INCH  # _seen() after it
-        z0, z1 = self._zero
-        n0, n1 = self._noise.step_pair() if self.cfg.sensor_noise else (0.0, 0.0)
-        self._aa.step(
-            0.5 * (w_old0 + w_new0) - z0 + self._defl_noise_in[0] * n0,
-            0.5 * (w_old1 + w_new1) - z1 + self._defl_noise_in[1] * n1,
-        )
-        self._steps += 1

@@ -23,13 +23,11 @@ it there (pressure builds, no flow).  Each arrival at a stop is an event.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 from plant_emulator.model.kinematics import CYLINDERS, extension_limits_in
 
-__all__ = ["CylinderAxis", "HardStop", "StepResult"]
+__all__ = ["CylinderAxis", "HardStop"]
 
 
 @dataclass(frozen=True)
@@ -45,24 +43,10 @@ class HardStop:
     """Cylinder speed just before the stop."""
 
 
-class StepResult(NamedTuple):
-    """One step's outcome (a named tuple: made 10 times per sample period,
-    where a frozen dataclass's ``__init__`` cost more than the step's arithmetic)."""
-
-    extension_in: float
-    velocity_in_s: float
-    stop_side: int
-    """-1, 0 or +1: at the lower stop, free, at the upper stop."""
-    arrived: bool
-    """True when this step brought the cylinder onto a stop."""
-    speed_before_in_s: float
-
-
 class CylinderAxis:
-    """One valve + cylinder: the lag, flow saturation and the hard stops.
-
-    State: extension (in), lagged velocity (in/s), which stop it rests on.
-    """
+    """One valve + cylinder: its parameters and state (extension in in, lagged
+    velocity in in/s, which stop it rests on). The step itself is
+    :func:`plant_emulator.model._period_kernel.cylinder_step`."""
 
     def __init__(
         self,
@@ -83,8 +67,6 @@ class CylinderAxis:
         self.extension_in = min(max(float(extension_in), self.ext_lo), self.ext_hi)
         self.velocity_in_s = 0.0
         self.stop_side = self._side(self.extension_in)
-        self._decay_h = -1.0
-        self._decay = 0.0
 
     def _side(self, ext: float) -> int:
         if ext <= self.ext_lo:
@@ -97,33 +79,3 @@ class CylinderAxis:
         """Steady cylinder velocity (in/s) for a valve voltage, flow-saturated."""
         u = self.gain * volts
         return self.vmax if u > self.vmax else (-self.vmax if u < -self.vmax else u)
-
-    def step(self, volts: float, h: float) -> StepResult:
-        """Advance ``h`` seconds with a constant valve voltage."""
-        if h != self._decay_h:
-            self._decay_h = h
-            self._decay = math.exp(-h / self.tau)
-        a = self._decay
-        u = self.commanded_velocity(volts)
-        v0 = self.velocity_in_s
-        e0 = self.extension_in
-        side = self.stop_side
-        # Resting on a stop and still pushed into it: nothing moves.
-        if (side > 0 and u >= 0.0) or (side < 0 and u <= 0.0):
-            self.velocity_in_s = 0.0
-            return StepResult(e0, 0.0, side, False, 0.0)
-        v1 = u + (v0 - u) * a
-        e1 = e0 + u * h + (v0 - u) * self.tau * (1.0 - a)
-        arrived = False
-        new_side = 0
-        v_free = v1
-        if e1 >= self.ext_hi:
-            e1, v1, new_side = self.ext_hi, 0.0, 1
-            arrived = side != 1
-        elif e1 <= self.ext_lo:
-            e1, v1, new_side = self.ext_lo, 0.0, -1
-            arrived = side != -1
-        self.extension_in = e1
-        self.velocity_in_s = v1
-        self.stop_side = new_side
-        return StepResult(e1, v1, new_side, arrived, abs(v_free) if arrived else 0.0)

@@ -256,29 +256,6 @@ def eig2(M11, M12, M22, K11, K12, K22):
     return lam, phi
 
 
-def eig2_scalar(M11: float, M12: float, M22: float, K11: float, K12: float, K22: float) -> tuple[float, float, tuple[float, float, float, float]]:
-    """:func:`eig2` for one configuration on floats: ``(w2_1, w2_2, (p11, p21, p12, p22))``
-    with mode ``r`` in column ``r`` of ``phi``."""
-    a = M11 * M22 - M12 * M12
-    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
-    c = K11 * K22 - K12 * K12
-    d = b * b - 4.0 * a * c
-    disc = math.sqrt(d) if d > 0.0 else 0.0
-    lams = ((-b - disc) / (2.0 * a), (-b + disc) / (2.0 * a))
-    out: list[float] = []
-    for r, lr in enumerate(lams):
-        r11, r12, r22 = K11 - lr * M11, K12 - lr * M12, K22 - lr * M22
-        if r11 * r11 + r12 * r12 >= r12 * r12 + r22 * r22:
-            x, y = -r12, r11
-        else:
-            x, y = r22, -r12
-        if x == 0.0 and y == 0.0:
-            x, y = (1.0, 0.0) if r == 0 else (0.0, 1.0)
-        norm = math.sqrt(x * x * M11 + 2.0 * x * y * M12 + y * y * M22)
-        out.extend((x / norm, y / norm))
-    return lams[0], lams[1], (out[0], out[1], out[2], out[3])
-
-
 # --- public, vectorised views -------------------------------------------------------------
 
 

@@ -9,7 +9,6 @@ import pytest
 
 from plant_emulator.model import PlantConfig, RalfArm
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model.hydraulics import CylinderAxis
 
 QUIET = dict(sensor_noise=False)
 
@@ -84,16 +83,6 @@ def test_flow_saturation_and_d2a_clip() -> None:
         arm.set_valve_voltages(np.array([0.0, float("nan")]))
     with pytest.raises(ValueError):
         arm.set_valve_voltages(np.zeros(3))
-
-
-def test_cylinder_axis_exact_step_is_step_size_independent() -> None:
-    a = CylinderAxis(0, 10.0, 0.01, 6.0, 10.0)
-    b = CylinderAxis(0, 10.0, 0.01, 6.0, 10.0)
-    a.step(0.3, 0.004)
-    for _ in range(4):
-        b.step(0.3, 0.001)
-    assert a.extension_in == pytest.approx(b.extension_in, rel=1e-12)
-    assert a.velocity_in_s == pytest.approx(b.velocity_in_s, rel=1e-12)
 
 
 def test_hard_stops_are_enforced_and_reported() -> None:

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from plant_emulator.model import _period_kernel, modes
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model import modes
+from plant_emulator.model.arm import _modal_arguments
 from plant_emulator.model.calibration import APEX_RAD, BOTTOM_RAD, metrics
 
 
@@ -87,8 +88,12 @@ def test_closed_form_eigen_solution_matches_scipy() -> None:
             assert np.allclose(w2[n], ref, rtol=1e-10)
             assert np.allclose(phi[n].T @ M @ phi[n], np.eye(2), atol=1e-10)
             assert np.allclose(K @ phi[n], M @ phi[n] * w2[n], rtol=1e-8, atol=1e-6)
-            l1, l2, p = modes.eig2_scalar(*(float(c[n]) for c in co[:6]))
-            assert (l1, l2) == pytest.approx(tuple(w2[n]), rel=1e-12)
+            # the period kernel's modal data: the same eigenvalues, M-orthonormal mode shapes
+            r = _period_kernel.modal_step(float(g1[n]), float(g2[n]), *_modal_arguments(k, modes.DEFAULT_STRUCTURE.damping_ratios, 1e-3))
+            assert (r[16], r[20]) == pytest.approx(tuple(ref), rel=1e-10)
+            shapes = np.array([[r[12], r[14]], [r[13], r[15]]])
+            assert np.allclose(shapes.T @ M @ shapes, np.eye(2), atol=1e-10)
+            assert np.allclose(K @ shapes, M @ shapes * ref, rtol=1e-8, atol=1e-6)
             cs = modes.coefficients_scalar(k, float(g1[n]), float(g2[n]))
             assert np.allclose(cs, [c[n] for c in co], rtol=1e-12)
 
