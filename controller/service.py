@@ -42,7 +42,7 @@ import zenoh
 from controller.config import build_trajectory, law_config, run_ticks
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
-from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
+from controller.fault_stage import TPDO_WINDOW, FaultStage, LoopStalls
 from controller.hop_timing import HopTimer
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.monitors import Monitors, MonitorStop
@@ -61,7 +61,7 @@ from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.counters import Counters
 from service_kit.inbox import LIMITS, MAX_BYTES, REFUSED, Inbox, Item
-from service_kit.link_faults import Scenario, load_scenario, parse_scenario
+from service_kit.link_faults import Scenario, scenario_setting
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
@@ -154,15 +154,7 @@ class ControllerService:
             deadline_s=settings.dsp_deadline_s,
         )
         self.timing = TimingCounters()
-        self.monitors = Monitors(
-            {
-                "deadline": settings.policy_deadline,
-                "stale": settings.policy_stale,
-                "dsp_lost": settings.policy_dsp_lost,
-                "overrun": settings.policy_overrun,
-                "can_conflict": settings.policy_can_conflict,
-            }
-        )
+        self.monitors = Monitors(settings.policies.as_dict())
         self.tet = LatencyTracker()
         self.jitter = LatencyTracker()
         self.period_jitter = LatencyTracker()
@@ -180,14 +172,9 @@ class ControllerService:
         under SCHED_FIFO its real-time measures may then move the process's other threads."""
         """The per-tick checks of the running loop (controller/tick_policy.py)."""
         self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
-        self.injection = LegacyInjection(
-            stall_at_tick=int(round(settings.inject_stall_at_s * settings.sample_rate_hz)) if settings.inject_stall_at_s is not None else None,
-            stall_s=settings.inject_stall_s,
-            sync_drop_every=settings.inject_sync_drop_every,
-        )
-        if scenario is None and settings.fault_scenario:
-            text = settings.fault_scenario.strip()
-            scenario = parse_scenario(text) if text.startswith("{") else load_scenario(text)
+        if scenario is None:
+            scenario = scenario_setting(settings.fault_scenario)
+        self.injection = LoopStalls.from_scenario(scenario, settings.sample_rate_hz)
         self._w0 = stopwatch()
         self.faults: FaultStage | None = (
             FaultStage.from_scenario(scenario, settings.sample_period_s, self.lockstep, lambda: self.stopwatch() - self._w0)
@@ -295,7 +282,7 @@ class ControllerService:
         probe = self.law.record_row(0, self.law.step(0, np.zeros(4)))
         self.law.pi.reset()
         if self.law.oatf is not None:
-            self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf_location == "outer" else 0.0)
+            self.law.oatf.reset(self.law.setpoint(0) if self.settings.oatf.location == "outer" else 0.0)
         return [k for k in probe if k != "tick"] + ["irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence"]
 
     def _on_port_event(self, kind: str, payload: Any, arrival: float, attachment: Any = None) -> None:
@@ -599,7 +586,7 @@ class ControllerService:
             self.latest_interrupt = irq
             if irq.poles:
                 self.latest_frequency_hz = irq.poles[0].frequency_hz
-            if irq.poles and irq.confidence >= self.settings.oatf_min_confidence:
+            if irq.poles and irq.confidence >= self.settings.oatf.min_confidence:
                 self.last_fresh_tick = self.tick
             if self.law.apply_interrupt(irq):
                 self.timing.oatf_updates += 1
@@ -852,12 +839,6 @@ class ControllerService:
 
     def _emit_sync(self, tick: int) -> None:
         """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
-        if self.faults is None and not self.injection.sync_drop_every:
-            self.plant.send_sync()
-            return
-        if self.injection.drop_sync(tick):
-            self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
-            self.timing.syncs_dropped += 1
         if self.faults is not None:
             delay = self.faults.sync(tick)
             if delay is None:  # a link fault lost it: counter advanced, nothing sent, no TPDO to wait for

@@ -13,15 +13,15 @@ import re
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Field, SecretStr, ValidationError, ValidationInfo, field_serializer, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_scenario
+from protocol.setting_groups import DitherTuning, OatfTuning, Policies, SettingGroup, describe_group
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
-_Hz = Annotated[float, Field(ge=0.01, le=2500)]
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
 ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "zenoh_acl_scenarios", "launcher_pid"})
 """Who a run's sessions were and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
@@ -163,6 +163,17 @@ class CommonSettings(BaseSettings):
             raise ValueError("NaN (not a number) is not a valid value; give a finite number")
         return value
 
+    @model_validator(mode="before")
+    @classmethod
+    def _no_retired(cls, data: Any) -> Any:
+        # A retired name given from Python (run_cosim(controller={...}), a sweep's
+        # settings) is refused with its replacement, as on the command line.
+        if isinstance(data, dict):
+            gone = [f"{name}: {retired(name)}" for name in data if isinstance(name, str) and name not in cls.model_fields and retired(name)]
+            if gone:
+                raise ValueError("; ".join(gone))
+        return data
+
     @field_validator("rig_id")
     @classmethod
     def _rig_id(cls, value: str) -> str:
@@ -283,13 +294,14 @@ class ControllerSettings(CommonSettings):
         30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)"
     )
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
-    oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
-    oatf_frequency_hz: float = Field(4.4, ge=0.1, le=2500, description="OATF design frequency (initial value when adaptive)")
-    oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
-    oatf_delay_s: float | None = Field(None, ge=0.001, le=10, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
-    oatf_band_hz: tuple[_Hz, _Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
-    oatf_min_confidence: float = Field(
-        0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)"
+    oatf: Annotated[OatfTuning, NoDecode] = Field(
+        OatfTuning(),
+        description="OATF tuning, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(OatfTuning),
+    )
+    dither: Annotated[DitherTuning, NoDecode] = Field(
+        DitherTuning(),
+        description="Valve dither for the identifier, KEY=VALUE,... (unnamed keys keep their defaults; docs/identification.md): "
+        + describe_group(DitherTuning),
     )
     dsp_deadline_s: float | None = Field(None, ge=0.001, le=60, description="Interrupt deadline after a batch (default: the batch period)")
     stale_after_s: float = Field(2.0, ge=0.01, le=3600, description="Parameters older than this are stale")
@@ -303,32 +315,19 @@ class ControllerSettings(CommonSettings):
         "",
         description="Write the run record to PATH.npz and PATH.json, with PATH.timing.*, PATH.tf.npz (and PATH.hops.npz in real time) beside it (empty = none)",
     )
-    policy_deadline: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On an interrupt past its deadline")
-    policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
-    policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
-    policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
-    policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field(
-        "stop", description="On another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames (TPDO1, heartbeat, EMCY) on the CAN bus"
+    policies: Annotated[Policies, NoDecode] = Field(
+        Policies(),
+        description="What the controller does on each monitored event, KEY=VALUE,... of count, warn, degrade or stop (unnamed keys keep their defaults): "
+        + describe_group(Policies),
     )
-    inject_stall_at_s: float | None = Field(None, ge=0, le=1e7, description="Fault injection: freeze the loop at this simulated time...")
-    inject_stall_s: float = Field(0.0, ge=0, le=60, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
-    inject_sync_drop_every: int = Field(0, ge=0, le=10**6, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
     fault_scenario: str = Field(
         "", max_length=100_000, description="Link faults: a scenario file (YAML/JSON) or inline JSON, see docs/timing-faults.md (empty = none)"
     )
-    oatf_max_stages: int = Field(
-        1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis"
-    )
-    oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
-    oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
-    dither_amplitude_v: float = Field(
-        0.0,
-        ge=0,
-        le=2.0,
-        description="Persistent excitation: RMS (V) of a multisine added to each valve command before the D/A, for the identifier (0 = off; see docs/identification.md)",
-    )
-    dither_band_hz: tuple[_Hz, _Hz] = Field((2.0, 7.0), description="The dither's band: every bin of its period in this range")
-    dither_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the dither's random phases (each valve its own)")
+
+    @field_validator("oatf", "dither", "policies", mode="before")
+    @classmethod
+    def _group_text(cls, value: Any) -> Any:
+        return SettingGroup.coerce(value)
 
     @field_validator("run_record")
     @classmethod
@@ -347,25 +346,6 @@ class ControllerSettings(CommonSettings):
     @classmethod
     def _fault_scenario_file(cls, value: str) -> str:
         return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
-
-    @field_validator("dither_band_hz")
-    @classmethod
-    def _dither_band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
-        if not value[0] < value[1]:
-            raise ValueError(f"the dither band must run from a lower to a higher frequency, got {value[0]:g}, {value[1]:g}")
-        return value
-
-    @field_validator("oatf_band_hz", "dither_band_hz", mode="before")
-    @classmethod
-    def _band_text(cls, value: Any) -> Any:
-        # --set oatf_band_hz=... arrives as text (the env source JSON-decodes it
-        # already): accept a JSON array "[1, 20]" or a plain pair "1,20".
-        if isinstance(value, str):
-            text = value.strip()
-            if text.startswith("[") or text.startswith("("):
-                text = text[1:-1] if text[-1:] in "])" else text[1:]
-            return tuple(part.strip() for part in text.split(","))
-        return value
 
 
 class DspSettings(CommonSettings):
@@ -397,12 +377,19 @@ class DspSettings(CommonSettings):
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
     budget_s: float | None = Field(None, ge=0.001, le=60, description="Compute-time budget per batch (default: the batch period)")
-    inject_delay_s: float = Field(0.0, ge=0, le=10, description="Fault injection: extra compute time per batch (a slowed board)")
     search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
     search_max_hz: float = Field(40.0, ge=0.01, le=2500, description="Upper edge of the peak search")
+    fault_scenario: str = Field(
+        "", max_length=100_000, description="Faults: the scenario's dsp_delay_s slows this board (the same file as the controller's, docs/timing-faults.md)"
+    )
     serve_rigs: str = Field(
         "", description="Further rig ids this one DSP process serves besides rig_id, comma-separated (each its own board: identifier, queue and thread)"
     )
+
+    @field_validator("fault_scenario")
+    @classmethod
+    def _fault_scenario_file(cls, value: str) -> str:
+        return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
 
     @field_validator("serve_rigs")
     @classmethod
@@ -460,9 +447,27 @@ def known_variables() -> set[str]:
     return {f"RALF_{name.upper()}" for model in settings_models() for name in model.model_fields}
 
 
+_FAULTS = "docs/timing-faults.md"
 RETIRED: dict[str, str] = {
     "record": "RALF_RECORD named two files (the plant's truth and the controller's record, the last to stop overwrote the other): "
     "set RALF_RUN_RECORD (the controller's run record) and/or RALF_TRUTH_RECORD (the plant's ground truth) instead",
+    "inject_stall_at_s": f'faults are scripted in RALF_FAULT_SCENARIO: a loop stall is {{"stalls": [{{"at_s": T, "wall_s": S}}]}} ({_FAULTS})',
+    "inject_stall_s": f'faults are scripted in RALF_FAULT_SCENARIO: a loop stall is {{"stalls": [{{"at_s": T, "wall_s": S}}]}} ({_FAULTS})',
+    "inject_sync_drop_every": "faults are scripted in RALF_FAULT_SCENARIO: lost SYNC frames are a can fault on kind sync "
+    f'with drop or outage, e.g. {{"faults": [{{"link": "can", "kinds": ["sync"], "outage": {{"every_s": 0.25, "length_s": 0.005}}}}]}} ({_FAULTS})',
+    "inject_delay_s": f'faults are scripted in RALF_FAULT_SCENARIO: a slowed DSP board is {{"dsp_delay_s": S}} ({_FAULTS})',
+    **{
+        f"policy_{key}": f"the five policies are one setting: RALF_POLICIES={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in Policies.model_fields
+    },
+    **{
+        f"oatf_{key}": f"the OATF tuning is one setting: RALF_OATF={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in OatfTuning.model_fields
+    },
+    **{
+        f"dither_{key}": f"the dither is one setting: RALF_DITHER={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in DitherTuning.model_fields
+    },
 }
 """Settings no program reads any more, each with what replaces it (a retired name is refused, never ignored)."""
 

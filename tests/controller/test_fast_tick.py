@@ -104,11 +104,11 @@ class _ReferenceLaw:
     "settings",
     [
         {"oatf_mode": "adaptive"},
-        {"oatf_mode": "fixed", "oatf_location": "inner"},
+        {"oatf_mode": "fixed", "oatf": {"location": "inner"}},
         {"oatf_mode": "off"},
-        {"oatf_mode": "adaptive", "oatf_max_stages": 3},
-        {"oatf_mode": "off", "dither_amplitude_v": 0.3},
-        {"oatf_mode": "fixed", "oatf_location": "inner", "dither_amplitude_v": 0.5, "dither_seed": 9},
+        {"oatf_mode": "adaptive", "oatf": {"max_stages": 3}},
+        {"oatf_mode": "off", "dither": {"amplitude_v": 0.3}},
+        {"oatf_mode": "fixed", "oatf": {"location": "inner"}, "dither": {"amplitude_v": 0.5, "seed": 9}},
     ],
 )
 def test_step_row_is_the_array_reference(settings: dict[str, Any]) -> None:
@@ -223,11 +223,11 @@ def test_append_row_stores_what_append_stores(tmp_path: Any) -> None:
     "settings",
     [
         {"oatf_mode": "adaptive"},
-        {"oatf_mode": "fixed", "oatf_location": "inner"},
+        {"oatf_mode": "fixed", "oatf": {"location": "inner"}},
         {"oatf_mode": "off"},
-        {"oatf_mode": "adaptive", "oatf_max_stages": 3},
-        {"oatf_mode": "off", "dither_amplitude_v": 0.3},
-        {"oatf_mode": "fixed", "oatf_location": "inner", "dither_amplitude_v": 0.5, "dither_seed": 9},
+        {"oatf_mode": "adaptive", "oatf": {"max_stages": 3}},
+        {"oatf_mode": "off", "dither": {"amplitude_v": 0.3}},
+        {"oatf_mode": "fixed", "oatf": {"location": "inner"}, "dither": {"amplitude_v": 0.5, "seed": 9}},
     ],
 )
 def test_compiled_tick_is_the_python_form(settings: dict[str, Any]) -> None:
