@@ -735,7 +735,7 @@ class ControllerService:
             self.plant.start_node(timeout=s.startup_timeout_s, stop=stop, sample_period_s=ts)
             self._wait_for_dsp(stop, timeout=s.startup_timeout_s)
             if not lockstep:
-                self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=self.owns_process, cpu_latency_us=s.rt_cpu_latency_us)
+                self.realtime = apply_realtime(s.realtime.priority, s.realtime.cpus, whole_process=self.owns_process, cpu_latency_us=s.realtime.cpu_latency_us)
                 self.tf.start_worker()  # before tick 0, one FIFO level below the loop
             self.ready_at = self.stopwatch()
             readiness.mark_ready(s.ready_file, log)  # plant node started, DSP seen, kernels warm

@@ -77,8 +77,8 @@ def identifier_config(settings: DspSettings) -> IdentifierConfig:
         solver=settings.solver,
         smoothing_window=settings.smoothing_window,
         smoothing_order=settings.smoothing_order,
-        search_min_hz=settings.search_min_hz,
-        search_max_hz=min(settings.search_max_hz, settings.sample_rate_hz / 2),
+        search_min_hz=settings.search_band_hz[0],
+        search_max_hz=min(settings.search_band_hz[1], settings.sample_rate_hz / 2),
     )
 
 

@@ -22,6 +22,23 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 Hz = Annotated[float, Field(ge=0.01, le=2500)]
 Policy = Literal["count", "warn", "degrade", "stop"]
 
+MAX_CPU = 4095
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """``"1"``, ``"0,1"`` or ``"0-1"`` -> CPU numbers; empty -> ()."""
+    cpus: list[int] = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        lo, sep, hi = part.partition("-")
+        if not lo.isdigit() or (sep and not hi.isdigit()):
+            raise ValueError(f"cpus {text!r}: expected CPU numbers like 1 or 0,1 or 0-1")
+        first, last = int(lo), int(hi) if sep else int(lo)
+        if last < first or last > MAX_CPU:
+            raise ValueError(f"cpus {text!r}: {part} is not a range of CPU numbers 0..{MAX_CPU}")
+        cpus.extend(range(first, last + 1))
+    return tuple(sorted(set(cpus)))
+
+
 _PAIR_START = re.compile(r",\s*(?=[A-Za-z_]\w*\s*=)")
 
 
@@ -135,6 +152,25 @@ class DitherTuning(SettingGroup):
     @classmethod
     def _band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
         return _ordered("dither", value)
+
+
+class RealtimeMeasures(SettingGroup):
+    """The loop thread's real-time measures (service_kit/realtime.py), each applied where permitted."""
+
+    priority: int = Field(0, ge=0, le=99, description="Run the loop thread under SCHED_FIFO at this priority (0 = normal scheduler)")
+    cpus: str = Field("", max_length=256, description="Pin the loop thread to these CPUs, e.g. 1, 0,1 or 0-1 (empty = not pinned)")
+    cpu_latency_us: int = Field(
+        -1,
+        ge=-1,
+        le=1_000_000,
+        description="Hold the CPUs' wake-up latency within this many us through PM QoS (/dev/cpu_dma_latency); 0 = idle CPUs poll (-1 = off)",
+    )
+
+    @field_validator("cpus")
+    @classmethod
+    def _cpu_list(cls, value: str) -> str:
+        parse_cpus(value)  # refused here, before any bus or session opens
+        return value
 
 
 class Policies(SettingGroup):

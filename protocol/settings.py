@@ -19,7 +19,7 @@ from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_scenario
-from protocol.setting_groups import DitherTuning, OatfTuning, Policies, SettingGroup, describe_group
+from protocol.setting_groups import DitherTuning, OatfTuning, Policies, RealtimeMeasures, SettingGroup, band_text, describe_group
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
@@ -37,23 +37,6 @@ def _regular_file(value: str) -> str:
         except NotARegularFile as exc:
             raise ValueError(str(exc)) from None
     return value
-
-
-MAX_CPU = 4095
-
-
-def parse_cpus(text: str) -> tuple[int, ...]:
-    """``"1"``, ``"0,1"`` or ``"0-1"`` -> CPU numbers; empty -> ()."""
-    cpus: list[int] = []
-    for part in (p.strip() for p in text.split(",") if p.strip()):
-        lo, sep, hi = part.partition("-")
-        if not lo.isdigit() or (sep and not hi.isdigit()):
-            raise ValueError(f"cpu_affinity {text!r}: expected CPU numbers like 1 or 0,1 or 0-1")
-        first, last = int(lo), int(hi) if sep else int(lo)
-        if last < first or last > MAX_CPU:
-            raise ValueError(f"cpu_affinity {text!r}: {part} is not a range of CPU numbers 0..{MAX_CPU}")
-        cpus.extend(range(first, last + 1))
-    return tuple(sorted(set(cpus)))
 
 
 def _numeric(annotation: Any) -> bool:
@@ -89,17 +72,10 @@ class CommonSettings(BaseSettings):
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, ge=1, le=5000, description="Control and identification sample rate")
     health_period_s: float = Field(1.0, ge=0.01, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
-    rt_priority: int = Field(
-        0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)"
-    )
-    cpu_affinity: str = Field(
-        "", max_length=256, description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)"
-    )
-    rt_cpu_latency_us: int = Field(
-        -1,
-        ge=-1,
-        le=1_000_000,
-        description="Real time: hold the CPUs' wake-up latency within this many us through PM QoS (/dev/cpu_dma_latency) where permitted; 0 = idle CPUs poll (-1 = off)",
+    realtime: Annotated[RealtimeMeasures, NoDecode] = Field(
+        RealtimeMeasures(),
+        description="Real-time measures of the loop thread, each where permitted, KEY=VALUE,... (unnamed keys keep their defaults; docs/timing.md): "
+        + describe_group(RealtimeMeasures),
     )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
     zenoh_user: str = Field(
@@ -179,11 +155,10 @@ class CommonSettings(BaseSettings):
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
 
-    @field_validator("cpu_affinity")
+    @field_validator("realtime", mode="before")
     @classmethod
-    def _cpu_list(cls, value: str) -> str:
-        parse_cpus(value)  # refused here, before any bus or session opens
-        return value
+    def _realtime_text(cls, value: Any) -> Any:
+        return SettingGroup.coerce(value)
 
     @field_validator("zenoh_credentials_file")
     @classmethod
@@ -377,8 +352,9 @@ class DspSettings(CommonSettings):
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
     budget_s: float | None = Field(None, ge=0.001, le=60, description="Compute-time budget per batch (default: the batch period)")
-    search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
-    search_max_hz: float = Field(40.0, ge=0.01, le=2500, description="Upper edge of the peak search")
+    search_band_hz: Annotated[tuple[Annotated[float, Field(ge=0, le=2500)], Annotated[float, Field(ge=0.01, le=2500)]], NoDecode] = Field(
+        (0.5, 40.0), description="Band of the peak search, LOW,HIGH (Hz; above Nyquist the search stops at Nyquist)"
+    )
     fault_scenario: str = Field(
         "", max_length=100_000, description="Faults: the scenario's dsp_delay_s slows this board (the same file as the controller's, docs/timing-faults.md)"
     )
@@ -414,6 +390,11 @@ class DspSettings(CommonSettings):
             return value  # one file per rig: checked when each board opens its own
         return _regular_file(value) if value and os.path.lexists(value) else value  # absent: written at the stop
 
+    @field_validator("search_band_hz", mode="before")
+    @classmethod
+    def _band_text(cls, value: Any) -> Any:
+        return band_text(value)
+
     @field_validator("fft_width")
     @classmethod
     def _power_of_two(cls, value: int) -> int:
@@ -423,8 +404,8 @@ class DspSettings(CommonSettings):
 
     @model_validator(mode="after")
     def _checks(self) -> DspSettings:
-        if self.search_max_hz <= self.search_min_hz:
-            raise ValueError("search_max_hz must exceed search_min_hz")
+        if self.search_band_hz[1] <= self.search_band_hz[0]:
+            raise ValueError("the search band's upper edge must exceed its lower edge")
         if self.arx_regime_bank_file:
             if self.identifier != "arx" or self.arx_regime_bank == 0:
                 raise ValueError("arx_regime_bank_file needs identifier 'arx' and arx_regime_bank > 0")
@@ -468,8 +449,43 @@ RETIRED: dict[str, str] = {
         f"dither_{key}": f"the dither is one setting: RALF_DITHER={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
         for key in DitherTuning.model_fields
     },
+    **{
+        old: f"the real-time measures are one setting: RALF_REALTIME={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for old, key in (("rt_priority", "priority"), ("cpu_affinity", "cpus"), ("rt_cpu_latency_us", "cpu_latency_us"))
+    },
+    "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
+    "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
 }
 """Settings no program reads any more, each with what replaces it (a retired name is refused, never ignored)."""
+
+
+_FOLDED: dict[str, tuple[str, str]] = {
+    **{f"policy_{key}": ("policies", key) for key in Policies.model_fields},
+    **{f"oatf_{key}": ("oatf", key) for key in OatfTuning.model_fields},
+    **{f"dither_{key}": ("dither", key) for key in DitherTuning.model_fields},
+    "rt_priority": ("realtime", "priority"),
+    "cpu_affinity": ("realtime", "cpus"),
+    "rt_cpu_latency_us": ("realtime", "cpu_latency_us"),
+}
+"""Retired names that became one key of a structured setting."""
+
+
+def upgrade_recorded(values: dict[str, Any]) -> dict[str, Any]:
+    """Settings as an older recording stored them, in today's names: a retired
+    name that became a key of a structured setting moves into it, the search
+    edges become ``search_band_hz``; the retired fault injections are dropped
+    (a recording's faults are in its own metadata)."""
+    out = {k: v for k, v in values.items() if not retired(k)}
+    for name, value in values.items():
+        if name in _FOLDED and value is not None:
+            group, key = _FOLDED[name]
+            keys = out.setdefault(group, {})
+            if isinstance(keys, dict):  # (a recording has either the old names or the group)
+                keys[key] = value
+    if "search_band_hz" not in values and ("search_min_hz" in values or "search_max_hz" in values):
+        default = DspSettings.model_fields["search_band_hz"].default
+        out["search_band_hz"] = (values.get("search_min_hz", default[0]), values.get("search_max_hz", default[1]))
+    return out
 
 
 def retired(name: str) -> str | None:

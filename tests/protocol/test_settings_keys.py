@@ -14,7 +14,7 @@ from pydantic import ValidationError
 
 from protocol.errors import ConfigError
 from protocol.keys import SERVICES, Keys, validate_rig_id
-from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings
+from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings, upgrade_recorded
 
 LOOP = Path(__file__).resolve().parents[2] / "protocol" / "trajectories" / "inspection_loop.json"
 
@@ -58,7 +58,7 @@ def test_program_defaults() -> None:
     assert ctrl.oatf.band_hz == (1.0, 20.0) and ctrl.duration_s is None and ctrl.oatf_mode == "off"
     assert ctrl.batch_size == 30 and ctrl.tip_speed_in_s == 5.0
     dsp = load_settings(DspSettings)
-    assert dsp.fft_width == 2048 and dsp.alpha == 0.1 and dsp.search_min_hz < dsp.search_max_hz
+    assert dsp.fft_width == 2048 and dsp.alpha == 0.1 and dsp.search_band_hz == (0.5, 40.0)
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)
@@ -166,6 +166,15 @@ def test_policies_defaults_and_one_changed(clean_env: pytest.MonkeyPatch) -> Non
     assert policies.deadline == "stop" and policies.stale == "degrade"
 
 
+def test_an_older_recordings_settings_are_read_in_todays_names() -> None:
+    old = {"oatf_mode": "adaptive", "oatf_frequency_hz": 4.4018, "oatf_band_hz": [1.0, 15.0], "policy_deadline": "degrade", "dither_seed": 3}
+    old |= {"inject_stall_s": 0.0, "inject_stall_at_s": None, "rt_priority": 10, "cpu_affinity": "1"}
+    ctrl = ControllerSettings(**upgrade_recorded(old))
+    assert (ctrl.oatf_mode, ctrl.oatf.frequency_hz, ctrl.oatf.band_hz, ctrl.oatf.damping) == ("adaptive", 4.4018, (1.0, 15.0), 0.09)
+    assert (ctrl.policies.deadline, ctrl.policies.stale, ctrl.dither.seed, ctrl.realtime.priority, ctrl.realtime.cpus) == ("degrade", "degrade", 3, 10, "1")
+    assert DspSettings(**upgrade_recorded({"search_max_hz": 30.0, "fft_width": 1024})).search_band_hz == (0.5, 30.0)
+
+
 RETIRED_NAMES = [
     ("RALF_INJECT_STALL_AT_S", "1.0", "RALF_FAULT_SCENARIO"),
     ("RALF_INJECT_STALL_S", "0.4", "RALF_FAULT_SCENARIO"),
@@ -178,6 +187,9 @@ RETIRED_NAMES = [
     ("RALF_OATF_FALLBACK", "fixed", "RALF_OATF=fallback="),
     ("RALF_DITHER_AMPLITUDE_V", "0.01", "RALF_DITHER=amplitude_v="),
     ("RALF_DITHER_SEED", "3", "RALF_DITHER=seed="),
+    ("RALF_RT_PRIORITY", "10", "RALF_REALTIME=priority="),
+    ("RALF_CPU_AFFINITY", "1", "RALF_REALTIME=cpus="),
+    ("RALF_SEARCH_MAX_HZ", "30", "RALF_SEARCH_BAND_HZ="),
 ]
 
 
@@ -356,10 +368,12 @@ def test_program_settings_do_not_mix() -> None:
 
 
 def test_search_band_must_be_ordered(clean_env: pytest.MonkeyPatch) -> None:
-    clean_env.setenv("RALF_SEARCH_MIN_HZ", "50")
+    clean_env.setenv("RALF_SEARCH_BAND_HZ", "50,40")
     text = _config_error(DspSettings)
-    assert "DspSettings" in text and "search_max_hz must exceed search_min_hz" in text
-    assert load_settings(DspSettings, {"search_min_hz": 1.0, "search_max_hz": 2.0}).search_max_hz == 2.0
+    assert "DspSettings" in text and "the search band's upper edge must exceed its lower edge" in text
+    clean_env.setenv("RALF_SEARCH_BAND_HZ", "[1, 2]")
+    assert load_settings(DspSettings).search_band_hz == (1.0, 2.0)
+    assert load_settings(DspSettings, {"search_band_hz": "1,2"}).search_band_hz == (1.0, 2.0)
 
 
 def test_element_error_names_the_item() -> None:

@@ -80,9 +80,9 @@ class BenchContext:
     """realtime: CPU-burning processes running during the floor and the rig (a loaded host)."""
     rt_priority: int = 0
     cpu_affinity: str = ""
-    """realtime: RALF_RT_PRIORITY / RALF_CPU_AFFINITY for the controller and the plant (opt-in measures)."""
+    """realtime: RALF_REALTIME's priority / cpus for the controller and the plant (opt-in measures)."""
     rt_cpu_latency_us: int = -1
-    """realtime: RALF_RT_CPU_LATENCY_US for the controller and the plant, and the sleep-only floor's (-1: off)."""
+    """realtime: RALF_REALTIME's cpu_latency_us for the controller and the plant, and the sleep-only floor's (-1: off)."""
 
 
 def new_result() -> dict[str, Any]:
@@ -531,12 +531,8 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         latency_s = 0.1
         rig_id = private_rig_id(f"rt{rate:g}")
         common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
-        if ctx.rt_priority:
-            common["RALF_RT_PRIORITY"] = str(ctx.rt_priority)
-        if ctx.cpu_affinity:
-            common["RALF_CPU_AFFINITY"] = ctx.cpu_affinity
-        if ctx.rt_cpu_latency_us >= 0:
-            common["RALF_RT_CPU_LATENCY_US"] = str(ctx.rt_cpu_latency_us)
+        measures = {"priority": ctx.rt_priority, "cpus": ctx.cpu_affinity, "cpu_latency_us": ctx.rt_cpu_latency_us}
+        common["RALF_REALTIME"] = json.dumps(measures)
         record = ctx.log_dir / rig_id / "controller-record"
         overrides = {
             "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RUN_RECORD": str(record)},
