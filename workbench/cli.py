@@ -48,8 +48,9 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
             raise SystemExit(f"ralf-hil: --set {item!r}: expected [service.]NAME=VALUE")
         service, dot, name = target.rpartition(".")
         name = name.strip().lower().removeprefix("ralf_")
-        if retired(name):
-            raise SystemExit(f"ralf-hil: --set {item!r}: {retired(name)}")
+        if retired(name):  # a configuration error, as the services' own: exit 2
+            print(f"ralf-hil: --set {item!r}: {retired(name)}", file=sys.stderr)
+            raise SystemExit(2)
         if dot and service not in out:
             raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
         services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
