@@ -173,6 +173,18 @@ class RealtimeMeasures(SettingGroup):
         return value
 
 
+class UdpCanOptions(SettingGroup):
+    """How the ``udp_multicast`` CAN interface sends (service_kit/transport.py, service_kit/can_udp.py)."""
+
+    ttl: int = Field(
+        0, ge=0, le=32, description="IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)"
+    )
+    own_frame_filter: bool = Field(
+        True,
+        description="Send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); false: python-can's stock bus, which reads them back",
+    )
+
+
 class Policies(SettingGroup):
     """What the controller does on each monitored event (controller/monitors.py): count it, warn, degrade or stop."""
 

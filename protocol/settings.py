@@ -19,7 +19,7 @@ from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_scenario
-from protocol.setting_groups import DitherTuning, OatfTuning, Policies, RealtimeMeasures, SettingGroup, band_text, describe_group
+from protocol.setting_groups import DitherTuning, OatfTuning, Policies, RealtimeMeasures, SettingGroup, UdpCanOptions, band_text, describe_group
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
@@ -104,21 +104,15 @@ class CommonSettings(BaseSettings):
         pattern=r"^([a-z]+:[1-9a-f][0-9a-f]{0,31}(,[a-z]+:[1-9a-f][0-9a-f]{0,31})*)?$",
         description="With zenoh_acl in peer mode: ROLE:ZID,... of the rig's own nodes, so a link this session opened is matched to its role",
     )
-    can_multicast_ttl: int = Field(
-        0,
-        ge=0,
-        le=32,
-        description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)",
+    can_udp: Annotated[UdpCanOptions, NoDecode] = Field(
+        UdpCanOptions(),
+        description="The udp_multicast interface's options, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(UdpCanOptions),
     )
     launcher_pid: int = Field(
         0,
         ge=0,
         le=2**22,
         description="End this service (as on SIGTERM) when its launcher, the parent process with this PID, ends by any signal (0 = off; ralf-hil up sets it)",
-    )
-    can_own_frame_filter: bool = Field(
-        True,
-        description="udp_multicast: send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); off: python-can's stock bus, which reads them back",
     )
     ready_file: str = Field(
         "",
@@ -155,7 +149,7 @@ class CommonSettings(BaseSettings):
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
 
-    @field_validator("realtime", mode="before")
+    @field_validator("realtime", "can_udp", mode="before")
     @classmethod
     def _realtime_text(cls, value: Any) -> Any:
         return SettingGroup.coerce(value)
@@ -453,6 +447,8 @@ RETIRED: dict[str, str] = {
         old: f"the real-time measures are one setting: RALF_REALTIME={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
         for old, key in (("rt_priority", "priority"), ("cpu_affinity", "cpus"), ("rt_cpu_latency_us", "cpu_latency_us"))
     },
+    "can_multicast_ttl": "the udp_multicast options are one setting: RALF_CAN_UDP=ttl=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
+    "can_own_frame_filter": "the udp_multicast options are one setting: RALF_CAN_UDP=own_frame_filter=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
     "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
     "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
 }
@@ -466,6 +462,8 @@ _FOLDED: dict[str, tuple[str, str]] = {
     "rt_priority": ("realtime", "priority"),
     "cpu_affinity": ("realtime", "cpus"),
     "rt_cpu_latency_us": ("realtime", "cpu_latency_us"),
+    "can_multicast_ttl": ("can_udp", "ttl"),
+    "can_own_frame_filter": ("can_udp", "own_frame_filter"),
 }
 """Retired names that became one key of a structured setting."""
 
