@@ -23,7 +23,7 @@ from protocol.setting_groups import DitherTuning, OatfTuning, Policies, Realtime
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
-ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "zenoh_acl_scenarios", "launcher_pid"})
+ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "launcher_pid"})
 """Who a run's sessions were and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
 """What a dump of the settings shows for a credentials file."""
 
@@ -90,11 +90,11 @@ class CommonSettings(BaseSettings):
         "",
         description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted); its path is not recorded",
     )
-    zenoh_acl: bool = Field(
-        False,
-        description="Apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys (a client leaves them to its router)",
+    zenoh_acl: Literal["off", "on", "scenarios"] = Field(
+        "off",
+        description="on: apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys "
+        "(a client leaves them to its router); scenarios: the same, and accept scenario commands on the plant's test port from the tester role",
     )
-    zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
     zenoh_id: str = Field(
         "", pattern=r"^([1-9a-f][0-9a-f]{0,31})?$", description="This session's zenoh id, 1-32 lowercase hex digits, the first not 0 (empty: random)"
     )
@@ -148,6 +148,17 @@ class CommonSettings(BaseSettings):
     @classmethod
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
+
+    @field_validator("zenoh_acl", mode="before")
+    @classmethod
+    def _acl_switch(cls, value: Any) -> Any:
+        # a plain switch still reads as one: true/false, 1/0, yes/no
+        text = str(value).strip().lower()
+        if value is True or text in ("true", "1", "yes"):
+            return "on"
+        if value is False or text in ("false", "0", "no", ""):
+            return "off"
+        return text
 
     @field_validator("realtime", "can_udp", mode="before")
     @classmethod
@@ -449,6 +460,7 @@ RETIRED: dict[str, str] = {
     },
     "can_multicast_ttl": "the udp_multicast options are one setting: RALF_CAN_UDP=ttl=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
     "can_own_frame_filter": "the udp_multicast options are one setting: RALF_CAN_UDP=own_frame_filter=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
+    "zenoh_acl_scenarios": "access control is one setting: RALF_ZENOH_ACL=scenarios (the rules, and scenario commands from the tester role)",
     "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
     "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
 }

@@ -56,8 +56,8 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         password=settings.zenoh_password.get_secret_value(),
         credentials_file=settings.zenoh_credentials_file,
         # A client's one link is the one it opened to its router, which applies the rules.
-        acl=settings.zenoh_acl and settings.zenoh_mode != "client",
-        scenarios=settings.zenoh_acl_scenarios,
+        acl=settings.zenoh_acl != "off" and settings.zenoh_mode != "client",
+        scenarios=settings.zenoh_acl == "scenarios",
         more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
         node_id=settings.zenoh_id,
         node_ids=parse_node_ids(settings.zenoh_node_ids),

@@ -186,8 +186,7 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     node_ids = generate_node_ids()
     plan.common_env.update(
         RALF_ZENOH_CREDENTIALS_FILE=str(path),
-        RALF_ZENOH_ACL="true",
-        RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower(),
+        RALF_ZENOH_ACL="scenarios" if scenarios else "on",
         RALF_ZENOH_NODE_IDS=format_node_ids(node_ids),
     )
     for role in ("dsp", "plant", "controller", "launcher"):

@@ -175,6 +175,15 @@ def test_an_older_recordings_settings_are_read_in_todays_names() -> None:
     assert DspSettings(**upgrade_recorded({"search_max_hz": 30.0, "fft_width": 1024})).search_band_hz == (0.5, 30.0)
 
 
+@pytest.mark.parametrize(
+    ("raw", "expected"), [("true", "on"), ("1", "on"), ("on", "on"), ("false", "off"), ("0", "off"), ("off", "off"), ("scenarios", "scenarios")]
+)
+def test_access_control_reads_a_switch_or_scenarios(clean_env: pytest.MonkeyPatch, raw: str, expected: str) -> None:
+    clean_env.setenv("RALF_ZENOH_ACL", raw)
+    assert load_settings(CommonSettings).zenoh_acl == expected
+    assert CommonSettings(zenoh_acl=raw == "true").zenoh_acl == ("on" if raw == "true" else "off")
+
+
 RETIRED_NAMES = [
     ("RALF_INJECT_STALL_AT_S", "1.0", "RALF_FAULT_SCENARIO"),
     ("RALF_INJECT_STALL_S", "0.4", "RALF_FAULT_SCENARIO"),
@@ -190,6 +199,8 @@ RETIRED_NAMES = [
     ("RALF_RT_PRIORITY", "10", "RALF_REALTIME=priority="),
     ("RALF_CPU_AFFINITY", "1", "RALF_REALTIME=cpus="),
     ("RALF_SEARCH_MAX_HZ", "30", "RALF_SEARCH_BAND_HZ="),
+    ("RALF_CAN_MULTICAST_TTL", "1", "RALF_CAN_UDP=ttl="),
+    ("RALF_ZENOH_ACL_SCENARIOS", "true", "RALF_ZENOH_ACL=scenarios"),
 ]
 
 
