@@ -41,7 +41,7 @@ import numpy as np
 
 from protocol.errors import ConfigError
 from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, ScenarioCommand, decode, encode
-from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings
+from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
 
 Clock = Literal["cosim", "lockstep", "realtime"]
 CLOCKS: tuple[Clock, ...] = ("cosim", "lockstep", "realtime")
@@ -67,6 +67,8 @@ def check_settings(settings: Mapping[str, Mapping[str, Any]]) -> None:
         for name in values:
             if name in PLUMBING:
                 raise RigSettingError(f"{service}.{name} is chosen by the rig fixture (clock by the rig_clock marker or --rig-clock)")
+            if name not in known and retired(name):
+                raise RigSettingError(f"{service}.{name}: {retired(name)}")
             if name not in known:
                 close = difflib.get_close_matches(name, list(known), n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
