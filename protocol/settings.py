@@ -301,7 +301,9 @@ class ControllerSettings(CommonSettings):
         + describe_group(Policies),
     )
     fault_scenario: str = Field(
-        "", max_length=100_000, description="Link faults: a scenario file (YAML/JSON) or inline JSON, see docs/timing-faults.md (empty = none)"
+        "",
+        max_length=100_000,
+        description="Faults (link faults on CAN and zenoh, loop stalls; the DSP reads its dsp_delay_s): a scenario file (YAML/JSON) or inline JSON, docs/timing-faults.md (empty = none)",
     )
 
     @field_validator("oatf", "dither", "policies", mode="before")
