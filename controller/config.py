@@ -17,24 +17,25 @@ def law_config(settings: ControllerSettings) -> LawConfig:
     place, initial design and fallback, and its design rules (thesis §4.1);
     the valve commands' dither (off by default, :mod:`controller.excitation`)."""
     ts = settings.sample_period_s
+    tuning, dither = settings.oatf, settings.dither
     oatf = OatfConfig(
         sample_period_s=ts,
-        design_zeta=settings.oatf_damping,
-        delay_mode="fixed" if settings.oatf_delay_s else "robust",
-        fixed_delay_s=settings.oatf_delay_s or 0.05,
-        plausible_band_hz=settings.oatf_band_hz,
-        min_confidence=settings.oatf_min_confidence,
-        max_stages=settings.oatf_max_stages,
-        adapt_damping=settings.oatf_adapt_damping,
+        design_zeta=tuning.damping,
+        delay_mode="fixed" if tuning.delay_s else "robust",
+        fixed_delay_s=tuning.delay_s or 0.05,
+        plausible_band_hz=tuning.band_hz,
+        min_confidence=tuning.min_confidence,
+        max_stages=tuning.max_stages,
+        adapt_damping=tuning.adapt_damping,
     )
     return LawConfig(
         sample_period_s=ts,
         oatf_mode=settings.oatf_mode,
-        oatf_location=settings.oatf_location,
-        oatf_frequency_hz=settings.oatf_frequency_hz,
-        oatf_fallback=settings.oatf_fallback,
+        oatf_location=tuning.location,
+        oatf_frequency_hz=tuning.frequency_hz,
+        oatf_fallback=tuning.fallback,
         oatf=oatf if settings.oatf_mode != "off" else None,
-        dither=DitherConfig(amplitude_v=settings.dither_amplitude_v, band_hz=settings.dither_band_hz, seed=settings.dither_seed),
+        dither=DitherConfig(amplitude_v=dither.amplitude_v, band_hz=dither.band_hz, seed=dither.seed),
     )
 
 

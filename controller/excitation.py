@@ -36,7 +36,7 @@ FloatArray = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class DitherConfig:
-    """The dither's settings (``RALF_DITHER_*``; amplitude 0: off)."""
+    """The dither's settings (``RALF_DITHER``; amplitude 0: off)."""
 
     amplitude_v: float = 0.0
     """RMS of each valve's dither (V, at the D/A); 0 disables it."""

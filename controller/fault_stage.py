@@ -1,6 +1,5 @@
 """Fault injection at the controller's edges: the scripted link faults of
-:mod:`service_kit.link_faults` and the older single-knob injections
-(``inject_stall_*``, ``inject_sync_drop_every``).
+:mod:`service_kit.link_faults` and the scenario's loop stalls.
 
 The stage sits between the controller's loop and its two links (the CAN
 master :class:`controller.plant_link.PlantLink`, the DSP port) and acts on
@@ -243,17 +242,21 @@ class FaultStage:
 
 
 @dataclass
-class LegacyInjection:
-    """The single-knob injections of the controller settings (kept as they were)."""
+class LoopStalls:
+    """The scenario's ``stalls``: before tick ``t`` the loop freezes ``at_ticks[t]`` seconds of wall-clock time."""
 
-    stall_at_tick: int | None
-    stall_s: float
-    sync_drop_every: int
+    at_ticks: dict[int, float] = field(default_factory=dict)
+    stall_at_tick: int | None = None
+    """The first tick with a stall (None: no stall; the loop then checks nothing)."""
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario | None, sample_rate_hz: float) -> LoopStalls:
+        at: dict[int, float] = {}
+        for stall in scenario.stalls if scenario is not None else ():
+            tick = int(round(stall.at_s * sample_rate_hz))
+            at[tick] = at.get(tick, 0.0) + stall.wall_s
+        return cls(at, min(at) if at else None)
 
     def stall_now(self, tick: int) -> float:
         """Seconds the loop freezes before tick ``tick`` (0: none)."""
-        return self.stall_s if self.stall_at_tick is not None and tick == self.stall_at_tick else 0.0
-
-    def drop_sync(self, tick: int) -> bool:
-        every = self.sync_drop_every
-        return bool(every) and tick % every == every - 1
+        return self.at_ticks.get(tick, 0.0)

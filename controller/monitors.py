@@ -12,7 +12,7 @@ see :mod:`controller.plant_link`; its default policy is ``stop``) has a policy:
 * ``count``: count it, nothing else;
 * ``warn``: count it and log a warning (once per episode);
 * ``degrade``: as warn, and run on the fallback parameters until the
-  condition clears (``oatf_fallback``: keep the last good design frozen,
+  condition clears (the OATF tuning's ``fallback``: keep the last good design frozen,
   or return to the fixed design frequency);
 * ``stop``: end the run with an error.
 """

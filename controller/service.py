@@ -38,7 +38,7 @@ from controller.config import build_trajectory, law_config, run_ticks
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
 from controller.dsp_side import DspSide, DspTimes
-from controller.fault_stage import FaultStage, LegacyInjection
+from controller.fault_stage import FaultStage, LoopStalls
 from controller.interrupt_wait import BATCH_RESEND_S
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
 from controller.monitors import Monitors, MonitorStop
@@ -56,7 +56,7 @@ from protocol.messages import TfSnapshot
 from protocol.settings import ControllerSettings
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
-from service_kit.link_faults import Scenario, load_scenario, parse_scenario
+from service_kit.link_faults import Scenario, scenario_setting
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
@@ -88,30 +88,11 @@ def make_port(settings: ControllerSettings, session: zenoh.Session | None, port:
 
 def make_monitors(settings: ControllerSettings) -> Monitors:
     """The monitors and their policies (docs/design.md, "Monitors")."""
-    return Monitors(
-        {
-            "deadline": settings.policy_deadline,
-            "stale": settings.policy_stale,
-            "dsp_lost": settings.policy_dsp_lost,
-            "overrun": settings.policy_overrun,
-            "can_conflict": settings.policy_can_conflict,
-        }
-    )
-
-
-def make_injection(settings: ControllerSettings) -> LegacyInjection:
-    return LegacyInjection(
-        stall_at_tick=int(round(settings.inject_stall_at_s * settings.sample_rate_hz)) if settings.inject_stall_at_s is not None else None,
-        stall_s=settings.inject_stall_s,
-        sync_drop_every=settings.inject_sync_drop_every,
-    )
+    return Monitors(settings.policies.as_dict())
 
 
 def make_faults(settings: ControllerSettings, scenario: Scenario | None, lockstep: bool, elapsed: Callable[[], float]) -> FaultStage | None:
     """The scenario's link faults at this controller's edges (controller/fault_stage.py), or None."""
-    if scenario is None and settings.fault_scenario:
-        text = settings.fault_scenario.strip()
-        scenario = parse_scenario(text) if text.startswith("{") else load_scenario(text)
     if scenario is None or not scenario.faults:
         return None
     return FaultStage.from_scenario(scenario, settings.sample_period_s, lockstep, elapsed)
@@ -157,7 +138,11 @@ class ControllerService:
         """The service runs in a process of its own (False in the one-process composition):
         under SCHED_FIFO its real-time measures may then move the process's other threads."""
         self._w0 = stopwatch()
+        if scenario is None:
+            scenario = scenario_setting(s.fault_scenario)
         self.faults = make_faults(s, scenario, self.lockstep, lambda: self.stopwatch() - self._w0)
+        self.injection = LoopStalls.from_scenario(scenario, s.sample_rate_hz)
+        """The scenario's loop stalls (controller/fault_stage.py)."""
         self.tick = 0
         self.stale_watch = StaleWatch(self.monitors, self.timing, s.sample_period_s, s.stale_after_s, self._note_miss)
         self.ready_at: float | None = None
@@ -173,7 +158,7 @@ class ControllerService:
             self.port,
             self.link,
             self.clock,
-            DspTimes(s.sample_period_s, s.lockstep_timeout_s, s.oatf_min_confidence),
+            DspTimes(s.sample_period_s, s.lockstep_timeout_s, s.oatf.min_confidence),
             lockstep=self.lockstep,
             faults=self.faults,
             monitors=self.monitors,
@@ -188,7 +173,6 @@ class ControllerService:
             self.timing,
             lockstep=self.lockstep,
             faults=self.faults,
-            injection=make_injection(s),
             sample_period_s=s.sample_period_s,
             lockstep_timeout_s=s.lockstep_timeout_s,
         )
@@ -207,14 +191,6 @@ class ControllerService:
     def tf_snapshots(self) -> list[TfSnapshot]:
         """The TF downloads kept (all of them when a record is kept, else the latest)."""
         return self.tf.snapshots
-
-    @property
-    def injection(self) -> LegacyInjection:
-        return self.sync.injection
-
-    @injection.setter
-    def injection(self, value: LegacyInjection) -> None:
-        self.sync.injection = value
 
     @property
     def batch_missed(self) -> Any:
@@ -313,7 +289,7 @@ class ControllerService:
         self.plant.start_node(timeout=s.startup_timeout_s, stop=stop, sample_period_s=s.sample_period_s)
         self.dsp.wait_for_dsp(stop, timeout=s.startup_timeout_s)
         if not self.lockstep:
-            self.realtime = apply_realtime(s.rt_priority, s.cpu_affinity, whole_process=self.owns_process, cpu_latency_us=s.rt_cpu_latency_us)
+            self.realtime = apply_realtime(s.realtime.priority, s.realtime.cpus, whole_process=self.owns_process, cpu_latency_us=s.realtime.cpu_latency_us)
             self.tf.start_worker()  # before tick 0, one FIFO level below the loop
         self.ready_at = self.stopwatch()
         readiness.mark_ready(s.ready_file, log)  # plant node started, DSP seen, kernels warm

@@ -8,7 +8,7 @@ SYNC and the TPDO1 on the way.
 
 from __future__ import annotations
 
-from controller.fault_stage import TPDO_WINDOW, FaultStage, LegacyInjection
+from controller.fault_stage import TPDO_WINDOW, FaultStage
 from controller.plant_link import PlantFault, PlantLink
 from controller.timing_counters import TimingCounters
 from service_kit.clock import Scheduler
@@ -30,23 +30,16 @@ class SyncDriver:
         *,
         lockstep: bool,
         faults: FaultStage | None,
-        injection: LegacyInjection,
         sample_period_s: float,
         lockstep_timeout_s: float,
     ) -> None:
         self.plant, self.clock, self.timing = plant, clock, timing
-        self.lockstep, self.faults, self.injection = lockstep, faults, injection
+        self.lockstep, self.faults = lockstep, faults
         self._ts = sample_period_s
         self._lockstep_timeout_s = lockstep_timeout_s
 
     def emit(self, tick: int) -> None:
         """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
-        if self.faults is None and not self.injection.sync_drop_every:
-            self.plant.send_sync()
-            return
-        if self.injection.drop_sync(tick):
-            self.plant.skip_sync()  # counter advances, frame never sent: the node sees the gap
-            self.timing.syncs_dropped += 1
         if self.faults is not None:
             delay = self.faults.sync(tick)
             if delay is None:  # a link fault lost it: counter advanced, nothing sent, no TPDO to wait for

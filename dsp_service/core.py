@@ -34,6 +34,7 @@ from protocol.batch_codec import SampleBatch
 from protocol.messages import INTERRUPT_VERSION, BlockFlag, ConfigAck, ConfigChange, Interrupt, TfSnapshot, TransferFunction
 from protocol.settings import DspSettings
 from service_kit.inbox import RateLimitedLog
+from service_kit.link_faults import scenario_setting
 
 log = logging.getLogger(__name__)
 _log_once = RateLimitedLog(log)  # a flood of bad batches logs once per 10 s (counted all the same)
@@ -76,8 +77,8 @@ def identifier_config(settings: DspSettings) -> IdentifierConfig:
         solver=settings.solver,
         smoothing_window=settings.smoothing_window,
         smoothing_order=settings.smoothing_order,
-        search_min_hz=settings.search_min_hz,
-        search_max_hz=min(settings.search_max_hz, settings.sample_rate_hz / 2),
+        search_min_hz=settings.search_band_hz[0],
+        search_max_hz=min(settings.search_band_hz[1], settings.sample_rate_hz / 2),
     )
 
 
@@ -90,7 +91,8 @@ class DspCore:
         self.block = BatchBlock()
         self.batch_size = settings.batch_size
         self.emulated_latency_s = settings.emulated_latency_s
-        self.extra_delay_s = settings.inject_delay_s
+        scenario = scenario_setting(settings.fault_scenario)
+        self.extra_delay_s = scenario.dsp_delay_s if scenario is not None else 0.0
         self.perf_counter = perf_counter
         self.interrupt_seq = 0
         self.flag_seq = 0

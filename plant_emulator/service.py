@@ -435,7 +435,7 @@ def serve(
         node = CanopenNode(app, node_config(settings))
         app.set_fault = node.set_fault
         measures = (
-            apply_realtime(settings.rt_priority, settings.cpu_affinity, whole_process=owns_process, cpu_latency_us=settings.rt_cpu_latency_us)
+            apply_realtime(settings.realtime.priority, settings.realtime.cpus, whole_process=owns_process, cpu_latency_us=settings.realtime.cpu_latency_us)
             if settings.clock == "realtime"
             else RealtimeMeasures()
         )

@@ -136,7 +136,7 @@ RIG: Final[RigDescription] = RigDescription(
         Channel("dsp/tf", "queryable", "tf", ("dsp",), ("controller", "tool"), "the identified transfer functions, on request (binary, protocol.tf_codec)"),
         Channel("plant/truth", "publication", GroundTruth, ("plant",), ("tester",), "the emulated arm's true state (test port)"),
         Channel(
-            "plant/scenario", "publication", ScenarioCommand, ("tester",), ("plant",), "scenario commands (payload, faults)", gated_by="zenoh_acl_scenarios"
+            "plant/scenario", "publication", ScenarioCommand, ("tester",), ("plant",), "scenario commands (payload, faults)", gated_by="zenoh_acl=scenarios"
         ),
         Channel("plant/events", "publication", PlantEvent, ("plant",), ("tester", "launcher"), "hard stops, watchdog, clipping (test port)"),
         Channel("controller/status", "publication", ControllerStatus, ("controller",), ("launcher", "tool"), "the control loop's status"),

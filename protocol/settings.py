@@ -13,17 +13,17 @@ import re
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Field, SecretStr, ValidationError, ValidationInfo, field_serializer, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict, SettingsError
 
 from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_scenario
+from protocol.setting_groups import DitherTuning, OatfTuning, Policies, RealtimeMeasures, SettingGroup, UdpCanOptions, band_text, describe_group
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
-_Hz = Annotated[float, Field(ge=0.01, le=2500)]
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
-ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "zenoh_acl_scenarios", "launcher_pid"})
+ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "launcher_pid"})
 """Who a run's sessions were and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
 """What a dump of the settings shows for a credentials file."""
 
@@ -37,23 +37,6 @@ def _regular_file(value: str) -> str:
         except NotARegularFile as exc:
             raise ValueError(str(exc)) from None
     return value
-
-
-MAX_CPU = 4095
-
-
-def parse_cpus(text: str) -> tuple[int, ...]:
-    """``"1"``, ``"0,1"`` or ``"0-1"`` -> CPU numbers; empty -> ()."""
-    cpus: list[int] = []
-    for part in (p.strip() for p in text.split(",") if p.strip()):
-        lo, sep, hi = part.partition("-")
-        if not lo.isdigit() or (sep and not hi.isdigit()):
-            raise ValueError(f"cpu_affinity {text!r}: expected CPU numbers like 1 or 0,1 or 0-1")
-        first, last = int(lo), int(hi) if sep else int(lo)
-        if last < first or last > MAX_CPU:
-            raise ValueError(f"cpu_affinity {text!r}: {part} is not a range of CPU numbers 0..{MAX_CPU}")
-        cpus.extend(range(first, last + 1))
-    return tuple(sorted(set(cpus)))
 
 
 def _numeric(annotation: Any) -> bool:
@@ -89,17 +72,10 @@ class CommonSettings(BaseSettings):
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, ge=1, le=5000, description="Control and identification sample rate")
     health_period_s: float = Field(1.0, ge=0.01, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
-    rt_priority: int = Field(
-        0, ge=0, le=99, description="Real time: run the loop thread under SCHED_FIFO at this priority where permitted (0 = normal scheduler)"
-    )
-    cpu_affinity: str = Field(
-        "", max_length=256, description="Real time: pin the loop thread to these CPUs where permitted, e.g. 1 or 0-1 (empty = not pinned)"
-    )
-    rt_cpu_latency_us: int = Field(
-        -1,
-        ge=-1,
-        le=1_000_000,
-        description="Real time: hold the CPUs' wake-up latency within this many us through PM QoS (/dev/cpu_dma_latency) where permitted; 0 = idle CPUs poll (-1 = off)",
+    realtime: Annotated[RealtimeMeasures, NoDecode] = Field(
+        RealtimeMeasures(),
+        description="Real-time measures of the loop thread, each where permitted, KEY=VALUE,... (unnamed keys keep their defaults; docs/timing.md): "
+        + describe_group(RealtimeMeasures),
     )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Logging level")
     zenoh_user: str = Field(
@@ -114,11 +90,11 @@ class CommonSettings(BaseSettings):
         "",
         description="File of user:password lines: peers must authenticate with one of them (empty: any peer is accepted); its path is not recorded",
     )
-    zenoh_acl: bool = Field(
-        False,
-        description="Apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys (a client leaves them to its router)",
+    zenoh_acl: Literal["off", "on", "scenarios"] = Field(
+        "off",
+        description="on: apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys "
+        "(a client leaves them to its router); scenarios: the same, and accept scenario commands on the plant's test port from the tester role",
     )
-    zenoh_acl_scenarios: bool = Field(False, description="With zenoh_acl: accept scenario commands on the plant's test port (from the tester role)")
     zenoh_id: str = Field(
         "", pattern=r"^([1-9a-f][0-9a-f]{0,31})?$", description="This session's zenoh id, 1-32 lowercase hex digits, the first not 0 (empty: random)"
     )
@@ -128,21 +104,15 @@ class CommonSettings(BaseSettings):
         pattern=r"^([a-z]+:[1-9a-f][0-9a-f]{0,31}(,[a-z]+:[1-9a-f][0-9a-f]{0,31})*)?$",
         description="With zenoh_acl in peer mode: ROLE:ZID,... of the rig's own nodes, so a link this session opened is matched to its role",
     )
-    can_multicast_ttl: int = Field(
-        0,
-        ge=0,
-        le=32,
-        description="udp_multicast: IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)",
+    can_udp: Annotated[UdpCanOptions, NoDecode] = Field(
+        UdpCanOptions(),
+        description="The udp_multicast interface's options, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(UdpCanOptions),
     )
     launcher_pid: int = Field(
         0,
         ge=0,
         le=2**22,
         description="End this service (as on SIGTERM) when its launcher, the parent process with this PID, ends by any signal (0 = off; ralf-hil up sets it)",
-    )
-    can_own_frame_filter: bool = Field(
-        True,
-        description="udp_multicast: send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); off: python-can's stock bus, which reads them back",
     )
     ready_file: str = Field(
         "",
@@ -163,16 +133,37 @@ class CommonSettings(BaseSettings):
             raise ValueError("NaN (not a number) is not a valid value; give a finite number")
         return value
 
+    @model_validator(mode="before")
+    @classmethod
+    def _no_retired(cls, data: Any) -> Any:
+        # A retired name given from Python (run_cosim(controller={...}), a sweep's
+        # settings) is refused with its replacement, as on the command line.
+        if isinstance(data, dict):
+            gone = [f"{name}: {retired(name)}" for name in data if isinstance(name, str) and name not in cls.model_fields and retired(name)]
+            if gone:
+                raise ValueError("; ".join(gone))
+        return data
+
     @field_validator("rig_id")
     @classmethod
     def _rig_id(cls, value: str) -> str:
         return validate_rig_id(value)
 
-    @field_validator("cpu_affinity")
+    @field_validator("zenoh_acl", mode="before")
     @classmethod
-    def _cpu_list(cls, value: str) -> str:
-        parse_cpus(value)  # refused here, before any bus or session opens
-        return value
+    def _acl_switch(cls, value: Any) -> Any:
+        # a plain switch still reads as one: true/false, 1/0, yes/no
+        text = str(value).strip().lower()
+        if value is True or text in ("true", "1", "yes"):
+            return "on"
+        if value is False or text in ("false", "0", "no", ""):
+            return "off"
+        return text
+
+    @field_validator("realtime", "can_udp", mode="before")
+    @classmethod
+    def _realtime_text(cls, value: Any) -> Any:
+        return SettingGroup.coerce(value)
 
     @field_validator("zenoh_credentials_file")
     @classmethod
@@ -283,13 +274,14 @@ class ControllerSettings(CommonSettings):
         30, ge=1, le=4096, description="Samples per batch sent to the DSP (l); its period (150 ms) must exceed the DSP's latency (thesis: 20-50)"
     )
     oatf_mode: Literal["off", "fixed", "adaptive"] = Field("off", description="OATF input shaping: off, fixed, adaptive")
-    oatf_location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
-    oatf_frequency_hz: float = Field(4.4, ge=0.1, le=2500, description="OATF design frequency (initial value when adaptive)")
-    oatf_damping: float = Field(0.09, ge=0, lt=1, description="OATF design damping ratio")
-    oatf_delay_s: float | None = Field(None, ge=0.001, le=10, description="Fixed OATF delay T1 (default: robust pi/omega_d)")
-    oatf_band_hz: tuple[_Hz, _Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
-    oatf_min_confidence: float = Field(
-        0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence, see dsp_service.identifier)"
+    oatf: Annotated[OatfTuning, NoDecode] = Field(
+        OatfTuning(),
+        description="OATF tuning, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(OatfTuning),
+    )
+    dither: Annotated[DitherTuning, NoDecode] = Field(
+        DitherTuning(),
+        description="Valve dither for the identifier, KEY=VALUE,... (unnamed keys keep their defaults; docs/identification.md): "
+        + describe_group(DitherTuning),
     )
     dsp_deadline_s: float | None = Field(None, ge=0.001, le=60, description="Interrupt deadline after a batch (default: the batch period)")
     stale_after_s: float = Field(2.0, ge=0.01, le=3600, description="Parameters older than this are stale")
@@ -303,32 +295,21 @@ class ControllerSettings(CommonSettings):
         "",
         description="Write the run record to PATH.npz and PATH.json, with PATH.timing.*, PATH.tf.npz (and PATH.hops.npz in real time) beside it (empty = none)",
     )
-    policy_deadline: Literal["count", "warn", "degrade", "stop"] = Field("warn", description="On an interrupt past its deadline")
-    policy_stale: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On parameters older than stale_after_s")
-    policy_dsp_lost: Literal["count", "warn", "degrade", "stop"] = Field("degrade", description="On the DSP's liveliness token vanishing")
-    policy_overrun: Literal["count", "warn", "degrade", "stop"] = Field("count", description="On a tick finishing after the next was due")
-    policy_can_conflict: Literal["count", "warn", "degrade", "stop"] = Field(
-        "stop", description="On another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames (TPDO1, heartbeat, EMCY) on the CAN bus"
+    policies: Annotated[Policies, NoDecode] = Field(
+        Policies(),
+        description="What the controller does on each monitored event, KEY=VALUE,... of count, warn, degrade or stop (unnamed keys keep their defaults): "
+        + describe_group(Policies),
     )
-    inject_stall_at_s: float | None = Field(None, ge=0, le=1e7, description="Fault injection: freeze the loop at this simulated time...")
-    inject_stall_s: float = Field(0.0, ge=0, le=60, description="...for this many wall-clock seconds (the plant's SYNC watchdog should trip)")
-    inject_sync_drop_every: int = Field(0, ge=0, le=10**6, description="Fault injection: drop every n-th SYNC frame on the bus (0 = never)")
     fault_scenario: str = Field(
-        "", max_length=100_000, description="Link faults: a scenario file (YAML/JSON) or inline JSON, see docs/timing-faults.md (empty = none)"
+        "",
+        max_length=100_000,
+        description="Faults (link faults on CAN and zenoh, loop stalls; the DSP reads its dsp_delay_s): a scenario file (YAML/JSON) or inline JSON, docs/timing-faults.md (empty = none)",
     )
-    oatf_max_stages: int = Field(
-        1, ge=1, le=4, description="OATF stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis"
-    )
-    oatf_adapt_damping: bool = Field(False, description="Adaptive OATF also adapts each stage's design damping to the identified one")
-    oatf_fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good OATF design, or return to oatf_frequency_hz")
-    dither_amplitude_v: float = Field(
-        0.0,
-        ge=0,
-        le=2.0,
-        description="Persistent excitation: RMS (V) of a multisine added to each valve command before the D/A, for the identifier (0 = off; see docs/identification.md)",
-    )
-    dither_band_hz: tuple[_Hz, _Hz] = Field((2.0, 7.0), description="The dither's band: every bin of its period in this range")
-    dither_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the dither's random phases (each valve its own)")
+
+    @field_validator("oatf", "dither", "policies", mode="before")
+    @classmethod
+    def _group_text(cls, value: Any) -> Any:
+        return SettingGroup.coerce(value)
 
     @field_validator("run_record")
     @classmethod
@@ -347,25 +328,6 @@ class ControllerSettings(CommonSettings):
     @classmethod
     def _fault_scenario_file(cls, value: str) -> str:
         return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
-
-    @field_validator("dither_band_hz")
-    @classmethod
-    def _dither_band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
-        if not value[0] < value[1]:
-            raise ValueError(f"the dither band must run from a lower to a higher frequency, got {value[0]:g}, {value[1]:g}")
-        return value
-
-    @field_validator("oatf_band_hz", "dither_band_hz", mode="before")
-    @classmethod
-    def _band_text(cls, value: Any) -> Any:
-        # --set oatf_band_hz=... arrives as text (the env source JSON-decodes it
-        # already): accept a JSON array "[1, 20]" or a plain pair "1,20".
-        if isinstance(value, str):
-            text = value.strip()
-            if text.startswith("[") or text.startswith("("):
-                text = text[1:-1] if text[-1:] in "])" else text[1:]
-            return tuple(part.strip() for part in text.split(","))
-        return value
 
 
 class DspSettings(CommonSettings):
@@ -397,12 +359,20 @@ class DspSettings(CommonSettings):
     smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
     budget_s: float | None = Field(None, ge=0.001, le=60, description="Compute-time budget per batch (default: the batch period)")
-    inject_delay_s: float = Field(0.0, ge=0, le=10, description="Fault injection: extra compute time per batch (a slowed board)")
-    search_min_hz: float = Field(0.5, ge=0, le=2500, description="Lower edge of the peak search")
-    search_max_hz: float = Field(40.0, ge=0.01, le=2500, description="Upper edge of the peak search")
+    search_band_hz: Annotated[tuple[Annotated[float, Field(ge=0, le=2500)], Annotated[float, Field(ge=0.01, le=2500)]], NoDecode] = Field(
+        (0.5, 40.0), description="Band of the peak search, LOW,HIGH (Hz; above Nyquist the search stops at Nyquist)"
+    )
+    fault_scenario: str = Field(
+        "", max_length=100_000, description="Faults: the scenario's dsp_delay_s slows this board (the same file as the controller's, docs/timing-faults.md)"
+    )
     serve_rigs: str = Field(
         "", description="Further rig ids this one DSP process serves besides rig_id, comma-separated (each its own board: identifier, queue and thread)"
     )
+
+    @field_validator("fault_scenario")
+    @classmethod
+    def _fault_scenario_file(cls, value: str) -> str:
+        return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
 
     @field_validator("serve_rigs")
     @classmethod
@@ -427,6 +397,11 @@ class DspSettings(CommonSettings):
             return value  # one file per rig: checked when each board opens its own
         return _regular_file(value) if value and os.path.lexists(value) else value  # absent: written at the stop
 
+    @field_validator("search_band_hz", mode="before")
+    @classmethod
+    def _band_text(cls, value: Any) -> Any:
+        return band_text(value)
+
     @field_validator("fft_width")
     @classmethod
     def _power_of_two(cls, value: int) -> int:
@@ -436,8 +411,8 @@ class DspSettings(CommonSettings):
 
     @model_validator(mode="after")
     def _checks(self) -> DspSettings:
-        if self.search_max_hz <= self.search_min_hz:
-            raise ValueError("search_max_hz must exceed search_min_hz")
+        if self.search_band_hz[1] <= self.search_band_hz[0]:
+            raise ValueError("the search band's upper edge must exceed its lower edge")
         if self.arx_regime_bank_file:
             if self.identifier != "arx" or self.arx_regime_bank == 0:
                 raise ValueError("arx_regime_bank_file needs identifier 'arx' and arx_regime_bank > 0")
@@ -460,11 +435,69 @@ def known_variables() -> set[str]:
     return {f"RALF_{name.upper()}" for model in settings_models() for name in model.model_fields}
 
 
+_FAULTS = "docs/timing-faults.md"
 RETIRED: dict[str, str] = {
     "record": "RALF_RECORD named two files (the plant's truth and the controller's record, the last to stop overwrote the other): "
     "set RALF_RUN_RECORD (the controller's run record) and/or RALF_TRUTH_RECORD (the plant's ground truth) instead",
+    "inject_stall_at_s": f'faults are scripted in RALF_FAULT_SCENARIO: a loop stall is {{"stalls": [{{"at_s": T, "wall_s": S}}]}} ({_FAULTS})',
+    "inject_stall_s": f'faults are scripted in RALF_FAULT_SCENARIO: a loop stall is {{"stalls": [{{"at_s": T, "wall_s": S}}]}} ({_FAULTS})',
+    "inject_sync_drop_every": "faults are scripted in RALF_FAULT_SCENARIO: lost SYNC frames are a can fault on kind sync "
+    f'with drop or outage, e.g. {{"faults": [{{"link": "can", "kinds": ["sync"], "outage": {{"every_s": 0.25, "length_s": 0.005}}}}]}} ({_FAULTS})',
+    "inject_delay_s": f'faults are scripted in RALF_FAULT_SCENARIO: a slowed DSP board is {{"dsp_delay_s": S}} ({_FAULTS})',
+    **{
+        f"policy_{key}": f"the five policies are one setting: RALF_POLICIES={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in Policies.model_fields
+    },
+    **{
+        f"oatf_{key}": f"the OATF tuning is one setting: RALF_OATF={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in OatfTuning.model_fields
+    },
+    **{
+        f"dither_{key}": f"the dither is one setting: RALF_DITHER={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in DitherTuning.model_fields
+    },
+    **{
+        old: f"the real-time measures are one setting: RALF_REALTIME={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for old, key in (("rt_priority", "priority"), ("cpu_affinity", "cpus"), ("rt_cpu_latency_us", "cpu_latency_us"))
+    },
+    "can_multicast_ttl": "the udp_multicast options are one setting: RALF_CAN_UDP=ttl=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
+    "can_own_frame_filter": "the udp_multicast options are one setting: RALF_CAN_UDP=own_frame_filter=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
+    "zenoh_acl_scenarios": "access control is one setting: RALF_ZENOH_ACL=scenarios (the rules, and scenario commands from the tester role)",
+    "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
+    "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
 }
 """Settings no program reads any more, each with what replaces it (a retired name is refused, never ignored)."""
+
+
+_FOLDED: dict[str, tuple[str, str]] = {
+    **{f"policy_{key}": ("policies", key) for key in Policies.model_fields},
+    **{f"oatf_{key}": ("oatf", key) for key in OatfTuning.model_fields},
+    **{f"dither_{key}": ("dither", key) for key in DitherTuning.model_fields},
+    "rt_priority": ("realtime", "priority"),
+    "cpu_affinity": ("realtime", "cpus"),
+    "rt_cpu_latency_us": ("realtime", "cpu_latency_us"),
+    "can_multicast_ttl": ("can_udp", "ttl"),
+    "can_own_frame_filter": ("can_udp", "own_frame_filter"),
+}
+"""Retired names that became one key of a structured setting."""
+
+
+def upgrade_recorded(values: dict[str, Any]) -> dict[str, Any]:
+    """Settings as an older recording stored them, in today's names: a retired
+    name that became a key of a structured setting moves into it, the search
+    edges become ``search_band_hz``; the retired fault injections are dropped
+    (a recording's faults are in its own metadata)."""
+    out = {k: v for k, v in values.items() if not retired(k)}
+    for name, value in values.items():
+        if name in _FOLDED and value is not None:
+            group, key = _FOLDED[name]
+            keys = out.setdefault(group, {})
+            if isinstance(keys, dict):  # (a recording has either the old names or the group)
+                keys[key] = value
+    if "search_band_hz" not in values and ("search_min_hz" in values or "search_max_hz" in values):
+        default = DspSettings.model_fields["search_band_hz"].default
+        out["search_band_hz"] = (values.get("search_min_hz", default[0]), values.get("search_max_hz", default[1]))
+    return out
 
 
 def retired(name: str) -> str | None:

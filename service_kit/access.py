@@ -14,7 +14,7 @@ description says it does, on the exact keys (:func:`acl_config`):
   only the plant publishes ground truth and plant events; each service only
   its own health and liveliness token; tools (``ralf-hil reconfigure``) only
   commands; scenario commands only the ``tester`` role, and only where
-  ``zenoh_acl_scenarios`` is on;
+  ``zenoh_acl`` is ``scenarios``;
 * reading (:data:`READ_MESSAGES`): each board subscribes to and queries
   its declared inputs; the observer roles (:data:`OBSERVERS`) read the
   whole rig.
@@ -58,7 +58,7 @@ SERVICES: tuple[str, ...] = RIG.service_names
 
 
 def _senders(channel: Channel, senders: tuple[str, ...], scenarios: bool) -> tuple[str, ...]:
-    if channel.gated_by == "zenoh_acl_scenarios" and not scenarios:
+    if channel.gated_by == "zenoh_acl=scenarios" and not scenarios:
         return ()
     return senders
 
@@ -306,8 +306,8 @@ def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> 
         user=env.get("RALF_ZENOH_USER", ""),
         password=env.get("RALF_ZENOH_PASSWORD", ""),
         credentials_file=env.get("RALF_ZENOH_CREDENTIALS_FILE", ""),
-        acl=_on(env.get("RALF_ZENOH_ACL", "")),
-        scenarios=_on(env.get("RALF_ZENOH_ACL_SCENARIOS", "")),
+        acl=_on(env.get("RALF_ZENOH_ACL", "")) or env.get("RALF_ZENOH_ACL", "").lower() == "scenarios",
+        scenarios=env.get("RALF_ZENOH_ACL", "").lower() == "scenarios",
         node_id=env.get("RALF_ZENOH_ID", ""),
         node_ids=parse_node_ids(env.get("RALF_ZENOH_NODE_IDS", "")),
     )

@@ -26,7 +26,7 @@ drive the rig exactly as before. It differs in two places:
 
 It registers as the python-can interface ``ralf_udp_multicast`` (entry point
 ``can.interface``), and :func:`service_kit.transport.open_can_bus` uses it for
-``udp_multicast`` unless ``can_own_frame_filter`` is off.
+``udp_multicast`` unless ``can_udp``'s ``own_frame_filter`` is off.
 """
 
 from __future__ import annotations

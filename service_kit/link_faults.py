@@ -13,6 +13,11 @@ the wall clock since the run began (``time_base: wall``). A fault may
 * cut the link in bursts: an ``outage`` of ``length_s`` every ``every_s``
   (every message of the kinds inside a burst is dropped).
 
+Beside the link faults a scenario may freeze the controller's loop
+(``stalls``: at a simulated time, for some wall-clock seconds) and slow the
+DSP board (``dsp_delay_s`` of extra compute time per batch): the one place
+every injected fault of the rig is written.
+
 The engine is pure: the fate of a message is a function of the scenario's
 seed, the fault's index, the message kind and the message's own sequence
 number (the tick for CAN frames; for zenoh batches and interrupts the tick
@@ -137,6 +142,17 @@ class Acceptance(BaseModel):
     max_consecutive_misses: Annotated[int, Field(ge=0, le=10**6)] = 1
 
 
+class Stall(BaseModel):
+    """The controller's loop freezes before the tick at ``at_s`` (simulated time, rounded
+    to the tick) for ``wall_s`` seconds of wall-clock time: the plant's SYNC watchdog
+    should trip (in real time; in lockstep the plant waits for the next SYNC)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    at_s: Seconds
+    wall_s: Annotated[float, Field(ge=0.0, le=60.0, allow_inf_nan=False)]
+
+
 class Scenario(BaseModel):
     """A scenario file: the faults, their seed, and (for ``ralf-hil timing-test``) the run and its criteria."""
 
@@ -146,6 +162,10 @@ class Scenario(BaseModel):
     description: Annotated[str, Field(max_length=2000)] = ""
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
     faults: list[LinkFault] = Field(default_factory=list, max_length=64)
+    stalls: list[Stall] = Field(default_factory=list, max_length=64, description="The controller's loop freezing (wall clock)")
+    dsp_delay_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = Field(
+        0.0, description="Extra compute time the DSP board takes per batch (a slowed board; 0 = none)"
+    )
     duration_s: Annotated[float, Field(gt=0.0, le=1e6)] = 10.0
     mode: Literal["cosim", "lockstep", "realtime"] = "cosim"
     settings: dict[str, dict[str, Any]] = Field(default_factory=dict, description="Per service (controller, plant, dsp): settings for the run")
@@ -186,6 +206,14 @@ def load_scenario(path: str | Path) -> Scenario:
     except OSError as exc:
         raise ScenarioError(f"cannot read scenario {p}: {exc}") from None
     return parse_scenario(text, yaml_ok=p.suffix.lower() != ".json")
+
+
+def scenario_setting(text: str) -> Scenario | None:
+    """The scenario a ``fault_scenario`` setting names: inline JSON or a file (None when empty)."""
+    text = text.strip()
+    if not text:
+        return None
+    return parse_scenario(text, yaml_ok=False) if text[:1] in ("{", "[") else load_scenario(text)
 
 
 def _splitmix(x: int) -> int:

@@ -6,7 +6,7 @@ fallback where not: ``SCHED_FIFO`` (``os.sched_setscheduler``), CPU affinity
 so its pauses stay short).
 
 SCHED_FIFO, affinity and the wake-up latency are opt-in (settings
-``rt_priority``, ``cpu_affinity`` and ``rt_cpu_latency_us``): a FIFO thread that never sleeps would starve a shared
+``realtime``: ``priority``, ``cpus`` and ``cpu_latency_us``): a FIFO thread that never sleeps would starve a shared
 machine. With SCHED_FIFO, the interpreter's GIL switch interval drops to
 ``GIL_SWITCH_INTERVAL_S``: a FIFO loop that wants the GIL back from one of
 zenoh's callback threads would otherwise wait out CPython's default 5 ms.
@@ -36,7 +36,7 @@ import struct
 import sys
 from dataclasses import dataclass
 
-from protocol.settings import parse_cpus  # the one parser: settings refuse a bad list at load
+from protocol.setting_groups import parse_cpus  # the one parser: settings refuse a bad list at load
 
 log = logging.getLogger(__name__)
 

@@ -56,8 +56,8 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         password=settings.zenoh_password.get_secret_value(),
         credentials_file=settings.zenoh_credentials_file,
         # A client's one link is the one it opened to its router, which applies the rules.
-        acl=settings.zenoh_acl and settings.zenoh_mode != "client",
-        scenarios=settings.zenoh_acl_scenarios,
+        acl=settings.zenoh_acl != "off" and settings.zenoh_mode != "client",
+        scenarios=settings.zenoh_acl == "scenarios",
         more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
         node_id=settings.zenoh_id,
         node_ids=parse_node_ids(settings.zenoh_node_ids),
@@ -139,17 +139,17 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
 
 def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:
     """Open the CAN bus named by the settings (udp_multicast, virtual,
-    socketcan...). udp_multicast frames get the TTL ``can_multicast_ttl``:
-    0 (the default) keeps them on this host. With ``can_own_frame_filter``
+    socketcan...). udp_multicast frames get the TTL ``can_udp``'s ``ttl``:
+    0 (the default) keeps them on this host. With its ``own_frame_filter``
     (the default) udp_multicast is :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`,
     wire-compatible with python-can's, which does not read its own frames back."""
     options: dict[str, Any] = {"interface": settings.can_interface, "channel": settings.can_channel}
     if settings.can_interface == "udp_multicast":
         options["port"] = settings.can_port
-        options["hop_limit"] = settings.can_multicast_ttl
+        options["hop_limit"] = settings.can_udp.ttl
     options.update(kwargs)
     try:
-        if settings.can_interface == "udp_multicast" and settings.can_own_frame_filter:
+        if settings.can_interface == "udp_multicast" and settings.can_udp.own_frame_filter:
             del options["interface"]
             return LoopFreeUdpMulticastBus(**options)
         return can.Bus(**options)

@@ -17,7 +17,7 @@ from service_kit.realtime import GIL_SWITCH_INTERVAL_S, apply_realtime, parse_cp
 
 def test_parse_cpus() -> None:
     assert parse_cpus("") == () and parse_cpus("1") == (1,) and parse_cpus("0-2,5") == (0, 1, 2, 5)
-    with pytest.raises(ValueError, match="cpu_affinity"):
+    with pytest.raises(ValueError, match="cpus"):
         parse_cpus("one")
 
 

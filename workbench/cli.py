@@ -49,8 +49,9 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
             raise SystemExit(f"ralf-hil: --set {item!r}: expected [service.]NAME=VALUE")
         service, dot, name = target.rpartition(".")
         name = name.strip().lower().removeprefix("ralf_")
-        if retired(name):
-            raise SystemExit(f"ralf-hil: --set {item!r}: {retired(name)}")
+        if retired(name):  # a configuration error, as the services' own: exit 2
+            print(f"ralf-hil: --set {item!r}: {retired(name)}", file=sys.stderr)
+            raise SystemExit(2)
         if dot and service not in out:
             raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
         services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
@@ -186,8 +187,7 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     node_ids = generate_node_ids()
     plan.common_env.update(
         RALF_ZENOH_CREDENTIALS_FILE=str(path),
-        RALF_ZENOH_ACL="true",
-        RALF_ZENOH_ACL_SCENARIOS=str(scenarios).lower(),
+        RALF_ZENOH_ACL="scenarios" if scenarios else "on",
         RALF_ZENOH_NODE_IDS=format_node_ids(node_ids),
     )
     for role in ("dsp", "plant", "controller", "launcher"):

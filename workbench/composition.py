@@ -31,7 +31,7 @@ class TickAction:
     """The controller's injection stage with one action added: ``action`` runs
     in the loop's thread before tick ``tick``, once (lockstep: the rig waits
     for it, so what it sends is in from that tick on, however loaded the host).
-    The settings' own injections (``inject_stall_*``, SYNC drops) still apply."""
+    The fault scenario's own loop stalls still apply."""
 
     base: Any
     tick: int
@@ -48,10 +48,7 @@ class TickAction:
             self.action()
         return float(self.base.stall_now(tick))
 
-    def drop_sync(self, tick: int) -> bool:
-        return bool(self.base.drop_sync(tick))
-
-    def __getattr__(self, name: str) -> Any:  # the base's other knobs (sync_drop_every, stall_s)
+    def __getattr__(self, name: str) -> Any:  # the base's other fields (at_ticks)
         if name == "base":  # not yet set (a copy or unpickling under way): no recursion
             raise AttributeError(name)
         return getattr(self.base, name)

@@ -41,7 +41,7 @@ import numpy as np
 
 from protocol.errors import ConfigError
 from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, ScenarioCommand, decode, encode
-from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings
+from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
 
 Clock = Literal["cosim", "lockstep", "realtime"]
 CLOCKS: tuple[Clock, ...] = ("cosim", "lockstep", "realtime")
@@ -67,6 +67,8 @@ def check_settings(settings: Mapping[str, Mapping[str, Any]]) -> None:
         for name in values:
             if name in PLUMBING:
                 raise RigSettingError(f"{service}.{name} is chosen by the rig fixture (clock by the rig_clock marker or --rig-clock)")
+            if name not in known and retired(name):
+                raise RigSettingError(f"{service}.{name}: {retired(name)}")
             if name not in known:
                 close = difflib.get_close_matches(name, list(known), n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
@@ -237,6 +239,12 @@ class HilRig:
             own.setdefault("plant_heartbeat_timeout_s", timeout)
         return own
 
+    def _dsp_settings(self) -> dict[str, Any]:
+        """The DSP's settings with the fault scenario (its ``dsp_delay_s`` slows the board)."""
+        if self.faults is None:
+            return self.dsp_settings
+        return {**self.dsp_settings, "fault_scenario": self.faults if isinstance(self.faults, str) else json.dumps(dict(self.faults))}
+
     def set(self, service: Literal["controller", "plant", "dsp", "common"], **values: Any) -> HilRig:
         """More settings before the run (``rig.set("controller", oatf_mode="adaptive")``), checked as the markers' are."""
         if self.started:
@@ -320,7 +328,7 @@ class HilRig:
         run = run_cosim(
             controller=self._controller_settings(duration_s),
             plant=plant,
-            dsp=self.dsp_settings,
+            dsp=self._dsp_settings(),
             common={**self.common, "rig_id": self.rig_id},
             record=str(path),
         )
@@ -364,7 +372,7 @@ class HilRig:
             rate = float(self.common.get("sample_rate_hz", 200.0))
             plant.setdefault("watchdog_periods", min(10_000, max(5, math.ceil(timeout * rate))))  # its upper bound
         run = run_in_process(
-            controller=self._controller_settings(duration_s), plant=plant, dsp=self.dsp_settings, common=common, session=session,
+            controller=self._controller_settings(duration_s), plant=plant, dsp=self._dsp_settings(), common=common, session=session,
             at_tick=(0, send_scenario) if pending else None,
         )  # fmt: skip
         return self._record(run, None)

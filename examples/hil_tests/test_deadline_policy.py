@@ -2,7 +2,7 @@
 
 From 8 s to 12 s of simulated time every DSP interrupt is lost in a 0.5 s
 burst once a second (a fault on the controller-DSP link). With
-``policy_deadline=degrade`` and ``oatf_fallback=fixed`` the controller must
+``policies=deadline=degrade`` and the OATF tuning's ``fallback=fixed`` the controller must
 keep running to the end, count the missed deadlines, fall back to the
 shaper's fixed design while the link is out, and adapt again once it is back.
 """
@@ -21,7 +21,7 @@ FIXED_DESIGN_HZ = 4.4
 
 
 @pytest.mark.rig_settings(
-    controller={"oatf_mode": "adaptive", "policy_deadline": "degrade", "oatf_fallback": "fixed", "oatf_frequency_hz": FIXED_DESIGN_HZ},
+    controller={"oatf_mode": "adaptive", "policies": "deadline=degrade", "oatf": {"fallback": "fixed", "frequency_hz": FIXED_DESIGN_HZ}},
     dsp={"fft_width": 1024, "alpha": 0.05, "smoothing_window": 9},
 )
 @pytest.mark.rig_faults(OUTAGE)

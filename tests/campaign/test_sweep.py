@@ -210,7 +210,7 @@ def test_a_sweep_past_the_limit_asks_for_yes_and_its_dry_run_answers_at_once(tmp
 
     spec = tmp_path / "huge.toml"
     axis = ", ".join(str(i) for i in range(1000))
-    spec.write_text(f'name = "huge"\n[base]\ncontroller.duration_s = 1\n[grid]\nplant.seed = [{axis}]\ncontroller.dither_seed = [{axis}]\n')
+    spec.write_text(f'name = "huge"\n[base]\ncontroller.duration_s = 1\n[grid]\nplant.seed = [{axis}]\ncontroller.dither.seed = [{axis}]\n')
     assert main(["sweep", str(spec), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert f"1000000 run(s) planned, more than {LARGE_SWEEP}: not listed" in out

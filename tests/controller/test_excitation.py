@@ -64,7 +64,7 @@ def test_the_dither_reaches_the_d_a_only_when_on() -> None:
     """Same words, same law: off gives the D/A the PI's output; on adds the table's value (the PI's own output unchanged)."""
     runs = {}
     for amp in (0.0, 0.4):
-        cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="off", dither_amplitude_v=amp)
+        cs = ControllerSettings(duration_s=10.0, can_interface="virtual", oatf_mode="off", dither={"amplitude_v": amp})
         law = ControlLaw(law_config(cs), build_trajectory(cs))
         rows = [law.step_row(tick, [9000, 9000, 0, 0]) for tick in range(300)]
         runs[amp] = np.array([[r[ROW_NAMES.index(k)] for k in ("u1_v", "u2_v", "pi1_v", "pi2_v")] for r in rows])
@@ -80,5 +80,5 @@ def test_the_settings_refuse_a_reversed_dither_band() -> None:
     from protocol.settings import ConfigError, load_settings
 
     with pytest.raises(ConfigError, match="dither band"):
-        load_settings(ControllerSettings, {"dither_band_hz": "7,2"})
-    assert load_settings(ControllerSettings, {"dither_band_hz": "3,6"}).dither_band_hz == (3.0, 6.0)
+        load_settings(ControllerSettings, {"dither": "band_hz=7,2"})
+    assert load_settings(ControllerSettings, {"dither": "band_hz=3,6"}).dither.band_hz == (3.0, 6.0)

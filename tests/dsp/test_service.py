@@ -227,7 +227,7 @@ def test_bad_settings_are_refused_with_the_variable_name() -> None:
 
 
 def test_a_burst_over_zenoh_while_the_block_is_full_is_a_reported_violation(session: zenoh.Session) -> None:
-    settings = _settings(inject_delay_s=0.3)  # the board is busy with batch 0 while the burst arrives
+    settings = _settings(fault_scenario='{"dsp_delay_s": 0.3}')  # the board is busy with batch 0 while the burst arrives
     with _running_board(session, settings, publisher=True) as board:
         service, probe, pub = board.service, board.probe, board.pub
         probe.next("flag")

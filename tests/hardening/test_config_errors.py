@@ -15,6 +15,7 @@ from annotated_types import Gt, Le, Lt
 
 from protocol import messages as m
 from protocol.errors import ConfigError, TransportError
+from protocol.setting_groups import SettingGroup
 from protocol.settings import (
     CommonSettings,
     ControllerSettings,
@@ -58,10 +59,13 @@ def test_nan_is_reported_as_nan(clean_env: pytest.MonkeyPatch, text: str) -> Non
 
 
 def _numeric_fields(model: Any) -> list[tuple[str, Any]]:
+    """Numeric fields, each structured setting's keys among them as ``group.key``."""
     out = []
     for name, field in model.model_fields.items():
         ann = str(field.annotation)
-        if ("int" in ann or "float" in ann) and "bool" not in ann and "Literal" not in ann:
+        if isinstance(field.annotation, type) and issubclass(field.annotation, SettingGroup):
+            out.extend((f"{name}.{key}", sub) for key, sub in _numeric_fields(field.annotation))
+        elif ("int" in ann or "float" in ann) and "bool" not in ann and "Literal" not in ann:
             out.append((name, field))
     return out
 
@@ -72,13 +76,13 @@ def _has_upper(metadata: list[Any]) -> bool:
 
 @pytest.mark.parametrize("model", settings_models(), ids=lambda c: c.__name__)
 def test_every_numeric_setting_is_bounded(model: type[CommonSettings]) -> None:
-    bands = ("oatf_band_hz", "dither_band_hz")  # pairs of bounded frequencies (_Hz): checked below
+    bands = ("oatf.band_hz", "dither.band_hz", "search_band_hz")  # pairs of bounded frequencies (Hz): checked below
     unbounded = [name for name, field in _numeric_fields(model) if not _has_upper(field.metadata) and name not in bands]
     assert unbounded == []
-    for band in bands:
-        assert "greater than 2500" in _error(ControllerSettings, **{band: "1,1e9"}) or "less than or equal to 2500" in _error(
-            ControllerSettings, **{band: "1,1e9"}
-        )
+    for band in bands[:2]:
+        group, _, key = band.partition(".")
+        assert "less than or equal to 2500" in _error(ControllerSettings, **{group: f"{key}=1,1e9"})
+    assert "less than or equal to 2500" in _error(DspSettings, search_band_hz="1,1e9")
 
 
 @pytest.mark.parametrize("model", settings_models(), ids=lambda c: c.__name__)
@@ -93,11 +97,11 @@ def test_no_positive_setting_accepts_a_vanishing_value(model: type[CommonSetting
 
 
 def test_a_bad_cpu_list_ends_the_service_with_one_line_before_it_boots(tmp_path: Any) -> None:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")} | {"RALF_CPU_AFFINITY": "abc", "RALF_CAN_INTERFACE": "virtual"}
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")} | {"RALF_REALTIME": "cpus=abc", "RALF_CAN_INTERFACE": "virtual"}
     for module in ("controller", "plant_emulator", "dsp_service"):
         proc = subprocess.run([sys.executable, "-m", module], env=env, capture_output=True, text=True, timeout=120, check=False)
         assert proc.returncode == 2, proc.stderr
-        assert "RALF_CPU_AFFINITY" in proc.stderr and "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) <= 3, proc.stderr
+        assert "RALF_REALTIME" in proc.stderr and "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) <= 3, proc.stderr
 
 
 def test_message_fields_are_bounded() -> None:

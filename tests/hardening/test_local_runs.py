@@ -46,9 +46,9 @@ def test_can_multicast_ttl_keeps_local_runs_on_the_host(setting: str | None, ttl
     for name in list(os.environ):
         if name.startswith("RALF_"):
             monkeypatch.delenv(name)
-    overrides: dict[str, object] = {"can_port": 43999, "can_own_frame_filter": own_frame_filter}
+    overrides: dict[str, object] = {"can_port": 43999, "can_udp": f"own_frame_filter={str(own_frame_filter).lower()}"}
     if setting is not None:
-        overrides["can_multicast_ttl"] = setting
+        overrides["can_udp"] = f"{overrides['can_udp']},ttl={setting}"
     bus = open_can_bus(load_settings(CommonSettings, overrides))
     assert isinstance(bus, LoopFreeUdpMulticastBus) == own_frame_filter
     try:

@@ -54,10 +54,30 @@ def test_the_retired_shared_record_setting_is_refused_naming_the_new_ones(tmp_pa
     said = proc.stdout + proc.stderr
     assert "RALF_RUN_RECORD" in said and "RALF_TRUTH_RECORD" in said and "Traceback" not in said
     proc = _run([*UP, "--clock", "lockstep", "--rig-id", _rig(), "--set", f"record={tmp_path / 'rec'}"], timeout=60)
-    assert proc.returncode != 0 and "RALF_RUN_RECORD" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.returncode == 2 and "RALF_RUN_RECORD" in proc.stderr and "Traceback" not in proc.stderr
     service = _run([sys.executable, "-m", "controller", "--set", f"record={tmp_path / 'rec'}"], timeout=60)
     assert service.returncode == 2 and "RALF_TRUTH_RECORD" in service.stderr and "Traceback" not in service.stderr
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "name,value,replacement",
+    [
+        ("inject_sync_drop_every", "50", "RALF_FAULT_SCENARIO"),
+        ("inject_delay_s", "0.3", "dsp_delay_s"),
+        ("policy_deadline", "stop", "RALF_POLICIES=deadline="),
+        ("oatf_frequency_hz", "5", "RALF_OATF=frequency_hz="),
+        ("dither_amplitude_v", "0.01", "RALF_DITHER=amplitude_v="),
+        ("rt_priority", "10", "RALF_REALTIME=priority="),
+        ("search_min_hz", "1", "RALF_SEARCH_BAND_HZ="),
+    ],
+)
+def test_a_retired_setting_ends_up_with_one_line_naming_its_replacement(name: str, value: str, replacement: str) -> None:
+    """As an environment variable of ``ralf-hil up`` and as its ``--set``: exit 2 before anything starts."""
+    for args, env in (([], _env(**{f"RALF_{name.upper()}": value})), (["--set", f"{name}={value}"], None)):
+        proc = _run([*UP, "--clock", "lockstep", "--rig-id", _rig(), *args], env=env, timeout=60)
+        said = " ".join((proc.stdout + proc.stderr).split())
+        assert proc.returncode == 2 and replacement in said and "Traceback" not in said, said
 
 
 def test_two_services_writing_one_file_are_refused_before_anything_starts(tmp_path: Path) -> None:

@@ -57,16 +57,21 @@ def test_unknown_setting_is_one_clear_error(pytester: pytest.Pytester) -> None:
         @pytest.mark.rig_settings(common={"clock": "lockstep"})
         def test_plumbing(rig):
             pass
+
+        @pytest.mark.rig_settings(controller={"policy_deadline": "stop"})
+        def test_retired(rig):
+            pass
         """
     )
     result = pytester.runpytest_subprocess()
-    result.assert_outcomes(errors=4)
+    result.assert_outcomes(errors=5)
     result.stdout.fnmatch_lines(
         [
             "*rig fixture: 'oatf_mod' is not a setting of the controller (did you mean 'oatf_mode'?)*",
             "*rig fixture: dsp: invalid configuration: RALF_FFT_WIDTH: Input should be greater than or equal to 32*",
             "*rig fixture: unknown rig clock 'wallclock' (cosim, lockstep, realtime)*",
             "*rig fixture: common.clock is chosen by the rig fixture*",
+            "*rig fixture: controller.policy_deadline: the five policies are one setting: RALF_POLICIES=deadline=VALUE*",
         ]
     )
     assert "Traceback" not in result.stdout.str()

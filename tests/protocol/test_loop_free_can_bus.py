@@ -109,7 +109,7 @@ def test_open_can_bus_picks_the_loop_free_bus_unless_told_not_to() -> None:
         assert isinstance(bus, LoopFreeUdpMulticastBus)
     finally:
         bus.shutdown()
-    stock = open_can_bus(CommonSettings(can_port=port, can_own_frame_filter=False))
+    stock = open_can_bus(CommonSettings(can_port=port, can_udp={"own_frame_filter": False}))
     try:
         assert not isinstance(stock, LoopFreeUdpMulticastBus)
         assert type(stock).__module__.startswith("can.interfaces.udp_multicast")

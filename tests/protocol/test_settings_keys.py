@@ -10,10 +10,11 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from protocol.errors import ConfigError
 from protocol.keys import SERVICES, Keys, validate_rig_id
-from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings
+from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings, upgrade_recorded
 
 LOOP = Path(__file__).resolve().parents[2] / "protocol" / "trajectories" / "inspection_loop.json"
 
@@ -54,10 +55,10 @@ def test_program_defaults() -> None:
     plant = load_settings(PlantSettings)
     assert (plant.adc_bits, plant.seed, plant.payload_attached, plant.watchdog_periods) == (12, 0, False, 5)
     ctrl = load_settings(ControllerSettings)
-    assert ctrl.oatf_band_hz == (1.0, 20.0) and ctrl.duration_s is None and ctrl.oatf_mode == "off"
+    assert ctrl.oatf.band_hz == (1.0, 20.0) and ctrl.duration_s is None and ctrl.oatf_mode == "off"
     assert ctrl.batch_size == 30 and ctrl.tip_speed_in_s == 5.0
     dsp = load_settings(DspSettings)
-    assert dsp.fft_width == 2048 and dsp.alpha == 0.1 and dsp.search_min_hz < dsp.search_max_hz
+    assert dsp.fft_width == 2048 and dsp.alpha == 0.1 and dsp.search_band_hz == (0.5, 40.0)
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda c: c.__name__)
@@ -89,9 +90,7 @@ def test_describe_lists_every_field(model: type[CommonSettings]) -> None:
         (PlantSettings, "RALF_ADC_BITS", "20", "adc_bits", 20),
         (PlantSettings, "RALF_ADC_BITS", "12", "adc_bits", 12),
         (PlantSettings, "RALF_TRUTH_RATE_HZ", "0", "truth_rate_hz", 0.0),
-        (ControllerSettings, "RALF_OATF_BAND_HZ", "[2, 15.5]", "oatf_band_hz", (2.0, 15.5)),
         (ControllerSettings, "RALF_DURATION_S", "12.5", "duration_s", 12.5),
-        (ControllerSettings, "RALF_OATF_DELAY_S", "0.1", "oatf_delay_s", 0.1),
         (ControllerSettings, "RALF_OATF_MODE", "adaptive", "oatf_mode", "adaptive"),
         (ControllerSettings, "RALF_TRAJECTORY", str(LOOP), "trajectory", str(LOOP)),
         (DspSettings, "RALF_FFT_WIDTH", "4096", "fft_width", 4096),
@@ -126,8 +125,96 @@ def test_overrides_take_precedence_over_the_environment(clean_env: pytest.Monkey
 
 @pytest.mark.parametrize("raw", ["1,20", " 1 , 20 ", "[1, 20]", "(1,20)", "[1.0,20.0]"])
 def test_band_override_as_text(raw: str) -> None:
-    # --set oatf_band_hz=... arrives as a string
-    assert load_settings(ControllerSettings, {"oatf_band_hz": raw}).oatf_band_hz == (1.0, 20.0)
+    # --set oatf=band_hz=... arrives as a string
+    assert load_settings(ControllerSettings, {"oatf": f"band_hz={raw}"}).oatf.band_hz == (1.0, 20.0)
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [
+        "band_hz=2,15.5,delay_s=0.1,fallback=fixed",
+        "delay_s=0.1, band_hz=[2, 15.5], fallback=fixed",
+        '{"band_hz": [2, 15.5], "delay_s": 0.1, "fallback": "fixed"}',
+    ],
+)
+def test_structured_setting_from_the_environment_keeps_unnamed_defaults(clean_env: pytest.MonkeyPatch, raw: str) -> None:
+    clean_env.setenv("RALF_OATF", raw)
+    oatf = load_settings(ControllerSettings).oatf
+    assert (oatf.band_hz, oatf.delay_s, oatf.fallback) == ((2.0, 15.5), 0.1, "fixed")
+    assert (oatf.frequency_hz, oatf.damping, oatf.location, oatf.max_stages) == (4.4, 0.09, "outer", 1)
+
+
+def test_structured_settings_read_back_their_own_text() -> None:
+    ctrl = load_settings(ControllerSettings, {"oatf": "frequency_hz=4.40183,band_hz=2.5,7", "dither": "amplitude_v=0.01", "policies": "stale=stop"})
+    again = load_settings(ControllerSettings, {name: str(getattr(ctrl, name)) for name in ("oatf", "dither", "policies")})
+    assert (again.oatf, again.dither, again.policies) == (ctrl.oatf, ctrl.dither, ctrl.policies)
+    assert again.oatf.frequency_hz == 4.40183 and again.policies.stale == "stop" and again.policies.can_conflict == "stop"
+    dumped = ControllerSettings(**ctrl.model_dump(mode="json"))  # as a run record stores them
+    assert dumped.oatf == ctrl.oatf and dumped.dither == ctrl.dither
+
+
+def test_policies_defaults_and_one_changed(clean_env: pytest.MonkeyPatch) -> None:
+    assert load_settings(ControllerSettings).policies.as_dict() == {
+        "deadline": "warn",
+        "stale": "degrade",
+        "dsp_lost": "degrade",
+        "overrun": "count",
+        "can_conflict": "stop",
+    }
+    clean_env.setenv("RALF_POLICIES", "deadline=stop")
+    policies = load_settings(ControllerSettings).policies
+    assert policies.deadline == "stop" and policies.stale == "degrade"
+
+
+def test_an_older_recordings_settings_are_read_in_todays_names() -> None:
+    old = {"oatf_mode": "adaptive", "oatf_frequency_hz": 4.4018, "oatf_band_hz": [1.0, 15.0], "policy_deadline": "degrade", "dither_seed": 3}
+    old |= {"inject_stall_s": 0.0, "inject_stall_at_s": None, "rt_priority": 10, "cpu_affinity": "1"}
+    ctrl = ControllerSettings(**upgrade_recorded(old))
+    assert (ctrl.oatf_mode, ctrl.oatf.frequency_hz, ctrl.oatf.band_hz, ctrl.oatf.damping) == ("adaptive", 4.4018, (1.0, 15.0), 0.09)
+    assert (ctrl.policies.deadline, ctrl.policies.stale, ctrl.dither.seed, ctrl.realtime.priority, ctrl.realtime.cpus) == ("degrade", "degrade", 3, 10, "1")
+    assert DspSettings(**upgrade_recorded({"search_max_hz": 30.0, "fft_width": 1024})).search_band_hz == (0.5, 30.0)
+
+
+@pytest.mark.parametrize(
+    ("raw", "expected"), [("true", "on"), ("1", "on"), ("on", "on"), ("false", "off"), ("0", "off"), ("off", "off"), ("scenarios", "scenarios")]
+)
+def test_access_control_reads_a_switch_or_scenarios(clean_env: pytest.MonkeyPatch, raw: str, expected: str) -> None:
+    clean_env.setenv("RALF_ZENOH_ACL", raw)
+    assert load_settings(CommonSettings).zenoh_acl == expected
+    assert CommonSettings(zenoh_acl=raw == "true").zenoh_acl == ("on" if raw == "true" else "off")
+
+
+RETIRED_NAMES = [
+    ("RALF_INJECT_STALL_AT_S", "1.0", "RALF_FAULT_SCENARIO"),
+    ("RALF_INJECT_STALL_S", "0.4", "RALF_FAULT_SCENARIO"),
+    ("RALF_INJECT_SYNC_DROP_EVERY", "50", "RALF_FAULT_SCENARIO"),
+    ("RALF_INJECT_DELAY_S", "0.35", "RALF_FAULT_SCENARIO"),
+    ("RALF_POLICY_DEADLINE", "stop", "RALF_POLICIES=deadline="),
+    ("RALF_POLICY_CAN_CONFLICT", "warn", "RALF_POLICIES=can_conflict="),
+    ("RALF_OATF_FREQUENCY_HZ", "4.4", "RALF_OATF=frequency_hz="),
+    ("RALF_OATF_BAND_HZ", "[1, 20]", "RALF_OATF=band_hz="),
+    ("RALF_OATF_FALLBACK", "fixed", "RALF_OATF=fallback="),
+    ("RALF_DITHER_AMPLITUDE_V", "0.01", "RALF_DITHER=amplitude_v="),
+    ("RALF_DITHER_SEED", "3", "RALF_DITHER=seed="),
+    ("RALF_RT_PRIORITY", "10", "RALF_REALTIME=priority="),
+    ("RALF_CPU_AFFINITY", "1", "RALF_REALTIME=cpus="),
+    ("RALF_SEARCH_MAX_HZ", "30", "RALF_SEARCH_BAND_HZ="),
+    ("RALF_CAN_MULTICAST_TTL", "1", "RALF_CAN_UDP=ttl="),
+    ("RALF_ZENOH_ACL_SCENARIOS", "true", "RALF_ZENOH_ACL=scenarios"),
+]
+
+
+@pytest.mark.parametrize("var,raw,replacement", RETIRED_NAMES, ids=lambda x: x if x.startswith("RALF_") else "")
+def test_a_retired_setting_is_refused_naming_its_replacement(clean_env: pytest.MonkeyPatch, var: str, raw: str, replacement: str) -> None:
+    clean_env.setenv(var, raw)
+    for model in MODELS:  # one environment for all three programs: each refuses it
+        lines = _config_error(model).splitlines()
+        assert lines[0] == "invalid configuration:" and len(lines) == 2 and lines[1].strip().startswith(var) and replacement in lines[1], lines
+    clean_env.delenv(var)
+    name = var.removeprefix("RALF_").lower()
+    assert replacement in _config_error(ControllerSettings, {name: raw})  # --set and Python overrides alike
+    with pytest.raises(ValidationError, match=replacement.split("=")[0].removeprefix("RALF_")):
+        ControllerSettings(**{name: raw})
 
 
 # --- bad values ----------------------------------------------------------------------
@@ -170,17 +257,24 @@ BAD_ENV = [
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "1e-300"),  # was "Maximum allowed size exceeded" from the trajectory, no name
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "0.005"),
     (ControllerSettings, "RALF_STALE_AFTER_S", "1e-300"),
-    (ControllerSettings, "RALF_OATF_BAND_HZ", "[1e-300, 20]"),
+    (ControllerSettings, "RALF_OATF", "band_hz=1e-300,20"),
     (ControllerSettings, "RALF_BATCH_SIZE", "0"),
     (ControllerSettings, "RALF_BATCH_SIZE", "4097"),
     (ControllerSettings, "RALF_OATF_MODE", "on"),
-    (ControllerSettings, "RALF_OATF_LOCATION", "middle"),
-    (ControllerSettings, "RALF_OATF_DAMPING", "1"),
-    (ControllerSettings, "RALF_OATF_MIN_CONFIDENCE", "1.5"),
-    (ControllerSettings, "RALF_OATF_BAND_HZ", "[1, 2, 3]"),
-    (ControllerSettings, "RALF_OATF_BAND_HZ", '[1, "x"]'),
-    (ControllerSettings, "RALF_OATF_BAND_HZ", "1,20"),
-    (ControllerSettings, "RALF_OATF_BAND_HZ", "wide"),
+    (ControllerSettings, "RALF_OATF", "location=middle"),
+    (ControllerSettings, "RALF_OATF", "damping=1"),
+    (ControllerSettings, "RALF_OATF", "min_confidence=1.5"),
+    (ControllerSettings, "RALF_OATF", "band_hz=[1, 2, 3]"),
+    (ControllerSettings, "RALF_OATF", '{"band_hz": [1, "x"]}'),
+    (ControllerSettings, "RALF_OATF", "band_hz=20,1"),
+    (ControllerSettings, "RALF_OATF", "band_hz=wide"),
+    (ControllerSettings, "RALF_OATF", "frequency=4.4"),
+    (ControllerSettings, "RALF_OATF", "frequency_hz"),
+    (ControllerSettings, "RALF_OATF", "{not json"),
+    (ControllerSettings, "RALF_OATF", "damping=nan"),
+    (ControllerSettings, "RALF_DITHER", "band_hz=7,2"),
+    (ControllerSettings, "RALF_POLICIES", "deadline=panic"),
+    (ControllerSettings, "RALF_POLICIES", "deadline=stop,deadline=warn"),
     (ControllerSettings, "RALF_REPEATS", "-1"),
     (DspSettings, "RALF_FFT_WIDTH", "1000"),
     (DspSettings, "RALF_FFT_WIDTH", "8"),
@@ -285,15 +379,17 @@ def test_program_settings_do_not_mix() -> None:
 
 
 def test_search_band_must_be_ordered(clean_env: pytest.MonkeyPatch) -> None:
-    clean_env.setenv("RALF_SEARCH_MIN_HZ", "50")
+    clean_env.setenv("RALF_SEARCH_BAND_HZ", "50,40")
     text = _config_error(DspSettings)
-    assert "DspSettings" in text and "search_max_hz must exceed search_min_hz" in text
-    assert load_settings(DspSettings, {"search_min_hz": 1.0, "search_max_hz": 2.0}).search_max_hz == 2.0
+    assert "DspSettings" in text and "the search band's upper edge must exceed its lower edge" in text
+    clean_env.setenv("RALF_SEARCH_BAND_HZ", "[1, 2]")
+    assert load_settings(DspSettings).search_band_hz == (1.0, 2.0)
+    assert load_settings(DspSettings, {"search_band_hz": "1,2"}).search_band_hz == (1.0, 2.0)
 
 
 def test_element_error_names_the_item() -> None:
-    text = _config_error(ControllerSettings, {"oatf_band_hz": "1,x"})
-    assert "RALF_OATF_BAND_HZ[1]" in text and "RALF_OATF_BAND_HZ_1" not in text
+    text = _config_error(ControllerSettings, {"oatf": "band_hz=1,x"})
+    assert "RALF_OATF[band_hz][1]" in text and "RALF_OATF_BAND_HZ_1" not in text
 
 
 # --- endpoints -----------------------------------------------------------------------

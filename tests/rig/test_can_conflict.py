@@ -57,7 +57,7 @@ def test_a_rogue_sync_producer_fires_can_conflict_and_policy_stop_ends_the_run(m
     thread.start()
     try:
         run = run_in_process(
-            controller={"duration_s": 3.0, "policy_can_conflict": "stop", "tf_download_samples": 0},
+            controller={"duration_s": 3.0, "policies": "can_conflict=stop", "tf_download_samples": 0},
         )
     finally:
         stop.set()
@@ -138,7 +138,7 @@ def test_a_spoofed_stopped_heartbeat_is_diagnosed_as_a_forgery(monkeypatch: pyte
     def attack(rogue: can.BusABC) -> None:
         rogue.send(can.Message(arbitration_id=can_map.HEARTBEAT_BASE + 1, data=bytes([NmtState.STOPPED]), is_extended_id=False))
 
-    run = _attacked_run(monkeypatch, {"policy_can_conflict": policy}, attack)
+    run = _attacked_run(monkeypatch, {"policies": {"can_conflict": policy}}, attack)
     assert run.result.counters["forged_heartbeats"] == 1
     if policy == "stop":
         assert run.result.error is not None and "forged heartbeat: heartbeat STOPPED id 0x701 [04]" in run.result.error
@@ -167,7 +167,7 @@ def test_a_foreign_heartbeat_time_write_is_named_or_undone(monkeypatch: pytest.M
     def attack(rogue: can.BusABC) -> None:
         rogue.send(can.Message(arbitration_id=can_map.SDO_RX_BASE + 1, data=bytes([0x2B, 0x17, 0x10, 0, 0, 0, 0, 0]), is_extended_id=False))
 
-    run = _attacked_run(monkeypatch, {"policy_can_conflict": policy}, attack)
+    run = _attacked_run(monkeypatch, {"policies": {"can_conflict": policy}}, attack)
     assert run.result.counters["foreign_sdo"] == 1 and run.result.counters["comm_restores"] == 1
     if policy == "stop":
         assert run.result.error is not None and "foreign sdo: a write of 0x1017:0 = 0" in run.result.error

@@ -98,7 +98,7 @@ def test_the_dsp_sits_in_another_network_than_the_cabinet() -> None:
     nets = {name: set(svc["networks"]) for name, svc in doc["services"].items()}
     assert nets == {"zenoh-router": {"cabinet", "lab"}, "dsp": {"lab"}, "plant": {"cabinet"}, "controller": {"cabinet"}, "live": {"cabinet"}}
     for name in ("plant", "controller"):
-        assert doc["services"][name]["environment"]["RALF_CAN_MULTICAST_TTL"] == "1"
+        assert doc["services"][name]["environment"]["RALF_CAN_UDP"] == "ttl=1"
 
 
 def test_the_override_replaces_only_the_router_on_the_same_config() -> None:

@@ -5,6 +5,7 @@ outcome does not depend on the machine's load."""
 
 from __future__ import annotations
 
+import json
 import signal
 import time
 import uuid
@@ -17,6 +18,13 @@ from workbench.composition import run_in_process
 from workbench.cosim import run_cosim
 from workbench.launcher import RigObserver, RigPlan, start_service, stop_service
 
+SLOW_BOARD = json.dumps({"dsp_delay_s": 0.35})
+"""The DSP board takes 350 ms longer per batch."""
+STALL = json.dumps({"stalls": [{"at_s": 1.0, "wall_s": 0.4}]})
+"""The controller's loop freezes 0.4 s (wall clock) before the tick at 1 s."""
+EVERY_50TH_SYNC = json.dumps({"faults": [{"link": "can", "kinds": ["sync"], "start_s": 0.2425, "outage": {"every_s": 0.25, "length_s": 0.005}}]})
+"""SYNC lost at ticks 49, 99, 149, ... (200 Hz): an outage of one period every 50, centred on the tick."""
+
 
 @pytest.mark.timeout(120)
 def test_slowed_dsp_misses_are_counted_and_no_sample_is_lost() -> None:
@@ -25,8 +33,8 @@ def test_slowed_dsp_misses_are_counted_and_no_sample_is_lost() -> None:
     simulated ticks, so the outcome does not depend on the host's load; the
     real-time reaction is covered by the policy-stop test below)."""
     run = run_cosim(
-        controller={"duration_s": 4.0, "policy_deadline": "degrade", "oatf_mode": "adaptive", "tf_download_samples": 0},
-        dsp={"emulated_latency_s": 0.35, "inject_delay_s": 0.35, "fft_width": 256},
+        controller={"duration_s": 4.0, "policies": "deadline=degrade", "oatf_mode": "adaptive", "tf_download_samples": 0},
+        dsp={"emulated_latency_s": 0.35, "fault_scenario": SLOW_BOARD, "fft_width": 256},
     )
     ctrl = run.controller
     counters = run.result.counters
@@ -47,8 +55,8 @@ def test_slowed_dsp_misses_are_counted_and_no_sample_is_lost() -> None:
 @pytest.mark.timeout(120)
 def test_dsp_deadline_policy_stop_ends_the_run_with_a_clear_error() -> None:
     run = run_in_process(
-        controller={"duration_s": 4.0, "policy_deadline": "stop", "tf_download_samples": 0},
-        dsp={"inject_delay_s": 0.35, "fft_width": 256, "emulated_latency_s": 0.0},
+        controller={"duration_s": 4.0, "policies": "deadline=stop", "tf_download_samples": 0},
+        dsp={"fault_scenario": SLOW_BOARD, "fft_width": 256, "emulated_latency_s": 0.0},
         common={"clock": "realtime"},
     )
     assert run.result.error is not None and "deadline" in run.result.error
@@ -58,7 +66,7 @@ def test_dsp_deadline_policy_stop_ends_the_run_with_a_clear_error() -> None:
 @pytest.mark.timeout(120)
 def test_controller_stall_trips_the_plant_watchdog_which_holds_valves_and_sends_emcy() -> None:
     run = run_in_process(
-        controller={"duration_s": 2.0, "inject_stall_at_s": 1.0, "inject_stall_s": 0.4, "plant_heartbeat_timeout_s": 5.0, "tf_download_samples": 0},
+        controller={"duration_s": 2.0, "fault_scenario": STALL, "plant_heartbeat_timeout_s": 5.0, "tf_download_samples": 0},
         plant={"watchdog_periods": 5},
         common={"clock": "realtime"},
     )
@@ -72,11 +80,12 @@ def test_controller_stall_trips_the_plant_watchdog_which_holds_valves_and_sends_
 
 @pytest.mark.timeout(120)
 def test_sync_frames_lost_on_the_bus_are_seen_as_counter_gaps() -> None:
-    run = run_in_process(controller={"duration_s": 2.0, "inject_sync_drop_every": 50, "tf_download_samples": 0})
+    run = run_in_process(controller={"duration_s": 2.0, "fault_scenario": EVERY_50TH_SYNC, "tf_download_samples": 0})
     assert run.result.error is None and run.result.ticks == 400
-    assert run.result.counters["syncs_dropped"] == 8
-    assert run.result.counters["sync_retries"] == 0  # the dropped SYNC is replaced by the next one
-    assert run.health["plant"].counters["sync_gaps"] == 8
+    assert run.result.counters["syncs_dropped"] == 8  # ticks 49, 99, ..., 399
+    assert run.result.counters["sync_retries"] == 0  # the controller knows no TPDO1 answers a lost SYNC
+    # the node sees each gap at the next SYNC: the one after tick 399 is past the run's end
+    assert run.health["plant"].counters["sync_gaps"] == 7
 
 
 @pytest.mark.timeout(400)

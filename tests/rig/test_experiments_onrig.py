@@ -161,7 +161,7 @@ def test_battery_quick_tuned_oatf_lowers_vibration(tmp_path: Path) -> None:
     g = results["results"]["groups"]["5in_s_nopayload"]
     assert 3.5 < g["right_hz"] < 4.7  # the mean true first mode, from the plant record of run (a)
     a, b = g["configs"]["a"], g["configs"]["b"]
-    assert b["settings"] == {"oatf_mode": "fixed", "oatf_frequency_hz": pytest.approx(g["right_hz"], abs=1e-3), "oatf_damping": 0.09}
+    assert b["settings"] == {"oatf_mode": "fixed", "oatf": {"frequency_hz": pytest.approx(g["right_hz"], abs=1e-3), "damping": 0.09}}
     for link in (0, 1):
         assert b["velocity_rms_in_s"][link] < a["velocity_rms_in_s"][link]
         assert b["velocity_pct"][link] < 100.0

@@ -132,7 +132,7 @@ def test_batch_loss_restarts_the_dsp_history_and_identification_resumes() -> Non
 
 
 def test_interrupts_delayed_past_the_deadline_are_misses_that_name_the_fault() -> None:
-    a = _cosim(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 2.0, "delay_s": 0.08}), policy_deadline="degrade")
+    a = _cosim(scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 1.0, "stop_s": 2.0, "delay_s": 0.08}), policies="deadline=degrade")
     c = a.result.counters
     # deadline = batch period 100 ms; latency 50 ms + 80 ms delay = 130 ms: a miss, not a loss
     assert c["deadline_misses"] >= 5 and c["interrupts_lost"] == 0
@@ -276,13 +276,13 @@ def test_timing_test_report_gives_verdicts_percentiles_and_histograms(tmp_path: 
 
 def test_lost_interrupts_under_policy_degrade_make_the_oatf_fall_back() -> None:
     """Adaptive OATF; from 5 s every interrupt is lost; the deadline monitor
-    (policy degrade) stays active: ``oatf_fallback=fixed`` returns to the
+    (policy degrade) stays active: the OATF tuning's ``fallback=fixed`` returns to the
     design frequency, ``last`` freezes the last good design."""
     faults = scenario({"link": "zenoh", "kinds": ["interrupt"], "start_s": 5.0, "drop": 1.0})
-    common = {"duration_s": 7.0, "oatf_mode": "adaptive", "policy_deadline": "degrade", "fault_scenario": faults, **FAST}
+    common = {"duration_s": 7.0, "oatf_mode": "adaptive", "policies": "deadline=degrade", "fault_scenario": faults, **FAST}
     hz = {}
     for fallback in ("fixed", "last"):
-        run = run_cosim(controller={**common, "oatf_fallback": fallback}, dsp={"fft_width": 256, "emulated_latency_s": 0.05})
+        run = run_cosim(controller={**common, "oatf": {"fallback": fallback}}, dsp={"fft_width": 256, "emulated_latency_s": 0.05})
         hz[fallback] = _columns(run)["oatf_hz"]
         assert run.result.error is None and run.controller.law.degraded
     before, after = slice(0, 5 * 200), slice(int(5.6 * 200), None)  # past the last batch sent before 5 s

@@ -158,11 +158,11 @@ def test_lockstep_records_are_bit_identical_across_runs_load_and_compositions(tm
 def test_a_dithered_cosim_equals_the_dithered_one_process_lockstep_run(tmp_path: Path) -> None:
     """The valve dither (controller/excitation.py) on, with an adaptive inner OATF: the co-simulation and the
     one-process lockstep rig keep the same records bit for bit, and the dither reached the D/A."""
-    dithered = {**CONTROLLER, "oatf_location": "inner", "dither_amplitude_v": 0.02}
+    dithered = {**CONTROLLER, "oatf": "location=inner", "dither": "amplitude_v=0.02"}
     a = _cosim(tmp_path, "cosim", 3, dithered)
     b = _one_process(tmp_path, "one", 3, dithered)
     _same(a, b)
     record = load_record(a)
     _worth_comparing(record)
-    plain = load_record(_cosim(tmp_path, "plain", 3, {**CONTROLLER, "oatf_location": "inner"}))
+    plain = load_record(_cosim(tmp_path, "plain", 3, {**CONTROLLER, "oatf": "location=inner"}))
     assert not np.array_equal(record["u1_v"], plain["u1_v"])

@@ -63,7 +63,7 @@ def test_reconfigure_tool_gets_the_dsp_acknowledgement_or_its_refusal() -> None:
     try:
         run_in_process(
             controller={"duration_s": 12.0, "tf_download_samples": 0},
-            dsp={"search_max_hz": 40.0},
+            dsp={"search_band_hz": (0.5, 40.0)},
             common={"rig_id": rig_id},
             session=session,
             at_tick=(200, start_tool),

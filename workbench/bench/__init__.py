@@ -301,17 +301,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=range(0, 100),
         default=0,
         metavar="P",
-        help="RALF_RT_PRIORITY for the controller and plant: SCHED_FIFO where permitted (default 0: off)",
+        help="RALF_REALTIME priority for the controller and plant: SCHED_FIFO where permitted (default 0: off)",
     )
     rt.add_argument(
-        "--cpu-affinity", type=_cpus, default="", metavar="CPUS", help="RALF_CPU_AFFINITY for the controller and plant, e.g. 1 or 0-1 (default: not pinned)"
+        "--cpu-affinity", type=_cpus, default="", metavar="CPUS", help="RALF_REALTIME cpus for the controller and plant, e.g. 1 or 0-1 (default: not pinned)"
     )
     rt.add_argument(
         "--rt-cpu-latency-us",
         type=int,
         default=-1,
         metavar="US",
-        help="RALF_RT_CPU_LATENCY_US for the controller and plant, and the same for the sleep-only floor: "
+        help="RALF_REALTIME cpu_latency_us for the controller and plant, and the same for the sleep-only floor: "
         "a PM QoS bound on CPU wake-up latency (0: idle CPUs poll; default -1: off)",
     )
     p.add_argument("--json", default=DEFAULT_JSON, metavar="PATH", help=f"write the results here (default {DEFAULT_JSON})")

@@ -40,9 +40,9 @@ class BenchContext:
     """realtime: CPU-burning processes running during the floor and the rig (a loaded host)."""
     rt_priority: int = 0
     cpu_affinity: str = ""
-    """realtime: RALF_RT_PRIORITY / RALF_CPU_AFFINITY for the controller and the plant (opt-in measures)."""
+    """realtime: RALF_REALTIME's priority / cpus for the controller and the plant (opt-in measures)."""
     rt_cpu_latency_us: int = -1
-    """realtime: RALF_RT_CPU_LATENCY_US for the controller and the plant, and the sleep-only floor's (-1: off)."""
+    """realtime: RALF_REALTIME's cpu_latency_us for the controller and the plant, and the sleep-only floor's (-1: off)."""
 
 
 def new_result() -> dict[str, Any]:

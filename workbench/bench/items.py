@@ -464,12 +464,8 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         latency_s = 0.1
         rig_id = private_rig_id(f"rt{rate:g}")
         common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
-        if ctx.rt_priority:
-            common["RALF_RT_PRIORITY"] = str(ctx.rt_priority)
-        if ctx.cpu_affinity:
-            common["RALF_CPU_AFFINITY"] = ctx.cpu_affinity
-        if ctx.rt_cpu_latency_us >= 0:
-            common["RALF_RT_CPU_LATENCY_US"] = str(ctx.rt_cpu_latency_us)
+        measures = {"priority": ctx.rt_priority, "cpus": ctx.cpu_affinity, "cpu_latency_us": ctx.rt_cpu_latency_us}
+        common["RALF_REALTIME"] = json.dumps(measures)
         record = ctx.log_dir / rig_id / "controller-record"
         overrides = {
             "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RUN_RECORD": str(record)},

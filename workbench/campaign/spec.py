@@ -3,7 +3,9 @@
 A spec (YAML or TOML, see docs/campaigns.md) names settings as
 ``SERVICE.FIELD`` (``controller.oatf_mode``, ``plant.adc_bits``,
 ``dsp.fft_width``), ``common.FIELD`` or a bare ``FIELD`` (every service that
-has it, like ``ralf-hil up --set``), plus two special names, ``seed`` (the
+has it, like ``ralf-hil up --set``), one key of a structured setting as
+``SERVICE.FIELD.KEY`` (``controller.oatf.frequency_hz``: the keys named
+merge, the others keep their defaults), plus two special names, ``seed`` (the
 plant's sensor-noise seed) and ``mode`` (the run mode, :mod:`workbench.campaign.modes`).
 
 The runs are ``points × grid × seeds``: every explicit point (default: one
@@ -40,6 +42,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings
 
+from protocol.setting_groups import SettingGroup, parse_group_text
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings
 
 __all__ = [
@@ -193,12 +196,16 @@ def get_mode(name: str) -> RunMode:
 
 def flatten(mapping: Mapping[str, Any]) -> dict[str, Any]:
     """Nested service tables to dotted names: ``{"plant": {"adc_bits": 16}}`` -> ``{"plant.adc_bits": 16}``
-    (TOML's ``plant.adc_bits = 16`` and YAML's nested style both arrive nested)."""
+    (TOML's ``plant.adc_bits = 16`` and YAML's nested style both arrive nested); a structured
+    setting's table to its keys: ``{"controller": {"oatf": {"damping": 0.01}}}`` -> ``controller.oatf.damping``."""
     out: dict[str, Any] = {}
     for key, value in mapping.items():
         if (key in SERVICES or key == "common") and isinstance(value, Mapping):
             for sub, v in value.items():
-                out[f"{key}.{sub}"] = v
+                if isinstance(v, Mapping):
+                    out.update({f"{key}.{sub}.{k}": item for k, item in v.items()})
+                else:
+                    out[f"{key}.{sub}"] = v
         else:
             out[key] = value
     return out
@@ -237,6 +244,14 @@ def _split(name: str) -> list[tuple[str, str]]:
         if service not in SERVICES:
             raise SpecError(f"{name!r}: unknown service {service!r} (controller, plant, dsp or common)")
         fields = SERVICES[service].model_fields
+        group, dot, key = fld.partition(".")
+        if dot:  # one key of a structured setting: controller.oatf.frequency_hz
+            model = fields[group].annotation if group in fields else None
+            if not (isinstance(model, type) and issubclass(model, SettingGroup)):
+                raise SpecError(f"{name!r}: {service} has no structured setting {group!r}")
+            if key not in model.model_fields:
+                raise SpecError(f"{name!r}: {service}.{group} has no key {key!r}{_hint(key, model.model_fields)}")
+            return [(service, fld)]
         if fld not in fields:
             raise SpecError(f"{name!r}: {service} has no setting {fld!r}{_hint(fld, fields)}")
         return [(service, fld)]
@@ -264,7 +279,12 @@ def resolve(assignments: Mapping[str, Any]) -> tuple[str | None, dict[str, dict[
             given["plant"]["seed"] = value
             continue
         for service, fld in _split(name):
-            given[service][fld] = value
+            group, dot, key = fld.partition(".")
+            if dot:
+                entry = given[service].get(group) or {}
+                given[service][group] = {**(parse_group_text(entry) if isinstance(entry, str) else dict(entry)), key: value}
+            else:
+                given[service][fld] = value
     out: dict[str, dict[str, Any]] = {}
     for service, model in SERVICES.items():
         try:

@@ -63,9 +63,9 @@ def plot_deflections(rec: Recording, out: Path) -> Path:
 def _setpoints(rec: Recording, t: np.ndarray) -> np.ndarray | None:
     """Trajectory theta set-points at simulated times ``t`` from the recorded controller settings."""
     from controller.config import build_trajectory
-    from protocol.settings import ACCESS_FIELDS, ControllerSettings
+    from protocol.settings import ACCESS_FIELDS, ControllerSettings, upgrade_recorded
 
-    values = {k: v for k, v in rec.settings("controller").items() if k in ControllerSettings.model_fields and k not in ACCESS_FIELDS}
+    values = {k: v for k, v in upgrade_recorded(rec.settings("controller")).items() if k in ControllerSettings.model_fields and k not in ACCESS_FIELDS}
     try:
         settings = ControllerSettings.model_validate(values)
         traj = build_trajectory(settings)

@@ -31,7 +31,7 @@ import numpy as np
 from dsp_service.core import DspCore
 from protocol.batch_codec import SampleBatch
 from protocol.messages import ConfigChange
-from protocol.settings import ACCESS_FIELDS, DspSettings
+from protocol.settings import ACCESS_FIELDS, DspSettings, upgrade_recorded
 from workbench.recording.reader import Recording
 
 IDENTIFICATION_FIELDS = ("poles", "confidence", "samples_in_history", "valid_fraction")
@@ -71,7 +71,7 @@ class Identified:
 def dsp_settings_of(rec: Recording, overrides: Mapping[str, Any] | None = None) -> DspSettings:
     """The DSP's settings as recorded (defaults where the recording has none),
     with ``overrides`` (field names of :class:`~protocol.settings.DspSettings`)."""
-    recorded = {k: v for k, v in rec.settings("dsp").items() if k in DspSettings.model_fields and k not in ACCESS_FIELDS}
+    recorded = {k: v for k, v in upgrade_recorded(rec.settings("dsp")).items() if k in DspSettings.model_fields and k not in ACCESS_FIELDS}
     values = {**recorded, **dict(overrides or {})}
     return DspSettings.model_validate({k: v for k, v in values.items() if v is not None})
 
@@ -264,8 +264,7 @@ def identifier_fields() -> tuple[str, ...]:
         "solver",
         "smoothing_window",
         "smoothing_order",
-        "search_min_hz",
-        "search_max_hz",
+        "search_band_hz",
         "sample_rate_hz",
     )
 

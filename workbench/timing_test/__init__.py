@@ -30,13 +30,14 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, mode: str 
     mode = mode or scenario.mode
     cfg = scenario.settings
     controller = {**cfg.get("controller", {}), "duration_s": duration_s or scenario.duration_s, "fault_scenario": scenario.model_dump_json()}
+    dsp = {**cfg.get("dsp", {}), "fault_scenario": scenario.model_dump_json()}  # a slowed board (dsp_delay_s)
     if mode == "cosim":
         from workbench.cosim import run_cosim
 
-        return run_cosim(controller=controller, plant=cfg.get("plant"), dsp=cfg.get("dsp"))
+        return run_cosim(controller=controller, plant=cfg.get("plant"), dsp=dsp)
     from workbench.composition import run_in_process
 
-    return run_in_process(controller=controller, plant=cfg.get("plant"), dsp=cfg.get("dsp"), common={"clock": mode})
+    return run_in_process(controller=controller, plant=cfg.get("plant"), dsp=dsp, common={"clock": mode})
 
 
 def cmd_timing_test(args: argparse.Namespace) -> int:

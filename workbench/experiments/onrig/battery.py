@@ -81,7 +81,7 @@ def oatf_settings(config: str, right_hz: float, damping: float = OATF_DAMPING, w
         return {"oatf_mode": "off"}
     mode = "adaptive" if config in ("c", "e") else "fixed"
     freq = right_hz if config in ("b", "c") else wrong_hz
-    return {"oatf_mode": mode, "oatf_frequency_hz": round(float(freq), 4), "oatf_damping": damping}
+    return {"oatf_mode": mode, "oatf": {"frequency_hz": round(float(freq), 4), "damping": damping}}
 
 
 def run_costs(res: RigResult, mask: np.ndarray | None = None) -> dict[str, list[float]]:

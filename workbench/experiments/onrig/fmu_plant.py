@@ -105,7 +105,7 @@ def run(ctx: ExperimentContext) -> Report:
     fmu = build_c_fmu(EXAMPLE_SOURCE, ctx.path("two_mode_plant.fmu"))
     fmu_plant = {"model": f"fmu:{fmu}", "fmu_mapping": str(mapping), "seed": ctx.seed}
     duration = 30.0 if ctx.quick else 84.0
-    adaptive = {"oatf_mode": "adaptive", "oatf_frequency_hz": 4.4, "duration_s": duration}
+    adaptive = {"oatf_mode": "adaptive", "oatf": {"frequency_hz": 4.4}, "duration_s": duration}
     specs = [
         RigRun("fmu_off", controller={"oatf_mode": "off", "duration_s": duration}, plant=fmu_plant, label="example FMU, OATF off"),
         RigRun("fmu_adaptive", controller=adaptive, plant=fmu_plant, label="example FMU, adaptive OATF"),

@@ -93,7 +93,7 @@ SETTINGS: tuple[tuple[int, float, str], ...] = (
 THESIS_SETTING = (2048, 0.1, "etfe")
 QUICK_SETTINGS: tuple[tuple[int, float, str], ...] = ((1024, 0.05, "etfe"), (2048, 0.1, "arx"))
 DITHER_AMPLITUDES_V = (0.003, 0.01, 0.03)
-"""RMS (V) of the valve commands' multisine dither (``dither_amplitude_v``, band ``dither_band_hz``) of the ARX runs
+"""RMS (V) of the valve commands' multisine dither (``dither`` ``amplitude_v``, in its ``band_hz``) of the ARX runs
 with persistent excitation; the D/A's step is 4.9 mV, the commands' own RMS on this loop ~0.05–0.06 V."""
 QUICK_DITHER_AMPLITUDES_V = (0.01,)
 GOAL_S = 1.0
@@ -443,7 +443,7 @@ def _report_dither(rep: Report, dither: dict[str, Any], events: Sequence[float],
     rep.heading("Persistent excitation: a dither on the valve commands")
     rep.text(
         "The payload kick rings the second mode, and on the return stroke nothing excites the first for seconds, so the data after a "
-        "change may hold no information about the new first mode. The controller's opt-in dither (`RALF_DITHER_AMPLITUDE_V`, "
+        "change may hold no information about the new first mode. The controller's opt-in dither (`RALF_DITHER=amplitude_v=...`, "
         f"`controller/excitation.py`: a periodic multisine, flat over every bin of its {_DITHER.period_ticks / FS_HZ:g}-s period in "
         f"{_DITHER.band_hz[0]:g}–{_DITHER.band_hz[1]:g} Hz, independent random phases per "
         "valve) is added to both valve commands after the PI, before the D/A, so the DSP's inputs carry it. Same seed, trajectory and "
@@ -582,7 +582,7 @@ def run(ctx: ExperimentContext) -> Report:
     dither_specs = [
         RigRun(
             _dither_name(amp),
-            controller={**arx_spec.controller, "dither_amplitude_v": amp},
+            controller={**arx_spec.controller, "dither": {"amplitude_v": amp}},
             plant=dict(arx_spec.plant),
             dsp=dict(arx_spec.dsp),
             label=f"{arx_spec.label}; valve dither {1e3 * amp:g} mV RMS",

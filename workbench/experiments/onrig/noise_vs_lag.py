@@ -91,7 +91,7 @@ def study_spec(quick: bool, seed: int, right_hz: float) -> Any:
     thesis_dsp = {"dsp.fft_width": 2048, "dsp.alpha": 0.1, "dsp.smoothing_window": smoothing_window(2048)}
     points: list[dict[str, Any]] = [
         {"label": "a", "controller.oatf_mode": "off", **thesis_dsp},
-        {"label": "b", "controller.oatf_mode": "fixed", "controller.oatf_frequency_hz": round(right_hz, 4), **thesis_dsp},
+        {"label": "b", "controller.oatf_mode": "fixed", "controller.oatf.frequency_hz": round(right_hz, 4), **thesis_dsp},
     ]
     for cfg in ADAPTIVE:
         for n, a in idents:
@@ -99,7 +99,7 @@ def study_spec(quick: bool, seed: int, right_hz: float) -> Any:
                 {
                     "label": f"{cfg} {ident_label(n, a)}",
                     "controller.oatf_mode": "adaptive",
-                    "controller.oatf_frequency_hz": round(right_hz, 4) if cfg == "c" else WRONG_HZ,
+                    "controller.oatf.frequency_hz": round(right_hz, 4) if cfg == "c" else WRONG_HZ,
                     "dsp.fft_width": n,
                     "dsp.alpha": a,
                     "dsp.smoothing_window": smoothing_window(n),
@@ -114,7 +114,7 @@ def study_spec(quick: bool, seed: int, right_hz: float) -> Any:
             "controller.tip_speed_in_s": SPEED,
             "batch_size": THESIS_BATCH_SIZE,
             "controller.tf_download_samples": 0,
-            "controller.oatf_damping": DAMPING,
+            "controller.oatf.damping": DAMPING,
             "plant.payload_attached": False,
             "plant.truth_rate_hz": 200.0,
         },

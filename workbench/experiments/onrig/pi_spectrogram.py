@@ -526,7 +526,7 @@ def run(ctx: ExperimentContext) -> Report:
         specs.append(
             RigRun(
                 DITHER_RUN,
-                controller={**arx.controller, "dither_amplitude_v": DITHER_V},
+                controller={**arx.controller, "dither": {"amplitude_v": DITHER_V}},
                 plant=dict(arx.plant),
                 dsp=dict(arx.dsp),
                 label=f"{arx.label}, valve dither {1e3 * DITHER_V:g} mV RMS",

@@ -51,10 +51,10 @@ SPEED = 5.0
 APEX_QUANTILE = 0.15
 RUNS = (
     ("unfiltered", {"oatf_mode": "off"}),
-    ("fixed10", {"oatf_mode": "fixed", "oatf_frequency_hz": WRONG_HZ, "oatf_damping": DESIGN_ZETA}),
-    ("adaptive", {"oatf_mode": "adaptive", "oatf_frequency_hz": WRONG_HZ, "oatf_damping": DESIGN_ZETA}),
-    ("adaptive2", {"oatf_mode": "adaptive", "oatf_frequency_hz": WRONG_HZ, "oatf_damping": DESIGN_ZETA, "oatf_max_stages": 2}),
-    ("adaptive_zeta", {"oatf_mode": "adaptive", "oatf_frequency_hz": WRONG_HZ, "oatf_damping": DESIGN_ZETA, "oatf_adapt_damping": True}),
+    ("fixed10", {"oatf_mode": "fixed", "oatf": {"frequency_hz": WRONG_HZ, "damping": DESIGN_ZETA}}),
+    ("adaptive", {"oatf_mode": "adaptive", "oatf": {"frequency_hz": WRONG_HZ, "damping": DESIGN_ZETA}}),
+    ("adaptive2", {"oatf_mode": "adaptive", "oatf": {"frequency_hz": WRONG_HZ, "damping": DESIGN_ZETA, "max_stages": 2}}),
+    ("adaptive_zeta", {"oatf_mode": "adaptive", "oatf": {"frequency_hz": WRONG_HZ, "damping": DESIGN_ZETA, "adapt_damping": True}}),
 )
 DSP_SETTINGS: dict[str, dict[str, str]] = {
     "adaptive": {"identifier": "arx"},

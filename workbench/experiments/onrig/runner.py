@@ -231,6 +231,8 @@ def _env_value(value: Any) -> str:
         return "true" if value else "false"
     if isinstance(value, (tuple, list)):
         return json.dumps(list(value))
+    if isinstance(value, dict):  # a structured setting (RALF_OATF, RALF_DITHER, RALF_POLICIES)
+        return json.dumps(value)
     if isinstance(value, Path):
         return str(value)
     return str(value)

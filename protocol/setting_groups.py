@@ -1,0 +1,207 @@
+"""Settings that travel as one structured value: the OATF's tuning, the valve
+dither and the controller's fault policies.
+
+Each group is a frozen pydantic model whose fields keep their defaults unless
+named, so ``RALF_POLICIES=deadline=stop`` changes one policy and leaves the
+other four as they were. A group is given as
+
+* ``KEY=VALUE`` pairs separated by commas (a pair's value may itself hold a
+  comma, as a band does: ``band_hz=2,7,amplitude_v=0.01``);
+* a JSON object (``{"band_hz": [2, 7], "amplitude_v": 0.01}``);
+* or, from Python, a dict or the model itself.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+Hz = Annotated[float, Field(ge=0.01, le=2500)]
+Policy = Literal["count", "warn", "degrade", "stop"]
+
+MAX_CPU = 4095
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """``"1"``, ``"0,1"`` or ``"0-1"`` -> CPU numbers; empty -> ()."""
+    cpus: list[int] = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        lo, sep, hi = part.partition("-")
+        if not lo.isdigit() or (sep and not hi.isdigit()):
+            raise ValueError(f"cpus {text!r}: expected CPU numbers like 1 or 0,1 or 0-1")
+        first, last = int(lo), int(hi) if sep else int(lo)
+        if last < first or last > MAX_CPU:
+            raise ValueError(f"cpus {text!r}: {part} is not a range of CPU numbers 0..{MAX_CPU}")
+        cpus.extend(range(first, last + 1))
+    return tuple(sorted(set(cpus)))
+
+
+_PAIR_START = re.compile(r",\s*(?=[A-Za-z_]\w*\s*=)")
+
+
+def parse_group_text(text: str) -> dict[str, Any]:
+    """``KEY=VALUE,KEY=VALUE`` or a JSON object -> a dict of raw values (validated by the group's model)."""
+    text = text.strip()
+    if not text:
+        return {}
+    if text.startswith("{"):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"not a JSON object: {exc}") from None
+        if not isinstance(data, dict):
+            raise ValueError("expected a JSON object")
+        return data
+    out: dict[str, Any] = {}
+    for pair in _PAIR_START.split(text):
+        key, sep, value = pair.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ValueError(f"{pair!r} is not KEY=VALUE (e.g. deadline=stop,stale=warn)")
+        if key in out:
+            raise ValueError(f"{key} is given twice")
+        out[key] = value.strip()
+    return out
+
+
+def band_text(value: Any) -> Any:
+    """A frequency band given as text: a JSON array ``"[1, 20]"`` or a plain pair ``"1,20"``."""
+    if isinstance(value, str):
+        text = value.strip()
+        if text.startswith("[") or text.startswith("("):
+            text = text[1:-1] if text[-1:] in "])" else text[1:]
+        return tuple(part.strip() for part in text.split(","))
+    return value
+
+
+def _ordered(name: str, value: tuple[float, float]) -> tuple[float, float]:
+    if not value[0] < value[1]:
+        raise ValueError(f"the {name} band must run from a lower to a higher frequency, got {value[0]:g}, {value[1]:g}")
+    return value
+
+
+def _text(value: Any) -> str:
+    """A group's value as text :func:`parse_group_text` reads back exactly (floats by ``repr``)."""
+    if isinstance(value, tuple):
+        return ",".join(_text(v) for v in value)
+    if isinstance(value, bool):
+        return str(value).lower()
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+class SettingGroup(BaseModel):
+    """A structured setting (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    def __str__(self) -> str:
+        """``KEY=VALUE,...`` of every field (None left out), read back by :func:`parse_group_text`."""
+        parts = []
+        for name, value in self:
+            if value is None:
+                continue
+            parts.append(f"{name}={_text(value)}")
+        return ",".join(parts)
+
+    @classmethod
+    def coerce(cls, value: Any) -> Any:
+        """A field validator's ``mode="before"`` step: text to a dict of raw values."""
+        return parse_group_text(value) if isinstance(value, str) else value
+
+
+class OatfTuning(SettingGroup):
+    """The OATF input shaper's design and adaptation (thesis §4.1); its mode stays ``oatf_mode``."""
+
+    location: Literal["outer", "inner"] = Field("outer", description="OATF on the set-points (outer) or actuator commands (inner)")
+    frequency_hz: float = Field(4.4, ge=0.1, le=2500, description="Design frequency (the initial value when adaptive)")
+    damping: float = Field(0.09, ge=0, lt=1, description="Design damping ratio")
+    delay_s: float | None = Field(None, ge=0.001, le=10, description="Fixed delay T1 (default: robust pi/omega_d)")
+    band_hz: tuple[Hz, Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
+    min_confidence: float = Field(0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence)")
+    max_stages: int = Field(1, ge=1, le=4, description="Stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis")
+    adapt_damping: bool = Field(False, description="Adaptive: also adapt each stage's design damping to the identified one")
+    fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good design, or return to frequency_hz")
+
+    @field_validator("band_hz", mode="before")
+    @classmethod
+    def _band_text(cls, value: Any) -> Any:
+        return band_text(value)
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
+        return _ordered("OATF's plausible", value)
+
+
+class DitherTuning(SettingGroup):
+    """Persistent excitation: a multisine added to each valve command before the D/A, for the identifier (docs/identification.md)."""
+
+    amplitude_v: float = Field(0.0, ge=0, le=2.0, description="RMS (V) of the multisine (0 = off)")
+    band_hz: tuple[Hz, Hz] = Field((2.0, 7.0), description="Its band: every bin of its period in this range")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of its random phases (each valve its own)")
+
+    @field_validator("band_hz", mode="before")
+    @classmethod
+    def _band_text(cls, value: Any) -> Any:
+        return band_text(value)
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band_order(cls, value: tuple[float, float]) -> tuple[float, float]:
+        return _ordered("dither", value)
+
+
+class RealtimeMeasures(SettingGroup):
+    """The loop thread's real-time measures (service_kit/realtime.py), each applied where permitted."""
+
+    priority: int = Field(0, ge=0, le=99, description="Run the loop thread under SCHED_FIFO at this priority (0 = normal scheduler)")
+    cpus: str = Field("", max_length=256, description="Pin the loop thread to these CPUs, e.g. 1, 0,1 or 0-1 (empty = not pinned)")
+    cpu_latency_us: int = Field(
+        -1,
+        ge=-1,
+        le=1_000_000,
+        description="Hold the CPUs' wake-up latency within this many us through PM QoS (/dev/cpu_dma_latency); 0 = idle CPUs poll (-1 = off)",
+    )
+
+    @field_validator("cpus")
+    @classmethod
+    def _cpu_list(cls, value: str) -> str:
+        parse_cpus(value)  # refused here, before any bus or session opens
+        return value
+
+
+class UdpCanOptions(SettingGroup):
+    """How the ``udp_multicast`` CAN interface sends (service_kit/transport.py, service_kit/can_udp.py)."""
+
+    ttl: int = Field(
+        0, ge=0, le=32, description="IP multicast TTL of CAN frames (0 = never leaves this host; 1 = the local network, e.g. docker compose or a LAN)"
+    )
+    own_frame_filter: bool = Field(
+        True,
+        description="Send from a socket of our own and drop our own frames in the kernel (service_kit/can_udp.py); false: python-can's stock bus, which reads them back",
+    )
+
+
+class Policies(SettingGroup):
+    """What the controller does on each monitored event (controller/monitors.py): count it, warn, degrade or stop."""
+
+    deadline: Policy = Field("warn", description="An interrupt past its deadline")
+    stale: Policy = Field("degrade", description="Parameters older than stale_after_s")
+    dsp_lost: Policy = Field("degrade", description="The DSP's liveliness token vanishing")
+    overrun: Policy = Field("count", description="A tick finishing after the next was due")
+    can_conflict: Policy = Field("stop", description="Another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames, on the CAN bus")
+
+    def as_dict(self) -> dict[str, Policy]:
+        return {"deadline": self.deadline, "stale": self.stale, "dsp_lost": self.dsp_lost, "overrun": self.overrun, "can_conflict": self.can_conflict}
+
+
+def describe_group(group: type[SettingGroup]) -> str:
+    """One line per key of ``group``: ``key (default): description``."""
+    lines = []
+    for name, field in group.model_fields.items():
+        shown = "-" if field.default is None else _text(field.default)
+        lines.append(f"{name} ({shown}): {field.description}")
+    return "; ".join(lines)
