@@ -97,7 +97,7 @@ from .spectra import (
     SegmentedSpectralEstimator,
     SpectralAverager,
     SpectralEstimator,
-    rfft_rows_bound,
+    rfft_rows,
     scale_spectra,
     welch_equivalent_averages,
 )
@@ -556,7 +556,7 @@ class Identifier:
         # resolved with no snapshot (weight 0 on a zero state: nothing changes)
         self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
         est = self._est
-        self._k_fft, self._k_fft_args = rfft_rows_bound(est._tmp, est.ffts)
+        self._k_fft_args = (est._tmp, est.ffts)
         self._k_dtr_args = (est.means, est.window, est._tmp)
         self._k_detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (self.history._buf, 0, *self._k_dtr_args))
         # what _step_fused reads of the configuration (fixed until the next _build; set_alpha changes none of it)
@@ -783,7 +783,7 @@ class Identifier:
             self._pending = 0
             # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
             self._k_detrend_ring(hist._buf, hist._head, *self._k_dtr_args)
-            self._k_fft(*self._k_fft_args)
+            rfft_rows(*self._k_fft_args)
             self._k_call(self._k_ffts_f, weight, *self._k_args)
         elif avg.updates == 0:
             return IdentificationResult((), 0.0, 0.0, min(seen, n_hist), 0.0)

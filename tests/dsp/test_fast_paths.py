@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import scipy.signal
 
-import dsp_service.spectra as spectra
 from dsp_service.identifier import Identifier, IdentifierConfig, KernelName
 from dsp_service.mimo import MimoSolver, solve_mimo
 from dsp_service.modal import VrmEstimator, find_modal_peaks, log_weights_db, vrm_lambda, vrm_modal_scalar
@@ -24,10 +23,7 @@ FREQS = np.asarray(np.fft.rfftfreq(N, 1.0 / FS), dtype=np.float64)  # float64 (t
 
 
 # ------------------------------------------------------------------- spectra
-@pytest.mark.parametrize("use_pocketfft", [True, False])
-def test_rfft_rows_is_numpys_rfft(monkeypatch: pytest.MonkeyPatch, use_pocketfft: bool) -> None:
-    if not use_pocketfft:
-        monkeypatch.setattr(spectra, "_r2c", None)
+def test_rfft_rows_is_numpys_rfft() -> None:
     rng = np.random.default_rng(0)
     x = rng.standard_normal((4, 512))
     np.testing.assert_array_equal(rfft_rows(x), np.fft.rfft(x, axis=-1))
