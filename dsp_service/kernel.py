@@ -1,30 +1,24 @@
-"""The compiled identification step (``IdentifierConfig.kernel = 'numba'``, the default).
+"""The compiled identification step.
 
 :func:`detrend_window_ring` (before the FFTs) and one call of :func:`step_packed`
-(after them) do what the numpy reference path (:mod:`.spectra`, :mod:`.mimo`,
-:mod:`.smoothing`, :mod:`.modal`, :meth:`.Identifier._find_peaks`,
-:meth:`.Identifier._poles`) does in about seventy small numpy calls:
+(after them) are the identifier's step (:class:`.identifier.Identifier`):
 
-1. the exponential (or linear) average of the seven raw spectra,
+1. the exponential [2-9] (or linear) average of the seven raw spectra,
    ``S' += c·conj(U_i)·X_j`` over all bins, with the sums of ``P11``, ``P22``
    for the power floor;
-2. the corrected 2×2 ``H_tot`` solve on the solved slice, its mask and, for
+2. the corrected 2×2 ``H_tot`` solve [2-21 … 2-24] on the solved slice, its mask and, for
    the collinear bins, the dominant-direction (rank-1) solve (:mod:`.mimo`);
-3. the Savitzky–Golay smoothing of ``H_tot`` over the search range (the
+3. the Savitzky–Golay smoothing (§2.4.1) of ``H_tot`` over the search range (the
    interior and edge rows of :class:`.smoothing.FrequencySmoother`) and the
    smoothed-bin validity;
 4. the peak search on the linear weighted magnitude: scipy's local maxima,
    prominence bases by scipy's walk, highest first;
 5. per peak: relocation, the three-point and least-squares refinement,
-   FWHM (exact or [B.1]) and VRM (modal.VrmEstimator; not the rational fit).
+   FWHM (exact or [B.1]) and VRM ([C-12 … C-14], as modal.VrmEstimator).
 
-The arithmetic is the reference's operation for operation, including how
-numpy rounds complex products (fused multiply-adds), ``|z|`` and complex
-division on this kind of CPU, so the averaged spectra and ``H_tot`` are
-bit-identical to the numpy path; sums over the power floor, the smoothing
-windows, the least-squares refinement and the VRM triplets run in another
-order (a few ulps). The tests compare every output with the numpy path to
-1e-12. Compiled with ``cache=True``; :func:`warm_up` (called when the
+The complex products, ``|z|`` and complex division round as numpy's do on
+this kind of CPU (fused multiply-adds, ``l·sqrt(1 + (s/l)²)``, Smith's
+division); sums run in the order written. Compiled with ``cache=True``; :func:`warm_up` (called when the
 Identifier is built) compiles or loads everything with the types a step
 passes, so no batch pays compilation.
 
@@ -509,7 +503,7 @@ FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7
     IP_IB,
     IP_WEIGHTED,
     IP_WANT,
-    IP_DO_POLES,
+    IP_FIRST,
     IP_ON_SMOOTHED,
     IP_RELOCATE,
     IP_FWHM_EXACT,
@@ -601,17 +595,20 @@ def pack_arguments(
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: C128, valid: Bool, mode: U8, hs: C128, vs: Bool) -> None:
-    """The compiled step after the FFTs (module doc, stages 1–5) on the packed arguments of
-    :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``): the snapshot ``X`` (float view,
-    ``(4, 2K)``) averaged with weight ``c`` into ``state``, ``H_tot`` solved on the slice into
-    ``src`` (``valid``, ``mode``), smoothed over the search range into ``hs`` (``vs``), the
-    peaks searched and (``IP_DO_POLES``) their poles estimated on the smoothed
-    (``IP_ON_SMOOTHED``) or the solved spectrum. ``stats`` ← (valid count on the slice, valid
-    smoothed bins, peaks found, power floor).
+    """The identification step after the FFTs (module doc, stages 1–5) on the packed arguments
+    of :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``), from stage ``IP_FIRST``:
 
-    The stages are called from here directly: through two more levels of functions of 32 and
-    48 arguments (not inlined), every array argument was passed as its seven fields and
-    reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
+    1. the snapshot ``X`` (float view, ``(4, 2K)``) averaged with weight ``c`` into ``state``;
+    2. ``H_tot`` solved on the slice into ``src`` (``valid``, ``mode``) with the power floor of
+       ``state``;
+    3. ``src`` (``valid``: solved by the caller from stage 3) smoothed over the search range into
+       ``hs`` (``vs``), the peaks searched and their poles estimated on the smoothed
+       (``IP_ON_SMOOTHED``) or the solved spectrum.
+
+    ``stats`` ← (valid count on the slice, valid smoothed bins, peaks found, power floor (0 from
+    stage 3)). The stages are called from here directly: through two more levels of functions
+    of 32 and 48 arguments (not inlined), every array argument was passed as its seven fields
+    and reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
     one process step on several cores."""
     m = ik[IP_HI] - ik[IP_LO]
     w = ik[IK_W]
@@ -630,12 +627,27 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
     prom = fw[ik[IK_PROM] : ik[IK_PROM] + want]
     stats = fw[ik[IK_STATS] : ik[IK_STATS] + 4]
     mag = fw[ik[IK_MAG] : ik[IK_MAG] + ik[IK_N_MAG]]
-    # 1. the seven spectra into the averages, and the power floor
-    s11, s22 = _accumulate(X, c, state.view(np.float64))
-    mean_power = (s11 + s22) / (2 * ik[IP_BINS])
-    floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
-    # 2. H_tot on the slice
-    n_sl_valid = _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode)
+    first = ik[IP_FIRST]
+    if first <= 2:
+        # 1. the seven spectra into the averages, and the power floor
+        if first == 1:
+            s11, s22 = _accumulate(X, c, state.view(np.float64))
+        else:
+            s11 = 0.0
+            s22 = 0.0
+            for b in range(state.shape[1]):
+                s11 += state[0, b].real
+                s22 += state[4, b].real
+        mean_power = (s11 + s22) / (2 * ik[IP_BINS])
+        floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
+        # 2. H_tot on the slice
+        n_sl_valid = _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode)
+    else:  # solved by the caller
+        floor = 0.0
+        n_sl_valid = 0
+        for i in range(s0, s1):
+            if valid[i]:
+                n_sl_valid += 1
     # 3. smoothing: every bin of the slice valid (the usual case), so is every window, which lies within it
     all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[m - 1] + w <= s1
     n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ik[IP_IA], ik[IP_IB], all_valid)
@@ -648,7 +660,7 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
     stats[1] = n_valid
     stats[2] = nf
     stats[3] = floor
-    if ik[IP_DO_POLES] == 0 or nf == 0:
+    if nf == 0:
         return
     # 5. refinement, FWHM and VRM of the peaks
     o = ik[IK_PINV]
@@ -721,7 +733,7 @@ def warm_up() -> None:
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
-    ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)
+    ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)  # IP_FIRST 1
     for smoothed in (0, 1):
         ip[IP_ON_SMOOTHED] = smoothed
         fk, ik, fw, _ = pack_arguments(
