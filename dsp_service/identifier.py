@@ -250,7 +250,10 @@ class IdentifierConfig(pydantic.BaseModel):
     @pydantic.model_validator(mode="before")
     @classmethod
     def _profile(cls, data: object) -> object:
-        """``method='etfe-welch'`` fills its two settings unless they are given explicitly."""
+        """``method='etfe-welch'`` fills its two settings unless they are given explicitly; the removed
+        ``kernel`` is refused in one line."""
+        if isinstance(data, dict) and "kernel" in data:
+            raise ValueError("'kernel' was removed: the identifier has one step, the compiled one (dsp_service.kernel); drop the setting")
         if isinstance(data, dict) and data.get("method") == "etfe-welch":
             return {"welch_segments": WELCH_PROFILE_SEGMENTS, "damping_method": "fit", **data}
         if isinstance(data, dict) and data.get("method") == "etfe-transient":
