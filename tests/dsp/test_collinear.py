@@ -102,15 +102,18 @@ def test_well_conditioned_bins_are_solved_exactly_as_before() -> None:
     assert np.all(b.valid == (b.mode != MODE_NONE))
 
 
-def test_the_steps_total_response_is_the_textbook_solve_per_bin() -> None:
+@pytest.mark.parametrize("segments", [1, 3])
+def test_the_steps_total_response_is_the_textbook_solve_per_bin(segments: int) -> None:
     """The step's ``H_tot`` (the compiled solve on the bins it searches) against numpy's linear
     algebra bin by bin: ``H = P⁻¹ R`` (``np.linalg.solve``) on the fully solved bins, the
     dominant eigenvector of ``P`` (``np.linalg.eigh``) on the collinear ones, to 1e-9 (the
-    2×2 solve of bins near the determinant threshold, condition number up to 1e3)."""
+    2×2 solve of bins near the determinant threshold, condition number up to 1e3); on the
+    snapshot's spectra (the compiled averaging) and on the segmented ones (Welch within the
+    history, averaged before the compiled solve)."""
     _, u_full, y_full = dataset(8 * N, seed=5)
     checked = {MODE_FULL: 0, MODE_DOMINANT: 0}
     for u, y in (_collinear_data(8 * N, seed=5), (u_full, y_full)):
-        idf = _run(u, y)
+        idf = _run(u, y, welch_segments=segments)
         S, sl = idf._avg.state, idf._sl
         got, mode = idf._solver.source[sl], idf._solver.mode[sl]
         for k, m in zip(range(sl.start, sl.stop), mode):
