@@ -725,13 +725,41 @@ class Identifier:
             n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
         valid_fraction = n_valid / n_range
         in_history = seen if seen < n_hist else n_hist  # hist.samples_in_history
-        p0, vrm_first, source = self._k_pole_consts
         confident = n_eff > 1.0
         base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / n_hist) if confident else 0.0
+        fits = self._fits(nf, vals, n_valid, n_sl_valid) if self._k_fit else None
+        pole_list = self._poles(vals, nf, confident, base, fits)
+        p0 = self._k_pole_consts[0]
+        bare, set_dict = object.__new__, object.__setattr__  # an instance without running the frozen __init__
+        if confident:
+            prom = vals[0]
+            conf = base * prom / (prom + p0)
+            conf = conf if conf > 0.0 else 0.0  # min(1.0, max(0.0, conf)), NaN and -0.0 alike
+            conf = conf if conf < 1.0 else 1.0
+        else:
+            conf = 0.0
+        result = bare(IdentificationResult)
+        set_dict(
+            result,
+            "__dict__",
+            {
+                "poles": tuple(pole_list),
+                "confidence": conf,
+                "valid_fraction": valid_fraction,
+                "samples_in_history": in_history,
+                "effective_averages": n_eff,
+            },
+        )
+        return result
+
+    def _poles(self, vals: list[float], nf: int, confident: bool, base: float, fits: list[tuple[float, float] | None] | None) -> list[PoleEstimate]:
+        """The step's poles from the kernel's prominences and pole rows (``vals``, read with one
+        ``tolist``): the configured damping (VRM or FWHM first, a rational fit's where it gave one)
+        and each pole's confidence, ``base`` times its prominence factor (module doc)."""
+        p0, vrm_first, source = self._k_pole_consts
         pole_list = []
         bare, set_dict = object.__new__, object.__setattr__  # an instance without running the frozen __init__
-        fits = self._fits(nf, vals, n_valid, n_sl_valid) if self._k_fit else None
-        o = want + 4
+        o = self._k_want + 4
         for p, prom in enumerate(vals[:nf]):
             f_peak, m_peak, zf, _ok, fn, zv = vals[o : o + 6]
             o += 6
@@ -774,26 +802,7 @@ class Identifier:
                 },
             )
             pole_list.append(pole)
-        if confident:
-            prom = vals[0]
-            conf = base * prom / (prom + p0)
-            conf = conf if conf > 0.0 else 0.0  # min(1.0, max(0.0, conf)), NaN and -0.0 alike
-            conf = conf if conf < 1.0 else 1.0
-        else:
-            conf = 0.0
-        result = bare(IdentificationResult)
-        set_dict(
-            result,
-            "__dict__",
-            {
-                "poles": tuple(pole_list),
-                "confidence": conf,
-                "valid_fraction": valid_fraction,
-                "samples_in_history": in_history,
-                "effective_averages": n_eff,
-            },
-        )
-        return result
+        return pole_list
 
     def _solve_searched(self) -> None:
         """The searched spectrum on the slice when the compiled step starts at stage 3: the RLS's
