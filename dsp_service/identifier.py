@@ -443,31 +443,8 @@ class Identifier:
         """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""
         from . import kernel
 
-        sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
-        if sm.enabled:
-            h = sm.half
-            rows = []
-            for i in range(lo, hi):
-                if i < h:
-                    rows.append(sm.edge_lo[i])
-                elif i >= k - h:
-                    rows.append(sm.edge_hi[i - (k - h)])
-                else:
-                    rows.append(sm.centre)
-            self._k_coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
-            self._k_starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
-        else:
-            self._k_coef = np.ones((n_range, 1))
-            self._k_starts = np.arange(lo, hi, dtype=np.intp)
-        steps = np.flatnonzero(np.diff(self._k_starts) == 1)  # consecutive rows of a sliding window
-        if steps.size:
-            self._k_ia, self._k_ib = int(steps[0]), int(steps[-1]) + 2
-            ia, ib = self._k_ia, self._k_ib
-            # the kernel's interior passes need a sliding window of one row (the centre row)
-            if not (np.array_equal(self._k_starts[ia:ib], self._k_starts[ia] + np.arange(ib - ia)) and (self._k_coef[ia:ib] == self._k_coef[ia]).all()):
-                self._k_ia = self._k_ib = 0
-        else:
-            self._k_ia = self._k_ib = 0
+        lo, hi, k = self._lo, self._hi, self._est.n_bins
+        self._k_coef, self._k_starts, self._k_ia, self._k_ib = self._smoothing_rows(n_range)
         self._k_ffts_f = self._est.ffts.view(np.float64)  # (re, im) float view for the averaging
         self._k_zeros_f = np.zeros_like(self._k_ffts_f)
         self._k_hs = np.empty(n_range, dtype=np.complex128)
@@ -545,6 +522,34 @@ class Identifier:
         self._k_want, self._k_n_range, self._k_tail = c.max_peaks, n_range, views["tail"]
         self._k_pole_consts = (c.confidence_prominence_db, c.damping_method != "fwhm", c.peak_source)
         self._k_fit = c.damping_method in ("fit", "transient")
+
+    def _smoothing_rows(self, n_range: int) -> tuple[NDArray[np.float64], NDArray[np.intp], int, int]:
+        """``(coef, starts, ia, ib)`` of the compiled smoothing: its rows and window starts over the
+        search range, and its interior ``ia … ib`` (rows of one sliding window, the centre row)."""
+        sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
+        if sm.enabled:
+            h = sm.half
+            rows = []
+            for i in range(lo, hi):
+                if i < h:
+                    rows.append(sm.edge_lo[i])
+                elif i >= k - h:
+                    rows.append(sm.edge_hi[i - (k - h)])
+                else:
+                    rows.append(sm.centre)
+            coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
+            starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
+        else:
+            coef = np.ones((n_range, 1))
+            starts = np.arange(lo, hi, dtype=np.intp)
+        steps = np.flatnonzero(np.diff(starts) == 1)  # consecutive rows of a sliding window
+        if not steps.size:
+            return coef, starts, 0, 0
+        ia, ib = int(steps[0]), int(steps[-1]) + 2
+        # the kernel's interior passes need a sliding window of one row (the centre row)
+        if not (np.array_equal(starts[ia:ib], starts[ia] + np.arange(ib - ia)) and (coef[ia:ib] == coef[ia]).all()):
+            return coef, starts, 0, 0
+        return coef, starts, ia, ib
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the compiled step; the constructor already does."""
