@@ -381,7 +381,8 @@ def _peaks(
     found_prom: F64,
     scratch: F64,
 ) -> int:
-    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many.
+    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``scipy.signal.find_peaks`` with its prominence, on the
+    weighted magnitude); returns how many.
 
     The local maxima are tried highest first (ties: the later first), each against its
     prominence; with at most ``_SELECT_MAX`` maxima (the smoothed spectrum's usual few) by
@@ -765,7 +766,7 @@ def warm_up() -> None:
 
 
 # ---------------------------------------------------------------------------
-# Stage 5: refinement, FWHM and VRM of the peaks (Identifier._poles, modal.py)
+# Stage 5: refinement, FWHM and VRM of the peaks (as modal.py defines them)
 # ---------------------------------------------------------------------------
 _SQRT_HALF = math.sqrt(0.5)
 _ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
@@ -1019,7 +1020,7 @@ def poles(
     mag: F64,
     out: F64,
 ) -> None:
-    """Identifier._poles without the rational fit: ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
+    """The poles of the peaks (the rational fits run after, in the Identifier): ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
     ok, f_n VRM or NaN, ζ_VRM or NaN) of peak ``i``; ``mag`` ← |hd|."""
     size = hd.size
     for i in range(size):
