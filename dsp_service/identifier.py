@@ -51,11 +51,12 @@ the averaged spectra) is prepared in ``_build``. A step is one compiled
 detrend/window pass, the four FFTs (``scipy.fft.rfft``) and one compiled call
 (:func:`.kernel.step_packed`: averaging, the ``H_tot`` solve with its dominant
 branch, smoothing, peak search, refinement, FWHM and VRM), compiled when the
-Identifier is built. Settings the compiled averaging or solve does not cover
-(``welch_segments`` > 1, ``averaging='rls'``, ``solver='uncorrelated'``, a
-``peak_source`` other than ``'tot'``) average and solve with :mod:`.spectra`
-and :mod:`.mimo` first and enter the compiled call at a later stage; the
-rational fits (``damping_method`` 'fit', 'transient') run on its poles.
+Identifier is built. ``welch_segments`` > 1 averages the segmented spectra
+(:mod:`.spectra`) before the compiled solve; ``averaging='rls'``,
+``solver='uncorrelated'`` and a ``peak_source`` other than ``'tot'`` average
+with the compiled averaging alone, solve with :mod:`.mimo` (and the RLS) and
+enter the compiled call at its smoothing; the rational fits
+(``damping_method`` 'fit', 'transient') run on its poles.
 The peak search ranks the linear weighted magnitude ``|H|·w`` (the same
 order, maxima and prominence bases as ``20 log10|H| + w_dB``, without the
 logarithms). The tests hold the step to scipy (``csd``, ``savgol_filter``,
@@ -517,6 +518,10 @@ class Identifier:
         self._k_fft_args = (est._tmp, est.ffts)
         self._k_dtr_args = (est.means, est.window, est._tmp)
         self._k_detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (self.history._buf, 0, *self._k_dtr_args))
+        self._k_state_f = self._avg.state.view(np.float64)
+        # the averaging alone (settings whose solve runs before the compiled search): resolved on a
+        # zero snapshot of weight 0, which leaves the state as it is
+        self._k_accumulate = kernel.compiled_entry(kernel._accumulate, (self._k_zeros_f, 0.0, self._k_state_f))
         # what _step_etfe reads of the configuration (fixed until the next _build; set_alpha changes none of it)
         self._k_early = not c.wait_for_full_history
         self._k_want, self._k_n_range, self._k_tail = c.max_peaks, n_range, views["tail"]
@@ -689,18 +694,25 @@ class Identifier:
         seen, n_hist = hist._seen, hist._n  # hist.samples_seen, hist.n (the properties, without their calls)
         first = self._first_stage
         if seen > 0 and (seen >= n_hist or self._k_early):
-            if first == 1:
+            if self._seg_avgs == 1.0:  # one window per snapshot: the compiled detrend and averaging
                 weight = avg.take(self._pending)  # next_weight and the bookkeeping: the kernel adds the snapshot
                 self._pending = 0
-                # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
+                # detrend='constant', then window (scipy.signal.csd's order)
                 self._k_detrend_ring(hist._buf, hist._head, *self._k_dtr_args)
                 rfft_rows(*self._k_fft_args)
-                self._k_call(self._k_ffts_f, weight, *self._k_args)
-            else:
+                if first == 1:
+                    self._k_call(self._k_ffts_f, weight, *self._k_args)
+                else:
+                    self._k_accumulate(self._k_ffts_f, weight, self._k_state_f)
+                    if self._rls is not None:
+                        self._rls.update(self._est.ffts)
+                    self._solve_searched()
+                    self._k_call(self._k_zeros_f, 0.0, *self._k_args)
+            else:  # Welch segments within the history
+                est = self._est
+                assert isinstance(est, SegmentedSpectralEstimator)
                 weight = avg.next_weight()
-                avg.add(self._est.snapshot(hist.view(), weight), self._pending)
-                if self._rls is not None:
-                    self._rls.update(self._est.ffts)
+                avg.add(est.snapshot(hist.view(), weight), self._pending)
                 self._pending = 0
                 self._solve_searched()
                 self._k_call(self._k_zeros_f, 0.0, *self._k_args)

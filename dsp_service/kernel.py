@@ -106,24 +106,11 @@ def row_mean(src: F64) -> float:
     return (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))) / n
 
 
-@njit(cache=True, error_model="numpy")
-def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
-    """``means[r]`` = :func:`row_mean` of row ``r``; ``out = (x − means[:, None]) · window``
-    (spectra.SpectralEstimator.snapshot's passes in one)."""
-    rows, n = x.shape
-    for r in range(rows):
-        src = x[r]
-        m = row_mean(src)
-        means[r] = m
-        dst = out[r]
-        for i in range(n):
-            dst[i] = (src[i] - m) * window[i]
-
-
 @njit(cache=True, error_model="numpy", nogil=True)
 def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) -> None:
-    """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
-    C-contiguous ring buffer itself (``means`` is written). Each row goes through 1-D views: on
+    """``means[r]`` = :func:`row_mean` of row ``r`` of the history's window ``buf[:, head : head + N]``
+    and ``out = (x − means[:, None]) · window`` (detrend='constant', then the window, as
+    scipy.signal.csd does), read from the C-contiguous ring buffer itself. Each row goes through 1-D views: on
     the 2-D indices the compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192);
     the same elementwise roundings either way."""
     rows, n = out.shape
@@ -721,16 +708,15 @@ def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) :func:`detrend_window_ring` and :func:`step_packed`
-    (and what they call) with the types the identifier passes."""
+    """Compile (or load from numba's cache) :func:`detrend_window_ring`, :func:`_accumulate` and
+    :func:`step_packed` (and what they call) with the types the identifier passes."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
-    hist = ring[:, 3 : 3 + 2 * k - 2]  # a slice of the history's ring buffer, as the identifier passes it
-    detrend_window(hist, np.empty(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     detrend_window_ring(ring, 3, np.zeros(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
+    _accumulate(X.view(np.float64), 1.0, state.view(np.float64))  # alone: the settings whose solve runs before the search
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])

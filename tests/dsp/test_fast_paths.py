@@ -15,7 +15,7 @@ from dsp_service.identifier import Identifier, IdentifierConfig
 from dsp_service.mimo import solve_mimo
 from dsp_service.modal import VrmEstimator, vrm_lambda, vrm_modal_scalar
 from dsp_service.smoothing import FrequencySmoother
-from dsp_service.spectra import SpectralEstimator, rfft_rows
+from dsp_service.spectra import rfft_rows
 
 from .synth import dataset
 
@@ -34,20 +34,6 @@ def test_rfft_rows_is_numpys_rfft() -> None:
     np.testing.assert_array_equal(rfft_rows(x[1]), np.fft.rfft(x[1]))
 
 
-def test_snapshot_products_are_the_seven_cross_spectra() -> None:
-    rng = np.random.default_rng(1)
-    x = rng.standard_normal((4, 256)) + rng.standard_normal((4, 1))
-    est = SpectralEstimator(256, FS)
-    S = est.snapshot(x, 2.5)
-    xd = (x - x.mean(axis=1, keepdims=True)) * est.window
-    X = np.fft.rfft(xd, axis=-1)
-    pairs = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]  # SPECTRA_NAMES order
-    for row, (i, j) in enumerate(pairs):
-        np.testing.assert_allclose(S[row], np.conj(X[i]) * 2.5 * X[j], rtol=1e-12, atol=1e-12 * np.abs(S[row]).max())
-    assert S.shape == (7, 129) and S.flags.c_contiguous
-
-
-# ------------------------------------------------------------------- solver
 # ---------------------------------------------------------------- smoothing
 @pytest.mark.parametrize("lo,hi", [(0, 300), (6, 290), (20, 40), (295, 300), (0, 3)])
 @pytest.mark.parametrize("complex_", [True, False])
