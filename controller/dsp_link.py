@@ -14,6 +14,16 @@ Batching and back-pressure
     says how many (``dropped_before``), so the DSP restarts its history
     rather than splice across the gap.
 
+Bookkeeping
+    The link also keeps what the service needs to match answers to
+    batches: per batch in flight the wall time and the Unix time it went
+    out (the batch path's stamps), when its interrupt arrived, the
+    interrupts held until their due tick, the last batch's payload (resent
+    while its interrupt is awaited in lockstep), and per batch answered or
+    lost whether it missed its deadline (the longest run of misses). Each
+    per-batch table keeps at most ``KEEP_BATCHES`` entries, so answers that
+    never come cannot accumulate.
+
 Timing
     Each batch's interrupt is due ``deadline_s`` after the batch was sent
     (default: the batch period, the thesis's deadline). In lockstep the
@@ -24,6 +34,7 @@ Timing
 from __future__ import annotations
 
 import math
+from array import array
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -35,6 +46,14 @@ from service_kit.counters import Counters
 
 LOST_AFTER_DEADLINES = 10
 """An interrupt this many deadlines late is taken as lost."""
+KEEP_BATCHES = 64
+"""Per-batch tables (sent stamps, arrivals, dropped arrivals) keep at most this many batches."""
+
+
+def _bound(table: dict[int, object]) -> None:
+    """Drop the oldest entries past ``KEEP_BATCHES`` (batches never answered must not accumulate)."""
+    while len(table) > KEEP_BATCHES:
+        del table[next(iter(table))]
 
 
 @dataclass
@@ -86,6 +105,25 @@ class DspLink:
     _dropped_since_last: int = 0
     _last_tick: int | None = None
     missed_current: bool = False
+    held: list[Interrupt] = field(default_factory=list)
+    """Interrupts taken in and not applied yet (lockstep: until their due tick)."""
+    irq_arrival: dict[int, float] = field(default_factory=dict)
+    """Per batch: when its interrupt arrived (the scheduler's clock)."""
+    sent_wall: dict[int, float] = field(default_factory=dict)
+    """Per batch in flight: when it went out (the scheduler's clock)."""
+    sent_unix: dict[int, tuple[float, int]] = field(default_factory=dict)
+    """Per batch in flight: Unix time sent (the batch path's first stamp) and its sample count."""
+    dropped_arrived: set[int] = field(default_factory=set)
+    """Batches whose interrupt came and a link fault dropped (lockstep waits for it)."""
+    last_payload: bytes | None = None
+    """The encoded batch last sent (resent while its interrupt is awaited); None: not to be resent."""
+    acked: bool = False
+    """The DSP flagged its block full since the last batch went out (it has the batch)."""
+    batch_missed: array[int] = field(default_factory=lambda: array("b"))
+    """Per batch answered or lost, in order: 1 if it missed its deadline (late or lost), else 0."""
+    miss_run_max: int = 0
+    """The longest run of consecutive batches that missed their deadline."""
+    _miss_run: int = 0
 
     @property
     def sample_period_s(self) -> float:
@@ -257,3 +295,29 @@ class DspLink:
         self.missed_current = True
         self.counters.deadline_misses += 1
         return True
+
+    def note_batch(self, missed: bool) -> None:
+        """A batch was answered (``missed``: past its deadline) or lost (missed)."""
+        self.batch_missed.append(1 if missed else 0)
+        self._miss_run = self._miss_run + 1 if missed else 0
+        self.miss_run_max = max(self.miss_run_max, self._miss_run)
+
+    def note_sent(self, seq: int, wall: float, unix: float, n_samples: int, payload: bytes) -> None:
+        """Batch ``seq`` goes out now: its stamps and payload kept until its interrupt comes."""
+        self.sent_wall[seq] = wall
+        self.sent_unix[seq] = (unix, n_samples)
+        _bound(self.sent_wall)  # type: ignore[arg-type]
+        _bound(self.sent_unix)  # type: ignore[arg-type]
+        self.last_payload = payload
+        self.acked = False
+
+    def note_arrival(self, seq: int, arrival: float) -> None:
+        """The interrupt of batch ``seq`` arrived at ``arrival``."""
+        self.irq_arrival[seq] = arrival
+        _bound(self.irq_arrival)  # type: ignore[arg-type]
+
+    def note_dropped_arrival(self, seq: int) -> None:
+        """The interrupt of batch ``seq`` came and a link fault dropped it."""
+        self.dropped_arrived.add(seq)
+        if len(self.dropped_arrived) > KEEP_BATCHES:  # one that came after its wait timed out
+            self.dropped_arrived.discard(min(self.dropped_arrived))

@@ -1,33 +1,30 @@
 """One control tick of :class:`controller.loop.ControlLaw` as a single compiled call.
 
-Engineering values [A.7, A.8], set-point, OATF (§3.3, [3-34]), PI (§4) and
-the 12-bit D/A, on preallocated state arrays: the state the Python forms
-keep (the OATF's delay line and head, the PI's integrator and last terms)
-is the state this kernel reads and writes, so either form may run any tick.
+Engineering values [A.7, A.8], set-point, OATF (§3.3, [3-34]), PI (§4,
+:func:`controller.pi.pi_joint`) and the 12-bit D/A, on preallocated state
+arrays: the OATF's delay line and head and the PI's integrator and last
+terms are the arrays :class:`~controller.oatf.OatfFilter` and
+:class:`~controller.pi.PIController` hold, read and written in place.
 
-Bit for bit the Python per-tick form (``ControlLaw._compute``), by
-construction where a compiler could change the arithmetic:
+The arithmetic is fixed so that a run's record has the same bits on every
+host:
 
-* the joint angle of a word (``_angle``: libm's ``pow`` and numpy's
-  ``arccos``, which may differ from ``x * x`` and ``math.acos``) is not
-  recomputed: it is looked up in a table filled, one word at a time the
-  first time the word is seen, by :func:`controller.engineering.measure_values`
-  itself (65536 words per channel at most);
-* the OATF's weighted sum is the one :meth:`controller.oatf.OatfFilter.step_values`
-  defines: products added left to right, each rounded (:func:`oatf_dot`).
-  No BLAS kernel takes part, so the bits do not depend on the host's
-  library; :func:`sum_matches` still checks the compiled sum against the
-  Python one when the kernels are warmed up (a compiler that fused a
-  multiply-add would fail it), and the law keeps the Python form where it
-  does not hold;
-* everything else is the same IEEE operations in the same order (numba
-  without fastmath: no reassociation, no contraction into FMA); Python's
-  ``min``/``max`` are spelled out as the comparisons they make (the first
-  argument wins a tie, so signed zeros come out as in Python) and
-  ``round`` as ``np.rint`` (both round half to even; the codes are small).
+* the joint angle of a word (libm's ``pow`` and numpy's ``arccos``) is not
+  recomputed in the kernel: it is looked up in a table filled, one word at
+  a time the first time the word is seen, by
+  :func:`controller.engineering.measure_values` (65536 words per channel
+  at most);
+* the OATF's weighted sum [3-34] is ``w0 x0 + w1 x1 + ...`` added left to
+  right, each product and sum rounded (:func:`oatf_dot`), as
+  :meth:`controller.oatf.OatfFilter.step` and ``process`` add it; no BLAS
+  kernel takes part;
+* numba runs without fastmath (no reassociation, no contraction into FMA);
+  ``min``/``max`` are the comparisons Python's make (the first argument
+  wins a tie) and rounding is ``np.rint`` (half to even).
 
-:func:`warm_up` compiles (or loads from numba's on-disk cache) the kernel
-and runs the sum check.
+The tests check the kernel against references built from scipy
+(``tests/controller/test_law_reference.py``). :func:`warm_up` compiles (or
+loads from numba's on-disk cache) the kernel.
 """
 
 from __future__ import annotations
@@ -36,13 +33,13 @@ import math
 from typing import Any
 
 import numpy as np
-from numba import njit
 
 from controller.engineering import _CHANNELS, measure_values
+from controller.pi import _pmax, _pmin, cached_njit, pi_joint
 from protocol.can_map import DAC12, WORD16_VOLTS_PER_LSB
 from protocol.geometry import DELTA_RAD
 
-__all__ = ["ANGLE_TABLE", "fill_angles", "law_consts", "law_tick", "oatf_dot", "sum_matches", "warm_up"]
+__all__ = ["ANGLE_TABLE", "fill_angles", "law_consts", "law_tick", "oatf_dot", "warm_up"]
 
 ANGLE_TABLE: np.ndarray = np.full((2, 65536), np.nan)
 """theta1, theta2 (rad) per INT16 word of channels 1 and 2 (index ``word + 32768``); NaN: not computed yet."""
@@ -51,7 +48,7 @@ ANGLE_TABLE: np.ndarray = np.full((2, 65536), np.nan)
 MISSING_ANGLE = -1
 """A word's angle is not in :data:`ANGLE_TABLE` yet: nothing was changed; fill it and call again."""
 NON_FINITE = -2
-"""An angle error is not finite: the OATF stepped (as in Python), the PI did not; the caller raises."""
+"""An angle error is not finite: the OATF stepped, the PI did not; the caller raises."""
 
 _PI_CONSTS = 6
 """consts[0:6]: decay, scale, limit, threshold, floor, anti_windup (0/1); then kp, ki per joint."""
@@ -76,39 +73,19 @@ N_INTS = 7
 """The length of ``ints``."""
 
 
-def _jit(fn: Any) -> Any:
-    """``@njit(cache=True)``; compiled in memory only where numba finds no writable cache location."""
-    try:
-        return njit(cache=True)(fn)
-    except RuntimeError:
-        return njit(fn)
-
-
-@_jit
-def _pmin(a: float, b: float) -> float:
-    """Python's ``min(a, b)``: ``a`` unless ``b < a``."""
-    return b if b < a else a
-
-
-@_jit
-def _pmax(a: float, b: float) -> float:
-    """Python's ``max(a, b)``: ``a`` unless ``b > a``."""
-    return b if b > a else a
-
-
-@_jit
+@cached_njit
 def oatf_dot(weights: np.ndarray, buf: np.ndarray, rows: np.ndarray, j: int) -> float:
     """Channel ``j`` of the OATF's weighted taps [3-34], ``w0 x0 + w1 x1 + ...`` left to
-    right (:meth:`controller.oatf.OatfFilter.step_values`' order and roundings)."""
+    right, each product and sum rounded."""
     t = weights[0] * buf[rows[0], j]
     for i in range(1, weights.shape[0]):
         t = t + weights[i] * buf[rows[i], j]
     return t
 
 
-@_jit
+@cached_njit
 def _oatf_step(buf: np.ndarray, tap_rows: np.ndarray, weights: np.ndarray, ints: np.ndarray, x0: float, x1: float) -> tuple[float, float]:
-    """:meth:`OatfFilter.step_values` of two channels: push, then the weighted taps (the head in ``ints[HEAD]``)."""
+    """:meth:`OatfFilter.step` of two channels: push, then the weighted taps (the head in ``ints[HEAD]``)."""
     head = (ints[HEAD] + 1) % buf.shape[0]
     ints[HEAD] = head
     buf[head, 0] = x0
@@ -117,7 +94,47 @@ def _oatf_step(buf: np.ndarray, tap_rows: np.ndarray, weights: np.ndarray, ints:
     return oatf_dot(weights, buf, rows, 0), oatf_dot(weights, buf, rows, 1)
 
 
-@_jit
+@cached_njit
+def _measure(w0: int, w1: int, w2: int, w3: int, t1: float, t2: float, consts: np.ndarray, row: np.ndarray) -> None:
+    """The engineering values [A.7, A.8] of the four words into ``row[7:21]``:
+    the joint angles ``t1, t2`` (from :data:`ANGLE_TABLE`), the inputs in
+    inches and the words' volts, as :func:`measure_values` computes them."""
+    c = _ENG
+    lsb = consts[c]
+    v0, v1, v2, v3 = w0 * lsb, w1 * lsb, w2 * lsb, w3 * lsb
+    row[7] = t1
+    row[8] = t2
+    row[9] = v0 / consts[c + 1] + consts[c + 2]
+    row[10] = v1 / consts[c + 3] + consts[c + 4]
+    row[11] = v2 / consts[c + 5] + consts[c + 6]
+    row[12] = v3 / consts[c + 7] + consts[c + 8]
+    row[13] = w0
+    row[14] = w1
+    row[15] = w2
+    row[16] = w3
+    row[17] = v0
+    row[18] = v1
+    row[19] = v2
+    row[20] = v3
+
+
+@cached_njit
+def _dac(x: float, consts: np.ndarray, codes: np.ndarray, j: int) -> None:
+    """The 12-bit D/A of channel ``j`` (:data:`protocol.can_map.DAC12`): the
+    code (``np.rint``, half to even as Python's ``round``) and whether it
+    saturated, into ``codes[j]`` and ``codes[2 + j]``; NaN gives 0, saturated."""
+    c = _DAC
+    dlsb, bound, cmin, cmax = consts[c + 1], consts[c + 2], consts[c + 4], consts[c + 5]
+    if x != x:
+        codes[j] = 0
+        codes[2 + j] = 1
+        return
+    code = np.rint(_pmin(bound, _pmax(-bound, x)) / dlsb)
+    codes[2 + j] = 1 if (code < cmin or code > cmax) else 0
+    codes[j] = int(_pmin(cmax, _pmax(cmin, code)))
+
+
+@cached_njit
 def law_tick(
     tick: int,
     w0: int,
@@ -131,44 +148,34 @@ def law_tick(
     orows: np.ndarray,
     oweights: np.ndarray,
 ) -> int:
-    """One tick of ``ControlLaw._compute``. ``data`` (float64, see
-    :func:`law_data`): the constants (:func:`law_consts`), the PI's state
-    (integrator per joint, then per joint the last terms: error, P, I,
-    output, saturated, integrating, limited), the row (the values of
-    :data:`controller.loop.ROW_NAMES`, the words as floats), the lap's
-    set-points, then the dither table (``ints[DITHER]`` ticks of two valve
-    values, :mod:`controller.excitation`). ``ints`` (int64, :data:`N_INTS`): the
-    D/A codes and their saturation flags ``(c0, c1, s0, s1)``, the OATF mode
-    (0 none, 1 outer, 2 inner), the head of its delay line ``obuf`` (moved in
-    place), the dither's length. Few arguments: each
-    array costs the dispatcher ~0.1 µs. Returns 0, or a negative status
-    (``MISSING_ANGLE``; ``NON_FINITE``: ``row[0:2]`` then holds the errors)."""
+    """One control tick. ``data`` (float64): the constants (:func:`law_consts`),
+    the PI's state (:attr:`controller.pi.PIController.state`), the row (the
+    values of :data:`controller.loop.ROW_NAMES`, the words as floats), the
+    lap's set-points, then the dither table (``ints[DITHER]`` ticks of two
+    valve values, :mod:`controller.excitation`). ``ints`` (int64,
+    :data:`N_INTS`): the D/A codes and their saturation flags
+    ``(c0, c1, s0, s1)``, the OATF mode (0 none, 1 outer, 2 inner), the head
+    of its delay line ``obuf`` (moved in place), the dither's length. Few
+    arguments: each array costs the dispatcher ~0.1 µs. Returns 0, or a
+    negative status (``MISSING_ANGLE``; ``NON_FINITE``: ``row[0:2]`` then
+    holds the errors)."""
     consts = data[:PI_STATE]
     pi_state = data[PI_STATE:ROW]
     row = data[ROW:SETPOINTS]
-    codes = ints
     mode = ints[MODE]
     t1 = angles[0, w0 + 32768]
     t2 = angles[1, w1 + 32768]
     if t1 != t1 or t2 != t2:
         return MISSING_ANGLE
-    c = _ENG
-    lsb = consts[c]
-    v0, v1, v2, v3 = w0 * lsb, w1 * lsb, w2 * lsb, w3 * lsb
-    e0 = v0 / consts[c + 1] + consts[c + 2]
-    e1 = v1 / consts[c + 3] + consts[c + 4]
-    d0 = v2 / consts[c + 5] + consts[c + 6]
-    d1 = v3 / consts[c + 7] + consts[c + 8]
-    delta = consts[c + 9]
-    phi1 = t1 - delta
-    phi2 = t2 + delta
+    phi1 = t1 - consts[_ENG + 9]
+    phi2 = t2 + consts[_ENG + 9]
     n_dither = ints[DITHER]
     lap = (data.shape[0] - SETPOINTS - 2 * n_dither) // 2
     k = SETPOINTS + 2 * (tick % lap)
     ref1 = data[k]
     ref2 = data[k + 1]
     sh1, sh2 = ref1, ref2
-    if mode == 1:
+    if mode == 1:  # outer OATF, on the set-points [3-34]
         sh1, sh2 = _oatf_step(obuf, orows, oweights, ints, ref1, ref2)
     err0 = sh1 - phi1
     err1 = sh2 - phi2
@@ -176,48 +183,10 @@ def law_tick(
         row[0] = err0
         row[1] = err1
         return NON_FINITE
-    decay, scale, limit, threshold, floor = consts[0], consts[1], consts[2], consts[3], consts[4]
-    anti_windup = consts[5] != 0.0
-    u0 = 0.0
-    u1 = 0.0
-    for j in range(2):
-        e = err0 if j == 0 else err1
-        kpj = consts[_PI_CONSTS + j]
-        kij = consts[_PI_CONSTS + 2 + j]
-        decayed = decay * pi_state[j]
-        p = kpj * e
-        admit = abs(e) <= threshold
-        value = decayed + scale * e if admit else decayed
-        limited = False
-        if anti_windup:
-            if kij > 0.0:
-                hi = (limit - p) / kij
-                lo = (-limit - p) / kij
-            else:
-                hi = math.inf
-                lo = -math.inf
-            cut = _pmax(decayed, _pmin(value, hi)) if value > decayed else _pmin(decayed, _pmax(value, lo))
-            limited = cut != value
-            value = cut
-        i_term = kij * value
-        unclipped = p + i_term
-        out = _pmin(_pmax(unclipped, -limit), limit)
-        pi_state[j] = value
-        b = 2 + 7 * j
-        pi_state[b] = e
-        pi_state[b + 1] = p
-        pi_state[b + 2] = i_term
-        pi_state[b + 3] = out
-        pi_state[b + 4] = 1.0 if abs(unclipped) >= floor else 0.0
-        pi_state[b + 5] = 1.0 if admit and not limited else 0.0
-        pi_state[b + 6] = 1.0 if limited else 0.0
-        if j == 0:
-            u0 = out
-        else:
-            u1 = out
-    c = _DAC
-    ts, dlsb, bound, fs, cmin, cmax = consts[c], consts[c + 1], consts[c + 2], consts[c + 3], consts[c + 4], consts[c + 5]
-    if mode == 2:
+    u0 = pi_joint(consts, pi_state, 2, 0, err0)
+    u1 = pi_joint(consts, pi_state, 2, 1, err1)
+    if mode == 2:  # inner OATF, on the commands, then the D/A's full scale
+        fs = consts[_DAC + 3]
         f0, f1 = _oatf_step(obuf, orows, oweights, ints, u0, u1)
         u0 = _pmin(_pmax(f0, -fs), fs)
         u1 = _pmin(_pmax(f1, -fs), fs)
@@ -226,40 +195,18 @@ def law_tick(
         kd = SETPOINTS + 2 * lap + 2 * (tick % n_dither)
         x0 = u0 + data[kd]
         x1 = u1 + data[kd + 1]
-    for j in range(2):
-        x = x0 if j == 0 else x1
-        if x != x:
-            code = 0.0
-            sat = 1
-        else:
-            code = np.rint(_pmin(bound, _pmax(-bound, x)) / dlsb)
-            sat = 1 if (code < cmin or code > cmax) else 0
-            code = _pmin(cmax, _pmax(cmin, code))
-        codes[j] = int(code)
-        codes[2 + j] = sat
-    row[0] = tick * ts
+    _dac(x0, consts, ints, 0)
+    _dac(x1, consts, ints, 1)
+    _measure(w0, w1, w2, w3, t1, t2, consts, row)
+    row[0] = tick * consts[_DAC]
     row[1] = ref1
     row[2] = ref2
     row[3] = sh1
     row[4] = sh2
     row[5] = phi1
     row[6] = phi2
-    row[7] = t1
-    row[8] = t2
-    row[9] = e0
-    row[10] = e1
-    row[11] = d0
-    row[12] = d1
-    row[13] = w0
-    row[14] = w1
-    row[15] = w2
-    row[16] = w3
-    row[17] = v0
-    row[18] = v1
-    row[19] = v2
-    row[20] = v3
-    row[21] = codes[0] * dlsb
-    row[22] = codes[1] * dlsb
+    row[21] = ints[0] * consts[_DAC + 1]
+    row[22] = ints[1] * consts[_DAC + 1]
     row[23] = u0
     row[24] = u1
     return 0
@@ -279,14 +226,7 @@ def law_consts(pi: Any, sample_period_s: float) -> np.ndarray:
     Passed, not read as globals: numba's cache would keep stale values."""
     return np.array(
         [
-            pi._decay,
-            pi._scale,
-            pi._limit,
-            pi._threshold,
-            pi._floor,
-            1.0 if pi._anti_windup else 0.0,
-            *pi._kp_list,
-            *pi._ki_list,
+            *pi.consts.tolist(),
             sample_period_s,
             DAC12.lsb_v,
             2.0 * DAC12.full_scale_v,
@@ -299,35 +239,6 @@ def law_consts(pi: Any, sample_period_s: float) -> np.ndarray:
         ],
         dtype=np.float64,
     )
-
-
-_checked: bool | None = None
-
-
-def sum_matches(samples: int = 64, max_taps: int = 12) -> bool:
-    """Whether :func:`oatf_dot` gives the bits of the Python sum
-    (:meth:`controller.oatf.OatfFilter.step_values`) on this host: random
-    weights and delay lines, 1 to ``max_taps`` taps; computed once."""
-    global _checked
-    if _checked is None:
-        rng = np.random.default_rng(20240521)
-        ok = True
-        for k in range(1, max_taps + 1):
-            for _ in range(samples):
-                w = rng.normal(size=k)
-                buf = rng.normal(size=(k + 3, 2))
-                rows = rng.permutation(k + 3)[:k].astype(np.int64)
-                taps = buf.take(rows, 0).tolist()
-                ref = [w[0] * v for v in taps[0]]
-                for i in range(1, k):
-                    ref = [o + w[i] * v for o, v in zip(ref, taps[i], strict=True)]
-                if [oatf_dot(w, buf, rows, 0), oatf_dot(w, buf, rows, 1)] != ref:
-                    ok = False
-                    break
-            if not ok:
-                break
-        _checked = ok
-    return _checked
 
 
 def fill_12_bit_angles() -> None:
@@ -344,16 +255,11 @@ def fill_12_bit_angles() -> None:
 _filled_12_bit = False
 
 
-def warm_up() -> bool:
-    """Compile (or load from the cache) :func:`law_tick`, check the
-    sum (:func:`sum_matches`) and fill the 12-bit words' angles; False:
-    the law keeps its Python form."""
-    try:
-        fill_12_bit_angles()
-        data = np.ones(SETPOINTS + 2)
-        ints = np.zeros(N_INTS, dtype=np.int64)
-        ints[MODE] = 1
-        law_tick(0, 0, 0, 0, 0, ANGLE_TABLE, data, ints, np.zeros((4, 2)), np.zeros((4, 1), dtype=np.int64), np.ones(1))
-        return sum_matches()
-    except Exception:  # noqa: BLE001 - numba's errors are many; the Python form gives the same floats
-        return False
+def warm_up() -> None:
+    """Compile (or load from numba's on-disk cache) :func:`law_tick` and
+    fill the 12-bit words' angles."""
+    fill_12_bit_angles()
+    data = np.ones(SETPOINTS + 2)
+    ints = np.zeros(N_INTS, dtype=np.int64)
+    ints[MODE] = 1
+    law_tick(0, 0, 0, 0, 0, ANGLE_TABLE, data, ints, np.zeros((4, 2)), np.zeros((4, 1), dtype=np.int64), np.ones(1))

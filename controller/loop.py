@@ -18,12 +18,10 @@ import numpy as np
 import numpy.typing as npt
 
 from controller import fast_tick
-from controller.engineering import Measurement, measure_values, measurement_of
 from controller.excitation import DitherConfig, dither_table
 from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
 from controller.trajectory import SampledTrajectory
-from protocol.can_map import DAC12, DAC12_VALUES
 from protocol.messages import Interrupt
 
 FloatArray = npt.NDArray[np.float64]
@@ -80,19 +78,6 @@ class LawConfig:
     """Persistent excitation added to the valve commands before the D/A (:mod:`controller.excitation`; off by default)."""
 
 
-@dataclass(frozen=True)
-class TickOutput:
-    """What one tick commands and what it records."""
-
-    volts: FloatArray
-    """Valve voltages after D/A quantization (what the plant receives)."""
-    clipped: npt.NDArray[np.bool_]
-    measurement: Measurement
-    setpoint_rad: FloatArray
-    shaped_setpoint_rad: FloatArray
-    pi_output_v: FloatArray
-
-
 class ControlLaw:
     """Trajectory, OATF and PI for the two joints."""
 
@@ -101,10 +86,8 @@ class ControlLaw:
         self.trajectory = trajectory
         self.setpoints = self.trajectory.joints.phi
         self.lap_ticks = len(self.setpoints)
-        self._setpoint_rows: list[list[float]] = self.setpoints.tolist()
         self._ts = config.sample_period_s
         self._outer = config.oatf_location == "outer"
-        self._dac_lsb = DAC12.lsb_v
         self.pi = PIController(PIConfig(sample_period_s=config.sample_period_s))
         self.degraded = False
         self.oatf: OatfFilter | None = None
@@ -115,31 +98,25 @@ class ControlLaw:
             initial = self.setpoints[0] if config.oatf_location == "outer" else 0.0
             self.oatf = OatfFilter([config.oatf_frequency_hz], n_channels=2, config=config.oatf, initial=initial)
             self.supervisor = OatfSupervisor(self.oatf)
-        self.compiled = self.pi.n_joints == 2 and fast_tick.warm_up()
-        """The tick runs as one compiled call (controller/fast_tick.py); False: the Python form."""
-        # The compiled tick's state in two arrays (fast_tick.law_tick): the PI's
-        # state, the OATF's head and the row are views into them, so the
-        # Python forms and the compiled one read and write the same numbers.
+        fast_tick.warm_up()
+        # The tick's state in two arrays (fast_tick.law_tick): the PI's state,
+        # the OATF's head and the row are views into them.
         f = fast_tick
         dither = dither_table(config.dither, self._ts) if config.dither.enabled else np.zeros((0, 2))
-        self._dither_rows: list[list[float]] = dither.tolist()
-        """Per tick ``tick % len``: the valve commands' dither (V); empty: none (:mod:`controller.excitation`)."""
         data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks + dither.size)
         data[: f.PI_STATE] = f.law_consts(self.pi, self._ts)
-        if self.pi.state.shape == (f.ROW - f.PI_STATE,):
-            data[f.PI_STATE : f.ROW] = self.pi.state
-            self.pi.state = data[f.PI_STATE : f.ROW]
+        data[f.PI_STATE : f.ROW] = self.pi.state
+        self.pi.state = data[f.PI_STATE : f.ROW]
         data[f.SETPOINTS : f.SETPOINTS + 2 * self.lap_ticks] = np.asarray(self.setpoints, dtype=np.float64).ravel()
         data[f.SETPOINTS + 2 * self.lap_ticks :] = dither.ravel()
         self._data = data
-        self._sp = data[f.SETPOINTS : f.SETPOINTS + 2 * self.lap_ticks].reshape(self.lap_ticks, 2)
         self.row = data[f.ROW : f.SETPOINTS]
-        """The compiled tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
+        """The tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
         self.ints = np.zeros(f.N_INTS, dtype=np.int64)
         self.codes = self.ints[:4]
-        """The compiled tick's D/A codes and saturation flags ``(c0, c1, s0, s1)``."""
+        """The tick's D/A codes and saturation flags ``(c0, c1, s0, s1)``."""
         self.ints[f.MODE] = 0 if self.oatf is None else (1 if self._outer else 2)
-        self.ints[f.DITHER] = len(self._dither_rows)
+        self.ints[f.DITHER] = len(dither)
         if self.oatf is not None:
             self.ints[f.HEAD] = self.oatf.head_state[0]
             self.oatf.head_state = self.ints[f.HEAD : f.HEAD + 1]
@@ -156,35 +133,11 @@ class ControlLaw:
         """phi set-points at ``tick``; the closed loop repeats lap after lap."""
         return np.asarray(self.setpoints[tick % self.lap_ticks], dtype=np.float64)
 
-    def _compute(self, tick: int, w: list[int]) -> tuple[list[Any], bool, bool]:
-        """One tick on plain floats: the row of :meth:`step_row` and whether
-        each D/A channel saturated. Engineering values [A.7, A.8], set-point,
-        OATF (§3.3, [3-34]), PI (§4), 12-bit D/A: the same IEEE operations in
-        the same order as the numpy forms (bit for bit their values)."""
-        v0, v1, v2, v3, e0, e1, d0, d1, th1, th2, phi1, phi2 = measure_values(w)
-        ref1, ref2 = self._setpoint_rows[tick % self.lap_ticks]
-        oatf = self.oatf
-        sh1, sh2 = ref1, ref2
-        if oatf is not None and self._outer:
-            sh1, sh2 = oatf.step_values([ref1, ref2])
-        u = self.pi.step_values([sh1 - phi1, sh2 - phi2])
-        if oatf is not None and not self._outer:
-            fs = DAC12.full_scale_v
-            u = [min(max(x, -fs), fs) for x in oatf.step_values(u)]
-        dither = self._dither_rows
-        if dither:  # persistent excitation, after the PI and an inner OATF: what the D/A sends (and the DSP sees)
-            x0, x1 = dither[tick % len(dither)]
-            (c0, c1), (s0, s1) = DAC12_VALUES([u[0] + x0, u[1] + x1])
-        else:
-            (c0, c1), (s0, s1) = DAC12_VALUES(u)
-        lsb = self._dac_lsb
-        row = [tick * self._ts, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, *w, v0, v1, v2, v3, c0 * lsb, c1 * lsb, u[0], u[1]]
-        return row, s0, s1
-
     def tick_compiled(self, tick: int, w0: int, w1: int, w2: int, w3: int) -> None:
-        """One tick as :meth:`_compute` makes it, in one compiled call
-        (:func:`controller.fast_tick.law_tick`): :attr:`row` and :attr:`codes`
-        hold the result. Only when :attr:`compiled`."""
+        """One tick from the four TPDO1 words, in one compiled call
+        (:func:`controller.fast_tick.law_tick`): engineering values [A.7, A.8],
+        set-point, OATF (§3.3, [3-34]), PI (§4), 12-bit D/A. :attr:`row` and
+        :attr:`codes` hold the result."""
         oatf = self.oatf
         if oatf is not None:
             buf, rows, weights = oatf._buf, oatf._tap_rows, oatf._weights
@@ -200,9 +153,7 @@ class ControlLaw:
             raise RuntimeError(f"the compiled tick failed with status {status}")
 
     def _row_and_flags(self, tick: int, w: list[int]) -> tuple[list[Any], bool, bool]:
-        """:meth:`_compute`, compiled when :attr:`compiled`: the same values."""
-        if not self.compiled:
-            return self._compute(tick, w)
+        """:meth:`tick_compiled`, read back as floats (the words as ints) and the two D/A saturation flags."""
         w0, w1, w2, w3 = w
         self.tick_compiled(tick, w0, w1, w2, w3)
         row = self.row.tolist()
@@ -212,27 +163,8 @@ class ControlLaw:
 
     def step_row(self, tick: int, words: list[int]) -> list[Any]:
         """One tick from the four TPDO1 words (plain ints): the values named
-        by :data:`ROW_NAMES`, as floats (the words as ints). :meth:`step` is
-        the same computation returned as arrays; the loop runs
-        :meth:`tick_compiled` where it can."""
+        by :data:`ROW_NAMES`, as floats (the words as ints)."""
         return self._row_and_flags(tick, words)[0]
-
-    def step(self, tick: int, words: npt.ArrayLike) -> TickOutput:
-        raw = np.asarray(words, dtype=np.int64)
-        w = raw.tolist()
-        if len(w) != 4 or raw.ndim != 1:
-            raise ValueError(f"four TPDO1 words expected, got shape {raw.shape}")
-        row, s0, s1 = self._row_and_flags(tick, w)
-        _, ref1, ref2, sh1, sh2, phi1, phi2, th1, th2, e0, e1, d0, d1, _, _, _, _, v0, v1, v2, v3, u1, u2, pi1, pi2 = row
-        m = measurement_of(raw, (v0, v1, v2, v3, e0, e1, d0, d1, th1, th2, phi1, phi2))
-        return TickOutput(
-            volts=np.array((u1, u2), dtype=np.float64),
-            clipped=np.array((s0, s1), dtype=np.bool_),
-            measurement=m,
-            setpoint_rad=np.array((ref1, ref2), dtype=np.float64),
-            shaped_setpoint_rad=np.array((sh1, sh2), dtype=np.float64),
-            pi_output_v=np.array((pi1, pi2), dtype=np.float64),
-        )
 
     def set_degraded(self, degraded: bool) -> None:
         """While degraded the OATF stops adapting; with the ``fixed`` fallback
@@ -246,49 +178,3 @@ class ControlLaw:
         if self.supervisor is None or self.config.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:
             return False
         return self.supervisor.offer_interrupt(interrupt)
-
-    def record_row(self, tick: int, out: TickOutput) -> dict[str, Any]:
-        """One row of the run record. The arrays are read with ``tolist`` (the
-        same float64 values as indexing them, as Python floats; the words as
-        ints, converted to float64 by the record exactly as int64 is): one
-        call per array instead of one numpy scalar per column."""
-        m = out.measurement
-        ref1, ref2 = out.setpoint_rad.tolist()
-        sh1, sh2 = out.shaped_setpoint_rad.tolist()
-        phi1, phi2 = m.phi_rad.tolist()
-        th1, th2 = m.theta_rad.tolist()
-        ext1, ext2 = m.extension_in.tolist()
-        d1, d2 = m.deflection_in.tolist()
-        w1, w2, w3, w4 = m.words.tolist()
-        v1, v2, v3, v4 = m.volts.tolist()
-        u1, u2 = out.volts.tolist()
-        pi1, pi2 = out.pi_output_v.tolist()
-        return {
-            "tick": tick,
-            "t_s": tick * self.config.sample_period_s,
-            "phi_ref1": ref1,
-            "phi_ref2": ref2,
-            "phi_shaped1": sh1,
-            "phi_shaped2": sh2,
-            "phi1": phi1,
-            "phi2": phi2,
-            "theta1": th1,
-            "theta2": th2,
-            "ext1_in": ext1,
-            "ext2_in": ext2,
-            "defl1_in": d1,
-            "defl2_in": d2,
-            "ai1_word": w1,
-            "ai2_word": w2,
-            "ai3_word": w3,
-            "ai4_word": w4,
-            "ai1_v": v1,
-            "ai2_v": v2,
-            "ai3_v": v3,
-            "ai4_v": v4,
-            "u1_v": u1,
-            "u2_v": u2,
-            "pi1_v": pi1,
-            "pi2_v": pi2,
-            "oatf_hz": self.oatf_frequency_hz,
-        }

@@ -381,7 +381,6 @@ class OatfFilter:
         """``_weights`` as floats (the per-tick sums read them)."""
         self._tap_rows: IntArray = np.ascontiguousarray(np.arange(self._capacity, dtype=np.int64)[:, None])
         """Per head position, the delay-line rows of the taps: ``(head - delays) % capacity``."""
-        self._tap_row_list: list[IntArray] = list(self._tap_rows)
         self.update_modes(frequencies_hz, zetas)
         self.reset(initial)
 
@@ -446,7 +445,6 @@ class OatfFilter:
         self._weight_list = self._weights.tolist()
         if delays.shape != self._delays.shape or delays.tolist() != self._delays.tolist():  # a few ints: lists compare faster than arrays
             self._tap_rows = (np.arange(self._capacity)[:, None] - delays[None, :]) % self._capacity
-            self._tap_row_list = list(self._tap_rows)
         self._delays = delays
         return stages
 
@@ -477,28 +475,6 @@ class OatfFilter:
             out = out + w[i] * taps[i]
         return out
 
-    def step_values(self, x: list[float]) -> list[float]:
-        """:meth:`step` on one float per channel, returning floats (the loop's
-        per-tick form): the same delay line, taps and weighted sum, in the
-        same order, with fewer array round trips.
-
-        The weighted sum [3-34] is defined as ``w0 x0 + w1 x1 + ...`` added
-        left to right, one rounding per product and per sum (no fused
-        multiply-add, no BLAS): :meth:`step`, :meth:`process` and the
-        compiled tick (controller/fast_tick.py) compute exactly this, so a
-        run's record is the same on every host whatever its BLAS kernel."""
-        head = self._head = (self._head + 1) % self._capacity
-        buf = self._buf
-        buf[head] = x
-        taps = buf.take(self._tap_row_list[head], 0).tolist()
-        w = self._weight_list
-        w0 = w[0]
-        out = [w0 * v for v in taps[0]]
-        for i in range(1, len(w)):
-            wi = w[i]
-            out = [o + wi * v for o, v in zip(out, taps[i], strict=True)]
-        return out
-
     def process(self, block: npt.ArrayLike) -> FloatArray:
         """Filter a block ``(n_samples, n_channels)`` (or 1-D for one channel) with the current design."""
         xb = np.asarray(block, dtype=float)
@@ -510,7 +486,7 @@ class OatfFilter:
         past = self._capacity - 1
         ext = np.concatenate([self.history(past), xb])
         d0 = int(self._delays[0])
-        out = self._weights[0] * ext[past - d0 : past - d0 + n]  # the taps in step_values' order
+        out = self._weights[0] * ext[past - d0 : past - d0 + n]  # the taps in step's order
         for d, w in zip(self._delays[1:], self._weights[1:], strict=True):
             out += w * ext[past - d : past - d + n]
         keep = min(n, self._capacity)

@@ -50,12 +50,16 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-__all__ = ["PIConfig", "PIController"]
+__all__ = ["PIConfig", "PIController", "cached_njit", "pi_joint", "pi_step"]
+
+_CONSTS = 6
+"""consts[0:6]: decay, scale, limit, threshold, floor, anti-windup (1.0/0.0); then Kp and Ki per joint."""
 
 
 class PIConfig(BaseModel):
@@ -145,6 +149,10 @@ class PIController:
         self._threshold = self.config.integrate_threshold_rad
         self._anti_windup = self.config.anti_windup
         self._floor = self._limit * (1.0 - 1e-12)
+        self.consts: FloatArray = np.array(
+            [self._decay, self._scale, self._limit, self._threshold, self._floor, 1.0 if self._anti_windup else 0.0, *self._kp_list, *self._ki_list]
+        )
+        """What :func:`pi_joint` reads: decay, scale, limit, threshold, floor, anti-windup, then Kp and Ki per joint."""
         self.state: FloatArray = np.zeros(8 * self.config.n_joints)
         """Integrator per joint, then each joint's last terms (see the properties)."""
         self.reset()
@@ -218,99 +226,79 @@ class PIController:
         ``|e| > integrate_threshold_rad``; with ``anti_windup`` an increment
         that would carry ``Kp e + Ki I`` past the D/A limit is cut at the
         limit (an increment pulling back from saturation is never cut).
-
-        :meth:`step_values` on the errors as floats (the same IEEE operations
-        in the same order as :meth:`step_vectorised`, so bit-identical to it).
+        One call of :func:`pi_step` (the kernel the compiled tick runs too).
         """
-        n = self.n_joints
-        if type(error_rad) is np.ndarray and error_rad.dtype == np.float64 and error_rad.shape == (n,):
-            errors = error_rad.tolist()  # the common case: skip broadcast_to's view machinery
+        errors = np.ascontiguousarray(np.broadcast_to(np.asarray(error_rad, dtype=np.float64), (self.n_joints,)))
+        if not np.all(np.isfinite(errors)):
+            raise ValueError(f"non-finite angle error {errors!r}")
+        out = np.empty(self.n_joints)
+        pi_step(self.consts, self.state, errors, out)
+        return out
+
+
+def cached_njit(fn: Any) -> Any:
+    """``@njit(cache=True)``; compiled in memory only where numba finds no writable cache location."""
+    try:
+        return njit(cache=True)(fn)
+    except RuntimeError:
+        return njit(fn)
+
+
+@cached_njit
+def _pmin(a: float, b: float) -> float:
+    """Python's ``min(a, b)``: ``a`` unless ``b < a`` (the first argument wins a tie: signed zeros as in Python)."""
+    return b if b < a else a
+
+
+@cached_njit
+def _pmax(a: float, b: float) -> float:
+    """Python's ``max(a, b)``: ``a`` unless ``b > a``."""
+    return b if b > a else a
+
+
+@cached_njit
+def pi_joint(consts: np.ndarray, state: np.ndarray, n: int, j: int, e: float) -> float:
+    """Joint ``j`` of ``n`` for one tick (thesis §4): windowed, gated,
+    anti-windup integrator and clipped output, written into ``state``
+    (:attr:`PIController.state`); returns the valve voltage (V).
+    ``consts``: :attr:`PIController.consts`. Plain IEEE arithmetic in a
+    fixed order (numba without fastmath: no reassociation, no FMA)."""
+    decay, scale, limit, threshold, floor = consts[0], consts[1], consts[2], consts[3], consts[4]
+    kpj = consts[_CONSTS + j]
+    kij = consts[_CONSTS + n + j]
+    decayed = decay * state[j]
+    p = kpj * e
+    admit = abs(e) <= threshold
+    value = decayed + scale * e if admit else decayed
+    limited = False
+    if consts[5] != 0.0:  # anti-windup: cut an increment where Kp e + Ki I crosses the limit, never reverse it
+        if kij > 0.0:
+            hi = (limit - p) / kij
+            lo = (-limit - p) / kij
         else:
-            errors = np.broadcast_to(np.asarray(error_rad, dtype=float), (n,)).tolist()
-        return np.array(self.step_values(errors), dtype=np.float64)
+            hi = math.inf
+            lo = -math.inf
+        cut = _pmax(decayed, _pmin(value, hi)) if value > decayed else _pmin(decayed, _pmax(value, lo))
+        limited = cut != value
+        value = cut
+    i_term = kij * value
+    unclipped = p + i_term
+    out = _pmin(_pmax(unclipped, -limit), limit)
+    state[j] = value
+    b = n + 7 * j
+    state[b] = e
+    state[b + 1] = p
+    state[b + 2] = i_term
+    state[b + 3] = out
+    state[b + 4] = 1.0 if abs(unclipped) >= floor else 0.0
+    state[b + 5] = 1.0 if admit and not limited else 0.0
+    state[b + 6] = 1.0 if limited else 0.0
+    return out
 
-    def step_values(self, errors: list[float]) -> list[float]:
-        """:meth:`step` on plain floats, one per joint (the loop's per-tick
-        form, thesis §4): returns the clipped valve voltages as floats. The
-        state is kept as floats too; a dozen numpy calls on 2-vectors cost
-        more than the arithmetic itself."""
-        for x in errors:
-            if not math.isfinite(x):
-                raise ValueError(f"non-finite angle error {np.asarray(errors)!r}")
-        kp, ki, limit = self._kp_list, self._ki_list, self._limit
-        decay, scale, threshold = self._decay, self._scale, self._threshold
-        anti_windup, floor = self._anti_windup, self._floor
-        old = self.state[: self.n_joints].tolist()
-        integral: list[float] = []
-        terms = []
-        for j, e in enumerate(errors):
-            decayed = decay * old[j]
-            p = kp[j] * e
-            admit = abs(e) <= threshold
-            value = decayed + scale * e if admit else decayed
-            limited = False
-            kij = ki[j]
-            if anti_windup:
-                if kij > 0.0:
-                    hi, lo = (limit - p) / kij, (-limit - p) / kij
-                else:
-                    hi, lo = math.inf, -math.inf
-                cut = max(decayed, min(value, hi)) if value > decayed else min(decayed, max(value, lo))
-                limited = cut != value
-                value = cut
-            i_term = kij * value
-            unclipped = p + i_term
-            integral.append(value)
-            terms.append((e, p, i_term, min(max(unclipped, -limit), limit), abs(unclipped) >= floor, admit and not limited, limited))
-        self._store(integral, terms)
-        return [t[3] for t in terms]
 
-    def step_vectorised(self, error_rad: npt.ArrayLike) -> FloatArray:
-        """One control tick from the angle errors ``e = r - y`` (rad); returns volts.
-
-        The gate, per joint: admit ``e`` into the windowed sum unless
-        ``|e| > integrate_threshold_rad``; with ``anti_windup`` an increment
-        that would carry ``Kp e + Ki I`` past the D/A limit is cut at the
-        limit (an increment pulling back from saturation is never cut).
-
-        The numpy formulation of :meth:`step` (the reference it is tested against).
-        """
-        e = np.broadcast_to(np.asarray(error_rad, dtype=float), (self.n_joints,)).copy()
-        if not np.all(np.isfinite(e)):
-            raise ValueError(f"non-finite angle error {e!r}")
-        decayed = self._decay * self.integral
-        p = self._kp * e
-        admit = np.abs(e) <= self.config.integrate_threshold_rad
-        integral = np.where(admit, decayed + self._scale * e, decayed)
-        limited = np.zeros(self.n_joints, dtype=bool)
-        if self.config.anti_windup:
-            # Integral values that keep Kp e + Ki I inside the D/A range; an increment
-            # is cut where it crosses them, never reversed (ki = 0: no limit needed).
-            with np.errstate(divide="ignore", invalid="ignore"):
-                hi = np.where(self._ki > 0.0, (self._limit - p) / self._ki, np.inf)
-                lo = np.where(self._ki > 0.0, (-self._limit - p) / self._ki, -np.inf)
-            cut = np.where(
-                integral > decayed,
-                np.maximum(decayed, np.minimum(integral, hi)),
-                np.minimum(decayed, np.maximum(integral, lo)),
-            )
-            limited = cut != integral
-            integral = cut
-        unclipped = p + self._ki * integral
-        output = np.clip(unclipped, -self._limit, self._limit)
-        self._store(
-            integral.tolist(),
-            list(
-                zip(
-                    e.tolist(),
-                    p.tolist(),
-                    (self._ki * integral).tolist(),
-                    output.tolist(),
-                    (np.abs(unclipped) >= self._limit * (1.0 - 1e-12)).tolist(),
-                    (admit & ~limited).tolist(),
-                    limited.tolist(),
-                    strict=True,
-                )
-            ),
-        )
-        return output
+@cached_njit
+def pi_step(consts: np.ndarray, state: np.ndarray, errors: np.ndarray, out: np.ndarray) -> None:
+    """:func:`pi_joint` of every joint: ``out[j]`` the valve voltage of joint ``j``."""
+    n = errors.shape[0]
+    for j in range(n):
+        out[j] = pi_joint(consts, state, n, j, errors[j])

@@ -45,13 +45,12 @@ group) is counted in ``rx_errors`` and dropped, and the bus's own losses
 (``kernel_drops``, ``fd_frames_dropped`` of
 :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`) are copied into the
 counters; each kind of bad input is logged at most once per
-:data:`LOG_INTERVAL_S`.
+:data:`controller.bus_watch.LOG_INTERVAL_S`.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import deque
@@ -63,6 +62,10 @@ import can
 import numpy as np
 import numpy.typing as npt
 
+from controller.bus_watch import CONFLICT_EMCYS, ConflictLog, EchoFilter, ForeignMasters, HeldFrames
+from controller.node_start import configure_node, enter_operational, reset_communication, wait_for_node
+from controller.plant_errors import PlantFault, StopRequested
+from controller.sdo_client import SdoClient, download_request
 from protocol import can_map
 from protocol.can_map import (
     OD_RPDO1_COMM,
@@ -83,17 +86,8 @@ _SYNC_PAYLOADS: Final = [b""] + [can_map.encode_sync(c) for c in range(1, can_ma
 
 log = logging.getLogger(__name__)
 
-ECHO_MEMORY: Final[int] = 64
-"""Frames sent and not yet echoed remembered per COB-ID (normally one or two)."""
-LOG_INTERVAL_S: Final[float] = 10.0
-"""Repeated bad input of one kind is logged once per this interval (and counted always)."""
 MAX_RX_ERRORS_PER_POLL: Final[int] = 64
 """A bus that raises on every receive ends a poll after this many errors instead of spinning."""
-CONFLICT_MEMORY: Final[int] = 64
-"""Conflict events kept until :meth:`PlantLink.take_conflicts` (older ones are only counted)."""
-CONFLICT_EMCYS: Final[frozenset[int]] = frozenset({int(can_map.EmcyCode.SYNC_CONFLICT), int(can_map.EmcyCode.RPDO_CONFLICT)})
-PENDING_MEMORY: Final[int] = 16
-"""Heartbeats and EMCYs held for the node's word on them (older ones are judged as they are)."""
 _SDO_SIZES: Final[dict[tuple[int, int], int]] = {
     (0x1017, 0): 2,
     (0x1019, 0): 1,
@@ -103,27 +97,6 @@ _SDO_SIZES: Final[dict[tuple[int, int], int]] = {
 }
 """The objects the link configures or relies on, with their sizes: written back after a foreign write."""
 _COLLISION: Final = int(can_map.EmcyCode.CAN_ID_COLLISION)
-
-
-@dataclass
-class _Held:
-    """A frame from the plant's COB-IDs awaiting the node's word (see the module docstring)."""
-
-    kind: str
-    """'heartbeat' or 'emcy'"""
-    cob_id: int
-    data: bytes
-    at: float
-    syncs: int
-    """SYNCs sent when it arrived: a TPDO1 after a later SYNC judges it"""
-
-
-class PlantFault(RuntimeError):
-    """The plant node stopped answering (no heartbeat, no TPDO)."""
-
-
-class StopRequested(Exception):
-    """SIGINT/SIGTERM arrived while waiting for the plant: not a fault."""
 
 
 class _RxError(Exception):
@@ -204,15 +177,13 @@ class PlantLink:
         self._emcy = ids["emcy"]
         self._sdo_rx = ids["sdo_rx"]
         self._sdo_tx = ids["sdo_tx"]
-        self._sdo_response: bytes | None = None
-        self._bootups = 0
+        self.bootups = 0
         self._echoes = echoing_bus(self.bus)
-        self._sent: dict[int, deque[bytes]] = {
-            cob_id: deque(maxlen=ECHO_MEMORY) for cob_id in (can_map.NMT_COB_ID, can_map.SYNC_COB_ID, self._rpdo1, self._sdo_rx)
-        }
-        self._foreign_kind = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
-        self._conflicts: deque[str] = deque(maxlen=CONFLICT_MEMORY)
-        self._logged_at: dict[str, float] = {}
+        self._echo = EchoFilter((can_map.NMT_COB_ID, can_map.SYNC_COB_ID, self._rpdo1, self._sdo_rx), self._echoes)
+        self._log = ConflictLog(self._now)
+        kinds = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
+        self._foreign = ForeignMasters(self.node_id, kinds, self._echo, self._log, self.counters, self._restore)
+        self._sdo = SdoClient(lambda data: self._send(self._sdo_rx, data), lambda timeout: self.poll(timeout=timeout), self._now)
         self._send_frame: Callable[[int, bytes], None] | None = self.bus.send_frame if callable(getattr(type(self.bus), "send_frame", None)) else None  # type: ignore[attr-defined]
         """A wire in this process whose class takes a standard data frame as its
         COB-ID and payload (the co-simulation's :class:`workbench.cosim.DirectCanWire`):
@@ -224,7 +195,7 @@ class PlantLink:
         """True from a successful start_node until this link sends another NMT command: frames on the plant's COB-IDs are judged"""
         self._tpdo_credit = 0
         self._last_tpdo: can.Message | None = None
-        self._held: deque[_Held] = deque(maxlen=PENDING_MEMORY)
+        self._held = HeldFrames(self._log, self.counters)
         self._configured: dict[tuple[int, int], int] = {}
         """values of the objects in _SDO_SIZES as this link configured or found them at start"""
         self._loss_bus = self.bus if hasattr(self.bus, "kernel_drops") else None
@@ -234,42 +205,11 @@ class PlantLink:
 
     def _send(self, arbitration_id: int, data: bytes) -> None:
         if self._echoes:
-            sent = self._sent.get(arbitration_id)
-            if sent is not None:
-                sent.append(bytes(data))
+            self._echo.note_sent(arbitration_id, data)
         if self._send_frame is not None:
             self._send_frame(arbitration_id, data)
             return
         self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
-
-    def _log_limited(self, kind: str, fmt: str, *args: object) -> None:
-        """WARNING at most once per :data:`LOG_INTERVAL_S` per kind."""
-        now = self._now()
-        last = self._logged_at.get(kind)
-        if last is None or now - last >= LOG_INTERVAL_S:
-            self._logged_at[kind] = now
-            log.warning(fmt + " (further ones counted, logged every %.0f s)", *args, LOG_INTERVAL_S)
-
-    def _is_echo(self, cob_id: int, data: bytes) -> bool:
-        """True when ``data`` on ``cob_id`` is one of our own frames coming back.
-        Echoes return in send order, so the frames sent before the matching one
-        are forgotten (their echoes were lost)."""
-        sent = self._sent[cob_id]
-        for i, d in enumerate(sent):
-            if d == data:
-                for _ in range(i + 1):
-                    sent.popleft()
-                return True
-        return False
-
-    def _conflict(self, detail: str) -> None:
-        self._conflicts.append(detail)
-        self._log_limited(f"conflict:{detail.split(':')[0]}", "CAN conflict: %s", detail)
-
-    def _stamp(self, msg: can.Message) -> str:
-        """A frame's evidence: COB-ID, data and arrival time (the bus's timestamp, else the link's clock)."""
-        at = msg.timestamp if msg.timestamp else self._now()
-        return f"id 0x{msg.arbitration_id:03X} [{bytes(msg.data).hex(' ')}] at {at:.6f} s"
 
     def take_conflicts(self) -> list[str]:
         """Conflicts seen since the last call (foreign master frames, forged plant frames, the plant's
@@ -278,57 +218,26 @@ class PlantLink:
         if bus is not None:
             self.counters.kernel_drops = int(bus.kernel_drops)
             self.counters.fd_frames_dropped = int(getattr(bus, "fd_frames_dropped", 0))
-        if not self._conflicts:
-            return []
-        out = list(self._conflicts)
-        self._conflicts.clear()
-        return out
+        return self._log.take()
 
     def _check_foreign(self, msg: can.Message) -> bool:
-        """True when ``msg`` is a master's frame (ours echoed, or another master's: counted)."""
-        cob_id = msg.arbitration_id
-        kind = self._foreign_kind.get(cob_id)
-        if kind is None:
-            return False
-        data = bytes(msg.data)
-        if self._is_echo(cob_id, data):
-            self.counters.own_echoes += 1
-            return True
-        if kind == "nmt" and len(data) == 2 and data[1] not in (0, self.node_id):
-            return True  # a command for another node: not ours to judge
-        setattr(self.counters, f"foreign_{kind}", getattr(self.counters, f"foreign_{kind}") + 1)
+        """True when ``msg`` is a master's frame (ours echoed, or another master's: counted, :class:`ForeignMasters`)."""
+        kind = self._foreign.check(msg)
         if kind == "sync":
             self._tpdo_credit += 1  # the node answers it too
-        if kind == "sdo":
-            return self._foreign_sdo(msg, data)
-        what = {"sync": "SYNC", "nmt": "NMT command", "rpdo": "RPDO1"}[kind]
-        self._conflict(f"foreign {kind}: a {what} this controller did not send, {self._stamp(msg)}")
-        return True
+        return kind is not None
 
-    def _foreign_sdo(self, msg: can.Message, data: bytes) -> bool:
-        """Another master's SDO request: a read is counted; anything else is a conflict, and a write of
-        an object this link configured is undone at once (the node as configured, whatever the policy)."""
-        ccs = data[0] >> 5 if data else -1
-        if ccs in (2, 3):  # initiate upload / upload segment: reads change nothing
-            self.counters.foreign_sdo_reads += 1
-            return True
-        index, sub = (data[1] | data[2] << 8, data[3]) if len(data) >= 4 else (-1, -1)
-        what = f"a write of 0x{index:04X}:{sub}" if ccs == 1 else "an SDO request"
-        if ccs == 1 and len(data) == 8 and data[0] & 0x02:  # expedited: the value is in the frame
-            n = 4 - ((data[0] >> 2) & 0x3) if data[0] & 0x01 else 4
-            what += f" = {int.from_bytes(data[4 : 4 + n], 'little')}"
-        self._conflict(f"foreign sdo: {what} this controller did not send, {self._stamp(msg)}")
+    def _restore(self, index: int, sub: int) -> None:
+        """Another master wrote 0x``index``:``sub``: while running, this link's value goes back at once."""
         value = self._configured.get((index, sub))
-        if ccs == 1 and value is not None and self._running:
+        if value is not None and self._running:
             self._sdo_write_back(index, sub, value, _SDO_SIZES[(index, sub)])
-        return True
 
     def _sdo_write_back(self, index: int, sub: int, value: int, size: int) -> None:
         """Expedited download of this link's value, without waiting for the answer (the loop runs on)."""
-        command = 0x23 | ((4 - size) << 2)
-        self._send(self._sdo_rx, bytes([command, index & 0xFF, index >> 8, sub]) + int(value).to_bytes(size, "little").ljust(4, b"\x00"))
+        self._send(self._sdo_rx, download_request(index, sub, value, size))
         self.counters.comm_restores += 1
-        self._log_limited(f"restore:{index:04X}", "wrote 0x%04X:%d = %d back after another master changed it", index, sub, value)
+        self._log.log_limited(f"restore:{index:04X}", "wrote 0x%04X:%d = %d back after another master changed it", index, sub, value)
 
     # --- frames from the plant's COB-IDs, judged while running -------------------------------
 
@@ -339,9 +248,9 @@ class PlantLink:
             else:
                 self.counters.surplus_tpdos += 1
                 prev = self._last_tpdo
-                self._conflict(
+                self._log.add(
                     "surplus tpdo1: more TPDO1 than SYNCs, another node answers on the plant's COB-ID: "
-                    f"{self._stamp(msg)} after {self._stamp(prev) if prev is not None else 'none'}"
+                    f"{self._log.stamp(msg)} after {self._log.stamp(prev) if prev is not None else 'none'}"
                 )
                 if self._pending_tpdo is not None:  # both still untaken: no telling which is the plant's
                     self._pending_tpdo = None
@@ -357,47 +266,12 @@ class PlantLink:
 
     def _judge_held(self, by_tpdo: bool) -> None:
         """A TPDO1 answering a SYNC sent after a held frame (``by_tpdo``), or a SYNC left unanswered:
-        the node has had its word on the frames held before that SYNC."""
-        sent = self.counters.syncs_sent
-        keep: deque[_Held] = deque(maxlen=PENDING_MEMORY)
-        for h in self._held:
-            if h.syncs >= sent:
-                keep.append(h)
-            elif h.kind == "heartbeat" and by_tpdo:
-                self._forged(h, "the plant answered a later SYNC")
-            elif h.kind == "heartbeat":
-                self._held = keep
-                self.node_state = can_map.decode_heartbeat(h.data)
-                self._running = False
-                raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {self.node_state.name}, and SYNC {self.sync_counter} got no TPDO1)")
-            else:  # an EMCY the node has not disowned: the plant's own
-                emcy = can_map.decode_emcy(h.data)
-                if emcy.code in CONFLICT_EMCYS:
-                    self._plant_conflict_emcy(emcy)
-        self._held = keep
-
-    def _forged(self, h: _Held, why: str) -> None:
-        what = "heartbeat " + can_map.NmtState(h.data[0] & 0x7F).name if h.kind == "heartbeat" else "EMCY " + can_map.decode_emcy(h.data).name
-        if h.kind == "heartbeat":
-            self.counters.forged_heartbeats += 1
-        else:
-            self.counters.forged_emcys += 1
-        self._conflict(f"forged {h.kind}: {what} id 0x{h.cob_id:03X} [{h.data.hex(' ')}] at {h.at:.6f} s is not the plant's ({why})")
-
-    def _plant_conflict_emcy(self, emcy: can_map.Emergency) -> None:
-        self.counters.conflict_emcys += 1
-        self._conflict(f"plant EMCY {emcy.name}: the plant sees a second master")
-
-    def _on_collision(self, emcy: can_map.Emergency, msg: can.Message) -> None:
-        """The plant's EMCY CAN_ID_COLLISION: a frame on its COB-IDs it did not send."""
-        cob_id, dlc, head = can_map.decode_collision_evidence(emcy.vendor)
-        self.counters.impersonations += 1
-        for h in list(self._held):
-            if h.cob_id == cob_id and h.data[: len(head)] == head:
-                self._held.remove(h)
-                self._forged(h, "the plant disowns it by EMCY CAN_ID_COLLISION")
-                return
-        self._conflict(f"impersonation: the plant reports a frame id 0x{cob_id:03X} DLC {dlc} [{head.hex(' ')}...] it did not send ({self._stamp(msg)})")
+        the node has had its word on the frames held before that SYNC (:meth:`HeldFrames.judge`)."""
+        state = self._held.judge(self.counters.syncs_sent, by_tpdo)
+        if state is not None:
+            self.node_state = state
+            self._running = False
+            raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {state.name}, and SYNC {self.sync_counter} got no TPDO1)")
 
     def nmt(self, command: NmtCommand) -> None:
         if command is not NmtCommand.START:
@@ -479,33 +353,31 @@ class PlantLink:
                 self.counters.heartbeats += 1
                 if self._running:
                     if state is not NmtState.OPERATIONAL:  # held for the node's word (module docstring)
-                        self._held.append(_Held("heartbeat", msg.arbitration_id, bytes(msg.data), msg.timestamp or self._now(), self.counters.syncs_sent))
+                        self._held.hold("heartbeat", msg, msg.timestamp or self._now(), self.counters.syncs_sent)
                         return
-                    for h in [h for h in self._held if h.kind == "heartbeat"]:
-                        self._held.remove(h)
-                        self._forged(h, "the plant's next heartbeat says OPERATIONAL")
+                    self._held.heartbeat_operational()
                 self.node_state = state
                 if state is NmtState.BOOT_UP:
-                    self._bootups += 1
+                    self.bootups += 1
             elif msg.arbitration_id == self._sdo_tx:
-                self._sdo_response = bytes(msg.data)
+                self._sdo.response = bytes(msg.data)
             elif msg.arbitration_id == self._emcy:
                 emcy = can_map.decode_emcy(msg.data)
                 self.emergencies.append(emcy)
                 self.counters.emergencies += 1
-                self._log_limited(f"emcy:{emcy.code}", "plant EMCY %s (0x%04x), register 0x%02x", emcy.name, emcy.code, emcy.register)
+                self._log.log_limited(f"emcy:{emcy.code}", "plant EMCY %s (0x%04x), register 0x%02x", emcy.name, emcy.code, emcy.register)
                 if emcy.code == _COLLISION:
-                    self._on_collision(emcy, msg)
+                    self._held.on_collision(emcy, msg)
                 elif self._running and emcy.code != 0:  # held: the node may disown it
-                    self._held.append(_Held("emcy", msg.arbitration_id, bytes(msg.data), msg.timestamp or self._now(), self.counters.syncs_sent))
+                    self._held.hold("emcy", msg, msg.timestamp or self._now(), self.counters.syncs_sent)
                 elif emcy.code in CONFLICT_EMCYS:
-                    self._plant_conflict_emcy(emcy)
+                    self._held.plant_conflict_emcy(emcy)
         except (FrameError, ValueError) as exc:
             self._malformed(msg, exc)
 
     def _malformed(self, msg: can.Message, exc: Exception) -> None:
         self.counters.malformed += 1
-        self._log_limited(f"malformed:{msg.arbitration_id:x}", "malformed frame 0x%03x from the plant: %s", msg.arbitration_id, exc)
+        self._log.log_limited(f"malformed:{msg.arbitration_id:x}", "malformed frame 0x%03x from the plant: %s", msg.arbitration_id, exc)
 
     def _recv(self, timeout: float) -> can.Message | None:
         """One frame, or None; what the bus cannot decode is counted and dropped
@@ -515,7 +387,7 @@ class PlantLink:
         except (can.CanError, OSError, ValueError, TypeError) as exc:
             self.counters.rx_errors += 1
             cause = exc.__cause__ or exc
-            self._log_limited(f"rx:{type(cause).__name__}", "dropped undecodable CAN input (%d so far): %s: %s", self.counters.rx_errors, exc, cause)
+            self._log.log_limited(f"rx:{type(cause).__name__}", "dropped undecodable CAN input (%d so far): %s: %s", self.counters.rx_errors, exc, cause)
             raise _RxError from exc
 
     def poll(self, timeout: float = 0.0) -> None:
@@ -562,111 +434,27 @@ class PlantLink:
     def discard_pending(self) -> None:
         self._pending_tpdo = None
 
-    def wait_for_node(self, timeout: float, stop: threading.Event | None = None) -> NmtState:
-        """Wait for the node's heartbeat (its boot-up or a periodic one)."""
-        deadline = self._now() + timeout
-        while self.last_heartbeat is None:
-            if stop is not None and stop.is_set():
-                raise StopRequested("stopped while waiting for the plant")
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"no heartbeat from plant node {self.node_id} within {timeout:.1f} s: is ralf-plant running on the same CAN channel?")
-            self.poll(timeout=min(remaining, 0.1))
-        assert self.node_state is not None
-        return self.node_state
-
-    def reset_communication(self, timeout: float, stop: threading.Event | None = None) -> None:
-        """NMT RESET_COMMUNICATION, then wait for the node's boot-up: whatever
-        state an earlier (or a rogue) master left it in (STOPPED, a changed
-        heartbeat or 0x1019), it is PRE-OPERATIONAL with its communication
-        objects at their defaults afterwards. The application objects
-        (0x2000-0x2FFF, 0x6000-) keep their values: the plant is not reset."""
-        bootups = self._bootups
-        self.nmt(NmtCommand.RESET_COMMUNICATION)
-        self.counters.comm_resets += 1
-        deadline = self._now() + timeout
-        while self._bootups == bootups:
-            if stop is not None and stop.is_set():
-                raise StopRequested("stopped while resetting the plant node's communication")
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"plant node {self.node_id} did not boot up after NMT reset-communication within {timeout:.1f} s")
-            self.poll(timeout=min(remaining, 0.05))
-
     def start_node(self, timeout: float, stop: threading.Event | None = None, sample_period_s: float | None = None) -> None:
-        """Reset the node's communication (NMT, so a rogue STOP or another
-        master's settings do not block this run), configure its sample period
-        by SDO (object 0x2000, so plant, watchdog and controller agree on it)
-        and RPDO1's event timer (0x1400 sub 5 = the SYNC watchdog time, so a
-        foreign SYNC stream cannot keep the valves open if this controller
-        freezes), NMT start, then wait until the heartbeat says operational."""
-        self.wait_for_node(timeout, stop)
-        self.reset_communication(timeout, stop)
-        self._configured = {key: self.sdo_read(*key) for key in ((0x1017, 0), (0x1019, 0), (OD_WATCHDOG_PERIODS, 0))}
-        if sample_period_s is not None:
-            period_us = round(sample_period_s * 1e6)
-            self.sdo_write_u32(OD_SAMPLE_PERIOD, 0, period_us)
-            # RPDO1 is cyclic from here on: its event timer (deadline monitoring) = the SYNC watchdog time
-            timer_ms = min(0xFFFF, math.ceil(self._configured[(OD_WATCHDOG_PERIODS, 0)] * sample_period_s * 1e3))
-            self.sdo_write(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, timer_ms, 2)
-            self._configured[(OD_SAMPLE_PERIOD, 0)] = period_us
-            self._configured[(OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB)] = timer_ms
-        deadline = self._now() + timeout
-        self.nmt(NmtCommand.START)
-        while self.node_state != NmtState.OPERATIONAL:
-            if stop is not None and stop.is_set():
-                raise StopRequested("stopped while starting the plant")
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"plant node {self.node_id} did not become operational (state {self.node_state})")
-            self.poll(timeout=min(remaining, 0.05))
-            if self.node_state != NmtState.OPERATIONAL and self.counters.heartbeats and remaining < timeout / 2:
-                self.nmt(NmtCommand.START)
+        """Bring the node up for the run (:mod:`controller.node_start`): its
+        heartbeat, NMT reset-communication, the sample period and RPDO1's
+        event timer by SDO, NMT start, OPERATIONAL; then frames on the plant's
+        COB-IDs are judged."""
+        wait_for_node(self, timeout, stop)
+        reset_communication(self, timeout, stop)
+        self._configured = configure_node(self._sdo, sample_period_s)
+        enter_operational(self, timeout, stop)
         self.discard_pending()
         self._tpdo_credit = 0
         self._held.clear()
         self._running = True
 
-    def _sdo(self, request: bytes, what: str, timeout: float) -> bytes:
-        """Send an expedited SDO request and return the node's answer to it
-        (an answer for another object, e.g. to someone else's request, is skipped)."""
-        self._sdo_response = None
-        self._send(self._sdo_rx, request)
-        deadline = self._now() + timeout
-        while True:
-            reply = self._sdo_response
-            if reply is not None and reply[1:4] == request[1:4]:
-                break
-            self._sdo_response = None
-            remaining = deadline - self._now()
-            if remaining <= 0:
-                raise PlantFault(f"no SDO answer from the plant node {what}")
-            self.poll(timeout=min(remaining, 0.05))
-        if reply[0] == 0x80:
-            code = int.from_bytes(reply[4:8], "little")
-            raise PlantFault(f"the plant node refused {what} (SDO abort 0x{code:08X})")
-        return reply
-
     def sdo_write(self, index: int, subindex: int, value: int, size: int = 4, timeout: float = 1.0) -> None:
-        """Expedited SDO download of a ``size``-byte unsigned value (CiA 301); an
-        abort or no answer is a :class:`PlantFault` naming the object."""
-        command = 0x23 | ((4 - size) << 2)
-        data = bytes([command, index & 0xFF, index >> 8, subindex]) + int(value).to_bytes(size, "little").ljust(4, b"\x00")
-        reply = self._sdo(data, f"writing 0x{index:04X}:{subindex} = {value}", timeout)
-        if reply[0] != 0x60:
-            raise PlantFault(f"unexpected SDO answer {reply.hex()} writing 0x{index:04X}:{subindex}")
-
-    def sdo_write_u32(self, index: int, subindex: int, value: int, timeout: float = 1.0) -> None:
-        self.sdo_write(index, subindex, value, 4, timeout)
+        """Expedited SDO download to the node (:meth:`SdoClient.write`)."""
+        self._sdo.write(index, subindex, value, size, timeout)
 
     def sdo_read(self, index: int, subindex: int, timeout: float = 1.0) -> int:
-        """Expedited SDO upload of an unsigned value (up to 4 bytes)."""
-        what = f"reading 0x{index:04X}:{subindex}"
-        reply = self._sdo(bytes([0x40, index & 0xFF, index >> 8, subindex, 0, 0, 0, 0]), what, timeout)
-        if reply[0] & 0xE2 != 0x42:
-            raise PlantFault(f"unexpected SDO answer {reply.hex()} {what}")
-        n = 4 - ((reply[0] >> 2) & 0x3) if reply[0] & 0x01 else 4
-        return int.from_bytes(reply[4 : 4 + n], "little")
+        """Expedited SDO upload from the node (:meth:`SdoClient.read`)."""
+        return self._sdo.read(index, subindex, timeout)
 
     def heartbeat_age(self) -> float:
         return float("inf") if self.last_heartbeat is None else self._now() - self.last_heartbeat

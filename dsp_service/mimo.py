@@ -60,17 +60,6 @@ _TINY = float(np.finfo(np.float64).tiny)
 MODE_NONE, MODE_DOMINANT, MODE_FULL = 0, 1, 2
 
 
-def normalised_determinant(S: NDArray[np.complex128]) -> NDArray[np.float64]:
-    """``(P11 P22 − |P12|²) / (P11 P22)`` (= 1 − coherence² of the inputs); 0 where undefined."""
-    p11 = S[P11].real
-    p22 = S[P22].real
-    prod = p11 * p22
-    den = prod - (S[P12].real ** 2 + S[P12].imag ** 2)
-    out = np.zeros_like(prod)
-    np.divide(den, prod, out=out, where=prod > _TINY)
-    return out
-
-
 class MimoSolver:
     """Solves transfer functions from (averaged) spectra, on a bin slice, with preallocated buffers.
 
@@ -269,11 +258,6 @@ def solve_printed(S: NDArray[np.complex128]) -> NDArray[np.complex128]:
     h21 = (S[P2Y1] * S[P11].real - S[P12] * S[P1Y1]) / den  # printed [2-23]
     h22 = (S[P2Y2] * S[P11].real - S[P12] * S[P1Y2]) / den  # printed [2-24]
     return np.stack([h11, h12, h21, h22])
-
-
-def h_total(H: NDArray[np.complex128], out: NDArray[np.complex128] | None = None) -> NDArray[np.complex128]:
-    """``H_tot``: unweighted mean of H11, H12, H21, H22 (§5)."""
-    return np.mean(H, axis=0, out=out)
 
 
 # ---------------------------------------------------------------------------

@@ -93,7 +93,7 @@ class DspService:
         self.turnaround = LatencyTracker()
         self.put_time = LatencyTracker()
         """Wall time of the interrupt's put (zenoh hands the message to its transmit thread when the put
-        returns: docs/dsp-performance.md, "Seventh pass"); health's ``interrupt_put``."""
+        returns: docs/dsp-performance.md, "The zenoh path"); health's ``interrupt_put``."""
         self._events = Inbox("dsp", capacity=64, limits=LIMITS)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
         self._held: _Held | None = None
         self._last_raised: _Held | None = None

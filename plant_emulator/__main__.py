@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from plant_emulator.plant_model import build_plant_model
+from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.service import serve
 from protocol.settings import PlantSettings
 from service_kit.runtime import run_service

@@ -4,8 +4,9 @@ the seam between the CANopen node's application
 
 Two models satisfy it: :class:`plant_emulator.model.RalfArm` (the built-in
 RALF arm, the default) and :class:`plant_emulator.fmu.FmuPlant` (an FMI
-co-simulation FMU, ``plant.model=fmu:PATH``). :func:`build_plant_model`
-picks one from the plant's settings.
+co-simulation FMU, ``plant.model=fmu:PATH``).
+:func:`plant_emulator.plant_factory.build_plant_model` picks one from the
+plant's settings.
 """
 
 from __future__ import annotations
@@ -15,9 +16,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy.typing as npt
 
-from protocol.settings import PlantSettings
-
-__all__ = ["PlantModel", "ReportsStepFaults", "build_plant_model"]
+__all__ = ["PlantModel", "ReportsStepFaults", "TruthSummary"]
 
 TruthSummary = tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]
 """Modal frequencies (Hz), damping ratios, deflections (in), joint angles (rad), tip (in), payload attached."""
@@ -74,18 +73,3 @@ class ReportsStepFaults(Protocol):
     active, detail)`` when a fault appears or clears."""
 
     on_fault: Callable[[int, bool, str], None] | None
-
-
-def build_plant_model(settings: PlantSettings) -> PlantModel:
-    """The model ``settings.model`` names: the RALF arm, or the FMU at
-    ``fmu:PATH`` with the mapping ``settings.fmu_mapping`` (checked, one
-    step of the sample period tried, then instantiated; a bad FMU raises
-    :class:`protocol.errors.ConfigError` in one line)."""
-    if settings.model == "ralf":
-        from plant_emulator.model import RalfArm
-        from plant_emulator.service import plant_config
-
-        return RalfArm(plant_config(settings))
-    from plant_emulator.fmu import open_fmu_plant
-
-    return open_fmu_plant(settings)

@@ -31,9 +31,9 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from plant_emulator.model import PlantConfig
 from plant_emulator.node import CanopenNode, NodeConfig
-from plant_emulator.plant_model import PlantModel, ReportsStepFaults, build_plant_model
+from plant_emulator.plant_factory import build_plant_model
+from plant_emulator.plant_model import PlantModel, ReportsStepFaults
 from plant_emulator.scenario import PendingCommands
 from protocol.can_map import EmcyCode
 from protocol.keys import Keys
@@ -100,24 +100,6 @@ class DeferredLatency(LatencyTracker):
     def stats(self) -> LatencyStats:
         self._flush()
         return super().stats()
-
-
-def plant_config(settings: PlantSettings) -> PlantConfig:
-    return PlantConfig(
-        seed=settings.seed,
-        payload_attached=settings.payload_attached,
-        valve_time_constant_s=settings.valve_time_constant_s,
-        adc_bits=settings.adc_bits,
-        **_scaled_noise(settings.sensor_noise_scale),
-    )
-
-
-def _scaled_noise(scale: float) -> dict[str, tuple[float, float]]:
-    """The thesis's sensor noise stds (the PlantConfig defaults) times ``scale`` (only when it is not 1)."""
-    if scale == 1.0:
-        return {}
-    fields = PlantConfig.model_fields
-    return {k: tuple(scale * x for x in fields[k].default) for k in ("extension_noise_std_in", "deflection_noise_std_in")}
 
 
 def node_config(settings: PlantSettings) -> NodeConfig:

@@ -7,7 +7,7 @@ from typing import Final
 
 import zenoh
 
-from protocol.encodings import BATCH_MIME, BATCH_SCHEMA, JSON_MIME, TF_MIME, TF_SCHEMA, mime_for
+from protocol.encodings import BATCH_MIME, BATCH_SCHEMA, JSON_MIME, TF_MIME, TF_SCHEMA
 
 JSON: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_JSON
 """Every control message (BlockFlag, Interrupt, Health, ...)."""
@@ -18,9 +18,3 @@ TF: Final[zenoh.Encoding] = zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(
 """The binary transfer-function snapshot of :mod:`protocol.tf_codec`."""
 
 assert str(JSON) == JSON_MIME and str(BATCH) == BATCH_MIME and str(TF) == TF_MIME, "contract and zenoh encodings disagree"
-
-
-def encoding_for(key: str) -> zenoh.Encoding:
-    """The zenoh encoding the contract uses on ``key``."""
-    mime = mime_for(key)
-    return BATCH if mime == BATCH_MIME else TF if mime == TF_MIME else JSON

@@ -10,8 +10,8 @@ import os
 import signal
 import sys
 import threading
-import time
 from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
 from typing import Any, TypeVar
 
 import numpy as np
@@ -286,10 +286,6 @@ class HealthPublisher:
         self._pub.undeclare()
 
 
-def wall_time() -> float:
-    return time.time()
-
-
 def build_or_config_error(what: str, factory: Callable[[], T]) -> T:
     """Build a service's core from its settings; a value the core refuses
     (a design the OATF rejects, an identifier setting out of range, a
@@ -302,7 +298,45 @@ def build_or_config_error(what: str, factory: Callable[[], T]) -> T:
         raise ConfigError(f"{what}: {exc}") from None
 
 
-def _no_recorder(_proc: Any) -> None:
+RECORDER_HOOK = "ralf_hil.service_recorder"
+"""Entry-point group of ``--record``'s hook: the launcher's package registers
+one (``workbench.recording.attach:attach_recorder``); a service image without
+the launcher has none that loads, and ``--record`` is refused in one line."""
+
+RecorderHook = Callable[[CommonSettings, str], Callable[[], None]]
+"""Starts recording the service's rig into the file beside the service
+(settings, path) and returns the function that stops it."""
+
+
+def installed_recorder_hook() -> RecorderHook:
+    """The ``--record`` hook the installed launcher registers under
+    :data:`RECORDER_HOOK`; :class:`ImportError` when none loads."""
+    for entry in entry_points(group=RECORDER_HOOK):
+        hook: RecorderHook = entry.load()
+        return hook
+    raise ImportError(f"no {RECORDER_HOOK!r} entry point is installed")
+
+
+def split_record_arg(args: Sequence[str]) -> tuple[str | None, list[str]]:
+    """``(path, args without --record PATH / --record=PATH)``."""
+    path: str | None = None
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        a = args[i]
+        if a == "--record" and i + 1 < len(args):
+            path = args[i + 1]
+            i += 2
+            continue
+        if a.startswith("--record="):
+            path = a.split("=", 1)[1]
+        else:
+            out.append(a)
+        i += 1
+    return path, out
+
+
+def _not_recording() -> None:
     """Stopping the recorder when none was started."""
 
 
@@ -312,27 +346,29 @@ def run_service(
     model: type[S],
     body: Callable[[S, zenoh.Session, threading.Event], int],
     argv: Sequence[str] | None = None,
+    recorder: RecorderHook | None = None,
 ) -> int:
     """The life of a service process: settings, logging, SIGINT/SIGTERM, a
-    zenoh session closed on every path, and ``body``'s exit code."""
+    zenoh session closed on every path, and ``body``'s exit code.
+
+    ``--record RUN.mcap`` starts ``recorder`` beside the service once its
+    session is open (default: the hook the installed launcher registers,
+    :func:`installed_recorder_hook`) and stops it on every way out."""
     # Imported here so that parsing --help does not need a network stack.
     from service_kit.transport import open_zenoh
 
     args = list(sys.argv[1:] if argv is None else argv)
     record: str | None = None
-    recorder: Any = None
-    stop_recorder: Callable[[Any], None] = _no_recorder
+    stop_recording: Callable[[], None] = _not_recording
     if any(a == "--record" or a.startswith("--record=") for a in args):
-        # The recorder is the launcher's (workbench.recording), imported only when asked
-        # for: the boards' own code never imports rig. It runs as a child process.
-        try:
-            from workbench.recording.attach import split_record_arg, start_recorder, stop_recorder
-        except ImportError as exc:  # a service image carries no launcher
-            print(f"{prog}: --record needs the launcher's recorder (pip install 'ralf-hil[rig]'): {exc}", file=sys.stderr)
-            return 2
-
-        record, stripped = split_record_arg(args)
-        args = stripped if stripped is not None else args
+        # The recorder is the launcher's, reached through its hook: a board never imports the launcher.
+        if recorder is None:
+            try:
+                recorder = installed_recorder_hook()
+            except ImportError as exc:  # a service image carries no launcher
+                print(f"{prog}: --record needs the launcher's recorder (pip install 'ralf-hil[rig]'): {exc}", file=sys.stderr)
+                return 2
+        record, args = split_record_arg(args)
     settings = parse_service_args(prog, summary, model, args)
     fix_malloc_threshold()
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
@@ -348,8 +384,8 @@ def run_service(
             return 0
         logging.getLogger(prog).error("%s", exc)
         return 2
-    if record:
-        recorder = start_recorder(settings, record)
+    if record and recorder is not None:
+        stop_recording = recorder(settings, record)
     try:
         return body(settings, session, stop)
     except ConfigError as exc:
@@ -358,4 +394,4 @@ def run_service(
     finally:
         readiness.clear(settings.ready_file)
         session.close()
-        stop_recorder(recorder)
+        stop_recording()

@@ -39,7 +39,7 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
     # first TF snapshot; the peer pays again when it first maps the pool), and
     # runs two watchdog threads per process at 20 and 10 Hz. Over loopback TCP
     # a 6 KB batch or a 91 KB snapshot costs zenoh's I/O threads a copy, not
-    # the loop (docs/timing.md, "The 1 kHz overruns: where they fall").
+    # the loop (docs/timing.md, "What a first batch cost").
     config.insert_json5("transport/shared_memory/enabled", "false")
     connect = settings.endpoints("connect")
     listen = settings.endpoints("listen")

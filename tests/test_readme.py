@@ -1,12 +1,16 @@
-"""The README stays true: its configuration tables are the generated ones,
-and CI runs its test command verbatim."""
+"""The README stays true: its configuration tables and figures are the
+generated ones, CI runs its test command verbatim, it stays short, and every
+relative link of the README and docs/ points to a file that exists."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
+import pytest
+
 from workbench.config_docs import config_tables
+from workbench.results_table import BEGIN, END, figures_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,3 +32,55 @@ def test_ci_runs_the_readme_test_command_verbatim() -> None:
     ci = (ROOT / ".ci" / "run").read_text()
     assert install in ci
     assert f".ci/loopback-netns {run}" in ci
+
+
+def test_readme_figures_table_is_the_generated_one() -> None:
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split(BEGIN, 1)[1].split(END, 1)[0]
+    assert section == f"\n{figures_table()}\n", "regenerate the README's figures with: python -m workbench.results_table --write README.md"
+
+
+def test_readme_stays_a_short_manual() -> None:
+    size = len((ROOT / "README.md").read_bytes())
+    assert size <= 25 * 1024, f"README.md is {size} bytes; move reference material to docs/"
+
+
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def relative_links(page: Path) -> list[str]:
+    """The page's Markdown link targets that point into the repository (no URL), anchors kept."""
+    targets = (m.group(1) for m in LINK.finditer(page.read_text()))
+    return [t for t in targets if "://" not in t and not t.startswith("mailto:")]
+
+
+def heading_anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives the page's headings: lower case, punctuation dropped, spaces as hyphens."""
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in re.findall(r"(?m)^#+ (.*)$", text)}
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_relative_link_points_to_an_existing_file(page: Path) -> None:
+    files = (t.split("#", 1)[0] for t in relative_links(page))
+    missing = [f for f in files if f and not (page.parent / f).exists()]
+    assert not missing, f"{page.relative_to(ROOT)}: links to missing files: {missing}"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_anchor_into_a_page_names_one_of_its_headings(page: Path) -> None:
+    broken = []
+    for target in (t for t in relative_links(page) if "#" in t):
+        file, anchor = target.split("#", 1)
+        linked = page.parent / file if file else page
+        if linked.suffix == ".md" and linked.exists() and anchor not in heading_anchors(linked):
+            broken.append(target)
+    assert not broken, f"{page.relative_to(ROOT)}: anchors that name no heading: {broken}"
+
+
+def test_the_docs_index_lists_every_page() -> None:
+    index = ROOT / "docs" / "README.md"
+    linked = {t.split("#", 1)[0] for t in relative_links(index)}
+    unlisted = [p.name for p in PAGES[1:] if p != index and p.name not in linked]
+    assert not unlisted, f"docs/README.md does not list: {unlisted}"

@@ -24,10 +24,11 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
-from workbench import bench, campaign, experiments, memory_slope, monitor, timing_test
+from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
+from workbench.plant_figures import cli as plant_cli
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.timing_test.report import health_verdict
@@ -586,7 +587,7 @@ def build_parser() -> argparse.ArgumentParser:
     cr.add_argument("--rig-id", default="default")
     cr.add_argument("--scenarios", action="store_true", help="accept scenario commands on the plant's test port (from the tester role)")
     cr.set_defaults(func=cmd_credentials)
-    for module in (bench, monitor, experiments, campaign, recording_cli):
+    for module in (bench, monitor, experiments, campaign, recording_cli, plant_cli, measure_cli):
         module.register(sub)
     timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
     memory_slope.register(sub)

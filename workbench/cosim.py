@@ -40,7 +40,7 @@ from dsp_service.bank_file import load_bank, save_bank
 from dsp_service.core import DspCore
 from plant_emulator.canopen_node.frames import Frame
 from plant_emulator.node import CanopenNode
-from plant_emulator.plant_model import build_plant_model
+from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.service import PlantApplication, build_health, node_config
 from protocol.batch_codec import decode_batch
 from protocol.errors import ConfigError, ProtocolError

@@ -4,22 +4,19 @@ zipped with the model description. Used for the example FMU
 (``examples/fmu/two_mode_plant``) and usable for any single-directory FMI 2.0
 C source whose model identifier names its ``.c`` files' library::
 
-    python -m plant_emulator.fmu.build examples/fmu/two_mode_plant two_mode_plant.fmu
+    ralf-hil plant fmu-build examples/fmu/two_mode_plant two_mode_plant.fmu
 """
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import subprocess
-import sys
 import tempfile
 import zipfile
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from plant_emulator.fmu.instance import FmuRefused, read_description
+from plant_emulator.fmu.instance import FmuRefused
 
 __all__ = ["EXAMPLE_SOURCE", "build_c_fmu"]
 
@@ -65,21 +62,7 @@ def read_description_xml(path: Path) -> Any:
         raise FmuRefused(f"{path}: unreadable model description ({' '.join(str(exc).split())})") from None
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m plant_emulator.fmu.build", description=__doc__.split("\n\n")[0])
-    parser.add_argument("source_dir", nargs="?", default=str(EXAMPLE_SOURCE), help="directory with modelDescription.xml and the C sources")
-    parser.add_argument("dest", nargs="?", default="two_mode_plant.fmu", help="the FMU to write")
-    args = parser.parse_args(argv)
-    try:
-        path = build_c_fmu(args.source_dir, args.dest)
-        read_description(path)
-    except (OSError, subprocess.CalledProcessError, FmuRefused) as exc:
-        detail = exc.stderr if isinstance(exc, subprocess.CalledProcessError) else exc
-        print(f"build failed: {detail}", file=sys.stderr)
-        return 2
-    print(path)
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m plant_emulator.fmu.build", "ralf-hil plant fmu-build")

@@ -1,7 +1,7 @@
 """How the structure's defaults were fitted, reproducibly.
 
-``python -m plant_emulator.model.calibration`` prints the calibration
-metrics of the current defaults; ``--fit`` re-runs the fit of the three
+``ralf-hil plant calibration`` prints the calibration metrics of the
+current defaults; ``--fit`` re-runs the fit of the three
 stiffnesses (the masses and geometry are chosen, not fitted: see
 docs/plant-model.md) and prints the parameters to paste into
 :class:`plant_emulator.model.modes.Structure`.
@@ -19,10 +19,8 @@ Reported but not fitted: the spread of the first mode over the workspace
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -123,15 +121,7 @@ def fit(start: Structure = DEFAULT_STRUCTURE, fitted: tuple[str, ...] = FITTED) 
     return make(res.x)
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--fit", action="store_true", help="re-fit the stiffnesses from the current defaults")
-    args = ap.parse_args(argv)
-    s = fit() if args.fit else DEFAULT_STRUCTURE
-    if args.fit:
-        print(json.dumps({n: float(f"{getattr(s, n):.4g}") for n in FITTED}, indent=1))
-    print(json.dumps(asdict(metrics(s)), indent=1))
-
-
 if __name__ == "__main__":
-    main()
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m plant_emulator.model.calibration", "ralf-hil plant calibration")

@@ -78,7 +78,6 @@ __all__ = [
     "INSPECTION_LOOP_START_IN",
     "inverse",
     "jacobian_determinant",
-    "joint_rate",
     "lever_slope_in_per_rad2",
     "load_waypoints",
     "phi_to_theta",
@@ -114,11 +113,6 @@ def lever_slope_in_per_rad2(cyl: PinTriangle, theta: float | FloatArray) -> floa
     lever = np.asarray(cyl.lever_in_per_rad(theta))
     out = (cyl.p_in * cyl.q_in * np.cos(gamma) - lever**2) / length
     return float(out) if np.ndim(out) == 0 else out
-
-
-def joint_rate(cyl: PinTriangle, theta: float, cylinder_velocity_in_s: float) -> float:
-    """Joint rate (rad/s) from the cylinder velocity (in/s) at ``theta``."""
-    return cylinder_velocity_in_s / float(cyl.lever_in_per_rad(theta))
 
 
 def load_waypoints(name: str = "inspection_loop") -> dict:

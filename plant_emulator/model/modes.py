@@ -389,21 +389,3 @@ def damping_matrix(M: FloatArray, K: FloatArray, zetas: tuple[float, float]) -> 
     w = np.sqrt(np.maximum(w2, 0.0))
     Z = np.diag(2.0 * np.asarray(zetas) * w)
     return M @ phi @ Z @ phi.T @ M
-
-
-# --- exact step of a damped oscillator under a constant force ---------------------------
-
-
-def oscillator_step(x: float, v: float, force: float, w: float, zeta: float, h: float) -> tuple[float, float]:
-    """Exact solution after ``h`` s of ``x'' + 2 zeta w x' + w^2 x = force``
-    (force constant over the step, ``0 < zeta < 1``)."""
-    xs = force / (w * w)
-    x0 = x - xs
-    sig = zeta * w
-    wd = w * math.sqrt(1.0 - zeta * zeta)
-    e = math.exp(-sig * h)
-    c = math.cos(wd * h)
-    s = math.sin(wd * h)
-    x1 = e * (x0 * c + (v + sig * x0) / wd * s)
-    v1 = e * (v * c - (sig * v + w * w * x0) / wd * s)
-    return x1 + xs, v1

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from plant_emulator.model import PlantConfig
-from plant_emulator.service import plant_config
+from plant_emulator.plant_factory import plant_config
 from protocol.settings import ControllerSettings, PlantSettings
 from workbench.campaign.spec import SpecError, SweepSpec, expand, load_spec, resolve, run_key
 

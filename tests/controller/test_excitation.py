@@ -1,8 +1,7 @@
 """The valve commands' dither (controller/excitation.py): its spectrum against
 scipy's Welch estimate, its RMS, its determinism, the two valves' independence,
 bad settings refused, and that it reaches the D/A only when switched on (the
-bit-for-bit equality of the compiled and Python forms with the dither is in
-``test_fast_tick.py``)."""
+tick with the dither against scipy references is in ``test_law_reference.py``)."""
 
 from __future__ import annotations
 

@@ -16,6 +16,7 @@ from controller.oatf import (
     OatfDesignError,
     OatfFilter,
     OatfSupervisor,
+    StageDesign,
     cascade_kernel,
     design_stage,
     design_stage_continuous,
@@ -292,3 +293,17 @@ def test_supervisor_ignores_and_counts_implausible_estimates() -> None:
     assert sup2.counts.design_rejected == 1 and "sum" in sup2.counts.last_rejection
     assert fixed.stages[0].frequency_hz == 5.0
     assert sup2.offer([6.0]) is True and sup2.counts.updates == 1
+
+
+def test_one_stage_kernel_is_the_convolution() -> None:
+    for f in (1.5, 4.4, 9.9, 19.0):
+        stage = design_stage(f, 0.09, 0.005)
+        delays, weights = cascade_kernel([stage])
+        n = stage.delay_samples
+        poly = np.zeros(2 * n + 1)
+        poly[[0, n, 2 * n]] = stage.coefficients
+        dense = np.convolve(np.ones(1), poly)
+        assert delays.tolist() == np.flatnonzero(dense).tolist() and weights.tolist() == dense[np.flatnonzero(dense)].tolist()
+    zero_middle = StageDesign(4.0, 0.0, 3, 0.005, (0.5, 0.0, 0.5))
+    delays, weights = cascade_kernel([zero_middle])
+    assert delays.tolist() == [0, 6] and weights.tolist() == [0.5, 0.5]

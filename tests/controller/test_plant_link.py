@@ -14,6 +14,7 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import can
 import canopen
@@ -81,7 +82,7 @@ def run_ticks(link: PlantLink, n: int, volts: tuple[float, float] = (0.5, -0.5))
     return answered
 
 
-# --- junk on the udp_multicast group (issue: one datagram killed the controller) ----------------
+# --- junk on the udp_multicast group (one datagram once killed the controller) ----------------
 
 
 JUNK: dict[str, bytes] = {
@@ -270,3 +271,50 @@ def test_a_foreign_sync_stream_cannot_hold_the_valves_open_for_a_frozen_controll
         conflicts = link.take_conflicts()
     assert any(d.startswith("foreign sync") for d in conflicts)
     assert any(e.code == EmcyCode.RPDO_TIMEOUT and e.vendor[1] == 1 for e in link.emergencies)
+
+
+class _Wire:
+    """A bus stand-in keeping what a link sends (a direct one, like the co-simulation's wire, offers ``send_frame``)."""
+
+    def __init__(self) -> None:
+        self.frames: list[tuple[int, bytes]] = []
+        self.kinds: set[str] = set()
+
+    def send(self, msg: Any, timeout: float | None = None) -> None:
+        assert not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame) and msg.dlc == len(msg.data)
+        self.kinds.add(type(msg).__name__)
+        self.frames.append((msg.arbitration_id, bytes(msg.data)))
+
+    def recv(self, timeout: float | None = None) -> None:
+        return None
+
+
+class _DirectWire(_Wire):
+    def send_frame(self, cob_id: int, data: bytes) -> None:
+        self.kinds.add("send_frame")
+        self.frames.append((cob_id, bytes(data)))
+
+
+class _Forwarding:
+    """A wrapper forwarding what it does not define (as the recording wire does): frames go through its send."""
+
+    def __init__(self, inner: _Wire) -> None:
+        self.inner = inner
+        self.sent = 0
+
+    def send(self, msg: Any, timeout: float | None = None) -> None:
+        self.sent += 1
+        self.inner.send(msg, timeout)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def test_a_wrapper_that_forwards_send_frame_still_sees_every_frame() -> None:
+    """The link takes the direct path only when the wire's class offers send_frame, so a
+    forwarding wrapper around a direct wire (the co-simulation's recording) gets every frame."""
+    wrapper = _Forwarding(_DirectWire())
+    link = PlantLink(wrapper, 1)  # type: ignore[arg-type]
+    link.send_output_codes(100, -100)
+    link.send_sync()
+    assert wrapper.sent == 2 and wrapper.inner.kinds == {"Message"}

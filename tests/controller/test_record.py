@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from controller.oatf import OatfConfig
 from controller.pi import PIConfig
-from controller.record import RECORD_FORMAT, ChunkedRecord, ColumnBuffer, load_record, save_record
+from controller.record import RECORD_FORMAT, ROW_BLOCK, ChunkedRecord, ColumnBuffer, RowCounter, load_record, save_record
 
 
 def test_round_trip(tmp_path: Path) -> None:
@@ -128,3 +128,33 @@ def test_a_full_chunk_is_written_one_column_per_row_and_the_record_is_unchanged(
         got = load_record(tmp_path / f"r{chunk}").columns
         for name, column in want.to_columns().items():
             assert got[name].dtype == column.dtype and got[name].tobytes() == column.tobytes()
+
+
+def test_append_row_stores_what_append_stores(tmp_path: Path) -> None:
+    columns = {"a": np.float64, "b": np.float64, "flag": np.bool_, "tick": np.int64}
+    by_row, by_map = ColumnBuffer(columns, capacity=16), ColumnBuffer(columns, capacity=16)
+    chunked = ChunkedRecord(tmp_path / "r", columns, chunk_rows=700)
+    counter = RowCounter(columns)
+    rng = np.random.default_rng(2)
+    n = 3 * ROW_BLOCK + 17
+    for i in range(n):
+        row = [float(rng.normal()), math.nan if i % 97 == 0 else i * 0.5, i % 3 == 0, i]
+        if i == ROW_BLOCK + 5:
+            by_row.append(dict(zip(columns, row, strict=True)))  # a mapping between rows keeps the order
+        else:
+            by_row.append_row(row)
+        by_map.append(dict(zip(columns, row, strict=True)))
+        chunked.append_row(row)
+        counter.append_row(row)
+        if i == 100:
+            assert len(by_row) == 101 and by_row.column("tick").tolist() == list(range(101))
+    assert len(by_row) == len(by_map) == len(chunked) == len(counter) == n
+    got, want, streamed = by_row.to_columns(), by_map.to_columns(), chunked.to_columns()
+    for name in columns:
+        assert got[name].dtype == want[name].dtype == streamed[name].dtype
+        assert got[name].tobytes() == want[name].tobytes() == streamed[name].tobytes()
+    chunked.close()
+    with pytest.raises(ValueError, match="one per column"):
+        by_row.append_row([1.0, 2.0])
+    by_row.clear()
+    assert len(by_row) == 0

@@ -1,4 +1,4 @@
-"""History, averaging/RLS, smoothing, configuration and bench structure (test 6 of the brief)."""
+"""History, averaging/RLS, smoothing, and configuration (test 6 of the brief)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import scipy.signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dsp_service.bench import bench_identifier
 from dsp_service.history import HistoryBuffer
 from dsp_service.identifier import Identifier, IdentifierConfig
 from dsp_service.smoothing import FrequencySmoother
@@ -217,15 +216,6 @@ def test_smoothing_off_and_estimate_on_smoothed_paths_run() -> None:
             assert p.damping_ratio is not None and 0 < p.damping_ratio < 0.5
         if kw.get("damping_method") == "fwhm":
             assert result.poles[0].damping_ratio == result.poles[0].damping_fwhm
-
-
-# ------------------------------------------------------------------------- bench
-def test_bench_returns_the_documented_structure() -> None:
-    out = bench_identifier(n=256, repeats=5)
-    for key in ("step_p50_us", "step_p99_us", "floor_p50_us", "floor_p99_us", "ratio_p50", "ratio_p99", "c40_fraction"):
-        assert isinstance(out[key], float) and out[key] > 0, key
-    assert out["n"] == 256 and out["repeats"] == 5
-    assert isinstance(out["poles_found"], int)
 
 
 # ------------------------------------------------------------ service-facing API

@@ -73,7 +73,7 @@ def test_oversize_and_flood_are_dropped_counted_and_change_nothing(tmp_path: Pat
 
 
 def test_interrupts_and_flags_of_another_board_are_refused(tmp_path: Path) -> None:
-    """The issue's attack: a foreign session answers each batch first with a
+    """The attack: a foreign session answers each batch first with a
     forged interrupt (15 Hz, confidence 1.0) and a forged 'empty' flag. The
     controller takes flags and interrupts only from the board it paired with."""
     from protocol.batch_codec import decode_batch

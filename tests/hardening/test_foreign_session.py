@@ -1,4 +1,4 @@
-"""The issue's attack on a real `ralf-hil up` (three processes, lockstep,
+"""The attack on a real `ralf-hil up` (three processes, lockstep,
 per-run credentials and access rules): a foreign session with the tools'
 credentials answers every batch with a forged interrupt (15 Hz, confidence
 1.0) and a forged 'empty' flag, and sends forged batches, a config change,
@@ -107,7 +107,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
             )
             session.put(keys.interrupt, encode(irq))
             session.put(keys.flag, encode(BlockFlag(seq=seq, sim_time_s=0.0, state="empty", next_batch_seq=seq + 1, fft_width=256, batch_size=30)))
-            # the next batch, early (the issue's attack: it was accepted and the real one rejected as block-full)
+            # the next batch, early (the attack: it was accepted and the real one rejected as block-full)
             fake = encode_batch(type(batch)(**{**batch.__dict__, "seq": seq + 1, "first_tick": batch.first_tick + batch.n_samples}))
             mine.add(fake)
             session.put(keys.batch, fake)

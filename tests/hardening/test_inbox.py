@@ -110,7 +110,7 @@ def test_decoder_errors_other_than_protocol_errors_propagate() -> None:
 
 
 def test_dsp_block_flood_logs_once(caplog: pytest.LogCaptureFixture) -> None:
-    """5000 batches into a full block: all counted, one WARNING line (the issue's 5000 lines, 682 KB)."""
+    """5000 batches into a full block: all counted, one WARNING line (not 5000 lines, 682 KB)."""
     import numpy as np
 
     from dsp_service.board import BatchBlock

@@ -1,5 +1,5 @@
-"""The README's stock ``canopen`` master session, run verbatim against the plant
-node over udp_multicast (in the loopback-only namespace, on a test port)."""
+"""The stock ``canopen`` master session of docs/canopen.md, run verbatim against
+the plant node over udp_multicast (in the loopback-only namespace, on a test port)."""
 
 from __future__ import annotations
 
@@ -26,11 +26,11 @@ ROOT = Path(__file__).resolve().parents[2]
 VOLTS = (1.0, -2.5, 9.9, -10.0)
 
 
-def readme_session() -> str:
-    text = (ROOT / "README.md").read_text()
-    section = text.split("### Driving the plant node with a stock CANopen master", 1)[1]
+def documented_session() -> str:
+    text = (ROOT / "docs" / "canopen.md").read_text()
+    section = text.split("## Driving the node with a stock CANopen master", 1)[1]
     match = re.search(r"```python\n(.*?)```", section, re.DOTALL)
-    assert match, "the README's canopen session block is missing"
+    assert match, "the canopen session block of docs/canopen.md is missing"
     return match.group(1)
 
 
@@ -65,7 +65,7 @@ def test_the_readme_canopen_session_runs_against_the_node(monkeypatch: pytest.Mo
     monkeypatch.setenv("RALF_CAN_PORT", str(port))
     monkeypatch.chdir(ROOT)
     try:
-        exec(compile(readme_session(), "README.md", "exec"), {"__name__": "readme_session"})  # noqa: S102 - the README block, verbatim
+        exec(compile(documented_session(), "docs/canopen.md", "exec"), {"__name__": "documented_session"})  # noqa: S102 - the documented block, verbatim
         deadline = time.monotonic() + 2.0  # the session's last NMT frame may still be on its way
         while node.state is not NmtState.PRE_OPERATIONAL and time.monotonic() < deadline:
             time.sleep(0.002)

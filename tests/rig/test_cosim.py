@@ -60,24 +60,25 @@ def test_cosim_pairs_with_its_board_and_refuses_any_other_at_the_edge() -> None:
 
     run = run_cosim(controller={"duration_s": 1.0, "tf_download_samples": 0, "batch_size": 20}, dsp={"fft_width": 256, "emulated_latency_s": 0.05})
     ctrl = run.controller
-    assert ctrl.paired_board == ctrl.port.board_id  # type: ignore[attr-defined]
+    inbox = ctrl.dsp.inbox
+    assert inbox.paired_board == ctrl.port.board_id  # type: ignore[attr-defined]
     assert run.result.counters.get("in_interrupt_refused", 0) == 0
     assert run.result.counters["interrupts_applied"] > 0
-    before = ctrl._events.counters("interrupt").refused
-    left = len(ctrl._events)  # the answers to the last batch, never taken
+    before = inbox.events.counters("interrupt").refused
+    left = len(inbox.events)  # the answers to the last batch, never taken
     irq = encode(Interrupt(seq=0, sim_time_s=0.0, batch_seq=0, confidence=1.0, compute_time_s=0.0))
-    ctrl._on_port_event("interrupt", irq, 0.0, b"another-board")
-    ctrl._on_port_event("interrupt", irq, 0.0, None)
+    inbox.on_port_event("interrupt", irq, 0.0, b"another-board")
+    inbox.on_port_event("interrupt", irq, 0.0, None)
     unsent = encode(Interrupt(seq=0, sim_time_s=0.0, batch_seq=10**9, confidence=1.0, compute_time_s=0.0))
-    ctrl._on_port_event("interrupt", unsent, 0.0, ctrl.paired_board)
-    assert ctrl._events.counters("interrupt").refused == before + 3
+    inbox.on_port_event("interrupt", unsent, 0.0, inbox.paired_board)
+    assert inbox.events.counters("interrupt").refused == before + 3
     flag = encode(BlockFlag(seq=0, sim_time_s=0.0, state="empty", next_batch_seq=0, fft_width=256, batch_size=20))
-    flags_refused = ctrl._events.counters("flag").refused
-    ctrl._on_port_event("flag", flag, 0.0, b"another-board")
-    assert ctrl._events.counters("flag").refused == flags_refused + 1
-    assert len(ctrl._events) == left  # nothing of it was queued
-    ctrl._on_port_event("interrupt", b"x" * 100_000, 0.0, ctrl.paired_board)
-    assert ctrl._events.counters("interrupt").oversize == 1
+    flags_refused = inbox.events.counters("flag").refused
+    inbox.on_port_event("flag", flag, 0.0, b"another-board")
+    assert inbox.events.counters("flag").refused == flags_refused + 1
+    assert len(inbox.events) == left  # nothing of it was queued
+    inbox.on_port_event("interrupt", b"x" * 100_000, 0.0, inbox.paired_board)
+    assert inbox.events.counters("interrupt").oversize == 1
 
 
 def test_cosim_settings_errors_name_the_service_and_variable() -> None:
@@ -137,7 +138,7 @@ def test_the_empty_flag_after_an_interrupt_is_not_a_late_flag() -> None:
     run = run_cosim(controller={"duration_s": 0.5, "tf_download_samples": 0, "batch_size": 20}, dsp={"fft_width": 256, "emulated_latency_s": 0.0})
     ctrl, link = run.controller, run.controller.link
     k = link.next_seq
-    ctrl.latest_interrupt = Interrupt(seq=0, sim_time_s=0.0, batch_seq=k, confidence=1.0, compute_time_s=0.0)
+    ctrl.dsp.latest_interrupt = Interrupt(seq=0, sim_time_s=0.0, batch_seq=k, confidence=1.0, compute_time_s=0.0)
     link.in_flight = SentBatch(seq=k + 1, tick=0, sim_time_s=0.0, due_tick=0, deadline_tick=1)
     link.next_seq = k + 2
     late = link.counters.flags_late
@@ -145,8 +146,8 @@ def test_the_empty_flag_after_an_interrupt_is_not_a_late_flag() -> None:
     def flag(next_seq: int) -> BlockFlag:
         return BlockFlag(seq=0, sim_time_s=0.0, state="empty", next_batch_seq=next_seq, fft_width=256, batch_size=20)
 
-    ctrl._take_event("flag", flag(k + 1), 0.0)
+    ctrl.dsp.take_event("flag", flag(k + 1), 0.0)
     assert link.counters.flags_late == late and link.in_flight is not None
-    ctrl.latest_interrupt = Interrupt(seq=0, sim_time_s=0.0, batch_seq=k - 1, confidence=1.0, compute_time_s=0.0)
-    ctrl._take_event("flag", flag(k + 1), 0.0)
+    ctrl.dsp.latest_interrupt = Interrupt(seq=0, sim_time_s=0.0, batch_seq=k - 1, confidence=1.0, compute_time_s=0.0)
+    ctrl.dsp.take_event("flag", flag(k + 1), 0.0)
     assert link.counters.flags_late == late + 1

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from workbench.cli import main as cli_main
 from workbench.experiments import (
     Experiment,
     UnknownExperimentError,
@@ -18,7 +19,6 @@ from workbench.experiments import (
     run_all,
     run_experiment,
 )
-from workbench.experiments import cli as exp_cli
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 OFFLINE = ("oatf-response", "fwhm-error", "vrm", "simulation")
@@ -65,7 +65,7 @@ def test_offline_experiments_are_registered() -> None:
 
 
 def test_list_output(capsys: pytest.CaptureFixture[str]) -> None:
-    assert exp_cli.main(["--list"]) == 0
+    assert cli_main(["experiment", "--list"]) == 0
     out = capsys.readouterr().out
     for name in (*OFFLINE, "all"):
         assert name in out
@@ -80,13 +80,13 @@ def test_ralf_hil_knows_the_experiment_command(capsys: pytest.CaptureFixture[str
 
 
 def test_unknown_name_is_a_clear_error(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    assert exp_cli.main(["vrn", "--out", str(tmp_path / "x")]) == 2
+    assert cli_main(["experiment", "vrn", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "unknown experiment 'vrn'" in err and "did you mean 'vrm'" in err and "fwhm-error" in err
     assert not (tmp_path / "x").exists()
     with pytest.raises(UnknownExperimentError, match="unknown experiment 'nope'"):
         run_experiment("nope", tmp_path / "y")
-    assert exp_cli.main([]) == 2
+    assert cli_main(["experiment"]) == 2
 
 
 def test_registry_rejects_bad_and_duplicate_names() -> None:

@@ -35,7 +35,6 @@ import json
 import math
 import tempfile
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -328,16 +327,3 @@ def register(subparsers: Any) -> None:
     )
     add_arguments(p)
     p.set_defaults(func=cmd_bench)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """A stand-alone parser (``python -m workbench.bench``) with the same options."""
-    parser = argparse.ArgumentParser(prog="python -m workbench.bench", description=__doc__.split("\n\n")[0].replace("``", ""))
-    add_arguments(parser)
-    parser.set_defaults(func=cmd_bench)
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args.func(args))

@@ -12,9 +12,9 @@ controller service's own per-tick work (``controller/service.py``). The
 wrappers cost ~0.3 µs per call; the parts are inclusive wall times, the
 service's share the rest of the run's wall time.
 
-``python -m workbench.bench.cosim_parts [SECONDS]`` prints the table.
+``ralf-hil measure cosim-parts [SECONDS]`` prints the table.
 
-The plant side alone (:func:`plant_side`, ``python -m workbench.bench.cosim_parts
+The plant side alone (:func:`plant_side`, ``ralf-hil measure cosim-parts
 --plant [SECONDS]``): the wire calls of one co-simulation (each ``send`` with
 its frame, each ``recv`` with its timeout, and the simulated time of each)
 are captured, then replayed into a fresh plant (the same node, application
@@ -25,7 +25,7 @@ The run is deterministic, so what changes between two builds is the code.
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -178,21 +178,23 @@ def plant_side(sim_s: float = 10.0, rounds: int = 5) -> dict[str, Any]:
     return {"ticks": ticks, "calls": len(calls), "cpu_us_per_tick": cpu_us, "wall_us_per_tick": wall_us, "best_cpu_us": min(cpu_us)}
 
 
-def main() -> None:
-    args = sys.argv[1:]
-    if args[:1] == ["--plant"]:
-        out = plant_side(float(args[1]) if len(args) > 1 else 10.0)
+def main(args: argparse.Namespace) -> int:
+    if args.plant:
+        out = plant_side(args.seconds if args.seconds is not None else 10.0)
         rounds = ", ".join(f"{c:.1f}" for c in out["cpu_us_per_tick"])
         print(f"plant side (node + application + arm + wire), {out['ticks']} ticks, {out['calls']} wire calls replayed")
         print(f"  CPU µs per tick: best {out['best_cpu_us']:.1f} (rounds {rounds}); wall best {min(out['wall_us_per_tick']):.1f}")
-        return
-    sim_s = float(args[0]) if args else 20.0
+        return 0
+    sim_s = args.seconds if args.seconds is not None else 20.0
     cosim_parts(1.0)  # warm-up: imports, compiled kernels
     out = cosim_parts(sim_s)
     print(f"{out['ticks']} ticks: {out['wall_us_per_tick']:.0f} µs wall, {out['cpu_us_per_tick']:.0f} µs CPU per tick (instrumented)")
     for name, us in out["parts_us_per_tick"].items():
         print(f"  {us:7.1f} µs  {out['parts_share'][name] * 100:5.1f} %  {name}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m workbench.bench.cosim_parts", "ralf-hil measure cosim-parts")

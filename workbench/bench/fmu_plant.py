@@ -24,7 +24,7 @@ import numpy as np
 
 from protocol import can_map
 from protocol.settings import PlantSettings
-from workbench.bench.items import BenchContext, Skip, latency, requires, scalar
+from workbench.bench.entries import BenchContext, Skip, latency, requires, scalar
 from workbench.bench.stats import from_latency_stats, summarize
 
 __all__ = ["COSIM_GOAL", "bench_fmu"]
@@ -35,7 +35,7 @@ COSIM_GOAL = 50.0
 
 def _node(settings: PlantSettings) -> tuple[Any, Any]:
     from plant_emulator.node import CanopenNode
-    from plant_emulator.plant_model import build_plant_model
+    from plant_emulator.plant_factory import build_plant_model
     from plant_emulator.service import PlantApplication, node_config
 
     app = PlantApplication(settings, arm=build_plant_model(settings))

@@ -11,13 +11,14 @@
   message either way);
 
 and their parts, so each choice of means can be measured (``ralf-hil bench
---only hotpath``; ``python -m workbench.bench.hotpath`` prints the table;
-``python -m workbench.bench.hotpath --controller-side [SECONDS]`` the
+--only hotpath``; ``ralf-hil measure hotpath`` prints the table;
+``ralf-hil measure hotpath --controller-side [SECONDS]`` the
 controller's share of a co-simulated tick in CPU time, :func:`controller_side_cpu`).
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Callable
 from typing import Any
@@ -33,7 +34,8 @@ from controller.record import ColumnBuffer
 from controller.service import RECORD_EXTRA
 from plant_emulator.model import RalfArm
 from plant_emulator.node import CanopenNode
-from plant_emulator.service import PlantApplication, node_config, plant_config
+from plant_emulator.plant_factory import plant_config
+from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
 from protocol.settings import ControllerSettings, PlantSettings
 
@@ -81,13 +83,9 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
 
     def controller_tick(i: int) -> None:
         w0, w1, w2, w3 = can_map.decode_analog_inputs_16_values(tpdo.data)
-        if law.compiled:  # as the service runs it: the law in one compiled call, RPDO1 from its codes
-            law.tick_compiled(i, w0, w1, w2, w3)
-            row = law.row.tolist()
-            c0, c1, _, _ = law.codes.tolist()
-        else:
-            row = law.step_row(i, [w0, w1, w2, w3])
-            (c0, c1), _ = can_map.DAC12_VALUES(row[ROW_VOLTS : ROW_VOLTS + 2])
+        law.tick_compiled(i, w0, w1, w2, w3)  # as the service runs it: the law in one compiled call, RPDO1 from its codes
+        row = law.row.tolist()
+        c0, c1, _, _ = law.codes.tolist()
         volts = row[ROW_VOLTS : ROW_VOLTS + 2]
         can_map.encode_analog_outputs_values(c0 << shift, c1 << shift)
         link.add_sample(i, volts, row[ROW_DEFLECTIONS : ROW_DEFLECTIONS + 2])
@@ -107,8 +105,10 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         node.exchange(can_map.SYNC_COB_ID, can_map.encode_sync(counter[0]), i * ps.sample_period_s)
 
     rpdo_payloads = (can_map.encode_analog_outputs_values(0x0100, -0x0100), can_map.encode_analog_outputs_values(-0x0200, 0x0080))
-    out = law.step(0, words)
-    errors = (out.setpoint_rad - out.measurement.phi_rad).tolist()
+    setpoint = law.setpoint(0)
+    phi = np.array(measure_values(word_list)[10:12])
+    errors = setpoint - phi
+    volts = np.array([1.25, -0.5])
     results = {
         "controller tick": _timed(controller_tick, n, warmup),
         "plant step (SYNC -> TPDO1)": _timed(plant_step, n, warmup),
@@ -117,14 +117,11 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         "  tpdo decode (ints)": _timed(lambda i: can_map.decode_analog_inputs_16_values(tpdo.data), n, warmup),
         "  engineering (measure, arrays)": _timed(lambda i: measure(words), n, warmup),
         "  engineering (measure_values)": _timed(lambda i: measure_values(word_list), n, warmup),
-        "  law.step (arrays: measure+trajectory+OATF+PI+D/A)": _timed(lambda i: law.step(i, words), n, warmup),
         "  law.step_row (floats: the same)": _timed(lambda i: law.step_row(i, word_list), n, warmup),
-        "  law._compute (the Python per-tick form)": _timed(lambda i: law._compute(i, word_list), n, warmup),  # noqa: SLF001
         "  law.tick_compiled (one numba call: the same)": _timed(lambda i: law.tick_compiled(i, *word_list), n, warmup),
-        "  PI update (arrays)": _timed(lambda i: law.pi.update(out.setpoint_rad, out.measurement.phi_rad), n, warmup),
-        "  PI step_values (floats)": _timed(lambda i: law.pi.step_values(errors), n, warmup),
-        "  rpdo encode": _timed(lambda i: can_map.volts_to_output_frame(out.volts), n, warmup),
-        "  record row (dict from arrays)": _timed(lambda i: law.record_row(i, out), n, warmup),
+        "  PI update (arrays)": _timed(lambda i: law.pi.update(setpoint, phi), n, warmup),
+        "  PI step (one kernel call)": _timed(lambda i: law.pi.step(errors), n, warmup),
+        "  rpdo encode": _timed(lambda i: can_map.volts_to_output_frame(volts), n, warmup),
         "  arm.advance(Ts)": _timed(lambda i: app.arm.advance(ps.sample_period_s), n, warmup),
         "  arm.sample (sensors, A/D)": _timed(lambda i: arm.sample(), n, warmup),
         "  arm.sample_codes (the SYNC path's A/D codes)": _timed(lambda i: app.arm.sample_codes(), n, warmup),
@@ -133,9 +130,7 @@ def bench_hotpath(n: int = 2000, warmup: int = 200, oatf_mode: str = "adaptive")
         ),
     }
     if law.oatf is not None:
-        results["  OATF step (arrays)"] = _timed(lambda i: law.oatf.step(out.setpoint_rad), n, warmup)  # type: ignore[union-attr]
-        setpoint = out.setpoint_rad.tolist()
-        results["  OATF step_values (floats)"] = _timed(lambda i: law.oatf.step_values(setpoint), n, warmup)  # type: ignore[union-attr]
+        results["  OATF step (arrays)"] = _timed(lambda i: law.oatf.step(setpoint), n, warmup)  # type: ignore[union-attr]
     return results
 
 
@@ -204,22 +199,23 @@ def controller_side_cpu(sim_s: float = 10.0) -> dict[str, float]:
     }
 
 
-def main() -> None:
-    import sys
-
-    if len(sys.argv) > 1 and sys.argv[1] == "--controller-side":
+def main(args: argparse.Namespace) -> int:
+    if args.controller_side is not None:
         controller_side_cpu(1.0)  # warm-up: imports, compiled kernels
-        r = controller_side_cpu(float(sys.argv[2]) if len(sys.argv) > 2 else 10.0)
+        r = controller_side_cpu(args.controller_side)
         print(
             f"{r['ticks']:.0f} ticks, CPU per tick: {r['cpu_us_per_tick']:.1f} µs = controller {r['controller_us_per_tick']:.1f}"
             f" + plant node and wire {r['plant_us_per_tick']:.1f} + DSP port and core {r['dsp_us_per_tick']:.1f}"
         )
-        return
+        return 0
     for name, r in bench_hotpath().items():
         ratio = r["p50_us"] / TARGET_US
         flag = "" if name.startswith(" ") else f"  ({ratio:.2f}x the {TARGET_US:.0f} µs target: {'met' if ratio <= 1.0 else 'not met'})"
         print(f"{name:48s} p50 {r['p50_us']:8.1f} µs   p99 {r['p99_us']:8.1f} µs{flag}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m workbench.bench.hotpath", "ralf-hil measure hotpath")

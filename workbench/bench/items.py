@@ -25,7 +25,6 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,7 @@ import numpy as np
 
 from protocol.batch_codec import encode_batch
 from protocol.keys import Keys
+from workbench.bench.entries import BenchContext, Skip, latency, latency_vs_value, new_result, requires, scalar
 from workbench.bench.pingers import (
     CanPinger,
     DspPinger,
@@ -48,80 +48,13 @@ from workbench.bench.pingers import (
     zenoh_session,
 )
 from workbench.bench.procs import BenchError, Child, clean_env, private_can_port, private_rig_id, tail
-from workbench.bench.stats import from_latency_stats, ratio, ratios, summarize
+from workbench.bench.stats import from_latency_stats, ratios, summarize
 from workbench.launcher import free_tcp_port, free_tcp_ports
 from workbench.timing_test.report import health_verdict
 
 CAN_GROUP = "239.74.163.2"
 DSP_FFT_WIDTH = 2048
 BATCH_SAMPLES = 20
-
-
-class Skip(Exception):
-    """A measurement cannot run yet (a module it needs is missing)."""
-
-
-@dataclass
-class BenchContext:
-    quick: bool = False
-    duration_s: float = 10.0
-    iterations: int = 2000
-    warmup: int = 100
-    log_dir: Path = field(default_factory=lambda: Path("/tmp"))
-    floors_only: bool = False
-    say: Callable[[str], None] = lambda text: None
-    rates: tuple[tuple[float, float | None], ...] = ()
-    """realtime: (rate Hz, seconds or None = ``duration_s``) per run (empty: 200 Hz and 1 kHz)."""
-    batch_period_s: float = 0.2
-    """realtime: batch size = this many seconds of samples (> the DSP's 100 ms emulated latency: slack for the deadline)."""
-    floor_s: float = 5.0
-    """realtime: seconds of the sleep-only loop per rate (at most the run's own)."""
-    burners: int = 0
-    """realtime: CPU-burning processes running during the floor and the rig (a loaded host)."""
-    rt_priority: int = 0
-    cpu_affinity: str = ""
-    """realtime: RALF_RT_PRIORITY / RALF_CPU_AFFINITY for the controller and the plant (opt-in measures)."""
-    rt_cpu_latency_us: int = -1
-    """realtime: RALF_RT_CPU_LATENCY_US for the controller and the plant, and the sleep-only floor's (-1: off)."""
-
-
-def new_result() -> dict[str, Any]:
-    return {"status": "ok", "measurements": {}, "config": {}, "notes": [], "errors": [], "skipped": []}
-
-
-def requires(*modules: str) -> None:
-    """Raise :class:`Skip` naming the first module that does not import."""
-    for module in modules:
-        try:
-            importlib.import_module(module)
-        except ImportError as exc:
-            raise Skip(f"{module} does not import yet ({type(exc).__name__}: {exc})") from None
-
-
-def latency(summary: Mapping[str, Any], floor: str | None = None, floor_summary: Mapping[str, Any] | None = None, **extra: Any) -> dict[str, Any]:
-    entry: dict[str, Any] = {"kind": "latency", **summary}
-    if floor is not None:
-        entry["floor"] = floor
-        entry["ratio"] = ratios(summary, floor_summary) if floor_summary is not None else None
-    entry.update(extra)
-    return entry
-
-
-def latency_vs_value(summary: Mapping[str, Any], floor: str, floor_value_us: float, **extra: Any) -> dict[str, Any]:
-    entry: dict[str, Any] = {"kind": "latency", **summary, "floor": floor, "floor_value_us": floor_value_us}
-    entry["ratio"] = {key[:-3]: ratio(summary.get(key), floor_value_us) for key in ("p50_us", "p99_us", "p999_us", "max_us")}
-    entry.update(extra)
-    return entry
-
-
-def scalar(value: float | int | None, unit: str, floor: str | None = None, floor_value: float | None = None, **extra: Any) -> dict[str, Any]:
-    entry: dict[str, Any] = {"kind": "scalar", "value": value, "unit": unit}
-    if floor is not None:
-        entry["floor"] = floor
-        entry["floor_value"] = floor_value
-        entry["ratio"] = ratio(value, floor_value) if value is not None else None
-    entry.update(extra)
-    return entry
 
 
 def _measure_pingers(ctx: BenchContext, pingers: list[Any]) -> dict[str, list[float]]:
@@ -836,9 +769,10 @@ def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
 
 
 def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
-    """dsp_service.bench.bench_identifier(n=2048) against its numpy floor and the C40's 100 ms."""
-    requires("dsp_service.bench")
-    module = importlib.import_module("dsp_service.bench")
+    """workbench.bench.dsp_step.bench_identifier(n=2048) against its numpy floor and the C40's 100 ms."""
+    requires("dsp_service.identifier")
+    from workbench.bench import dsp_step as module
+
     repeats = 30 if ctx.quick else 200
     ctx.say(f"  bench_identifier(n=2048, repeats={repeats})")
     raw = module.bench_identifier(n=2048, repeats=repeats)
@@ -855,7 +789,7 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
         m["identifier_step vs products floor"] = latency(step, "numpy_floor_products", products)
     if raw.get("floor_unbatched_p50_us"):
         m["numpy_floor_unbatched"] = latency(
-            {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see dsp_service.bench)"
+            {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see workbench.bench.dsp_step)"
         )
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
     if hasattr(module, "bench_stages"):

@@ -11,7 +11,7 @@ import queue
 import socket
 import struct
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import can
@@ -213,7 +213,7 @@ class PacedPinger:
     idles between ticks. A back-to-back ping-pong keeps both ends' CPUs and
     caches warm; on this project's VM the bare CAN ping-pong took ~50 µs back
     to back, 140-190 µs started every 1 ms and 360-510 µs every 5 ms
-    (docs/timing.md, "Eighth landing")."""
+    (docs/benchmarks.md)."""
 
     def __init__(self, inner: Pinger, period_s: float, clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep) -> None:
         if not period_s > 0:
@@ -470,9 +470,3 @@ class PlantPinger:
             msg = self.bus.recv(timeout=remaining)
             if msg is not None and self._handle(msg):
                 return _perf() - t0
-
-
-def summarize_named(samples: Mapping[str, list[float]]) -> dict[str, dict[str, float | int]]:
-    from workbench.bench.stats import summarize
-
-    return {name: summarize(values) for name, values in samples.items()}

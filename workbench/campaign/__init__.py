@@ -4,7 +4,7 @@
   per-task errors, progress and timings; the process's shared engine (:func:`current_engine`);
 * :mod:`.spec`: the sweep spec (grid, points, seeds, base, mode), resolved against
   :mod:`protocol.settings` and keyed by a hash of the resolved settings;
-* :mod:`.modes`: the run modes (``lockstep`` in one process, ``onrig`` three processes),
+* :mod:`.modes`: the run modes (``cosim`` in one thread, the default; ``lockstep`` in one process; ``onrig`` three processes),
   one registration each;
 * :mod:`.metrics`: the row of one run (the §4.2.1 costs and the run's facts);
 * :mod:`.table`: the journal and the tidy table (Parquet, CSV);

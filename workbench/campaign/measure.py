@@ -1,4 +1,4 @@
-"""Measure the campaign engine on this machine: ``python -m workbench.campaign.measure [--blocks 2] [--runs 6] [--duration 10] [--json out.json]``.
+"""Measure the campaign engine on this machine: ``ralf-hil measure campaign [--blocks 2] [--runs 6] [--duration 10] [--json out.json]``.
 
 * **throughput**: the same sweep of ``--runs`` lockstep runs (``--duration``
   simulated seconds each) on a local cluster of one worker and of two
@@ -120,13 +120,7 @@ def measure(blocks: int, runs: int, duration_s: float) -> dict[str, Any]:
     return result
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m workbench.campaign.measure", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--blocks", type=int, default=2)
-    p.add_argument("--runs", type=int, default=6)
-    p.add_argument("--duration", type=float, default=10.0)
-    p.add_argument("--json", default=None)
-    args = p.parse_args(argv)
+def main(args: argparse.Namespace) -> int:
     res = measure(args.blocks, args.runs, args.duration)
     text = json.dumps(res, indent=2)
     print(text)
@@ -136,4 +130,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m workbench.campaign.measure", "ralf-hil measure campaign")

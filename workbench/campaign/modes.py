@@ -48,41 +48,13 @@ import numpy as np
 
 from protocol.record_paths import truth_file
 from workbench.campaign.metrics import run_metrics
-from workbench.campaign.spec import DEFAULT_MODE, VOLATILE, RunPoint
+from workbench.campaign.spec import DEFAULT_MODE, VOLATILE, RunMode, RunPoint, get_mode, known_modes, register_mode
 
 __all__ = ["DEFAULT_MODE", "RunFailed", "RunMode", "get_mode", "known_modes", "register_mode", "run_point"]
-
-RunMode = Callable[[RunPoint], dict[str, Any]]
-
-_MODES: dict[str, RunMode] = {}
 
 
 class RunFailed(RuntimeError):
     """The rig ran but ended with a fault (the controller's error)."""
-
-
-def register_mode(name: str) -> Callable[[RunMode], RunMode]:
-    """Register ``fn(point) -> metrics row`` as run mode ``name`` (decorator)."""
-
-    def deco(fn: RunMode) -> RunMode:
-        old = _MODES.get(name)
-        if old is not None and (old.__module__, old.__qualname__) != (fn.__module__, fn.__qualname__):
-            raise ValueError(f"run mode {name!r} is already registered by {old.__module__}")
-        _MODES[name] = fn
-        return fn
-
-    return deco
-
-
-def known_modes() -> list[str]:
-    return sorted(_MODES)
-
-
-def get_mode(name: str) -> RunMode:
-    try:
-        return _MODES[name]
-    except KeyError:
-        raise KeyError(f"unknown run mode {name!r}; known: {', '.join(known_modes())}") from None
 
 
 def run_point(point: RunPoint) -> dict[str, Any]:

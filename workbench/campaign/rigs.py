@@ -23,7 +23,7 @@ from workbench.campaign.engine import Engine, current_engine
 from workbench.experiments.framework import ClockMode, Experiment, ExperimentContext, run_layout
 from workbench.experiments.onrig.runner import RigResult, RigRun, RigRunError, run_rig
 
-__all__ = ["RigJob", "map_rigs"]
+__all__ = ["RigJob", "map_rigs", "run_rigs"]
 
 
 @dataclass(frozen=True)
@@ -97,3 +97,18 @@ def map_rigs(
         assert r is not None
         _materialise(r)
     return [r for r in results if r is not None]
+
+
+def run_rigs(
+    ctx: ExperimentContext,
+    specs: Sequence[RigRun],
+    *,
+    in_process: bool = False,
+    description: str = "rig runs",
+) -> list[RigResult]:
+    """Run independent rigs on the campaign engine (:func:`map_rigs`: one Dask
+    task per run, as many at once as the engine has workers); results in the order of ``specs``.
+
+    If a run fails the others still finish, then a :class:`RigRunError` names the failures.
+    """
+    return map_rigs(ctx, specs, in_process=in_process, description=description)

@@ -30,7 +30,7 @@ import itertools
 import json
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from difflib import get_close_matches
 from pathlib import Path
@@ -76,8 +76,8 @@ VOLATILE = frozenset(
 SPECIAL = ("seed", "mode")
 
 DEFAULT_MODE = "cosim"
-"""The run mode of a spec that names none (:mod:`workbench.campaign.modes`; the one-thread
-co-simulation, once registered there as ``cosim``, is meant to replace it: change this line)."""
+"""The run mode of a spec that names none (:mod:`workbench.campaign.modes`): the one-thread
+co-simulation, bit-identical to the three-process lockstep rig."""
 
 
 class SpecError(ValueError):
@@ -154,6 +154,38 @@ class RunPoint:
         """The settings of ``service`` that differ from the model's defaults (for the three-process rig's ``RALF_*``)."""
         defaults = _defaults(service)
         return {k: v for k, v in self.settings[service].items() if k not in VOLATILE and k != "clock" and defaults.get(k) != v}
+
+
+RunMode = Callable[[RunPoint], dict[str, Any]]
+"""How a run is made: ``fn(point) -> metrics row``."""
+
+_MODES: dict[str, RunMode] = {}
+"""The run modes a spec may name; the built-in ones (:mod:`workbench.campaign.modes`)
+register when the package is imported."""
+
+
+def register_mode(name: str) -> Callable[[RunMode], RunMode]:
+    """Register ``fn(point) -> metrics row`` as run mode ``name`` (decorator)."""
+
+    def deco(fn: RunMode) -> RunMode:
+        old = _MODES.get(name)
+        if old is not None and (old.__module__, old.__qualname__) != (fn.__module__, fn.__qualname__):
+            raise ValueError(f"run mode {name!r} is already registered by {old.__module__}")
+        _MODES[name] = fn
+        return fn
+
+    return deco
+
+
+def known_modes() -> list[str]:
+    return sorted(_MODES)
+
+
+def get_mode(name: str) -> RunMode:
+    try:
+        return _MODES[name]
+    except KeyError:
+        raise KeyError(f"unknown run mode {name!r}; known: {', '.join(known_modes())}") from None
 
 
 # --------------------------------------------------------------------------- settings
@@ -277,8 +309,6 @@ def planned_runs(spec: SweepSpec) -> int:
 
 def expand(spec: SweepSpec) -> list[RunPoint]:
     """Every run of ``spec``, resolved and keyed (duplicates, by key, kept once)."""
-    from workbench.campaign.modes import known_modes
-
     axes = list(spec.grid.items())
     combos = list(itertools.product(*[[(_axis_values(a, v)) for v in values] for a, values in axes])) if axes else [()]
     points = spec.points or [{}]

@@ -17,7 +17,7 @@ Every module below this package is imported to find experiments; the
 offline ones (no rig needed) are in :mod:`workbench.experiments.offline`.
 """
 
-from workbench.experiments.cli import main, register
+from workbench.experiments.cli import register
 from workbench.experiments.framework import (
     ALL,
     ClockMode,
@@ -52,7 +52,6 @@ __all__ = [
     "fmt",
     "get_experiment",
     "list_experiments",
-    "main",
     "new_figure",
     "register",
     "run_all",

@@ -1,7 +1,5 @@
-"""``python -m workbench.experiments``: the same as ``ralf-hil experiment``."""
+"""``python -m workbench.experiments`` was ``ralf-hil experiment``'s twin: it names it and exits 2."""
 
-import sys
+from service_kit.moved import exit_moved
 
-from workbench.experiments.cli import main
-
-sys.exit(main())
+exit_moved("python -m workbench.experiments", "ralf-hil experiment")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -130,16 +129,3 @@ def _write_junit(args: argparse.Namespace, outcomes: list[Any], console: Console
         from workbench.junit import experiment_suite, write_junit
 
         console.print(f"JUnit XML: {write_junit(args.junit, [experiment_suite(o) for o in outcomes])}", highlight=False)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """A stand-alone parser (``python -m workbench.experiments``) with the same options."""
-    parser = argparse.ArgumentParser(prog="ralf-hil experiment", description=__doc__)
-    add_arguments(parser)
-    parser.set_defaults(func=cmd_experiment)
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args.func(args))

@@ -129,9 +129,8 @@ def discover(force: bool = False) -> None:
     global _DISCOVERED
     if _DISCOVERED and not force:
         return
-    import workbench.experiments as pkg
-
-    for info in pkgutil.walk_packages(pkg.__path__, prefix=pkg.__name__ + ".", onerror=lambda n: None):
+    package = __name__.rpartition(".")[0]  # this module's package, found without importing it
+    for info in pkgutil.walk_packages([str(Path(__file__).parent)], prefix=package + ".", onerror=lambda n: None):
         leaf = info.name.rsplit(".", 1)[-1]
         if leaf.startswith("_") or leaf in _FRAMEWORK_MODULES:
             continue

@@ -1,4 +1,4 @@
-"""The live view's cost to the control loop: ``python -m workbench.live.bench``.
+"""The live view's cost to the control loop: ``ralf-hil measure live``.
 
 Runs ``ralf-hil up`` (real time, 200 Hz, three processes) in rounds of
 three arms: without ``--live``, with ``--live`` and no client, and with a
@@ -86,12 +86,7 @@ def run_once(duration_s: float, arm: str, rate_hz: float) -> dict[str, Any]:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m workbench.live.bench", description=__doc__)
-    p.add_argument("--duration", type=float, default=20.0, help="seconds of control per run (default 20)")
-    p.add_argument("--rounds", type=int, default=2, help="rounds of the three arms, the order rotated each round (default 2)")
-    p.add_argument("--rate", type=float, default=20.0, help="the view's --live-rate (default 20)")
-    args = p.parse_args(argv)
+def main(args: argparse.Namespace) -> int:
     rows = []
     for i in range(args.rounds):
         for arm in ARMS[i % 3 :] + ARMS[: i % 3]:
@@ -110,4 +105,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m workbench.live.bench", "ralf-hil measure live")

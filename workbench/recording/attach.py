@@ -1,7 +1,10 @@
 """``--record RUN.mcap`` for a service started on its own (``ralf-plant``,
 ``ralf-controller``, ``ralf-dsp``): a ``ralf-hil record`` child process
 connected to the service's own zenoh endpoints and its CAN bus, so the
-recording runs beside the service, never inside its loop. (The service's
+recording runs beside the service, never inside its loop. The services
+reach it through :func:`attach_recorder`, registered as the
+``ralf_hil.service_recorder`` entry point (``service_kit.runtime.RECORDER_HOOK``):
+the boards never import the launcher. (The service's
 ``RALF_RUN_RECORD`` / ``RALF_TRUTH_RECORD`` are the npz records, unrelated.)
 """
 
@@ -11,33 +14,11 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
-
-RECORD_FLAG = "--record"
-
-
-def split_record_arg(argv: Sequence[str] | None) -> tuple[str | None, list[str] | None]:
-    """``(path, argv without --record PATH)``; ``argv`` None means ``sys.argv[1:]``."""
-    args = list(sys.argv[1:] if argv is None else argv)
-    path: str | None = None
-    out: list[str] = []
-    i = 0
-    while i < len(args):
-        a = args[i]
-        if a == RECORD_FLAG and i + 1 < len(args):
-            path = args[i + 1]
-            i += 2
-            continue
-        if a.startswith(RECORD_FLAG + "="):
-            path = a.split("=", 1)[1]
-        else:
-            out.append(a)
-        i += 1
-    return path, (out if path is not None or argv is not None else None)
 
 
 def _env_value(value: Any) -> str:
@@ -80,3 +61,10 @@ def stop_recorder(proc: subprocess.Popen[bytes] | None) -> None:
     from workbench.launcher import terminate
 
     terminate(proc, timeout_s=30.0)
+
+
+def attach_recorder(settings: BaseModel, path: str) -> Callable[[], None]:
+    """The services' ``--record`` hook: start the recorder beside the
+    service and return the function that stops it."""
+    proc = start_recorder(settings, path)
+    return lambda: stop_recorder(proc)

@@ -1,4 +1,4 @@
-"""What recording costs the loop: ``python -m workbench.recording.bench``.
+"""What recording costs the loop: ``ralf-hil measure recording``.
 
 Runs ``ralf-hil up`` in real time, alternately without and with
 ``--record`` (pairs, so both see the same machine state), and prints per
@@ -66,13 +66,7 @@ def run_once(duration_s: float, record: bool, tmp: Path) -> dict[str, Any]:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m workbench.recording.bench", description=__doc__)
-    p.add_argument("--pairs", type=int, default=3)
-    p.add_argument("--duration", type=float, default=20.0, help="wall seconds per run")
-    p.add_argument("--json", default=None)
-    p.add_argument("--writer-only", action="store_true", help="only the recorder's own CPU cost per frame and batch (no rig runs)")
-    args = p.parse_args(argv)
+def main(args: argparse.Namespace) -> int:
     cost = writer_cost()
     print(
         f"recorder: {cost['us_per_frame']:.1f} us CPU per CAN frame, {cost['us_per_batch']:.0f} us per batch of 30; "
@@ -155,4 +149,6 @@ def writer_cost(n_frames: int = 20000, n_batches: int = 200) -> dict[str, float]
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from service_kit.moved import exit_moved
+
+    exit_moved("python -m workbench.recording.bench", "ralf-hil measure recording")

@@ -17,7 +17,7 @@ import pytest
 
 from plant_emulator.fmu.mapping import load_mapping
 from plant_emulator.node import CanopenNode
-from plant_emulator.plant_model import build_plant_model
+from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.service import PlantApplication, node_config
 from protocol import can_map
 from protocol.settings import PlantSettings

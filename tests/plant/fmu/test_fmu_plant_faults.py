@@ -17,7 +17,7 @@ import pytest
 from plant_emulator.fmu import FmuPlant
 from plant_emulator.fmu.plant import FAULT_DISCARD, FAULT_ERROR, FAULT_NON_FINITE
 from plant_emulator.node import CanopenNode
-from plant_emulator.plant_model import build_plant_model
+from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.service import PlantApplication, build_health, node_config
 from protocol import can_map
 from protocol.can_map import EmcyCode

@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from scipy.signal import ShortTimeFFT
 from scipy.signal.windows import hann
 
+from workbench.campaign.rigs import run_rigs
 from workbench.experiments.framework import ExperimentContext, experiment
 from workbench.experiments.onrig.runner import (
     THESIS_BATCH_SIZE,
@@ -52,7 +53,6 @@ from workbench.experiments.onrig.runner import (
     RigRun,
     centred_median,
     lap_seconds,
-    run_rigs,
 )
 from workbench.experiments.report import Report, new_figure
 
@@ -86,7 +86,7 @@ DITHER_RUN = "pi_loop_arx_dither"
 DITHER_V = 0.01
 """The ARX run with the controller's valve dither (RMS per valve, V; ``id-lag`` measures its cost and benefit)."""
 DAMPING_RUN = "pi_loop_etfe_transient"
-"""The run whose on-line damping is checked against the plant's (issue: within ±25 % away from the apex)."""
+"""The run whose on-line damping is checked against the plant's (the goal: within ±25 % away from the apex)."""
 SPLIT_TOL_HZ = 0.5
 """A download shows a mode when |H_tot| has a peak (≥ SPLIT_PROMINENCE_DB) within this of the true frequency."""
 SPLIT_PROMINENCE_DB = 2.0

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from workbench.campaign.rigs import run_rigs
 from workbench.experiments.framework import ExperimentContext, experiment, run_layout
 from workbench.experiments.onrig.battery import adaptive_summary
 from workbench.experiments.onrig.runner import (
@@ -38,7 +39,6 @@ from workbench.experiments.onrig.runner import (
     RigRun,
     costs_over,
     lap_seconds,
-    run_rigs,
 )
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 

@@ -1,8 +1,8 @@
 """Running the rig for an experiment, and the analysis helpers the on-rig experiments share.
 
 :func:`run_rig` runs one rig to completion and returns its records
-(:class:`RigResult`); :func:`run_rigs` runs several independent ones on the
-campaign engine (:mod:`workbench.campaign.rigs`: one Dask task per run, a local
+(:class:`RigResult`); :func:`workbench.campaign.rigs.run_rigs` runs several
+independent ones on the campaign engine (:mod:`workbench.campaign.rigs`: one Dask task per run, a local
 cluster of one worker per core unless ``ralf-hil experiment --scheduler``
 names a cluster).
 
@@ -48,7 +48,7 @@ import threading
 import time
 import uuid
 import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -70,7 +70,6 @@ __all__ = [
     "costs_over",
     "lap_seconds",
     "run_rig",
-    "run_rigs",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -477,20 +476,3 @@ def _run_processes(
         what = failure or "non-zero exit"
         raise RigRunError(f"run {spec.name!r} on rig {rig_id!r} failed: {what}; exit codes {exit_codes}\n{logs}")
     return _rig_result(ctx, spec, record_path, truth_path, wall_time_s=wall, in_process=False, health=health, exit_codes=exit_codes)
-
-
-def run_rigs(
-    ctx: ExperimentContext,
-    specs: Sequence[RigRun],
-    *,
-    in_process: bool = False,
-    description: str = "rig runs",
-) -> list[RigResult]:
-    """Run independent rigs on the campaign engine (:func:`workbench.campaign.rigs.map_rigs`: one Dask
-    task per run, as many at once as the engine has workers); results in the order of ``specs``.
-
-    If a run fails the others still finish, then a :class:`RigRunError` names the failures.
-    """
-    from workbench.campaign.rigs import map_rigs
-
-    return map_rigs(ctx, specs, in_process=in_process, description=description)

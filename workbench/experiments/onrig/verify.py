@@ -223,27 +223,6 @@ def matched_max_lag(bandwidth_bins: float, n: int) -> int:
     return int(lags[np.argmin(np.abs(bw - bandwidth_bins))])
 
 
-def peaks_hz(freqs: np.ndarray, mag: np.ndarray, valid: np.ndarray, band: tuple[float, float], prominence_db: float = 3.0) -> list[float]:
-    """Local maxima of 20 log10|H| with at least ``prominence_db`` of prominence, in ``band`` and on valid bins
-    (the longest valid run in the band), parabolic interpolation on the dB values."""
-    sel = (freqs >= band[0]) & (freqs <= band[1]) & valid & (mag > 0)
-    idx = np.flatnonzero(sel)
-    if idx.size < 5:
-        return []
-    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-    run = max(runs, key=len)
-    db = 20 * np.log10(mag[run])
-    found, _ = ss.find_peaks(db, prominence=prominence_db)
-    out = []
-    df = freqs[1] - freqs[0]
-    for p in found:
-        a, b, c = db[p - 1], db[p], db[p + 1]
-        den = a - 2 * b + c
-        d = 0.5 * (a - c) / den if den != 0 else 0.0
-        out.append(float(freqs[run[p]] + d * df))
-    return out
-
-
 def dominant_peak_hz(freqs: np.ndarray, mag: np.ndarray, valid: np.ndarray, band: tuple[float, float]) -> float:
     """The frequency of the largest |H| in ``band`` on valid bins (NaN if none)."""
     sel = (freqs >= band[0]) & (freqs <= band[1]) & valid & (mag > 0)

@@ -9,8 +9,8 @@ import math
 import numpy as np
 
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model.report import FS, blend_setpoints
-from plant_emulator.model.speed_probe import (
+from workbench.plant_figures.report import FS, blend_setpoints
+from workbench.plant_figures.speed_probe import (
     THESIS_RATIO_4_OVER_5,
     breakaway,
     corner_ring_energy,
