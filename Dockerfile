@@ -16,7 +16,7 @@ COPY plant_emulator ./plant_emulator
 COPY controller ./controller
 COPY service_kit ./service_kit
 COPY dsp_service ./dsp_service
-RUN pip install ".[fast]" && useradd --create-home ralf
+RUN pip install . && useradd --create-home ralf
 USER ralf
 WORKDIR /home/ralf
 # The numba kernels compiled into the run user's cache (~/.cache/numba), against the

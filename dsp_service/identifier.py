@@ -46,30 +46,30 @@ by ~80 % and shifts it by ~1.5 bins; VRM reads λ as a viscous mode
 (``vrm_model``).
 
 Cost (see :mod:`.bench`): everything that depends only on the
-configuration (windows, frequency grids, weights, smoothing plan, views of
-the averaged spectra) is prepared in ``_build``. With ``kernel='numba'``
-(the default) a step is one compiled
-detrend/window pass, the four FFTs and one compiled call
+configuration (windows, frequency grids, weights, smoothing rows, views of
+the averaged spectra) is prepared in ``_build``. A step is one compiled
+detrend/window pass, the four FFTs (``scipy.fft.rfft``) and one compiled call
 (:func:`.kernel.step_packed`: averaging, the ``H_tot`` solve with its dominant
 branch, smoothing, peak search, refinement, FWHM and VRM), compiled when the
-Identifier is built. ``kernel='numpy'`` is the reference path: about
-seventy numpy calls on arrays of at most a few thousand elements, none in
-a per-bin Python loop, with no ``np.errstate`` (the arithmetic is
-arranged so that masked or degenerate bins never divide by zero). The
-peak search ranks the linear weighted magnitude ``|H|·w`` (the same order,
-maxima and prominence bases as ``20 log10|H| + w_dB``, without the
-logarithms) and reads prominences highest maximum first; VRM solves the
-triplets of all peaks in one pass. Both paths give the same results to
-rounding (tests/dsp/test_kernel.py: 1e-12 on every output).
+Identifier is built. ``welch_segments`` > 1 averages the segmented spectra
+(:mod:`.spectra`) before the compiled solve; ``averaging='rls'``,
+``solver='uncorrelated'`` and a ``peak_source`` other than ``'tot'`` average
+with the compiled averaging alone, solve with :mod:`.mimo` (and the RLS) and
+enter the compiled call at its smoothing; the rational fits
+(``damping_method`` 'fit', 'transient') run on its poles.
+The peak search ranks the linear weighted magnitude ``|H|·w`` (the same
+order, maxima and prominence bases as ``20 log10|H| + w_dB``, without the
+logarithms). The tests hold the step to scipy (``csd``, ``savgol_filter``,
+``find_peaks``) and to numpy's linear algebra (tests/dsp/test_fast_paths.py,
+test_scipy_equivalence.py, test_collinear.py).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from typing import Literal, TypeVar
 
 import numpy as np
 import pydantic
@@ -81,14 +81,8 @@ from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
     PeakRefiner,
     VrmEstimator,
-    _half_power,
-    find_modal_peaks,
     fit_mode_transient,
     log_weights,
-    log_weights_db,
-    refine_peak,
-    zeta_from_fwhm_exact,
-    zeta_fwhm_approx,
 )
 from .ratfit import fit_mode
 from .smoothing import FrequencySmoother
@@ -97,7 +91,7 @@ from .spectra import (
     SegmentedSpectralEstimator,
     SpectralAverager,
     SpectralEstimator,
-    rfft_rows_bound,
+    rfft_rows,
     scale_spectra,
     welch_equivalent_averages,
 )
@@ -108,7 +102,6 @@ _TINY = float(np.finfo(np.float64).tiny)
 _EST_MARGIN_BINS = 32  #: bins solved beyond the search range for FWHM/VRM near its edges
 _Scalar = TypeVar("_Scalar", bound=np.generic)
 PeakSource = Literal["tot", "11", "12", "21", "22"]
-KernelName = Literal["numpy", "numba"]  #: IdentifierConfig.kernel
 WELCH_PROFILE_SEGMENTS = 7  #: segments of method='etfe-welch' (512 samples each at N = 2048)
 
 
@@ -254,20 +247,14 @@ class IdentifierConfig(pydantic.BaseModel):
     vrm_band_factor: float = pydantic.Field(1.5, gt=0, description="VRM band half-width in half-power half-widths.")
     vrm_points_per_side: int = pydantic.Field(5, ge=1, le=10, description="At most this many VRM points each side of the peak (bounds the cost).")
     confidence_prominence_db: float = pydantic.Field(6.0, gt=0, description="Peak prominence (dB) at which the prominence factor of the confidence is 0.5.")
-    kernel: KernelName = pydantic.Field(
-        "numba",
-        description="'numba' (default): detrend/window, averaging, H_tot solve, smoothing, peak search and "
-        "the poles' refinement, FWHM and VRM in compiled code (dsp_service.kernel; the same results as "
-        "the numpy path to rounding, tested to 1e-12), for the ETFE with exponential or linear averaging, "
-        "one window per snapshot, the 'mimo' solver and peak_source 'tot' (other settings, and the "
-        "rational fit's pole stage, use the numpy path). Compiled (or loaded from numba's cache) when the "
-        "Identifier is built. 'numpy': the reference path.",
-    )
 
     @pydantic.model_validator(mode="before")
     @classmethod
     def _profile(cls, data: object) -> object:
-        """``method='etfe-welch'`` fills its two settings unless they are given explicitly."""
+        """``method='etfe-welch'`` fills its two settings unless they are given explicitly; the removed
+        ``kernel`` is refused in one line."""
+        if isinstance(data, dict) and "kernel" in data:
+            raise ValueError("'kernel' was removed: the identifier has one step, the compiled one (dsp_service.kernel); drop the setting")
         if isinstance(data, dict) and data.get("method") == "etfe-welch":
             return {"welch_segments": WELCH_PROFILE_SEGMENTS, "damping_method": "fit", **data}
         if isinstance(data, dict) and data.get("method") == "etfe-transient":
@@ -414,11 +401,7 @@ class Identifier:
         # peaks as 20 log10|H| + 20 log10 w in dB); prominences become ratios
         self._w_lin = log_weights(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
         self._prom_ratio = 10.0 ** (c.min_peak_prominence_db / 20.0)
-        self._w_db = log_weights_db(self._f_range, f_ref, c.log_weight_exponent) if c.log_weighting else None
         n_range = self._hi - self._lo
-        self._v_pad = np.empty(n_range + 1)  # weighted magnitude and a +inf sentinel
-        self._v_pad[n_range] = np.inf
-        self._v = self._v_pad[:n_range]
         self._vrm = VrmEstimator(c.vrm_points_per_side, c.vrm_band_factor, model=c.vrm_model)
         self._refiner = PeakRefiner()
         h = self._smoother.half
@@ -437,14 +420,14 @@ class Identifier:
         else:
             src = self._solver.H[H_NAMES.index(c.peak_source)]
         self._src = src
-        # the H_tot fast path of the 'mimo' solver counts the valid bins itself
-        self._counts_valid = self._rls is None and c.peak_source == "tot" and c.solver == "mimo"
-        self._smooth = self._smoother.range_plan(src, self._lo, self._hi)
-        self._all_valid_range = np.ones(n_range, dtype=bool)
-        self._all_valid_range.flags.writeable = False
-        self._fused = c.kernel == "numba" and c.welch_segments == 1 and self._rls is None and c.solver == "mimo" and c.peak_source == "tot"
-        if self._fused:
-            self._build_fused(n_range)
+        # where the compiled step starts (kernel.step_packed): 1 averages the snapshot's FFTs and
+        # solves H_tot; 2 solves H_tot of the averages the (segmented) estimator made; 3 searches
+        # the spectrum the RLS, the uncorrelated solve or one H_ij gives
+        if self._rls is None and c.solver == "mimo" and c.peak_source == "tot":
+            self._first_stage = 1 if c.welch_segments == 1 else 2
+        else:
+            self._first_stage = 3
+        self._build_kernel(n_range)
         self._pending = 0
         self._arx = None
         self._arx_batches: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
@@ -457,42 +440,17 @@ class Identifier:
                 except ValueError as exc:  # not expected (the same model fields); never let a rebuild fail half-way
                     log.warning("the rebuilt ARX model starts without its regime bank: %s", exc)
 
-    def _build_fused(self, n_range: int) -> None:
+    def _build_kernel(self, n_range: int) -> None:
         """Buffers and the per-bin smoothing rows of the compiled step (:mod:`.kernel`), compiled here."""
         from . import kernel
 
-        sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
-        if sm.enabled:
-            h = sm.half
-            rows = []
-            for i in range(lo, hi):
-                if i < h:
-                    rows.append(sm.edge_lo[i])
-                elif i >= k - h:
-                    rows.append(sm.edge_hi[i - (k - h)])
-                else:
-                    rows.append(sm.centre)
-            self._k_coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
-            self._k_starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
-        else:
-            self._k_coef = np.ones((n_range, 1))
-            self._k_starts = np.arange(lo, hi, dtype=np.intp)
-        steps = np.flatnonzero(np.diff(self._k_starts) == 1)  # consecutive rows of a sliding window
-        if steps.size:
-            self._k_ia, self._k_ib = int(steps[0]), int(steps[-1]) + 2
-            ia, ib = self._k_ia, self._k_ib
-            # the kernel's interior passes need a sliding window of one row (the centre row)
-            if not (np.array_equal(self._k_starts[ia:ib], self._k_starts[ia] + np.arange(ib - ia)) and (self._k_coef[ia:ib] == self._k_coef[ia]).all()):
-                self._k_ia = self._k_ib = 0
-        else:
-            self._k_ia = self._k_ib = 0
+        lo, hi, k = self._lo, self._hi, self._est.n_bins
+        self._k_coef, self._k_starts, self._k_ia, self._k_ib = self._smoothing_rows(n_range)
         self._k_ffts_f = self._est.ffts.view(np.float64)  # (re, im) float view for the averaging
         self._k_zeros_f = np.zeros_like(self._k_ffts_f)
         self._k_hs = np.empty(n_range, dtype=np.complex128)
         self._k_vs = np.empty(n_range, dtype=bool)
         self._k_w = self._w_lin if self._w_lin is not None else np.ones(n_range)
-        # stage 5 (refinement, FWHM, VRM) compiled too, except the rational fit
-        self._k_do_poles = self.cfg.damping_method not in ("fit", "transient")
         ref, vrm = self._refiner, self._vrm
         r_max = ref.r_max
         self._k_pinv = np.zeros((r_max + 1, 3, 2 * r_max + 1))
@@ -524,7 +482,7 @@ class Identifier:
             (kernel.IP_IB, self._k_ib),
             (kernel.IP_WEIGHTED, self._w_lin is not None),
             (kernel.IP_WANT, c.max_peaks),
-            (kernel.IP_DO_POLES, self._k_do_poles),
+            (kernel.IP_FIRST, self._first_stage),
             (kernel.IP_ON_SMOOTHED, c.estimate_on_smoothed),
             (kernel.IP_RELOCATE, self._relocate),
             (kernel.IP_FWHM_EXACT, c.fwhm_exact),
@@ -552,24 +510,57 @@ class Identifier:
         self._k_coef, self._k_w, self._k_pinv = views["coef"], views["w_lin"], views["pinv"]
         self._k_starts, self._k_tri, self._k_ntri, self._k_order = views["starts"], views["tri"], views["n_tri"], views["order"]
         self._k_idx, self._k_prom, self._k_stats, self._k_mag, self._k_out = views["idx"], views["prom"], views["stats"], views["mag"], views["out"]
-        self._k_args = (fk, ik, fw, self._avg.state, solver.source, solver.valid, solver.mode, self._k_hs, self._k_vs)
+        self._k_v = views["v"]
+        self._k_args = (fk, ik, fw, self._avg.state, self._src, solver.valid, solver.mode, self._k_hs, self._k_vs)
         # resolved with no snapshot (weight 0 on a zero state: nothing changes)
         self._k_call = kernel.compiled_entry(kernel.step_packed, (self._k_zeros_f, 0.0, *self._k_args))
         est = self._est
-        self._k_fft, self._k_fft_args = rfft_rows_bound(est._tmp, est.ffts)
+        self._k_fft_args = (est._tmp, est.ffts)
         self._k_dtr_args = (est.means, est.window, est._tmp)
         self._k_detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (self.history._buf, 0, *self._k_dtr_args))
-        # what _step_fused reads of the configuration (fixed until the next _build; set_alpha changes none of it)
+        self._k_state_f = self._avg.state.view(np.float64)
+        # the averaging alone (settings whose solve runs before the compiled search): resolved on a
+        # zero snapshot of weight 0, which leaves the state as it is
+        self._k_accumulate = kernel.compiled_entry(kernel._accumulate, (self._k_zeros_f, 0.0, self._k_state_f))
+        # what _step_etfe reads of the configuration (fixed until the next _build; set_alpha changes none of it)
         self._k_early = not c.wait_for_full_history
         self._k_want, self._k_n_range, self._k_tail = c.max_peaks, n_range, views["tail"]
-        self._k_pole_consts = (c.confidence_prominence_db, c.damping_method == "vrm", c.peak_source)
+        self._k_pole_consts = (c.confidence_prominence_db, c.damping_method != "fwhm", c.peak_source)
+        self._k_fit = c.damping_method in ("fit", "transient")
+
+    def _smoothing_rows(self, n_range: int) -> tuple[NDArray[np.float64], NDArray[np.intp], int, int]:
+        """``(coef, starts, ia, ib)`` of the compiled smoothing: its rows and window starts over the
+        search range, and its interior ``ia … ib`` (rows of one sliding window, the centre row)."""
+        sm, lo, hi, k = self._smoother, self._lo, self._hi, self._est.n_bins
+        if sm.enabled:
+            h = sm.half
+            rows = []
+            for i in range(lo, hi):
+                if i < h:
+                    rows.append(sm.edge_lo[i])
+                elif i >= k - h:
+                    rows.append(sm.edge_hi[i - (k - h)])
+                else:
+                    rows.append(sm.centre)
+            coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
+            starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
+        else:
+            coef = np.ones((n_range, 1))
+            starts = np.arange(lo, hi, dtype=np.intp)
+        steps = np.flatnonzero(np.diff(starts) == 1)  # consecutive rows of a sliding window
+        if not steps.size:
+            return coef, starts, 0, 0
+        ia, ib = int(steps[0]), int(steps[-1]) + 2
+        # the kernel's interior passes need a sliding window of one row (the centre row)
+        if not (np.array_equal(starts[ia:ib], starts[ia] + np.arange(ib - ia)) and (coef[ia:ib] == coef[ia]).all()):
+            return coef, starts, 0, 0
+        return coef, starts, ia, ib
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the compiled step; the constructor already does."""
-        if self._fused:
-            from . import kernel
+        from . import kernel
 
-            kernel.warm_up()
+        kernel.warm_up()
 
     def set_fft_width(self, n: int) -> None:
         """Change N: zeroes the history and every average (as on the C40)."""
@@ -633,8 +624,6 @@ class Identifier:
     # ----------------------------------------------------------------- step
     def step(self) -> IdentificationResult:
         """One iteration: the ETFE's (below), with ``method='arx'`` the ARX model's poles instead."""
-        if self._fused and self._arx is None:
-            return self._step_fused()
         result = self._step_etfe()
         if self._arx is None:
             return result
@@ -690,175 +679,75 @@ class Identifier:
         except ValueError:
             return None
 
-    def _with_confidence(self, poles: tuple[PoleEstimate, ...], peaks: Any, n_eff: float, valid_fraction: float) -> IdentificationResult:
-        """The step's result: the overall confidence from the valid fraction, the
-        effective number of averages, the history's fill and the top peak's
-        prominence, and each pole's confidence from its own prominence (both
-        kernels share it, so their confidences agree by construction)."""
-        c = self.cfg
-        hist = self.history
-        in_history = hist.samples_in_history
-        fill = in_history / hist.n
-        conf = 0.0
-        if peaks and n_eff > 1.0:
-            base = valid_fraction * (1.0 - 1.0 / n_eff) * fill
-            prom = peaks[0][1]
-            conf = base * prom / (prom + c.confidence_prominence_db)
-            poles = tuple(
-                dataclasses.replace(p, confidence=float(min(1.0, base * p.prominence_db / (p.prominence_db + c.confidence_prominence_db)))) for p in poles
-            )
-        return IdentificationResult(
-            poles=poles,
-            confidence=float(min(1.0, max(0.0, conf))),
-            valid_fraction=valid_fraction,
-            samples_in_history=in_history,
-            effective_averages=float(n_eff),
-        )
-
     def _step_etfe(self) -> IdentificationResult:
-        """One C40 iteration on the current history (see module doc).
+        """One C40 iteration on the current history (module doc): one compiled call
+        (:func:`.kernel.step_packed`) from the stage the configuration needs, the segmented
+        spectra, the RLS and the solves other than the corrected ``H_tot`` made before it here.
 
         With an empty history (nothing pushed since the last reset), or with
         ``wait_for_full_history`` before N samples have arrived, nothing is
         averaged; until the first average an empty result is returned.
-        """
-        c = self.cfg
-        if self._fused:
-            return self._step_fused()
-        avg = self._avg
-        hist = self.history
-        if hist.samples_seen > 0 and (hist.is_full or not c.wait_for_full_history):
-            weight = avg.next_weight()
-            avg.add(self._est.snapshot(self.history.view(), weight), self._pending)
-            if self._rls is not None:
-                self._rls.update(self._est.ffts)
-            self._pending = 0
-        if avg.updates == 0:
-            return IdentificationResult((), 0.0, 0.0, self.history.samples_in_history, 0.0)
-        sl = self._sl
-        solver = self._solver
-        if self._rls is None:
-            src_sl, valid_sl = solver.solve_source(avg.state, c.peak_source, sl)
-        else:
-            valid_sl = solver.mask(avg.state, sl)
-            Hr = self._rls.H[:, sl]
-            src_sl = self._rls_src[sl]
-            if c.peak_source == "tot":
-                np.mean(Hr, axis=0, out=src_sl)
-            else:
-                src_sl[...] = Hr[H_NAMES.index(c.peak_source)]
-            src_sl *= valid_sl
-        lo, hi = self._lo, self._hi
-        hs = self._smooth()
-        # every bin solved is valid (the usual case): so is every smoothed bin of the range
-        n_sl_valid = solver.valid_count if self._counts_valid else int(np.count_nonzero(valid_sl))
-        all_valid = n_sl_valid == self._n_sl
-        if all_valid:
-            vs = self._all_valid_range
-            n_valid = vs.size
-        else:
-            vs = self._smoother.valid_range(solver.valid, lo, hi)
-            n_valid = int(np.count_nonzero(vs))
-        n_eff = self.effective_averages
-        peaks = self._find_peaks(hs, vs, n_valid)
-        if not peaks:
-            poles: tuple[PoleEstimate, ...] = ()
-        elif c.estimate_on_smoothed:
-            poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == vs.size)
-        else:
-            poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, lo - sl.start, all_valid)
-        valid_fraction = n_valid / vs.size
-        return self._with_confidence(poles, peaks, n_eff, valid_fraction)
-
-    def _step_fused(self) -> IdentificationResult:
-        """:meth:`_step_etfe` with stages 2–5 in one compiled call (:mod:`.kernel`).
-
         Everything the call needs but the snapshot and its weight is fixed until the next
         :meth:`_build` and read from a few prepared tuples (``_k_*``); the kernel's counters,
         prominences and poles are read with one ``tolist`` (``_k_tail``)."""
         hist, avg = self.history, self._avg
         seen, n_hist = hist._seen, hist._n  # hist.samples_seen, hist.n (the properties, without their calls)
+        first = self._first_stage
         if seen > 0 and (seen >= n_hist or self._k_early):
-            weight = avg.take(self._pending)  # next_weight and the bookkeeping: the kernel adds the snapshot
-            self._pending = 0
-            # detrend='constant', then window (spectra.SpectralEstimator.snapshot, the same roundings)
-            self._k_detrend_ring(hist._buf, hist._head, *self._k_dtr_args)
-            self._k_fft(*self._k_fft_args)
-            self._k_call(self._k_ffts_f, weight, *self._k_args)
+            if self._seg_avgs == 1.0:  # one window per snapshot: the compiled detrend and averaging
+                weight = avg.take(self._pending)  # next_weight and the bookkeeping: the kernel adds the snapshot
+                self._pending = 0
+                # detrend='constant', then window (scipy.signal.csd's order)
+                self._k_detrend_ring(hist._buf, hist._head, *self._k_dtr_args)
+                rfft_rows(*self._k_fft_args)
+                if first == 1:
+                    self._k_call(self._k_ffts_f, weight, *self._k_args)
+                else:
+                    self._k_accumulate(self._k_ffts_f, weight, self._k_state_f)
+                    if self._rls is not None:
+                        self._rls.update(self._est.ffts)
+                    self._solve_searched()
+                    self._k_call(self._k_zeros_f, 0.0, *self._k_args)
+            else:  # Welch segments within the history
+                est = self._est
+                assert isinstance(est, SegmentedSpectralEstimator)
+                weight = avg.next_weight()
+                avg.add(est.snapshot(hist.view(), weight), self._pending)
+                self._pending = 0
+                self._solve_searched()
+                self._k_call(self._k_zeros_f, 0.0, *self._k_args)
         elif avg.updates == 0:
             return IdentificationResult((), 0.0, 0.0, min(seen, n_hist), 0.0)
         else:  # no new snapshot: solve the averages as they are
+            self._solve_searched()
             self._k_call(self._k_zeros_f, 0.0, *self._k_args)
         want = self._k_want
         vals = self._k_tail.tolist()  # prominences[want], stats[4], poles[want × 6]
         f_sl_valid, f_valid, f_nf, floor = vals[want : want + 4]
         solver = self._solver
-        solver._floor = floor
+        if first < 3:
+            solver._floor = floor
         solver.valid_count = n_sl_valid = int(f_sl_valid)
         n_valid, nf = int(f_valid), int(f_nf)
         n_range = self._k_n_range
         if nf == 0:
-            return self._result([], (), n_valid, n_range)
-        if not self._k_do_poles:  # the rational fit: the numpy pole stage
-            peaks = list(zip(self._k_idx[:nf].tolist(), vals[:nf]))
-            sl = self._sl
-            if self.cfg.estimate_on_smoothed:
-                hs, vs = self._k_hs, self._k_vs
-                poles = self._poles(peaks, hs, np.abs(hs), vs, self._f_range, 0, n_valid == n_range)
-            else:
-                src_sl, valid_sl = solver.source[sl], solver.valid[sl]
-                poles = self._poles(peaks, src_sl, np.abs(src_sl), valid_sl, self._f_sl, self._lo - sl.start, n_sl_valid == self._n_sl)
-            return self._result(peaks, poles, n_valid, n_range)
-        # _result's confidences, computed before the poles are made
+            return IdentificationResult((), 0.0, n_valid / n_range, hist.samples_in_history, float(self.effective_averages))
+        # the confidences, computed before the poles are made
         # (self.effective_averages, SpectralAverager.effective_averages, inline)
-        sum_c, sum_c2 = avg._sum_c, avg._sum_c2
-        kish = sum_c * sum_c / sum_c2 if sum_c2 > 0.0 else 0.0
-        n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
+        if self._seg_avgs > 1.0:
+            n_eff = self.effective_averages
+        else:
+            sum_c, sum_c2 = avg._sum_c, avg._sum_c2
+            kish = sum_c * sum_c / sum_c2 if sum_c2 > 0.0 else 0.0
+            n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
         valid_fraction = n_valid / n_range
         in_history = seen if seen < n_hist else n_hist  # hist.samples_in_history
-        p0, vrm_first, source = self._k_pole_consts
         confident = n_eff > 1.0
         base = valid_fraction * (1.0 - 1.0 / n_eff) * (in_history / n_hist) if confident else 0.0
-        pole_list = []
+        fits = self._fits(nf, vals, n_valid, n_sl_valid) if self._k_fit else None
+        pole_list = self._poles(vals, nf, confident, base, fits)
+        p0 = self._k_pole_consts[0]
         bare, set_dict = object.__new__, object.__setattr__  # an instance without running the frozen __init__
-        o = want + 4
-        for prom in vals[:nf]:
-            f_peak, m_peak, zf, _ok, fn, zv = vals[o : o + 6]
-            o += 6
-            zeta_fwhm = None if zf != zf else zf  # NaN: undefined
-            if zv != zv:
-                zeta_vrm = fn_vrm = None
-            else:
-                zeta_vrm, fn_vrm = zv, fn
-            if vrm_first:
-                chosen = zeta_vrm if zeta_vrm is not None else zeta_fwhm
-            else:
-                chosen = zeta_fwhm if zeta_fwhm is not None else zeta_vrm
-            if confident:
-                conf = base * prom / (prom + p0)
-                conf = conf if conf < 1.0 else 1.0  # min(1.0, conf)
-            else:
-                conf = 0.0
-            # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
-            pole = bare(PoleEstimate)
-            set_dict(
-                pole,
-                "__dict__",
-                {
-                    "frequency_hz": f_peak,
-                    "damping_ratio": chosen if chosen is not None else 0.0,
-                    "damping_fwhm": zeta_fwhm,
-                    "damping_vrm": zeta_vrm,
-                    "natural_frequency_vrm_hz": fn_vrm,
-                    "magnitude": m_peak,
-                    "prominence_db": prom,
-                    "source": source,
-                    "damping_defined": chosen is not None,
-                    "confidence": conf,
-                    "damping_fit": None,
-                },
-            )
-            pole_list.append(pole)
         if confident:
             prom = vals[0]
             conf = base * prom / (prom + p0)
@@ -880,118 +769,102 @@ class Identifier:
         )
         return result
 
-    def _result(self, peaks: list[tuple[int, float]], poles: tuple[PoleEstimate, ...], n_valid: int, n_range: int) -> IdentificationResult:
-        """The step's result with the confidences (module doc)."""
-        n_eff = self.effective_averages
-        valid_fraction = n_valid / n_range
-        return self._with_confidence(poles, peaks, n_eff, valid_fraction)
-
-    def _find_peaks(self, hs: NDArray[np.complex128], vs: NDArray[np.bool_], n_valid: int) -> list[tuple[int, float]]:
-        """Up to ``max_peaks`` ``(index in the search range, prominence in dB)``, best weighted first:
-        :func:`.modal.find_modal_peaks` on the smoothed spectrum, the one peak search of
-        the numpy path (the compiled kernel's is its compiled form, tested equal)."""
-        c = self.cfg
-        if n_valid == 0:
-            return []
-        peaks = find_modal_peaks(
-            np.abs(hs), self._f_range, self._w_db, vs if n_valid < vs.size else None, c.max_peaks, c.min_peak_prominence_db, n_valid=n_valid, refine=False
-        )
-        return [(p.index, p.prominence_db) for p in peaks]
-
-    def _poles(
-        self,
-        peaks: list[tuple[int, float]],
-        hd: NDArray[np.complex128],
-        magd: NDArray[np.float64],
-        vd: NDArray[np.bool_],
-        fd: NDArray[np.float64],
-        offset: int,
-        all_valid: bool = False,
-    ) -> tuple[PoleEstimate, ...]:
-        """Refined frequency, FWHM and VRM damping of the peaks on the estimation spectrum ``hd``.
-
-        ``peaks`` are ``(index, prominence dB)``; ``offset`` maps the
-        search-range index of a peak into ``hd``; ``all_valid`` says that
-        every bin of ``vd`` is (so the per-bin checks are skipped). Each
-        peak is re-located as the maximum of ``|hd|`` within ``±r`` bins of the
-        smoothed peak (``r`` = a quarter of the smoothing window, ≥ 1); a
-        three-point parabola on ``ln |hd|`` gives the half-power level; FWHM
-        gives the half-power half-width ``h``; the reported frequency and
-        magnitude come from a least-squares parabola on ``ln |hd|`` over
-        ``±h/2`` bins (:class:`.modal.PeakRefiner`); VRM (all peaks in one
-        vectorised call) uses a band of ``±vrm_band_factor·h`` bins.
-        """
-        c = self.cfg
-        f0, f1 = fd[0:2].tolist()
-        df = f1 - f0  # as float(fd[1] - fd[0])
-        r = self._relocate
-        size = magd.size
-        vmask = None if all_valid else vd
-        exp = math.exp
-        located = []  # (prominence, k, f_peak, m_peak, zeta_fwhm, half_bins, ok)
-        for index, prom in peaks:
-            k = index + offset
-            a, b = max(k - r, 0), min(k + r + 1, size)
-            k = a + int(magd[a:b].argmax())
-            d, lv = refine_peak(magd, k)  # three-point vertex: the level for FWHM
-            fk = fd.item(k)
-            f_peak, m_peak = fk + d * df, exp(lv)
-            zeta_fwhm: float | None = None
-            half_bins = 2.0
-            ok = all_valid or bool(vd[k])
-            if ok:
-                band = _half_power(magd, f0, df, k, m_peak, vmask)
-                if band is not None:
-                    bw = band[1] - band[0]
-                    zeta_fwhm = zeta_from_fwhm_exact(bw, f_peak) if c.fwhm_exact else zeta_fwhm_approx(bw, f_peak)
-                    half_bins = 0.5 * bw / df
-                    # least-squares parabola over about half the half-power band
-                    d, lv = self._refiner.refine(magd, k, int(round(0.5 * half_bins)))
-                    f_peak, m_peak = fk + d * df, exp(lv)
-            located.append((prom, k, f_peak, m_peak, zeta_fwhm, half_bins, ok))
-        todo = [i for i, loc in enumerate(located) if loc[6]]
-        vrms: list[tuple[float, float, int] | None] = [None] * len(located)
-        if todo:
-            found = self._vrm.estimate_many(hd, fd, [located[i][1] for i in todo], [located[i][5] for i in todo], vmask)
-            for i, v in zip(todo, found):
-                vrms[i] = v
-        vrm_first = c.damping_method in ("vrm", "fit", "transient")
-        source = c.peak_source
-        record = self._record_dft() if c.damping_method == "transient" else None
-        poles = []
-        for (prom, _k, f_peak, m_peak, zeta_fwhm, _, ok), vrm in zip(located, vrms):
-            zeta_vrm, fn_vrm = (vrm[1], vrm[0]) if vrm is not None else (None, None)
-            first, second = (zeta_vrm, zeta_fwhm) if vrm_first else (zeta_fwhm, zeta_vrm)
-            chosen = first if first is not None else second
+    def _poles(self, vals: list[float], nf: int, confident: bool, base: float, fits: list[tuple[float, float] | None] | None) -> list[PoleEstimate]:
+        """The step's poles from the kernel's prominences and pole rows (``vals``, read with one
+        ``tolist``): the configured damping (VRM or FWHM first, a rational fit's where it gave one)
+        and each pole's confidence, ``base`` times its prominence factor (module doc)."""
+        p0, vrm_first, source = self._k_pole_consts
+        pole_list = []
+        bare, set_dict = object.__new__, object.__setattr__  # an instance without running the frozen __init__
+        o = self._k_want + 4
+        for p, prom in enumerate(vals[:nf]):
+            f_peak, m_peak, zf, _ok, fn, zv = vals[o : o + 6]
+            o += 6
+            zeta_fwhm = None if zf != zf else zf  # NaN: undefined
+            if zv != zv:
+                zeta_vrm = fn_vrm = None
+            else:
+                zeta_vrm, fn_vrm = zv, fn
+            if vrm_first:
+                chosen = zeta_vrm if zeta_vrm is not None else zeta_fwhm
+            else:
+                chosen = zeta_fwhm if zeta_fwhm is not None else zeta_vrm
             zeta_fit = None
+            fit = fits[p] if fits is not None else None
+            if fit is not None:
+                f_peak, zeta_fit = fit
+                chosen = zeta_fit
+            if confident:
+                conf = base * prom / (prom + p0)
+                conf = conf if conf < 1.0 else 1.0  # min(1.0, conf)
+            else:
+                conf = 0.0
+            # PoleEstimate(...) field for field, without the frozen __init__'s eleven object.__setattr__
+            pole = bare(PoleEstimate)
+            set_dict(
+                pole,
+                "__dict__",
+                {
+                    "frequency_hz": f_peak,
+                    "damping_ratio": chosen if chosen is not None else 0.0,
+                    "damping_fwhm": zeta_fwhm,
+                    "damping_vrm": zeta_vrm,
+                    "natural_frequency_vrm_hz": fn_vrm,
+                    "magnitude": m_peak,
+                    "prominence_db": prom,
+                    "source": source,
+                    "damping_defined": chosen is not None,
+                    "confidence": conf,
+                    "damping_fit": zeta_fit,
+                },
+            )
+            pole_list.append(pole)
+        return pole_list
+
+    def _solve_searched(self) -> None:
+        """The searched spectrum on the slice when the compiled step starts at stage 3: the RLS's
+        transfer functions (their mean or one ``H_ij``) on the valid bins, or the solver's."""
+        c, sl, solver = self.cfg, self._sl, self._solver
+        if self._first_stage < 3:
+            return
+        if self._rls is None:
+            solver.solve_source(self._avg.state, c.peak_source, sl)
+            return
+        valid_sl = solver.mask(self._avg.state, sl)
+        Hr = self._rls.H[:, sl]
+        src_sl = self._rls_src[sl]
+        if c.peak_source == "tot":
+            np.mean(Hr, axis=0, out=src_sl)
+        else:
+            src_sl[...] = Hr[H_NAMES.index(c.peak_source)]
+        src_sl *= valid_sl
+
+    def _fits(self, nf: int, vals: list[float], n_valid: int, n_sl_valid: int) -> list[tuple[float, float] | None]:
+        """``(f_n, ζ)`` of each peak's rational fit (``damping_method`` 'fit': the averaged FRF over
+        ±``fit_band_hz``, :func:`.ratfit.fit_mode`; 'transient': the history's DFTs,
+        :func:`.modal.fit_mode_transient`), None where it fails or lands outside the band."""
+        c = self.cfg
+        if c.estimate_on_smoothed:
+            hd, fd, vd, all_valid = self._k_hs, self._f_range, self._k_vs, n_valid == self._k_n_range
+        else:
+            sl = self._sl
+            hd, fd, vd, all_valid = self._src[sl], self._f_sl, self._solver.valid[sl], n_sl_valid == self._n_sl
+        record = self._record_dft() if c.damping_method == "transient" else None
+        fits: list[tuple[float, float] | None] = []
+        o = self._k_want + 4
+        for _ in range(nf):
+            f_peak, ok = vals[o], vals[o + 3] != 0.0
+            o += 6
+            fit = None
             if c.damping_method == "fit" and ok:
                 band = np.abs(fd - f_peak) <= c.fit_band_hz
-                fit = fit_mode(fd[band], hd[band], None if vmask is None else vd[band].astype(np.float64)[None, :])
-                if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz:
-                    f_peak, zeta_fit = fit
-                    chosen = zeta_fit
+                fit = fit_mode(fd[band], hd[band], None if all_valid else vd[band].astype(np.float64)[None, :])
             elif record is not None:
                 f_all, X = record
                 band = np.abs(f_all - f_peak) <= c.fit_band_hz
                 fit = fit_mode_transient(f_all[band], X[:2, band], X[2:, band])
-                if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz:
-                    f_peak, zeta_fit = fit
-                    chosen = zeta_fit
-            poles.append(
-                PoleEstimate(
-                    frequency_hz=f_peak,
-                    damping_ratio=chosen if chosen is not None else 0.0,
-                    damping_fwhm=zeta_fwhm,
-                    damping_vrm=zeta_vrm,
-                    natural_frequency_vrm_hz=fn_vrm,
-                    magnitude=m_peak,
-                    prominence_db=prom,
-                    source=source,
-                    damping_defined=chosen is not None,
-                    damping_fit=zeta_fit,
-                )
-            )
-        return tuple(poles)
+            fits.append(fit if fit is not None and abs(fit[0] - f_peak) <= c.fit_band_hz else None)
+        return fits
 
     def _record_dft(self) -> tuple[NDArray[np.float64], NDArray[np.complex128]] | None:
         """The rectangular-window DFTs of the mean-removed history (4 rows: inputs, outputs) for

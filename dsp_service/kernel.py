@@ -1,53 +1,41 @@
-"""The compiled identification step (``IdentifierConfig.kernel = 'numba'``, the default).
+"""The compiled identification step.
 
 :func:`detrend_window_ring` (before the FFTs) and one call of :func:`step_packed`
-(after them) do what the numpy reference path (:mod:`.spectra`, :mod:`.mimo`,
-:mod:`.smoothing`, :mod:`.modal`, :meth:`.Identifier._find_peaks`,
-:meth:`.Identifier._poles`) does in about seventy small numpy calls:
+(after them) are the identifier's step (:class:`.identifier.Identifier`):
 
-1. the exponential (or linear) average of the seven raw spectra,
+1. the exponential [2-9] (or linear) average of the seven raw spectra,
    ``S' += c·conj(U_i)·X_j`` over all bins, with the sums of ``P11``, ``P22``
    for the power floor;
-2. the corrected 2×2 ``H_tot`` solve on the solved slice, its mask and, for
+2. the corrected 2×2 ``H_tot`` solve [2-21 … 2-24] on the solved slice, its mask and, for
    the collinear bins, the dominant-direction (rank-1) solve (:mod:`.mimo`);
-3. the Savitzky–Golay smoothing of ``H_tot`` over the search range (the
+3. the Savitzky–Golay smoothing (§2.4.1) of ``H_tot`` over the search range (the
    interior and edge rows of :class:`.smoothing.FrequencySmoother`) and the
    smoothed-bin validity;
 4. the peak search on the linear weighted magnitude: scipy's local maxima,
    prominence bases by scipy's walk, highest first;
 5. per peak: relocation, the three-point and least-squares refinement,
-   FWHM (exact or [B.1]) and VRM (modal.VrmEstimator; not the rational fit).
+   FWHM (exact or [B.1]) and VRM ([C-12 … C-14], as modal.VrmEstimator).
 
-The arithmetic is the reference's operation for operation, including how
-numpy rounds complex products (fused multiply-adds), ``|z|`` and complex
-division on this kind of CPU, so the averaged spectra and ``H_tot`` are
-bit-identical to the numpy path; sums over the power floor, the smoothing
-windows, the least-squares refinement and the VRM triplets run in another
-order (a few ulps). The tests compare every output with the numpy path to
-1e-12. Compiled with ``cache=True``; :func:`warm_up` (called when the
+The complex products, ``|z|`` and complex division round as numpy's do on
+this kind of CPU (fused multiply-adds, ``l·sqrt(1 + (s/l)²)``, Smith's
+division); sums run in the order written. Compiled with ``cache=True``; :func:`warm_up` (called when the
 Identifier is built) compiles or loads everything with the types a step
 passes, so no batch pays compilation.
 
-Three loops are written as explicit 8-wide vector code (LLVM intrinsics:
-:func:`_lane_sums4`, :func:`_accumulate_blocks`, :func:`_fir_blocks`), where
-the compiler left the plain loop scalar or slow. Each lane does the scalar
-loop's operations in the scalar loop's order (no reassociation, no contraction
-beyond the explicit fused multiply-adds), so the results are the scalar
-definitions' bit for bit on any x86-64 host (the tests pin each to it); on a
-CPU without 512-bit vectors LLVM splits the vectors, with the same results.
+Every stage is a plain numba loop, compiled without fast-math, so sums run
+in the order written. The one exception is :func:`_fma`, compiled with
+fast-math contraction only: its ``a·b + c`` becomes one fused multiply-add,
+as numpy's complex loops round on this kind of CPU.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit
 from numpy.typing import NDArray
 
 # The arrays a step passes (warm_up builds each of them); numba types them itself when compiling,
@@ -61,26 +49,19 @@ Intp = NDArray[np.intp]
 _TINY = float(np.finfo(np.float64).tiny)
 
 
-@intrinsic
-def _fma_intrinsic(typingctx: Any, a: Any, b: Any, c: Any) -> tuple[Any, Callable[..., Any]]:
-    """``a·b + c`` rounded once (LLVM ``fma``)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        return builder.fma(*args)
-
-    return sig, codegen
-
-
-# numba's intrinsic types its call with the typing function's signature, the typing context
-# included; compiled code calls it with the three floats only
-_fma = cast(Callable[[float, float, float], float], _fma_intrinsic)
+@njit(cache=True, error_model="numpy", fastmath={"contract"})
+def _fma(a: float, b: float, c: float) -> float:
+    """``a·b + c`` rounded once: compiled with fast-math contraction only, so LLVM fuses the
+    product and the sum into one multiply-add (nothing else is relaxed). Not inlined at
+    numba's level, which would give it the caller's flags; its callers are compiled without
+    contraction, so the ``c`` they pass is never fused itself."""
+    return a * b + c
 
 
 # numpy's complex loops (its SIMD kernels on this kind of CPU) multiply with fused
 # multiply-adds and take |z| as l·sqrt(1 + (s/l)²): the same here, so that the
-# compiled step rounds exactly as the reference does (the 2×2 determinant of a
-# few averages cancels, so one ulp there would show as 1e-13 in a damping).
+# compiled step rounds exactly as numpy's complex arithmetic does (the 2×2 determinant
+# of a few averages cancels, so one ulp there would show as 1e-13 in a damping).
 @njit(cache=True, inline="always", error_model="numpy")
 def _cmul(a: complex, b: complex) -> complex:
     return complex(_fma(a.real, b.real, -(a.imag * b.imag)), _fma(a.real, b.imag, a.imag * b.real))
@@ -125,53 +106,16 @@ def row_mean(src: F64) -> float:
     return (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))) / n
 
 
-def _is_c_f64_row(t: Any) -> bool:
-    return isinstance(t, types.Array) and t.ndim == 1 and t.layout == "C" and t.dtype == types.float64
-
-
-@intrinsic
-def _lane_sums4_intrinsic(typingctx: Any, a: Any, b: Any, c: Any, d: Any, n8: Any, out: Any) -> tuple[Any, Callable[..., Any]] | None:
-    """``out[8r + l]`` ← the sum of ``row_r[l], row_r[8 + l], row_r[16 + l], …`` below ``n8``, in
-    that order from 0.0, for the four contiguous rows ``a … d`` (``n8`` a multiple of 8):
-    :func:`row_mean`'s eight running sums of four rows at once. The compiler leaves
-    ``row_mean``'s eight scalar sums scalar (it cannot reassociate them, nor does it see the
-    eight as one vector), so they run one row after the other; here each row's eight sums are
-    one 8-wide vector add per step (each lane the same additions in the same order) and the
-    four rows' chains are independent, so they overlap."""
-    if not all(_is_c_f64_row(t) for t in (a, b, c, d, out)) or not isinstance(n8, types.Integer):
-        return None
-    sig = types.void(a, b, c, d, n8, out)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        rows = [context.make_array(signature.args[k])(context, builder, args[k]) for k in range(4)]
-        dest = context.make_array(signature.args[5])(context, builder, args[5])
-        v8 = ir.VectorType(ir.DoubleType(), 8)
-        accs = [cgutils.alloca_once_value(builder, ir.Constant(v8, [0.0] * 8)) for _ in range(4)]
-        n = args[4]
-        with cgutils.for_range(builder, builder.sdiv(n, ir.Constant(n.type, 8))) as loop:
-            at = builder.mul(loop.index, ir.Constant(loop.index.type, 8))
-            for k in range(4):
-                v = builder.load(builder.bitcast(builder.gep(rows[k].data, [at]), v8.as_pointer()), align=8)
-                builder.store(builder.fadd(builder.load(accs[k]), v), accs[k])
-        for k in range(4):
-            p = builder.bitcast(builder.gep(dest.data, [ir.Constant(ir.IntType(64), 8 * k)]), v8.as_pointer())
-            builder.store(builder.load(accs[k]), p, align=8)
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-# compiled code calls it with the arrays and the count only (see _fma)
-_lane_sums4 = cast(Callable[[F64, F64, F64, F64, int, F64], None], _lane_sums4_intrinsic)
-
-
-@njit(cache=True, error_model="numpy")
-def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
-    """``means[r]`` = :func:`row_mean` of row ``r``; ``out = (x − means[:, None]) · window``
-    (spectra.SpectralEstimator.snapshot's passes in one)."""
-    rows, n = x.shape
+@njit(cache=True, error_model="numpy", nogil=True)
+def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) -> None:
+    """``means[r]`` = :func:`row_mean` of row ``r`` of the history's window ``buf[:, head : head + N]``
+    and ``out = (x − means[:, None]) · window`` (detrend='constant', then the window, as
+    scipy.signal.csd does), read from the C-contiguous ring buffer itself. Each row goes through 1-D views: on
+    the 2-D indices the compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192);
+    the same elementwise roundings either way."""
+    rows, n = out.shape
     for r in range(rows):
-        src = x[r]
+        src = buf[r, head : head + n]
         m = row_mean(src)
         means[r] = m
         dst = out[r]
@@ -179,137 +123,33 @@ def detrend_window(x: F64, means: F64, window: F64, out: F64) -> None:
             dst[i] = (src[i] - m) * window[i]
 
 
-@njit(cache=True, error_model="numpy", nogil=True)
-def detrend_window_ring(buf: F64, head: int, means: F64, window: F64, out: F64) -> None:
-    """:func:`detrend_window` of the history's window ``buf[:, head : head + N]``, read from the
-    C-contiguous ring buffer itself (``means`` is written). Each row goes through 1-D views: on
-    the 2-D indices the compiler did not vectorize the loop (2.5–3× slower at N = 512 … 8192);
-    the same elementwise roundings either way. The four channels' means are :func:`row_mean`'s
-    to the bit, their eight lane sums taken as vectors, four rows at once (:func:`_lane_sums4`:
-    the whole pass 2.26 → 1.65 µs at N = 2048, 9.2 → 5.1 µs at N = 8192)."""
-    rows, n = out.shape
-    if rows == 4:  # the history's four channels: row_mean's lane sums of all four in one pass
-        n8 = n - n % 8
-        lanes = np.empty(32)
-        _lane_sums4(buf[0, head : head + n], buf[1, head : head + n], buf[2, head : head + n], buf[3, head : head + n], n8, lanes)
-        for r in range(4):
-            src = buf[r, head : head + n]
-            s = lanes[8 * r : 8 * r + 8]
-            s0 = s[0]
-            for i in range(n8, n):  # row_mean's tail, into the first sum
-                s0 += src[i]
-            means[r] = (((s0 + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))) / n
-    else:
-        for r in range(rows):
-            means[r] = row_mean(buf[r, head : head + n])
-    for r in range(rows):
-        src = buf[r, head : head + n]
-        m = means[r]
-        dst = out[r]
-        for i in range(n):
-            dst[i] = (src[i] - m) * window[i]
-
-
-def _is_c_f64_2d(t: Any) -> bool:
-    return isinstance(t, types.Array) and t.ndim == 2 and t.layout == "C" and t.dtype == types.float64
-
-
-@intrinsic
-def _accumulate_blocks_intrinsic(typingctx: Any, X: Any, c: Any, state: Any, nblk: Any) -> tuple[Any, Callable[..., Any]] | None:
-    """:func:`_accumulate`'s products and sums over the first ``4·nblk`` bins, four bins (one
-    8-wide vector of (re, im) floats) of all seven spectra per step; returns the partial
-    ``(Σ P11.real, Σ P22.real)`` over those bins, summed bin by bin in order.
-
-    Per bin and spectrum the very operations of the scalar loop: ``ur = re(U_i)·c``,
-    ``ui = (−im(U_i))·c``, ``t = ui·(im(X_j), re(X_j))``, then ``fma(ur, X_j, (−t_re, t_im))``
-    (= ``(fma(ur, br, −(ui·bi)), fma(ur, bi, ui·br))``) added to the state, lane by lane.
-    The four inputs' vectors are loaded once for the seven spectra (the scalar loop read
-    ``U_1`` four times and ``U_2`` three), and the power-floor sums run in the same loop,
-    where their chain of dependent additions overlaps the products instead of following them."""
-    if not (_is_c_f64_2d(X) and _is_c_f64_2d(state) and isinstance(c, types.Float) and isinstance(nblk, types.Integer)):
-        return None
-    sig = types.UniTuple(types.float64, 2)(X, c, state, nblk)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        ax = context.make_array(signature.args[0])(context, builder, args[0])
-        ast = context.make_array(signature.args[2])(context, builder, args[2])
-        c_val, n = args[1], args[3]
-        f64 = ir.DoubleType()
-        i32 = ir.IntType(32)
-        v8 = ir.VectorType(f64, 8)
-        undef = ir.Constant(v8, ir.Undefined)
-
-        def lanes(idx: list[int]) -> Any:
-            return ir.Constant(ir.VectorType(i32, len(idx)), idx)
-
-        c8 = builder.shuffle_vector(builder.insert_element(undef, c_val, ir.Constant(i32, 0)), undef, lanes([0] * 8))
-        re_dup, im_dup, swap = lanes([0, 0, 2, 2, 4, 4, 6, 6]), lanes([1, 1, 3, 3, 5, 5, 7, 7]), lanes([1, 0, 3, 2, 5, 4, 7, 6])
-        neg_re = lanes([0, 9, 2, 11, 4, 13, 6, 15])  # even lanes from the first operand, odd from the second
-        fma = cgutils.get_or_insert_function(builder.module, ir.FunctionType(v8, [v8, v8, v8]), "llvm.fma.v8f64")
-        eight = ir.Constant(n.type, 8)
-        x_row = builder.sdiv(cgutils.unpack_tuple(builder, ax.strides, 2)[0], eight)  # row strides in floats
-        s_row = builder.sdiv(cgutils.unpack_tuple(builder, ast.strides, 2)[0], eight)
-        sums = [cgutils.alloca_once_value(builder, ir.Constant(f64, 0.0)) for _ in range(2)]
-
-        def at(base: Any, row_stride: Any, row: int, col: Any) -> Any:
-            ptr = builder.gep(base, [builder.add(col, builder.mul(row_stride, ir.Constant(row_stride.type, row)))])
-            return builder.bitcast(ptr, v8.as_pointer())
-
-        with cgutils.for_range(builder, n) as loop:
-            col = builder.mul(loop.index, ir.Constant(loop.index.type, 8))
-            x = [builder.load(at(ax.data, x_row, q, col), align=8) for q in range(4)]
-            ur = [builder.shuffle_vector(builder.fmul(x[q], c8), undef, re_dup) for q in range(2)]
-            ui = [builder.shuffle_vector(builder.fmul(builder.fneg(x[q]), c8), undef, im_dup) for q in range(2)]
-            x_sw = [builder.shuffle_vector(v, undef, swap) for v in x]
-            for r in range(7):
-                i, j = (0, r) if r < 4 else (1, r - 3)
-                ptr = at(ast.data, s_row, r, col)
-                t = builder.fmul(ui[i], x_sw[j])
-                prod = builder.call(fma, [ur[i], x[j], builder.shuffle_vector(builder.fneg(t), t, neg_re)])
-                new = builder.fadd(builder.load(ptr, align=8), prod)
-                builder.store(new, ptr, align=8)
-                if r in (0, 4):  # P11, P22: their real parts into the power-floor sums, bin by bin
-                    acc = sums[0 if r == 0 else 1]
-                    total = builder.load(acc)
-                    for lane in (0, 2, 4, 6):
-                        total = builder.fadd(total, builder.extract_element(new, ir.Constant(i32, lane)))
-                    builder.store(total, acc)
-        return context.make_tuple(builder, signature.return_type, [builder.load(sums[0]), builder.load(sums[1])])
-
-    return sig, codegen
-
-
-_accumulate_blocks = cast(Callable[[F64, float, F64, int], tuple[float, float]], _accumulate_blocks_intrinsic)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
     """``state[r] += (conj(X_i)·c)·X_j`` for the seven spectra (the exponential [2-9] or linear
     average of the raw spectra, unnormalised: :class:`.spectra.SpectralAverager`); returns
     ``(Σ P11.real, Σ P22.real)`` over all bins, summed bin by bin in order.
 
-    On float views (``X`` ``(4, 2K)``, ``state`` ``(7, 2K)``: (re, im) pairs). Bins in blocks of
-    four by :func:`_accumulate_blocks` (all seven spectra per block; 2.15 → 1.66 µs at
-    N = 2048, the same roundings), the last ``K mod 4`` here."""
+    On float views (``X`` ``(4, 2K)``, ``state`` ``(7, 2K)``: (re, im) pairs). The product
+    rounds as :func:`_cmul` does (one fused multiply-add per part), then adds to the state."""
     k = X.shape[1] // 2
-    nblk = k // 4
-    s11, s22 = _accumulate_blocks(X, c, state, nblk)
     for r in range(7):
-        i = 0 if r < 4 else 1
-        j = r if r < 4 else r - 3
-        xi = X[i]
-        xj = X[j]
+        xi = X[0] if r < 4 else X[1]
+        xj = X[r] if r < 4 else X[r - 3]
         st = state[r]
-        for b in range(4 * nblk, k):
+        for b in range(k):
             ur = xi[2 * b] * c
             ui = -xi[2 * b + 1] * c
             br = xj[2 * b]
             bi = xj[2 * b + 1]
             st[2 * b] += _fma(ur, br, -(ui * bi))
             st[2 * b + 1] += _fma(ur, bi, ui * br)
-    for b in range(4 * nblk, k):
-        s11 += state[0, 2 * b]
-        s22 += state[4, 2 * b]
+    s11 = 0.0
+    s22 = 0.0
+    p11 = state[0]
+    p22 = state[4]
+    for b in range(k):
+        s11 += p11[2 * b]
+        s22 += p22[2 * b]
     return s11, s22
 
 
@@ -389,55 +229,6 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
     return count
 
 
-@intrinsic
-def _fir_blocks_intrinsic(typingctx: Any, x: Any, off: Any, taps: Any, out: Any, nblk: Any) -> tuple[Any, Callable[..., Any]] | None:
-    """``out[t] = Σ_j taps[j]·x[off + 2j + t]`` for ``t < 16·nblk``, each sum from 0.0 in order
-    ``j = 0 … w−1`` (a multiply, then an add: no fused multiply-add): the Savitzky–Golay interior
-    on (re, im) floats, whose window advances one bin (two floats) per tap. Sixteen outputs per
-    step in two 8-wide vector registers, kept there through the ``w`` taps (the pass-per-tap
-    form loaded and stored every output once per tap)."""
-    if not (all(_is_c_f64_row(t) for t in (x, taps, out)) and isinstance(off, types.Integer) and isinstance(nblk, types.Integer)):
-        return None
-    sig = types.void(x, off, taps, out, nblk)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        ax = context.make_array(signature.args[0])(context, builder, args[0])
-        at = context.make_array(signature.args[2])(context, builder, args[2])
-        ao = context.make_array(signature.args[3])(context, builder, args[3])
-        off, n = args[1], args[4]
-        i32 = ir.IntType(32)
-        v8 = ir.VectorType(ir.DoubleType(), 8)
-        undef = ir.Constant(v8, ir.Undefined)
-        w = cgutils.unpack_tuple(builder, at.shape, 1)[0]
-        accs = [cgutils.alloca_once(builder, v8) for _ in range(2)]
-
-        def const(like: Any, value: int) -> Any:
-            return ir.Constant(like.type, value)
-
-        with cgutils.for_range(builder, n) as blk:
-            first = builder.mul(blk.index, const(blk.index, 16))
-            base = builder.add(off, first)
-            for acc in accs:
-                builder.store(ir.Constant(v8, [0.0] * 8), acc)
-            with cgutils.for_range(builder, w) as tap:
-                cj = builder.load(builder.gep(at.data, [tap.index]))
-                c8 = builder.shuffle_vector(builder.insert_element(undef, cj, ir.Constant(i32, 0)), undef, ir.Constant(ir.VectorType(i32, 8), [0] * 8))
-                at_tap = builder.add(base, builder.mul(tap.index, const(tap.index, 2)))
-                for h, acc in enumerate(accs):
-                    ptr = builder.gep(ax.data, [builder.add(at_tap, const(at_tap, 8 * h))])
-                    v = builder.load(builder.bitcast(ptr, v8.as_pointer()), align=8)
-                    builder.store(builder.fadd(builder.load(acc), builder.fmul(c8, v)), acc)
-            for h, acc in enumerate(accs):
-                ptr = builder.gep(ao.data, [builder.add(first, const(first, 8 * h))])
-                builder.store(builder.load(acc), builder.bitcast(ptr, v8.as_pointer()), align=8)
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-_fir_blocks = cast(Callable[[F64, int, F64, F64, int], None], _fir_blocks_intrinsic)
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def _smooth_rows(src: C128, coef: F64, starts: Intp, hs: C128, i0: int, i1: int) -> None:
     """Rows ``i0 … i1−1`` of :func:`_smooth` one by one (each its own coefficients)."""
@@ -459,10 +250,11 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
 
     Each output bin sums its window in order ``j = 0 … w−1`` from 0.0. The rows ``ia … ib−1``
     (the interior: ``starts[i] = starts[ia] + i − ia`` and every row equal to ``coef[ia]``, the
-    centre row; the Identifier sets ``ia``, ``ib`` so) are one filter over the (re, im) floats
-    (:func:`_fir_blocks`, sixteen floats at a time, the last few here), the edge rows one by
-    one. ``all_valid``: every bin of the solved slice is valid, so every window is (it lies
-    within the slice), and the validity count is skipped."""
+    centre row; the Identifier sets ``ia``, ``ib`` so) are one filter over the (re, im) floats,
+    applied tap by tap (each pass adds one tap's products to every output: the same sums in
+    the same order, and a loop the compiler vectorizes), the edge rows one by one.
+    ``all_valid``: every bin of the solved slice is valid, so every window is (it lies within
+    the slice), and the validity count is skipped."""
     w = coef.shape[1]
     m = hi - lo
     if ib > ia:
@@ -471,13 +263,13 @@ def _smooth(src: C128, valid: Bool, lo: int, hi: int, coef: F64, starts: Intp, h
         sf = src.view(np.float64)
         out = hs.view(np.float64)[2 * ia : 2 * ib]
         taps = coef[ia]
-        nblk = cnt // 16
-        _fir_blocks(sf, s0, taps, out, nblk)
-        for t in range(16 * nblk, cnt):
-            a = 0.0
-            for j in range(w):
-                a += taps[j] * sf[s0 + 2 * j + t]
-            out[t] = a
+        for t in range(cnt):
+            out[t] = 0.0
+        for j in range(w):
+            cj = taps[j]
+            x = sf[s0 + 2 * j : s0 + 2 * j + cnt]
+            for t in range(cnt):
+                out[t] += cj * x[t]
     if ib > ia:  # the edge rows around the interior
         _smooth_rows(src, coef, starts, hs, 0, ia)
         _smooth_rows(src, coef, starts, hs, ib, m)
@@ -576,7 +368,8 @@ def _peaks(
     found_prom: F64,
     scratch: F64,
 ) -> int:
-    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``Identifier._find_peaks``); returns how many.
+    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``scipy.signal.find_peaks`` with its prominence, on the
+    weighted magnitude); returns how many.
 
     The local maxima are tried highest first (ties: the later first), each against its
     prominence; with at most ``_SELECT_MAX`` maxima (the smoothed spectrum's usual few) by
@@ -698,7 +491,7 @@ FP_POWER_FLOOR, FP_DET, FP_RATIO, FP_BAND, FP_ZETA_MAX, FP_C_MAX, N_FP = range(7
     IP_IB,
     IP_WEIGHTED,
     IP_WANT,
-    IP_DO_POLES,
+    IP_FIRST,
     IP_ON_SMOOTHED,
     IP_RELOCATE,
     IP_FWHM_EXACT,
@@ -790,17 +583,20 @@ def pack_arguments(
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: C128, valid: Bool, mode: U8, hs: C128, vs: Bool) -> None:
-    """The compiled step after the FFTs (module doc, stages 1–5) on the packed arguments of
-    :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``): the snapshot ``X`` (float view,
-    ``(4, 2K)``) averaged with weight ``c`` into ``state``, ``H_tot`` solved on the slice into
-    ``src`` (``valid``, ``mode``), smoothed over the search range into ``hs`` (``vs``), the
-    peaks searched and (``IP_DO_POLES``) their poles estimated on the smoothed
-    (``IP_ON_SMOOTHED``) or the solved spectrum. ``stats`` ← (valid count on the slice, valid
-    smoothed bins, peaks found, power floor).
+    """The identification step after the FFTs (module doc, stages 1–5) on the packed arguments
+    of :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``), from stage ``IP_FIRST``:
 
-    The stages are called from here directly: through two more levels of functions of 32 and
-    48 arguments (not inlined), every array argument was passed as its seven fields and
-    reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
+    1. the snapshot ``X`` (float view, ``(4, 2K)``) averaged with weight ``c`` into ``state``;
+    2. ``H_tot`` solved on the slice into ``src`` (``valid``, ``mode``) with the power floor of
+       ``state``;
+    3. ``src`` (``valid``: solved by the caller from stage 3) smoothed over the search range into
+       ``hs`` (``vs``), the peaks searched and their poles estimated on the smoothed
+       (``IP_ON_SMOOTHED``) or the solved spectrum.
+
+    ``stats`` ← (valid count on the slice, valid smoothed bins, peaks found, power floor (0 from
+    stage 3)). The stages are called from here directly: through two more levels of functions
+    of 32 and 48 arguments (not inlined), every array argument was passed as its seven fields
+    and reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
     one process step on several cores."""
     m = ik[IP_HI] - ik[IP_LO]
     w = ik[IK_W]
@@ -819,12 +615,27 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
     prom = fw[ik[IK_PROM] : ik[IK_PROM] + want]
     stats = fw[ik[IK_STATS] : ik[IK_STATS] + 4]
     mag = fw[ik[IK_MAG] : ik[IK_MAG] + ik[IK_N_MAG]]
-    # 1. the seven spectra into the averages, and the power floor
-    s11, s22 = _accumulate(X, c, state.view(np.float64))
-    mean_power = (s11 + s22) / (2 * ik[IP_BINS])
-    floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
-    # 2. H_tot on the slice
-    n_sl_valid = _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode)
+    first = ik[IP_FIRST]
+    if first <= 2:
+        # 1. the seven spectra into the averages, and the power floor
+        if first == 1:
+            s11, s22 = _accumulate(X, c, state.view(np.float64))
+        else:
+            s11 = 0.0
+            s22 = 0.0
+            for b in range(state.shape[1]):
+                s11 += state[0, b].real
+                s22 += state[4, b].real
+        mean_power = (s11 + s22) / (2 * ik[IP_BINS])
+        floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
+        # 2. H_tot on the slice
+        n_sl_valid = _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode)
+    else:  # solved by the caller
+        floor = 0.0
+        n_sl_valid = 0
+        for i in range(s0, s1):
+            if valid[i]:
+                n_sl_valid += 1
     # 3. smoothing: every bin of the slice valid (the usual case), so is every window, which lies within it
     all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[m - 1] + w <= s1
     n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ik[IP_IA], ik[IP_IB], all_valid)
@@ -837,7 +648,7 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
     stats[1] = n_valid
     stats[2] = nf
     stats[3] = floor
-    if ik[IP_DO_POLES] == 0 or nf == 0:
+    if nf == 0:
         return
     # 5. refinement, FWHM and VRM of the peaks
     o = ik[IK_PINV]
@@ -897,20 +708,19 @@ def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) :func:`detrend_window_ring` and :func:`step_packed`
-    (and what they call) with the types the identifier passes."""
+    """Compile (or load from numba's cache) :func:`detrend_window_ring`, :func:`_accumulate` and
+    :func:`step_packed` (and what they call) with the types the identifier passes."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
-    hist = ring[:, 3 : 3 + 2 * k - 2]  # a slice of the history's ring buffer, as the identifier passes it
-    detrend_window(hist, np.empty(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     detrend_window_ring(ring, 3, np.zeros(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
+    _accumulate(X.view(np.float64), 1.0, state.view(np.float64))  # alone: the settings whose solve runs before the search
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
-    ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)
+    ip = np.array([k, 0, k, 1, 10, 10 + n_range, 0, n_range, 1, 2, 1, 0, 1, 1, 1, 1, 1], dtype=np.intp)  # IP_FIRST 1
     for smoothed in (0, 1):
         ip[IP_ON_SMOOTHED] = smoothed
         fk, ik, fw, _ = pack_arguments(
@@ -942,7 +752,7 @@ def warm_up() -> None:
 
 
 # ---------------------------------------------------------------------------
-# Stage 5: refinement, FWHM and VRM of the peaks (Identifier._poles, modal.py)
+# Stage 5: refinement, FWHM and VRM of the peaks (as modal.py defines them)
 # ---------------------------------------------------------------------------
 _SQRT_HALF = math.sqrt(0.5)
 _ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
@@ -1196,7 +1006,7 @@ def poles(
     mag: F64,
     out: F64,
 ) -> None:
-    """Identifier._poles without the rational fit: ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
+    """The poles of the peaks (the rational fits run after, in the Identifier): ``out[i]`` ← (f_peak, |H| peak, ζ_FWHM or NaN,
     ok, f_n VRM or NaN, ζ_VRM or NaN) of peak ``i``; ``mag`` ← |hd|."""
     size = hd.size
     for i in range(size):

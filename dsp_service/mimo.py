@@ -100,11 +100,7 @@ class MimoSolver:
         self._c1 = np.empty(k, dtype=np.complex128)
         self._c2 = np.empty((2, k), dtype=np.complex128)
         self._p21 = np.empty(k, dtype=np.complex128)
-        self._r3 = np.empty(k)
-        self._inv4 = np.zeros(k)
-        self.valid_count = 0  #: valid bins of the last ``solve_source('tot')`` of the 'mimo' solver
-        self._tot_key: tuple[object, slice] | None = None
-        self._tot: tuple[NDArray, ...] = ()
+        self.valid_count = 0  #: valid bins of the identification step's last solve (set by the Identifier)
 
     # ---------------------------------------------------------------- masks
     def _mask(self, S: NDArray[np.complex128], sl: slice) -> NDArray[np.bool_]:
@@ -172,112 +168,22 @@ class MimoSolver:
         return H, valid
 
     def solve_source(self, S: NDArray[np.complex128], source: str = "tot", sl: slice = slice(None)) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-        """Only the searched spectrum on ``sl``: ``H_tot`` or one ``H_ij`` (views).
-
-        ``H_tot`` in one pass: with ``A = P1y1 + P1y2``, ``B = P2y1 + P2y2`` the
-        four numerators sum to ``A (P22 − P21) + B (P11 − P12)``, so
-        ``H_tot = [A (P22 − P21) + B (P11 − P12)] / (4 det)``; uncorrelated:
-        ``(A/P11 + B/P22)/4``.
-        """
+        """Only the searched spectrum on ``sl``: one ``H_ij``, or the uncorrelated solve's ``H_tot``
+        ``(A/P11 + B/P22)/4`` with ``A = P1y1 + P1y2``, ``B = P2y1 + P2y2`` (views). The corrected
+        solve's ``H_tot`` is the compiled identification step's (:func:`.kernel.step_packed`)."""
         if source != "tot":
             H, valid = self.solve(S, sl)
             return H[H_NAMES.index(source)], valid
         if self.solver == "mimo":
-            return self._solve_tot_mimo(S, sl)
+            raise ValueError("the corrected H_tot is solved by the compiled step (dsp_service.kernel)")
         valid = self._mask(S, sl)
         out = self.source[sl]
-        inv = self._inv[sl]
         a = np.add(S[P1Y1, sl], S[P1Y2, sl], out=out)
         b = np.add(S[P2Y1, sl], S[P2Y2, sl], out=self._c1[sl])
-        if self.solver == "uncorrelated":
-            a *= inv
-            b *= self._inv2[sl]
-            a += b
-            a *= 0.25
-            return out, valid
-        p12 = S[P12, sl]
-        t = self._c2[0, sl]
-        np.subtract(S[P22, sl], np.conjugate(p12, out=self._p21[sl]), out=t)  # P22 − P21
-        a *= t
-        np.subtract(S[P11, sl], p12, out=t)  # P11 − P12
-        b *= t
+        a *= self._inv[sl]
+        b *= self._inv2[sl]
         a += b
-        np.multiply(inv, 0.25, out=self._r1[sl])
-        a *= self._r1[sl]
-        return out, valid
-
-    def _tot_views(self, S: NDArray[np.complex128], sl: slice) -> tuple[NDArray, ...]:
-        """Views of ``S`` and the buffers on ``sl`` for :meth:`_solve_tot_mimo` (cached per ``S``, ``sl``)."""
-        if self._tot_key is not None and self._tot_key[0] is S and self._tot_key[1] == sl:
-            return self._tot
-        pp_all = S[P11 :: P22 - P11].real  # rows P11, P22: (2, K), real parts
-        pp = pp_all[:, sl]
-        n = pp.shape[1]
-        ab = np.empty((2, n), dtype=np.complex128)
-        d = np.empty((2, n), dtype=np.complex128)
-        self._tot = (
-            pp_all,
-            pp,
-            S[P12, sl],
-            S[P1Y1 :: P2Y1 - P1Y1, sl],  # rows P1y1, P2y1
-            S[P1Y2 :: P2Y2 - P1Y2, sl],  # rows P1y2, P2y2
-            S[P22 :: P11 - P22, sl],  # rows P22, P11
-            ab,
-            d,
-            self._r1[sl],
-            self._r2[sl],
-            self._r3[sl],
-            self._inv4[sl],
-            self.valid[sl],
-            self._b1[sl],
-            self.source[sl],
-        )
-        self._tot_key = (S, sl)
-        return self._tot
-
-    def _solve_tot_mimo(self, S: NDArray[np.complex128], sl: slice) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-        """``H_tot`` of the corrected solve on ``sl`` and its mask, with as few passes as possible.
-
-        The same arithmetic as :meth:`_mask` then the ``H_tot`` formula of
-        :meth:`solve_source` (so the same values), with two shortcuts: the
-        per-bin input-power test is skipped when the smallest input power on
-        ``sl`` already clears the floor, and ``1/det`` skips its mask when
-        every bin is valid.
-        """
-        pp_all, pp, p12, a_src, b_src, m22_11, ab, d, prod, det, thr, inv4, valid, b1, out = self._tot_views(S, sl)
-        sum11, sum22 = np.add.reduce(pp_all, axis=1).tolist()
-        mean_power = (sum11 + sum22) / (2 * self.n_bins)
-        floor = self.power_floor * mean_power + _TINY
-        self._floor = floor
-        p11, p22 = pp[0], pp[1]
-        np.multiply(p11, p22, out=prod)
-        np.abs(p12, out=det)
-        np.square(det, out=det)
-        np.subtract(prod, det, out=det)  # P11 P22 − |P12|²
-        # normalised determinant det/prod >= thr  <=>  det >= thr·prod  (prod > 0 on valid bins)
-        np.multiply(prod, self.det_threshold, out=thr)
-        np.greater_equal(det, thr, out=valid)
-        if not np.minimum.reduce(pp, axis=None) > floor:  # some bin's input power is below the floor
-            valid &= np.greater(p11, floor, out=b1)
-            valid &= np.greater(p22, floor, out=b1)
-        self.valid_count = int(np.count_nonzero(valid))
-        if self.valid_count == valid.size:
-            np.divide(0.25, det, out=inv4)
-        else:
-            inv4.fill(0.0)
-            np.divide(0.25, det, out=inv4, where=valid)
-        # 4 det · H_tot = A (P22 − P21) + B (P11 − P12),  A = P1y1 + P1y2,  B = P2y1 + P2y2
-        np.add(a_src, b_src, out=ab)  # [A, B]
-        np.subtract(m22_11, p12, out=d)  # [P22 − P12, P11 − P12]
-        np.add(m22_11[0].imag, p12.imag, out=d[0].imag)  # P22 − conj(P12) = P22 − P21
-        ab *= d
-        np.add(ab[0], ab[1], out=out)
-        out *= inv4  # invalid bins: 0
-        if self.collinear == "dominant" and self.valid_count < valid.size:
-            self.valid_count += self._dominant(S, sl, valid, tot=out)
-        else:
-            self.mode[sl] = valid
-            self.mode[sl] *= MODE_FULL
+        a *= 0.25
         return out, valid
 
     def _dominant(
@@ -286,13 +192,12 @@ class MimoSolver:
         sl: slice,
         valid: NDArray[np.bool_],
         H: NDArray[np.complex128] | None = None,
-        tot: NDArray[np.complex128] | None = None,
     ) -> int:
         """Rank-1 (minimum-norm) solve on the bins of ``sl`` the full solve masked as collinear.
 
         Sets :attr:`mode` on ``sl``; with ``collinear='dominant'`` writes
-        ``h_j = v (vᴴ r_j)/σ₁`` (module doc) into ``H`` (rows on ``sl``) and/or
-        ``H_tot`` into ``tot``, marks those bins valid and returns their count.
+        ``h_j = v (vᴴ r_j)/σ₁`` (module doc) into ``H`` (rows on ``sl``), marks those
+        bins valid and returns their count.
         Only the (usually few) collinear bins are touched, by index.
         """
         mode = self.mode[sl]
@@ -320,8 +225,6 @@ class MimoSolver:
         if H is not None:
             H[H11 : H12 + 1, idx] = v1 * c  # H1j
             H[H21 : H22 + 1, idx] = v2 * c  # H2j
-        if tot is not None:
-            tot[idx] = 0.25 * (v1 + v2) * (c[0] + c[1])
         valid[idx] = True
         mode[idx] = MODE_DOMINANT
         return int(idx.size)

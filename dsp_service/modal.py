@@ -10,10 +10,10 @@ power law, i.e. a straight line on the log–log (Bode) plot::
 
 It only *ranks* candidate peaks; frequencies and magnitudes are refined on
 the unweighted ``|H|``. Candidates are local maxima of the weighted
-magnitude in dB with a minimum prominence, exactly as
-``scipy.signal.find_peaks(…, prominence=…)`` finds them (:func:`local_maxima`,
-:func:`prominence_bases`: vectorised, the same samples compared, tested
-against scipy); up to ``max_peaks`` are kept, best weighted magnitude first.
+magnitude with a minimum prominence, as ``scipy.signal.find_peaks(…,
+prominence=…)`` finds them on its dB values; up to ``max_peaks`` are kept,
+best weighted magnitude first. The search is the compiled step's
+(:func:`.kernel.step_packed`, tested against scipy).
 Sub-bin refinement: a parabola through the log magnitudes of the three bins
 around the maximum (vertex offset ``δ = ½(ln a − ln c)/(ln a − 2 ln b + ln c)``,
 :func:`refine_peak`), or a least-squares parabola over more bins for noisy
@@ -77,12 +77,10 @@ solves for λ alone (C eliminated); :func:`vrm_solve` is the full corrected
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from itertools import combinations
 from typing import Literal
 
 import numpy as np
-import scipy.signal
 from numpy.typing import NDArray
 
 from dsp_service.ratfit import denominator_lstsq
@@ -103,152 +101,6 @@ def log_weights(freqs: NDArray[np.float64], f_ref: float, exponent: float) -> ND
     w = (np.maximum(f, _TINY) / f_ref) ** (-exponent)
     w[f <= 0.0] = 1.0
     return w
-
-
-def log_weights_db(freqs: NDArray[np.float64], f_ref: float, exponent: float) -> NDArray[np.float64]:
-    """The same weight in dB, ``−20 γ log10(f / f_ref)``, to add to ``20 log10 |H|``."""
-    return 20.0 * np.log10(log_weights(freqs, f_ref, exponent))
-
-
-def local_maxima(x: NDArray[np.float64]) -> NDArray[np.intp]:
-    """Indices of the local maxima of a 1-D array, exactly as ``scipy.signal.find_peaks(x)[0]``.
-
-    A maximum is a sample (or the middle of a run of equal samples, rounded
-    down) whose neighbours on both sides are lower; the first and last
-    samples never are. Vectorised: the strict maxima come from one
-    comparison with the larger neighbour; runs of equal samples (plateaus)
-    are resolved only when a sample equals its larger neighbour.
-    """
-    return _local_maxima(x, np.zeros(x.size, dtype=bool))
-
-
-def _local_maxima(x: NDArray[np.float64], flags: NDArray[np.bool_]) -> NDArray[np.intp]:
-    """:func:`local_maxima` with a caller's work buffer ``flags`` (``bool``, ``x.size``, ends False)."""
-    n = x.size
-    if n < 3:
-        return np.zeros(0, dtype=np.intp)
-    mid = x[1:-1]
-    nb = np.maximum(x[:-2], x[2:])
-    np.greater(mid, nb, out=flags[1:-1])
-    peaks = flags.nonzero()[0]  # flags[0], flags[-1] stay False
-    if np.count_nonzero(np.greater_equal(mid, nb)) == peaks.size:
-        return peaks  # no sample equals its larger neighbour: no plateau can be a peak
-    # plateaus: compress runs of equal samples; a run is a peak if both neighbouring runs are lower
-    # (the first and last runs touch the ends and never are)
-    change = (x[1:] != x[:-1]).nonzero()[0] + 1
-    starts = np.concatenate(([0], change))
-    ends = np.concatenate((change - 1, [n - 1]))
-    vals = x[starts]
-    r = ((vals[1:-1] > vals[:-2]) & (vals[1:-1] > vals[2:])).nonzero()[0] + 1
-    return (starts[r] + ends[r]) // 2
-
-
-_PROM_VECTOR_MAX = 64  #: beyond this many peaks the pairwise comparison gives way to scipy's loop
-_LOWER = np.tri(_PROM_VECTOR_MAX, k=-1, dtype=bool)  # [k, i]: i < k
-_UPPER = np.ascontiguousarray(_LOWER.T)  # [k, i]: i > k
-
-
-def prominence_bases(xp: NDArray[np.float64], n: int, peaks: NDArray[np.intp]) -> NDArray[np.float64]:
-    """Base level of each peak's prominence in ``xp[:n]``, as ``scipy.signal.peak_prominences`` (``wlen=None``).
-
-    The prominence is ``x[p] − base`` with ``base = max(left_min, right_min)``:
-    the lowest samples between the peak and the nearest strictly higher
-    sample on either side (or the end of the array). ``peaks`` must be the
-    local maxima of ``xp[:n]`` in increasing order (:func:`local_maxima`);
-    ``xp`` must hold one more sample, ``xp[n] = +inf``, as a sentinel.
-
-    Between two neighbouring maxima the samples fall then rise, so the
-    nearest strictly higher *sample* lies on the flank of the nearest
-    strictly higher *peak* (or is an end of the array): the minima are
-    ``min(x[L:p])`` and ``min(x[p:R])`` with ``L``, ``R`` the positions of
-    those peaks (``0``, ``n`` if none), found by one pairwise comparison of
-    the peak heights and read with one ``np.minimum.reduceat``. Identical
-    values to scipy's (the same samples, compared).
-    """
-    count = peaks.size
-    if count == 0:
-        return np.zeros(0)
-    if count > _PROM_VECTOR_MAX:
-        _, left_bases, right_bases = scipy.signal.peak_prominences(xp[:n], peaks)
-        return np.maximum(xp[left_bases], xp[right_bases])
-    h = xp[peaks]
-    higher = np.less.outer(h, h)  # [k, i]: peak i strictly higher than peak k
-    bounds = np.empty((count, 4), dtype=np.intp)  # [L, p, p, R] per peak
-    np.where(higher & _LOWER[:count, :count], peaks, 0).max(axis=1, out=bounds[:, 0])
-    bounds[:, 1] = peaks
-    bounds[:, 2] = peaks
-    np.where(higher & _UPPER[:count, :count], peaks, n).min(axis=1, out=bounds[:, 3])
-    mins = np.minimum.reduceat(xp, bounds.reshape(-1))
-    return np.maximum(mins[0::4], mins[2::4])
-
-
-@dataclass(frozen=True)
-class Peak:
-    """A located resonance peak (``index`` refers to the arrays it was found in)."""
-
-    index: int
-    frequency_hz: float  #: refined (parabolic on log |H|)
-    magnitude: float  #: refined |H| at the vertex
-    prominence_db: float  #: of the weighted magnitude
-
-
-def find_modal_peaks(
-    mag: NDArray[np.float64],
-    freqs: NDArray[np.float64],
-    weights_db: NDArray[np.float64] | None = None,
-    valid: NDArray[np.bool_] | None = None,
-    max_peaks: int = 2,
-    min_prominence_db: float = 3.0,
-    n_valid: int | None = None,
-    refine: bool = True,
-) -> list[Peak]:
-    """Up to ``max_peaks`` resonance peaks of ``mag`` (already cut to the search range).
-
-    Candidates are ranked by ``20 log10 |H| + weights_db`` (see
-    :func:`log_weights_db`); masked bins (``valid`` False) are set to the
-    range's minimum. ``n_valid`` (the count of valid bins, if the caller has
-    it) saves a pass; ``refine=False`` skips the parabolic refinement (for
-    callers that refine elsewhere). Indices in the result refer to the given arrays. If no
-    local maximum has the required prominence, the global maximum is
-    returned alone with its (small) prominence, unless it lies on the range's
-    edge (not a true peak): then the list is empty.
-    """
-    size = mag.size
-    if size < 3:
-        return []
-    wdb = np.log10(np.maximum(mag, _TINY))
-    wdb *= 20.0
-    if weights_db is not None:
-        wdb += weights_db
-    if valid is not None:
-        nv = int(np.count_nonzero(valid)) if n_valid is None else n_valid
-        if nv == 0:
-            return []
-        if nv < size:
-            wdb[~valid] = wdb[valid].min()
-    # scipy.signal.find_peaks(wdb, prominence=min_prominence_db), vectorised (same peaks, same values)
-    wp = np.empty(size + 1)
-    wp[:size] = wdb
-    wp[size] = np.inf
-    idx = local_maxima(wdb)
-    proms = wdb[idx] - prominence_bases(wp, size, idx)
-    keep = proms >= min_prominence_db
-    idx, proms = idx[keep], proms[keep]
-    if idx.size == 0:
-        g = int(np.argmax(wdb))
-        if g == 0 or g == size - 1:
-            return []
-        # the global maximum: no higher sample on either side
-        base = max(float(np.min(wdb[: g + 1])), float(np.min(wdb[g:])))
-        idx, proms = np.array([g]), np.array([float(wdb[g]) - base])
-    order = np.argsort(wdb[idx])[::-1][:max_peaks] if idx.size > 1 else (0,)
-    df = float(freqs[1] - freqs[0])
-    peaks = []
-    for o in order:
-        k = int(idx[o])
-        d, lv = refine_peak(mag, k) if refine else (0.0, math.log(max(float(mag[k]), _TINY)))
-        peaks.append(Peak(k, float(freqs[k]) + d * df, math.exp(lv), float(proms[o])))
-    return peaks
 
 
 def refine_peak(mag: NDArray[np.float64], k: int) -> tuple[float, float]:

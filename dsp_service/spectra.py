@@ -28,21 +28,14 @@ running mean (``α_k = 1/k``, i.e. Welch's average over segments).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
+import scipy.fft
 import scipy.signal
-from numpy.lib.stride_tricks import as_strided
 from numpy.typing import NDArray
 
 from .history import N_CHANNELS
-from .kernel import detrend_window
-
-try:  # scipy's pocketfft binding: the same transform as numpy's (bit for bit), without its Python layer
-    from scipy.fft._pocketfft.pypocketfft import r2c as _r2c
-except ImportError:  # pragma: no cover - depends on the installed scipy
-    _r2c = None
 
 #: Row indices of the spectra array.
 P11, P12, P1Y1, P1Y2, P22, P2Y1, P2Y2 = range(7)
@@ -63,33 +56,19 @@ def rfft_frequencies(n: int, sample_rate_hz: float) -> NDArray[np.float64]:
 
 
 def rfft_rows(x: NDArray[np.float64], out: NDArray[np.complex128] | None = None) -> NDArray[np.complex128]:
-    """``np.fft.rfft(x, axis=-1)`` of a C-contiguous float64 array, optionally into ``out``.
-
-    Uses scipy's pocketfft binding directly when it is available: numpy and
-    scipy share the pocketfft C++ code, so the result is identical bit for
-    bit, minus about 5 µs of argument handling per call at N = 2048. This is
-    the FFT both the identifier and the bench's numpy floor use.
-    """
-    if _r2c is not None:
-        return _r2c(x, (x.ndim - 1,), True, 0, out, 1)
-    return np.fft.rfft(x, axis=-1, out=out)
-
-
-def rfft_rows_bound(x: NDArray[np.float64], out: NDArray[np.complex128]) -> tuple[Callable[..., Any], tuple[Any, ...]]:
-    """``(f, args)`` such that ``f(*args)`` is ``rfft_rows(x, out)``, for a caller that repeats the
-    call on the same arrays: pocketfft's binding itself, without the wrapper's Python frame."""
-    if _r2c is not None:
-        return _r2c, (x, (x.ndim - 1,), True, 0, out, 1)
-    return rfft_rows, (x, out)
+    """The real FFT of every row of ``x`` (``scipy.fft.rfft(x, axis=-1)``), copied into ``out`` if
+    given. The FFT both the identifier and the bench's numpy floor use."""
+    X: NDArray[np.complex128] = scipy.fft.rfft(x, axis=-1)
+    if out is None:
+        return X
+    np.copyto(out, X)
+    return out
 
 
 class SpectralEstimator:
-    """FFTs of one history snapshot and its seven raw auto/cross spectra.
-
-    Everything that does not depend on the data (window, frequency grid,
-    output buffers) is computed once here. :meth:`snapshot` overwrites
-    and returns internal buffers: copy them if you need to keep them.
-    """
+    """The window, frequency grid and buffers of one history snapshot's FFTs, computed once:
+    the compiled step (:mod:`.kernel`) detrends, windows and averages into them; the FFTs are
+    :func:`rfft_rows`'s."""
 
     def __init__(self, n: int, sample_rate_hz: float, window: WindowSpec = "hann") -> None:
         if n < 4:
@@ -102,40 +81,10 @@ class SpectralEstimator:
         self.means = np.zeros(N_CHANNELS)
         """The last snapshot's channel means (detrend='constant')."""
         self._tmp = np.empty((N_CHANNELS, self.n))
-        k = self.n_bins
-        # FFT rows u1, u2, y1, y2 and a zero fifth row: the strided view
-        # pairs[i, j] = X[i + j] (i = 0, 1; j = 0 … 3) gives, with conj(U_i) in
-        # front, all seven spectra in the SPECTRA_NAMES order (plus a zero row)
-        # from a single broadcast multiply.
-        self._x5 = np.zeros((N_CHANNELS + 1, k), dtype=np.complex128)
-        self.ffts = self._x5[:N_CHANNELS]
-        row = self._x5.strides[0]
-        self._pairs = as_strided(self._x5, shape=(2, N_CHANNELS, k), strides=(row, row, self._x5.strides[1]))
-        self._pairs.flags.writeable = False
-        self._conj = np.empty((2, 1, k), dtype=np.complex128)
-        self._conj2 = self._conj[:, 0]
-        self._s8 = np.empty((2, N_CHANNELS, k), dtype=np.complex128)
-        self.spectra = self._s8.reshape(2 * N_CHANNELS, k)[:N_SPECTRA]
-
-    def snapshot(self, history: NDArray[np.float64], scale: float = 1.0) -> NDArray[np.complex128]:
-        """Raw spectra ``(7, K)`` of one ``(4, N)`` history (u1, u2, y1, y2), times ``scale``.
-
-        Also leaves the detrended, windowed FFTs in :attr:`ffts` (rows u1, u2,
-        y1, y2). Raw = unscaled ``conj(X)·Y``; ``scale`` (real) is folded into
-        ``conj(U_i)`` so the averager's weight costs nothing extra.
-        """
-        x = history
-        # detrend='constant', then window (scipy's order): the channel means in the one defined
-        # order of dsp_service.kernel.row_mean, so every identifier rounds alike on every host
-        detrend_window(x, self.means, self.window, self._tmp)
-        tmp = self._tmp
-        X = rfft_rows(tmp, self.ffts)
-        xc = np.conjugate(X[0:2], out=self._conj2)
-        if scale != 1.0:
-            xc *= scale
-        # conj(U1)·[U1, U2, Y1, Y2] and conj(U2)·[U2, Y1, Y2, 0] in one call
-        np.multiply(self._conj, self._pairs, out=self._s8)
-        return self.spectra
+        """The detrended, windowed channels of the last snapshot (the compiled step writes them)."""
+        self.ffts = np.zeros((N_CHANNELS, self.n_bins), dtype=np.complex128)
+        """The last snapshot's FFTs, rows u1, u2, y1, y2."""
+        self.spectra = np.empty((N_SPECTRA, self.n_bins), dtype=np.complex128)
 
     # --------------------------------------------------------------- scaling
     def scale_factor(self, scaling: Literal["density", "spectrum"] = "density") -> float:

@@ -242,3 +242,8 @@ def test_run_time_alpha_change_and_history_restart() -> None:
     assert rls.cfg.rls_forgetting == pytest.approx(0.8)
     with pytest.raises(pydantic.ValidationError):
         idf.set_alpha(0.0)
+
+
+def test_the_removed_kernel_setting_is_refused_naming_the_compiled_step() -> None:
+    with pytest.raises(pydantic.ValidationError, match="'kernel' was removed: the identifier has one step"):
+        IdentifierConfig(kernel="numpy")  # type: ignore[call-arg]  # the removed field is the test

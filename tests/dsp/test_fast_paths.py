@@ -1,4 +1,5 @@
-"""The identifier's fast paths equal their direct definitions (the step's hot path, see dsp_service.bench)."""
+"""The identifier's hot path against references built here from public building blocks: numpy's
+FFT, scipy.signal's savgol_filter, find_peaks and peak_prominences, the VRM triplets one by one."""
 
 from __future__ import annotations
 
@@ -10,12 +11,11 @@ import numpy as np
 import pytest
 import scipy.signal
 
-import dsp_service.spectra as spectra
-from dsp_service.identifier import Identifier, IdentifierConfig, KernelName
-from dsp_service.mimo import MimoSolver, solve_mimo
-from dsp_service.modal import VrmEstimator, find_modal_peaks, log_weights_db, vrm_lambda, vrm_modal_scalar
+from dsp_service.identifier import Identifier, IdentifierConfig
+from dsp_service.mimo import solve_mimo
+from dsp_service.modal import VrmEstimator, vrm_lambda, vrm_modal_scalar
 from dsp_service.smoothing import FrequencySmoother
-from dsp_service.spectra import SpectralEstimator, rfft_rows
+from dsp_service.spectra import rfft_rows
 
 from .synth import dataset
 
@@ -24,10 +24,7 @@ FREQS = np.asarray(np.fft.rfftfreq(N, 1.0 / FS), dtype=np.float64)  # float64 (t
 
 
 # ------------------------------------------------------------------- spectra
-@pytest.mark.parametrize("use_pocketfft", [True, False])
-def test_rfft_rows_is_numpys_rfft(monkeypatch: pytest.MonkeyPatch, use_pocketfft: bool) -> None:
-    if not use_pocketfft:
-        monkeypatch.setattr(spectra, "_r2c", None)
+def test_rfft_rows_is_numpys_rfft() -> None:
     rng = np.random.default_rng(0)
     x = rng.standard_normal((4, 512))
     np.testing.assert_array_equal(rfft_rows(x), np.fft.rfft(x, axis=-1))
@@ -35,49 +32,6 @@ def test_rfft_rows_is_numpys_rfft(monkeypatch: pytest.MonkeyPatch, use_pocketfft
     assert rfft_rows(x, out) is out
     np.testing.assert_array_equal(out, np.fft.rfft(x, axis=-1))
     np.testing.assert_array_equal(rfft_rows(x[1]), np.fft.rfft(x[1]))
-
-
-def test_snapshot_products_are_the_seven_cross_spectra() -> None:
-    rng = np.random.default_rng(1)
-    x = rng.standard_normal((4, 256)) + rng.standard_normal((4, 1))
-    est = SpectralEstimator(256, FS)
-    S = est.snapshot(x, 2.5)
-    xd = (x - x.mean(axis=1, keepdims=True)) * est.window
-    X = np.fft.rfft(xd, axis=-1)
-    pairs = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]  # SPECTRA_NAMES order
-    for row, (i, j) in enumerate(pairs):
-        np.testing.assert_allclose(S[row], np.conj(X[i]) * 2.5 * X[j], rtol=1e-12, atol=1e-12 * np.abs(S[row]).max())
-    assert S.shape == (7, 129) and S.flags.c_contiguous
-
-
-# ------------------------------------------------------------------- solver
-def _spectra_with_masked_bins(seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    k = 300
-    u = rng.standard_normal((2, 40, k)) + 1j * rng.standard_normal((2, 40, k))
-    u[1, :, 50:70] = 0.7j * u[0, :, 50:70]  # collinear inputs: masked by the determinant
-    u[0, :, 120:125] *= 1e-9  # input 1 below the power floor
-    u[1, :, 200:204] = 0.0  # input 2 silent
-    y = rng.standard_normal((2, 40, k)) + 1j * rng.standard_normal((2, 40, k))
-    X = np.concatenate([u, y])
-    pairs = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]
-    return np.array([(np.conj(X[i]) * X[j]).mean(axis=0) for i, j in pairs])
-
-
-@pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("sl", [slice(None), slice(10, 260), slice(52, 68)])
-def test_htot_fast_path_equals_the_mean_of_the_four_solves(seed: int, sl: slice) -> None:
-    S = _spectra_with_masked_bins(seed)
-    H, valid = solve_mimo(S, power_floor=1e-12)
-    solver = MimoSolver(S.shape[1], "mimo", 1e-3, 1e-12)
-    for _ in range(2):  # the second call reuses the cached views
-        htot, v = solver.solve_source(S, "tot", sl)
-        np.testing.assert_array_equal(v, valid[sl])
-        np.testing.assert_allclose(htot, H.mean(axis=0)[sl], rtol=1e-12, atol=0)
-        assert np.all(htot[~v] == 0)
-    if sl == slice(None):
-        assert not valid[50:70].any() and not valid[120:125].any() and not valid[200:204].any()
-        assert valid.sum() > 250
 
 
 # ---------------------------------------------------------------- smoothing
@@ -144,11 +98,6 @@ def test_vrm_all_peaks_at_once_equals_the_triplet_by_triplet_definition(model: L
     hws = [3.2, 2.3, 2.0, 5.0, 0.4, 1.0, 8.0, 30.0]  # different m and strides, edges, masked bins
     for mask in (None, valid):
         got = est.estimate_many(H, FREQS, ks, hws, mask)
-        one_by_one = [est.estimate(H, FREQS, k, hw, mask) for k, hw in zip(ks, hws)]
-        assert [g is None for g in got] == [o is None for o in one_by_one]
-        for g, o in zip(got, one_by_one):
-            if g is not None:
-                assert g[2] == o[2] and g[:2] == pytest.approx(o[:2], rel=1e-13)
         ref = [_vrm_reference(est, H, FREQS, k, hw, mask) for k, hw in zip(ks, hws)]
         assert [g is None for g in got] == [r is None for r in ref]
         assert sum(g is not None for g in got) >= 4
@@ -165,28 +114,41 @@ def test_vrm_degenerate_spectra_give_none_without_warnings() -> None:
         assert est.estimate(np.ones(FREQS.size, dtype=complex), FREQS, 40, 3.0) is None
 
 
-# ----------------------------------------------------------------- peaks
 # ------------------------------------------------------------- whole step
+def _savgol(x: np.ndarray, w: int, order: int) -> np.ndarray:
+    """scipy's Savitzky–Golay filter of a complex spectrum (its edges fitted, mode='interp')."""
+    return scipy.signal.savgol_filter(x.real, w, order, mode="interp") + 1j * scipy.signal.savgol_filter(x.imag, w, order, mode="interp")
+
+
+def _scipy_peaks(v: np.ndarray, ratio: float, want: int) -> list[tuple[int, float]]:
+    """The best ``want`` maxima of ``v`` (highest first) at least ``ratio`` above their prominence
+    base (scipy.signal.find_peaks and peak_prominences), with their prominence in dB."""
+    idx = scipy.signal.find_peaks(v)[0]
+    prom = scipy.signal.peak_prominences(v, idx)[0]
+    keep = [(int(p), float(v[p]), float(v[p] - q)) for p, q in zip(idx, prom) if v[p] >= (v[p] - q) * ratio]
+    keep.sort(key=lambda t: -t[1])
+    return [(p, 20.0 * math.log10(h / base)) for p, h, base in keep[:want]]
+
+
 def _step_reference(idf: Identifier) -> list[tuple]:
-    """The step's poles rebuilt from the public building blocks (solve_mimo, smoothing, find_modal_peaks, …)."""
-    from dsp_service.modal import PeakRefiner, half_power_bandwidth, refine_peak, zeta_from_fwhm_exact
+    """The step's poles rebuilt from scipy and the solve, FWHM and VRM definitions."""
+    from dsp_service.modal import PeakRefiner, half_power_bandwidth, log_weights, refine_peak, zeta_from_fwhm_exact
 
     cfg = idf.cfg
     H, valid = solve_mimo(idf._avg.state, cfg.det_threshold, cfg.power_floor)
     htot = H.mean(axis=0)
-    sm = FrequencySmoother(htot.size, cfg.smoothing_window, cfg.smoothing_order)
     lo, hi, sl = idf._lo, idf._hi, idf._sl
-    hs = sm.smooth(htot)[lo:hi]
-    vs = sm.valid(valid)[lo:hi]
+    assert valid[sl].all()  # so is every smoothing window of the search range, which lies within sl
+    hs = _savgol(htot, cfg.smoothing_window, cfg.smoothing_order)[lo:hi]
     f = idf.freqs
-    wdb = log_weights_db(f[lo:hi], max(cfg.search_min_hz, f[1]), cfg.log_weight_exponent)
-    peaks = find_modal_peaks(np.abs(hs), f[lo:hi], wdb, vs, cfg.max_peaks, cfg.min_peak_prominence_db, refine=False)
+    weights = log_weights(f[lo:hi], max(cfg.search_min_hz, f[1]), cfg.log_weight_exponent)
+    peaks = _scipy_peaks(np.abs(hs) * weights, 10.0 ** (cfg.min_peak_prominence_db / 20.0), cfg.max_peaks)
     hd, vd, fd = htot[sl], valid[sl], f[sl]
     magd = np.abs(hd)
     r = max(1, (cfg.smoothing_window // 2) // 2)
     out, ks, hws = [], [], []
-    for p in peaks:
-        k = p.index + lo - sl.start
+    for index, prom in peaks:
+        k = index + lo - sl.start
         a = max(k - r, 0)
         k = a + int(np.argmax(magd[a : k + r + 1]))
         d, lv = refine_peak(magd, k)
@@ -195,21 +157,24 @@ def _step_reference(idf: Identifier) -> list[tuple]:
         bw = band[1] - band[0]
         hb = 0.5 * bw / (fd[1] - fd[0])
         d, lv = PeakRefiner().refine(magd, k, int(round(0.5 * hb)))
-        out.append([fd[k] + d * (fd[1] - fd[0]), math.exp(lv), zeta_from_fwhm_exact(bw, fp), p.prominence_db])
+        out.append([fd[k] + d * (fd[1] - fd[0]), math.exp(lv), zeta_from_fwhm_exact(bw, fp), prom])
         ks.append(k)
         hws.append(hb)
     est = VrmEstimator(cfg.vrm_points_per_side, cfg.vrm_band_factor, model=cfg.vrm_model)
     for row, k, hb in zip(out, ks, hws):
-        row.append(est.estimate(hd, fd, k, hb, vd))
+        row.append(_vrm_reference(est, hd, fd, k, hb, None))
     return [tuple(r) for r in out]
 
 
-@pytest.mark.parametrize("kernel", ["numpy", "numba"])
 @pytest.mark.parametrize("seed", [1, 3])
-def test_step_equals_its_definition_from_the_public_building_blocks(seed: int, kernel: KernelName) -> None:
+def test_step_equals_its_definition_from_the_public_building_blocks(seed: int) -> None:
+    """Every pole of the step against :func:`_step_reference`: frequency and VRM frequency to
+    1e-11, magnitude, FWHM and VRM damping and prominence to 1e-9 (the least-squares peak, the
+    half-power crossing and the VRM weights amplify the rounding of the smoothed spectrum, which
+    scipy computes as a convolution in another order)."""
     n = 1024
     _, u, y = dataset(40 * n, seed=seed)
-    idf = Identifier(IdentifierConfig(fft_width=n, kernel=kernel))
+    idf = Identifier(IdentifierConfig(fft_width=n))
     checked = with_vrm = 0
     for s in range(0, u.shape[1], n // 8):
         idf.push(u[:, s : s + n // 8], y[:, s : s + n // 8])

@@ -12,11 +12,9 @@ from hypothesis import strategies as st
 from dsp_service.modal import (
     PeakRefiner,
     VrmEstimator,
-    find_modal_peaks,
     fwhm_ratio,
     half_power_bandwidth,
     half_power_points,
-    log_weights_db,
     refine_peak,
     vrm_lambda,
     vrm_modal,
@@ -185,25 +183,3 @@ def test_peak_refinement_sub_bin() -> None:
     assert abs(FREQS[k] + d3 * DF - f_true) < 0.05 * DF
     assert abs(FREQS[k] + d5 * DF - f_true) < 0.05 * DF
     assert abs(FREQS[k] - f_true) > 0.2 * DF  # the raw bin alone would be off
-
-
-def test_log_weighting_prefers_the_lower_of_two_equal_peaks() -> None:
-    f = FREQS[5:410]
-    mag = np.exp(-0.5 * ((f - 4.0) / 0.2) ** 2) + 1.01 * np.exp(-0.5 * ((f - 4.6) / 0.2) ** 2) + 0.05
-    plain = find_modal_peaks(mag, f, None, max_peaks=2)
-    weighted = find_modal_peaks(mag, f, log_weights_db(f, 0.5, 0.5), max_peaks=2)
-    assert len(plain) == len(weighted) == 2
-    assert plain[0].frequency_hz == pytest.approx(4.6, abs=DF)  # unweighted: the higher one
-    assert weighted[0].frequency_hz == pytest.approx(4.0, abs=DF)  # weighted: the lower one
-    assert weighted[1].frequency_hz == pytest.approx(4.6, abs=DF)  # both split poles reported
-    # weighting ranks only: refined frequencies and magnitudes are the unweighted ones
-    assert {round(p.frequency_hz, 9) for p in plain} == {round(p.frequency_hz, 9) for p in weighted}
-
-
-def test_peak_search_respects_mask_and_edges() -> None:
-    f = FREQS[5:410]
-    mag = np.exp(-0.5 * ((f - 4.0) / 0.2) ** 2) + 0.05
-    valid = np.ones(f.size, dtype=bool)
-    assert find_modal_peaks(mag, f, valid=~valid) == []
-    rising = np.linspace(1.0, 2.0, f.size)  # no interior maximum
-    assert find_modal_peaks(rising, f) == []

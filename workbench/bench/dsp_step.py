@@ -13,8 +13,7 @@ same machine state:
   ``conj(X_a)·X_b`` (P11, P12, P1y1, P1y2, P21, P22, P2y1, P2y2: ``conj(U_i)``
   times each of the four rows) as **one** broadcast multiply into a
   preallocated ``(2, 4, n/2+1)`` array. The ratios use this floor. Its FFT is
-  :func:`dsp_service.spectra.rfft_rows`, the one the step uses (numpy's pocketfft,
-  called without ``np.fft.rfft``'s argument handling, identical results), so
+  :func:`dsp_service.spectra.rfft_rows`, the one the step uses (``scipy.fft.rfft``), so
   the ratio does not credit the step with a faster FFT. The slower forms of
   the same work, in the same blocks: ``floor_products_p50_us`` (the batched
   FFT and eight separate ``np.conj(X_a) * X_b``, the headline floor of this
@@ -24,9 +23,7 @@ same machine state:
   ``floor_numpy_p50_us`` (``np.fft.rfft`` itself and eight products).
 
 Timings alternate in blocks of ten (step, then each floor) so all see the
-same machine state. The step is timed with the identifier's ``kernel``
-(``IdentifierConfig.kernel``: the compiled ``'numba'`` step or the numpy
-reference); ``step_numpy_p50_us`` is the numpy reference in the same blocks.
+same machine state.
 
 :func:`bench_stages` splits the compiled step into its stages (each timed
 alone on the same state, interleaved), :func:`bench_sizes` gives floor, step
@@ -46,7 +43,7 @@ from typing import TypedDict
 import numpy as np
 import scipy.signal
 
-from dsp_service.identifier import Identifier, IdentifierConfig, KernelName
+from dsp_service.identifier import Identifier, IdentifierConfig
 from dsp_service.spectra import rfft_rows
 
 C40_STEP_US = 100_000.0  #: the C40's ≈ 100 ms per 2×2 iteration (§2)
@@ -74,9 +71,6 @@ class IdentifierBench(TypedDict):
     ratio_products_p50: float
     c40_fraction: float
     poles_found: int
-    kernel: KernelName
-    step_numpy_p50_us: float
-    ratio_numpy_p50: float
 
 
 def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -94,9 +88,9 @@ def _bench_data(n: int, repeats: int, fs: float, seed: int = 0) -> tuple[np.ndar
     return u, y
 
 
-def _warmed(n: int, repeats: int, kernel: KernelName) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
+def _warmed(n: int, repeats: int) -> tuple[Identifier, np.ndarray, np.ndarray, int]:
     """An identifier at FFT width ``n`` after the warm-up snapshots, its data and the next position."""
-    cfg = IdentifierConfig(fft_width=n, kernel=kernel)
+    cfg = IdentifierConfig(fft_width=n)
     idf = Identifier(cfg)
     u, y = _bench_data(n, repeats, cfg.sample_rate_hz)
     half = n // 2
@@ -109,7 +103,7 @@ def _warmed(n: int, repeats: int, kernel: KernelName) -> tuple[Identifier, np.nd
     return idf, u, y, pos
 
 
-def bench_identifier(n: int = 2048, repeats: int = 200, kernel: KernelName = "numba") -> IdentifierBench:
+def bench_identifier(n: int = 2048, repeats: int = 200) -> IdentifierBench:
     """p50/p99 (µs) of one identification step and of the numpy floor, and their ratios.
 
     Returns keys: ``n``, ``repeats``, ``step_p50_us``, ``step_p99_us``,
@@ -117,18 +111,13 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: KernelName = "nu
     ``floor_products_p99_us``, ``floor_unbatched_p50_us``, ``floor_numpy_p50_us``,
     ``ratio_p50`` (step/floor), ``ratio_p99``, ``ratio_products_p50`` (step/products
     floor), ``c40_fraction`` (step p50 / 100 ms),
-    ``poles_found`` (poles in the last step, to show the damping stages ran),
-    ``kernel``, and ``step_numpy_p50_us`` / ``ratio_numpy_p50``: the numpy
-    reference step in the same blocks.
+    ``poles_found`` (poles in the last step, to show the damping stages ran).
     """
     if repeats < 1:
         raise ValueError("repeats must be >= 1")
     # warm-up: 30 half-overlapping snapshots build independent averages, so the
     # timed steps find valid bins and peaks and run the damping estimators
-    idf, u, y, pos = _warmed(n, repeats, kernel)
-    ref, _, _, _ = _warmed(n, repeats, "numpy")
-    ref_pos = pos
-    ref_t = np.empty(repeats)
+    idf, u, y, pos = _warmed(n, repeats)
     data = np.vstack([u[:, :n], y[:, :n]])  # the floor's input (contents do not matter)
     rows = [np.ascontiguousarray(data[c]) for c in range(4)]
     perf = time.perf_counter
@@ -152,12 +141,6 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: KernelName = "nu
             t0 = perf()
             result = idf.step()
             step_t[i] = perf() - t0
-        for i in range(start, stop):
-            ref.push(u[:, ref_pos : ref_pos + _BATCH], y[:, ref_pos : ref_pos + _BATCH])
-            ref_pos += _BATCH
-            t0 = perf()
-            ref.step()
-            ref_t[i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
             rfft_rows(data, X_out)
@@ -199,9 +182,6 @@ def bench_identifier(n: int = 2048, repeats: int = 200, kernel: KernelName = "nu
         "ratio_products_p50": s50 / p50,
         "c40_fraction": s50 / C40_STEP_US,
         "poles_found": len(result.poles) if result is not None else 0,
-        "kernel": kernel,
-        "step_numpy_p50_us": float(np.percentile(ref_t, 50)) * 1e6,
-        "ratio_numpy_p50": float(np.percentile(ref_t, 50)) * 1e6 / f50,
     }
 
 
@@ -209,7 +189,7 @@ SIZES = (512, 1024, 2048, 4096, 8192)
 
 
 def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[IdentifierBench]:
-    """:func:`bench_identifier` (compiled step, numpy reference and floor) at each FFT width."""
+    """:func:`bench_identifier` (compiled step and floor) at each FFT width."""
     return [bench_identifier(n, repeats) for n in sizes]
 
 
@@ -227,7 +207,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
     """
     from dsp_service import kernel as K
 
-    idf, u, y, pos = _warmed(n, repeats, "numba")
+    idf, u, y, pos = _warmed(n, repeats)
     c, avg, est, sv, sl, vrm = idf.cfg, idf._avg, idf._est, idf._solver, idf._sl, idf._vrm
     data = np.vstack([u[:, :n], y[:, :n]])
     names = ("step", "detrend", "fft", "average", "solve", "smooth", "peaks", "poles", "floor")
@@ -281,7 +261,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
                 idf._w_lin is not None,
                 idf._prom_ratio,
                 c.max_peaks,
-                idf._v,
+                idf._k_v,
                 idf._k_order,
                 idf._k_idx,
                 idf._k_prom,
@@ -331,12 +311,11 @@ _STAGES = ("detrend", "fft", "average", "solve", "smooth", "peaks", "poles", "py
 
 def format_report(rows: list[IdentifierBench], stages: dict[str, float]) -> str:
     """The size table and the stage breakdown as text (µs, ratios to the floor of the same run)."""
-    lines = ["   N   floor us   step us  ratio  p99 ratio  products floor us  ratio   numpy step us  ratio"]
+    lines = ["   N   floor us   step us  ratio  p99 ratio  products floor us  ratio"]
     for r in rows:
         lines.append(
             f"{r['n']:>5} {r['floor_p50_us']:>9.1f} {r['step_p50_us']:>9.1f} {r['ratio_p50']:>6.2f} {r['ratio_p99']:>10.2f}"
             f" {r['floor_products_p50_us']:>18.1f} {r['ratio_products_p50']:>6.2f}"
-            f" {r['step_numpy_p50_us']:>15.1f} {r['ratio_numpy_p50']:>6.2f}"
         )
     if not stages:
         return "\n".join(lines)

@@ -788,9 +788,6 @@ def bench_dsp(ctx: BenchContext, result: dict[str, Any]) -> None:
             {"n": raw["repeats"], "p50_us": raw["floor_unbatched_p50_us"]}, note="the same floor without batching the FFTs (see workbench.bench.dsp_step)"
         )
     m["identifier_step vs C40"] = scalar(raw["step_p50_us"], "us", "C40 100 ms", module.C40_STEP_US)
-    if raw.get("step_numpy_p50_us"):
-        ref = {"n": raw["repeats"], "p50_us": raw["step_numpy_p50_us"]}
-        m["identifier_step_numpy"] = latency(ref, "numpy_floor", floor, note="the numpy reference path (IdentifierConfig.kernel='numpy'), same run")
     if hasattr(module, "bench_stages"):
         stages = module.bench_stages(n=2048, repeats=repeats)
         result["stages"] = stages
