@@ -9,15 +9,13 @@ import logging
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Final
+from typing import Final
 
 import can
 
+from controller.plant_link_counters import PlantLinkCounters
 from protocol import can_map
 from protocol.can_map import NmtState
-
-if TYPE_CHECKING:
-    from controller.plant_link import PlantLinkCounters
 
 log = logging.getLogger("controller.plant_link")
 

@@ -8,14 +8,28 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from controller.plant_errors import PlantFault, StopRequested
+from controller.plant_link_counters import PlantLinkCounters
 from controller.sdo_client import SdoClient
 from protocol.can_map import OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB, OD_SAMPLE_PERIOD, OD_WATCHDOG_PERIODS, NmtCommand, NmtState
 
-if TYPE_CHECKING:
-    from controller.plant_link import PlantLink
+
+class PlantLink(Protocol):
+    """What bringing the node up needs of :class:`controller.plant_link.PlantLink`."""
+
+    node_id: int
+    node_state: NmtState | None
+    last_heartbeat: float | None
+    bootups: int
+    counters: PlantLinkCounters
+
+    def _now(self) -> float: ...
+
+    def poll(self, timeout: float = 0.0) -> None: ...
+
+    def nmt(self, command: NmtCommand) -> None: ...
 
 
 def wait_for_node(link: PlantLink, timeout: float, stop: threading.Event | None = None) -> NmtState:

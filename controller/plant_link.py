@@ -65,6 +65,7 @@ import numpy.typing as npt
 from controller.bus_watch import CONFLICT_EMCYS, ConflictLog, EchoFilter, ForeignMasters, HeldFrames
 from controller.node_start import configure_node, enter_operational, reset_communication, wait_for_node
 from controller.plant_errors import PlantFault, StopRequested
+from controller.plant_link_counters import PlantLinkCounters
 from controller.sdo_client import SdoClient, download_request
 from protocol import can_map
 from protocol.can_map import (
@@ -101,57 +102,6 @@ _COLLISION: Final = int(can_map.EmcyCode.CAN_ID_COLLISION)
 
 class _RxError(Exception):
     """One receive failed (already counted and logged)."""
-
-
-@dataclass
-class PlantLinkCounters:
-    syncs_sent: int = 0
-    tpdos: int = 0
-    tpdo_timeouts: int = 0
-    extra_tpdos: int = 0
-    stale_tpdos: int = 0
-    rpdos_sent: int = 0
-    heartbeats: int = 0
-    emergencies: int = 0
-    malformed: int = 0
-    outputs_clipped: int = 0
-    rx_errors: int = 0
-    """received datagrams/frames the bus could not decode (dropped)"""
-    own_echoes: int = 0
-    """our own frames seen again (udp_multicast loopback)"""
-    foreign_sync: int = 0
-    """SYNC frames this link did not send: a second SYNC producer"""
-    foreign_nmt: int = 0
-    """NMT commands this link did not send"""
-    foreign_rpdo: int = 0
-    """RPDO1 frames to the node this link did not send"""
-    foreign_sdo: int = 0
-    """SDO requests to the node this link did not send"""
-    foreign_sdo_reads: int = 0
-    """of those, reads (uploads): counted, not a conflict (they change nothing)"""
-    conflict_emcys: int = 0
-    """SYNC_CONFLICT / RPDO_CONFLICT emergencies from the plant (not disowned by it)"""
-    comm_resets: int = 0
-    """NMT RESET_COMMUNICATION sent before starting the node"""
-    surplus_tpdos: int = 0
-    """TPDO1 frames beyond one per SYNC sent (one late answer allowed): another node answers on the plant's TPDO1"""
-    ambiguous_samples: int = 0
-    """ticks whose TPDO1 came twice before it was taken: no sample (the loop holds the last one)"""
-    forged_heartbeats: int = 0
-    """heartbeats on the plant's COB-ID contradicted by the plant (its EMCY 0x8150, a later TPDO1 or heartbeat)"""
-    forged_emcys: int = 0
-    """EMCYs on the plant's COB-ID the plant disowned (its EMCY 0x8150)"""
-    impersonations: int = 0
-    """EMCY CAN_ID_COLLISION from the plant: frames on its COB-IDs it did not send"""
-    comm_restores: int = 0
-    """SDO writes of a configured object sent back after another master's write"""
-    kernel_drops: int = 0
-    """datagrams the kernel dropped for a full receive buffer (the bus's count)"""
-    fd_frames_dropped: int = 0
-    """CAN FD frames the bus dropped (the rig speaks classic CAN)"""
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(vars(self))
 
 
 @dataclass

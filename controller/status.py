@@ -5,12 +5,45 @@ at most every ``STATUS_PERIOD_S``)."""
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+from controller.dsp_link import DspLink
+from controller.dsp_port import DspPort
+from controller.dsp_side import DspSide
+from controller.fault_stage import FaultStage
+from controller.hop_timing import HopTimer
+from controller.loop import ControlLaw
+from controller.monitors import Monitors
+from controller.plant_link import PlantLink
+from controller.timing_counters import TimingCounters
 from protocol.messages import ControllerStatus, Health, encode
+from protocol.settings import ControllerSettings
+from service_kit.realtime import RealtimeMeasures
+from service_kit.runtime import LatencyTracker
 
-if TYPE_CHECKING:
-    from controller.service import ControllerService
+
+class ControllerService(Protocol):
+    """What the health and the status read of :class:`controller.service.ControllerService`."""
+
+    settings: ControllerSettings
+    plant: PlantLink
+    link: DspLink
+    dsp: DspSide
+    port: DspPort
+    law: ControlLaw
+    monitors: Monitors
+    faults: FaultStage | None
+    timing: TimingCounters
+    realtime: RealtimeMeasures
+    tet: LatencyTracker
+    jitter: LatencyTracker
+    period_jitter: LatencyTracker
+    hops: HopTimer
+    tick: int
+
+    @property
+    def overrun_run_max(self) -> int: ...
+
 
 STATUS_PERIOD_S = 0.25
 """The controller's status goes out at most this often (stopwatch seconds)."""
