@@ -105,7 +105,7 @@ def test_outer_oatf_pi_and_dac_equal_the_scipy_references(mode: str) -> None:
 
 
 def test_inner_oatf_filters_the_pi_commands_and_dither_adds_before_the_dac() -> None:
-    law = _law(oatf_mode="fixed", oatf_location="inner", dither_amplitude_v=0.5, dither_seed=9)
+    law = _law(oatf_mode="fixed", oatf={"location": "inner"}, dither={"amplitude_v": 0.5, "seed": 9})
     words = _words(500, spread=20000, seed=2)  # wild words: large errors, the integrator gated
     pi_out = []
     rows = []
