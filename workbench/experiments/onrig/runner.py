@@ -1,4 +1,4 @@
-"""Running the rig for an experiment, and the analysis helpers the on-rig experiments share.
+"""Running the rig for an experiment (the analysis the experiments share is in :mod:`workbench.experiments.analysis`).
 
 :func:`run_rig` runs one rig to completion and returns its records
 (:class:`RigResult`); :func:`run_rigs` runs several independent ones on the
@@ -184,7 +184,7 @@ class RigResult:
         }
 
 
-# --------------------------------------------------------------------------- helpers
+# --------------------------------------------------------------------------- laps
 
 
 def lap_seconds(speed_in_s: float = 5.0, trajectory: str | Path | None = None, sample_period_s: float = 0.005) -> float:
