@@ -388,6 +388,12 @@ def _implementation_check(
     return impl, last_off, spectra_at, last_i, valid_last, invalid_below, lowest_valid
 
 
+def _named_tfs(spectra: np.ndarray) -> dict[str, np.ndarray]:
+    """H11, H12, H21, H22 from the 2×2 solve of ``spectra`` (unsolved bins 0) and H_tot, their mean."""
+    h = np.nan_to_num(solve_2x2(spectra))
+    return {"H11": h[0], "H12": h[1], "H21": h[2], "H22": h[3], "Htot": h.mean(axis=0)}
+
+
 def _algorithm_check(
     impl: list[dict[str, Any]],
     times: np.ndarray,
@@ -442,12 +448,9 @@ def _algorithm_check(
         }
         ests: dict[str, dict[str, np.ndarray]] = {}
         for key, m in lag_sets.items():
-            spectra_bt, n_ens = blackman_tukey(channels, start, end_tick + 1, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
-            h = np.nan_to_num(solve_2x2(spectra_bt))
-            ests[key] = {"H11": h[0], "H12": h[1], "H21": h[2], "H22": h[3], "Htot": h.mean(axis=0)}
-            entry[f"ensembles_{key}"] = n_ens
-        raw = np.nan_to_num(solve_2x2(spectra_at[i]))
-        raws = {"H11": raw[0], "H12": raw[1], "H21": raw[2], "H22": raw[3], "Htot": raw.mean(axis=0)}
+            spectra_bt, entry[f"ensembles_{key}"] = blackman_tukey(channels, start, end_tick + 1, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
+            ests[key] = _named_tfs(spectra_bt)
+        raws = _named_tfs(spectra_at[i])
         for name in TF_NAMES:
             on = np.asarray(tf[f"{name}_mag"][i], dtype=float)
             valid = on > 0
