@@ -37,6 +37,7 @@ downloaded every 1000 samples (5 s, as in the thesis; ``--quick``: 400).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
@@ -109,6 +110,27 @@ SPLIT_INVENTED_MARGIN = 0.07
 SPLIT_NAMES = ("Htot", "H11", "H12", "H21", "H22")
 WINDOW_POINTS = 41
 """Configurations across a download's window at which the plant's own response is averaged (:func:`window_response`)."""
+
+
+ColumnStats = tuple[bool, float, float, float]
+"""One spectrogram column (:func:`~workbench.experiments.analysis.column_stats`): peak near a true mode, peak
+frequency, share below LOW_BAND_HZ, fraction of those bins valid."""
+
+
+@dataclass(frozen=True)
+class Clutter:
+    """Where the spectrogram columns peak, for |H_tot| (``tf_``) and the plain deflection spectrogram (``st_``)."""
+
+    tf_cols: list[ColumnStats]
+    st_cols: list[ColumnStats]
+    tf_near: float
+    """Share of the columns peaking within 0.5 Hz of a true mode."""
+    st_near: float
+    tf_low: float
+    """Median share of a column below LOW_BAND_HZ."""
+    st_low: float
+    tf_low_valid: float
+    """Fraction of the |H_tot| bins below LOW_BAND_HZ that the DSP solved."""
 
 
 def split_peaks(freqs: np.ndarray, mag: np.ndarray, f1: float, f2: float, tol: float = SPLIT_TOL_HZ) -> dict[str, Any]:
@@ -430,7 +452,7 @@ def run(ctx: ExperimentContext) -> Report:
     th2, apex, est, apex_upper, away_upper, split_ratio_apex, split_ratio_else = _apex_samples(t, res, f_id)
     th2_thr, splits, errors, split_runs = _identifiers(th2, apex, all_runs, t_first)
     sx, st_end, sf = _plain_spectrogram(rec)
-    tf_cols, st_cols, tf_near, st_near, tf_low, st_low, tf_low_valid = _clutter(truth_t, truth_f, freqs, has, dl_t, tf, sf, sx, st_end)
+    clutter = _clutter(truth_t, truth_f, freqs, has, dl_t, tf, sf, sx, st_end)
     _results(
         rep,
         res,
@@ -449,20 +471,25 @@ def run(ctx: ExperimentContext) -> Report:
         away_upper,
         split_ratio_apex,
         split_ratio_else,
-        tf_near,
-        st_near,
-        tf_low,
-        st_low,
-        tf_low_valid,
-        tf_cols,
-        st_cols,
+        clutter,
         truth_f,
         conf,
         est,
     )
     _run_section(rep, speed, duration, quick, lap, res, download, t_first, dl_t, has, t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex)
     _spectrogram_section(
-        rep, freqs, tf, dl_t, has, sf, sx, st_end, truth_t, truth_f, download, tf_near, tf_low, st_near, st_low, tf_cols, st_cols, tf_low_valid
+        rep,
+        freqs,
+        tf,
+        dl_t,
+        has,
+        sf,
+        sx,
+        st_end,
+        truth_t,
+        truth_f,
+        download,
+        clutter,
     )
     al = _lag_section(rep, lag, t_first, max_lag, trans, grid, m_grid, truth_t, f_smooth, truth_f, split_ratio_apex, split_ratio_else, apex_upper, away_upper)
     lags_ok = _lag_checks(rep, quick, dl_t, has, trans, max_lag, al, m_grid, truth_f)
@@ -470,7 +497,7 @@ def run(ctx: ExperimentContext) -> Report:
     _split_section(rep, split_runs, splits)
     _split_table(rep, split_runs, splits)
     _split_checks(rep, split_runs, splits, split_ratio_apex, split_ratio_else)
-    _thesis(rep, lag, al, lags_ok, split_ratio_apex, split_ratio_else, apex_upper, away_upper, st_low, tf_low, tf_low_valid, st_near, tf_near, res)
+    _thesis(rep, lag, al, lags_ok, split_ratio_apex, split_ratio_else, apex_upper, away_upper, clutter, res)
     return rep
 
 
@@ -591,7 +618,7 @@ def _clutter(
     sf: np.ndarray,
     sx: np.ndarray,
     st_end: np.ndarray,
-) -> tuple[list[tuple[bool, float, float, float]], list[tuple[bool, float, float, float]], float, float, float, float, float]:
+) -> Clutter:
     """Where each spectrogram column peaks, and its share below LOW_BAND_HZ, for |H_tot| and the plain spectrogram."""
 
     def column(col_freqs: np.ndarray, power: np.ndarray, t_end: float) -> tuple[bool, float, float, float]:
@@ -604,7 +631,7 @@ def _clutter(
     tf_low = float(np.nanmedian([c[2] for c in tf_cols])) if tf_cols else float("nan")
     st_low = float(np.nanmedian([c[2] for c in st_cols])) if st_cols else float("nan")
     tf_low_valid = float(np.nanmean([c[3] for c in tf_cols])) if tf_cols else float("nan")
-    return tf_cols, st_cols, tf_near, st_near, tf_low, st_low, tf_low_valid
+    return Clutter(tf_cols, st_cols, tf_near, st_near, tf_low, st_low, tf_low_valid)
 
 
 def _results(
@@ -625,13 +652,7 @@ def _results(
     away_upper: float,
     split_ratio_apex: float,
     split_ratio_else: float,
-    tf_near: float,
-    st_near: float,
-    tf_low: float,
-    st_low: float,
-    tf_low_valid: float,
-    tf_cols: list[tuple[bool, float, float, float]],
-    st_cols: list[tuple[bool, float, float, float]],
+    clutter: Clutter,
     truth_f: np.ndarray,
     conf: np.ndarray,
     est: np.ndarray,
@@ -654,13 +675,13 @@ def _results(
             "median_f2_over_f1_elsewhere": split_ratio_else,
         },
         "clutter": {
-            "htot_columns_peaking_near_a_true_mode": tf_near,
-            "plain_columns_peaking_near_a_true_mode": st_near,
-            "htot_median_share_below_2hz": tf_low,
-            "plain_median_share_below_2hz": st_low,
-            "htot_fraction_of_bins_below_2hz_valid": tf_low_valid,
-            "htot_column_peaks_hz": [c[1] for c in tf_cols],
-            "plain_column_peaks_hz": [c[1] for c in st_cols],
+            "htot_columns_peaking_near_a_true_mode": clutter.tf_near,
+            "plain_columns_peaking_near_a_true_mode": clutter.st_near,
+            "htot_median_share_below_2hz": clutter.tf_low,
+            "plain_median_share_below_2hz": clutter.st_low,
+            "htot_fraction_of_bins_below_2hz_valid": clutter.tf_low_valid,
+            "htot_column_peaks_hz": [c[1] for c in clutter.tf_cols],
+            "plain_column_peaks_hz": [c[1] for c in clutter.st_cols],
         },
         "true_modes": {
             "f1_range_hz": [float(truth_f[:, 0].min()), float(truth_f[:, 0].max())],
@@ -721,13 +742,7 @@ def _spectrogram_section(
     truth_t: np.ndarray,
     truth_f: np.ndarray,
     download: int,
-    tf_near: float,
-    tf_low: float,
-    st_near: float,
-    st_low: float,
-    tf_cols: list[tuple[bool, float, float, float]],
-    st_cols: list[tuple[bool, float, float, float]],
-    tf_low_valid: float,
+    clutter: Clutter,
 ) -> None:
     """The spectrogram figure and the clutter table."""
     rep.heading("Spectrograms")
@@ -740,8 +755,11 @@ def _spectrogram_section(
     )
     rep.table(
         ["spectrogram", "columns", "peak (0.5–12 Hz) within 0.5 Hz of a true mode", f"median share below {LOW_BAND_HZ:g} Hz"],
-        [["|H_tot| downloads", len(tf_cols), tf_near, tf_low], ["plain, link-2 deflection", len(st_cols), st_near, st_low]],
-        caption=f"Where the spectrogram columns peak, and how much of each column (power, or |H|² on the DSP's valid bins; {tf_low_valid:.0%} of the H_tot bins below {LOW_BAND_HZ:g} Hz are valid) lies at low frequency",
+        [
+            ["|H_tot| downloads", len(clutter.tf_cols), clutter.tf_near, clutter.tf_low],
+            ["plain, link-2 deflection", len(clutter.st_cols), clutter.st_near, clutter.st_low],
+        ],
+        caption=f"Where the spectrogram columns peak, and how much of each column (power, or |H|² on the DSP's valid bins; {clutter.tf_low_valid:.0%} of the H_tot bins below {LOW_BAND_HZ:g} Hz are valid) lies at low frequency",
         digits=3,
     )
 
@@ -992,11 +1010,7 @@ def _thesis(
     split_ratio_else: float,
     apex_upper: float,
     away_upper: float,
-    st_low: float,
-    tf_low: float,
-    tf_low_valid: float,
-    st_near: float,
-    tf_near: float,
+    clutter: Clutter,
     res: RigResult,
 ) -> None:
     """The comparison with the thesis, and the files."""
@@ -1015,10 +1029,12 @@ def _thesis(
     )
     rep.thesis(
         "A plain spectrogram of the link-2 deflection does not divide out the input spectrum and is cluttered at low frequency.",
-        f"Median share of each column below {LOW_BAND_HZ:g} Hz: plain {st_low:.0%} (the trajectory's own motion), |H_tot| {tf_low:.0%} "
-        f"({tf_low_valid:.0%} of those bins solved: collinear bins are solved along the dominant input direction); "
-        f"columns peaking within 0.5 Hz of a true mode: plain {st_near:.0%}, |H_tot| {tf_near:.0%}.",
-        True if (st_low > tf_low and st_near <= tf_near) else ("partly" if (st_low > tf_low or st_near < tf_near) else False),
+        f"Median share of each column below {LOW_BAND_HZ:g} Hz: plain {clutter.st_low:.0%} (the trajectory's own motion), |H_tot| {clutter.tf_low:.0%} "
+        f"({clutter.tf_low_valid:.0%} of those bins solved: collinear bins are solved along the dominant input direction); "
+        f"columns peaking within 0.5 Hz of a true mode: plain {clutter.st_near:.0%}, |H_tot| {clutter.tf_near:.0%}.",
+        True
+        if (clutter.st_low > clutter.tf_low and clutter.st_near <= clutter.tf_near)
+        else ("partly" if (clutter.st_low > clutter.tf_low or clutter.st_near < clutter.tf_near) else False),
     )
     rep.attach(res.record_path.with_name(res.record_path.name + ".npz"), "controller run record")
     rep.attach(res.record_path.with_name(res.record_path.name + ".tf.npz"), "the DSP's transfer-function downloads (the spectrogram data)")
