@@ -112,6 +112,20 @@ WINDOW_POINTS = 41
 """Configurations across a download's window at which the plant's own response is averaged (:func:`window_response`)."""
 
 
+@dataclass(frozen=True)
+class ApexStats:
+    """The apex (θ2 in its lowest APEX_QUANTILE) against the rest of the run."""
+
+    apex_upper: float
+    """Share of the apex samples with an estimate where the identified pole is nearer the true second mode."""
+    away_upper: float
+    """The same away from the apex."""
+    split_ratio_apex: float
+    """Median f2/f1 of the true modes at the apex."""
+    split_ratio_else: float
+    """The same away from the apex."""
+
+
 ColumnStats = tuple[bool, float, float, float]
 """One spectrogram column (:func:`~workbench.experiments.analysis.column_stats`): peak near a true mode, peak
 frequency, share below LOW_BAND_HZ, fraction of those bins valid."""
@@ -449,7 +463,7 @@ def run(ctx: ExperimentContext) -> Report:
     truth_t = np.asarray(res.truth["sim_time_s"]) - ts  # on the controller's clock
     truth_f = np.asarray(res.truth["modal_frequencies_hz"])
     f_id, f_id2, conf, t_first, max_lag, f_smooth, grid, m_grid, trans, lag = _identification_lag(rec, t, truth_t, truth_f)
-    th2, apex, est, apex_upper, away_upper, split_ratio_apex, split_ratio_else = _apex_samples(t, res, f_id)
+    th2, apex, est, apex_stats = _apex_samples(t, res, f_id)
     th2_thr, splits, errors, split_runs = _identifiers(th2, apex, all_runs, t_first)
     sx, st_end, sf = _plain_spectrogram(rec)
     clutter = _clutter(truth_t, truth_f, freqs, has, dl_t, tf, sf, sx, st_end)
@@ -467,10 +481,7 @@ def run(ctx: ExperimentContext) -> Report:
         errors,
         all_runs,
         th2,
-        apex_upper,
-        away_upper,
-        split_ratio_apex,
-        split_ratio_else,
+        apex_stats,
         clutter,
         truth_f,
         conf,
@@ -491,13 +502,30 @@ def run(ctx: ExperimentContext) -> Report:
         download,
         clutter,
     )
-    al = _lag_section(rep, lag, t_first, max_lag, trans, grid, m_grid, truth_t, f_smooth, truth_f, split_ratio_apex, split_ratio_else, apex_upper, away_upper)
+    al = _lag_section(
+        rep,
+        lag,
+        t_first,
+        max_lag,
+        trans,
+        grid,
+        m_grid,
+        truth_t,
+        f_smooth,
+        truth_f,
+        apex_stats,
+    )
     lags_ok = _lag_checks(rep, quick, dl_t, has, trans, max_lag, al, m_grid, truth_f)
     _identifiers_section(rep, all_runs, errors, splits)
     _split_section(rep, split_runs, splits)
     _split_table(rep, split_runs, splits)
-    _split_checks(rep, split_runs, splits, split_ratio_apex, split_ratio_else)
-    _thesis(rep, lag, al, lags_ok, split_ratio_apex, split_ratio_else, apex_upper, away_upper, clutter, res)
+    _split_checks(
+        rep,
+        split_runs,
+        splits,
+        apex_stats,
+    )
+    _thesis(rep, lag, al, lags_ok, apex_stats, clutter, res)
     return rep
 
 
@@ -575,7 +603,7 @@ def _identification_lag(
     return f_id, f_id2, conf, t_first, max_lag, f_smooth, grid, m_grid, trans, lag
 
 
-def _apex_samples(t: np.ndarray, res: RigResult, f_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float, float]:
+def _apex_samples(t: np.ndarray, res: RigResult, f_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, ApexStats]:
     """The apex (θ2 in its lowest decile): where the identified pole sits and how close the true modes come."""
     # apex: lowest decile of theta2 over the run, where an estimate exists
     th2 = res.true_theta(t)[:, 1]
@@ -588,7 +616,7 @@ def _apex_samples(t: np.ndarray, res: RigResult, f_id: np.ndarray) -> tuple[np.n
     away_upper = float(np.mean(nearer_upper[~apex & est])) if (~apex & est).any() else float("nan")
     split_ratio_apex = float(np.median((tr2 / tr1)[apex]))
     split_ratio_else = float(np.median((tr2 / tr1)[~apex]))
-    return th2, apex, est, apex_upper, away_upper, split_ratio_apex, split_ratio_else
+    return th2, apex, est, ApexStats(apex_upper, away_upper, split_ratio_apex, split_ratio_else)
 
 
 def _identifiers(
@@ -648,10 +676,7 @@ def _results(
     errors: dict[str, dict[str, Any]],
     all_runs: list[RigResult],
     th2: np.ndarray,
-    apex_upper: float,
-    away_upper: float,
-    split_ratio_apex: float,
-    split_ratio_else: float,
+    apex_stats: ApexStats,
     clutter: Clutter,
     truth_f: np.ndarray,
     conf: np.ndarray,
@@ -669,10 +694,10 @@ def _results(
         "identifiers": {"runs": {r.spec.name: r.spec.label for r in all_runs}, "errors": errors},
         "apex": {
             "theta2_threshold_rad": float(np.quantile(th2, APEX_QUANTILE)),
-            "fraction_identified_nearer_upper_pole_at_apex": apex_upper,
-            "fraction_identified_nearer_upper_pole_elsewhere": away_upper,
-            "median_f2_over_f1_at_apex": split_ratio_apex,
-            "median_f2_over_f1_elsewhere": split_ratio_else,
+            "fraction_identified_nearer_upper_pole_at_apex": apex_stats.apex_upper,
+            "fraction_identified_nearer_upper_pole_elsewhere": apex_stats.away_upper,
+            "median_f2_over_f1_at_apex": apex_stats.split_ratio_apex,
+            "median_f2_over_f1_elsewhere": apex_stats.split_ratio_else,
         },
         "clutter": {
             "htot_columns_peaking_near_a_true_mode": clutter.tf_near,
@@ -775,10 +800,7 @@ def _lag_section(
     truth_t: np.ndarray,
     f_smooth: np.ndarray,
     truth_f: np.ndarray,
-    split_ratio_apex: float,
-    split_ratio_else: float,
-    apex_upper: float,
-    away_upper: float,
+    apex_stats: ApexStats,
 ) -> Alignment:
     """The identification lag: text, transitions, figure, and the apex."""
     rep.heading("Identification lag")
@@ -809,8 +831,8 @@ def _lag_section(
     )
     rep.text(
         f"At the apex (θ2 ≤ {rep.results['apex']['theta2_threshold_rad']:.3f} rad, the lowest {APEX_QUANTILE:.0%} of the run) the two true modes close in "
-        f"(median f2/f1 {split_ratio_apex:.2f}, elsewhere {split_ratio_else:.2f}); the identified pole lies nearer the true second mode for "
-        f"{apex_upper:.0%} of the apex samples with an estimate ({away_upper:.0%} elsewhere)."
+        f"(median f2/f1 {apex_stats.split_ratio_apex:.2f}, elsewhere {apex_stats.split_ratio_else:.2f}); the identified pole lies nearer the true second mode for "
+        f"{apex_stats.apex_upper:.0%} of the apex samples with an estimate ({apex_stats.away_upper:.0%} elsewhere)."
     )
     return al
 
@@ -962,7 +984,12 @@ def _split_table(rep: Report, split_runs: tuple[str, ...], splits: dict[str, dic
         )
 
 
-def _split_checks(rep: Report, split_runs: tuple[str, ...], splits: dict[str, dict[str, Any]], split_ratio_apex: float, split_ratio_else: float) -> None:
+def _split_checks(
+    rep: Report,
+    split_runs: tuple[str, ...],
+    splits: dict[str, dict[str, Any]],
+    apex_stats: ApexStats,
+) -> None:
     """The split at the apex as known limits, and the checks that hold what the build reached."""
     any_apex = False
     for name in split_runs:
@@ -996,8 +1023,8 @@ def _split_checks(rep: Report, split_runs: tuple[str, ...], splits: dict[str, di
         rep.text("No download fell at the apex in this run (quick mode covers only the start of the loop): the split check is not applicable.")
     rep.check(
         "the true modes close in at the apex (median f2/f1 lower there)",
-        split_ratio_apex < split_ratio_else,
-        f"{split_ratio_apex:.2f} vs {split_ratio_else:.2f}",
+        apex_stats.split_ratio_apex < apex_stats.split_ratio_else,
+        f"{apex_stats.split_ratio_apex:.2f} vs {apex_stats.split_ratio_else:.2f}",
     )
 
 
@@ -1006,10 +1033,7 @@ def _thesis(
     lag: IdentificationLag,
     al: Alignment,
     lags_ok: list[float],
-    split_ratio_apex: float,
-    split_ratio_else: float,
-    apex_upper: float,
-    away_upper: float,
+    apex_stats: ApexStats,
     clutter: Clutter,
     res: RigResult,
 ) -> None:
@@ -1023,9 +1047,11 @@ def _thesis(
     )
     rep.thesis(
         "At the apex the resonant peak splits in two and the estimate favours the higher pole.",
-        f"The true modes close in at the apex (f2/f1 {split_ratio_apex:.2f} against {split_ratio_else:.2f}); the identified pole is nearer the upper one "
-        f"for {apex_upper:.0%} of apex samples ({away_upper:.0%} elsewhere).",
-        True if (apex_upper > away_upper and apex_upper >= 0.5) else ("partly" if apex_upper > away_upper else False),
+        f"The true modes close in at the apex (f2/f1 {apex_stats.split_ratio_apex:.2f} against {apex_stats.split_ratio_else:.2f}); the identified pole is nearer the upper one "
+        f"for {apex_stats.apex_upper:.0%} of apex samples ({apex_stats.away_upper:.0%} elsewhere).",
+        True
+        if (apex_stats.apex_upper > apex_stats.away_upper and apex_stats.apex_upper >= 0.5)
+        else ("partly" if apex_stats.apex_upper > apex_stats.away_upper else False),
     )
     rep.thesis(
         "A plain spectrogram of the link-2 deflection does not divide out the input spectrum and is cluttered at low frequency.",
