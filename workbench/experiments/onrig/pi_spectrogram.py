@@ -467,64 +467,15 @@ def run(ctx: ExperimentContext) -> Report:
     th2_thr, splits, errors, split_runs = _identifiers(th2, apex, all_runs, t_first)
     sx, st_end, sf = _plain_spectrogram(rec)
     clutter = _clutter(truth_t, truth_f, freqs, has, dl_t, tf, sf, sx, st_end)
-    _results(
-        rep,
-        res,
-        lap,
-        download,
-        dl_t,
-        has,
-        t_first,
-        lag,
-        th2_thr,
-        splits,
-        errors,
-        all_runs,
-        th2,
-        apex_stats,
-        clutter,
-        truth_f,
-        conf,
-        est,
-    )
+    _results(rep, res, lap, download, dl_t, has, t_first, lag, th2_thr, splits, errors, all_runs, th2, apex_stats, clutter, truth_f, conf, est)
     _run_section(rep, speed, duration, quick, lap, res, download, t_first, dl_t, has, t, rec, th2, truth_t, truth_f, f_id, f_id2, conf, apex)
-    _spectrogram_section(
-        rep,
-        freqs,
-        tf,
-        dl_t,
-        has,
-        sf,
-        sx,
-        st_end,
-        truth_t,
-        truth_f,
-        download,
-        clutter,
-    )
-    al = _lag_section(
-        rep,
-        lag,
-        t_first,
-        max_lag,
-        trans,
-        grid,
-        m_grid,
-        truth_t,
-        f_smooth,
-        truth_f,
-        apex_stats,
-    )
+    _spectrogram_section(rep, freqs, tf, dl_t, has, sf, sx, st_end, truth_t, truth_f, download, clutter)
+    al = _lag_section(rep, lag, t_first, max_lag, trans, grid, m_grid, truth_t, f_smooth, truth_f, apex_stats)
     lags_ok = _lag_checks(rep, quick, dl_t, has, trans, max_lag, al, m_grid, truth_f)
     _identifiers_section(rep, all_runs, errors, splits)
     _split_section(rep, split_runs, splits)
     _split_table(rep, split_runs, splits)
-    _split_checks(
-        rep,
-        split_runs,
-        splits,
-        apex_stats,
-    )
+    _split_checks(rep, split_runs, splits, apex_stats)
     _thesis(rep, lag, al, lags_ok, apex_stats, clutter, res)
     return rep
 
