@@ -26,7 +26,7 @@ from matplotlib.figure import Figure
 
 from controller.record import to_jsonable
 
-__all__ = ["Check", "Report", "fmt", "new_figure"]
+__all__ = ["Check", "KnownLimit", "Report", "fmt", "new_figure"]
 
 
 def new_figure(width_in: float = 7.5, height_in: float = 4.5, dpi: int = 110) -> Figure:
@@ -89,6 +89,19 @@ class ThesisComparison:
     """True/False, a word such as ``"partly"``, or None where the comparison is not a yes/no."""
 
 
+@dataclass(frozen=True)
+class KnownLimit:
+    """A goal the experiment measures that this build does not always reach.
+
+    Reported against the goal in its own section, never a pass/fail check: the
+    experiment's checks hold the figure the build reached, with a stated margin,
+    so a run fails only when the build regresses."""
+
+    goal: str
+    measured: str
+    met: bool
+
+
 class Report:
     """Collects Markdown, figures, results and checks; :meth:`write` puts them in ``out_dir``."""
 
@@ -103,6 +116,7 @@ class Report:
         """Everything numeric worth keeping; written to ``results.json`` under ``"results"``."""
         self.checks: list[Check] = []
         self.comparisons: list[ThesisComparison] = []
+        self.known_limits: list[KnownLimit] = []
         self.figures: list[str] = []
         self.attachments: list[dict[str, str]] = []
         self.meta: dict[str, Any] = {}
@@ -191,6 +205,11 @@ class Report:
         self.comparisons.append(ThesisComparison(claim, observed, agrees))
         return self
 
+    def known_limit(self, goal: str, measured: str, met: bool) -> Report:
+        """One row of the known limits: a goal out of this build's reach, with what this run measured."""
+        self.known_limits.append(KnownLimit(goal, measured, bool(met)))
+        return self
+
     def set_meta(self, **meta: Any) -> None:
         """Run metadata (the runner sets seed, mode, quick, runtime)."""
         self.meta.update(meta)
@@ -225,6 +244,16 @@ class Report:
                     mark = "–" if c.agrees is None else ("yes" if c.agrees else "**no**")
                 lines.append(f"| {_cell(c.claim)} | {_cell(c.observed)} | {mark} |")
             lines.append("")
+        if self.known_limits:
+            lines += ["", "## Known limits", ""]
+            lines += [
+                "Goals measured here that this build does not reach in every run; they are reported, not checked. "
+                "The checks below hold what the build reached, each with its margin.",
+                "",
+            ]
+            lines += ["| goal | this run | met |", "| --- | --- | :---: |"]
+            lines += [f"| {_cell(k.goal)} | {_cell(k.measured)} | {'yes' if k.met else 'no'} |" for k in self.known_limits]
+            lines.append("")
         if self.checks:
             passed = sum(chk.passed for chk in self.checks)
             lines += ["", "## Checks", "", f"{passed} of {len(self.checks)} passed.", ""]
@@ -249,6 +278,7 @@ class Report:
             "meta": to_jsonable(self.meta),
             "results": to_jsonable(self.results),
             "checks": [{"name": c.name, "passed": c.passed, "detail": c.detail} for c in self.checks],
+            **({"known_limits": [{"goal": k.goal, "measured": k.measured, "met": k.met} for k in self.known_limits]} if self.known_limits else {}),
             "thesis_comparison": [{"claim": c.claim, "observed": c.observed, "agrees": c.agrees} for c in self.comparisons],
             "figures": list(self.figures),
             "attachments": list(self.attachments),

@@ -34,6 +34,20 @@ def _save(fig: Figure, out: Path, name: str) -> Path:
     return path
 
 
+def _caption(fig: Figure, text: str) -> None:
+    """One line under the figure: what it shows and what to look for."""
+    fig.supxlabel(text, fontsize=7.5, color="0.25")
+
+
+def _history_s(rec: Recording) -> float:
+    """How long the identifier waits for its first estimate: one full history, N / fs (the recorded DSP settings)."""
+    dsp = rec.settings("dsp")
+    try:
+        return float(dsp.get("fft_width", 2048)) / float(dsp.get("sample_rate_hz", 200.0) or 200.0)
+    except (TypeError, ValueError):
+        return 2048 / 200.0
+
+
 def _no_data(ax: object, what: str) -> None:
     ax.text(0.5, 0.5, f"no {what} in this recording", ha="center", va="center", transform=ax.transAxes)  # type: ignore[attr-defined]
 
@@ -57,6 +71,7 @@ def plot_deflections(rec: Recording, out: Path) -> Path:
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("simulated time (s)")
     fig.suptitle("Tip deflections")
+    _caption(fig, "Measured (blue) against true (red) tip deflection per link: the two should overlie; the ringing after each corner is the arm's first mode.")
     return _save(fig, out, "deflections.png")
 
 
@@ -105,6 +120,7 @@ def plot_joints(rec: Recording, out: Path) -> Path:
     axes[2].grid(alpha=0.3)
     axes[2].set_xlabel("simulated time (s)")
     fig.suptitle("Joint tracking")
+    _caption(fig, "True joint angles against the set-points, and their difference: look for a small, steady tracking error with no drift.")
     return _save(fig, out, "joints.png")
 
 
@@ -124,18 +140,37 @@ def plot_modes(rec: Recording, out: Path) -> Path:
             )
     irqs = rec.interrupts()
     t = np.array([i["sim_time_s"] for i in irqs], dtype=float)
-    for k, color in ((0, "tab:blue"), (1, "tab:orange")):
-        f = np.array([i["poles"][k]["frequency_hz"] if len(i["poles"]) > k else np.nan for i in irqs], dtype=float)
-        if np.isfinite(f).any():
-            ax.plot(t, f, ".", ms=3, color=color, label=f"identified pole {k + 1}")
+    # each interrupt's first two poles, lower first: the colours follow the lower and upper mode, not the DSP's ranking
+    f = np.full((len(irqs), 2), np.nan)
+    for row, irq in zip(f, irqs):
+        poles = sorted(float(p["frequency_hz"]) for p in irq["poles"][:2])
+        row[: len(poles)] = poles
+    for k, (color, label) in enumerate((("tab:blue", "identified, lower pole"), ("tab:orange", "identified, upper pole"))):
+        if np.isfinite(f[:, k]).any():
+            ax.plot(t, f[:, k], ".", ms=3, color=color, label=label)
+    estimated = t[np.isfinite(f).any(axis=1)] if irqs else t
+    first = float(estimated[0]) if estimated.size else None
+    if first is not None and first > 0:
+        ax.axvspan(0.0, first, color="0.92", lw=0)
+        ax.text(
+            first / 2,
+            0.03,
+            f"no estimate yet:\nfirst full history\n(N/fs = {_history_s(rec):.2f} s)",
+            ha="center",
+            va="bottom",
+            fontsize=7,
+            transform=ax.get_xaxis_transform(),
+        )
     if not irqs and not truth:
         _no_data(ax, "modes")
     ax.set_xlabel("simulated time (s)")
     ax.set_ylabel("frequency (Hz)")
     ax.set_ylim(0, None)
+    ax.set_xlim(0, None)
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title("Identified vs true modes")
+    _caption(fig, "The DSP's two identified poles (dots) against the plant's true modes (lines): the dots should follow the lines, a few seconds late.")
     return _save(fig, out, "modes.png")
 
 
@@ -152,7 +187,9 @@ def plot_tf_spectrogram(rec: Recording, out: Path, name: str = "Htot") -> Path:
         valid = np.array([s["valid"] for s in snaps], dtype=bool)
         # Bins the DSP marks invalid (no excitation, history not full yet) carry 0: not drawn.
         db = np.where(valid & (mag > 0), 20 * np.log10(np.where(mag > 0, mag, 1.0)), np.nan)
-        edges_t = np.concatenate([t, [t[-1] + (t[-1] - t[-2] if t.size > 1 else 1.0)]])
+        # a download holds the estimate of the data before it: its column spans the interval up to its time
+        step = float(np.median(np.diff(t))) if t.size > 1 else float(t[0]) or 1.0
+        edges_t = np.concatenate([[max(0.0, t[0] - step)], t])
         df = f[1] - f[0] if f.size > 1 else 1.0
         edges_f = np.concatenate([f - df / 2, [f[-1] + df / 2]])
         mesh = ax.pcolormesh(
@@ -170,12 +207,20 @@ def plot_tf_spectrogram(rec: Recording, out: Path, name: str = "Htot") -> Path:
             for m in range(truth["modal_frequencies_hz"].shape[1]):
                 ax.plot(truth["sim_time_s"], truth["modal_frequencies_hz"][:, m], color="tab:red", lw=0.8, ls="--")
         ax.set_ylim(0, min(20.0, float(f[-1])))
-        ax.set_xlim(edges_t[0], edges_t[-1])
+        ax.set_xlim(0.0, max(float(edges_t[-1]), float(truth["sim_time_s"][-1]) if truth else 0.0))
+        with_estimate = int(np.isfinite(db).any(axis=1).sum())
+        title = f"TF downloads: |{name}| over time (dashed: true modes), {with_estimate} of {len(snaps)} downloads with an estimate"
     else:
         _no_data(ax, "TF downloads")
+        title = f"TF downloads: |{name}| over time"
     ax.set_xlabel("simulated time (s)")
     ax.set_ylabel("frequency (Hz)")
-    ax.set_title(f"TF downloads: |{name}| over time (dashed: true modes), {len(snaps)} downloads")
+    ax.set_title(title, fontsize=10)
+    _caption(
+        fig,
+        f"Each column: the downloaded estimate, drawn over the interval before its download; blank until the first full history (N/fs = {_history_s(rec):.2f} s)."
+        "\nLook for the bright ridge on the dashed true modes.",
+    )
     return _save(fig, out, "tf_spectrogram.png")
 
 
@@ -246,6 +291,7 @@ def plot_timing(rec: Recording, out: Path) -> Path:
     else:
         _no_data(ax, "controller health")
     fig.suptitle("Timing")
+    _caption(fig, "Timing as the bus and the services saw it: look for narrow histograms at the nominal period and zero overruns and deadline misses.")
     return _save(fig, out, "timing.png")
 
 

@@ -116,7 +116,22 @@ def run(ctx: ExperimentContext) -> Report:
     n_grid = 2001 if ctx.quick else 20001
     ts = 1.0 / EXAMPLE_FS_HZ
 
-    # ------------------------------------------------------------------ part 1
+    t1, disc, cont, f_disc, m_disc, f_cont, m_cont, at51, rv = _example_designs(rep, ts, n_grid)
+    _example_tables(rep, t1, disc, at51, f_disc, m_disc, cont, f_cont, m_cont, rv)
+    _example_figure(rep, n_grid, disc, cont, f_cont, ts)
+    designs, f2, arm = _arm_designs(rep, n_grid)
+    ratio, sens = _arm_sensitivity(ctx, rep, designs, arm)
+    _arm_response_figure(rep, designs, f2)
+    _sensitivity_figure(rep, designs, ratio)
+    _sensitivity_table(rep, sens)
+    _checks(rep, at51, f_cont, rv, arm, sens)
+    return rep
+
+
+def _example_designs(
+    rep: Report, ts: float, n_grid: int
+) -> tuple[float, StageDesign, StageDesign, float, float, float, float, dict[str, float], dict[str, dict[str, float]]]:
+    """The 51 Hz example at 500 Hz (Figs. 3.7, 3.8): both designs, their notches and residual vibration."""
     rep.heading("1. Integer delay versus continuous delay: 51 Hz at 500 Hz (Figs. 3.7, 3.8)")
     t1 = robust_delay_s(EXAMPLE_F_HZ, 0.0)
     disc = design_stage(EXAMPLE_F_HZ, 0.0, ts)
@@ -155,6 +170,22 @@ def run(ctx: ExperimentContext) -> Report:
         "zeros_continuous": _zeros_hz(cont),
         "residual_vibration_at_51hz": rv,
     }
+    return t1, disc, cont, f_disc, m_disc, f_cont, m_cont, at51, rv
+
+
+def _example_tables(
+    rep: Report,
+    t1: float,
+    disc: StageDesign,
+    at51: dict[str, float],
+    f_disc: float,
+    m_disc: float,
+    cont: StageDesign,
+    f_cont: float,
+    m_cont: float,
+    rv: dict[str, dict[str, float]],
+) -> None:
+    """The 51 Hz example's text and tables."""
     rep.text(
         f"Robust delay T1 = π/ω_d = {t1 * 1e3:.3f} ms; n1 = int(T1/Ts) = {disc.delay_samples} samples "
         f"({disc.delay_s * 1e3:.1f} ms). Both designs put their taps at 0, n1, 2·n1; they differ only in "
@@ -185,6 +216,10 @@ def run(ctx: ExperimentContext) -> Report:
         caption="Residual vibration V of a 51 Hz mode after each design (fraction of an unshaped step) and |F| at the "
         "mode's pole z = e^(s·Ts); design ζ = mode ζ. (For a damped mode the zero sits on the pole, inside the unit circle.)",
     )
+
+
+def _example_figure(rep: Report, n_grid: int, disc: StageDesign, cont: StageDesign, f_cont: float, ts: float) -> None:
+    """Magnitude response and zeros of the two 51 Hz designs."""
     freqs = np.linspace(0.0, EXAMPLE_FS_HZ / 2, n_grid)
     fig = new_figure(9.0, 4.2)
     ax1, ax2 = fig.subplots(1, 2, width_ratios=[2.2, 1])
@@ -214,7 +249,9 @@ def run(ctx: ExperimentContext) -> Report:
     ax2.grid(True, lw=0.3)
     rep.figure(fig, "oatf_51hz_at_500hz.png", "Magnitude response and zeros of the two designs; the dashed ray is 51 Hz.")
 
-    # ------------------------------------------------------------------ part 2
+
+def _arm_designs(rep: Report, n_grid: int) -> tuple[dict[float, StageDesign], np.ndarray, dict[str, dict]]:
+    """The 4.4 Hz designs at 200 Hz for design ζ 0.09 and 0.01 (Fig. 4.8) and their table."""
     rep.heading("2. OATF for a 4.4 Hz mode at 200 Hz, design ζ 0.09 and 0.01 (Fig. 4.8)")
     ts2 = 1.0 / ARM_FS_HZ
     designs = {z: design_stage(ARM_F_HZ, z, ts2) for z in DESIGN_ZETAS}
@@ -255,7 +292,11 @@ def run(ctx: ExperimentContext) -> Report:
         rows,
         caption="OATF designs for 4.4 Hz at 200 Hz (robust delay truncated to n1 samples)",
     )
+    return designs, f2, arm
 
+
+def _arm_sensitivity(ctx: ExperimentContext, rep: Report, designs: dict[float, StageDesign], arm: dict[str, dict]) -> tuple[np.ndarray, dict[str, dict]]:
+    """Residual vibration of each 4.4 Hz design against the mode's frequency ratio."""
     # sensitivity curves
     n_ratio = 301 if ctx.quick else 2001
     ratio = np.linspace(0.0, 3.0, n_ratio)[1:]
@@ -276,7 +317,11 @@ def run(ctx: ExperimentContext) -> Report:
                 "V_at_ratio": {f"{r:g}": float(residual_vibration(amps, times, r * ARM_F_HZ, plant_zeta)) for r in (0.8, 0.9, 1.1, 1.2)},
             }
     rep.results["arm_4p4hz"] = {"frequency_hz": ARM_F_HZ, "sample_rate_hz": ARM_FS_HZ, "designs": arm, "sensitivity": sens}
+    return ratio, sens
 
+
+def _arm_response_figure(rep: Report, designs: dict[float, StageDesign], f2: np.ndarray) -> None:
+    """The 4.4 Hz designs' magnitude responses."""
     fig = new_figure(9.0, 4.0)
     ax1, ax2 = fig.subplots(1, 2)
     for (z, s), col in zip(designs.items(), ("tab:blue", "tab:orange")):
@@ -296,6 +341,9 @@ def run(ctx: ExperimentContext) -> Report:
     ax1.legend(fontsize=8)
     rep.figure(fig, "oatf_4p4hz_response.png", "OATF magnitude response for a 4.4 Hz mode at 200 Hz (Fig. 4.8); the dashed line is the design frequency.")
 
+
+def _sensitivity_figure(rep: Report, designs: dict[float, StageDesign], ratio: np.ndarray) -> None:
+    """Residual vibration against ω/ω_design of the two 4.4 Hz designs."""
     fig = new_figure(9.0, 4.0)
     axes = fig.subplots(1, 2, sharey=True)
     for ax, key, title in (
@@ -315,6 +363,9 @@ def run(ctx: ExperimentContext) -> Report:
     axes[0].legend(fontsize=8)
     rep.figure(fig, "oatf_sensitivity.png", "Residual vibration V(ω/ω_design) of the two 4.4 Hz designs; dotted: 5 %.")
 
+
+def _sensitivity_table(rep: Report, sens: dict[str, dict]) -> None:
+    """The table of sensitivity to the design frequency."""
     srows = []
     for z in DESIGN_ZETAS:
         for key in ("mode_zeta_equals_design", "mode_zeta_0.09"):
@@ -340,7 +391,9 @@ def run(ctx: ExperimentContext) -> Report:
         caption="Sensitivity to the design frequency",
     )
 
-    # ------------------------------------------------------------------ checks and thesis
+
+def _checks(rep: Report, at51: dict[str, float], f_cont: float, rv: dict[str, dict[str, float]], arm: dict[str, dict], sens: dict[str, dict]) -> None:
+    """The checks and the comparison with the thesis."""
     ex = rep.results["example_51hz"]
     rep.check("discrete design: |F(51 Hz)| ≈ 0", at51["discrete"] < 1e-9, f"|F(51 Hz)| = {at51['discrete']:.2e}")
     rep.check(
@@ -379,4 +432,3 @@ def run(ctx: ExperimentContext) -> Report:
         f"|F| ≤ −20 dB over {arm['0.09']['band_below_minus20db_width_hz'] or 0:.2f} Hz (ζ 0.09) and {arm['0.01']['band_below_minus20db_width_hz'] or 0:.2f} Hz (ζ 0.01).",
         w01 < w09,
     )
-    return rep

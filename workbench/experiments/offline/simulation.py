@@ -66,6 +66,7 @@ has the whole argument):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -384,6 +385,19 @@ def estimator_ratio_bound(sample_period_s: float) -> dict[str, float]:
     return {"max_ratio_rad_s": float(r[i]), "at_hz": float(f[m][i]), "first_zero_hz": first_zero}
 
 
+PctOfUnfiltered = Callable[[int, float | None, int], float]
+"""``(group, design Hz or None, link) -> %`` of the same group's unfiltered run."""
+
+
+def _pct_of_unfiltered(table: dict, quantity: str) -> PctOfUnfiltered:
+    """The cost table's ``quantity`` (``velocity`` or ``acceleration``) in % of the unfiltered run, as a function."""
+
+    def get(gn: int, f: float | None, link: int) -> float:
+        return float(table[f"group{gn}"]["designs"][_design_label(f)][f"{quantity}_pct_of_unfiltered"][link])
+
+    return get
+
+
 def _design_label(f: float | None) -> str:
     return "unfiltered" if f is None else f"OATF {f:g} Hz"
 
@@ -406,7 +420,26 @@ def run(ctx: ExperimentContext) -> Report:
     n_draws = 2 if ctx.quick else 20
     grps = groups(model)
 
-    # ---------------------------------------------------------------- set-points of every run
+    runs, designs_info, setpoints = _setpoints(ctx, model, n_draws, n, grps, ref, ts)
+    out, defl, fine_out = _simulate(ctx, n, runs, model, setpoints)
+    table = _cost_table(ts, defl, runs, grps, designs_info, out, setpoints)
+    ph_var, zoh_dev = _results(rep, ref_full, model, traj, duration_s, n, n_draws, table, out, runs, ts, fine_out, designs_info)
+    bl, bound = _model_section(ctx, rep, model, duration_s, n, ts, zoh_dev, n_draws, ph_var, grps, designs_info)
+    _calibration_section(rep, bl, ts, bound)
+    _results_section(rep, grps, table, n_draws, t, ref, setpoints, runs, defl, model)
+    gains, sweep_ok = _gain_sensitivity(rep, model, ref)
+    _save_group_records(ctx, rep, t, ref, runs, setpoints, defl, model)
+    pv, pa = _checks(ctx, rep, table, zoh_dev, sweep_ok, gains, designs_info, bl)
+    _thesis_tuning(rep, pv, pa)
+    _thesis_groups_3_4(rep, ts, model, pv, designs_info)
+    _thesis_baselines(rep, bl, grps, pv)
+    return rep
+
+
+def _setpoints(
+    ctx: ExperimentContext, model: SimulationModel, n_draws: int, n: int, grps: list[Group], ref: np.ndarray, ts: float
+) -> tuple[list[tuple[int, int, float | None]], dict[str, dict], np.ndarray]:
+    """The set-points of every run: each group's OATF designs applied to the loop, plus the group's noise draws."""
     runs: list[tuple[int, int, float | None]] = []  # (group, draw, design)
     sps: list[np.ndarray] = []
     designs_info: dict[str, dict] = {}
@@ -446,16 +479,32 @@ def run(ctx: ExperimentContext) -> Report:
                 runs.append((g.number, d, f))
                 sps.append(filtered + noise[d] if g.noise else filtered)
     setpoints = np.stack(sps)
+    return runs, designs_info, setpoints
 
-    # ---------------------------------------------------------------- simulate
+
+def _simulate(
+    ctx: ExperimentContext, n: int, runs: list[tuple[int, int, float | None]], model: SimulationModel, setpoints: np.ndarray
+) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
+    """Every run simulated, and the unfiltered runs of groups 1 and 2 once more logged on a finer grid."""
     with ctx.progress_task(f"simulating {len(runs)} runs × {n} ticks", n) as advance:
         out = simulate(model, setpoints, advance)
     defl = out["deflection_in"]
     # groups 1 and 2 unfiltered once more, the deflection logged on a finer grid (one reading of the acceleration)
     fine_idx = [i for g in (1, 2) for i, (gg, _, ff) in enumerate(runs) if gg == g and ff is None]
     fine_out = simulate(model, setpoints[fine_idx], log_substeps=FINE_LOG_SUBSTEPS)
+    return out, defl, fine_out
 
-    # ---------------------------------------------------------------- costs
+
+def _cost_table(
+    ts: float,
+    defl: np.ndarray,
+    runs: list[tuple[int, int, float | None]],
+    grps: list[Group],
+    designs_info: dict[str, dict],
+    out: dict[str, np.ndarray],
+    setpoints: np.ndarray,
+) -> dict[str, dict]:
+    """RMS deflection velocity and acceleration per group and design, in % of the same group's unfiltered run."""
     costs = [rms_costs(defl[i], ts) for i in range(len(runs))]
     base_idx = {(g, d): i for i, (g, d, f) in enumerate(runs) if f is None}
     table: dict[str, dict] = {}
@@ -488,6 +537,25 @@ def run(ctx: ExperimentContext) -> Report:
                 "max_abs_valve_v": float(np.max(np.abs(out["valve_v"][idx]))),
                 "max_abs_deflection_in": np.max(np.abs(defl[idx]), axis=(0, 1)).tolist(),
             }
+    return table
+
+
+def _results(
+    rep: Report,
+    ref_full: np.ndarray,
+    model: SimulationModel,
+    traj: Any,
+    duration_s: float,
+    n: int,
+    n_draws: int,
+    table: dict[str, dict],
+    out: dict[str, np.ndarray],
+    runs: list[tuple[int, int, float | None]],
+    ts: float,
+    fine_out: dict[str, np.ndarray],
+    designs_info: dict[str, dict],
+) -> tuple[np.ndarray, float]:
+    """Everything numeric the report keeps."""
     ph_var = ref_full.var(axis=0)
     ad1, bd1 = model.discrete()
     ad10, bd10 = model.discrete(substeps=10)
@@ -512,8 +580,23 @@ def run(ctx: ExperimentContext) -> Report:
         "designs": designs_info,
         "groups": table,
     }
+    return ph_var, zoh_dev
 
-    # ---------------------------------------------------------------- report
+
+def _model_section(
+    ctx: ExperimentContext,
+    rep: Report,
+    model: SimulationModel,
+    duration_s: float,
+    n: int,
+    ts: float,
+    zoh_dev: float,
+    n_draws: int,
+    ph_var: np.ndarray,
+    grps: list[Group],
+    designs_info: dict[str, dict],
+) -> tuple[dict[str, Any], Any]:
+    """The model, the noise and the OATF designs."""
     rep.heading("Model")
     rep.text(
         f"Both joints follow the inspection loop's joint set-points (φ, {model.tip_speed_in_s:g} in/s, "
@@ -562,7 +645,11 @@ def run(ctx: ExperimentContext) -> Report:
         drows,
         caption="OATF designs (design ζ 0.09, group 4: 0.01); |F| at the pole z = e^(s·Ts) of the 5 Hz, ζ 0.09 mode is 0 when the filter cancels it",
     )
+    return bl, bound
 
+
+def _calibration_section(rep: Report, bl: dict[str, Any], ts: float, bound: Any) -> None:
+    """The unfiltered rows against the thesis's, and the two readings of the acceleration."""
     rep.heading("Calibration against the thesis's unfiltered rows")
     rep.text(
         "The thesis gives one figure per group for the unfiltered run; this model has two links, compared here "
@@ -617,6 +704,20 @@ def run(ctx: ExperimentContext) -> Report:
         "on every link and group, the range those estimators give a 3.6–4.4 Hz ring (docs/simulation-calibration.md)."
     )
 
+
+def _results_section(
+    rep: Report,
+    grps: list[Group],
+    table: dict[str, dict],
+    n_draws: int,
+    t: np.ndarray,
+    ref: np.ndarray,
+    setpoints: np.ndarray,
+    runs: list[tuple[int, int, float | None]],
+    defl: np.ndarray,
+    model: SimulationModel,
+) -> None:
+    """The cost tables and figures per group."""
     rep.heading("Results")
     for g in grps:
         gt = table[f"group{g.number}"]
@@ -640,6 +741,9 @@ def run(ctx: ExperimentContext) -> Report:
     fig = _traces(t, ref, setpoints, runs, defl, model)
     rep.figure(fig, "simulation_traces.png", "Group 1: joint-2 set-point and link-2 deflection around the first corners, unfiltered and with each OATF.")
 
+
+def _gain_sensitivity(rep: Report, model: SimulationModel, ref: np.ndarray) -> tuple[tuple[float, ...], bool]:
+    """Group 1 against the assumed actuator gain."""
     rep.heading("Sensitivity to the assumed actuator gain")
     gains = (0.5, 1.0, 2.0, 4.0)
     sweep = gain_sweep(model, ref, gains)
@@ -666,7 +770,20 @@ def run(ctx: ExperimentContext) -> Report:
         for row in sweep.values()
         for j in (0, 1)
     )
+    return gains, sweep_ok
 
+
+def _save_group_records(
+    ctx: ExperimentContext,
+    rep: Report,
+    t: np.ndarray,
+    ref: np.ndarray,
+    runs: list[tuple[int, int, float | None]],
+    setpoints: np.ndarray,
+    defl: np.ndarray,
+    model: SimulationModel,
+) -> None:
+    """The run record of group 1 and of group 2's first noise draw."""
     # run record of group 1 and of group 2's first draw
     cols: dict[str, np.ndarray] = {"t_s": t, "phi1_ref_rad": ref[:, 0], "phi2_ref_rad": ref[:, 1]}
     for i, (gn, d, f) in enumerate(runs):
@@ -678,13 +795,19 @@ def run(ctx: ExperimentContext) -> Report:
     rep.attach(npz, "run record (controller.record): set-points and deflections of group 1 and group 2's first noise draw")
     rep.attach(js, "its JSON sidecar")
 
-    # ---------------------------------------------------------------- checks and thesis
-    def pv(gn: int, f: float | None, link: int) -> float:
-        return table[f"group{gn}"]["designs"][_design_label(f)]["velocity_pct_of_unfiltered"][link]
 
-    def pa(gn: int, f: float | None, link: int) -> float:
-        return table[f"group{gn}"]["designs"][_design_label(f)]["acceleration_pct_of_unfiltered"][link]
-
+def _checks(
+    ctx: ExperimentContext,
+    rep: Report,
+    table: dict[str, dict],
+    zoh_dev: float,
+    sweep_ok: bool,
+    gains: tuple[float, ...],
+    designs_info: dict[str, dict],
+    bl: dict[str, Any],
+) -> tuple[PctOfUnfiltered, PctOfUnfiltered]:
+    """The pass/fail checks."""
+    pv, pa = _pct_of_unfiltered(table, "velocity"), _pct_of_unfiltered(table, "acceleration")
     rep.check("exact ZOH: one step equals ten sub-steps", zoh_dev < 1e-10, f"max |Δ| = {zoh_dev:.1e}")
     rep.check(
         "group 1: the 5 Hz OATF lowers RMS deflection velocity (both links)",
@@ -715,7 +838,11 @@ def run(ctx: ExperimentContext) -> Report:
             all(abs(r["pooled"] / r["thesis"] - 1) <= 0.10 for r in vel_rows),
             ", ".join(f"{r['pooled']:.3f} vs {r['thesis']:.3f}" for r in vel_rows),
         )
+    return pv, pa
 
+
+def _thesis_tuning(rep: Report, pv: PctOfUnfiltered, pa: PctOfUnfiltered) -> None:
+    """The thesis's claims on tuning and on noise bypassing the filter (groups 1 and 2)."""
     rep.thesis(
         "Group 1: the correctly tuned OATF (5 Hz) lowers the costs, the mistuned ones less; 50 Hz does little.",
         f"Velocity, link 1/2: 5 Hz {pv(1, 5.0, 0):.0f}/{pv(1, 5.0, 1):.0f} %, 10 Hz {pv(1, 10.0, 0):.0f}/{pv(1, 10.0, 1):.0f} %, "
@@ -729,6 +856,10 @@ def run(ctx: ExperimentContext) -> Report:
         f"{pv(2, 5.0, 0):.1f}/{pv(2, 5.0, 1):.1f} % with it; acceleration {pa(1, 5.0, 0):.1f}/{pa(1, 5.0, 1):.1f} → {pa(2, 5.0, 0):.1f}/{pa(2, 5.0, 1):.1f} %.",
         all(shrink) if all(shrink) or not any(shrink) else "partly",
     )
+
+
+def _thesis_groups_3_4(rep: Report, ts: float, model: SimulationModel, pv: PctOfUnfiltered, designs_info: dict[str, dict]) -> None:
+    """The thesis's claims on the fixed delay (group 3) and on design damping 0.01 (group 4)."""
     literal = OatfFilter([50.0], 2, OatfConfig(sample_period_s=ts, design_zeta=model.design_zeta, delay_mode="fixed", fixed_delay_s=model.fixed_delay_s))
     literal_f = float(abs(literal.frequency_response([model.mode_hz])[0]))
     rep.results["group3_literal_50hz"] = {
@@ -757,6 +888,10 @@ def run(ctx: ExperimentContext) -> Report:
         f"The 5 Hz design misses the mode's pole by its damping (|F| there {designs_info['group4/OATF 5 Hz']['abs_F_at_mode_pole']:.3f}).",
         None,
     )
+
+
+def _thesis_baselines(rep: Report, bl: dict[str, Any], grps: list[Group], pv: PctOfUnfiltered) -> None:
+    """The unfiltered rows against the thesis's, and the fixed filter against an ideal adaptive one."""
     for row in bl["rows"]:
         ok = abs(row["pooled"] / row["thesis"] - 1.0) <= 0.10
         rep.thesis(
@@ -773,7 +908,6 @@ def run(ctx: ExperimentContext) -> Report:
         + ("every group and link." if best else "not every group and link."),
         best,
     )
-    return rep
 
 
 def _bar_chart(table: dict, grps: list[Group]):

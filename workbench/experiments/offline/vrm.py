@@ -144,7 +144,18 @@ def run(ctx: ExperimentContext) -> Report:
         f"{n_draws} noise draws per level. All estimators are `dsp_service.modal`'s."
     )
 
-    # -------------------------------------------------------------- one draw per level: per-triplet plots
+    examples = _example_draws(rep, h0, show_rng, freqs, robust)
+    _triplet_figures(rep, examples)
+    summary = _monte_carlo(ctx, rep, n_draws, freqs, robust, h0, rng)
+    _error_table(rep, summary, n_draws)
+    _error_figure(rep, summary)
+    s10 = _accuracy_checks(rep, summary, examples, n_draws)
+    _fwhm_comparison(rep, summary, s10)
+    return rep
+
+
+def _example_draws(rep: Report, h0: np.ndarray, show_rng: np.random.Generator, freqs: np.ndarray, robust: VrmEstimator) -> dict[str, dict[str, Any]]:
+    """One noise draw per level: the per-triplet estimates and every estimator's result."""
     examples: dict[str, dict[str, Any]] = {}
     for label, eps in NOISE_LEVELS:
         h = add_noise(h0, eps, show_rng)
@@ -166,7 +177,11 @@ def run(ctx: ExperimentContext) -> Report:
         }
         for label, ex in examples.items()
     }
+    return examples
 
+
+def _triplet_figures(rep: Report, examples: dict[str, dict[str, Any]]) -> None:
+    """The per-triplet frequency and damping figures of the example draws."""
     for quantity, truth, unit, fname in (("f_n", F_N_HZ, "Hz", "vrm_triplets_frequency.png"), ("zeta", ZETA, "", "vrm_triplets_damping.png")):
         fig = new_figure(10.0, 6.0)
         axes = fig.subplots(2, 2, sharex=True).ravel()
@@ -204,7 +219,11 @@ def run(ctx: ExperimentContext) -> Report:
             f"VRM {name} estimate of each adjacent-bin triplet (one noise draw per level) against the truth; shaded: the half-power band.",
         )
 
-    # -------------------------------------------------------------- Monte Carlo
+
+def _monte_carlo(
+    ctx: ExperimentContext, rep: Report, n_draws: int, freqs: np.ndarray, robust: VrmEstimator, h0: np.ndarray, rng: np.random.Generator
+) -> dict[str, dict]:
+    """Every estimator's relative errors over ``n_draws`` noise draws per level."""
     summary: dict[str, dict] = {}
     for label, eps in ctx.progress(NOISE_LEVELS, "VRM noise levels"):
         errs: dict[str, dict[str, list[float]]] = {m: {"f": [], "zeta": []} for m in (*METHODS, "peak")}
@@ -227,7 +246,11 @@ def run(ctx: ExperimentContext) -> Report:
                 )
     rep.results["monte_carlo"] = {"n_draws": n_draws, "levels": summary}
     rep.results["truth"] = {"f_n_hz": F_N_HZ, "zeta": ZETA, "fs_hz": FS_HZ, "fft_width": N_FFT}
+    return summary
 
+
+def _error_table(rep: Report, summary: dict[str, dict], n_draws: int) -> None:
+    """The table of errors over the noise draws."""
     rep.heading("Errors over noise draws")
     rows = []
     for label, s in summary.items():
@@ -256,6 +279,9 @@ def run(ctx: ExperimentContext) -> Report:
         digits=3,
     )
 
+
+def _error_figure(rep: Report, summary: dict[str, dict]) -> None:
+    """Median relative error of each estimator against the noise level."""
     fig = new_figure(9.0, 3.8)
     ax1, ax2 = fig.subplots(1, 2)
     eps_arr = np.array([e for _, e in NOISE_LEVELS])
@@ -271,7 +297,9 @@ def run(ctx: ExperimentContext) -> Report:
     ax1.legend(fontsize=7)
     rep.figure(fig, "vrm_vs_fwhm_errors.png", "Median relative error of each estimator against the noise level.")
 
-    # -------------------------------------------------------------- checks and thesis
+
+def _accuracy_checks(rep: Report, summary: dict[str, dict], examples: dict[str, dict[str, Any]], n_draws: int) -> Any:
+    """The checks and the thesis's claims on accuracy at SNR 1e4 and damping at 10 % noise."""
     s4 = summary["SNR 1e4"]
     ex4 = examples["SNR 1e4"]["estimates"]["vrm_avg"]
     ok4 = ex4 is not None and abs(ex4[0] / F_N_HZ - 1) < 0.01 and abs(ex4[1] / ZETA - 1) < 0.01
@@ -296,6 +324,11 @@ def run(ctx: ExperimentContext) -> Report:
         f"(mean of adjacent triplets); worst over {n_draws} draws {100 * worst4:.3f} %.",
         worst4 < 0.01,
     )
+    return s10
+
+
+def _fwhm_comparison(rep: Report, summary: dict[str, dict], s10: Any) -> None:
+    """The thesis's claims comparing VRM with FWHM and with the initial peak."""
     better = {l: summary[l]["vrm_robust"]["damping"]["median_abs_rel_error"] < summary[l]["fwhm"]["damping"]["median_abs_rel_error"] for l, _ in NOISE_LEVELS}
     better_avg = {l: summary[l]["vrm_avg"]["damping"]["median_abs_rel_error"] < summary[l]["fwhm"]["damping"]["median_abs_rel_error"] for l, _ in NOISE_LEVELS}
     within = {m: s10[m]["damping"]["within_order_of_magnitude"] for m in METHODS}
@@ -331,4 +364,3 @@ def run(ctx: ExperimentContext) -> Report:
         "starts from: on a noisy but otherwise exact single-mode FRF the triplets carry the frequency information.",
         False,
     )
-    return rep

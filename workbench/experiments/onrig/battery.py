@@ -31,14 +31,16 @@ seed.  ``--quick``: one group (5 in/s, no payload), (a) and (b), the first
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from controller.oatf import OatfConfig, OatfFilter, design_stage
 from workbench.campaign.rigs import map_rigs
+from workbench.experiments.analysis import costs_over
 from workbench.experiments.framework import ExperimentContext, experiment, run_layout
-from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, costs_over, lap_seconds
+from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, lap_seconds
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 
 if TYPE_CHECKING:
@@ -82,6 +84,19 @@ def oatf_settings(config: str, right_hz: float, damping: float = OATF_DAMPING, w
     mode = "adaptive" if config in ("c", "e") else "fixed"
     freq = right_hz if config in ("b", "c") else wrong_hz
     return {"oatf_mode": mode, "oatf": {"frequency_hz": round(float(freq), 4), "damping": damping}}
+
+
+VelocityPct = Callable[[str, str, int], float]
+"""``(group key, configuration, link) -> %``: RMS deflection velocity in % of the group's configuration (a)."""
+
+
+def _velocity_pct(table: dict[str, dict[str, Any]]) -> VelocityPct:
+    """The cost table's velocity percentages as a function."""
+
+    def get(gk: str, c: str, link: int) -> float:
+        return float(table[gk]["configs"][c]["velocity_pct"][link])
+
+    return get
 
 
 def run_costs(res: RigResult, mask: np.ndarray | None = None) -> dict[str, list[float]]:
@@ -143,7 +158,6 @@ def run(ctx: ExperimentContext) -> Report:
             label=f"{group_label(speed, payload)}, {CONFIG_LABELS[config]}",
         )
 
-    # ---------------------------------------------------------------- (a) first: the right frequency of each group
     base_runs = map_rigs(ctx, [spec(s, p, "a", 0.0) for s, p in groups], in_process=quick, description="battery (a) runs")
     results: dict[tuple[str, str], RigResult] = {}
     right: dict[str, float] = {}
@@ -164,8 +178,29 @@ def run(ctx: ExperimentContext) -> Report:
     for r in map_rigs(ctx, rest, in_process=quick, description="battery (b)-(e) runs"):
         gk, c = r.spec.name.rsplit("_", 1)
         results[(gk, c)] = r
+    table = _cost_table(rep, groups, results, right, truth_stats, configs, quick, laps)
+    _runs_section(ctx, rep, quick, results, right, truth_stats, groups)
+    _costs_section(rep, groups, configs, table, right)
+    _adaptation_section(rep, groups, table, results)
+    pv, gks = _checks(rep, table, groups, configs, quick, truth_stats)
+    _thesis_right_frequencies(rep, groups, right)
+    _discussion(rep, quick, groups, table, pv, gks)
+    for r in results.values():
+        rep.attach(r.record_path.with_name(r.record_path.name + ".npz"), f"run record: {r.spec.label}")
+    return rep
 
-    # ---------------------------------------------------------------- costs
+
+def _cost_table(
+    rep: Report,
+    groups: list[tuple[float, bool]],
+    results: dict[tuple[str, str], RigResult],
+    right: dict[str, float],
+    truth_stats: dict[str, dict[str, float]],
+    configs: tuple[str, ...],
+    quick: bool,
+    laps: dict[float, float],
+) -> dict[str, dict[str, Any]]:
+    """RMS deflection velocity and acceleration per group and configuration, in % of configuration (a)."""
     table: dict[str, dict[str, Any]] = {}
     for s, p in groups:
         gk = group_key(s, p)
@@ -195,8 +230,19 @@ def run(ctx: ExperimentContext) -> Report:
             g["configs"][c] = entry
         table[gk] = g
     rep.results = {"groups": table, "oatf_damping": OATF_DAMPING, "wrong_hz": WRONG_HZ, "laps_s": {f"{k:g}": v for k, v in laps.items()}, "quick": quick}
+    return table
 
-    # ---------------------------------------------------------------- report
+
+def _runs_section(
+    ctx: ExperimentContext,
+    rep: Report,
+    quick: bool,
+    results: dict[tuple[str, str], RigResult],
+    right: dict[str, float],
+    truth_stats: dict[str, dict[str, float]],
+    groups: list[tuple[float, bool]],
+) -> None:
+    """The runs and the tuned-right frequencies."""
     rep.heading("Runs")
     mode_text = run_layout(ctx.mode, quick, parallel="one run per campaign-engine worker at a time")
     rep.text(
@@ -225,6 +271,10 @@ def run(ctx: ExperimentContext) -> Report:
         caption="True first-mode frequency over each group's unfiltered lap",
         digits=3,
     )
+
+
+def _costs_section(rep: Report, groups: list[tuple[float, bool]], configs: tuple[str, ...], table: dict[str, dict[str, Any]], right: dict[str, float]) -> None:
+    """The cost tables and the bar chart."""
     rep.heading("Costs")
     for s, p in groups:
         gk = group_key(s, p)
@@ -242,6 +292,10 @@ def run(ctx: ExperimentContext) -> Report:
     rep.figure(
         fig, "battery_costs.png", "RMS deflection velocity and acceleration per group and configuration; labels: % of the unfiltered run (a) of the group."
     )
+
+
+def _adaptation_section(rep: Report, groups: list[tuple[float, bool]], table: dict[str, dict[str, Any]], results: dict[tuple[str, str], RigResult]) -> None:
+    """How the adaptive configurations moved their design frequency."""
     adaptive_rows = []
     for s, p in groups:
         gk = group_key(s, p)
@@ -282,10 +336,17 @@ def run(ctx: ExperimentContext) -> Report:
         fig = _adaptation_figure(results, groups)
         rep.figure(fig, "battery_adaptation.png", "Design frequency of the adaptive OATF ((c) solid, (e) dashed) and the true first mode (black), per group.")
 
-    # ---------------------------------------------------------------- checks and thesis
-    def pv(gk: str, c: str, link: int) -> float:
-        return float(table[gk]["configs"][c]["velocity_pct"][link])
 
+def _checks(
+    rep: Report,
+    table: dict[str, dict[str, Any]],
+    groups: list[tuple[float, bool]],
+    configs: tuple[str, ...],
+    quick: bool,
+    truth_stats: dict[str, dict[str, float]],
+) -> tuple[VelocityPct, list[str]]:
+    """The pass/fail checks."""
+    pv = _velocity_pct(table)
     gks = [group_key(s, p) for s, p in groups]
     b_better = all(pv(gk, "b", j) < 100.0 for gk in gks for j in (0, 1))
     rep.check(
@@ -331,6 +392,11 @@ def run(ctx: ExperimentContext) -> Report:
             f"(b): {pv(gks[0], 'b', 0):.0f} % and {pv(gks[0], 'b', 1):.0f} % of (a) (quick: 20 s, one group).",
             b_better,
         )
+    return pv, gks
+
+
+def _thesis_right_frequencies(rep: Report, groups: list[tuple[float, bool]], right: dict[str, float]) -> None:
+    """The tuned-right frequencies against the thesis's average first modes."""
     # the thesis's average first-mode frequencies over the trajectory (§4): attached 5 in/s 3.6, 4 in/s 3.9; removed 5 in/s 4.4, 4 in/s 4.1 Hz
     thesis_avg = {(5.0, True): 3.6, (4.0, True): 3.9, (5.0, False): 4.4, (4.0, False): 4.1}
     diffs = {group_key(s, p): right[group_key(s, p)] - thesis_avg[(s, p)] for s, p in groups}
@@ -341,88 +407,95 @@ def run(ctx: ExperimentContext) -> Report:
         + ". The emulated plant's modes depend on the configuration only, so the speed changes the average only through the time spent where.",
         True if all(abs(v) <= 0.1 for v in diffs.values()) else ("partly" if any(abs(v) <= 0.1 for v in diffs.values()) else False),
     )
-    if not quick:
-        for s_, p_ in groups:
-            a_ = table[group_key(s_, p_)]["configs"]["a"]
-            got = [*a_["velocity_rms_in_s"], *a_["acceleration_rms_in_s2"]]
-            ratio = [g / t for g, t in zip(got, THESIS_UNFILTERED[(s_, p_)], strict=True)]
-            rep.thesis(
-                f"Unfiltered (a), {group_label(s_, p_)}: velocity {THESIS_UNFILTERED[(s_, p_)][0]:g} / {THESIS_UNFILTERED[(s_, p_)][1]:g} in/s, "
-                f"acceleration {THESIS_UNFILTERED[(s_, p_)][2]:g} / {THESIS_UNFILTERED[(s_, p_)][3]:g} in/s² (link 1 / 2, Table 4-1).",
-                f"{got[0]:.3f} / {got[1]:.3f} in/s, {got[2]:.2f} / {got[3]:.2f} in/s² ("
-                + ", ".join(f"{100 * (r - 1):+.0f} %" for r in ratio)
-                + (
-                    ")."
-                    if s_ == 5.0
-                    else "; the plant vibrates less at 4 in/s than at 5 in/s, the thesis's more: docs/plant-model.md explains why a configuration-only model cannot)."
-                ),
-                all(abs(r - 1) <= 0.25 for r in ratio),
-            )
-        rep.heading("Discussion")
-        n1 = OatfFilter([WRONG_HZ], 2, OatfConfig(design_zeta=OATF_DAMPING)).stages[0].delay_samples
-        disc_rows = []
-        for s, p in groups:
-            gk = group_key(s, p)
-            a = table[gk]["configs"]["e"]["adaptation"]
-            f_med = a["median_hz_after_first_change"]
-            robust = design_stage(f_med, OATF_DAMPING, 0.005)
-            kept = design_stage(f_med, OATF_DAMPING, 0.005, delay_samples=n1)
-            disc_rows.append(
-                [
-                    group_label(s, p),
-                    f_med,
-                    n1,
-                    kept.abs_coefficient_sum,
-                    robust.delay_samples,
-                    robust.abs_coefficient_sum,
-                    pv(gk, "e", 0),
-                    pv(gk, "e", 1),
-                    pv(gk, "c", 0),
-                    pv(gk, "c", 1),
-                ]
-            )
-        rep.text(
-            "(e) keeps the integer delay of its initial 10 Hz design (adaptation changes only the coefficients, as in the thesis), "
-            f"n1 = {n1} samples; at the 3–4.5 Hz it adapts to, that delay is a fraction of the robust π/ω_d and the coefficients grow "
-            "(Σ|a| above 1 amplifies and reverses parts of the set-point), so the adapted (e) is not the adapted (c):"
-        )
-        rep.table(
-            [
-                "group",
-                "(e) median adapted f (Hz)",
-                "(e) n1",
-                "Σ|a| with that n1",
-                "robust n1",
-                "Σ|a| robust",
-                "(e) vel link 1 (%)",
-                "(e) vel link 2 (%)",
-                "(c) vel link 1 (%)",
-                "(c) vel link 2 (%)",
-            ],
-            disc_rows,
-            caption="Why (e) does not reach (c): the kept 10 Hz delay",
-            digits=3,
-        )
-        rep.text(
-            "Differences from the thesis: of its costs (same layout) only the unfiltered row (a) is available here (compared above), "
-            "so the filtered configurations are compared qualitatively. "
+
+
+def _discussion(rep: Report, quick: bool, groups: list[tuple[float, bool]], table: dict[str, dict[str, Any]], pv: VelocityPct, gks: list[str]) -> None:
+    """The comparison with the thesis's table (full runs)."""
+    if quick:
+        return
+    for s_, p_ in groups:
+        a_ = table[group_key(s_, p_)]["configs"]["a"]
+        got = [*a_["velocity_rms_in_s"], *a_["acceleration_rms_in_s2"]]
+        ratio = [g / t for g, t in zip(got, THESIS_UNFILTERED[(s_, p_)], strict=True)]
+        rep.thesis(
+            f"Unfiltered (a), {group_label(s_, p_)}: velocity {THESIS_UNFILTERED[(s_, p_)][0]:g} / {THESIS_UNFILTERED[(s_, p_)][1]:g} in/s, "
+            f"acceleration {THESIS_UNFILTERED[(s_, p_)][2]:g} / {THESIS_UNFILTERED[(s_, p_)][3]:g} in/s² (link 1 / 2, Table 4-1).",
+            f"{got[0]:.3f} / {got[1]:.3f} in/s, {got[2]:.2f} / {got[3]:.2f} in/s² ("
+            + ", ".join(f"{100 * (r - 1):+.0f} %" for r in ratio)
             + (
-                "Here every OATF, even the one at 10 Hz, helps against the unfiltered run, because the "
-                "loop's right-angle corners are velocity steps whose broadband content any three-term filter smooths"
-                if all(pv(gk, "d", j) < 100.0 for gk in gks for j in (0, 1))
-                else "The 10 Hz filter helps against the unfiltered run in "
-                + f"{sum(pv(gk, 'd', j) < 100.0 for gk in gks for j in (0, 1))} of {2 * len(gks)} group×link cases "
-                + "(the corners' velocity steps have broadband content any three-term filter smooths, but its zeros miss the first mode)"
-            )
-            + "; the tuned-right filter removes "
-            "roughly half or more of the deflection velocity. Adaptation from the right frequency changes little (the identifier lags the "
-            "configuration by seconds and jumps between split poles at the apex), consistent with the thesis's conclusion that an adaptive "
-            "filter cannot beat a well-tuned fixed one by much; with the payload the first mode spans 2.2–4.2 Hz and the adaptive designs are "
-            "further from it (see Adaptation)."
+                ")."
+                if s_ == 5.0
+                else "; the plant vibrates less at 4 in/s than at 5 in/s, the thesis's more: docs/plant-model.md explains why a configuration-only model cannot)."
+            ),
+            all(abs(r - 1) <= 0.25 for r in ratio),
         )
-    for r in results.values():
-        rep.attach(r.record_path.with_name(r.record_path.name + ".npz"), f"run record: {r.spec.label}")
-    return rep
+    _discussion_table(rep, groups, table, pv, gks)
+
+
+def _discussion_table(rep: Report, groups: list[tuple[float, bool]], table: dict[str, dict[str, Any]], pv: VelocityPct, gks: list[str]) -> None:
+    """The configurations against the thesis's: wrong-frequency designs, adaptation and the table."""
+    rep.heading("Discussion")
+    n1 = OatfFilter([WRONG_HZ], 2, OatfConfig(design_zeta=OATF_DAMPING)).stages[0].delay_samples
+    disc_rows = []
+    for s, p in groups:
+        gk = group_key(s, p)
+        a = table[gk]["configs"]["e"]["adaptation"]
+        f_med = a["median_hz_after_first_change"]
+        robust = design_stage(f_med, OATF_DAMPING, 0.005)
+        kept = design_stage(f_med, OATF_DAMPING, 0.005, delay_samples=n1)
+        disc_rows.append(
+            [
+                group_label(s, p),
+                f_med,
+                n1,
+                kept.abs_coefficient_sum,
+                robust.delay_samples,
+                robust.abs_coefficient_sum,
+                pv(gk, "e", 0),
+                pv(gk, "e", 1),
+                pv(gk, "c", 0),
+                pv(gk, "c", 1),
+            ]
+        )
+    rep.text(
+        "(e) keeps the integer delay of its initial 10 Hz design (adaptation changes only the coefficients, as in the thesis), "
+        f"n1 = {n1} samples; at the 3–4.5 Hz it adapts to, that delay is a fraction of the robust π/ω_d and the coefficients grow "
+        "(Σ|a| above 1 amplifies and reverses parts of the set-point), so the adapted (e) is not the adapted (c):"
+    )
+    rep.table(
+        [
+            "group",
+            "(e) median adapted f (Hz)",
+            "(e) n1",
+            "Σ|a| with that n1",
+            "robust n1",
+            "Σ|a| robust",
+            "(e) vel link 1 (%)",
+            "(e) vel link 2 (%)",
+            "(c) vel link 1 (%)",
+            "(c) vel link 2 (%)",
+        ],
+        disc_rows,
+        caption="Why (e) does not reach (c): the kept 10 Hz delay",
+        digits=3,
+    )
+    rep.text(
+        "Differences from the thesis: of its costs (same layout) only the unfiltered row (a) is available here (compared above), "
+        "so the filtered configurations are compared qualitatively. "
+        + (
+            "Here every OATF, even the one at 10 Hz, helps against the unfiltered run, because the "
+            "loop's right-angle corners are velocity steps whose broadband content any three-term filter smooths"
+            if all(pv(gk, "d", j) < 100.0 for gk in gks for j in (0, 1))
+            else "The 10 Hz filter helps against the unfiltered run in "
+            + f"{sum(pv(gk, 'd', j) < 100.0 for gk in gks for j in (0, 1))} of {2 * len(gks)} group×link cases "
+            + "(the corners' velocity steps have broadband content any three-term filter smooths, but its zeros miss the first mode)"
+        )
+        + "; the tuned-right filter removes "
+        "roughly half or more of the deflection velocity. Adaptation from the right frequency changes little (the identifier lags the "
+        "configuration by seconds and jumps between split poles at the apex), consistent with the thesis's conclusion that an adaptive "
+        "filter cannot beat a well-tuned fixed one by much; with the payload the first mode spans 2.2–4.2 Hz and the adaptive designs are "
+        "further from it (see Adaptation)."
+    )
 
 
 def _bar_chart(table: dict[str, dict[str, Any]], groups: list[tuple[float, bool]], configs: tuple[str, ...]) -> Figure:

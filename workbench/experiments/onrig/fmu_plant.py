@@ -29,8 +29,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from workbench.campaign.rigs import run_rigs
+from workbench.experiments.analysis import costs_over
 from workbench.experiments.framework import ExperimentContext, experiment
-from workbench.experiments.onrig.runner import RigResult, RigRun, costs_over
+from workbench.experiments.onrig.runner import RigResult, RigRun
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
 
 if TYPE_CHECKING:

@@ -53,6 +53,10 @@ from workbench.experiments.report import Report, new_figure
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from workbench.campaign.engine import Engine
+    from workbench.campaign.spec import SweepSpec
+    from workbench.campaign.sweep import SweepResult
+
 SPEED = 5.0
 DAMPING = 0.09
 WRONG_HZ = 10.0
@@ -245,7 +249,27 @@ def run(ctx: ExperimentContext) -> Report:
         "table": {"parquet": res.parquet.name, "csv": res.csv.name},
     }
 
-    # ------------------------------------------------------------------ report
+    labels_all = _campaign_section(rep, res, rows, failed, engine, spec, right, adaptive, cells, bits, noise)
+    _costs_section(rep, labels_all, bits, noise, cells)
+    _effects_section(rep, effects, cells)
+    _checks(rep, failed, bits, noise, cells, rows, quick, effects, idents)
+    return rep
+
+
+def _campaign_section(
+    rep: Report,
+    res: SweepResult,
+    rows: list[dict[str, Any]],
+    failed: list[dict[str, Any]],
+    engine: Engine,
+    spec: SweepSpec,
+    right: float,
+    adaptive: dict[str, list[str]],
+    cells: dict[str, Any],
+    bits: list[int],
+    noise: list[float],
+) -> list[str]:
+    """The campaign and its heatmaps."""
     rep.heading("Campaign")
     rep.text(
         f"{len(rows)} runs ({res.ran} run now, {res.skipped} reused from the journal, {len(failed)} failed) on {engine.describe()}; "
@@ -266,6 +290,11 @@ def run(ctx: ExperimentContext) -> Report:
             f"RMS deflection velocity of the {what}, % of the unfiltered run (a) of the same A/D and noise (mean over seeds); rows: OATF configuration and identifier, columns: link; "
             "x: sensor-noise scale, y: A/D bits.",
         )
+    return labels_all
+
+
+def _costs_section(rep: Report, labels_all: list[str], bits: list[int], noise: list[float], cells: dict[str, Any]) -> None:
+    """The cost table per configuration."""
     rep.heading("Costs")
     table_rows = []
     for lab in labels_all:
@@ -303,6 +332,10 @@ def run(ctx: ExperimentContext) -> Report:
         caption="Mean over seeds; % of the unfiltered run (a) of the same A/D bits, noise scale and seed",
         digits=3,
     )
+
+
+def _effects_section(rep: Report, effects: dict[str, Any], cells: dict[str, Any]) -> None:
+    """What moves the adaptive cost: main effects and the seeds' spread."""
     rep.heading("What moves the adaptive cost")
     eff_rows = []
     for key, e in effects.items():
@@ -322,7 +355,19 @@ def run(ctx: ExperimentContext) -> Report:
         digits=3,
     )
 
-    # ------------------------------------------------------------------ checks
+
+def _checks(
+    rep: Report,
+    failed: list[dict[str, Any]],
+    bits: list[int],
+    noise: list[float],
+    cells: dict[str, Any],
+    rows: list[dict[str, Any]],
+    quick: bool,
+    effects: dict[str, Any],
+    idents: list[str],
+) -> None:
+    """The checks, and the conclusion and discussion (full runs)."""
     rep.check(
         "every run of the campaign finished",
         not failed,
@@ -340,7 +385,6 @@ def run(ctx: ExperimentContext) -> Report:
     )
     if not quick:
         _conclusion(rep, cells, effects, bits, noise, idents)
-    return rep
 
 
 def _span(rows: list[dict[str, Any]]) -> str:

@@ -25,6 +25,7 @@ from the whole run; only the samples counted change (``runner.costs_over``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -85,16 +86,7 @@ def run(ctx: ExperimentContext) -> Report:
     lap = lap_seconds(SPEED)
     duration = 18.0 if quick else 2 * lap
     seed = int(ctx.rng("plant-seed").integers(0, 2**31 - 1))
-    specs = [
-        RigRun(
-            name,
-            controller={"duration_s": duration, "tip_speed_in_s": SPEED, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, **settings},
-            plant={"payload_attached": False, "seed": seed},
-            dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": 2048, "alpha": 0.1, **DSP_SETTINGS.get(name, {})},
-            label=LABELS[name],
-        )
-        for name, settings in RUNS
-    ]
+    specs = _specs(duration, seed)
     runs = {r.spec.name: r for r in run_rigs(ctx, specs, in_process=quick, description="reduced-damping runs")}
     base = runs["unfiltered"]
     t = base.t_s
@@ -110,6 +102,31 @@ def run(ctx: ExperimentContext) -> Report:
         ("after the first adaptation" if quick else "lap 2"): lap2,
         ("apex, after the first adaptation" if quick else "apex, lap 2"): apex & lap2,
     }
+    table = _cost_table(windows, base, runs)
+    true1 = _results(rep, t, base, runs, apex, adapt, lap, th2, table)
+    _report_section(ctx, rep, duration, quick, lap, true1, apex, adapt, windows, table, runs, t)
+    pv, late, late_apex, ad_better, apex_better, whole_better = _checks(rep, table, quick, adapt, true1)
+    _thesis(rep, pv, late, late_apex, ad_better, whole_better, apex_better, runs)
+    return rep
+
+
+def _specs(duration: float, seed: int) -> list[RigRun]:
+    """The runs: unfiltered, fixed 10 Hz and the adaptive OATFs, all designed for ζ = 0.01."""
+    specs = [
+        RigRun(
+            name,
+            controller={"duration_s": duration, "tip_speed_in_s": SPEED, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, **settings},
+            plant={"payload_attached": False, "seed": seed},
+            dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": 2048, "alpha": 0.1, **DSP_SETTINGS.get(name, {})},
+            label=LABELS[name],
+        )
+        for name, settings in RUNS
+    ]
+    return specs
+
+
+def _cost_table(windows: dict[str, np.ndarray], base: RigResult, runs: dict[str, RigResult]) -> dict[str, dict[str, Any]]:
+    """RMS deflection velocity and acceleration per window and run, in % of the unfiltered run."""
     table: dict[str, dict[str, Any]] = {}
     for wname, mask in windows.items():
         bc = costs_over(base.deflections, mask, base.sample_period_s)
@@ -123,6 +140,21 @@ def run(ctx: ExperimentContext) -> Report:
                 "velocity_pct": [100 * a / b for a, b in zip(c["velocity_rms"], bc["velocity_rms"])],
                 "acceleration_pct": [100 * a / b for a, b in zip(c["acceleration_rms"], bc["acceleration_rms"])],
             }
+    return table
+
+
+def _results(
+    rep: Report,
+    t: np.ndarray,
+    base: RigResult,
+    runs: dict[str, RigResult],
+    apex: np.ndarray,
+    adapt: dict[str, Any],
+    lap: float,
+    th2: np.ndarray,
+    table: dict[str, dict[str, Any]],
+) -> np.ndarray:
+    """The adaptive filter's frequency against the true first mode, and everything numeric the report keeps."""
     true1 = base.true_mode_hz(t, 0)
     f_ad = np.asarray(runs["adaptive"].record["oatf_hz"], dtype=float)
     rel_apex = np.abs(f_ad[apex] - true1[apex]) / true1[apex]
@@ -149,8 +181,24 @@ def run(ctx: ExperimentContext) -> Report:
         },
         "costs": table,
     }
+    return true1
 
-    # ------------------------------------------------------------------ report
+
+def _report_section(
+    ctx: ExperimentContext,
+    rep: Report,
+    duration: float,
+    quick: bool,
+    lap: float,
+    true1: np.ndarray,
+    apex: np.ndarray,
+    adapt: dict[str, Any],
+    windows: dict[str, np.ndarray],
+    table: dict[str, dict[str, Any]],
+    runs: dict[str, RigResult],
+    t: np.ndarray,
+) -> None:
+    """The runs, the cost tables and the figures."""
     rep.heading("Runs")
     rep.text(
         f"{len(RUNS)} runs at {SPEED:g} in/s, payload removed, {duration:.1f} s each ({'the first 18 s of a lap' if quick else '2 laps of ' + format(lap, '.1f') + ' s'}), "
@@ -187,7 +235,12 @@ def run(ctx: ExperimentContext) -> Report:
     fig = _bars(table, list(windows))
     rep.figure(fig, "reduced_damping_costs.png", "RMS deflection velocity in % of unfiltered per window, link 1 and link 2.")
 
-    # ------------------------------------------------------------------ checks and thesis
+
+def _checks(
+    rep: Report, table: dict[str, dict[str, Any]], quick: bool, adapt: dict[str, Any], true1: np.ndarray
+) -> tuple[Callable[[str, str, int], float], str, str, Any, Any, Any]:
+    """The pass/fail checks."""
+
     def pv(w: str, name: str, link: int) -> float:
         return float(table[w][name]["velocity_pct"][link])
 
@@ -222,6 +275,20 @@ def run(ctx: ExperimentContext) -> Report:
     )
     apex_better = [pv(late_apex, "adaptive", j) < pv(late_apex, "fixed10", j) for j in (0, 1)]
     whole_better = [pv("whole run", "adaptive", j) < pv("whole run", "fixed10", j) for j in (0, 1)]
+    return pv, late, late_apex, ad_better, apex_better, whole_better
+
+
+def _thesis(
+    rep: Report,
+    pv: Callable[[str, str, int], float],
+    late: str,
+    late_apex: str,
+    ad_better: Any,
+    whole_better: Any,
+    apex_better: Any,
+    runs: dict[str, RigResult],
+) -> None:
+    """The comparison with the thesis, and the files."""
     rep.thesis(
         "§4.4: with design damping 0.01 the filter is more sensitive to its design frequency, so adapting matters more: adaptive against fixed at 10 Hz, near the top singularity and over the whole trajectory.",
         f"Velocity, % of unfiltered, link 1/2 — whole run: adaptive {pv('whole run', 'adaptive', 0):.0f}/{pv('whole run', 'adaptive', 1):.0f}, fixed 10 Hz "
@@ -240,7 +307,6 @@ def run(ctx: ExperimentContext) -> Report:
     )
     for r in runs.values():
         rep.attach(r.record_path.with_name(r.record_path.name + ".npz"), f"run record: {r.spec.label}")
-    return rep
 
 
 def _traces(runs: dict[str, RigResult], t: NDArray[np.float64], apex: NDArray[np.bool_], true1: NDArray[np.float64]) -> Figure:

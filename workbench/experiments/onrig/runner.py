@@ -1,4 +1,4 @@
-"""Running the rig for an experiment, and the analysis helpers the on-rig experiments share.
+"""Running the rig for an experiment (the analysis the experiments share is in :mod:`workbench.experiments.analysis`).
 
 :func:`run_rig` runs one rig to completion and returns its records
 (:class:`RigResult`); :func:`workbench.campaign.rigs.run_rigs` runs several
@@ -56,9 +56,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from controller.metrics import deflection_acceleration, deflection_velocity
 from controller.record import RunRecord, load_record
 from controller.trajectory import DEFAULT_TRAJECTORY_PATH, load_trajectory, sample_trajectory
+from workbench.experiments.analysis import centred_median as centred_median
+from workbench.experiments.analysis import costs_over as costs_over
 from workbench.experiments.framework import ExperimentContext
 
 __all__ = [
@@ -182,7 +183,7 @@ class RigResult:
         }
 
 
-# --------------------------------------------------------------------------- helpers
+# --------------------------------------------------------------------------- laps
 
 
 def lap_seconds(speed_in_s: float = 5.0, trajectory: str | Path | None = None, sample_period_s: float = 0.005) -> float:
@@ -190,40 +191,6 @@ def lap_seconds(speed_in_s: float = 5.0, trajectory: str | Path | None = None, s
     traj = load_trajectory(trajectory or DEFAULT_TRAJECTORY_PATH)
     sampled = sample_trajectory(traj, sample_period_s, speed_in_per_s=speed_in_s)
     return len(sampled.joints.phi) * sample_period_s
-
-
-def costs_over(deflection: npt.ArrayLike, mask: npt.ArrayLike, sample_period_s: float = 0.005) -> dict[str, list[float]]:
-    """The §4.2.1 costs (``controller.metrics``) over the samples where ``mask`` holds.
-
-    The derivative estimates are taken on the whole run (centred regressions,
-    full windows) and their standard deviation over the estimates whose time
-    falls on a masked sample, so a stretch cut out of a run (a lap, the
-    samples near the singularity) has no edge effects.
-    """
-    d = np.asarray(deflection, dtype=float)
-    m = np.asarray(mask, dtype=bool)
-    out: dict[str, list[float]] = {}
-    for key, fn in (("velocity_rms", deflection_velocity), ("acceleration_rms", deflection_acceleration)):
-        est = fn(d, sample_period_s)
-        idx = np.clip(np.round(est.t_s / sample_period_s).astype(int), 0, m.size - 1)
-        sel = est.values[m[idx]]
-        out[key] = np.std(sel, axis=0).tolist() if sel.shape[0] > 1 else [float("nan")] * d.shape[1]
-    out["samples"] = [int(m.sum())]
-    return out
-
-
-def centred_median(t: np.ndarray, f: np.ndarray, half_s: float, step: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Running median of ``f`` over ``[t - half_s, t + half_s]`` on every ``step``-th sample (NaNs ignored)."""
-    dt = float(t[1] - t[0])
-    h = int(round(half_s / dt))
-    idx = np.arange(0, t.size, step)
-    out = np.full(idx.size, np.nan)
-    for k, i in enumerate(idx):
-        w = f[max(0, i - h) : i + h + 1]
-        w = w[np.isfinite(w)]
-        if w.size:
-            out[k] = np.median(w)
-    return t[idx], out
 
 
 def _env_value(value: Any) -> str:

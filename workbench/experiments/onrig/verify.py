@@ -52,11 +52,13 @@ import scipy.signal as ss
 from numpy.typing import NDArray
 
 from workbench.experiments.framework import ExperimentContext, experiment
-from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigRun, run_rig
+from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, run_rig
 from workbench.experiments.report import Report, new_figure
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+    from controller.record import RunRecord
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -281,7 +283,51 @@ def run(ctx: ExperimentContext) -> Report:
     if not have:
         raise RuntimeError("no download carries an estimate (the history never filled)")
 
-    # ------------------------------------------------------------------ §4.1.1 every download with data
+    impl, last_off, spectra_at, last_i, valid_last, invalid_below, lowest_valid = _implementation_check(have, times, ends, channels, freqs, tf)
+    b_online, m_match, lag_sets, algo, bt_last, pole_rows, rough_rows, htot_diffs, all_diffs, smoother_half_n, smoother_matched, raw_last, true_last = (
+        _algorithm_check(impl, times, res, channels, spectra_at, tf, freqs)
+    )
+    median_pole_diff, median_htot_diff, corr_inputs, true1, true2 = _results(
+        rep,
+        all_diffs,
+        htot_diffs,
+        impl,
+        channels,
+        true_last,
+        res,
+        download,
+        ends,
+        counters,
+        algo,
+        times,
+        last_i,
+        lowest_valid,
+        invalid_below,
+        rec,
+        n_ticks,
+        freqs,
+        tf,
+        last_off,
+        raw_last,
+        lag_sets,
+        bt_last,
+        smoother_half_n,
+        smoother_matched,
+    )
+    worst_median, worst_max = _implementation_section(rep, duration, res, download, have, times, ends, counters, impl)
+    _implementation_figures(rep, freqs, tf, last_i, last_off, bt_last, raw_last, true1, true2, valid_last, times, invalid_below, lowest_valid, corr_inputs)
+    _algorithm_section(rep, algo, b_online, pole_rows, rough_rows)
+    exact, frac_half_n = _checks(rep, worst_median, worst_max, impl, freqs, rough_rows, smoother_half_n)
+    _thesis(
+        rep, worst_median, worst_max, impl, exact, median_pole_diff, median_htot_diff, all_diffs, smoother_half_n, m_match, smoother_matched, frac_half_n, res
+    )
+    return rep
+
+
+def _implementation_check(
+    have: list[int], times: np.ndarray, ends: np.ndarray, channels: np.ndarray, freqs: np.ndarray, tf: dict[str, np.ndarray]
+) -> tuple[list[dict[str, Any]], dict[str, np.ndarray], dict[int, np.ndarray], int, np.ndarray, np.ndarray, float]:
+    """§4.1.1: every download with data against an off-line recomputation from the record."""
     impl: list[dict[str, Any]] = []
     last_off: dict[str, np.ndarray] = {}
     spectra_at: dict[int, np.ndarray] = {}
@@ -318,8 +364,39 @@ def run(ctx: ExperimentContext) -> Report:
     valid_last = np.asarray(tf["Htot_mag"][last_i]) > 0
     invalid_below = freqs[(~valid_last) & (freqs < 20.0) & (freqs > 0)]
     lowest_valid = float(freqs[valid_last & (freqs > 0.3)].min()) if np.any(valid_last & (freqs > 0.3)) else float("nan")
+    return impl, last_off, spectra_at, last_i, valid_last, invalid_below, lowest_valid
 
-    # ------------------------------------------------------------------ §4.1.2 Blackman–Tukey on every download
+
+def _named_tfs(spectra: np.ndarray) -> dict[str, np.ndarray]:
+    """H11, H12, H21, H22 from the 2×2 solve of ``spectra`` (unsolved bins 0) and H_tot, their mean."""
+    h = np.nan_to_num(solve_2x2(spectra))
+    return {"H11": h[0], "H12": h[1], "H21": h[2], "H22": h[3], "Htot": h.mean(axis=0)}
+
+
+def _algorithm_check(
+    impl: list[dict[str, Any]],
+    times: np.ndarray,
+    res: RigResult,
+    channels: np.ndarray,
+    spectra_at: dict[int, np.ndarray],
+    tf: dict[str, np.ndarray],
+    freqs: np.ndarray,
+) -> tuple[
+    float,
+    int,
+    dict[str, int],
+    dict[str, Any],
+    dict[str, dict[str, np.ndarray]],
+    list[list[Any]],
+    list[list[Any]],
+    list[float],
+    list[float],
+    list[bool],
+    list[bool],
+    dict[str, np.ndarray],
+    tuple[np.ndarray, np.ndarray],
+]:
+    """§4.1.2: a Blackman–Tukey estimate at every download, with matched and half-N lag windows."""
     b_online = online_bandwidth_bins(FFT_WIDTH, SMOOTH_WINDOW, SMOOTH_ORDER)
     m_match = matched_max_lag(b_online, FFT_WIDTH)
     lag_sets = {"matched": m_match, "half_N": FFT_WIDTH // 2}
@@ -350,12 +427,9 @@ def run(ctx: ExperimentContext) -> Report:
         }
         ests: dict[str, dict[str, np.ndarray]] = {}
         for key, m in lag_sets.items():
-            spectra_bt, n_ens = blackman_tukey(channels, start, end_tick + 1, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
-            h = np.nan_to_num(solve_2x2(spectra_bt))
-            ests[key] = {"H11": h[0], "H12": h[1], "H21": h[2], "H22": h[3], "Htot": h.mean(axis=0)}
-            entry[f"ensembles_{key}"] = n_ens
-        raw = np.nan_to_num(solve_2x2(spectra_at[i]))
-        raws = {"H11": raw[0], "H12": raw[1], "H21": raw[2], "H22": raw[3], "Htot": raw.mean(axis=0)}
+            spectra_bt, entry[f"ensembles_{key}"] = blackman_tukey(channels, start, end_tick + 1, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
+            ests[key] = _named_tfs(spectra_bt)
+        raws = _named_tfs(spectra_at[i])
         for name in TF_NAMES:
             on = np.asarray(tf[f"{name}_mag"][i], dtype=float)
             valid = on > 0
@@ -379,6 +453,37 @@ def run(ctx: ExperimentContext) -> Report:
             rough_rows.append([r["sim_time_s"], name, rough["online"], rough["bt_matched"], rough["bt_half_N"], rough["unsmoothed"]])
         algo["downloads"].append(entry)
         bt_last, raw_last, true_last = ests, raws, (true1, true2)
+    return b_online, m_match, lag_sets, algo, bt_last, pole_rows, rough_rows, htot_diffs, all_diffs, smoother_half_n, smoother_matched, raw_last, true_last
+
+
+def _results(
+    rep: Report,
+    all_diffs: list[float],
+    htot_diffs: list[float],
+    impl: list[dict[str, Any]],
+    channels: np.ndarray,
+    true_last: tuple[np.ndarray, np.ndarray],
+    res: RigResult,
+    download: int,
+    ends: np.ndarray,
+    counters: dict[str, Any],
+    algo: dict[str, Any],
+    times: np.ndarray,
+    last_i: int,
+    lowest_valid: float,
+    invalid_below: np.ndarray,
+    rec: RunRecord,
+    n_ticks: int,
+    freqs: np.ndarray,
+    tf: dict[str, np.ndarray],
+    last_off: dict[str, np.ndarray],
+    raw_last: dict[str, np.ndarray],
+    lag_sets: dict[str, int],
+    bt_last: dict[str, dict[str, np.ndarray]],
+    smoother_half_n: list[bool],
+    smoother_matched: list[bool],
+) -> tuple[float, float, float, np.ndarray, np.ndarray]:
+    """Everything numeric the report keeps."""
     median_pole_diff = float(np.median(all_diffs)) if all_diffs else float("nan")
     median_htot_diff = float(np.median(htot_diffs)) if htot_diffs else float("nan")
     last_end = impl[-1]["end_tick"]
@@ -426,8 +531,21 @@ def run(ctx: ExperimentContext) -> Report:
             "online_smoother_than_bt_matched": f"{sum(smoother_matched)}/{len(smoother_matched)}",
         },
     }
+    return median_pole_diff, median_htot_diff, corr_inputs, true1, true2
 
-    # ------------------------------------------------------------------ report
+
+def _implementation_section(
+    rep: Report,
+    duration: float,
+    res: RigResult,
+    download: int,
+    have: list[int],
+    times: np.ndarray,
+    ends: np.ndarray,
+    counters: dict[str, Any],
+    impl: list[dict[str, Any]],
+) -> tuple[float, float]:
+    """The run and the implementation check's table."""
     worst_median = rep.results["summary"]["worst_median_rel_diff"]
     worst_max = rep.results["summary"]["worst_max_rel_diff"]
     rep.heading("Run")
@@ -481,6 +599,26 @@ def run(ctx: ExperimentContext) -> Report:
         caption=f"On-line (DSP download) against off-line (SciPy) magnitudes; peaks: largest |H| in {PEAK_BAND_HZ[0]:g}–{PEAK_BAND_HZ[1]:g} Hz on valid bins",
         digits=3,
     )
+    return worst_median, worst_max
+
+
+def _implementation_figures(
+    rep: Report,
+    freqs: np.ndarray,
+    tf: dict[str, np.ndarray],
+    last_i: int,
+    last_off: dict[str, np.ndarray],
+    bt_last: dict[str, dict[str, np.ndarray]],
+    raw_last: dict[str, np.ndarray],
+    true1: np.ndarray,
+    true2: np.ndarray,
+    valid_last: np.ndarray,
+    times: np.ndarray,
+    invalid_below: np.ndarray,
+    lowest_valid: float,
+    corr_inputs: float,
+) -> None:
+    """The spectra and the relative difference of the last download."""
     fig = _spectra_figure(freqs, tf, last_i, last_off, bt_last, raw_last, true1, true2, valid_last)
     rep.figure(
         fig,
@@ -497,6 +635,9 @@ def run(ctx: ExperimentContext) -> Report:
         "(the thesis: correlation 0.4 to 0.9)."
     )
 
+
+def _algorithm_section(rep: Report, algo: dict[str, Any], b_online: float, pole_rows: list[list[Any]], rough_rows: list[list[Any]]) -> None:
+    """The algorithm check's text and tables."""
     rep.heading("Algorithm check (§4.1.2)")
     lw = algo["lag_windows"]
     rep.text(
@@ -523,7 +664,11 @@ def run(ctx: ExperimentContext) -> Report:
         digits=3,
     )
 
-    # ------------------------------------------------------------------ checks and thesis
+
+def _checks(
+    rep: Report, worst_median: float, worst_max: float, impl: list[dict[str, Any]], freqs: np.ndarray, rough_rows: list[list[Any]], smoother_half_n: list[bool]
+) -> tuple[bool, float]:
+    """The pass/fail checks."""
     exact = worst_median < 1e-9 and worst_max < 1e-6
     rep.check(
         "every download's time stamp is a reconstructed batch end",
@@ -558,6 +703,25 @@ def run(ctx: ExperimentContext) -> Report:
         all(rr[2] < rr[5] for rr in rough_rows),
         f"{sum(rr[2] < rr[5] for rr in rough_rows)} of {len(rough_rows)}",
     )
+    return exact, frac_half_n
+
+
+def _thesis(
+    rep: Report,
+    worst_median: float,
+    worst_max: float,
+    impl: list[dict[str, Any]],
+    exact: bool,
+    median_pole_diff: float,
+    median_htot_diff: float,
+    all_diffs: list[float],
+    smoother_half_n: list[bool],
+    m_match: int,
+    smoother_matched: list[bool],
+    frac_half_n: float,
+    res: RigResult,
+) -> None:
+    """The comparison with the thesis, and the files."""
     rep.thesis(
         "§4.1.1: the DSP's FFT, spectra and transfer functions are virtually identical to an independent off-line implementation, apart from rounding in the noise floor.",
         f"{len(impl)} download(s) × 5 estimates: median relative difference ≤ {worst_median:.1e}, largest {worst_max:.1e} (double precision; the C40 computed in single).",
@@ -583,7 +747,6 @@ def run(ctx: ExperimentContext) -> Report:
     )
     rep.attach(res.record_path.with_name(res.record_path.name + ".tf.npz"), "the DSP's transfer-function downloads")
     rep.attach(res.truth_path, "plant ground truth (modal frequencies)")
-    return rep
 
 
 def _spectra_figure(
