@@ -317,6 +317,7 @@ def run_service(
     zenoh session closed on every path, and ``body``'s exit code."""
     # Imported here so that parsing --help does not need a network stack.
     from service_kit.transport import open_zenoh
+    from service_kit.zenoh_log import route_to_logging
 
     args = list(sys.argv[1:] if argv is None else argv)
     record: str | None = None
@@ -336,6 +337,7 @@ def run_service(
     settings = parse_service_args(prog, summary, model, args)
     fix_malloc_threshold()
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
+    route_to_logging()  # zenoh's own log lines as this service's log records
     readiness.watch_compiles()  # before any kernel is touched: the ready line counts what compiled
     readiness.clear(settings.ready_file)  # a previous run's, in a restarted container
     stop = install_stop_handlers()

@@ -30,7 +30,7 @@ from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, p
 from workbench.live import cli as live_cli
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
-from workbench.timing_test.report import health_verdict
+from workbench.timing_test.report import health_verdict, latency_class
 
 console = Console(stderr=True)
 
@@ -131,9 +131,13 @@ def print_summary(summary: dict[str, Any]) -> None:
         table.add_row("health refused", f"{summary['health_refused']} (the payload named another service than its key)")
     if summary.get("host"):
         table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
-    verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
+    controller_health = summary["health"].get("controller")
+    verdict = health_verdict(controller_health) if controller_health else None
     if verdict:
         table.add_row("timing verdict", verdict)
+    latency = latency_class(controller_health, summary.get("host")) if controller_health else None
+    if latency:
+        table.add_row("host latency class", latency)
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row(

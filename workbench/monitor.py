@@ -31,6 +31,7 @@ from protocol.keys import SERVICES, Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.settings import CommonSettings, load_settings
 from service_kit.transport import zenoh_config
+from service_kit.zenoh_log import init_zenoh_log
 
 
 def health_key_service(key: str) -> str:
@@ -66,7 +67,7 @@ class RigWatch:
         self.bad_messages = 0
         self.health_refused = 0
         self.messages = 0
-        zenoh.init_log_from_env_or("error")
+        init_zenoh_log()
         self.session = zenoh.open(config)
         try:
             self._subs = [

@@ -47,6 +47,8 @@ from workbench.bench.items import FLOOR_ITEMS, ITEMS, BenchContext, run_item
 from workbench.bench.stats import load_average, machine_info
 
 DEFAULT_JSON = "ralf-bench.json"
+TABLE_WIDTH = 120
+"""The bench's table fits this many columns (long names fold)."""
 SCHEMA = "ralf-hil-bench/1"
 
 console = Console(stderr=True)
@@ -207,12 +209,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
     options = options_from_args(args)
     report = run_bench(options, Path(args.log_dir) if args.log_dir else None, say=lambda text: console.print(text, markup=False, highlight=False))
     out = Console()
-    if not out.is_terminal:
-        out = Console(width=170)
+    out = Console(width=min(out.width, TABLE_WIDTH) if out.is_terminal else TABLE_WIDTH)
     out.print(render(report))
-    path = Path(args.json)
-    write_json(report, path)
-    console.print(f"results written to {path} (service logs in {report['options']['log_dir']})", markup=False, highlight=False)
+    if args.json:
+        path = Path(args.json)
+        write_json(report, path)
+        console.print(f"results written to {path} (service logs in {report['options']['log_dir']})", markup=False, highlight=False)
+    else:
+        console.print(f"service logs in {report['options']['log_dir']}; --json PATH keeps the results", markup=False, highlight=False)
     if report.get("interrupted"):
         return 130
     return 1 if any(item["status"] == "failed" for item in report["items"].values()) else 0
@@ -315,7 +319,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="RALF_RT_CPU_LATENCY_US for the controller and plant, and the same for the sleep-only floor: "
         "a PM QoS bound on CPU wake-up latency (0: idle CPUs poll; default -1: off)",
     )
-    p.add_argument("--json", default=DEFAULT_JSON, metavar="PATH", help=f"write the results here (default {DEFAULT_JSON})")
+    p.add_argument("--json", default=None, metavar="PATH", help=f"write the results here as JSON (e.g. {DEFAULT_JSON}; default: none written)")
     p.add_argument("--log-dir", default=None, help="where helper and service logs go (default: a temporary directory)")
 
 

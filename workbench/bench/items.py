@@ -49,8 +49,9 @@ from workbench.bench.pingers import (
 )
 from workbench.bench.procs import BenchError, Child, clean_env, private_can_port, private_rig_id, tail
 from workbench.bench.stats import from_latency_stats, ratio, ratios, summarize
+from workbench.hostinfo import host_info
 from workbench.launcher import free_tcp_port, free_tcp_ports
-from workbench.timing_test.report import health_verdict
+from workbench.timing_test.report import health_verdict, latency_class
 
 CAN_GROUP = "239.74.163.2"
 DSP_FFT_WIDTH = 2048
@@ -623,7 +624,12 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
         result["config"]["runs"][tag]["controller_counters"] = counters
-        verdict = health_verdict(ctrl)  # the same criteria as `up` and `timing-test` (docs/timing-faults.md)
+        # The same criteria as `up` and `timing-test` (docs/timing-faults.md), the overruns against this run's sleep-only loop.
+        verdict = health_verdict(ctrl, overrun_floor_per_tick=sleep_per_tick)
+        latency_line = latency_class(ctrl, host_info())
+        if latency_line:
+            result["config"]["runs"][tag]["host_latency_class"] = latency_line
+            result["notes"].append(f"{tag}: host latency class (information) {latency_line}")
         if verdict:
             result["config"]["runs"][tag]["verdict"] = verdict
             result["notes"].append(f"{tag}: timing verdict {verdict}")
