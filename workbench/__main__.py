@@ -1,5 +1,29 @@
-"""``python -m workbench`` is ``ralf-hil``."""
+"""``python -m workbench`` is ``ralf-hil`` (the console script's entry point
+too): a Ctrl-C while the command's modules are still loading ends it with
+one line and exit code 130, as one later does."""
 
-from workbench.cli import main
+from __future__ import annotations
 
-raise SystemExit(main())
+import signal
+import sys
+
+INTERRUPTED = 130
+"""Exit code of a command ended by Ctrl-C (128 + SIGINT)."""
+
+
+def main() -> int:
+    # Ctrl-C raises KeyboardInterrupt from the first line on, even where SIGINT
+    # came in ignored (a background job of a non-interactive shell): up then
+    # installs its own handler and stops the rig in order.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        from workbench.cli import main as cli_main
+
+        return cli_main()
+    except KeyboardInterrupt:
+        print("ralf-hil: interrupted", file=sys.stderr)
+        return INTERRUPTED
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

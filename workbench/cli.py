@@ -221,6 +221,25 @@ def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
         raise SystemExit(2) from None
 
 
+INTERRUPTED = 130
+"""``ralf-hil up``'s exit code when Ctrl-C (SIGINT), SIGTERM or a closed terminal ended it."""
+
+
+def stop_on_signals() -> tuple[threading.Event, list[str]]:
+    """An event set by SIGINT, SIGTERM or SIGHUP (a closed terminal), and the
+    names of the signals received: from here on the rig is stopped in order."""
+    stop = threading.Event()
+    received: list[str] = []
+
+    def handler(signum: int, _frame: Any) -> None:
+        received.append(signal.Signals(signum).name)
+        stop.set()
+
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, handler)
+    return stop, received
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -265,9 +284,7 @@ def private_run_dir(prefix: str) -> Path:
 
 
 def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a closed terminal too: services stopped, credentials removed
-        signal.signal(signum, lambda *_: stop.set())
+    stop, received = stop_on_signals()  # a closed terminal too: services stopped, credentials removed
     observer = RigObserver(plan)
     console.print(
         f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
@@ -295,7 +312,8 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             )
         if not console.is_terminal:
             console.print(status_line(observer, time.monotonic() - sup.started))
-        time.sleep(0.2)  # let the last health messages arrive
+        if not received:
+            time.sleep(0.2)  # let the last health messages arrive
         summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
         if recording is not None:
             stats = recording.close().as_dict()
@@ -315,6 +333,9 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     print_summary(summary)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
+    if received:
+        console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped; logs in {log_dir}")
+        return INTERRUPTED
     failure = sup.failure
     status = summary["controller"]
     if not failure and (status is None or status["ticks"] == 0):

@@ -210,6 +210,10 @@ def start_service(plan: RigPlan, name: str, log_dir: Path) -> ServiceProcess:
             stdout=log_file,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
+            # A session of its own: a terminal's Ctrl-C (SIGINT to the foreground
+            # process group) reaches the launcher, which stops the services in
+            # order, not each service halfway through its start-up.
+            start_new_session=True,
         )
     return ServiceProcess(name=name, popen=popen, log_path=log_path)
 
@@ -290,6 +294,7 @@ def supervise(
     """
     sup = Supervision(procs={}, started=time.monotonic())
     stop = stop or threading.Event()
+    interrupted = False
     try:
         for name in START_ORDER:
             sup.procs[name] = start_service(plan, name, log_dir)
@@ -319,14 +324,46 @@ def supervise(
                 sup.failure = f"no controller tick within {startup_timeout_s:.0f} s of the launch"
                 break
             stop.wait(poll_s)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
         sup.ended_at = time.monotonic()
-        for name in STOP_ORDER:
-            if name in sup.procs:
-                sup.exit_codes[name] = stop_service(sup.procs[name], stop_timeout_s)
-                if name == "controller":
-                    time.sleep(0.3)  # its final status and health
+        if interrupted or stop.is_set():
+            sup.exit_codes.update(stop_all(sup.procs, INTERRUPT_STOP_S))
+        else:
+            for name in STOP_ORDER:
+                if name in sup.procs:
+                    sup.exit_codes[name] = stop_service(sup.procs[name], stop_timeout_s)
+                    if name == "controller":
+                        time.sleep(0.3)  # its final status and health
     return sup
+
+
+INTERRUPT_STOP_S = 1.2
+"""After a Ctrl-C or a stop request: how long the services get, all at
+once, to end on SIGTERM before SIGKILL (a service compiling its kernels
+cannot answer until the compiler returns)."""
+
+
+def stop_all(procs: Mapping[str, ServiceProcess], timeout_s: float = INTERRUPT_STOP_S) -> dict[str, int]:
+    """SIGTERM every service at once (in :data:`STOP_ORDER`), wait up to
+    ``timeout_s`` in all, SIGKILL the rest; their exit codes."""
+    order = [name for name in STOP_ORDER if name in procs]
+    for name in order:
+        if procs[name].popen.poll() is None:
+            procs[name].popen.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
+    codes = {}
+    for name in order:
+        popen = procs[name].popen
+        try:
+            popen.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            popen.kill()
+            popen.wait()
+        codes[name] = int(popen.returncode)
+    return codes
 
 
 def plan_problems(plan: RigPlan) -> list[str]:
