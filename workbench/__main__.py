@@ -4,6 +4,7 @@ one line and exit code 130, as one later does."""
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
@@ -19,10 +20,17 @@ def main() -> int:
     try:
         from workbench.cli import main as cli_main
 
-        return cli_main()
+        code = cli_main()
     except KeyboardInterrupt:
         print("ralf-hil: interrupted", file=sys.stderr)
-        return INTERRUPTED
+        code = INTERRUPTED
+    if code == INTERRUPTED:
+        # Everything is stopped, closed and removed by now; the zenoh runtime's
+        # own teardown at interpreter exit would add ~1 s to a Ctrl-C.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
 
 
 if __name__ == "__main__":
