@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from pydantic_settings import BaseSettings
 from rich.console import Console
@@ -202,6 +202,30 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     return tool_env
 
 
+def refuse_bad_settings(overrides: dict[str, dict[str, str]], command: str = "ralf-hil up") -> None:
+    """Every service's settings as it will read them (its ``RALF_*``
+    variables and the ``--set`` values for it), validated before anything
+    starts: a bad value is one line on stderr naming it, and exit 2."""
+    from protocol.errors import ConfigError
+    from protocol.settings import load_settings
+
+    for service, env in overrides.items():
+        saved = {name: os.environ.get(name) for name in env}
+        os.environ.update(env)
+        try:
+            load_settings(SETTINGS_MODELS[service])  # type: ignore[arg-type]
+        except ConfigError as exc:
+            lines = [line.strip() for line in str(exc).splitlines()[1:]] or [str(exc)]
+            print(f"{command}: the {service}'s settings: {'; '.join(lines)}", file=sys.stderr)
+            raise SystemExit(2) from None
+        finally:
+            for name, value in saved.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+
+
 def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
     """An FMU plant (``plant.model=fmu:PATH``) is checked before anything
     starts (:func:`plant_emulator.fmu.preflight`: file, FMI version and
@@ -248,7 +272,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
-    refuse_bad_plant_model(overrides)  # before the rig lock, the logs and any service
+    refuse_bad_settings(overrides)  # before the rig lock, the logs and any service
+    refuse_bad_plant_model(overrides)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
     if args.clock == "cosim":
@@ -465,6 +490,8 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     when the DSP acknowledges it."""
     import uuid
 
+    from pydantic import ValidationError
+
     from protocol.errors import ConfigError
     from protocol.keys import Keys
     from protocol.messages import ConfigChange
@@ -473,8 +500,11 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
 
     try:
         change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha, request_id=uuid.uuid4().hex)
-    except ValueError as exc:
-        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+    except ValidationError as exc:
+        problems = "; ".join(
+            ("--" + str(e["loc"][0]).replace("_", "-") + ": " if e["loc"] else "") + str(e["msg"]).removeprefix("Value error, ") for e in exc.errors()
+        )
+        print(f"ralf-hil reconfigure: {problems}", file=sys.stderr)
         return 2
     if change.fft_width is None and change.batch_size is None and change.alpha is None:
         console.print("[red]ralf-hil reconfigure: give --fft-width, --batch-size or --alpha[/red]")
@@ -551,8 +581,15 @@ def cmd_credentials(args: argparse.Namespace) -> int:
     return 0
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """argparse, with a usage error as one line (and exit 2), not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
+    parser = OneLineErrorParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
     up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
     up.add_argument(
@@ -619,10 +656,49 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+EXTRAS = {"distributed": "campaign", "dask": "campaign", "pyarrow": "campaign", "yaml": "campaign", "fmpy": "fmu", "numba": "fast"}
+"""The extra of pyproject.toml that installs a module a command needs and the quick start's ``[rig]`` leaves out."""
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The first bytes of every MCAP file (the MCAP specification)."""
+
+
+def input_problem(command: str, args: argparse.Namespace) -> str | None:
+    """What is wrong with a command's input file before it starts: missing,
+    not a readable file, or (a recording) not an MCAP file at all."""
+    if command not in ("plot", "replay"):
+        return None
+    path = Path(args.path)
+    if not path.exists():
+        return f"{path}: no such file"
+    if not path.is_file() or not os.access(path, os.R_OK):
+        return f"{path}: not a readable file"
+    with open(path, "rb") as fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            return f"{path}: not an MCAP recording (it does not start with MCAP's magic bytes)"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(args.func(args))
+    problem = input_problem(args.command, args)
+    if problem:
+        print(f"ralf-hil {args.command}: {problem}", file=sys.stderr)
+        return 2
+    try:
+        return int(args.func(args))
+    except ModuleNotFoundError as exc:
+        extra = EXTRAS.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"ralf-hil {args.command}: needs the module {exc.name!r}: pip install 'ralf-hil[{extra}]'", file=sys.stderr)
+        return 2
+    except SystemExit as exc:
+        if isinstance(exc.code, str):  # a refusal's text: one line, exit 2
+            print(" ".join(exc.code.split()), file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

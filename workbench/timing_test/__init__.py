@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
-        print(f"ralf-hil timing-test: {exc}")
+        print(f"ralf-hil timing-test: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     a = scenario.acceptance
     criteria = Criteria(
