@@ -32,6 +32,11 @@ _WHERE = re.compile(r"\s+at /\S+?\.rs:\d+\.?$")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 LEVELS = {"TRACE": logging.DEBUG, "DEBUG": logging.DEBUG, "INFO": logging.INFO, "WARN": logging.WARNING, "ERROR": logging.ERROR}
 
+ROUTINE = ("Scouting delay elapsed before start conditions are met",)
+"""zenoh warnings that are a normal start, logged at INFO: a peer whose
+connect endpoints are not all listening yet when it opens (services started
+one by one) keeps retrying them in the background."""
+
 _started = False
 _lock = threading.Lock()
 
@@ -41,7 +46,9 @@ def parse_line(line: str) -> tuple[int, str, str] | None:
     m = _LINE.match(_ANSI.sub("", line.rstrip("\n")))
     if m is None:
         return None
-    return LEVELS[m[1]], f"zenoh.{m[2].split('::', 1)[0]}", _WHERE.sub("", m[3])
+    message = _WHERE.sub("", m[3])
+    level = logging.INFO if m[1] == "WARN" and message.startswith(ROUTINE) else LEVELS[m[1]]
+    return level, f"zenoh.{m[2].split('::', 1)[0]}", message
 
 
 def init_zenoh_log(level: str = DEFAULT_LEVEL) -> None:

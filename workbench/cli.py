@@ -62,11 +62,17 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
     return out
 
 
-def status_line(observer: RigObserver, elapsed: float) -> Text:
+FIRST_RUN_HINT_AFTER_S = 10.0
+"""A start-up longer than this is said to be the first run's kernel compilation (later runs: 2-10 s)."""
+
+
+def status_line(observer: RigObserver, elapsed: float, ended: bool = False) -> Text:
+    """The live status; ``ended``: the last line, once the services were stopped as asked."""
     s = observer.status
-    alive = " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
+    alive = "services stopped" if ended else " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
     if s is None:
-        return Text(f"[{elapsed:6.1f} s] waiting for the controller…  {alive}")
+        slow = "  (a first run compiles the numba kernels once: ~40-60 s)" if elapsed > FIRST_RUN_HINT_AFTER_S else ""
+        return Text(f"[{elapsed:6.1f} s] starting the services, waiting for the controller's first tick…  {alive}{slow}")
     freq = f"{s.latest_frequency_hz:.2f} Hz" if s.latest_frequency_hz else "–"
     return Text(
         f"[{elapsed:6.1f} s] sim {s.sim_time_s:8.2f} s | loop {s.loop_rate_hz:6.1f} Hz | batches {s.batches_sent} | "
@@ -89,36 +95,49 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
     return summary
 
 
-def print_summary(summary: dict[str, Any]) -> None:
+def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
+    """The run's summary on stdout: only rows that mean something in the run's
+    clock (no wall-clock rates or real-time measures in a co-simulation);
+    the per-hop latencies (``hop_*``, docs/timing-faults.md) with ``verbose``."""
+    cosim = summary.get("clock") == "cosim"
     table = Table(title="ralf-hil run summary", show_header=True)
     table.add_column("item")
     table.add_column("value", justify="right")
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s")
-    if summary.get("startup_s") is not None:
+    if summary.get("startup_s") is not None and not cosim:
         table.add_row("start-up (launch to first tick)", f"{summary['startup_s']:.1f} s")
-    if summary.get("control_wall_s") is not None:
+    if summary.get("control_wall_s") is not None and not cosim:
         table.add_row("control time (wall)", f"{summary['control_wall_s']:.1f} s")
     c = summary["controller"]
     if c:
         table.add_row("simulated time", f"{c['sim_time_s']:.2f} s")
         table.add_row("control ticks", str(c["ticks"]))
-        table.add_row("loop rate", f"{c['loop_rate_hz']:.1f} Hz")
+        if cosim:
+            table.add_row("simulated / wall", f"{summary['sim_per_wall']}x real time" if summary.get("sim_per_wall") else "–")
+        else:
+            table.add_row("loop rate", f"{c['loop_rate_hz']:.1f} Hz")
         table.add_row("batches sent", str(c["batches_sent"]))
         table.add_row("interrupts", str(c["interrupts"]))
         f = c["latest_frequency_hz"]
         table.add_row("latest identified f1", f"{f:.3f} Hz" if f else "–")
         table.add_row("deadline misses", str(c["deadline_misses"]))
         table.add_row("overruns", str(c["overruns"]))
+    hops = 0
     for name, health in summary["health"].items():
         for lname, stats in health["latencies"].items():
+            if lname.startswith("hop_") and stats["count"] and not verbose:
+                hops += 1
+                continue
             if stats["count"]:
                 table.add_row(
                     f"{name} {lname}",
                     f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
                 )
+    if hops:
+        table.add_row("per-hop latencies", f"{hops} hop_* rows: --verbose (where a tick's or a batch's time goes, docs/timing-faults.md)")
     for name, health in summary["health"].items():
         counters = health.get("counters", {})
-        if "rt_gc_frozen" in counters:
+        if "rt_gc_frozen" in counters and not cosim:
             fifo = counters.get("rt_fifo_priority", 0)
             table.add_row(
                 f"{name} real-time measures",
@@ -272,6 +291,11 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
+    if args.duration is not None and args.clock == "lockstep":
+        # Simulated seconds in every clock: a lockstep controller stops itself after them.
+        if "RALF_DURATION_S" in overrides["controller"]:
+            raise SystemExit("ralf-hil up: give --duration or --set controller.duration_s, not both (both are simulated seconds)")
+        overrides["controller"]["RALF_DURATION_S"] = str(args.duration)
     refuse_bad_settings(overrides)  # before the rig lock, the logs and any service
     refuse_bad_plant_model(overrides)
     if args.live and args.clock == "cosim":
@@ -333,10 +357,17 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
         with live:
             sup = supervise(
-                plan, log_dir, lambda: observer.status, run_for_s=args.duration, startup_timeout_s=STARTUP_ALLOWANCE_S, stop=stop, on_poll=on_poll, poll_s=0.25
+                plan,
+                log_dir,
+                lambda: observer.status,
+                run_for_s=args.duration if args.clock == "realtime" else None,
+                startup_timeout_s=STARTUP_ALLOWANCE_S,
+                stop=stop,
+                on_poll=on_poll,
+                poll_s=0.25,
             )
         if not console.is_terminal:
-            console.print(status_line(observer, time.monotonic() - sup.started))
+            console.print(status_line(observer, time.monotonic() - sup.started, ended=True))
         if not received:
             time.sleep(0.2)  # let the last health messages arrive
         summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
@@ -355,7 +386,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         observer.close()
     summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
     summary["control_wall_s"] = round(sup.control_s, 3)
-    print_summary(summary)
+    print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if received:
@@ -423,13 +454,14 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         "startup_s": 0.0,
         "control_wall_s": round(wall, 3),
         "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+        "clock": "cosim",
         "host": host_info(),
     }
     console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
     if args.record:
         summary["recording"] = {"path": args.record, "can_log": args.can_log, **(run.recording or {})}
         console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
-    print_summary(summary)
+    print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if run.result.error or run.result.ticks == 0:
@@ -530,7 +562,7 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     if ack is None:
         console.print(
             f"[red]ralf-hil reconfigure: no acknowledgement from the DSP of rig {settings.rig_id!r} within {args.timeout:g} s "
-            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?); {wanted} not applied[/red]"
+            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?){monitor.credentials_hint(settings)}; {wanted} not applied[/red]"
         )
         return 1
     if not ack.accepted:
@@ -596,7 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--duration",
         type=positive_seconds,
         default=None,
-        help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds",
+        help="stop after this many simulated seconds of control, in every clock (in real time: wall seconds counted once every service is ready); default: until Ctrl-C",
     )
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
     up.add_argument(
@@ -610,6 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
+    up.add_argument("--verbose", action="store_true", help="the summary also lists the per-hop latencies (hop_*: where a tick's and a batch's time goes)")
     up.add_argument(
         "--keep-credentials",
         action="store_true",

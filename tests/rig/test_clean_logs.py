@@ -22,8 +22,10 @@ def test_zenoh_log_lines_become_records_without_colour_or_source_location() -> N
         "in response to an OpenSyn at /root/.cargo/git/checkouts/zenoh/io/zenoh-transport/src/unicast/establishment/open.rs:526."
     )
     assert parse_line(raw) == (40, "zenoh.zenoh_transport", "Received a close message (reason INVALID) in response to an OpenSyn")
-    warn = "2026-12-03T04:02:07.378539Z  WARN ThreadId(01) zenoh::net::runtime::orchestrator: Scouting delay elapsed."
-    assert parse_line(warn) == (30, "zenoh.zenoh", "Scouting delay elapsed.")
+    warn = "2026-12-03T04:02:07.378539Z  WARN ThreadId(01) zenoh::net::runtime::orchestrator: Link lost."
+    assert parse_line(warn) == (30, "zenoh.zenoh", "Link lost.")
+    routine = "2026-12-03T04:02:07.378539Z  WARN ThreadId(01) zenoh::net::runtime::orchestrator: Scouting delay elapsed before start conditions are met."
+    assert parse_line(routine) == (20, "zenoh.zenoh", "Scouting delay elapsed before start conditions are met.")  # a peer started before its peers
     assert parse_line("rig 'default': CAN udp_multicast port 44001") is None  # any other line passes through unchanged
 
 
