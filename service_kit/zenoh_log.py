@@ -4,7 +4,7 @@ Python logging, at a sane level.
 zenoh-python prints its log lines to file descriptor 1 (stdout), raw, with
 colour codes and Rust source locations (``zenoh.init_log_from_env_or``).
 :func:`init_zenoh_log` starts that log at ``RUST_LOG`` or the given level
-(``warn``: zenoh's errors and warnings, nothing of its routine), without
+(``error``; ``RUST_LOG=warn`` shows zenoh's warnings too), without
 colour, and, in a service process (:func:`route_to_logging`), moves
 descriptor 1 onto a pipe whose lines a thread hands to ``logging``: zenoh's
 as records of the logger ``zenoh.<target>`` at their own level, without
@@ -24,8 +24,9 @@ import threading
 
 import zenoh
 
-DEFAULT_LEVEL = "warn"
-"""zenoh's level when ``RUST_LOG`` is not set: its warnings and errors."""
+DEFAULT_LEVEL = "error"
+"""zenoh's level when ``RUST_LOG`` is not set: its errors (its warnings
+repeat what the service reports itself, e.g. a listening port in use)."""
 
 _LINE = re.compile(r"^\S+Z\s+(TRACE|DEBUG|INFO|WARN|ERROR)\s+(?:(?:\S+\s+)?ThreadId\(\d+\)\s+)?([\w:]+):\s(.*)$")
 _WHERE = re.compile(r"\s+at /\S+?\.rs:\d+\.?$")

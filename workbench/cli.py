@@ -221,6 +221,18 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     return tool_env
 
 
+def shorter_duration(given: str | None, duration_s: float) -> str:
+    """``controller.duration_s`` for a lockstep run of ``--duration`` simulated
+    seconds: the shorter of the two when both are given (a value that is not
+    a number is kept, for the settings check to name it)."""
+    if given is None:
+        return str(duration_s)
+    try:
+        return str(min(float(given), duration_s))
+    except ValueError:
+        return given
+
+
 def refuse_bad_settings(overrides: dict[str, dict[str, str]], command: str = "ralf-hil up") -> None:
     """Every service's settings as it will read them (its ``RALF_*``
     variables and the ``--set`` values for it), validated before anything
@@ -292,11 +304,9 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
     if args.duration is not None and args.clock == "lockstep":
-        # Simulated seconds in every clock: a lockstep controller stops itself after them.
-        if "RALF_DURATION_S" in overrides["controller"]:
-            raise SystemExit("ralf-hil up: give --duration or --set controller.duration_s, not both (both are simulated seconds)")
-        overrides["controller"]["RALF_DURATION_S"] = str(args.duration)
-    refuse_bad_settings(overrides)  # before the rig lock, the logs and any service
+        # Simulated seconds in every clock: a lockstep controller stops itself after them
+        # (with controller.duration_s too, both simulated seconds: the shorter ends the run).
+        overrides["controller"]["RALF_DURATION_S"] = shorter_duration(overrides["controller"].get("RALF_DURATION_S"), args.duration)
     refuse_bad_plant_model(overrides)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
@@ -309,6 +319,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         for line in problems:
             console.print(f"[red]ralf-hil up: {line}[/red]", highlight=False, soft_wrap=True)
         return 2
+    refuse_bad_settings(overrides)  # before the logs and any service
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     log_dir.mkdir(parents=True, exist_ok=True)
     live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
@@ -628,7 +639,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--duration",
         type=positive_seconds,
         default=None,
-        help="stop after this many simulated seconds of control, in every clock (in real time: wall seconds counted once every service is ready); default: until Ctrl-C",
+        help="stop after this many simulated seconds of control, in every clock (in real time: wall seconds counted once every service is ready; with controller.duration_s, the shorter); default: until Ctrl-C",
     )
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
     up.add_argument(
