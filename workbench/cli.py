@@ -71,7 +71,7 @@ def status_line(observer: RigObserver, elapsed: float, ended: bool = False) -> T
     s = observer.status
     alive = "services stopped" if ended else " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
     if s is None:
-        slow = "  (a first run compiles the numba kernels once: ~40-60 s)" if elapsed > FIRST_RUN_HINT_AFTER_S else ""
+        slow = "  (a first run compiles the numba kernels once: ~30-60 s)" if elapsed > FIRST_RUN_HINT_AFTER_S else ""
         return Text(f"[{elapsed:6.1f} s] starting the services, waiting for the controller's first tick…  {alive}{slow}")
     freq = f"{s.latest_frequency_hz:.2f} Hz" if s.latest_frequency_hz else "–"
     return Text(
