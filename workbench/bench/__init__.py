@@ -43,7 +43,7 @@ from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from workbench.bench.items import FLOOR_ITEMS, ITEMS, BenchContext, run_item
+from workbench.bench.items import FLOOR_ITEMS, ITEMS, QUICK_ITEMS, BenchContext, run_item
 from workbench.bench.stats import load_average, machine_info
 
 DEFAULT_JSON = "ralf-bench.json"
@@ -57,7 +57,7 @@ console = Console(stderr=True)
 def options_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """Effective options: ``--quick`` shortens every default, explicit values win."""
     quick = bool(args.quick)
-    names = list(dict.fromkeys(args.only)) if args.only else list(FLOOR_ITEMS if args.floors_only else ITEMS)
+    names = list(dict.fromkeys(args.only)) if args.only else list(FLOOR_ITEMS if args.floors_only else QUICK_ITEMS if quick else ITEMS)
     return {
         "items": names,
         "quick": quick,
@@ -271,7 +271,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--duration", type=_positive_float, default=None, metavar="S", help="seconds per real-time rate and per lockstep run (default 10, --quick 3)"
     )
     p.add_argument("--iterations", type=_positive_int, default=None, metavar="N", help="round trips per latency measurement (default 2000, --quick 100)")
-    p.add_argument("--quick", action="store_true", help="few iterations and short runs: a smoke test of the bench, not a measurement to quote")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a smoke test, not a measurement to quote: the floors, one 200 Hz real-time rig, the co-simulation and the hot path, few iterations, short runs",
+    )
     p.add_argument("--floors-only", action="store_true", help="only the bare transport floors (zenoh, UDP, udp_multicast); no service is started")
     rt = p.add_argument_group("realtime item (the acceptance runs: --rate 1000:60 --rate 200:600, then again with --burners 2)")
     rt.add_argument(
