@@ -140,17 +140,49 @@ def follow_launcher(launcher_pid: int, stop: threading.Event, poll_s: float = LA
     return thread
 
 
-def install_stop_handlers() -> threading.Event:
-    """An event set by SIGINT or SIGTERM, so loops end and resources close."""
+def stop_on_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM), say: bool = True) -> tuple[threading.Event, list[str]]:
+    """An event set when one of ``signals`` arrives, and the names of those
+    received, in order.
+
+    The handler only writes the signal's number to a pipe; a thread reads
+    it, logs it and sets the event. Setting a :class:`threading.Event` in
+    the handler itself takes the event's lock, which the interrupted main
+    thread may hold (inside ``stop.wait()``, or in a handler interrupted by
+    the next signal): the process then deadlocks and outlives its launcher
+    (seen: a controller given four SIGTERMs within 0.1 s hung for good)."""
     stop = threading.Event()
+    received: list[str] = []
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
 
-    def _handler(signum: int, _frame: Any) -> None:
-        logging.getLogger("runtime").info("received %s, stopping", signal.Signals(signum).name)
-        stop.set()
+    def deliver() -> None:
+        while True:
+            data = os.read(read_fd, 64)
+            if not data:
+                return
+            for signum in data:
+                name = signal.Signals(signum).name
+                received.append(name)
+                if say:
+                    logging.getLogger("runtime").info("received %s, stopping", name)
+            stop.set()
 
-    signal.signal(signal.SIGINT, _handler)
-    signal.signal(signal.SIGTERM, _handler)
-    return stop
+    threading.Thread(target=deliver, name="stop-signals", daemon=True).start()
+
+    def handler(signum: int, _frame: Any) -> None:
+        try:
+            os.write(write_fd, bytes([signum]))
+        except OSError:  # the pipe is full of earlier signals: the event is being set already
+            pass
+
+    for signum in signals:
+        signal.signal(signum, handler)
+    return stop, received
+
+
+def install_stop_handlers() -> threading.Event:
+    """An event set by SIGINT or SIGTERM, so loops end and resources close (:func:`stop_on_signals`)."""
+    return stop_on_signals()[0]
 
 
 HEALTH_PERCENTILES = (50.0, 99.0, 99.9)

@@ -24,6 +24,7 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
+from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, memory_slope, monitor, timing_test
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
@@ -280,21 +281,6 @@ INTERRUPTED = 130
 """``ralf-hil up``'s exit code when Ctrl-C (SIGINT), SIGTERM or a closed terminal ended it."""
 
 
-def stop_on_signals() -> tuple[threading.Event, list[str]]:
-    """An event set by SIGINT, SIGTERM or SIGHUP (a closed terminal), and the
-    names of the signals received: from here on the rig is stopped in order."""
-    stop = threading.Event()
-    received: list[str] = []
-
-    def handler(signum: int, _frame: Any) -> None:
-        received.append(signal.Signals(signum).name)
-        stop.set()
-
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, handler)
-    return stop, received
-
-
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -344,7 +330,8 @@ def private_run_dir(prefix: str) -> Path:
 
 
 def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
-    stop, received = stop_on_signals()  # a closed terminal too: services stopped, credentials removed
+    # A closed terminal too: services stopped, credentials removed.
+    stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
     console.print(
         f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
