@@ -96,6 +96,11 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
     return summary
 
 
+WALL_CLOCK_LATENCIES = frozenset({"sync_interval", "sync_jitter", "sync_period_jitter", "sync_to_sample", "batch_to_interrupt", "interrupt_put"})
+"""Latencies between events on the wall clock: nothing in a co-simulation,
+whose events are stepped in one thread (its TET is the cost of a tick)."""
+
+
 def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     """The run's summary on stdout: only rows that mean something in the run's
     clock (no wall-clock rates or real-time measures in a co-simulation);
@@ -126,6 +131,8 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     hops = 0
     for name, health in summary["health"].items():
         for lname, stats in health["latencies"].items():
+            if cosim and lname in WALL_CLOCK_LATENCIES:
+                continue
             if lname.startswith("hop_") and stats["count"] and not verbose:
                 hops += 1
                 continue
