@@ -85,7 +85,10 @@ class CompileCounter:
                 name = getattr(getattr(dispatcher, "py_func", None), "__qualname__", None) or str(dispatcher)
                 module = getattr(getattr(dispatcher, "py_func", None), "__module__", "")
                 with counter._lock:
+                    first = not counter.names
                     counter.names.append(f"{module}.{name}" if module else name)
+                if first:  # a first run, or a cache made stale: say why start-up is slow
+                    log.info("compiling the numba kernels (%s first), once: ~30-60 s; later runs load them from the on-disk cache", name)
 
             def on_end(self, ev: Any) -> None:
                 pass

@@ -28,6 +28,7 @@ import zenoh
 from service_kit import readiness
 from service_kit.runtime import install_stop_handlers
 from service_kit.transport import zenoh_error_text
+from service_kit.zenoh_log import init_zenoh_log
 
 log = logging.getLogger("router")
 
@@ -68,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=getattr(logging, args.log_level), format="%(asctime)s router %(levelname)s %(name)s: %(message)s")
     readiness.clear(args.ready_file)
     stop = install_stop_handlers()
-    zenoh.init_log_from_env_or("error")
+    init_zenoh_log()
     try:
         config = load_router_config(Path(args.config))
     except ValueError as exc:

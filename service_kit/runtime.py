@@ -140,17 +140,49 @@ def follow_launcher(launcher_pid: int, stop: threading.Event, poll_s: float = LA
     return thread
 
 
-def install_stop_handlers() -> threading.Event:
-    """An event set by SIGINT or SIGTERM, so loops end and resources close."""
+def stop_on_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM), say: bool = True) -> tuple[threading.Event, list[str]]:
+    """An event set when one of ``signals`` arrives, and the names of those
+    received, in order.
+
+    The handler only writes the signal's number to a pipe; a thread reads
+    it, logs it and sets the event. Setting a :class:`threading.Event` in
+    the handler itself takes the event's lock, which the interrupted main
+    thread may hold (inside ``stop.wait()``, or in a handler interrupted by
+    the next signal): the process then deadlocks and outlives its launcher
+    (seen: a controller given four SIGTERMs within 0.1 s hung for good)."""
     stop = threading.Event()
+    received: list[str] = []
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
 
-    def _handler(signum: int, _frame: Any) -> None:
-        logging.getLogger("runtime").info("received %s, stopping", signal.Signals(signum).name)
-        stop.set()
+    def deliver() -> None:
+        while True:
+            data = os.read(read_fd, 64)
+            if not data:
+                return
+            for signum in data:
+                name = signal.Signals(signum).name
+                received.append(name)
+                if say:
+                    logging.getLogger("runtime").info("received %s, stopping", name)
+            stop.set()
 
-    signal.signal(signal.SIGINT, _handler)
-    signal.signal(signal.SIGTERM, _handler)
-    return stop
+    threading.Thread(target=deliver, name="stop-signals", daemon=True).start()
+
+    def handler(signum: int, _frame: Any) -> None:
+        try:
+            os.write(write_fd, bytes([signum]))
+        except OSError:  # the pipe is full of earlier signals: the event is being set already
+            pass
+
+    for signum in signals:
+        signal.signal(signum, handler)
+    return stop, received
+
+
+def install_stop_handlers() -> threading.Event:
+    """An event set by SIGINT or SIGTERM, so loops end and resources close (:func:`stop_on_signals`)."""
+    return stop_on_signals()[0]
 
 
 HEALTH_PERCENTILES = (50.0, 99.0, 99.9)
@@ -356,6 +388,7 @@ def run_service(
     :func:`installed_recorder_hook`) and stops it on every way out."""
     # Imported here so that parsing --help does not need a network stack.
     from service_kit.transport import open_zenoh
+    from service_kit.zenoh_log import route_to_logging
 
     args = list(sys.argv[1:] if argv is None else argv)
     record: str | None = None
@@ -372,6 +405,7 @@ def run_service(
     settings = parse_service_args(prog, summary, model, args)
     fix_malloc_threshold()
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
+    route_to_logging()  # zenoh's own log lines as this service's log records
     readiness.watch_compiles()  # before any kernel is touched: the ready line counts what compiled
     readiness.clear(settings.ready_file)  # a previous run's, in a restarted container
     stop = install_stop_handlers()

@@ -19,10 +19,13 @@ from protocol.keys import Keys
 from protocol.settings import CommonSettings
 from service_kit.access import insert_access, parse_node_ids, tool_input_downsampling
 from service_kit.can_udp import LoopFreeUdpMulticastBus
+from service_kit.zenoh_log import init_zenoh_log
 
 log = logging.getLogger(__name__)
 
-_zenoh_log_initialised = False
+
+PEER_AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "greater-zid"}}'
+"""``scouting/gossip/autoconnect_strategy``: of two peers, the one with the greater id connects."""
 
 
 def zenoh_config(settings: CommonSettings) -> zenoh.Config:
@@ -41,8 +44,15 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
     # a 6 KB batch or a 91 KB snapshot costs zenoh's I/O threads a copy, not
     # the loop (docs/timing.md, "What a first batch cost").
     config.insert_json5("transport/shared_memory/enabled", "false")
-    connect = settings.endpoints("connect")
+    # Peers that learn of each other by gossip link once: only the one with the
+    # greater zenoh id connects (zenoh's default lets both try at once, and
+    # one link of the pair is refused with an ERROR on each side).
+    config.insert_json5("scouting/gossip/autoconnect_strategy", PEER_AUTOCONNECT_STRATEGY)
     listen = settings.endpoints("listen")
+    # A node's own listening endpoint in its connect list (one list shared by
+    # services started one by one) is a link to itself, refused by zenoh
+    # with CONNECTION_TO_SELF at every retry: dropped.
+    connect = [e for e in settings.endpoints("connect") if e not in listen]
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
@@ -103,10 +113,7 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
     the line says whether the router answers at all: one that accepts the
     connection but refuses the session refused the credentials (or is not a
     zenoh router). ``stop`` (SIGTERM) ends the wait with a TransportError."""
-    global _zenoh_log_initialised
-    if not _zenoh_log_initialised:
-        zenoh.init_log_from_env_or("error")
-        _zenoh_log_initialised = True
+    init_zenoh_log()  # once per process; a service has routed it to logging before (service_kit.zenoh_log)
     started = time.monotonic()
     deadline = started + retry_for_s
     next_line = started

@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from pydantic_settings import BaseSettings
 from rich.console import Console
@@ -24,6 +24,7 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
+from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
@@ -31,7 +32,7 @@ from workbench.live import cli as live_cli
 from workbench.plant_figures import cli as plant_cli
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
-from workbench.timing_test.report import health_verdict
+from workbench.timing_test.report import health_verdict, latency_class
 
 console = Console(stderr=True)
 
@@ -64,11 +65,17 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
     return out
 
 
-def status_line(observer: RigObserver, elapsed: float) -> Text:
+FIRST_RUN_HINT_AFTER_S = 10.0
+"""A start-up longer than this is said to be the first run's kernel compilation (later runs: 2-10 s)."""
+
+
+def status_line(observer: RigObserver, elapsed: float, ended: bool = False) -> Text:
+    """The live status; ``ended``: the last line, once the services were stopped as asked."""
     s = observer.status
-    alive = " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
+    alive = "services stopped" if ended else " ".join(f"{name}:{'up' if observer.alive.get(name) else 'down'}" for name in START_ORDER)
     if s is None:
-        return Text(f"[{elapsed:6.1f} s] waiting for the controller…  {alive}")
+        slow = "  (a first run compiles the numba kernels once: ~30-60 s)" if elapsed > FIRST_RUN_HINT_AFTER_S else ""
+        return Text(f"[{elapsed:6.1f} s] starting the services, waiting for the controller's first tick…  {alive}{slow}")
     freq = f"{s.latest_frequency_hz:.2f} Hz" if s.latest_frequency_hz else "–"
     return Text(
         f"[{elapsed:6.1f} s] sim {s.sim_time_s:8.2f} s | loop {s.loop_rate_hz:6.1f} Hz | batches {s.batches_sent} | "
@@ -91,36 +98,56 @@ def summarize(observer: RigObserver, exit_codes: dict[str, int], elapsed: float)
     return summary
 
 
-def print_summary(summary: dict[str, Any]) -> None:
+WALL_CLOCK_LATENCIES = frozenset({"sync_interval", "sync_jitter", "sync_period_jitter", "sync_to_sample", "batch_to_interrupt", "interrupt_put"})
+"""Latencies between events on the wall clock: nothing in a co-simulation,
+whose events are stepped in one thread (its TET is the cost of a tick)."""
+
+
+def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
+    """The run's summary on stdout: only rows that mean something in the run's
+    clock (no wall-clock rates or real-time measures in a co-simulation);
+    the per-hop latencies (``hop_*``, docs/timing-faults.md) with ``verbose``."""
+    cosim = summary.get("clock") == "cosim"
     table = Table(title="ralf-hil run summary", show_header=True)
     table.add_column("item")
     table.add_column("value", justify="right")
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s")
-    if summary.get("startup_s") is not None:
+    if summary.get("startup_s") is not None and not cosim:
         table.add_row("start-up (launch to first tick)", f"{summary['startup_s']:.1f} s")
-    if summary.get("control_wall_s") is not None:
+    if summary.get("control_wall_s") is not None and not cosim:
         table.add_row("control time (wall)", f"{summary['control_wall_s']:.1f} s")
     c = summary["controller"]
     if c:
         table.add_row("simulated time", f"{c['sim_time_s']:.2f} s")
         table.add_row("control ticks", str(c["ticks"]))
-        table.add_row("loop rate", f"{c['loop_rate_hz']:.1f} Hz")
+        if cosim:
+            table.add_row("simulated / wall", f"{summary['sim_per_wall']}x real time" if summary.get("sim_per_wall") else "–")
+        else:
+            table.add_row("loop rate", f"{c['loop_rate_hz']:.1f} Hz")
         table.add_row("batches sent", str(c["batches_sent"]))
         table.add_row("interrupts", str(c["interrupts"]))
         f = c["latest_frequency_hz"]
         table.add_row("latest identified f1", f"{f:.3f} Hz" if f else "–")
         table.add_row("deadline misses", str(c["deadline_misses"]))
         table.add_row("overruns", str(c["overruns"]))
+    hops = 0
     for name, health in summary["health"].items():
         for lname, stats in health["latencies"].items():
+            if cosim and lname in WALL_CLOCK_LATENCIES:
+                continue
+            if lname.startswith("hop_") and stats["count"] and not verbose:
+                hops += 1
+                continue
             if stats["count"]:
                 table.add_row(
                     f"{name} {lname}",
                     f"p50 {stats['p50'] * 1e3:.2f} ms, p99 {stats['p99'] * 1e3:.2f} ms, max {stats['max'] * 1e3:.2f} ms (n={stats['count']})",
                 )
+    if hops:
+        table.add_row("per-hop latencies", f"{hops} hop_* rows: --verbose (where a tick's or a batch's time goes, docs/timing-faults.md)")
     for name, health in summary["health"].items():
         counters = health.get("counters", {})
-        if "rt_gc_frozen" in counters:
+        if "rt_gc_frozen" in counters and not cosim:
             fifo = counters.get("rt_fifo_priority", 0)
             table.add_row(
                 f"{name} real-time measures",
@@ -133,9 +160,13 @@ def print_summary(summary: dict[str, Any]) -> None:
         table.add_row("health refused", f"{summary['health_refused']} (the payload named another service than its key)")
     if summary.get("host"):
         table.add_row("host", host_line(summary["host"]).removeprefix("host: "))
-    verdict = health_verdict(summary["health"]["controller"]) if "controller" in summary["health"] else None
+    controller_health = summary["health"].get("controller")
+    verdict = health_verdict(controller_health) if controller_health else None
     if verdict:
         table.add_row("timing verdict", verdict)
+    latency = latency_class(controller_health, summary.get("host")) if controller_health else None
+    if latency:
+        table.add_row("host latency class", latency)
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row(
@@ -199,6 +230,42 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     return tool_env
 
 
+def shorter_duration(given: str | None, duration_s: float) -> str:
+    """``controller.duration_s`` for a lockstep run of ``--duration`` simulated
+    seconds: the shorter of the two when both are given (a value that is not
+    a number is kept, for the settings check to name it)."""
+    if given is None:
+        return str(duration_s)
+    try:
+        return str(min(float(given), duration_s))
+    except ValueError:
+        return given
+
+
+def refuse_bad_settings(overrides: dict[str, dict[str, str]], command: str = "ralf-hil up") -> None:
+    """Every service's settings as it will read them (its ``RALF_*``
+    variables and the ``--set`` values for it), validated before anything
+    starts: a bad value is one line on stderr naming it, and exit 2."""
+    from protocol.errors import ConfigError
+    from protocol.settings import load_settings
+
+    for service, env in overrides.items():
+        saved = {name: os.environ.get(name) for name in env}
+        os.environ.update(env)
+        try:
+            load_settings(SETTINGS_MODELS[service])  # type: ignore[arg-type]
+        except ConfigError as exc:
+            lines = [line.strip() for line in str(exc).splitlines()[1:]] or [str(exc)]
+            print(f"{command}: the {service}'s settings: {'; '.join(lines)}", file=sys.stderr)
+            raise SystemExit(2) from None
+        finally:
+            for name, value in saved.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+
+
 def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
     """An FMU plant (``plant.model=fmu:PATH``) is checked before anything
     starts (:func:`plant_emulator.fmu.preflight`: file, FMI version and
@@ -218,6 +285,10 @@ def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
         raise SystemExit(2) from None
 
 
+INTERRUPTED = 130
+"""``ralf-hil up``'s exit code when Ctrl-C (SIGINT), SIGTERM or a closed terminal ended it."""
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -226,7 +297,11 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise SystemExit(f"ralf-hil up: --duration must be a positive number of seconds, got {args.duration}")
     overrides = _parse_overrides(args.set)
-    refuse_bad_plant_model(overrides)  # before the rig lock, the logs and any service
+    if args.duration is not None and args.clock == "lockstep":
+        # Simulated seconds in every clock: a lockstep controller stops itself after them
+        # (with controller.duration_s too, both simulated seconds: the shorter ends the run).
+        overrides["controller"]["RALF_DURATION_S"] = shorter_duration(overrides["controller"].get("RALF_DURATION_S"), args.duration)
+    refuse_bad_plant_model(overrides)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
     if args.clock == "cosim":
@@ -238,6 +313,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         for line in problems:
             console.print(f"[red]ralf-hil up: {line}[/red]", highlight=False, soft_wrap=True)
         return 2
+    refuse_bad_settings(overrides)  # before the logs and any service
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
     log_dir.mkdir(parents=True, exist_ok=True)
     live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
@@ -262,9 +338,8 @@ def private_run_dir(prefix: str) -> Path:
 
 
 def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a closed terminal too: services stopped, credentials removed
-        signal.signal(signum, lambda *_: stop.set())
+    # A closed terminal too: services stopped, credentials removed.
+    stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
     console.print(
         f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
@@ -288,11 +363,19 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
         with live:
             sup = supervise(
-                plan, log_dir, lambda: observer.status, run_for_s=args.duration, startup_timeout_s=STARTUP_ALLOWANCE_S, stop=stop, on_poll=on_poll, poll_s=0.25
+                plan,
+                log_dir,
+                lambda: observer.status,
+                run_for_s=args.duration if args.clock == "realtime" else None,
+                startup_timeout_s=STARTUP_ALLOWANCE_S,
+                stop=stop,
+                on_poll=on_poll,
+                poll_s=0.25,
             )
         if not console.is_terminal:
-            console.print(status_line(observer, time.monotonic() - sup.started))
-        time.sleep(0.2)  # let the last health messages arrive
+            console.print(status_line(observer, time.monotonic() - sup.started, ended=True))
+        if not received:
+            time.sleep(0.2)  # let the last health messages arrive
         summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
         if recording is not None:
             stats = recording.close().as_dict()
@@ -309,9 +392,12 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         observer.close()
     summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
     summary["control_wall_s"] = round(sup.control_s, 3)
-    print_summary(summary)
+    print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
+    if received:
+        console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped; logs in {log_dir}")
+        return INTERRUPTED
     failure = sup.failure
     status = summary["controller"]
     if not failure and (status is None or status["ticks"] == 0):
@@ -374,13 +460,14 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         "startup_s": 0.0,
         "control_wall_s": round(wall, 3),
         "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+        "clock": "cosim",
         "host": host_info(),
     }
     console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
     if args.record:
         summary["recording"] = {"path": args.record, "can_log": args.can_log, **(run.recording or {})}
         console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
-    print_summary(summary)
+    print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if run.result.error or run.result.ticks == 0:
@@ -441,6 +528,8 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     when the DSP acknowledges it."""
     import uuid
 
+    from pydantic import ValidationError
+
     from protocol.errors import ConfigError
     from protocol.keys import Keys
     from protocol.messages import ConfigChange
@@ -449,8 +538,11 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
 
     try:
         change = ConfigChange(seq=0, sim_time_s=0.0, fft_width=args.fft_width, batch_size=args.batch_size, alpha=args.alpha, request_id=uuid.uuid4().hex)
-    except ValueError as exc:
-        console.print(f"[red]ralf-hil reconfigure: {exc}[/red]")
+    except ValidationError as exc:
+        problems = "; ".join(
+            ("--" + str(e["loc"][0]).replace("_", "-") + ": " if e["loc"] else "") + str(e["msg"]).removeprefix("Value error, ") for e in exc.errors()
+        )
+        print(f"ralf-hil reconfigure: {problems}", file=sys.stderr)
         return 2
     if change.fft_width is None and change.batch_size is None and change.alpha is None:
         console.print("[red]ralf-hil reconfigure: give --fft-width, --batch-size or --alpha[/red]")
@@ -476,7 +568,7 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     if ack is None:
         console.print(
             f"[red]ralf-hil reconfigure: no acknowledgement from the DSP of rig {settings.rig_id!r} within {args.timeout:g} s "
-            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?); {wanted} not applied[/red]"
+            f"(is the rig running, and is {args.connect or 'its endpoint'} the one `ralf-hil up` printed?){monitor.credentials_hint(settings)}; {wanted} not applied[/red]"
         )
         return 1
     if not ack.accepted:
@@ -527,15 +619,22 @@ def cmd_credentials(args: argparse.Namespace) -> int:
     return 0
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """argparse, with a usage error as one line (and exit 2), not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
+    parser = OneLineErrorParser(prog="ralf-hil", description="RALF hardware-in-the-loop rig: run it, test it, reproduce the thesis.")
     sub = parser.add_subparsers(dest="command", required=True)
     up = sub.add_parser("up", help="start plant, controller and DSP as local processes and show a live status")
     up.add_argument(
         "--duration",
         type=positive_seconds,
         default=None,
-        help="stop after this many seconds of control, counted once every service is ready (default: until Ctrl-C); with --clock cosim, simulated seconds",
+        help="stop after this many simulated seconds of control, in every clock (in real time: wall seconds counted once every service is ready; with controller.duration_s, the shorter); default: until Ctrl-C",
     )
     up.add_argument("--rig-id", default="default", help="zenoh namespace ralf/<rig-id>/ (default: default)")
     up.add_argument(
@@ -549,6 +648,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
+    up.add_argument("--verbose", action="store_true", help="the summary also lists the per-hop latencies (hop_*: where a tick's and a batch's time goes)")
     up.add_argument(
         "--keep-credentials",
         action="store_true",
@@ -595,10 +695,49 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+EXTRAS = {"distributed": "campaign", "dask": "campaign", "pyarrow": "campaign", "yaml": "campaign", "fmpy": "fmu", "numba": "fast"}
+"""The extra of pyproject.toml that installs a module a command needs and the quick start's ``[rig]`` leaves out."""
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The first bytes of every MCAP file (the MCAP specification)."""
+
+
+def input_problem(command: str, args: argparse.Namespace) -> str | None:
+    """What is wrong with a command's input file before it starts: missing,
+    not a readable file, or (a recording) not an MCAP file at all."""
+    if command not in ("plot", "replay"):
+        return None
+    path = Path(args.path)
+    if not path.exists():
+        return f"{path}: no such file"
+    if not path.is_file() or not os.access(path, os.R_OK):
+        return f"{path}: not a readable file"
+    with open(path, "rb") as fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            return f"{path}: not an MCAP recording (it does not start with MCAP's magic bytes)"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(args.func(args))
+    problem = input_problem(args.command, args)
+    if problem:
+        print(f"ralf-hil {args.command}: {problem}", file=sys.stderr)
+        return 2
+    try:
+        return int(args.func(args))
+    except ModuleNotFoundError as exc:
+        extra = EXTRAS.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"ralf-hil {args.command}: needs the module {exc.name!r}: pip install 'ralf-hil[{extra}]'", file=sys.stderr)
+        return 2
+    except SystemExit as exc:
+        if isinstance(exc.code, str):  # a refusal's text: one line, exit 2
+            print(" ".join(exc.code.split()), file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

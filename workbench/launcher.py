@@ -2,8 +2,12 @@
 
 The embedded default of ``ralf-hil up``: zenoh peer-to-peer on loopback
 (the launcher's own session and each service listen on a free loopback
-port and every service connects to all the others explicitly, since zenoh
-1.9+ peers do not relay for each other; no router), CAN over
+port; every service connects to the launcher only and zenoh's gossip links
+the services to each other, one link per pair, since zenoh 1.9+ peers do
+not relay for each other; no router). Explicit links between services would
+meet gossip's links in the other direction: zenoh keeps one link per pair
+(``transport/unicast/max_links`` 1) and refuses the second with ``Received a
+close message (reason INVALID)``, an ERROR every ~4 s on both sides), CAN over
 python-can's ``udp_multicast`` on a UDP port of the rig's own, so several
 rigs can run side by side.
 """
@@ -29,6 +33,8 @@ from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.rig_description import RIG, start_order, stop_order
 from service_kit.access import insert_access_from_env
+from service_kit.transport import PEER_AUTOCONNECT_STRATEGY
+from service_kit.zenoh_log import init_zenoh_log
 from workbench.monitor import health_key_service
 
 SERVICE_MODULES: dict[str, str] = {s.name: s.module for s in RIG.services}
@@ -94,10 +100,9 @@ class RigPlan:
         env.update(common or {})
         plan = cls(rig_id=rig_id, zenoh_port=port, can_port=int(env["RALF_CAN_PORT"]), common_env=env, service_ports=service_ports)
         for name in SERVICE_MODULES:
-            peers = [port] + [p for other, p in service_ports.items() if other != name]
             plan.service_env[name] = {
                 "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{service_ports[name]}",
-                "RALF_ZENOH_CONNECT": ",".join(f"tcp/127.0.0.1:{p}" for p in peers),
+                "RALF_ZENOH_CONNECT": f"tcp/127.0.0.1:{port}",  # the launcher only: see the module's text
                 **dict((overrides or {}).get(name, {})),
             }
         return plan
@@ -137,8 +142,9 @@ class RigObserver:
         config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
         config.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{self.plan.zenoh_port}"]')
+        config.insert_json5("scouting/gossip/autoconnect_strategy", PEER_AUTOCONNECT_STRATEGY)
         insert_access_from_env(config, self.plan.rig_id, {**self.plan.common_env, **self.plan.service_env.get("launcher", {})})
-        zenoh.init_log_from_env_or("error")
+        init_zenoh_log()
         self.session = zenoh.open(config)
         self._lock = threading.Lock()
         self._subs = [
@@ -204,6 +210,10 @@ def start_service(plan: RigPlan, name: str, log_dir: Path) -> ServiceProcess:
             stdout=log_file,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
+            # A session of its own: a terminal's Ctrl-C (SIGINT to the foreground
+            # process group) reaches the launcher, which stops the services in
+            # order, not each service halfway through its start-up.
+            start_new_session=True,
         )
     return ServiceProcess(name=name, popen=popen, log_path=log_path)
 
@@ -284,6 +294,7 @@ def supervise(
     """
     sup = Supervision(procs={}, started=time.monotonic())
     stop = stop or threading.Event()
+    interrupted = False
     try:
         for name in START_ORDER:
             sup.procs[name] = start_service(plan, name, log_dir)
@@ -313,14 +324,46 @@ def supervise(
                 sup.failure = f"no controller tick within {startup_timeout_s:.0f} s of the launch"
                 break
             stop.wait(poll_s)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
         sup.ended_at = time.monotonic()
-        for name in STOP_ORDER:
-            if name in sup.procs:
-                sup.exit_codes[name] = stop_service(sup.procs[name], stop_timeout_s)
-                if name == "controller":
-                    time.sleep(0.3)  # its final status and health
+        if interrupted or stop.is_set():
+            sup.exit_codes.update(stop_all(sup.procs, INTERRUPT_STOP_S))
+        else:
+            for name in STOP_ORDER:
+                if name in sup.procs:
+                    sup.exit_codes[name] = stop_service(sup.procs[name], stop_timeout_s)
+                    if name == "controller":
+                        time.sleep(0.3)  # its final status and health
     return sup
+
+
+INTERRUPT_STOP_S = 1.2
+"""After a Ctrl-C or a stop request: how long the services get, all at
+once, to end on SIGTERM before SIGKILL (a service compiling its kernels
+cannot answer until the compiler returns)."""
+
+
+def stop_all(procs: Mapping[str, ServiceProcess], timeout_s: float = INTERRUPT_STOP_S) -> dict[str, int]:
+    """SIGTERM every service at once (in :data:`STOP_ORDER`), wait up to
+    ``timeout_s`` in all, SIGKILL the rest; their exit codes."""
+    order = [name for name in STOP_ORDER if name in procs]
+    for name in order:
+        if procs[name].popen.poll() is None:
+            procs[name].popen.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
+    codes = {}
+    for name in order:
+        popen = procs[name].popen
+        try:
+            popen.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            popen.kill()
+            popen.wait()
+        codes[name] = int(popen.returncode)
+    return codes
 
 
 def plan_problems(plan: RigPlan) -> list[str]:

@@ -30,7 +30,8 @@ from protocol.errors import ConfigError, ProtocolError
 from protocol.keys import SERVICES, Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.settings import CommonSettings, load_settings
-from service_kit.transport import zenoh_config
+from service_kit.transport import zenoh_config, zenoh_error_text
+from service_kit.zenoh_log import init_zenoh_log
 
 
 def health_key_service(key: str) -> str:
@@ -66,7 +67,7 @@ class RigWatch:
         self.bad_messages = 0
         self.health_refused = 0
         self.messages = 0
-        zenoh.init_log_from_env_or("error")
+        init_zenoh_log()
         self.session = zenoh.open(config)
         try:
             self._subs = [
@@ -294,6 +295,19 @@ def render(snap: dict[str, Any]) -> RenderableType:
 # --- command ------------------------------------------------------------------------------------
 
 
+def credentials_hint(settings: Any) -> str:
+    """Why a tool may hear nothing from a running rig: its credentials. A
+    rig started by ``ralf-hil up`` accepts only authenticated sessions and
+    applies access rules; an unauthenticated or wrong-password tool is not
+    told, it just hears nothing."""
+    if not (settings.zenoh_user or settings.zenoh_credentials_file):
+        return (
+            "; no zenoh credentials were given: a rig started by `ralf-hil up` answers only authenticated tools "
+            "(`set -a; . TOOL.env` with the tool.env path its start line prints)"
+        )
+    return f"; the rig may have refused the credentials of user {settings.zenoh_user or '(from the credentials file)'} (a rig from `ralf-hil up` makes new ones each run)"
+
+
 def cmd_monitor(args: argparse.Namespace) -> int:
     err = Console(stderr=True)
     try:
@@ -306,14 +320,18 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         try:
             snap = snapshot_once(window_s=args.window, settings=settings)
         except Exception as exc:  # zenoh refuses the configuration, endpoints unreachable...
-            err.print(f"ralf-hil monitor: cannot watch rig {settings.rig_id!r}: {exc}", markup=False, highlight=False)
+            err.print(f"ralf-hil monitor: cannot watch rig {settings.rig_id!r}: {zenoh_error_text(exc)}", markup=False, highlight=False)
             return 1
         if args.json:
             sys.stdout.write(json.dumps(snap, indent=2) + "\n")
         else:
             out.print(render(snap))
         if not snap["messages"]:
-            err.print(f"ralf-hil monitor: nothing heard from rig {settings.rig_id!r} within {args.window:.1f} s")
+            err.print(
+                f"ralf-hil monitor: nothing heard from rig {settings.rig_id!r} within {args.window:.1f} s{credentials_hint(settings)}",
+                markup=False,
+                highlight=False,
+            )
             return 1
         return 0
     from rich.live import Live

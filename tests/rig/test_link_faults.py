@@ -315,6 +315,24 @@ def test_the_up_summary_verdict_reads_the_controller_health() -> None:
     health = run.health["controller"].model_dump()
     assert health["counters"]["deadline_miss_run_max"] == 3
     assert "hop_sync_to_tpdo" in health["latencies"]
-    assert health_verdict(health) == "FAIL: misses in a row 3 (<= 1), overruns in a row 0 (<= 1)"
-    stats = {"count": 100, "p50": 1e-5, "p99": 2e-4, "p999": 2e-3, "max": 3e-3}
-    assert health_verdict({"latencies": {"sync_jitter": stats}, "counters": {}}) == "FAIL: wake-up p99 200 us (<= 250), wake-up p99.9 2000 us (<= 1000)"
+    assert health_verdict(health) == "FAIL: deadline misses in a row 3 (<= 1)"
+
+
+def test_the_verdict_judges_the_rig_and_reports_the_hosts_latency_class() -> None:
+    """A general-purpose kernel's wake-up p99 of ~1 ms is the host's class, not
+    a failure of the rig: reported beside the verdict, judged only when strict."""
+    from workbench.timing_test.report import Criteria, health_verdict, latency_class
+
+    slow = {"count": 6000, "p50": 1e-4, "p99": 1.128e-3, "p999": 2e-3, "max": 3e-3}
+    healthy = {"latencies": {"sync_jitter": slow}, "counters": {"deadline_miss_run_max": 0, "overrun_run_max": 1, "overruns": 3}}
+    assert health_verdict(healthy) == "PASS: deadline misses in a row 0 (<= 1); overruns 3, at most 1 in a row (counted, not judged)"
+    line = latency_class(healthy, {"preempt_rt": False})
+    assert line == "general-purpose kernel: wake-up p99 1128 us, p99.9 2000 us (outside the PREEMPT_RT class, p99 <= 250 us)"
+    strict = health_verdict(healthy, Criteria(strict=True))
+    assert strict == "FAIL: deadline misses in a row 0 (<= 1), overruns in a row 1 (<= 1), wake-up p99 1128 us (<= 250), wake-up p99.9 2000 us (<= 1000)"
+    # Overruns against the same run's sleep-only loop: 1 in 1000 ticks there allows 12 in 6000 here.
+    assert health_verdict(healthy, overrun_floor_per_tick=1e-3) == ("PASS: deadline misses in a row 0 (<= 1), overruns 3 (<= 12: 2x the sleep-only loop's)")
+    many = {**healthy, "counters": {**healthy["counters"], "overruns": 40}}
+    verdict = health_verdict(many, overrun_floor_per_tick=1e-3)
+    assert verdict is not None and verdict.startswith("FAIL: ")
+    assert latency_class({"latencies": {"sync_jitter": {"count": 0}}}) is None  # cosim: no wall-clock wake-ups

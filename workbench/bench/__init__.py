@@ -42,10 +42,12 @@ from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from workbench.bench.items import FLOOR_ITEMS, ITEMS, BenchContext, run_item
+from workbench.bench.items import FLOOR_ITEMS, ITEMS, QUICK_ITEMS, BenchContext, run_item
 from workbench.bench.stats import load_average, machine_info
 
 DEFAULT_JSON = "ralf-bench.json"
+TABLE_WIDTH = 120
+"""The bench's table fits this many columns (long names fold)."""
 SCHEMA = "ralf-hil-bench/1"
 
 console = Console(stderr=True)
@@ -54,7 +56,7 @@ console = Console(stderr=True)
 def options_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """Effective options: ``--quick`` shortens every default, explicit values win."""
     quick = bool(args.quick)
-    names = list(dict.fromkeys(args.only)) if args.only else list(FLOOR_ITEMS if args.floors_only else ITEMS)
+    names = list(dict.fromkeys(args.only)) if args.only else list(FLOOR_ITEMS if args.floors_only else QUICK_ITEMS if quick else ITEMS)
     return {
         "items": names,
         "quick": quick,
@@ -206,12 +208,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
     options = options_from_args(args)
     report = run_bench(options, Path(args.log_dir) if args.log_dir else None, say=lambda text: console.print(text, markup=False, highlight=False))
     out = Console()
-    if not out.is_terminal:
-        out = Console(width=170)
+    out = Console(width=min(out.width, TABLE_WIDTH) if out.is_terminal else TABLE_WIDTH)
     out.print(render(report))
-    path = Path(args.json)
-    write_json(report, path)
-    console.print(f"results written to {path} (service logs in {report['options']['log_dir']})", markup=False, highlight=False)
+    if args.json:
+        path = Path(args.json)
+        write_json(report, path)
+        console.print(f"results written to {path} (service logs in {report['options']['log_dir']})", markup=False, highlight=False)
+    else:
+        console.print(f"service logs in {report['options']['log_dir']}; --json PATH keeps the results", markup=False, highlight=False)
     if report.get("interrupted"):
         return 130
     return 1 if any(item["status"] == "failed" for item in report["items"].values()) else 0
@@ -266,7 +270,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--duration", type=_positive_float, default=None, metavar="S", help="seconds per real-time rate and per lockstep run (default 10, --quick 3)"
     )
     p.add_argument("--iterations", type=_positive_int, default=None, metavar="N", help="round trips per latency measurement (default 2000, --quick 100)")
-    p.add_argument("--quick", action="store_true", help="few iterations and short runs: a smoke test of the bench, not a measurement to quote")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a smoke test, not a measurement to quote: the floors, one 200 Hz real-time rig, the co-simulation and the hot path, few iterations, short runs",
+    )
     p.add_argument("--floors-only", action="store_true", help="only the bare transport floors (zenoh, UDP, udp_multicast); no service is started")
     rt = p.add_argument_group("realtime item (the acceptance runs: --rate 1000:60 --rate 200:600, then again with --burners 2)")
     rt.add_argument(
@@ -314,7 +322,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="RALF_REALTIME cpu_latency_us for the controller and plant, and the same for the sleep-only floor: "
         "a PM QoS bound on CPU wake-up latency (0: idle CPUs poll; default -1: off)",
     )
-    p.add_argument("--json", default=DEFAULT_JSON, metavar="PATH", help=f"write the results here (default {DEFAULT_JSON})")
+    p.add_argument("--json", default=None, metavar="PATH", help=f"write the results here as JSON (e.g. {DEFAULT_JSON}; default: none written)")
     p.add_argument("--log-dir", default=None, help="where helper and service logs go (default: a temporary directory)")
 
 

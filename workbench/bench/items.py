@@ -49,8 +49,9 @@ from workbench.bench.pingers import (
 )
 from workbench.bench.procs import BenchError, Child, clean_env, private_can_port, private_rig_id, tail
 from workbench.bench.stats import from_latency_stats, ratios, summarize
+from workbench.hostinfo import host_info
 from workbench.launcher import free_tcp_port, free_tcp_ports
-from workbench.timing_test.report import health_verdict
+from workbench.timing_test.report import health_verdict, latency_class
 
 CAN_GROUP = "239.74.163.2"
 DSP_FFT_WIDTH = 2048
@@ -443,10 +444,10 @@ def cpu_burners(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
 
 def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
     """The whole rig in real time at each rate (``ctx.rates``, default 200 Hz and
-    1 kHz for ``duration_s``), optionally with CPU burners running."""
+    1 kHz for ``duration_s``; 200 Hz alone with ``quick``), optionally with CPU burners running."""
     requires("plant_emulator.service", "controller.service", "dsp_service.service")
     m = result["measurements"]
-    runs = ctx.rates or ((200.0, None), (1000.0, None))
+    runs = ctx.rates or (((200.0, None),) if ctx.quick else ((200.0, None), (1000.0, None)))
     result["config"] = {
         "duration_s": ctx.duration_s,
         "rates_hz": [r for r, _ in runs],
@@ -552,7 +553,12 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
             m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
         result["config"]["runs"][tag]["controller_counters"] = counters
-        verdict = health_verdict(ctrl)  # the same criteria as `up` and `timing-test` (docs/timing-faults.md)
+        # The same criteria as `up` and `timing-test` (docs/timing-faults.md), the overruns against this run's sleep-only loop.
+        verdict = health_verdict(ctrl, overrun_floor_per_tick=sleep_per_tick)
+        latency_line = latency_class(ctrl, host_info())
+        if latency_line:
+            result["config"]["runs"][tag]["host_latency_class"] = latency_line
+            result["notes"].append(f"{tag}: host latency class (information) {latency_line}")
         if verdict:
             result["config"]["runs"][tag]["verdict"] = verdict
             result["notes"].append(f"{tag}: timing verdict {verdict}")
@@ -856,6 +862,8 @@ ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "fmu": bench_fmu,
 }
 FLOOR_ITEMS = ("zenoh", "can")
+QUICK_ITEMS = ("zenoh", "can", "realtime", "cosim", "hotpath")
+"""``bench --quick``: the floors, one 200 Hz real-time rig beside them, the co-simulation and the hot path (the rest with --only)."""
 
 
 def run_item(name: str, ctx: BenchContext) -> dict[str, Any]:

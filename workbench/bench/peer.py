@@ -64,7 +64,9 @@ def zenoh_echo(args: argparse.Namespace) -> int:
     import zenoh
 
     stop = _stop_event()
-    zenoh.init_log_from_env_or("error")
+    from service_kit.zenoh_log import init_zenoh_log
+
+    init_zenoh_log()
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")

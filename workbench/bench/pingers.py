@@ -24,6 +24,7 @@ from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, Health, Interrupt, decode
 from service_kit.can_udp import LoopFreeUdpMulticastBus
+from service_kit.zenoh_log import init_zenoh_log
 from workbench.bench.procs import BenchError
 
 _SEQ = struct.Struct("<Q")
@@ -58,7 +59,7 @@ def interleave(pingers: list[Pinger], iterations: int, warmup: int, block: int =
 
 def zenoh_session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
     """A peer session on explicit endpoints, multicast scouting off."""
-    zenoh.init_log_from_env_or("error")
+    init_zenoh_log()
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")

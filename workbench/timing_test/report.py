@@ -4,6 +4,7 @@ consecutive misses and pass/fail against stated criteria."""
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,31 +17,76 @@ from workbench.hostinfo import host_line
 
 @dataclass(frozen=True)
 class Criteria:
+    """What a run is judged on. The rig promises no two deadline misses in a
+    row (one late batch is absorbed by holding the last parameters; a second
+    is what ``policy_deadline``/``policy_stale`` act on) and, where the same
+    run measured a sleep-only loop (the bench), overruns at most
+    ``overrun_ratio_to_floor`` times that loop's per tick. An overrun is
+    otherwise only counted (``policy_overrun`` count, the default): a
+    general-purpose kernel's scheduler makes them, not the rig.
+
+    ``strict`` (``timing-test --strict``, or a wake-up limit given on the
+    command line) also judges the wake-up latency and the runs of overruns
+    (at most ``max_consecutive_misses``): a PREEMPT_RT host's criteria."""
+
     wakeup_p99_us: float = 250.0
     wakeup_p999_us: float = 1000.0
     max_consecutive_misses: int = 1
+    strict: bool = False
+    overrun_ratio_to_floor: float = 2.0
 
 
-def health_verdict(controller_health: dict[str, Any], criteria: Criteria | None = None) -> str | None:
-    """A one-line verdict from the controller's health (``ralf-hil up``'s summary):
-    wake-up p99/p99.9 (real time: ``sync_jitter``) and the longest runs of
-    deadline misses and overruns against the default criteria."""
+RT_CLASS_P99_US = 250.0
+"""Wake-up p99 at 200 Hz that a PREEMPT_RT host with the real-time measures
+meets (docs/timing.md); a general-purpose kernel typically shows 0.3-2 ms."""
+
+
+def latency_class(controller_health: dict[str, Any], host: dict[str, Any] | None = None) -> str | None:
+    """The host's latency class, as information: its kernel (PREEMPT_RT or
+    general-purpose) and the wake-up p99/p99.9 this run measured, against
+    the PREEMPT_RT class figure. None without wall-clock wake-ups (cosim)."""
+    lat = controller_health.get("latencies", {}).get("sync_jitter") or {}
+    if not lat.get("count"):
+        return None
+    kernel = "PREEMPT_RT kernel" if (host or {}).get("preempt_rt") else "general-purpose kernel"
+    p99, p999 = lat["p99"] * 1e6, lat["p999"] * 1e6
+    within = "within" if p99 <= RT_CLASS_P99_US else "outside"
+    return f"{kernel}: wake-up p99 {p99:.0f} us, p99.9 {p999:.0f} us ({within} the PREEMPT_RT class, p99 <= {RT_CLASS_P99_US:g} us)"
+
+
+def health_verdict(controller_health: dict[str, Any], criteria: Criteria | None = None, overrun_floor_per_tick: float | None = None) -> str | None:
+    """A one-line verdict from the controller's health (``ralf-hil up``'s
+    summary, the bench): the longest run of deadline misses; given the same
+    run's sleep-only loop's overruns per tick, the overruns against it; with
+    ``criteria.strict`` the longest run of overruns and the wake-up p99/p99.9
+    too. What is not judged is said as information after a semicolon (see
+    :func:`latency_class` for the host's line)."""
     c = criteria or Criteria()
     lat = controller_health.get("latencies", {}).get("sync_jitter") or {}
     counters = controller_health.get("counters", {})
-    parts, ok = [], True
-    if lat.get("count"):
+    parts, info, ok = [], [], True
+    if "deadline_miss_run_max" in counters:
+        ok &= counters["deadline_miss_run_max"] <= c.max_consecutive_misses
+        parts.append(f"deadline misses in a row {counters['deadline_miss_run_max']} (<= {c.max_consecutive_misses})")
+    ticks = lat.get("count") or int(counters.get("ticks", 0))
+    if overrun_floor_per_tick is not None and "overruns" in counters and ticks:
+        allowed = max(1, math.ceil(c.overrun_ratio_to_floor * overrun_floor_per_tick * ticks))
+        ok &= counters["overruns"] <= allowed
+        parts.append(f"overruns {counters['overruns']} (<= {allowed}: {c.overrun_ratio_to_floor:g}x the sleep-only loop's)")
+    if "overrun_run_max" in counters:
+        if c.strict:
+            ok &= counters["overrun_run_max"] <= c.max_consecutive_misses
+            parts.append(f"overruns in a row {counters['overrun_run_max']} (<= {c.max_consecutive_misses})")
+        elif counters.get("overruns") and overrun_floor_per_tick is None:
+            info.append(f"overruns {counters['overruns']}, at most {counters['overrun_run_max']} in a row (counted, not judged)")
+    if c.strict and lat.get("count"):
         for name, key, limit in (("p99", "p99", c.wakeup_p99_us), ("p99.9", "p999", c.wakeup_p999_us)):
             value = lat[key] * 1e6
             ok &= value <= limit
             parts.append(f"wake-up {name} {value:.0f} us (<= {limit:g})")
-    for name, key in (("misses in a row", "deadline_miss_run_max"), ("overruns in a row", "overrun_run_max")):
-        if key in counters:
-            ok &= counters[key] <= c.max_consecutive_misses
-            parts.append(f"{name} {counters[key]} (<= {c.max_consecutive_misses})")
     if not parts:
         return None
-    return ("PASS: " if ok else "FAIL: ") + ", ".join(parts)
+    return ("PASS: " if ok else "FAIL: ") + ", ".join(parts) + "".join(f"; {text}" for text in info)
 
 
 def run_lengths(flags: npt.ArrayLike) -> list[int]:
@@ -79,9 +125,14 @@ def evaluate(controller: Any, criteria: Criteria, mode: str) -> dict[str, Any]:
     wake = stats["wakeup"]
     realtime = mode == "realtime" and wake.get("count", 0) > 0
     for name, key, limit in (("wakeup p99", "p99_us", criteria.wakeup_p99_us), ("wakeup p99.9", "p999_us", criteria.wakeup_p999_us)):
-        if realtime:
+        if realtime and criteria.strict:
             value = float(wake[key])
             checks.append({"name": name, "value": round(value, 1), "limit": limit, "unit": "us", "verdict": "pass" if value <= limit else "fail"})
+        elif realtime:
+            value = float(wake[key])
+            checks.append(
+                {"name": name, "value": round(value, 1), "limit": limit, "unit": "us", "verdict": "info (the host's latency class; judged with --strict)"}
+            )
         else:
             checks.append({"name": name, "value": None, "limit": limit, "unit": "us", "verdict": "n/a (no wall-clock schedule in this mode)"})
     checks.append(
@@ -93,13 +144,16 @@ def evaluate(controller: Any, criteria: Criteria, mode: str) -> dict[str, Any]:
             "verdict": "pass" if longest <= criteria.max_consecutive_misses else "fail",
         }
     )
+    overruns_judged = criteria.strict or mode != "realtime"  # in real time the scheduler's (counted); judged with --strict
     checks.append(
         {
             "name": "consecutive overruns",
             "value": controller.overrun_run_max,
             "limit": criteria.max_consecutive_misses,
             "unit": "ticks",
-            "verdict": "pass" if controller.overrun_run_max <= criteria.max_consecutive_misses else "fail",
+            "verdict": ("pass" if controller.overrun_run_max <= criteria.max_consecutive_misses else "fail")
+            if overruns_judged
+            else "info (counted, not judged in real time without --strict)",
         }
     )
     faults = controller.faults.as_counters() if controller.faults is not None else {}
