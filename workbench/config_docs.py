@@ -1,6 +1,6 @@
-"""The README's configuration tables, generated from the settings models so
+"""The configuration tables of ``docs/configuration.md``, generated from the settings models so
 they cannot drift (``python -m workbench.config_docs`` prints them; a test checks
-the README holds exactly this text), and the keys table of ``docs/design.md``
+the page holds exactly this text), and the keys table of ``docs/design.md``
 from the rig description (``--keys``)."""
 
 from __future__ import annotations
