@@ -25,7 +25,7 @@ RIG = "livetest"
 
 def test_live_view_of_a_running_rig_matches_its_recording(tmp_path: Path) -> None:
     port = free_tcp_ports(1)[0]
-    cmd = [sys.executable, "-m", "workbench", "up", "--clock", "lockstep", "--duration", "6", "--rig-id", RIG,
+    cmd = [sys.executable, "-m", "workbench", "up", "--clock", "lockstep", "--duration", "40", "--rig-id", RIG,
            "--live", f"127.0.0.1:{port}", "--live-rate", "50", "--record", str(tmp_path / "run.mcap"), "--json", str(tmp_path / "summary.json")]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:

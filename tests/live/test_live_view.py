@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import socket
 import threading
 import time
@@ -153,16 +154,16 @@ def test_decimation_and_statuses_are_counted() -> None:
     assert any(t.startswith("plant hard_stop at 2.10 s") for t in texts)
 
 
-def test_a_port_in_use_is_one_clear_error() -> None:
+def test_a_port_in_use_is_one_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         sock.listen()
         port = sock.getsockname()[1]
         with pytest.raises(LiveViewError, match=f"cannot serve the live view on 127.0.0.1:{port}: Failed to bind port: Address already in use"):
             LiveView("127.0.0.1", port)
-        with pytest.raises(SystemExit, match="ralf-hil up: cannot serve the live view on 127.0.0.1:.*Address already in use") as exc:
-            main(["up", "--clock", "lockstep", "--rig-id", "lvport", "--duration", "1", "--live", str(port)])
-        assert "\n" not in str(exc.value)
+        assert main(["up", "--clock", "lockstep", "--rig-id", "lvport", "--duration", "1", "--live", str(port)]) == 2
+    err = capsys.readouterr().err
+    assert re.fullmatch(r"ralf-hil up: cannot serve the live view on 127\.0\.0\.1:\d+: .*Address already in use[^\n]*\n", err), err
 
 
 @pytest.mark.parametrize(
@@ -179,9 +180,10 @@ def test_bad_addresses(text: str) -> None:
         parse_address(text)
 
 
-def test_live_on_cosim_is_refused() -> None:
-    with pytest.raises(SystemExit, match="--live serves a running rig"):
-        main(["up", "--clock", "cosim", "--duration", "1", "--live", "0"])
+def test_live_on_cosim_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["up", "--clock", "cosim", "--duration", "1", "--live", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--live serves a running rig" in err and err.count("\n") == 1, err
 
 
 def test_a_client_of_another_protocol_is_refused_and_the_view_goes_on() -> None:
