@@ -19,7 +19,7 @@ def test_zenoh_log_lines_become_records_without_colour_or_source_location() -> N
     raw = (
         "\x1b[2m2026-12-03T03:55:12.688809Z\x1b[0m \x1b[31mERROR\x1b[0m net-0 ThreadId(03) "
         "\x1b[2mzenoh_transport::unicast::establishment::open\x1b[0m\x1b[2m:\x1b[0m Received a close message (reason INVALID) "
-        "in response to an OpenSyn at /root/.cargo/git/checkouts/zenoh/io/zenoh-transport/src/unicast/establishment/open.rs:526."
+        "in response to an OpenSyn at /build/zenoh/io/zenoh-transport/src/unicast/establishment/open.rs:526."
     )
     assert parse_line(raw) == (40, "zenoh.zenoh_transport", "Received a close message (reason INVALID) in response to an OpenSyn")
     warn = "2026-12-03T04:02:07.378539Z  WARN ThreadId(01) zenoh::net::runtime::orchestrator: Link lost."

@@ -104,6 +104,8 @@ def run(ctx: ExperimentContext) -> Report:
         rep.check("example FMU built", False, "needs gcc and a source checkout (examples/fmu)")
         return rep
     fmu = build_c_fmu(EXAMPLE_SOURCE, ctx.path("two_mode_plant.fmu"))
+    if mapping.is_relative_to(Path.cwd()):  # as the FMU's own path: relative to where the runs start, so reports name no machine folder
+        mapping = mapping.relative_to(Path.cwd())
     fmu_plant = {"model": f"fmu:{fmu}", "fmu_mapping": str(mapping), "seed": ctx.seed}
     duration = 30.0 if ctx.quick else 84.0
     adaptive = {"oatf_mode": "adaptive", "oatf": {"frequency_hz": 4.4}, "duration_s": duration}
