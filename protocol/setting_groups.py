@@ -17,7 +17,7 @@ import json
 import re
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
 
 Hz = Annotated[float, Field(ge=0.01, le=2500)]
 Policy = Literal["count", "warn", "degrade", "stop"]
@@ -77,6 +77,10 @@ def band_text(value: Any) -> Any:
     return value
 
 
+Band = Annotated[tuple[Hz, Hz], BeforeValidator(band_text)]
+"""A frequency band, LOW,HIGH in Hz, given as a pair or as text (:func:`band_text`)."""
+
+
 def _ordered(name: str, value: tuple[float, float]) -> tuple[float, float]:
     if not value[0] < value[1]:
         raise ValueError(f"the {name} band must run from a lower to a higher frequency, got {value[0]:g}, {value[1]:g}")
@@ -119,16 +123,11 @@ class OatfTuning(SettingGroup):
     frequency_hz: float = Field(4.4, ge=0.1, le=2500, description="Design frequency (the initial value when adaptive)")
     damping: float = Field(0.09, ge=0, lt=1, description="Design damping ratio")
     delay_s: float | None = Field(None, ge=0.001, le=10, description="Fixed delay T1 (default: robust pi/omega_d)")
-    band_hz: tuple[Hz, Hz] = Field((1.0, 20.0), description="Plausible band of identified frequencies")
+    band_hz: Band = Field((1.0, 20.0), description="Plausible band of identified frequencies")
     min_confidence: float = Field(0.2, ge=0, le=1, description="Ignore estimates less confident than this (the DSP's confidence)")
     max_stages: int = Field(1, ge=1, le=4, description="Stages: 1 = first mode only (the thesis); more = one per confident extra pole, with hysteresis")
     adapt_damping: bool = Field(False, description="Adaptive: also adapt each stage's design damping to the identified one")
     fallback: Literal["last", "fixed"] = Field("last", description="While degraded: freeze the last good design, or return to frequency_hz")
-
-    @field_validator("band_hz", mode="before")
-    @classmethod
-    def _band_text(cls, value: Any) -> Any:
-        return band_text(value)
 
     @field_validator("band_hz")
     @classmethod
@@ -140,13 +139,8 @@ class DitherTuning(SettingGroup):
     """Persistent excitation: a multisine added to each valve command before the D/A, for the identifier (docs/identification.md)."""
 
     amplitude_v: float = Field(0.0, ge=0, le=2.0, description="RMS (V) of the multisine (0 = off)")
-    band_hz: tuple[Hz, Hz] = Field((2.0, 7.0), description="Its band: every bin of its period in this range")
+    band_hz: Band = Field((2.0, 7.0), description="Its band: every bin of its period in this range")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of its random phases (each valve its own)")
-
-    @field_validator("band_hz", mode="before")
-    @classmethod
-    def _band_text(cls, value: Any) -> Any:
-        return band_text(value)
 
     @field_validator("band_hz")
     @classmethod
