@@ -26,6 +26,7 @@ from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
 from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
+from workbench.extras import missing_extra
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
@@ -695,9 +696,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-EXTRAS = {"distributed": "campaign", "dask": "campaign", "pyarrow": "campaign", "yaml": "campaign", "fmpy": "fmu", "numba": "fast"}
-"""The extra of pyproject.toml that installs a module a command needs and the quick start's ``[rig]`` leaves out."""
-
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 """The first bytes of every MCAP file (the MCAP specification)."""
 
@@ -728,10 +726,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except ModuleNotFoundError as exc:
-        extra = EXTRAS.get((exc.name or "").split(".")[0])
-        if extra is None:
+        needs = missing_extra(exc)
+        if needs is None:
             raise
-        print(f"ralf-hil {args.command}: needs the module {exc.name!r}: pip install 'ralf-hil[{extra}]'", file=sys.stderr)
+        print(f"ralf-hil {args.command}: {needs}", file=sys.stderr)
         return 2
     except SystemExit as exc:
         if isinstance(exc.code, str):  # a refusal's text: one line, exit 2

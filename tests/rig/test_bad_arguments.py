@@ -27,6 +27,8 @@ BAD = {
     "credentials bad rig id": ["credentials", "--rig-id", "a/b", "--out", "{tmp}/secrets"],
     "memory-slope bad duration": ["memory-slope", "--duration", "-3"],
     "experiment unknown": ["experiment", "nosuch"],
+    "sweep missing spec": ["sweep", "{tmp}/missing.yaml"],
+    "sweep spec of another kind": ["sweep", "{tmp}/not.mcap"],
     "unknown command": ["nosuch"],
 }
 

@@ -54,7 +54,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from workbench.campaign.spec import SpecError, expand, load_spec, planned_runs
     from workbench.campaign.sweep import run_sweep
 
-    err = Console(stderr=True)
+    err = Console(stderr=True, soft_wrap=True)  # a refusal is one line, however long
     try:
         spec = load_spec(args.spec)
         planned = planned_runs(spec)
@@ -62,11 +62,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             if args.dry_run:
                 print(f"{planned} run(s) planned, more than {LARGE_SWEEP}: not listed (add --yes to resolve and list them)")
                 return 0
-            err.print(f"ralf-hil sweep: {planned} runs planned, more than {LARGE_SWEEP}: add --yes to run them", highlight=False)
+            err.print(f"ralf-hil sweep: {planned} runs planned, more than {LARGE_SWEEP}: add --yes to run them", highlight=False, markup=False)
             return 2
         points = expand(spec)
+    except FileNotFoundError:
+        err.print(f"ralf-hil sweep: {args.spec}: no such file", highlight=False, markup=False)
+        return 2
     except (OSError, SpecError) as exc:
-        err.print(f"ralf-hil sweep: {exc}", highlight=False)
+        err.print(f"ralf-hil sweep: {exc}", highlight=False, markup=False)
         return 2
     if args.dry_run:
         out = Console(width=max(Console().width, 120) if not sys.stdout.isatty() else None)
@@ -78,7 +81,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         engine = open_engine(args)
     except EngineError as exc:
-        err.print(f"ralf-hil sweep: {exc}", highlight=False)
+        err.print(f"ralf-hil sweep: {exc}", highlight=False, markup=False)
         return 2
     with engine:
         res = run_sweep(spec, out_dir, engine, resume=not args.no_resume, console=err, show_progress=not args.no_progress)

@@ -379,8 +379,8 @@ def load_spec(path: str | Path) -> SweepSpec:
             data = tomllib.loads(text)
         else:
             raise SpecError(f"{p}: a spec is .yaml, .yml or .toml")
-    except SpecError:
-        raise
+    except (SpecError, ModuleNotFoundError):
+        raise  # a missing extra (yaml) is named by the command line, not as a parse error
     except Exception as exc:  # noqa: BLE001 - the parsers' own errors, with the file named
         raise SpecError(f"{p}: cannot parse: {exc}") from None
     if not isinstance(data, dict):

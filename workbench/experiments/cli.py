@@ -90,7 +90,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
     out_console = Console(width=max(Console().width, 120) if not sys.stdout.isatty() else None)
-    err_console = Console(stderr=True)
+    err_console = Console(stderr=True, soft_wrap=True)  # a refusal is one line, however long
     if args.list:
         print_list(out_console)
         return 0
@@ -107,15 +107,18 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     try:
         get_experiment(args.name)
     except UnknownExperimentError as exc:
-        err_console.print(f"ralf-hil experiment: {exc}", highlight=False)
+        err_console.print(f"ralf-hil experiment: {exc}", highlight=False, markup=False)
         return 2
     out = Path(args.out) if args.out else DEFAULT_OUT_ROOT / args.name
     try:
         outcome = run_experiment(args.name, out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record)
     except ExperimentError as exc:
-        err_console.print(f"ralf-hil experiment: {exc}", highlight=False)
+        err_console.print(f"ralf-hil experiment: {exc}", highlight=False, markup=False)
         return 2
     _write_junit(args, [outcome], err_console)
+    if outcome.missing_extra:
+        err_console.print(f"ralf-hil experiment {args.name}: {outcome.error}", highlight=False, markup=False)
+        return 2
     if outcome.status == "error":
         err_console.print(f"[red]{args.name} failed: {outcome.error}[/red] (traceback in {out / 'error.txt'})")
         return 1

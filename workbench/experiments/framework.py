@@ -36,6 +36,8 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from workbench.extras import missing_extra
+
 if TYPE_CHECKING:
     from workbench.experiments.report import Report
 
@@ -286,6 +288,8 @@ class RunOutcome:
     error: str = ""
     section: str = ""
     description: str = ""
+    missing_extra: bool = False
+    """The error is an extra the install left out (``error`` names it)."""
 
     @property
     def ok(self) -> bool:
@@ -355,6 +359,9 @@ def run_experiment(
         if raise_errors:
             raise
         runtime = time.perf_counter() - started
+        needs = missing_extra(exc)
+        if needs is not None:  # the install left an extra out: said in one line, no traceback file
+            return RunOutcome(exp.name, "error", out, runtime, error=needs, section=exp.section, description=exp.description, missing_extra=True)
         error_file.write_text(traceback.format_exc(), encoding="utf-8")
         return RunOutcome(
             exp.name,
