@@ -119,7 +119,10 @@ class RigPlan:
         return env
 
     def command_for(self, service: str) -> list[str]:
-        return [sys.executable, "-m", SERVICE_MODULES[service]]
+        # -P: the service imports the installed packages, as ralf-hil did, not
+        # a checkout that happens to be the working folder (whose modules may
+        # differ from the install and keep a numba cache of their own).
+        return [sys.executable, "-P", "-m", SERVICE_MODULES[service]]
 
 
 @dataclass
