@@ -75,7 +75,9 @@ import numpy as np
 import pydantic
 from numpy.typing import NDArray
 
-from .arx import ArxConfig, RecursiveArx, RegimeBankState
+from .arx import RecursiveArx
+from .arx_config import ArxConfig
+from .arx_regime_bank import RegimeBankState
 from .history import HistoryBuffer
 from .mimo import H_NAMES, MimoSolver, ScalarRLS, VectorRLS
 from .modal import (
