@@ -629,9 +629,7 @@ def fit_mode_transient(
     Y = np.atleast_2d(np.asarray(outputs, dtype=np.complex128))
     ni, b = U.shape
     m = Y.shape[0]
-    nb1, nt1 = numerator_order + 1, transient_order + 1
-    per_out = ni * nb1 + 2 * nt1  # B coefficients (real), T coefficients (re, im)
-    n_par = 2 + m * per_out
+    n_par = 2 + m * (ni * (numerator_order + 1) + 2 * (transient_order + 1))
     if b < 2 or 2 * m * b < n_par or Y.shape[1] != b or f.size != b:
         return None
     if not (np.all(np.isfinite(U)) and np.all(np.isfinite(Y))):
@@ -639,20 +637,8 @@ def fit_mode_transient(
     wc = 2.0 * math.pi * float(np.mean(f))
     if not wc > 0.0:
         return None
-    s = 2j * math.pi * f / wc
-    pw = np.stack([s**p for p in range(max(nb1, nt1))])  # (p, B)
-    A = np.zeros((m, b, n_par), dtype=np.complex128)
-    rhs = np.empty((m, b), dtype=np.complex128)
-    for j in range(m):
-        A[j, :, 0] = Y[j] * s
-        A[j, :, 1] = Y[j]
-        rhs[j] = -Y[j] * s * s
-        col = 2 + j * per_out
-        for i in range(ni):
-            A[j, :, col : col + nb1] = -(U[i][None, :] * pw[:nb1]).T
-            col += nb1
-        A[j, :, col : col + nt1] = -pw[:nt1].T
-        A[j, :, col + nt1 : col + 2 * nt1] = -1j * pw[:nt1].T
+    s: NDArray[np.complex128] = (2j * math.pi * f / wc).astype(np.complex128)
+    A, rhs = _transient_levy_rows(s, U, Y, numerator_order + 1, transient_order + 1)
     a1 = a0 = 0.0
     w = np.ones(b)
     for it in range(max(1, iterations)):
@@ -671,3 +657,28 @@ def fit_mode_transient(
     if not 0.0 < zeta < 1.0:
         return None
     return wn * wc / (2.0 * math.pi), zeta
+
+
+def _transient_levy_rows(
+    s: NDArray[np.complex128], U: NDArray[np.complex128], Y: NDArray[np.complex128], nb1: int, nt1: int
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """The unweighted Levy rows ``A θ = rhs`` of :func:`fit_mode_transient` per output ``(m, B, n_par)``:
+    ``θ = [a₁, a₀, then per output the real B_ij coefficients (nb1 each) and T_j's (re, im; nt1 each)]``,
+    ``rhs = −Y s̃²``."""
+    ni, b = U.shape
+    m = Y.shape[0]
+    per_out = ni * nb1 + 2 * nt1  # B coefficients (real), T coefficients (re, im)
+    pw = np.stack([s**p for p in range(max(nb1, nt1))])  # (p, B)
+    A = np.zeros((m, b, 2 + m * per_out), dtype=np.complex128)
+    rhs = np.empty((m, b), dtype=np.complex128)
+    for j in range(m):
+        A[j, :, 0] = Y[j] * s
+        A[j, :, 1] = Y[j]
+        rhs[j] = -Y[j] * s * s
+        col = 2 + j * per_out
+        for i in range(ni):
+            A[j, :, col : col + nb1] = -(U[i][None, :] * pw[:nb1]).T
+            col += nb1
+        A[j, :, col : col + nt1] = -pw[:nt1].T
+        A[j, :, col + nt1 : col + 2 * nt1] = -1j * pw[:nt1].T
+    return A, rhs
