@@ -102,11 +102,6 @@ class RecursiveArx:
         self._frozen = 0  #: model samples the live model is still held unchanged after a switch
 
     @property
-    def change_statistic(self) -> float:
-        """The change detector's CUSUM S (:mod:`.arx_change`)."""
-        return self._change.statistic
-
-    @property
     def changes_detected(self) -> int:
         """Alarms of the change detector since the reset (each discounted the model)."""
         return self._change.detected

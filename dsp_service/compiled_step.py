@@ -84,22 +84,6 @@ def smoothing_rows(sm: FrequencySmoother, lo: int, hi: int, k: int) -> tuple[NDA
     return coef, starts, ia, ib
 
 
-def damping_tables(refiner: PeakRefiner, vrm: VrmEstimator) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.intp]]:
-    """``(pinv, tri, n_tri)``: the least-squares parabola rows of every half-width ``r ≤ r_max``
-    (``pinv[r, :, : 2r + 1]``) and the VRM triplets of every ``m ≤ m_max`` (``tri[m, : n_tri[m]]``), as
-    the kernel's stage 5 reads them."""
-    r_max = refiner.r_max
-    pinv = np.zeros((r_max + 1, 3, 2 * r_max + 1))
-    for r, rows in refiner._pinv.items():
-        pinv[r, :, : 2 * r + 1] = rows
-    tris = vrm._triplets
-    n_tri = np.array([t.shape[0] for t in tris], dtype=np.intp)
-    tri = np.zeros((len(tris), max(1, int(n_tri.max())), 3), dtype=np.intp)
-    for m, t in enumerate(tris):
-        tri[m, : t.shape[0]] = t
-    return pinv, tri, n_tri
-
-
 class CompiledStep:
     """The packed arguments and resolved overloads of the identifier's compiled step (module doc).
 
@@ -129,7 +113,7 @@ class CompiledStep:
         self.hs = np.empty(n_range, dtype=np.complex128)  #: the smoothed spectrum over the search range
         self.vs = np.empty(n_range, dtype=bool)  #: its validity
         self.ia, self.ib = ia, ib
-        pinv, tri, n_tri = damping_tables(refiner, vrm)
+        pinv, tri, n_tri = refiner.pinv, vrm.tri, vrm.n_tri
         kernel.warm_up()
         ip = np.zeros(kernel.N_IP, dtype=np.intp)
         for i, value in (

@@ -857,14 +857,17 @@ def _refine_ls(mag: F64, k: int, r: int, pinv: F64, r_max: int) -> tuple[float, 
 
 
 @njit(cache=True, error_model="numpy")
-def _half_power(mag: F64, f0: float, df: float, k: int, peak_mag: float, vd: Bool, check: bool) -> tuple[bool, float, float]:
-    """``(ok, f_left, f_right)`` (modal._half_power, 64 bins each side)."""
+def _half_power(mag: F64, f0: float, df: float, k: int, peak_mag: float, vd: Bool, check: bool, max_bins: int) -> tuple[bool, float, float]:
+    """``(ok, f_left, f_right)``: the half-power crossings nearest bin ``k`` on the grid ``f0 + i·df``
+    (:func:`.modal.half_power_bandwidth`), at most ``max_bins`` bins each side, interpolated linearly
+    in power; not ok where a side does not drop below half power in reach or (``check``) a
+    straddling bin is invalid."""
     thr = peak_mag * _SQRT_HALF
     size = mag.size
     if k < 1 or k >= size - 1:
         return False, 0.0, 0.0
-    lo = max(0, k - 64)
-    hi = min(size, k + 65)
+    lo = max(0, k - max_bins)
+    hi = min(size, k + max_bins + 1)
     i0 = -1
     for i in range(k - 1, lo - 1, -1):
         if mag[i] < thr:
@@ -907,7 +910,7 @@ def _zeta_fwhm(bw: float, fp: float, exact: bool) -> float:
 @njit(cache=True, error_model="numpy")
 def _vrm_lambdas(g: F64) -> None:
     """``g[9]``, ``g[10]``, ``g[11]`` ← Re λ, Im λ and the weight ``|den|`` of each VRM triplet
-    (Appendix C, :func:`.modal.vrm_lambda`) from its squared frequencies ``g[0:3]`` and H
+    (Appendix C, :func:`.modal.vrm_lambdas`) from its squared frequencies ``g[0:3]`` and H
     values ``g[3:9]`` (re, im at a, b, c). Contiguous rows and no branches, so the compiler
     vectorizes the loop, divisions included; a zero ``den`` gives inf or NaN, which
     :func:`_vrm` skips by its zero weight, as the one-loop form did before dividing."""
@@ -1012,6 +1015,19 @@ def _vrm_average(g: F64, nq: int, c_max: float) -> tuple[int, float, float, floa
     return used, wr, wi, ws
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def vrm_reading(re: float, im: float, viscous: bool) -> tuple[float, float]:
+    """``(f_n, ζ)`` of the VRM eigenvalue ``λ = re + i·im`` (in squared frequency units): viscous
+    ``f_n = √|λ|``, ``ζ = tan(arg λ / 2) = Im λ / (|λ| + Re λ)``; hysteretic [C-13, C-14]
+    ``f_n = √Re λ``, ``ζ = η/2 = Im λ / (2 Re λ)``; ``(0, 0)`` for ``Re λ ≤ 0`` (not physical)."""
+    if re <= 0.0:
+        return 0.0, 0.0
+    if viscous:
+        mod = math.hypot(re, im)
+        return math.sqrt(mod), im / (mod + re)
+    return math.sqrt(re), 0.5 * im / re
+
+
 @njit(cache=True, error_model="numpy")
 def _vrm(
     hd: C128,
@@ -1044,15 +1060,7 @@ def _vrm(
     used, wr, wi, ws = _vrm_average(g, nq, c_max)
     if used == 0 or not ws > 0.0:
         return False, 0.0, 0.0, used
-    re = wr / ws
-    im = wi / ws
-    if re <= 0.0:
-        fn, zeta = 0.0, 0.0
-    elif viscous:
-        mod = math.hypot(re, im)
-        fn, zeta = math.sqrt(mod), im / (mod + re)
-    else:
-        fn, zeta = math.sqrt(re), 0.5 * im / re
+    fn, zeta = vrm_reading(wr / ws, wi / ws, viscous)
     df = fd[1] - fd[0]
     f_lo = fd[k - s * m] - 2.0 * df
     f_hi = fd[k + s * m] + 2.0 * df
@@ -1109,7 +1117,7 @@ def poles(
         half_bins = 2.0
         ok = all_valid or vd[k]
         if ok:
-            found, fl, fr = _half_power(mag, f0, df, k, m_peak, vd, check)
+            found, fl, fr = _half_power(mag, f0, df, k, m_peak, vd, check, 64)
             if found:
                 bw = fr - fl
                 zeta_fwhm = _zeta_fwhm(bw, f_peak, fwhm_exact)

@@ -6,8 +6,8 @@ least-squares (H1) solution of ``Y_j = H_1j U_1 + H_2j U_2`` per bin is
 
 * ``H1j = (P1yj P22 − P12 P2yj) / (P11 P22 − |P12|²)``   [2-21, 2-22]
 * ``H2j = (P2yj P11 − P21 P1yj) / (P11 P22 − |P12|²)``   [2-23, 2-24] *corrected*:
-  the thesis prints ``P12`` where ``P21`` belongs; the printed form is
-  kept as :func:`solve_printed` for the test that shows it is wrong.
+  the thesis prints ``P12`` where ``P21`` belongs (tests/dsp/test_mimo_synthetic.py
+  shows the printed form wrong).
 
 Uncorrelated shortcut [2-25 … 2-28]: ``H_ij = P_iyj / P_ii`` (biased when
 the inputs are correlated). ``H_tot`` = the unweighted mean of the four.
@@ -228,36 +228,6 @@ class MimoSolver:
         valid[idx] = True
         mode[idx] = MODE_DOMINANT
         return int(idx.size)
-
-
-def solve_mimo(
-    S: NDArray[np.complex128], det_threshold: float = 1e-3, power_floor: float = 1e-12, collinear: str = "mask"
-) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-    """Corrected MIMO solve [2-21 … 2-24] (copy of the result; see :class:`MimoSolver`)."""
-    solver = MimoSolver(S.shape[-1], "mimo", det_threshold, power_floor, collinear)
-    H, valid = solver.solve(S)
-    return H.copy(), valid.copy()
-
-
-def solve_uncorrelated(S: NDArray[np.complex128], power_floor: float = 1e-12) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-    """Uncorrelated-input shortcut ``H_ij = P_iyj / P_ii`` [2-25 … 2-28]."""
-    solver = MimoSolver(S.shape[-1], "uncorrelated", power_floor=power_floor)
-    H, valid = solver.solve(S)
-    return H.copy(), valid.copy()
-
-
-def solve_printed(S: NDArray[np.complex128]) -> NDArray[np.complex128]:
-    """The thesis's formulas *as printed* (P12 in H21/H22): kept only to test that they are wrong.
-
-    No masking; do not use for estimation.
-    """
-    den = S[P11].real * S[P22].real - np.abs(S[P12]) ** 2
-    den = np.where(np.abs(den) > _TINY, den, np.inf)
-    h11 = (S[P1Y1] * S[P22].real - S[P12] * S[P2Y1]) / den
-    h12 = (S[P1Y2] * S[P22].real - S[P12] * S[P2Y2]) / den
-    h21 = (S[P2Y1] * S[P11].real - S[P12] * S[P1Y1]) / den  # printed [2-23]
-    h22 = (S[P2Y2] * S[P11].real - S[P12] * S[P1Y2]) / den  # printed [2-24]
-    return np.stack([h11, h12, h21, h22])
 
 
 # ---------------------------------------------------------------------------
