@@ -56,34 +56,6 @@ def search_range(c: IdentifierConfig, freqs: NDArray[np.float64], half: int) -> 
     return SearchRange(lo, hi, sl, freqs[sl], f_range, w_lin, 10.0 ** (c.min_peak_prominence_db / 20.0), max(1, half // 2))
 
 
-def smoothing_rows(sm: FrequencySmoother, lo: int, hi: int, k: int) -> tuple[NDArray[np.float64], NDArray[np.intp], int, int]:
-    """``(coef, starts, ia, ib)`` of the compiled smoothing over bins ``lo … hi−1`` of ``k``: its rows and
-    window starts, and its interior ``ia … ib`` (rows of one sliding window, the centre row)."""
-    if sm.enabled:
-        h = sm.half
-        rows = []
-        for i in range(lo, hi):
-            if i < h:
-                rows.append(sm.edge_lo[i])
-            elif i >= k - h:
-                rows.append(sm.edge_hi[i - (k - h)])
-            else:
-                rows.append(sm.centre)
-        coef = np.ascontiguousarray(np.stack(rows), dtype=np.float64)
-        starts = np.ascontiguousarray(sm._starts[lo:hi], dtype=np.intp)
-    else:
-        coef = np.ones((hi - lo, 1))
-        starts = np.arange(lo, hi, dtype=np.intp)
-    steps = np.flatnonzero(np.diff(starts) == 1)  # consecutive rows of a sliding window
-    if not steps.size:
-        return coef, starts, 0, 0
-    ia, ib = int(steps[0]), int(steps[-1]) + 2
-    # the kernel's interior passes need a sliding window of one row (the centre row)
-    if not (np.array_equal(starts[ia:ib], starts[ia] + np.arange(ib - ia)) and (coef[ia:ib] == coef[ia]).all()):
-        return coef, starts, 0, 0
-    return coef, starts, ia, ib
-
-
 class CompiledStep:
     """The packed arguments and resolved overloads of the identifier's compiled step (module doc).
 
@@ -107,7 +79,7 @@ class CompiledStep:
     ) -> None:
         lo, hi, sl, f_sl, f_range, w_lin, prom_ratio, relocate = search
         n_range, k, n_sl = hi - lo, est.n_bins, sl.stop - sl.start
-        coef, starts, ia, ib = smoothing_rows(smoother, lo, hi, k)
+        coef, starts, ia, ib = smoother.rows(lo, hi)
         self.ffts_f = est.ffts.view(np.float64)  # (re, im) float view for the averaging
         self.zeros_f = np.zeros_like(self.ffts_f)
         self.hs = np.empty(n_range, dtype=np.complex128)  #: the smoothed spectrum over the search range

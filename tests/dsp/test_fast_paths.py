@@ -14,7 +14,6 @@ import scipy.signal
 
 from dsp_service.identifier import Identifier, IdentifierConfig
 from dsp_service.modal import VrmEstimator
-from dsp_service.smoothing import FrequencySmoother
 from dsp_service.spectra import rfft_rows
 
 from .references import c12_corrected, half_power_crossings, mimo_solve, parabola_vertex, zeta_from_half_power_width
@@ -33,22 +32,6 @@ def test_rfft_rows_is_numpys_rfft() -> None:
     assert rfft_rows(x, out) is out
     np.testing.assert_array_equal(out, np.fft.rfft(x, axis=-1))
     np.testing.assert_array_equal(rfft_rows(x[1]), np.fft.rfft(x[1]))
-
-
-# ---------------------------------------------------------------- smoothing
-@pytest.mark.parametrize("lo,hi", [(0, 300), (6, 290), (20, 40), (295, 300), (0, 3)])
-@pytest.mark.parametrize("complex_", [True, False])
-def test_range_plan_tracks_its_buffer(lo: int, hi: int, complex_: bool) -> None:
-    rng = np.random.default_rng(lo + hi)
-    sm = FrequencySmoother(300, 17, 2)
-    buf = np.zeros(300, dtype=np.complex128 if complex_ else np.float64)
-    plan = sm.range_plan(buf, lo, hi)
-    for _ in range(3):
-        x = rng.standard_normal(300) + (1j * rng.standard_normal(300) if complex_ else 0.0)
-        buf[...] = x
-        ref_re = scipy.signal.savgol_filter(np.real(x), 17, 2, mode="interp")
-        ref = ref_re + 1j * scipy.signal.savgol_filter(np.imag(x), 17, 2, mode="interp") if complex_ else ref_re
-        np.testing.assert_allclose(plan(), ref[lo:hi], rtol=1e-10, atol=1e-12)
 
 
 # ---------------------------------------------------------------------- VRM
