@@ -323,11 +323,8 @@ class Identifier:
         ks, hist, avg = self._k, self.history, self._avg
         seen, n_hist = hist._seen, hist._n
         want = ks.want
-        f_sl_valid, f_valid, f_nf, floor = vals[want : want + 4]
-        solver = self._solver
-        if self._first_stage < 3:
-            solver._floor = floor
-        solver.valid_count = n_sl_valid = int(f_sl_valid)
+        f_sl_valid, f_valid, f_nf = vals[want : want + 3]
+        n_sl_valid = int(f_sl_valid)
         n_valid, nf = int(f_valid), int(f_nf)
         n_range = ks.n_range
         if nf == 0:

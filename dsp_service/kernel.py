@@ -153,6 +153,96 @@ def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
     return s11, s22
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _full_rank(p11: float, p22: float, p12: complex, floor: float, det_threshold: float) -> tuple[bool, float]:
+    """``(ok, det)`` of one bin's 2×2 solve [2-21 … 2-24]: ``det = P11 P22 − |P12|²``; ok when both
+    input powers exceed ``floor`` and ``det / (P11 P22) ≥ det_threshold`` (:mod:`.mimo`). Without
+    branches (the callers' loops vectorize)."""
+    prod = p11 * p22
+    a12 = _cabs(p12)
+    det = prod - a12 * a12
+    return (det >= prod * det_threshold) & (p11 > floor) & (p22 > floor), det
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dominant_direction(p11: float, p22: float, p12: complex) -> tuple[complex, complex, float]:
+    """``(v1, v2, 1/σ₁)``: the unit eigenvector of the dominant eigenvalue σ₁ of ``[[P11, P12], [P21,
+    P22]]`` (the better-conditioned of its two forms) for the rank-1 minimum-norm solve of a
+    collinear bin, ``h_j = v (vᴴ r_j) / σ₁`` (:mod:`.mimo`'s module doc)."""
+    half = 0.5 * (p11 - p22)
+    disc = math.sqrt(half * half + (p12.real * p12.real + p12.imag * p12.imag))
+    sigma = 0.5 * (p11 + p22) + disc
+    if p11 >= p22:
+        v1 = complex(sigma - p22, 0.0)
+        v2 = p12.conjugate()
+    else:
+        v1 = p12
+        v2 = complex(sigma - p11, 0.0)
+    av1 = _cabs(v1)
+    av2 = _cabs(v2)
+    norm = math.sqrt(av1 * av1 + av2 * av2)
+    rn = 1.0 / norm
+    return v1 * rn, v2 * rn, 1.0 / sigma
+
+
+@njit(cache=True, error_model="numpy")
+def solve_full(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, H: C128, valid: Bool, mode: U8) -> int:
+    """All four transfer functions ``H`` (rows H11, H12, H21, H22) on bins ``s0 … s1−1`` from the
+    averaged spectra ``state``, with ``valid`` and ``mode`` (:mod:`.mimo`); returns the valid count.
+
+    ``H1j = (P1yj P22 − P12 P2yj) / det``, ``H2j = (P2yj P11 − P21 P1yj) / det`` [2-21 … 2-24]
+    (corrected) where :func:`_full_rank`; with ``dominant`` the masked bins whose input power
+    clears ``floor`` along the dominant input direction (:func:`_dominant_direction`); the rest 0.
+    The same operations as :func:`_solve_tot`, which solves their mean ``H_tot`` in one sum."""
+    count = 0
+    for i in range(s0, s1):
+        p11 = state[0, i].real
+        p22 = state[4, i].real
+        p12 = state[1, i]
+        ok, det = _full_rank(p11, p22, p12, floor, det_threshold)
+        if ok:
+            inv = 1.0 / det
+            p21 = p12.conjugate()
+            for j in range(2):
+                y1 = state[2 + j, i]  # P1yj
+                y2 = state[5 + j, i]  # P2yj
+                h1 = complex(y1.real * p22, y1.imag * p22) - _cmul(y2, p12)
+                h2 = complex(y2.real * p11, y2.imag * p11) - _cmul(y1, p21)
+                H[j, i] = complex(h1.real * inv, h1.imag * inv)
+                H[2 + j, i] = complex(h2.real * inv, h2.imag * inv)
+            valid[i] = True
+            mode[i] = 2
+            count += 1
+        elif dominant and p11 + p22 > floor:
+            v1, v2, rs = _dominant_direction(p11, p22, p12)
+            for j in range(2):
+                c = (_cmul(v1.conjugate(), state[2 + j, i]) + _cmul(v2.conjugate(), state[5 + j, i])) * rs
+                H[j, i] = _cmul(v1, c)
+                H[2 + j, i] = _cmul(v2, c)
+            valid[i] = True
+            mode[i] = 1
+            count += 1
+        else:
+            for r in range(4):
+                H[r, i] = 0j
+            valid[i] = False
+            mode[i] = 0
+    return count
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def input_power_floor(state: C128, power_floor: float) -> float:
+    """``power_floor`` × the mean input power (``P11``, ``P22``) over all bins, plus the smallest
+    normal float: the floor both input powers of a solved bin exceed (:mod:`.mimo`). Summed bin by
+    bin in order."""
+    s11 = 0.0
+    s22 = 0.0
+    for b in range(state.shape[1]):
+        s11 += state[0, b].real
+        s22 += state[4, b].real
+    return power_floor * ((s11 + s22) / (2 * state.shape[1])) + _TINY
+
+
 @njit(cache=True, error_model="numpy")
 def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, out: C128, valid: Bool, mode: U8) -> int:
     """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count.
@@ -160,7 +250,7 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
     Two passes: the corrected 2×2 solve [2-21…2-24] on every bin without branches (selects
     only, so the compiler vectorizes it: about 5× faster than bin by bin with its branches),
     then the dominant-direction solve of the bins it masked. The same operations per bin
-    as :class:`.mimo.MimoSolver`, so the same roundings. Not inlined into :func:`step_packed`
+    as :func:`solve_full` (its mask and dominant direction are theirs). Not inlined into :func:`step_packed`
     as the other stages are: inlined, its first pass no longer vectorized (0.66 → 2.4 µs at
     N = 2048)."""
     m = s1 - s0
@@ -179,10 +269,7 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
         p11 = r0[i].real
         p22 = r4[i].real
         p12 = r1[i]
-        prod = p11 * p22
-        a12 = _cabs(p12)
-        det = prod - a12 * a12
-        ok = (det >= prod * det_threshold) & (p11 > floor) & (p22 > floor)
+        ok, det = _full_rank(p11, p22, p12, floor, det_threshold)
         inv4 = 0.25 / det
         A = r2[i] + r3[i]
         B = r5[i] + r6[i]
@@ -202,24 +289,7 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
         p22 = r4[i].real
         if not (p11 + p22 > floor):
             continue
-        p12 = r1[i]
-        # rank-1 minimum-norm solve along the dominant eigenvector (mimo.MimoSolver._dominant)
-        half = 0.5 * (p11 - p22)
-        disc = math.sqrt(half * half + (p12.real * p12.real + p12.imag * p12.imag))
-        sigma = 0.5 * (p11 + p22) + disc
-        if p11 >= p22:
-            v1 = complex(sigma - p22, 0.0)
-            v2 = p12.conjugate()
-        else:
-            v1 = p12
-            v2 = complex(sigma - p11, 0.0)
-        av1 = _cabs(v1)
-        av2 = _cabs(v2)
-        norm = math.sqrt(av1 * av1 + av2 * av2)
-        rn = 1.0 / norm
-        v1 = v1 * rn
-        v2 = v2 * rn
-        rs = 1.0 / sigma
+        v1, v2, rs = _dominant_direction(p11, p22, r1[i])
         c0 = (_cmul(v1.conjugate(), r2[i]) + _cmul(v2.conjugate(), r5[i])) * rs
         c1 = (_cmul(v1.conjugate(), r3[i]) + _cmul(v2.conjugate(), r6[i])) * rs
         o[i] = _cmul(0.25 * (v1 + v2), c0 + c1)
@@ -625,17 +695,13 @@ def _average_and_solve(X: F64, c: float, fk: F64, ik: Intp, state: C128, src: C1
             if valid[i]:
                 n_sl_valid += 1
         return n_sl_valid, 0.0
-    # 1. the seven spectra into the averages, and the power floor
+    # 1. the seven spectra into the averages, and the power floor (input_power_floor's, with the
+    # sums the averaging makes on its way)
     if first == 1:
         s11, s22 = _accumulate(X, c, state.view(np.float64))
+        floor = fk[FP_POWER_FLOOR] * ((s11 + s22) / (2 * ik[IP_BINS])) + _TINY
     else:
-        s11 = 0.0
-        s22 = 0.0
-        for b in range(state.shape[1]):
-            s11 += state[0, b].real
-            s22 += state[4, b].real
-    mean_power = (s11 + s22) / (2 * ik[IP_BINS])
-    floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
+        floor = input_power_floor(state, fk[FP_POWER_FLOOR])
     # 2. H_tot on the slice
     return _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode), floor
 
