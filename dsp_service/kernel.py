@@ -369,19 +369,10 @@ _SELECT_MAX = 16  #: up to this many local maxima the peak search picks the high
 
 
 @njit(cache=True, error_model="numpy")
-def _blocks(v: F64) -> tuple[F64, F64]:
-    """Minimum and maximum of each block of ``_BLOCK`` bins of ``v`` (the last one shorter); a
-    block holding a NaN gets a NaN maximum, so that a walk goes through it bin by bin."""
-    nb = (v.size + _BLOCK - 1) // _BLOCK
-    bmin = np.empty(nb)
-    bmax = np.empty(nb)
-    _blocks_into(v, bmin, bmax)
-    return bmin, bmax
-
-
-@njit(cache=True, error_model="numpy")
 def _blocks_into(v: F64, bmin: F64, bmax: F64) -> None:
-    """:func:`_blocks` into ``bmin``, ``bmax`` (at least ``ceil(v.size / _BLOCK)`` long)."""
+    """Minimum and maximum of each block of ``_BLOCK`` bins of ``v`` (the last one shorter) into
+    ``bmin``, ``bmax`` (at least ``ceil(v.size / _BLOCK)`` long); a block holding a NaN gets a NaN
+    maximum, so that a walk goes through it bin by bin."""
     size = v.size
     nb = (size + _BLOCK - 1) // _BLOCK
     for q in range(nb):

@@ -144,15 +144,6 @@ class PeakRefiner:
         for r in range(1, self.r_max + 1):
             self.pinv[r, :, : 2 * r + 1] = parabola_fit_rows(r)
 
-    def refine(self, mag: NDArray[np.float64], k: int, r: int) -> tuple[float, float]:
-        """``(δ, ln peak)``: vertex offset in bins (|δ| ≤ r) and its log magnitude.
-
-        ``r`` is clipped to ``[1, r_max]`` and to the array; a non-concave fit
-        returns ``(0, ln mag[k])`` (the identification step's own, :mod:`.kernel`).
-        """
-        d, lv = kernel._refine_ls(np.ascontiguousarray(mag, dtype=np.float64), int(k), int(r), self.pinv, self.r_max)
-        return float(d), float(lv)
-
 
 # ---------------------------------------------------------------------------
 # FWHM, Appendix B

@@ -128,7 +128,6 @@ class SegmentedSpectralEstimator(SpectralEstimator):
         seg = (2 * self.n) // (s + 1)
         if seg < 8 or seg % 2:
             raise ValueError(f"{s} segments of an N = {n} history are {seg} samples: too short or odd")
-        self.segments = s
         self.segment_length = seg
         self.hop = seg // 2
         self.window = make_window(window, seg)
