@@ -320,7 +320,7 @@ class Identifier:
     def _result(self, vals: list[float]) -> IdentificationResult:
         """The step's result from the kernel's ``tail`` (``vals``: prominences[want], stats[4],
         poles[want × 6]): the counters, the confidences (module doc), the poles."""
-        ks, hist, avg = self._k, self.history, self._avg
+        ks, hist = self._k, self.history
         seen, n_hist = hist._seen, hist._n
         want = ks.want
         f_sl_valid, f_valid, f_nf = vals[want : want + 3]
@@ -330,13 +330,7 @@ class Identifier:
         if nf == 0:
             return IdentificationResult((), 0.0, n_valid / n_range, hist.samples_in_history, float(self.effective_averages))
         # the confidences, computed before the poles are made
-        # (self.effective_averages, SpectralAverager.effective_averages, inline)
-        if self._seg_avgs > 1.0:
-            n_eff = self.effective_averages
-        else:
-            sum_c, sum_c2 = avg._sum_c, avg._sum_c2
-            kish = sum_c * sum_c / sum_c2 if sum_c2 > 0.0 else 0.0
-            n_eff = min(kish, 1.0 + 2.0 * (avg._sum_cl / sum_c) * (kish - 1.0) / avg.n) if kish != 0.0 else 0.0
+        n_eff = self.effective_averages
         valid_fraction = n_valid / n_range
         in_history = seen if seen < n_hist else n_hist  # hist.samples_in_history
         confident = n_eff > 1.0
