@@ -261,17 +261,8 @@ class SpectralAverager:
 
     def take(self, new_samples: int) -> float:
         """:meth:`next_weight`, then :meth:`add`'s bookkeeping, in one call: the weight of a snapshot the
-        caller adds to :attr:`state` itself (the compiled step). The usual exponential update
-        (no rescale) inline, the rest through :meth:`next_weight`; the same arithmetic."""
-        alpha = self.alpha
-        if self.updates and self.method == "exponential" and alpha < 1.0:
-            c = self._c / (1.0 - alpha)
-            if c > self._RESCALE_AT:
-                c = self.next_weight()  # rescales, from the same self._c
-            else:
-                self._c = c
-        else:
-            c = self.next_weight()
+        caller adds to :attr:`state` itself (the compiled step)."""
+        c = self.next_weight()
         self._account(c, new_samples)
         return c
 
