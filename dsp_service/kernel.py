@@ -817,7 +817,8 @@ def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) :func:`detrend_window_ring`, :func:`_accumulate` and
-    :func:`step_packed` (and what they call) with the types the identifier passes."""
+    :func:`step_packed` (and what they call) with the types the identifier passes, and the
+    downloads' :func:`solve_full`, :func:`input_power_floor` and :func:`_smooth`."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
@@ -825,6 +826,12 @@ def warm_up() -> None:
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
     _accumulate(X.view(np.float64), 1.0, state.view(np.float64))  # alone: the settings whose solve runs before the search
+    # the downloads (mimo.MimoSolver, smoothing.FrequencySmoother), called from Python
+    H = np.zeros((4, k), dtype=np.complex128)
+    valid = np.zeros(k, dtype=np.bool_)
+    floor = input_power_floor(state, 1e-12)
+    solve_full(state, 0, k, floor, 1e-3, True, H, valid, np.zeros(k, dtype=np.uint8))
+    _smooth(H[0], valid, 0, k, np.ones((k, 1)), np.arange(k, dtype=np.intp), np.empty(k, dtype=np.complex128), np.empty(k, dtype=np.bool_), 0, 0, False)
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
