@@ -817,12 +817,16 @@ def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) :func:`detrend_window_ring`, :func:`_accumulate` and
-    :func:`step_packed` (and what they call) with the types the identifier passes, and the
-    downloads' :func:`solve_full`, :func:`input_power_floor` and :func:`_smooth`."""
+    :func:`step_packed` (and what they call) with the types the identifier passes, the Welch
+    segments' :func:`row_mean` and the downloads' :func:`solve_full`, :func:`input_power_floor` and
+    :func:`_smooth`."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
     detrend_window_ring(ring, 3, np.zeros(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
+    history = ring[:, 3 : 3 + 2 * k - 2]
+    history.flags.writeable = False
+    row_mean(history[0])  # the Welch segments' means (spectra.SegmentedSpectralEstimator), on the history's read-only view
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
     _accumulate(X.view(np.float64), 1.0, state.view(np.float64))  # alone: the settings whose solve runs before the search

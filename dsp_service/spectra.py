@@ -35,6 +35,7 @@ import scipy.fft
 import scipy.signal
 from numpy.typing import NDArray
 
+from . import kernel
 from .history import N_CHANNELS
 
 #: Row indices of the spectra array.
@@ -107,7 +108,7 @@ class SegmentedSpectralEstimator(SpectralEstimator):
     """Welch within the history: the seven spectra averaged over ``segments`` half-overlapping windows.
 
     The history of ``N`` samples is cut into ``S`` segments of ``L = 2N/(S + 1)``
-    samples overlapping by ``L/2``; each is detrended (its own mean), windowed
+    samples overlapping by ``L/2``; each is detrended (its own mean, :func:`.kernel.row_mean`), windowed
     with an ``L``-point periodic window and FFT'd zero-padded to ``N`` (so the
     bin grid stays the thesis's, at a resolution of ``fs/L``); the spectra are
     the mean over segments of ``conj(X)·Y``. This is ``scipy.signal.csd(x, y,
@@ -141,8 +142,10 @@ class SegmentedSpectralEstimator(SpectralEstimator):
         seg, L = self._seg, self.segment_length
         for i, a in enumerate(self._starts):
             x = history[:, a : a + L]
-            np.subtract(x, x.mean(axis=1, keepdims=True), out=seg[i, :, :L])
-            seg[i, :, :L] *= self.window
+            dst = seg[i, :, :L]
+            for r in range(N_CHANNELS):  # detrend='constant' by the step's own channel mean
+                np.subtract(x[r], kernel.row_mean(x[r]), out=dst[r])
+            dst *= self.window
         X = rfft_rows(seg.reshape(-1, self.n), self._segX.reshape(-1, self.n_bins)).reshape(self._segX.shape)
         U = np.conj(X[:, 0:2])  # (S, 2, K)
         sp = self.spectra
