@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from dsp_service.arx import load_regime_bank, save_regime_bank
+from dsp_service.arx_regime_bank import load_regime_bank, save_regime_bank
 from dsp_service.identifier import Identifier
 from protocol.errors import ConfigError
 from protocol.settings import DspSettings

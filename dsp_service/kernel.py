@@ -153,6 +153,96 @@ def _accumulate(X: F64, c: float, state: F64) -> tuple[float, float]:
     return s11, s22
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _full_rank(p11: float, p22: float, p12: complex, floor: float, det_threshold: float) -> tuple[bool, float]:
+    """``(ok, det)`` of one bin's 2×2 solve [2-21 … 2-24]: ``det = P11 P22 − |P12|²``; ok when both
+    input powers exceed ``floor`` and ``det / (P11 P22) ≥ det_threshold`` (:mod:`.mimo`). Without
+    branches (the callers' loops vectorize)."""
+    prod = p11 * p22
+    a12 = _cabs(p12)
+    det = prod - a12 * a12
+    return (det >= prod * det_threshold) & (p11 > floor) & (p22 > floor), det
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dominant_direction(p11: float, p22: float, p12: complex) -> tuple[complex, complex, float]:
+    """``(v1, v2, 1/σ₁)``: the unit eigenvector of the dominant eigenvalue σ₁ of ``[[P11, P12], [P21,
+    P22]]`` (the better-conditioned of its two forms) for the rank-1 minimum-norm solve of a
+    collinear bin, ``h_j = v (vᴴ r_j) / σ₁`` (:mod:`.mimo`'s module doc)."""
+    half = 0.5 * (p11 - p22)
+    disc = math.sqrt(half * half + (p12.real * p12.real + p12.imag * p12.imag))
+    sigma = 0.5 * (p11 + p22) + disc
+    if p11 >= p22:
+        v1 = complex(sigma - p22, 0.0)
+        v2 = p12.conjugate()
+    else:
+        v1 = p12
+        v2 = complex(sigma - p11, 0.0)
+    av1 = _cabs(v1)
+    av2 = _cabs(v2)
+    norm = math.sqrt(av1 * av1 + av2 * av2)
+    rn = 1.0 / norm
+    return v1 * rn, v2 * rn, 1.0 / sigma
+
+
+@njit(cache=True, error_model="numpy")
+def solve_full(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, H: C128, valid: Bool, mode: U8) -> int:
+    """All four transfer functions ``H`` (rows H11, H12, H21, H22) on bins ``s0 … s1−1`` from the
+    averaged spectra ``state``, with ``valid`` and ``mode`` (:mod:`.mimo`); returns the valid count.
+
+    ``H1j = (P1yj P22 − P12 P2yj) / det``, ``H2j = (P2yj P11 − P21 P1yj) / det`` [2-21 … 2-24]
+    (corrected) where :func:`_full_rank`; with ``dominant`` the masked bins whose input power
+    clears ``floor`` along the dominant input direction (:func:`_dominant_direction`); the rest 0.
+    The same operations as :func:`_solve_tot`, which solves their mean ``H_tot`` in one sum."""
+    count = 0
+    for i in range(s0, s1):
+        p11 = state[0, i].real
+        p22 = state[4, i].real
+        p12 = state[1, i]
+        ok, det = _full_rank(p11, p22, p12, floor, det_threshold)
+        if ok:
+            inv = 1.0 / det
+            p21 = p12.conjugate()
+            for j in range(2):
+                y1 = state[2 + j, i]  # P1yj
+                y2 = state[5 + j, i]  # P2yj
+                h1 = complex(y1.real * p22, y1.imag * p22) - _cmul(y2, p12)
+                h2 = complex(y2.real * p11, y2.imag * p11) - _cmul(y1, p21)
+                H[j, i] = complex(h1.real * inv, h1.imag * inv)
+                H[2 + j, i] = complex(h2.real * inv, h2.imag * inv)
+            valid[i] = True
+            mode[i] = 2
+            count += 1
+        elif dominant and p11 + p22 > floor:
+            v1, v2, rs = _dominant_direction(p11, p22, p12)
+            for j in range(2):
+                c = (_cmul(v1.conjugate(), state[2 + j, i]) + _cmul(v2.conjugate(), state[5 + j, i])) * rs
+                H[j, i] = _cmul(v1, c)
+                H[2 + j, i] = _cmul(v2, c)
+            valid[i] = True
+            mode[i] = 1
+            count += 1
+        else:
+            for r in range(4):
+                H[r, i] = 0j
+            valid[i] = False
+            mode[i] = 0
+    return count
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def input_power_floor(state: C128, power_floor: float) -> float:
+    """``power_floor`` × the mean input power (``P11``, ``P22``) over all bins, plus the smallest
+    normal float: the floor both input powers of a solved bin exceed (:mod:`.mimo`). Summed bin by
+    bin in order."""
+    s11 = 0.0
+    s22 = 0.0
+    for b in range(state.shape[1]):
+        s11 += state[0, b].real
+        s22 += state[4, b].real
+    return power_floor * ((s11 + s22) / (2 * state.shape[1])) + _TINY
+
+
 @njit(cache=True, error_model="numpy")
 def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float, dominant: bool, out: C128, valid: Bool, mode: U8) -> int:
     """``H_tot`` on bins ``s0 … s1−1`` into ``out`` (with ``valid``, ``mode``); returns the valid count.
@@ -160,7 +250,7 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
     Two passes: the corrected 2×2 solve [2-21…2-24] on every bin without branches (selects
     only, so the compiler vectorizes it: about 5× faster than bin by bin with its branches),
     then the dominant-direction solve of the bins it masked. The same operations per bin
-    as :class:`.mimo.MimoSolver`, so the same roundings. Not inlined into :func:`step_packed`
+    as :func:`solve_full` (its mask and dominant direction are theirs). Not inlined into :func:`step_packed`
     as the other stages are: inlined, its first pass no longer vectorized (0.66 → 2.4 µs at
     N = 2048)."""
     m = s1 - s0
@@ -179,10 +269,7 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
         p11 = r0[i].real
         p22 = r4[i].real
         p12 = r1[i]
-        prod = p11 * p22
-        a12 = _cabs(p12)
-        det = prod - a12 * a12
-        ok = (det >= prod * det_threshold) & (p11 > floor) & (p22 > floor)
+        ok, det = _full_rank(p11, p22, p12, floor, det_threshold)
         inv4 = 0.25 / det
         A = r2[i] + r3[i]
         B = r5[i] + r6[i]
@@ -202,24 +289,7 @@ def _solve_tot(state: C128, s0: int, s1: int, floor: float, det_threshold: float
         p22 = r4[i].real
         if not (p11 + p22 > floor):
             continue
-        p12 = r1[i]
-        # rank-1 minimum-norm solve along the dominant eigenvector (mimo.MimoSolver._dominant)
-        half = 0.5 * (p11 - p22)
-        disc = math.sqrt(half * half + (p12.real * p12.real + p12.imag * p12.imag))
-        sigma = 0.5 * (p11 + p22) + disc
-        if p11 >= p22:
-            v1 = complex(sigma - p22, 0.0)
-            v2 = p12.conjugate()
-        else:
-            v1 = p12
-            v2 = complex(sigma - p11, 0.0)
-        av1 = _cabs(v1)
-        av2 = _cabs(v2)
-        norm = math.sqrt(av1 * av1 + av2 * av2)
-        rn = 1.0 / norm
-        v1 = v1 * rn
-        v2 = v2 * rn
-        rs = 1.0 / sigma
+        v1, v2, rs = _dominant_direction(p11, p22, r1[i])
         c0 = (_cmul(v1.conjugate(), r2[i]) + _cmul(v2.conjugate(), r5[i])) * rs
         c1 = (_cmul(v1.conjugate(), r3[i]) + _cmul(v2.conjugate(), r6[i])) * rs
         o[i] = _cmul(0.25 * (v1 + v2), c0 + c1)
@@ -299,19 +369,10 @@ _SELECT_MAX = 16  #: up to this many local maxima the peak search picks the high
 
 
 @njit(cache=True, error_model="numpy")
-def _blocks(v: F64) -> tuple[F64, F64]:
-    """Minimum and maximum of each block of ``_BLOCK`` bins of ``v`` (the last one shorter); a
-    block holding a NaN gets a NaN maximum, so that a walk goes through it bin by bin."""
-    nb = (v.size + _BLOCK - 1) // _BLOCK
-    bmin = np.empty(nb)
-    bmax = np.empty(nb)
-    _blocks_into(v, bmin, bmax)
-    return bmin, bmax
-
-
-@njit(cache=True, error_model="numpy")
 def _blocks_into(v: F64, bmin: F64, bmax: F64) -> None:
-    """:func:`_blocks` into ``bmin``, ``bmax`` (at least ``ceil(v.size / _BLOCK)`` long)."""
+    """Minimum and maximum of each block of ``_BLOCK`` bins of ``v`` (the last one shorter) into
+    ``bmin``, ``bmax`` (at least ``ceil(v.size / _BLOCK)`` long); a block holding a NaN gets a NaN
+    maximum, so that a walk goes through it bin by bin."""
     size = v.size
     nb = (size + _BLOCK - 1) // _BLOCK
     for q in range(nb):
@@ -354,33 +415,11 @@ def _walk_min(v: F64, bmin: F64, bmax: F64, p: int, hp: float, step: int) -> flo
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _peaks(
-    hs: C128,
-    vs: Bool,
-    n_valid: int,
-    w_lin: F64,
-    weighted: bool,
-    ratio: float,
-    want: int,
-    v: F64,
-    order_buf: Intp,
-    found_idx: Intp,
-    found_prom: F64,
-    scratch: F64,
-) -> int:
-    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``scipy.signal.find_peaks`` with its prominence, on the
-    weighted magnitude); returns how many.
-
-    The local maxima are tried highest first (ties: the later first), each against its
-    prominence; with at most ``_SELECT_MAX`` maxima (the smoothed spectrum's usual few) by
-    picking the highest untried one at a time, with no allocation (``order_buf`` holds the
-    maxima and their marks, ``scratch`` the walks' block extremes, at least ``2·ceil(hs.size /
-    _BLOCK)`` floats); with more, in the order of a stable sort of their heights."""
+def _weighted_magnitude(hs: C128, vs: Bool, n_valid: int, w_lin: F64, weighted: bool, v: F64) -> None:
+    """``v`` ← ``max(|hs|, tiny)·w`` (``w`` = 1 unless ``weighted``), invalid bins set to the smallest
+    valid value. The magnitudes in a loop of their own (no branches: it vectorizes, 4-8x faster than
+    with the smallest valid value tracked in it), that minimum only where bins are invalid."""
     size = hs.size
-    if size < 3 or n_valid == 0:
-        return 0
-    # the magnitudes in a loop of their own (no branches: it vectorizes, 4-8x faster than with
-    # the smallest valid value tracked in it), that minimum only where bins are invalid
     if weighted:
         for i in range(size):
             a = _cabs(hs[i])
@@ -397,60 +436,81 @@ def _peaks(
         for i in range(size):
             if not vs[i]:
                 v[i] = vmin
-    # scipy.signal._peak_finding_utils._local_maxima_1d
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _local_maxima(v: F64, out: Intp) -> int:
+    """The local maxima of ``v`` into ``out`` (the middle of a plateau); returns how many
+    (``scipy.signal._peak_finding_utils._local_maxima_1d``)."""
     m = 0
     i = 1
-    last = size - 1
+    last = v.size - 1
     while i < last:
         if v[i - 1] < v[i]:
             ahead = i + 1
             while ahead < last and v[ahead] == v[i]:
                 ahead += 1
             if v[ahead] < v[i]:
-                order_buf[m] = (i + ahead - 1) // 2
+                out[m] = (i + ahead - 1) // 2
                 m += 1
                 i = ahead
         i += 1
-    nf = 0
-    if m:
-        nb = (size + _BLOCK - 1) // _BLOCK
-        bmin = scratch[:nb]
-        bmax = scratch[nb : 2 * nb]
-        _blocks_into(v, bmin, bmax)
-        idx = order_buf[:m]
-        if m <= _SELECT_MAX:
-            tried = order_buf[m : 2 * m]  # m ≤ (size − 1) / 2: within order_buf
-            for q in range(m):
-                tried[q] = 0
-        else:
-            height = np.empty(m)
-            for q in range(m):
-                height[q] = v[idx[q]]
-            order = np.argsort(height, kind="mergesort")[::-1]  # highest first, ties: the later first
+    return m
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _prominent_maxima(v: F64, m: int, order_buf: Intp, ratio: float, want: int, found_idx: Intp, found_prom: F64, scratch: F64) -> int:
+    """Of the ``m`` local maxima ``order_buf[:m]`` of ``v``, tried highest first (ties: the later first),
+    the first ``want`` whose prominence (scipy's bases, the higher of the two walks' minima) is at
+    least ``ratio``, into ``found_idx``, ``found_prom`` (dB); returns how many. With at most
+    ``_SELECT_MAX`` maxima the highest untried one is picked at a time (``order_buf[m : 2m]`` marks
+    them), with more in the order of a stable sort of their heights."""
+    size = v.size
+    nb = (size + _BLOCK - 1) // _BLOCK
+    bmin = scratch[:nb]
+    bmax = scratch[nb : 2 * nb]
+    _blocks_into(v, bmin, bmax)
+    idx = order_buf[:m]
+    if m <= _SELECT_MAX:
+        tried = order_buf[m : 2 * m]  # m ≤ (size − 1) / 2: within order_buf
         for q in range(m):
-            if m <= _SELECT_MAX:
-                best = -1
-                hb = 0.0
-                for t in range(m):  # the highest untried maximum; of equal ones the later (>=)
-                    if tried[t] == 0 and (best < 0 or v[idx[t]] >= hb):
-                        best = t
-                        hb = v[idx[t]]
-                tried[best] = 1
-                p = idx[best]
-            else:
-                p = idx[order[q]]
-            hp = v[p]
-            lmin = _walk_min(v, bmin, bmax, p, hp, -1)
-            rmin = _walk_min(v, bmin, bmax, p, hp, 1)
-            base = lmin if lmin > rmin else rmin
-            if hp >= base * ratio:
-                found_idx[nf] = p
-                found_prom[nf] = 20.0 * math.log10(hp / base)
-                nf += 1
-                if nf == want:
-                    break
-    if nf:
-        return nf
+            tried[q] = 0
+    else:
+        height = np.empty(m)
+        for q in range(m):
+            height[q] = v[idx[q]]
+        order = np.argsort(height, kind="mergesort")[::-1]  # highest first, ties: the later first
+    nf = 0
+    for q in range(m):
+        if m <= _SELECT_MAX:
+            best = -1
+            hb = 0.0
+            for t in range(m):  # the highest untried maximum; of equal ones the later (>=)
+                if tried[t] == 0 and (best < 0 or v[idx[t]] >= hb):
+                    best = t
+                    hb = v[idx[t]]
+            tried[best] = 1
+            p = idx[best]
+        else:
+            p = idx[order[q]]
+        hp = v[p]
+        lmin = _walk_min(v, bmin, bmax, p, hp, -1)
+        rmin = _walk_min(v, bmin, bmax, p, hp, 1)
+        base = lmin if lmin > rmin else rmin
+        if hp >= base * ratio:
+            found_idx[nf] = p
+            found_prom[nf] = 20.0 * math.log10(hp / base)
+            nf += 1
+            if nf == want:
+                break
+    return nf
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _global_peak(v: F64, found_idx: Intp, found_prom: F64) -> int:
+    """The global maximum of ``v`` as the one peak (its prominence over the whole range) when no
+    local maximum is prominent enough; 0 when it lies on an edge."""
+    size = v.size
     g = 0
     for i in range(1, size):
         if v[i] > v[g]:
@@ -469,6 +529,38 @@ def _peaks(
     found_idx[0] = g
     found_prom[0] = 20.0 * math.log10(v[g] / base)
     return 1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _peaks(
+    hs: C128,
+    vs: Bool,
+    n_valid: int,
+    w_lin: F64,
+    weighted: bool,
+    ratio: float,
+    want: int,
+    v: F64,
+    order_buf: Intp,
+    found_idx: Intp,
+    found_prom: F64,
+    scratch: F64,
+) -> int:
+    """Best ``want`` peaks of ``max(|hs|, tiny)·w`` (``scipy.signal.find_peaks`` with its prominence, on the
+    weighted magnitude); returns how many.
+
+    The local maxima are tried highest first (ties: the later first), each against its
+    prominence (:func:`_prominent_maxima`; ``order_buf`` holds the maxima and their marks,
+    ``scratch`` the walks' block extremes, at least ``2·ceil(hs.size / _BLOCK)`` floats); with
+    none prominent enough, the global maximum (:func:`_global_peak`)."""
+    if hs.size < 3 or n_valid == 0:
+        return 0
+    _weighted_magnitude(hs, vs, n_valid, w_lin, weighted, v)
+    m = _local_maxima(v, order_buf)
+    nf = _prominent_maxima(v, m, order_buf, ratio, want, found_idx, found_prom, scratch) if m else 0
+    if nf:
+        return nf
+    return _global_peak(v, found_idx, found_prom)
 
 
 # Packed arguments of :func:`step_packed`: everything the stages take but the snapshot, its
@@ -581,76 +673,43 @@ def pack_arguments(
     return fk, ik, fw, views
 
 
-@njit(cache=True, error_model="numpy", nogil=True)
-def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: C128, valid: Bool, mode: U8, hs: C128, vs: Bool) -> None:
-    """The identification step after the FFTs (module doc, stages 1–5) on the packed arguments
-    of :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``), from stage ``IP_FIRST``:
+@njit(cache=True, error_model="numpy", inline="always")
+def _average_and_solve(X: F64, c: float, fk: F64, ik: Intp, state: C128, src: C128, valid: Bool, mode: U8) -> tuple[int, float]:
+    """Stages 1 and 2 of :func:`step_packed` (from stage ``IP_FIRST``): ``(valid count on the slice,
+    power floor)``; from stage 3 the count of the caller's solve and a floor of 0."""
+    s0 = ik[IP_S0]
+    s1 = ik[IP_S1]
+    first = ik[IP_FIRST]
+    if first > 2:  # solved by the caller
+        n_sl_valid = 0
+        for i in range(s0, s1):
+            if valid[i]:
+                n_sl_valid += 1
+        return n_sl_valid, 0.0
+    # 1. the seven spectra into the averages, and the power floor (input_power_floor's, with the
+    # sums the averaging makes on its way)
+    if first == 1:
+        s11, s22 = _accumulate(X, c, state.view(np.float64))
+        floor = fk[FP_POWER_FLOOR] * ((s11 + s22) / (2 * ik[IP_BINS])) + _TINY
+    else:
+        floor = input_power_floor(state, fk[FP_POWER_FLOOR])
+    # 2. H_tot on the slice
+    return _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode), floor
 
-    1. the snapshot ``X`` (float view, ``(4, 2K)``) averaged with weight ``c`` into ``state``;
-    2. ``H_tot`` solved on the slice into ``src`` (``valid``, ``mode``) with the power floor of
-       ``state``;
-    3. ``src`` (``valid``: solved by the caller from stage 3) smoothed over the search range into
-       ``hs`` (``vs``), the peaks searched and their poles estimated on the smoothed
-       (``IP_ON_SMOOTHED``) or the solved spectrum.
 
-    ``stats`` ← (valid count on the slice, valid smoothed bins, peaks found, power floor (0 from
-    stage 3)). The stages are called from here directly: through two more levels of functions
-    of 32 and 48 arguments (not inlined), every array argument was passed as its seven fields
-    and reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
-    one process step on several cores."""
+@njit(cache=True, error_model="numpy", inline="always")
+def _stage_poles(fk: F64, ik: Intp, fw: F64, src: C128, valid: Bool, hs: C128, vs: Bool, nf: int, n_valid: int, n_sl_valid: int) -> None:
+    """Stage 5 of :func:`step_packed`: the refinement, FWHM and VRM of the ``nf`` peaks found, on the
+    smoothed spectrum (``IP_ON_SMOOTHED``) or the solved slice, into the packed pole rows."""
     m = ik[IP_HI] - ik[IP_LO]
-    w = ik[IK_W]
     want = ik[IP_WANT]
     r_max = ik[IP_R_MAX]
     tm = ik[IK_TRI_M]
     tq = ik[IK_TRI_Q]
     s0 = ik[IP_S0]
     s1 = ik[IP_S1]
-    lo = ik[IP_LO]
-    hi = ik[IP_HI]
-    o = ik[IK_COEF]
-    coef = fk[o : o + m * w].reshape((m, w))
-    starts = ik[ik[IK_STARTS] : ik[IK_STARTS] + m]
     idx = ik[ik[IK_IDX] : ik[IK_IDX] + want]
-    prom = fw[ik[IK_PROM] : ik[IK_PROM] + want]
-    stats = fw[ik[IK_STATS] : ik[IK_STATS] + 4]
     mag = fw[ik[IK_MAG] : ik[IK_MAG] + ik[IK_N_MAG]]
-    first = ik[IP_FIRST]
-    if first <= 2:
-        # 1. the seven spectra into the averages, and the power floor
-        if first == 1:
-            s11, s22 = _accumulate(X, c, state.view(np.float64))
-        else:
-            s11 = 0.0
-            s22 = 0.0
-            for b in range(state.shape[1]):
-                s11 += state[0, b].real
-                s22 += state[4, b].real
-        mean_power = (s11 + s22) / (2 * ik[IP_BINS])
-        floor = fk[FP_POWER_FLOOR] * mean_power + _TINY
-        # 2. H_tot on the slice
-        n_sl_valid = _solve_tot(state, s0, s1, floor, fk[FP_DET], ik[IP_DOMINANT] != 0, src, valid, mode)
-    else:  # solved by the caller
-        floor = 0.0
-        n_sl_valid = 0
-        for i in range(s0, s1):
-            if valid[i]:
-                n_sl_valid += 1
-    # 3. smoothing: every bin of the slice valid (the usual case), so is every window, which lies within it
-    all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[m - 1] + w <= s1
-    n_valid = _smooth(src, valid, lo, hi, coef, starts, hs, vs, ik[IP_IA], ik[IP_IB], all_valid)
-    # 4. peaks (the poles' |H| buffer, free until stage 5, as scratch)
-    v = fw[ik[IK_V] : ik[IK_V] + m]
-    order = ik[ik[IK_ORDER] : ik[IK_ORDER] + m]
-    w_lin = fk[ik[IK_W_LIN] : ik[IK_W_LIN] + m]
-    nf = _peaks(hs, vs, n_valid, w_lin, ik[IP_WEIGHTED] != 0, fk[FP_RATIO], want, v, order, idx, prom, mag)
-    stats[0] = n_sl_valid
-    stats[1] = n_valid
-    stats[2] = nf
-    stats[3] = floor
-    if nf == 0:
-        return
-    # 5. refinement, FWHM and VRM of the peaks
     o = ik[IK_PINV]
     pinv = fk[o : o + (r_max + 1) * 3 * (2 * r_max + 1)].reshape((r_max + 1, 3, 2 * r_max + 1))
     o = ik[IK_TRI]
@@ -667,13 +726,14 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
     else:
         f_sl = fk[ik[IK_F_SL] : ik[IK_F_SL] + ik[IK_N_SL]]
         all_sl = n_sl_valid == s1 - s0
+        offset = ik[IP_LO] - s0
         sl_src, sl_valid = src[s0:s1], valid[s0:s1]
         poles(
             sl_src,
             sl_valid,
             all_sl,
             f_sl,
-            lo - s0,
+            offset,
             idx,
             nf,
             relocate,
@@ -690,6 +750,54 @@ def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: 
             mag[: s1 - s0],
             out,
         )
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def step_packed(X: F64, c: float, fk: F64, ik: Intp, fw: F64, state: C128, src: C128, valid: Bool, mode: U8, hs: C128, vs: Bool) -> None:
+    """The identification step after the FFTs (module doc, stages 1–5) on the packed arguments
+    of :func:`pack_arguments` (views into ``fk``, ``ik``, ``fw``), from stage ``IP_FIRST``:
+
+    1. the snapshot ``X`` (float view, ``(4, 2K)``) averaged with weight ``c`` into ``state``;
+    2. ``H_tot`` solved on the slice into ``src`` (``valid``, ``mode``) with the power floor of
+       ``state``;
+    3. ``src`` (``valid``: solved by the caller from stage 3) smoothed over the search range into
+       ``hs`` (``vs``), the peaks searched and their poles estimated on the smoothed
+       (``IP_ON_SMOOTHED``) or the solved spectrum.
+
+    ``stats`` ← (valid count on the slice, valid smoothed bins, peaks found, power floor (0 from
+    stage 3)). The stages are inlined here (``inline="always"``): through functions of 32 and
+    48 arguments not inlined, every array argument was passed as its seven fields and
+    reference-counted, about 0.9 µs a step. Releases the GIL: the boards of several rigs in
+    one process step on several cores."""
+    m = ik[IP_HI] - ik[IP_LO]
+    w = ik[IK_W]
+    want = ik[IP_WANT]
+    s0 = ik[IP_S0]
+    s1 = ik[IP_S1]
+    o = ik[IK_COEF]
+    coef = fk[o : o + m * w].reshape((m, w))
+    starts = ik[ik[IK_STARTS] : ik[IK_STARTS] + m]
+    stats = fw[ik[IK_STATS] : ik[IK_STATS] + 4]
+    # 1., 2. the averages and H_tot on the slice (or the caller's solve)
+    n_sl_valid, floor = _average_and_solve(X, c, fk, ik, state, src, valid, mode)
+    # 3. smoothing: every bin of the slice valid (the usual case), so is every window, which lies within it
+    all_valid = n_sl_valid == s1 - s0 and starts[0] >= s0 and starts[m - 1] + w <= s1
+    n_valid = _smooth(src, valid, ik[IP_LO], ik[IP_HI], coef, starts, hs, vs, ik[IP_IA], ik[IP_IB], all_valid)
+    # 4. peaks (the poles' |H| buffer, free until stage 5, as scratch)
+    v = fw[ik[IK_V] : ik[IK_V] + m]
+    order = ik[ik[IK_ORDER] : ik[IK_ORDER] + m]
+    w_lin = fk[ik[IK_W_LIN] : ik[IK_W_LIN] + m]
+    idx = ik[ik[IK_IDX] : ik[IK_IDX] + want]
+    prom = fw[ik[IK_PROM] : ik[IK_PROM] + want]
+    mag = fw[ik[IK_MAG] : ik[IK_MAG] + ik[IK_N_MAG]]
+    nf = _peaks(hs, vs, n_valid, w_lin, ik[IP_WEIGHTED] != 0, fk[FP_RATIO], want, v, order, idx, prom, mag)
+    stats[0] = n_sl_valid
+    stats[1] = n_valid
+    stats[2] = nf
+    stats[3] = floor
+    if nf:
+        # 5. refinement, FWHM and VRM of the peaks
+        _stage_poles(fk, ik, fw, src, valid, hs, vs, nf, n_valid, n_sl_valid)
 
 
 def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]:
@@ -709,14 +817,25 @@ def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Callable[..., Any]
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) :func:`detrend_window_ring`, :func:`_accumulate` and
-    :func:`step_packed` (and what they call) with the types the identifier passes."""
+    :func:`step_packed` (and what they call) with the types the identifier passes, the Welch
+    segments' :func:`row_mean` and the downloads' :func:`solve_full`, :func:`input_power_floor` and
+    :func:`_smooth`."""
     k, n_range = 40, 20
     rng = np.random.default_rng(0)
     ring = rng.standard_normal((4, 2 * (2 * k - 2)))
     detrend_window_ring(ring, 3, np.zeros(4), np.ones(2 * k - 2), np.empty((4, 2 * k - 2)))
+    history = ring[:, 3 : 3 + 2 * k - 2]
+    history.flags.writeable = False
+    row_mean(history[0])  # the Welch segments' means (spectra.SegmentedSpectralEstimator), on the history's read-only view
     X = rng.standard_normal((4, k)) + 1j * rng.standard_normal((4, k))
     state = np.zeros((7, k), dtype=np.complex128)
     _accumulate(X.view(np.float64), 1.0, state.view(np.float64))  # alone: the settings whose solve runs before the search
+    # the downloads (mimo.MimoSolver, smoothing.FrequencySmoother), called from Python
+    H = np.zeros((4, k), dtype=np.complex128)
+    valid = np.zeros(k, dtype=np.bool_)
+    floor = input_power_floor(state, 1e-12)
+    solve_full(state, 0, k, floor, 1e-3, True, H, valid, np.zeros(k, dtype=np.uint8))
+    _smooth(H[0], valid, 0, k, np.ones((k, 1)), np.arange(k, dtype=np.intp), np.empty(k, dtype=np.complex128), np.empty(k, dtype=np.bool_), 0, 0, False)
     tri = np.zeros((2, 1, 3), dtype=np.intp)
     tri[1, 0] = (-1, 0, 1)
     fp = np.array([1e-12, 1e-3, 1.0, 1.5, 0.5, 1.0])
@@ -806,14 +925,17 @@ def _refine_ls(mag: F64, k: int, r: int, pinv: F64, r_max: int) -> tuple[float, 
 
 
 @njit(cache=True, error_model="numpy")
-def _half_power(mag: F64, f0: float, df: float, k: int, peak_mag: float, vd: Bool, check: bool) -> tuple[bool, float, float]:
-    """``(ok, f_left, f_right)`` (modal._half_power, 64 bins each side)."""
+def _half_power(mag: F64, f0: float, df: float, k: int, peak_mag: float, vd: Bool, check: bool, max_bins: int) -> tuple[bool, float, float]:
+    """``(ok, f_left, f_right)``: the half-power crossings nearest bin ``k`` on the grid ``f0 + i·df``
+    (:func:`.modal.half_power_bandwidth`), at most ``max_bins`` bins each side, interpolated linearly
+    in power; not ok where a side does not drop below half power in reach or (``check``) a
+    straddling bin is invalid."""
     thr = peak_mag * _SQRT_HALF
     size = mag.size
     if k < 1 or k >= size - 1:
         return False, 0.0, 0.0
-    lo = max(0, k - 64)
-    hi = min(size, k + 65)
+    lo = max(0, k - max_bins)
+    hi = min(size, k + max_bins + 1)
     i0 = -1
     for i in range(k - 1, lo - 1, -1):
         if mag[i] < thr:
@@ -856,7 +978,7 @@ def _zeta_fwhm(bw: float, fp: float, exact: bool) -> float:
 @njit(cache=True, error_model="numpy")
 def _vrm_lambdas(g: F64) -> None:
     """``g[9]``, ``g[10]``, ``g[11]`` ← Re λ, Im λ and the weight ``|den|`` of each VRM triplet
-    (Appendix C, :func:`.modal.vrm_lambda`) from its squared frequencies ``g[0:3]`` and H
+    (Appendix C, :func:`.modal.vrm_lambdas`) from its squared frequencies ``g[0:3]`` and H
     values ``g[3:9]`` (re, im at a, b, c). Contiguous rows and no branches, so the compiler
     vectorizes the loop, divisions included; a zero ``den`` gives inf or NaN, which
     :func:`_vrm` skips by its zero weight, as the one-loop form did before dividing."""
@@ -887,24 +1009,11 @@ def _vrm_lambdas(g: F64) -> None:
         lim[q] = lam.imag
 
 
-@njit(cache=True, error_model="numpy")
-def _vrm(
-    hd: C128,
-    fd: F64,
-    vd: Bool,
-    check: bool,
-    k: int,
-    hw: float,
-    m_max: int,
-    band_factor: float,
-    zeta_max: float,
-    c_max: float,
-    viscous: bool,
-    tri: Intp,
-    n_tri: Intp,
-) -> tuple[bool, float, float, int]:
-    """``(ok, f_n, ζ, used)`` of one peak (modal.VrmEstimator._plan and ._solve)."""
-    n = hd.size
+@njit(cache=True, error_model="numpy", inline="always")
+def _vrm_plan(vd: Bool, check: bool, n: int, k: int, hw: float, m_max: int, band_factor: float) -> tuple[int, int]:
+    """``(m, s)`` of one peak's VRM band (modal.VrmEstimator._plan): ``m`` points each side of bin ``k``
+    with a stride of ``s`` bins within ``±band_factor·hw`` bins, the array and (``check``) the valid
+    bins around the peak; ``m`` = 0: no band."""
     h = max(1, int(np.rint(band_factor * hw)))
     h = min(h, k, n - 1 - k)
     if h >= 1 and check:
@@ -914,18 +1023,19 @@ def _vrm(
                 if dist < h:
                     h = dist
     if h < 1:
-        return False, 0.0, 0.0, 0
+        return 0, 0
     m = min(h, m_max)
     s = max(1, int(np.rint(h / m)))
     if m * s > h:
         m = h // s
-    # Three passes, the same arithmetic per triplet and the same sums in the same order as
-    # one loop: the triplets' squared frequencies and H values gathered into contiguous
-    # rows, λ and the weight of every triplet (:func:`_vrm_lambdas`, vectorized; with the
-    # gathers in it the compiler left it scalar), then the good ones summed.
-    nq = n_tri[m]
+    return m, s
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _vrm_gather(hd: C128, fd: F64, k: int, s: int, tm: Intp, nq: int) -> F64:
+    """The triplets' squared frequencies and H values as contiguous rows (``g[0:9]``, :func:`_vrm_lambdas`
+    fills ``g[9:12]``) for the ``nq`` triplets ``tm`` of offsets around bin ``k`` in strides of ``s``."""
     g = np.empty((12, nq))
-    tm = tri[m]
     for q in range(nq):
         a = k + s * tm[q, 0]
         b = k + s * tm[q, 1]
@@ -939,7 +1049,13 @@ def _vrm(
         g[6, q] = hd[b].imag
         g[7, q] = hd[c].real
         g[8, q] = hd[c].imag
-    _vrm_lambdas(g)
+    return g
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _vrm_average(g: F64, nq: int, c_max: float) -> tuple[int, float, float, float]:
+    """``(used, Σw·Re λ, Σw·Im λ, Σw)`` over the physical triplets of ``g`` (weights ``|den|``; a
+    zero weight skipped), summed in order."""
     lre = g[9]
     lim = g[10]
     wt = g[11]
@@ -964,17 +1080,55 @@ def _vrm(
         wi += w * im
         ws += w
         used += 1
+    return used, wr, wi, ws
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def vrm_reading(re: float, im: float, viscous: bool) -> tuple[float, float]:
+    """``(f_n, ζ)`` of the VRM eigenvalue ``λ = re + i·im`` (in squared frequency units): viscous
+    ``f_n = √|λ|``, ``ζ = tan(arg λ / 2) = Im λ / (|λ| + Re λ)``; hysteretic [C-13, C-14]
+    ``f_n = √Re λ``, ``ζ = η/2 = Im λ / (2 Re λ)``; ``(0, 0)`` for ``Re λ ≤ 0`` (not physical)."""
+    if re <= 0.0:
+        return 0.0, 0.0
+    if viscous:
+        mod = math.hypot(re, im)
+        return math.sqrt(mod), im / (mod + re)
+    return math.sqrt(re), 0.5 * im / re
+
+
+@njit(cache=True, error_model="numpy")
+def _vrm(
+    hd: C128,
+    fd: F64,
+    vd: Bool,
+    check: bool,
+    k: int,
+    hw: float,
+    m_max: int,
+    band_factor: float,
+    zeta_max: float,
+    c_max: float,
+    viscous: bool,
+    tri: Intp,
+    n_tri: Intp,
+) -> tuple[bool, float, float, int]:
+    """``(ok, f_n, ζ, used)`` of one peak (modal.VrmEstimator._plan and ._solve).
+
+    Three passes, the same arithmetic per triplet and the same sums in the same order as
+    one loop: the triplets' squared frequencies and H values gathered into contiguous
+    rows (:func:`_vrm_gather`), λ and the weight of every triplet (:func:`_vrm_lambdas`,
+    vectorized; with the gathers in it the compiler left it scalar), then the good ones
+    summed (:func:`_vrm_average`); the averaged λ read as a mode [C-13, C-14] or viscously."""
+    m, s = _vrm_plan(vd, check, hd.size, k, hw, m_max, band_factor)
+    if m < 1:
+        return False, 0.0, 0.0, 0
+    nq = n_tri[m]
+    g = _vrm_gather(hd, fd, k, s, tri[m], nq)
+    _vrm_lambdas(g)
+    used, wr, wi, ws = _vrm_average(g, nq, c_max)
     if used == 0 or not ws > 0.0:
         return False, 0.0, 0.0, used
-    re = wr / ws
-    im = wi / ws
-    if re <= 0.0:
-        fn, zeta = 0.0, 0.0
-    elif viscous:
-        mod = math.hypot(re, im)
-        fn, zeta = math.sqrt(mod), im / (mod + re)
-    else:
-        fn, zeta = math.sqrt(re), 0.5 * im / re
+    fn, zeta = vrm_reading(wr / ws, wi / ws, viscous)
     df = fd[1] - fd[0]
     f_lo = fd[k - s * m] - 2.0 * df
     f_hi = fd[k + s * m] + 2.0 * df
@@ -1031,7 +1185,7 @@ def poles(
         half_bins = 2.0
         ok = all_valid or vd[k]
         if ok:
-            found, fl, fr = _half_power(mag, f0, df, k, m_peak, vd, check)
+            found, fl, fr = _half_power(mag, f0, df, k, m_peak, vd, check, 64)
             if found:
                 bw = fr - fl
                 zeta_fwhm = _zeta_fwhm(bw, f_peak, fwhm_exact)

@@ -6,8 +6,8 @@ least-squares (H1) solution of ``Y_j = H_1j U_1 + H_2j U_2`` per bin is
 
 * ``H1j = (P1yj P22 − P12 P2yj) / (P11 P22 − |P12|²)``   [2-21, 2-22]
 * ``H2j = (P2yj P11 − P21 P1yj) / (P11 P22 − |P12|²)``   [2-23, 2-24] *corrected*:
-  the thesis prints ``P12`` where ``P21`` belongs; the printed form is
-  kept as :func:`solve_printed` for the test that shows it is wrong.
+  the thesis prints ``P12`` where ``P21`` belongs (tests/dsp/test_mimo_synthetic.py
+  shows the printed form wrong).
 
 Uncorrelated shortcut [2-25 … 2-28]: ``H_ij = P_iyj / P_ii`` (biased when
 the inputs are correlated). ``H_tot`` = the unweighted mean of the four.
@@ -48,7 +48,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .spectra import P1Y1, P1Y2, P2Y1, P2Y2, P11, P12, P22
+from . import kernel
+from .spectra import P1Y1, P1Y2, P2Y1, P2Y2, P11, P22
 
 #: Row order of transfer-function arrays ``(4, K)``.
 H11, H12, H21, H22 = range(4)
@@ -93,78 +94,50 @@ class MimoSolver:
         self.valid = np.zeros(k, dtype=bool)
         self.mode = np.zeros(k, dtype=np.uint8)  #: per bin: MODE_NONE, MODE_DOMINANT or MODE_FULL
         self._b1 = np.empty(k, dtype=bool)
-        self._r1 = np.empty(k)
-        self._r2 = np.empty(k)
         self._inv = np.zeros(k)
         self._inv2 = np.zeros(k)
         self._c1 = np.empty(k, dtype=np.complex128)
-        self._c2 = np.empty((2, k), dtype=np.complex128)
-        self._p21 = np.empty(k, dtype=np.complex128)
-        self.valid_count = 0  #: valid bins of the identification step's last solve (set by the Identifier)
 
     # ---------------------------------------------------------------- masks
-    def _mask(self, S: NDArray[np.complex128], sl: slice) -> NDArray[np.bool_]:
-        """Mask (input powers, and for 'mimo' the normalised determinant) and 1/den into ``_inv``.
-
-        For 'mimo' ``_inv = 1/det``; for 'uncorrelated' ``_inv = 1/P11`` and
-        ``_inv2 = 1/P22``; both exactly 0 on invalid bins.
-        """
-        p11_all = S[P11].real
-        p22_all = S[P22].real
-        mean_power = float(np.add.reduce(p11_all) + np.add.reduce(p22_all)) / (2 * self.n_bins)
-        floor = self.power_floor * mean_power + _TINY
-        self._floor = floor
-        p11, p22 = p11_all[sl], p22_all[sl]
-        valid = np.greater(p11, floor, out=self.valid[sl])
-        b1 = self._b1[sl]
-        valid &= np.greater(p22, floor, out=b1)
-        inv = self._inv[sl]
-        inv.fill(0.0)
-        if self.solver == "uncorrelated":
-            inv2 = self._inv2[sl]
-            inv2.fill(0.0)
-            np.divide(1.0, p11, out=inv, where=valid)
-            np.divide(1.0, p22, out=inv2, where=valid)
-            return valid
-        prod = np.multiply(p11, p22, out=self._r1[sl])
-        p12 = S[P12, sl]
-        det = np.square(np.abs(p12, out=self._r2[sl]), out=self._r2[sl])
-        np.subtract(prod, det, out=det)
-        # normalised determinant det/prod >= thr  <=>  det >= thr·prod  (prod > 0 on valid bins)
-        prod *= self.det_threshold
-        valid &= np.greater_equal(det, prod, out=b1)
-        np.divide(1.0, det, out=inv, where=valid)
-        return valid
+    def _floor(self, S: NDArray[np.complex128]) -> float:
+        """The input-power floor of the spectra ``S`` (:func:`.kernel.input_power_floor`)."""
+        return float(kernel.input_power_floor(S, self.power_floor))
 
     def mask(self, S: NDArray[np.complex128], sl: slice = slice(None)) -> NDArray[np.bool_]:
-        """Valid-bin mask on ``sl`` (a view into the full-length :attr:`valid`)."""
-        return self._mask(S, sl)
+        """Valid-bin mask on ``sl`` (a view into the full-length :attr:`valid`): the input powers, and
+        for 'mimo' the normalised determinant (no dominant-direction solve).
+
+        For 'uncorrelated' ``_inv = 1/P11`` and ``_inv2 = 1/P22`` on ``sl``, exactly 0 on invalid bins."""
+        S = np.ascontiguousarray(S)
+        floor = self._floor(S)
+        if self.solver == "mimo":
+            s0, s1, _ = sl.indices(self.n_bins)
+            kernel.solve_full(S, s0, s1, floor, self.det_threshold, False, self.H, self.valid, self.mode)
+            return self.valid[sl]
+        p11, p22 = S[P11, sl].real, S[P22, sl].real
+        valid = np.greater(p11, floor, out=self.valid[sl])
+        valid &= np.greater(p22, floor, out=self._b1[sl])
+        inv, inv2 = self._inv[sl], self._inv2[sl]
+        inv.fill(0.0)
+        inv2.fill(0.0)
+        np.divide(1.0, p11, out=inv, where=valid)
+        np.divide(1.0, p22, out=inv2, where=valid)
+        return valid
 
     # --------------------------------------------------------------- solves
     def solve(self, S: NDArray[np.complex128], sl: slice = slice(None)) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-        """All four transfer functions on ``sl``: ``(H[:, sl], valid[sl])`` (views)."""
-        valid = self._mask(S, sl)
+        """All four transfer functions on ``sl``: ``(H[:, sl], valid[sl])`` (views); 'mimo' by the
+        compiled solve (:func:`.kernel.solve_full`), which also sets :attr:`mode`."""
+        S = np.ascontiguousarray(S)
         H = self.H[:, sl]
-        inv = self._inv[sl]
-        p11, p22 = S[P11, sl].real, S[P22, sl].real
-        if self.solver == "uncorrelated":
-            np.multiply(S[P1Y1 : P1Y2 + 1, sl], inv, out=H[H11 : H12 + 1])
-            np.multiply(S[P2Y1:, sl], self._inv2[sl], out=H[H21:])
-            np.multiply(valid, MODE_FULL, out=self.mode[sl], casting="unsafe")
-            return H, valid
-        c2 = self._c2[:, sl]
-        p12 = S[P12, sl]
-        # H1j = (P1yj P22 − P12 P2yj) / det            [2-21, 2-22]
-        np.multiply(S[P1Y1 : P1Y2 + 1, sl], p22, out=H[H11 : H12 + 1])
-        np.multiply(S[P2Y1:, sl], p12, out=c2)
-        np.subtract(H[H11 : H12 + 1], c2, out=H[H11 : H12 + 1])
-        # H2j = (P2yj P11 − P21 P1yj) / det, P21 = conj(P12)   [2-23, 2-24] corrected
-        np.multiply(S[P2Y1:, sl], p11, out=H[H21:])
-        p21 = np.conjugate(p12, out=self._p21[sl])
-        np.multiply(S[P1Y1 : P1Y2 + 1, sl], p21, out=c2)
-        np.subtract(H[H21:], c2, out=H[H21:])
-        H *= inv  # invalid bins: inv = 0 → H = 0 exactly
-        self._dominant(S, sl, valid, H=H)
+        if self.solver == "mimo":
+            s0, s1, _ = sl.indices(self.n_bins)
+            kernel.solve_full(S, s0, s1, self._floor(S), self.det_threshold, self.collinear == "dominant", self.H, self.valid, self.mode)
+            return H, self.valid[sl]
+        valid = self.mask(S, sl)
+        np.multiply(S[P1Y1 : P1Y2 + 1, sl], self._inv[sl], out=H[H11 : H12 + 1])
+        np.multiply(S[P2Y1:, sl], self._inv2[sl], out=H[H21:])
+        np.multiply(valid, MODE_FULL, out=self.mode[sl], casting="unsafe")
         return H, valid
 
     def solve_source(self, S: NDArray[np.complex128], source: str = "tot", sl: slice = slice(None)) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
@@ -176,7 +149,7 @@ class MimoSolver:
             return H[H_NAMES.index(source)], valid
         if self.solver == "mimo":
             raise ValueError("the corrected H_tot is solved by the compiled step (dsp_service.kernel)")
-        valid = self._mask(S, sl)
+        valid = self.mask(S, sl)
         out = self.source[sl]
         a = np.add(S[P1Y1, sl], S[P1Y2, sl], out=out)
         b = np.add(S[P2Y1, sl], S[P2Y2, sl], out=self._c1[sl])
@@ -185,79 +158,6 @@ class MimoSolver:
         a += b
         a *= 0.25
         return out, valid
-
-    def _dominant(
-        self,
-        S: NDArray[np.complex128],
-        sl: slice,
-        valid: NDArray[np.bool_],
-        H: NDArray[np.complex128] | None = None,
-    ) -> int:
-        """Rank-1 (minimum-norm) solve on the bins of ``sl`` the full solve masked as collinear.
-
-        Sets :attr:`mode` on ``sl``; with ``collinear='dominant'`` writes
-        ``h_j = v (vᴴ r_j)/σ₁`` (module doc) into ``H`` (rows on ``sl``), marks those
-        bins valid and returns their count.
-        Only the (usually few) collinear bins are touched, by index.
-        """
-        mode = self.mode[sl]
-        np.multiply(valid, MODE_FULL, out=mode, casting="unsafe")
-        if self.collinear != "dominant" or self.solver != "mimo":
-            return 0
-        p11, p22 = S[P11, sl].real, S[P22, sl].real
-        idx = np.flatnonzero(~valid & (p11 + p22 > self._floor))
-        if idx.size == 0:
-            return 0
-        a, d, b = p11[idx], p22[idx], S[P12, sl][idx]
-        half = 0.5 * (a - d)
-        disc = np.sqrt(half * half + (b.real * b.real + b.imag * b.imag))
-        sigma = 0.5 * (a + d) + disc  # the larger eigenvalue of [[a, b], [conj b, d]]
-        # eigenvector of σ: (σ − d, conj b) when a ≥ d, else (b, σ − a) (the better-conditioned form)
-        first = a >= d
-        v1 = np.where(first, sigma - d, b)
-        v2 = np.where(first, np.conj(b), sigma - a)
-        norm = np.sqrt(np.abs(v1) ** 2 + np.abs(v2) ** 2)
-        v1 = v1 / norm
-        v2 = v2 / norm
-        r1 = S[P1Y1 : P1Y2 + 1, sl][:, idx]  # rows P1y1, P1y2
-        r2 = S[P2Y1 : P2Y2 + 1, sl][:, idx]  # rows P2y1, P2y2
-        c = (np.conj(v1) * r1 + np.conj(v2) * r2) / sigma  # vᴴ r_j / σ₁, rows j = 1, 2
-        if H is not None:
-            H[H11 : H12 + 1, idx] = v1 * c  # H1j
-            H[H21 : H22 + 1, idx] = v2 * c  # H2j
-        valid[idx] = True
-        mode[idx] = MODE_DOMINANT
-        return int(idx.size)
-
-
-def solve_mimo(
-    S: NDArray[np.complex128], det_threshold: float = 1e-3, power_floor: float = 1e-12, collinear: str = "mask"
-) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-    """Corrected MIMO solve [2-21 … 2-24] (copy of the result; see :class:`MimoSolver`)."""
-    solver = MimoSolver(S.shape[-1], "mimo", det_threshold, power_floor, collinear)
-    H, valid = solver.solve(S)
-    return H.copy(), valid.copy()
-
-
-def solve_uncorrelated(S: NDArray[np.complex128], power_floor: float = 1e-12) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-    """Uncorrelated-input shortcut ``H_ij = P_iyj / P_ii`` [2-25 … 2-28]."""
-    solver = MimoSolver(S.shape[-1], "uncorrelated", power_floor=power_floor)
-    H, valid = solver.solve(S)
-    return H.copy(), valid.copy()
-
-
-def solve_printed(S: NDArray[np.complex128]) -> NDArray[np.complex128]:
-    """The thesis's formulas *as printed* (P12 in H21/H22): kept only to test that they are wrong.
-
-    No masking; do not use for estimation.
-    """
-    den = S[P11].real * S[P22].real - np.abs(S[P12]) ** 2
-    den = np.where(np.abs(den) > _TINY, den, np.inf)
-    h11 = (S[P1Y1] * S[P22].real - S[P12] * S[P2Y1]) / den
-    h12 = (S[P1Y2] * S[P22].real - S[P12] * S[P2Y2]) / den
-    h21 = (S[P2Y1] * S[P11].real - S[P12] * S[P1Y1]) / den  # printed [2-23]
-    h22 = (S[P2Y2] * S[P11].real - S[P12] * S[P1Y2]) / den  # printed [2-24]
-    return np.stack([h11, h12, h21, h22])
 
 
 # ---------------------------------------------------------------------------

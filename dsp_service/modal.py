@@ -69,9 +69,9 @@ whose outer points are at least half the band apart (adjacent-bin triplets
 are dominated by noise: in a Monte-Carlo at 3 % complex noise their ζ error
 is 4–10× larger); non-physical triplets (``Re λ ≤ 0``, ``ζ ∉ (0,
 zeta_max]``) are discarded and the λ of the rest averaged with weights
-``|den_t|``; the averaged mode must lie within two bins of the band. The fast path :func:`vrm_lambda`
-solves for λ alone (C eliminated); :func:`vrm_solve` is the full corrected
-2×2 system (tested to agree).
+``|den_t|``; the averaged mode must lie within two bins of the band. :func:`vrm_lambdas`
+solves for λ alone (C eliminated; the tests hold it to the full corrected 2×2
+system solved by ``numpy.linalg.solve``).
 """
 
 from __future__ import annotations
@@ -83,11 +83,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from dsp_service import kernel
 from dsp_service.ratfit import denominator_lstsq
 
 _TINY = float(np.finfo(np.float64).tiny)
-_SQRT_HALF = math.sqrt(0.5)
-TWO_PI = 2.0 * math.pi
 #: Largest ζ with two half-power points: 1 − 2ζ² = 2ζ√(1 − ζ²) ⇔ ζ² = (2 − √2)/4.
 ZETA_MAX_HALF_POWER = math.sqrt((2.0 - math.sqrt(2.0)) / 4.0)
 
@@ -104,17 +103,10 @@ def log_weights(freqs: NDArray[np.float64], f_ref: float, exponent: float) -> ND
 
 
 def refine_peak(mag: NDArray[np.float64], k: int) -> tuple[float, float]:
-    """Parabolic vertex on ``ln |H|`` around bin ``k`` of a magnitude array: ``(δ, ln peak)``."""
-    if 0 < k < mag.size - 1:
-        va, vb, vc = mag[k - 1 : k + 2].tolist()
-        log = math.log
-        a, b, c = log(max(va, _TINY)), log(max(vb, _TINY)), log(max(vc, _TINY))
-        curv = a - 2.0 * b + c
-        if curv < 0.0:
-            d = min(0.5, max(-0.5, 0.5 * (a - c) / curv))
-            return d, b - 0.25 * (a - c) * d
-        return 0.0, b
-    return 0.0, math.log(max(float(mag[k]), _TINY))
+    """Parabolic vertex on ``ln |H|`` around bin ``k`` of a magnitude array: ``(δ, ln peak)``
+    (the identification step's own, :mod:`.kernel`)."""
+    d, lv = kernel._refine_peak(np.ascontiguousarray(mag, dtype=np.float64), int(k))
+    return float(d), float(lv)
 
 
 def parabola_fit_rows(r: int) -> NDArray[np.float64]:
@@ -142,28 +134,15 @@ class PeakRefiner:
     (the identifier uses ``r ≈`` half the half-power half-width) average the
     noise of a raw estimate down: in a Monte-Carlo at 3 % complex noise the
     90th-percentile frequency error fell from 0.76 to 0.37 bins for a
-    ζ = 0.05 mode at 9 Hz.
+    ζ = 0.05 mode at 9 Hz. ``pinv[r, :, : 2r + 1]`` holds the fit of half-width ``r``
+    (:func:`parabola_fit_rows`), as the identification step reads it.
     """
 
     def __init__(self, r_max: int = 8) -> None:
         self.r_max = int(r_max)
-        self._pinv: dict[int, NDArray[np.float64]] = {r: parabola_fit_rows(r) for r in range(1, self.r_max + 1)}
-
-    def refine(self, mag: NDArray[np.float64], k: int, r: int) -> tuple[float, float]:
-        """``(δ, ln peak)``: vertex offset in bins (|δ| ≤ r) and its log magnitude.
-
-        ``r`` is clipped to ``[1, r_max]`` and to the array; a non-concave fit
-        returns ``(0, ln mag[k])``.
-        """
-        r = max(1, min(int(r), self.r_max, k, mag.size - 1 - k))
-        if r < 1:
-            return 0.0, math.log(max(float(mag[k]), _TINY))
-        y = np.log(np.maximum(mag[k - r : k + r + 1], _TINY))
-        c0, c1, c2 = (self._pinv[r] @ y).tolist()
-        if not c2 < 0.0:
-            return 0.0, math.log(max(float(mag[k]), _TINY))
-        d = min(float(r), max(-float(r), -0.5 * c1 / c2))
-        return d, c0 + c1 * d + c2 * d * d
+        self.pinv = np.zeros((self.r_max + 1, 3, 2 * self.r_max + 1))
+        for r in range(1, self.r_max + 1):
+            self.pinv[r, :, : 2 * r + 1] = parabola_fit_rows(r)
 
 
 # ---------------------------------------------------------------------------
@@ -195,14 +174,9 @@ def zeta_from_fwhm_exact(bandwidth_hz: float, peak_frequency_hz: float) -> float
 
     ``ρ = Δf/f_p``, ``c = 1 − ρ²/2``, ``ζ² = ½(1 − 1/√(2 − c²))`` (module doc).
     Valid for ``ρ`` up to ``√2`` (ζ → 0.3827, :data:`ZETA_MAX_HALF_POWER`, returned beyond).
+    The identification step's own (:mod:`.kernel`).
     """
-    rho = bandwidth_hz / peak_frequency_hz
-    if not rho > 0.0:
-        return 0.0
-    if rho >= math.sqrt(2.0):  # beyond the largest width a half-power pair can have
-        return ZETA_MAX_HALF_POWER
-    c = 1.0 - 0.5 * rho * rho
-    return math.sqrt(max(0.0, 0.5 * (1.0 - 1.0 / math.sqrt(2.0 - c * c))))
+    return float(kernel._zeta_fwhm(float(bandwidth_hz), float(peak_frequency_hz), True))
 
 
 def half_power_bandwidth(
@@ -218,148 +192,58 @@ def half_power_bandwidth(
     Looks at most ``max_bins`` bins each side; the crossings are
     interpolated linearly in power (``|H|²``) between the two straddling
     bins. ``None`` if a side does not drop below half power in reach, or a
-    straddling bin is masked (``valid`` False).
+    straddling bin is masked (``valid`` False). The identification step's own (:mod:`.kernel`).
     """
+    m = np.ascontiguousarray(mag, dtype=np.float64)
     f0, f1 = freqs[0:2].tolist()
-    return _half_power(mag, f0, f1 - f0, k, peak_mag, valid, max_bins)
-
-
-def _half_power(
-    mag: NDArray[np.float64],
-    f0: float,
-    df: float,
-    k: int,
-    peak_mag: float,
-    valid: NDArray[np.bool_] | None,
-    max_bins: int = 64,
-) -> tuple[float, float] | None:
-    """:func:`half_power_bandwidth` on the grid ``f0 + i·df``."""
-    thr = peak_mag * _SQRT_HALF
-    if k < 1 or k >= mag.size - 1:
-        return None
-    lo = max(0, k - max_bins)
-    below = mag[lo : k + 1 + max_bins] < thr  # one comparison for both sides
-    left = below[k - 1 - lo :: -1] if k - 1 - lo >= 0 else below[:0]  # outward from k − 1
-    right = below[k + 1 - lo :]
-    jl, jr = int(left.argmax()), int(right.argmax())
-    if not (left[jl] and right[jr]):
-        return None
-    i0 = k - 1 - jl  # nearest bin below half power on the left
-    j1 = k + 1 + jr  # nearest on the right
-    if valid is not None and not (valid[i0] and valid[i0 + 1] and valid[j1 - 1] and valid[j1]):
-        return None
-    half = thr * thr
-    item = mag.item
-
-    def cross(i_lo: int) -> float:
-        pa, pb = item(i_lo) ** 2, item(i_lo + 1) ** 2
-        t = (half - pa) / (pb - pa) if pb != pa else 0.5
-        return f0 + (i_lo + t) * df
-
-    return cross(i0), cross(j1 - 1)
+    vd = np.ones(m.size, dtype=np.bool_) if valid is None else np.ascontiguousarray(valid, dtype=np.bool_)
+    ok, fl, fr = kernel._half_power(m, f0, f1 - f0, int(k), float(peak_mag), vd, valid is not None, int(max_bins))
+    return (float(fl), float(fr)) if ok else None
 
 
 # ---------------------------------------------------------------------------
 # Variable Residue Method, Appendix C
 # ---------------------------------------------------------------------------
-def vrm_solve(
-    ha: NDArray[np.complex128] | complex,
-    hb: NDArray[np.complex128] | complex,
-    hc: NDArray[np.complex128] | complex,
-    wa: NDArray[np.float64] | float,
-    wb: NDArray[np.float64] | float,
-    wc: NDArray[np.float64] | float,
-) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.bool_]]:
-    """Corrected [C-12] for ``(λ, C)`` of every triplet (vectorised, Cramer's rule).
+def vrm_lambdas(
+    ha: NDArray[np.complex128],
+    hb: NDArray[np.complex128],
+    hc: NDArray[np.complex128],
+    fa: NDArray[np.float64],
+    fb: NDArray[np.float64],
+    fc: NDArray[np.float64],
+) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+    """``(λ, weight)`` of every triplet ``(a, b, c)`` of H values at frequencies ``f`` (any unit:
+    λ comes in its square): the corrected [C-12] with C eliminated, which leaves one linear equation::
 
-    ``w*`` in rad/s. Returns ``(λ, C, ok)``; ``ok`` is False where the
-    system is singular (λ and C are then 0).
-    """
-    wa2, wb2, wc2 = np.square(wa), np.square(wb), np.square(wc)
-    dba = np.subtract(hb, ha)
-    dca = np.subtract(hc, ha)
-    dcb = np.subtract(hc, hb)
-    # corrected matrix: columns [λ, C]
-    m11 = dba * dca * (wc2 - wb2)
-    m12 = dba * (wc2 - wa2) - dca * (wb2 - wa2)
-    m21 = dba * dcb * (wc2 - wa2)
-    m22 = dba * (wc2 - wb2) - dcb * (wb2 - wa2)
-    r1 = m11 * wa2  # Δca Δba ωa² (ωc² − ωb²)
-    r2 = m21 * wb2  # Δcb Δba ωb² (ωc² − ωa²)
-    det = m11 * m22 - m12 * m21
-    scale = np.abs(m11 * m22) + np.abs(m12 * m21)
-    ok = np.abs(det) > 1e-12 * scale
-    safe = np.where(ok, det, 1.0)
-    lam = np.where(ok, (r1 * m22 - m12 * r2) / safe, 0.0)
-    cc = np.where(ok, (m11 * r2 - r1 * m21) / safe, 0.0)
-    return np.asarray(lam), np.asarray(cc), np.asarray(ok)
+        λ [Δba(fc² − fa²) − Δca(fb² − fa²)] = Δba fb² (fc² − fa²) − Δca fc² (fb² − fa²)
 
-
-def vrm_solve_printed(ha: complex, hb: complex, hc: complex, wa: float, wb: float, wc: float) -> tuple[complex, complex]:
-    """[C-12] exactly as printed, solved for ``[λ; C]`` (wrong: returns ``(C, λ)`` in truth)."""
-    wa2, wb2, wc2 = wa * wa, wb * wb, wc * wc
-    dba, dca, dcb = hb - ha, hc - ha, hc - hb
-    m = np.array(
-        [
-            [dba * (wc2 - wa2) - dca * (wb2 - wa2), dca * dba * (wc2 - wb2)],
-            [dba * (wc2 - wb2) - dcb * (wb2 - wa2), dcb * dba * (wc2 - wa2)],
-        ]
-    )
-    r = np.array([dca * dba * wa2 * (wc2 - wb2), dcb * dba * wb2 * (wc2 - wa2)])
-    lam, c = np.linalg.solve(m, r)
-    return complex(lam), complex(c)
+    and its coefficient's magnitude as the weight (0: a singular triplet, whose λ is not
+    finite). The identification step's own (:mod:`.kernel`)."""
+    ha, hb, hc = (np.asarray(h, dtype=np.complex128) for h in (ha, hb, hc))
+    g = np.empty((12, ha.size))
+    for row, f in enumerate((fa, fb, fc)):
+        g[row] = np.square(np.asarray(f, dtype=np.float64))
+    for row, h in zip((3, 5, 7), (ha, hb, hc)):
+        g[row], g[row + 1] = h.real, h.imag
+    kernel._vrm_lambdas(g)
+    lam: NDArray[np.complex128] = g[9] + 1j * g[10]
+    return lam, g[11].copy()
 
 
 def vrm_modal(
     lam: NDArray[np.complex128] | complex,
     model: Literal["viscous", "hysteretic"] = "viscous",
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(ω_n [rad/s], ζ)`` from the eigenvalue λ.
-
-    ``'hysteretic'``: [C-13, C-14], ``ω_r = √Re λ``, ``ζ = η/2 = Im λ / (2 Re λ)``.
-    ``'viscous'`` (default): ``ω_n = √|λ|``, ``ζ = tan(arg λ / 2)``.
-    Non-physical λ (``Re λ ≤ 0``) give ``ω = 0``.
-    """
-    lam = np.asarray(lam)
-    re = lam.real
-    if model == "hysteretic":
-        w = np.sqrt(np.maximum(re, 0.0))
-        z = np.where(re > 0.0, 0.5 * lam.imag / np.where(re > 0.0, re, 1.0), 0.0)
-        return w, z
-    if model == "viscous":
-        w = np.where(re > 0.0, np.sqrt(np.abs(lam)), 0.0)
-        z = np.tan(0.5 * np.angle(lam))
-        return w, z
-    raise ValueError(f"unknown damping model {model!r}")
-
-
-def vrm_lambda(
-    ha: NDArray[np.complex128],
-    hb: NDArray[np.complex128],
-    hc: NDArray[np.complex128],
-    wa2: NDArray[np.float64],
-    wb2: NDArray[np.float64],
-    wc2: NDArray[np.float64],
-) -> NDArray[np.complex128]:
-    """λ of every triplet from the first row pair of [C-12] with C eliminated (fast path).
-
-    Dividing the a–b and a–c difference equations eliminates C and the
-    quadratic term, leaving one linear equation::
-
-        λ [Δba(ωc² − ωa²) − Δca(ωb² − ωa²)] = Δba ωb² (ωc² − ωa²) − Δca ωc² (ωb² − ωa²)
-
-    whose root is the λ of the corrected 2×2 system (tested against
-    :func:`vrm_solve`). Takes squared angular frequencies. Singular triplets
-    give λ = 0 (rejected as non-physical downstream).
-    """
-    dba = hb - ha
-    dca = hc - ha
-    cab = wc2 - wa2
-    bab = wb2 - wa2
-    den = dba * cab - dca * bab
-    num = dba * (wb2 * cab) - dca * (wc2 * bab)
-    ok = np.abs(den) > 1e-300
-    return np.divide(num, den, out=np.zeros_like(num), where=ok)
+    """``(f_n, ζ)`` from the eigenvalues λ (:func:`.kernel.vrm_reading`; ``f_n`` in the unit whose
+    square λ is in): ``'hysteretic'``: [C-13, C-14], ``f_n = √Re λ``, ``ζ = η/2 = Im λ / (2 Re λ)``;
+    ``'viscous'`` (default): ``f_n = √|λ|``, ``ζ = tan(arg λ / 2)``. Non-physical λ
+    (``Re λ ≤ 0``) give ``(0, 0)``."""
+    if model not in ("viscous", "hysteretic"):
+        raise ValueError(f"unknown damping model {model!r}")
+    flat = np.asarray(lam, dtype=np.complex128).ravel()
+    out = np.array([kernel.vrm_reading(float(z.real), float(z.imag), model == "viscous") for z in flat.tolist()]).reshape(-1, 2)
+    shape = np.shape(lam)
+    return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
 
 
 class VrmEstimator:
@@ -370,7 +254,7 @@ class VrmEstimator:
     the cost, at most ``2 m_max + 1`` points are used: ``m = min(h, m_max)``
     points each side with a stride ``s = round(h/m)`` bins. Every triplet of
     those points whose outer points are at least ``m`` points apart is solved
-    with :func:`vrm_lambda` (wide triplets resist noise far better than
+    (:func:`vrm_lambdas`; wide triplets resist noise far better than
     adjacent bins, whose differences are noise-dominated). Non-physical
     triplets are discarded (``Re λ ≤ 0``, ``ζ ∉ (0, zeta_max]``, a singular
     system); the rest are averaged with weights
@@ -379,17 +263,9 @@ class VrmEstimator:
     come from the averaged λ, which must lie within two bins of the band.
     (Weighted mean and median were compared in a
     Monte-Carlo at 3–12 % complex noise: the weighted mean was as good or
-    slightly better, and cheaper.)
-
-    Vectorised over peaks and triplets: the triplets of all peaks are laid
-    end to end and solved in one pass of about fifteen operations on flat
-    arrays. Their bin indices and frequency factors depend only on each
-    peak's ``(k, stride, m)`` and the frequency grid, so they are kept in a
-    small cache (peaks move by a bin now and then; most steps reuse them):
-    the ``freqs`` array must not be modified in place between calls.
+    slightly better, and cheaper.) The identification step runs it compiled
+    (:func:`.kernel._vrm`) on the tables built here (``tri``, ``n_tri``).
     """
-
-    _CACHE_MAX = 256  #: cached peak layouts (each a few kB)
 
     def __init__(
         self,
@@ -407,15 +283,17 @@ class VrmEstimator:
         self.zeta_max = float(zeta_max)
         self.model = model
         zm = self.zeta_max
+        # physical: 0 < Im λ ≤ c·Re λ with c = tan(2 atan ζmax) (viscous, ζ = tan(arg λ / 2)) or 2 ζmax (hysteretic)
         self._im_over_re_max = math.tan(2.0 * math.atan(zm)) if model == "viscous" and zm < 1.0 else (2.0 * zm if model == "hysteretic" else math.inf)
-        #: per m: the triplets (a, b, c) of the 2m + 1 points, as offsets −m … m in strides
-        self._triplets = [np.zeros((0, 3), dtype=np.intp)]
+        # per m: the triplets (a, b, c) of the 2m + 1 points, as offsets −m … m in strides (tri[m, : n_tri[m]])
+        triplets = [np.zeros((0, 3), dtype=np.intp)]
         for m in range(1, self.m_max + 1):
             tri = [c for c in combinations(range(2 * m + 1), 3) if c[2] - c[0] >= max(m, 2)]
-            self._triplets.append(np.array(tri, dtype=np.intp).reshape(-1, 3) - m)
-        self._layouts: dict[tuple[int, tuple[tuple[int, int, int], ...]], tuple] = {}
-        self._blocks: dict[tuple[int, int, int], tuple] = {}
-        self._layout_freqs: NDArray[np.float64] | None = None
+            triplets.append(np.array(tri, dtype=np.intp).reshape(-1, 3) - m)
+        self.n_tri = np.array([t.shape[0] for t in triplets], dtype=np.intp)
+        self.tri = np.zeros((len(triplets), max(1, int(self.n_tri.max())), 3), dtype=np.intp)
+        for m, t in enumerate(triplets):
+            self.tri[m, : t.shape[0]] = t
 
     def estimate(
         self,
@@ -431,162 +309,12 @@ class VrmEstimator:
         mask (masked bins are never used; the band shrinks to avoid them and
         the array's ends). Works in Hz² (λ's units cancel in ζ).
         """
-        return self.estimate_many(H, freqs, [k], [half_width_bins], valid)[0]
-
-    def _plan(self, n: int, k: int, half_width_bins: float, valid: NDArray[np.bool_] | None) -> tuple[int, int] | None:
-        """Points per side ``m`` and stride for a peak at ``k``, or ``None`` if no band fits."""
-        h = max(1, round(self.band_factor * half_width_bins))  # round(float) is an int
-        h = min(h, k, n - 1 - k)
-        if h >= 1 and valid is not None:
-            seg = valid[k - h : k + h + 1]
-            if np.count_nonzero(seg) < seg.size:
-                bad = np.flatnonzero(~seg) - h
-                h = min(h, int(np.min(np.abs(bad))) - 1)
-        if h < 1:
-            return None
-        m = min(h, self.m_max)
-        stride = max(1, round(h / m))
-        if m * stride > h:  # keep the points inside the usable band
-            m = h // stride
-        return m, stride
-
-    def estimate_many(
-        self,
-        H: NDArray[np.complex128],
-        freqs: NDArray[np.float64],
-        ks: list[int],
-        half_widths: list[float],
-        valid: NDArray[np.bool_] | None = None,
-    ) -> list[tuple[float, float, int] | None]:
-        """:meth:`estimate` for several peaks at once (one vectorised pass over all their triplets)."""
-        out: list[tuple[float, float, int] | None] = [None] * len(ks)
-        rows, plans = [], []
-        n = H.shape[-1]
-        for i, (k, hw) in enumerate(zip(ks, half_widths)):
-            plan = self._plan(n, k, hw, valid)
-            if plan is not None:
-                rows.append(i)
-                plans.append((int(k), plan[1], plan[0]))
-        if not plans:
-            return out
-        for i, res in zip(rows, self._solve(H, freqs, tuple(plans))):
-            out[i] = res
-        return out
-
-    def _block(self, freqs: NDArray[np.float64], k: int, s: int, m: int) -> tuple:
-        """One peak's triplets: bins ``(b, c, a)``, frequency factors (each twice), size, band edges (cached)."""
-        key = (k, s, m)
-        blk = self._blocks.get(key)
-        if blk is not None:
-            return blk
-        if len(self._blocks) >= self._CACHE_MAX:
-            self._blocks.clear()
-        tri = k + s * self._triplets[m]  # (T, 3) bins a, b, c
-        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-        fa, fb, fc = freqs[a], freqs[b], freqs[c]
-        f2a, f2b, f2c = fa * fa, fb * fb, fc * fc
-        cab, bab = f2c - f2a, f2b - f2a  # ωc² − ωa², ωb² − ωa² (in Hz²)
-        twice = np.repeat(np.stack([cab, bab, f2b * cab, f2c * bab]), 2, axis=1)
-        blk = (b, c, a, twice, tri.shape[0], (float(freqs[k - s * m]), float(freqs[k + s * m])))
-        self._blocks[key] = blk
-        return blk
-
-    def _layout(self, n: int, freqs: NDArray[np.float64], plans: tuple[tuple[int, int, int], ...]) -> tuple:
-        """Bin indices and frequency factors of all triplets of ``plans`` (``(k, stride, m)`` rows), cached.
-
-        Laid out part by part (``Δba`` of every peak, then ``Δca``; the real
-        factors likewise, each value twice against the (re, im) floats), so
-        that every operation of :meth:`_solve` is on whole contiguous rows.
-        """
-        if freqs is not self._layout_freqs:
-            self._layouts.clear()
-            self._blocks.clear()
-            self._layout_freqs = freqs  # held, so its id cannot be reused while cached
-        key = (n, plans)
-        lay = self._layouts.get(key)
-        if lay is not None:
-            return lay
-        if len(self._layouts) >= self._CACHE_MAX:
-            self._layouts.clear()
-        blocks = [self._block(freqs, k, s, m) for k, s, m in plans]
-        sizes = [blk[4] for blk in blocks]
-        t = sum(sizes)
-        bs, cs, as_ = [blk[0] for blk in blocks], [blk[1] for blk in blocks], [blk[2] for blk in blocks]
-        hidx = np.concatenate(bs + cs + as_ + as_).reshape(2, 2 * t)  # [H_b | H_c] minus [H_a | H_a]
-        factors = np.concatenate([blk[3][row] for row in range(4) for blk in blocks]).reshape(2, 4 * t)
-        member = np.repeat(np.eye(len(plans)), sizes, axis=1)[None].repeat(2, axis=0)  # per peak: its triplets
-        sums = np.ones((t, 3))  # [Re λ, Im λ, 1] per triplet
-        lam = np.ndarray((t,), dtype=np.complex128, buffer=sums, strides=(sums.strides[0],))
-        weights = np.empty((2, 1, t))
-        lay = (hidx, factors, member, sums, lam, weights, [blk[5] for blk in blocks], t)
-        self._layouts[key] = lay
-        return lay
-
-    def _solve(
-        self,
-        H: NDArray[np.complex128],
-        freqs: NDArray[np.float64],
-        plans: tuple[tuple[int, int, int], ...],
-    ) -> list[tuple[float, float, int] | None]:
-        """All triplets of all peaks (``plans`` rows ``(k, stride, m)``) in one pass over flat arrays.
-
-        The arithmetic is :func:`vrm_lambda`'s, per triplet, on float views
-        (complex differences as (re, im) pairs, the real frequency factors
-        duplicated to match) so that no operation mixes types.
-        """
-        hidx, factors, member, sums, lam, weights, edges, t = self._layout(H.shape[-1], freqs, plans)
-        g = H[hidx]
-        d = np.subtract(g[0], g[1]).view(np.float64)  # [Δba | Δca] as (re, im)
-        q = np.multiply(d, factors)  # [[Δba(ωc²−ωa²) | Δca(ωb²−ωa²)], [Δba ωb²(ωc²−ωa²) | Δca ωc²(ωb²−ωa²)]]
-        dn = np.subtract(q[:, : 2 * t], q[:, 2 * t :]).view(np.complex128)  # [den, num], see vrm_lambda
-        den, num = dn[0], dn[1]
-        w = np.abs(den)
-        singular = np.count_nonzero(w) < t
-        if singular:
-            den += w == 0.0  # singular triplet: divide by 1 instead (its weight is 0)
-        np.divide(num, den, out=lam)
-        re, im = lam.real, lam.imag
-        # physical: Re λ > 0 and 0 < ζ ≤ zeta_max, i.e. 0 < Im λ ≤ c·Re λ with
-        # c = tan(2 atan ζmax) (viscous, ζ = tan(arg λ / 2)) or 2 ζmax (hysteretic);
-        # for a finite c > 0 the two inequalities already imply Re λ > 0
-        c = self._im_over_re_max
-        if 0.0 < c < math.inf:
-            good = np.less_equal(im, np.multiply(re, c))
-        else:
-            good = re > 0.0
-        good &= im > 0.0
-        if singular:
-            good &= w > 0.0
-        np.multiply(w, good, out=weights[0, 0])
-        np.copyto(weights[1, 0], good)
-        # per peak: [Σ w Re λ, Σ w Im λ, Σ w] and, below, [·, ·, triplets used]
-        totals = np.dot(np.multiply(member, weights).reshape(-1, t), sums).tolist()
-        npk = len(plans)
-        df = float(freqs[1] - freqs[0])
-        results: list[tuple[float, float, int] | None] = []
-        for j in range(npk):
-            wr, wi, wsum = totals[j]
-            used = int(totals[npk + j][2])
-            if used == 0 or not wsum > 0.0:
-                results.append(None)
-                continue
-            fn, zeta = vrm_modal_scalar(complex(wr, wi) / wsum, self.model)
-            # the averaged mode must lie within two bins of the band it came from
-            f_lo, f_hi = edges[j][0] - 2.0 * df, edges[j][1] + 2.0 * df
-            ok = f_lo <= fn <= f_hi and 0.0 < zeta <= self.zeta_max
-            results.append((fn, zeta, used) if ok else None)
-        return results
-
-
-def vrm_modal_scalar(lam: complex, model: Literal["viscous", "hysteretic"] = "viscous") -> tuple[float, float]:
-    """Scalar :func:`vrm_modal` with λ in (units)²: returns ``(√|λ| or √Re λ, ζ)``."""
-    re, im = lam.real, lam.imag
-    if re <= 0.0:
-        return 0.0, 0.0
-    if model == "viscous":
-        mod = abs(lam)
-        return math.sqrt(mod), im / (mod + re)
-    return math.sqrt(re), 0.5 * im / re
+        hd = np.ascontiguousarray(H, dtype=np.complex128)
+        fd = np.ascontiguousarray(freqs, dtype=np.float64)
+        vd = np.ones(hd.size, dtype=np.bool_) if valid is None else np.ascontiguousarray(valid, dtype=np.bool_)
+        args = (self.m_max, self.band_factor, self.zeta_max, self._im_over_re_max, self.model == "viscous", self.tri, self.n_tri)
+        ok, fn, zeta, used = kernel._vrm(hd, fd, vd, valid is not None, int(k), float(half_width_bins), *args)
+        return (float(fn), float(zeta), int(used)) if ok else None
 
 
 def fit_mode_transient(
@@ -629,9 +357,7 @@ def fit_mode_transient(
     Y = np.atleast_2d(np.asarray(outputs, dtype=np.complex128))
     ni, b = U.shape
     m = Y.shape[0]
-    nb1, nt1 = numerator_order + 1, transient_order + 1
-    per_out = ni * nb1 + 2 * nt1  # B coefficients (real), T coefficients (re, im)
-    n_par = 2 + m * per_out
+    n_par = 2 + m * (ni * (numerator_order + 1) + 2 * (transient_order + 1))
     if b < 2 or 2 * m * b < n_par or Y.shape[1] != b or f.size != b:
         return None
     if not (np.all(np.isfinite(U)) and np.all(np.isfinite(Y))):
@@ -639,20 +365,8 @@ def fit_mode_transient(
     wc = 2.0 * math.pi * float(np.mean(f))
     if not wc > 0.0:
         return None
-    s = 2j * math.pi * f / wc
-    pw = np.stack([s**p for p in range(max(nb1, nt1))])  # (p, B)
-    A = np.zeros((m, b, n_par), dtype=np.complex128)
-    rhs = np.empty((m, b), dtype=np.complex128)
-    for j in range(m):
-        A[j, :, 0] = Y[j] * s
-        A[j, :, 1] = Y[j]
-        rhs[j] = -Y[j] * s * s
-        col = 2 + j * per_out
-        for i in range(ni):
-            A[j, :, col : col + nb1] = -(U[i][None, :] * pw[:nb1]).T
-            col += nb1
-        A[j, :, col : col + nt1] = -pw[:nt1].T
-        A[j, :, col + nt1 : col + 2 * nt1] = -1j * pw[:nt1].T
+    s: NDArray[np.complex128] = (2j * math.pi * f / wc).astype(np.complex128)
+    A, rhs = _transient_levy_rows(s, U, Y, numerator_order + 1, transient_order + 1)
     a1 = a0 = 0.0
     w = np.ones(b)
     for it in range(max(1, iterations)):
@@ -671,3 +385,28 @@ def fit_mode_transient(
     if not 0.0 < zeta < 1.0:
         return None
     return wn * wc / (2.0 * math.pi), zeta
+
+
+def _transient_levy_rows(
+    s: NDArray[np.complex128], U: NDArray[np.complex128], Y: NDArray[np.complex128], nb1: int, nt1: int
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """The unweighted Levy rows ``A θ = rhs`` of :func:`fit_mode_transient` per output ``(m, B, n_par)``:
+    ``θ = [a₁, a₀, then per output the real B_ij coefficients (nb1 each) and T_j's (re, im; nt1 each)]``,
+    ``rhs = −Y s̃²``."""
+    ni, b = U.shape
+    m = Y.shape[0]
+    per_out = ni * nb1 + 2 * nt1  # B coefficients (real), T coefficients (re, im)
+    pw = np.stack([s**p for p in range(max(nb1, nt1))])  # (p, B)
+    A = np.zeros((m, b, 2 + m * per_out), dtype=np.complex128)
+    rhs = np.empty((m, b), dtype=np.complex128)
+    for j in range(m):
+        A[j, :, 0] = Y[j] * s
+        A[j, :, 1] = Y[j]
+        rhs[j] = -Y[j] * s * s
+        col = 2 + j * per_out
+        for i in range(ni):
+            A[j, :, col : col + nb1] = -(U[i][None, :] * pw[:nb1]).T
+            col += nb1
+        A[j, :, col : col + nt1] = -pw[:nt1].T
+        A[j, :, col + nt1 : col + 2 * nt1] = -1j * pw[:nt1].T
+    return A, rhs

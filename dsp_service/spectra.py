@@ -35,6 +35,7 @@ import scipy.fft
 import scipy.signal
 from numpy.typing import NDArray
 
+from . import kernel
 from .history import N_CHANNELS
 
 #: Row indices of the spectra array.
@@ -107,7 +108,7 @@ class SegmentedSpectralEstimator(SpectralEstimator):
     """Welch within the history: the seven spectra averaged over ``segments`` half-overlapping windows.
 
     The history of ``N`` samples is cut into ``S`` segments of ``L = 2N/(S + 1)``
-    samples overlapping by ``L/2``; each is detrended (its own mean), windowed
+    samples overlapping by ``L/2``; each is detrended (its own mean, :func:`.kernel.row_mean`), windowed
     with an ``L``-point periodic window and FFT'd zero-padded to ``N`` (so the
     bin grid stays the thesis's, at a resolution of ``fs/L``); the spectra are
     the mean over segments of ``conj(X)·Y``. This is ``scipy.signal.csd(x, y,
@@ -128,7 +129,6 @@ class SegmentedSpectralEstimator(SpectralEstimator):
         seg = (2 * self.n) // (s + 1)
         if seg < 8 or seg % 2:
             raise ValueError(f"{s} segments of an N = {n} history are {seg} samples: too short or odd")
-        self.segments = s
         self.segment_length = seg
         self.hop = seg // 2
         self.window = make_window(window, seg)
@@ -142,8 +142,10 @@ class SegmentedSpectralEstimator(SpectralEstimator):
         seg, L = self._seg, self.segment_length
         for i, a in enumerate(self._starts):
             x = history[:, a : a + L]
-            np.subtract(x, x.mean(axis=1, keepdims=True), out=seg[i, :, :L])
-            seg[i, :, :L] *= self.window
+            dst = seg[i, :, :L]
+            for r in range(N_CHANNELS):  # detrend='constant' by the step's own channel mean
+                np.subtract(x[r], kernel.row_mean(x[r]), out=dst[r])
+            dst *= self.window
         X = rfft_rows(seg.reshape(-1, self.n), self._segX.reshape(-1, self.n_bins)).reshape(self._segX.shape)
         U = np.conj(X[:, 0:2])  # (S, 2, K)
         sp = self.spectra
@@ -262,17 +264,8 @@ class SpectralAverager:
 
     def take(self, new_samples: int) -> float:
         """:meth:`next_weight`, then :meth:`add`'s bookkeeping, in one call: the weight of a snapshot the
-        caller adds to :attr:`state` itself (the compiled step). The usual exponential update
-        (no rescale) inline, the rest through :meth:`next_weight`; the same arithmetic."""
-        alpha = self.alpha
-        if self.updates and self.method == "exponential" and alpha < 1.0:
-            c = self._c / (1.0 - alpha)
-            if c > self._RESCALE_AT:
-                c = self.next_weight()  # rescales, from the same self._c
-            else:
-                self._c = c
-        else:
-            c = self.next_weight()
+        caller adds to :attr:`state` itself (the compiled step)."""
+        c = self.next_weight()
         self._account(c, new_samples)
         return c
 

@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from dsp_service.arx import RecursiveArx, load_regime_bank, save_regime_bank
+from dsp_service.arx import RecursiveArx
+from dsp_service.arx_regime_bank import load_regime_bank, save_regime_bank
 from dsp_service.identifier import IdentifierConfig, arx_config
 
 from .synth import FS, MODES, correlated_inputs, make_system

@@ -12,7 +12,7 @@ import pytest
 import scipy.signal as ss
 
 from dsp_service.identifier import Identifier, IdentifierConfig
-from dsp_service.mimo import MODE_DOMINANT, MODE_FULL, MODE_NONE
+from dsp_service.mimo import MODE_DOMINANT, MODE_FULL, MODE_NONE, MimoSolver
 
 from .synth import FS, dataset, make_system
 
@@ -179,3 +179,34 @@ def test_segmented_averaging_cuts_the_error_of_correlated_inputs() -> None:
         if segs == 7:
             assert idf.effective_averages > 5.0
     assert errs[7] < 0.85 * errs[1]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_downloads_solve_is_the_textbook_solve_per_bin(seed: int) -> None:
+    """``MimoSolver.solve`` (the compiled solve of every bin the downloads use) against numpy's
+    linear algebra on spectra with full-rank, collinear and silent bins: ``np.linalg.solve`` where
+    the 2×2 is well conditioned (tests/dsp/references.py, the same mask), ``np.linalg.eigh``'s
+    dominant eigenvector on the collinear bins, 0 on the silent ones; to 1e-9 relative."""
+    from .references import mimo_solve
+
+    rng = np.random.default_rng(seed)
+    k, snaps = 257, 40
+    X = rng.standard_normal((snaps, 4, k)) + 1j * rng.standard_normal((snaps, 4, k))
+    X[:, 1, ::5] = (0.7 - 0.4j) * X[:, 0, ::5]  # collinear inputs every fifth bin
+    X[:, 0:2, 3] = 0.0  # one silent bin
+    pairs = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]
+    S = np.array([np.mean(np.conj(X[:, i]) * X[:, j], axis=0) for i, j in pairs])
+    solver = MimoSolver(k, "mimo", 1e-3, 1e-12, "dominant")
+    H, valid = solver.solve(S)
+    H_ref, full = mimo_solve(S, 1e-3, 1e-12)
+    assert full.sum() > 150 and np.array_equal(solver.mode == MODE_FULL, full)
+    np.testing.assert_allclose(H[:, full], H_ref[:, full], rtol=1e-9)
+    collinear = solver.mode == MODE_DOMINANT
+    assert collinear.sum() >= 40 and not valid[3] and np.all(H[:, 3] == 0)
+    for b in np.flatnonzero(collinear):
+        P = np.array([[S[0, b], S[1, b]], [np.conj(S[1, b]), S[4, b]]])
+        R = np.array([[S[2, b], S[3, b]], [S[5, b], S[6, b]]])
+        sigma, vecs = np.linalg.eigh(P)
+        v = vecs[:, 1]
+        h = np.outer(v, np.conj(v) @ R) / sigma[1]
+        np.testing.assert_allclose(H[:, b], [h[0, 0], h[0, 1], h[1, 0], h[1, 1]], rtol=1e-9)

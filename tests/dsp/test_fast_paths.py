@@ -1,5 +1,6 @@
 """The identifier's hot path against references built here from public building blocks: numpy's
-FFT, scipy.signal's savgol_filter, find_peaks and peak_prominences, the VRM triplets one by one."""
+FFT and linear algebra, scipy.signal's savgol_filter, find_peaks and peak_prominences, the VRM
+triplets one by one (tests/dsp/references.py)."""
 
 from __future__ import annotations
 
@@ -12,11 +13,10 @@ import pytest
 import scipy.signal
 
 from dsp_service.identifier import Identifier, IdentifierConfig
-from dsp_service.mimo import solve_mimo
-from dsp_service.modal import VrmEstimator, vrm_lambda, vrm_modal_scalar
-from dsp_service.smoothing import FrequencySmoother
+from dsp_service.modal import VrmEstimator
 from dsp_service.spectra import rfft_rows
 
+from .references import c12_corrected, half_power_crossings, mimo_solve, parabola_vertex, zeta_from_half_power_width
 from .synth import dataset
 
 FS, N = 200.0, 2048
@@ -34,30 +34,30 @@ def test_rfft_rows_is_numpys_rfft() -> None:
     np.testing.assert_array_equal(rfft_rows(x[1]), np.fft.rfft(x[1]))
 
 
-# ---------------------------------------------------------------- smoothing
-@pytest.mark.parametrize("lo,hi", [(0, 300), (6, 290), (20, 40), (295, 300), (0, 3)])
-@pytest.mark.parametrize("complex_", [True, False])
-def test_range_plan_tracks_its_buffer(lo: int, hi: int, complex_: bool) -> None:
-    rng = np.random.default_rng(lo + hi)
-    sm = FrequencySmoother(300, 17, 2)
-    buf = np.zeros(300, dtype=np.complex128 if complex_ else np.float64)
-    plan = sm.range_plan(buf, lo, hi)
-    for _ in range(3):
-        x = rng.standard_normal(300) + (1j * rng.standard_normal(300) if complex_ else 0.0)
-        buf[...] = x
-        ref_re = scipy.signal.savgol_filter(np.real(x), 17, 2, mode="interp")
-        ref = ref_re + 1j * scipy.signal.savgol_filter(np.imag(x), 17, 2, mode="interp") if complex_ else ref_re
-        np.testing.assert_allclose(plan(), ref[lo:hi], rtol=1e-10, atol=1e-12)
-
-
 # ---------------------------------------------------------------------- VRM
-def _vrm_reference(est: VrmEstimator, H, freqs, k, half_width, valid):
-    """The estimator's definition, one triplet at a time (Python loops; for the test only)."""
-    plan = est._plan(H.size, k, half_width, valid)
-    if plan is None:
+def _vrm_band(est: VrmEstimator, n: int, k: int, half_width: float, valid: np.ndarray | None) -> tuple[int, int] | None:
+    """``(m, stride)`` of the estimator's band (its doc): ``h = round(band_factor × half-width)`` bins
+    each side within the array and short of any invalid bin, at most ``m_max`` points each side."""
+    h = min(max(1, round(est.band_factor * half_width)), k, n - 1 - k)
+    if h >= 1 and valid is not None:
+        bad = [abs(i - k) - 1 for i in range(k - h, k + h + 1) if not valid[i]]
+        h = min([h, *bad])
+    if h < 1:
         return None
-    m, stride = plan
+    m = min(h, est.m_max)
+    stride = max(1, round(h / m))
+    return (h // stride if m * stride > h else m), stride
+
+
+def _vrm_reference(est: VrmEstimator, H, freqs, k, half_width, valid):
+    """The estimator's definition, one triplet at a time, each λ by ``numpy.linalg.solve`` of the
+    corrected [C-12] (tests/dsp/references.py), the weights ``|den|``, the viscous or hysteretic reading."""
+    band = _vrm_band(est, H.size, k, half_width, valid)
+    if band is None:
+        return None
+    m, stride = band
     pts = [k + stride * j for j in range(-m, m + 1)]
+    c_max = math.tan(2.0 * math.atan(est.zeta_max)) if est.model == "viscous" else 2.0 * est.zeta_max
     lam_sum, w_sum, used = 0j, 0.0, 0
     for a, b, c in combinations(range(2 * m + 1), 3):
         if c - a < max(m, 2):
@@ -66,17 +66,21 @@ def _vrm_reference(est: VrmEstimator, H, freqs, k, half_width, valid):
         f2 = [float(freqs[p]) ** 2 for p in (pa, pb, pc)]
         dba, dca = H[pb] - H[pa], H[pc] - H[pa]
         den = dba * (f2[2] - f2[0]) - dca * (f2[1] - f2[0])
-        lam = complex(vrm_lambda(*(np.array([H[p]]) for p in (pa, pb, pc)), *(np.array([v]) for v in f2))[0])
-        if abs(den) == 0.0 or not lam.real > 0.0 or not lam.imag > 0.0:
+        if abs(den) == 0.0:
             continue
-        if lam.imag > est._im_over_re_max * lam.real:
+        lam = c12_corrected(H[pa], H[pb], H[pc], *(float(freqs[p]) for p in (pa, pb, pc)))[0]
+        if not lam.real > 0.0 or not lam.imag > 0.0 or lam.imag > c_max * lam.real:
             continue
         lam_sum += abs(den) * lam
         w_sum += abs(den)
         used += 1
     if used == 0:
         return None
-    fn, zeta = vrm_modal_scalar(lam_sum / w_sum, est.model)
+    lam = lam_sum / w_sum
+    if est.model == "viscous":
+        fn, zeta = math.sqrt(abs(lam)), math.tan(0.5 * math.atan2(lam.imag, lam.real))
+    else:
+        fn, zeta = math.sqrt(lam.real), 0.5 * lam.imag / lam.real
     df = float(freqs[1] - freqs[0])
     if not (float(freqs[pts[0]]) - 2 * df <= fn <= float(freqs[pts[-1]]) + 2 * df and 0.0 < zeta <= est.zeta_max):
         return None
@@ -85,7 +89,7 @@ def _vrm_reference(est: VrmEstimator, H, freqs, k, half_width, valid):
 
 @pytest.mark.parametrize("model", ["viscous", "hysteretic"])
 @pytest.mark.parametrize("m_max", [2, 5, 10])
-def test_vrm_all_peaks_at_once_equals_the_triplet_by_triplet_definition(model: Literal["viscous", "hysteretic"], m_max: int) -> None:
+def test_vrm_equals_its_triplet_by_triplet_definition(model: Literal["viscous", "hysteretic"], m_max: int) -> None:
     rng = np.random.default_rng(m_max)
     wn1, wn2 = 2 * np.pi * 3.6, 2 * np.pi * 9.0
     w = 2 * np.pi * FREQS
@@ -97,7 +101,7 @@ def test_vrm_all_peaks_at_once_equals_the_triplet_by_triplet_definition(model: L
     ks = [36, 92, 0, 3, 37, 100, 1020, 500]
     hws = [3.2, 2.3, 2.0, 5.0, 0.4, 1.0, 8.0, 30.0]  # different m and strides, edges, masked bins
     for mask in (None, valid):
-        got = est.estimate_many(H, FREQS, ks, hws, mask)
+        got = [est.estimate(H, FREQS, k, hw, mask) for k, hw in zip(ks, hws)]
         ref = [_vrm_reference(est, H, FREQS, k, hw, mask) for k, hw in zip(ks, hws)]
         assert [g is None for g in got] == [r is None for r in ref]
         assert sum(g is not None for g in got) >= 4
@@ -132,10 +136,10 @@ def _scipy_peaks(v: np.ndarray, ratio: float, want: int) -> list[tuple[int, floa
 
 def _step_reference(idf: Identifier) -> list[tuple]:
     """The step's poles rebuilt from scipy and the solve, FWHM and VRM definitions."""
-    from dsp_service.modal import PeakRefiner, half_power_bandwidth, log_weights, refine_peak, zeta_from_fwhm_exact
+    from dsp_service.modal import log_weights
 
     cfg = idf.cfg
-    H, valid = solve_mimo(idf._avg.state, cfg.det_threshold, cfg.power_floor)
+    H, valid = mimo_solve(idf._avg.state, cfg.det_threshold, cfg.power_floor)
     htot = H.mean(axis=0)
     lo, hi, sl = idf._lo, idf._hi, idf._sl
     assert valid[sl].all()  # so is every smoothing window of the search range, which lies within sl
@@ -151,13 +155,14 @@ def _step_reference(idf: Identifier) -> list[tuple]:
         k = index + lo - sl.start
         a = max(k - r, 0)
         k = a + int(np.argmax(magd[a : k + r + 1]))
-        d, lv = refine_peak(magd, k)
+        d, lv = parabola_vertex(magd, k, 1, 0.5)  # the three-point vertex
         fp, mp = fd[k] + d * (fd[1] - fd[0]), math.exp(lv)
-        band = half_power_bandwidth(magd, fd, k, mp, vd)
+        band = half_power_crossings(magd, fd, k, mp)
+        assert band is not None and vd.all()
         bw = band[1] - band[0]
         hb = 0.5 * bw / (fd[1] - fd[0])
-        d, lv = PeakRefiner().refine(magd, k, int(round(0.5 * hb)))
-        out.append([fd[k] + d * (fd[1] - fd[0]), math.exp(lv), zeta_from_fwhm_exact(bw, fp), prom])
+        d, lv = parabola_vertex(magd, k, min(8, int(round(0.5 * hb))))
+        out.append([fd[k] + d * (fd[1] - fd[0]), math.exp(lv), zeta_from_half_power_width(bw, fp), prom])
         ks.append(k)
         hws.append(hb)
     est = VrmEstimator(cfg.vrm_points_per_side, cfg.vrm_band_factor, model=cfg.vrm_model)

@@ -59,7 +59,8 @@ def test_the_block_walk_of_the_peak_search_equals_the_walk_bin_by_bin(size: int)
     for v in cases:
         nb = (size + kernel._BLOCK - 1) // kernel._BLOCK
         blocks = [v[q * kernel._BLOCK : (q + 1) * kernel._BLOCK] for q in range(nb)]
-        bmin, bmax = kernel._blocks(v)
+        bmin, bmax = np.empty(nb), np.empty(nb)
+        kernel._blocks_into(v, bmin, bmax)
         clean = [not np.any(np.isnan(b)) for b in blocks]
         assert [np.isnan(x) for x in bmax] == [not c for c in clean]
         assert all(bmin[q] == b.min() and bmax[q] == b.max() for q, b in enumerate(blocks) if clean[q])

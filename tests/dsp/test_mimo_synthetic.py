@@ -9,9 +9,20 @@ import pytest
 import scipy.signal
 
 from dsp_service.identifier import IdentificationResult, Identifier, IdentifierConfig
-from dsp_service.mimo import solve_mimo, solve_printed, solve_uncorrelated
+from dsp_service.mimo import MimoSolver
 
 from .synth import FS, MODES, dataset, make_system
+
+
+def _solve_printed(S: np.ndarray) -> np.ndarray:
+    """The thesis's [2-21 … 2-24] *as printed* (P12 where P21 belongs in H21, H22), unmasked."""
+    den = S[0].real * S[4].real - np.abs(S[1]) ** 2
+    h11 = (S[2] * S[4].real - S[1] * S[5]) / den
+    h12 = (S[3] * S[4].real - S[1] * S[6]) / den
+    h21 = (S[5] * S[0].real - S[1] * S[2]) / den  # printed [2-23]
+    h22 = (S[6] * S[0].real - S[1] * S[3]) / den  # printed [2-24]
+    return np.stack([h11, h12, h21, h22])
+
 
 SECONDS = 600
 N = 2048
@@ -91,9 +102,9 @@ def test_corrected_h21_h22_vs_printed() -> None:
     S = np.array([p for _, p in spectra])
     H_true = sys_.response(freqs)
     band = (freqs > 1.0) & (freqs < 15.0)
-    H, valid = solve_mimo(S)
+    H, valid = MimoSolver(S.shape[1], "mimo").solve(S)
     assert valid[band].all()
-    H_printed = solve_printed(S)
+    H_printed = _solve_printed(S)
     err = _median_rel_error(H, H_true, band)
     err_printed = _median_rel_error(H_printed, H_true, band)
     # H11, H12 are printed correctly: identical
@@ -101,5 +112,5 @@ def test_corrected_h21_h22_vs_printed() -> None:
     assert np.all(err < 0.025), err
     assert np.all(err_printed[2:] > 1.0), err_printed  # off by > 100 %
     # and the uncorrelated helper agrees with P_iyj / P_ii
-    Hu, _ = solve_uncorrelated(S)
+    Hu, _ = MimoSolver(S.shape[1], "uncorrelated").solve(S)
     np.testing.assert_allclose(Hu[0, band], (S[2] / S[0].real)[band], rtol=1e-12)

@@ -575,7 +575,7 @@ def test_an_interrupt_the_model_refuses_is_an_internal_error_and_the_board_goes_
 def test_the_service_loads_its_regime_bank_file_at_start_and_writes_it_at_close(session: zenoh.Session, tmp_path: Path) -> None:
     """``RALF_ARX_REGIME_BANK_FILE`` on the service: a bank file there is in the identifier before the first
     batch, and close() writes what the identifier holds then (no temporary file left)."""
-    from dsp_service.arx import load_regime_bank, save_regime_bank
+    from dsp_service.arx_regime_bank import load_regime_bank, save_regime_bank
 
     from .test_arx_regime_bank import _learned_bank
 

@@ -225,15 +225,15 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t0 = perf()
             idf.step()
             t["step"][i] = perf() - t0
-        floor = float(idf._k_stats[3])
-        n_valid, nf = int(idf._k_stats[1]), int(idf._k_stats[2])
-        all_sl = int(idf._k_stats[0]) == sl.stop - sl.start
+        floor = float(idf._k.stats[3])
+        n_valid, nf = int(idf._k.stats[1]), int(idf._k.stats[2])
+        all_sl = int(idf._k.stats[0]) == sl.stop - sl.start
         state = avg.state.copy()
         hb = idf.history
         buf, head = hb._buf, hb._head
         for i in range(start, stop):
             t0 = perf()
-            idf._k_detrend_ring(buf, head, est.means, est.window, est._tmp)
+            idf._k.detrend_ring(buf, head, est.means, est.window, est._tmp)
             t["detrend"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
@@ -249,23 +249,23 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["solve"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k_coef, idf._k_starts, idf._k_hs, idf._k_vs, idf._k_ia, idf._k_ib, all_sl)
+            K._smooth(sv.source, sv.valid, idf._lo, idf._hi, idf._k.coef, idf._k.starts, idf._k.hs, idf._k.vs, idf._k.ia, idf._k.ib, all_sl)
             t["smooth"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
             K._peaks(
-                idf._k_hs,
-                idf._k_vs,
+                idf._k.hs,
+                idf._k.vs,
                 n_valid,
-                idf._k_w,
+                idf._k.w,
                 idf._w_lin is not None,
                 idf._prom_ratio,
                 c.max_peaks,
-                idf._k_v,
-                idf._k_order,
-                idf._k_idx,
-                idf._k_prom,
-                idf._k_mag,
+                idf._k.v,
+                idf._k.order,
+                idf._k.idx,
+                idf._k.prom,
+                idf._k.mag,
             )
             t["poles"][i] = 0.0
             t["peaks"][i] = perf() - t0
@@ -278,21 +278,21 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
                 True,
                 idf._f_sl,
                 idf._lo - sl.start,
-                idf._k_idx,
+                idf._k.idx,
                 nf,
                 idf._relocate,
                 c.fwhm_exact,
-                idf._k_pinv,
+                idf._k.pinv,
                 idf._refiner.r_max,
                 vrm.m_max,
                 vrm.band_factor,
                 vrm.zeta_max,
                 vrm._im_over_re_max,
                 vrm.model == "viscous",
-                idf._k_tri,
-                idf._k_ntri,
-                idf._k_mag[: src.size],
-                idf._k_out,
+                idf._k.tri,
+                idf._k.ntri,
+                idf._k.mag[: src.size],
+                idf._k.out,
             )
             t["poles"][i] = perf() - t0
         for i in range(start, stop):

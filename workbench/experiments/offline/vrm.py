@@ -10,7 +10,7 @@ ratio: SNR 10^4 is ``eps = 1e-4``; 0.1 %, 1 %, 10 % are ``eps = 1e-3, 1e-2, 1e-1
 Estimators, all from ``dsp_service.modal``:
 
 * per-triplet VRM: adjacent bins ``(k, k+1, k+2)`` for every ``k`` in a band
-  around the peak, solved with the corrected [C-12] (``vrm_solve``), read as
+  around the peak, solved with the corrected [C-12] (``vrm_lambdas``), read as
   a viscous mode (``vrm_modal``);
 * the averaged VRM estimate: the mean of the per-triplet ``f_n`` and ``zeta``
   over the physical triplets (``Re lambda > 0``, ``0 < zeta < 0.5``) whose
@@ -37,8 +37,8 @@ from dsp_service.modal import (
     VrmEstimator,
     half_power_bandwidth,
     refine_peak,
+    vrm_lambdas,
     vrm_modal,
-    vrm_solve,
     zeta_from_fwhm_exact,
 )
 from workbench.experiments.framework import ExperimentContext, experiment
@@ -81,9 +81,9 @@ def per_triplet(h: np.ndarray, freqs: np.ndarray, k0: int, span: int) -> dict[st
     centres = np.arange(max(k0 - span, 1), min(k0 + span, freqs.size - 2) + 1)
     a, b, c = centres - 1, centres, centres + 1
     w = 2 * math.pi * freqs
-    lam, _, ok = vrm_solve(h[a], h[b], h[c], w[a], w[b], w[c])
+    lam, weight = vrm_lambdas(h[a], h[b], h[c], w[a], w[b], w[c])
     wn, z = vrm_modal(lam, "viscous")
-    physical = ok & (lam.real > 0) & (z > 0) & (z < 0.5)
+    physical = (weight > 0) & (lam.real > 0) & (z > 0) & (z < 0.5)
     return {"centre_hz": freqs[centres], "centre_bin": centres, "f_n": wn / (2 * math.pi), "zeta": z, "physical": physical}
 
 
