@@ -1,4 +1,7 @@
-"""``ralf-dsp`` / ``python -m dsp_service``: the emulated C40 DSP board."""
+"""``ralf-dsp`` / ``python -m dsp_service``: the emulated C40 DSP board.
+
+Ctrl-C is answered from the first line of :func:`main`: the rig's modules
+(numpy, numba, zenoh) are imported after it (:mod:`service_kit.interrupt`)."""
 
 from __future__ import annotations
 
@@ -6,13 +9,15 @@ import logging
 import threading
 from collections.abc import Sequence
 from functools import partial
+from typing import TYPE_CHECKING
 
-import zenoh
+from service_kit.interrupt import end_at_once_on_ctrl_c
 
-from dsp_service.service import DspService
-from protocol.settings import DspSettings
-from service_kit import readiness
-from service_kit.runtime import build_or_config_error, run_service
+if TYPE_CHECKING:
+    import zenoh
+
+    from dsp_service.service import DspService
+    from protocol.settings import DspSettings
 
 log = logging.getLogger("dsp")
 
@@ -23,6 +28,10 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
     and their compiled steps (which release the GIL) run on as many cores as there are. A board
     serving one rig identifies in zenoh's batch callback (``inline``): no thread hand-off on the
     batch -> interrupt path (docs/dsp-performance.md)."""
+    from dsp_service.service import DspService
+    from service_kit import readiness
+    from service_kit.runtime import build_or_config_error
+
     rigs = settings.rig_ids
 
     inline = len(rigs) == 1
@@ -55,6 +64,10 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    end_at_once_on_ctrl_c("ralf-dsp")  # before numpy, numba and zenoh load
+    from protocol.settings import DspSettings
+    from service_kit.runtime import run_service
+
     return run_service("ralf-dsp", "The emulated TI C40 DSP board: on-line FFT identification of RALF's transfer functions.", DspSettings, serve, argv)
 
 
