@@ -22,38 +22,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.rig.process_tree import descendants, left_behind
 from workbench.launcher import free_tcp_ports
 
 HANG_GUARD_S = 20.0
 """The most a stop may take here: far above the ~0.1-1.7 s measured, so only a hang fails."""
 
 SERVICES = ("ralf-plant", "ralf-controller", "ralf-dsp")
-
-
-def children_of(pid: int) -> list[int]:
-    """Every process below ``pid`` (from /proc's parent ids)."""
-    parents: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue
-    found, frontier = [], [pid]
-    while frontier:
-        parent = frontier.pop()
-        kids = [p for p, pp in parents.items() if pp == parent]
-        found += kids
-        frontier += kids
-    return found
-
-
-def alive(pid: int) -> bool:
-    try:
-        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 def service_env(port: int, connect: list[int], rig_id: str, can_port: int) -> dict[str, str]:
@@ -91,7 +66,7 @@ def wait_for_line(log: Path, text: str, proc: subprocess.Popen[bytes], timeout_s
 
 def interrupt(proc: subprocess.Popen[bytes], log: Path) -> tuple[int, str]:
     """SIGINT to the process group; the exit code and the log, after checking no child outlives it."""
-    kids = children_of(proc.pid)
+    kids = descendants(proc.pid)
     os.killpg(proc.pid, signal.SIGINT)
     try:
         code = proc.wait(timeout=HANG_GUARD_S)
@@ -99,11 +74,7 @@ def interrupt(proc: subprocess.Popen[bytes], log: Path) -> tuple[int, str]:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
         pytest.fail(f"{log.name} still running {HANG_GUARD_S:.0f} s after SIGINT:\n{log.read_text(errors='replace')[-3000:]}")
-    for _ in range(50):  # /proc may lag a moment behind a child's exit
-        left = [k for k in kids if alive(k)]
-        if not left:
-            break
-        time.sleep(0.1)
+    left = left_behind(kids)
     assert not left, f"{log.name}: children left behind: {left}"
     return code, log.read_text(errors="replace")
 
