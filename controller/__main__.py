@@ -15,7 +15,9 @@ from service_kit.interrupt import end_at_once_on_ctrl_c
 if TYPE_CHECKING:
     import zenoh
 
+    from controller.service import ControllerService
     from protocol.settings import ControllerSettings
+    from service_kit.waits import Awaited
 
 EXIT_PLANT_FAULT = 3
 EXIT_MONITOR_STOP = 4
@@ -28,13 +30,19 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
     from controller.service import ControllerService
     from service_kit.runtime import build_or_config_error
     from service_kit.transport import open_can_bus
+    from service_kit.waits import log_waits
 
     bus = open_can_bus(settings)
     try:
         service = build_or_config_error("controller configuration", lambda: ControllerService(settings, session, PlantLink(bus, settings.node_id)))
         try:
             log.info("controller up on rig %r: %s clock, %.0f Hz, OATF %s", settings.rig_id, settings.clock, settings.sample_rate_hz, settings.oatf_mode)
-            result = service.run(stop)
+            started = threading.Event()
+            log_waits(start_up_waits(service, settings), log, started)
+            try:
+                result = service.run(stop)
+            finally:
+                started.set()
             if settings.run_record:
                 service.save(settings.run_record, result)
             log.info("run ended after %d ticks (%.2f s simulated): %s", result.ticks, result.sim_time_s, result.counters)
@@ -46,6 +54,28 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
         log.error("run ended with a fault: %s", result.error)
         return EXIT_MONITOR_STOP if result.error.startswith("stopped by monitor") else EXIT_PLANT_FAULT
     return 0
+
+
+def start_up_waits(service: ControllerService, settings: ControllerSettings) -> list[Awaited]:
+    """What the controller waits for before tick 0, in order, read from its state
+    (:mod:`service_kit.waits`): the plant node's heartbeat, its start, the DSP."""
+    from protocol.can_map import NmtState
+    from service_kit.waits import Awaited
+
+    plant, node = service.plant, f"plant node {settings.node_id}"
+    return [
+        Awaited(f"the {node} on CAN {settings.can_interface} (its boot-up or heartbeat)", lambda: plant.last_heartbeat is not None, f"{node} heard"),
+        Awaited(
+            f"the {node} to start (NMT reset, SDO configuration, OPERATIONAL)",
+            lambda: plant.node_state == NmtState.OPERATIONAL or service.ready_at is not None,
+            f"{node} operational",
+        ),
+        Awaited(
+            "the DSP on zenoh (its answer to the run-start reset)",
+            lambda: service.ready_at is not None,
+            lambda: "DSP ready" if service.dsp.dsp_alive else "no DSP answered; controlling without identification",
+        ),
+    ]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
     from dsp_service.service import DspService
     from protocol.settings import DspSettings
+    from service_kit.waits import Awaited
 
 log = logging.getLogger("dsp")
 
@@ -31,6 +32,7 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
     from dsp_service.service import DspService
     from service_kit import readiness
     from service_kit.runtime import build_or_config_error
+    from service_kit.waits import log_waits
 
     rigs = settings.rig_ids
 
@@ -48,6 +50,7 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
         settings.emulated_latency_s * 1e3,
     )
     readiness.mark_ready(settings.ready_file, log)  # boards built (kernels warm), subscribed
+    log_waits([controller_heard(service) for service in services], log, stop)
     threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
     try:
         for thread in threads:
@@ -61,6 +64,20 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
             service.close()
             log.info("DSP board of rig %r stopped: %s", service.settings.rig_id, service.block.counters.as_dict())
     return 0
+
+
+def controller_heard(service: DspService) -> Awaited:
+    """What a board waits for once it is up (:mod:`service_kit.waits`): its rig's
+    controller, heard when its run-start reset or a batch arrives."""
+    from service_kit.waits import Awaited
+
+    counters = service.block.counters
+    rig = service.settings.rig_id
+    return Awaited(
+        f"the controller of rig {rig!r} on zenoh (its run-start reset or a batch)",
+        lambda: counters.config_changes > 0 or counters.batches_accepted > 0,
+        f"controller of rig {rig!r} heard",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -126,3 +126,26 @@ def test_ctrl_c_stops_each_service_of_a_running_rig(tmp_path: Path) -> None:
             assert code == 130, f"{name}:\n{text[-3000:]}"
             assert "Traceback" not in text and "received SIGINT, stopping" in text, f"{name}:\n{text[-3000:]}"
     assert "run ended after" in logs["ralf-controller"].read_text()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize(
+    ("service", "wait_line"),
+    [
+        ("ralf-controller", "waiting for the plant node 1 on CAN udp_multicast (its boot-up or heartbeat)..."),
+        ("ralf-dsp", "on zenoh (its run-start reset or a batch)..."),
+    ],
+)
+def test_a_lone_service_says_what_it_waits_for(tmp_path: Path, service: str, wait_line: str) -> None:
+    """A controller without a plant, a DSP without a controller: each names
+    what it waits for (once), then stops on Ctrl-C as usual."""
+    (port,) = free_tcp_ports(1)
+    env = service_env(port, [], f"wait-{uuid.uuid4().hex[:8]}", 40000 + uuid.uuid4().int % 20000)
+    log = tmp_path / f"{service}.log"
+    proc = start(service, env, log)
+    with killed_at_exit([proc]):
+        wait_for_line(log, wait_line, proc)
+        code, text = interrupt(proc, log)
+    assert code == 130, text[-3000:]
+    assert text.count(wait_line) == 1, text[-3000:]
+    assert " INFO " in next(line for line in text.splitlines() if wait_line in line)
