@@ -10,7 +10,7 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from service_kit.interrupt import end_at_once_on_ctrl_c
+from service_kit.interrupt import end, end_at_once_on_ctrl_c
 
 if TYPE_CHECKING:
     import zenoh
@@ -83,8 +83,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     from protocol.settings import ControllerSettings
     from service_kit.runtime import run_service
 
-    return run_service(
-        "ralf-controller", "The emulated MVME CPU: 200 Hz PI joint control, OATF input shaping, link to the DSP.", ControllerSettings, control, argv
+    return end(
+        run_service(
+            "ralf-controller", "The emulated MVME CPU: 200 Hz PI joint control, OATF input shaping, link to the DSP.", ControllerSettings, control, argv
+        )
     )
 
 

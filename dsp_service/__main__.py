@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from functools import partial
 from typing import TYPE_CHECKING
 
-from service_kit.interrupt import end_at_once_on_ctrl_c
+from service_kit.interrupt import end, end_at_once_on_ctrl_c
 
 if TYPE_CHECKING:
     import zenoh
@@ -85,7 +85,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from protocol.settings import DspSettings
     from service_kit.runtime import run_service
 
-    return run_service("ralf-dsp", "The emulated TI C40 DSP board: on-line FFT identification of RALF's transfer functions.", DspSettings, serve, argv)
+    return end(run_service("ralf-dsp", "The emulated TI C40 DSP board: on-line FFT identification of RALF's transfer functions.", DspSettings, serve, argv))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from service_kit.interrupt import end_at_once_on_ctrl_c
+from service_kit.interrupt import end, end_at_once_on_ctrl_c
 
 if TYPE_CHECKING:
     import zenoh
@@ -52,8 +52,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     from protocol.settings import PlantSettings
     from service_kit.runtime import run_service
 
-    return run_service(
-        "ralf-plant", "RALF, the flexible two-link hydraulic arm, with its sensors and 12-bit A/D and D/A on a CANopen node.", PlantSettings, serve_on_bus, argv
+    return end(
+        run_service(
+            "ralf-plant",
+            "RALF, the flexible two-link hydraulic arm, with its sensors and 12-bit A/D and D/A on a CANopen node.",
+            PlantSettings,
+            serve_on_bus,
+            argv,
+        )
     )
 
 

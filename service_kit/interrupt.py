@@ -10,12 +10,15 @@ first thing by each service's entry point, ends the process on SIGINT with
 one line and exit code :data:`INTERRUPTED` until the service installs its
 own handler (:func:`service_kit.runtime.stop_on_signals`), which stops it
 in order. This module imports nothing but the standard library's ``os``
-and ``signal``, so it costs nothing to load."""
+and ``signal`` (and ``logging``, which the services load anyway), so it
+costs nothing to load."""
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
+import sys
 
 INTERRUPTED = 130
 """Exit code of a process ended by Ctrl-C (128 + SIGINT), as a shell reports it."""
@@ -33,3 +36,16 @@ def end_at_once_on_ctrl_c(prog: str) -> None:
         os._exit(INTERRUPTED)
 
     signal.signal(signal.SIGINT, _interrupted_while_loading)
+
+
+def end(code: int) -> int:
+    """A service's way out: ``code``, except that a run ended by Ctrl-C
+    (:data:`INTERRUPTED`; everything is stopped, closed and removed by then)
+    ends the process at once, logs flushed: the interpreter's own teardown of
+    the zenoh runtime and numba would add up to a second to a Ctrl-C."""
+    if code == INTERRUPTED:
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code

@@ -445,7 +445,7 @@ def exit_code(code: int, received: Sequence[str]) -> int:
     return INTERRUPTED if code == 0 and "SIGINT" in received else code
 
 
-START_STOP_GRACE_S = 1.5
+START_STOP_GRACE_S = 1.0
 """How long a service that is not ready yet is given to stop in order after
 SIGINT/SIGTERM before it ends at once (:func:`end_a_start_that_cannot_stop`)."""
 

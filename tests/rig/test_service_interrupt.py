@@ -26,7 +26,7 @@ from tests.rig.process_tree import descendants, left_behind
 from workbench.launcher import free_tcp_ports
 
 HANG_GUARD_S = 20.0
-"""The most a stop may take here: far above the ~0.1-1.7 s measured, so only a hang fails."""
+"""The most a stop may take here: far above the 0.01-1.1 s measured, so only a hang fails."""
 
 SERVICES = ("ralf-plant", "ralf-controller", "ralf-dsp")
 
