@@ -255,6 +255,7 @@ class Engine:
         tasks and took ~4 s; a remote scheduler's workers are its own (closing
         the client releases this client's tasks there)."""
         if self.cluster is not None and not self._closed:
+            _quiet(("distributed", "tornado"))  # the connections the kills close are no one's problem: not logged
             for nanny in list(getattr(self.cluster, "workers", {}).values()):
                 pid = getattr(nanny, "pid", None)
                 if pid:
@@ -271,6 +272,15 @@ class Engine:
         if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
             self.abort()
         self.close()
+
+
+def _quiet(packages: Sequence[str]) -> None:
+    """Silence every logger of ``packages`` (Dask configures its own, child by child)."""
+    for name in list(logging.root.manager.loggerDict):
+        if any(name == p or name.startswith(p + ".") for p in packages):
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    for p in packages:
+        logging.getLogger(p).setLevel(logging.CRITICAL + 1)
 
 
 def _progress(console: Console | None, show: bool) -> Progress:
