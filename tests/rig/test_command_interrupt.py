@@ -6,7 +6,7 @@ ends with exit code 130, the line ``ralf-hil: interrupted``, no traceback,
 no "failed", and no process of its own left behind (a sweep's Dask worker
 processes included, checked by process id). The runs are long (so a
 signal always finds them running) and bounded by a hang guard; no timing is
-asserted (the stop took 0.02-0.4 s on an idle host: docs/timing.md)."""
+asserted (the stop took 0.01-1.0 s at load ~4 on 2 cores: docs/timing.md)."""
 
 from __future__ import annotations
 
