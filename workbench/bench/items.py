@@ -326,28 +326,7 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
         stock_echo = stack.enter_context(
             Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(stock_port), "--bus", "stock", name="can-echo-stock", log_dir=ctx.log_dir)
         )
-        plant: Child | None = None
-        if ctx.floors_only:
-            result["notes"].append("--floors-only: the plant service was not started")
-        else:
-            try:
-                requires("plant_emulator.service")
-                env = clean_env(
-                    {
-                        "RALF_RIG_ID": rig_id,
-                        "RALF_ZENOH_MODE": "peer",
-                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{free_tcp_port()}",
-                        "RALF_CAN_INTERFACE": "udp_multicast",
-                        "RALF_CAN_CHANNEL": CAN_GROUP,
-                        "RALF_CAN_PORT": str(plant_port),
-                        "RALF_CLOCK": "lockstep",
-                        "RALF_WATCHDOG_PERIODS": "200",
-                        "RALF_LOG_LEVEL": "WARNING",
-                    }
-                )
-                plant = stack.enter_context(Child([sys.executable, "-m", "plant_emulator"], env=env, name="plant", log_dir=ctx.log_dir))
-            except Skip as exc:
-                result["skipped"].append(f"plant_sync_to_tpdo: {exc}")
+        plant = _start_can_plant(ctx, result, rig_id, plant_port, stack)
         echo.read_tagged("READY", 30)
         floor_bus = can_bus(floor_port, [0x181], CAN_GROUP)
         stack.callback(floor_bus.shutdown)
@@ -387,6 +366,32 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
         "can_pingpong and the plant run on the rig's bus (service_kit/can_udp.py: own frames dropped in the kernel); "
         "the stock row is the same round trip on python-can's udp_multicast, which reads its own frames back and drops them (can_filters)."
     )
+
+
+def _start_can_plant(ctx: BenchContext, result: dict[str, Any], rig_id: str, plant_port: int, stack: ExitStack) -> Child | None:
+    """The plant service in lockstep on the item's own CAN port, unless ``--floors-only``."""
+    if ctx.floors_only:
+        result["notes"].append("--floors-only: the plant service was not started")
+        return None
+    try:
+        requires("plant_emulator.service")
+        env = clean_env(
+            {
+                "RALF_RIG_ID": rig_id,
+                "RALF_ZENOH_MODE": "peer",
+                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{free_tcp_port()}",
+                "RALF_CAN_INTERFACE": "udp_multicast",
+                "RALF_CAN_CHANNEL": CAN_GROUP,
+                "RALF_CAN_PORT": str(plant_port),
+                "RALF_CLOCK": "lockstep",
+                "RALF_WATCHDOG_PERIODS": "200",
+                "RALF_LOG_LEVEL": "WARNING",
+            }
+        )
+        return stack.enter_context(Child([sys.executable, "-m", "plant_emulator"], env=env, name="plant", log_dir=ctx.log_dir))
+    except Skip as exc:
+        result["skipped"].append(f"plant_sync_to_tpdo: {exc}")
+        return None
 
 
 # --- shared: short floors and a whole rig ------------------------------------------------------------
