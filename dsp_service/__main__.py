@@ -50,7 +50,8 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
         settings.emulated_latency_s * 1e3,
     )
     readiness.mark_ready(settings.ready_file, log)  # boards built (kernels warm), subscribed
-    log_waits([controller_heard(service) for service in services], log, stop)
+    for service in services:  # each board waits for its own rig's controller
+        log_waits([controller_heard(service)], log, stop)
     threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
     try:
         for thread in threads:
