@@ -10,7 +10,8 @@ services (SIGTERM) after the run and removes everything compose made. Every
 step is bounded in time. Writes WORK/run.json.
 
 ``report WORK STAGES_JSON RESULTS``: checks run.json (every container exited
-0, every service ready with no numba kernel compiled at start, the
+0, no ERROR line in any container's log (WARNING lines counted and reported),
+every service ready with no numba kernel compiled at start, the
 controller's log shows ticks, batches and interrupts, the DSP only on the
 ``lab`` network, the plant and controller only on ``cabinet``, each bad input
 refused with a clear line), prints the verdict, writes RESULTS/run.json and
@@ -34,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from service_kit.readiness import parse_ready_line  # noqa: E402
+from service_kit.zenoh_log import parse_line as parse_zenoh_line  # noqa: E402
 
 SERVICES = ("zenoh-router", "dsp", "plant", "controller")
 STARTUP_LIMIT_S = 150.0
@@ -65,6 +67,41 @@ def containers(project: str) -> dict[str, dict[str, Any]]:
         if service:
             found[service] = {"name": c["Names"][0], "id": c["Id"]}
     return found
+
+
+RIG_LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d+ \S+ (?P<level>DEBUG|INFO|WARNING|ERROR|CRITICAL) ")
+"""A line of the rig's own log format (service_kit.runtime.configure_logging): time, service, level."""
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+LOOSE_ERROR = re.compile(r"\b(ERROR|CRITICAL)\b|^Traceback \(most recent call last\)|^\w*(Error|Exception): ")
+LOOSE_WARNING = re.compile(r"\bWARN(ING)?\b|\b\w+Warning: ")
+
+
+def log_problems(text: str) -> tuple[list[str], list[str]]:
+    """The ERROR and the WARNING lines of one container's log (colour codes removed).
+
+    A line in the rig's own format is judged by its level field, a raw zenoh
+    line (its Rust format, coloured or not) by zenoh's level as the services
+    would log it (:func:`service_kit.zenoh_log.parse_line`: routine start-up
+    warnings are INFO); any other line (a traceback, a Python warning, a tool's
+    own output) by its words. A CRITICAL counts as an ERROR."""
+    errors: list[str] = []
+    warnings: list[str] = []
+    for raw in text.splitlines():
+        line = ANSI.sub("", raw).rstrip()
+        m = RIG_LINE.match(line)
+        if m is not None:
+            level = m["level"]
+            is_error, is_warning = level in ("ERROR", "CRITICAL"), level == "WARNING"
+        elif (zenoh := parse_zenoh_line(line)) is not None:
+            is_error, is_warning = zenoh[0] >= 40, zenoh[0] == 30
+        else:
+            is_error = LOOSE_ERROR.search(line) is not None
+            is_warning = not is_error and LOOSE_WARNING.search(line) is not None
+        if is_error:
+            errors.append(line)
+        elif is_warning:
+            warnings.append(line)
+    return errors, warnings
 
 
 def first_line(text: str, pattern: str) -> str:
@@ -288,6 +325,12 @@ def evaluate(work: Path) -> dict[str, Any]:
     for service, wanted in NETWORKS.items():
         if set(record["networks"].get(service, [])) != wanted:
             failures.append(f"{service} is on networks {record['networks'].get(service)}, not {sorted(wanted)}")
+    log_lines: dict[str, dict[str, Any]] = {}
+    for service in SERVICES:
+        errors, warnings = log_problems(logs[service])
+        log_lines[service] = {"errors": len(errors), "warnings": len(warnings), "error_lines": errors[:20], "warning_lines": warnings[:20]}
+        if errors:
+            failures.append(f"{service}: {len(errors)} ERROR line(s) in its log: " + " | ".join(errors[:5]))
     m = RUN_ENDED.search(logs["controller"])
     controller: dict[str, Any] = {}
     if m is None:
@@ -327,6 +370,7 @@ def evaluate(work: Path) -> dict[str, Any]:
         "startup": startup,
         "healthy_after_s": record["healthy_after_s"],
         "controller": controller,
+        "log_lines": log_lines,
         "hops": hops,
         "networks": record["networks"],
         "exit": record["exit"],
@@ -384,6 +428,19 @@ def write_results(result: dict[str, Any], out: Path) -> None:
         lines.append(
             f"| {service} | {s.get('ready_s', '-')} | {s.get('kernels_cached', '-')} | {s.get('kernels_compiled', '-')} | {result['healthy_after_s'].get(service, 'never')} |"
         )
+    lines += [
+        "",
+        "## ERROR and WARNING lines in each container's log",
+        "",
+        "Any ERROR line fails the run; WARNING lines are counted and shown here.",
+        "",
+        "| service | ERROR lines | WARNING lines | first WARNING |",
+        "|---|---|---|---|",
+    ]
+    for service in SERVICES:
+        n = result.get("log_lines", {}).get(service, {})
+        first = (n.get("warning_lines") or [""])[0].replace("|", "\\|")
+        lines.append(f"| {service} | {n.get('errors', '-')} | {n.get('warnings', '-')} | {f'`{first}`' if first else '-'} |")
     cold = result.get("cold_start") or {}
     lines += [
         "",
@@ -425,6 +482,10 @@ def report(work: Path, stages: str, out: Path) -> int:
     result["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     result["machine"] = machine()
     write_results(result, out)
+    for service, n in result["log_lines"].items():
+        print(f"compose-rig: {service} log: {n['errors']} ERROR, {n['warnings']} WARNING line(s)", file=sys.stderr)
+        for line in n["error_lines"]:
+            print(f"compose-rig:   {service} ERROR line: {line}", file=sys.stderr)
     for failure in result["failures"]:
         print(f"compose-rig: FAIL: {failure}", file=sys.stderr)
     print(f"compose-rig: {result['verdict']}; results in {out}", file=sys.stderr)

@@ -144,8 +144,13 @@ def process_age_s(now: Callable[[], float] = time.time, proc: Path = Path("/proc
 _IMPORTED = time.time()
 
 
+READY = threading.Event()
+"""Set once this process is ready (:func:`mark_ready`): a stop before it may end the process at once."""
+
+
 def mark_ready(ready_file: str = "", logger: logging.Logger | None = None, age_s: float | None = None) -> Readiness:
     """Log the ready line and write ``ready_file`` (when set)."""
+    READY.set()
     compiled = COMPILES.compiled()
     ready = Readiness(
         seconds=process_age_s() if age_s is None else age_s, cached=cache_hits(), compiled=len(compiled), compiled_names=tuple(sorted(set(compiled)))

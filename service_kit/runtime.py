@@ -22,6 +22,7 @@ from protocol.messages import Health, LatencyStats, encode
 from protocol.settings import CommonSettings, describe, load_settings, retired
 from service_kit import readiness
 from service_kit.encodings import JSON
+from service_kit.interrupt import INTERRUPTED
 
 S = TypeVar("S", bound=CommonSettings)
 T = TypeVar("T")
@@ -408,24 +409,76 @@ def run_service(
     route_to_logging()  # zenoh's own log lines as this service's log records
     readiness.watch_compiles()  # before any kernel is touched: the ready line counts what compiled
     readiness.clear(settings.ready_file)  # a previous run's, in a restarted container
-    stop = install_stop_handlers()
+    stop, received = stop_on_signals()
+    finished = threading.Event()
+    end_a_start_that_cannot_stop(stop, finished, received)
     follow_launcher(settings.launcher_pid, stop)
     try:
-        session = open_zenoh(settings, stop=stop)
-    except ConfigError as exc:  # a TransportError: one line, exit 2
-        if stop.is_set():  # asked to stop while waiting for the router: a clean stop
-            logging.getLogger(prog).info("%s", exc)
-            return 0
-        logging.getLogger(prog).error("%s", exc)
-        return 2
-    if record and recorder is not None:
-        stop_recording = recorder(settings, record)
-    try:
-        return body(settings, session, stop)
-    except ConfigError as exc:
-        logging.getLogger(prog).error("%s", exc)
-        return 2
+        try:
+            session = open_zenoh(settings, stop=stop)
+        except ConfigError as exc:  # a TransportError: one line, exit 2
+            if stop.is_set():  # asked to stop while waiting for the router: a clean stop
+                logging.getLogger(prog).info("%s", exc)
+                return exit_code(0, received)
+            logging.getLogger(prog).error("%s", exc)
+            return 2
+        if record and recorder is not None:
+            stop_recording = recorder(settings, record)
+        try:
+            return exit_code(body(settings, session, stop), received)
+        except ConfigError as exc:
+            logging.getLogger(prog).error("%s", exc)
+            return 2
+        finally:
+            readiness.clear(settings.ready_file)
+            session.close()
+            stop_recording()
     finally:
-        readiness.clear(settings.ready_file)
-        session.close()
-        stop_recording()
+        finished.set()
+
+
+def exit_code(code: int, received: Sequence[str]) -> int:
+    """A service's exit code: :data:`~service_kit.interrupt.INTERRUPTED` (130)
+    when Ctrl-C (SIGINT) stopped a run that ended cleanly, as a shell expects
+    of an interrupted command; SIGTERM (a launcher's or a container engine's
+    stop) is an ordinary end, 0; a fault keeps its own code."""
+    return INTERRUPTED if code == 0 and "SIGINT" in received else code
+
+
+START_STOP_GRACE_S = 1.0
+"""How long a service that is not ready yet is given to stop in order after
+SIGINT/SIGTERM before it ends at once (:func:`end_a_start_that_cannot_stop`)."""
+
+
+def end_a_start_that_cannot_stop(
+    stop: threading.Event,
+    finished: threading.Event,
+    received: Sequence[str],
+    grace_s: float = START_STOP_GRACE_S,
+    end: Callable[[int], None] = os._exit,
+) -> threading.Thread:
+    """Ctrl-C within a couple of seconds, even in a first start-up.
+
+    A service stops in order at ``stop`` from every wait of its start-up
+    (the router, the plant, the DSP), but not from inside numba compiling a
+    kernel (tens of seconds at a first run, in one C call). When ``stop`` is
+    set and the service is still not ready (:data:`service_kit.readiness.READY`)
+    and not ``finished`` ``grace_s`` later, it has nothing to save yet: this
+    thread logs one line and ends the process (``end``) with the code an
+    orderly stop would give. A ready service is never ended this way (its
+    run record and recording close in order)."""
+    log = logging.getLogger("runtime")
+
+    def watch() -> None:
+        while not stop.wait(0.5):
+            if finished.is_set():
+                return
+        if finished.wait(grace_s) or readiness.READY.is_set():
+            return
+        log.info("still starting %.1f s after %s (a kernel compiling); ending now", grace_s, received[0] if received else "the stop")
+        logging.shutdown()
+        end(exit_code(0, received))
+
+    thread = threading.Thread(target=watch, name="start-stop-guard", daemon=True)
+    thread.start()
+    return thread

@@ -8,14 +8,7 @@ import os
 import signal
 import sys
 
-INTERRUPTED = 130
-"""Exit code of a command ended by Ctrl-C (128 + SIGINT)."""
-
-
-def _interrupted_while_loading(_signum: int, _frame: object) -> None:
-    """Ctrl-C while the modules load: nothing has started yet, so nothing to stop."""
-    os.write(2, b"ralf-hil: interrupted\n")
-    os._exit(INTERRUPTED)
+from service_kit.interrupt import INTERRUPTED, end_at_once_on_ctrl_c
 
 
 def main() -> int:
@@ -24,7 +17,7 @@ def main() -> int:
     # load it ends the process at once (a KeyboardInterrupt inside a compiled
     # extension's import can panic it); then it raises KeyboardInterrupt, and
     # up installs its own handler and stops the rig in order.
-    signal.signal(signal.SIGINT, _interrupted_while_loading)
+    end_at_once_on_ctrl_c("ralf-hil")
     from workbench.cli import main as cli_main
 
     signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -35,8 +35,9 @@ def test_the_readme_services_one_by_one_run_clean(tmp_path: Path) -> None:
     ports = free_tcp_ports(3)
     script = re.sub(r"127\.0\.0\.1:745([0-2])", lambda m: f"127.0.0.1:{ports[int(m.group(1))]}", block)
     assert script != block, "the block no longer uses ports 7450-7452"
-    # The controller runs in the foreground and stops after RALF_DURATION_S; the others are asked to stop then.
-    wrapper = script + '\nrc=$?\npids=$(jobs -p)\nkill -INT $pids\nfor p in $pids; do wait "$p" || rc=$((rc + 100)); done\nexit $rc\n'
+    # The controller runs in the foreground and stops after RALF_DURATION_S; the others are then stopped
+    # as a script stops its background jobs (SIGTERM: exit 0; a Ctrl-C, SIGINT, would end them with 130).
+    wrapper = script + '\nrc=$?\npids=$(jobs -p)\nkill -TERM $pids\nfor p in $pids; do wait "$p" || rc=$((rc + 100)); done\nexit $rc\n'
     env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
     env.update(
         {

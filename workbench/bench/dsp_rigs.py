@@ -132,140 +132,177 @@ def _ladder(
     """One DSP process serving ``max(rungs)`` rigs, driven rung by rung; fills ``m``;
     returns the largest rung served and (DSP CPU s per batch, rigs) of the last rung."""
     total = max(rungs)
-    period = batch / rate_hz
-    fill = max(batch, 30)  # the history is filled with batches of at least 30 samples (l = 1 would take N round trips)
     base = private_rig_id("rigs")
     ids = [f"{base}-{i}" for i in range(total)]
     port = free_tcp_port()
     with ExitStack() as stack:
-        env = clean_env(
-            {
-                "RALF_RIG_ID": ids[0],
-                "RALF_SERVE_RIGS": ",".join(ids[1:]),
-                "RALF_ZENOH_MODE": "peer",
-                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{port}",
-                "RALF_EMULATED_LATENCY_S": "0",
-                "RALF_SAMPLE_RATE_HZ": str(rate_hz),
-                "RALF_FFT_WIDTH": str(fft_width),
-                "RALF_BATCH_SIZE": str(batch),
-                "RALF_LOG_LEVEL": "WARNING",
-            }
+        dsp = stack.enter_context(
+            Child([sys.executable, "-m", "dsp_service"], env=_dsp_env(ids, port, rate_hz, fft_width, batch), name="dsp-rigs", log_dir=ctx.log_dir)
         )
-        dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp-rigs", log_dir=ctx.log_dir))
         session = zenoh_session(connect=[f"tcp/127.0.0.1:{port}"])
         stack.callback(session.close)
-        events: queue.SimpleQueue[tuple[int, str, bytes, float]] = queue.SimpleQueue()
-        rigs = [_Rig(Keys(rig)) for rig in ids]
-        perf = time.perf_counter
-        pubs = []
-        for i, rig in enumerate(rigs):
-            for kind, key in (("flag", rig.keys.flag), ("irq", rig.keys.interrupt)):
-
-                def on_sample(sample: Any, i: int = i, kind: str = kind) -> None:
-                    events.put((i, kind, sample.payload.to_bytes(), perf()))
-
-                sub = session.declare_subscriber(key, on_sample)
-                stack.callback(sub.undeclare)
-            pubs.append(session.declare_publisher(rig.keys.batch))
-
-        def take(until: float) -> None:
-            """Handle events until ``until`` (perf time)."""
-            while True:
-                remaining = until - perf()
-                if remaining <= 0:
-                    return
-                try:
-                    i, kind, payload, arrived = events.get(timeout=remaining)
-                except queue.Empty:
-                    return
-                rig = rigs[i]
-                if kind == "flag":
-                    flag = decode(BlockFlag, payload)
-                    if flag.state == "empty":
-                        rig.empty_for = max(rig.empty_for, flag.next_batch_seq)
-                else:
-                    irq = decode(Interrupt, payload)
-                    if rig.sent_at is not None and irq.batch_seq == rig.seq - 1:
-                        rig.turnaround.append(arrived - rig.sent_at)
-                        rig.compute.append(irq.compute_time_s)
-                        rig.sent_at = None
-                        # the interrupt says the block is empty again, as the controller takes it
-                        # (controller.dsp_link.DspLink.on_interrupt); the flag that follows says it too
-                        rig.empty_for = max(rig.empty_for, irq.batch_seq + 1)
-
-        def send(rig: _Rig, i: int, n: int = batch) -> None:
-            payload = encode_batch(_batch(rig, n, rate_hz, seed=i))
-            rig.sent_at = perf()  # before the put: the interrupt may be stamped before put() returns
-            rig.seq += 1
-            pubs[i].put(payload)
-
+        driver = _Driver(session, stack, [_Rig(Keys(rig)) for rig in ids], rate_hz, batch)
         ctx.say(f"  one DSP process serving {total} rigs; waiting for their empty flags")
-        deadline = perf() + 120.0
-        while any(r.empty_for < 0 for r in rigs):
-            if perf() > deadline or not dsp.alive():
-                raise BenchError(f"not every rig's board flagged empty; {dsp.describe_failure()}")
-            take(perf() + 0.2)
-        # fill each rig's history once (closed loop), so every timed step is a full one
-        for i, rig in enumerate(rigs[: max(rungs)]):
-            for _ in range(math.ceil(fft_width / fill)):
-                while rig.empty_for < rig.seq:
-                    if perf() > deadline + 300.0:
-                        raise BenchError("history fill stalled")
-                    take(perf() + 0.05)
-                send(rig, i, fill)
-        take(perf() + 0.5)
+        deadline = driver.wait_empty(dsp)
+        driver.fill(total, fft_width, deadline)
+        driver.take(time.perf_counter() + 0.5)
         served = 0
         per_batch = (math.nan, 0)
         for k in rungs:
-            active = rigs[:k]
-            for j, rig in enumerate(active):
-                rig.turnaround.clear()
-                rig.compute.clear()
-                rig.full_when_due = 0
-                rig.next_due = perf() + period * j / k  # spread the rigs over the period
-            cpu0, t0 = _cpu_s(dsp.popen.pid), perf()
-            end = t0 + seconds
-            while perf() < end:
-                now = perf()
-                for i, rig in enumerate(active):
-                    if now >= rig.next_due:
-                        if rig.empty_for >= rig.seq and rig.sent_at is None:
-                            send(rig, i)
-                        else:
-                            rig.full_when_due += 1  # the board is behind: this rig's deadline passed
-                        rig.next_due += period
-                take(min(r.next_due for r in active))
-            take(perf() + 2 * period)
-            cpu = _cpu_s(dsp.popen.pid) - cpu0
-            wall = perf() - t0
-            samples = [t for r in active for t in r.turnaround]
-            late = sum(1 for t in samples if t > period)
-            behind = sum(r.full_when_due for r in active)
-            batches = len(samples)
+            cpu, wall, samples, late, behind = driver.rung(k, seconds, dsp)
             if not samples:
                 raise BenchError(f"no interrupt in the rung of {k} rigs; {dsp.describe_failure()}")
-            summary = summarize(samples)
-            entry: dict[str, Any] = {
-                "kind": "latency",
-                **summary,
-                "floor": "budget (batch period)",
-                "floor_value_us": period * 1e6,
-                "ratio": {"p99": float(summary["p99_us"]) / (period * 1e6)},
-                "late": late,
-                "behind": behind,
-                "dsp_cpu_fraction": cpu / wall,
-                "dsp_cpu_per_batch_us": cpu / batches * 1e6,
-                "dsp_compute_p50_us": float(np.median([c for r in active for c in r.compute])) * 1e6,
-            }
+            entry = _rung_entry(samples, driver.period, late, behind, cpu, wall, [c for r in driver.rigs[:k] for c in r.compute])
             m[f"{label}{k} rigs: batch_to_interrupt"] = entry
             ctx.say(
-                f"  {label}{k:>3} rigs: {batches} batches, p50 {entry['p50_us'] / 1e3:.2f} ms, p99 {entry['p99_us'] / 1e3:.2f} ms "
-                f"(budget {period * 1e3:g} ms), step p50 {entry['dsp_compute_p50_us'] / 1e3:.2f} ms, "
+                f"  {label}{k:>3} rigs: {len(samples)} batches, p50 {entry['p50_us'] / 1e3:.2f} ms, p99 {entry['p99_us'] / 1e3:.2f} ms "
+                f"(budget {driver.period * 1e3:g} ms), step p50 {entry['dsp_compute_p50_us'] / 1e3:.2f} ms, "
                 f"late {late}, behind {behind}, DSP CPU {cpu / wall:.0%} of one core"
             )
             if late == 0 and behind == 0:
                 served = k
-            per_batch = (cpu / batches, k)
-        for pub in pubs:
-            pub.undeclare()
+            per_batch = (cpu / len(samples), k)
+        driver.close()
     return served, per_batch
+
+
+def _dsp_env(ids: list[str], port: int, rate_hz: float, fft_width: int, batch: int) -> dict[str, str]:
+    """The DSP child's settings: every rig of ``ids`` served, no emulated latency."""
+    return clean_env(
+        {
+            "RALF_RIG_ID": ids[0],
+            "RALF_SERVE_RIGS": ",".join(ids[1:]),
+            "RALF_ZENOH_MODE": "peer",
+            "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{port}",
+            "RALF_EMULATED_LATENCY_S": "0",
+            "RALF_SAMPLE_RATE_HZ": str(rate_hz),
+            "RALF_FFT_WIDTH": str(fft_width),
+            "RALF_BATCH_SIZE": str(batch),
+            "RALF_LOG_LEVEL": "WARNING",
+        }
+    )
+
+
+def _rung_entry(samples: list[float], period: float, late: int, behind: int, cpu: float, wall: float, compute: list[float]) -> dict[str, Any]:
+    """One rung's measurement: turnarounds against the batch period, and the DSP's CPU share."""
+    summary = summarize(samples)
+    return {
+        "kind": "latency",
+        **summary,
+        "floor": "budget (batch period)",
+        "floor_value_us": period * 1e6,
+        "ratio": {"p99": float(summary["p99_us"]) / (period * 1e6)},
+        "late": late,
+        "behind": behind,
+        "dsp_cpu_fraction": cpu / wall,
+        "dsp_cpu_per_batch_us": cpu / len(samples) * 1e6,
+        "dsp_compute_p50_us": float(np.median(compute)) * 1e6,
+    }
+
+
+class _Driver:
+    """This process as the rigs' controllers: a batch per rig every batch period when
+    its block is empty; the flags and interrupts handled as they arrive."""
+
+    def __init__(self, session: Any, stack: ExitStack, rigs: list[_Rig], rate_hz: float, batch: int) -> None:
+        self.rigs = rigs
+        self.rate_hz = rate_hz
+        self.batch = batch
+        self.period = batch / rate_hz
+        self.events: queue.SimpleQueue[tuple[int, str, bytes, float]] = queue.SimpleQueue()
+        self.pubs = []
+        perf = time.perf_counter
+        for i, rig in enumerate(rigs):
+            for kind, key in (("flag", rig.keys.flag), ("irq", rig.keys.interrupt)):
+
+                def on_sample(sample: Any, i: int = i, kind: str = kind) -> None:
+                    self.events.put((i, kind, sample.payload.to_bytes(), perf()))
+
+                sub = session.declare_subscriber(key, on_sample)
+                stack.callback(sub.undeclare)
+            self.pubs.append(session.declare_publisher(rig.keys.batch))
+
+    def take(self, until: float) -> None:
+        """Handle events until ``until`` (perf time)."""
+        while True:
+            remaining = until - time.perf_counter()
+            if remaining <= 0:
+                return
+            try:
+                i, kind, payload, arrived = self.events.get(timeout=remaining)
+            except queue.Empty:
+                return
+            rig = self.rigs[i]
+            if kind == "flag":
+                flag = decode(BlockFlag, payload)
+                if flag.state == "empty":
+                    rig.empty_for = max(rig.empty_for, flag.next_batch_seq)
+            else:
+                irq = decode(Interrupt, payload)
+                if rig.sent_at is not None and irq.batch_seq == rig.seq - 1:
+                    rig.turnaround.append(arrived - rig.sent_at)
+                    rig.compute.append(irq.compute_time_s)
+                    rig.sent_at = None
+                    # the interrupt says the block is empty again, as the controller takes it
+                    # (controller.dsp_link.DspLink.on_interrupt); the flag that follows says it too
+                    rig.empty_for = max(rig.empty_for, irq.batch_seq + 1)
+
+    def send(self, rig: _Rig, i: int, n: int | None = None) -> None:
+        payload = encode_batch(_batch(rig, self.batch if n is None else n, self.rate_hz, seed=i))
+        rig.sent_at = time.perf_counter()  # before the put: the interrupt may be stamped before put() returns
+        rig.seq += 1
+        self.pubs[i].put(payload)
+
+    def wait_empty(self, dsp: Child) -> float:
+        """Until every rig's board has flagged empty; returns the deadline the history fill counts from."""
+        perf = time.perf_counter
+        deadline = perf() + 120.0
+        while any(r.empty_for < 0 for r in self.rigs):
+            if perf() > deadline or not dsp.alive():
+                raise BenchError(f"not every rig's board flagged empty; {dsp.describe_failure()}")
+            self.take(perf() + 0.2)
+        return deadline
+
+    def fill(self, total: int, fft_width: int, deadline: float) -> None:
+        """Fill each rig's history once (closed loop), so every timed step is a full one."""
+        fill = max(self.batch, 30)  # the history is filled with batches of at least 30 samples (l = 1 would take N round trips)
+        for i, rig in enumerate(self.rigs[:total]):
+            for _ in range(math.ceil(fft_width / fill)):
+                while rig.empty_for < rig.seq:
+                    if time.perf_counter() > deadline + 300.0:
+                        raise BenchError("history fill stalled")
+                    self.take(time.perf_counter() + 0.05)
+                self.send(rig, i, fill)
+
+    def rung(self, k: int, seconds: float, dsp: Child) -> tuple[float, float, list[float], int, int]:
+        """``k`` rigs driven for ``seconds``: the DSP's CPU seconds, the wall seconds,
+        the turnarounds, how many were over the period and how many batches were due
+        while their block was still full."""
+        perf, period = time.perf_counter, self.period
+        active = self.rigs[:k]
+        for j, rig in enumerate(active):
+            rig.turnaround.clear()
+            rig.compute.clear()
+            rig.full_when_due = 0
+            rig.next_due = perf() + period * j / k  # spread the rigs over the period
+        cpu0, t0 = _cpu_s(dsp.popen.pid), perf()
+        end = t0 + seconds
+        while perf() < end:
+            now = perf()
+            for i, rig in enumerate(active):
+                if now >= rig.next_due:
+                    if rig.empty_for >= rig.seq and rig.sent_at is None:
+                        self.send(rig, i)
+                    else:
+                        rig.full_when_due += 1  # the board is behind: this rig's deadline passed
+                    rig.next_due += period
+            self.take(min(r.next_due for r in active))
+        self.take(perf() + 2 * period)
+        cpu = _cpu_s(dsp.popen.pid) - cpu0
+        wall = perf() - t0
+        samples = [t for r in active for t in r.turnaround]
+        return cpu, wall, samples, sum(1 for t in samples if t > period), sum(r.full_when_due for r in active)
+
+    def close(self) -> None:
+        for pub in self.pubs:
+            pub.undeclare()

@@ -25,6 +25,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -92,15 +93,53 @@ def set_echo_hold(session: Any, key: str, hold_s: float, within_s: float = 10.0)
         sub.undeclare()
 
 
+@dataclass(frozen=True)
+class ZenohKeys:
+    """The zenoh item's rig, ports and key expressions (all private to this run)."""
+
+    rig_id: str
+    echo_port: int
+    paced_port: int
+    dsp_port: int
+
+    @property
+    def ping(self) -> str:
+        return f"ralf/{self.rig_id}/bench/ping"
+
+    @property
+    def pong(self) -> str:
+        return f"ralf/{self.rig_id}/bench/pong"
+
+    @property
+    def paced_ping(self) -> str:
+        return f"ralf/{self.rig_id}/bench/paced/ping"
+
+    @property
+    def paced_pong(self) -> str:
+        return f"ralf/{self.rig_id}/bench/paced/pong"
+
+    @property
+    def hold_key(self) -> str:
+        return f"ralf/{self.rig_id}/bench/paced/hold"
+
+
+@dataclass
+class ZenohPingers:
+    """What the zenoh item times, and what it needs to summarise them."""
+
+    pingers: list[Any]
+    dp: DspPinger | None = None
+    paced: ZenohPinger | None = None
+    dsp_health: HealthWatch | None = None
+    hold_s: float = 0.0
+
+
 def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
     """Batch -> interrupt through the real DSP service vs bare zenoh and bare UDP ping-pong."""
     size = batch_size_bytes(BATCH_SAMPLES)
-    rig_id = private_rig_id("zenoh")
-    echo_port, paced_port, dsp_port = free_tcp_ports(3)
-    ping, pong = f"ralf/{rig_id}/bench/ping", f"ralf/{rig_id}/bench/pong"
-    paced_ping, paced_pong, hold_key = f"ralf/{rig_id}/bench/paced/ping", f"ralf/{rig_id}/bench/paced/pong", f"ralf/{rig_id}/bench/paced/hold"
+    keys = ZenohKeys(private_rig_id("zenoh"), *free_tcp_ports(3))
     result["config"] = {
-        "rig_id": rig_id,
+        "rig_id": keys.rig_id,
         "payload_bytes": size,
         "batch": f"{BATCH_SAMPLES} samples, 2 inputs, 2 outputs, float64",
         "dsp": {"RALF_EMULATED_LATENCY_S": "0", "fft_width": DSP_FFT_WIDTH},
@@ -109,92 +148,114 @@ def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
         "warmup": ctx.warmup,
     }
     with ExitStack() as stack:
-        udp = stack.enter_context(Child.peer("udp-echo", log_dir=ctx.log_dir))
-        zecho = stack.enter_context(Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{echo_port}", "--ping", ping, "--pong", pong, log_dir=ctx.log_dir))
-        dsp: Child | None = None
-        paced_echo: Child | None = None
-        if ctx.floors_only:
-            result["notes"].append("--floors-only: the DSP service was not started")
-        else:
-            try:
-                requires("dsp_service.service")
-                env = clean_env(
-                    {
-                        "RALF_RIG_ID": rig_id,
-                        "RALF_ZENOH_MODE": "peer",
-                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{dsp_port}",
-                        "RALF_EMULATED_LATENCY_S": "0",
-                        "RALF_FFT_WIDTH": str(DSP_FFT_WIDTH),
-                        "RALF_BATCH_SIZE": str(BATCH_SAMPLES),
-                        "RALF_LOG_LEVEL": "WARNING",
-                    }
-                )
-                dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp", log_dir=ctx.log_dir))
-                paced_echo = stack.enter_context(
-                    Child.peer(
-                        "zenoh-echo",
-                        *("--listen", f"tcp/127.0.0.1:{paced_port}", "--ping", paced_ping, "--pong", paced_pong, "--hold-key", hold_key),
-                        name="zenoh-echo-paced",
-                        log_dir=ctx.log_dir,
-                    )
-                )
-            except Skip as exc:
-                result["skipped"].append(f"dsp_batch_to_interrupt: {exc}")
+        udp, zecho, dsp, paced_echo = _start_zenoh_peers(ctx, result, keys, stack)
         udp_port = int(udp.read_tagged("READY", 30)["port"])
         zecho.read_tagged("READY", 30)
         if paced_echo is not None:
             paced_echo.read_tagged("READY", 30)
-        endpoints = [f"tcp/127.0.0.1:{echo_port}"] + ([f"tcp/127.0.0.1:{dsp_port}", f"tcp/127.0.0.1:{paced_port}"] if dsp else [])
-        session = zenoh_session(connect=endpoints)
-        stack.callback(session.close)
-        zp = ZenohPinger(session, ping, pong, size)
-        stack.callback(zp.close)
-        up = UdpPinger(udp_port, size)
-        stack.callback(up.close)
-        zp.connect()
-        pingers: list[Any] = [zp, up]
-        dp: DspPinger | None = None
-        paced: ZenohPinger | None = None
-        dsp_health: HealthWatch | None = None
-        hold_s = 0.0
-        if dsp is not None:
-            dp = DspPinger(session, rig_id, samples=BATCH_SAMPLES)
-            stack.callback(dp.close)
-            dsp_health = HealthWatch(session, Keys(rig_id).health("dsp"))
-            stack.callback(dsp_health.close)
-            try:
-                ctx.say("  waiting for the DSP service's empty flag")
-                dp.wait_empty(60.0, alive=dsp.alive)
-                # fill the DSP's history once (N / l batches) so every timed step is a full one
-                for _ in range(math.ceil(DSP_FFT_WIDTH / BATCH_SAMPLES) + 10):
-                    dp.once()
-                hold_s = float(np.median(dp.compute_s[-50:]))
-                dp.compute_s.clear()
-                dp.out_s.clear()
-                dp.back_s.clear()
-                dp.flag_wait_s.clear()
-                pingers.insert(0, dp)
-            except BenchError as exc:
-                result["errors"].append(f"dsp_batch_to_interrupt: {exc}; {dsp.describe_failure()}")
-                dp = None
-        if dp is not None:
-            # The same ping-pong paced as a DSP round trip: the echo holds its callback for the
-            # DSP's step (its p50, busy) and the pinger builds a batch between round trips (untimed).
-            try:
-                paced = ZenohPinger(session, paced_ping, paced_pong, size, name="zenoh_pingpong_paced", prepare=_batch_work)
-                stack.callback(paced.close)
-                set_echo_hold(session, hold_key, hold_s)
-                paced.connect()
-                pingers.insert(2, paced)
-            except BenchError as exc:
-                result["errors"].append(f"zenoh_pingpong_paced: {exc}")
-                paced = None
-        samples = _measure_pingers(ctx, pingers)
+        timed = _zenoh_pingers(ctx, result, keys, stack, size, udp_port, dsp)
+        samples = _measure_pingers(ctx, timed.pingers)
         # the DSP's own timing of its interrupt's put, from its next health message (every batch of the run)
-        dsp_h = dsp_health.after(time.monotonic(), timeout_s=3.0) if dp is not None and dsp_health is not None else None
+        dsp_h = timed.dsp_health.after(time.monotonic(), timeout_s=3.0) if timed.dp is not None and timed.dsp_health is not None else None
+    _zenoh_measurements(result, samples, timed, dsp_h)
+
+
+def _start_zenoh_peers(ctx: BenchContext, result: dict[str, Any], keys: ZenohKeys, stack: ExitStack) -> tuple[Child, Child, Child | None, Child | None]:
+    """The UDP and zenoh echoes and, unless ``--floors-only``, the DSP service and the paced echo."""
+    udp = stack.enter_context(Child.peer("udp-echo", log_dir=ctx.log_dir))
+    zecho = stack.enter_context(
+        Child.peer("zenoh-echo", "--listen", f"tcp/127.0.0.1:{keys.echo_port}", "--ping", keys.ping, "--pong", keys.pong, log_dir=ctx.log_dir)
+    )
+    dsp: Child | None = None
+    paced_echo: Child | None = None
+    if ctx.floors_only:
+        result["notes"].append("--floors-only: the DSP service was not started")
+        return udp, zecho, dsp, paced_echo
+    try:
+        requires("dsp_service.service")
+        env = clean_env(
+            {
+                "RALF_RIG_ID": keys.rig_id,
+                "RALF_ZENOH_MODE": "peer",
+                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{keys.dsp_port}",
+                "RALF_EMULATED_LATENCY_S": "0",
+                "RALF_FFT_WIDTH": str(DSP_FFT_WIDTH),
+                "RALF_BATCH_SIZE": str(BATCH_SAMPLES),
+                "RALF_LOG_LEVEL": "WARNING",
+            }
+        )
+        dsp = stack.enter_context(Child([sys.executable, "-m", "dsp_service"], env=env, name="dsp", log_dir=ctx.log_dir))
+        paced_echo = stack.enter_context(
+            Child.peer(
+                "zenoh-echo",
+                *("--listen", f"tcp/127.0.0.1:{keys.paced_port}", "--ping", keys.paced_ping, "--pong", keys.paced_pong, "--hold-key", keys.hold_key),
+                name="zenoh-echo-paced",
+                log_dir=ctx.log_dir,
+            )
+        )
+    except Skip as exc:
+        result["skipped"].append(f"dsp_batch_to_interrupt: {exc}")
+    return udp, zecho, dsp, paced_echo
+
+
+def _zenoh_pingers(ctx: BenchContext, result: dict[str, Any], keys: ZenohKeys, stack: ExitStack, size: int, udp_port: int, dsp: Child | None) -> ZenohPingers:
+    """One session to every echo; the pingers in their timing order (DSP, zenoh, paced zenoh, UDP)."""
+    endpoints = [f"tcp/127.0.0.1:{keys.echo_port}"] + ([f"tcp/127.0.0.1:{keys.dsp_port}", f"tcp/127.0.0.1:{keys.paced_port}"] if dsp else [])
+    session = zenoh_session(connect=endpoints)
+    stack.callback(session.close)
+    zp = ZenohPinger(session, keys.ping, keys.pong, size)
+    stack.callback(zp.close)
+    up = UdpPinger(udp_port, size)
+    stack.callback(up.close)
+    zp.connect()
+    timed = ZenohPingers([zp, up])
+    if dsp is not None:
+        _add_dsp_pinger(ctx, result, keys, stack, session, dsp, timed)
+    if timed.dp is not None:
+        # The same ping-pong paced as a DSP round trip: the echo holds its callback for the
+        # DSP's step (its p50, busy) and the pinger builds a batch between round trips (untimed).
+        try:
+            paced = ZenohPinger(session, keys.paced_ping, keys.paced_pong, size, name="zenoh_pingpong_paced", prepare=_batch_work)
+            stack.callback(paced.close)
+            set_echo_hold(session, keys.hold_key, timed.hold_s)
+            paced.connect()
+            timed.pingers.insert(2, paced)
+            timed.paced = paced
+        except BenchError as exc:
+            result["errors"].append(f"zenoh_pingpong_paced: {exc}")
+    return timed
+
+
+def _add_dsp_pinger(ctx: BenchContext, result: dict[str, Any], keys: ZenohKeys, stack: ExitStack, session: Any, dsp: Child, timed: ZenohPingers) -> None:
+    """The DSP's pinger, its history filled once so every timed step is a full one; the
+    step's median compute time becomes the paced echo's hold."""
+    dp = DspPinger(session, keys.rig_id, samples=BATCH_SAMPLES)
+    stack.callback(dp.close)
+    timed.dsp_health = HealthWatch(session, Keys(keys.rig_id).health("dsp"))
+    stack.callback(timed.dsp_health.close)
+    try:
+        ctx.say("  waiting for the DSP service's empty flag")
+        dp.wait_empty(60.0, alive=dsp.alive)
+        # fill the DSP's history once (N / l batches) so every timed step is a full one
+        for _ in range(math.ceil(DSP_FFT_WIDTH / BATCH_SAMPLES) + 10):
+            dp.once()
+        timed.hold_s = float(np.median(dp.compute_s[-50:]))
+        dp.compute_s.clear()
+        dp.out_s.clear()
+        dp.back_s.clear()
+        dp.flag_wait_s.clear()
+        timed.pingers.insert(0, dp)
+        timed.dp = dp
+    except BenchError as exc:
+        result["errors"].append(f"dsp_batch_to_interrupt: {exc}; {dsp.describe_failure()}")
+
+
+def _zenoh_measurements(result: dict[str, Any], samples: dict[str, list[float]], timed: ZenohPingers, dsp_h: Any) -> None:
+    """The zenoh item's measurements, in display order, each against its floor."""
     m = result["measurements"]
     udp_s = summarize(samples["udp_pingpong"])
     zen_s = summarize(samples["zenoh_pingpong"])
+    dp, paced, hold_s = timed.dp, timed.paced, timed.hold_s
     if dp is not None:
         rtt = samples[dp.name]
         dsp_s = summarize(rtt)
@@ -265,28 +326,7 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
         stock_echo = stack.enter_context(
             Child.peer("can-echo", "--channel", CAN_GROUP, "--port", str(stock_port), "--bus", "stock", name="can-echo-stock", log_dir=ctx.log_dir)
         )
-        plant: Child | None = None
-        if ctx.floors_only:
-            result["notes"].append("--floors-only: the plant service was not started")
-        else:
-            try:
-                requires("plant_emulator.service")
-                env = clean_env(
-                    {
-                        "RALF_RIG_ID": rig_id,
-                        "RALF_ZENOH_MODE": "peer",
-                        "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{free_tcp_port()}",
-                        "RALF_CAN_INTERFACE": "udp_multicast",
-                        "RALF_CAN_CHANNEL": CAN_GROUP,
-                        "RALF_CAN_PORT": str(plant_port),
-                        "RALF_CLOCK": "lockstep",
-                        "RALF_WATCHDOG_PERIODS": "200",
-                        "RALF_LOG_LEVEL": "WARNING",
-                    }
-                )
-                plant = stack.enter_context(Child([sys.executable, "-m", "plant_emulator"], env=env, name="plant", log_dir=ctx.log_dir))
-            except Skip as exc:
-                result["skipped"].append(f"plant_sync_to_tpdo: {exc}")
+        plant = _start_can_plant(ctx, result, rig_id, plant_port, stack)
         echo.read_tagged("READY", 30)
         floor_bus = can_bus(floor_port, [0x181], CAN_GROUP)
         stack.callback(floor_bus.shutdown)
@@ -326,6 +366,32 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
         "can_pingpong and the plant run on the rig's bus (service_kit/can_udp.py: own frames dropped in the kernel); "
         "the stock row is the same round trip on python-can's udp_multicast, which reads its own frames back and drops them (can_filters)."
     )
+
+
+def _start_can_plant(ctx: BenchContext, result: dict[str, Any], rig_id: str, plant_port: int, stack: ExitStack) -> Child | None:
+    """The plant service in lockstep on the item's own CAN port, unless ``--floors-only``."""
+    if ctx.floors_only:
+        result["notes"].append("--floors-only: the plant service was not started")
+        return None
+    try:
+        requires("plant_emulator.service")
+        env = clean_env(
+            {
+                "RALF_RIG_ID": rig_id,
+                "RALF_ZENOH_MODE": "peer",
+                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{free_tcp_port()}",
+                "RALF_CAN_INTERFACE": "udp_multicast",
+                "RALF_CAN_CHANNEL": CAN_GROUP,
+                "RALF_CAN_PORT": str(plant_port),
+                "RALF_CLOCK": "lockstep",
+                "RALF_WATCHDOG_PERIODS": "200",
+                "RALF_LOG_LEVEL": "WARNING",
+            }
+        )
+        return stack.enter_context(Child([sys.executable, "-m", "plant_emulator"], env=env, name="plant", log_dir=ctx.log_dir))
+    except Skip as exc:
+        result["skipped"].append(f"plant_sync_to_tpdo: {exc}")
+        return None
 
 
 # --- shared: short floors and a whole rig ------------------------------------------------------------
@@ -459,122 +525,178 @@ def bench_realtime(ctx: BenchContext, result: dict[str, Any]) -> None:
         "runs": {},
     }
     for rate, seconds in runs:
-        duration = seconds if seconds is not None else ctx.duration_s
-        tag = f"{rate:g}Hz"
-        batch = max(1, round(ctx.batch_period_s * rate))  # batch period > the DSP's emulated latency: the deadline has slack
-        latency_s = 0.1
-        rig_id = private_rig_id(f"rt{rate:g}")
-        common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
-        measures = {"priority": ctx.rt_priority, "cpus": ctx.cpu_affinity, "cpu_latency_us": ctx.rt_cpu_latency_us}
-        common["RALF_REALTIME"] = json.dumps(measures)
-        record = ctx.log_dir / rig_id / "controller-record"
-        overrides = {
-            "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RUN_RECORD": str(record)},
-            "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
-        }
-        result["config"]["runs"][tag] = {
-            "rig_id": rig_id,
-            "duration_s": duration,
-            "batch_size": batch,
-            "batch_period_s": batch / rate,
-            "emulated_latency_s": latency_s,
-            "env": {**common, **{f"{k}.{n}": v for k, d in overrides.items() for n, v in d.items()}},
-        }
+        plan = _realtime_plan(ctx, rate, seconds if seconds is not None else ctx.duration_s)
+        result["config"]["runs"][plan.tag] = plan.config()
         try:
-            with cpu_burners(ctx.burners):
-                floor_s = min(duration, ctx.floor_s)
-                ctx.say(
-                    f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else "")
-                )
-                sleep = sleep_floor(ctx, rate, floor_s)
-                result["notes"].append(f"{tag}: the sleep-only floor ran with {sleep.get('realtime', 'the normal scheduler')}")
-                canf = can_floor(ctx, max(200, ctx.iterations // 2))
-                canf_paced = can_floor(ctx, 200, 1.0 / rate)
-                ctx.say(f"  {tag}: three-process rig for {duration:g} s")
-                run = run_rig(ctx, rig_id, "realtime", common, overrides, None, duration + 90)
+            floors, run = _realtime_floors_and_rig(ctx, result, plan)
         except BenchError as exc:
-            result["errors"].append(f"{tag}: {exc}")
+            result["errors"].append(f"{plan.tag}: {exc}")
             continue
-        result["config"]["runs"][tag].update(exit_codes=run["exit_codes"], log_dir=run["log_dir"])
-        if run["failure"]:
-            result["errors"].append(f"{tag}: {run['failure']}; logs: {run.get('logs')}")
-        ctrl = run["snapshot"]["services"]["controller"]["health"]
-        progress = _progress(run["history"])
-        if progress is None or ctrl is None:
-            result["errors"].append(f"{tag}: no controller status/health received")
-            continue
-        status = run["history"][-1][1]
-        lat, counters = ctrl["latencies"], ctrl["counters"]
-        m[f"{tag} loop_rate"] = scalar(
-            progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz
-        )
-        m[f"{tag} sleep_jitter (floor)"] = latency(sleep["jitter"], note="a process that only sleeps to t0 + k/rate")
-        m[f"{tag} sync_jitter"] = latency(from_latency_stats(lat["sync_jitter"]), f"{tag} sleep_jitter (floor)", sleep["jitter"])
-        timing = _timing_record(record)
-        if timing is not None:
-            _timing_measurements(m, result["notes"], tag, timing, 1.0 / rate, sleep)
-        else:
-            result["notes"].append(f"{tag}: no controller timing record at {record}.timing.npz (SYNC period jitter not computed)")
-        m[f"{tag} can_pingpong (floor)"] = latency(canf)
-        m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
-        for hop, note in (("sync_to_tpdo", "SYNC sent -> TPDO1 received: CAN out, the plant, CAN back"), ("tick_compute", "TPDO1 -> tick done")):
-            if lat.get(f"hop_{hop}", {}).get("count"):
-                m[f"{tag} tet: {hop}"] = latency(from_latency_stats(lat[f"hop_{hop}"]), f"{tag} can_pingpong (floor)", canf, note=note)
-        paced_name = f"{tag} can_pingpong paced at the loop's period (floor)"
-        m[paced_name] = latency(canf_paced, note="the same ping-pong, each round trip started one period after the last (the CPUs idle between, as the loop's)")
-        if lat.get("hop_sync_to_tpdo", {}).get("count"):
-            m[f"{tag} tet: sync_to_tpdo vs paced"] = latency(from_latency_stats(lat["hop_sync_to_tpdo"]), paced_name, canf_paced)
-        if lat["batch_to_interrupt"]["count"]:
-            m[f"{tag} batch_to_interrupt"] = latency_vs_value(
-                from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6
-            )
-        else:
-            result["errors"].append(f"{tag}: no interrupt came back from the DSP")
-        ticks = max(int(status.ticks), 1)
-        overruns = int(counters.get("overruns", status.overruns))
-        m[f"{tag} overruns"] = scalar(overruns, "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=overruns / ticks, ticks=ticks)
-        sleep_per_tick = sleep["overruns"] / max(int(sleep.get("ticks", 1)), 1)
-        m[f"{tag} overruns per tick"] = scalar(
-            overruns / ticks,
-            "per tick",
-            "sleep loop's overruns per tick",
-            sleep_per_tick if sleep_per_tick > 0 else None,
-            sleep_overruns=sleep["overruns"],
-            sleep_ticks=sleep.get("ticks"),
-            note="target (1 kHz, idle host): at most 2x the sleep loop's",
-        )
-        m[f"{tag} tpdo_timeouts"] = scalar(
-            int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held"
-        )
-        m[f"{tag} deadline_misses"] = scalar(
-            int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts
-        )
-        dsp_h = run["snapshot"]["services"]["dsp"]["health"]
-        if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
-            m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
-        result["config"]["runs"][tag]["controller_counters"] = counters
-        # The same criteria as `up` and `timing-test` (docs/timing-faults.md), the overruns against this run's sleep-only loop.
-        verdict = health_verdict(ctrl, overrun_floor_per_tick=sleep_per_tick)
-        latency_line = latency_class(ctrl, host_info())
-        if latency_line:
-            result["config"]["runs"][tag]["host_latency_class"] = latency_line
-            result["notes"].append(f"{tag}: host latency class (information) {latency_line}")
-        if verdict:
-            result["config"]["runs"][tag]["verdict"] = verdict
-            result["notes"].append(f"{tag}: timing verdict {verdict}")
-        rt = {k: v for k, v in counters.items() if k.startswith("rt_")}
-        if rt:
-            result["notes"].append(f"{tag}: real-time measures in effect in the controller: {rt}")
-        if progress["ticks_per_s"] < 0.98 * rate or lat["sync_jitter"]["p50"] > 1.0 / rate:
-            result["notes"].append(
-                f"{tag}: the loop fell behind its absolute schedule t0 + k*Ts ({progress['ticks_per_s']:.0f} of {rate:g} ticks/s); "
-                "sync_jitter then measures accumulated lateness, not per-tick jitter"
-            )
+        _realtime_measurements(result, plan, floors, run)
     result["notes"].append(
         "batch_to_interrupt is the controller's own figure: from publishing a batch to its interrupt arriving (stamped in the zenoh callback), emulated latency included."
     )
     if not m:
         result["status"] = "failed"
+
+
+@dataclass(frozen=True)
+class RealtimePlan:
+    """One rate of the real-time item: the rig's settings and where its record goes."""
+
+    rate: float
+    duration: float
+    batch: int
+    latency_s: float
+    rig_id: str
+    common: dict[str, str]
+    overrides: dict[str, dict[str, str]]
+    record: Path
+
+    @property
+    def tag(self) -> str:
+        return f"{self.rate:g}Hz"
+
+    def config(self) -> dict[str, Any]:
+        return {
+            "rig_id": self.rig_id,
+            "duration_s": self.duration,
+            "batch_size": self.batch,
+            "batch_period_s": self.batch / self.rate,
+            "emulated_latency_s": self.latency_s,
+            "env": {**self.common, **{f"{k}.{n}": v for k, d in self.overrides.items() for n, v in d.items()}},
+        }
+
+
+def _realtime_plan(ctx: BenchContext, rate: float, duration: float) -> RealtimePlan:
+    batch = max(1, round(ctx.batch_period_s * rate))  # batch period > the DSP's emulated latency: the deadline has slack
+    latency_s = 0.1
+    rig_id = private_rig_id(f"rt{rate:g}")
+    common = {"RALF_SAMPLE_RATE_HZ": str(rate), "RALF_HEALTH_PERIOD_S": "0.5"}
+    measures = {"priority": ctx.rt_priority, "cpus": ctx.cpu_affinity, "cpu_latency_us": ctx.rt_cpu_latency_us}
+    common["RALF_REALTIME"] = json.dumps(measures)
+    record = ctx.log_dir / rig_id / "controller-record"
+    overrides = {
+        "controller": {"RALF_DURATION_S": str(duration), "RALF_BATCH_SIZE": str(batch), "RALF_RUN_RECORD": str(record)},
+        "dsp": {"RALF_BATCH_SIZE": str(batch), "RALF_EMULATED_LATENCY_S": str(latency_s)},
+    }
+    return RealtimePlan(rate, duration, batch, latency_s, rig_id, common, overrides, record)
+
+
+@dataclass(frozen=True)
+class RealtimeFloors:
+    """What the same host does without the rig, measured just before it: a sleep-only loop and bare CAN ping-pongs."""
+
+    sleep: dict[str, Any]
+    can: dict[str, Any]
+    can_paced: dict[str, Any]
+
+
+def _realtime_floors_and_rig(ctx: BenchContext, result: dict[str, Any], plan: RealtimePlan) -> tuple[RealtimeFloors, dict[str, Any]]:
+    """The floors, then the three-process rig, with the CPU burners (if any) running throughout."""
+    tag, duration = plan.tag, plan.duration
+    with cpu_burners(ctx.burners):
+        floor_s = min(duration, ctx.floor_s)
+        ctx.say(f"  {tag}: floors (sleep-to-deadline loop for {floor_s:g} s, bare CAN ping-pong)" + (f", {ctx.burners} CPU burners" if ctx.burners else ""))
+        sleep = sleep_floor(ctx, plan.rate, floor_s)
+        result["notes"].append(f"{tag}: the sleep-only floor ran with {sleep.get('realtime', 'the normal scheduler')}")
+        canf = can_floor(ctx, max(200, ctx.iterations // 2))
+        canf_paced = can_floor(ctx, 200, 1.0 / plan.rate)
+        ctx.say(f"  {tag}: three-process rig for {duration:g} s")
+        run = run_rig(ctx, plan.rig_id, "realtime", plan.common, plan.overrides, None, duration + 90)
+    return RealtimeFloors(sleep, canf, canf_paced), run
+
+
+def _realtime_measurements(result: dict[str, Any], plan: RealtimePlan, floors: RealtimeFloors, run: dict[str, Any]) -> None:
+    """One rate's measurements, each against the floor of the same run, then its verdict and notes."""
+    m = result["measurements"]
+    tag, rate, latency_s, record = plan.tag, plan.rate, plan.latency_s, plan.record
+    sleep, canf, canf_paced = floors.sleep, floors.can, floors.can_paced
+    result["config"]["runs"][tag].update(exit_codes=run["exit_codes"], log_dir=run["log_dir"])
+    if run["failure"]:
+        result["errors"].append(f"{tag}: {run['failure']}; logs: {run.get('logs')}")
+    ctrl = run["snapshot"]["services"]["controller"]["health"]
+    progress = _progress(run["history"])
+    if progress is None or ctrl is None:
+        result["errors"].append(f"{tag}: no controller status/health received")
+        return
+    status = run["history"][-1][1]
+    lat, counters = ctrl["latencies"], ctrl["counters"]
+    m[f"{tag} loop_rate"] = scalar(
+        progress["ticks_per_s"], "Hz", "nominal", rate, ticks=progress["ticks"], over_wall_s=progress["wall_s"], status_loop_rate_hz=status.loop_rate_hz
+    )
+    m[f"{tag} sleep_jitter (floor)"] = latency(sleep["jitter"], note="a process that only sleeps to t0 + k/rate")
+    m[f"{tag} sync_jitter"] = latency(from_latency_stats(lat["sync_jitter"]), f"{tag} sleep_jitter (floor)", sleep["jitter"])
+    timing = _timing_record(record)
+    if timing is not None:
+        _timing_measurements(m, result["notes"], tag, timing, 1.0 / rate, sleep)
+    else:
+        result["notes"].append(f"{tag}: no controller timing record at {record}.timing.npz (SYNC period jitter not computed)")
+    m[f"{tag} can_pingpong (floor)"] = latency(canf)
+    m[f"{tag} tet"] = latency(from_latency_stats(lat["tet"]), f"{tag} can_pingpong (floor)", canf, note="SYNC to the end of the tick")
+    for hop, note in (("sync_to_tpdo", "SYNC sent -> TPDO1 received: CAN out, the plant, CAN back"), ("tick_compute", "TPDO1 -> tick done")):
+        if lat.get(f"hop_{hop}", {}).get("count"):
+            m[f"{tag} tet: {hop}"] = latency(from_latency_stats(lat[f"hop_{hop}"]), f"{tag} can_pingpong (floor)", canf, note=note)
+    paced_name = f"{tag} can_pingpong paced at the loop's period (floor)"
+    m[paced_name] = latency(canf_paced, note="the same ping-pong, each round trip started one period after the last (the CPUs idle between, as the loop's)")
+    if lat.get("hop_sync_to_tpdo", {}).get("count"):
+        m[f"{tag} tet: sync_to_tpdo vs paced"] = latency(from_latency_stats(lat["hop_sync_to_tpdo"]), paced_name, canf_paced)
+    if lat["batch_to_interrupt"]["count"]:
+        m[f"{tag} batch_to_interrupt"] = latency_vs_value(
+            from_latency_stats(lat["batch_to_interrupt"]), f"emulated latency {latency_s * 1e3:g} ms", latency_s * 1e6
+        )
+    else:
+        result["errors"].append(f"{tag}: no interrupt came back from the DSP")
+    sleep_per_tick = _realtime_counts(m, tag, status, counters, sleep)
+    dsp_h = run["snapshot"]["services"]["dsp"]["health"]
+    if dsp_h and dsp_h["latencies"].get("compute", {}).get("count"):
+        m[f"{tag} dsp_compute"] = latency(from_latency_stats(dsp_h["latencies"]["compute"]), note="DSP's identifier step, from its health")
+    result["config"]["runs"][tag]["controller_counters"] = counters
+    _realtime_verdict(result, tag, ctrl, counters, sleep_per_tick)
+    if progress["ticks_per_s"] < 0.98 * rate or lat["sync_jitter"]["p50"] > 1.0 / rate:
+        result["notes"].append(
+            f"{tag}: the loop fell behind its absolute schedule t0 + k*Ts ({progress['ticks_per_s']:.0f} of {rate:g} ticks/s); "
+            "sync_jitter then measures accumulated lateness, not per-tick jitter"
+        )
+
+
+def _realtime_counts(m: dict[str, Any], tag: str, status: Any, counters: Mapping[str, Any], sleep: Mapping[str, Any]) -> float:
+    """Overruns (against the sleep loop's), TPDO timeouts and deadline misses; returns the sleep loop's overruns per tick."""
+    ticks = max(int(status.ticks), 1)
+    overruns = int(counters.get("overruns", status.overruns))
+    m[f"{tag} overruns"] = scalar(overruns, "ticks", "sleep loop's overruns", sleep["overruns"], per_tick=overruns / ticks, ticks=ticks)
+    sleep_per_tick: float = sleep["overruns"] / max(int(sleep.get("ticks", 1)), 1)
+    m[f"{tag} overruns per tick"] = scalar(
+        overruns / ticks,
+        "per tick",
+        "sleep loop's overruns per tick",
+        sleep_per_tick if sleep_per_tick > 0 else None,
+        sleep_overruns=sleep["overruns"],
+        sleep_ticks=sleep.get("ticks"),
+        note="target (1 kHz, idle host): at most 2x the sleep loop's",
+    )
+    m[f"{tag} tpdo_timeouts"] = scalar(
+        int(counters.get("tpdo_timeouts", 0)), "ticks", None, None, note="no TPDO within 0.8 Ts of the SYNC: the last sample was held"
+    )
+    m[f"{tag} deadline_misses"] = scalar(
+        int(counters.get("deadline_misses", status.deadline_misses)), "batches", None, None, batches_sent=status.batches_sent, interrupts=status.interrupts
+    )
+    return sleep_per_tick
+
+
+def _realtime_verdict(result: dict[str, Any], tag: str, ctrl: dict[str, Any], counters: Mapping[str, Any], sleep_per_tick: float) -> None:
+    """The same criteria as `up` and `timing-test` (docs/timing-faults.md), the overruns against this run's sleep-only loop."""
+    verdict = health_verdict(ctrl, overrun_floor_per_tick=sleep_per_tick)
+    latency_line = latency_class(ctrl, host_info())
+    if latency_line:
+        result["config"]["runs"][tag]["host_latency_class"] = latency_line
+        result["notes"].append(f"{tag}: host latency class (information) {latency_line}")
+    if verdict:
+        result["config"]["runs"][tag]["verdict"] = verdict
+        result["notes"].append(f"{tag}: timing verdict {verdict}")
+    rt = {k: v for k, v in counters.items() if k.startswith("rt_")}
+    if rt:
+        result["notes"].append(f"{tag}: real-time measures in effect in the controller: {rt}")
 
 
 def _timing_record(record: Path) -> dict[str, Any] | None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import atexit
 import logging
 import os
+import signal
 import socket
 import threading
 import time
@@ -31,6 +32,7 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from multiprocessing import resource_tracker
 from typing import Any, Generic, TypeVar
 
 from rich.console import Console
@@ -106,6 +108,14 @@ class Engine:
 
         n = workers or os.cpu_count() or 1
         started = time.perf_counter()
+        # SIGINT blocked while the cluster starts: its event-loop thread, and through it
+        # every worker process, inherit the block, so a terminal's Ctrl-C (sent to the
+        # whole process group) reaches only this process, which ends the workers itself
+        # (abort), instead of each worker printing a KeyboardInterrupt mid-import.
+        # A Ctrl-C meanwhile is held and raised once the cluster stands. multiprocessing's
+        # resource tracker is started first: starting it unblocks SIGINT in the calling thread.
+        resource_tracker.ensure_running()
+        unblocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             cluster = LocalCluster(
                 n_workers=n,
@@ -117,11 +127,22 @@ class Engine:
                 memory_limit=memory_limit,
                 silence_logs=logging.CRITICAL,
             )
-            client = Client(cluster)
-            client.wait_for_workers(n, timeout=120)
         except Exception as exc:
             raise EngineError(f"cannot start a local Dask cluster of {n} worker(s): {exc}") from exc
-        return cls(client, cluster, started_s=time.perf_counter() - started)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, unblocked)
+        engine = cls(None, cluster)
+        try:
+            engine.client = Client(cluster)
+            engine.client.wait_for_workers(n, timeout=120)
+        except Exception as exc:
+            engine.abort()
+            raise EngineError(f"cannot start a local Dask cluster of {n} worker(s): {exc}") from exc
+        except BaseException:  # Ctrl-C
+            engine.abort()
+            raise
+        engine.started_s = time.perf_counter() - started
+        return engine
 
     @classmethod
     def connect(cls, address: str, *, wait_for_workers: int = 1, timeout_s: float = 60.0) -> Engine:
@@ -221,16 +242,45 @@ class Engine:
             return
         self._closed = True
         try:
-            self.client.close()
+            if self.client is not None:
+                self.client.close()
         finally:
             if self.cluster is not None:
                 self.cluster.close()
 
+    def abort(self) -> None:
+        """Ctrl-C: end a local cluster's worker processes at once (SIGKILL; the
+        runs they held are abandoned, a sweep's journal keeps every finished
+        one), then close. A graceful close waits for the workers' running
+        tasks and took ~4 s; a remote scheduler's workers are its own (closing
+        the client releases this client's tasks there)."""
+        if self.cluster is not None and not self._closed:
+            _quiet(("distributed", "tornado"))  # the connections the kills close are no one's problem: not logged
+            for nanny in list(getattr(self.cluster, "workers", {}).values()):
+                pid = getattr(nanny, "pid", None)
+                if pid:
+                    try:
+                        os.kill(pid, signal.SIGKILL)
+                    except ProcessLookupError:
+                        pass
+        self.close()
+
     def __enter__(self) -> Engine:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+            self.abort()
         self.close()
+
+
+def _quiet(packages: Sequence[str]) -> None:
+    """Silence every logger of ``packages`` (Dask configures its own, child by child)."""
+    for name in list(logging.root.manager.loggerDict):
+        if any(name == p or name.startswith(p + ".") for p in packages):
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    for p in packages:
+        logging.getLogger(p).setLevel(logging.CRITICAL + 1)
 
 
 def _progress(console: Console | None, show: bool) -> Progress:
@@ -303,6 +353,10 @@ def engine_scope(scheduler: str | None = None, workers: int | None = None) -> It
         _SCOPES.append(scope)
     try:
         yield
+    except KeyboardInterrupt:
+        if scope.engine is not None:
+            scope.engine.abort()
+        raise
     finally:
         with _LOCK:
             _SCOPES.remove(scope)

@@ -104,6 +104,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
             kwargs["port"] = args.port or int(rec.metadata.get("ralf.run", {}).get("can_port", 43113))
         messages = recorded_can_messages(rec, direction=args.direction)
         with can.Bus(**kwargs) as bus:
+            where = f"{args.interface}:{args.channel}" + (f" port {kwargs['port']}" if "port" in kwargs else "")
+            console.print(f"playing {len(messages)} CAN frames onto {where}; Ctrl-C stops", highlight=False)
             sent = play_can(
                 messages, bus, ignore_timestamps=args.ignore_timestamps, gap_s=args.gap, skip_s=args.skip, limit=args.limit, max_wall_s=args.max_wall
             )
