@@ -42,19 +42,19 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from plant_emulator.model import _period_kernel as pk
 from plant_emulator.model import kinematics as kin
+from plant_emulator.model import period_kernel as pk
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
     L1_M,
     L2_M,
     Structure,
-    bending_fractions_scalar,
-    coefficients_scalar,
     consts,
+    link_arguments,
+    modal_arguments,
     modal_parameters,
-    modal_parameters_scalar,
+    natural_frequencies,
     static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_codes, read_inputs
@@ -195,7 +195,7 @@ retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
 
 
 def _hydraulic_parameters(cfg: PlantConfig, h: float, axes: tuple[CylinderAxis, ...]) -> npt.NDArray[np.float64]:
-    """The period kernel's ``hp`` (``_period_kernel.HP_*``): step, valve lag, cylinders, pin triangles, switches."""
+    """The period kernel's ``hp`` (``period_kernel.HP_*``): step, valve lag, cylinders, pin triangles, switches."""
     a0, a1 = axes
     if a0.tau != a1.tau:  # pragma: no cover - both come from one setting
         raise ValueError("the cylinders share one valve time constant")
@@ -210,7 +210,7 @@ def _hydraulic_parameters(cfg: PlantConfig, h: float, axes: tuple[CylinderAxis, 
 
 
 def _sensor_parameters(zero: tuple[float, ...], noise_in: tuple[float, ...], aa: AntiAliasFilter) -> npt.NDArray[np.float64]:
-    """The period kernel's ``sp`` (``_period_kernel.SP_*``): link lengths, sensor zeros and noise, the filter."""
+    """The period kernel's ``sp`` (``period_kernel.SP_*``): link lengths, sensor zeros and noise, the filter."""
     sp = np.zeros(pk.SP_SIZE)
     sp[pk.SP_LINK_LENGTH : pk.SP_LINK_LENGTH + 2] = L1_M, L2_M
     sp[pk.SP_INCH] = kin.INCH
@@ -218,14 +218,6 @@ def _sensor_parameters(zero: tuple[float, ...], noise_in: tuple[float, ...], aa:
     sp[pk.SP_NOISE_STD : pk.SP_NOISE_STD + 2] = noise_in
     sp[pk.SP_FILTER : pk.SP_FILTER + 6] = aa._c
     return sp
-
-
-def _modal_arguments(k: Any, zetas: tuple[float, ...], h: float) -> npt.NDArray[np.float64]:
-    """The modal step's 20 constant arguments (``_period_kernel.modal_step`` after the two angles)."""
-    cyl = kin.CYLINDERS[0]
-    z1, z2 = zetas[0], zetas[1]
-    pin = (cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2)
-    return np.array((k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, z1, z2, h, *pin, kin.INCH, L1_M), dtype=np.float64)
 
 
 class RalfArm:
@@ -244,8 +236,12 @@ class RalfArm:
         self._h = self._h_ns / NS_PER_S
         self._steps = 0
         self._pending_ns = 0
-        self._consts = (consts(cfg.structure, False), consts(cfg.structure, True))
-        self._zetas = cfg.structure.damping_ratios
+        k = (consts(cfg.structure, False), consts(cfg.structure, True))
+        self._link_args = (link_arguments(k[0]), link_arguments(k[1]))
+        """The links' constant coefficients arguments, payload out / in."""
+        self._modal_args = (modal_arguments(k[0], self._h), modal_arguments(k[1], self._h))
+        """The modal step's constant arguments, payload out / in."""
+        self._zetas = (k[0].z1, k[0].z2)
         self._payload = bool(cfg.payload_attached)
         th = cfg.home_theta_rad if cfg.home_theta_rad is not None else kin.home_theta()
         self._axes = tuple(
@@ -282,13 +278,13 @@ class RalfArm:
             tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else default_deflection_zero(cfg.structure, self._payload, cfg.camera_on_link)
         )
         self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
-        # the compiled period (_period_kernel): its constant arguments and state vector
+        # the compiled period (period_kernel): its constant arguments and state vector
         pk.warm_up()
         self._advance_steps = pk.advance_steps
         self._hp = _hydraulic_parameters(cfg, self._h, self._axes)
         self._sp = _sensor_parameters(self._zero, self._defl_noise_in, self._aa)
-        self._ma = tuple(_modal_arguments(k, self._zetas, self._h) for k in self._consts)
-        """The modal step's constant arguments, payload out / in."""
+        self._ma = (np.array(self._modal_args[0]), np.array(self._modal_args[1]))
+        """:attr:`_modal_args` as the kernel's arrays."""
         self._st = np.zeros(pk.STATE_SIZE)
         self._stv = memoryview(self._st)  # type: ignore[arg-type]  # numpy arrays are buffers; its stubs do not say so
         """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
@@ -382,7 +378,7 @@ class RalfArm:
         w = self._deflections()
         wd = (L1_M * self._beta_dot[0] / kin.INCH, L2_M * self._beta_dot[1] / kin.INCH)
         ws = self._static_beta(t1, t2)
-        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)  # modal_parameters on floats: the same bits
+        f, z = natural_frequencies(self._link_args[self._payload], t1, t2), self._zetas
         t12 = t1 + t2
         xr, yr = kin.A1_IN * math.cos(t1) + kin.A2_IN * math.cos(t12), kin.A1_IN * math.sin(t1) + kin.A2_IN * math.sin(t12)  # kin.forward on floats
         tip = self._tip(t1, t2)
@@ -420,7 +416,7 @@ class RalfArm:
         bits) without the rest: the 20 Hz ground truth of a run costs a third."""
         self._attrs()
         t1, t2 = self._theta
-        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)
+        f, z = natural_frequencies(self._link_args[self._payload], t1, t2), self._zetas
         return (
             tuple(float(x) for x in f),
             tuple(float(x) for x in z),
@@ -463,7 +459,7 @@ class RalfArm:
         return pq * math.sin(g) / math.sqrt(p2q2 - two_pq * math.cos(g))
 
     def _static_beta(self, t1: float, t2: float) -> tuple[float, float]:
-        co = coefficients_scalar(self._consts[self._payload], t1, t2)
+        co = pk.link_coefficients(t1, t2, *self._link_args[self._payload])
         K11, K12, K22, G1, G2 = co[3], co[4], co[5], co[10], co[11]
         det = K11 * K22 - K12 * K12
         return (K22 * G1 - K12 * G2) / det, (K11 * G2 - K12 * G1) / det
@@ -473,7 +469,7 @@ class RalfArm:
 
     def _fractions(self, t1: float, t2: float) -> tuple[float, float]:
         """What share of each tip deflection the cameras see (1, 1 with ``camera_on_link`` off)."""
-        return bending_fractions_scalar(self._consts[self._payload], t1, t2) if self.cfg.camera_on_link else (1.0, 1.0)
+        return pk.camera_fractions(self._modal_args[self._payload], kin.INCH, t1, t2) if self.cfg.camera_on_link else (1.0, 1.0)
 
     def _seen(self) -> tuple[float, float]:
         """The deflections the cameras see (in): the links' bending."""
@@ -490,7 +486,7 @@ class RalfArm:
         return (kin.A1_IN * math.cos(a1) + kin.A2_IN * math.cos(a12), kin.A1_IN * math.sin(a1) + kin.A2_IN * math.sin(a12))
 
     def _run_steps(self, n: int) -> None:
-        """``n`` internal steps through :func:`._period_kernel.advance_steps`
+        """``n`` internal steps through :func:`.period_kernel.advance_steps`
         on the state ``_st``; the attributes are unpacked from it only when
         read (:meth:`_attrs`)."""
         self._attrs_current = False
@@ -522,7 +518,7 @@ class RalfArm:
                         self._events.append(HardStop(time_s=t_end, joint=j, side=side, speed_in_s=speed))
 
     def _pack_state(self) -> None:
-        """The attributes into ``_st`` (the kernel's layout, ``_period_kernel.ST_*``)."""
+        """The attributes into ``_st`` (the kernel's layout, ``period_kernel.ST_*``)."""
         st = self._st
         for j, ax in enumerate(self._axes):
             k = pk.ST_CYLINDER * j

@@ -46,7 +46,7 @@ class HardStop:
 class CylinderAxis:
     """One valve + cylinder: its parameters and state (extension in in, lagged
     velocity in in/s, which stop it rests on). The step itself is
-    :func:`plant_emulator.model._period_kernel.cylinder_step`."""
+    :func:`plant_emulator.model.period_kernel.cylinder_step`."""
 
     def __init__(
         self,
