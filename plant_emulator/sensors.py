@@ -215,17 +215,21 @@ class NoiseSources:
         process, sample = np.random.SeedSequence(int(seed)).spawn(2)
         self.process = np.random.Generator(np.random.PCG64(process))
         self.sample = BlockNormals(np.random.Generator(np.random.PCG64(sample)))
-        self._block: list[float] = []
+        self._block: npt.NDArray[np.float64] = np.zeros(0)
         self._next = 0
 
-    def step_pair(self) -> tuple[float, float]:
-        """Two standard normal deviates for one internal step."""
+    def step_block(self) -> tuple[npt.NDArray[np.float64], int]:
+        """The per-step deviates (a pair per internal step) as one array and the
+        index of the next unused pair: a new block of :data:`NOISE_BLOCK` when
+        fewer than two are left."""
         if self._next + 2 > len(self._block):
-            self._block = self.process.standard_normal(NOISE_BLOCK).tolist()
+            self._block = self.process.standard_normal(NOISE_BLOCK)
             self._next = 0
-        i = self._next
-        self._next = i + 2
-        return self._block[i], self._block[i + 1]
+        return self._block, self._next
+
+    def step_used(self, nxt: int) -> None:
+        """The deviates before ``nxt`` of the current block are used."""
+        self._next = nxt
 
 
 class BlockNormals:
