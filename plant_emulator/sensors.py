@@ -189,16 +189,6 @@ class AntiAliasFilter:
         """Steady state at constant inputs ``outputs`` (DC gain 1)."""
         self.state = [[float(outputs[0]), 0.0], [float(outputs[1]), 0.0]]
 
-    def step(self, u0: float, u1: float) -> None:
-        a11, a12, a21, a22, b1, b2 = self._c
-        for x, u in ((self.state[0], u0), (self.state[1], u1)):
-            x1, x2 = x
-            x[0] = a11 * x1 + a12 * x2 + b1 * u
-            x[1] = a21 * x1 + a22 * x2 + b2 * u
-
-    def outputs(self) -> tuple[float, float]:
-        return self.state[0][0], self.state[1][0]
-
     def input_std_for_output_std(self, output_std: float) -> float:
         return output_std / math.sqrt(self.output_var_per_input_var)
 

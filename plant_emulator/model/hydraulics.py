@@ -74,8 +74,3 @@ class CylinderAxis:
         if ext >= self.ext_hi:
             return 1
         return 0
-
-    def commanded_velocity(self, volts: float) -> float:
-        """Steady cylinder velocity (in/s) for a valve voltage, flow-saturated."""
-        u = self.gain * volts
-        return self.vmax if u > self.vmax else (-self.vmax if u < -self.vmax else u)
