@@ -4,7 +4,7 @@ ground truth needs it and written once when the arm starts."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -14,9 +14,9 @@ from plant_emulator.model import period_kernel as pk
 Pair = tuple[float, float]
 
 
-@dataclass(frozen=True)
-class ArmState:
-    """Per cylinder, joint and link (index 0, 1) at one grid point."""
+class ArmState(NamedTuple):
+    """Per cylinder, joint and link (index 0, 1) at one grid point (a named
+    tuple: read once per ground-truth sample, so built cheaply)."""
 
     extensions_in: Pair
     velocities_in_s: Pair
@@ -44,15 +44,15 @@ class ArmState:
         c = pk.ST_CYLINDER
         a = pk.ST_ANTIALIAS
         return cls(
-            extensions_in=pair(pk.ST_EXTENSION, c),
-            velocities_in_s=pair(pk.ST_VELOCITY, c),
-            stop_sides=(int(v[pk.ST_STOP_SIDE]), int(v[c + pk.ST_STOP_SIDE])),
-            theta_rad=pair(pk.ST_THETA),
-            theta_dot_rad_s=pair(pk.ST_THETA_DOT),
-            beta_rad=pair(pk.ST_BETA),
-            beta_dot_rad_s=pair(pk.ST_BETA_DOT),
-            fractions=pair(pk.ST_FRACTION),
-            antialias=((v[a], v[a + 1]), (v[a + 2], v[a + 3])),
+            pair(pk.ST_EXTENSION, c),
+            pair(pk.ST_VELOCITY, c),
+            (int(v[pk.ST_STOP_SIDE]), int(v[c + pk.ST_STOP_SIDE])),
+            pair(pk.ST_THETA),
+            pair(pk.ST_THETA_DOT),
+            pair(pk.ST_BETA),
+            pair(pk.ST_BETA_DOT),
+            pair(pk.ST_FRACTION),
+            ((v[a], v[a + 1]), (v[a + 2], v[a + 3])),
         )
 
     def write(self, st: npt.NDArray[np.float64]) -> None:
