@@ -54,14 +54,13 @@ from plant_emulator.model.modes import (
     consts,
     link_arguments,
     modal_arguments,
-    modal_parameters,
     natural_frequencies,
     static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_codes, read_inputs
 from protocol.can_map import FULL_SCALE_V, ConverterScale
 
-__all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm", "modal_parameters"]
+__all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm"]
 
 NS_PER_S = 1_000_000_000
 MAX_EVENTS = 256
@@ -190,17 +189,9 @@ _JOINT: tuple[tuple[float, float, float, float, float, float], ...] = tuple(
     (cyl.retracted_length_in, cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.offset_rad, cyl.p_in * cyl.q_in, 2.0 * (cyl.p_in * cyl.q_in))
     for cyl in kin.CYLINDERS
 )
-"""Per joint, the pin triangle's constant sub-expressions as :func:`_joint_angle` and
-``period_kernel.joint_angle_and_rate`` evaluate them (the same floats, each
+"""Per joint, the pin triangle's constant sub-expressions as
+``period_kernel.joint_angle_and_rate`` evaluates them (the same floats, each
 left-to-right product and sum kept): retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
-
-
-def _joint_angle(j: int, extension_in: float) -> float:
-    """Joint j's angle from its cylinder's extension (law of cosines in the pin triangle)."""
-    retracted, p2q2, two_p_q, offset, _, _ = _JOINT[j]
-    length = extension_in + retracted
-    cg = (p2q2 - length * length) / two_p_q
-    return math.acos(min(1.0, max(-1.0, cg))) - offset
 
 
 def _hydraulic_parameters(cfg: PlantConfig, h: float, axes: tuple[CylinderAxis, ...]) -> npt.NDArray[np.float64]:
@@ -245,8 +236,6 @@ class RalfArm:
     Starts at rest at the home configuration, pre-deflected to its static
     equilibrium, valves at 0 V, so a run starts without a transient."""
 
-    modal_parameters = staticmethod(modal_parameters)
-
     def __init__(self, cfg: PlantConfig | None = None) -> None:
         self.cfg = cfg = cfg or PlantConfig()
         self._h_ns = int(round(cfg.internal_step_s * NS_PER_S))
@@ -274,7 +263,8 @@ class RalfArm:
             for j in (0, 1)
         )
         self._volts = [0.0, 0.0]
-        theta = (_joint_angle(0, axes[0].extension_in), _joint_angle(1, axes[1].extension_in))
+        self._hp = _hydraulic_parameters(cfg, self._h, axes)
+        theta = (pk.joint_angle_and_rate(self._hp, 0, axes[0].extension_in, 0.0)[0], pk.joint_angle_and_rate(self._hp, 1, axes[1].extension_in, 0.0)[0])
         self._events: deque[HardStop] = deque(maxlen=MAX_EVENTS)
         self._stop_counts = [0, 0]
         # flexible state at static equilibrium
@@ -298,7 +288,6 @@ class RalfArm:
         # the compiled period (period_kernel): its constant arguments and state vector
         pk.warm_up()
         self._advance_steps = pk.advance_steps
-        self._hp = _hydraulic_parameters(cfg, self._h, axes)
         self._sp = _sensor_parameters(self._zero, self._defl_noise_in, aa)
         self._ma = (np.array(self._modal_args[0]), np.array(self._modal_args[1]))
         """:attr:`_modal_args` as the kernel's arrays."""
