@@ -1,5 +1,6 @@
 """Settings that travel as one structured value: the OATF's tuning, the valve
-dither, the PI gains, the controller's timeouts and its fault policies.
+dither, the PI gains, the controller's timeouts and its fault policies, the
+DSP's spectral smoothing.
 
 Each group is a frozen pydantic model whose fields keep their defaults unless
 named, so ``RALF_POLICIES=deadline=stop`` changes one policy and leaves the
@@ -208,6 +209,13 @@ class Timeouts(SettingGroup):
     plant_heartbeat_s: float = Field(1.0, ge=0.01, le=60, description="Plant heartbeat older than this is a fault (lockstep: at least lockstep_s)")
     stale_after_s: float = Field(2.0, ge=0.01, le=3600, description="Parameters older than this are stale")
     dsp_deadline_s: float | None = Field(None, ge=0.001, le=60, description="Interrupt deadline after a batch (default: the batch period)")
+
+
+class Smoothing(SettingGroup):
+    """The DSP's Savitzky-Golay smoothing of the spectra across frequency bins (docs/identification.md)."""
+
+    window: int = Field(17, ge=0, le=1025, description="Window in bins, odd (0 = off)")
+    order: int = Field(2, ge=0, le=10, description="Polynomial order, below the window")
 
 
 class Policies(SettingGroup):

@@ -26,6 +26,7 @@ from protocol.setting_groups import (
     Policies,
     RealtimeMeasures,
     SettingGroup,
+    Smoothing,
     Timeouts,
     UdpCanOptions,
     band_text,
@@ -365,8 +366,9 @@ class DspSettings(CommonSettings):
         "{rig_id} in the path is replaced by each served rig's id",
     )
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
-    smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
-    smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
+    smoothing: Annotated[Smoothing, NoDecode] = Field(
+        Smoothing(), description="Savitzky-Golay smoothing across bins, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(Smoothing)
+    )
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
     budget_s: float | None = Field(None, ge=0.001, le=60, description="Compute-time budget per batch (default: the batch period)")
     search_band_hz: Annotated[tuple[Annotated[float, Field(ge=0, le=2500)], Annotated[float, Field(ge=0.01, le=2500)]], NoDecode] = Field(
@@ -383,6 +385,11 @@ class DspSettings(CommonSettings):
     @classmethod
     def _fault_scenario_file(cls, value: str) -> str:
         return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
+
+    @field_validator("smoothing", mode="before")
+    @classmethod
+    def _group_text(cls, value: Any) -> Any:
+        return SettingGroup.coerce(value)
 
     @field_validator("serve_rigs")
     @classmethod
@@ -485,6 +492,10 @@ RETIRED: dict[str, str] = {
         old: f"the controller's timeouts are one setting: RALF_TIMEOUTS={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
         for old, key in _TIMEOUTS.items()
     },
+    **{
+        f"smoothing_{key}": f"the smoothing is one setting: RALF_SMOOTHING={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in Smoothing.model_fields
+    },
     "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
     "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
 }
@@ -501,6 +512,7 @@ _FOLDED: dict[str, tuple[str, str]] = {
     "can_multicast_ttl": ("can_udp", "ttl"),
     "can_own_frame_filter": ("can_udp", "own_frame_filter"),
     **{old: ("timeouts", key) for old, key in _TIMEOUTS.items()},
+    **{f"smoothing_{key}": ("smoothing", key) for key in Smoothing.model_fields},
 }
 """Retired names that became one key of a structured setting."""
 

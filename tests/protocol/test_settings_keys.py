@@ -14,6 +14,7 @@ from pydantic import ValidationError
 
 from protocol.errors import ConfigError
 from protocol.keys import SERVICES, Keys, validate_rig_id
+from protocol.setting_groups import Smoothing
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings, upgrade_recorded
 
 LOOP = Path(__file__).resolve().parents[2] / "protocol" / "trajectories" / "inspection_loop.json"
@@ -173,6 +174,7 @@ def test_an_older_recordings_settings_are_read_in_todays_names() -> None:
     assert (ctrl.oatf_mode, ctrl.oatf.frequency_hz, ctrl.oatf.band_hz, ctrl.oatf.damping) == ("adaptive", 4.4018, (1.0, 15.0), 0.09)
     assert (ctrl.policies.deadline, ctrl.policies.stale, ctrl.dither.seed, ctrl.realtime.priority, ctrl.realtime.cpus) == ("degrade", "degrade", 3, 10, "1")
     assert DspSettings(**upgrade_recorded({"search_max_hz": 30.0, "fft_width": 1024})).search_band_hz == (0.5, 30.0)
+    assert DspSettings(**upgrade_recorded({"smoothing_window": 9, "smoothing_order": 3})).smoothing == Smoothing(window=9, order=3)
 
 
 def test_pi_gains_and_timeouts_default_to_todays_and_change_one_key(clean_env: pytest.MonkeyPatch) -> None:
@@ -228,6 +230,8 @@ RETIRED_NAMES = [
     ("RALF_PLANT_HEARTBEAT_TIMEOUT_S", "5", "RALF_TIMEOUTS=plant_heartbeat_s="),
     ("RALF_STALE_AFTER_S", "3", "RALF_TIMEOUTS=stale_after_s="),
     ("RALF_DSP_DEADLINE_S", "0.2", "RALF_TIMEOUTS=dsp_deadline_s="),
+    ("RALF_SMOOTHING_WINDOW", "9", "RALF_SMOOTHING=window="),
+    ("RALF_SMOOTHING_ORDER", "3", "RALF_SMOOTHING=order="),
 ]
 
 
@@ -319,7 +323,9 @@ BAD_ENV = [
     (DspSettings, "RALF_AVERAGING", "median"),
     (DspSettings, "RALF_SOLVER", "siso"),
     (DspSettings, "RALF_EMULATED_LATENCY_S", "11"),
-    (DspSettings, "RALF_SMOOTHING_WINDOW", "-1"),
+    (DspSettings, "RALF_SMOOTHING", "window=-1"),
+    (DspSettings, "RALF_SMOOTHING", "order=11"),
+    (DspSettings, "RALF_SMOOTHING", "width=9"),
 ]
 
 
