@@ -377,15 +377,10 @@ class RalfArm:
 
     def truth(self) -> GroundTruth:
         s = ArmState.read(self._st)
-        t1, t2 = s.theta_rad
+        f, z, w, (t1, t2), tip, payload = self._summary(s)
         p1, p2 = t1 - kin.DELTA_RAD, t2 + kin.DELTA_RAD  # kin.theta_to_phi on floats
-        w = _deflections(s.beta_rad)
-        wd = _deflections(s.beta_dot_rad_s)
-        ws = self._static_beta(t1, t2)
-        f, z = natural_frequencies(self._link_args[self._payload], t1, t2), self._zetas
         t12 = t1 + t2
         xr, yr = kin.A1_IN * math.cos(t1) + kin.A2_IN * math.cos(t12), kin.A1_IN * math.sin(t1) + kin.A2_IN * math.sin(t12)  # kin.forward on floats
-        tip = self._tip(s)
         return GroundTruth(
             time_s=self.time_s,
             theta_rad=(t1, t2),
@@ -395,15 +390,15 @@ class RalfArm:
             cylinder_velocities_in_s=s.velocities_in_s,
             valve_volts=(self._volts[0], self._volts[1]),
             deflections_in=w,
-            deflection_rates_in_s=wd,
-            static_deflections_in=_deflections(ws),
+            deflection_rates_in_s=_deflections(s.beta_dot_rad_s),
+            static_deflections_in=_deflections(self._static_beta(t1, t2)),
             sensed_deflections_in=(s.antialias[0][0], s.antialias[1][0]),
             camera_deflections_in=_seen(s.fractions, s.beta_rad),
-            modal_frequencies_hz=tuple(float(x) for x in f),
-            damping_ratios=tuple(float(x) for x in z),
+            modal_frequencies_hz=f,
+            damping_ratios=z,
             tip_in=tip,
             rigid_tip_in=(float(xr), float(yr)),
-            payload_attached=self._payload,
+            payload_attached=payload,
             at_stop=s.stop_sides,
             hard_stop_counts=(self._stop_counts[0], self._stop_counts[1]),
             hard_stop_events=tuple(self._events),
@@ -414,20 +409,14 @@ class RalfArm:
         self,
     ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]:
         """What the plant publishes of :meth:`truth` (modal frequencies, damping
-        ratios, deflections, joint angles, tip, payload), computed as
-        :meth:`truth` computes them (the same calls on the same state: the same
-        bits) without the rest: the 20 Hz ground truth of a run costs a third."""
-        s = ArmState.read(self._st)
+        ratios, deflections, joint angles, tip, payload), without the rest: the
+        20 Hz ground truth of a run costs a third. :meth:`truth` builds on it."""
+        return self._summary(ArmState.read(self._st))
+
+    def _summary(self, s: ArmState) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]:
         t1, t2 = s.theta_rad
-        f, z = natural_frequencies(self._link_args[self._payload], t1, t2), self._zetas
-        return (
-            tuple(float(x) for x in f),
-            tuple(float(x) for x in z),
-            _deflections(s.beta_rad),
-            (t1, t2),
-            self._tip(s),
-            self._payload,
-        )
+        f = natural_frequencies(self._link_args[self._payload], t1, t2)
+        return (f[0], f[1]), self._zetas, _deflections(s.beta_rad), (t1, t2), self._tip(s), self._payload
 
     def attach_payload(self, attached: bool) -> None:
         """Pick up (True) or release (False) the payload now: the mass,
