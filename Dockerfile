@@ -24,7 +24,7 @@ WORKDIR /home/ralf
 # the source tree above): a service loads them in ~0.6 s instead of compiling them at
 # every start. Each service logs "ready in ... s; numba kernels: N loaded from cache,
 # 0 compiled" (service_kit/readiness.py).
-RUN python -c "from dsp_service.kernel import warm_up as dsp; from plant_emulator.model.compiled import warm_up as plant; from controller.fast_tick import warm_up as ctrl; from dsp_service.arx_kernel import warm_up as arx; dsp(); plant(); ctrl(); arx()"
+RUN python -c "from dsp_service.kernel import warm_up as dsp; from plant_emulator.model.period_kernel import warm_up as plant; from controller.fast_tick import warm_up as ctrl; from dsp_service.arx_kernel import warm_up as arx; dsp(); plant(); ctrl(); arx()"
 
 # Services are configured only through RALF_* environment variables.
 CMD ["ralf-controller", "--help"]

@@ -15,7 +15,7 @@ from protocol.settings import ControllerSettings
 def law_config(settings: ControllerSettings) -> LawConfig:
     """The control law's configuration: sample period and the OATF's mode,
     place, initial design and fallback, and its design rules (thesis §4.1);
-    the valve commands' dither (off by default, :mod:`controller.excitation`)."""
+    the valve commands' dither (off by default, :mod:`controller.excitation`); the PI gains."""
     ts = settings.sample_period_s
     tuning, dither = settings.oatf, settings.dither
     oatf = OatfConfig(
@@ -36,6 +36,7 @@ def law_config(settings: ControllerSettings) -> LawConfig:
         oatf_fallback=tuning.fallback,
         oatf=oatf if settings.oatf_mode != "off" else None,
         dither=DitherConfig(amplitude_v=dither.amplitude_v, band_hz=dither.band_hz, seed=dither.seed),
+        pi_gains=settings.pi,
     )
 
 

@@ -205,9 +205,6 @@ class FaultStage:
         """Batch ``seq`` or its interrupt was dropped by a fault: it will never be answered."""
         return seq in self._lost_batches
 
-    def may_resend(self, seq: int) -> bool:
-        return seq not in self._lost_batches
-
     def interrupt(self, irq: object, batch_seq: int) -> list[object]:
         """An interrupt as it arrives: what the controller takes now (none, it, or it twice)."""
         fate = self._irq_fate.get(batch_seq)

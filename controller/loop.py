@@ -23,6 +23,7 @@ from controller.oatf import OatfConfig, OatfFilter, OatfSupervisor
 from controller.pi import PIConfig, PIController
 from controller.trajectory import SampledTrajectory
 from protocol.messages import Interrupt
+from protocol.setting_groups import PiGains
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -76,6 +77,8 @@ class LawConfig:
     """The OATF's design rules (None: off)."""
     dither: DitherConfig = DitherConfig()
     """Persistent excitation added to the valve commands before the D/A (:mod:`controller.excitation`; off by default)."""
+    pi_gains: PiGains = PiGains()
+    """The joints' PI gains (the thesis's by default)."""
 
 
 class ControlLaw:
@@ -88,7 +91,8 @@ class ControlLaw:
         self.lap_ticks = len(self.setpoints)
         self._ts = config.sample_period_s
         self._outer = config.oatf_location == "outer"
-        self.pi = PIController(PIConfig(sample_period_s=config.sample_period_s))
+        gains = config.pi_gains
+        self.pi = PIController(PIConfig(sample_period_s=config.sample_period_s, kp_mv_per_rad=gains.kp_mv_per_rad, ki_mv_per_rad=gains.ki_mv_per_rad))
         self.degraded = False
         self.oatf: OatfFilter | None = None
         self.supervisor: OatfSupervisor | None = None

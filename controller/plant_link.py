@@ -63,16 +63,13 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.bus_watch import CONFLICT_EMCYS, ConflictLog, EchoFilter, ForeignMasters, HeldFrames
+from controller.config_guard import ConfigGuard
 from controller.node_start import configure_node, enter_operational, reset_communication, wait_for_node
 from controller.plant_errors import PlantFault, StopRequested
 from controller.plant_link_counters import PlantLinkCounters
-from controller.sdo_client import SdoClient, download_request
+from controller.sdo_client import SdoClient
 from protocol import can_map
 from protocol.can_map import (
-    OD_RPDO1_COMM,
-    OD_RPDO_EVENT_TIMER_SUB,
-    OD_SAMPLE_PERIOD,
-    OD_WATCHDOG_PERIODS,
     NmtCommand,
     NmtState,
 )
@@ -89,14 +86,6 @@ log = logging.getLogger(__name__)
 
 MAX_RX_ERRORS_PER_POLL: Final[int] = 64
 """A bus that raises on every receive ends a poll after this many errors instead of spinning."""
-_SDO_SIZES: Final[dict[tuple[int, int], int]] = {
-    (0x1017, 0): 2,
-    (0x1019, 0): 1,
-    (OD_RPDO1_COMM, OD_RPDO_EVENT_TIMER_SUB): 2,
-    (OD_SAMPLE_PERIOD, 0): 4,
-    (OD_WATCHDOG_PERIODS, 0): 2,
-}
-"""The objects the link configures or relies on, with their sizes: written back after a foreign write."""
 _COLLISION: Final = int(can_map.EmcyCode.CAN_ID_COLLISION)
 
 
@@ -132,7 +121,8 @@ class PlantLink:
         self._echo = EchoFilter((can_map.NMT_COB_ID, can_map.SYNC_COB_ID, self._rpdo1, self._sdo_rx), self._echoes)
         self._log = ConflictLog(self._now)
         kinds = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
-        self._foreign = ForeignMasters(self.node_id, kinds, self._echo, self._log, self.counters, self._restore)
+        self._guard = ConfigGuard(lambda data: self._send(self._sdo_rx, data), lambda: self._running, self._log, self.counters)
+        self._foreign = ForeignMasters(self.node_id, kinds, self._echo, self._log, self.counters, self._guard.restore)
         self._sdo = SdoClient(lambda data: self._send(self._sdo_rx, data), lambda timeout: self.poll(timeout=timeout), self._now)
         self._send_frame: Callable[[int, bytes], None] | None = self.bus.send_frame if callable(getattr(type(self.bus), "send_frame", None)) else None  # type: ignore[attr-defined]
         """A wire in this process whose class takes a standard data frame as its
@@ -146,8 +136,6 @@ class PlantLink:
         self._tpdo_credit = 0
         self._last_tpdo: can.Message | None = None
         self._held = HeldFrames(self._log, self.counters)
-        self._configured: dict[tuple[int, int], int] = {}
-        """values of the objects in _SDO_SIZES as this link configured or found them at start"""
         self._loss_bus = self.bus if hasattr(self.bus, "kernel_drops") else None
 
     def _now(self) -> float:
@@ -176,18 +164,6 @@ class PlantLink:
         if kind == "sync":
             self._tpdo_credit += 1  # the node answers it too
         return kind is not None
-
-    def _restore(self, index: int, sub: int) -> None:
-        """Another master wrote 0x``index``:``sub``: while running, this link's value goes back at once."""
-        value = self._configured.get((index, sub))
-        if value is not None and self._running:
-            self._sdo_write_back(index, sub, value, _SDO_SIZES[(index, sub)])
-
-    def _sdo_write_back(self, index: int, sub: int, value: int, size: int) -> None:
-        """Expedited download of this link's value, without waiting for the answer (the loop runs on)."""
-        self._send(self._sdo_rx, download_request(index, sub, value, size))
-        self.counters.comm_restores += 1
-        self._log.log_limited(f"restore:{index:04X}", "wrote 0x%04X:%d = %d back after another master changed it", index, sub, value)
 
     # --- frames from the plant's COB-IDs, judged while running -------------------------------
 
@@ -249,32 +225,22 @@ class PlantLink:
     def send_outputs(self, volts: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """RPDO1 with two valve voltages; returns which were clipped to the D/A range."""
         if type(volts) is np.ndarray and volts.dtype == np.float64 and volts.shape == (2,):
-            s0, s1 = self.send_output_values(volts.tolist())
-            return np.array((s0, s1), dtype=np.bool_)
-        data, clipped = can_map.volts_to_output_frame(volts)
+            # can_map.volts_to_output_frame on plain ints (codes clipped to 12 bits: code << 4 fits INT16)
+            (c0, c1), (s0, s1) = can_map.DAC12_VALUES(volts.tolist())
+            data, clipped = can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT), np.array((s0, s1), dtype=np.bool_)
+        else:
+            data, clipped = can_map.volts_to_output_frame(volts)
         self._send(self._rpdo1, data)
         self.counters.rpdos_sent += 1
         self.counters.outputs_clipped += int(np.count_nonzero(clipped))
         return clipped
 
-    def send_output_values(self, volts: list[float]) -> tuple[bool, bool]:
-        """:meth:`send_outputs` of two plain floats (the loop's per-tick form):
-        can_map.volts_to_output_frame on plain ints (the codes are clipped to
-        12 bits, so ``code << 4`` always fits the INT16 word); returns which
-        were clipped."""
-        (c0, c1), (s0, s1) = can_map.DAC12_VALUES(volts)
-        self._send(self._rpdo1, can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
-        counters = self.counters
-        counters.rpdos_sent += 1
-        counters.outputs_clipped += s0 + s1
-        return s0, s1
-
     def send_output_codes(self, c0: int, c1: int) -> None:
         """RPDO1 of two D/A codes already quantized by the law
-        (:func:`controller.fast_tick.law_tick`, in ``DAC12``'s range):
-        :meth:`send_output_values` of the volts ``c * lsb`` those codes stand
-        for, which quantizes them back to ``c0, c1`` and never clips (tested),
-        without the round trip through volts."""
+                (:func:`controller.fast_tick.law_tick`, in ``DAC12``'s range):
+        :meth:`send_outputs` of the volts ``c * lsb`` those codes stand
+                for, which quantizes them back to ``c0, c1`` and never clips (tested),
+                without the round trip through volts."""
         self._send(self._rpdo1, can_map.encode_analog_outputs_values(c0 << _DAC_SHIFT, c1 << _DAC_SHIFT))
         self.counters.rpdos_sent += 1
 
@@ -391,7 +357,7 @@ class PlantLink:
         COB-IDs are judged."""
         wait_for_node(self, timeout, stop)
         reset_communication(self, timeout, stop)
-        self._configured = configure_node(self._sdo, sample_period_s)
+        self._guard.values = configure_node(self._sdo, sample_period_s)
         enter_operational(self, timeout, stop)
         self.discard_pending()
         self._tpdo_credit = 0

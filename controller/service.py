@@ -19,7 +19,7 @@ at its due tick, whenever it arrives), never for liveliness or the order in
 which messages arrive; the co-simulation (:mod:`workbench.cosim`) runs the same
 code on simulated time with every answer already in. Before tick 0 the
 controller waits until the plant node is operational and the DSP has
-answered its reset (``startup_timeout_s``).
+answered its reset (the timeouts' ``startup_s``).
 """
 
 from __future__ import annotations
@@ -128,7 +128,7 @@ class ControllerService:
         self._stopwatch_ns = time.perf_counter_ns if stopwatch is time.perf_counter else lambda: round(stopwatch() * 1e9)
         self.port = make_port(s, session, port)
         self.law = law or ControlLaw(law_config(s), build_trajectory(s))
-        self.link = DspLink(sample_rate_hz=s.sample_rate_hz, batch_size=s.batch_size, deadline_s=s.dsp_deadline_s)
+        self.link = DspLink(sample_rate_hz=s.sample_rate_hz, batch_size=s.batch_size, deadline_s=s.timeouts.dsp_deadline_s)
         self.timing = TimingCounters()
         self.monitors = make_monitors(s)
         self.tet, self.jitter, self.period_jitter = LatencyTracker(), LatencyTracker(), LatencyTracker()
@@ -144,7 +144,7 @@ class ControllerService:
         self.injection = LoopStalls.from_scenario(scenario, s.sample_rate_hz)
         """The scenario's loop stalls (controller/fault_stage.py)."""
         self.tick = 0
-        self.stale_watch = StaleWatch(self.monitors, self.timing, s.sample_period_s, s.stale_after_s, self._note_miss)
+        self.stale_watch = StaleWatch(self.monitors, self.timing, s.sample_period_s, s.timeouts.stale_after_s, self._note_miss)
         self.ready_at: float | None = None
         """Stopwatch time at which plant and DSP had answered (tick 0 followed)."""
         self.realtime = RealtimeMeasures()
@@ -158,7 +158,7 @@ class ControllerService:
             self.port,
             self.link,
             self.clock,
-            DspTimes(s.sample_period_s, s.lockstep_timeout_s, s.oatf.min_confidence),
+            DspTimes(s.sample_period_s, s.timeouts.lockstep_s, s.oatf.min_confidence),
             lockstep=self.lockstep,
             faults=self.faults,
             monitors=self.monitors,
@@ -174,10 +174,10 @@ class ControllerService:
             lockstep=self.lockstep,
             faults=self.faults,
             sample_period_s=s.sample_period_s,
-            lockstep_timeout_s=s.lockstep_timeout_s,
+            lockstep_timeout_s=s.timeouts.lockstep_s,
         )
         keep_all = bool(s.run_record) or keep_record
-        self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.lockstep_timeout_s, BATCH_RESEND_S, keep_all)
+        self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.timeouts.lockstep_s, BATCH_RESEND_S, keep_all)
         self.record, self.timing_record = make_records(s.run_record, keep_record, RECORD_COLUMNS)
         self.port.connect(self.dsp.inbox.on_port_event, self.clock.now)
 
@@ -286,8 +286,8 @@ class ControllerService:
     def _start(self, stop: threading.Event) -> None:
         """The plant node operational, the DSP's reset answered, real-time measures in place."""
         s = self.settings
-        self.plant.start_node(timeout=s.startup_timeout_s, stop=stop, sample_period_s=s.sample_period_s)
-        self.dsp.wait_for_dsp(stop, timeout=s.startup_timeout_s)
+        self.plant.start_node(timeout=s.timeouts.startup_s, stop=stop, sample_period_s=s.sample_period_s)
+        self.dsp.wait_for_dsp(stop, timeout=s.timeouts.startup_s)
         if not self.lockstep:
             self.realtime = apply_realtime(s.realtime.priority, s.realtime.cpus, whole_process=self.owns_process, cpu_latency_us=s.realtime.cpu_latency_us)
             self.tf.start_worker()  # before tick 0, one FIFO level below the loop
@@ -325,7 +325,7 @@ class ControllerService:
         ts = s.sample_period_s
         # Lockstep: the plant answers every SYNC, so its heartbeat is a liveness
         # check only; a loaded host must not turn a late beat into a fault.
-        heartbeat_timeout = max(s.plant_heartbeat_timeout_s, s.lockstep_timeout_s) if lockstep else s.plant_heartbeat_timeout_s
+        heartbeat_timeout = max(s.timeouts.plant_heartbeat_s, s.timeouts.lockstep_s) if lockstep else s.timeouts.plant_heartbeat_s
         schedule = TickSchedule(self.clock, ts, realtime=not lockstep)
         schedule.start()
         wakeups = WakeupMeter(ts, self.jitter, self.period_jitter)

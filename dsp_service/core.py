@@ -75,8 +75,8 @@ def identifier_config(settings: DspSettings) -> IdentifierConfig:
         alpha=settings.alpha,
         rls_forgetting=1.0 - settings.alpha,
         solver=settings.solver,
-        smoothing_window=settings.smoothing_window,
-        smoothing_order=settings.smoothing_order,
+        smoothing_window=settings.smoothing.window,
+        smoothing_order=settings.smoothing.order,
         search_min_hz=settings.search_band_hz[0],
         search_max_hz=min(settings.search_band_hz[1], settings.sample_rate_hz / 2),
     )

@@ -189,16 +189,6 @@ class AntiAliasFilter:
         """Steady state at constant inputs ``outputs`` (DC gain 1)."""
         self.state = [[float(outputs[0]), 0.0], [float(outputs[1]), 0.0]]
 
-    def step(self, u0: float, u1: float) -> None:
-        a11, a12, a21, a22, b1, b2 = self._c
-        for x, u in ((self.state[0], u0), (self.state[1], u1)):
-            x1, x2 = x
-            x[0] = a11 * x1 + a12 * x2 + b1 * u
-            x[1] = a21 * x1 + a22 * x2 + b2 * u
-
-    def outputs(self) -> tuple[float, float]:
-        return self.state[0][0], self.state[1][0]
-
     def input_std_for_output_std(self, output_std: float) -> float:
         return output_std / math.sqrt(self.output_var_per_input_var)
 
@@ -215,17 +205,21 @@ class NoiseSources:
         process, sample = np.random.SeedSequence(int(seed)).spawn(2)
         self.process = np.random.Generator(np.random.PCG64(process))
         self.sample = BlockNormals(np.random.Generator(np.random.PCG64(sample)))
-        self._block: list[float] = []
+        self._block: npt.NDArray[np.float64] = np.zeros(0)
         self._next = 0
 
-    def step_pair(self) -> tuple[float, float]:
-        """Two standard normal deviates for one internal step."""
+    def step_block(self) -> tuple[npt.NDArray[np.float64], int]:
+        """The per-step deviates (a pair per internal step) as one array and the
+        index of the next unused pair: a new block of :data:`NOISE_BLOCK` when
+        fewer than two are left."""
         if self._next + 2 > len(self._block):
-            self._block = self.process.standard_normal(NOISE_BLOCK).tolist()
+            self._block = self.process.standard_normal(NOISE_BLOCK)
             self._next = 0
-        i = self._next
-        self._next = i + 2
-        return self._block[i], self._block[i + 1]
+        return self._block, self._next
+
+    def step_used(self, nxt: int) -> None:
+        """The deviates before ``nxt`` of the current block are used."""
+        self._next = nxt
 
 
 class BlockNormals:

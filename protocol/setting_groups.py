@@ -1,5 +1,6 @@
 """Settings that travel as one structured value: the OATF's tuning, the valve
-dither and the controller's fault policies.
+dither, the PI gains, the controller's timeouts and its fault policies, the
+DSP's spectral smoothing.
 
 Each group is a frozen pydantic model whose fields keep their defaults unless
 named, so ``RALF_POLICIES=deadline=stop`` changes one policy and leaves the
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import json
 import re
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Self
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
 
@@ -68,7 +69,7 @@ def parse_group_text(text: str) -> dict[str, Any]:
 
 
 def band_text(value: Any) -> Any:
-    """A frequency band given as text: a JSON array ``"[1, 20]"`` or a plain pair ``"1,20"``."""
+    """A pair given as text (a frequency band, a gain per joint): a JSON array ``"[1, 20]"`` or a plain pair ``"1,20"``."""
     if isinstance(value, str):
         text = value.strip()
         if text.startswith("[") or text.startswith("("):
@@ -114,6 +115,11 @@ class SettingGroup(BaseModel):
     def coerce(cls, value: Any) -> Any:
         """A field validator's ``mode="before"`` step: text to a dict of raw values."""
         return parse_group_text(value) if isinstance(value, str) else value
+
+    @classmethod
+    def read(cls, value: Any) -> Self:
+        """The group from a setting's value as given (text, a dict, the model; None: the defaults)."""
+        return cls.model_validate({} if value is None else cls.coerce(value))
 
 
 class OatfTuning(SettingGroup):
@@ -179,11 +185,44 @@ class UdpCanOptions(SettingGroup):
     )
 
 
+Gain = Annotated[float, Field(ge=0, le=1e6)]
+JointGains = Annotated[tuple[Gain, Gain], BeforeValidator(band_text)]
+"""A gain per joint, JOINT1,JOINT2, given as a pair or as text (:func:`band_text`)."""
+
+
+class PiGains(SettingGroup):
+    """The two joints' PI gains (thesis §4, controller/pi.py), in the thesis's units."""
+
+    kp_mv_per_rad: JointGains = Field(
+        (7500.0, 6250.0), description="Proportional gain per joint, mV of valve voltage per rad of angle error (thesis: 7500,6250)"
+    )
+    ki_mv_per_rad: JointGains = Field((5000.0, 4166.0), description="Integral gain per joint, on the windowed sum of e*Ts (thesis: 5000,4166)")
+
+
+class Timeouts(SettingGroup):
+    """How long the controller waits before it declares a fault or a stale estimate (docs/timing.md)."""
+
+    startup_s: float = Field(60.0, ge=0.1, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
+    lockstep_s: float = Field(
+        60.0, ge=0.1, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)"
+    )
+    plant_heartbeat_s: float = Field(1.0, ge=0.01, le=60, description="Plant heartbeat older than this is a fault (lockstep: at least lockstep_s)")
+    stale_after_s: float = Field(2.0, ge=0.01, le=3600, description="Parameters older than this are stale")
+    dsp_deadline_s: float | None = Field(None, ge=0.001, le=60, description="Interrupt deadline after a batch (default: the batch period)")
+
+
+class Smoothing(SettingGroup):
+    """The DSP's Savitzky-Golay smoothing of the spectra across frequency bins (docs/identification.md)."""
+
+    window: int = Field(17, ge=0, le=1025, description="Window in bins, odd (0 = off)")
+    order: int = Field(2, ge=0, le=10, description="Polynomial order, below the window")
+
+
 class Policies(SettingGroup):
     """What the controller does on each monitored event (controller/monitors.py): count it, warn, degrade or stop."""
 
     deadline: Policy = Field("warn", description="An interrupt past its deadline")
-    stale: Policy = Field("degrade", description="Parameters older than stale_after_s")
+    stale: Policy = Field("degrade", description="Parameters older than the timeouts' stale_after_s")
     dsp_lost: Policy = Field("degrade", description="The DSP's liveliness token vanishing")
     overrun: Policy = Field("count", description="A tick finishing after the next was due")
     can_conflict: Policy = Field("stop", description="Another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames, on the CAN bus")

@@ -19,7 +19,19 @@ from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_scenario
-from protocol.setting_groups import DitherTuning, OatfTuning, Policies, RealtimeMeasures, SettingGroup, UdpCanOptions, band_text, describe_group
+from protocol.setting_groups import (
+    DitherTuning,
+    OatfTuning,
+    PiGains,
+    Policies,
+    RealtimeMeasures,
+    SettingGroup,
+    Smoothing,
+    Timeouts,
+    UdpCanOptions,
+    band_text,
+    describe_group,
+)
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
@@ -283,14 +295,13 @@ class ControllerSettings(CommonSettings):
         description="Valve dither for the identifier, KEY=VALUE,... (unnamed keys keep their defaults; docs/identification.md): "
         + describe_group(DitherTuning),
     )
-    dsp_deadline_s: float | None = Field(None, ge=0.001, le=60, description="Interrupt deadline after a batch (default: the batch period)")
-    stale_after_s: float = Field(2.0, ge=0.01, le=3600, description="Parameters older than this are stale")
-    tf_download_samples: int = Field(1000, ge=0, le=10**7, description="Download transfer functions every this many samples (0 = never)")
-    lockstep_timeout_s: float = Field(
-        60.0, ge=0.1, le=600, description="Lockstep: wall time to wait for the plant or the DSP before declaring a fault (a starved host is slow, not faulty)"
+    pi: Annotated[PiGains, NoDecode] = Field(
+        PiGains(), description="The joints' PI gains, KEY=VALUE,... each a pair JOINT1,JOINT2 (unnamed keys keep their defaults): " + describe_group(PiGains)
     )
-    startup_timeout_s: float = Field(60.0, ge=0.1, le=600, description="Before tick 0: wall time to wait for the plant node and the DSP to answer")
-    plant_heartbeat_timeout_s: float = Field(1.0, ge=0.01, le=60, description="Plant heartbeat older than this is a fault")
+    tf_download_samples: int = Field(1000, ge=0, le=10**7, description="Download transfer functions every this many samples (0 = never)")
+    timeouts: Annotated[Timeouts, NoDecode] = Field(
+        Timeouts(), description="The controller's timeouts, KEY=VALUE,... (unnamed keys keep their defaults; docs/timing.md): " + describe_group(Timeouts)
+    )
     run_record: str = Field(
         "",
         description="Write the run record to PATH.npz and PATH.json, with PATH.timing.*, PATH.tf.npz (and PATH.hops.npz in real time) beside it (empty = none)",
@@ -306,7 +317,7 @@ class ControllerSettings(CommonSettings):
         description="Faults (link faults on CAN and zenoh, loop stalls; the DSP reads its dsp_delay_s): a scenario file (YAML/JSON) or inline JSON, docs/timing-faults.md (empty = none)",
     )
 
-    @field_validator("oatf", "dither", "policies", mode="before")
+    @field_validator("oatf", "dither", "pi", "timeouts", "policies", mode="before")
     @classmethod
     def _group_text(cls, value: Any) -> Any:
         return SettingGroup.coerce(value)
@@ -355,8 +366,9 @@ class DspSettings(CommonSettings):
         "{rig_id} in the path is replaced by each served rig's id",
     )
     solver: Literal["mimo", "uncorrelated"] = Field("mimo", description="2x2 solve [2-21..2-24] or the uncorrelated shortcut [2-25..2-28]")
-    smoothing_window: int = Field(17, ge=0, le=1025, description="Savitzky-Golay window in bins (0 = off)")
-    smoothing_order: int = Field(2, ge=0, le=10, description="Savitzky-Golay polynomial order")
+    smoothing: Annotated[Smoothing, NoDecode] = Field(
+        Smoothing(), description="Savitzky-Golay smoothing across bins, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(Smoothing)
+    )
     emulated_latency_s: float = Field(0.1, ge=0, le=10, description="C40 compute latency to emulate (the thesis: ~100 ms)")
     budget_s: float | None = Field(None, ge=0.001, le=60, description="Compute-time budget per batch (default: the batch period)")
     search_band_hz: Annotated[tuple[Annotated[float, Field(ge=0, le=2500)], Annotated[float, Field(ge=0.01, le=2500)]], NoDecode] = Field(
@@ -373,6 +385,11 @@ class DspSettings(CommonSettings):
     @classmethod
     def _fault_scenario_file(cls, value: str) -> str:
         return value if value.lstrip()[:1] in ("{", "[") else _regular_file(value)
+
+    @field_validator("smoothing", mode="before")
+    @classmethod
+    def _group_text(cls, value: Any) -> Any:
+        return SettingGroup.coerce(value)
 
     @field_validator("serve_rigs")
     @classmethod
@@ -436,6 +453,14 @@ def known_variables() -> set[str]:
 
 
 _FAULTS = "docs/timing-faults.md"
+_TIMEOUTS: dict[str, str] = {
+    "startup_timeout_s": "startup_s",
+    "lockstep_timeout_s": "lockstep_s",
+    "plant_heartbeat_timeout_s": "plant_heartbeat_s",
+    "stale_after_s": "stale_after_s",
+    "dsp_deadline_s": "dsp_deadline_s",
+}
+"""The controller's timeouts before they became keys of RALF_TIMEOUTS."""
 RETIRED: dict[str, str] = {
     "record": "RALF_RECORD named two files (the plant's truth and the controller's record, the last to stop overwrote the other): "
     "set RALF_RUN_RECORD (the controller's run record) and/or RALF_TRUTH_RECORD (the plant's ground truth) instead",
@@ -463,6 +488,14 @@ RETIRED: dict[str, str] = {
     "can_multicast_ttl": "the udp_multicast options are one setting: RALF_CAN_UDP=ttl=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
     "can_own_frame_filter": "the udp_multicast options are one setting: RALF_CAN_UDP=own_frame_filter=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)",
     "zenoh_acl_scenarios": "access control is one setting: RALF_ZENOH_ACL=scenarios (the rules, and scenario commands from the tester role)",
+    **{
+        old: f"the controller's timeouts are one setting: RALF_TIMEOUTS={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for old, key in _TIMEOUTS.items()
+    },
+    **{
+        f"smoothing_{key}": f"the smoothing is one setting: RALF_SMOOTHING={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        for key in Smoothing.model_fields
+    },
     "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
     "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
 }
@@ -478,6 +511,8 @@ _FOLDED: dict[str, tuple[str, str]] = {
     "rt_cpu_latency_us": ("realtime", "cpu_latency_us"),
     "can_multicast_ttl": ("can_udp", "ttl"),
     "can_own_frame_filter": ("can_udp", "own_frame_filter"),
+    **{old: ("timeouts", key) for old, key in _TIMEOUTS.items()},
+    **{f"smoothing_{key}": ("smoothing", key) for key in Smoothing.model_fields},
 }
 """Retired names that became one key of a structured setting."""
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from protocol.errors import ConfigError
 from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, ScenarioCommand, decode, encode
+from protocol.setting_groups import Timeouts
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
 
 Clock = Literal["cosim", "lockstep", "realtime"]
@@ -234,9 +235,6 @@ class HilRig:
         own = {**self.controller, "duration_s": duration_s}
         if self.faults is not None:
             own["fault_scenario"] = self.faults if isinstance(self.faults, str) else json.dumps(dict(self.faults))
-        if self.clock == "lockstep":  # a loaded host must not turn wall-clock supervision into a fault (workbench.campaign.modes)
-            timeout = float(own.get("lockstep_timeout_s", ControllerSettings.model_fields["lockstep_timeout_s"].default))
-            own.setdefault("plant_heartbeat_timeout_s", timeout)
         return own
 
     def _dsp_settings(self) -> dict[str, Any]:
@@ -277,7 +275,7 @@ class HilRig:
         self._thread = threading.Thread(target=self._run_guarded, args=(duration_s,), name="hil-rig", daemon=True)
         self._thread.start()
         if self.clock != "cosim":
-            self._wait_running(float(self.controller.get("startup_timeout_s", 60.0)) + 10.0)
+            self._wait_running(Timeouts.read(self.controller.get("timeouts")).startup_s + 10.0)
         return self
 
     def _wait_running(self, timeout_s: float) -> None:
@@ -368,7 +366,7 @@ class HilRig:
         common = {**self.common, "rig_id": self.rig_id, "clock": self.clock, "can_interface": "virtual", "can_channel": self.can_channel}
         plant = dict(self.plant_settings)
         if self.clock == "lockstep":  # nor the plant's SYNC watchdog (wall time) hold the valves of a starved lockstep run
-            timeout = float(self.controller.get("lockstep_timeout_s", ControllerSettings.model_fields["lockstep_timeout_s"].default))
+            timeout = Timeouts.read(self.controller.get("timeouts")).lockstep_s
             rate = float(self.common.get("sample_rate_hz", 200.0))
             plant.setdefault("watchdog_periods", min(10_000, max(5, math.ceil(timeout * rate))))  # its upper bound
         run = run_in_process(

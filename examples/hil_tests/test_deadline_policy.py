@@ -22,7 +22,7 @@ FIXED_DESIGN_HZ = 4.4
 
 @pytest.mark.rig_settings(
     controller={"oatf_mode": "adaptive", "policies": "deadline=degrade", "oatf": {"fallback": "fixed", "frequency_hz": FIXED_DESIGN_HZ}},
-    dsp={"fft_width": 1024, "alpha": 0.05, "smoothing_window": 9},
+    dsp={"fft_width": 1024, "alpha": 0.05, "smoothing": "window=9"},
 )
 @pytest.mark.rig_faults(OUTAGE)
 def test_degrade_policy_holds_under_interrupt_outage(rig):

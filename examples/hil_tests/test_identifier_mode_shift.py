@@ -13,7 +13,7 @@ import pytest
 RELEASE_S = 20.0
 
 
-@pytest.mark.rig_settings(plant={"payload_attached": True}, dsp={"fft_width": 1024, "alpha": 0.05, "smoothing_window": 9})
+@pytest.mark.rig_settings(plant={"payload_attached": True}, dsp={"fft_width": 1024, "alpha": 0.05, "smoothing": "window=9"})
 def test_identifier_follows_payload_release(rig):
     rig.plant.payload(attached=False, at_s=RELEASE_S)
     record = rig.run(duration_s=36.0)

@@ -207,11 +207,6 @@ class CanopenNode:
             self._collisions.frame(cob_id, bytes(data), now)
             return self._outbox.take()
 
-    def count_own_echo(self) -> None:
-        """Counts one echo of our own frames in ``rx['own_cob_id']``, nothing else."""
-        with self._lock:
-            self.counters.rx["own_cob_id"] += 1
-
     def next_deadline(self) -> float | None:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
         with self._lock:

@@ -42,25 +42,25 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from plant_emulator.model import _period_kernel as pk
 from plant_emulator.model import kinematics as kin
+from plant_emulator.model import period_kernel as pk
+from plant_emulator.model.arm_state import ArmState
 from plant_emulator.model.hydraulics import CylinderAxis, HardStop
 from plant_emulator.model.modes import (
     DEFAULT_STRUCTURE,
     L1_M,
     L2_M,
     Structure,
-    bending_fractions_scalar,
-    coefficients_scalar,
     consts,
-    modal_parameters,
-    modal_parameters_scalar,
+    link_arguments,
+    modal_arguments,
+    natural_frequencies,
     static_deflection_in,
 )
 from plant_emulator.sensors import AntiAliasFilter, NoiseSources, SensorReading, analog_noise_std, channel_lsb_in, read_codes, read_inputs
 from protocol.can_map import FULL_SCALE_V, ConverterScale
 
-__all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm", "modal_parameters"]
+__all__ = ["GroundTruth", "HardStop", "PlantConfig", "RalfArm"]
 
 NS_PER_S = 1_000_000_000
 MAX_EVENTS = 256
@@ -189,13 +189,13 @@ _JOINT: tuple[tuple[float, float, float, float, float, float], ...] = tuple(
     (cyl.retracted_length_in, cyl.p_in**2 + cyl.q_in**2, 2.0 * cyl.p_in * cyl.q_in, cyl.offset_rad, cyl.p_in * cyl.q_in, 2.0 * (cyl.p_in * cyl.q_in))
     for cyl in kin.CYLINDERS
 )
-"""Per joint, the pin triangle's constant sub-expressions as ``_angle`` and ``_lever``
-evaluate them (the same floats, each left-to-right product and sum kept):
-retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
+"""Per joint, the pin triangle's constant sub-expressions as
+``period_kernel.joint_angle_and_rate`` evaluates them (the same floats, each
+left-to-right product and sum kept): retracted length, p^2 + q^2, 2 p q, offset, p q, 2 (p q)."""
 
 
 def _hydraulic_parameters(cfg: PlantConfig, h: float, axes: tuple[CylinderAxis, ...]) -> npt.NDArray[np.float64]:
-    """The period kernel's ``hp`` (``_period_kernel.HP_*``): step, valve lag, cylinders, pin triangles, switches."""
+    """The period kernel's ``hp`` (``period_kernel.HP_*``): step, valve lag, cylinders, pin triangles, switches."""
     a0, a1 = axes
     if a0.tau != a1.tau:  # pragma: no cover - both come from one setting
         raise ValueError("the cylinders share one valve time constant")
@@ -210,7 +210,7 @@ def _hydraulic_parameters(cfg: PlantConfig, h: float, axes: tuple[CylinderAxis, 
 
 
 def _sensor_parameters(zero: tuple[float, ...], noise_in: tuple[float, ...], aa: AntiAliasFilter) -> npt.NDArray[np.float64]:
-    """The period kernel's ``sp`` (``_period_kernel.SP_*``): link lengths, sensor zeros and noise, the filter."""
+    """The period kernel's ``sp`` (``period_kernel.SP_*``): link lengths, sensor zeros and noise, the filter."""
     sp = np.zeros(pk.SP_SIZE)
     sp[pk.SP_LINK_LENGTH : pk.SP_LINK_LENGTH + 2] = L1_M, L2_M
     sp[pk.SP_INCH] = kin.INCH
@@ -220,12 +220,14 @@ def _sensor_parameters(zero: tuple[float, ...], noise_in: tuple[float, ...], aa:
     return sp
 
 
-def _modal_arguments(k: Any, zetas: tuple[float, ...], h: float) -> npt.NDArray[np.float64]:
-    """The modal step's 20 constant arguments (``_period_kernel.modal_step`` after the two angles)."""
-    cyl = kin.CYLINDERS[0]
-    z1, z2 = zetas[0], zetas[1]
-    pin = (cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2)
-    return np.array((k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, z1, z2, h, *pin, kin.INCH, L1_M), dtype=np.float64)
+def _deflections(beta: tuple[float, float]) -> tuple[float, float]:
+    """Tip deflections (in) for link rotations ``beta`` (rad), or their rates for rates."""
+    return L1_M * beta[0] / kin.INCH, L2_M * beta[1] / kin.INCH
+
+
+def _seen(fractions: tuple[float, float], beta: tuple[float, float]) -> tuple[float, float]:
+    """The deflections the cameras see (in): the links' bending."""
+    return fractions[0] * L1_M * beta[0] / kin.INCH, fractions[1] * L2_M * beta[1] / kin.INCH
 
 
 class RalfArm:
@@ -233,8 +235,6 @@ class RalfArm:
 
     Starts at rest at the home configuration, pre-deflected to its static
     equilibrium, valves at 0 V, so a run starts without a transient."""
-
-    modal_parameters = staticmethod(modal_parameters)
 
     def __init__(self, cfg: PlantConfig | None = None) -> None:
         self.cfg = cfg = cfg or PlantConfig()
@@ -244,11 +244,15 @@ class RalfArm:
         self._h = self._h_ns / NS_PER_S
         self._steps = 0
         self._pending_ns = 0
-        self._consts = (consts(cfg.structure, False), consts(cfg.structure, True))
-        self._zetas = cfg.structure.damping_ratios
+        k = (consts(cfg.structure, False), consts(cfg.structure, True))
+        self._link_args = (link_arguments(k[0]), link_arguments(k[1]))
+        """The links' constant coefficients arguments, payload out / in."""
+        self._modal_args = (modal_arguments(k[0], self._h), modal_arguments(k[1], self._h))
+        """The modal step's constant arguments, payload out / in."""
+        self._zetas = (k[0].z1, k[0].z2)
         self._payload = bool(cfg.payload_attached)
         th = cfg.home_theta_rad if cfg.home_theta_rad is not None else kin.home_theta()
-        self._axes = tuple(
+        axes = tuple(
             CylinderAxis(
                 j,
                 cfg.valve_gain_in_per_s_per_v[j],
@@ -259,46 +263,51 @@ class RalfArm:
             for j in (0, 1)
         )
         self._volts = [0.0, 0.0]
-        self._theta = [self._angle(0), self._angle(1)]
-        self._theta_dot = [0.0, 0.0]
+        self._hp = _hydraulic_parameters(cfg, self._h, axes)
+        theta = (pk.joint_angle_and_rate(self._hp, 0, axes[0].extension_in, 0.0)[0], pk.joint_angle_and_rate(self._hp, 1, axes[1].extension_in, 0.0)[0])
         self._events: deque[HardStop] = deque(maxlen=MAX_EVENTS)
         self._stop_counts = [0, 0]
         # flexible state at static equilibrium
-        self._beta = list(self._static_beta(self._theta[0], self._theta[1]))
-        self._beta_dot = [0.0, 0.0]
-        self._frac = self._fractions(self._theta[0], self._theta[1])
+        beta = self._static_beta(*theta)
+        frac = self._fractions(*theta)
         # sensors
         self._noise = NoiseSources(cfg.seed)
-        self._aa = AntiAliasFilter(cfg.antialias_cutoff_hz, self._h)
+        aa = AntiAliasFilter(cfg.antialias_cutoff_hz, self._h)
         self._scale = ConverterScale(cfg.adc_bits)
         ref = cfg.noise_reference_bits
         on = cfg.sensor_noise
         self._ext_noise = tuple(analog_noise_std(cfg.extension_noise_std_in[j], channel_lsb_in(j, ref)) if on else 0.0 for j in (0, 1))
         self._defl_noise_in = tuple(
-            self._aa.input_std_for_output_std(analog_noise_std(cfg.deflection_noise_std_in[j], channel_lsb_in(2 + j, ref))) if on else 0.0 for j in (0, 1)
+            aa.input_std_for_output_std(analog_noise_std(cfg.deflection_noise_std_in[j], channel_lsb_in(2 + j, ref))) if on else 0.0 for j in (0, 1)
         )
-        w = self._seen()
+        w = _seen(frac, beta)
         self._zero = (
             tuple(cfg.deflection_zero_in) if cfg.deflection_zero_in is not None else default_deflection_zero(cfg.structure, self._payload, cfg.camera_on_link)
         )
-        self._aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
-        # the compiled period (_period_kernel): its constant arguments and state vector
+        aa.reset((w[0] - self._zero[0], w[1] - self._zero[1]))
+        # the compiled period (period_kernel): its constant arguments and state vector
         pk.warm_up()
         self._advance_steps = pk.advance_steps
-        self._hp = _hydraulic_parameters(cfg, self._h, self._axes)
-        self._sp = _sensor_parameters(self._zero, self._defl_noise_in, self._aa)
-        self._ma = tuple(_modal_arguments(k, self._zetas, self._h) for k in self._consts)
-        """The modal step's constant arguments, payload out / in."""
+        self._sp = _sensor_parameters(self._zero, self._defl_noise_in, aa)
+        self._ma = (np.array(self._modal_args[0]), np.array(self._modal_args[1]))
+        """:attr:`_modal_args` as the kernel's arrays."""
         self._st = np.zeros(pk.STATE_SIZE)
         self._stv = memoryview(self._st)  # type: ignore[arg-type]  # numpy arrays are buffers; its stubs do not say so
         """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
-        self._pack_state()
-        self._attrs_current = True
-        """The attributes (``_axes``, ``_theta`` ... ``_aa.state``) hold the state ``_st`` holds:
-        the compiled periods advance ``_st``, and the attributes are unpacked from it only
-        when something reads them (:meth:`_attrs`)."""
-        self._noise_src: list[float] | None = None
-        self._noise_arr = np.zeros(0)
+        at_rest = (0.0, 0.0)
+        state = ArmState(
+            extensions_in=(axes[0].extension_in, axes[1].extension_in),
+            velocities_in_s=(axes[0].velocity_in_s, axes[1].velocity_in_s),
+            stop_sides=(axes[0].stop_side, axes[1].stop_side),
+            theta_rad=theta,
+            theta_dot_rad_s=at_rest,
+            beta_rad=beta,
+            beta_dot_rad_s=at_rest,
+            fractions=frac,
+            antialias=((aa.state[0][0], aa.state[0][1]), (aa.state[1][0], aa.state[1][1])),
+        )
+        state.write(self._st)
+        self._no_noise = np.zeros(0)
 
     # -- public API ---------------------------------------------------------------------
     @property
@@ -323,27 +332,18 @@ class RalfArm:
         """The two valve voltages (V), held until the next call. The node
         hands them already quantized by the 12-bit D/A; beyond +-10 V they
         are clipped like the D/A's output."""
-        if type(volts) is np.ndarray and volts.dtype == np.float64 and volts.shape == (2,):
-            a, b = volts.tolist()
-            if math.isfinite(a) and math.isfinite(b):
-                # min/max are np.clip's result for finite values (signed zeros included)
-                self._volts = [min(FULL_SCALE_V, max(-FULL_SCALE_V, a)), min(FULL_SCALE_V, max(-FULL_SCALE_V, b))]
-                return
-        v = np.asarray(volts, dtype=np.float64)
+        v = volts if type(volts) is np.ndarray and volts.dtype == np.float64 else np.asarray(volts, dtype=np.float64)
         if v.shape != (2,):
             raise ValueError(f"two valve voltages expected, got shape {v.shape}")
-        if not np.all(np.isfinite(v)):
-            raise ValueError("valve voltages must be finite")
-        v = np.clip(v, -FULL_SCALE_V, FULL_SCALE_V)
-        self._volts = [float(v[0]), float(v[1])]
+        a, b = v.tolist()
+        self.set_valve_values(a, b)
 
     def set_valve_values(self, volts0: float, volts1: float) -> None:
         """:meth:`set_valve_voltages` given two floats (no array)."""
-        if math.isfinite(volts0) and math.isfinite(volts1):
-            lo, hi = -FULL_SCALE_V, FULL_SCALE_V  # min(hi, max(lo, v)) written out: the same floats, signed zeros included
-            self._volts = [hi if volts0 > hi else (lo if volts0 < lo else volts0), hi if volts1 > hi else (lo if volts1 < lo else volts1)]
-        else:
-            self.set_valve_voltages(np.array((volts0, volts1), dtype=np.float64))  # raises as it does
+        if not (math.isfinite(volts0) and math.isfinite(volts1)):
+            raise ValueError("valve voltages must be finite")
+        lo, hi = -FULL_SCALE_V, FULL_SCALE_V  # np.clip's floats for finite values, signed zeros included
+        self._volts = [hi if volts0 > hi else (lo if volts0 < lo else volts0), hi if volts1 > hi else (lo if volts1 < lo else volts1)]
 
     def advance(self, dt: float) -> None:
         """Integrate ``dt`` seconds (``dt >= 0``) in fixed internal steps,
@@ -376,36 +376,30 @@ class RalfArm:
         return ext, aa
 
     def truth(self) -> GroundTruth:
-        self._attrs()
-        t1, t2 = self._theta
+        s = ArmState.read(self._st)
+        f, z, w, (t1, t2), tip, payload = self._summary(s)
         p1, p2 = t1 - kin.DELTA_RAD, t2 + kin.DELTA_RAD  # kin.theta_to_phi on floats
-        w = self._deflections()
-        wd = (L1_M * self._beta_dot[0] / kin.INCH, L2_M * self._beta_dot[1] / kin.INCH)
-        ws = self._static_beta(t1, t2)
-        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)  # modal_parameters on floats: the same bits
         t12 = t1 + t2
         xr, yr = kin.A1_IN * math.cos(t1) + kin.A2_IN * math.cos(t12), kin.A1_IN * math.sin(t1) + kin.A2_IN * math.sin(t12)  # kin.forward on floats
-        tip = self._tip(t1, t2)
-        fo = self._aa.outputs()
         return GroundTruth(
             time_s=self.time_s,
             theta_rad=(t1, t2),
             phi_rad=(float(p1), float(p2)),
-            theta_dot_rad_s=(self._theta_dot[0], self._theta_dot[1]),
-            extensions_in=(self._axes[0].extension_in, self._axes[1].extension_in),
-            cylinder_velocities_in_s=(self._axes[0].velocity_in_s, self._axes[1].velocity_in_s),
+            theta_dot_rad_s=s.theta_dot_rad_s,
+            extensions_in=s.extensions_in,
+            cylinder_velocities_in_s=s.velocities_in_s,
             valve_volts=(self._volts[0], self._volts[1]),
             deflections_in=w,
-            deflection_rates_in_s=wd,
-            static_deflections_in=(L1_M * ws[0] / kin.INCH, L2_M * ws[1] / kin.INCH),
-            sensed_deflections_in=(fo[0], fo[1]),
-            camera_deflections_in=self._seen(),
-            modal_frequencies_hz=tuple(float(x) for x in f),
-            damping_ratios=tuple(float(x) for x in z),
+            deflection_rates_in_s=_deflections(s.beta_dot_rad_s),
+            static_deflections_in=_deflections(self._static_beta(t1, t2)),
+            sensed_deflections_in=(s.antialias[0][0], s.antialias[1][0]),
+            camera_deflections_in=_seen(s.fractions, s.beta_rad),
+            modal_frequencies_hz=f,
+            damping_ratios=z,
             tip_in=tip,
             rigid_tip_in=(float(xr), float(yr)),
-            payload_attached=self._payload,
-            at_stop=(self._axes[0].stop_side, self._axes[1].stop_side),
+            payload_attached=payload,
+            at_stop=s.stop_sides,
             hard_stop_counts=(self._stop_counts[0], self._stop_counts[1]),
             hard_stop_events=tuple(self._events),
             adc_bits=self._scale.bits,
@@ -415,20 +409,14 @@ class RalfArm:
         self,
     ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]:
         """What the plant publishes of :meth:`truth` (modal frequencies, damping
-        ratios, deflections, joint angles, tip, payload), computed as
-        :meth:`truth` computes them (the same calls on the same state: the same
-        bits) without the rest: the 20 Hz ground truth of a run costs a third."""
-        self._attrs()
-        t1, t2 = self._theta
-        f, z = modal_parameters_scalar(self._consts[self._payload], t1, t2)
-        return (
-            tuple(float(x) for x in f),
-            tuple(float(x) for x in z),
-            self._deflections(),
-            (t1, t2),
-            self._tip(t1, t2),
-            self._payload,
-        )
+        ratios, deflections, joint angles, tip, payload), without the rest: the
+        20 Hz ground truth of a run costs a third. :meth:`truth` builds on it."""
+        return self._summary(ArmState.read(self._st))
+
+    def _summary(self, s: ArmState) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]:
+        t1, t2 = s.theta_rad
+        f = natural_frequencies(self._link_args[self._payload], t1, t2)
+        return (f[0], f[1]), self._zetas, _deflections(s.beta_rad), (t1, t2), self._tip(s), self._payload
 
     def attach_payload(self, attached: bool) -> None:
         """Pick up (True) or release (False) the payload now: the mass,
@@ -450,68 +438,39 @@ class RalfArm:
         """Nothing to free (:class:`~plant_emulator.plant_model.PlantModel`'s end of run)."""
 
     # -- internals ----------------------------------------------------------------------
-    def _angle(self, j: int) -> float:
-        retracted, p2q2, two_p_q, offset, _, _ = _JOINT[j]
-        length = self._axes[j].extension_in + retracted
-        cg = (p2q2 - length * length) / two_p_q
-        return math.acos(min(1.0, max(-1.0, cg))) - offset
-
-    @staticmethod
-    def _lever(j: int, theta: float) -> float:
-        _, p2q2, _, offset, pq, two_pq = _JOINT[j]
-        g = theta + offset
-        return pq * math.sin(g) / math.sqrt(p2q2 - two_pq * math.cos(g))
-
     def _static_beta(self, t1: float, t2: float) -> tuple[float, float]:
-        co = coefficients_scalar(self._consts[self._payload], t1, t2)
+        co = pk.link_coefficients(t1, t2, *self._link_args[self._payload])
         K11, K12, K22, G1, G2 = co[3], co[4], co[5], co[10], co[11]
         det = K11 * K22 - K12 * K12
         return (K22 * G1 - K12 * G2) / det, (K11 * G2 - K12 * G1) / det
 
-    def _deflections(self) -> tuple[float, float]:
-        return L1_M * self._beta[0] / kin.INCH, L2_M * self._beta[1] / kin.INCH
-
     def _fractions(self, t1: float, t2: float) -> tuple[float, float]:
         """What share of each tip deflection the cameras see (1, 1 with ``camera_on_link`` off)."""
-        return bending_fractions_scalar(self._consts[self._payload], t1, t2) if self.cfg.camera_on_link else (1.0, 1.0)
+        return pk.camera_fractions(self._modal_args[self._payload], kin.INCH, t1, t2) if self.cfg.camera_on_link else (1.0, 1.0)
 
-    def _seen(self) -> tuple[float, float]:
-        """The deflections the cameras see (in): the links' bending."""
-        f0, f1 = self._frac
-        return f0 * L1_M * self._beta[0] / kin.INCH, f1 * L2_M * self._beta[1] / kin.INCH
-
-    def _tip(self, t1: float, t2: float) -> tuple[float, float]:
+    def _tip(self, s: ArmState) -> tuple[float, float]:
         """Tip position (in) with the flexing: link 1 turns by beta1 about
         joint 1, link 2 by kappa*beta1 + beta2 about the elbow."""
-        b1, b2 = self._beta
+        t1, t2 = s.theta_rad
+        b1, b2 = s.beta_rad
         kap = self.cfg.structure.slope_transmission
         a1 = t1 + b1
         a12 = t1 + t2 + kap * b1 + b2
         return (kin.A1_IN * math.cos(a1) + kin.A2_IN * math.cos(a12), kin.A1_IN * math.sin(a1) + kin.A2_IN * math.sin(a12))
 
     def _run_steps(self, n: int) -> None:
-        """``n`` internal steps through :func:`._period_kernel.advance_steps`
-        on the state ``_st``; the attributes are unpacked from it only when
-        read (:meth:`_attrs`)."""
-        self._attrs_current = False
+        """``n`` internal steps through :func:`.period_kernel.advance_steps`
+        on the state ``_st``."""
         st = self._st
         noise = self._noise
         noisy = self.cfg.sensor_noise
         volts0, volts1 = self._volts
         ma = self._ma[self._payload]
         while n:
+            block, nxt = noise.step_block() if noisy else (self._no_noise, 0)
+            done, nxt, status, arr0, spd0, side0, arr1, spd1, side1 = self._advance_steps(n, volts0, volts1, st, self._hp, self._sp, ma, block, nxt)
             if noisy:
-                if noise._next + 2 > len(noise._block):  # refilled by the noise source's own rule
-                    noise.step_pair()
-                    noise._next -= 2
-                if noise._block is not self._noise_src:
-                    self._noise_src = noise._block
-                    self._noise_arr = np.array(noise._block, dtype=np.float64)
-            done, nxt, status, arr0, spd0, side0, arr1, spd1, side1 = self._advance_steps(
-                n, volts0, volts1, st, self._hp, self._sp, ma, self._noise_arr, noise._next
-            )
-            if noisy:
-                noise._next = nxt
+                noise.step_used(nxt)
             self._steps += done
             n -= done
             if status == pk.STATUS_STOP:
@@ -520,30 +479,3 @@ class RalfArm:
                     if arrived:
                         self._stop_counts[j] += 1
                         self._events.append(HardStop(time_s=t_end, joint=j, side=side, speed_in_s=speed))
-
-    def _pack_state(self) -> None:
-        """The attributes into ``_st`` (the kernel's layout, ``_period_kernel.ST_*``)."""
-        st = self._st
-        for j, ax in enumerate(self._axes):
-            k = pk.ST_CYLINDER * j
-            st[k + pk.ST_EXTENSION], st[k + pk.ST_VELOCITY], st[k + pk.ST_STOP_SIDE] = ax.extension_in, ax.velocity_in_s, ax.stop_side
-            st[pk.ST_THETA + j], st[pk.ST_THETA_DOT + j] = self._theta[j], self._theta_dot[j]
-            st[pk.ST_BETA + j], st[pk.ST_BETA_DOT + j] = self._beta[j], self._beta_dot[j]
-            st[pk.ST_FRACTION + j] = self._frac[j]
-            st[pk.ST_ANTIALIAS + 2 * j : pk.ST_ANTIALIAS + 2 * j + 2] = self._aa.state[j]
-
-    def _attrs(self) -> None:
-        """Bring the attributes up to date from ``_st`` if only it holds the state."""
-        if self._attrs_current:
-            return
-        st = self._st.tolist()
-        for j, ax in enumerate(self._axes):
-            k = pk.ST_CYLINDER * j
-            ax.extension_in, ax.velocity_in_s, ax.stop_side = st[k + pk.ST_EXTENSION], st[k + pk.ST_VELOCITY], int(st[k + pk.ST_STOP_SIDE])
-        self._theta = st[pk.ST_THETA : pk.ST_THETA + 2]
-        self._theta_dot = st[pk.ST_THETA_DOT : pk.ST_THETA_DOT + 2]
-        self._beta = st[pk.ST_BETA : pk.ST_BETA + 2]
-        self._beta_dot = st[pk.ST_BETA_DOT : pk.ST_BETA_DOT + 2]
-        self._frac = (st[pk.ST_FRACTION], st[pk.ST_FRACTION + 1])
-        self._aa.state = [st[pk.ST_ANTIALIAS : pk.ST_ANTIALIAS + 2], st[pk.ST_ANTIALIAS + 2 : pk.ST_ANTIALIAS + 4]]
-        self._attrs_current = True

@@ -46,7 +46,7 @@ class HardStop:
 class CylinderAxis:
     """One valve + cylinder: its parameters and state (extension in in, lagged
     velocity in in/s, which stop it rests on). The step itself is
-    :func:`plant_emulator.model._period_kernel.cylinder_step`."""
+    :func:`plant_emulator.model.period_kernel.cylinder_step`."""
 
     def __init__(
         self,
@@ -74,8 +74,3 @@ class CylinderAxis:
         if ext >= self.ext_hi:
             return 1
         return 0
-
-    def commanded_velocity(self, volts: float) -> float:
-        """Steady cylinder velocity (in/s) for a valve voltage, flow-saturated."""
-        u = self.gain * volts
-        return self.vmax if u > self.vmax else (-self.vmax if u < -self.vmax else u)

@@ -46,14 +46,17 @@ stiffens or softens them (the second-order potential: an inverted double
 pendulum when the arm points up).  Damping is modal: every mode keeps its
 damping ratio (``zeta1 = 0.09`` from the thesis).
 
-Everything here is pure and vectorised over configurations (broadcasting
-``theta1``, ``theta2``), apart from the ``*_scalar`` helpers, which do the same
-arithmetic on Python floats for the integrator's inner loop.
+Everything here is pure and broadcasts over configurations (``theta1``,
+``theta2``); each configuration is computed by the compiled integrator's own
+functions (:mod:`.period_kernel`: ``link_coefficients``, ``eigenvalues``,
+``mode_shape``, ``camera_fractions``) run as Python, so the model has one
+implementation of its arithmetic.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
@@ -61,6 +64,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field
 
+from plant_emulator.model import period_kernel as pk
 from plant_emulator.model.kinematics import A1_IN, A2_IN, CYLINDER1, INCH, PAYLOAD_LB, POUND
 
 FloatArray = npt.NDArray[np.float64]
@@ -142,118 +146,82 @@ def consts(structure: Structure, payload: bool) -> _Consts:
     )
 
 
-# --- the matrices: plain arithmetic, so floats and arrays both work ----------------------
+# --- the matrices: the compiled kernel's functions, one configuration at a time ----------
 
 
-def _coefficients(k: _Consts, c1, s1, c12, s12, c2, lever1_m, sbar):
-    """Mass, stiffness (elastic + gravity), input and gravity-load terms.
+def modal_arguments(k: _Consts, h: float) -> tuple[float, ...]:
+    """:func:`~.period_kernel.modal_step`'s 20 constant arguments (after the two
+    angles; ``period_kernel.MA_*``) for the structure constants ``k`` and the step ``h``."""
+    cyl = CYLINDER1
+    pin = (cyl.offset_rad, cyl.p_in * cyl.q_in, cyl.p_in**2 + cyl.q_in**2)
+    return (k.I1, k.Mt, k.S, k.Ia, k.A1, k.kappa, k.kr1, k.kc1, k.kr2, k.kbar_r2, k.beta_c, k.g, k.z1, k.z2, h, *pin, INCH, L1_M)
 
-    Returns ``(M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2)``
-    in SI (kg m^2, N m/rad, N m); ``E`` maps joint accelerations (rad/s^2)
-    to generalised inertial loads (``f = -E theta''``)."""
-    LS = L1_M * k.S
-    kap = k.kappa
-    base = k.I1 + k.Mt * L1_M * L1_M
-    M11 = base + 2.0 * kap * LS * c2 + kap * kap * k.Ia
-    M12 = LS * c2 + kap * k.Ia
-    M22 = k.Ia + 0.0 * c2
-    E11 = base + (1.0 + kap) * LS * c2 + kap * k.Ia
-    E12 = LS * c2 + kap * k.Ia
-    E21 = LS * c2 + k.Ia
-    E22 = k.Ia + 0.0 * c2
-    k1 = 1.0 / (1.0 / k.kr1 + 1.0 / (k.kc1 * lever1_m * lever1_m))
-    k2 = 1.0 / (1.0 / k.kr2 + 1.0 / (k.kbar_r2 * sbar * sbar))
-    g = k.g
-    gs = g * k.S * s12
-    K11 = k1 - g * k.A1 * s1 - kap * kap * gs
-    K12 = -kap * gs
-    K22 = k2 - gs
-    G1 = -g * (k.A1 * c1 + kap * k.S * c12)
-    G2 = -g * k.S * c12
-    return M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2
+
+def link_arguments(k: _Consts) -> tuple[float, ...]:
+    """:func:`~.period_kernel.link_coefficients`' 17 constant arguments (after the two angles)."""
+    ma = modal_arguments(k, 0.0)
+    return ma[:12] + ma[15:]
+
+
+def _on_grid(fn: Callable[[float, float], tuple[float, ...]], theta1: npt.ArrayLike, theta2: npt.ArrayLike) -> list[FloatArray]:
+    """``fn(theta1, theta2)`` at every configuration of the broadcast angles: one array per output."""
+    t1, t2 = np.broadcast_arrays(np.asarray(theta1, dtype=float), np.asarray(theta2, dtype=float))
+    rows = [fn(a, b) for a, b in zip(t1.ravel().tolist(), t2.ravel().tolist(), strict=True)]
+    table = np.array(rows, dtype=float).reshape(t1.size, -1)
+    return [table[:, i].reshape(t1.shape) for i in range(table.shape[1])]
 
 
 def coefficients(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE):
-    """Vectorised :func:`_coefficients` at joint angles (rad)."""
-    t1 = np.asarray(theta1, dtype=float)
-    t2 = np.asarray(theta2, dtype=float)
-    k = consts(structure, bool(payload))
-    gamma = t1 + CYLINDER1.offset_rad
-    lever1_m = CYLINDER1.p_in * CYLINDER1.q_in * np.sin(gamma) / np.asarray(CYLINDER1.length(t1)) * INCH
-    return _coefficients(k, np.cos(t1), np.sin(t1), np.cos(t1 + t2), np.sin(t1 + t2), np.cos(t2), lever1_m, np.sin(t2 + k.beta_c))
+    """Mass, stiffness (elastic + gravity), input and gravity-load terms at joint angles (rad), broadcast.
+
+    Returns ``(M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2)``
+    in SI (kg m^2, N m/rad, N m); ``E`` maps joint accelerations (rad/s^2)
+    to generalised inertial loads (``f = -E theta''``). Each configuration is
+    :func:`~.period_kernel.link_coefficients`, the integrator's own."""
+    args = link_arguments(consts(structure, bool(payload)))
+    return tuple(_on_grid(lambda a, b: pk.link_coefficients(a, b, *args), theta1, theta2))
 
 
-def coefficients_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[float, ...]:
-    """The same as :func:`coefficients` for one configuration, on floats."""
-    cyl = CYLINDER1
-    gamma = theta1 + cyl.offset_rad
-    pq = cyl.p_in * cyl.q_in
-    length = math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(gamma))
-    lever1_m = pq * math.sin(gamma) / length * INCH
-    t12 = theta1 + theta2
-    return _coefficients(k, math.cos(theta1), math.sin(theta1), math.cos(t12), math.sin(t12), math.cos(theta2), lever1_m, math.sin(theta2 + k.beta_c))
-
-
-def _bending_fractions(k: _Consts, lever1_m, sbar):
-    """Share of each joint chain's rotation that is the link's own bending: ``k_i / k_ri``.
+def bending_fractions(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:
+    """Share of each joint chain's rotation that is the link's own bending,
+    ``k_i / k_ri``, at joint angles (rad), shape (..., 2).
 
     The chain of joint ``i`` is the link's root bending ``k_ri`` in series with
     the actuator (cylinder 1's oil column through its lever; the parallel bar
     through the crank); the massless node between them carries the same
     torque, so the link bends by ``k_i beta_i / k_ri`` and the rest is the
-    whole link, camera included, turning on the actuator's compliance."""
-    k1 = 1.0 / (1.0 / k.kr1 + 1.0 / (k.kc1 * lever1_m * lever1_m))
-    k2 = 1.0 / (1.0 / k.kr2 + 1.0 / (k.kbar_r2 * sbar * sbar))
-    return k1 / k.kr1, k2 / k.kr2
+    whole link, camera included, turning on the actuator's compliance. Each
+    configuration is :func:`~.period_kernel.camera_fractions`, the integrator's own."""
+    ma = modal_arguments(consts(structure, bool(payload)), 0.0)
+    f1, f2 = _on_grid(lambda a, b: pk.camera_fractions(ma, INCH, a, b), theta1, theta2)
+    return np.stack([f1, f2], axis=-1)
 
 
-def bending_fractions(theta1, theta2, payload=False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:
-    """Vectorised :func:`_bending_fractions` at joint angles (rad), shape (..., 2)."""
-    t1 = np.asarray(theta1, dtype=float)
-    t2 = np.asarray(theta2, dtype=float)
-    k = consts(structure, bool(payload))
-    lever1_m = CYLINDER1.p_in * CYLINDER1.q_in * np.sin(t1 + CYLINDER1.offset_rad) / np.asarray(CYLINDER1.length(t1)) * INCH
-    f1, f2 = _bending_fractions(k, lever1_m, np.sin(t2 + k.beta_c))
-    return np.stack(np.broadcast_arrays(f1, f2), axis=-1)
-
-
-def bending_fractions_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[float, float]:
-    """:func:`bending_fractions` for one configuration on floats."""
-    cyl = CYLINDER1
-    gamma = theta1 + cyl.offset_rad
-    pq = cyl.p_in * cyl.q_in
-    lever1_m = pq * math.sin(gamma) / math.sqrt(cyl.p_in**2 + cyl.q_in**2 - 2.0 * pq * math.cos(gamma)) * INCH
-    return _bending_fractions(k, lever1_m, math.sin(theta2 + k.beta_c))
-
-
-# --- the 2x2 symmetric generalised eigenproblem, closed form ----------------------------
+def natural_frequencies(args: tuple[float, ...], theta1: float, theta2: float) -> tuple[float, float]:
+    """The two modes' natural frequencies (Hz) at one configuration, ascending
+    (``args``: :func:`link_arguments`): the ground truth's per-period call."""
+    M11, M12, M22, K11, K12, K22 = pk.link_coefficients(theta1, theta2, *args)[:6]
+    lam1, lam2 = pk.eigenvalues(M11, M12, M22, K11, K12, K22)
+    two_pi = 2.0 * math.pi
+    return math.sqrt(lam1 if lam1 > 0.0 else 0.0) / two_pi, math.sqrt(lam2 if lam2 > 0.0 else 0.0) / two_pi
 
 
 def eig2(M11, M12, M22, K11, K12, K22):
-    """Solve ``K phi = w^2 M phi`` for every configuration (arrays).
+    """Solve ``K phi = w^2 M phi`` for every configuration (arrays):
+    :func:`~.period_kernel.eigenvalues` and :func:`~.period_kernel.mode_shape` element by element.
 
     Returns ``(w2, phi)``: ``w2`` shape (..., 2) ascending, ``phi`` shape
     (..., 2, 2) with mass-normalised columns (``phi^T M phi = I``)."""
-    a = M11 * M22 - M12 * M12
-    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
-    c = K11 * K22 - K12 * K12
-    disc = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
-    lam = np.stack([(-b - disc) / (2.0 * a), (-b + disc) / (2.0 * a)], axis=-1)
-    cols = []
-    for r in range(2):
-        lr = lam[..., r]
-        r11, r12, r22 = K11 - lr * M11, K12 - lr * M12, K22 - lr * M22
-        # null vector of [[r11, r12], [r12, r22]] from the larger row
-        use1 = (r11 * r11 + r12 * r12) >= (r12 * r12 + r22 * r22)
-        x = np.where(use1, -r12, r22)
-        y = np.where(use1, r11, -r12)
-        degenerate = (x * x + y * y) == 0.0
-        x = np.where(degenerate, 1.0 if r == 0 else 0.0, x)
-        y = np.where(degenerate, 0.0 if r == 0 else 1.0, y)
-        norm = np.sqrt(x * x * M11 + 2.0 * x * y * M12 + y * y * M22)
-        cols.append(np.stack([x / norm, y / norm], axis=-1))
-    phi = np.stack(cols, axis=-1)
-    return lam, phi
+    m = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (M11, M12, M22, K11, K12, K22)))
+    shape = m[0].shape
+    rows = []
+    for c in zip(*(x.ravel().tolist() for x in m), strict=True):
+        lam1, lam2 = pk.eigenvalues(*c)
+        rows.append((lam1, lam2, *pk.mode_shape(lam1, 0, *c), *pk.mode_shape(lam2, 1, *c)))
+    t = np.array(rows, dtype=float).reshape(-1, 6)
+    w2 = t[:, :2].reshape(*shape, 2)
+    phi = np.stack([t[:, [2, 4]], t[:, [3, 5]]], axis=-2).reshape(*shape, 2, 2)  # columns: modes
+    return w2, phi
 
 
 # --- public, vectorised views -------------------------------------------------------------
@@ -269,35 +237,11 @@ def modal_parameters(
 
     Broadcasts over ``theta1``/``theta2`` (rad); returns arrays of shape
     ``(..., 2)``, modes in ascending frequency."""
-    co = coefficients(theta1, theta2, payload, structure)
-    w2, _ = eig2(*co[:6])
-    freqs = np.sqrt(np.maximum(w2, 0.0)) / (2.0 * np.pi)
+    args = link_arguments(consts(structure, bool(payload)))
+    f1, f2 = _on_grid(lambda a, b: natural_frequencies(args, a, b), theta1, theta2)
+    freqs = np.stack([f1, f2], axis=-1)
     zetas = np.broadcast_to(np.asarray(structure.damping_ratios, dtype=float), freqs.shape).copy()
     return freqs, zetas
-
-
-def modal_parameters_scalar(k: _Consts, theta1: float, theta2: float) -> tuple[tuple[float, float], tuple[float, float]]:
-    """:func:`modal_parameters` for one configuration on floats (``k``: the
-    structure's :func:`consts`, payload in or out): the same operations on the
-    same values (:func:`coefficients_scalar`, the eigenvalues of :func:`eig2`,
-    ``sqrt(max(w^2, 0)) / 2 pi``), so the same frequencies bit for bit
-    (tests/plant), without numpy's per-call cost on 0-d arrays (the ground
-    truth asks for them once per truth period)."""
-    M11, M12, M22, K11, K12, K22 = coefficients_scalar(k, theta1, theta2)[:6]
-    a = M11 * M22 - M12 * M12
-    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
-    c = K11 * K22 - K12 * K12
-    d = b * b - 4.0 * a * c
-    disc = math.sqrt(_maximum0(d))
-    lam1 = (-b - disc) / (2.0 * a)
-    lam2 = (-b + disc) / (2.0 * a)
-    two_pi = 2.0 * np.pi
-    return (math.sqrt(_maximum0(lam1)) / two_pi, math.sqrt(_maximum0(lam2)) / two_pi), (k.z1, k.z2)
-
-
-def _maximum0(x: float) -> float:
-    """``np.maximum(x, 0.0)`` on a float: ``x`` when positive or NaN, else 0.0 (-0.0 included, as numpy gives)."""
-    return x if x > 0.0 or x != x else 0.0
 
 
 def mode_shapes(theta1, theta2, payload: bool = False, structure: Structure = DEFAULT_STRUCTURE) -> FloatArray:

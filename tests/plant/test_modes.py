@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from plant_emulator.model import _period_kernel, modes
 from plant_emulator.model import kinematics as kin
-from plant_emulator.model.arm import _modal_arguments
+from plant_emulator.model import modes, period_kernel
 from plant_emulator.model.calibration import APEX_RAD, BOTTOM_RAD, metrics
+from tests.plant.link_matrices import link_matrices
 
 
 @pytest.fixture(scope="module")
@@ -75,27 +75,41 @@ def test_first_mode_damping_is_the_thesis_value() -> None:
     assert np.all((z[:, 1] > 0) & (z[:, 1] < 0.2))
 
 
+def test_link_matrices_are_the_models_equations() -> None:
+    """The integrator's coefficients equal the mass, stiffness, input and gravity terms
+    written out from the model's equations (tests/plant/link_matrices.py), to rounding."""
+    g1, g2 = kin.workspace_grid(9, 12)
+    for structure in (modes.DEFAULT_STRUCTURE, modes.Structure(slope_transmission=0.7, crank_offset_deg=12.0)):
+        for payload in (False, True):
+            co = modes.coefficients(g1, g2, payload, structure)
+            for n in range(0, g1.size, 5):
+                M, K, E, G = link_matrices(structure, payload, float(g1[n]), float(g2[n]))
+                got = [c[n] for c in co]
+                np.testing.assert_allclose(got[:3], [M[0, 0], M[0, 1], M[1, 1]], rtol=1e-12)
+                np.testing.assert_allclose(got[3:6], [K[0, 0], K[0, 1], K[1, 1]], rtol=1e-12, atol=1e-9 * K[0, 0])
+                np.testing.assert_allclose(got[6:10], E.ravel(), rtol=1e-12)
+                np.testing.assert_allclose(got[10:], G, rtol=1e-12, atol=1e-12 * abs(G).max())
+
+
 def test_closed_form_eigen_solution_matches_scipy() -> None:
     g1, g2 = kin.workspace_grid(9, 12)
     for payload in (False, True):
-        co = modes.coefficients(g1, g2, payload)
-        w2, phi = modes.eig2(*co[:6])
+        f, _ = modes.modal_parameters(g1, g2, payload)
         k = modes.consts(modes.DEFAULT_STRUCTURE, payload)
         for n in range(0, g1.size, 7):
-            M = np.array([[co[0][n], co[1][n]], [co[1][n], co[2][n]]])
-            K = np.array([[co[3][n], co[4][n]], [co[4][n], co[5][n]]])
+            M, K, _, _ = link_matrices(modes.DEFAULT_STRUCTURE, payload, float(g1[n]), float(g2[n]))
             ref = scipy.linalg.eigh(K, M, eigvals_only=True)
-            assert np.allclose(w2[n], ref, rtol=1e-10)
-            assert np.allclose(phi[n].T @ M @ phi[n], np.eye(2), atol=1e-10)
-            assert np.allclose(K @ phi[n], M @ phi[n] * w2[n], rtol=1e-8, atol=1e-6)
+            np.testing.assert_allclose(f[n], np.sqrt(ref) / (2.0 * np.pi), rtol=1e-10)
+            w2, phi = modes.eig2(M[0, 0], M[0, 1], M[1, 1], K[0, 0], K[0, 1], K[1, 1])
+            assert np.allclose(w2, ref, rtol=1e-10)
+            assert np.allclose(phi.T @ M @ phi, np.eye(2), atol=1e-10)
+            assert np.allclose(K @ phi, M @ phi * w2, rtol=1e-8, atol=1e-6)
             # the period kernel's modal data: the same eigenvalues, M-orthonormal mode shapes
-            r = _period_kernel.modal_step(float(g1[n]), float(g2[n]), *_modal_arguments(k, modes.DEFAULT_STRUCTURE.damping_ratios, 1e-3))
+            r = period_kernel.modal_step(float(g1[n]), float(g2[n]), *modes.modal_arguments(k, 1e-3))
             assert (r[16], r[20]) == pytest.approx(tuple(ref), rel=1e-10)
             shapes = np.array([[r[12], r[14]], [r[13], r[15]]])
             assert np.allclose(shapes.T @ M @ shapes, np.eye(2), atol=1e-10)
             assert np.allclose(K @ shapes, M @ shapes * ref, rtol=1e-8, atol=1e-6)
-            cs = modes.coefficients_scalar(k, float(g1[n]), float(g2[n]))
-            assert np.allclose(cs, [c[n] for c in co], rtol=1e-12)
 
 
 def test_static_deflection_is_a_few_millimetres(loop: kin.TrajectorySamples) -> None:
@@ -189,20 +203,3 @@ def test_free_vibration_shows_the_modal_frequency_and_damping() -> None:
     assert p[2] == pytest.approx(f_true[0], rel=0.01)
     assert p[3] == pytest.approx(z_true[0], rel=0.05)
     assert p[3] == pytest.approx(0.09, abs=0.01)
-
-
-@pytest.mark.parametrize("payload", [False, True])
-def test_scalar_modal_parameters_are_the_array_ones_bit_for_bit(payload: bool, loop: kin.TrajectorySamples) -> None:
-    """The ground truth's per-configuration path (floats) gives the vectorised function's numbers exactly."""
-    rng = np.random.default_rng(7)
-    lo, hi = kin.JOINT_LIMITS_RAD
-    t1 = np.concatenate([loop.theta1_rad[::7], rng.uniform(lo[0], lo[1], 300)])
-    t2 = np.concatenate([loop.theta2_rad[::7], rng.uniform(hi[0], hi[1], 300)])
-    k = modes.consts(modes.DEFAULT_STRUCTURE, payload)
-    f, z = modes.modal_parameters(t1, t2, payload=payload)
-    for i in range(t1.size):
-        fs, zs = modes.modal_parameters_scalar(k, float(t1[i]), float(t2[i]))
-        assert fs == tuple(f[i].tolist()) and zs == tuple(z[i].tolist())
-    for x in (-0.0, 0.0, -1e-300, 1e-300, -2.0, 3.0, math.nan, math.inf, -math.inf):  # np.maximum's edges, signed zero included
-        want, got = float(np.maximum(np.array(x), 0.0)), modes._maximum0(x)
-        assert (math.isnan(want) and math.isnan(got)) or (want == got and math.copysign(1.0, want) == math.copysign(1.0, got))

@@ -1,7 +1,7 @@
 """The plant's public entry points that promise the same values as each
 other: the converter's float and array quantization, a reading's arrays
 and lists, ``sample_codes`` and ``sample``, the float and array valve
-setters, ``truth_summary`` and ``truth``, the deferred latency tracker and
+setters, the deferred latency tracker and
 the plain one; and the block noise against numpy's own generator stream."""
 
 from __future__ import annotations
@@ -173,18 +173,3 @@ def test_read_codes_quantizes_as_the_converter_at_the_rails() -> None:
                 defl = (volts[2] / v2 + c2, volts[3] / v3 + c3)
                 analog = [(ext[0] - c0) * v0, (ext[1] - c1) * v1, (defl[0] - c2) * v2, (defl[1] - c3) * v3]
                 assert sensors.read_codes(ext, defl, (0.0, 0.0), scale, None) == scale.quantize_floats(analog), (bits, t, k)
-
-
-def test_truth_summary_is_truths_published_fields() -> None:
-    """RalfArm.truth_summary (what the plant publishes at its truth rate) holds truth()'s values bit for bit, payload on and off."""
-    arm = RalfArm(PlantConfig(seed=3))
-    rng = np.random.default_rng(4)
-    for k in range(60):
-        arm.set_valve_voltages(rng.uniform(-4.0, 4.0, 2))
-        arm.advance(0.005)
-        if k == 30:
-            arm.attach_payload(True)
-        freqs, damping, deflections, theta, tip, payload = arm.truth_summary()
-        t = arm.truth()
-        assert freqs == tuple(float(f) for f in t.modal_frequencies_hz) and damping == tuple(float(z) for z in t.damping_ratios), k
-        assert (deflections, theta, tip, payload) == (t.deflections_in, t.theta_rad, t.tip_in, t.payload_attached), k

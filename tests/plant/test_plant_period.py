@@ -1,4 +1,4 @@
-"""The plant's compiled period (plant_emulator/model/_period_kernel.py) against
+"""The plant's compiled period (plant_emulator/model/period_kernel.py) against
 solutions nobody here wrote: the cylinders' first-order lag in closed form,
 the hard-stop arrival from that closed form and scipy's root finder, and the
 flexible links at rest on the stops against scipy's ``solve_ivp``.
@@ -11,8 +11,6 @@ the integrator's error dominates (1e-7 of the ringing's amplitude)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -21,18 +19,9 @@ import scipy.integrate
 import scipy.linalg
 import scipy.optimize
 
-from plant_emulator.model import _period_kernel as pk
 from plant_emulator.model import kinematics as kin
 from plant_emulator.model.arm import L1_M, L2_M, PlantConfig, RalfArm
-from plant_emulator.model.modes import coefficients_scalar, consts
-
-
-@contextmanager
-def _kernel(compiled: bool, arm: RalfArm) -> Iterator[RalfArm]:
-    """The arm stepping with the compiled kernel or the same functions run as Python (numba absent)."""
-    if not compiled:
-        arm._advance_steps = pk._advance_steps
-    yield arm
+from tests.plant.link_matrices import link_matrices
 
 
 def _lag(e0: float, u: float, tau: float, t: float) -> tuple[float, float]:
@@ -41,23 +30,22 @@ def _lag(e0: float, u: float, tau: float, t: float) -> tuple[float, float]:
     return e0 + u * t - u * tau * (1.0 - decay), u * (1.0 - decay)
 
 
-@pytest.mark.parametrize("compiled", [True, False], ids=["numba", "python"])
-def test_cylinders_follow_the_first_order_lag_in_closed_form(compiled: bool) -> None:
+def test_cylinders_follow_the_first_order_lag_in_closed_form() -> None:
     cfg = PlantConfig(seed=1, sensor_noise=False)
     volts = (0.1, -0.08)  # below flow saturation, far from the stops over 0.3 s
-    with _kernel(compiled, RalfArm(cfg)) as arm:
-        e0 = arm.truth().extensions_in
-        arm.set_valve_voltages(np.array(volts))
-        for k in range(1, 61):
-            arm.advance(0.005)
-            truth = arm.truth()
-            for j in (0, 1):
-                u = cfg.valve_gain_in_per_s_per_v[j] * volts[j]
-                assert abs(u) < cfg.max_cylinder_speed_in_per_s[j]
-                e, v = _lag(e0[j], u, cfg.valve_time_constant_s, 0.005 * k)
-                assert truth.extensions_in[j] == pytest.approx(e, rel=1e-9, abs=1e-12), (k, j)
-                assert truth.cylinder_velocities_in_s[j] == pytest.approx(v, rel=1e-9, abs=1e-12), (k, j)
-        assert truth.hard_stop_counts == (0, 0)
+    arm = RalfArm(cfg)
+    e0 = arm.truth().extensions_in
+    arm.set_valve_voltages(np.array(volts))
+    for k in range(1, 61):
+        arm.advance(0.005)
+        truth = arm.truth()
+        for j in (0, 1):
+            u = cfg.valve_gain_in_per_s_per_v[j] * volts[j]
+            assert abs(u) < cfg.max_cylinder_speed_in_per_s[j]
+            e, v = _lag(e0[j], u, cfg.valve_time_constant_s, 0.005 * k)
+            assert truth.extensions_in[j] == pytest.approx(e, rel=1e-9, abs=1e-12), (k, j)
+            assert truth.cylinder_velocities_in_s[j] == pytest.approx(v, rel=1e-9, abs=1e-12), (k, j)
+    assert truth.hard_stop_counts == (0, 0)
 
 
 def test_a_saturated_cylinder_arrives_at_its_stop_when_the_closed_form_says() -> None:
@@ -94,10 +82,7 @@ def _links_reference(arm: RalfArm, beta0: np.ndarray, rate0: np.ndarray, times: 
     """M beta'' + C beta' + K beta = G at the resting configuration, C built from the
     M-orthonormal modes with the structure's damping ratios (thesis Ch. 3), by solve_ivp."""
     t1, t2 = arm.truth().theta_rad
-    co = coefficients_scalar(consts(arm.cfg.structure, arm.payload_attached), t1, t2)
-    M = np.array([[co[0], co[1]], [co[1], co[2]]])
-    K = np.array([[co[3], co[4]], [co[4], co[5]]])
-    G = np.array([co[10], co[11]])
+    M, K, _, G = link_matrices(arm.cfg.structure, arm.payload_attached, t1, t2)
     lam, phi = scipy.linalg.eigh(K, M)  # ascending: mode 1 first, phi.T M phi = I
     zetas = np.array(arm.cfg.structure.damping_ratios[:2])
     C = M @ phi @ np.diag(2.0 * zetas * np.sqrt(lam)) @ phi.T @ M

@@ -14,6 +14,7 @@ from pydantic import ValidationError
 
 from protocol.errors import ConfigError
 from protocol.keys import SERVICES, Keys, validate_rig_id
+from protocol.setting_groups import Smoothing
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, describe, load_settings, upgrade_recorded
 
 LOOP = Path(__file__).resolve().parents[2] / "protocol" / "trajectories" / "inspection_loop.json"
@@ -173,6 +174,29 @@ def test_an_older_recordings_settings_are_read_in_todays_names() -> None:
     assert (ctrl.oatf_mode, ctrl.oatf.frequency_hz, ctrl.oatf.band_hz, ctrl.oatf.damping) == ("adaptive", 4.4018, (1.0, 15.0), 0.09)
     assert (ctrl.policies.deadline, ctrl.policies.stale, ctrl.dither.seed, ctrl.realtime.priority, ctrl.realtime.cpus) == ("degrade", "degrade", 3, 10, "1")
     assert DspSettings(**upgrade_recorded({"search_max_hz": 30.0, "fft_width": 1024})).search_band_hz == (0.5, 30.0)
+    assert DspSettings(**upgrade_recorded({"smoothing_window": 9, "smoothing_order": 3})).smoothing == Smoothing(window=9, order=3)
+
+
+def test_pi_gains_and_timeouts_default_to_todays_and_change_one_key(clean_env: pytest.MonkeyPatch) -> None:
+    from controller.pi import PIConfig
+
+    ctrl = load_settings(ControllerSettings)
+    assert ctrl.pi.kp_mv_per_rad == PIConfig().kp_mv_per_rad and ctrl.pi.ki_mv_per_rad == PIConfig().ki_mv_per_rad
+    assert (ctrl.timeouts.startup_s, ctrl.timeouts.lockstep_s, ctrl.timeouts.plant_heartbeat_s, ctrl.timeouts.stale_after_s) == (60.0, 60.0, 1.0, 2.0)
+    assert ctrl.timeouts.dsp_deadline_s is None
+    clean_env.setenv("RALF_PI", "kp_mv_per_rad=9000,6250")
+    clean_env.setenv("RALF_TIMEOUTS", '{"lockstep_s": 30}')
+    ctrl = load_settings(ControllerSettings)
+    assert ctrl.pi.kp_mv_per_rad == (9000.0, 6250.0) and ctrl.pi.ki_mv_per_rad == (5000.0, 4166.0)
+    assert ctrl.timeouts.lockstep_s == 30.0 and ctrl.timeouts.startup_s == 60.0
+    again = ControllerSettings(**ctrl.model_dump(mode="json"))  # as a run record stores them
+    assert (again.pi, again.timeouts) == (ctrl.pi, ctrl.timeouts)
+    assert ControllerSettings(pi=str(ctrl.pi)).pi == ctrl.pi  # the text form reads back
+
+
+def test_an_older_recordings_timeouts_move_into_the_group() -> None:
+    ctrl = ControllerSettings(**upgrade_recorded({"lockstep_timeout_s": 30.0, "stale_after_s": 3.0, "dsp_deadline_s": None}))
+    assert (ctrl.timeouts.lockstep_s, ctrl.timeouts.stale_after_s, ctrl.timeouts.startup_s, ctrl.timeouts.dsp_deadline_s) == (30.0, 3.0, 60.0, None)
 
 
 @pytest.mark.parametrize(
@@ -201,6 +225,13 @@ RETIRED_NAMES = [
     ("RALF_SEARCH_MAX_HZ", "30", "RALF_SEARCH_BAND_HZ="),
     ("RALF_CAN_MULTICAST_TTL", "1", "RALF_CAN_UDP=ttl="),
     ("RALF_ZENOH_ACL_SCENARIOS", "true", "RALF_ZENOH_ACL=scenarios"),
+    ("RALF_STARTUP_TIMEOUT_S", "2", "RALF_TIMEOUTS=startup_s="),
+    ("RALF_LOCKSTEP_TIMEOUT_S", "30", "RALF_TIMEOUTS=lockstep_s="),
+    ("RALF_PLANT_HEARTBEAT_TIMEOUT_S", "5", "RALF_TIMEOUTS=plant_heartbeat_s="),
+    ("RALF_STALE_AFTER_S", "3", "RALF_TIMEOUTS=stale_after_s="),
+    ("RALF_DSP_DEADLINE_S", "0.2", "RALF_TIMEOUTS=dsp_deadline_s="),
+    ("RALF_SMOOTHING_WINDOW", "9", "RALF_SMOOTHING=window="),
+    ("RALF_SMOOTHING_ORDER", "3", "RALF_SMOOTHING=order="),
 ]
 
 
@@ -256,7 +287,14 @@ BAD_ENV = [
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "25"),
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "1e-300"),  # was "Maximum allowed size exceeded" from the trajectory, no name
     (ControllerSettings, "RALF_TIP_SPEED_IN_S", "0.005"),
-    (ControllerSettings, "RALF_STALE_AFTER_S", "1e-300"),
+    (ControllerSettings, "RALF_TIMEOUTS", "stale_after_s=1e-300"),
+    (ControllerSettings, "RALF_TIMEOUTS", "startup=5"),
+    (ControllerSettings, "RALF_TIMEOUTS", "lockstep_s=nan"),
+    (ControllerSettings, "RALF_PI", "kp_mv_per_rad=-1,6250"),
+    (ControllerSettings, "RALF_PI", "kp_mv_per_rad=7500"),
+    (ControllerSettings, "RALF_PI", "ki_mv_per_rad=5000,4166,1"),
+    (ControllerSettings, "RALF_PI", "kp=7500,6250"),
+    (ControllerSettings, "RALF_PI", "ki_mv_per_rad=inf,1"),
     (ControllerSettings, "RALF_OATF", "band_hz=1e-300,20"),
     (ControllerSettings, "RALF_BATCH_SIZE", "0"),
     (ControllerSettings, "RALF_BATCH_SIZE", "4097"),
@@ -285,7 +323,9 @@ BAD_ENV = [
     (DspSettings, "RALF_AVERAGING", "median"),
     (DspSettings, "RALF_SOLVER", "siso"),
     (DspSettings, "RALF_EMULATED_LATENCY_S", "11"),
-    (DspSettings, "RALF_SMOOTHING_WINDOW", "-1"),
+    (DspSettings, "RALF_SMOOTHING", "window=-1"),
+    (DspSettings, "RALF_SMOOTHING", "order=11"),
+    (DspSettings, "RALF_SMOOTHING", "width=9"),
 ]
 
 

@@ -119,7 +119,7 @@ def test_the_image_warms_all_four_kernels_as_the_run_user_from_its_home() -> Non
     home = lines.index("WORKDIR /home/ralf")
     (warm,) = [i for i, line in enumerate(lines) if "warm_up" in line]
     assert user < warm and home < warm
-    for module in ("dsp_service.kernel", "plant_emulator.model.compiled", "controller.fast_tick", "dsp_service.arx_kernel"):
+    for module in ("dsp_service.kernel", "plant_emulator.model.period_kernel", "controller.fast_tick", "dsp_service.arx_kernel"):
         assert f"from {module} import warm_up" in lines[warm]
 
 

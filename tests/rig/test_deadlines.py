@@ -66,7 +66,7 @@ def test_dsp_deadline_policy_stop_ends_the_run_with_a_clear_error() -> None:
 @pytest.mark.timeout(120)
 def test_controller_stall_trips_the_plant_watchdog_which_holds_valves_and_sends_emcy() -> None:
     run = run_in_process(
-        controller={"duration_s": 2.0, "fault_scenario": STALL, "plant_heartbeat_timeout_s": 5.0, "tf_download_samples": 0},
+        controller={"duration_s": 2.0, "fault_scenario": STALL, "timeouts": "plant_heartbeat_s=5", "tf_download_samples": 0},
         plant={"watchdog_periods": 5},
         common={"clock": "realtime"},
     )
@@ -92,7 +92,7 @@ def test_sync_frames_lost_on_the_bus_are_seen_as_counter_gaps() -> None:
 def test_dsp_killed_mid_run_is_detected_control_continues_and_it_is_picked_up_again(tmp_path: Path) -> None:
     plan = RigPlan.local(
         rig_id=f"kill-{uuid.uuid4().hex[:6]}",
-        overrides={"dsp": {"RALF_FFT_WIDTH": "256"}, "controller": {"RALF_OATF_MODE": "adaptive", "RALF_PLANT_HEARTBEAT_TIMEOUT_S": "20"}},
+        overrides={"dsp": {"RALF_FFT_WIDTH": "256"}, "controller": {"RALF_OATF_MODE": "adaptive", "RALF_TIMEOUTS": "plant_heartbeat_s=20"}},
     )
     observer = RigObserver(plan)
     procs = {name: start_service(plan, name, tmp_path) for name in ("dsp", "plant", "controller")}

@@ -83,7 +83,7 @@ def test_lockstep_rig_runs_faster_than_real_time(tmp_path: Path) -> None:
 @pytest.mark.timeout(120)
 def test_up_fails_when_the_controller_makes_no_progress(tmp_path: Path) -> None:
     """A controller addressing a node nobody serves never ticks: up says so and exits non-zero."""
-    proc, summary = _up(tmp_path, "--set", "controller.node_id=5", "--set", "controller.startup_timeout_s=2", duration=5)
+    proc, summary = _up(tmp_path, "--set", "controller.node_id=5", "--set", "controller.timeouts=startup_s=2", duration=5)
     assert proc.returncode != 0
     assert summary["controller"] is None or summary["controller"]["ticks"] == 0
     assert summary["startup_s"] is None

@@ -76,7 +76,7 @@ def cosim_parts(sim_s: float = 20.0, controller: dict[str, Any] | None = None) -
         _wrap(wire, name, "wire", acc)
     link = PlantLink(wire, cs.node_id, clock=scheduler.now)  # type: ignore[arg-type]
     ctrl = ControllerService(cs, None, link, port=port, scheduler=scheduler, keep_record=True)  # type: ignore[arg-type,unused-ignore]
-    for name in ("send_outputs", "send_output_values", "send_output_codes", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
+    for name in ("send_outputs", "send_output_codes", "send_sync", "wait_tpdo", "poll", "heartbeat_age", "take_conflicts"):
         _wrap(link, name, "link", acc)
     for name in ("step_row", "tick_compiled"):  # the Python per-tick form, or the compiled call (controller/fast_tick.py)
         _wrap(ctrl.law, name, LAW, acc)

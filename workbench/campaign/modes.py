@@ -14,7 +14,7 @@ choose every bit of per-run plumbing itself: the point's rig id
     plant step per SYNC. Deterministic for given settings, also on a loaded
     host: no SYNC is ever resent (the virtual bus loses none; a late answer
     resent would step the plant twice), and the plant's heartbeat and the
-    SYNC may be as late as the lockstep timeout (``controller.lockstep_timeout_s``)
+    SYNC may be as late as the lockstep timeout (``controller.timeouts``' ``lockstep_s``)
     before the controller declares a fault or the plant's watchdog holds the
     valves (``valves_held_samples`` in the row counts any). No network.
 ``onrig``
@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from protocol.record_paths import truth_file
+from protocol.setting_groups import Timeouts
 from workbench.campaign.metrics import run_metrics
 from workbench.campaign.spec import DEFAULT_MODE, VOLATILE, RunMode, RunPoint, get_mode, known_modes, register_mode
 
@@ -109,12 +110,11 @@ def run_lockstep(point: RunPoint) -> dict[str, Any]:
 
     s = point.settings
     controller = _own(s["controller"])
-    # Wall-clock supervision of the plant's heartbeat means nothing for a lockstep run's result;
-    # on a loaded host the heartbeat thread can starve for over a second (measured: 1.0-3.2 s
-    # with four rigs on two cores) and the run would end in a fault. Allow the lockstep timeout.
-    timeout_s = float(controller["lockstep_timeout_s"])
-    controller["plant_heartbeat_timeout_s"] = max(float(controller["plant_heartbeat_timeout_s"]), timeout_s)
-    # Likewise the plant's SYNC watchdog (2 s of wall time in lockstep): tripped, it holds the valves.
+    # Wall-clock supervision means nothing for a lockstep run's result; on a loaded host a
+    # thread can starve for over a second (measured: 1.0-3.2 s with four rigs on two cores).
+    # The controller allows its plant heartbeat the lockstep timeout in lockstep; the plant's
+    # SYNC watchdog (2 s of wall time in lockstep) gets as long here: tripped, it holds the valves.
+    timeout_s = Timeouts.read(controller.get("timeouts")).lockstep_s
     plant = _own(s["plant"])
     plant["watchdog_periods"] = max(int(plant["watchdog_periods"]), math.ceil(timeout_s * float(s["plant"]["sample_rate_hz"])))
     common = {"clock": "lockstep", "can_interface": "virtual", "can_channel": f"{point.rig_id}-{uuid.uuid4().hex[:6]}", "rig_id": point.rig_id}

@@ -201,9 +201,7 @@ def register(subparsers: Any) -> None:
         "with the on-line run and the recorded truth. --can plays the CAN frames onto a bus; --export-can writes them as .blf/.asc.",
     )
     p.add_argument("path", metavar="RUN.mcap")
-    p.add_argument(
-        "--set", action="append", default=[], metavar="NAME=VALUE", help="identifier setting (fft_width, alpha, averaging, solver, smoothing_window, ...)"
-    )
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="identifier setting (fft_width, alpha, averaging, solver, smoothing, ...)")
     p.add_argument("--out", default=None, metavar="DIR", help="write replay.md, replay.json and replay_tracks.png here")
     p.add_argument("--identify", action="store_true", help="re-identify even with --can/--export-can")
     p.add_argument("--require-identical", action="store_true", help="exit 1 unless the replay equals the recorded run bit for bit")

@@ -262,8 +262,7 @@ def identifier_fields() -> tuple[str, ...]:
         "averaging",
         "identifier",
         "solver",
-        "smoothing_window",
-        "smoothing_order",
+        "smoothing",
         "search_band_hz",
         "sample_rate_hz",
     )

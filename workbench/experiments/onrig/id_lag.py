@@ -617,7 +617,7 @@ def _setting_specs(duration: float, traj_path: Path, scenario: str, seed: int, s
                 "oatf_mode": "off",
             },
             plant={"payload_attached": True, "scenario": scenario, "seed": seed},
-            dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing_window": smoothing_window(n), "identifier": m},
+            dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": n, "alpha": a, "smoothing": {"window": smoothing_window(n)}, "identifier": m},
             label=f"N = {n}, α = {a:g}, l = {THESIS_BATCH_SIZE}, smoothing {smoothing_window(n)} bins" + ("" if m == "etfe" else f", {m}")
             if m != "arx"
             else f"recursive ARX (fs/{_ARX.arx_decimation}, na {_ARX.arx_na}, nb {_ARX.arx_nb}, Steiglitz–McBride, Huber k {_ARX.arx_huber_k:g}), "

@@ -92,7 +92,7 @@ def study_spec(quick: bool, seed: int, right_hz: float) -> Any:
 
     idents = QUICK_IDENTIFIERS if quick else IDENTIFIERS
     duration = QUICK_DURATION_S if quick else lap_seconds(SPEED)
-    thesis_dsp = {"dsp.fft_width": 2048, "dsp.alpha": 0.1, "dsp.smoothing_window": smoothing_window(2048)}
+    thesis_dsp = {"dsp.fft_width": 2048, "dsp.alpha": 0.1, "dsp.smoothing.window": smoothing_window(2048)}
     points: list[dict[str, Any]] = [
         {"label": "a", "controller.oatf_mode": "off", **thesis_dsp},
         {"label": "b", "controller.oatf_mode": "fixed", "controller.oatf.frequency_hz": round(right_hz, 4), **thesis_dsp},
@@ -106,7 +106,7 @@ def study_spec(quick: bool, seed: int, right_hz: float) -> Any:
                     "controller.oatf.frequency_hz": round(right_hz, 4) if cfg == "c" else WRONG_HZ,
                     "dsp.fft_width": n,
                     "dsp.alpha": a,
-                    "dsp.smoothing_window": smoothing_window(n),
+                    "dsp.smoothing.window": smoothing_window(n),
                 }
             )
     return SweepSpec(

@@ -265,7 +265,7 @@ def run(ctx: ExperimentContext) -> Report:
         "verify_pi",
         controller={"duration_s": duration, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": download, "oatf_mode": "off"},
         plant={"seed": int(ctx.rng("plant-seed").integers(0, 2**31 - 1))},
-        dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": FFT_WIDTH, "alpha": ALPHA, "smoothing_window": SMOOTH_WINDOW, "smoothing_order": SMOOTH_ORDER},
+        dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": FFT_WIDTH, "alpha": ALPHA, "smoothing": {"window": SMOOTH_WINDOW, "order": SMOOTH_ORDER}},
         label="PI only, inspection loop, 5 in/s",
     )
     res = run_rig(ctx, spec, in_process=quick)

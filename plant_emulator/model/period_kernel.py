@@ -6,16 +6,17 @@ their exact lag solution with flow saturation and hard stops
 cosines and lever arms (:func:`joint_angle_and_rate`), the flexible links'
 exact modal step at the mid configuration (:func:`links_step`, with
 :func:`modal_step`: the links' coefficients, thesis Ch. 3, as
-:func:`~plant_emulator.model.modes.coefficients_scalar`; their two
+:func:`link_coefficients`; their two
 M-orthonormal modes, the closed-form 2x2 generalized eigenproblem of
-:func:`~plant_emulator.model.modes.eig2`; each damped mode's exact
+:func:`eigenvalues` and :func:`mode_shape`; each damped mode's exact
 step for a constant force), the cameras' bending fractions
 (:func:`camera_fractions`) and the deflection anti-alias filters with their
 input noise (:func:`antialias_step`). Compiled with numba, no fastmath (no
 FMA contraction, no reassociation; libm's transcendental functions), so the
 floats do not depend on the compiler's choices. One sample period (5
-steps) costs one call (docs/timing.md). Without numba the same functions
-run as Python.
+steps) costs one call (docs/timing.md). The scalar functions are
+``register_jitable``: called from Python (the arm's ground truth, the
+vectorised views of :mod:`.modes`) they run as Python on the same floats.
 
 The call stops early, after the step, when a cylinder arrives at a hard
 stop (the caller records the event at that step's time), and before a step
@@ -37,13 +38,8 @@ from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-
-try:  # numba is optional: the plain-Python functions give the same floats
-    from numba import njit as _njit
-    from numba.extending import register_jitable as _register_jitable
-except ImportError:  # pragma: no cover - depends on the environment
-    _njit = None  # type: ignore[assignment]
-    _register_jitable = None  # type: ignore[assignment]
+from numba import njit
+from numba.extending import register_jitable
 
 # --- the state vector st (per cylinder / joint / link j = 0, 1) ---------------------------
 ST_EXTENSION: Final = 0
@@ -127,7 +123,7 @@ STATUS_STOP: Final = 2
 
 def _jitable(fn: Any) -> Any:
     """Callable from the compiled kernel and from Python."""
-    return fn if _register_jitable is None else _register_jitable(fn)
+    return register_jitable(fn)
 
 
 # --- the flexible links' modal data at one configuration --------------------------------
@@ -184,6 +180,18 @@ def link_coefficients(
     G1 = -g * (A1 * c1 + kap * S * c12)
     G2 = -g * S * c12
     return M11, M12, M22, K11, K12, K22, E11, E12, E21, E22, G1, G2
+
+
+@_jitable
+def eigenvalues(M11: float, M12: float, M22: float, K11: float, K12: float, K22: float) -> tuple[float, float]:
+    """The two eigenvalues w^2 of K x = w^2 M x (2x2, symmetric, M positive definite),
+    ascending: the roots of det(K - w^2 M) = 0 in closed form."""
+    a = M11 * M22 - M12 * M12
+    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
+    c = K11 * K22 - K12 * K12
+    d = b * b - 4.0 * a * c
+    disc = math.sqrt(d) if d > 0.0 else 0.0
+    return (-b - disc) / (2.0 * a), (-b + disc) / (2.0 * a)
 
 
 @_jitable
@@ -250,14 +258,7 @@ def modal_step(
     (p11, p21, p12, p22) and the two modes' :func:`mode_step` (24 floats)."""
     co = link_coefficients(tm1, tm2, I1, Mt, S, Ia, A1, kap, kr1, kc1, kr2, kbar_r2, beta_c, g, offset1, pq, pq2, inch, l1)
     M11, M12, M22, K11, K12, K22 = co[0], co[1], co[2], co[3], co[4], co[5]
-    # the 2x2 generalized eigenvalues (modes.eig2)
-    a = M11 * M22 - M12 * M12
-    b = -(K11 * M22 + K22 * M11 - 2.0 * K12 * M12)
-    c = K11 * K22 - K12 * K12
-    d = b * b - 4.0 * a * c
-    disc = math.sqrt(d) if d > 0.0 else 0.0
-    lam1 = (-b - disc) / (2.0 * a)
-    lam2 = (-b + disc) / (2.0 * a)
+    lam1, lam2 = eigenvalues(M11, M12, M22, K11, K12, K22)
     p11, p21 = mode_shape(lam1, 0, M11, M12, M22, K11, K12, K22)
     p12, p22 = mode_shape(lam2, 1, M11, M12, M22, K11, K12, K22)
     s1 = mode_step(lam1, z1, h)
@@ -394,7 +395,8 @@ def links_step(st: npt.NDArray[np.float64], ma: npt.NDArray[np.float64], tm0: fl
 
 @_jitable
 def camera_fractions(ma: npt.NDArray[np.float64], inch: float, theta0: float, theta1: float) -> tuple[float, float]:
-    """The share of each tip deflection the cameras see (``modes.bending_fractions_scalar``)."""
+    """The share of each tip deflection the cameras see, ``k_i / k_ri``
+    (:func:`~plant_emulator.model.modes.bending_fractions` explains it)."""
     gamma = theta0 + ma[MA_OFFSET1]
     pq1 = ma[MA_PQ]
     lever1_m = pq1 * math.sin(gamma) / math.sqrt(ma[MA_PQ2] - 2.0 * pq1 * math.cos(gamma)) * inch
@@ -478,27 +480,21 @@ def _advance_steps(
 
 
 def _compiled() -> Any:
-    if _njit is None:
-        return _advance_steps
     try:
-        return _njit(cache=True)(_advance_steps)
+        return njit(cache=True)(_advance_steps)
     except RuntimeError:  # no writable cache location: compile in memory only
-        return _njit(_advance_steps)
+        return njit(_advance_steps)
 
 
 advance_steps: Any = _compiled()
-"""Compiled when numba is installed (cached on disk; compiled by :func:`warm_up` before the first tick)."""
+"""Compiled (cached on disk; compiled by :func:`warm_up` before the first tick)."""
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) now, not in the first tick; a
-    compiler that fails leaves the plain-Python function in place."""
-    global advance_steps
-    try:
-        _warm(advance_steps)
-    except Exception:  # noqa: BLE001 - numba's errors are many; Python gives the same floats
-        advance_steps = _advance_steps
-        _warm(advance_steps)
+    """Compile (or load from numba's on-disk cache) now, not in the first tick:
+    images and CI call it once at install time so no service spends its
+    start-up compiling."""
+    _warm(advance_steps)
 
 
 def _warm(fn: Any) -> None:
