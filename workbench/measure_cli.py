@@ -50,6 +50,7 @@ def _live(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, default=20.0, help="seconds of control per run (default 20)")
     p.add_argument("--rounds", type=int, default=2, help="rounds of the three arms, the order rotated each round (default 2)")
     p.add_argument("--rate", type=float, default=20.0, help="the view's --live-rate (default 20)")
+    p.add_argument("--json", default=None, help="also write every run's numbers and the medians to this file")
 
 
 def _input_flood(p: argparse.ArgumentParser) -> None:

@@ -82,7 +82,9 @@ def run_once(up: list[str], duration_s: float, arm: str, messages: int, at_s: fl
         rig_id = f"floodbench{int(time.time() * 1000) % 10**8}"
         cmd = [*up, "up", "--duration", str(duration_s), "--rig-id", rig_id, "--json", str(out)]
         env = {**os.environ, "COLUMNS": "10000"}  # the start line unwrapped
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+        # started elsewhere than here: services started with ``python -m`` import from their
+        # working directory first, which would be this tree for another installation too
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=tmp)
         assert proc.stdout is not None
         result: dict[str, Any] = {}
         threads: list[threading.Thread] = []
@@ -138,5 +140,5 @@ def main(args: argparse.Namespace) -> int:
         print(f"{arm:22s}: medians over {len(sel)} run(s): {medians[arm]}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"command": " ".join(sys.argv), "runs": rows, "medians": medians}, indent=1) + "\n")
+        Path(args.json).write_text(json.dumps({"command": "ralf-hil measure input-flood " + " ".join(sys.argv[3:]), "runs": rows, "medians": medians}, indent=1) + "\n")
     return 0
