@@ -104,7 +104,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"{arm:16s}: medians over {len(sel)} run(s): {medians[arm]}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"command": "ralf-hil measure live " + " ".join(sys.argv[3:]), "runs": rows, "medians": medians}, indent=1) + "\n")
+        Path(args.json).write_text(
+            json.dumps({"command": "ralf-hil measure live " + " ".join(sys.argv[3:]), "runs": rows, "medians": medians}, indent=1) + "\n"
+        )
     return 0
 
 
