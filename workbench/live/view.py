@@ -141,8 +141,8 @@ class SdkLogCounter(logging.Handler):
 
 
 def route_sdk_log() -> logging.Logger:
-    """Route foxglove-sdk's log lines that :class:`SdkLogCounter` counts to Python's ``logging``, without
-    configuring the root logger (the SDK calls ``basicConfig`` when the root has no handler),
+    """Route the foxglove-sdk log lines :class:`SdkLogCounter` counts to Python's ``logging``,
+    without configuring the root logger (the SDK calls ``basicConfig`` when the root has no handler),
     and return the logger of its WebSocket server, which keeps its lines to itself
     (:class:`SdkLogCounter` counts them and passes warnings on). The SDK takes the
     first call of a process only (and ``FOXGLOVE_LOG_LEVEL`` over it), before its first server."""
@@ -156,10 +156,8 @@ def route_sdk_log() -> logging.Logger:
     finally:
         root.removeHandler(placeholder)
     logger = logging.getLogger(SDK_LOGGER)
-    # Only the counted modules' lines reach Python: a line the SDK logs waits for the GIL while
-    # the SDK may hold a client's locks (its error for a subscription that came just after an
-    # advertisement holds the channel map the advertisement waits for, so the race that error
-    # reports would last as long as the GIL is held elsewhere, e.g. by the tap's threads).
+    # Only the counted modules' lines reach Python: each line the SDK logs takes the GIL on
+    # the SDK's own thread, which may hold a client's locks meanwhile.
     logger.setLevel(logging.CRITICAL)  # the SDK logs nothing at CRITICAL
     logger.propagate = False  # counted, and said once in the run's summary
     for name in SDK_COUNTED_LOGGERS:
