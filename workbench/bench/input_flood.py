@@ -32,6 +32,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from workbench.hostinfo import host_info
+
 START_LINE = re.compile(r"zenoh tcp/127\.0\.0\.1:(\d+).*tools' credentials in (\S+)")
 
 
@@ -141,6 +143,16 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(
-            json.dumps({"command": "ralf-hil measure input-flood " + " ".join(sys.argv[3:]), "runs": rows, "medians": medians}, indent=1) + "\n"
+            json.dumps(
+                {
+                    "command": "ralf-hil measure input-flood " + " ".join(sys.argv[3:]),
+                    "date": time.strftime("%Y-%m-%d"),
+                    "host": host_info(),
+                    "runs": rows,
+                    "medians": medians,
+                },
+                indent=1,
+            )
+            + "\n"
         )
     return 0

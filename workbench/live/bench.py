@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from workbench.hostinfo import host_info
 from workbench.launcher import free_tcp_ports
 
 
@@ -105,7 +106,17 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(
-            json.dumps({"command": "ralf-hil measure live " + " ".join(sys.argv[3:]), "runs": rows, "medians": medians}, indent=1) + "\n"
+            json.dumps(
+                {
+                    "command": "ralf-hil measure live " + " ".join(sys.argv[3:]),
+                    "date": time.strftime("%Y-%m-%d"),
+                    "host": host_info(),
+                    "runs": rows,
+                    "medians": medians,
+                },
+                indent=1,
+            )
+            + "\n"
         )
     return 0
 
