@@ -148,6 +148,7 @@ def test_a_scenario_flood_leaves_the_plant_bounded_and_applies_the_real_command(
         tick += 1
     counters = app.scenario_inbox.counters("scenario")
     assert counters.received == FLOOD + 1 and counters.dropped_rate >= FLOOD - LIMITS["scenario"].burst - int(SPAN_S * LIMITS["scenario"].rate_per_s) - 1
+    assert counters.received == counters.queued + counters.dropped  # every one taken or counted
     assert len(app.scenario) <= SCENARIO_PENDING
     assert app.arm.payload_attached
 
