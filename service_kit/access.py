@@ -195,28 +195,6 @@ def parse_node_ids(text: str) -> dict[str, str]:
 _ZID = re.compile(r"[1-9a-f][0-9a-f]{0,31}")
 
 
-TOOL_INPUT_MAX_HZ: Final[float] = 50.0
-"""The most messages a second zenoh hands a service from one link on a key
-that only tools send (commands, scenario commands); the rest are dropped in
-zenoh's own thread, before any Python runs (not counted: zenoh keeps no
-count the application can read). The service's inbox then takes 10 at once
-and 10 a second and counts the rest (:data:`service_kit.inbox.LIMITS`)."""
-
-
-def tool_input_downsampling(rigs: Iterable[Keys]) -> list[dict[str, Any]]:
-    """The ``downsampling`` section of a service: on ingress, every key of
-    the rig that no board sends (so a person or a tool does) is limited to
-    :data:`TOOL_INPUT_MAX_HZ` per link, so a flood of an allowed message
-    costs the service's Python nothing beyond that rate."""
-    keys = [
-        f"{rig.root}/{suffix}"
-        for rig in rigs
-        for suffix, channel, senders in RIG.expanded()
-        if channel.kind == "publication" and senders and not set(senders) & set(RIG.service_names)
-    ]
-    return [{"id": "tool input", "flows": ["ingress"], "messages": ["put", "delete"], "rules": [{"key_expr": k, "freq": TOOL_INPUT_MAX_HZ} for k in keys]}]
-
-
 def generate_credentials(roles: Iterable[str] = ROLES) -> dict[str, str]:
     """A fresh random password per role (for one run)."""
     return {role: secrets.token_urlsafe(24) for role in roles}

@@ -15,9 +15,8 @@ import can
 import zenoh
 
 from protocol.errors import TransportError
-from protocol.keys import Keys
 from protocol.settings import CommonSettings
-from service_kit.access import insert_access, parse_node_ids, tool_input_downsampling
+from service_kit.access import insert_access, parse_node_ids
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 from service_kit.zenoh_log import init_zenoh_log
 
@@ -57,8 +56,11 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
-    rigs = [Keys(r) for r in (settings.rig_id, *getattr(settings, "rig_ids", ())[1:])]
-    config.insert_json5("downsampling", json.dumps(tool_input_downsampling(rigs)))
+    # No zenoh ``downsampling`` on the keys tools send: what it drops it does
+    # not count (its stats are not built into the Python wheel: the admin
+    # space's ``@/<zid>/<mode>/metrics`` holds only the build), so every
+    # command and scenario command reaches the service's inbox, which takes
+    # them at its rate and counts the rest (service_kit/inbox.py, ``LIMITS``).
     insert_access(
         config,
         settings.rig_id,

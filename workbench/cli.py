@@ -175,7 +175,11 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
         )
     if summary.get("live"):
         v = summary["live"]
-        table.add_row("live view", f"{v['url']}: {v['published']} sent, {v['decimated']} decimated, {v['statuses']} statuses, {v['clients_seen']} client(s)")
+        table.add_row(
+            "live view",
+            f"{v['url']}: {v['published']} sent, {v['decimated']} decimated, {v['handoff_dropped']} dropped before the view, {v['statuses']} statuses, "
+            f"{v['clients_seen']} client(s), {v['slow_client_notices']} slow-client notice(s), {v['slow_clients_disconnected']} slow client(s) disconnected",
+        )
     Console().print(table)  # the summary is the command's result: stdout
 
 
@@ -382,6 +386,8 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             stats = recording.close().as_dict()
             if args.record:
                 summary["recording"] = {"path": args.record, **stats}
+            if live_view is not None:  # the view's records came through the same bounded queue
+                live_view.stats.handoff_dropped, live_view.stats.can_socket_drops = stats["dropped"], stats["can_socket_drops"]
             recording = None
         if live_view is not None:
             summary["live"] = {"url": live_view.url, **live_view.close().as_dict()}

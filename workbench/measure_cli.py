@@ -7,9 +7,10 @@ bench`` measure the headline numbers):
 * ``cosim-parts``: where a co-simulated tick goes (:mod:`workbench.bench.cosim_parts`);
 * ``recording``: what ``--record`` costs the real-time loop (:mod:`workbench.recording.bench`);
 * ``live``: what ``--live`` costs it (:mod:`workbench.live.bench`);
+* ``input-flood``: what a flood of tools' commands costs it (:mod:`workbench.bench.input_flood`);
 * ``campaign``: the campaign engine's throughput and overheads (:mod:`workbench.campaign.measure`).
 
-The rig-running ones (``recording``, ``live``, ``campaign``) open the
+The rig-running ones (``recording``, ``live``, ``input-flood``, ``campaign``) open the
 rig's udp_multicast bus: run them inside ``.ci/loopback-netns``.
 """
 
@@ -49,6 +50,16 @@ def _live(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, default=20.0, help="seconds of control per run (default 20)")
     p.add_argument("--rounds", type=int, default=2, help="rounds of the three arms, the order rotated each round (default 2)")
     p.add_argument("--rate", type=float, default=20.0, help="the view's --live-rate (default 20)")
+    p.add_argument("--json", default=None, help="also write every run's numbers and the medians to this file")
+
+
+def _input_flood(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--duration", type=float, default=20.0, help="seconds of control per run (default 20)")
+    p.add_argument("--rounds", type=int, default=3, help="rounds of the arms, the order rotated each round (default 3)")
+    p.add_argument("--messages", type=int, default=20_000, help="commands in the flood (default 20000)")
+    p.add_argument("--at", type=float, default=5.0, help="seconds into the control the flood starts (default 5)")
+    p.add_argument("--other", default=None, metavar="RALF_HIL", help="another installation's ralf-hil executable: a third arm, flooded alike")
+    p.add_argument("--json", default=None, help="also write every run's numbers to this file")
 
 
 def _campaign(p: argparse.ArgumentParser) -> None:
@@ -63,6 +74,7 @@ TOOLS: dict[str, tuple[str, str, Callable[[argparse.ArgumentParser], None]]] = {
     "cosim-parts": ("workbench.bench.cosim_parts", "where a co-simulated tick goes (or the plant side alone, replayed)", _cosim_parts),
     "recording": ("workbench.recording.bench", "what recording costs the real-time loop (pairs of ralf-hil up without and with --record)", _recording),
     "live": ("workbench.live.bench", "what the live view costs the real-time loop (without --live, with it, with a client)", _live),
+    "input-flood": ("workbench.bench.input_flood", "what a flood of tools' commands costs the real-time loop (undisturbed and flooded runs)", _input_flood),
     "campaign": ("workbench.campaign.measure", "the campaign engine: throughput on one and two workers, start-up and scheduling costs", _campaign),
 }
 """Tool name -> (module whose ``main(args) -> int`` runs it, one-line help, its options)."""

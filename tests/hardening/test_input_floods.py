@@ -148,6 +148,7 @@ def test_a_scenario_flood_leaves_the_plant_bounded_and_applies_the_real_command(
         tick += 1
     counters = app.scenario_inbox.counters("scenario")
     assert counters.received == FLOOD + 1 and counters.dropped_rate >= FLOOD - LIMITS["scenario"].burst - int(SPAN_S * LIMITS["scenario"].rate_per_s) - 1
+    assert counters.received == counters.queued + counters.dropped  # every one taken or counted
     assert len(app.scenario) <= SCENARIO_PENDING
     assert app.arm.payload_attached
 
@@ -202,38 +203,37 @@ def test_a_command_flood_on_a_running_controller_is_counted_and_the_flags_pass(t
 
 
 @pytest.mark.rig
-def test_zenoh_hands_a_service_at_most_the_tool_input_rate_from_a_flooding_link() -> None:
-    """A service's session as the rig configures it (``zenoh_config``) takes
-    at most ``TOOL_INPUT_MAX_HZ`` commands a second from one link: the rest
-    of a 20,000-put flood never reaches Python (so it costs the loop
-    nothing); flags, which no rate limits, all arrive."""
+def test_a_command_flood_over_a_zenoh_link_is_counted_exactly() -> None:
+    """A service's session as the rig configures it (``zenoh_config``) and
+    the controller's inbox (its ``LIMITS``) under 20,000 commands from a
+    tool's session over TCP, a flag every 250 (both publishers blocking
+    rather than dropping, so every put reaches the service): every command
+    that arrives is counted, ``received == queued + dropped`` exactly, and
+    ``received`` is all 20,000 (nothing is dropped before the inbox, where
+    it would not be counted); every flag is queued."""
     from protocol.settings import CommonSettings
-    from service_kit.access import TOOL_INPUT_MAX_HZ
     from service_kit.transport import zenoh_config
     from workbench.launcher import free_tcp_port
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    keys = Keys("tool-input-rate")
+    keys = Keys("tool-input-count")
     service = zenoh.open(zenoh_config(CommonSettings(rig_id=keys.rig_id, zenoh_listen=endpoint)))
-    got = {"command": 0, "flag": 0}
-    lock = __import__("threading").Lock()
-
-    def count(kind: str) -> object:
-        def on(_sample: zenoh.Sample) -> None:
-            with lock:
-                got[kind] += 1
-
-        return on
-
-    subs = [service.declare_subscriber(keys.controller_command, count("command")), service.declare_subscriber(keys.flag, count("flag"))]
+    inbox = Inbox("controller", capacity=256, limits=LIMITS)
+    subs = [
+        service.declare_subscriber(keys.controller_command, inbox.subscriber("command", lambda b: decode(ConfigChange, b))),
+        service.declare_subscriber(keys.flag, inbox.subscriber("flag", lambda b: decode(BlockFlag, b))),
+    ]
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("connect/endpoints", json.dumps([endpoint]))
     tool = zenoh.open(config)
+    flags = FLOOD // 250 + 1
+    taken: list[object] = []
     try:
-        # the flags block rather than drop when the flood fills the sender's queue
-        command, flag = tool.declare_publisher(keys.controller_command), tool.declare_publisher(keys.flag, congestion_control=zenoh.CongestionControl.BLOCK)
+        block = zenoh.CongestionControl.BLOCK
+        command = tool.declare_publisher(keys.controller_command, congestion_control=block)
+        flag = tool.declare_publisher(keys.flag, congestion_control=block)
         deadline = time.monotonic() + 20
         while not (command.matching_status.matching and flag.matching_status.matching) and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -243,15 +243,23 @@ def test_zenoh_hands_a_service_at_most_the_tool_input_rate_from_a_flooding_link(
             command.put(payload)
             if n % 250 == 0:
                 flag.put(_flag(n))
-        flag.put(_flag(FLOOD))  # the last: everything before it on this link has been filtered or delivered
-        deadline = time.monotonic() + 20
-        while got["flag"] < FLOOD // 250 + 1 and time.monotonic() < deadline:
+        flag.put(_flag(FLOOD))  # the last: everything before it on this link has been delivered
+        deadline = time.monotonic() + 30
+        while inbox.counters("flag").received < flags and time.monotonic() < deadline:
+            taken += inbox.drain()  # the loop's side: keeps the queue from filling with flags
             time.sleep(0.001)
-        spent = time.monotonic() - start  # from the first put to (just after) the last arrival
+        spent = time.monotonic() - start
+        taken += inbox.drain()
     finally:
         tool.close()
         for sub in subs:
             sub.undeclare()
         service.close()
-    assert got["flag"] == FLOOD // 250 + 1
-    assert 1 <= got["command"] <= TOOL_INPUT_MAX_HZ * spent + 1, (got, spent)
+    c, f = inbox.counters("command"), inbox.counters("flag")
+    assert c.received == FLOOD, c
+    assert c.received == c.queued + c.dropped_rate + c.dropped_full and c.dropped == c.dropped_rate + c.dropped_full
+    limit = LIMITS["command"]
+    assert 1 <= c.queued <= limit.burst + limit.rate_per_s * spent + 1, (c, spent)
+    assert f.received == f.queued == flags and f.dropped == 0
+    assert sum(1 for i in taken if getattr(i, "kind", None) == "command") == c.queued
+    assert inbox.as_dict()["in_dropped"] == c.dropped

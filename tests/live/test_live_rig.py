@@ -114,3 +114,68 @@ def test_ralf_hil_live_port_in_use_is_one_line() -> None:
         res = subprocess.run([sys.executable, "-m", "workbench", "live", str(port), "--duration", "1"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "Address already in use" in res.stderr, res.stderr
+
+
+async def _slow_client(url: str, seconds: float, read_every_s: float = 0.2, fast_s: float = 5.0) -> int:
+    """A client on the plain ``websockets`` library that subscribes to every channel and then reads
+    one frame every ``read_every_s`` after its first ``fast_s``: its socket's receive buffer is 4 KiB and the library holds at
+    most one unread frame, so the server's TCP send stalls within a second. Frames read."""
+    import socket
+    import time
+
+    import websockets
+
+    deadline = time.monotonic() + 60
+    while True:
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        try:
+            sock.connect(("127.0.0.1", int(url.rsplit(":", 1)[1])))
+            break
+        except OSError:
+            sock.close()
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.2)
+    ws = await websockets.connect(url, sock=sock, subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"], max_size=None, max_queue=1)  # type: ignore[list-item]
+    read, subscribed = 0, False
+    end = time.monotonic() + seconds
+    slow_from = time.monotonic() + fast_s  # until then it reads at full speed: every advertisement, every subscription
+    try:
+        async with ws:
+            while time.monotonic() < end:
+                frame = await asyncio.wait_for(ws.recv(), timeout=max(0.01, end - time.monotonic()))
+                read += 1
+                if isinstance(frame, str) and json.loads(frame).get("op") == "advertise":
+                    channels = json.loads(frame)["channels"]
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+                    subscribed = True
+                elif subscribed and time.monotonic() > slow_from:
+                    await asyncio.sleep(read_every_s)
+    except (TimeoutError, websockets.ConnectionClosed):  # the run ended and its server with it
+        pass
+    return read
+
+
+def test_a_slow_client_leaves_the_rig_alone(tmp_path: Path) -> None:
+    """A lockstep run served live (1000 messages a second per topic) to a client that reads one
+    frame a second after its first five seconds: the run ends as it would without a client (every
+    tick, no deadline miss, exit 0), the view's counters move, nothing is dropped on the way to the
+    view. (This run's whole stream, about 1 MB, fits the kernel's socket buffers: the SDK's own
+    drops are shown by ``test_live_view.py::test_a_slow_client_is_noticed``.)"""
+    port = free_tcp_ports(1)[0]
+    duration = 20.0
+    cmd = [sys.executable, "-m", "workbench", "up", "--clock", "lockstep", "--duration", str(duration), "--rig-id", "liveslow",
+           "--live", f"127.0.0.1:{port}", "--live-rate", "1000", "--json", str(tmp_path / "summary.json")]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        read = asyncio.run(_slow_client(f"ws://127.0.0.1:{port}", 150.0, read_every_s=1.0))
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-2000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    live, controller = summary["live"], summary["controller"]
+    assert live["clients_seen"] == 1 and live["published"] > read > 0 and live["decimated"] > 0 and live["handoff_dropped"] == 0, (live, read)
+    assert controller["ticks"] >= round(duration * 200) and controller["deadline_misses"] == 0, controller

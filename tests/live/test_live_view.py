@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import re
 import socket
 import threading
@@ -271,3 +272,104 @@ def test_a_stuck_client_never_holds_the_view() -> None:
         view.close()
     assert view.stats.published == 5011 and view.stats.decimated == 0
     assert {m[2]["seq"] for m in got.messages} >= set(range(5003, 5011))
+
+
+SLOW_CLIENT_RUN = """
+import asyncio, json, socket, sys
+import websockets
+from workbench.live.view import LiveView
+
+view = LiveView("127.0.0.1", 0, rate_hz=1e6, backlog=16)
+schema = {"title": "ralf.Probe", "type": "object"}
+
+def record(seq):
+    wall = 1024.0 + seq / 1024
+    if view.accept("/ralf/lv/probe", wall):
+        view.on_record("/ralf/lv/probe", "ralf.Probe", schema, json.dumps({"seq": seq, "sim_time_s": seq / 1024, "pad": "x" * 2000}).encode(), wall)
+
+async def slow_client():
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(("127.0.0.1", view.port))
+    ws = await websockets.connect(view.url, sock=sock, subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"], max_size=None, max_queue=1)
+    read, closed, subscribing = 0, False, sys.argv[1] == "subscribed"
+    while subscribing:
+        msg = json.loads(await asyncio.wait_for(ws.recv(), 30))
+        if msg["op"] == "advertise":
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 0, "channelId": msg["channels"][0]["id"]}]}))
+            break
+    while subscribing and view.stats.subscriptions == 0:
+        await asyncio.sleep(0.01)
+    for seq in range(1, 20001):  # 40 MB while the client reads one frame every 10 ms (or none)
+        record(seq)
+        if seq % 50 == 0 and subscribing and not closed:
+            try:
+                await asyncio.wait_for(ws.recv(), 0.01)
+                read += 1
+            except TimeoutError:
+                pass
+            except websockets.ConnectionClosed:  # the SDK disconnected it
+                closed = True
+    await ws.close()
+    return read, closed
+
+record(0)
+read, closed = asyncio.run(slow_client())
+print(json.dumps({"read": read, "closed": closed, **view.close().as_dict()}))
+"""
+
+
+def _slow_client_run(mode: str) -> dict[str, Any]:
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", SLOW_CLIENT_RUN, mode], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return dict(json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+def test_a_slow_client_is_noticed() -> None:
+    """A client with a 4 KiB receive buffer that reads one frame every 10 ms while 20,000
+    records of 2 kB go through a view with a backlog of 16 (a fresh process: the SDK says a
+    client's outbox is full at most once per 30 s per process): the SDK drops that client's
+    oldest messages (its notice counted) or, when the server's time messages fill the client's
+    control queue first, disconnects it (counted); which comes first is the threads' race.
+    Every record was handed on without waiting."""
+    got = _slow_client_run("subscribed")
+    assert got["published"] == 20001 and got["read"] < 20001
+    assert got["slow_clients"] == 1 and got["slow_client_notices"] + got["slow_clients_disconnected"] >= 1, got
+
+
+def test_a_stuck_client_is_disconnected_and_counted() -> None:
+    """A client that subscribes to nothing and reads nothing while 20,000 records go through
+    (each with a time message, a control message for every client): once its control queue (16)
+    is full the SDK disconnects it, which the view counts; no data was queued for it."""
+    got = _slow_client_run("idle")
+    assert got["published"] == 20001
+    assert (got["slow_clients_disconnected"], got["slow_clients"], got["slow_client_notices"]) == (1, 1, 0), got
+
+
+def test_the_sdk_log_lines_are_counted_per_client() -> None:
+    """What foxglove-sdk 0.30 logs (its lines, as its Rust source writes them): outbox-full
+    notices, and a client unregistered without having closed the connection itself."""
+    from workbench.live.view import SDK_LOGGER, LiveStats, SdkLogCounter
+
+    stats = LiveStats()
+    counter = SdkLogCounter(stats)
+    lines = [
+        "Registered client 127.0.0.1:5000",
+        "outbox for client 127.0.0.1:5000 full",
+        "outbox for client 127.0.0.1:5000 full",
+        "Unregistered client 127.0.0.1:5000",  # the SDK let it go: its control queue was full
+        "Registered client 127.0.0.1:6000",
+        "Connection closed by client 127.0.0.1:6000",
+        "Unregistered client 127.0.0.1:6000",  # it left on its own
+        "Registered client 127.0.0.1:7000",
+        "Started server on 127.0.0.1:8765",
+    ]
+    for text in lines:
+        counter.handle(logging.LogRecord(SDK_LOGGER, logging.INFO, __file__, 0, text, None, None))
+    assert (stats.slow_client_notices, stats.slow_clients_disconnected, stats.slow_clients) == (2, 1, 1)
+    counter.stopping = True  # the view's own stop unregisters everyone
+    counter.handle(logging.LogRecord(SDK_LOGGER, logging.INFO, __file__, 0, "Unregistered client 127.0.0.1:7000", None, None))
+    assert stats.slow_clients_disconnected == 1

@@ -47,6 +47,8 @@ def test_the_old_invocation_names_its_subcommand_and_exits_2(module: str) -> Non
         ["measure", "cosim-parts", "--plant", "4"],
         ["measure", "recording", "--pairs", "1", "--writer-only"],
         ["measure", "live", "--rounds", "1"],
+        ["measure", "live", "--rounds", "1", "--json", "live.json"],
+        ["measure", "input-flood", "--rounds", "1", "--messages", "100", "--other", "ralf-hil", "--json", "flood.json"],
         ["measure", "campaign", "--blocks", "1", "--runs", "2"],
     ],
 )

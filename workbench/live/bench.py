@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from workbench.hostinfo import host_info
 from workbench.launcher import free_tcp_ports
 
 
@@ -93,14 +94,30 @@ def main(args: argparse.Namespace) -> int:
             row = run_once(args.duration, arm, args.rate)
             rows.append(row)
             print(json.dumps(row), flush=True)
+    medians = {}
     for arm in ARMS:
         sel = [r for r in rows if r["arm"] == arm]
-        med = {
+        medians[arm] = {
             k: statistics.median(r[k] for r in sel if r[k] is not None)
             for k in ("overruns", "deadline_misses", "wakeup_p99_us", "tet_p99_us")
             if any(r[k] is not None for r in sel)
         }
-        print(f"{arm:16s}: medians over {len(sel)} run(s): {med}")
+        print(f"{arm:16s}: medians over {len(sel)} run(s): {medians[arm]}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(
+            json.dumps(
+                {
+                    "command": "ralf-hil measure live " + " ".join(sys.argv[3:]),
+                    "date": time.strftime("%Y-%m-%d"),
+                    "host": host_info(),
+                    "runs": rows,
+                    "medians": medians,
+                },
+                indent=1,
+            )
+            + "\n"
+        )
     return 0
 
 

@@ -57,10 +57,12 @@ def cmd_live(args: argparse.Namespace) -> int:
             stop.wait(0.2)
     finally:
         tap.close()
+        kernel_drops = int(getattr(bus, "kernel_drops", 0))
         bus.shutdown()
-        recorder.close()
+        recorded = recorder.close()  # its bounded queue's drops
         session.close()
         stats = view.close()
+        stats.handoff_dropped, stats.can_socket_drops = recorded.dropped, kernel_drops
     print(json.dumps({"url": view.url, **stats.as_dict()}))
     return 0
 

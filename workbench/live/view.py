@@ -24,15 +24,24 @@ What the view adds:
 
 It never waits: ``Channel.log`` queues each message per client in the SDK,
 which keeps at most ``backlog`` messages for a client and drops the oldest
-for a slow or stuck one (the SDK does not report how many; see
-:attr:`LiveStats`). The control loop runs in other processes; the view's
-cost is its share of the host's CPU (measured in docs/recording.md).
+for a slow or stuck one. The SDK counts none of it where a program can read
+it: its only trace is a log line, "outbox for client ADDR full", at most one
+per 30 s for the whole process (foxglove-sdk 0.30,
+``websocket/connected_client/send_lossy.rs``). The view counts those lines
+(:attr:`LiveStats.slow_client_notices`, :class:`SdkLogCounter`), and the
+clients the SDK disconnects because their control queue (time,
+advertisements, statuses) is full: a slow client is seen, the number of
+messages it lost is not. The control loop
+runs in other processes; the view's cost is its share of the host's CPU
+(``ralf-hil measure live``, docs/live-view.md).
 """
 
 from __future__ import annotations
 
 import ipaddress
 import json
+import logging
+import re
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,6 +50,8 @@ from typing import Any
 from foxglove.websocket import ServerListener
 
 from service_kit.counters import Counters
+
+log = logging.getLogger(__name__)
 
 DEFAULT_RATE_HZ = 20.0
 DEFAULT_BACKLOG = 256
@@ -63,6 +74,95 @@ class LiveStats(Counters):
     statuses: int = 0
     subscriptions: int = 0
     clients_seen: int = 0
+    slow_client_notices: int = 0
+    """The SDK's "outbox for client ... full" lines: a client fell behind and lost its oldest
+    messages (how many, the SDK does not say; at most one line per 30 s per process)."""
+    slow_clients_disconnected: int = 0
+    """Clients the SDK disconnected because their control queue was full (see :class:`SdkLogCounter`)."""
+    slow_clients: int = 0
+    """Distinct client addresses among the two above."""
+    handoff_dropped: int = 0
+    """Items the tap's bounded queue to the recorder's thread refused (that thread fell behind):
+    set by whoever closes the recorder."""
+    can_socket_drops: int = 0
+    """CAN frames the kernel dropped before the tap read them (set likewise)."""
+
+
+SDK_LOGGER = "foxglove.websocket"
+"""foxglove-sdk's WebSocket server logs here (``foxglove.set_log_level`` routes the SDK's Rust log
+to Python's ``logging`` under the Rust module's path)."""
+SDK_COUNTED_LOGGERS = ("server", "connected_client.send_lossy", "connected_client.poller")
+"""The SDK modules whose INFO lines are counted (clients registered and unregistered; an outbox
+full; a connection the client closed); the rest of the SDK's log is not taken."""
+_OUTBOX_FULL = re.compile(r"outbox for client (\S+) full")
+_REGISTERED = re.compile(r"Registered client (\S+)")
+_CLOSED_BY_CLIENT = re.compile(r"Connection closed by client (\S+)")
+_UNREGISTERED = re.compile(r"Unregistered client (\S+)")
+
+
+class SdkLogCounter(logging.Handler):
+    """Counts into a :class:`LiveStats` what foxglove-sdk 0.30 says only in its log:
+
+    * "outbox for client ADDR full": the client fell behind and its oldest messages were dropped
+      (``send_lossy.rs``; at most one line per 30 s for the whole process);
+    * a client unregistered that had not closed the connection itself, while the server runs:
+      the SDK disconnected it because its control queue (time, advertisements, statuses; as
+      long as the backlog) was full (``ShutdownReason::ControlPlaneQueueFull``, which it does
+      not log).
+
+    Warnings and errors go on to this module's logger."""
+
+    def __init__(self, stats: LiveStats) -> None:
+        super().__init__(logging.INFO)
+        self.stats = stats
+        self.stopping = False
+        self._slow: set[str] = set()
+        self._closed_by_client: set[str] = set()
+
+    def emit(self, record: logging.LogRecord) -> None:  # under the handler's own lock (Handler.handle)
+        text = record.getMessage()
+        if m := _OUTBOX_FULL.search(text):
+            self.stats.slow_client_notices += 1
+            self._slow_client(m[1])
+        elif m := _REGISTERED.search(text):
+            self._closed_by_client.discard(m[1])
+        elif m := _CLOSED_BY_CLIENT.search(text):
+            self._closed_by_client.add(m[1])
+        elif (m := _UNREGISTERED.search(text)) and not self.stopping and m[1] not in self._closed_by_client:
+            self.stats.slow_clients_disconnected += 1
+            self._slow_client(m[1])
+        if record.levelno >= logging.WARNING:
+            log.log(record.levelno, "foxglove-sdk: %s", text)
+
+    def _slow_client(self, addr: str) -> None:
+        if addr not in self._slow:
+            self._slow.add(addr)
+            self.stats.slow_clients += 1
+
+
+def route_sdk_log() -> logging.Logger:
+    """Route the foxglove-sdk log lines :class:`SdkLogCounter` counts to Python's ``logging``,
+    without configuring the root logger (the SDK calls ``basicConfig`` when the root has no handler),
+    and return the logger of its WebSocket server, which keeps its lines to itself
+    (:class:`SdkLogCounter` counts them and passes warnings on). The SDK takes the
+    first call of a process only (and ``FOXGLOVE_LOG_LEVEL`` over it), before its first server."""
+    import foxglove
+
+    root = logging.getLogger()
+    placeholder = logging.NullHandler()
+    root.addHandler(placeholder)
+    try:
+        foxglove.set_log_level("INFO")
+    finally:
+        root.removeHandler(placeholder)
+    logger = logging.getLogger(SDK_LOGGER)
+    # Only the counted modules' lines reach Python: each line the SDK logs takes the GIL on
+    # the SDK's own thread, which may hold a client's locks meanwhile.
+    logger.setLevel(logging.CRITICAL)  # the SDK logs nothing at CRITICAL
+    logger.propagate = False  # counted, and said once in the run's summary
+    for name in SDK_COUNTED_LOGGERS:
+        logging.getLogger(f"{SDK_LOGGER}.{name}").setLevel(logging.INFO)
+    return logger
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -121,6 +221,9 @@ class LiveView:
             raise LiveViewError(f"live rate must be positive, got {rate_hz}")
         self.stats = LiveStats()
         self.min_interval_s = 1.0 / rate_hz
+        self._sdk_log = route_sdk_log()
+        self._sdk_counter = SdkLogCounter(self.stats)
+        self._sdk_log.addHandler(self._sdk_counter)
         self._foxglove = foxglove
         self._context = foxglove.Context()
         try:
@@ -135,6 +238,7 @@ class LiveView:
                 message_backlog_size=backlog,
             )
         except RuntimeError as exc:
+            self._sdk_log.removeHandler(self._sdk_counter)
             raise LiveViewError(f"cannot serve the live view on {host}:{port}: {str(exc).removeprefix('FoxgloveError: ')}") from None
         self.host, self.port = host, int(self.server.port)
         self._channels: dict[str, Any] = {}
@@ -217,5 +321,7 @@ class LiveView:
     def close(self) -> LiveStats:
         if not self._closed:
             self._closed = True
+            self._sdk_counter.stopping = True  # from here on every client is unregistered by the stop
             self.server.stop()
+            self._sdk_log.removeHandler(self._sdk_counter)
         return self.stats
