@@ -145,7 +145,8 @@ def main(args: argparse.Namespace) -> int:
         Path(args.json).write_text(
             json.dumps(
                 {
-                    "command": "ralf-hil measure input-flood " + " ".join(sys.argv[3:]),
+                    # the other installation's path names this machine's folders: OTHER stands for it
+                    "command": "ralf-hil measure input-flood " + " ".join("OTHER" if args.other and a == args.other else a for a in sys.argv[3:]),
                     "date": time.strftime("%Y-%m-%d"),
                     "host": host_info(),
                     "runs": rows,
