@@ -145,7 +145,7 @@ async def _slow_client(url: str, seconds: float, read_every_s: float = 0.2, fast
         async with ws:
             while time.monotonic() < end:
                 frame = await asyncio.wait_for(ws.recv(), timeout=max(0.01, end - time.monotonic()))
-                read += 1
+                read += isinstance(frame, bytes) and frame[:1] == b"\x01"  # Message Data (opcode 1): not time or status frames
                 if isinstance(frame, str) and json.loads(frame).get("op") == "advertise":
                     channels = json.loads(frame)["channels"]
                     await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
