@@ -169,9 +169,24 @@ def acl_config(keys: Keys, scenarios: bool = False, node_ids: Mapping[str, str] 
 
 
 def generate_node_ids(roles: Iterable[str] = (*RIG.service_names, "launcher")) -> dict[str, str]:
-    """A fresh zenoh id per node of a local rig (for one run): 32 hex digits
-    (the first never 0: zenoh refuses leading zeros)."""
-    return {role: f"{secrets.randbits(128) | (1 << 127):032x}" for role in roles}
+    """A fresh zenoh id per node of a local rig (for one run): 32 hex digits,
+    8 to b first (never 0: zenoh refuses leading zeros), the last byte below
+    ff: below every :func:`tool_node_id` read either way round (as a number,
+    or byte by byte from the least significant, as zenoh stores it)."""
+    return {role: f"{(secrets.randbits(118) << 8 | secrets.randbelow(0xFF)) | (0b10 << 126):032x}" for role in roles}
+
+
+def tool_node_id() -> str:
+    """A fresh zenoh id for a session that is not one of the rig's nodes (a
+    tool: ``live``, ``record``, ``monitor``, ``reconfigure``): c to f first
+    and ff last, above every :func:`generate_node_ids` id. Of two peers that learn of each
+    other by gossip the greater id opens the link, and only the side that
+    accepts a link checks the other's credentials; a node that opened the link
+    to a tool could not tell its role, and its access rules (keyed by zenoh id
+    in peer mode) would give the tool nothing. With the greater id the tool
+    always opens the link and the node matches it to the tool role by its
+    credentials."""
+    return f"{secrets.randbits(126) | (0b11 << 126) | 0xFF:032x}"
 
 
 def format_node_ids(node_ids: Mapping[str, str]) -> str:
@@ -263,6 +278,8 @@ def insert_access(
         if credentials_file:
             usrpwd["dictionary_file"] = credentials_file
         config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
+    if not node_id and not node_ids and (user or credentials_file):
+        node_id = tool_node_id()  # an authenticated session that is not one of the rig's nodes
     if node_id:
         config.insert_json5("id", json.dumps(node_id))
     if acl:

@@ -64,14 +64,17 @@ def test_live_view_of_a_running_rig_matches_its_recording(tmp_path: Path) -> Non
 
 def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:
     """``ralf-hil live`` beside a rig it did not start (here ``ralf-hil up``'s, as ``docker compose``'s
-    would be): it joins with the tool role's credentials, taps zenoh and CAN, and serves them."""
+    would be): it joins with the tool role's credentials, taps zenoh and CAN, and serves them. The
+    rig runs until the client has seen both topics (a loaded host may take many seconds to start
+    ``live``), then is stopped as Ctrl-C stops it."""
     import os
     import re
+    import signal
     import time
 
     live_port = free_tcp_ports(1)[0]
     up = subprocess.Popen(
-        [sys.executable, "-m", "workbench", "up", "--clock", "realtime", "--duration", "8", "--rig-id", "livejoin", "--log-dir", str(tmp_path)],
+        [sys.executable, "-m", "workbench", "up", "--clock", "realtime", "--duration", "300", "--rig-id", "livejoin", "--log-dir", str(tmp_path)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env={**os.environ, "COLUMNS": "400"},  # one line per message: rich wraps at the terminal's width
     )  # fmt: skip
@@ -91,11 +94,13 @@ def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:
             time.sleep(0.1)
         env = {**os.environ, **dict(row.split("=", 1) for row in tool_env.read_text().splitlines() if "=" in row)}
         live = subprocess.Popen(
-            [sys.executable, "-m", "workbench", "live", f"127.0.0.1:{live_port}", "--connect", m.group(2), "--can-port", m.group(1), "--duration", "40"],
+            [sys.executable, "-m", "workbench", "live", f"127.0.0.1:{live_port}", "--connect", m.group(2), "--can-port", m.group(1), "--duration", "120"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip
-        got = asyncio.run(watch(f"ws://127.0.0.1:{live_port}", {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, 25.0, until_topic_count=2))
+        got = asyncio.run(watch(f"ws://127.0.0.1:{live_port}", {"/ralf/livejoin/plant/truth", "/can/decoded/TPDO1_AnalogInputs16"}, 90.0, until_topic_count=2))
     finally:
+        if up.poll() is None:
+            up.send_signal(signal.SIGINT)  # the rig has served its purpose
         up.communicate(timeout=120)  # drained: the rest of its output never fills the pipe
         if live is not None:
             live.terminate()
