@@ -149,12 +149,12 @@ def route_sdk_log() -> logging.Logger:
     import foxglove
 
     root = logging.getLogger()
-    placeholder = logging.NullHandler()
-    root.addHandler(placeholder)
+    root_has_a_handler = logging.NullHandler()  # so the SDK does not call basicConfig
+    root.addHandler(root_has_a_handler)
     try:
         foxglove.set_log_level("INFO")
     finally:
-        root.removeHandler(placeholder)
+        root.removeHandler(root_has_a_handler)
     logger = logging.getLogger(SDK_LOGGER)
     # Only the counted modules' lines reach Python: each line the SDK logs takes the GIL on
     # the SDK's own thread, which may hold a client's locks meanwhile.
