@@ -35,9 +35,10 @@ from protocol.setting_groups import (
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
-ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl", "launcher_pid"})
-"""Who a run's sessions were and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
-"""What a dump of the settings shows for a credentials file."""
+"""What a dump of the settings shows for a credentials or key file."""
+TLS_FIELDS = ("zenoh_tls_ca", "zenoh_tls_certificate", "zenoh_tls_key")
+ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", *TLS_FIELDS, "zenoh_acl", "zenoh_connect", "zenoh_listen", "launcher_pid"})
+"""Who a run's sessions were, where they linked and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
 
 
 def _regular_file(value: str) -> str:
@@ -107,15 +108,15 @@ class CommonSettings(BaseSettings):
         description="on: apply the rig's access rules (service_kit/access.py): deny by default, each role sends only on its own exact keys "
         "(a client leaves them to its router); scenarios: the same, and accept scenario commands on the plant's test port from the tester role",
     )
-    zenoh_id: str = Field(
-        "", pattern=r"^([1-9a-f][0-9a-f]{0,31})?$", description="This session's zenoh id, 1-32 lowercase hex digits, the first not 0 (empty: random)"
-    )
-    zenoh_node_ids: str = Field(
+    zenoh_tls_ca: str = Field(
         "",
-        max_length=1024,
-        pattern=r"^([a-z]+:[1-9a-f][0-9a-f]{0,31}(,[a-z]+:[1-9a-f][0-9a-f]{0,31})*)?$",
-        description="With zenoh_acl in peer mode: ROLE:ZID,... of the rig's own nodes, so a link this session opened is matched to its role",
+        description="Mutual TLS (tls/ endpoints): the certificate of the authority every peer's certificate must be signed by "
+        "(ralf-hil up makes one per run); its path is not recorded",
     )
+    zenoh_tls_certificate: str = Field(
+        "", description="Mutual TLS: this session's certificate, its common name the session's role (controller, dsp, plant...); its path is not recorded"
+    )
+    zenoh_tls_key: str = Field("", description="Mutual TLS: the private key of zenoh_tls_certificate; its path is not recorded")
     can_udp: Annotated[UdpCanOptions, NoDecode] = Field(
         UdpCanOptions(),
         description="The udp_multicast interface's options, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(UdpCanOptions),
@@ -177,12 +178,12 @@ class CommonSettings(BaseSettings):
     def _realtime_text(cls, value: Any) -> Any:
         return SettingGroup.coerce(value)
 
-    @field_validator("zenoh_credentials_file")
+    @field_validator("zenoh_credentials_file", *TLS_FIELDS)
     @classmethod
     def _credentials_file(cls, value: str) -> str:
         return _regular_file(value)
 
-    @field_serializer("zenoh_credentials_file")
+    @field_serializer("zenoh_credentials_file", *TLS_FIELDS)
     def _credentials_path_unrecorded(self, value: str) -> str:
         # Settings are dumped into recordings and run records, which users share:
         # where the credentials live is no business of theirs.
@@ -194,6 +195,21 @@ class CommonSettings(BaseSettings):
             raise ValueError("RALF_ZENOH_USER is set without RALF_ZENOH_PASSWORD: a zenoh user needs its password")
         if self.zenoh_password.get_secret_value() and not self.zenoh_user:
             raise ValueError("RALF_ZENOH_PASSWORD is set without RALF_ZENOH_USER: give the user it belongs to")
+        return self
+
+    @model_validator(mode="after")
+    def _tls_complete(self) -> CommonSettings:
+        given = [name for name in TLS_FIELDS if getattr(self, name)]
+        names = ", ".join(f"RALF_{n.upper()}" for n in TLS_FIELDS)
+        if given and len(given) < len(TLS_FIELDS):
+            missing = ", ".join(f"RALF_{n.upper()}" for n in TLS_FIELDS if n not in given)
+            raise ValueError(f"mutual TLS needs all of {names}; {missing} not set")
+        endpoints = self.endpoints("connect") + self.endpoints("listen")
+        if given and any(not e.startswith("tls/") for e in endpoints):
+            plain = ", ".join(e for e in endpoints if not e.startswith("tls/"))
+            raise ValueError(f"{names} are set, so every zenoh endpoint must be tls/HOST:PORT, got {plain}")
+        if not given and any(e.startswith("tls/") for e in endpoints):
+            raise ValueError(f"tls/ endpoints need {names} (ralf-hil up writes them into the run's tool.env)")
         return self
 
     @field_validator("zenoh_connect", "zenoh_listen")
@@ -495,6 +511,11 @@ RETIRED: dict[str, str] = {
     **{
         f"smoothing_{key}": f"the smoothing is one setting: RALF_SMOOTHING={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
         for key in Smoothing.model_fields
+    },
+    **{
+        old: "in peer mode a node knows the others by their certificates now: set RALF_ZENOH_TLS_CA, RALF_ZENOH_TLS_CERTIFICATE and "
+        "RALF_ZENOH_TLS_KEY (ralf-hil up does, and writes a tool's into the run's tool.env)"
+        for old in ("zenoh_id", "zenoh_node_ids")
     },
     "search_min_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",
     "search_max_hz": "the peak search's band is one setting: RALF_SEARCH_BAND_HZ=LOW,HIGH",

@@ -1,9 +1,12 @@
-"""Who may drive the rig: zenoh's own authentication (``transport/auth/usrpwd``)
-and access control (``access_control``), generated from the rig's description (:mod:`protocol.rig_description`).
+"""Who may drive the rig: who a session is (mutual TLS in peer mode, zenoh's
+``transport/auth/usrpwd`` towards a router) and what its role may do
+(zenoh's ``access_control``), generated from the rig's description
+(:mod:`protocol.rig_description`).
 
-Every session of a rig authenticates with a user name naming its role
-(:data:`ROLES`) and a password; a node that has the credentials file
-(``user:password`` lines) accepts only sessions that present one of them.
+Every session of a rig has a role (:data:`ROLES`): a certificate whose
+common name is the role (``ralf-hil up``, :mod:`workbench.certificates`),
+or a user name naming it and a password (a client of the docker compose
+router, which accepts only the users of its credentials file).
 
 The access rules deny by default and allow each role exactly what the rig
 description says it does, on the exact keys (:func:`acl_config`):
@@ -28,13 +31,18 @@ no allow rule is wider than one key.
 Every node applies the rules to every link, ingress and egress (zenoh 1.x
 peers do not relay, so the subject of a message is its originator; in
 client mode the router applies them and the clients, whose one link is the
-one they opened to it, do not). A link's subject is the user name its
-opener authenticated with; the opener itself learns no user name, so the
-rig's own nodes are also known by their zenoh ids (``node_ids``), fresh
-for every run (:func:`generate_node_ids`). Schema: zenoh 1.10's
+one they opened to it, do not). A link's subject is its role, proven one
+of two ways. In peer mode (``ralf-hil up``) every link is mutual TLS: both
+ends show a certificate of the run's own authority whose common name is
+the role (:mod:`workbench.certificates`), so each end knows the other's
+role, the end that opened the link as well as the one that accepted it,
+and a zenoh id proves nothing. In client mode (docker compose) a client
+authenticates to its router with its role's user name and password
+(``transport/auth/usrpwd``), which proves the opener to the acceptor, here
+the router, the one end that applies the rules. Schema: zenoh 1.10's
 ``AclConfig`` (``enabled``, ``default_permission``, ``rules`` of
 ``id``/``permission``/``flows``/``messages``/``key_exprs``, ``subjects`` of
-``id``/``usernames``/``zids``, ``policies`` of ``id``/``rules``/``subjects``),
+``id``/``usernames``/``cert_common_names``, ``policies`` of ``id``/``rules``/``subjects``),
 checked against running sessions in ``tests/hardening/test_access.py`` and
 ``tests/hardening/test_access_wildcards.py``.
 """
@@ -43,7 +51,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import secrets
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -137,77 +144,30 @@ def _role_rules(keys: Keys, role: str, scenarios: bool, prefix: str) -> list[dic
     return rules
 
 
-def acl_config(keys: Keys, scenarios: bool = False, node_ids: Mapping[str, str] | None = None, more_rigs: Iterable[Keys] = ()) -> dict[str, Any]:
+def acl_config(keys: Keys, scenarios: bool = False, more_rigs: Iterable[Keys] = ()) -> dict[str, Any]:
     """The ``access_control`` section of every node of the rig: deny by
-    default; each role (the session's authenticated user name) may send
-    what the rig description says it sends and read what it reads, on those
-    exact keys only, so no key expression (``*``, ``**``, ``$*``, another
-    rig's chunk) covers more: zenoh allows a message only if an allow rule's
-    key expression includes the message's whole key expression.
+    default; each role (a link's certificate name, or the user name its
+    client authenticated with) may send what the rig description says it
+    sends and read what it reads, on those exact keys only, so no key
+    expression (``*``, ``**``, ``$*``, another rig's chunk) covers more:
+    zenoh allows a message only if an allow rule's key expression includes
+    the message's whole key expression.
 
     A node hands out (egress) to each role only what that role reads, and
     declares its own interest (subscribers, queryables, queries) to all.
-
-    ``node_ids``: role -> zenoh id of the rig's own nodes (peer mode). A
-    node that *opened* a link learns no user name from it (zenoh's
-    user/password authentication proves the opener to the acceptor only),
-    so links to the rig's nodes are matched by their zenoh id as well, with
-    the same rules as the role. ``more_rigs``: further rigs the same
-    session serves (one DSP process for several rigs)."""
-    ids = dict(node_ids or {})
+    ``more_rigs``: further rigs the same session serves (one DSP process
+    for several rigs)."""
     rules: list[dict[str, Any]] = [_allow("own declarations", "egress", DECLARATIONS, ["**"])]
-    subjects: list[dict[str, Any]] = [{"id": f"role {role}", "usernames": [role]} for role in ROLES]
-    subjects += [{"id": f"node {role}", "zids": [zid]} for role, zid in sorted(ids.items())]
+    subjects: list[dict[str, Any]] = [{"id": f"user {role}", "usernames": [role]} for role in ROLES]
+    subjects += [{"id": f"certificate {role}", "cert_common_names": [role]} for role in ROLES]
     policies: list[dict[str, Any]] = [{"id": "declarations", "rules": ["own declarations"], "subjects": [s["id"] for s in subjects]}]
     rigs = [keys, *(k for k in more_rigs if k != keys)]
     for role in ROLES:
         role_rules = [rule for rig in rigs for rule in _role_rules(rig, role, scenarios, f"{rig.rig_id}: ")]
         rules += role_rules
         if role_rules:
-            policies.append({"id": role, "rules": [r["id"] for r in role_rules], "subjects": [f"role {role}"] + ([f"node {role}"] if role in ids else [])})
+            policies.append({"id": role, "rules": [r["id"] for r in role_rules], "subjects": [f"user {role}", f"certificate {role}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
-
-
-def generate_node_ids(roles: Iterable[str] = (*RIG.service_names, "launcher")) -> dict[str, str]:
-    """A fresh zenoh id per node of a local rig (for one run): 32 hex digits,
-    8 to b first (never 0: zenoh refuses leading zeros), the last byte below
-    ff: below every :func:`tool_node_id` read either way round (as a number,
-    or byte by byte from the least significant, as zenoh stores it)."""
-    return {role: f"{(secrets.randbits(118) << 8 | secrets.randbelow(0xFF)) | (0b10 << 126):032x}" for role in roles}
-
-
-def tool_node_id() -> str:
-    """A fresh zenoh id for a session that is not one of the rig's nodes (a
-    tool: ``live``, ``record``, ``monitor``, ``reconfigure``): c to f first
-    and ff last, above every :func:`generate_node_ids` id. Of two peers that learn of each
-    other by gossip the greater id opens the link, and only the side that
-    accepts a link checks the other's credentials; a node that opened the link
-    to a tool could not tell its role, and its access rules (keyed by zenoh id
-    in peer mode) would give the tool nothing. With the greater id the tool
-    always opens the link and the node matches it to the tool role by its
-    credentials."""
-    return f"{secrets.randbits(126) | (0b11 << 126) | 0xFF:032x}"
-
-
-def format_node_ids(node_ids: Mapping[str, str]) -> str:
-    """``role:zid,...``, the form of ``RALF_ZENOH_NODE_IDS``."""
-    return ",".join(f"{role}:{zid}" for role, zid in node_ids.items())
-
-
-def parse_node_ids(text: str) -> dict[str, str]:
-    """The inverse of :func:`format_node_ids`; ValueError on a malformed entry."""
-    out: dict[str, str] = {}
-    for entry in (e.strip() for e in text.split(",")):
-        if not entry:
-            continue
-        role, sep, zid = entry.partition(":")
-        if not sep or role not in ROLES or not _ZID.fullmatch(zid):
-            raise ValueError(f"{entry!r} is not ROLE:ZID with ROLE one of {', '.join(ROLES)} and ZID 1-32 lowercase hex digits, the first not 0")
-        out[role] = zid
-    return out
-
-
-_ZID = re.compile(r"[1-9a-f][0-9a-f]{0,31}")
 
 
 def generate_credentials(roles: Iterable[str] = ROLES) -> dict[str, str]:
@@ -255,6 +215,20 @@ ROUTER_PLUGINS: dict[str, Any] = {
 """The compose router's plugins: REST on 8000 and the health/status storage."""
 
 
+def tls_section(ca: str, certificate: str, key: str) -> dict[str, Any]:
+    """``transport/link/tls`` for mutual TLS: this session's certificate on
+    the links it accepts and on those it opens, and only peers whose
+    certificate the run's authority signed."""
+    return {
+        "root_ca_certificate": ca,
+        "enable_mtls": True,
+        "listen_certificate": certificate,
+        "listen_private_key": key,
+        "connect_certificate": certificate,
+        "connect_private_key": key,
+    }
+
+
 def insert_access(
     config: Any,
     rig_id: str,
@@ -264,13 +238,12 @@ def insert_access(
     acl: bool = False,
     scenarios: bool = False,
     more_rigs: Iterable[str] = (),
-    node_id: str = "",
-    node_ids: Mapping[str, str] | None = None,
+    tls: tuple[str, str, str] | None = None,
 ) -> Any:
     """Add authentication and the rig's access rules to a ``zenoh.Config``
     (``more_rigs``: the rules of further rigs the same session serves, e.g.
-    one DSP process for several rigs; ``node_id``: this session's zenoh id;
-    ``node_ids``: those of the rig's nodes, see :func:`acl_config`)."""
+    one DSP process for several rigs; ``tls``: the files of mutual TLS,
+    authority, certificate and key)."""
     if user or credentials_file:
         usrpwd: dict[str, str] = {}
         if user:
@@ -278,12 +251,10 @@ def insert_access(
         if credentials_file:
             usrpwd["dictionary_file"] = credentials_file
         config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
-    if not node_id and not node_ids and (user or credentials_file):
-        node_id = tool_node_id()  # an authenticated session that is not one of the rig's nodes
-    if node_id:
-        config.insert_json5("id", json.dumps(node_id))
+    if tls is not None:
+        config.insert_json5("transport/link/tls", json.dumps(tls_section(*tls)))
     if acl:
-        section = acl_config(Keys(rig_id), scenarios, node_ids, [Keys(r) for r in more_rigs])
+        section = acl_config(Keys(rig_id), scenarios, [Keys(r) for r in more_rigs])
         config.insert_json5("access_control", json.dumps(section))
     return config
 
@@ -295,6 +266,7 @@ def _on(value: str) -> bool:
 def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> Any:
     """:func:`insert_access` from ``RALF_ZENOH_*`` variables (e.g. a
     launcher's own session, configured like the services)."""
+    tls = tuple(env.get(f"RALF_ZENOH_TLS_{part}", "") for part in ("CA", "CERTIFICATE", "KEY"))
     return insert_access(
         config,
         rig_id,
@@ -303,8 +275,7 @@ def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> 
         credentials_file=env.get("RALF_ZENOH_CREDENTIALS_FILE", ""),
         acl=_on(env.get("RALF_ZENOH_ACL", "")) or env.get("RALF_ZENOH_ACL", "").lower() == "scenarios",
         scenarios=env.get("RALF_ZENOH_ACL", "").lower() == "scenarios",
-        node_id=env.get("RALF_ZENOH_ID", ""),
-        node_ids=parse_node_ids(env.get("RALF_ZENOH_NODE_IDS", "")),
+        tls=(tls[0], tls[1], tls[2]) if all(tls) else None,
     )
 
 

@@ -16,7 +16,7 @@ import zenoh
 
 from protocol.errors import TransportError
 from protocol.settings import CommonSettings
-from service_kit.access import insert_access, parse_node_ids
+from service_kit.access import insert_access
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 from service_kit.zenoh_log import init_zenoh_log
 
@@ -25,6 +25,9 @@ log = logging.getLogger(__name__)
 
 PEER_AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "greater-zid"}}'
 """``scouting/gossip/autoconnect_strategy``: of two peers, the one with the greater id connects."""
+
+OPENER_AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "always"}}'
+"""The strategy of a peer that listens on nothing (a tool): it connects to every peer it learns of."""
 
 
 def zenoh_config(settings: CommonSettings) -> zenoh.Config:
@@ -56,6 +59,14 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
+    elif settings.zenoh_mode == "peer":
+        # A peer given no endpoint to listen on listens on none (zenoh's own
+        # default is tcp/[::]:0: a plain-TCP listener on every interface, which a
+        # node of the rig would then link to without the rig's TLS) and opens its
+        # links itself, to every peer gossip names, whichever id is the greater:
+        # no peer can open a link to it, so a pair still links once.
+        config.insert_json5("listen/endpoints", "[]")
+        config.insert_json5("scouting/gossip/autoconnect_strategy", OPENER_AUTOCONNECT_STRATEGY)
     # No zenoh ``downsampling`` on the keys tools send: what it drops it does
     # not count (its stats are not built into the Python wheel: the admin
     # space's ``@/<zid>/<mode>/metrics`` holds only the build), so every
@@ -71,8 +82,7 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         acl=settings.zenoh_acl != "off" and settings.zenoh_mode != "client",
         scenarios=settings.zenoh_acl == "scenarios",
         more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
-        node_id=settings.zenoh_id,
-        node_ids=parse_node_ids(settings.zenoh_node_ids),
+        tls=(settings.zenoh_tls_ca, settings.zenoh_tls_certificate, settings.zenoh_tls_key) if settings.zenoh_tls_ca else None,
     )
     return config
 
@@ -90,10 +100,10 @@ def zenoh_error_text(exc: BaseException) -> str:
 
 
 def _answering(endpoints: list[str], timeout_s: float = 1.0) -> list[str]:
-    """The tcp endpoints among ``endpoints`` that accept a TCP connection."""
+    """The tcp and tls endpoints among ``endpoints`` that accept a TCP connection."""
     up = []
     for endpoint in endpoints:
-        m = re.fullmatch(r"tcp/\[?([^\]]+?)\]?:(\d+)(?:[?#].*)?", endpoint)
+        m = re.fullmatch(r"(?:tcp|tls)/\[?([^\]]+?)\]?:(\d+)(?:[?#].*)?", endpoint)
         if m is None:
             continue
         try:
@@ -129,9 +139,9 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
                 raise TransportError(f"cannot open zenoh session ({where}): {text}") from None
             answering = _answering(settings.endpoints("connect"))
             if answering:
-                text = (
-                    f"{', '.join(answering)} accepts connections but refused the session (user {settings.zenoh_user or '-'}): wrong password or unknown user?"
-                )
+                who = "mutual TLS" if settings.zenoh_tls_ca else f"user {settings.zenoh_user or '-'}"
+                why = "a certificate of another run's authority?" if settings.zenoh_tls_ca else "wrong password or unknown user?"
+                text = f"{', '.join(answering)} accepts connections but refused the session ({who}): {why}"
             if time.monotonic() >= deadline:
                 what = "refused" if answering else "nothing answered"
                 raise TransportError(f"cannot open zenoh session ({where}): {what} for {retry_for_s:.0f} s: {text}") from None

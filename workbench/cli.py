@@ -211,27 +211,36 @@ def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
 
 
 def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
-    """Fresh zenoh credentials for this run: every service, the launcher's
-    observer and tools authenticate with their role's password, and every
-    node applies the rig's access rules (service_kit/access.py). Writes the
-    credentials file (owner-only) and ``tool.env``, the variables that let
-    ``ralf-hil reconfigure``/``monitor`` join the run; returns its path."""
-    from service_kit.access import format_node_ids, generate_credentials, generate_node_ids, role_env, write_credentials_file
+    """This run's credentials (service_kit/access.py): its own certificate
+    authority with one certificate per role, so every link of the rig is
+    mutual TLS and each node knows the role of every session it links to,
+    whichever end opened the link; and a password per role, which binds a
+    zenoh id to the role that first linked with it (zenoh refuses a second
+    link for a linked id under another user name, not under another
+    certificate). Every node applies the rig's access rules. Writes the
+    certificates, the credentials file (keys and passwords owner-only) and
+    ``tool.env``, the variables that let ``ralf-hil reconfigure``/``monitor``/
+    ``live``/``record`` join the run; returns its path."""
+    from service_kit.access import ROLES, generate_credentials, role_env, write_credentials_file
+    from workbench.certificates import write_role_certificates
 
-    credentials = generate_credentials()
+    roles = [r for r in ROLES if r != "tester" or scenarios]
+    certificates = write_role_certificates(directory, roles)
+    credentials = generate_credentials(roles)
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
-    node_ids = generate_node_ids()
-    plan.common_env.update(
-        RALF_ZENOH_CREDENTIALS_FILE=str(path),
-        RALF_ZENOH_ACL="scenarios" if scenarios else "on",
-        RALF_ZENOH_NODE_IDS=format_node_ids(node_ids),
-    )
-    for role in ("dsp", "plant", "controller", "launcher"):
-        plan.service_env.setdefault(role, {}).update(role_env(role, credentials), RALF_ZENOH_ID=node_ids[role])
+    plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="scenarios" if scenarios else "on")
+    plan.use_tls({role: {**files.env(), **role_env(role, credentials)} for role, files in certificates.items()})
     tool_env = directory / "tool.env"
     fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as fh:
-        fh.writelines(f"{k}={v}\n" for k, v in {**role_env("tool", credentials), "RALF_RIG_ID": plan.rig_id}.items())
+        variables = {
+            **certificates["tool"].env(),
+            **role_env("tool", credentials),
+            "RALF_ZENOH_CONNECT": plan.zenoh_endpoint,
+            "RALF_CAN_PORT": str(plan.can_port),  # ralf-hil record and live tap the bus too
+            "RALF_RIG_ID": plan.rig_id,
+        }
+        fh.writelines(f"{k}={v}\n" for k, v in variables.items())
     return tool_env
 
 
@@ -347,7 +356,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
     console.print(
-        f"rig {plan.rig_id!r} starting: zenoh tcp/127.0.0.1:{plan.zenoh_port}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
+        f"rig {plan.rig_id!r} starting: zenoh {plan.zenoh_endpoint}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
     )
     live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
     said_ready = False
@@ -365,7 +374,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock, mirror=live_view)
         # Before any service starts (their Python start-up takes a second or more), so a bus
         # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
-        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh tcp/127.0.0.1:{plan.zenoh_port}", flush=True)
+        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh {plan.zenoh_endpoint}", flush=True)
         with live:
             sup = supervise(
                 plan,
@@ -554,7 +563,7 @@ def cmd_reconfigure(args: argparse.Namespace) -> int:
     if change.fft_width is None and change.batch_size is None and change.alpha is None:
         console.print("[red]ralf-hil reconfigure: give --fft-width, --batch-size or --alpha[/red]")
         return 2
-    overrides = {"rig_id": args.rig_id}
+    overrides = {"rig_id": args.rig_id} if args.rig_id is not None else {}
     if args.connect:
         overrides["zenoh_connect"] = args.connect
     try:
@@ -682,7 +691,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.set_defaults(func=cmd_up)
     rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")
-    rc.add_argument("--rig-id", default="default")
+    rc.add_argument("--rig-id", default=None, help="the rig's id (default: RALF_RIG_ID, else default)")
     rc.add_argument("--connect", default="", help="zenoh endpoint(s) of the rig, e.g. the one `ralf-hil up` prints")
     rc.add_argument("--fft-width", type=int, default=None, help="DSP FFT width N (power of two; zeroes its history)")
     rc.add_argument("--batch-size", type=int, default=None, help="samples per batch l (keeps the DSP's history)")

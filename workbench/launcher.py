@@ -14,6 +14,7 @@ rigs can run side by side.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -78,6 +79,8 @@ class RigPlan:
     service_ports: dict[str, int]
     common_env: dict[str, str]
     service_env: dict[str, dict[str, str]] = field(default_factory=dict)
+    zenoh_scheme: str = "tcp"
+    """``tcp``, or ``tls`` once :meth:`use_tls` gave every node its certificate."""
 
     @classmethod
     def local(
@@ -100,12 +103,35 @@ class RigPlan:
         env.update(common or {})
         plan = cls(rig_id=rig_id, zenoh_port=port, can_port=int(env["RALF_CAN_PORT"]), common_env=env, service_ports=service_ports)
         for name in SERVICE_MODULES:
-            plan.service_env[name] = {
-                "RALF_ZENOH_LISTEN": f"tcp/127.0.0.1:{service_ports[name]}",
-                "RALF_ZENOH_CONNECT": f"tcp/127.0.0.1:{port}",  # the launcher only: see the module's text
-                **dict((overrides or {}).get(name, {})),
-            }
+            plan.service_env[name] = {**plan._own_endpoints(name), **dict((overrides or {}).get(name, {}))}
         return plan
+
+    @property
+    def zenoh_endpoint(self) -> str:
+        """The launcher's own endpoint, the one every service and tool connects to."""
+        return f"{self.zenoh_scheme}/127.0.0.1:{self.zenoh_port}"
+
+    def _own_endpoints(self, service: str) -> dict[str, str]:
+        return {
+            "RALF_ZENOH_LISTEN": f"{self.zenoh_scheme}/127.0.0.1:{self.service_ports[service]}",
+            "RALF_ZENOH_CONNECT": self.zenoh_endpoint,  # the launcher only: see the module's text
+        }
+
+    def use_tls(self, role_env: Mapping[str, Mapping[str, str]]) -> None:
+        """Every link of the rig over mutual TLS: each node (the services and
+        the ``launcher``) gets its role's variables from ``role_env``
+        (``RALF_ZENOH_TLS_*``, its credentials) and ``tls/`` endpoints in
+        place of the ``tcp/`` ones (an endpoint given with ``--set`` is left
+        as given)."""
+        plain = {name: self._own_endpoints(name) for name in SERVICE_MODULES}
+        self.zenoh_scheme = "tls"
+        for name in SERVICE_MODULES:
+            env = self.service_env.setdefault(name, {})
+            for var, value in self._own_endpoints(name).items():
+                if env.get(var) == plain[name][var]:
+                    env[var] = value
+        for role in (*SERVICE_MODULES, "launcher"):
+            self.service_env.setdefault(role, {}).update(role_env[role])
 
     def env_for(self, service: str) -> dict[str, str]:
         """The caller's environment (its ``RALF_*`` settings included, e.g.
@@ -144,7 +170,7 @@ class RigObserver:
         config = zenoh.Config()
         config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
-        config.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{self.plan.zenoh_port}"]')
+        config.insert_json5("listen/endpoints", json.dumps([self.plan.zenoh_endpoint]))
         config.insert_json5("scouting/gossip/autoconnect_strategy", PEER_AUTOCONNECT_STRATEGY)
         insert_access_from_env(config, self.plan.rig_id, {**self.plan.common_env, **self.plan.service_env.get("launcher", {})})
         init_zenoh_log()

@@ -186,7 +186,7 @@ def monitor_settings(rig_id: str | None = None, connect: str | None = None) -> C
     if settings.zenoh_mode != "router" and not settings.zenoh_multicast_scouting and not settings.endpoints("connect") and not settings.endpoints("listen"):
         raise ConfigError(
             "no zenoh endpoint: multicast scouting is off, so the monitor needs --connect ENDPOINT[,ENDPOINT...] "
-            "(e.g. the tcp/127.0.0.1:PORT that `ralf-hil up` prints), RALF_ZENOH_CONNECT, RALF_ZENOH_LISTEN, "
+            "(e.g. the tls/127.0.0.1:PORT that `ralf-hil up` prints; its tool.env sets RALF_ZENOH_CONNECT), RALF_ZENOH_CONNECT, RALF_ZENOH_LISTEN, "
             "or RALF_ZENOH_MULTICAST_SCOUTING=true"
         )
     return settings
@@ -297,14 +297,16 @@ def render(snap: dict[str, Any]) -> RenderableType:
 
 def credentials_hint(settings: Any) -> str:
     """Why a tool may hear nothing from a running rig: its credentials. A
-    rig started by ``ralf-hil up`` accepts only authenticated sessions and
-    applies access rules; an unauthenticated or wrong-password tool is not
-    told, it just hears nothing."""
-    if not (settings.zenoh_user or settings.zenoh_credentials_file):
+    rig started by ``ralf-hil up`` links only to sessions holding a
+    certificate of the run's own authority and applies access rules; a
+    tool without one is not told, it just hears nothing."""
+    if not (settings.zenoh_user or settings.zenoh_credentials_file or settings.zenoh_tls_ca):
         return (
-            "; no zenoh credentials were given: a rig started by `ralf-hil up` answers only authenticated tools "
+            "; no zenoh credentials were given: a rig started by `ralf-hil up` answers only tools with its certificates "
             "(`set -a; . TOOL.env` with the tool.env path its start line prints)"
         )
+    if settings.zenoh_tls_ca:
+        return "; the rig may have refused the tool's certificate (a rig from `ralf-hil up` makes new ones each run)"
     return f"; the rig may have refused the credentials of user {settings.zenoh_user or '(from the credentials file)'} (a rig from `ralf-hil up` makes new ones each run)"
 
 

@@ -420,7 +420,8 @@ def test_access_rules_cover_every_rig_a_dsp_serves() -> None:
             senders = [rid for rid, r in rule_ids.items() if key in r["key_exprs"] and "put" in r["messages"] and r["flows"] == ["ingress"]]
             assert len(senders) == 1, (rig, key)
             subjects = {s for p in acl["policies"] if senders[0] in p["rules"] for s in p["subjects"]}
-            assert subjects == {"role dsp" if key != keys.batch else "role controller"}
+            role = "dsp" if key != keys.batch else "controller"
+            assert subjects == {f"user {role}", f"certificate {role}"}
 
 
 def test_the_empty_flag_built_after_the_interrupt_describes_the_block_as_released() -> None:

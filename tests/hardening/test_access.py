@@ -1,6 +1,7 @@
 """zenoh's own authentication and access control, as the rig configures it
 (service_kit.access), checked against a real zenoh 1.10 node on loopback: a
-session without valid credentials cannot connect; the rules deny by
+session without valid credentials (user and password, as the compose router
+takes them; certificates: tests/hardening/test_certificates.py) cannot connect; the rules deny by
 default and no allow rule is wider than one key (what each role's sessions
 can and cannot do with them: tests/hardening/test_access_wildcards.py)."""
 
@@ -19,11 +20,8 @@ from protocol.keys import Keys
 from service_kit.access import (
     ROLES,
     acl_config,
-    format_node_ids,
     generate_credentials,
-    generate_node_ids,
     insert_access,
-    parse_node_ids,
     publishers,
     sends,
     write_credentials_file,
@@ -120,17 +118,17 @@ def test_each_key_is_sent_by_its_declared_senders_only() -> None:
     assert sends(KEYS, "launcher") == {"publication": [], "queryable": [], "liveliness": []}
 
 
-def test_rig_nodes_are_known_by_id_with_their_roles_rules() -> None:
-    ids = generate_node_ids()
-    assert all(len(z) == 32 and z[0] != "0" for z in ids.values()) and len(set(ids.values())) == len(ids)
-    assert parse_node_ids(format_node_ids(ids)) == ids
-    config = acl_config(KEYS, node_ids=ids)
-    by_id = {p["id"]: p for p in config["policies"]}
-    for role in ids:
-        assert f"node {role}" in by_id[role]["subjects"] and f"role {role}" in by_id[role]["subjects"]
-    for bad in ("dsp:0abc", "intruder:abc", "dsp", "dsp:xyz"):
-        with pytest.raises(ValueError):
-            parse_node_ids(bad)
+def test_each_role_is_known_by_its_certificate_or_its_user_name_never_by_an_id() -> None:
+    config = acl_config(KEYS, scenarios=True)
+    subjects = {s["id"]: s for s in config["subjects"]}
+    assert all(set(s) in ({"id", "usernames"}, {"id", "cert_common_names"}) for s in subjects.values()), subjects
+    for policy in config["policies"]:
+        if policy["id"] in ROLES:
+            role = policy["id"]
+            assert [subjects[s] for s in policy["subjects"]] == [
+                {"id": f"user {role}", "usernames": [role]},
+                {"id": f"certificate {role}", "cert_common_names": [role]},
+            ]
 
 
 def test_more_rigs_get_their_own_rules() -> None:

@@ -76,7 +76,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
     port = None
     tool_env: Path | None = None
     for line in proc.stderr:
-        m = re.search(r"zenoh tcp/127\.0\.0\.1:(\d+)", line)
+        m = re.search(r"zenoh tls/127\.0\.0\.1:(\d+)", line)
         t = re.search(r"tools' credentials in (\S+)", line)
         if m and t:
             port, tool_env = int(m.group(1)), Path(t.group(1))  # the run's own owner-only folder
@@ -89,7 +89,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
         config = zenoh.Config()
         config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
-        config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+        config.insert_json5("connect/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
         session = zenoh.open(insert_access_from_env(config, rig_id, env))
         keys = Keys(rig_id)
         lock = threading.Lock()

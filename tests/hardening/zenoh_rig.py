@@ -1,8 +1,9 @@
 """Sessions configured exactly as the rig configures them (peer mode: the
-launcher's plan and credentials, each service's settings through
+launcher's plan and the run's certificates, each service's settings through
 ``service_kit.transport.zenoh_config``; client mode: the compose router's
 access rules), each with a tap on the whole rig, and attacker sessions that
-authenticate with a role's credentials. Loopback only, scouting off."""
+authenticate with a role's credentials (its certificate in peer mode, its
+password in client mode). Loopback only, scouting off."""
 
 from __future__ import annotations
 
@@ -19,8 +20,9 @@ import zenoh
 from protocol.keys import Keys
 from protocol.rig_description import RIG
 from protocol.settings import CommonSettings
-from service_kit.access import generate_credentials, router_config, write_credentials_file
+from service_kit.access import ROLES, generate_credentials, insert_access, router_config, write_credentials_file
 from service_kit.transport import zenoh_config
+from workbench.certificates import RoleCertificate
 from workbench.launcher import RigObserver, RigPlan, free_tcp_port
 
 SERVICES = RIG.service_names
@@ -91,14 +93,18 @@ def base_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterabl
     return config
 
 
-def attacker(role: str, password: str, endpoints: list[str], mode: str = "peer", zid: str = "") -> zenoh.Session:
-    """A stock zenoh session, no access rules of its own, authenticated as
-    ``role`` (``zid``: claiming that zenoh id)."""
-    config = base_config(mode, connect=endpoints)
+def attacker(role: str, rig: PeerRig | RoutedRig, endpoints: list[str] | None = None, zid: str = "") -> zenoh.Session:
+    """A stock zenoh session, no access rules of its own, holding ``role``'s
+    credentials of ``rig`` (``zid``: claiming that zenoh id), connected to
+    every node of the rig (or to ``endpoints``)."""
+    config = base_config("peer" if isinstance(rig, PeerRig) else "client", connect=endpoints or rig.endpoints)
     if zid:
         config.insert_json5("id", json.dumps(zid))
-    config.insert_json5("transport/auth/usrpwd", json.dumps({"user": role, "password": password}))
-    return zenoh.open(config)
+    if isinstance(rig, PeerRig):
+        files = rig.certificates[role]
+        tls = (str(files.ca), str(files.certificate), str(files.key))
+        return zenoh.open(insert_access(config, rig.keys.rig_id, user=role, password=rig.credentials[role], tls=tls))
+    return zenoh.open(insert_access(config, rig.keys.rig_id, user=role, password=rig.credentials[role]))
 
 
 def wait_peers(session: zenoh.Session, count: int, timeout: float = 20.0) -> None:
@@ -114,42 +120,49 @@ def wait_peers(session: zenoh.Session, count: int, timeout: float = 20.0) -> Non
 @dataclass
 class PeerRig:
     """The three services' sessions and the launcher's observer of a local
-    rig, as ``ralf-hil up`` configures them (credentials, rules, node ids)."""
+    rig, as ``ralf-hil up`` configures them (certificates, passwords, rules)."""
 
     keys: Keys
+    certificates: dict[str, RoleCertificate]
     credentials: dict[str, str]
     endpoints: list[str]
     taps: dict[str, Tap]
     sessions: list[Any]
     observer: RigObserver
     node_ids: dict[str, str]
+    """Role -> the zenoh id its session happened to get."""
 
     @classmethod
     def start(cls, rig_id: str, directory: Path) -> PeerRig:
         from workbench.cli import provision_access
 
         plan = RigPlan.local(rig_id=rig_id)
-        provision_access(plan, directory)
-        credentials = {}
-        for line in Path(plan.common_env["RALF_ZENOH_CREDENTIALS_FILE"]).read_text().splitlines():
-            user, _, password = line.partition(":")
-            credentials[user] = password
-        for line in (directory / "tool.env").read_text().splitlines():
-            assert line.startswith(("RALF_ZENOH_USER=", "RALF_ZENOH_PASSWORD=", "RALF_RIG_ID="))
+        provision_access(plan, directory, scenarios=True)  # the tester's certificate too (its key stays refused: tests use no scenarios)
+        plan.common_env["RALF_ZENOH_ACL"] = "on"
+        certificates = {
+            role: RoleCertificate(directory / "ca.pem", directory / f"{role}.pem", directory / f"{role}.key")
+            for role in ROLES
+            if (directory / f"{role}.pem").exists()
+        }
+        credentials = dict(line.split(":", 1) for line in (directory / "zenoh-credentials.txt").read_text().splitlines())
+        tool_env = dict(line.split("=", 1) for line in (directory / "tool.env").read_text().splitlines())
+        tls = {"RALF_ZENOH_TLS_CA", "RALF_ZENOH_TLS_CERTIFICATE", "RALF_ZENOH_TLS_KEY"}
+        assert set(tool_env) == {*tls, "RALF_ZENOH_USER", "RALF_ZENOH_PASSWORD", "RALF_ZENOH_CONNECT", "RALF_CAN_PORT", "RALF_RIG_ID"}, tool_env
         keys = Keys(rig_id)
         observer = RigObserver(plan)
         taps = {"launcher": Tap(observer.session, keys.root, "launcher")}
         sessions = []
+        node_ids = {"launcher": str(observer.session.info.zid())}
         for name in SERVICES:
             settings = settings_from_env({**plan.common_env, **plan.service_env[name]})
             session = zenoh.open(zenoh_config(settings))
             sessions.append(session)
+            node_ids[name] = str(session.info.zid())
             taps[name] = Tap(session, keys.root, name)
-        endpoints = [f"tcp/127.0.0.1:{plan.zenoh_port}"] + [f"tcp/127.0.0.1:{plan.service_ports[n]}" for n in SERVICES]
+        endpoints = [plan.zenoh_endpoint] + [f"tls/127.0.0.1:{plan.service_ports[n]}" for n in SERVICES]
         for session in sessions:
             wait_peers(session, len(SERVICES))
-        node_ids = dict(entry.split(":") for entry in plan.common_env["RALF_ZENOH_NODE_IDS"].split(","))
-        return cls(keys, credentials, endpoints, taps, sessions, observer, node_ids)
+        return cls(keys, certificates, credentials, endpoints, taps, sessions, observer, node_ids)
 
     def close(self) -> None:
         for tap in self.taps.values():

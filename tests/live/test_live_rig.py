@@ -83,7 +83,7 @@ def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:
         assert up.stdout is not None
         m = t = None
         for line in up.stdout:  # the rig's ports, and the run's own owner-only credentials folder
-            m = m or re.search(r"CAN udp_multicast port (\d+), zenoh (tcp/127\.0\.0\.1:\d+)", line)
+            m = m or re.search(r"CAN udp_multicast port (\d+), zenoh (tls/127\.0\.0\.1:\d+)", line)
             t = t or re.search(r"tools' credentials in (\S+)", line)
             if m and t:
                 break

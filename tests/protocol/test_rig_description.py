@@ -78,7 +78,7 @@ def test_every_sender_is_a_role_and_access_rules_follow_the_senders() -> None:
     granted: dict[tuple[str, str], set[str]] = {}
     for rule in config["rules"]:
         if rule["flows"] == ["ingress"]:
-            for role in (s.removeprefix("role ") for s in policy_of[rule["id"]]):
+            for role in (s.removeprefix("user ").removeprefix("certificate ") for s in policy_of[rule["id"]]):
                 for key in rule["key_exprs"]:
                     for message in rule["messages"]:
                         granted.setdefault((key, message), set()).add(role)

@@ -3,6 +3,7 @@ overrides, and the zenoh key expressions of a rig (protocol.keys)."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -334,7 +335,12 @@ def test_a_file_setting_naming_a_fifo_is_refused_at_load_without_opening_it(clea
     and it ignored SIGTERM for minutes: the type is checked with stat, never opened."""
     fifo = tmp_path / "loop.fifo"
     os.mkfifo(fifo)
-    for model, var in ((ControllerSettings, "RALF_TRAJECTORY"), (ControllerSettings, "RALF_FAULT_SCENARIO"), (PlantSettings, "RALF_ZENOH_CREDENTIALS_FILE")):
+    for model, var in (
+        (ControllerSettings, "RALF_TRAJECTORY"),
+        (ControllerSettings, "RALF_FAULT_SCENARIO"),
+        (PlantSettings, "RALF_ZENOH_CREDENTIALS_FILE"),
+        (PlantSettings, "RALF_ZENOH_TLS_KEY"),
+    ):
         clean_env.setenv(var, str(fifo))
         text = _config_error(model)
         assert var in text and "is a FIFO, not a regular file" in text, text
@@ -374,6 +380,29 @@ def test_a_too_long_password_is_refused_without_showing_it(clean_env: pytest.Mon
     clean_env.setenv("RALF_ZENOH_PASSWORD", "p" * 300)
     text = _config_error(ControllerSettings)
     assert "RALF_ZENOH_PASSWORD" in text and "p" * 300 not in text
+
+
+def test_mutual_tls_is_all_three_files_and_tls_endpoints_only(clean_env: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    for name in ("ca.pem", "dsp.pem", "dsp.key"):
+        (tmp_path / name).write_text("-----BEGIN-----\n")
+    clean_env.setenv("RALF_ZENOH_TLS_CA", str(tmp_path / "ca.pem"))
+    text = _config_error(DspSettings)
+    assert "mutual TLS needs all of" in text and "RALF_ZENOH_TLS_CERTIFICATE, RALF_ZENOH_TLS_KEY not set" in text, text
+    clean_env.setenv("RALF_ZENOH_TLS_CERTIFICATE", str(tmp_path / "dsp.pem"))
+    clean_env.setenv("RALF_ZENOH_TLS_KEY", str(tmp_path / "dsp.key"))
+    clean_env.setenv("RALF_ZENOH_CONNECT", "tls/127.0.0.1:7447,tcp/127.0.0.1:7448")
+    assert "every zenoh endpoint must be tls/HOST:PORT, got tcp/127.0.0.1:7448" in _config_error(DspSettings)
+    clean_env.setenv("RALF_ZENOH_CONNECT", "tls/127.0.0.1:7447")
+    settings = load_settings(DspSettings)
+    assert str(tmp_path) not in json.dumps(settings.model_dump(mode="json"))  # where the keys live is not recorded
+    for var in ("RALF_ZENOH_TLS_CA", "RALF_ZENOH_TLS_CERTIFICATE", "RALF_ZENOH_TLS_KEY"):
+        clean_env.delenv(var)
+    assert "tls/ endpoints need RALF_ZENOH_TLS_CA" in _config_error(DspSettings)
+
+
+def test_zenoh_ids_are_retired_for_certificates(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_ZENOH_NODE_IDS", "dsp:abc")
+    assert "RALF_ZENOH_TLS_CA" in _config_error(DspSettings)
 
 
 @pytest.mark.parametrize("model,var,raw", BAD_ENV, ids=lambda x: x if isinstance(x, str) else x.__name__)

@@ -98,7 +98,7 @@ WALL_CLOCK = {"run.timing.npz": ("sync_wall_s", "tet_s")}
 """Columns that are wall-clock measurements, different in every run by nature (the rest of the file is compared)."""
 PER_RUN_CONFIG = {
     *("rig_id", "zenoh_mode", "zenoh_connect", "zenoh_listen", "zenoh_user", "zenoh_password", "zenoh_credentials_file", "zenoh_acl"),
-    *("zenoh_id", "zenoh_node_ids"),  # fresh per run: the access rules match links by them
+    *("zenoh_tls_ca", "zenoh_tls_certificate", "zenoh_tls_key"),  # fresh per run: the run's own certificates
     *("can_interface", "can_channel", "can_port", "run_record", "launcher_pid"),
 }
 """The configuration that says where a run lives and how it is wired (keys, transports, ports, paths, credentials), not what it computes."""

@@ -34,7 +34,7 @@ from typing import Any
 
 from workbench.hostinfo import host_info
 
-START_LINE = re.compile(r"zenoh tcp/127\.0\.0\.1:(\d+).*tools' credentials in (\S+)")
+START_LINE = re.compile(r"zenoh ((?:tcp|tls)/127\.0\.0\.1:\d+).*tools' credentials in (\S+)")
 
 
 def _read_env(path: Path) -> dict[str, str]:
@@ -48,12 +48,13 @@ def flood(endpoint: str, tool_env: dict[str, str], messages: int, deadline_s: fl
 
     from protocol.keys import Keys
     from protocol.messages import ConfigChange, encode
+    from service_kit.access import insert_access_from_env
 
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    config.insert_json5("transport/auth/usrpwd", json.dumps({"user": tool_env["RALF_ZENOH_USER"], "password": tool_env["RALF_ZENOH_PASSWORD"]}))
+    insert_access_from_env(config, tool_env["RALF_RIG_ID"], tool_env)  # the tool's certificate (or an older run's user and password)
     session = zenoh.open(config)
     sent, spent = 0, 0.0
     try:
@@ -94,7 +95,7 @@ def run_once(up: list[str], duration_s: float, arm: str, messages: int, at_s: fl
         for line in proc.stdout:
             m = START_LINE.search(line)
             if m:
-                endpoint, tool_env = f"tcp/127.0.0.1:{m[1]}", _read_env(Path(m[2]))
+                endpoint, tool_env = m[1], _read_env(Path(m[2]))
             if line.startswith("start-up: all services ready") and arm != "quiet" and not threads:
                 threads.append(threading.Thread(target=_attack, args=(result, endpoint, tool_env, messages, at_s, duration_s), daemon=True))
                 threads[0].start()

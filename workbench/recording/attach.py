@@ -40,7 +40,8 @@ def recorder_env(settings: BaseModel) -> dict[str, str]:
     # The dump masks the secrets (they are not for files); the child needs them as they are.
     password = getattr(settings, "zenoh_password", None)
     env["RALF_ZENOH_PASSWORD"] = password.get_secret_value() if password is not None else ""
-    env["RALF_ZENOH_CREDENTIALS_FILE"] = str(getattr(settings, "zenoh_credentials_file", ""))
+    for name in ("zenoh_credentials_file", "zenoh_tls_ca", "zenoh_tls_certificate", "zenoh_tls_key"):  # paths the dump does not show
+        env[f"RALF_{name.upper()}"] = str(getattr(settings, name, ""))
     endpoints = [e for e in (getattr(settings, "zenoh_listen", "") + "," + getattr(settings, "zenoh_connect", "")).split(",") if e.strip()]
     env["RALF_ZENOH_CONNECT"] = ",".join(e.strip().replace("0.0.0.0", "127.0.0.1") for e in endpoints)
     env["RALF_ZENOH_LISTEN"] = ""

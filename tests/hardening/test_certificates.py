@@ -1,0 +1,119 @@
+"""A run's certificates (workbench.certificates) and the mutual TLS they
+give the rig in peer mode, checked with ``cryptography``'s own verification
+and against a real zenoh 1.10 node configured as ``ralf-hil up`` configures
+a service: only a session with a certificate of the run's authority links,
+and both ends of a link know the other's role. Loopback only, scouting off."""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from cryptography import x509
+from cryptography.exceptions import InvalidSignature
+from cryptography.x509.oid import NameOID
+
+from protocol.keys import Keys
+from protocol.settings import CommonSettings
+from service_kit.access import insert_access
+from service_kit.transport import zenoh_config
+from workbench.certificates import CA_FILE, RoleCertificate, write_role_certificates
+from workbench.launcher import free_tcp_port
+
+pytestmark = pytest.mark.rig
+
+RIG = "tls-test"
+
+
+def _load(path: Path) -> x509.Certificate:
+    return x509.load_pem_x509_certificate(path.read_bytes())
+
+
+def test_each_role_gets_a_certificate_of_the_runs_authority_and_the_authoritys_key_is_never_written(tmp_path: Path) -> None:
+    now = datetime.datetime(2026, 12, 3, tzinfo=datetime.UTC)
+    files = write_role_certificates(tmp_path, ("controller", "tool"), now=now)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CA_FILE, "controller.key", "controller.pem", "tool.key", "tool.pem"]
+    ca = _load(tmp_path / CA_FILE)
+    assert ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
+    for role, f in files.items():
+        cert = _load(f.certificate)
+        cert.verify_directly_issued_by(ca)  # cryptography's own signature check
+        assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == role
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        assert ipaddress.ip_address("127.0.0.1") in names.get_values_for_type(x509.IPAddress)
+        assert cert.not_valid_before_utc < now < cert.not_valid_after_utc
+        assert f.key.stat().st_mode & 0o077 == 0
+    other = _load(write_role_certificates(tmp_path / "other", ("tool",))["tool"].certificate)
+    with pytest.raises(InvalidSignature):  # another run's certificate is not this authority's
+        other.verify_directly_issued_by(ca)
+
+
+def _tls(files: RoleCertificate) -> tuple[str, str, str]:
+    return (str(files.ca), str(files.certificate), str(files.key))
+
+
+def _client(endpoint: str) -> zenoh.Config:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    return config
+
+
+def _links_after(session: zenoh.Session, wait_s: float = 1.0) -> list[str]:
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and not list(session.info.peers_zid()):
+        time.sleep(0.05)
+    return [str(link) for link in session.info.links()]
+
+
+def test_only_a_certificate_of_the_runs_authority_links_and_both_ends_know_the_others_role(tmp_path: Path) -> None:
+    files = write_role_certificates(tmp_path / "run", ("dsp", "tool"))
+    strangers = write_role_certificates(tmp_path / "other-run", ("tool",))
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    settings = CommonSettings(
+        rig_id=RIG,
+        zenoh_listen=endpoint,
+        zenoh_acl="on",
+        zenoh_tls_ca=str(files["dsp"].ca),
+        zenoh_tls_certificate=str(files["dsp"].certificate),
+        zenoh_tls_key=str(files["dsp"].key),
+    )
+    node = zenoh.open(zenoh_config(settings))
+    got: list[bytes] = []
+    sub = node.declare_subscriber(Keys(RIG).controller_command, lambda s: got.append(s.payload.to_bytes()))
+    try:
+        refused = {
+            "plain tcp": _client(endpoint.replace("tls/", "tcp/")),
+            "another run's certificate": insert_access(_client(endpoint), RIG, tls=_tls(strangers["tool"])),
+            "no certificate of its own": _client(endpoint),
+        }
+        refused["no certificate of its own"].insert_json5("transport/link/tls", json.dumps({"root_ca_certificate": str(files["tool"].ca)}))
+        for what, config in refused.items():
+            session = zenoh.open(config)
+            try:
+                assert _links_after(session) == [], what
+                session.put(Keys(RIG).controller_command, what.encode())
+            finally:
+                session.close()
+        tool = zenoh.open(insert_access(_client(endpoint), RIG, tls=_tls(files["tool"])))
+        try:
+            links = _links_after(tool, 20.0)
+            assert links and all('auth_identifier: Some("dsp")' in link for link in links), links  # the opener knows whom it reached
+            accepted = [str(link) for link in node.info.links()]
+            assert accepted and all('auth_identifier: Some("tool")' in link for link in accepted), accepted
+            deadline = time.monotonic() + 20.0
+            while b"own" not in got and time.monotonic() < deadline:
+                tool.put(Keys(RIG).controller_command, b"own")
+                time.sleep(0.05)
+        finally:
+            tool.close()
+    finally:
+        sub.undeclare()
+        node.close()
+    assert b"own" in got and not set(got) - {b"own"}, got

@@ -1,0 +1,135 @@
+"""A run's own certificate authority: one certificate per role, for zenoh's
+mutual TLS (``transport/link/tls`` with ``enable_mtls``).
+
+With mutual TLS both ends of a zenoh link prove who they are: each shows a
+certificate signed by the run's authority, and each end learns the other's
+certificate name (its common name, the role: ``controller``, ``dsp``...).
+The access rules (:mod:`service_kit.access`) name roles by certificate, so
+they hold on the end that opened a link as on the end that accepted it,
+and a session cannot pass for another by claiming its zenoh id.
+
+:func:`write_role_certificates` makes the authority, signs one key pair per
+role and forgets the authority's own key: nobody can sign another
+certificate for the run afterwards. Keys are written owner-only. Made with
+``cryptography`` (elliptic curve P-256, SHA-256 signatures).
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+LOOPBACK_NAMES: tuple[str, ...] = ("127.0.0.1", "::1", "localhost")
+"""The host names a local rig's certificates are valid for (zenoh checks the
+name it connected to against the acceptor's certificate)."""
+
+VALID_FOR = datetime.timedelta(days=30)
+"""How long a run's certificates are valid (a run outliving them can no longer link anew)."""
+
+CA_FILE = "ca.pem"
+
+
+@dataclass(frozen=True)
+class RoleCertificate:
+    """The three files a session of one role needs: the run's authority, its
+    own certificate and its private key."""
+
+    ca: Path
+    certificate: Path
+    key: Path
+
+    def env(self) -> dict[str, str]:
+        """The settings that make a session use these files (``RALF_ZENOH_TLS_*``)."""
+        return {"RALF_ZENOH_TLS_CA": str(self.ca), "RALF_ZENOH_TLS_CERTIFICATE": str(self.certificate), "RALF_ZENOH_TLS_KEY": str(self.key)}
+
+
+def _subject_names(hosts: Iterable[str]) -> list[x509.GeneralName]:
+    names: list[x509.GeneralName] = []
+    for host in hosts:
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            names.append(x509.DNSName(host))
+    return names
+
+
+def _write_private(path: Path, data: bytes) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(data)
+
+
+def write_role_certificates(
+    directory: str | Path,
+    roles: Iterable[str],
+    hosts: Iterable[str] = LOOPBACK_NAMES,
+    valid_for: datetime.timedelta = VALID_FOR,
+    now: datetime.datetime | None = None,
+) -> dict[str, RoleCertificate]:
+    """A fresh authority (``ca.pem``) and, per role, ``ROLE.pem`` (common
+    name = the role, valid for ``hosts``, for both ends of a link) and
+    ``ROLE.key`` (owner-only). The authority's key is never written."""
+    out_dir = Path(directory)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    start = (now or datetime.datetime.now(datetime.UTC)) - datetime.timedelta(minutes=5)  # a peer's clock a little behind
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "ralf-hil run authority")])
+    ca = (
+        x509.CertificateBuilder()
+        .subject_name(ca_name)
+        .issuer_name(ca_name)
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(start + valid_for)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=False,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=True,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .sign(ca_key, hashes.SHA256())
+    )
+    ca_path = out_dir / CA_FILE
+    ca_path.write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    san = x509.SubjectAlternativeName(_subject_names(hosts))
+    usage = x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH])
+    files: dict[str, RoleCertificate] = {}
+    for role in roles:
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = (
+            x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, role)]))
+            .issuer_name(ca_name)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(start)
+            .not_valid_after(start + valid_for)
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(san, critical=False)
+            .add_extension(usage, critical=False)
+            .sign(ca_key, hashes.SHA256())
+        )
+        cert_path, key_path = out_dir / f"{role}.pem", out_dir / f"{role}.key"
+        cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        _write_private(key_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
+        files[role] = RoleCertificate(ca=ca_path, certificate=cert_path, key=key_path)
+    return files
