@@ -181,6 +181,9 @@ def test_quick_floors_write_a_complete_report(tmp_path: Path, capsys: pytest.Cap
     _check_latency(z)
     assert z["n"] == 30 and z["floor"] == "udp_pingpong"
     assert all(math.isfinite(v) and v > 0 for v in z["ratio"].values())
+    tls = zen["measurements"]["zenoh_pingpong_tls"]  # the same over mutual TLS, against the TCP one
+    _check_latency(tls)
+    assert tls["n"] == 30 and tls["floor"] == "zenoh_pingpong"
     can_item = report["items"]["can"]
     assert can_item["status"] == "ok", can_item
     _check_latency(can_item["measurements"]["can_pingpong"])

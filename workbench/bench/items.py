@@ -101,6 +101,7 @@ class ZenohKeys:
     echo_port: int
     paced_port: int
     dsp_port: int
+    tls_port: int
 
     @property
     def ping(self) -> str:
@@ -122,6 +123,14 @@ class ZenohKeys:
     def hold_key(self) -> str:
         return f"ralf/{self.rig_id}/bench/paced/hold"
 
+    @property
+    def tls_ping(self) -> str:
+        return f"ralf/{self.rig_id}/bench/tls/ping"
+
+    @property
+    def tls_pong(self) -> str:
+        return f"ralf/{self.rig_id}/bench/tls/pong"
+
 
 @dataclass
 class ZenohPingers:
@@ -137,23 +146,26 @@ class ZenohPingers:
 def bench_zenoh(ctx: BenchContext, result: dict[str, Any]) -> None:
     """Batch -> interrupt through the real DSP service vs bare zenoh and bare UDP ping-pong."""
     size = batch_size_bytes(BATCH_SAMPLES)
-    keys = ZenohKeys(private_rig_id("zenoh"), *free_tcp_ports(3))
+    keys = ZenohKeys(private_rig_id("zenoh"), *free_tcp_ports(4))
     result["config"] = {
         "rig_id": keys.rig_id,
         "payload_bytes": size,
         "batch": f"{BATCH_SAMPLES} samples, 2 inputs, 2 outputs, float64",
         "dsp": {"RALF_EMULATED_LATENCY_S": "0", "fft_width": DSP_FFT_WIDTH},
         "qos": "express=True, congestion_control=BLOCK, priority=REAL_TIME",
+        "tls": "zenoh_pingpong_tls: mutual TLS (P-256 certificates of one authority), as ralf-hil up links its nodes",
         "iterations": ctx.iterations,
         "warmup": ctx.warmup,
     }
     with ExitStack() as stack:
         udp, zecho, dsp, paced_echo = _start_zenoh_peers(ctx, result, keys, stack)
+        tls = _start_tls_echo(ctx, keys, stack)
         udp_port = int(udp.read_tagged("READY", 30)["port"])
         zecho.read_tagged("READY", 30)
         if paced_echo is not None:
             paced_echo.read_tagged("READY", 30)
         timed = _zenoh_pingers(ctx, result, keys, stack, size, udp_port, dsp)
+        timed.pingers.append(_tls_pinger(keys, stack, size, tls))
         samples = _measure_pingers(ctx, timed.pingers)
         # the DSP's own timing of its interrupt's put, from its next health message (every batch of the run)
         dsp_h = timed.dsp_health.after(time.monotonic(), timeout_s=3.0) if timed.dp is not None and timed.dsp_health is not None else None
@@ -196,6 +208,33 @@ def _start_zenoh_peers(ctx: BenchContext, result: dict[str, Any], keys: ZenohKey
     except Skip as exc:
         result["skipped"].append(f"dsp_batch_to_interrupt: {exc}")
     return udp, zecho, dsp, paced_echo
+
+
+def _start_tls_echo(ctx: BenchContext, keys: ZenohKeys, stack: ExitStack) -> Path:
+    """The zenoh echo again, over mutual TLS; returns the folder of its certificates."""
+    from workbench.certificates import write_role_certificates
+
+    folder = Path(ctx.log_dir) / "tls"
+    write_role_certificates(folder, ("echo", "pinger"))
+    echo = stack.enter_context(
+        Child.peer(
+            "zenoh-echo",
+            *("--listen", f"tls/127.0.0.1:{keys.tls_port}", "--ping", keys.tls_ping, "--pong", keys.tls_pong, "--tls", str(folder)),
+            name="zenoh-echo-tls",
+            log_dir=ctx.log_dir,
+        )
+    )
+    echo.read_tagged("READY", 30)
+    return folder
+
+
+def _tls_pinger(keys: ZenohKeys, stack: ExitStack, size: int, folder: Path) -> ZenohPinger:
+    session = zenoh_session(connect=[f"tls/127.0.0.1:{keys.tls_port}"], tls=(str(folder / "ca.pem"), str(folder / "pinger.pem"), str(folder / "pinger.key")))
+    stack.callback(session.close)
+    pinger = ZenohPinger(session, keys.tls_ping, keys.tls_pong, size, name="zenoh_pingpong_tls")
+    stack.callback(pinger.close)
+    pinger.connect()
+    return pinger
 
 
 def _zenoh_pingers(ctx: BenchContext, result: dict[str, Any], keys: ZenohKeys, stack: ExitStack, size: int, udp_port: int, dsp: Child | None) -> ZenohPingers:
@@ -293,6 +332,10 @@ def _zenoh_measurements(result: dict[str, Any], samples: dict[str, list[float]],
         if dp.bad:
             result["notes"].append(f"{dp.bad} undecodable flag/interrupt payloads")
     m["zenoh_pingpong"] = latency(zen_s, "udp_pingpong", udp_s)
+    if "zenoh_pingpong_tls" in samples:
+        m["zenoh_pingpong_tls"] = latency(
+            summarize(samples["zenoh_pingpong_tls"]), "zenoh_pingpong", zen_s, note="the same ping-pong over mutual TLS, as ralf-hil up links its nodes"
+        )
     m["udp_pingpong"] = latency(udp_s)
     result["notes"].append("Round trips interleaved in blocks of 50 so a figure and its floors see the same machine state.")
     result["notes"].append(

@@ -30,6 +30,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 
@@ -71,6 +72,11 @@ def zenoh_echo(args: argparse.Namespace) -> int:
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("listen/endpoints", json.dumps([args.listen]))
+    if args.tls:
+        from service_kit.access import tls_section
+
+        folder = Path(args.tls)
+        config.insert_json5("transport/link/tls", json.dumps(tls_section(str(folder / "ca.pem"), str(folder / "echo.pem"), str(folder / "echo.key"))))
     session = zenoh.open(config)
     try:
         pong = session.declare_publisher(args.pong, congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME, express=True)
@@ -198,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     z.add_argument("--pong", required=True, help="key expression of pongs")
     z.add_argument("--hold-us", type=float, default=0.0, help="busy-wait this long in the callback before answering (the DSP's step)")
     z.add_argument("--hold-key", default="", help="a put of a number (µs) here sets --hold-us; acknowledged on KEY/ack")
+    z.add_argument("--tls", default="", metavar="DIR", help="mutual TLS with DIR/ca.pem, DIR/echo.pem and DIR/echo.key (a tls/ endpoint)")
     z.set_defaults(func=zenoh_echo)
     c = sub.add_parser("can-echo", help="udp_multicast request -> reply echo")
     c.add_argument("--channel", default="239.74.163.2")

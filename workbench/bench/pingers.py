@@ -23,6 +23,7 @@ from protocol.batch_codec import SampleBatch, encode_batch
 from protocol.errors import ProtocolError
 from protocol.keys import Keys
 from protocol.messages import BlockFlag, Health, Interrupt, decode
+from service_kit.access import tls_section
 from service_kit.can_udp import LoopFreeUdpMulticastBus
 from service_kit.zenoh_log import init_zenoh_log
 from workbench.bench.procs import BenchError
@@ -57,12 +58,15 @@ def interleave(pingers: list[Pinger], iterations: int, warmup: int, block: int =
     return out
 
 
-def zenoh_session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
-    """A peer session on explicit endpoints, multicast scouting off."""
+def zenoh_session(listen: list[str] | None = None, connect: list[str] | None = None, tls: tuple[str, str, str] | None = None) -> zenoh.Session:
+    """A peer session on explicit endpoints, multicast scouting off (``tls``:
+    mutual TLS with these authority, certificate and key files)."""
     init_zenoh_log()
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
+    if tls is not None:
+        config.insert_json5("transport/link/tls", json.dumps(tls_section(*tls)))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
