@@ -210,6 +210,11 @@ class CommonSettings(BaseSettings):
             raise ValueError(f"{names} are set, so every zenoh endpoint must be tls/HOST:PORT, got {plain}")
         if not given and any(e.startswith("tls/") for e in endpoints):
             raise ValueError(f"tls/ endpoints need {names} (ralf-hil up writes them into the run's tool.env)")
+        if not given and self.zenoh_acl != "off" and self.zenoh_mode == "peer":
+            raise ValueError(
+                f"RALF_ZENOH_ACL={self.zenoh_acl} in peer mode needs mutual TLS ({names}; ralf-hil up sets them): "
+                "a peer knows the sessions it links to by their certificates"
+            )
         return self
 
     @field_validator("zenoh_connect", "zenoh_listen")

@@ -32,14 +32,20 @@ Every node applies the rules to every link, ingress and egress (zenoh 1.x
 peers do not relay, so the subject of a message is its originator; in
 client mode the router applies them and the clients, whose one link is the
 one they opened to it, do not). A link's subject is its role, proven one
-of two ways. In peer mode (``ralf-hil up``) every link is mutual TLS: both
+way per mode. In peer mode (``ralf-hil up``) every link is mutual TLS: both
 ends show a certificate of the run's own authority whose common name is
 the role (:mod:`workbench.certificates`), so each end knows the other's
 role, the end that opened the link as well as the one that accepted it,
-and a zenoh id proves nothing. In client mode (docker compose) a client
-authenticates to its router with its role's user name and password
+and the rules name roles by certificate only. Every session there also
+authenticates with its role's user name and password: zenoh adds a second
+link from an already linked zenoh id to that id's session when the user
+names agree, and the certificate does not enter that comparison, so
+without passwords a session could join a running node's session by
+claiming its id. In client mode (docker compose) a client authenticates to
+its router with its role's user name and password
 (``transport/auth/usrpwd``), which proves the opener to the acceptor, here
-the router, the one end that applies the rules. Schema: zenoh 1.10's
+the router, the one end that applies the rules, which name roles by user
+name only. Schema: zenoh 1.10's
 ``AclConfig`` (``enabled``, ``default_permission``, ``rules`` of
 ``id``/``permission``/``flows``/``messages``/``key_exprs``, ``subjects`` of
 ``id``/``usernames``/``cert_common_names``, ``policies`` of ``id``/``rules``/``subjects``),
@@ -54,7 +60,7 @@ import os
 import secrets
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Literal
 
 from protocol.keys import Keys
 from protocol.rig_description import RIG, Channel
@@ -144,29 +150,35 @@ def _role_rules(keys: Keys, role: str, scenarios: bool, prefix: str) -> list[dic
     return rules
 
 
-def acl_config(keys: Keys, scenarios: bool = False, more_rigs: Iterable[Keys] = ()) -> dict[str, Any]:
+SUBJECT_FIELDS: Final[dict[str, str]] = {"certificate": "cert_common_names", "user": "usernames"}
+"""How a link proves its role: its certificate's common name (mutual TLS, every
+link of a local rig) or the user name it authenticated with (a client of the
+compose router)."""
+
+
+def acl_config(keys: Keys, scenarios: bool = False, more_rigs: Iterable[Keys] = (), by: Literal["certificate", "user"] = "certificate") -> dict[str, Any]:
     """The ``access_control`` section of every node of the rig: deny by
-    default; each role (a link's certificate name, or the user name its
-    client authenticated with) may send what the rig description says it
-    sends and read what it reads, on those exact keys only, so no key
-    expression (``*``, ``**``, ``$*``, another rig's chunk) covers more:
-    zenoh allows a message only if an allow rule's key expression includes
-    the message's whole key expression.
+    default; each role (a link's certificate name, or with ``by="user"``
+    the user name its client authenticated with: one of them, never
+    either) may send what the rig description says it sends and read what
+    it reads, on those exact keys only, so no key expression (``*``,
+    ``**``, ``$*``, another rig's chunk) covers more: zenoh allows a
+    message only if an allow rule's key expression includes the message's
+    whole key expression.
 
     A node hands out (egress) to each role only what that role reads, and
     declares its own interest (subscribers, queryables, queries) to all.
     ``more_rigs``: further rigs the same session serves (one DSP process
     for several rigs)."""
     rules: list[dict[str, Any]] = [_allow("own declarations", "egress", DECLARATIONS, ["**"])]
-    subjects: list[dict[str, Any]] = [{"id": f"user {role}", "usernames": [role]} for role in ROLES]
-    subjects += [{"id": f"certificate {role}", "cert_common_names": [role]} for role in ROLES]
+    subjects: list[dict[str, Any]] = [{"id": f"{by} {role}", SUBJECT_FIELDS[by]: [role]} for role in ROLES]
     policies: list[dict[str, Any]] = [{"id": "declarations", "rules": ["own declarations"], "subjects": [s["id"] for s in subjects]}]
     rigs = [keys, *(k for k in more_rigs if k != keys)]
     for role in ROLES:
         role_rules = [rule for rig in rigs for rule in _role_rules(rig, role, scenarios, f"{rig.rig_id}: ")]
         rules += role_rules
         if role_rules:
-            policies.append({"id": role, "rules": [r["id"] for r in role_rules], "subjects": [f"user {role}", f"certificate {role}"]})
+            policies.append({"id": role, "rules": [r["id"] for r in role_rules], "subjects": [f"{by} {role}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
@@ -198,7 +210,7 @@ def router_config(keys: Keys, credentials_file: str, listen: str = "tcp/0.0.0.0:
         "listen": {"endpoints": [listen]},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}}},
-        "access_control": acl_config(keys, scenarios),
+        "access_control": acl_config(keys, scenarios, by="user"),
         "plugins": ROUTER_PLUGINS,
     }
 
@@ -254,7 +266,7 @@ def insert_access(
     if tls is not None:
         config.insert_json5("transport/link/tls", json.dumps(tls_section(*tls)))
     if acl:
-        section = acl_config(Keys(rig_id), scenarios, [Keys(r) for r in more_rigs])
+        section = acl_config(Keys(rig_id), scenarios, [Keys(r) for r in more_rigs], by="certificate" if tls is not None else "user")
         config.insert_json5("access_control", json.dumps(section))
     return config
 

@@ -59,12 +59,14 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
-    elif settings.zenoh_mode == "peer":
+    elif settings.zenoh_mode == "peer" and (settings.zenoh_tls_ca or not settings.zenoh_multicast_scouting):
         # A peer given no endpoint to listen on listens on none (zenoh's own
         # default is tcp/[::]:0: a plain-TCP listener on every interface, which a
         # node of the rig would then link to without the rig's TLS) and opens its
         # links itself, to every peer gossip names, whichever id is the greater:
-        # no peer can open a link to it, so a pair still links once.
+        # no peer can open a link to it, so a pair still links once. (Peers that
+        # find each other by multicast scouting without TLS keep zenoh's
+        # listener: two of them with none could not link.)
         config.insert_json5("listen/endpoints", "[]")
         config.insert_json5("scouting/gossip/autoconnect_strategy", OPENER_AUTOCONNECT_STRATEGY)
     # No zenoh ``downsampling`` on the keys tools send: what it drops it does

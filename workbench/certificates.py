@@ -33,7 +33,8 @@ LOOPBACK_NAMES: tuple[str, ...] = ("127.0.0.1", "::1", "localhost")
 name it connected to against the acceptor's certificate)."""
 
 VALID_FOR = datetime.timedelta(days=30)
-"""How long a run's certificates are valid (a run outliving them can no longer link anew)."""
+"""How long a run's certificates are valid, from 5 minutes before they are
+made (a run outliving them can no longer link anew)."""
 
 CA_FILE = "ca.pem"
 
@@ -62,8 +63,9 @@ def _subject_names(hosts: Iterable[str]) -> list[x509.GeneralName]:
     return names
 
 
-def _write_private(path: Path, data: bytes) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+def _write_new(path: Path, data: bytes) -> None:
+    """Write a file that must not exist yet (nor be a link), owner-only."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
     with os.fdopen(fd, "wb") as fh:
         fh.write(data)
 
@@ -77,9 +79,11 @@ def write_role_certificates(
 ) -> dict[str, RoleCertificate]:
     """A fresh authority (``ca.pem``) and, per role, ``ROLE.pem`` (common
     name = the role, valid for ``hosts``, for both ends of a link) and
-    ``ROLE.key`` (owner-only). The authority's key is never written."""
+    ``ROLE.key``. Every file is new (an existing file or a link in its
+    place is an error, never overwritten) and owner-only; a folder made
+    here is too. The authority's key is never written."""
     out_dir = Path(directory)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     start = (now or datetime.datetime.now(datetime.UTC)) - datetime.timedelta(minutes=5)  # a peer's clock a little behind
     ca_key = ec.generate_private_key(ec.SECP256R1())
     ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "ralf-hil run authority")])
@@ -109,7 +113,7 @@ def write_role_certificates(
         .sign(ca_key, hashes.SHA256())
     )
     ca_path = out_dir / CA_FILE
-    ca_path.write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    _write_new(ca_path, ca.public_bytes(serialization.Encoding.PEM))
     san = x509.SubjectAlternativeName(_subject_names(hosts))
     usage = x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH])
     files: dict[str, RoleCertificate] = {}
@@ -129,7 +133,7 @@ def write_role_certificates(
             .sign(ca_key, hashes.SHA256())
         )
         cert_path, key_path = out_dir / f"{role}.pem", out_dir / f"{role}.key"
-        cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-        _write_private(key_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
+        _write_new(cert_path, cert.public_bytes(serialization.Encoding.PEM))
+        _write_new(key_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
         files[role] = RoleCertificate(ca=ca_path, certificate=cert_path, key=key_path)
     return files

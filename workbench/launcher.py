@@ -120,16 +120,14 @@ class RigPlan:
     def use_tls(self, role_env: Mapping[str, Mapping[str, str]]) -> None:
         """Every link of the rig over mutual TLS: each node (the services and
         the ``launcher``) gets its role's variables from ``role_env``
-        (``RALF_ZENOH_TLS_*``, its credentials) and ``tls/`` endpoints in
-        place of the ``tcp/`` ones (an endpoint given with ``--set`` is left
-        as given)."""
-        plain = {name: self._own_endpoints(name) for name in SERVICE_MODULES}
+        (``RALF_ZENOH_TLS_*``, its credentials) and every ``tcp/`` endpoint
+        becomes ``tls/`` (one given with ``--set`` too)."""
         self.zenoh_scheme = "tls"
         for name in SERVICE_MODULES:
             env = self.service_env.setdefault(name, {})
-            for var, value in self._own_endpoints(name).items():
-                if env.get(var) == plain[name][var]:
-                    env[var] = value
+            for var in ("RALF_ZENOH_LISTEN", "RALF_ZENOH_CONNECT"):
+                endpoints = (e.strip() for e in env.get(var, "").split(","))
+                env[var] = ",".join("tls/" + e.removeprefix("tcp/") if e.startswith("tcp/") else e for e in endpoints if e)
         for role in (*SERVICE_MODULES, "launcher"):
             self.service_env.setdefault(role, {}).update(role_env[role])
 

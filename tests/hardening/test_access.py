@@ -23,6 +23,7 @@ from service_kit.access import (
     generate_credentials,
     insert_access,
     publishers,
+    router_config,
     sends,
     write_credentials_file,
 )
@@ -118,17 +119,17 @@ def test_each_key_is_sent_by_its_declared_senders_only() -> None:
     assert sends(KEYS, "launcher") == {"publication": [], "queryable": [], "liveliness": []}
 
 
-def test_each_role_is_known_by_its_certificate_or_its_user_name_never_by_an_id() -> None:
-    config = acl_config(KEYS, scenarios=True)
+@pytest.mark.parametrize(("by", "field"), [("certificate", "cert_common_names"), ("user", "usernames")])
+def test_each_role_is_known_by_one_proof_only_never_by_an_id(by: str, field: str) -> None:
+    """Peer mode names roles by certificate only, the compose router by user name only:
+    a session's password cannot lend it another role than its certificate's."""
+    config = acl_config(KEYS, scenarios=True, by=by)  # type: ignore[arg-type]
     subjects = {s["id"]: s for s in config["subjects"]}
-    assert all(set(s) in ({"id", "usernames"}, {"id", "cert_common_names"}) for s in subjects.values()), subjects
+    assert subjects == {f"{by} {role}": {"id": f"{by} {role}", field: [role]} for role in ROLES}
     for policy in config["policies"]:
         if policy["id"] in ROLES:
-            role = policy["id"]
-            assert [subjects[s] for s in policy["subjects"]] == [
-                {"id": f"user {role}", "usernames": [role]},
-                {"id": f"certificate {role}", "cert_common_names": [role]},
-            ]
+            assert policy["subjects"] == [f"{by} {policy['id']}"]
+    assert router_config(KEYS, "/c")["access_control"]["subjects"][0] == {"id": f"user {ROLES[0]}", "usernames": [ROLES[0]]}
 
 
 def test_more_rigs_get_their_own_rules() -> None:

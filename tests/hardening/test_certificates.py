@@ -23,7 +23,7 @@ from protocol.settings import CommonSettings
 from service_kit.access import insert_access
 from service_kit.transport import zenoh_config
 from workbench.certificates import CA_FILE, RoleCertificate, write_role_certificates
-from workbench.launcher import free_tcp_port
+from workbench.launcher import free_tcp_port, free_tcp_ports
 
 pytestmark = pytest.mark.rig
 
@@ -117,3 +117,74 @@ def test_only_a_certificate_of_the_runs_authority_links_and_both_ends_know_the_o
         sub.undeclare()
         node.close()
     assert b"own" in got and not set(got) - {b"own"}, got
+
+
+def test_new_files_only_owner_only_folder_and_no_link_followed(tmp_path: Path) -> None:
+    folder = tmp_path / "made"
+    write_role_certificates(folder, ("tool",))
+    assert folder.stat().st_mode & 0o077 == 0 and all(p.stat().st_mode & 0o077 == 0 for p in folder.iterdir())
+    with pytest.raises(FileExistsError):  # a second authority never overwrites the first's files
+        write_role_certificates(folder, ("tool",))
+    trap = tmp_path / "trap"
+    trap.mkdir()
+    (trap / CA_FILE).symlink_to(tmp_path / "elsewhere.pem")
+    with pytest.raises(FileExistsError):
+        write_role_certificates(trap, ("tool",))
+    assert not (tmp_path / "elsewhere.pem").exists()
+
+
+@pytest.mark.parametrize("passwords", [False, True])
+def test_zenoh_adds_a_link_claiming_a_linked_id_to_that_session_unless_the_user_names_differ(tmp_path: Path, passwords: bool) -> None:
+    """Why a local rig keeps passwords beside its certificates (eclipse-zenoh 1.10): where
+    the controller opened its link to the DSP, a session with the tool's certificate
+    claiming the DSP's zenoh id that links to the controller is added to the DSP's
+    session there (zenoh limits the links a session accepts, not those beside one it
+    opened), and its interrupt passes under the DSP's rules; with each role's user name
+    and password it is refused. When the first case fails, zenoh compares certificates too."""
+    from service_kit.access import generate_credentials, write_credentials_file
+
+    files = write_role_certificates(tmp_path / "run", ("controller", "dsp", "tool"))
+    credentials = generate_credentials(("controller", "dsp", "tool"))
+    dictionary = str(write_credentials_file(tmp_path / "credentials.txt", credentials)) if passwords else ""
+    endpoint, dsp_endpoint = (f"tls/127.0.0.1:{port}" for port in free_tcp_ports(2))
+    keys = Keys(RIG)
+
+    def node(role: str, **where: str) -> zenoh.Config:
+        auth = {"zenoh_user": role, "zenoh_password": credentials[role], "zenoh_credentials_file": dictionary} if passwords else {}
+        f = files[role]
+        tls = {"zenoh_tls_ca": str(f.ca), "zenoh_tls_certificate": str(f.certificate), "zenoh_tls_key": str(f.key)}
+        return zenoh_config(CommonSettings(rig_id=RIG, zenoh_acl="on", **tls, **auth, **where))  # type: ignore[arg-type]
+
+    dsp_zid = "a1b2c3d4e5f60718293a4b5c6d7e8f90"
+    dsp_config = node("dsp", zenoh_listen=dsp_endpoint)
+    dsp_config.insert_json5("id", json.dumps(dsp_zid))
+    dsp = zenoh.open(dsp_config)
+    controller = zenoh.open(node("controller", zenoh_listen=endpoint, zenoh_connect=dsp_endpoint))  # it opens the link
+    got: list[bytes] = []
+    sub = controller.declare_subscriber(keys.interrupt, lambda s: got.append(s.payload.to_bytes()))
+    try:
+        assert _links_after(dsp, 20.0)
+        deadline = time.monotonic() + 20.0
+        while b"real" not in got and time.monotonic() < deadline:  # the DSP's own interrupt, under its rules
+            dsp.put(keys.interrupt, b"real")
+            time.sleep(0.05)
+        assert b"real" in got
+        attack = _client(endpoint)
+        attack.insert_json5("id", json.dumps(dsp_zid))
+        auth = {"user": "tool", "password": credentials["tool"]} if passwords else {}
+        tool = zenoh.open(insert_access(attack, RIG, tls=_tls(files["tool"]), **auth))
+        try:
+            linked = _links_after(tool, 2.0)
+            for _ in range(20):
+                tool.put(keys.interrupt, b"forged")
+                time.sleep(0.05)
+        finally:
+            tool.close()
+    finally:
+        dsp.close()
+        sub.undeclare()
+        controller.close()
+    if passwords:
+        assert linked == [] and b"forged" not in got, linked
+    else:
+        assert linked and b"forged" in got, linked

@@ -32,7 +32,8 @@ from protocol.messages import (
     ScenarioCommand,
     encode,
 )
-from service_kit.access import insert_access_from_env
+from service_kit.transport import zenoh_config
+from tests.hardening.zenoh_rig import settings_from_env
 
 
 def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
@@ -86,11 +87,8 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
     session = None
     if attack:
         env = dict(line.split("=", 1) for line in tool_env.read_text().splitlines())
-        config = zenoh.Config()
-        config.insert_json5("mode", '"peer"')
-        config.insert_json5("scouting/multicast/enabled", "false")
-        config.insert_json5("connect/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
-        session = zenoh.open(insert_access_from_env(config, rig_id, env))
+        assert env["RALF_ZENOH_CONNECT"] == f"tls/127.0.0.1:{port}"
+        session = zenoh.open(zenoh_config(settings_from_env(env)))  # a tool's session, as the tools open it
         keys = Keys(rig_id)
         lock = threading.Lock()
         mine: set[bytes] = set()

@@ -14,7 +14,7 @@ import pytest
 import zenoh
 
 from protocol.settings import CommonSettings
-from service_kit.transport import OPENER_AUTOCONNECT_STRATEGY, zenoh_config
+from service_kit.transport import zenoh_config
 from tests.hardening.zenoh_rig import PeerRig, settings_from_env, wait_peers
 
 pytestmark = pytest.mark.rig
@@ -24,9 +24,12 @@ def test_a_peer_without_a_listen_endpoint_listens_on_nothing_and_opens_its_links
     config = zenoh_config(CommonSettings(zenoh_connect="tcp/127.0.0.1:7447"))
     assert json.loads(config.get_json("listen/endpoints")) == []
     assert json.loads(config.get_json("scouting/gossip/autoconnect_strategy")) == {"peer": {"to_router": "always", "to_peer": "always"}}
-    assert "always" in OPENER_AUTOCONNECT_STRATEGY
     listening = zenoh_config(CommonSettings(zenoh_listen="tcp/127.0.0.1:7448"))
     assert json.loads(listening.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7448"]
+    assert json.loads(listening.get_json("scouting/gossip/autoconnect_strategy")) != {"peer": {"to_router": "always", "to_peer": "always"}}
+    # peers that find each other by multicast scouting, without TLS, keep zenoh's own listener: two with none could not link
+    scouting = zenoh_config(CommonSettings(zenoh_multicast_scouting=True))
+    assert "tcp/[::]:0" in json.loads(scouting.get_json("listen/endpoints"))["peer"]
 
 
 @pytest.mark.parametrize("zid", ["1", "ffffffffffffffffffffffffffffffff"])

@@ -204,9 +204,16 @@ def test_an_older_recordings_timeouts_move_into_the_group() -> None:
     ("raw", "expected"), [("true", "on"), ("1", "on"), ("on", "on"), ("false", "off"), ("0", "off"), ("off", "off"), ("scenarios", "scenarios")]
 )
 def test_access_control_reads_a_switch_or_scenarios(clean_env: pytest.MonkeyPatch, raw: str, expected: str) -> None:
+    clean_env.setenv("RALF_ZENOH_MODE", "client")  # (a peer with rules needs its certificates: below)
     clean_env.setenv("RALF_ZENOH_ACL", raw)
     assert load_settings(CommonSettings).zenoh_acl == expected
-    assert CommonSettings(zenoh_acl=raw == "true").zenoh_acl == ("on" if raw == "true" else "off")
+    assert CommonSettings(zenoh_mode="client", zenoh_acl=raw == "true").zenoh_acl == ("on" if raw == "true" else "off")
+
+
+def test_access_rules_in_peer_mode_need_mutual_tls(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RALF_ZENOH_ACL", "on")
+    text = _config_error(DspSettings)
+    assert "RALF_ZENOH_ACL=on in peer mode needs mutual TLS" in text and "RALF_ZENOH_TLS_CA" in text, text
 
 
 RETIRED_NAMES = [

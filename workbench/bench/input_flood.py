@@ -48,14 +48,12 @@ def flood(endpoint: str, tool_env: dict[str, str], messages: int, deadline_s: fl
 
     from protocol.keys import Keys
     from protocol.messages import ConfigChange, encode
-    from service_kit.access import insert_access_from_env
+    from protocol.settings import CommonSettings
+    from service_kit.transport import zenoh_config
 
-    config = zenoh.Config()
-    config.insert_json5("mode", '"peer"')
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    insert_access_from_env(config, tool_env["RALF_RIG_ID"], tool_env)  # the tool's certificate (or an older run's user and password)
-    session = zenoh.open(config)
+    # a tool's session as the tools open it, from the run's tool.env (an older run's: its user and password)
+    values: dict[str, Any] = {name.removeprefix("RALF_").lower(): value for name, value in tool_env.items() if name.startswith("RALF_")}
+    session = zenoh.open(zenoh_config(CommonSettings.model_validate({**values, "zenoh_connect": endpoint})))
     sent, spent = 0, 0.0
     try:
         keys = Keys(tool_env["RALF_RIG_ID"])

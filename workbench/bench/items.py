@@ -22,6 +22,7 @@ import json
 import math
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import ExitStack, contextmanager
@@ -214,7 +215,7 @@ def _start_tls_echo(ctx: BenchContext, keys: ZenohKeys, stack: ExitStack) -> Pat
     """The zenoh echo again, over mutual TLS; returns the folder of its certificates."""
     from workbench.certificates import write_role_certificates
 
-    folder = Path(ctx.log_dir) / "tls"
+    folder = Path(tempfile.mkdtemp(prefix="tls-", dir=ctx.log_dir))  # a fresh owner-only folder
     write_role_certificates(folder, ("echo", "pinger"))
     echo = stack.enter_context(
         Child.peer(
