@@ -70,6 +70,8 @@ class Verdict:
     """Why the verdict is not PASS (every finding, worst first); empty on PASS."""
     findings: dict[str, Any] = field(default_factory=dict)
     """The counts the rule looked at (all of them, zero ones too)."""
+    by_level: dict[str, list[str]] = field(default_factory=dict)
+    """The reasons under the level each one calls for (INVALID, FAIL, DEGRADED)."""
 
     @property
     def exit_code(self) -> int:
@@ -79,7 +81,7 @@ class Verdict:
         return self.level + (": " + "; ".join(self.reasons) if self.reasons else ": nothing went wrong")
 
     def as_dict(self) -> dict[str, Any]:
-        return {"verdict": self.level, "reasons": list(self.reasons), "exit_code": self.exit_code, "findings": self.findings}
+        return {"verdict": self.level, "reasons": list(self.reasons), "by_level": self.by_level, "exit_code": self.exit_code, "findings": self.findings}
 
 
 def _counters(summary: Mapping[str, Any], service: str) -> Mapping[str, Any]:
@@ -140,4 +142,4 @@ def judge(summary: Mapping[str, Any], timing: str | None = None) -> Verdict:
             degraded.append(f"{what} lines in the logs: " + ", ".join(f"{name} {n}" for name, n in lines.items() if n))
 
     level: Level = "INVALID" if invalid else "FAIL" if fail else "DEGRADED" if degraded else "PASS"
-    return Verdict(level, tuple(invalid + fail + degraded), findings)
+    return Verdict(level, tuple(invalid + fail + degraded), findings, {"INVALID": invalid, "FAIL": fail, "DEGRADED": degraded})

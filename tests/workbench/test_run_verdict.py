@@ -68,6 +68,8 @@ def test_a_failed_service_or_timing_fails_over_any_degradation(more: dict[str, A
     v = judge(summary({"interrupts_lost": 3}, **more), timing)
     assert v.level == "FAIL" and v.exit_code == 1
     assert v.reasons == (reason, "3 interrupts lost (never came)")
+    assert v.by_level == {"INVALID": [], "FAIL": [reason], "DEGRADED": ["3 interrupts lost (never came)"]}
+    assert v.as_dict()["by_level"] == v.by_level
 
 
 @pytest.mark.parametrize(
