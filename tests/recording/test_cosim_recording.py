@@ -95,6 +95,7 @@ def test_a_replay_and_a_doctor_of_a_recording_holding_no_message_do_not_pass(rec
         text = report_markdown(comparison)
         assert "**compared nothing**" in text and "identical" not in text
         assert main(["replay", str(path)]) == 1
+        assert main(["replay", str(path), "--can", "--interface", "virtual", "--channel", "nothing-compared"]) == 1
         assert main(["doctor", str(path)]) == 1
     assert main(["doctor", str(recorded["path"])]) == 0
 
