@@ -150,6 +150,15 @@ def test_an_experiment_checking_nothing_or_every_item_of_nothing_does_not_pass(t
     assert checks["every one and the rest"]["detail"] == "1 of 1" and not checks["every one and the rest"]["passed"]
 
 
+def test_experiment_all_over_no_experiment_does_not_pass(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from workbench.cli import main
+
+    framework.discover()
+    monkeypatch.setattr(framework, "_REGISTRY", {})
+    assert main(["experiment", "all", "--out", str(tmp_path), "--no-progress"]) == 1
+    assert "0 of 0 experiments ok: none ran, nothing to pass" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------ offline experiments
 
 
