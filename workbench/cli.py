@@ -173,6 +173,11 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     latency = latency_class(controller_health, summary.get("host")) if controller_health else None
     if latency:
         table.add_row("host latency class", latency)
+    if summary.get("log_warnings") is not None:
+        errors = summary.get("log_errors") or {}
+        table.add_row(
+            "log WARNING / ERROR lines", ", ".join(f"{name} {n} / {errors.get(name, 0)}" for name, n in summary["log_warnings"].items()) or "no log counted"
+        )
     run = summary.get("verdict")
     if run:
         for reason in run["reasons"]:

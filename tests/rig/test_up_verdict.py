@@ -38,6 +38,7 @@ def test_a_clean_run_passes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert summary["verdict"]["findings"]["control_ticks"] == 1000
     assert summary["log_warnings"] == {"controller": 0, "plant": 0, "dsp": 0}
     assert "run verdict" in table and "PASS (exit 0" in table
+    assert "controller 0 / 0, plant 0 / 0, dsp 0 / 0" in table
 
 
 def test_dropped_interrupts_degrade_the_run_and_are_shown(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
