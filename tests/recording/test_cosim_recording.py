@@ -54,6 +54,7 @@ def test_the_file_holds_every_channel_validated_against_its_schema(recorded: dic
 
 def test_cantools_decodes_the_recorded_frames(recorded: dict[str, Any]) -> None:
     db = cantools.database.load_file(str(ROOT / "protocol" / "ralf.dbc"))
+    assert isinstance(db, cantools.database.can.Database)
     known = {m.frame_id for m in db.messages}
     rec = Recording.load(recorded["path"], only=["can"])
     frames = rec.can_frames()

@@ -342,7 +342,7 @@ def test_the_verdict_judges_the_rig_and_reports_the_hosts_latency_class() -> Non
     from workbench.timing_test.report import Criteria, health_verdict, latency_class
 
     slow = {"count": 6000, "p50": 1e-4, "p99": 1.128e-3, "p999": 2e-3, "max": 3e-3}
-    healthy = {"latencies": {"sync_jitter": slow}, "counters": {"deadline_miss_run_max": 0, "overrun_run_max": 1, "overruns": 3}}
+    healthy: dict[str, Any] = {"latencies": {"sync_jitter": slow}, "counters": {"deadline_miss_run_max": 0, "overrun_run_max": 1, "overruns": 3}}
     assert health_verdict(healthy) == "PASS: deadline misses in a row 0 (<= 1); overruns 3, at most 1 in a row (counted, not judged)"
     line = latency_class(healthy, {"preempt_rt": False})
     assert line == "general-purpose kernel: wake-up p99 1128 us, p99.9 2000 us (outside the PREEMPT_RT class, p99 <= 250 us)"
