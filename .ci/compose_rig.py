@@ -303,44 +303,51 @@ def watch(passwords: dict[str, str]) -> dict[str, Any]:
         return {"exit": out.returncode, "error": (out.stderr or out.stdout)[-400:]}
 
 
+MIN_CHECKS = 3 * len(SERVICES) + len(NETWORKS) + 1 + 3 + 1 + 1 + 3
+"""The checks a judged run makes at least: each service's exit, ready line and log, each service's
+networks, the controller's run summary and its ticks, batches and interrupts, the monitor's view of
+its health, the cold-start control and the three bad inputs. A run judged on fewer (a record or
+logs missing their parts) fails as "too few checks", never passes on what was not looked at."""
+
+
 def evaluate(work: Path) -> dict[str, Any]:
     record = json.loads((work / "run.json").read_text())
     logs = {s: (work / "logs" / f"{s}.log").read_text(errors="replace") if (work / "logs" / f"{s}.log").exists() else "" for s in SERVICES}
     failures: list[str] = list(record["problems"])
+    made = 0
+
+    def check(ok: bool, failure: str) -> bool:
+        nonlocal made
+        made += 1
+        if not ok:
+            failures.append(failure)
+        return ok
+
     for service in SERVICES:
-        if record["exit"].get(service) != 0:
-            failures.append(f"{service} exited {record['exit'].get(service, 'never started')}")
+        check(record["exit"].get(service) == 0, f"{service} exited {record['exit'].get(service, 'never started')}")
     startup: dict[str, Any] = {}
     for service in SERVICES:
         ready = parse_ready_line(logs[service])
-        if ready is None:
-            failures.append(f"{service}: no ready line in its log")
+        if not check(ready is not None, f"{service}: no ready line in its log") or ready is None:
             continue
         startup[service] = {"ready_s": ready.seconds, "kernels_cached": ready.cached, "kernels_compiled": ready.compiled}
         if service != "zenoh-router":
-            if ready.compiled:
-                failures.append(f"{service}: {ready.compiled} numba kernel(s) compiled at start: {first_line(logs[service], 'ready in')}")
-            if not ready.cached:
-                failures.append(f"{service}: no numba kernel loaded from cache")
+            check(not ready.compiled, f"{service}: {ready.compiled} numba kernel(s) compiled at start: {first_line(logs[service], 'ready in')}")
+            check(bool(ready.cached), f"{service}: no numba kernel loaded from cache")
     for service, wanted in NETWORKS.items():
-        if set(record["networks"].get(service, [])) != wanted:
-            failures.append(f"{service} is on networks {record['networks'].get(service)}, not {sorted(wanted)}")
+        check(set(record["networks"].get(service, [])) == wanted, f"{service} is on networks {record['networks'].get(service)}, not {sorted(wanted)}")
     log_lines: dict[str, dict[str, Any]] = {}
     for service in SERVICES:
         errors, warnings = log_problems(logs[service])
         log_lines[service] = {"errors": len(errors), "warnings": len(warnings), "error_lines": errors[:20], "warning_lines": warnings[:20]}
-        if errors:
-            failures.append(f"{service}: {len(errors)} ERROR line(s) in its log: " + " | ".join(errors[:5]))
-    m = RUN_ENDED.search(logs["controller"])
+        check(not errors, f"{service}: {len(errors)} ERROR line(s) in its log: " + " | ".join(errors[:5]))
+    m = RUN_ENDED.search(logs.get("controller", ""))
     controller: dict[str, Any] = {}
-    if m is None:
-        failures.append("the controller's log has no run summary")
-    else:
+    if check(m is not None, "the controller's log has no run summary") and m is not None:
         counters = ast.literal_eval(m["counters"])
         controller = {"ticks": int(m["ticks"]), "sim_time_s": float(m["sim"]), **{k: v for k, v in counters.items() if isinstance(v, int)}}
         for name in ("ticks", "batches_sent", "interrupts"):
-            if not controller.get(name):
-                failures.append(f"the controller's log shows no {name}: {m.group(0)[:300]}")
+            check(bool(controller.get(name)), f"the controller's log shows no {name}: {m.group(0)[:300]}")
     hops: dict[str, Any] = {}
     services = ((record.get("monitor") or {}).get("snapshot") or {}).get("services") or {}
     health = {name: (s or {}).get("health") or {} for name, s in services.items()}
@@ -354,18 +361,19 @@ def evaluate(work: Path) -> dict[str, Any]:
             "what": "the DSP's own turnaround (arrival -> interrupt put)",
             **{k: dsp_turnaround[k] for k in ("count", "p50", "p99", "max")},
         }
-    if not hops:
-        failures.append(f"ralf-hil monitor from the host saw no controller health: {(record.get('monitor') or {}).get('error', '')[:300]}")
+    check(bool(hops), f"ralf-hil monitor from the host saw no controller health: {(record.get('monitor') or {}).get('error', '')[:300]}")
     cold = record.get("cold_start") or {}
-    if not cold.get("compiled"):
-        failures.append(f"the DSP with an empty numba cache reported no compiled kernel (the check could not see one): {cold}")
+    check(bool(cold.get("compiled")), f"the DSP with an empty numba cache reported no compiled kernel (the check could not see one): {cold}")
     expected_bad = {"missing_credentials": "no such file", "wrong_password": "refused the session", "router_not_up": "nothing answered"}
     for case, text in expected_bad.items():
         got = record["bad_input"].get(case)
-        if not got or got["exit"] in (0, "hung") or text not in str(got["line"]).lower():
-            failures.append(f"bad input {case}: {got}")
+        check(bool(got) and got["exit"] not in (0, "hung") and text in str(got["line"]).lower(), f"bad input {case}: {got}")
+    if made < MIN_CHECKS:
+        failures.append(f"too few checks: {made} made, at least {MIN_CHECKS} needed to judge the run")
     return {
         "verdict": "pass" if not failures else "fail",
+        "checks": made,
+        "min_checks": MIN_CHECKS,
         "failures": failures,
         "startup": startup,
         "healthy_after_s": record["healthy_after_s"],
@@ -413,7 +421,8 @@ def write_results(result: dict[str, Any], out: Path) -> None:
         "",
         f"- Date: {result['date']}; machine: {result['machine']}; load average (1 min) {result['load_avg'][0]:.1f} before the run, "
         f"{result['load_avg'][1]:.1f} after (the host is shared: start-up times follow the load)",
-        f"- Verdict: **{result['verdict']}**" + ("" if not result["failures"] else ": " + "; ".join(result["failures"])),
+        f"- Verdict: **{result['verdict']}** over {result.get('checks', '?')} checks (at least {result.get('min_checks', '?')})"
+        + ("" if not result["failures"] else ": " + "; ".join(result["failures"])),
         f"- Run: {result['run_s']:.0f} s once every container was healthy; controller {c.get('ticks', 0)} ticks, {c.get('batches_sent', 0)} batches, "
         f"{c.get('interrupts', 0)} interrupts, {c.get('deadline_misses', 0)} deadline misses, {c.get('overruns', 0)} overruns (misses reported, not asserted)",
         "- Whole script: " + ", ".join(f"{k.removesuffix('_s').replace('_', ' ')} {v:.0f} s" for k, v in result["stages"].items()),
@@ -488,7 +497,7 @@ def report(work: Path, stages: str, out: Path) -> int:
             print(f"compose-rig:   {service} ERROR line: {line}", file=sys.stderr)
     for failure in result["failures"]:
         print(f"compose-rig: FAIL: {failure}", file=sys.stderr)
-    print(f"compose-rig: {result['verdict']}; results in {out}", file=sys.stderr)
+    print(f"compose-rig: {result['verdict']} over {result['checks']} checks (at least {result['min_checks']}); results in {out}", file=sys.stderr)
     return 0 if result["verdict"] == "pass" else 1
 
 

@@ -112,6 +112,9 @@ class HeldFrames:
         self.conflicts = conflicts
         self.counters = counters
         self.frames: deque[_Held] = deque(maxlen=PENDING_MEMORY)
+        self.model_dead: str | None = None
+        """Set once the plant reported its model dead (EMCY PLANT_MODEL_FAULT of a cause in
+        :data:`protocol.can_map.MODEL_DEAD_CAUSES`, not disowned): what it said."""
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -140,6 +143,8 @@ class HeldFrames:
                 emcy = can_map.decode_emcy(h.data)
                 if emcy.code in CONFLICT_EMCYS:
                     self.plant_conflict_emcy(emcy)
+                elif emcy.code == can_map.EmcyCode.PLANT_MODEL_FAULT:
+                    self.plant_model_fault(emcy)
         self.frames = keep
         return None
 
@@ -156,6 +161,14 @@ class HeldFrames:
         else:
             self.counters.forged_emcys += 1
         self.conflicts.add(f"forged {h.kind}: {what} id 0x{h.cob_id:03X} [{h.data.hex(' ')}] at {h.at:.6f} s is not the plant's ({why})")
+
+    def plant_model_fault(self, emcy: can_map.Emergency) -> None:
+        """The plant's EMCY PLANT_MODEL_FAULT: counted; a cause that ends the model marks it dead."""
+        self.counters.plant_model_faults += 1
+        cause = emcy.vendor[0] if emcy.vendor else 0
+        if cause in can_map.MODEL_DEAD_CAUSES:
+            self.counters.plant_model_dead += 1
+            self.model_dead = f"EMCY PLANT_MODEL_FAULT, cause {cause} ({can_map.MODEL_FAULT_CAUSES[cause]}): no further model steps, samples frozen"
 
     def plant_conflict_emcy(self, emcy: can_map.Emergency) -> None:
         self.counters.conflict_emcys += 1

@@ -34,7 +34,11 @@ going (after :meth:`PlantLink.start_node`):
   conflict EMCY not disowned by then is the plant's (``conflict_emcys``). A
   STOPPED or boot-up heartbeat followed by a SYNC without answer is real:
   :class:`PlantFault` "left OPERATIONAL". Every CAN_ID_COLLISION is a
-  conflict of its own (``impersonations``).
+  conflict of its own (``impersonations``). An EMCY PLANT_MODEL_FAULT not
+  disowned is counted (``plant_model_faults``); one whose cause ends the
+  model (Error, Fatal, Terminate: ``protocol.can_map.MODEL_DEAD_CAUSES``,
+  counted in ``plant_model_dead``) is a :class:`PlantFault` "plant model
+  dead", as a lost plant: the node still answers, with frozen samples.
 * **SDO writes** by another master to the objects this link configured or
   relies on (0x1017, 0x1019, 0x1400 sub 5, 0x2000, 0x2003): a conflict, and
   the link writes its value back at once (``comm_restores``, no wait for
@@ -198,6 +202,9 @@ class PlantLink:
             self.node_state = state
             self._running = False
             raise PlantFault(f"plant node left OPERATIONAL (heartbeat says {state.name}, and SYNC {self.sync_counter} got no TPDO1)")
+        if self._held.model_dead is not None:
+            self._running = False
+            raise PlantFault(f"plant model dead: {self._held.model_dead}")
 
     def nmt(self, command: NmtCommand) -> None:
         if command is not NmtCommand.START:

@@ -37,6 +37,10 @@ class PlantLinkCounters:
     """of those, reads (uploads): counted, not a conflict (they change nothing)"""
     conflict_emcys: int = 0
     """SYNC_CONFLICT / RPDO_CONFLICT emergencies from the plant (not disowned by it)"""
+    plant_model_faults: int = 0
+    """PLANT_MODEL_FAULT emergencies from the plant (not disowned by it): its model's step failed"""
+    plant_model_dead: int = 0
+    """of those, the ones after which the model makes no further step (the plant fault policy ends the run)"""
     comm_resets: int = 0
     """NMT RESET_COMMUNICATION sent before starting the node"""
     surplus_tpdos: int = 0

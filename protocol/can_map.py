@@ -144,6 +144,13 @@ class EmcyCode(enum.IntEnum):
     outputs): the last outputs are held (CiA 301 "user software"; vendor byte 0: the cause)."""
 
 
+MODEL_FAULT_CAUSES: Final[dict[int, str]] = {1: "error or fatal", 2: "discard", 3: "non-finite outputs", 4: "terminated"}
+"""EMCY PLANT_MODEL_FAULT's vendor byte 0: why the plant model's step failed."""
+MODEL_DEAD_CAUSES: Final[frozenset[int]] = frozenset({1, 4})
+"""Causes after which the model makes no further step (FMI allows no doStep after Error, Fatal or
+Terminate): the plant's samples are frozen for the rest of the run, the plant model is dead."""
+
+
 def cob_ids(node_id: int = DEFAULT_NODE_ID) -> dict[str, int]:
     """All COB-IDs of a node, by frame name."""
     if not 1 <= node_id <= 127:

@@ -112,3 +112,46 @@ def test_an_error_line_fails_the_run_and_warnings_are_counted(compose_rig: Modul
     readme = (tmp_path / "out" / "README.md").read_text()
     assert "| controller | 1 | 1 | `2026-12-03 05:12:02,300 controller WARNING" in readme
     assert "| plant | 0 | 0 | - |" in readme
+
+
+def _healthy(compose_rig: ModuleType, work: Path) -> None:
+    """A record and logs of a run that passes every check."""
+    data = record(compose_rig.SERVICES)
+    data["monitor"] = {
+        "snapshot": {"services": {"controller": {"health": {"latencies": {"hop_sync_to_tpdo": {"count": 9, "p50": 1e-3, "p99": 2e-3, "max": 3e-3}}}}}}
+    }
+    data["bad_input"] = {
+        "missing_credentials": {"exit": 2, "line": "No such file"},
+        "wrong_password": {"exit": 1, "line": "the router refused the session"},
+        "router_not_up": {"exit": 1, "line": "nothing answered"},
+    }
+    (work / "logs").mkdir()
+    (work / "run.json").write_text(json.dumps(data))
+    for service in compose_rig.SERVICES:
+        (work / "logs" / f"{service}.log").write_text(
+            f"2026-12-03 05:12:00,000 {service} INFO x: ready in 1.00 s (process start to ready); numba kernels: 1 loaded from cache, 0 compiled\n"
+        )
+    with open(work / "logs" / "controller.log", "a") as fh:
+        fh.write(
+            "2026-12-03 05:12:40,000 controller INFO controller: run ended after 9475 ticks (47.38 s simulated): {'batches_sent': 310, 'interrupts': 309}\n"
+        )
+
+
+def test_a_sound_run_passes_and_says_over_how_many_checks(compose_rig: ModuleType, tmp_path: Path) -> None:
+    _healthy(compose_rig, tmp_path)
+    result = compose_rig.evaluate(tmp_path)
+    assert result["failures"] == [] and result["verdict"] == "pass"
+    assert result["checks"] == 4 * 3 + 3 * 2 + 4 + 1 + 3 + 1 + 1 + 3 >= result["min_checks"] == 25
+
+
+def test_a_check_over_nothing_does_not_pass(compose_rig: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With no service to look at (an empty service list) every failure-finding loop finds nothing:
+    the run is judged on too few checks and fails."""
+    _healthy(compose_rig, tmp_path)
+    monkeypatch.setattr(compose_rig, "SERVICES", ())
+    monkeypatch.setattr(compose_rig, "NETWORKS", {})
+    (tmp_path / "logs" / "controller.log").unlink()
+    monkeypatch.setattr(compose_rig, "RUN_ENDED", compose_rig.re.compile("x^"))
+    result = compose_rig.evaluate(tmp_path)
+    assert result["verdict"] == "fail" and result["checks"] < result["min_checks"]
+    assert f"too few checks: {result['checks']} made, at least 25 needed to judge the run" in result["failures"]

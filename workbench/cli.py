@@ -30,10 +30,12 @@ from workbench.extras import missing_extra
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
+from workbench.log_counts import count_log_files, counting_warnings
 from workbench.plant_figures import cli as plant_cli
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.timing_test.report import health_verdict, latency_class
+from workbench.verdict import judge
 
 console = Console(stderr=True)
 
@@ -130,6 +132,9 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
         f = c["latest_frequency_hz"]
         table.add_row("latest identified f1", f"{f:.3f} Hz" if f else "–")
         table.add_row("deadline misses", str(c["deadline_misses"]))
+        lost = summary["health"].get("controller", {}).get("counters", {}).get("interrupts_lost")
+        if lost is not None:
+            table.add_row("interrupts lost", f"{lost} (never came; a miss is one not there by its deadline)")
         table.add_row("overruns", str(c["overruns"]))
     hops = 0
     for name, health in summary["health"].items():
@@ -168,6 +173,16 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     latency = latency_class(controller_health, summary.get("host")) if controller_health else None
     if latency:
         table.add_row("host latency class", latency)
+    if summary.get("log_warnings") is not None:
+        errors = summary.get("log_errors") or {}
+        table.add_row(
+            "log WARNING / ERROR lines", ", ".join(f"{name} {n} / {errors.get(name, 0)}" for name, n in summary["log_warnings"].items()) or "no log counted"
+        )
+    run = summary.get("verdict")
+    if run:
+        for reason in run["reasons"]:
+            table.add_row("what went wrong", reason)
+        table.add_row("run verdict", f"{run['verdict']} (exit {run['exit_code']}; rule: docs/reliability.md#the-runs-verdict)")
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row(
@@ -181,6 +196,13 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
             f"{v['clients_seen']} client(s), {v['slow_client_notices']} slow-client notice(s), {v['slow_clients_disconnected']} slow client(s) disconnected",
         )
     Console().print(table)  # the summary is the command's result: stdout
+
+
+def add_verdict(summary: dict[str, Any]) -> None:
+    """The run's verdict (:mod:`workbench.verdict`) into ``summary["verdict"]``, judged
+    with the timing verdict of the table's "timing verdict" row."""
+    controller_health = summary["health"].get("controller")
+    summary["verdict"] = judge(summary, health_verdict(controller_health) if controller_health else None).as_dict()
 
 
 STARTUP_ALLOWANCE_S = 120.0
@@ -408,22 +430,25 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         observer.close()
     summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
     summary["control_wall_s"] = round(sup.control_s, 3)
+    failure = sup.failure
+    status = summary["controller"]
+    if not failure and not received and (status is None or status["ticks"] == 0):
+        failure = "the controller made no progress (0 control ticks)"
+    summary["failure"] = failure
+    summary["log_warnings"], summary["log_errors"] = count_log_files({name: p.log_path for name, p in sup.procs.items()})
+    add_verdict(summary)
     print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if received:
         console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped; logs in {log_dir}")
         return INTERRUPTED
-    failure = sup.failure
-    status = summary["controller"]
-    if not failure and (status is None or status["ticks"] == 0):
-        failure = "the controller made no progress (0 control ticks)"
     if failure:
         console.print(f"[red]rig failed: {failure}[/red]")
     bad = {k: v for k, v in sup.exit_codes.items() if v != 0}
     for name in bad:
         console.print(f"[red]{name} exited with {bad[name]}; last log lines:[/red]\n{tail(sup.procs[name].log_path)}")
-    return 1 if (failure or bad) else 0
+    return max(1 if (failure or bad) else 0, int(summary["verdict"]["exit_code"]))
 
 
 def _start_live(args: argparse.Namespace) -> Any:
@@ -457,10 +482,11 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         console.print("[red]ralf-hil up: --can-log goes with --record[/red]")
         return 2
     try:
-        run = run_cosim(
-            controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
-            record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None,
-        )  # fmt: skip
+        with counting_warnings() as (warnings, errors):
+            run = run_cosim(
+                controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
+                record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None,
+            )  # fmt: skip
     except (ConfigError, ValueError) as exc:
         console.print(f"[red]ralf-hil up: {exc}[/red]")
         return 2
@@ -478,18 +504,22 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
         "clock": "cosim",
         "host": host_info(),
+        "failure": run.result.error or ("" if run.result.ticks else "the controller made no progress (0 control ticks)"),
+        "log_warnings": {name: warnings[name] for name in ("controller", "plant", "dsp", "rig") if name in warnings or name != "rig"},
+        "log_errors": {name: errors[name] for name in ("controller", "plant", "dsp", "rig") if name in errors or name != "rig"},
     }
     console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
     if args.record:
         summary["recording"] = {"path": args.record, "can_log": args.can_log, **(run.recording or {})}
         console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
+    add_verdict(summary)
     print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if run.result.error or run.result.ticks == 0:
         console.print(f"[red]rig failed: {run.result.error or 'the controller made no progress (0 control ticks)'}[/red]")
         return 1
-    return 0
+    return int(summary["verdict"]["exit_code"])
 
 
 def positive_seconds(text: str) -> float:

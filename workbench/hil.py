@@ -43,6 +43,8 @@ from protocol.errors import ConfigError
 from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, ScenarioCommand, decode, encode
 from protocol.setting_groups import Timeouts
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
+from workbench.log_counts import counting_warnings
+from workbench.verdict import Verdict, judge
 
 Clock = Literal["cosim", "lockstep", "realtime"]
 CLOCKS: tuple[Clock, ...] = ("cosim", "lockstep", "realtime")
@@ -99,6 +101,15 @@ class RunRecord:
     wall_time_s: float
     recording: Path | None = None
     """The MCAP file of a co-simulated run (open it in Foxglove with docs/foxglove-layout.json)."""
+    verdict: Verdict | None = None
+    """The run's verdict (:mod:`workbench.verdict`: PASS, DEGRADED, FAIL or INVALID, with what went wrong);
+    the ``rig`` fixture fails a test whose run is INVALID (no tick, or a dead plant model) unless
+    the test is marked ``rig_invalid_ok``."""
+
+    def summary(self) -> str:
+        """One line: what the run covered and its verdict."""
+        verdict = self.verdict.line() if self.verdict is not None else "not judged"
+        return f"{self.clock} run: {self.ticks} ticks ({self.sim_time_s:.2f} s simulated), {len(self.interrupts)} interrupts; {verdict}"
 
     @property
     def max_abs_deflection_in(self) -> float:
@@ -308,7 +319,19 @@ class HilRig:
 
     def _run_guarded(self, duration_s: float) -> None:
         try:
-            self.record = self._run_cosim(duration_s) if self.clock == "cosim" else self._run_in_process(duration_s)
+            with counting_warnings() as (warnings, errors):
+                record = self._run_cosim(duration_s) if self.clock == "cosim" else self._run_in_process(duration_s)
+            record.verdict = judge(
+                {
+                    "controller": {"ticks": record.ticks},
+                    "health": {name: h.model_dump() for name, h in record.health.items()},
+                    "exit_codes": {},
+                    "failure": record.error or "",
+                    "log_warnings": dict(warnings),
+                    "log_errors": dict(errors),
+                }
+            )
+            self.record = record
         except BaseException as exc:  # noqa: BLE001 - re-raised in the test's thread by wait()
             self._failure = exc
 

@@ -110,14 +110,28 @@ def timing_suite(report: Mapping[str, Any]) -> SuiteVerdict:
     for c in report["criteria"]:
         verdict = str(c["verdict"])
         props = {"value": c["value"], "limit": c["limit"], "unit": c["unit"]}
+        if "judged" in c:
+            props["judged"] = c["judged"]
         if verdict == "pass":
             cases.append(CaseVerdict(c["name"], "passed", properties=props))
         elif verdict == "fail":
             cases.append(CaseVerdict(c["name"], "failed", f"{c['name']}: {c['value']} {c['unit']} exceeds the limit {c['limit']} {c['unit']}", props))
+        elif verdict.startswith("fail ("):
+            cases.append(CaseVerdict(c["name"], "failed", f"{c['name']}: {verdict.removeprefix('fail ').strip('()')}", props))
         else:
             cases.append(CaseVerdict(c["name"], "skipped", verdict, props))
     if report.get("error"):
         cases.append(CaseVerdict("run", "error", f"the run failed: {report['error']}", {"ticks": report.get("ticks")}))
+    run = report.get("run_verdict")
+    if run:
+        props = {"verdict": run["verdict"], "exit_code": run["exit_code"]}
+        if run["verdict"] == "PASS":
+            cases.append(CaseVerdict("run verdict", "passed", properties=props))
+        elif run["verdict"] == "DEGRADED":  # the run went on: passed, what went wrong in its properties and output
+            cases.append(CaseVerdict("run verdict", "passed", properties={**props, "reasons": "; ".join(run["reasons"])}))
+        else:
+            text = f"run verdict {run['verdict']}: " + "; ".join(run["reasons"])
+            cases.append(CaseVerdict("run verdict", "failed" if run["verdict"] == "FAIL" else "error", text, props))
     return SuiteVerdict(
         f"timing-test.{report['scenario']['name']}",
         cases,

@@ -20,8 +20,14 @@ Markers (the closest wins; settings of several markers merge):
 ``@pytest.mark.rig_faults("scenario.yaml")`` or ``rig_faults({...})``
     a link-fault scenario (docs/timing-faults.md).
 
+``@pytest.mark.rig_invalid_ok``
+    the test expects an INVALID run (no tick, or a dead plant model).
+
 The fixture is a :class:`workbench.hil.HilRig`; an unknown setting or clock
-fails the test's setup with one line naming it.
+fails the test's setup with one line naming it. A run whose verdict
+(:mod:`workbench.verdict`, ``record.verdict``) is INVALID tested nothing:
+a test that passed over it fails at teardown with the run's one-line
+summary (ticks, interrupts, verdict), unless marked ``rig_invalid_ok``.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ MARKERS = (
     "rig_clock(name): the clock of the rig fixture: cosim (default), lockstep or realtime",
     "rig_settings(controller=None, plant=None, dsp=None, common=None): settings of the rig fixture, per service",
     "rig_faults(scenario): a link-fault scenario (file path or mapping) for the rig fixture",
+    "rig_invalid_ok: the rig fixture lets the test pass although its run is INVALID (no tick, or a dead plant model)",
 )
 
 
@@ -92,3 +99,16 @@ def rig(request: pytest.FixtureRequest, tmp_path: Any) -> Iterator[HilRig]:
         yield hil
     finally:
         hil.close()
+    record = hil.record
+    passed = getattr(node, "rig_call_passed", False)
+    if record is not None and record.verdict is not None and record.verdict.level == "INVALID" and passed and node.get_closest_marker("rig_invalid_ok") is None:
+        pytest.fail(f"rig fixture: the run tested nothing: {record.summary()} (mark the test rig_invalid_ok if it expects that)", pytrace=False)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Any:
+    """Note whether the test's own body passed (the rig fixture judges its run only then)."""
+    report = yield
+    if call.when == "call":
+        item.rig_call_passed = report.passed  # type: ignore[attr-defined]
+    return report

@@ -3,6 +3,8 @@ run by pytest's own ``pytester`` with the plugin loaded from its ``pytest11`` en
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 pytest_plugins = ["pytester"]
@@ -124,3 +126,40 @@ def test_realtime_rig_can_bus_canopen_node_and_live_test_port(pytester: pytest.P
         """
     )
     pytester.runpytest_subprocess("-p", "no:cacheprovider").assert_outcomes(passed=1)
+
+
+def test_a_run_that_tested_nothing_fails_the_test_that_passed_over_it(pytester: pytest.Pytester, tmp_path: Path) -> None:
+    """A plant model that dies mid-run (the example FMU's doStep returns Error at step 100): the
+    run is INVALID; a test that passed over it fails at teardown with the run's summary, one
+    marked rig_invalid_ok passes, and a sound run's record says what it covered and PASS."""
+    from plant_emulator.fmu.build import EXAMPLE_SOURCE, build_c_fmu
+    from tests.plant.fmu.support import write_mapping
+
+    fmu = build_c_fmu(EXAMPLE_SOURCE, tmp_path / "two_mode_plant.fmu")
+    mapping = write_mapping(tmp_path, parameters={"fault_step": 100, "fault_kind": 2})
+    pytester.makepyfile(
+        f"""
+        import pytest
+
+        DEAD = dict(plant={{"model": "fmu:{fmu}", "fmu_mapping": "{mapping}"}})
+
+        @pytest.mark.rig_settings(**DEAD)
+        def test_blind(rig):
+            assert rig.run(duration_s=2.0).ticks > 0
+
+        @pytest.mark.rig_invalid_ok
+        @pytest.mark.rig_settings(**DEAD)
+        def test_expected(rig):
+            record = rig.run(duration_s=2.0)
+            assert record.verdict.level == "INVALID" and record.error.startswith("plant model dead")
+
+        def test_sound(rig):
+            record = rig.run(duration_s=2.0)
+            assert record.verdict.level == "PASS" and record.verdict.findings["control_ticks"] == 400
+            assert record.summary().startswith("cosim run: 400 ticks (2.00 s simulated), ")
+            assert record.summary().endswith("; PASS: nothing went wrong")
+        """
+    )
+    result = pytester.runpytest_subprocess()
+    result.assert_outcomes(passed=3, errors=1)
+    result.stdout.fnmatch_lines(["*ERROR at teardown of test_blind*", "*rig fixture: the run tested nothing: cosim run: 10? ticks*INVALID: plant model dead*"])

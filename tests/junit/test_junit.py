@@ -38,10 +38,10 @@ def test_timing_test_writes_a_case_per_criterion(tmp_path: Path) -> None:
     assert code == 1
     report = json.loads((tmp_path / "r/report.json").read_text())
     got = cases(junit)
-    assert set(got) == {c["name"] for c in report["criteria"]}
+    assert set(got) == {c["name"] for c in report["criteria"]} | {"run verdict"}
     misses = got["consecutive deadline misses"]
     measured = next(c for c in report["criteria"] if c["name"] == "consecutive deadline misses")
-    assert props(misses) == {"value": str(measured["value"]), "limit": "0", "unit": "batches"}
+    assert props(misses) == {"value": str(measured["value"]), "limit": "0", "unit": "batches", "judged": str(report["batches"])}
     assert measured["value"] > 0
     [failure] = misses.result  # type: ignore[attr-defined]
     assert isinstance(failure, Failure) and "exceeds the limit 0" in (failure.message or "")
@@ -50,8 +50,12 @@ def test_timing_test_writes_a_case_per_criterion(tmp_path: Path) -> None:
         [skip] = got[name].result  # type: ignore[attr-defined]
         assert isinstance(skip, Skipped) and "n/a" in (skip.message or "")
         assert "value" not in props(got[name])
+    [run] = got["run verdict"].result  # type: ignore[attr-defined]
+    assert report["run_verdict"]["verdict"] == "FAIL" and props(got["run verdict"])["verdict"] == "FAIL"
+    assert isinstance(run, Failure) and "timing FAIL: consecutive deadline misses" in (run.message or "")
+    assert "interrupts lost (never came)" in (run.message or "")
     suite = next(iter(JUnitXml.fromfile(str(junit))))
-    assert (suite.tests, suite.failures, suite.skipped, suite.errors) == (4, 1, 2, 0)
+    assert (suite.tests, suite.failures, suite.skipped, suite.errors) == (5, 2, 2, 0)
 
 
 def test_experiment_writes_a_case_per_check(tmp_path: Path) -> None:

@@ -16,7 +16,7 @@ import pytest
 from tests.recording.support import CHANNELS_OF_A_RUN, read_validated
 from workbench.cosim import run_cosim
 from workbench.recording.reader import Recording
-from workbench.recording.replay import compare
+from workbench.recording.replay import compare, report_markdown
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTROLLER = {"duration_s": 6.0, "tf_download_samples": 200, "batch_size": 20}
@@ -54,6 +54,7 @@ def test_the_file_holds_every_channel_validated_against_its_schema(recorded: dic
 
 def test_cantools_decodes_the_recorded_frames(recorded: dict[str, Any]) -> None:
     db = cantools.database.load_file(str(ROOT / "protocol" / "ralf.dbc"))
+    assert isinstance(db, cantools.database.can.Database)
     known = {m.frame_id for m in db.messages}
     rec = Recording.load(recorded["path"], only=["can"])
     frames = rec.can_frames()
@@ -69,8 +70,50 @@ def test_cantools_decodes_the_recorded_frames(recorded: dict[str, Any]) -> None:
 def test_replay_of_a_cosim_recording_is_bit_identical(recorded: dict[str, Any]) -> None:
     rec = Recording.load(recorded["path"])
     same, replayed = compare(rec)
-    assert same.identical
-    assert len(replayed) == len(rec.interrupts()) > 5
+    assert same.identical and not same.too_few
+    assert len(replayed) == len(rec.interrupts()) == same.compared > 5
+    assert f"all {same.compared} replayed interrupts equal the recorded ones bit for bit" in report_markdown(same)
+
+
+def test_a_replay_and_a_doctor_of_a_recording_holding_no_message_do_not_pass(recorded: dict[str, Any], tmp_path: Path) -> None:
+    """A valid MCAP with no message, and the first 100 bytes of a real
+    recording: replay compares nothing and doctor checks nothing, and both
+    say so and exit 1 (no "identical", no "ok")."""
+    from mcap.writer import Writer
+
+    from workbench.cli import main
+
+    empty = tmp_path / "empty.mcap"
+    with open(empty, "wb") as fh:
+        writer = Writer(fh)
+        writer.start(profile="", library="test")
+        writer.finish()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded["path"].read_bytes()[:100])
+    for path in (empty, cut):
+        comparison, _ = compare(Recording.load(path, only=("dsp/config", "dsp/batch", "dsp/interrupt", "plant/truth")))
+        assert comparison.too_few and not comparison.identical and comparison.compared == 0
+        text = report_markdown(comparison)
+        assert "**compared nothing**" in text and "identical" not in text
+        assert main(["replay", str(path)]) == 1
+        assert main(["replay", str(path), "--can", "--interface", "virtual", "--channel", "nothing-compared"]) == 1
+        assert main(["doctor", str(path)]) == 1
+    assert main(["doctor", str(recorded["path"])]) == 0
+
+
+def test_doctor_says_how_many_messages_it_checked(recorded: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
+    from mcap.reader import make_reader
+
+    from workbench.cli import main
+    from workbench.recording.doctor import examine
+
+    with open(recorded["path"], "rb") as fh:
+        stats = make_reader(fh).get_summary().statistics  # type: ignore[union-attr]
+    found = examine(recorded["path"])
+    assert found.problems == [] and (found.messages, found.chunks) == (stats.message_count, stats.chunk_count)  # type: ignore[union-attr]
+    assert found.messages > 100 and found.channels > 3 and found.chunks >= 1
+    assert main(["doctor", str(recorded["path"])]) == 0
+    assert f"ok ({found.messages} messages on {found.channels} channels in {found.chunks} chunks checked)" in capsys.readouterr().out
 
 
 def test_doctor_finds_the_file_sound_and_a_damaged_one_not(recorded: dict[str, Any], tmp_path: Path) -> None:

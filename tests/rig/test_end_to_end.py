@@ -43,7 +43,11 @@ def _up(tmp_path: Path, *extra: str, duration: float = 8.0) -> tuple[subprocess.
 def test_realtime_rig_runs_and_stops_cleanly(tmp_path: Path) -> None:
     proc, summary = _up(tmp_path)
     logs = "\n".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
-    assert proc.returncode == 0, proc.stderr + logs
+    verdict = summary["verdict"]
+    # The exit code follows the run's verdict; in real time a loaded host may miss deadlines
+    # (timing FAIL, exit 1): nothing else may go wrong.
+    assert proc.returncode == verdict["exit_code"], proc.stderr + logs
+    assert not verdict["by_level"]["INVALID"] and all(r.startswith("timing FAIL") for r in verdict["by_level"]["FAIL"]), verdict
     assert summary["exit_codes"] == {"controller": 0, "plant": 0, "dsp": 0}
     ctrl = summary["controller"]
     assert ctrl["ticks"] > 800  # over 4 s of the 8 s at 200 Hz, whatever the start-up took on a loaded host

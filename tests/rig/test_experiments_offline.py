@@ -127,6 +127,38 @@ def test_all_reports_errors_in_the_index(tmp_path: Path, monkeypatch: pytest.Mon
     assert json.loads((tmp_path / "zz-tiny" / "results.json").read_text())["results"]["x"] == "nan"
 
 
+def test_an_experiment_checking_nothing_or_every_item_of_nothing_does_not_pass(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def nothing(ctx: framework.ExperimentContext):  # noqa: ANN202
+        return ctx.report("nothing")
+
+    def every_of_none(ctx: framework.ExperimentContext):  # noqa: ANN202
+        rep = ctx.report("every of none")
+        assert rep.check_every("every download agrees", [True, True, True], "15 s, 20 s, 25 s")
+        assert not rep.check_every("every lag positive", [], "none measurable")
+        assert not rep.check_every("at least three runs", [True, True], at_least=3)
+        assert not rep.check_every("every one and the rest", [True], also=False)
+        return rep
+
+    monkeypatch.setitem(framework._REGISTRY, "zz-nothing", Experiment("zz-nothing", "§0", "checks nothing", nothing))
+    monkeypatch.setitem(framework._REGISTRY, "zz-none", Experiment("zz-none", "§0", "checks over nothing", every_of_none))
+    outcomes, _ = run_all(tmp_path, names=["zz-nothing", "zz-none"], show_progress=False)
+    assert [(o.status, o.checks_passed, o.checks_total) for o in outcomes] == [("checks failed", 0, 0), ("checks failed", 1, 4)]
+    checks = {c["name"]: c for c in json.loads((tmp_path / "zz-none" / "results.json").read_text())["checks"]}
+    assert checks["every download agrees"] == {"name": "every download agrees", "passed": True, "detail": "3 of 3; 15 s, 20 s, 25 s"}
+    assert checks["every lag positive"]["detail"] == "too few to judge: 0 (at least 1); none measurable"
+    assert checks["at least three runs"]["detail"] == "too few to judge: 2 (at least 3)"
+    assert checks["every one and the rest"]["detail"] == "1 of 1" and not checks["every one and the rest"]["passed"]
+
+
+def test_experiment_all_over_no_experiment_does_not_pass(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from workbench.cli import main
+
+    framework.discover()
+    monkeypatch.setattr(framework, "_REGISTRY", {})
+    assert main(["experiment", "all", "--out", str(tmp_path), "--no-progress"]) == 1
+    assert "0 of 0 experiments ok: none ran, nothing to pass" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------ offline experiments
 
 

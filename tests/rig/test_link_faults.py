@@ -269,9 +269,27 @@ def test_timing_test_report_gives_verdicts_percentiles_and_histograms(tmp_path: 
     report = json.loads((tmp_path / "r" / "report.json").read_text())
     assert rc == 0 and report["passed"]
     assert report["miss_run_lengths"]["longest"] == 5  # the five batches whose interrupts were due in [0.5, 1) s
+    misses = next(c for c in report["criteria"] if c["name"] == "consecutive deadline misses")
+    assert misses["judged"] == report["batches"] > 5 and misses["verdict"] == "pass"
+    run = report["run_verdict"]  # the run went on through the lost interrupts: degraded, exit 0
+    assert run["verdict"] == "DEGRADED" and run["findings"]["interrupts_lost"] == 5 and run["exit_code"] == 0
     assert report["host"]["cpus"] and "load_average_after" in report["host"]
     assert (tmp_path / "r" / "hist_tet.png").stat().st_size > 1000
     assert main(["timing-test", str(spec), "--out", str(tmp_path / "r2")]) == 1  # default: never two misses in a row
+
+
+def test_a_timing_test_too_short_to_break_its_criteria_fails(tmp_path: Path) -> None:
+    """0.05 s: ten ticks, no batch answered: no criterion can be broken, so none passes."""
+    from workbench.cli import main
+
+    spec = tmp_path / "s.json"
+    spec.write_text(json.dumps({"name": "t", "duration_s": 0.05, "settings": {"controller": FAST, "dsp": FAST_DSP}, "faults": []}))
+    assert main(["timing-test", str(spec), "--out", str(tmp_path / "r")]) == 1
+    report = json.loads((tmp_path / "r" / "report.json").read_text())
+    misses = next(c for c in report["criteria"] if c["name"] == "consecutive deadline misses")
+    assert report["batches"] == 0 and misses["judged"] == 0
+    assert misses["verdict"] == "fail (too few batches to judge: 0, at least 2)" and not report["passed"]
+    assert "too few batches to judge: 0" in (tmp_path / "r" / "report.md").read_text()
 
 
 def test_lost_interrupts_under_policy_degrade_make_the_oatf_fall_back() -> None:
@@ -324,7 +342,7 @@ def test_the_verdict_judges_the_rig_and_reports_the_hosts_latency_class() -> Non
     from workbench.timing_test.report import Criteria, health_verdict, latency_class
 
     slow = {"count": 6000, "p50": 1e-4, "p99": 1.128e-3, "p999": 2e-3, "max": 3e-3}
-    healthy = {"latencies": {"sync_jitter": slow}, "counters": {"deadline_miss_run_max": 0, "overrun_run_max": 1, "overruns": 3}}
+    healthy: dict[str, Any] = {"latencies": {"sync_jitter": slow}, "counters": {"deadline_miss_run_max": 0, "overrun_run_max": 1, "overruns": 3}}
     assert health_verdict(healthy) == "PASS: deadline misses in a row 0 (<= 1); overruns 3, at most 1 in a row (counted, not judged)"
     line = latency_class(healthy, {"preempt_rt": False})
     assert line == "general-purpose kernel: wake-up p99 1128 us, p99.9 2000 us (outside the PREEMPT_RT class, p99 <= 250 us)"

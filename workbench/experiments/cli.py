@@ -103,7 +103,9 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         outcomes, index = run_all(out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record)
         err_console.print(f"index: {index}")
         _write_junit(args, outcomes, err_console)
-        return 0 if all(o.ok for o in outcomes) and not broken_modules() else 1
+        ok = sum(o.ok for o in outcomes)
+        err_console.print(f"{ok} of {len(outcomes)} experiments ok" + ("" if outcomes else ": none ran, nothing to pass"), highlight=False)
+        return 0 if outcomes and ok == len(outcomes) and not broken_modules() else 1
     try:
         get_experiment(args.name)
     except UnknownExperimentError as exc:

@@ -273,6 +273,10 @@ class ExperimentContext:
 # --------------------------------------------------------------------------- runners
 
 
+MIN_CHECKS = 1
+"""Checks an experiment must make to be ``ok`` (none: ``checks failed``, 0/0)."""
+
+
 @dataclass
 class RunOutcome:
     """What :func:`run_experiment` did."""
@@ -373,7 +377,8 @@ def run_experiment(
             description=exp.description,
         )
     passed = sum(1 for c in report.checks if c.passed)
-    status: Literal["ok", "checks failed"] = "ok" if passed == len(report.checks) else "checks failed"
+    # An experiment that checked nothing has not passed: at least one check.
+    status: Literal["ok", "checks failed"] = "ok" if passed == len(report.checks) >= MIN_CHECKS else "checks failed"
     return RunOutcome(
         exp.name,
         status,

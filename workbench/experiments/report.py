@@ -16,7 +16,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -199,6 +199,16 @@ class Report:
         """Record a physics/consistency check; returns ``passed``."""
         self.checks.append(Check(name, bool(passed), detail))
         return bool(passed)
+
+    def check_every(self, name: str, outcomes: Iterable[bool], detail: str = "", *, at_least: int = 1, also: bool = True) -> bool:
+        """A check that holds for every item of a set judged over at least ``at_least`` items (and
+        ``also``): "k of n" leads its detail, and a set of fewer items fails as too few to judge,
+        never passes on nothing."""
+        judged = [bool(x) for x in outcomes]
+        counted = f"{sum(judged)} of {len(judged)}"
+        if len(judged) < at_least:
+            counted = f"too few to judge: {len(judged)} (at least {at_least})"
+        return self.check(name, len(judged) >= at_least and all(judged) and also, counted + (f"; {detail}" if detail else ""))
 
     def thesis(self, claim: str, observed: str, agrees: bool | str | None = None) -> Report:
         """One row of the comparison with what the thesis reports (qualitatively)."""

@@ -110,6 +110,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 messages, bus, ignore_timestamps=args.ignore_timestamps, gap_s=args.gap, skip_s=args.skip, limit=args.limit, max_wall_s=args.max_wall
             )
         console.print(f"{sent} of {len(messages)} CAN frames replayed on {args.interface}:{args.channel}")
+        if not messages:
+            console.print(f"[red]{args.path}: no CAN frames to replay{' in direction ' + args.direction if args.direction else ''}[/red]")
+            return 1
         did = True
     if args.identify or not did:
         overrides = _parse_sets(args.set)
@@ -123,6 +126,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             (out / "replay.json").write_text(json.dumps(comparison.as_dict(), indent=2))
             _plot_tracks(rec, comparison, out / "replay_tracks.png")
             console.print(f"report: {out / 'replay.md'}")
+        if comparison.too_few:
+            console.print(f"[red]{args.path}: nothing to compare ({comparison.compared} batches; a replay needs at least one recorded interrupt)[/red]")
+            return 1
         if args.require_identical and not comparison.identical:
             console.print(f"[red]replay differs from the recorded run in batches {comparison.mismatched[:10]}[/red]")
             return 1
@@ -164,12 +170,13 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 
 def cmd_doctor(args: argparse.Namespace) -> int:
-    from workbench.recording.doctor import check
+    from workbench.recording.doctor import examine
 
     status = 0
     for path in args.paths:
-        problems = check(path)
-        print(f"{path}: {'ok' if not problems else f'{len(problems)} problem(s)'}")
+        found = examine(path)
+        problems = found.problems
+        print(f"{path}: {'ok' if not problems else f'{len(problems)} problem(s)'} ({found.line()})")
         for line in problems[: args.max_problems]:
             print(f"  {line}")
         status = status or (1 if problems else 0)

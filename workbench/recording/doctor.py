@@ -10,21 +10,51 @@ library's stream reader rather than on our own reader:
   metadata, per-channel messages) and time range equal what the file holds;
 * the summary's channels and schemas equal those of the data section.
 
-Each problem is one line; an empty list means the file is sound.
+Each problem is one line; an empty list means the file is sound. A file
+that holds no message is a problem too (:data:`MIN_MESSAGES`): there is
+nothing in it to check, and nothing to plot or replay.
 """
 
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 from mcap import records
 from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.stream_reader import StreamReader, breakup_chunk
 
+MIN_MESSAGES = 1
+"""Messages a recording must hold for ``ralf-hil doctor`` to call it sound."""
+
+
+@dataclass
+class Examination:
+    """What :func:`examine` found: the problems and what it checked."""
+
+    problems: list[str]
+    messages: int = 0
+    channels: int = 0
+    chunks: int = 0
+
+    def line(self) -> str:
+        return f"{self.messages} messages on {self.channels} channels in {self.chunks} chunks checked"
+
 
 def check(path: str | Path) -> list[str]:
     """The problems of the MCAP file at ``path`` (empty: none found)."""
+    return examine(path).problems
+
+
+def examine(path: str | Path) -> Examination:
+    """The problems of the MCAP file at ``path`` and the counts of what was checked."""
+    found = Examination([])
+    found.problems = _check(path, found)
+    return found
+
+
+def _check(path: str | Path, found: Examination) -> list[str]:
     problems: list[str] = []
     schemas: set[int] = set()
     channels: dict[int, str] = {}
@@ -65,6 +95,7 @@ def check(path: str | Path) -> list[str]:
                 elif isinstance(record, records.Statistics):
                     statistics = record
     except Exception as exc:  # noqa: BLE001 -- any failure to read is the finding: bad CRC, truncation, corrupt compression
+        found.messages, found.channels, found.chunks = sum(per_channel.values()), len(channels), counts["chunks"]
         what = f"{type(exc).__name__}: {exc}".rstrip(": ")
         if isinstance(exc, (EndOfFile, RecordLengthLimitExceeded)) and statistics is None and counts["chunks"] + sum(per_channel.values()) > 0:
             # A recording cut by a signal: sound up to its last whole record.
@@ -75,6 +106,9 @@ def check(path: str | Path) -> list[str]:
                 f"{counts['chunks']} whole chunks before it, {span:.1f} s of log time; no summary (plot and replay read it up to the cut)",
             ]
         return [*problems, f"unreadable: {what}"]
+    found.messages, found.channels, found.chunks = sum(per_channel.values()), len(channels), counts["chunks"]
+    if found.messages < MIN_MESSAGES:
+        problems.append(f"holds {found.messages} messages (at least {MIN_MESSAGES} needed): nothing to check, plot or replay")
     if statistics is None:
         problems.append("no Statistics record in the summary")
     else:

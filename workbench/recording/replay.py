@@ -216,10 +216,18 @@ class Comparison:
     recorded: TrackScore
     replayed: TrackScore
     identical: bool
-    """Every replayed interrupt equals the recorded one (batch, poles, confidence, history, valid fraction)."""
+    """Every replayed interrupt equals the recorded one (batch, poles, confidence, history, valid fraction),
+    and there were at least :data:`MIN_COMPARED` of them: nothing compared is not identical."""
     matched: int
     mismatched: list[int]
     """Batch sequence numbers whose identification differs (or exists on one side only)."""
+    compared: int = 0
+    """Batches compared: those recorded or replayed (either side)."""
+
+    @property
+    def too_few(self) -> bool:
+        """Fewer than :data:`MIN_COMPARED` batches to compare: the replay proves nothing."""
+        return self.compared < MIN_COMPARED
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -228,9 +236,16 @@ class Comparison:
             "recorded": self.recorded.as_dict(),
             "replayed": self.replayed.as_dict(),
             "identical_to_recorded": self.identical,
+            "compared": self.compared,
+            "too_few_to_compare": self.too_few,
             "matched": self.matched,
             "mismatched_batches": self.mismatched[:50],
         }
+
+
+MIN_COMPARED = 1
+"""Batches a replay must compare for its verdict to mean anything: one interrupt equal bit for bit
+already checks the whole identification chain; none checks nothing (``ralf-hil replay`` exits 1)."""
 
 
 def compare(rec: Recording, overrides: Mapping[str, Any] | None = None) -> tuple[Comparison, list[Identified]]:
@@ -242,14 +257,16 @@ def compare(rec: Recording, overrides: Mapping[str, Any] | None = None) -> tuple
     seen = {i.batch_seq for i in replayed}
     mismatched = sorted({i.batch_seq for i in replayed if by_seq.get(i.batch_seq) is None or by_seq[i.batch_seq].key() != i.key()} | (set(by_seq) - seen))
     truth = rec.truth()
+    compared = len(set(by_seq) | seen)
     comparison = Comparison(
         settings=settings.model_dump(mode="json", include=set(identifier_fields())),
         overrides=dict(overrides or {}),
         recorded=score_track("recorded (on-line)", recorded, truth),
         replayed=score_track("replayed", replayed, truth),
-        identical=not mismatched and len(replayed) == len(recorded),
+        identical=not mismatched and len(replayed) == len(recorded) and compared >= MIN_COMPARED,
         matched=len(replayed) - len([s for s in mismatched if s in seen]),
         mismatched=mismatched,
+        compared=compared,
     )
     return comparison, replayed
 
@@ -282,11 +299,15 @@ def report_markdown(c: Comparison) -> str:
         rows.append((label, _fmt(fmt, a), _fmt(fmt, b)))
     table = "\n".join("| " + " | ".join(r) + " |" for r in rows[:1]) + "\n| --- | ---: | ---: |\n" + "\n".join("| " + " | ".join(r) + " |" for r in rows[1:])
     overrides = ", ".join(f"{k}={v}" for k, v in c.overrides.items()) or "none (the recorded settings)"
-    verdict = (
-        "**identical**: every replayed interrupt equals the recorded one bit for bit"
-        if c.identical
-        else f"differs from the on-line run in {len(c.mismatched)} batch(es) (expected when the settings differ)"
-    )
+    if c.too_few:
+        verdict = (
+            f"**compared nothing**: {c.recorded.interrupts} interrupt(s) recorded, {c.replayed.interrupts} replayed "
+            f"(at least {MIN_COMPARED} needed): not a test of anything"
+        )
+    elif c.identical:
+        verdict = f"**identical**: all {c.compared} replayed interrupts equal the recorded ones bit for bit"
+    else:
+        verdict = f"differs from the on-line run in {len(c.mismatched)} of {c.compared} batch(es) (expected when the settings differ)"
     return (
         "# ralf-hil replay: identification\n\n"
         f"Identifier settings: {', '.join(f'{k}={v}' for k, v in c.settings.items())}.\n\n"

@@ -6,8 +6,11 @@ faults, the mode (``cosim``, ``lockstep``: the one-process rig on a
 virtual CAN bus and an in-process zenoh session, or ``realtime``: the same
 on the wall clock), the duration, settings per service and the criteria.
 The report (:mod:`workbench.timing_test.report`): Markdown, JSON and PNG
-histograms in ``--out``; exit code 0 if every criterion passes, 1 if one
-fails, 2 if the run could not be made. The wake-up latency criteria are
+histograms in ``--out``; exit code 0 if every criterion passes and the
+run's verdict (:mod:`workbench.verdict`, in the report as ``run_verdict``)
+is PASS or DEGRADED, 1 otherwise, 2 if the run could not be made. A
+criterion judged over fewer batches (ticks) than could break it (its limit
+plus one) fails: "too few to judge". The wake-up latency criteria are
 the host's latency class (PREEMPT_RT): judged only with ``--strict`` (or a
 limit given on the command line), otherwise reported.
 """
@@ -23,7 +26,9 @@ from typing import Any
 
 from service_kit.link_faults import Scenario, ScenarioError, load_scenario
 from workbench.hostinfo import host_info
-from workbench.timing_test.report import Criteria, evaluate, write_report
+from workbench.log_counts import counting_warnings
+from workbench.timing_test.report import Criteria, evaluate, verdict_failed, write_report
+from workbench.verdict import judge
 
 log = logging.getLogger(__name__)
 
@@ -60,9 +65,20 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
     if scenario.description:
         print(f"timing test {scenario.name}: {' '.join(scenario.description.split())}")
     host_before = host_info()
-    run = run_scenario(scenario, args.duration, args.mode)
+    with counting_warnings() as (warnings, errors):
+        run = run_scenario(scenario, args.duration, args.mode)
     host_after = host_info()
     verdict = evaluate(run.controller, criteria, mode=args.mode or scenario.mode)
+    failed = [c["name"] for c in verdict["criteria"] if verdict_failed(str(c["verdict"]))]
+    facts = {
+        "controller": {"ticks": run.result.ticks},
+        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in run.health.items()},
+        "exit_codes": {},
+        "failure": run.result.error or "",
+        "log_warnings": dict(warnings),
+        "log_errors": dict(errors),
+    }
+    run_verdict = judge(facts, "FAIL: " + ", ".join(failed) if failed else "PASS")
     out = Path(args.out)
     report = {
         "scenario": json.loads(scenario.model_dump_json()),
@@ -72,6 +88,7 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
         "wall_time_s": run.wall_time_s,
         "host": {**host_before, "load_average_after": host_after["load_average"]},
         **verdict,
+        "run_verdict": run_verdict.as_dict(),
     }
     paths = write_report(report, run.controller, out)
     if args.junit:
@@ -80,8 +97,10 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
         print(f"JUnit XML: {write_junit(args.junit, [timing_suite(report)])}")
     print(f"timing test {scenario.name}: {'PASS' if report['passed'] else 'FAIL'}; report {paths[0]}")
     for c in report["criteria"]:
-        print(f"  {c['name']}: {c['value']} (limit {c['limit']}) {c['verdict']}")
-    return 0 if report["passed"] and run.result.error is None else 1
+        judged = f" over {c['judged']} {c['unit']}" if "judged" in c else ""
+        print(f"  {c['name']}: {c['value']} (limit {c['limit']}{judged}) {c['verdict']}")
+    print(f"run verdict: {run_verdict.line()}")
+    return 0 if report["passed"] and run.result.error is None and run_verdict.exit_code == 0 else 1
 
 
 def register(subparsers: Any) -> None:

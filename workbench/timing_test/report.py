@@ -135,30 +135,36 @@ def evaluate(controller: Any, criteria: Criteria, mode: str) -> dict[str, Any]:
             )
         else:
             checks.append({"name": name, "value": None, "limit": limit, "unit": "us", "verdict": "n/a (no wall-clock schedule in this mode)"})
+    # A run too short to break a criterion cannot pass it: at least max + 1 batches (ticks) judged.
+    enough = criteria.max_consecutive_misses + 1
+    batches = len(controller.batch_missed)
     checks.append(
         {
             "name": "consecutive deadline misses",
             "value": longest,
             "limit": criteria.max_consecutive_misses,
             "unit": "batches",
-            "verdict": "pass" if longest <= criteria.max_consecutive_misses else "fail",
+            "judged": batches,
+            "verdict": _too_few(batches, enough, "batches") or ("pass" if longest <= criteria.max_consecutive_misses else "fail"),
         }
     )
     overruns_judged = criteria.strict or mode != "realtime"  # in real time the scheduler's (counted); judged with --strict
+    ticks = int(controller.tick)
     checks.append(
         {
             "name": "consecutive overruns",
             "value": controller.overrun_run_max,
             "limit": criteria.max_consecutive_misses,
             "unit": "ticks",
-            "verdict": ("pass" if controller.overrun_run_max <= criteria.max_consecutive_misses else "fail")
+            "judged": ticks,
+            "verdict": (_too_few(ticks, enough, "ticks") or ("pass" if controller.overrun_run_max <= criteria.max_consecutive_misses else "fail"))
             if overruns_judged
             else "info (counted, not judged in real time without --strict)",
         }
     )
     faults = controller.faults.as_counters() if controller.faults is not None else {}
     return {
-        "passed": all(c["verdict"] != "fail" for c in checks),
+        "passed": not any(verdict_failed(str(c["verdict"])) for c in checks),
         "criteria": checks,
         "latencies": stats,
         "miss_run_lengths": {"runs": len(misses), "longest": longest, "histogram": {str(k): misses.count(k) for k in sorted(set(misses))}},
@@ -168,6 +174,18 @@ def evaluate(controller: Any, criteria: Criteria, mode: str) -> dict[str, Any]:
         "faults": faults,
         "fault_events": len(controller.faults.engine.events) if controller.faults is not None else 0,
     }
+
+
+def _too_few(judged: int, needed: int, unit: str) -> str | None:
+    """A failing verdict for a criterion judged over fewer items than could break it, else None."""
+    if judged >= needed:
+        return None
+    return f"fail (too few {unit} to judge: {judged}, at least {needed})"
+
+
+def verdict_failed(verdict: str) -> bool:
+    """A criterion's verdict that fails the test (``fail``, or ``fail (...)``: too few to judge)."""
+    return verdict == "fail" or verdict.startswith("fail (")
 
 
 def _histograms(controller: Any, out: Path) -> list[Path]:
@@ -208,13 +226,19 @@ def write_report(report: dict[str, Any], controller: Any, out: Path) -> tuple[Pa
         "",
         f"**{'PASS' if report['passed'] else 'FAIL'}** ({report['mode']}, {report['ticks']} ticks, {report['wall_time_s']:.1f} s wall{', run error: ' + report['error'] if report['error'] else ''})",
         "",
+        *(
+            [f"Run verdict: **{report['run_verdict']['verdict']}**" + "".join(f"; {r}" for r in report["run_verdict"]["reasons"]), ""]
+            if report.get("run_verdict")
+            else []
+        ),
         host_line(report["host"]) + f"; load after {report['host']['load_average_after']}",
         "",
         "| criterion | value | limit | verdict |",
         "| --- | --- | --- | --- |",
     ]
     for c in report["criteria"]:
-        lines.append(f"| {c['name']} | {c['value'] if c['value'] is not None else '-'} {c['unit']} | {c['limit']} {c['unit']} | {c['verdict']} |")
+        judged = f" (over {c['judged']} {c['unit']})" if "judged" in c else ""
+        lines.append(f"| {c['name']} | {c['value'] if c['value'] is not None else '-'} {c['unit']}{judged} | {c['limit']} {c['unit']} | {c['verdict']} |")
     lines += ["", "| series | count | p50 (us) | p99 (us) | p99.9 (us) | max (us) |", "| --- | --- | --- | --- | --- | --- |"]
     for name, s in report["latencies"].items():
         if s.get("count"):
