@@ -431,10 +431,11 @@ def _start_live(args: argparse.Namespace) -> Any:
     if not args.live:
         return None
     from workbench.live.view import LiveView, LiveViewError, parse_address
+    from workbench.recording.schemas import rig_topics
 
     try:
         host, port = parse_address(args.live)
-        live = LiveView(host, port, rate_hz=args.live_rate)
+        live = LiveView(host, port, rate_hz=args.live_rate, topics=rig_topics(args.rig_id))
     except LiveViewError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
     console.print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket; layout docs/foxglove-layout.json), {args.live_rate:g} Hz per topic")
