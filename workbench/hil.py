@@ -24,7 +24,6 @@ anything starts: an unknown one is one :class:`RigSettingError`.
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 import tempfile
@@ -42,6 +41,7 @@ import numpy as np
 from protocol.errors import ConfigError
 from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, ScenarioCommand, decode, encode
 from protocol.setting_groups import Timeouts
+from protocol.setting_hints import unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
 
 Clock = Literal["cosim", "lockstep", "realtime"]
@@ -71,9 +71,7 @@ def check_settings(settings: Mapping[str, Mapping[str, Any]]) -> None:
             if name not in known and retired(name):
                 raise RigSettingError(f"{service}.{name}: {retired(name)}")
             if name not in known:
-                close = difflib.get_close_matches(name, list(known), n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                raise RigSettingError(f"{name!r} is not a setting of the {service}{hint}; see ralf-{service if service != 'common' else 'plant'} --help")
+                raise RigSettingError(str(unknown_setting(name, service)))
         try:
             load_settings(MODELS[service], dict(values))
         except ConfigError as exc:

@@ -67,7 +67,7 @@ def test_unknown_setting_is_one_clear_error(pytester: pytest.Pytester) -> None:
     result.assert_outcomes(errors=5)
     result.stdout.fnmatch_lines(
         [
-            "*rig fixture: 'oatf_mod' is not a setting of the controller (did you mean 'oatf_mode'?)*",
+            "*rig fixture: 'oatf_mod' is not a setting of the controller; did you mean 'oatf_mode' or 'oatf'?*",
             "*rig fixture: dsp: invalid configuration: RALF_FFT_WIDTH: Input should be greater than or equal to 32*",
             "*rig fixture: unknown rig clock 'wallclock' (cosim, lockstep, realtime)*",
             "*rig fixture: common.clock is chosen by the rig fixture*",
