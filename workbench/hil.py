@@ -83,18 +83,27 @@ class RunRecord:
     """What a run leaves behind."""
 
     clock: Clock
+    """The clock the run had: cosim, lockstep or realtime."""
     error: str | None
     """The controller's fault, or None when the run ended normally."""
     ticks: int
+    """Control ticks run."""
     sim_time_s: float
+    """Simulated time at the end of the run (s)."""
     counters: dict[str, int]
+    """The controller's counters by name (each listed in docs/pytest-plugin.md)."""
     columns: dict[str, np.ndarray]
     """The controller's record: one array per column (``t_s``, ``defl1_in``, ``defl2_in``, ``phi1``, ``u1_v``, ``f_id_hz``, ...)."""
     truth: list[GroundTruth]
+    """The plant's ground truth (its test port), in order."""
     events: list[PlantEvent]
+    """The plant's events (hard stops, watchdog, payload), in order."""
     interrupts: list[Interrupt]
+    """The DSP's interrupts (identified modes, one per batch), in order."""
     health: dict[str, Health]
+    """Each service's last health message, by service name."""
     wall_time_s: float
+    """Wall-clock time the run took (s)."""
     recording: Path | None = None
     """The MCAP file of a co-simulated run (open it in Foxglove with docs/foxglove-layout.json)."""
 
