@@ -59,16 +59,27 @@ def _bound(table: dict[int, object]) -> None:
 @dataclass
 class LinkCounters(Counters):
     samples_added: int = 0
+    """samples (one per control tick) queued for the DSP"""
     samples_sent: int = 0
+    """samples sent in batches"""
     samples_dropped: int = 0
+    """samples that never reached the DSP: ticks skipped by a late loop, a full queue, a batch lost on the link"""
     batches_sent: int = 0
+    """sample batches sent to the DSP"""
     interrupts: int = 0
+    """interrupts that answered the batch in flight"""
     interrupts_unexpected: int = 0
+    """interrupts for no batch in flight or another one (ignored)"""
     deadline_misses: int = 0
+    """batches whose interrupt was not in by their deadline (once per batch)"""
     interrupts_lost: int = 0
+    """batches declared unanswered (a timeout, or several deadlines past) so batching resumes"""
     flags_stale: int = 0
+    """empty flags expecting neither the next batch nor the one before (ignored)"""
     flags_late: int = 0
+    """empty flags overtaken by a later batch or interrupt (ignored)"""
     resyncs: int = 0
+    """times the controller took the DSP's expected batch number (a restart on either side, a lost batch)"""
 
 
 @dataclass(frozen=True)

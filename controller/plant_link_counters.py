@@ -12,15 +12,25 @@ __all__ = ["PlantLinkCounters"]
 @dataclass
 class PlantLinkCounters:
     syncs_sent: int = 0
+    """SYNC frames sent (one per control tick, and retries)"""
     tpdos: int = 0
+    """TPDO1 frames (the plant's samples) taken"""
     tpdo_timeouts: int = 0
+    """waits for a TPDO1 that ended without one"""
     extra_tpdos: int = 0
+    """TPDO1 frames that came while another was still untaken"""
     stale_tpdos: int = 0
+    """TPDO1 frames still untaken at the next SYNC (a late answer): dropped"""
     rpdos_sent: int = 0
+    """RPDO1 frames (valve voltages) sent"""
     heartbeats: int = 0
+    """heartbeats from the plant node"""
     emergencies: int = 0
+    """EMCY frames from the plant node"""
     malformed: int = 0
+    """frames from the plant that did not decode (dropped)"""
     outputs_clipped: int = 0
+    """valve voltages clipped to the D/A range (per output)"""
     rx_errors: int = 0
     """received datagrams/frames the bus could not decode (dropped)"""
     own_echoes: int = 0

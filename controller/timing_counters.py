@@ -10,20 +10,38 @@ from service_kit.counters import Counters
 @dataclass
 class TimingCounters(Counters):
     overruns: int = 0
+    """ticks whose work ran past the next SYNC (real time)"""
     stale_ticks: int = 0
+    """ticks run on parameters older than the stale limit (timeouts.stale_after_s)"""
     stale_episodes: int = 0
+    """times the parameters went stale"""
     interrupts_applied: int = 0
+    """interrupts taken by the control law (matched to their batch)"""
     oatf_updates: int = 0
+    """interrupts that changed the OATF's shaping"""
     undecodable: int = 0
+    """DSP-side messages or TF snapshots that did not decode (dropped)"""
     tf_downloads: int = 0
+    """transfer-function snapshots downloaded from the DSP"""
     tf_download_failures: int = 0
+    """TF downloads that failed or found the previous one still under way"""
     dsp_lost: int = 0
+    """times the DSP's liveliness went away"""
     dsp_found: int = 0
+    """times the DSP's liveliness came (back)"""
     lockstep_waits: int = 0
+    """lockstep: waits for a batch's interrupt"""
     syncs_dropped: int = 0
+    """SYNCs a link fault dropped (nothing sent)"""
     sync_retries: int = 0
+    """SYNCs sent again because the plant's TPDO did not come"""
     schedule_resyncs: int = 0
+    """real time: times the loop was so late that its schedule was re-based"""
     reconfigurations: int = 0
+    """run-time configuration changes forwarded to the DSP"""
     periods_skipped: int = 0
+    """real time: sample instants skipped by those re-basings"""
     batch_resends: int = 0
+    """lockstep: batches sent again while waiting for their interrupt"""
     tf_download_retries: int = 0
+    """lockstep: TF downloads asked again after no reply"""

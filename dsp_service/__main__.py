@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from functools import partial
 from typing import TYPE_CHECKING
 
+from protocol.setting_hints import refuse_misspelt_settings
 from service_kit.interrupt import end, end_at_once_on_ctrl_c
 
 if TYPE_CHECKING:
@@ -83,6 +84,7 @@ def controller_heard(service: DspService) -> Awaited:
 
 def main(argv: Sequence[str] | None = None) -> int:
     end_at_once_on_ctrl_c("ralf-dsp")  # before numpy, numba and zenoh load
+    refuse_misspelt_settings("ralf-dsp", "dsp", argv)  # before them too: a misspelt name is refused at once
     from protocol.settings import DspSettings
     from service_kit.runtime import run_service
 

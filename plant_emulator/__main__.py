@@ -10,6 +10,7 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from protocol.setting_hints import refuse_misspelt_settings
 from service_kit.interrupt import end, end_at_once_on_ctrl_c
 
 if TYPE_CHECKING:
@@ -49,6 +50,7 @@ def serve_on_bus(settings: PlantSettings, session: zenoh.Session, stop: threadin
 
 def main(argv: Sequence[str] | None = None) -> int:
     end_at_once_on_ctrl_c("ralf-plant")  # before numpy, numba and zenoh load
+    refuse_misspelt_settings("ralf-plant", "plant", argv)  # before them too: a misspelt name is refused at once
     from protocol.settings import PlantSettings
     from service_kit.runtime import run_service
 

@@ -6,7 +6,6 @@ program's ``--help`` prints them.
 
 from __future__ import annotations
 
-import difflib
 import math
 import os
 import re
@@ -32,6 +31,7 @@ from protocol.setting_groups import (
     band_text,
     describe_group,
 )
+from protocol.setting_hints import ANY, unknown_setting, variable
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
@@ -581,9 +581,7 @@ def unknown_variables(environ: dict[str, str] | None = None) -> list[str]:
         if retired(upper):
             problems.append(f"  {name}: {retired(upper)}")
             continue
-        close = difflib.get_close_matches(upper, known, n=1, cutoff=0.6)
-        hint = f"; did you mean {close[0]}?" if close else "; see --help for the settings"
-        problems.append(f"  {name}: not a setting of any ralf-hil program{hint}")
+        problems.append(f"  {unknown_setting(upper, ANY, variable)}")
     return problems
 
 

@@ -19,12 +19,15 @@ import zenoh
 
 from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
+from protocol.setting_hints import ANY, unknown_setting
 from protocol.settings import CommonSettings, describe, load_settings, retired
 from service_kit import readiness
 from service_kit.encodings import JSON
 from service_kit.interrupt import INTERRUPTED
 
 S = TypeVar("S", bound=CommonSettings)
+SERVICE_OF_MODEL = {"PlantSettings": "plant", "ControllerSettings": "controller", "DspSettings": "dsp", "CommonSettings": "common"}
+"""The service whose settings a model holds (for the names a misspelt one is compared with)."""
 T = TypeVar("T")
 
 
@@ -55,8 +58,10 @@ def parse_service_args(prog: str, summary: str, model: type[S], argv: Sequence[s
         name = name.strip().lower().removeprefix("ralf_")
         if sep and name not in model.model_fields and retired(name):
             parser.exit(2, f"{prog}: invalid configuration:\n  --set {name}: {retired(name)}\n")
-        if not sep or name not in model.model_fields:
-            parser.error(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(model.model_fields)}")
+        if not sep:
+            parser.error(f"--set {item!r}: expected NAME=VALUE (the settings: {prog} --help)")
+        if name not in model.model_fields:
+            parser.exit(2, f"{prog}: --set {item!r}: {unknown_setting(name, SERVICE_OF_MODEL.get(model.__name__, ANY))}\n")
         overrides[name] = value
     try:
         settings = load_settings(model, overrides)

@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 
+from protocol.setting_hints import refuse_misspelt_settings
 from service_kit.interrupt import INTERRUPTED, end_at_once_on_ctrl_c
 
 
@@ -18,6 +19,8 @@ def main() -> int:
     # extension's import can panic it); then it raises KeyboardInterrupt, and
     # up installs its own handler and stops the rig in order.
     end_at_once_on_ctrl_c("ralf-hil")
+    if sys.argv[1:2] == ["up"]:  # a misspelt setting is refused before the modules load
+        refuse_misspelt_settings("ralf-hil up", None, sys.argv[2:])
     from workbench.cli import main as cli_main
 
     signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -23,6 +23,7 @@ from rich.table import Table
 from rich.text import Text
 
 from protocol.keys import validate_rig_id
+from protocol.setting_hints import set_problem
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
 from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
@@ -59,10 +60,9 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, str]]:
         if dot and service not in out:
             raise SystemExit(f"ralf-hil: --set {item!r}: unknown service {service!r} (dsp, plant, controller)")
         services = [service] if dot else [svc for svc, model in SETTINGS_MODELS.items() if name in model.model_fields]
-        if not services or any(name not in SETTINGS_MODELS[svc].model_fields for svc in services):
-            raise SystemExit(
-                f"ralf-hil: --set {item!r}: {name!r} is not a setting of {' or '.join(services or SETTINGS_MODELS)} (see ralf-plant/ralf-controller/ralf-dsp --help)"
-            )
+        if problem := set_problem(item, None):  # as refused before the modules load (workbench/__main__.py)
+            print(f"ralf-hil up: {problem}", file=sys.stderr)
+            raise SystemExit(2)
         for svc in services:
             out[svc][f"RALF_{name.upper()}"] = value
     return out
@@ -456,10 +456,11 @@ def _start_live(args: argparse.Namespace) -> Any:
     if not args.live:
         return None
     from workbench.live.view import LiveView, LiveViewError, parse_address
+    from workbench.recording.schemas import rig_topics
 
     try:
         host, port = parse_address(args.live)
-        live = LiveView(host, port, rate_hz=args.live_rate)
+        live = LiveView(host, port, rate_hz=args.live_rate, topics=rig_topics(args.rig_id))
     except LiveViewError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
     console.print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket; layout docs/foxglove-layout.json), {args.live_rate:g} Hz per topic")

@@ -24,7 +24,6 @@ anything starts: an unknown one is one :class:`RigSettingError`.
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 import tempfile
@@ -42,6 +41,7 @@ import numpy as np
 from protocol.errors import ConfigError
 from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, ScenarioCommand, decode, encode
 from protocol.setting_groups import Timeouts
+from protocol.setting_hints import unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
 from workbench.log_counts import counting_warnings
 from workbench.verdict import Verdict, judge
@@ -73,9 +73,7 @@ def check_settings(settings: Mapping[str, Mapping[str, Any]]) -> None:
             if name not in known and retired(name):
                 raise RigSettingError(f"{service}.{name}: {retired(name)}")
             if name not in known:
-                close = difflib.get_close_matches(name, list(known), n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                raise RigSettingError(f"{name!r} is not a setting of the {service}{hint}; see ralf-{service if service != 'common' else 'plant'} --help")
+                raise RigSettingError(str(unknown_setting(name, service)))
         try:
             load_settings(MODELS[service], dict(values))
         except ConfigError as exc:
@@ -87,18 +85,27 @@ class RunRecord:
     """What a run leaves behind."""
 
     clock: Clock
+    """The clock the run had: cosim, lockstep or realtime."""
     error: str | None
     """The controller's fault, or None when the run ended normally."""
     ticks: int
+    """Control ticks run."""
     sim_time_s: float
+    """Simulated time at the end of the run (s)."""
     counters: dict[str, int]
+    """The controller's counters by name (each listed in docs/pytest-plugin.md)."""
     columns: dict[str, np.ndarray]
     """The controller's record: one array per column (``t_s``, ``defl1_in``, ``defl2_in``, ``phi1``, ``u1_v``, ``f_id_hz``, ...)."""
     truth: list[GroundTruth]
+    """The plant's ground truth (its test port), in order."""
     events: list[PlantEvent]
+    """The plant's events (hard stops, watchdog, payload), in order."""
     interrupts: list[Interrupt]
+    """The DSP's interrupts (identified modes, one per batch), in order."""
     health: dict[str, Health]
+    """Each service's last health message, by service name."""
     wall_time_s: float
+    """Wall-clock time the run took (s)."""
     recording: Path | None = None
     """The MCAP file of a co-simulated run (open it in Foxglove with docs/foxglove-layout.json)."""
     verdict: Verdict | None = None

@@ -24,7 +24,10 @@ Markers (the closest wins; settings of several markers merge):
     the test expects an INVALID run (no tick, or a dead plant model).
 
 The fixture is a :class:`workbench.hil.HilRig`; an unknown setting or clock
-fails the test's setup with one line naming it. A run whose verdict
+fails the test's setup with one line naming it. So does a marker named like
+one of these that is none of them (``rig_setting``, a typo), or one of them
+given arguments it does not take, in any test, with or without the fixture:
+the line names the closest marker. A run whose verdict
 (:mod:`workbench.verdict`, ``record.verdict``) is INVALID tested nothing:
 a test that passed over it fails at teardown with the run's one-line
 summary (ticks, interrupts, verdict), unless marked ``rig_invalid_ok``.
@@ -32,6 +35,7 @@ summary (ticks, interrupts, verdict), unless marked ``rig_invalid_ok``.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterator
 from typing import Any
 
@@ -47,6 +51,44 @@ MARKERS = (
 )
 
 
+SERVICES = ("controller", "plant", "dsp", "common")
+USAGE = {
+    "rig_clock": "@pytest.mark.rig_clock(NAME), NAME one of cosim, lockstep, realtime",
+    "rig_settings": "@pytest.mark.rig_settings(controller={...}, plant={...}, dsp={...}, common={...})",
+    "rig_faults": "@pytest.mark.rig_faults(SCENARIO), a file path or a mapping",
+    "rig_invalid_ok": "@pytest.mark.rig_invalid_ok, no arguments",
+}
+"""The markers and how each is written."""
+LOOKALIKE = 0.8
+"""A marker name this close to one of :data:`USAGE` (difflib's ratio) is taken for a typo of it, as is every ``rig_*`` name."""
+
+
+def marker_problem(mark: pytest.Mark) -> str | None:
+    """The one line for a marker that is not one of :data:`USAGE` but is named like one, or one of
+    them given arguments it does not take; None for a good one or one of another plugin."""
+    if mark.name not in USAGE:
+        close = difflib.get_close_matches(mark.name, list(USAGE), n=1, cutoff=0.6)
+        if not mark.name.startswith("rig_") and not difflib.get_close_matches(mark.name, list(USAGE), n=1, cutoff=LOOKALIKE):
+            return None
+        hint = f"did you mean @pytest.mark.{close[0]}?" if close else f"the rig markers are {', '.join(USAGE)}"
+        return f"@pytest.mark.{mark.name} is not a rig marker; {hint}"
+    if mark.name == "rig_settings":
+        if mark.args:
+            return f"@pytest.mark.rig_settings takes keyword arguments only: {USAGE['rig_settings']}"
+        for name in mark.kwargs:
+            if name not in SERVICES:
+                close = difflib.get_close_matches(name, SERVICES, n=1, cutoff=0.6)
+                hint = f"did you mean {close[0]}=?" if close else f"give {', '.join(SERVICES)}"
+                return f"@pytest.mark.rig_settings has no argument {name}=; {hint}"
+        return None
+    if mark.name == "rig_invalid_ok":
+        return f"@pytest.mark.rig_invalid_ok takes no arguments: {USAGE[mark.name]}" if mark.args or mark.kwargs else None
+    if len(mark.args) != 1 or mark.kwargs:
+        given = ", ".join([repr(a) for a in mark.args] + [f"{k}=" for k in mark.kwargs]) or "nothing"
+        return f"@pytest.mark.{mark.name} takes one argument, got {given}: {USAGE[mark.name]}"
+    return None
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("ralf-hil", "ralf-hil rig fixture")
     group.addoption("--rig-clock", choices=CLOCKS, default=None, help="default clock of the rig fixture (default: cosim; a rig_clock marker wins)")
@@ -55,6 +97,14 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_configure(config: pytest.Config) -> None:
     for line in MARKERS:
         config.addinivalue_line("markers", line)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A test with a mistyped or misused rig marker fails in its setup, before any fixture."""
+    for mark in item.iter_markers():
+        if problem := marker_problem(mark):
+            pytest.fail(f"rig marker: {problem}", pytrace=False)
 
 
 def _settings(node: pytest.Item) -> dict[str, dict[str, Any]]:

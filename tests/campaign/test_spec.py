@@ -68,7 +68,7 @@ def test_bundle_axis_sets_several_settings_and_is_labelled() -> None:
         ({"plant.adc_bits": 14}, "adc_bits"),
         ({"dsp.fft_width": 1000}, "power of two"),
         ({"valve.gain": 1}, "unknown service"),
-        ({"no_such_setting": 1}, "unknown setting"),
+        ({"no_such_setting": 1}, "'no_such_setting' is not a setting of any service"),
     ],
 )
 def test_bad_settings_fail_the_spec_with_the_name(assignments: dict, message: str) -> None:

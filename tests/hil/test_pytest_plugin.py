@@ -69,7 +69,7 @@ def test_unknown_setting_is_one_clear_error(pytester: pytest.Pytester) -> None:
     result.assert_outcomes(errors=5)
     result.stdout.fnmatch_lines(
         [
-            "*rig fixture: 'oatf_mod' is not a setting of the controller (did you mean 'oatf_mode'?)*",
+            "*rig fixture: 'oatf_mod' is not a setting of the controller; did you mean 'oatf_mode' or 'oatf'?*",
             "*rig fixture: dsp: invalid configuration: RALF_FFT_WIDTH: Input should be greater than or equal to 32*",
             "*rig fixture: unknown rig clock 'wallclock' (cosim, lockstep, realtime)*",
             "*rig fixture: common.clock is chosen by the rig fixture*",
@@ -163,3 +163,56 @@ def test_a_run_that_tested_nothing_fails_the_test_that_passed_over_it(pytester: 
     result = pytester.runpytest_subprocess()
     result.assert_outcomes(passed=3, errors=1)
     result.stdout.fnmatch_lines(["*ERROR at teardown of test_blind*", "*rig fixture: the run tested nothing: cosim run: 10? ticks*INVALID: plant model dead*"])
+
+
+def test_a_mistyped_or_misused_rig_marker_fails_the_setup_naming_the_closest(pytester: pytest.Pytester) -> None:
+    """Without the fixture too: a typo of a marker no longer runs the default rig (or no rig) with
+    only a warning; a test whose markers are right runs."""
+    pytester.makepyfile(
+        """
+        import pytest
+
+        @pytest.mark.rig_setting(controller={"oatf_mode": "adaptive"})
+        def test_typo(rig):
+            rig.run(duration_s=1.0)
+
+        @pytest.mark.rigclock("lockstep")
+        def test_lookalike():
+            pass
+
+        @pytest.mark.rig_settings(controler={"oatf_mode": "adaptive"})
+        def test_unknown_service(rig):
+            pass
+
+        @pytest.mark.rig_clock("lockstep", speed=2)
+        def test_extra_argument():
+            pass
+
+        @pytest.mark.rig_faults()
+        def test_no_scenario():
+            pass
+
+        @pytest.mark.rig_settings({"oatf_mode": "adaptive"})
+        def test_positional_settings():
+            pass
+
+        @pytest.mark.rig_clock("cosim")
+        @pytest.mark.parametrize("n", [1])
+        def test_right(n):
+            pass
+        """
+    )
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
+    result.assert_outcomes(passed=1, errors=6)
+    result.stdout.fnmatch_lines(
+        [
+            "*rig marker: @pytest.mark.rig_setting is not a rig marker; did you mean @pytest.mark.rig_settings?",
+            "*rig marker: @pytest.mark.rigclock is not a rig marker; did you mean @pytest.mark.rig_clock?",
+            "*rig marker: @pytest.mark.rig_settings has no argument controler=; did you mean controller=?",
+            "*rig marker: @pytest.mark.rig_clock takes one argument, got 'lockstep', speed=: @pytest.mark.rig_clock(NAME), NAME one of cosim, lockstep, realtime",
+            "*rig marker: @pytest.mark.rig_faults takes one argument, got nothing: @pytest.mark.rig_faults(SCENARIO), a file path or a mapping",
+            "*rig marker: @pytest.mark.rig_settings takes keyword arguments only: *",
+        ],
+        consecutive=False,
+    )
+    assert "Traceback" not in result.stdout.str()

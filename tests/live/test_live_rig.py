@@ -60,6 +60,11 @@ def test_live_view_of_a_running_rig_matches_its_recording(tmp_path: Path) -> Non
         topic = path.split(".", 1)[0]
         assert topic in live_topics and topic in recorded_topics, path
     assert {c["topic"] for c in got.channels.values()} >= {"/can", "/can/decoded/SYNC", f"/ralf/{RIG}/controller/tf", f"/ralf/{RIG}/health/controller"}
+    # subscribed the moment each channel was advertised: none refused, the late-starting topics deliver too
+    assert [s["message"] for s in got.statuses if "Unknown channel" in s["message"]] == []
+    delivered = {topic for topic, _, _ in got.messages}
+    assert {"/can", f"/ralf/{RIG}/dsp/interrupt", *(f"/ralf/{RIG}/health/{s}" for s in ("dsp", "plant", "controller"))} <= delivered
+    assert summary["live"]["late_channels"] == 0
 
 
 def test_ralf_hil_live_joins_a_rig_started_elsewhere(tmp_path: Path) -> None:

@@ -373,3 +373,46 @@ def test_the_sdk_log_lines_are_counted_per_client() -> None:
     counter.stopping = True  # the view's own stop unregisters everyone
     counter.handle(logging.LogRecord(SDK_LOGGER, logging.INFO, __file__, 0, "Unregistered client 127.0.0.1:7000", None, None))
     assert stats.slow_clients_disconnected == 1
+
+
+def feed_every_topic(view: LiveView, topics: list[tuple[str, dict[str, Any]]], stop: threading.Event) -> None:
+    """One record on each topic every 10 ms of wall time, straight into the view, until ``stop``."""
+    n = 0
+    while not stop.is_set():
+        n += 1
+        for topic, schema in topics:
+            view.on_record(topic, str(schema["title"]), schema, json.dumps({"sim_time_s": n / 64}).encode(), 4096.0 + n)
+        stop.wait(0.01)
+
+
+def test_a_client_subscribing_on_advertisement_gets_every_rig_channel() -> None:
+    """Every channel of the rig exists before the server serves: a client that subscribes to each
+    channel the moment its advertisement arrives (as the Foxglove app does) is refused none and
+    gets data from each, while records flow on all of them."""
+    from workbench.recording.schemas import rig_topics
+
+    topics = rig_topics("lv")
+    view = LiveView("127.0.0.1", 0, rate_hz=1e6, topics=topics)
+    stop = threading.Event()
+    feeder = threading.Thread(target=feed_every_topic, args=(view, topics, stop), daemon=True)
+    feeder.start()  # before the client comes: data flows on every channel while it subscribes
+    try:
+        got = asyncio.run(watch(view.url, None, 60.0, until_topic_count=len(topics)))
+    finally:
+        stop.set()
+        feeder.join(10)
+        stats = view.close()
+    assert [s for s in got.statuses if "Unknown channel" in s["message"]] == []
+    assert {c["topic"] for c in got.channels.values()} == {t for t, _ in topics}
+    assert {m[0] for m in got.messages} == {t for t, _ in topics}
+    assert stats.late_channels == 0 and stats.subscriptions == len(topics)
+
+
+def test_a_topic_outside_the_rigs_list_is_created_late_and_counted() -> None:
+    view = LiveView("127.0.0.1", 0, topics=[("/can", {"title": "ralf.CanFrame"})])
+    try:
+        view.on_record("/ralf/other/plant/truth", "ralf.GroundTruth", {"title": "ralf.GroundTruth"}, b'{"sim_time_s": 1.0}', 1.0)
+        view.on_record("/can", "ralf.CanFrame", {"title": "ralf.CanFrame"}, b'{"sim_time_s": 1.0}', 1.0)
+    finally:
+        stats = view.close()
+    assert (stats.late_channels, stats.published) == (1, 2)

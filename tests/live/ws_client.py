@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import re
 import struct
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import websockets
+from websockets.typing import Subprotocol
 
 SUBPROTOCOLS = ("foxglove.websocket.v1", "foxglove.sdk.v1")
 """The spec's subprotocol, and the name foxglove-sdk servers (0.30) select for the same messages."""
@@ -31,11 +31,11 @@ class Session:
 
 async def watch(url: str, topics: set[str] | None, seconds: float, *, connect_timeout_s: float = 60.0, until_topic_count: int | None = None) -> Session:
     """Connect (retrying until the server is up), subscribe to ``topics`` (every advertised one
-    when None) and collect for ``seconds`` of wall time or until the connection closes."""
+    when None) as soon as their advertisement is read (no wait, no retry), and collect for ``seconds`` of wall time or until the connection closes."""
     deadline = time.monotonic() + connect_timeout_s
     while True:
         try:
-            ws = await websockets.connect(url, subprotocols=list(SUBPROTOCOLS), max_size=None)  # type: ignore[list-item]
+            ws = await websockets.connect(url, subprotocols=[Subprotocol(p) for p in SUBPROTOCOLS], max_size=None)
             break
         except OSError:
             if time.monotonic() > deadline:
@@ -44,7 +44,6 @@ async def watch(url: str, topics: set[str] | None, seconds: float, *, connect_ti
     assert ws.subprotocol in SUBPROTOCOLS
     s = Session()
     subscriptions: dict[int, str] = {}
-    retried: set[int] = set()
     end = time.monotonic() + seconds
     async with ws:
         while time.monotonic() < end:
@@ -71,16 +70,6 @@ async def watch(url: str, topics: set[str] | None, seconds: float, *, connect_ti
                         await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
                 elif op == "status":
                     s.statuses.append(msg)
-                    # foxglove-sdk 0.30 may answer a subscription sent right after a channel's
-                    # advertisement with this (a race in the server); subscribe to it again, once
-                    unknown = re.fullmatch(r"Unknown channel ID: (\d+)", str(msg.get("message", "")))
-                    if unknown and int(unknown.group(1)) in s.channels and int(unknown.group(1)) not in retried:
-                        channel_id = int(unknown.group(1))
-                        retried.add(channel_id)
-                        await asyncio.sleep(0.05)
-                        sub_id = max(subscriptions, default=-1) + 1
-                        subscriptions[sub_id] = s.channels[channel_id]["topic"]
-                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channel_id}]}))
             else:
                 opcode = frame[0]
                 if opcode == 0x01:

@@ -43,7 +43,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic_settings import BaseSettings
 
 from protocol.setting_groups import SettingGroup, parse_group_text
-from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings
+from protocol.setting_hints import ANY, COMMON_SERVICE, unknown_setting
+from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, retired
 
 __all__ = [
     "DEFAULT_MODE",
@@ -239,7 +240,7 @@ def _split(name: str) -> list[tuple[str, str]]:
         service, _, fld = name.partition(".")
         if service == "common":
             if fld not in CommonSettings.model_fields:
-                raise SpecError(f"{name!r}: no common setting {fld!r}{_hint(fld, CommonSettings.model_fields)}")
+                raise SpecError(f"{name!r}: {_unknown(fld, COMMON_SERVICE)}")
             return [(s, fld) for s in SERVICES]
         if service not in SERVICES:
             raise SpecError(f"{name!r}: unknown service {service!r} (controller, plant, dsp or common)")
@@ -253,13 +254,17 @@ def _split(name: str) -> list[tuple[str, str]]:
                 raise SpecError(f"{name!r}: {service}.{group} has no key {key!r}{_hint(key, model.model_fields)}")
             return [(service, fld)]
         if fld not in fields:
-            raise SpecError(f"{name!r}: {service} has no setting {fld!r}{_hint(fld, fields)}")
+            raise SpecError(f"{name!r}: {_unknown(fld, service)}")
         return [(service, fld)]
     hits = [(s, name) for s, m in SERVICES.items() if name in m.model_fields]
     if not hits:
-        every = set().union(*(m.model_fields for m in SERVICES.values()))
-        raise SpecError(f"unknown setting {name!r}{_hint(name, every)}")
+        raise SpecError(f"{name!r}: {_unknown(name, ANY)}")
     return hits
+
+
+def _unknown(name: str, service: str) -> str:
+    """Why ``name`` is not a setting of ``service``: the one line every program gives (a retired name: its reason)."""
+    return unknown_setting(name, service) or retired(name) or f"{name!r} is not a setting of {service}"
 
 
 def _hint(name: str, known: Any) -> str:

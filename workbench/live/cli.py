@@ -26,6 +26,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     from service_kit.transport import open_zenoh
     from workbench.live.view import LiveView, LiveViewError, parse_address
     from workbench.recording.recorder import Recorder
+    from workbench.recording.schemas import rig_topics
     from workbench.recording.tap import Tap, open_tap_bus
 
     address = args.address or os.environ.get(ADDRESS_VARIABLE) or "8765"
@@ -39,7 +40,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(CommonSettings, overrides)
         host, port = parse_address(address)
-        view = LiveView(host, port, rate_hz=args.rate)
+        view = LiveView(host, port, rate_hz=args.rate, topics=rig_topics(settings.rig_id))
     except (ConfigError, LiveViewError) as exc:
         console.print(f"[red]ralf-hil live: {' '.join(str(exc).split())}[/red]", highlight=False, soft_wrap=True)
         return 2

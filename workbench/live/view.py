@@ -10,11 +10,23 @@ topics, schema names and payloads are the recording's, byte for byte, and
 
 What the view adds:
 
-* a ``foxglove-sdk`` WebSocket server (subprotocol ``foxglove.websocket.v1``)
+* a ``foxglove-sdk`` WebSocket server (subprotocol ``foxglove.sdk.v1``, the only one
+  foxglove-sdk 0.30 accepts: a client offering only the specification's
+  ``foxglove.websocket.v1`` is refused with HTTP 400, and the view logs one line naming
+  the subprotocol it speaks, :data:`SUBPROTOCOL`)
   on 127.0.0.1 unless another address is given, with the ``time``
   capability: the server's time is the rig's simulated time, and every
   message's timestamp is its simulated time (the SYNC tick of a CAN frame,
   the ``sim_time_s`` of a message);
+* its channels before its clients: every topic of the rig
+  (:func:`workbench.recording.schemas.rig_topics`) is created before the server
+  starts, so a client is advertised only channels that exist on the server's side
+  and may subscribe the moment it reads the advertisement. foxglove-sdk 0.30 sends
+  a channel created while a client is connected to that client before it enters
+  the channel in the client's own table (``ConnectedClient::advertise_channels``):
+  a subscription arriving in between is refused ("Unknown channel ID") and never
+  retried. A topic outside the rig's list is still created when its first record
+  comes, and counted (:attr:`LiveStats.late_channels`);
 * decimation: each topic at most ``rate_hz`` messages per second of wall
   time, by the time the tap received them (a browser follows 20 Hz plots;
   the rest is counted as decimated);
@@ -43,7 +55,7 @@ import json
 import logging
 import re
 import threading
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -74,6 +86,12 @@ class LiveStats(Counters):
     statuses: int = 0
     subscriptions: int = 0
     clients_seen: int = 0
+    late_channels: int = 0
+    """Channels created after the server started (a topic outside the rig's list): a client
+    connected then may have had its subscription to it refused."""
+    handshakes_refused: int = 0
+    """Connections refused in the WebSocket handshake (most often: a client that does not offer
+    :data:`SUBPROTOCOL`)."""
     slow_client_notices: int = 0
     """The SDK's "outbox for client ... full" lines: a client fell behind and lost its oldest
     messages (how many, the SDK does not say; at most one line per 30 s per process)."""
@@ -88,6 +106,10 @@ class LiveStats(Counters):
     """CAN frames the kernel dropped before the tap read them (set likewise)."""
 
 
+SUBPROTOCOL = "foxglove.sdk.v1"
+"""The one WebSocket subprotocol foxglove-sdk 0.30's server accepts (``websocket/handshake.rs``;
+no option adds another): the Foxglove protocol under the SDK's name, which recent Foxglove apps
+offer beside the specification's ``foxglove.websocket.v1``."""
 SDK_LOGGER = "foxglove.websocket"
 """foxglove-sdk's WebSocket server logs here (``foxglove.set_log_level`` routes the SDK's Rust log
 to Python's ``logging`` under the Rust module's path)."""
@@ -98,6 +120,16 @@ _OUTBOX_FULL = re.compile(r"outbox for client (\S+) full")
 _REGISTERED = re.compile(r"Registered client (\S+)")
 _CLOSED_BY_CLIENT = re.compile(r"Connection closed by client (\S+)")
 _UNREGISTERED = re.compile(r"Unregistered client (\S+)")
+_HANDSHAKE_FAILED = re.compile(r"Dropping client (\S+): handshake failed")
+
+
+def handshake_refusal(addr: str) -> str:
+    """The one line a refused connection gets on the rig's side."""
+    return (
+        f"live view: refused client {addr}: its WebSocket handshake did not offer the subprotocol {SUBPROTOCOL}, the only one this server "
+        f"speaks (clients offering only foxglove.websocket.v1, such as @foxglove/ws-protocol's default and older Foxglove versions, "
+        f"cannot connect; see docs/live-view.md)"
+    )
 
 
 class SdkLogCounter(logging.Handler):
@@ -105,6 +137,8 @@ class SdkLogCounter(logging.Handler):
 
     * "outbox for client ADDR full": the client fell behind and its oldest messages were dropped
       (``send_lossy.rs``; at most one line per 30 s for the whole process);
+    * "Dropping client ADDR: handshake failed": a connection refused in the WebSocket handshake,
+      said as one line naming :data:`SUBPROTOCOL` (:func:`handshake_refusal`) instead;
     * a client unregistered that had not closed the connection itself, while the server runs:
       the SDK disconnected it because its control queue (time, advertisements, statuses; as
       long as the backlog) was full (``ShutdownReason::ControlPlaneQueueFull``, which it does
@@ -131,6 +165,10 @@ class SdkLogCounter(logging.Handler):
         elif (m := _UNREGISTERED.search(text)) and not self.stopping and m[1] not in self._closed_by_client:
             self.stats.slow_clients_disconnected += 1
             self._slow_client(m[1])
+        elif m := _HANDSHAKE_FAILED.search(text):
+            self.stats.handshakes_refused += 1
+            log.warning("%s", handshake_refusal(m[1]))
+            return
         if record.levelno >= logging.WARNING:
             log.log(record.levelno, "foxglove-sdk: %s", text)
 
@@ -213,7 +251,10 @@ class LiveView:
         rate_hz: float = DEFAULT_RATE_HZ,
         backlog: int = DEFAULT_BACKLOG,
         name: str = "ralf-hil",
+        topics: Iterable[tuple[str, Mapping[str, Any]]] = (),
     ) -> None:
+        """``topics``: (topic, JSON schema) of every channel to create before the server starts
+        (:func:`workbench.recording.schemas.rig_topics`; see the module doc)."""
         import foxglove
         from foxglove.websocket import Capability
 
@@ -226,6 +267,9 @@ class LiveView:
         self._sdk_log.addHandler(self._sdk_counter)
         self._foxglove = foxglove
         self._context = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        for topic, schema in topics:  # before the server: advertised to each client only as it connects, with the channel in place
+            self._channels[topic] = self._new_channel(topic, str(schema["title"]), schema)
         try:
             self.server = foxglove.start_server(
                 name=name,
@@ -241,7 +285,6 @@ class LiveView:
             self._sdk_log.removeHandler(self._sdk_counter)
             raise LiveViewError(f"cannot serve the live view on {host}:{port}: {str(exc).removeprefix('FoxgloveError: ')}") from None
         self.host, self.port = host, int(self.server.port)
-        self._channels: dict[str, Any] = {}
         self._last_sent: dict[str, float] = {}
         self._sim_ns = 0
         self._last_time_broadcast = -1e18
@@ -288,13 +331,17 @@ class LiveView:
             self._last_sent[topic] = log_s
         channel = self._channels.get(topic)
         if channel is None:
-            schema_obj = self._foxglove.Schema(name=title, encoding="jsonschema", data=json.dumps(schema).encode())
-            channel = self._channels[topic] = self._foxglove.Channel(topic, schema=schema_obj, message_encoding="json", context=self._context)
+            channel = self._channels[topic] = self._new_channel(topic, title, schema)
+            self.stats.late_channels += 1
         channel.log(data, log_time=stamp)
         self.stats.published += 1
         if log_s - self._last_time_broadcast >= self.min_interval_s:
             self._last_time_broadcast = log_s
             self.server.broadcast_time(self._sim_ns)
+
+    def _new_channel(self, topic: str, title: str, schema: Mapping[str, Any]) -> Any:
+        schema_obj = self._foxglove.Schema(name=title, encoding="jsonschema", data=json.dumps(schema).encode())
+        return self._foxglove.Channel(topic, schema=schema_obj, message_encoding="json", context=self._context)
 
     def _status(self, topic: str, record: Mapping[str, Any]) -> None:
         from foxglove.websocket import StatusLevel

@@ -36,7 +36,7 @@ from pydantic import BaseModel
 
 from protocol import can_map
 from protocol.messages import TF_NAMES, Health
-from protocol.rig_description import json_models
+from protocol.rig_description import RIG, json_models
 
 CAN_TOPIC: Final[str] = "/can"
 CAN_DECODED_PREFIX: Final[str] = "/can/decoded"
@@ -221,6 +221,26 @@ def decoded_schema(message: Any) -> dict[str, Any]:
     for sig in message.signals:
         props[sig.name] = {"type": "number", "description": f"{sig.comment or sig.name} ({sig.unit or 'raw'}), DBC {message.name}"}
     return {"title": f"ralf.dbc.{message.name}", "type": "object", "properties": props, "required": list(props), "additionalProperties": False}
+
+
+def rig_topics(rig_id: str) -> list[tuple[str, dict[str, Any]]]:
+    """Every topic a recording of rig ``rig_id`` may hold, with the schema its records carry
+    (what the recorder emits for it): the CAN topics (one per DBC message), each published
+    channel of the rig description (per service for ``health/<service>``), the liveliness
+    topic and :data:`UNDECODABLE_TOPIC`. The live view creates these before its server
+    serves a client (:mod:`workbench.live.view`)."""
+    root = f"ralf/{rig_id}"
+    topics: list[tuple[str, dict[str, Any]]] = [(CAN_TOPIC, CAN_SCHEMA)]
+    topics += [(f"{CAN_DECODED_PREFIX}/{message.name}", decoded_schema(message)) for message in load_dbc().messages]
+    for suffix, channel, _senders in RIG.expanded():
+        if channel.kind != "publication":
+            continue
+        payload = channel.payload
+        schema = BATCH_SCHEMA if payload == "batch" else TF_SCHEMA if payload == "tf" else schema_of(payload) if isinstance(payload, type) else None
+        if schema is not None:
+            topics.append((topic_for_key(f"{root}/{suffix}"), schema))
+    topics += [(topic_for_key(f"{root}/alive"), LIVELINESS_SCHEMA), (UNDECODABLE_TOPIC, RAW_SCHEMA)]
+    return topics
 
 
 # --- CAN direction and names -------------------------------------------------------------
