@@ -13,6 +13,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -31,6 +32,7 @@ from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
 from workbench.plant_figures import cli as plant_cli
+from workbench.progress import ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.timing_test.report import health_verdict, latency_class
@@ -355,18 +357,22 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     # A closed terminal too: services stopped, credentials removed.
     stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
-    console.print(
-        f"rig {plan.rig_id!r} starting: zenoh {plan.zenoh_endpoint}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
-    )
     live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
     said_ready = False
+    startup = None if console.is_terminal else ServiceLogWatch({name: log_dir / f"{name}.log" for name in START_ORDER})  # a log sees the start-up
 
     def on_poll(sup: Supervision, _status: object) -> None:
         nonlocal said_ready
+        for event in startup.events() if startup is not None and not said_ready else ():
+            live.console.print(event, highlight=False, soft_wrap=True)
         if sup.ready_at is not None and not said_ready:
             said_ready = True
             live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)")
         live.update(status_line(observer, time.monotonic() - sup.started))
+
+    def progress() -> str:
+        up = [name for name in START_ORDER if observer.alive.get(name)]
+        return status_progress(observer.status, waiting=f"starting the services (up: {', '.join(up) or 'none yet'}), waiting for the controller's first tick")
 
     recording: RigRecording | None = None
     try:
@@ -374,8 +380,11 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock, mirror=live_view)
         # Before any service starts (their Python start-up takes a second or more), so a bus
         # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
-        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh {plan.zenoh_endpoint}", flush=True)
-        with live:
+        print(
+            f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh {plan.zenoh_endpoint}, logs in {log_dir}, tools' credentials in {tool_env}",
+            flush=True,
+        )
+        with live, activity(progress):
             sup = supervise(
                 plan,
                 log_dir,
@@ -446,6 +455,7 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     process, one thread (:mod:`workbench.cosim`); ``--duration`` is simulated time."""
     from protocol.errors import ConfigError
     from protocol.messages import ControllerStatus, decode
+    from service_kit.readiness import watch_compiles
     from workbench.cosim import run_cosim
 
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
@@ -456,11 +466,18 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     if args.can_log and not args.record:
         console.print("[red]ralf-hil up: --can-log goes with --record[/red]")
         return 2
+    running: list[Any] = []  # the controller, once built: the progress line reads it
+
+    def progress() -> str:
+        return controller_progress(running[0]) if running else (compiling_progress() or "building the plant, controller and DSP")
+
+    watch_compiles()
     try:
-        run = run_cosim(
-            controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
-            record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None,
-        )  # fmt: skip
+        with activity(progress):
+            run = run_cosim(
+                controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
+                record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None, on_start=running.append,
+            )  # fmt: skip
     except (ConfigError, ValueError) as exc:
         console.print(f"[red]ralf-hil up: {exc}[/red]")
         return 2
@@ -731,6 +748,10 @@ def input_problem(command: str, args: argparse.Namespace) -> str | None:
     return None
 
 
+LONG_COMMANDS = frozenset({"up", "experiment", "timing-test", "sweep", "bench", "memory-slope", "measure", "plant", "replay"})
+"""Commands that can run for minutes: without a terminal they say how they progress (:mod:`workbench.progress`)."""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -739,7 +760,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"ralf-hil {args.command}: {problem}", file=sys.stderr)
         return 2
     try:
-        return int(args.func(args))
+        with heartbeat_unless_terminal(f"ralf-hil {args.command}") if args.command in LONG_COMMANDS else nullcontext():
+            return int(args.func(args))
     except ModuleNotFoundError as exc:
         needs = missing_extra(exc)
         if needs is None:
