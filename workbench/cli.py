@@ -35,6 +35,7 @@ from workbench.plant_figures import cli as plant_cli
 from workbench.progress import ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
+from workbench.run_logs import RunLogs
 from workbench.timing_test.report import health_verdict, latency_class
 
 console = Console(stderr=True)
@@ -330,16 +331,25 @@ def cmd_up(args: argparse.Namespace) -> int:
             console.print(f"[red]ralf-hil up: {line}[/red]", highlight=False, soft_wrap=True)
         return 2
     refuse_bad_settings(overrides)  # before the logs and any service
-    log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
-    log_dir.mkdir(parents=True, exist_ok=True)
-    live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
+    live_view = _start_live(args)  # before anything is created: a port in use is one line, the rig untouched
+    try:
+        logs = RunLogs.create(args.log_dir, args.rig_id, keep=args.keep_logs)
+    except OSError as exc:
+        if live_view is not None:
+            live_view.close()
+        raise SystemExit(f"ralf-hil up: --log-dir {args.log_dir}: {exc.strerror or exc}") from None
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
+    code = 1  # an exception on the way: the logs stay
     try:
         tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
-        return _up_supervised(args, plan, log_dir, tool_env, live_view)
+        code = _up_supervised(args, plan, logs.path, tool_env, live_view)
+        return code
     finally:
         if live_view is not None:
             live_view.close()
+        where = logs.finish(code)  # a temporary folder of a run that went well is removed
+        if where:
+            console.print(where, highlight=False, soft_wrap=True)
         if args.keep_credentials:
             console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
         else:
@@ -421,7 +431,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if received:
-        console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped; logs in {log_dir}")
+        console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped")
         return INTERRUPTED
     failure = sup.failure
     status = summary["controller"]
@@ -679,7 +689,12 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument(
         "--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)"
     )
-    up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
+    up.add_argument(
+        "--log-dir",
+        default=None,
+        help="where the services' logs go, kept after the run (default: a temporary folder, removed after a run that went well; kept, and named, after a failure or Ctrl-C)",
+    )
+    up.add_argument("--keep-logs", action="store_true", help="keep the default temporary log folder after a run that went well too (its path is printed)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
     up.add_argument("--verbose", action="store_true", help="the summary also lists the per-hop latencies (hop_*: where a tick's and a batch's time goes)")
     up.add_argument(
