@@ -6,7 +6,7 @@ monitor firing; ``deadline: batch ...: compute ... over budget``, the DSP's
 budget) would reach the terminal as bare lines through Python's last-resort
 handler, with no context, in runs that end fine. Inside
 :func:`counted_warnings` they are not printed: each is counted by its kind
-(the text before the first colon) with its first message kept, and the
+(the word before the first colon, else the logger) with its first message kept, and the
 caller reports them (an experiment's report, ``results.json`` and its
 closing line). Runs on Dask workers count theirs in the worker
 (:mod:`workbench.campaign.engine`) and the counts come back with the result
@@ -26,11 +26,11 @@ RIG_LOGGERS = ("controller", "dsp_service", "plant_emulator", "service_kit", "pr
 """Top-level names of the loggers the rig's classes log to (``zenoh``: zenoh's own lines, as the services forward them)."""
 
 
-def kind_of(message: str) -> str:
-    """A warning's kind: the word before its first colon (``stale``, ``deadline``), else ``other``."""
+def kind_of(message: str, logger: str) -> str:
+    """A warning's kind: the word before its first colon (``stale``, ``deadline``), else the logger's name."""
     head, sep, _ = message.partition(":")
     head = head.strip()
-    return head if sep and head and " " not in head and len(head) <= 32 else "other"
+    return head if sep and head and " " not in head and len(head) <= 32 else logger
 
 
 @dataclass
@@ -76,7 +76,7 @@ class _Counter(logging.Handler):
             message = record.getMessage()
         except Exception:  # noqa: BLE001 - a bad format: counted by its template
             message = str(record.msg)
-        self.tally.add(kind_of(message), " ".join(message.split()))
+        self.tally.add(kind_of(message, record.name), " ".join(message.split()))
 
 
 _active: list[WarningTally] = []

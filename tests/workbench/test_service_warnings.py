@@ -13,11 +13,11 @@ from workbench.service_warnings import WarningTally, add_remote, counted_warning
 STALE = "stale: parameters stale at tick 9180 (2.00 s without a fresh estimate) (policy degrade)"
 
 
-def test_kinds_are_the_word_before_the_first_colon() -> None:
-    assert kind_of(STALE) == "stale"
-    assert kind_of("deadline: batch 246: compute 1023.2 ms over budget 100.0 ms") == "deadline"
-    assert kind_of("protocol violation: batch 3 arrived while the block was full; rejected") == "other"
-    assert kind_of("no colon at all") == "other"
+def test_kinds_are_the_word_before_the_first_colon_else_the_logger() -> None:
+    assert kind_of(STALE, "controller.monitors") == "stale"
+    assert kind_of("deadline: batch 246: compute 1023.2 ms over budget 100.0 ms", "dsp_service.core") == "deadline"
+    assert kind_of("protocol violation: batch 3 arrived while the block was full; rejected", "dsp_service.board") == "dsp_service.board"
+    assert kind_of("plant EMCY INPUT_SATURATED (0x5010), register 0x01", "plant_emulator.node") == "plant_emulator.node"
 
 
 def test_the_rigs_warnings_are_counted_with_their_first_message() -> None:
