@@ -7,8 +7,10 @@ from __future__ import annotations
 import os
 import signal
 import sys
+from contextlib import nullcontext
 
 from service_kit.interrupt import INTERRUPTED, end_at_once_on_ctrl_c
+from workbench.progress import LONG_COMMANDS, activity, heartbeat_unless_terminal
 
 
 def main() -> int:
@@ -18,14 +20,19 @@ def main() -> int:
     # extension's import can panic it); then it raises KeyboardInterrupt, and
     # up installs its own handler and stops the rig in order.
     end_at_once_on_ctrl_c("ralf-hil")
-    from workbench.cli import main as cli_main
+    command = next((arg for arg in sys.argv[1:] if not arg.startswith("-")), "")
+    # Without a terminal a long command's log hears from it from the start,
+    # the loading of its modules included (seconds on a loaded host).
+    with heartbeat_unless_terminal(f"ralf-hil {command}") if command in LONG_COMMANDS else nullcontext():
+        with activity("loading the rig's modules"):
+            from workbench.cli import main as cli_main
 
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        code = cli_main()
-    except KeyboardInterrupt:
-        print("ralf-hil: interrupted", file=sys.stderr)
-        code = INTERRUPTED
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        try:
+            code = cli_main()
+        except KeyboardInterrupt:
+            print("ralf-hil: interrupted", file=sys.stderr)
+            code = INTERRUPTED
     if code == INTERRUPTED:
         # Everything is stopped, closed and removed by now; the zenoh runtime's
         # own teardown at interpreter exit would add ~1 s to a Ctrl-C.

@@ -32,7 +32,7 @@ from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
 from workbench.plant_figures import cli as plant_cli
-from workbench.progress import ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
+from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.run_logs import RunLogs
@@ -463,10 +463,11 @@ def _start_live(args: argparse.Namespace) -> Any:
 def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     """``ralf-hil up --clock cosim``: the three boards co-simulated in this
     process, one thread (:mod:`workbench.cosim`); ``--duration`` is simulated time."""
-    from protocol.errors import ConfigError
-    from protocol.messages import ControllerStatus, decode
-    from service_kit.readiness import watch_compiles
-    from workbench.cosim import run_cosim
+    with activity("loading the co-simulation's modules"):
+        from protocol.errors import ConfigError
+        from protocol.messages import ControllerStatus, decode
+        from service_kit.readiness import watch_compiles
+        from workbench.cosim import run_cosim
 
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
     if args.duration is not None and "duration_s" not in own["controller"]:
@@ -761,10 +762,6 @@ def input_problem(command: str, args: argparse.Namespace) -> str | None:
         if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             return f"{path}: not an MCAP recording (it does not start with MCAP's magic bytes)"
     return None
-
-
-LONG_COMMANDS = frozenset({"up", "experiment", "timing-test", "sweep", "bench", "memory-slope", "measure", "plant", "replay"})
-"""Commands that can run for minutes: without a terminal they say how they progress (:mod:`workbench.progress`)."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -23,13 +23,18 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
-from protocol.messages import ControllerStatus
 from service_kit.readiness import READY_LINE
+
+if TYPE_CHECKING:  # this module loads before the rig's modules (workbench/__main__.py): the standard library only
+    from protocol.messages import ControllerStatus
 
 PROGRESS_INTERVAL_S = 5.0
 """Without a terminal, the longest a long command stays silent."""
+
+LONG_COMMANDS = frozenset({"up", "experiment", "timing-test", "sweep", "bench", "memory-slope", "measure", "plant", "replay"})
+"""``ralf-hil`` commands that can run for minutes: without a terminal they say how they progress."""
 
 _activity: list[Callable[[], str]] = []
 """What the command is doing now, innermost last (:func:`activity`)."""
@@ -75,7 +80,7 @@ def status_progress(status: ControllerStatus | None, waiting: str = "waiting for
 def controller_progress(controller: Any) -> str:
     """An in-process controller's progress (a co-simulation's): its last
     published status, or its tick count before the first one."""
-    from protocol.messages import decode
+    from protocol.messages import ControllerStatus, decode
 
     payload = getattr(getattr(controller, "port", None), "status", None)
     if payload:
@@ -154,13 +159,13 @@ class WatchedStream:
 
     def __init__(self, stream: IO[str], heartbeat: Heartbeat) -> None:
         self._stream = stream
-        self._heartbeat = heartbeat
+        self.heartbeat = heartbeat
 
     def write(self, text: str) -> int:
         written = self._stream.write(text)
         if text:
             self._stream.flush()  # a log reader sees the line now, not at exit
-            self._heartbeat.saw_output()
+            self.heartbeat.saw_output()
         return written
 
     def flush(self) -> None:
@@ -175,6 +180,9 @@ def heartbeat_unless_terminal(label: str, *, interval_s: float = PROGRESS_INTERV
     """Around a long command: when stderr is not a terminal, watch stdout and
     stderr and write a progress line to stderr after every ``interval_s`` of
     silence. On a terminal nothing changes (yields None)."""
+    if isinstance(sys.stderr, WatchedStream):  # one heartbeat per process: the outer one goes on
+        yield sys.stderr.heartbeat
+        return
     if sys.stderr.isatty():
         yield None
         return

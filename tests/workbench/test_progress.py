@@ -4,10 +4,14 @@ injected clock, the start-up lines taken from the services' logs."""
 from __future__ import annotations
 
 import io
+import subprocess
+import sys
 from pathlib import Path
 
+import pytest
+
 from protocol.messages import ControllerStatus
-from workbench.progress import Heartbeat, ServiceLogWatch, WatchedStream, activity, current_activity, status_progress
+from workbench.progress import Heartbeat, ServiceLogWatch, WatchedStream, activity, current_activity, heartbeat_unless_terminal, status_progress
 
 
 class FakeClock:
@@ -84,3 +88,29 @@ def test_start_up_lines_come_from_the_services_logs_once_each(tmp_path: Path) ->
     with open(dsp, "a") as fh:
         fh.write("50 s (process start to ready); numba kernels: 0 loaded from cache, 5 compiled\n")
     assert watch.events() == ["dsp: ready in 41.50 s (process start to ready); numba kernels: 0 loaded from cache, 5 compiled"]
+
+
+def test_one_heartbeat_per_process_and_none_on_a_terminal(monkeypatch: pytest.MonkeyPatch) -> None:
+    log = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", log)
+    with heartbeat_unless_terminal("ralf-hil up", interval_s=3600) as outer:
+        assert outer is not None and isinstance(sys.stderr, WatchedStream)
+        with heartbeat_unless_terminal("ralf-hil up", interval_s=3600) as inner:
+            assert inner is outer  # the command's own wrap inside the entry point's: the same beat, no second wrapper
+        assert isinstance(sys.stderr, WatchedStream)
+        print("a line", file=sys.stderr)
+    assert sys.stderr is log and log.getvalue() == "a line\n"
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    with heartbeat_unless_terminal("ralf-hil up") as beat:
+        assert beat is None and isinstance(sys.stderr, Terminal)
+
+
+def test_the_entry_module_loads_only_light_modules() -> None:
+    code = "import sys, workbench.progress; print(sorted(m for m in ('pydantic', 'zenoh', 'numpy', 'rich', 'protocol.messages') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True).stdout
+    assert out.strip() == "[]"  # the heartbeat starts before the rig's modules load
