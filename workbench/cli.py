@@ -373,11 +373,11 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
 
     def on_poll(sup: Supervision, _status: object) -> None:
         nonlocal said_ready
-        for event in startup.events() if startup is not None and not said_ready else ():
+        for event in startup.events() if startup is not None else ():  # a service's ready line can follow the first tick
             live.console.print(event, highlight=False, soft_wrap=True)
         if sup.ready_at is not None and not said_ready:
             said_ready = True
-            live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)")
+            live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)", soft_wrap=True)
         live.update(status_line(observer, time.monotonic() - sup.started))
 
     def progress() -> str:
