@@ -23,7 +23,7 @@ class FakeClock:
 
 
 def test_a_line_is_written_only_after_the_interval_of_silence() -> None:
-    clock, lines = FakeClock(), []
+    clock, lines = FakeClock(), list[str]()
     beat = Heartbeat(lines.append, "ralf-hil up", interval_s=5.0, clock=clock)
     clock.now += 4.9
     assert not beat.check() and lines == []
@@ -36,7 +36,7 @@ def test_a_line_is_written_only_after_the_interval_of_silence() -> None:
 
 
 def test_any_output_restarts_the_interval() -> None:
-    clock, lines, log = FakeClock(), [], io.StringIO()
+    clock, lines, log = FakeClock(), list[str](), io.StringIO()
     beat = Heartbeat(lines.append, "ralf-hil bench", interval_s=5.0, clock=clock)
     stream = WatchedStream(log, beat)
     clock.now += 4.0
@@ -49,7 +49,7 @@ def test_any_output_restarts_the_interval() -> None:
 
 
 def test_the_line_says_the_innermost_activity() -> None:
-    clock, lines = FakeClock(), []
+    clock, lines = FakeClock(), list[str]()
     beat = Heartbeat(lines.append, "ralf-hil experiment", interval_s=5.0, clock=clock)
     with activity("experiment id_lag"):
         with activity(lambda: "noise draws 3/10"):
