@@ -7,9 +7,11 @@ from __future__ import annotations
 import os
 import signal
 import sys
+from contextlib import nullcontext
 
 from protocol.setting_hints import refuse_misspelt_settings
 from service_kit.interrupt import INTERRUPTED, end_at_once_on_ctrl_c
+from workbench.progress import LONG_COMMANDS, activity, heartbeat_unless_terminal
 
 
 def main() -> int:
@@ -21,14 +23,19 @@ def main() -> int:
     end_at_once_on_ctrl_c("ralf-hil")
     if sys.argv[1:2] == ["up"]:  # a misspelt setting is refused before the modules load
         refuse_misspelt_settings("ralf-hil up", None, sys.argv[2:])
-    from workbench.cli import main as cli_main
+    command = next((arg for arg in sys.argv[1:] if not arg.startswith("-")), "")
+    # Without a terminal a long command's log hears from it from the start,
+    # the loading of its modules included (seconds on a loaded host).
+    with heartbeat_unless_terminal(f"ralf-hil {command}") if command in LONG_COMMANDS else nullcontext():
+        with activity("loading the rig's modules"):
+            from workbench.cli import main as cli_main
 
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        code = cli_main()
-    except KeyboardInterrupt:
-        print("ralf-hil: interrupted", file=sys.stderr)
-        code = INTERRUPTED
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        try:
+            code = cli_main()
+        except KeyboardInterrupt:
+            print("ralf-hil: interrupted", file=sys.stderr)
+            code = INTERRUPTED
     if code == INTERRUPTED:
         # Everything is stopped, closed and removed by now; the zenoh runtime's
         # own teardown at interpreter exit would add ~1 s to a Ctrl-C.

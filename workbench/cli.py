@@ -13,6 +13,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -33,8 +34,10 @@ from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, p
 from workbench.live import cli as live_cli
 from workbench.log_counts import count_log_files, counting_warnings
 from workbench.plant_figures import cli as plant_cli
+from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
+from workbench.run_logs import RunLogs
 from workbench.timing_test.report import health_verdict, latency_class
 from workbench.verdict import judge
 
@@ -350,16 +353,25 @@ def cmd_up(args: argparse.Namespace) -> int:
             console.print(f"[red]ralf-hil up: {line}[/red]", highlight=False, soft_wrap=True)
         return 2
     refuse_bad_settings(overrides)  # before the logs and any service
-    log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix=f"ralf-{args.rig_id}-"))
-    log_dir.mkdir(parents=True, exist_ok=True)
-    live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
+    live_view = _start_live(args)  # before anything is created: a port in use is one line, the rig untouched
+    try:
+        logs = RunLogs.create(args.log_dir, args.rig_id, keep=args.keep_logs)
+    except OSError as exc:
+        if live_view is not None:
+            live_view.close()
+        raise SystemExit(f"ralf-hil up: --log-dir {args.log_dir}: {exc.strerror or exc}") from None
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
+    code = 1  # an exception on the way: the logs stay
     try:
         tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
-        return _up_supervised(args, plan, log_dir, tool_env, live_view)
+        code = _up_supervised(args, plan, logs.path, tool_env, live_view)
+        return code
     finally:
         if live_view is not None:
             live_view.close()
+        where = logs.finish(code)  # a temporary folder of a run that went well is removed
+        if where:
+            console.print(where, highlight=False, soft_wrap=True)
         if args.keep_credentials:
             console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
         else:
@@ -377,18 +389,22 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     # A closed terminal too: services stopped, credentials removed.
     stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
-    console.print(
-        f"rig {plan.rig_id!r} starting: zenoh {plan.zenoh_endpoint}, CAN udp_multicast port {plan.can_port}, logs in {log_dir}, tools' credentials in {tool_env}"
-    )
     live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
     said_ready = False
+    startup = None if console.is_terminal else ServiceLogWatch({name: log_dir / f"{name}.log" for name in START_ORDER})  # a log sees the start-up
 
     def on_poll(sup: Supervision, _status: object) -> None:
         nonlocal said_ready
+        for event in startup.events() if startup is not None else ():  # a service's ready line can follow the first tick
+            live.console.print(event, highlight=False, soft_wrap=True)
         if sup.ready_at is not None and not said_ready:
             said_ready = True
-            live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)")
+            live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)", soft_wrap=True)
         live.update(status_line(observer, time.monotonic() - sup.started))
+
+    def progress() -> str:
+        up = [name for name in START_ORDER if observer.alive.get(name)]
+        return status_progress(observer.status, waiting=f"starting the services (up: {', '.join(up) or 'none yet'}), waiting for the controller's first tick")
 
     recording: RigRecording | None = None
     try:
@@ -396,8 +412,11 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock, mirror=live_view)
         # Before any service starts (their Python start-up takes a second or more), so a bus
         # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
-        print(f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh {plan.zenoh_endpoint}", flush=True)
-        with live:
+        print(
+            f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh {plan.zenoh_endpoint}, logs in {log_dir}, tools' credentials in {tool_env}",
+            flush=True,
+        )
+        with live, activity(progress):
             sup = supervise(
                 plan,
                 log_dir,
@@ -441,7 +460,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if received:
-        console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped; logs in {log_dir}")
+        console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped")
         return INTERRUPTED
     if failure:
         console.print(f"[red]rig failed: {failure}[/red]")
@@ -470,9 +489,11 @@ def _start_live(args: argparse.Namespace) -> Any:
 def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     """``ralf-hil up --clock cosim``: the three boards co-simulated in this
     process, one thread (:mod:`workbench.cosim`); ``--duration`` is simulated time."""
-    from protocol.errors import ConfigError
-    from protocol.messages import ControllerStatus, decode
-    from workbench.cosim import run_cosim
+    with activity("loading the co-simulation's modules"):
+        from protocol.errors import ConfigError
+        from protocol.messages import ControllerStatus, decode
+        from service_kit.readiness import watch_compiles
+        from workbench.cosim import run_cosim
 
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
     if args.duration is not None and "duration_s" not in own["controller"]:
@@ -482,11 +503,17 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     if args.can_log and not args.record:
         console.print("[red]ralf-hil up: --can-log goes with --record[/red]")
         return 2
+    running: list[Any] = []  # the controller, once built: the progress line reads it
+
+    def progress() -> str:
+        return controller_progress(running[0]) if running else (compiling_progress() or "building the plant, controller and DSP")
+
+    watch_compiles()
     try:
-        with counting_warnings() as (warnings, errors):
+        with counting_warnings() as (warnings, errors), activity(progress):
             run = run_cosim(
                 controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
-                record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None,
+                record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None, on_start=running.append,
             )  # fmt: skip
     except (ConfigError, ValueError) as exc:
         console.print(f"[red]ralf-hil up: {exc}[/red]")
@@ -693,7 +720,12 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument(
         "--set", action="append", default=[], metavar="[SERVICE.]NAME=VALUE", help="a setting for one service (controller.oatf_mode=adaptive) or all (seed=3)"
     )
-    up.add_argument("--log-dir", default=None, help="where the services' logs go (default: a temporary directory)")
+    up.add_argument(
+        "--log-dir",
+        default=None,
+        help="where the services' logs go, kept after the run (default: a temporary folder, removed after a run that went well; kept, and named, after a failure or Ctrl-C)",
+    )
+    up.add_argument("--keep-logs", action="store_true", help="keep the default temporary log folder after a run that went well too (its path is printed)")
     up.add_argument("--json", default=None, help="also write the summary as JSON to this file")
     up.add_argument("--verbose", action="store_true", help="the summary also lists the per-hop latencies (hop_*: where a tick's and a batch's time goes)")
     up.add_argument(
@@ -770,7 +802,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"ralf-hil {args.command}: {problem}", file=sys.stderr)
         return 2
     try:
-        return int(args.func(args))
+        with heartbeat_unless_terminal(f"ralf-hil {args.command}") if args.command in LONG_COMMANDS else nullcontext():
+            return int(args.func(args))
     except ModuleNotFoundError as exc:
         needs = missing_extra(exc)
         if needs is None:

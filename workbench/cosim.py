@@ -29,6 +29,7 @@ from __future__ import annotations
 import time
 import uuid
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -248,6 +249,7 @@ def run_cosim(
     record: str | None = None,
     can_log: str | None = None,
     record_metadata: dict[str, Any] | None = None,
+    on_start: Callable[[ControllerService], None] | None = None,
 ) -> CosimRun:
     """Run one rig to the controller's end (``duration_s`` or ``repeats``
     must be set), every board in this thread. The plant writes its ground
@@ -255,7 +257,9 @@ def run_cosim(
     ``record`` writes the run into an MCAP file as ``ralf-hil up --record``
     does (:mod:`workbench.recording.cosim_tap`; ``can_log`` also the CAN side in
     python-can's ``.blf``/``.asc``/``.log``; ``record_metadata``: extra facts
-    for its ``ralf.run`` record); the run itself is unchanged."""
+    for its ``ralf.run`` record); the run itself is unchanged. ``on_start``
+    gets the controller before its first tick (for a progress reader, which
+    only reads it)."""
     cs, ps, ds = settings_for(controller, plant, dsp, common)
     model = build_plant_model(ps)  # a bad FMU is refused here (ConfigError), before anything runs
     try:
@@ -278,6 +282,8 @@ def run_cosim(
         model.close()
         raise
     try:
+        if on_start is not None:
+            on_start(ctrl)
         result = ctrl.run(scheduler.stop)
     finally:
         ctrl.close()

@@ -8,6 +8,7 @@ zenoh session): nothing leaves the process, so no network namespace is needed.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import signal
@@ -58,6 +59,20 @@ def test_map_keeps_order_and_reports_each_failure_without_losing_the_rest(engine
     assert not out[1].ok and "ValueError" in out[1].error and "math domain error" in out[1].error
     assert all(o.worker and o.run_s >= 0 and o.round_trip_s >= o.run_s for o in out)
     assert engine.slots() == 2
+
+
+def warn_like_a_monitor(n: int) -> int:
+    logging.getLogger("controller.monitors").warning("stale: parameters stale at tick %d (2.00 s without a fresh estimate) (policy degrade)", n)
+    return n
+
+
+def test_the_rigs_warnings_in_a_worker_are_counted_by_the_caller(engine: Engine) -> None:
+    from workbench.service_warnings import counted_warnings
+
+    with counted_warnings() as tally:
+        out = engine.map(warn_like_a_monitor, [1, 2, 3], description="warn", show_progress=False)
+    assert [o.value for o in out] == [1, 2, 3]
+    assert tally.counts == {"stale": 3}
 
 
 def test_sweep_table_failure_row_resume_and_determinism(engine: Engine, tmp_path: Path) -> None:

@@ -68,15 +68,15 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
             "--set",
             "dsp.fft_width=256",
         ],
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
+        stderr=subprocess.STDOUT,
+        stdout=subprocess.PIPE,
         text=True,
         env={**os.environ, "COLUMNS": "400"},  # one line per message: rich wraps at the terminal's width
     )
-    assert proc.stderr is not None
+    assert proc.stdout is not None
     port = None
     tool_env: Path | None = None
-    for line in proc.stderr:
+    for line in proc.stdout:  # the header, on stdout before any service starts
         m = re.search(r"zenoh tls/127\.0\.0\.1:(\d+)", line)
         t = re.search(r"tools' credentials in (\S+)", line)
         if m and t:
@@ -117,7 +117,7 @@ def _up(tmp: Path, name: str, attack: bool) -> tuple[Path, dict, int]:
 
         sub = session.declare_subscriber(keys.batch, answer)
     try:
-        rest = proc.stderr.read()
+        rest = proc.stdout.read()
         code = proc.wait(timeout=200)
         why = [line for line in rest.splitlines() if re.search(r"exited|failed|fault|Error", line)]
         assert code == 0, (name, why, {p.name: [x for x in p.read_text(errors="replace").splitlines() if " ERROR " in x][-5:] for p in logs.glob("*.log")})

@@ -44,6 +44,7 @@ from rich.text import Text
 
 from workbench.bench.items import FLOOR_ITEMS, ITEMS, QUICK_ITEMS, BenchContext, run_item
 from workbench.bench.stats import load_average, machine_info
+from workbench.progress import activity
 
 DEFAULT_JSON = "ralf-bench.json"
 TABLE_WIDTH = 120
@@ -96,9 +97,10 @@ def run_bench(options: dict[str, Any], log_dir: Path | None = None, say: Any = N
     report: dict[str, Any] = {"schema": SCHEMA, "machine": machine_info(), "options": {**options, "log_dir": str(log_dir)}, "items": {}}
     started = time.monotonic()
     try:
-        for name in options["items"]:
+        for number, name in enumerate(options["items"], 1):
             ctx.say(f"bench {name}")
-            report["items"][name] = run_item(name, ctx)
+            with activity(f"bench item {name} ({number} of {len(options['items'])})"):
+                report["items"][name] = run_item(name, ctx)
     except KeyboardInterrupt:
         for name in options["items"]:
             report["items"].setdefault(name, {"status": "interrupted", "measurements": {}, "config": {}, "notes": [], "errors": ["interrupted"], "skipped": []})

@@ -38,6 +38,9 @@ from typing import Any, Generic, TypeVar
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from workbench.progress import activity
+from workbench.service_warnings import add_remote, counted_warnings
+
 __all__ = [
     "Engine",
     "EngineError",
@@ -77,16 +80,18 @@ class TaskOutcome(Generic[R]):
         return not self.error
 
 
-def _timed_call(fn: Callable[[Any], Any], item: Any) -> tuple[bool, Any, float, str]:
-    """Worker side: ``fn(item)``, its wall time and where it ran; an exception is returned as text."""
+def _timed_call(fn: Callable[[Any], Any], item: Any) -> tuple[bool, Any, float, str, dict[str, Any]]:
+    """Worker side: ``fn(item)``, its wall time, where it ran and the rig's
+    warnings counted during it (:mod:`workbench.service_warnings`); an exception is returned as text."""
     where = f"{socket.gethostname()}:{os.getpid()}"
     started = time.perf_counter()
-    try:
-        value = fn(item)
-    except Exception as exc:  # noqa: BLE001 - one run's failure is its row, not the campaign's
-        text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-        return False, text, time.perf_counter() - started, where
-    return True, value, time.perf_counter() - started, where
+    with counted_warnings() as warned:
+        try:
+            value = fn(item)
+        except Exception as exc:  # noqa: BLE001 - one run's failure is its row, not the campaign's
+            text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+            return False, text, time.perf_counter() - started, where, warned.as_dict()
+    return True, value, time.perf_counter() - started, where, warned.as_dict()
 
 
 class Engine:
@@ -210,16 +215,21 @@ class Engine:
             submitted[fut] = (i, time.perf_counter())
             futures.append(fut)
         failed = 0
-        with _progress(console, show_progress) as prog:
+        here = f"{socket.gethostname()}:{os.getpid()}"
+        arrived = [0]
+        with _progress(console, show_progress) as prog, activity(lambda: f"{description}: {arrived[0]} of {len(items)} finished"):
             task = prog.add_task(description, total=len(items))
             for fut in as_completed(futures):
+                arrived[0] += 1
                 i, t0 = submitted[fut]
                 out: TaskOutcome[R] = TaskOutcome(i, names[i])
                 try:
-                    ok, value, run_s, where = fut.result()
+                    ok, value, run_s, where, warned = fut.result()
                 except Exception as exc:  # noqa: BLE001 - the worker died or the result did not arrive
                     out.error = f"{type(exc).__name__}: {exc}"
                 else:
+                    if where != here:  # a worker process's count (a thread of this process: this process counted them already)
+                        add_remote(warned)
                     out.run_s, out.worker = run_s, where
                     if ok:
                         out.value = value

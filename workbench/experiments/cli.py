@@ -125,6 +125,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         err_console.print(f"[red]{args.name} failed: {outcome.error}[/red] (traceback in {out / 'error.txt'})")
         return 1
     msg = f"{args.name}: {outcome.status}, checks {outcome.checks_passed}/{outcome.checks_total}, {outcome.runtime_s:.1f} s; report: {outcome.report_path}"
+    if outcome.warnings:
+        msg += f"; the rig's warnings, in the report: {outcome.warnings}"
     err_console.print(msg if outcome.ok else f"[red]{msg}[/red]", highlight=False)
     return 0 if outcome.ok else 1
 

@@ -37,6 +37,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from workbench.extras import missing_extra
+from workbench.progress import activity
+from workbench.service_warnings import counted_warnings
 
 if TYPE_CHECKING:
     from workbench.experiments.report import Report
@@ -201,6 +203,13 @@ class ExperimentContext:
     experiment: Experiment | None = None
     record: bool = False
     """Record every rig run (co-simulated or three-process) into ``records/<run>.mcap`` (:mod:`workbench.recording`)."""
+    step: str = ""
+    """What :meth:`progress` or :meth:`progress_task` is counting now (``noise draws 3/10``), for a log's progress line."""
+
+    def doing(self) -> str:
+        """The experiment and its current step, for the progress line of a log (:mod:`workbench.progress`)."""
+        name = f"experiment {self.experiment.name}" if self.experiment else "experiment"
+        return f"{name}: {self.step}" if self.step else name
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
@@ -254,20 +263,29 @@ class ExperimentContext:
             total = len(items)
         with self._progress() as prog:
             task = prog.add_task(description or "working", total=total)
-            for item in items:
+            for done, item in enumerate(items):
+                self.step = f"{description or 'working'} {done}/{total if total is not None else '?'}"
                 yield item
                 prog.advance(task)
+            self.step = ""
 
     @contextmanager
     def progress_task(self, description: str, total: float | None = None) -> Iterator[Callable[[float], None]]:
         """A bar advanced by hand: ``with ctx.progress_task("ticks", n) as advance: ... advance(1)``."""
         with self._progress() as prog:
             task = prog.add_task(description, total=total)
+            done = [0.0]
 
             def advance(step: float = 1.0) -> None:
                 prog.advance(task, step)
+                done[0] += step
+                self.step = f"{description} {done[0]:g}/{total if total is not None else '?'}"
 
-            yield advance
+            self.step = f"{description} 0/{total if total is not None else '?'}"
+            try:
+                yield advance
+            finally:
+                self.step = ""
 
 
 # --------------------------------------------------------------------------- runners
@@ -294,6 +312,8 @@ class RunOutcome:
     description: str = ""
     missing_extra: bool = False
     """The error is an extra the install left out (``error`` names it)."""
+    warnings: str = ""
+    """The rig's warnings during the runs by kind (``stale ×3, deadline ×1``), counted in the report; '' when none."""
 
     @property
     def ok(self) -> bool:
@@ -345,8 +365,10 @@ def run_experiment(
     if error_file.exists():
         error_file.unlink()
     try:
-        report = exp.run(ctx)
+        with activity(ctx.doing), counted_warnings() as warned:
+            report = exp.run(ctx)
         runtime = time.perf_counter() - started
+        report.service_warnings = warned.as_dict()
         report.set_meta(
             experiment=exp.name,
             section=exp.section,
@@ -390,6 +412,7 @@ def run_experiment(
         len(report.checks),
         section=exp.section,
         description=exp.description,
+        warnings=warned.line(),
     )
 
 
@@ -417,7 +440,8 @@ def run_all(
     for exp in chosen:
         console.print(f"[bold]experiment {exp.name}[/bold] ({exp.section})", highlight=False)
         outcome = run_experiment(exp.name, out / exp.name, seed=seed, mode=mode, quick=quick, console=console, show_progress=show_progress, record=record)
-        console.print(f"  {outcome.status} in {outcome.runtime_s:.1f} s" + (f": {outcome.error}" if outcome.error else ""))
+        warned = f"; the rig's warnings, in the report: {outcome.warnings}" if outcome.warnings else ""
+        console.print(f"  {outcome.status} in {outcome.runtime_s:.1f} s" + (f": {outcome.error}" if outcome.error else "") + warned, highlight=False)
         outcomes.append(outcome)
     index = write_index(out, outcomes, broken_modules(), seed=seed, mode=mode, quick=quick)
     return outcomes, index

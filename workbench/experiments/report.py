@@ -120,6 +120,8 @@ class Report:
         self.figures: list[str] = []
         self.attachments: list[dict[str, str]] = []
         self.meta: dict[str, Any] = {}
+        self.service_warnings: dict[str, dict[str, Any]] = {}
+        """The rig's log warnings during the runs, by kind: count and first message (the runner fills it, :mod:`workbench.service_warnings`)."""
         self._body: list[str] = []
 
     # -- content --------------------------------------------------------------------------
@@ -271,6 +273,16 @@ class Report:
             for chk in self.checks:
                 lines.append(f"| {_cell(chk.name)} | {'pass' if chk.passed else '**FAIL**'} | {_cell(chk.detail)} |")
             lines.append("")
+        if self.service_warnings:
+            lines += ["", "## Warnings from the rig", ""]
+            lines += [
+                "Warnings the rig's services logged during this experiment's runs (a monitor firing, a DSP batch over its compute budget), "
+                "counted here instead of printed; the checks above judge the runs.",
+                "",
+            ]
+            lines += ["| kind | count | first message |", "| --- | ---: | --- |"]
+            lines += [f"| {_cell(kind)} | {w['count']} | {_cell(w['first'])} |" for kind, w in self.service_warnings.items()]
+            lines.append("")
         if self.attachments:
             lines += ["", "## Files", ""]
             lines += [f"- [`{a['path']}`]({a['path']}): {a['description']}" for a in self.attachments]
@@ -292,6 +304,7 @@ class Report:
             "thesis_comparison": [{"claim": c.claim, "observed": c.observed, "agrees": c.agrees} for c in self.comparisons],
             "figures": list(self.figures),
             "attachments": list(self.attachments),
+            **({"service_warnings": self.service_warnings} if self.service_warnings else {}),
         }
 
     def write(self) -> tuple[Path, Path]:

@@ -27,6 +27,7 @@ from typing import Any
 from service_kit.link_faults import Scenario, ScenarioError, load_scenario
 from workbench.hostinfo import host_info
 from workbench.log_counts import counting_warnings
+from workbench.progress import activity
 from workbench.timing_test.report import Criteria, evaluate, verdict_failed, write_report
 from workbench.verdict import judge
 
@@ -65,7 +66,10 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
     if scenario.description:
         print(f"timing test {scenario.name}: {' '.join(scenario.description.split())}")
     host_before = host_info()
-    with counting_warnings() as (warnings, errors):
+    with (
+        counting_warnings() as (warnings, errors),
+        activity(f"timing test {scenario.name}: the rig runs ({args.mode or scenario.mode}, {args.duration or scenario.duration_s:g} s simulated)"),
+    ):
         run = run_scenario(scenario, args.duration, args.mode)
     host_after = host_info()
     verdict = evaluate(run.controller, criteria, mode=args.mode or scenario.mode)
