@@ -10,18 +10,24 @@ CAN log (``--can-log``); the JSON summary (``--json``); the services' logs
 (``--log-dir``: the folder and one ``<service>.log`` per process, or
 ``cosim.log`` for a co-simulation). A setting is read as the service reads
 it: its ``--set`` value, else its ``RALF_*`` variable.
+
+The commands that write a report folder (``--out``) and a JUnit file
+(``--junit``: ``timing-test``, ``experiment``, ``sweep``) refuse a JUnit
+path that is the folder or one of the files the report writes in it
+(:func:`junit_clash`).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from fnmatch import fnmatch
 from pathlib import Path
 
 from protocol.record_paths import collisions, run_record_outputs, truth_file
 from protocol.rig_description import start_order
 
-__all__ = ["COSIM_LOG", "output_clashes", "up_outputs"]
+__all__ = ["COSIM_LOG", "REPORT_FILES", "junit_clash", "output_clashes", "up_outputs"]
 
 COSIM_LOG = "cosim.log"
 """The co-simulation's log in ``--log-dir`` (the three boards run in one thread)."""
@@ -102,3 +108,27 @@ def output_clashes(
     """One line per path two outputs of the run would write (empty: none do)."""
     files = up_outputs(overrides, clock=clock, json=json, record=record, can_log=can_log, log_dir=log_dir)
     return collisions(files) + nested(files)
+
+
+REPORT_FILES: dict[str, tuple[str, ...]] = {
+    "timing-test": ("report.json", "report.md", "hist_*.png"),
+    "experiment": ("report.md", "results.json", "error.txt", "*.png", "records/*"),
+    "experiment all": ("index.md", "index.json", "*/report.md", "*/results.json", "*/error.txt", "*/*.png", "*/records/*"),
+    "sweep": ("spec.json", "runs.jsonl", "*.parquet", "*.csv"),
+}
+"""The files each command writes in its ``--out`` folder (patterns relative to it)."""
+
+
+def junit_clash(junit: str | None, out: str | Path, command: str) -> str | None:
+    """The line refusing ``--junit`` when it names ``--out`` or a file the report writes there (None: no clash)."""
+    if not junit:
+        return None
+    path, folder = Path(junit).resolve(), Path(out).resolve()
+    if path == folder:
+        return f"{path} would be both the report folder (--out) and the JUnit XML (--junit)"
+    if folder not in path.parents:
+        return None
+    inside = path.relative_to(folder).as_posix()
+    if any(fnmatch(inside, pattern) for pattern in REPORT_FILES[command]):
+        return f"{path} would be written by both the report (--out) and the JUnit XML (--junit)"
+    return None

@@ -214,3 +214,59 @@ def test_a_three_process_rig_writes_every_output_whole(tmp_path: Path, clock: st
     proc, out = _up_everything(tmp_path, clock, 4.0, [])
     assert proc.returncode == 0, proc.stdout + proc.stderr
     _assert_every_output(out, clock)
+
+
+# --- a JUnit file on a report's own files ---------------------------------------------------------------
+
+SCENARIO = Path(__file__).resolve().parents[2] / "docs" / "scenarios" / "zenoh-interrupt-loss.yaml"
+JUNIT_CASES = [
+    ("timing-test", "report.json"),
+    ("timing-test", "report.md"),
+    ("timing-test", "hist_tet.png"),
+    ("timing-test", "."),
+    ("experiment", "report.md"),
+    ("experiment", "results.json"),
+    ("experiment", "."),
+    ("experiment all", "index.md"),
+    ("experiment all", "verify/report.md"),
+    ("sweep", "results.csv"),
+    ("sweep", "runs.jsonl"),
+    ("sweep", "."),
+]
+
+
+def _junit_args(command: str, out: Path, junit: Path, spec: Path) -> list[str]:
+    head = {
+        "timing-test": ["timing-test", str(SCENARIO)],
+        "experiment": ["experiment", "verify"],
+        "experiment all": ["experiment", "all"],
+        "sweep": ["sweep", str(spec)],
+    }
+    return [*head[command], "--out", str(out), "--junit", str(junit)]
+
+
+@pytest.mark.parametrize(("command", "name"), JUNIT_CASES, ids=[f"{c}-{n}".replace(" ", "_") for c, n in JUNIT_CASES])
+def test_a_junit_file_on_a_reports_own_file_is_refused_before_the_run(tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str, name: str) -> None:
+    spec = tmp_path / "spec.toml"
+    spec.write_text('name = "clash"\n[base]\ncontroller.duration_s = 1\n[grid]\nplant.seed = [1, 2]\n')
+    out = tmp_path / "out"
+    junit = out if name == "." else out / name
+    assert ralf_hil(_junit_args(command, out, junit, spec)) == 2
+    said = " ".join(capsys.readouterr().err.split())
+    both = (
+        "would be both the report folder (--out) and the JUnit XML (--junit)"
+        if name == "."
+        else "would be written by both the report (--out) and the JUnit XML (--junit)"
+    )
+    assert f"{junit} {both}" in said and "Traceback" not in said, said
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", sorted({c for c, _ in JUNIT_CASES}))
+def test_a_junit_file_beside_or_apart_from_the_report_passes(tmp_path: Path, command: str) -> None:
+    from workbench.output_paths import junit_clash
+
+    out = tmp_path / "out"
+    for junit in (tmp_path / "junit.xml", out / "junit.xml"):
+        assert junit_clash(str(junit), out, command) is None
+    assert junit_clash(None, out, command) is None
