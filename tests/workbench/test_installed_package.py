@@ -29,6 +29,7 @@ PACKAGE_DATA = [
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A venv whose site-packages holds this tree as installed (its Python)."""
+    pytest.importorskip("setuptools")  # what pip itself builds the wheel with
     tmp = tmp_path_factory.mktemp("installed")
     build = tmp / "build"
     setup = [sys.executable, "-c", "from setuptools import setup; setup()", "-q", "build_py", "--build-lib", str(build)]
