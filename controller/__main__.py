@@ -44,8 +44,7 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
                 result = service.run(stop)
             finally:
                 started.set()
-            if settings.run_record:
-                service.save(settings.run_record, result)
+            service.finish(result)
             log.info("run ended after %d ticks (%.2f s simulated): %s", result.ticks, result.sim_time_s, result.counters)
         finally:
             service.close()

@@ -321,6 +321,8 @@ class ChunkedRecord:
         self._files: dict[str, BinaryIO] = {name: open(self._parts / f"{name}.bin", "wb") for name in self._buffer.names}  # noqa: SIM115 (closed in save/close)
         self._flushed = 0
         self.chunks_written = 0
+        self._saved: tuple[Path, Path] | None = None
+        """The files :meth:`save` wrote (the parts are gone then)."""
 
     @property
     def names(self) -> list[str]:
@@ -381,11 +383,17 @@ class ChunkedRecord:
 
     def to_columns(self) -> dict[str, npt.NDArray[Any]]:
         """The whole record read back (for tests and small runs)."""
+        if self._saved is not None:
+            return load_record(self._saved[0]).columns
         self.flush()
         return {name: np.fromfile(self._parts / f"{name}.bin", dtype=dt) for name, dt in self._dtypes.items()}
 
     def save(self, path: str | Path | None = None, config: Any = None, metadata: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
-        """Write ``<path>.npz`` and ``<path>.json`` from the parts (streamed), then remove them."""
+        """Write ``<path>.npz`` and ``<path>.json`` from the parts (streamed), then
+        remove them. Saved once already: the same path is left as written, another
+        gets a copy of the columns with this sidecar."""
+        if self._saved is not None:
+            return self._saved_again(path if path is not None else self._path, config, metadata)
         self.flush()
         for fh in self._files.values():
             fh.close()
@@ -400,7 +408,18 @@ class ChunkedRecord:
                     shutil.copyfileobj(raw, member, 1 << 20)
         out = _commit(tmp_npz, npz_path, json_path, n, {name: str(dt) for name, dt in self._dtypes.items()}, config, metadata)
         shutil.rmtree(self._parts, ignore_errors=True)
+        self._saved = out
         return out
+
+    def _saved_again(self, path: str | Path, config: Any, metadata: Mapping[str, Any] | None) -> tuple[Path, Path]:
+        assert self._saved is not None
+        npz_path, json_path = _paths(path)
+        if npz_path.resolve() == self._saved[0].resolve():
+            return self._saved
+        npz_path.parent.mkdir(parents=True, exist_ok=True)
+        tmp_npz = npz_path.with_name(npz_path.name + ".tmp.npz")
+        shutil.copyfile(self._saved[0], tmp_npz)
+        return _commit(tmp_npz, npz_path, json_path, self._flushed, {name: str(dt) for name, dt in self._dtypes.items()}, config, metadata)
 
     def close(self) -> None:
         """Drop the parts without saving."""

@@ -384,6 +384,11 @@ class ControllerService:
         hops = self.hops if not self.lockstep else None
         save_run(path, (self.record, self.timing_record), self.settings.model_dump(), metadata, self.faults, hops, self.tf_snapshots)
 
+    def finish(self, result: RunResult) -> None:
+        """The end of a run in every clock: its record written when ``run_record`` is set."""
+        if self.settings.run_record:
+            self.save(self.settings.run_record, result)
+
     def close(self) -> None:
         self.tf.join(timeout=3.0)
         self.port.close()

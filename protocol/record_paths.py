@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["collisions", "run_record_files", "truth_file"]
+__all__ = ["collisions", "run_record_files", "run_record_outputs", "truth_file"]
 
 
 def _stem(path: str | Path, *suffixes: str) -> Path:
@@ -28,11 +28,26 @@ def truth_file(path: str | Path) -> Path:
     return stem.with_name(stem.name + ".truth.npz")
 
 
+RUN_RECORD_OUTPUTS: dict[str, tuple[str, ...]] = {
+    "run record": ("npz", "json", "parts", "npz.tmp.npz", "json.tmp"),
+    "timing record": ("timing.npz", "timing.json", "timing.parts", "timing.npz.tmp.npz", "timing.json.tmp"),
+    "TF record": ("tf.npz",),
+    "hop stamps": ("hops.npz",),
+}
+"""What the controller writes for ``run_record = PATH``, by kind: the name
+endings after ``PATH.`` (``parts``: the folder the rows stream to during
+the run; ``*.tmp.npz``: the file written before its rename at the end)."""
+
+
+def run_record_outputs(path: str | Path) -> dict[str, list[Path]]:
+    """Every file and folder the controller writes for ``run_record = path``, by kind."""
+    stem = _stem(_stem(path, ".npz"), ".json")
+    return {kind: [stem.with_name(f"{stem.name}.{name}") for name in names] for kind, names in RUN_RECORD_OUTPUTS.items()}
+
+
 def run_record_files(path: str | Path) -> list[Path]:
     """Every file and folder the controller writes for ``run_record = path``."""
-    stem = _stem(_stem(path, ".npz"), ".json")
-    names = ("npz", "json", "parts", "timing.npz", "timing.json", "timing.parts", "tf.npz", "hops.npz")
-    return [stem.with_name(f"{stem.name}.{name}") for name in names]
+    return [p for paths in run_record_outputs(path).values() for p in paths]
 
 
 def collisions(files: Mapping[str, list[Path]]) -> list[str]:

@@ -324,6 +324,19 @@ def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
         raise SystemExit(2) from None
 
 
+def refuse_clashing_outputs(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> None:
+    """Two outputs of the run naming one file (records, recording, CAN log,
+    JSON summary, logs: :func:`workbench.output_paths.output_clashes`) are
+    refused before anything starts, in every clock: one line each, exit 2."""
+    from workbench.output_paths import output_clashes
+
+    clashes = output_clashes(overrides, clock=args.clock, json=args.json, record=args.record, can_log=args.can_log, log_dir=args.log_dir)
+    if clashes:
+        for line in clashes:
+            print(f"ralf-hil up: {line}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 INTERRUPTED = 130
 """``ralf-hil up``'s exit code when Ctrl-C (SIGINT), SIGTERM or a closed terminal ended it."""
 
@@ -340,6 +353,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         # Simulated seconds in every clock: a lockstep controller stops itself after them
         # (with controller.duration_s too, both simulated seconds: the shorter ends the run).
         overrides["controller"]["RALF_DURATION_S"] = shorter_duration(overrides["controller"].get("RALF_DURATION_S"), args.duration)
+    refuse_clashing_outputs(args, overrides)
     refuse_bad_plant_model(overrides)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
@@ -493,7 +507,8 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
         from protocol.errors import ConfigError
         from protocol.messages import ControllerStatus, decode
         from service_kit.readiness import watch_compiles
-        from workbench.cosim import run_cosim
+        from workbench.cosim import logging_to, run_cosim
+        from workbench.output_paths import COSIM_LOG
 
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
     if args.duration is not None and "duration_s" not in own["controller"]:
@@ -510,7 +525,11 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
 
     watch_compiles()
     try:
-        with counting_warnings() as (warnings, errors), activity(progress):
+        with (
+            logging_to(Path(args.log_dir) / COSIM_LOG if args.log_dir else None),
+            counting_warnings() as (warnings, errors),
+            activity(progress),
+        ):
             run = run_cosim(
                 controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
                 record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None, on_start=running.append,

@@ -134,4 +134,5 @@ def run_in_process(
         ctrl_bus.shutdown()
         if own_session:
             sess.close()
+    ctrl.finish(result)  # the run record, as the controller service writes it at its end
     return InProcessRun(result=result, controller=ctrl, dsp=dsp_service, wall_time_s=time.monotonic() - started, health=dict(health))

@@ -26,11 +26,14 @@ lockstep run with the same settings bit for bit (tested).
 
 from __future__ import annotations
 
+import logging
 import time
 import uuid
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import can
@@ -259,7 +262,8 @@ def run_cosim(
     python-can's ``.blf``/``.asc``/``.log``; ``record_metadata``: extra facts
     for its ``ralf.run`` record); the run itself is unchanged. ``on_start``
     gets the controller before its first tick (for a progress reader, which
-    only reads it)."""
+    only reads it). The controller's ``run_record`` is written at the end,
+    whole, as the controller service writes it (:meth:`ControllerService.finish`)."""
     cs, ps, ds = settings_for(controller, plant, dsp, common)
     model = build_plant_model(ps)  # a bad FMU is refused here (ConfigError), before anything runs
     try:
@@ -293,6 +297,7 @@ def run_cosim(
         wall = time.monotonic() - started
         plant_health = _plant_health(app, node)
         app.close()  # the model freed (an FMU's instance), as the plant service does on stop
+    ctrl.finish(result)  # the run record, as the controller service writes it at its end
     save_bank(core.identifier, ds)  # and at its stop
     health = {"plant": plant_health, "dsp": _dsp_health(core)}
     ctrl_health = port.health()
@@ -304,3 +309,35 @@ def run_cosim(
             recording.health(service, message)
         recorded = recording.close().as_dict()
     return CosimRun(result=result, controller=ctrl, dsp=core, plant=app, node=node, wall_time_s=wall, health=health, recording=recorded)
+
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+@contextmanager
+def logging_to(path: Path | None) -> Iterator[None]:
+    """The co-simulation's log lines (every board's, INFO and up) also into
+    ``path`` while the block runs (``ralf-hil up --clock cosim --log-dir``);
+    WARNING and up still reach stderr. None: nothing changes."""
+    if path is None:
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    root = logging.getLogger()
+    handlers: list[logging.Handler] = [logging.FileHandler(path, encoding="utf-8")]
+    handlers[0].setLevel(logging.INFO)
+    if not root.handlers:  # stderr as Python's last-resort handler would have it
+        handlers.append(logging.StreamHandler())
+        handlers[1].setLevel(logging.WARNING)
+    for handler in handlers:
+        handler.setFormatter(logging.Formatter(LOG_FORMAT))
+        root.addHandler(handler)
+    level = root.level
+    root.setLevel(min(level, logging.INFO) if level else logging.INFO)
+    try:
+        yield
+    finally:
+        root.setLevel(level)
+        for handler in handlers:
+            root.removeHandler(handler)
+            handler.close()

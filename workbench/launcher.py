@@ -395,17 +395,9 @@ def stop_all(procs: Mapping[str, ServiceProcess], timeout_s: float = INTERRUPT_S
 
 def plan_problems(plan: RigPlan) -> list[str]:
     """What would go wrong before anything starts: a ``RALF_*`` variable no
-    program reads (a retired one named with its replacements), and a file two
-    services would both write (:func:`protocol.record_paths.collisions`)."""
-    from protocol.record_paths import collisions, run_record_files, truth_file
+    program reads (a retired one named with its replacements). Two outputs
+    naming one file are refused before this, in every clock
+    (:func:`workbench.output_paths.output_clashes`)."""
     from protocol.settings import unknown_variables
 
-    problems = [line.strip() for line in unknown_variables(plan.env_for("controller"))]
-    files: dict[str, list[Path]] = {}
-    run_record = plan.env_for("controller").get("RALF_RUN_RECORD", "")
-    if run_record:
-        files["the controller (RALF_RUN_RECORD)"] = run_record_files(run_record)
-    truth_record = plan.env_for("plant").get("RALF_TRUTH_RECORD", "")
-    if truth_record:
-        files["the plant (RALF_TRUTH_RECORD)"] = [truth_file(truth_record)]
-    return problems + collisions(files)
+    return [line.strip() for line in unknown_variables(plan.env_for("controller"))]

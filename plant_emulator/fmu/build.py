@@ -1,7 +1,8 @@
 """Build a C source co-simulation FMU with the machine's C compiler against
 the FMI headers FMPy ships (``fmpy/c-code``): the binary for this platform,
 zipped with the model description. Used for the example FMU
-(``examples/fmu/two_mode_plant``) and usable for any single-directory FMI 2.0
+(:data:`EXAMPLE_SOURCE`, shipped in the package; ``examples/fmu/two_mode_plant``
+in a checkout links to it) and usable for any single-directory FMI 2.0
 C source whose model identifier names its ``.c`` files' library::
 
     ralf-hil plant fmu-build examples/fmu/two_mode_plant two_mode_plant.fmu
@@ -18,10 +19,13 @@ from typing import Any
 
 from plant_emulator.fmu.instance import FmuRefused
 
-__all__ = ["EXAMPLE_SOURCE", "build_c_fmu"]
+__all__ = ["EXAMPLE_MAPPING", "EXAMPLE_SOURCE", "build_c_fmu"]
 
-EXAMPLE_SOURCE = Path(__file__).resolve().parents[2] / "examples" / "fmu" / "two_mode_plant"
-"""The example plant's C source and model description (a source checkout)."""
+EXAMPLE_SOURCE = Path(__file__).resolve().parent / "example" / "two_mode_plant"
+"""The example plant's C source and model description: package data, so an
+installed ``ralf-hil`` (``pip install .``, not only a checkout) builds it."""
+EXAMPLE_MAPPING = EXAMPLE_SOURCE.parent / "two_mode_plant.yaml"
+"""The example plant's mapping onto the node's I/O (RALF's channel scales)."""
 
 
 def build_c_fmu(source_dir: str | Path, dest: str | Path, compiler: str = "gcc") -> Path:

@@ -39,6 +39,10 @@ STATUS_ERROR = 3
 STATUS_TERMINATED = 5
 """FMI status codes (FMI 2.0 and 3.0 share 0-4); 5 here: FMI 3.0's terminateSimulation."""
 
+_STATUS_NAMES = {1: "warning", 2: "discard", 3: "error", 4: "fatal"}
+MAX_LOGGED_MESSAGES = 50
+"""An FMU's messages above OK written to the plant's log; later ones are only counted."""
+
 _REALS = {2: ("Real",), 3: ("Float64",)}
 _INTEGERS = {2: ("Integer", "Enumeration"), 3: ("Int32", "Int64", "Enumeration")}
 
@@ -70,6 +74,11 @@ class FmuInstance:
         self._closed = False
         self.messages: deque[str] = deque(maxlen=16)
         """The FMU's last warning and error log messages."""
+        self.n_messages = 0
+        """The FMU's warning and error messages so far (:attr:`messages` keeps the last ones)."""
+        self.n_logged = 0
+        """Of them, those written to the plant's log (at most :data:`MAX_LOGGED_MESSAGES`)."""
+        self._step_mark = 0
         variables = {v.name: v for v in description.modelVariables}
         self.variables = variables
         cs = description.coSimulation
@@ -95,11 +104,13 @@ class FmuInstance:
     # -- setup -------------------------------------------------------------------------------
     def _instantiate_and_initialize(self, seed: int) -> None:
         fmu = self.fmu
+        # Logging on: an FMU may send nothing to the logger callback without it
+        # (pythonfmu's FMI 2.0 wrapper drops even the exception behind a Fatal).
         if self.version == 2:
-            fmu.instantiate(callbacks=self._fmi2_callbacks())
+            fmu.instantiate(callbacks=self._fmi2_callbacks(), loggingOn=True)
             fmu.setupExperiment(startTime=0.0)
         else:
-            fmu.instantiate(logMessage=self._log_fmi3)
+            fmu.instantiate(loggingOn=True, logMessage=self._log_fmi3)
         values: dict[str, Scalar] = {**self.mapping.parameters, **self.mapping.start}
         if self.mapping.seed_variable is not None:
             values[self.mapping.seed_variable] = int(seed)
@@ -135,17 +146,34 @@ class FmuInstance:
         self._log(status, category, message)
 
     def _log(self, status: int, category: bytes | None, message: bytes | None) -> None:
-        """An FMU's log message: kept (the last few, for the line that reports a
-        refusal or a fault) and logged at debug level."""
+        """An FMU's log message into the plant's log at its level (OK: debug;
+        warning, discard: warning; error, fatal: error; the first
+        :data:`MAX_LOGGED_MESSAGES` above OK, the rest counted), and the last
+        few kept for the line that reports a refusal or a fault."""
         text = " ".join((message or b"").decode("utf-8", "replace").split())
-        if status >= 1:
-            self.messages.append(text)
-        log.debug("FMU %s [%s]: %s", self.path.name, (category or b"").decode("utf-8", "replace"), text)
+        kind = (category or b"").decode("utf-8", "replace")
+        where = f"FMU {self.path.name}" + (f" [{kind}]" if kind else "")
+        if status < 1:
+            log.debug("%s: %s", where, text)
+            return
+        self.messages.append(text)
+        self.n_messages += 1
+        if self.n_logged < MAX_LOGGED_MESSAGES:
+            self.n_logged += 1
+            last = " (further FMU messages counted, not logged)" if self.n_logged == MAX_LOGGED_MESSAGES else ""
+            log.log(logging.ERROR if status >= STATUS_ERROR else logging.WARNING, "%s %s: %s%s", where, _STATUS_NAMES.get(status, status), text, last)
 
     @property
     def last_message(self) -> str:
         """The FMU's last warning or error message ('' if none)."""
         return self.messages[-1] if self.messages else ""
+
+    @property
+    def step_message(self) -> str:
+        """What the FMU said (warning and up) during the last :meth:`step`, its
+        messages joined ('' if nothing): the reason a fault line gives."""
+        n = min(self.n_messages - self._step_mark, len(self.messages))
+        return "; ".join(list(self.messages)[len(self.messages) - n :]) if n > 0 else ""
 
     def _set_scalar(self, name: str, value: Scalar) -> None:
         var = self.variables[name]
@@ -195,6 +223,7 @@ class FmuInstance:
         :attr:`values`; the FMI status (or :data:`STATUS_TERMINATED`)."""
         self._in_val[0] = volts0
         self._in_val[1] = volts1
+        self._step_mark = self.n_messages
         try:
             self._set()
             self._step(t, h)

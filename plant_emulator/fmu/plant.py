@@ -211,7 +211,8 @@ class FmuPlant:
             return
         if status == STATUS_DISCARD:
             self.faults["discard"] += 1
-            self._report(FAULT_DISCARD, True, f"FMU doStep at {t:.3f} s returned discard; last outputs held")
+            said = f" ({self.instance.step_message})" if self.instance.step_message else ""
+            self._report(FAULT_DISCARD, True, f"FMU doStep at {t:.3f} s returned discard{said}; last outputs held")
             return
         if status == STATUS_TERMINATED:
             self.faults["terminated"] += 1
@@ -221,7 +222,7 @@ class FmuPlant:
             cause = FAULT_ERROR
         self.failed = True
         label = "asked to terminate" if status == STATUS_TERMINATED else f"returned {'fatal' if status > STATUS_ERROR else 'error'}"
-        said = f" ({self.instance.last_message})" if self.instance.last_message else ""
+        said = f" ({self.instance.step_message})" if self.instance.step_message else ""
         self._report(cause, True, f"FMU doStep at {t:.3f} s {label}{said}: no further steps; outputs held")
 
     def _report(self, cause: int, active: bool, detail: str) -> None:

@@ -158,3 +158,21 @@ def test_append_row_stores_what_append_stores(tmp_path: Path) -> None:
         by_row.append_row([1.0, 2.0])
     by_row.clear()
     assert len(by_row) == 0
+
+
+def test_a_chunked_record_saved_again_keeps_its_file_or_copies_it(tmp_path: Path) -> None:
+    """Saved at the run's end (``run_record``) and again by a caller: the same
+    path stays as first written; another path gets the same columns and its own sidecar."""
+    rec = ChunkedRecord(tmp_path / "r", {"tick": np.int64, "x": np.float64}, chunk_rows=64)
+    for i in range(150):  # two full chunks and a partial one
+        rec.append_row((i, i * 0.5))
+    first = rec.save(tmp_path / "r", metadata={"who": "first"})
+    assert not (tmp_path / "r.parts").exists()
+    assert rec.save(tmp_path / "r.npz", metadata={"who": "second"}) == first
+    assert load_record(tmp_path / "r").metadata == {"who": "first"}
+    rec.save(tmp_path / "copy", metadata={"who": "copy"})
+    a, b = load_record(tmp_path / "r"), load_record(tmp_path / "copy")
+    assert len(a) == len(b) == 150 and b.metadata == {"who": "copy"}
+    assert np.array_equal(a["tick"], np.arange(150)) and np.array_equal(a["x"], b["x"])
+    assert np.array_equal(rec.to_columns()["x"], np.arange(150) * 0.5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.json", "copy.npz", "r.json", "r.npz"]

@@ -80,12 +80,10 @@ def bench_fmu(ctx: BenchContext, result: dict[str, Any]) -> None:
     requires("fmpy", "yaml", "workbench.cosim")
     if shutil.which("gcc") is None:
         raise Skip("no gcc to build the example FMU")
-    from plant_emulator.fmu.build import EXAMPLE_SOURCE, build_c_fmu
+    from plant_emulator.fmu.build import EXAMPLE_MAPPING, EXAMPLE_SOURCE, build_c_fmu
     from workbench.cosim import run_cosim
 
-    mapping = EXAMPLE_SOURCE.parent / "two_mode_plant.yaml"
-    if not EXAMPLE_SOURCE.is_dir() or not mapping.is_file():
-        raise Skip(f"the example FMU's source is not here ({EXAMPLE_SOURCE}): a source checkout is needed")
+    mapping = EXAMPLE_MAPPING
     n = 500 if ctx.quick else max(ctx.iterations, 2000)
     sim_s = 10.0 if ctx.quick else 60.0
     m = result["measurements"]

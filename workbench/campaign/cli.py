@@ -53,6 +53,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from workbench.campaign.engine import EngineError
     from workbench.campaign.spec import SpecError, expand, load_spec, planned_runs
     from workbench.campaign.sweep import run_sweep
+    from workbench.output_paths import junit_clash
 
     err = Console(stderr=True, soft_wrap=True)  # a refusal is one line, however long
     try:
@@ -78,6 +79,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         out.print(f"{len(points)} run(s)")
         return 0
     out_dir = Path(args.out) if args.out else DEFAULT_OUT_ROOT / spec.name
+    clash = junit_clash(args.junit, out_dir, "sweep")
+    if clash:
+        err.print(f"ralf-hil sweep: {clash}", highlight=False, markup=False)
+        return 2
     try:
         engine = open_engine(args)
     except EngineError as exc:

@@ -89,6 +89,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
+    from workbench.output_paths import junit_clash
+
     out_console = Console(width=max(Console().width, 120) if not sys.stdout.isatty() else None)
     err_console = Console(stderr=True, soft_wrap=True)  # a refusal is one line, however long
     if args.list:
@@ -98,6 +100,10 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         err_console.print("ralf-hil experiment: give an experiment NAME, 'all', or --list")
         return 2
     show = not args.no_progress
+    clash = junit_clash(args.junit, Path(args.out) if args.out else DEFAULT_OUT_ROOT / args.name, "experiment all" if args.name == ALL else "experiment")
+    if clash:
+        err_console.print(f"ralf-hil experiment: {clash}", highlight=False, markup=False)
+        return 2
     if args.name == ALL:
         out = Path(args.out) if args.out else DEFAULT_OUT_ROOT / ALL
         outcomes, index = run_all(out, seed=args.seed, mode=args.mode, quick=args.quick, console=err_console, show_progress=show, record=args.record)

@@ -82,6 +82,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--fit", action="store_true", help="re-fit the stiffnesses from the current defaults first")
     p.set_defaults(func=cmd_calibration)
     p = tools.add_parser("fmu-build", help="build a C source co-simulation FMU with the machine's C compiler")
-    p.add_argument("source_dir", nargs="?", default=None, help="directory with modelDescription.xml and the C sources (default: examples/fmu/two_mode_plant)")
+    p.add_argument(
+        "source_dir",
+        nargs="?",
+        default=None,
+        help="directory with modelDescription.xml and the C sources (default: the example plant shipped with the package, examples/fmu/two_mode_plant in a checkout)",
+    )
     p.add_argument("dest", nargs="?", default="two_mode_plant.fmu", help="the FMU to write (default: two_mode_plant.fmu)")
     p.set_defaults(func=cmd_fmu_build)

@@ -50,6 +50,12 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, mode: str 
 
 
 def cmd_timing_test(args: argparse.Namespace) -> int:
+    from workbench.output_paths import junit_clash
+
+    clash = junit_clash(args.junit, args.out, "timing-test")
+    if clash:
+        print(f"ralf-hil timing-test: {clash}", file=sys.stderr)
+        return 2
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:

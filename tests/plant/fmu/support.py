@@ -8,9 +8,9 @@ from typing import Any
 
 import yaml
 
-from plant_emulator.fmu.build import EXAMPLE_SOURCE
+from plant_emulator.fmu.build import EXAMPLE_MAPPING
 
-EXAMPLE_MAPPING = EXAMPLE_SOURCE.parent / "two_mode_plant.yaml"
+__all__ = ["EXAMPLE_MAPPING", "write_mapping"]
 
 
 def write_mapping(directory: Path, name: str = "map.yaml", parameters: dict[str, Any] | None = None, **changes: Any) -> Path:

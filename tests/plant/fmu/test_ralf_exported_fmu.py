@@ -12,10 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant_emulator.fmu.build import EXAMPLE_SOURCE
-
-SCRIPT = EXAMPLE_SOURCE.parent / "ralf_arm_fmu.py"
-MAPPING = EXAMPLE_SOURCE.parent / "ralf_arm.yaml"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "fmu"
+SCRIPT = EXAMPLES / "ralf_arm_fmu.py"
+MAPPING = EXAMPLES / "ralf_arm.yaml"
 CONTROLLER = {"duration_s": 12.0, "oatf_mode": "adaptive", "tf_download_samples": 500}
 DSP = {"fft_width": 512}
 
