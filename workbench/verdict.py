@@ -134,7 +134,7 @@ def judge(summary: Mapping[str, Any], timing: str | None = None) -> Verdict:
         count = _num((controller if service == "controller" else plant).get(name))
         findings[name] = count
         if count:
-            degraded.append(f"{count} {what}")
+            degraded.append(f"{what}: {count}")
     for key, what in (("log_warnings", "WARNING"), ("log_errors", "ERROR")):
         lines = {name: _num(n) for name, n in (summary.get(key) or {}).items()}
         findings[key] = lines

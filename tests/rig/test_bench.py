@@ -152,6 +152,12 @@ def test_a_failing_or_missing_item_is_reported_not_raised(monkeypatch: pytest.Mo
     assert "missing (skipped)" in text and "no_such_module_for_bench_tests" in text
 
 
+def test_an_item_that_measured_nothing_is_not_ok(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(bench_items.ITEMS, "empty", lambda ctx, result: None)
+    empty = bench_items.run_item("empty", bench_items.BenchContext())
+    assert empty["status"] == "failed" and empty["errors"] == ["no measurement made"]
+
+
 def _check_latency(m: dict[str, Any]) -> None:
     assert m["kind"] == "latency"
     for key in LATENCY_KEYS:

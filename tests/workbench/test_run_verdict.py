@@ -34,14 +34,14 @@ def test_a_clean_run_passes_and_says_what_it_looked_at() -> None:
 @pytest.mark.parametrize(
     ("controller", "plant", "reason"),
     [
-        ({"deadline_misses": 1}, {}, "1 deadline misses (interrupts not there by their deadline)"),
-        ({"interrupts_lost": 13}, {}, "13 interrupts lost (never came)"),
-        ({"schedule_resyncs": 2}, {}, "2 schedules re-based (the loop fell behind)"),
-        ({"periods_skipped": 35}, {}, "35 sample periods skipped"),
-        ({"dsp_lost": 1}, {}, "1 DSP lost"),
-        ({}, {"watchdog_trips": 4}, "4 plant SYNC watchdog trips (valves held at zero)"),
-        ({}, {"fmu_step_discards": 1}, "1 plant model steps discarded (outputs held)"),
-        ({}, {"fmu_non_finite_outputs": 2}, "2 plant model steps with non-finite outputs (outputs held)"),
+        ({"deadline_misses": 1}, {}, "deadline misses (interrupts not there by their deadline): 1"),
+        ({"interrupts_lost": 13}, {}, "interrupts lost (never came): 13"),
+        ({"schedule_resyncs": 2}, {}, "schedules re-based (the loop fell behind): 2"),
+        ({"periods_skipped": 35}, {}, "sample periods skipped: 35"),
+        ({"dsp_lost": 1}, {}, "DSP lost: 1"),
+        ({}, {"watchdog_trips": 4}, "plant SYNC watchdog trips (valves held at zero): 4"),
+        ({}, {"fmu_step_discards": 1}, "plant model steps discarded (outputs held): 1"),
+        ({}, {"fmu_non_finite_outputs": 2}, "plant model steps with non-finite outputs (outputs held): 2"),
     ],
 )
 def test_each_trouble_on_the_way_degrades(controller: dict[str, int], plant: dict[str, int], reason: str) -> None:
@@ -67,8 +67,8 @@ def test_warning_and_error_lines_in_a_log_degrade_and_are_counted_per_service() 
 def test_a_failed_service_or_timing_fails_over_any_degradation(more: dict[str, Any], timing: str | None, reason: str) -> None:
     v = judge(summary({"interrupts_lost": 3}, **more), timing)
     assert v.level == "FAIL" and v.exit_code == 1
-    assert v.reasons == (reason, "3 interrupts lost (never came)")
-    assert v.by_level == {"INVALID": [], "FAIL": [reason], "DEGRADED": ["3 interrupts lost (never came)"]}
+    assert v.reasons == (reason, "interrupts lost (never came): 3")
+    assert v.by_level == {"INVALID": [], "FAIL": [reason], "DEGRADED": ["interrupts lost (never came): 3"]}
     assert v.as_dict()["by_level"] == v.by_level
 
 

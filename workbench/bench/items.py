@@ -1044,6 +1044,8 @@ def run_item(name: str, ctx: BenchContext) -> dict[str, Any]:
     except Exception as exc:  # report, keep going with the next item
         result["errors"].append(f"{type(exc).__name__}: {exc}")
     if result["status"] != "skipped":
+        if not result["errors"] and not result["measurements"]:  # an item that measured nothing is not ok
+            result["errors"].append("no measurement made")
         if result["errors"]:
             result["status"] = "failed"
         elif result["skipped"]:
