@@ -24,6 +24,7 @@ from rich.text import Text
 
 from protocol.keys import validate_rig_id
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
+from service_kit.private_files import LockHeld, RunLock, UnsafePath, keep, remove_stale_run_folders, run_folder, start_remover
 from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
 from workbench.extras import missing_extra
@@ -187,27 +188,19 @@ STARTUP_ALLOWANCE_S = 120.0
 """``ralf-hil up``: a rig whose controller has not ticked this long after the launch has failed."""
 
 
-def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
-    """Hold this host's lock of ``rig_id`` for as long as the returned file
-    stays open: a second ``ralf-hil up`` of the same rig id on this host
-    would share its CAN port and zenoh keys, so it is refused (exit 2)."""
-    import fcntl
-
-    path = Path(directory or tempfile.gettempdir()) / f"ralf-hil-{rig_id}.lock"
-    handle = open(path, "a+")  # noqa: SIM115 (held open for the run)
+def acquire_rig_lock(rig_id: str, directory: str | None = None) -> RunLock:
+    """Hold this host's lock of ``rig_id`` (service_kit/private_files.py) until
+    the returned lock is released (its file is removed then): a second
+    ``ralf-hil up`` of the same rig id would share its CAN port and zenoh keys,
+    so it is refused (exit 2), as is a lock path that is not a regular file of
+    this user (a planted symlink, FIFO or folder), which is left untouched."""
     try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        handle.seek(0)
-        holder = handle.read().strip() or "another process"
-        handle.close()
-        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({holder}); stop it or choose another --rig-id[/red]")
-        raise SystemExit(2) from None
-    handle.seek(0)
-    handle.truncate()
-    handle.write(f"pid {os.getpid()}")
-    handle.flush()
-    return handle
+        return RunLock.acquire(rig_id, directory)
+    except LockHeld as exc:
+        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({exc}); stop it or choose another --rig-id[/red]")
+    except UnsafePath as exc:
+        console.print(f"[red]ralf-hil up: {exc}[/red]", highlight=False, soft_wrap=True)
+    raise SystemExit(2)
 
 
 def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
@@ -320,7 +313,14 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
-    _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
+    lock = acquire_rig_lock(args.rig_id)
+    try:
+        return _up_locked(args, overrides)
+    finally:
+        lock.release()
+
+
+def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides, common={"RALF_CAN_PORT": str(args.can_port)} if args.can_port else None)
     problems = plan_problems(plan)
     if problems:
@@ -332,6 +332,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     log_dir.mkdir(parents=True, exist_ok=True)
     live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
+    remover = start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
     try:
         tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
         return _up_supervised(args, plan, log_dir, tool_env, live_view)
@@ -339,16 +340,24 @@ def cmd_up(args: argparse.Namespace) -> int:
         if live_view is not None:
             live_view.close()
         if args.keep_credentials:
+            keep(access_dir)
             console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
         else:
             shutil.rmtree(access_dir, ignore_errors=True)
+        remover.terminate()
+        remover.wait()
 
 
 def private_run_dir(prefix: str) -> Path:
-    """A fresh folder only its owner may enter (0700), for a run's credentials."""
-    path = Path(tempfile.mkdtemp(prefix=prefix))
-    path.chmod(0o700)
-    return path
+    """A fresh folder only its owner may enter (0700), for a run's credentials,
+    in this user's private runtime folder; the folders of launchers that ended
+    without removing theirs (SIGKILL) are removed first."""
+    try:
+        remove_stale_run_folders()
+        return run_folder(prefix)
+    except UnsafePath as exc:
+        console.print(f"[red]ralf-hil up: {exc}[/red]", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
 
 
 def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
