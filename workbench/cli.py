@@ -277,16 +277,18 @@ def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
     """An FMU plant (``plant.model=fmu:PATH``) is checked before anything
     starts (:func:`plant_emulator.fmu.preflight`: file, FMI version and
     kind, the mapping's variables, one step of the sample period on a
-    throw-away instance); a bad one is one line on stderr and exit 2."""
+    throw-away instance, in a child process); a bad one, or one that
+    crashes, is one line on stderr and exit 2."""
     plant = {k.removeprefix("RALF_").lower(): v for k, v in overrides.get("plant", {}).items()}
     if not str(plant.get("model", os.environ.get("RALF_MODEL", "ralf"))).startswith("fmu:"):
         return
-    from plant_emulator.fmu import preflight
+    from plant_emulator.fmu.isolated_check import preflight_isolated
     from protocol.errors import ConfigError
     from protocol.settings import load_settings
 
     try:
-        preflight(load_settings(PlantSettings, plant))
+        load_settings(PlantSettings, plant)  # a bad setting named here, before a process is started for the check
+        preflight_isolated(plant)  # in a process of its own: an FMU crashing in its first step does not end ralf-hil
     except ConfigError as exc:
         print(f"ralf-hil up: plant refused: {' '.join(str(exc).split())}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -455,8 +457,10 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     process, one thread (:mod:`workbench.cosim`); ``--duration`` is simulated time."""
     from protocol.errors import ConfigError
     from protocol.messages import ControllerStatus, decode
+    from service_kit import crash_report
     from workbench.cosim import run_cosim
 
+    crash_report.enable()  # an FMU crashing in this process: its frames (the FMI call) on stderr
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
     if args.duration is not None and "duration_s" not in own["controller"]:
         own["controller"]["duration_s"] = str(args.duration)
