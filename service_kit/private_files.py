@@ -31,7 +31,6 @@ import stat
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 __all__ = [
@@ -244,41 +243,49 @@ def remove_stale_run_folders(pattern: str = "ralf-*-access-*") -> list[Path]:
     return removed
 
 
-def remove_when_gone(pid: int, folder: Path) -> None:
-    """Wait for process ``pid`` (this process's parent) to end, then remove ``folder``."""
+REMOVER_POLL_S = 1.0
+"""How often the remover also checks that its folder is still there (removed at a normal end: it leaves too)."""
+
+
+def remove_when_gone(pidfd: int, folder: Path, poll_s: float = REMOVER_POLL_S) -> None:
+    """Wait until the process of ``pidfd`` ends (or ``folder`` is gone), then remove ``folder``."""
+    while folder.is_dir():
+        ready, _, _ = select.select([pidfd], [], [], poll_s)
+        if ready:
+            if not folder.is_symlink() and _owner_gone(folder):
+                shutil.rmtree(folder, ignore_errors=True)
+            return
+
+
+def start_remover(folder: Path) -> None:
+    """A process that removes ``folder`` when this one ends, however it ends
+    (SIGKILL too). It holds a pidfd of this process (no pid to be reused),
+    runs in a session of its own (a signal to this process's group leaves it)
+    and is no child of this process: it forks once more and its parent ends
+    here, so it is not among this process's children while the run goes on."""
+    pidfd = os.pidfd_open(os.getpid())
     try:
-        fd = os.pidfd_open(pid)
-    except OSError:
-        fd = -1
-    if fd >= 0 and os.getppid() == pid:  # the pid is still our launcher's, not a reused one
-        select.select([fd], [], [])
-    elif fd < 0:
-        while os.getppid() == pid:
-            time.sleep(0.5)
-    if fd >= 0:
-        os.close(fd)
-    if folder.is_dir() and not folder.is_symlink() and _owner_gone(folder):
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-def start_remover(folder: Path) -> subprocess.Popen[bytes]:
-    """A process, in a session of its own (a signal to the launcher's group
-    leaves it), that removes ``folder`` when this process ends however it ends."""
-    return subprocess.Popen(
-        [sys.executable, "-P", "-m", "service_kit.private_files", str(os.getpid()), str(folder)],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,
-        close_fds=True,
-    )
+        subprocess.run(
+            [sys.executable, "-P", "-m", "service_kit.private_files", str(pidfd), str(folder)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+            pass_fds=(pidfd,),
+            check=False,
+            timeout=60,
+        )
+    finally:
+        os.close(pidfd)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 2 or not args[0].isdigit():
-        print("usage: python -m service_kit.private_files LAUNCHER_PID FOLDER   (removes FOLDER when LAUNCHER_PID ends)", file=sys.stderr)
+        print("usage: python -m service_kit.private_files PIDFD FOLDER   (removes FOLDER when the process of PIDFD ends)", file=sys.stderr)
         return 2
+    if os.fork():  # the parent returns to the launcher at once; the child waits, re-parented
+        return 0
     remove_when_gone(int(args[0]), Path(args[1]))
     return 0
 

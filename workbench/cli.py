@@ -334,7 +334,7 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
     log_dir.mkdir(parents=True, exist_ok=True)
     live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
-    remover = start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
+    start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
     try:
         tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
         return _up_supervised(args, plan, log_dir, tool_env, live_view)
@@ -346,8 +346,6 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
             console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
         else:
             shutil.rmtree(access_dir, ignore_errors=True)
-        remover.terminate()
-        remover.wait()
 
 
 def private_run_dir(prefix: str) -> Path:
