@@ -8,7 +8,7 @@ than :data:`MAX_RATIO` times (a "zip bomb": 1.5 MB of zeros that extract to
 1.5 GB), its model description must be at most
 :data:`MAX_DESCRIPTION_BYTES`, and no member may be a symlink, an absolute
 path or a path leaving the extraction folder. Each refusal is one
-:class:`ArchiveRefused` (an :class:`~plant_emulator.fmu.instance.FmuRefused`) line naming the FMU and the
+:class:`ArchiveRefused` line (a :class:`~protocol.errors.ConfigError`, as the loader's other refusals) naming the FMU and the
 member, before a byte is extracted.
 
 :func:`extract_fmu` then writes the members itself (not ``extractall``):
@@ -30,7 +30,7 @@ import tempfile
 import zipfile
 from pathlib import Path, PurePosixPath
 
-from plant_emulator.fmu.instance import FmuRefused
+from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 
 __all__ = [
@@ -57,7 +57,7 @@ MAX_DESCRIPTION_BYTES = 64 * 1024 * 1024
 CHUNK_BYTES = 1024 * 1024
 
 
-class ArchiveRefused(FmuRefused):
+class ArchiveRefused(ConfigError):
     """An FMU archive the loader will not open or extract (one line naming the FMU and the member)."""
 
 

@@ -351,7 +351,7 @@ def open_fmu(path: str | Path, mapping: FmuMapping, seed: int = 0) -> FmuInstanc
 
     try:
         unzip_dir = extract_fmu(p)  # bounded, no link or path out of its folder (plant_emulator/fmu/extract.py)
-    except FmuRefused:
+    except ConfigError:  # its ArchiveRefused line
         raise
     except Exception as exc:  # noqa: BLE001
         raise FmuRefused(f"{p}: cannot be extracted ({_one_line(exc)})") from None
