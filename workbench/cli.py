@@ -27,6 +27,7 @@ from protocol.settings import ControllerSettings, DspSettings, PlantSettings, re
 from service_kit.private_files import LockHeld, RunLock, UnsafePath, keep, remove_stale_run_folders, run_folder, start_remover
 from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
+from workbench.cosim_guard import FAULT_FILE_VARIABLE
 from workbench.extras import missing_extra
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
@@ -282,6 +283,8 @@ def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
     plant = {k.removeprefix("RALF_").lower(): v for k, v in overrides.get("plant", {}).items()}
     if not str(plant.get("model", os.environ.get("RALF_MODEL", "ralf"))).startswith("fmu:"):
         return
+    if os.environ.get(FAULT_FILE_VARIABLE):  # a guarded co-simulation: its parent checked the FMU already
+        return
     from plant_emulator.fmu.isolated_check import preflight_isolated
     from protocol.errors import ConfigError
     from protocol.settings import load_settings
@@ -457,8 +460,13 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     from protocol.messages import ControllerStatus, decode
     from service_kit import crash_report
     from workbench.cosim import run_cosim
+    from workbench.cosim_guard import guarded_child_faults, run_guarded
 
-    crash_report.enable()  # an FMU crashing in this process: its frames (the FMI call) on stderr
+    faults = guarded_child_faults()
+    model = str({k.removeprefix("RALF_").lower(): v for k, v in overrides.get("plant", {}).items()}.get("model", os.environ.get("RALF_MODEL", "ralf")))
+    if model.startswith("fmu:") and faults is None and getattr(args, "argv", None) is not None:
+        return run_guarded(args.argv, model.removeprefix("fmu:"))  # an FMU crashing mid-run ends the child, told in one line
+    crash_report.enable(faults)  # in the guarded child: its frames (the FMI call) for the parent's line
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
     if args.duration is not None and "duration_s" not in own["controller"]:
         own["controller"]["duration_s"] = str(args.duration)
@@ -745,6 +753,7 @@ def input_problem(command: str, args: argparse.Namespace) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # what a guarded co-simulation runs again (workbench/cosim_guard.py)
     problem = input_problem(args.command, args)
     if problem:
         print(f"ralf-hil {args.command}: {problem}", file=sys.stderr)

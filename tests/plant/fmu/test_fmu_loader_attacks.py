@@ -174,6 +174,24 @@ def test_ralf_hil_up_reports_a_crashing_fmu_in_one_line(crashing_fmu: Path, tmp_
     assert "plant refused" in lines[0] and "SIGSEGV" in lines[0] and "fmi2DoStep" in lines[0] and str(crashing_fmu) in lines[0]
 
 
+@pytest.mark.timeout(180)
+def test_a_cosimulation_crashing_in_its_fmu_mid_run_is_one_line(crashing_fmu: Path, tmp_path: Path) -> None:
+    """The check passes (the crash comes at step 50); the co-simulation runs in a child ``up``
+    whose death is told by its parent: one line, exit 1, no faulthandler dump on stderr."""
+    mapping = write_mapping(tmp_path, parameters={"fault_step": 50, "fault_kind": 4})
+    proc = subprocess.run(
+        [sys.executable, "-m", "workbench", "up", "--clock", "cosim", "--duration", "2", "--rig-id", "crash-cosim"]
+        + ["--set", f"plant.model=fmu:{crashing_fmu}", "--set", f"plant.fmu_mapping={mapping}"],
+        capture_output=True,
+        text=True,
+        timeout=170,
+        check=False,
+    )
+    assert proc.returncode == 1, (proc.returncode, proc.stderr)
+    assert f"rig failed: the co-simulation ended by SIGSEGV (Segmentation fault) in fmi2DoStep of FMU {crashing_fmu}" in proc.stderr, proc.stderr
+    assert "Fatal Python error" not in proc.stderr and "Traceback" not in proc.stderr
+
+
 @pytest.mark.rig
 @pytest.mark.timeout(300)
 def test_a_plant_service_crashing_in_its_fmu_is_one_line_of_up(crashing_fmu: Path, tmp_path: Path) -> None:
