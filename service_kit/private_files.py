@@ -72,9 +72,11 @@ def _kind(mode: int) -> str:
 
 def _what_is(path: Path) -> str:
     try:
-        return _kind(os.lstat(path).st_mode)
+        st = os.lstat(path)
     except OSError as exc:
         return exc.strerror or str(exc)
+    kind = _kind(st.st_mode)
+    return f"{kind} of uid {st.st_uid}" if st.st_uid != os.getuid() else kind
 
 
 def _private_folder(path: Path) -> bool:
