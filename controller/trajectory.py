@@ -33,7 +33,6 @@ is re-checked against the joint limits.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +43,8 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field
 
 from protocol import geometry
-from protocol.files import read_regular_text
+from protocol.bounded_parse import load_json
+from protocol.files import MAX_BYTES, read_regular_text
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -105,7 +105,7 @@ class WaypointTrajectory(BaseModel):
 def load_trajectory(path: str | Path = DEFAULT_TRAJECTORY_PATH) -> WaypointTrajectory:
     """Read and validate a way-point JSON file."""
     text = read_regular_text(path)  # a FIFO or device named here must not block the start
-    return WaypointTrajectory.model_validate(json.loads(text))
+    return WaypointTrajectory.model_validate(load_json(text, f"trajectory {path}", max_bytes=MAX_BYTES))
 
 
 @dataclass(frozen=True)

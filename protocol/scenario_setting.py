@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+from protocol.bounded_parse import TooLarge, load_json
 from protocol.errors import ConfigError
 from protocol.messages import ScenarioCommand
 
@@ -18,9 +19,11 @@ def parse_scenario(text: str) -> list[ScenarioCommand]:
     if not text.strip():
         return []
     try:
-        items = json.loads(text)
+        items = load_json(text, "RALF_SCENARIO")
     except json.JSONDecodeError as exc:
         raise ConfigError(f"RALF_SCENARIO is not JSON: {exc}") from None
+    except TooLarge as exc:
+        raise ConfigError(str(exc)) from None
     if not isinstance(items, list):
         raise ConfigError("RALF_SCENARIO must be a JSON list of commands")
     commands = []

@@ -20,6 +20,8 @@ from typing import Annotated, Any, Literal, Self
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
 
+from protocol.bounded_parse import load_json
+
 Hz = Annotated[float, Field(ge=0.01, le=2500)]
 Policy = Literal["count", "warn", "degrade", "stop"]
 
@@ -50,7 +52,7 @@ def parse_group_text(text: str) -> dict[str, Any]:
         return {}
     if text.startswith("{"):
         try:
-            data = json.loads(text)
+            data = load_json(text, "the group's JSON object")
         except json.JSONDecodeError as exc:
             raise ValueError(f"not a JSON object: {exc}") from None
         if not isinstance(data, dict):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Field, SecretStr, ValidationError, ValidationInfo, field_serializer, field_validator, model_validator
@@ -277,9 +278,22 @@ class PlantSettings(CommonSettings):
     @field_validator("model")
     @classmethod
     def _model(cls, value: str) -> str:
-        if value == "ralf" or (value.startswith("fmu:") and value.removeprefix("fmu:").strip()):
+        if value == "ralf":
             return value
-        raise ValueError(f"{value!r} is neither ralf nor fmu:PATH")
+        path = value.removeprefix("fmu:").strip()
+        if not value.startswith("fmu:") or not path:
+            raise ValueError(f"{value!r} is neither ralf nor fmu:PATH")
+        if os.path.lexists(path):  # absent: the FMU loader names it; anything but a regular file is named here
+            try:
+                check_regular_file(path, max_bytes=sys.maxsize)  # its size is the loader's to bound (plant_emulator/fmu/extract.py)
+            except NotARegularFile as exc:
+                raise ValueError(f"FMU {exc}") from None
+        return value
+
+    @field_validator("fmu_mapping")
+    @classmethod
+    def _fmu_mapping_file(cls, value: str) -> str:
+        return _regular_file(value)
 
     @model_validator(mode="after")
     def _fmu_needs_mapping(self) -> PlantSettings:

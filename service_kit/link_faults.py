@@ -41,6 +41,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from protocol.bounded_parse import TooLarge, load_json, load_yaml
 from protocol.files import read_regular_text
 
 Link = Literal["can", "zenoh"]
@@ -180,7 +181,9 @@ def parse_scenario(text: str, *, yaml_ok: bool = True) -> Scenario:
     """A scenario from JSON or YAML text (YAML needs PyYAML)."""
     data: Any
     try:
-        data = json.loads(text)
+        data = load_json(text, "the fault scenario")
+    except TooLarge as exc:
+        raise ScenarioError(str(exc)) from None
     except json.JSONDecodeError:
         if not yaml_ok:
             raise ScenarioError("scenario is not valid JSON") from None
@@ -189,7 +192,9 @@ def parse_scenario(text: str, *, yaml_ok: bool = True) -> Scenario:
         except ImportError:  # pragma: no cover - pyyaml comes with the test and campaign extras
             raise ScenarioError("a YAML scenario needs PyYAML (pip install pyyaml); or write it as JSON") from None
         try:
-            data = yaml.safe_load(text)
+            data = load_yaml(text, "the fault scenario")
+        except TooLarge as exc:
+            raise ScenarioError(str(exc)) from None
         except yaml.YAMLError as exc:
             raise ScenarioError(f"scenario is neither JSON nor YAML: {exc}") from None
     try:

@@ -21,7 +21,7 @@ from protocol.errors import ConfigError
 from protocol.messages import Health, LatencyStats, encode
 from protocol.setting_hints import ANY, unknown_setting
 from protocol.settings import CommonSettings, describe, load_settings, retired
-from service_kit import readiness
+from service_kit import crash_report, readiness
 from service_kit.encodings import JSON
 from service_kit.interrupt import INTERRUPTED
 
@@ -411,6 +411,7 @@ def run_service(
     settings = parse_service_args(prog, summary, model, args)
     fix_malloc_threshold()
     configure_logging(settings.log_level, prog.removeprefix("ralf-"))
+    crash_report.enable()  # a crash in native code (an FMU's doStep) leaves its Python frames in the log
     route_to_logging()  # zenoh's own log lines as this service's log records
     readiness.watch_compiles()  # before any kernel is touched: the ready line counts what compiled
     readiness.clear(settings.ready_file)  # a previous run's, in a restarted container

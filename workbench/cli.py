@@ -26,8 +26,10 @@ from rich.text import Text
 from protocol.keys import validate_rig_id
 from protocol.setting_hints import set_problem
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, retired
+from service_kit.private_files import LockHeld, RunLock, UnsafePath, keep, remove_stale_run_folders, run_folder, start_remover
 from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
+from workbench.cosim_guard import FAULT_FILE_VARIABLE
 from workbench.extras import missing_extra
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
@@ -212,27 +214,19 @@ STARTUP_ALLOWANCE_S = 120.0
 """``ralf-hil up``: a rig whose controller has not ticked this long after the launch has failed."""
 
 
-def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
-    """Hold this host's lock of ``rig_id`` for as long as the returned file
-    stays open: a second ``ralf-hil up`` of the same rig id on this host
-    would share its CAN port and zenoh keys, so it is refused (exit 2)."""
-    import fcntl
-
-    path = Path(directory or tempfile.gettempdir()) / f"ralf-hil-{rig_id}.lock"
-    handle = open(path, "a+")  # noqa: SIM115 (held open for the run)
+def acquire_rig_lock(rig_id: str, directory: str | None = None) -> RunLock:
+    """Hold this host's lock of ``rig_id`` (service_kit/private_files.py) until
+    the returned lock is released (its file is removed then): a second
+    ``ralf-hil up`` of the same rig id would share its CAN port and zenoh keys,
+    so it is refused (exit 2), as is a lock path that is not a regular file of
+    this user (a planted symlink, FIFO or folder), which is left untouched."""
     try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        handle.seek(0)
-        holder = handle.read().strip() or "another process"
-        handle.close()
-        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({holder}); stop it or choose another --rig-id[/red]")
-        raise SystemExit(2) from None
-    handle.seek(0)
-    handle.truncate()
-    handle.write(f"pid {os.getpid()}")
-    handle.flush()
-    return handle
+        return RunLock.acquire(rig_id, directory)
+    except LockHeld as exc:
+        console.print(f"[red]ralf-hil up: rig {rig_id!r} is already running on this host ({exc}); stop it or choose another --rig-id[/red]")
+    except UnsafePath as exc:
+        console.print(f"[red]ralf-hil up: {exc}[/red]", highlight=False, soft_wrap=True)
+    raise SystemExit(2)
 
 
 def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
@@ -309,16 +303,20 @@ def refuse_bad_plant_model(overrides: dict[str, dict[str, str]]) -> None:
     """An FMU plant (``plant.model=fmu:PATH``) is checked before anything
     starts (:func:`plant_emulator.fmu.preflight`: file, FMI version and
     kind, the mapping's variables, one step of the sample period on a
-    throw-away instance); a bad one is one line on stderr and exit 2."""
+    throw-away instance, in a child process); a bad one, or one that
+    crashes, is one line on stderr and exit 2."""
     plant = {k.removeprefix("RALF_").lower(): v for k, v in overrides.get("plant", {}).items()}
     if not str(plant.get("model", os.environ.get("RALF_MODEL", "ralf"))).startswith("fmu:"):
         return
-    from plant_emulator.fmu import preflight
+    if os.environ.get(FAULT_FILE_VARIABLE):  # a guarded co-simulation: its parent checked the FMU already
+        return
+    from plant_emulator.fmu.isolated_check import preflight_isolated
     from protocol.errors import ConfigError
     from protocol.settings import load_settings
 
     try:
-        preflight(load_settings(PlantSettings, plant))
+        load_settings(PlantSettings, plant)  # a bad setting named here, before a process is started for the check
+        preflight_isolated(plant)  # in a process of its own: an FMU crashing in its first step does not end ralf-hil
     except ConfigError as exc:
         print(f"ralf-hil up: plant refused: {' '.join(str(exc).split())}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -359,7 +357,14 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
-    _lock = acquire_rig_lock(args.rig_id)  # noqa: F841 (released when up returns)
+    lock = acquire_rig_lock(args.rig_id)
+    try:
+        return _up_locked(args, overrides)
+    finally:
+        lock.release()
+
+
+def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     plan = RigPlan.local(rig_id=args.rig_id, clock=args.clock, overrides=overrides, common={"RALF_CAN_PORT": str(args.can_port)} if args.can_port else None)
     problems = plan_problems(plan)
     if problems:
@@ -375,6 +380,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             live_view.close()
         raise SystemExit(f"ralf-hil up: --log-dir {args.log_dir}: {exc.strerror or exc}") from None
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
+    start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
     code = 1  # an exception on the way: the logs stay
     try:
         tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
@@ -387,16 +393,22 @@ def cmd_up(args: argparse.Namespace) -> int:
         if where:
             console.print(where, highlight=False, soft_wrap=True)
         if args.keep_credentials:
+            keep(access_dir)
             console.print(f"the run's credentials are kept in {access_dir} (owner-only)")
         else:
             shutil.rmtree(access_dir, ignore_errors=True)
 
 
 def private_run_dir(prefix: str) -> Path:
-    """A fresh folder only its owner may enter (0700), for a run's credentials."""
-    path = Path(tempfile.mkdtemp(prefix=prefix))
-    path.chmod(0o700)
-    return path
+    """A fresh folder only its owner may enter (0700), for a run's credentials,
+    in this user's private runtime folder; the folders of launchers that ended
+    without removing theirs (SIGKILL) are removed first."""
+    try:
+        remove_stale_run_folders()
+        return run_folder(prefix)
+    except UnsafePath as exc:
+        console.print(f"[red]ralf-hil up: {exc}[/red]", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
 
 
 def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
@@ -506,10 +518,17 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     with activity("loading the co-simulation's modules"):
         from protocol.errors import ConfigError
         from protocol.messages import ControllerStatus, decode
+        from service_kit import crash_report
         from service_kit.readiness import watch_compiles
         from workbench.cosim import logging_to, run_cosim
+        from workbench.cosim_guard import guarded_child_faults, run_guarded
         from workbench.output_paths import COSIM_LOG
 
+    faults = guarded_child_faults()
+    model = str({k.removeprefix("RALF_").lower(): v for k, v in overrides.get("plant", {}).items()}.get("model", os.environ.get("RALF_MODEL", "ralf")))
+    if model.startswith("fmu:") and faults is None and getattr(args, "argv", None) is not None:
+        return run_guarded(args.argv, model.removeprefix("fmu:"))  # an FMU crashing mid-run ends the child, told in one line
+    crash_report.enable(faults)  # in the guarded child: its frames (the FMI call) for the parent's line
     own = {svc: {k.removeprefix("RALF_").lower(): v for k, v in env.items()} for svc, env in overrides.items()}
     if args.duration is not None and "duration_s" not in own["controller"]:
         own["controller"]["duration_s"] = str(args.duration)
@@ -816,6 +835,7 @@ def input_problem(command: str, args: argparse.Namespace) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # what a guarded co-simulation runs again (workbench/cosim_guard.py)
     problem = input_problem(args.command, args)
     if problem:
         print(f"ralf-hil {args.command}: {problem}", file=sys.stderr)

@@ -82,13 +82,15 @@ def run_in_process(
     common: dict[str, Any] | None = None,
     session: zenoh.Session | None = None,
     at_tick: tuple[int, Callable[[], None]] | None = None,
+    stop: threading.Event | None = None,
 ) -> InProcessRun:
     """Run one rig to the controller's end (``duration_s`` or ``repeats``
     must be set) in lockstep unless ``common`` says otherwise.
 
     ``at_tick = (n, action)``: ``action()`` runs in the controller's loop
     before tick ``n`` (:class:`TickAction`): a command or an attack that
-    lands at a known tick, not at a wall-clock moment."""
+    lands at a known tick, not at a wall-clock moment. ``stop``: an event
+    that ends the run early when set (its services stop as on SIGTERM)."""
     channel = str((common or {}).get("can_channel") or f"ralf-{uuid.uuid4().hex[:8]}")  # a channel the caller chose: its own bus can join
     base = {"clock": "lockstep", "can_interface": "virtual", "can_channel": channel, "rig_id": f"local-{channel[5:]}", **(common or {})}
     cs = ControllerSettings(**{**base, **(controller or {})})
@@ -98,7 +100,7 @@ def run_in_process(
     ds = DspSettings(**{**base, **(dsp or {})})
     own_session = session is None
     sess = session or _local_session()
-    stop = threading.Event()
+    stop = stop if stop is not None else threading.Event()
     health: dict[str, Health] = {}
 
     def keep_health(sample: zenoh.Sample) -> None:

@@ -246,6 +246,8 @@ class HilRig:
         self._subs: list[Any] = []
         self._thread: threading.Thread | None = None
         self._failure: BaseException | None = None
+        self._stop = threading.Event()
+        """Set by :meth:`close`: a ``lockstep``/``realtime`` run still going ends at once."""
         self._workdir = self.workdir or Path(tempfile.mkdtemp(prefix="ralf-hil-test-"))
 
     # -- running -----------------------------------------------------------------------------
@@ -401,7 +403,7 @@ class HilRig:
             plant.setdefault("watchdog_periods", min(10_000, max(5, math.ceil(timeout * rate))))  # its upper bound
         run = run_in_process(
             controller=self._controller_settings(duration_s), plant=plant, dsp=self._dsp_settings(), common=common, session=session,
-            at_tick=(0, send_scenario) if pending else None,
+            at_tick=(0, send_scenario) if pending else None, stop=self._stop,
         )  # fmt: skip
         return self._record(run, None)
 
@@ -422,7 +424,10 @@ class HilRig:
         )
 
     def close(self) -> None:
-        """End what the rig opened (a run still going is waited for, bounded)."""
+        """End what the rig opened: a ``lockstep``/``realtime`` run still going
+        (a test that failed mid-run) is stopped, its services' threads joined;
+        a co-simulated one is waited for, bounded."""
+        self._stop.set()
         if self._thread is not None and self._thread.is_alive():
             self._thread.join(60.0)
         self.can.close()

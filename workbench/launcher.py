@@ -34,6 +34,7 @@ from protocol.keys import Keys
 from protocol.messages import ControllerStatus, Health, decode
 from protocol.rig_description import RIG, start_order, stop_order
 from service_kit.access import insert_access_from_env
+from service_kit.crash_report import death_line
 from service_kit.transport import PEER_AUTOCONNECT_STRATEGY
 from service_kit.zenoh_log import init_zenoh_log
 from workbench.monitor import health_key_service
@@ -335,10 +336,11 @@ def supervise(
             dead = {p.name: p.returncode for p in sup.procs.values() if p.returncode is not None}
             if "controller" in dead and all(code == 0 or name == "controller" for name, code in dead.items()):
                 if dead["controller"] != 0:
-                    sup.failure = f"controller exited with {dead['controller']}"
+                    sup.failure = death_line("controller", dead["controller"], sup.procs["controller"].log_path)
                 break
-            if dead:
-                sup.failure = ", ".join(f"{name} exited with {code}" for name, code in dead.items())
+            if dead:  # a death by signal named, with the FMI call in progress where the log's faulthandler dump has one
+                fmu = plan.env_for("plant").get("RALF_MODEL", "").removeprefix("fmu:") if "plant" in dead else ""
+                sup.failure = ", ".join(death_line(name, code, sup.procs[name].log_path, fmu if name == "plant" else None) for name, code in dead.items())
                 break
             if stop.is_set():
                 break

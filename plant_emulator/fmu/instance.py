@@ -202,20 +202,38 @@ class FmuInstance:
         self.n_reads = len(reads)
         fmu = self.fmu
         component = fmu.component
+        # Functions named after the FMI call they make: a crash inside the FMU
+        # (faulthandler's traceback in the plant's log) names the call.
         if self.version == 2:
             set_real, get_real, do_step = fmu.fmi2SetReal, fmu.fmi2GetReal, fmu.fmi2DoStep
-            self._set = lambda: set_real(component, self._in_vr, 2, self._in_val)
-            self._get = lambda: get_real(component, self._out_vr, len(reads), self._out_val)
-            self._step = lambda t, h: do_step(component, t, h, 1)
+
+            def fmi2SetReal() -> Any:
+                return set_real(component, self._in_vr, 2, self._in_val)
+
+            def fmi2GetReal() -> Any:
+                return get_real(component, self._out_vr, len(reads), self._out_val)
+
+            def fmi2DoStep(t: float, h: float) -> Any:
+                return do_step(component, t, h, 1)
+
+            self._set, self._get, self._step = fmi2SetReal, fmi2GetReal, fmi2DoStep
         else:
             set_f, get_f, do_step3 = fmu.fmi3SetFloat64, fmu.fmi3GetFloat64, fmu.fmi3DoStep
             flags = [ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool()]
             last = ctypes.c_double()
             refs = [ctypes.byref(f) for f in flags] + [ctypes.byref(last)]
             self._terminate_flag = flags[1]
-            self._set = lambda: set_f(component, self._in_vr, 2, self._in_val, 2)
-            self._get = lambda: get_f(component, self._out_vr, len(reads), self._out_val, len(reads))
-            self._step = lambda t, h: do_step3(component, t, h, True, *refs)
+
+            def fmi3SetFloat64() -> Any:
+                return set_f(component, self._in_vr, 2, self._in_val, 2)
+
+            def fmi3GetFloat64() -> Any:
+                return get_f(component, self._out_vr, len(reads), self._out_val, len(reads))
+
+            def fmi3DoStep(t: float, h: float) -> Any:
+                return do_step3(component, t, h, True, *refs)
+
+            self._set, self._get, self._step = fmi3SetFloat64, fmi3GetFloat64, fmi3DoStep
 
     # -- per step ----------------------------------------------------------------------------
     def step(self, t: float, h: float, volts0: float, volts1: float) -> int:
@@ -281,9 +299,10 @@ def _one_line(exc: BaseException) -> str:
 
 def read_description(path: Path) -> Any:
     """The model description, refused in one line if the file is not a co-simulation FMU 2.0/3.0."""
+    from plant_emulator.fmu.extract import check_archive
+
     fmpy = _fmpy()
-    if not path.is_file():
-        raise FmuRefused(f"{path}: no such FMU file")
+    check_archive(path)  # a regular file, every member within bounds, before FMPy reads a byte of it
     try:
         description = fmpy.read_model_description(str(path))
     except zipfile.BadZipFile:
@@ -353,12 +372,16 @@ def _check_value(path: Path, name: str, vtype: str, value: Scalar, version: int)
 
 def open_fmu(path: str | Path, mapping: FmuMapping, seed: int = 0) -> FmuInstance:
     """Check, extract, instantiate and initialize the FMU at ``path`` for ``mapping``."""
-    fmpy = _fmpy()
+    _fmpy()  # FMPy present, or one line saying how to install it
     p = Path(path)
     description = read_description(p)
     check_mapping(p, mapping, description)
+    from plant_emulator.fmu.extract import extract_fmu
+
     try:
-        unzip_dir = fmpy.extract(str(p))
+        unzip_dir = extract_fmu(p)  # bounded, no link or path out of its folder (plant_emulator/fmu/extract.py)
+    except ConfigError:  # its ArchiveRefused line
+        raise
     except Exception as exc:  # noqa: BLE001
         raise FmuRefused(f"{p}: cannot be extracted ({_one_line(exc)})") from None
     return FmuInstance(p, mapping, description, str(unzip_dir), seed)

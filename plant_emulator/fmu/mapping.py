@@ -30,7 +30,9 @@ from pathlib import Path
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from protocol.bounded_parse import TooLarge, load_yaml
 from protocol.errors import ConfigError
+from protocol.files import NotARegularFile, read_regular_text
 
 __all__ = ["FmuMapping", "OutputChannel", "TruthMapping", "load_mapping"]
 
@@ -90,11 +92,15 @@ def load_mapping(path: str | Path) -> FmuMapping:
     """The mapping in ``path``; a bad file raises :class:`ConfigError` in one line naming it."""
     p = Path(path)
     try:
-        text = p.read_text()
-    except OSError as exc:
-        raise ConfigError(f"FMU mapping {p}: cannot be read ({exc.strerror or exc})") from None
+        text = read_regular_text(p)  # a FIFO or a device named here must not block the plant's start
+    except NotARegularFile as exc:
+        raise ConfigError(f"FMU mapping {exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"FMU mapping {p}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text, f"FMU mapping {p}")
+    except TooLarge as exc:
+        raise ConfigError(str(exc)) from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"FMU mapping {p}: not YAML ({' '.join(str(exc).split())})") from None
     try:

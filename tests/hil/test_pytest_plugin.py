@@ -216,3 +216,29 @@ def test_a_mistyped_or_misused_rig_marker_fails_the_setup_naming_the_closest(pyt
         consecutive=False,
     )
     assert "Traceback" not in result.stdout.str()
+
+
+@pytest.mark.parametrize("clock", ["realtime", "lockstep"])
+def test_a_failing_test_stops_its_running_rig_at_teardown(pytester: pytest.Pytester, clock: str) -> None:
+    """A test that fails early in a long run: the teardown stops the rig (its
+    run thread and its services' threads are gone when the next test begins),
+    it does not wait for the run's end."""
+    pytester.makepyfile(
+        f"""
+        import threading
+        import pytest
+
+        @pytest.mark.rig_clock("{clock}")
+        def test_fails_early(rig):
+            rig.start(duration_s=3600.0)
+            assert rig.plant.truth  # the rig runs
+            raise AssertionError("the test failed mid-run")
+
+        def test_next():
+            left = [t.name for t in threading.enumerate() if t.name in ("hil-rig", "plant", "dsp")]
+            assert not left, left
+        """
+    )
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*the test failed mid-run*"])

@@ -42,6 +42,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings
 
+from protocol.bounded_parse import TooLarge, check_nesting, check_value, load_yaml
+from protocol.files import NotARegularFile, read_regular_text
 from protocol.setting_groups import SettingGroup, parse_group_text
 from protocol.setting_hints import ANY, COMMON_SERVICE, unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, retired
@@ -374,16 +376,20 @@ def expand(spec: SweepSpec) -> list[RunPoint]:
 def load_spec(path: str | Path) -> SweepSpec:
     """Read a spec from YAML (``.yaml``/``.yml``) or TOML (``.toml``)."""
     p = Path(path)
-    text = p.read_text(encoding="utf-8")
+    try:
+        text = read_regular_text(p)  # a FIFO or a device must not block the command
+    except NotARegularFile as exc:
+        raise SpecError(str(exc)) from None
     try:
         if p.suffix in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(text)
+            data = load_yaml(text, str(p))
         elif p.suffix == ".toml":
-            data = tomllib.loads(text)
+            check_nesting(text, str(p))
+            data = check_value(tomllib.loads(text), str(p))
         else:
             raise SpecError(f"{p}: a spec is .yaml, .yml or .toml")
+    except TooLarge as exc:
+        raise SpecError(str(exc)) from None
     except (SpecError, ModuleNotFoundError):
         raise  # a missing extra (yaml) is named by the command line, not as a parse error
     except Exception as exc:  # noqa: BLE001 - the parsers' own errors, with the file named
