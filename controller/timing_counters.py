@@ -24,6 +24,9 @@ class TimingCounters(Counters):
     sync_retries: int = 0
     schedule_resyncs: int = 0
     reconfigurations: int = 0
+    """Run-time commands taken (each one changed the configuration under the run)."""
+    test_knob_changes: int = 0
+    """Of them, those that set a test knob (protocol/command_fields.py)."""
     periods_skipped: int = 0
     batch_resends: int = 0
     tf_download_retries: int = 0

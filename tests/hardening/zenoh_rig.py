@@ -133,12 +133,13 @@ class PeerRig:
     """Role -> the zenoh id its session happened to get."""
 
     @classmethod
-    def start(cls, rig_id: str, directory: Path) -> PeerRig:
+    def start(cls, rig_id: str, directory: Path, acl: str = "on") -> PeerRig:
+        """``acl``: ``on`` (the tester's certificate exists, its keys stay refused) or ``scenarios``."""
         from workbench.cli import provision_access
 
         plan = RigPlan.local(rig_id=rig_id)
-        provision_access(plan, directory, scenarios=True)  # the tester's certificate too (its key stays refused: tests use no scenarios)
-        plan.common_env["RALF_ZENOH_ACL"] = "on"
+        provision_access(plan, directory, scenarios=True)  # the tester's certificate too
+        plan.common_env["RALF_ZENOH_ACL"] = acl
         certificates = {
             role: RoleCertificate(directory / "ca.pem", directory / f"{role}.pem", directory / f"{role}.key")
             for role in ROLES
