@@ -37,6 +37,8 @@ from protocol.tf_codec import encode_tf
 from service_kit.clock import RealTimeScheduler, Scheduler
 from service_kit.encodings import JSON, TF
 from service_kit.inbox import LIMITS, Inbox
+from service_kit.query_gate import OVER_RATE
+from service_kit.query_gate import gate as query_gate
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -107,6 +109,7 @@ class DspService:
             session.declare_subscriber(self.keys.batch, self._events.subscriber("batch", self._on_batch_payload)),
             session.declare_subscriber(self.keys.dsp_config, self._events.subscriber("config", self._decode_config)),
         ]
+        self._tf_gate = query_gate("tf")
         self._queryable = session.declare_queryable(self.keys.tf, self._on_tf_query)
         self._token = session.liveliness().declare_token(self.keys.alive("dsp"))
         self._health = HealthPublisher(session, self.keys.health("dsp"), settings.health_period_s, self._build_health)
@@ -150,6 +153,7 @@ class DspService:
     def _build_health(self, seq: int) -> Health:
         counters = self.core.block.counters.as_dict()
         counters.update(self._events.as_dict())
+        counters.update(self._tf_gate.as_dict())
         counters["interrupts"] = self.core.interrupt_seq
         state = "degraded" if self.core.last_batch_missed else "running"
         return Health(
@@ -210,9 +214,15 @@ class DspService:
         return None
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
+        """A TF query: answered within the rate (:mod:`service_kit.query_gate`), else refused with a short error, counted."""
         try:
+            if not self._tf_gate.admit():
+                query.reply_err(OVER_RATE)
+                return
             query.reply(self.keys.tf, encode_tf(self.snapshot()), encoding=TF)
+            self._tf_gate.note_answered()
         except Exception as exc:  # never let a query kill zenoh's thread
+            self._tf_gate.note_failed()
             log.exception("TF query failed")
             query.reply_err(str(exc).encode())
 
