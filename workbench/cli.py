@@ -210,7 +210,7 @@ def acquire_rig_lock(rig_id: str, directory: str | None = None) -> Any:
     return handle
 
 
-def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
+def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False, run_s: float | None = None) -> Path:
     """This run's credentials (service_kit/access.py): its own certificate
     authority with one certificate per role, so every link of the rig is
     mutual TLS and each node knows the role of every session it links to,
@@ -220,12 +220,14 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     certificate). Every node applies the rig's access rules. Writes the
     certificates, the credentials file (keys and passwords owner-only) and
     ``tool.env``, the variables that let ``ralf-hil reconfigure``/``monitor``/
-    ``live``/``record`` join the run; returns its path."""
+    ``live``/``record`` join the run; returns its path. ``run_s``: the
+    run's planned wall time, which the certificates cover
+    (:func:`workbench.certificates.validity_for`)."""
     from service_kit.access import ROLES, generate_credentials, role_env, write_credentials_file
-    from workbench.certificates import write_role_certificates
+    from workbench.certificates import validity_for, write_role_certificates
 
     roles = [r for r in ROLES if r != "tester" or scenarios]
-    certificates = write_role_certificates(directory, roles)
+    certificates = write_role_certificates(directory, roles, valid_for=validity_for(run_s))
     credentials = generate_credentials(roles)
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
     plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="scenarios" if scenarios else "on")
@@ -333,7 +335,10 @@ def cmd_up(args: argparse.Namespace) -> int:
     live_view = _start_live(args)  # before anything starts: a port in use is one line, the rig untouched
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
     try:
-        tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
+        from workbench.certificates import planned_run_s
+
+        run_s = planned_run_s(args.duration, args.clock, plan.service_env.get("controller", {}).get("RALF_DURATION_S"))
+        tool_env = provision_access(plan, access_dir, run_s=run_s)  # credentials of this run, valid for all of it; access rules on
         return _up_supervised(args, plan, log_dir, tool_env, live_view)
     finally:
         if live_view is not None:
