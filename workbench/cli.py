@@ -104,6 +104,16 @@ WALL_CLOCK_LATENCIES = frozenset({"sync_interval", "sync_jitter", "sync_period_j
 whose events are stepped in one thread (its TET is the cost of a tick)."""
 
 
+def config_changes_line(controller_health: dict[str, Any] | None) -> str | None:
+    """The run-time commands the controller took (protocol/command_fields.py), for the summary: None if none."""
+    counters = (controller_health or {}).get("counters", {})
+    taken, knobs = counters.get("reconfigurations", 0), counters.get("test_knob_changes", 0)
+    refused = counters.get("in_command_refused", 0) + counters.get("in_test_command_refused", 0)
+    if not taken and not refused:
+        return None
+    return f"{taken} command(s) taken, {knobs} of them test knobs; {refused} refused (a field their key does not take)"
+
+
 def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     """The run's summary on stdout: only rows that mean something in the run's
     clock (no wall-clock rates or real-time measures in a co-simulation);
@@ -131,6 +141,9 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
         table.add_row("latest identified f1", f"{f:.3f} Hz" if f else "–")
         table.add_row("deadline misses", str(c["deadline_misses"]))
         table.add_row("overruns", str(c["overruns"]))
+    changed = config_changes_line(summary["health"].get("controller"))
+    if changed:
+        table.add_row("configuration changed under the run", changed)
     hops = 0
     for name, health in summary["health"].items():
         for lname, stats in health["latencies"].items():

@@ -106,6 +106,10 @@ def test_a_test_knob_on_the_tools_command_key_changes_nothing() -> None:
     assert run.dsp.emulated_latency_s != 10.0 and run.controller.link.batch_size != 40
     assert run.result.config_changes == []
     assert run.health["controller"].counters["in_command_refused"] == 1
+    from workbench.cli import config_changes_line
+
+    assert config_changes_line(run.health["controller"].model_dump()) == "0 command(s) taken, 0 of them test knobs; 1 refused (a field their key does not take)"
+    assert config_changes_line({"counters": {}}) is None
 
 
 def test_the_testers_key_takes_the_knob_and_the_run_lists_the_change() -> None:
@@ -120,3 +124,7 @@ def test_the_testers_key_takes_the_knob_and_the_run_lists_the_change() -> None:
     (taken,) = run.result.config_changes
     assert taken.kind == "test_command" and taken.fields == {"emulated_latency_s": 0.02} and taken.sim_time_s > 0
     assert run.health["controller"].counters["test_knob_changes"] == 1
+    from workbench.cli import config_changes_line
+
+    line = config_changes_line(run.health["controller"].model_dump())  # the row of up's summary
+    assert line == "1 command(s) taken, 1 of them test knobs; 1 refused (a field their key does not take)"
