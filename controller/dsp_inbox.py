@@ -16,6 +16,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+from protocol.command_fields import COMMAND_KEYS, refused_fields
 from protocol.messages import BlockFlag, ConfigChange, Interrupt, decode
 from service_kit.inbox import LIMITS, MAX_BYTES, REFUSED, Inbox, Item
 
@@ -42,7 +43,8 @@ class DspInbox:
         self._decoders: dict[str, Callable[..., Any]] = {
             "flag": self._decode_flag,
             "interrupt": self._decode_interrupt,
-            "command": lambda b: decode(ConfigChange, b),
+            "command": lambda b: self._decode_command("command", b),
+            "test_command": lambda b: self._decode_command("test_command", b),
         }
 
     def on_port_event(self, kind: str, payload: Any, arrival: float, attachment: Any = None) -> None:
@@ -70,6 +72,15 @@ class DspInbox:
             self.paired_board = board
             log.info("paired with DSP board %s", board.decode(errors="replace"))
         return flag if board is not None and board == self.paired_board else REFUSED
+
+    def _decode_command(self, kind: str, payload: bytes) -> ConfigChange | object:
+        """A command that sets a field its key does not take (protocol/command_fields.py) is refused whole."""
+        change = decode(ConfigChange, payload)
+        refused = refused_fields(kind, change)
+        if refused:
+            self.events.log.warning(f"refused:{kind}", "refused a %s setting %s: not taken on %s", kind, ", ".join(sorted(refused)), COMMAND_KEYS[kind])
+            return REFUSED
+        return change
 
     def _decode_interrupt(self, payload: bytes, board: bytes | None) -> Interrupt | object:
         """An interrupt from another board than the paired one, or for no batch we sent, is refused."""

@@ -13,7 +13,8 @@ the one-thread co-simulation:
 
 Events reach the controller through the ``sink(kind, payload, arrival,
 attachment=None)`` it hands to :meth:`DspPort.connect`: ``kind`` is
-``flag``, ``interrupt``, ``command`` or ``alive`` (payload ``b"1"``/``b"0"``).
+``flag``, ``interrupt``, ``command``, ``test_command`` (the tester's
+commands with test knobs, :mod:`protocol.command_fields`) or ``alive`` (payload ``b"1"``/``b"0"``).
 ``payload`` is bytes or zenoh's payload as received (``len`` and
 ``to_bytes()``: the controller caps its size before copying a byte, see
 :mod:`service_kit.inbox`); ``attachment`` is the sending board's id on flags
@@ -97,6 +98,7 @@ class ZenohDspPort:
             session.declare_subscriber(keys.interrupt, put("interrupt")),
             session.liveliness().declare_subscriber(keys.alive("dsp"), alive, history=True),
             session.declare_subscriber(keys.controller_command, put("command")),
+            session.declare_subscriber(keys.controller_test_command, put("test_command")),
         ]
         self._token = session.liveliness().declare_token(keys.alive("controller"))
 

@@ -31,6 +31,7 @@ from controller.loop import ControlLaw
 from controller.monitors import Monitors
 from controller.timing_counters import TimingCounters
 from protocol.batch_codec import encode_batch
+from protocol.command_fields import COMMAND_KEYS, TEST_KNOBS, changed_fields
 from protocol.errors import ProtocolError
 from protocol.messages import BlockFlag, ConfigChange, Interrupt, encode
 from service_kit.clock import Scheduler
@@ -40,6 +41,16 @@ log = logging.getLogger(__name__)
 
 RESET_RESEND_S = 1.0
 """Start-up: resend the run's reset to the DSP this often until it answers."""
+
+
+@dataclass(frozen=True)
+class ConfigChangeTaken:
+    """A run-time command the controller took: when, on which key, what it changed."""
+
+    sim_time_s: float
+    kind: str
+    """The command key's inbox kind: ``command`` (tools) or ``test_command`` (the tester's test knobs)."""
+    fields: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -88,6 +99,8 @@ class DspSide:
         self.dsp_config_seq: int | None = None
         """The DSP's last applied ConfigChange, from its latest flag."""
         self.flags_seen = 0
+        self.config_changes: list[ConfigChangeTaken] = []
+        """Every run-time command taken, in order (the run's result lists them)."""
         self._unix_offset = time.time() - time.monotonic()
         """Unix - monotonic: converts the port's arrival stamps for the batch path's hops (real time)."""
         self._irq_source: Interrupt | None = None
@@ -102,8 +115,8 @@ class DspSide:
                 self._take_flag(payload)
             elif kind == "interrupt":
                 self._take_interrupt(payload, arrival)
-            elif kind == "command":
-                self.reconfigure(payload)
+            elif kind in ("command", "test_command"):
+                self.reconfigure(payload, kind)
             elif kind == "alive":
                 self._take_presence(bool(payload))
         except ProtocolError as exc:
@@ -161,17 +174,26 @@ class DspSide:
         irq, sent = self.latest_interrupt, self.link.in_flight
         return flag.state == "empty" and irq is not None and sent is not None and flag.next_batch_seq == irq.batch_seq + 1 == sent.seq
 
-    def reconfigure(self, change: ConfigChange) -> None:
-        """A run-time command (thesis §3.2.3): the batch size applies here
-        from the next batch on; the FFT width, alpha and latency go to the
-        DSP, which zeroes its history on an FFT-width change."""
+    def reconfigure(self, change: ConfigChange, kind: str = "command") -> None:
+        """A run-time command (thesis §3.2.3), taken on the command key
+        ``kind`` (its fields already checked, protocol/command_fields.py):
+        the batch size applies here from the next batch on; the FFT width,
+        alpha and latency go to the DSP, which zeroes its history on an
+        FFT-width change. Every change taken is counted and listed
+        (:attr:`config_changes`)."""
         if change.batch_size is not None:
             log.info("batch size %d -> %d", self.link.batch_size, change.batch_size)
             self.link.batch_size = change.batch_size
         self.config_seq += 1
-        forwarded = change.model_copy(update={"seq": self.config_seq, "sim_time_s": self._tick() * self.times.sample_period_s})
+        sim_time_s = self._tick() * self.times.sample_period_s
+        forwarded = change.model_copy(update={"seq": self.config_seq, "sim_time_s": sim_time_s})
         self.port.send_config(encode(forwarded))
+        fields = {name: getattr(change, name) for name in sorted(changed_fields(change))}
+        self.config_changes.append(ConfigChangeTaken(sim_time_s, kind, fields))
         self.timing.reconfigurations += 1
+        if changed_fields(change) & TEST_KNOBS:
+            self.timing.test_knob_changes += 1
+        log.info("configuration changed under the run at %.3f s (%s): %s", sim_time_s, COMMAND_KEYS[kind], fields)
 
     def drain(self) -> None:
         """Take what the inbox holds; real time with link faults: release what they held and is due now."""

@@ -46,7 +46,7 @@ going (after :meth:`PlantLink.start_node`):
 
 Input the bus cannot even decode (a junk datagram on the udp_multicast
 group) is counted in ``rx_errors`` and dropped, and the bus's own losses
-(``kernel_drops``, ``fd_frames_dropped`` of
+(``kernel_drops``, ``fd_frames_dropped``, ``junk_frames`` of
 :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`) are copied into the
 counters; each kind of bad input is logged at most once per
 :data:`controller.bus_watch.LOG_INTERVAL_S`.
@@ -160,6 +160,7 @@ class PlantLink:
         if bus is not None:
             self.counters.kernel_drops = int(bus.kernel_drops)
             self.counters.fd_frames_dropped = int(getattr(bus, "fd_frames_dropped", 0))
+            self.counters.junk_frames = int(getattr(bus, "junk_frames", 0))
         return self._log.take()
 
     def _check_foreign(self, msg: can.Message) -> bool:

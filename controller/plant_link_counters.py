@@ -69,6 +69,8 @@ class PlantLinkCounters:
     """datagrams the kernel dropped for a full receive buffer (the bus's count)"""
     fd_frames_dropped: int = 0
     """CAN FD frames the bus dropped (the rig speaks classic CAN)"""
+    junk_frames: int = 0
+    """datagrams on the CAN group that were not CAN frames, skipped by the bus before decoding (the bus's count)"""
 
     def as_dict(self) -> dict[str, int]:
         return dict(vars(self))

@@ -37,7 +37,7 @@ import zenoh
 from controller.config import build_trajectory, law_config, run_ticks
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
-from controller.dsp_side import DspSide, DspTimes
+from controller.dsp_side import ConfigChangeTaken, DspSide, DspTimes
 from controller.fault_stage import FaultStage, LoopStalls
 from controller.interrupt_wait import BATCH_RESEND_S
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
@@ -75,6 +75,8 @@ class RunResult:
     counters: dict[str, int]
     error: str | None = None
     liveliness: list[tuple[float, str, bool]] = field(default_factory=list)
+    config_changes: list[ConfigChangeTaken] = field(default_factory=list)
+    """Every run-time command taken, in order (counted as ``reconfigurations`` in health)."""
 
 
 def make_port(settings: ControllerSettings, session: zenoh.Session | None, port: DspPort | None) -> DspPort:
@@ -281,6 +283,7 @@ class ControllerService:
             },
             error=error,
             liveliness=self.dsp.liveliness,
+            config_changes=self.dsp.config_changes,
         )
 
     def _start(self, stop: threading.Event) -> None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,7 +25,11 @@ from protocol.errors import ProtocolError
 from protocol.messages import TfSnapshot
 from protocol.tf_codec import decode_tf
 from service_kit.clock import Scheduler
+from service_kit.query_gate import QUERY_LIMITS
 from service_kit.realtime import helper_priority, lower_current_thread
+
+RETRY_SPACING_S = 1.0 / QUERY_LIMITS["tf"].rate_per_s
+"""Lockstep: a download the DSP refused (over its TF query rate) is asked again no sooner than this."""
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +105,10 @@ class TfDownloader:
                 deadline = self.clock.now() + self.lockstep_timeout_s
                 while not replies and self.clock.now() < deadline and not self.clock.stopping:
                     c.tf_download_retries += 1
+                    asked = time.monotonic()
                     replies = self.port.download_tf(self.resend_s)
+                    if not replies:  # refused at once (over the DSP's query rate): ask again no sooner than the rate allows
+                        time.sleep(max(0.0, RETRY_SPACING_S - (time.monotonic() - asked)))
         except Exception as exc:  # a dying session must not end the run
             c.tf_download_failures += 1
             log.warning("TF download failed: %s", exc)

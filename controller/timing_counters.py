@@ -38,7 +38,9 @@ class TimingCounters(Counters):
     schedule_resyncs: int = 0
     """real time: times the loop was so late that its schedule was re-based"""
     reconfigurations: int = 0
-    """run-time configuration changes forwarded to the DSP"""
+    """Run-time commands taken (each one changed the configuration under the run)."""
+    test_knob_changes: int = 0
+    """Of them, those that set a test knob (protocol/command_fields.py)."""
     periods_skipped: int = 0
     """real time: sample instants skipped by those re-basings"""
     batch_resends: int = 0

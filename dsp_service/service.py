@@ -37,6 +37,8 @@ from protocol.tf_codec import encode_tf
 from service_kit.clock import RealTimeScheduler, Scheduler
 from service_kit.encodings import JSON, TF
 from service_kit.inbox import LIMITS, Inbox
+from service_kit.query_gate import OVER_RATE
+from service_kit.query_gate import gate as query_gate
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -84,7 +86,6 @@ class DspService:
         """Identify in zenoh's batch callback instead of handing the batch to the board's thread
         (a DSP serving one rig: no thread wake-up on the path; several rigs keep one thread each)."""
         self._out_lock = threading.Lock()  # flags are numbered and sent from the board's thread and, inline, zenoh's
-        self.session = session
         self.keys = Keys(settings.rig_id)
         self.core = DspCore(settings)
         load_bank(self.core.identifier, settings)  # RALF_ARX_REGIME_BANK_FILE: the regimes earlier runs learned
@@ -97,6 +98,16 @@ class DspService:
         self._events = Inbox("dsp", capacity=64, limits=LIMITS)  # size-capped, decoded in zenoh's threads, bounded (service_kit/inbox.py)
         self._held: _Held | None = None
         self._last_raised: _Held | None = None
+        self._tf_gate = query_gate("tf")
+        self._health_on = False
+        """Health is being published (from :meth:`run` on): a new session's publisher starts at once."""
+        self.bind(session)
+
+    def bind(self, session: zenoh.Session) -> None:
+        """Publishers, subscribers, the TF queryable, the liveliness token and
+        health on ``session`` (at start, and on a new session after
+        :meth:`unbind`: service_kit/relink.py)."""
+        self.session = session
         block = zenoh.CongestionControl.BLOCK
         self._flag_pub = session.declare_publisher(self.keys.flag, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._irq_pub = session.declare_publisher(self.keys.interrupt, encoding=JSON, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
@@ -109,7 +120,25 @@ class DspService:
         ]
         self._queryable = session.declare_queryable(self.keys.tf, self._on_tf_query)
         self._token = session.liveliness().declare_token(self.keys.alive("dsp"))
-        self._health = HealthPublisher(session, self.keys.health("dsp"), settings.health_period_s, self._build_health)
+        self._health = HealthPublisher(session, self.keys.health("dsp"), self.settings.health_period_s, self._build_health)
+        if self._health_on:
+            self._health.start()
+
+    @property
+    def out_lock(self) -> threading.Lock:
+        """Held while a message goes out (and while the board moves to a new session)."""
+        return self._out_lock
+
+    def unbind(self) -> None:
+        """Everything :meth:`bind` declared, undeclared (the session may be
+        broken: what fails is logged, the rest goes on); health stopped."""
+        self._health.stop()
+        handles: list[Any] = [*self._subs, self._queryable, self._token, self._flag_pub, self._irq_pub, self._ack_pub]
+        for handle in handles:
+            try:
+                handle.undeclare()
+            except Exception as exc:  # noqa: BLE001 (a closed session's handles)
+                log.debug("undeclare on the old session: %s", exc)
 
     # -- the core's state, as the tests and the composition read it ----------------------
     @property
@@ -150,6 +179,7 @@ class DspService:
     def _build_health(self, seq: int) -> Health:
         counters = self.core.block.counters.as_dict()
         counters.update(self._events.as_dict())
+        counters.update(self._tf_gate.as_dict())
         counters["interrupts"] = self.core.interrupt_seq
         state = "degraded" if self.core.last_batch_missed else "running"
         return Health(
@@ -210,9 +240,15 @@ class DspService:
         return None
 
     def _on_tf_query(self, query: zenoh.Query) -> None:
+        """A TF query: answered within the rate (:mod:`service_kit.query_gate`), else refused with a short error, counted."""
         try:
+            if not self._tf_gate.admit():
+                query.reply_err(OVER_RATE)
+                return
             query.reply(self.keys.tf, encode_tf(self.snapshot()), encoding=TF)
+            self._tf_gate.note_answered()
         except Exception as exc:  # never let a query kill zenoh's thread
+            self._tf_gate.note_failed()
             log.exception("TF query failed")
             query.reply_err(str(exc).encode())
 
@@ -305,7 +341,8 @@ class DspService:
                 self.core.block.counters.config_rejected += 1
                 self.core.block.last_violation = f"config change refused: {exc}"
                 log.warning("refused a config change the board cannot take: %s", exc)
-            self._ack_pub.put(encode(self.core.config_ack(change, refused)))
+            with self._out_lock:
+                self._ack_pub.put(encode(self.core.config_ack(change, refused)))
             self._publish_flag("empty" if not self.core.block.full else "full")
 
     def _handle_safely(self, event: _Event) -> None:
@@ -339,6 +376,7 @@ class DspService:
         """Serve until ``stop`` is set (seen within :data:`MAX_WAIT_S`, whatever is held)."""
         if isinstance(self.scheduler, RealTimeScheduler):
             self.scheduler.stop = stop
+        self._health_on = True
         self._health.start()
         self._publish_flag("empty")  # Fig. 3.5 step 1: the block starts empty
         last_flag = self.scheduler.now()

@@ -83,6 +83,10 @@ class Keys:
         return f"{self.root}/controller/command"
 
     @property
+    def controller_test_command(self) -> str:
+        return f"{self.root}/controller/test_command"
+
+    @property
     def tf_downloads(self) -> str:
         return f"{self.root}/controller/tf"
 

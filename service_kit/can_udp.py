@@ -24,6 +24,14 @@ drive the rig exactly as before. It differs in two places:
   filter cannot be attached, the same test runs on the sender address
   ``recvmsg`` returns, before any decoding (:attr:`own_frames_dropped`).
 
+A datagram that does not begin as python-can's packed frames do
+(:data:`FRAME_PREFIX`) is junk: counted (:attr:`junk_frames`) and skipped
+right after ``recvmsg``, before any decoding or exception, so a junk flood
+costs a reader little more than the system call
+(``ralf-hil bench --only can``: ``can_junk_reject`` against the bare
+``recvmsg`` floor). One that begins so and still does not decode raises
+``CanOperationError`` as python-can's bus does.
+
 It registers as the python-can interface ``ralf_udp_multicast`` (entry point
 ``can.interface``), and :func:`service_kit.transport.open_can_bus` uses it for
 ``udp_multicast`` unless ``can_udp``'s ``own_frame_filter`` is off.
@@ -48,6 +56,12 @@ SKF_NET_OFF = -0x100000
 SO_RXQ_OVFL = 40
 """Linux: each datagram carries the socket's count of datagrams dropped for a full receive buffer."""
 _MAX_DATAGRAM = 4096
+FRAME_PREFIX = b"\x8b\xa9timestamp"
+"""How every frame python-can's udp_multicast packs begins: a msgpack map of
+11 fields whose first key is ``timestamp``
+(:func:`can.interfaces.udp_multicast.utils.pack_message`)."""
+JUNK_PER_READ = 64
+"""Junk datagrams one read skips before it hands control back (None) to the caller."""
 _ANCILLARY = socket.CMSG_SPACE(struct.calcsize("@ll")) + socket.CMSG_SPACE(4)
 _TIMESPEC = struct.Struct("@ll")
 _U32 = struct.Struct("@I")
@@ -144,6 +158,8 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         self._frames_sent = 0
         self.fd_frames_dropped = 0
         """CAN FD frames received and dropped because the bus was opened without ``fd``."""
+        self.junk_frames = 0
+        """Datagrams that were not python-can frames (:data:`FRAME_PREFIX`), skipped before decoding."""
         self._rx = self._open_rx(family, channel, port)
         if receive_buffer_bytes > 0:
             self.set_receive_buffer(receive_buffer_bytes)
@@ -196,7 +212,9 @@ class LoopFreeUdpMulticastBus(can.BusABC):
         return sock
 
     def _read(self) -> tuple[bytes, Any, float] | None:
-        """One datagram that is not our own, without waiting (None: nothing queued)."""
+        """One datagram that is not our own and not junk, without waiting
+        (None: nothing queued, or :data:`JUNK_PER_READ` junk datagrams skipped)."""
+        junk = 0
         while True:
             try:
                 data, anc, _flags, sender = self._rx.recvmsg(_MAX_DATAGRAM, _ANCILLARY)
@@ -204,6 +222,12 @@ class LoopFreeUdpMulticastBus(can.BusABC):
                 return None
             if not self.kernel_filter and not self.receive_own_messages and sender[:2] == self._source:
                 self.own_frames_dropped += 1
+                continue
+            if not data.startswith(FRAME_PREFIX):
+                self.junk_frames += 1
+                junk += 1
+                if junk >= JUNK_PER_READ:
+                    return None
                 continue
             timestamp = 0.0
             for level, kind, value in anc:

@@ -53,6 +53,7 @@ MAX_BYTES: Final[dict[str, int]] = {
     "flag": 2 * KIB,
     "interrupt": 32 * KIB,
     "command": 4 * KIB,
+    "test_command": 4 * KIB,
     "config": 4 * KIB,
     "config_ack": 8 * KIB,
     "scenario": 2 * KIB,
@@ -96,6 +97,7 @@ class Limit:
 
 LIMITS: Final[dict[str, Limit]] = {
     "command": Limit(rate_per_s=10.0, burst=10, queued=4),
+    "test_command": Limit(rate_per_s=10.0, burst=10, queued=4),
     "config": Limit(rate_per_s=10.0, burst=10, queued=4),
     "scenario": Limit(rate_per_s=10.0, burst=20, queued=20),
 }
@@ -254,7 +256,9 @@ class Inbox:
         if message is REFUSED:
             with self._lock:
                 counters.refused += 1
-            self.log.warning(f"{kind}:refused", "%s: refused a %s (not from the paired board, or for no batch sent)", self.name, kind)
+            self.log.warning(
+                f"{kind}:refused", "%s: refused a %s (its receiver's check: another board, a batch never sent, a field its key does not take)", self.name, kind
+            )
             return False
         if message is None:
             with self._lock:

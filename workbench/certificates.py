@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import datetime
 import ipaddress
+import math
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -33,8 +34,40 @@ LOOPBACK_NAMES: tuple[str, ...] = ("127.0.0.1", "::1", "localhost")
 name it connected to against the acceptor's certificate)."""
 
 VALID_FOR = datetime.timedelta(days=30)
-"""How long a run's certificates are valid, from 5 minutes before they are
-made (a run outliving them can no longer link anew)."""
+"""How long a run's certificates are valid at least, from 5 minutes before
+they are made (a run outliving them can no longer link anew); a longer
+planned run gets certificates that cover it (:func:`validity_for`)."""
+
+LOCKSTEP_WALL_PER_SIM = 10.0
+"""A lockstep run's planned wall time per simulated second, for the
+certificates' validity (lockstep runs as fast as the host allows, on a
+loaded host slower than real time; an overestimate costs nothing)."""
+
+
+def validity_for(run_s: float | None) -> datetime.timedelta:
+    """How long a run's certificates must be valid: :data:`VALID_FOR`, or
+    twice the run's planned wall time and a day, whichever is longer, so a
+    node that drops out late in a long run still links anew. ``None``: a
+    run of unplanned length (until stopped) gets :data:`VALID_FOR`."""
+    if run_s is None or not math.isfinite(run_s) or run_s <= 0:
+        return VALID_FOR
+    return max(VALID_FOR, datetime.timedelta(seconds=2 * run_s) + datetime.timedelta(days=1))
+
+
+def planned_run_s(duration_s: float | None, clock: str, controller_duration_s: str | None = None) -> float | None:
+    """A run's planned wall time, for :func:`validity_for`: ``--duration``
+    (wall seconds in real time, simulated in lockstep), else the
+    controller's ``RALF_DURATION_S`` (simulated); None when neither bounds it."""
+    sim = duration_s
+    if sim is None and controller_duration_s:
+        try:
+            sim = float(controller_duration_s)
+        except ValueError:
+            return None
+    if sim is None:
+        return None
+    return sim * LOCKSTEP_WALL_PER_SIM if clock == "lockstep" else sim
+
 
 CA_FILE = "ca.pem"
 

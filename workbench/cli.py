@@ -111,6 +111,16 @@ WALL_CLOCK_LATENCIES = frozenset({"sync_interval", "sync_jitter", "sync_period_j
 whose events are stepped in one thread (its TET is the cost of a tick)."""
 
 
+def config_changes_line(controller_health: dict[str, Any] | None) -> str | None:
+    """The run-time commands the controller took (protocol/command_fields.py), for the summary: None if none."""
+    counters = (controller_health or {}).get("counters", {})
+    taken, knobs = counters.get("reconfigurations", 0), counters.get("test_knob_changes", 0)
+    refused = counters.get("in_command_refused", 0) + counters.get("in_test_command_refused", 0)
+    if not taken and not refused:
+        return None
+    return f"{taken} command(s) taken, {knobs} of them test knobs; {refused} refused (a field their key does not take)"
+
+
 def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     """The run's summary on stdout: only rows that mean something in the run's
     clock (no wall-clock rates or real-time measures in a co-simulation);
@@ -141,6 +151,9 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
         if lost is not None:
             table.add_row("interrupts lost", f"{lost} (never came; a miss is one not there by its deadline)")
         table.add_row("overruns", str(c["overruns"]))
+    changed = config_changes_line(summary["health"].get("controller"))
+    if changed:
+        table.add_row("configuration changed under the run", changed)
     hops = 0
     for name, health in summary["health"].items():
         for lname, stats in health["latencies"].items():
@@ -229,7 +242,7 @@ def acquire_rig_lock(rig_id: str, directory: str | None = None) -> RunLock:
     raise SystemExit(2)
 
 
-def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) -> Path:
+def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False, run_s: float | None = None) -> Path:
     """This run's credentials (service_kit/access.py): its own certificate
     authority with one certificate per role, so every link of the rig is
     mutual TLS and each node knows the role of every session it links to,
@@ -239,12 +252,14 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False) ->
     certificate). Every node applies the rig's access rules. Writes the
     certificates, the credentials file (keys and passwords owner-only) and
     ``tool.env``, the variables that let ``ralf-hil reconfigure``/``monitor``/
-    ``live``/``record`` join the run; returns its path."""
+    ``live``/``record`` join the run; returns its path. ``run_s``: the
+    run's planned wall time, which the certificates cover
+    (:func:`workbench.certificates.validity_for`)."""
     from service_kit.access import ROLES, generate_credentials, role_env, write_credentials_file
-    from workbench.certificates import write_role_certificates
+    from workbench.certificates import validity_for, write_role_certificates
 
     roles = [r for r in ROLES if r != "tester" or scenarios]
-    certificates = write_role_certificates(directory, roles)
+    certificates = write_role_certificates(directory, roles, valid_for=validity_for(run_s))
     credentials = generate_credentials(roles)
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
     plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="scenarios" if scenarios else "on")
@@ -383,7 +398,10 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
     start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
     code = 1  # an exception on the way: the logs stay
     try:
-        tool_env = provision_access(plan, access_dir)  # credentials of this run, access rules on
+        from workbench.certificates import planned_run_s
+
+        run_s = planned_run_s(args.duration, args.clock, plan.service_env.get("controller", {}).get("RALF_DURATION_S"))
+        tool_env = provision_access(plan, access_dir, run_s=run_s)  # credentials of this run, valid for all of it; access rules on
         code = _up_supervised(args, plan, logs.path, tool_env, live_view)
         return code
     finally:

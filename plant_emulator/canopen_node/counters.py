@@ -72,6 +72,8 @@ class NodeCounters:
     """datagrams the kernel dropped for a full receive buffer (the bus's ``kernel_drops``, Linux ``SO_RXQ_OVFL``)"""
     fd_frames_dropped: int = 0
     """CAN FD frames the bus received and dropped (the node speaks classic CAN; the bus's ``fd_frames_dropped``)"""
+    junk_frames: int = 0
+    """datagrams on the CAN group that were not CAN frames, skipped by the bus before decoding (the bus's ``junk_frames``)"""
     internal_errors: int = 0
     """exceptions caught around the state machine (should stay 0)"""
     sdo: SdoCounters = field(default_factory=SdoCounters)

@@ -50,7 +50,7 @@ def run_node(
     errors are logged and counted, never raised; receive errors (an
     undecodable udp_multicast datagram) are counted and the next frame read
     at once. The bus's own loss counters (``kernel_drops``,
-    ``fd_frames_dropped`` of :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`)
+    ``fd_frames_dropped``, ``junk_frames`` of :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`)
     are copied into the node's counters, so health reports them. The bus
     belongs to the caller (open and shut it there; :func:`node_can_filters`
     suits it). ``after_send`` runs after each received frame's answer is on
@@ -82,6 +82,7 @@ def run_node(
                 stop.wait(0.001)  # a broken bus must not spin the CPU
             if counted_bus is not None:
                 counters.kernel_drops = int(counted_bus.kernel_drops)
+                counters.junk_frames = int(getattr(counted_bus, "junk_frames", 0))
             now = clock()
             if deadline is not None and now >= deadline:
                 send(node.poll(now))  # the heartbeat and the watchdog stay on time under a flood
@@ -91,6 +92,7 @@ def run_node(
         if counted_bus is not None:
             counters.kernel_drops = int(counted_bus.kernel_drops)
             counters.fd_frames_dropped = int(counted_bus.fd_frames_dropped)
+            counters.junk_frames = int(getattr(counted_bus, "junk_frames", 0))
         if msg is not None:
             if msg.arbitration_id in own_ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
                 # A frame on our own COB-IDs: our echo (udp_multicast loops frames back to their

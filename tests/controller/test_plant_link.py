@@ -32,6 +32,7 @@ from plant_emulator.canopen_node import (
 )
 from protocol import can_map
 from protocol.can_map import EmcyCode, NmtCommand, NmtState
+from service_kit.can_udp import FRAME_PREFIX
 
 EDS = Path(__file__).resolve().parents[2] / "protocol" / "ralf_io.eds"
 UDP_GROUP = "239.74.163.2"
@@ -91,6 +92,7 @@ JUNK: dict[str, bytes] = {
     "not a dict": msgpack.packb([1, 2, 3]),
     "bad field": msgpack.packb({"arbitration_id": "SYNC", "data": 7}),
     "empty": b"",
+    "a frame's first bytes, then junk": FRAME_PREFIX + b"\xc1 junk",
 }
 
 
@@ -107,9 +109,11 @@ def _udp_buses(port: int, loop_free: bool = False) -> tuple[can.BusABC, can.BusA
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("loop_free", [False, True], ids=["python-can-bus", "loop-free-bus"])
 def test_junk_datagrams_on_the_can_group_are_counted_and_dropped(caplog: pytest.LogCaptureFixture, loop_free: bool) -> None:
-    """A raw UDP socket sends 5 kinds x 20 junk datagrams to the rig's group and
+    """A raw UDP socket sends 6 kinds x 20 junk datagrams to the rig's group and
     port, interleaved with the controller's ticks: the link counts and drops
-    each one, logs each kind once, and the run goes on (every TPDO arrives)."""
+    each one (the rig's bus skips what does not begin as a python-can frame
+    before decoding, ``junk_frames``), logs each kind that fails to decode
+    once, and the run goes on (every TPDO arrives)."""
     port = 47001 + os.getpid() % 10000 // 2 * 2 + 2 * loop_free
     node_bus, link_bus = _udp_buses(port, loop_free)
     attacker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -132,17 +136,23 @@ def test_junk_datagrams_on_the_can_group_are_counted_and_dropped(caplog: pytest.
                     sent += 1
                 answered += run_ticks(link, 1)
             deadline = time.monotonic() + 2.0
-            while link.counters.rx_errors < sent and time.monotonic() < deadline:
+            while link.counters.rx_errors + link.counters.junk_frames < sent and time.monotonic() < deadline:
                 link.poll(0.01)
+                link.take_conflicts()  # copies the bus's junk count
+            node.counters.junk_frames = int(getattr(node_bus, "junk_frames", 0))
     finally:
         attacker.close()
         node_bus.shutdown()
         link_bus.shutdown()
     assert answered == 20 and link.counters.tpdo_timeouts == 0
-    assert link.counters.rx_errors == sent  # loopback delivers every datagram; each one counted
-    assert node.counters.rx_errors == sent  # the plant survives them too
+    # loopback delivers every datagram; each one counted: the rig's bus skips what is not a
+    # python-can frame before decoding (junk_frames), the rest fails to decode (rx_errors)
+    assert link.counters.rx_errors + link.counters.junk_frames == sent
+    assert node.counters.rx_errors + node.counters.junk_frames == sent  # the plant survives them too
+    if loop_free:  # only the one that begins as a frame does reaches the decoder
+        assert link.counters.rx_errors == node.counters.rx_errors == sent // len(JUNK)
     dropped_logs = [r for r in caplog.records if "undecodable CAN input" in r.getMessage()]
-    assert 1 <= len(dropped_logs) <= len(JUNK)  # once per kind per interval, not once per datagram
+    assert len(dropped_logs) <= len(JUNK) and (loop_free or dropped_logs)  # once per kind per interval, not once per datagram
     if loop_free:  # its own frames never come back: nothing to match
         assert link.counters.own_echoes == 0
     else:  # python-can's udp_multicast hands the link its own frames back: echoes, not a second master

@@ -600,3 +600,30 @@ def test_the_service_loads_its_regime_bank_file_at_start_and_writes_it_at_close(
     written = load_regime_bank(path)
     held = arx.bank_state()
     assert written.regimes == 2 and all(np.array_equal(getattr(written, k), getattr(held, k)) for k in ("scale", "R", "theta", "residual_power"))
+
+
+def test_tf_queries_over_the_rate_are_refused_and_counted(session: zenoh.Session) -> None:
+    """A flood of TF queries (any tool may query): the burst is answered, the
+    rest get a short error at once and are counted in the DSP's health. The
+    gate's clock stands still here, so the count does not depend on speed."""
+    from service_kit.query_gate import OVER_RATE, QUERY_LIMITS, QueryGate
+
+    settings = _settings()
+    service = DspService(settings, session)
+    limit = QUERY_LIMITS["tf"]
+    service._tf_gate = QueryGate("tf", limit, clock=lambda: 100.0)  # noqa: SLF001
+    try:
+        service.process_batch(_batch(0, rng=np.random.default_rng(7)))
+        ok = errors = 0
+        for _ in range(limit.burst + 5):
+            for reply in session.get(Keys(settings.rig_id).tf, timeout=5.0):
+                if reply.ok is not None:
+                    ok += 1
+                else:
+                    assert reply.err is not None and reply.err.payload.to_bytes() == OVER_RATE
+                    errors += 1
+        counters = service._build_health(0).counters  # noqa: SLF001
+    finally:
+        service.close()
+    assert (ok, errors) == (limit.burst, 5)
+    assert counters["q_tf_answered"] == limit.burst and counters["q_tf_dropped_rate"] == 5 and counters["q_tf_failed"] == 0

@@ -188,3 +188,34 @@ def test_zenoh_adds_a_link_claiming_a_linked_id_to_that_session_unless_the_user_
         assert linked == [] and b"forged" not in got, linked
     else:
         assert linked and b"forged" in got, linked
+
+
+def test_a_run_longer_than_the_default_validity_gets_certificates_that_cover_it(tmp_path: Path) -> None:
+    """A soak run of 40 days (``--duration``, or the controller's ``RALF_DURATION_S``)
+    gets certificates valid for twice its planned wall time and a day; a short or
+    unbounded run the default 30 days; lockstep plans its wall time generously."""
+    from workbench.certificates import LOCKSTEP_WALL_PER_SIM, VALID_FOR, planned_run_s, validity_for, write_role_certificates
+
+    day = 86400.0
+    assert validity_for(None) == validity_for(60.0) == validity_for(float("nan")) == VALID_FOR
+    assert planned_run_s(40 * day, "realtime") == 40 * day
+    assert planned_run_s(None, "realtime", str(40 * day)) == 40 * day
+    assert planned_run_s(None, "lockstep", "100") == 100 * LOCKSTEP_WALL_PER_SIM
+    assert planned_run_s(None, "realtime", None) is None and planned_run_s(None, "realtime", "not a number") is None
+    soak = validity_for(planned_run_s(40 * day, "realtime"))
+    assert soak == datetime.timedelta(days=81)
+    now = datetime.datetime(2026, 12, 7, tzinfo=datetime.UTC)
+    files = write_role_certificates(tmp_path, ["dsp"], valid_for=soak, now=now)
+    for path in (files["dsp"].ca, files["dsp"].certificate):
+        cert = x509.load_pem_x509_certificate(path.read_bytes())
+        assert cert.not_valid_after_utc - now >= datetime.timedelta(seconds=40 * day)
+
+
+def test_up_provisions_certificates_for_the_planned_run(tmp_path: Path) -> None:
+    from workbench.cli import provision_access
+    from workbench.launcher import RigPlan
+
+    plan = RigPlan.local(rig_id="soak-certs")
+    provision_access(plan, tmp_path / "access", run_s=50 * 86400.0)
+    cert = x509.load_pem_x509_certificate((tmp_path / "access" / "controller.pem").read_bytes())
+    assert cert.not_valid_after_utc - cert.not_valid_before_utc >= datetime.timedelta(days=100)

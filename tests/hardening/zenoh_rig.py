@@ -131,14 +131,18 @@ class PeerRig:
     observer: RigObserver
     node_ids: dict[str, str]
     """Role -> the zenoh id its session happened to get."""
+    plan: Any = None
+    """The launcher's plan (each service's variables)."""
 
     @classmethod
-    def start(cls, rig_id: str, directory: Path) -> PeerRig:
+    def start(cls, rig_id: str, directory: Path, acl: str = "on", leave_out: tuple[str, ...] = ()) -> PeerRig:
+        """``acl``: ``on`` (the tester's certificate exists, its keys stay refused) or ``scenarios``;
+        ``leave_out``: services the caller starts itself (as processes, from :attr:`plan`)."""
         from workbench.cli import provision_access
 
         plan = RigPlan.local(rig_id=rig_id)
-        provision_access(plan, directory, scenarios=True)  # the tester's certificate too (its key stays refused: tests use no scenarios)
-        plan.common_env["RALF_ZENOH_ACL"] = "on"
+        provision_access(plan, directory, scenarios=True)  # the tester's certificate too
+        plan.common_env["RALF_ZENOH_ACL"] = acl
         certificates = {
             role: RoleCertificate(directory / "ca.pem", directory / f"{role}.pem", directory / f"{role}.key")
             for role in ROLES
@@ -153,16 +157,16 @@ class PeerRig:
         taps = {"launcher": Tap(observer.session, keys.root, "launcher")}
         sessions = []
         node_ids = {"launcher": str(observer.session.info.zid())}
-        for name in SERVICES:
+        for name in (n for n in SERVICES if n not in leave_out):
             settings = settings_from_env({**plan.common_env, **plan.service_env[name]})
             session = zenoh.open(zenoh_config(settings))
             sessions.append(session)
             node_ids[name] = str(session.info.zid())
             taps[name] = Tap(session, keys.root, name)
-        endpoints = [plan.zenoh_endpoint] + [f"tls/127.0.0.1:{plan.service_ports[n]}" for n in SERVICES]
+        endpoints = [plan.zenoh_endpoint] + [f"tls/127.0.0.1:{plan.service_ports[n]}" for n in SERVICES if n not in leave_out]
         for session in sessions:
-            wait_peers(session, len(SERVICES))
-        return cls(keys, certificates, credentials, endpoints, taps, sessions, observer, node_ids)
+            wait_peers(session, len(SERVICES) - len(leave_out))
+        return cls(keys, certificates, credentials, endpoints, taps, sessions, observer, node_ids, plan)
 
     def close(self) -> None:
         for tap in self.taps.values():

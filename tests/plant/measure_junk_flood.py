@@ -7,8 +7,8 @@ inside the loopback-only namespace)::
 10 s, while a controller link ticks at 200 Hz (SYNC, TPDO1 within 4 ms,
 RPDO1) against the node served by its runner, both on the rig's
 udp_multicast bus. Prints the ticks answered and, per end, the datagrams
-read and counted (``rx_errors``) and dropped by the kernel and counted
-(``kernel_drops``): their sum is the flood plus any real frame the kernel
+read and counted (``rx_errors``; ``junk_frames``: skipped by the rig's bus
+before decoding) and dropped by the kernel and counted (``kernel_drops``): their sum is the flood plus any real frame the kernel
 dropped. ``--runner FILE`` serves the node with the ``run_node`` of another
 runner module (e.g. an older one, ``git show REV:plant_emulator/canopen_node/runner.py``)."""
 
@@ -87,8 +87,9 @@ def main() -> None:
         link_bus.shutdown()
     c, lc = node.counters, link.counters
     print(f"{args.count} junk datagrams at {args.rate:.0f}/s; ticks {ticks}, answered {answered}, TPDO timeouts {lc.tpdo_timeouts}")
-    print(f"node: rx_errors {c.rx_errors} + kernel_drops {getattr(c, 'kernel_drops', 0)} = {c.rx_errors + getattr(c, 'kernel_drops', 0)}")
-    print(f"link: rx_errors {lc.rx_errors} + kernel_drops {lc.kernel_drops} = {lc.rx_errors + lc.kernel_drops}")
+    for name, k in (("node", c), ("link", lc)):
+        junk, drops = getattr(k, "junk_frames", 0), getattr(k, "kernel_drops", 0)
+        print(f"{name}: rx_errors {k.rx_errors} + junk_frames {junk} + kernel_drops {drops} = {k.rx_errors + junk + drops}")
 
 
 if __name__ == "__main__":

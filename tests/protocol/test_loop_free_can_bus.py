@@ -12,7 +12,7 @@ import can
 import pytest
 
 from protocol.settings import CommonSettings
-from service_kit.can_udp import LoopFreeUdpMulticastBus, own_frame_filter
+from service_kit.can_udp import FRAME_PREFIX, JUNK_PER_READ, LoopFreeUdpMulticastBus, own_frame_filter
 from service_kit.transport import open_can_bus
 
 GROUP = "239.74.163.2"
@@ -77,17 +77,37 @@ def test_wire_compatible_with_stock_udp_multicast_and_own_frames_stay_out(buses:
 
 
 def test_malformed_datagram_is_an_operation_error_not_a_crash(buses: tuple[LoopFreeUdpMulticastBus, LoopFreeUdpMulticastBus, can.BusABC]) -> None:
+    """A datagram that begins as python-can's frames do and does not decode
+    raises CanOperationError (as python-can's bus does); one that does not
+    even begin so is junk, counted and skipped before decoding."""
     a, _, stock = buses
     junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         junk.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
-        junk.sendto(b"\xc1not msgpack", (GROUP, _port(0)))
+        junk.sendto(FRAME_PREFIX + b"\xc1not msgpack", (GROUP, _port(0)))
         with pytest.raises(can.CanOperationError):
             a.recv(1.0)
+        for _ in range(JUNK_PER_READ + 3):
+            junk.sendto(b"\xc1not msgpack", (GROUP, _port(0)))
+        stock.send(can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False))
+        assert [m.arbitration_id for m in _frames(a)] == [0x101]
+        assert a.junk_frames == JUNK_PER_READ + 3
     finally:
         junk.close()
     stock.send(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False))
     assert [m.arbitration_id for m in _frames(a)] == [0x100]  # and the bus goes on
+
+
+def test_every_frame_python_can_packs_begins_with_the_frame_prefix() -> None:
+    from can.interfaces.udp_multicast.utils import pack_message
+
+    for msg in (
+        can.Message(arbitration_id=0x80, data=b"", is_extended_id=False),
+        can.Message(arbitration_id=0x1FFFFFFF, data=bytes(8), is_extended_id=True),
+        can.Message(arbitration_id=0x181, is_remote_frame=True, is_extended_id=False),
+        can.Message(arbitration_id=0x181, data=bytes(64), is_fd=True, bitrate_switch=True, channel="x", timestamp=1e9),
+    ):
+        assert pack_message(msg).startswith(FRAME_PREFIX)
 
 
 def test_filter_program_drops_only_the_exact_source() -> None:

@@ -193,6 +193,10 @@ def test_quick_floors_write_a_complete_report(tmp_path: Path, capsys: pytest.Cap
     can_item = report["items"]["can"]
     assert can_item["status"] == "ok", can_item
     _check_latency(can_item["measurements"]["can_pingpong"])
+    for name in ("can_junk_reject", "can_junk_reject (controller link)", "can_junk_reject (python-can stock bus)", "can_frame_read"):
+        junk = can_item["measurements"][name]  # per datagram, against a bare recvmsg in the same run
+        _check_latency(junk)
+        assert junk["floor"] == "udp_recv_floor" and junk["n"] == 20
     assert report["wall_s"] > 0
     assert "zenoh_pingpong" in printed.out and "can_pingpong" in printed.out  # the table
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from protocol.batch_codec import encode_batch
 from protocol.keys import Keys
+from workbench.bench import can_junk
 from workbench.bench.entries import BenchContext, Skip, latency, latency_vs_value, new_result, requires, scalar
 from workbench.bench.pingers import (
     CanPinger,
@@ -410,6 +411,10 @@ def bench_can(ctx: BenchContext, result: dict[str, Any]) -> None:
         "can_pingpong and the plant run on the rig's bus (service_kit/can_udp.py: own frames dropped in the kernel); "
         "the stock row is the same round trip on python-can's udp_multicast, which reads its own frames back and drops them (can_filters)."
     )
+    junk_ports = private_can_port(rig_id + "-junk")
+    blocks = max(20, min(200, ctx.iterations // 10))
+    m.update(can_junk.rows(can_junk.measure(CAN_GROUP, tuple(junk_ports + 2 * k for k in range(5)), blocks), summarize, latency))
+    result["notes"].append(f"can_junk_reject: per datagram, {blocks} blocks of {can_junk.BLOCK} (workbench/bench/can_junk.py), against a bare recvmsg.")
 
 
 def _start_can_plant(ctx: BenchContext, result: dict[str, Any], rig_id: str, plant_port: int, stack: ExitStack) -> Child | None:

@@ -71,6 +71,7 @@ _DSP_KEYS: dict[str, Callable[[Keys], str]] = {
     "interrupt": lambda k: k.interrupt,
     "config_ack": lambda k: k.dsp_config_ack,
     "command": lambda k: k.controller_command,
+    "test_command": lambda k: k.controller_test_command,
 }
 """The key each kind of event the DSP port hands the controller travels on."""
 

@@ -16,6 +16,7 @@ Topics (``<rig>`` the rig id; every zenoh key becomes the topic ``/`` + key)::
     /ralf/<rig>/controller/status     controller status               ralf.ControllerStatus
     /ralf/<rig>/controller/tf         TF downloads, typed arrays      ralf.TfSnapshot
     /ralf/<rig>/controller/command    run-time commands               ralf.ConfigChange
+    /ralf/<rig>/controller/test_command  commands with test knobs     ralf.ConfigChange
     /ralf/<rig>/health/<service>      health                          ralf.Health
     /ralf/<rig>/alive                 liveliness changes              ralf.Liveliness
     /_undecodable                     payloads that failed to decode  ralf.RawPayload

@@ -1,0 +1,115 @@
+"""A node that cannot link again opens a new session with a new zenoh id.
+
+zenoh adds a link from an already linked zenoh id to that id's session
+only when the two ends authenticated alike (service_kit/access.py), and a
+session's id is fixed for its life. So while a node is cut off (stopped,
+its links' lease expired), any session that may join the rig (a tool's,
+with ``tool.env``) can claim the node's id, which it can read off the
+rig (the DSP's board id, zenoh's own peer lists); when the node comes
+back, every other node refuses its links, since that id is linked already
+under another user name, for as long as the claimer holds it.
+
+:class:`RelinkWatch` watches a session's links: once it has had a peer or
+router, :data:`ALONE_S` seconds with none make it call ``replace``, which
+takes the service's publishers, subscribers and tokens off the old session,
+closes it (freeing its listening port), opens a new one from the same
+configuration (zenoh gives it a new random id) and declares them there
+again; the node links again under its new id and
+says so in one line naming the id it gave up. A node that stays alone (the
+rig has ended) tries again after twice as long each time, up to
+:data:`MAX_BACKOFF_S`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+ALONE_S = 1.0
+"""Seconds without any link, after having had one, before the node takes a new id."""
+POLL_S = 0.1
+"""How often the links are looked at."""
+MAX_BACKOFF_S = 30.0
+"""The longest wait between two new sessions of a node that stays alone."""
+
+
+def linked(session: Any) -> int:
+    """The peers and routers ``session`` has a link to."""
+    return len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
+
+
+class RelinkWatch:
+    """Has ``replace(old)`` put a node left alone on a new session and return
+    it (module docstring).
+    :attr:`session` is the one in use; :attr:`relinks` counts new sessions.
+    ``clock`` and ``count_links`` are injectable for tests."""
+
+    def __init__(
+        self,
+        session: Any,
+        replace: Callable[[Any], Any],
+        clock: Callable[[], float] = time.monotonic,
+        count_links: Callable[[Any], int] = linked,
+    ) -> None:
+        self.session = session
+        self._replace = replace
+        self._clock = clock
+        self._count = count_links
+        self.relinks = 0
+        self._had_link = False
+        self._alone_since: float | None = None
+        self._wait_s = ALONE_S
+        self._thread: threading.Thread | None = None
+
+    def check(self) -> bool:
+        """Look at the links once; True if a new session was taken."""
+        now = self._clock()
+        if self._count(self.session):
+            self._had_link, self._alone_since, self._wait_s = True, None, ALONE_S
+            return False
+        if not self._had_link:
+            return False
+        if self._alone_since is None:
+            self._alone_since = now
+            return False
+        if now - self._alone_since < self._wait_s:
+            return False
+        alone_for = now - self._alone_since
+        old = self.session
+        gave_up = str(old.info.zid())
+        new = self._replace(old)
+        self.session = new
+        self.relinks += 1
+        self._alone_since = now
+        self._wait_s = min(MAX_BACKOFF_S, self._wait_s * 2)
+        log.warning(
+            "no link to any node of the rig for %.1f s: zenoh id %s given up (a session that is not this node may hold it); linking again as %s",
+            alone_for,
+            gave_up,
+            new.info.zid(),
+        )
+        return True
+
+    def start(self, stop: threading.Event) -> RelinkWatch:
+        """Check every :data:`POLL_S` seconds in a thread of its own until ``stop``."""
+
+        def loop() -> None:
+            while not stop.wait(POLL_S):
+                try:
+                    self.check()
+                except Exception:  # a failed new session: the old one stays, tried again later
+                    log.exception("could not open a new zenoh session")
+                    self._alone_since = self._clock()
+
+        self._thread = threading.Thread(target=loop, name="relink-watch", daemon=True)
+        self._thread.start()
+        return self
+
+    def join(self, timeout: float = 5.0) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
