@@ -22,6 +22,10 @@ The rule (docs/reliability.md, "The run's verdict"), the first that applies:
   held), the DSP lost, or any WARNING or ERROR line in a service's log.
 * **PASS**: none of the above.
 
+A test knob set under the run (`protocol/command_fields.py`, the tester's
+`test_command`) degrades it; a change by `ralf-hil reconfigure` is a note
+beside the level, which it leaves as it is.
+
 ``up`` exits 0 on PASS and DEGRADED, 1 on FAIL and INVALID (130 when
 interrupted, whatever the verdict).
 
@@ -72,16 +76,22 @@ class Verdict:
     """The counts the rule looked at (all of them, zero ones too)."""
     by_level: dict[str, list[str]] = field(default_factory=dict)
     """The reasons under the level each one calls for (INVALID, FAIL, DEGRADED)."""
+    notes: tuple[str, ...] = ()
+    """Facts of the run that change no level (its configuration changed under it by ``reconfigure``)."""
 
     @property
     def exit_code(self) -> int:
         return EXIT_CODES[self.level]
 
     def line(self) -> str:
-        return self.level + (": " + "; ".join(self.reasons) if self.reasons else ": nothing went wrong")
+        notes = "".join(f" (note: {note})" for note in self.notes)
+        return self.level + (": " + "; ".join(self.reasons) if self.reasons else ": nothing went wrong") + notes
 
     def as_dict(self) -> dict[str, Any]:
-        return {"verdict": self.level, "reasons": list(self.reasons), "by_level": self.by_level, "exit_code": self.exit_code, "findings": self.findings}
+        return {
+            "verdict": self.level, "reasons": list(self.reasons), "by_level": self.by_level, "exit_code": self.exit_code,
+            "findings": self.findings, "notes": list(self.notes),
+        }  # fmt: skip
 
 
 def _counters(summary: Mapping[str, Any], service: str) -> Mapping[str, Any]:
@@ -141,5 +151,13 @@ def judge(summary: Mapping[str, Any], timing: str | None = None) -> Verdict:
         if any(lines.values()):
             degraded.append(f"{what} lines in the logs: " + ", ".join(f"{name} {n}" for name, n in lines.items() if n))
 
+    notes: list[str] = []
+    commands, knobs = _num(controller.get("reconfigurations")), _num(controller.get("test_knob_changes"))
+    findings["reconfigurations"], findings["test_knob_changes"] = commands, knobs
+    if knobs:
+        degraded.append(f"test knobs set under the run: {knobs} (protocol/command_fields.py; the run's timing is not the rig's own)")
+    if commands > knobs:
+        notes.append(f"configuration changed under the run by {commands - knobs} command(s) (ralf-hil reconfigure)")
+
     level: Level = "INVALID" if invalid else "FAIL" if fail else "DEGRADED" if degraded else "PASS"
-    return Verdict(level, tuple(invalid + fail + degraded), findings, {"INVALID": invalid, "FAIL": fail, "DEGRADED": degraded})
+    return Verdict(level, tuple(invalid + fail + degraded), findings, {"INVALID": invalid, "FAIL": fail, "DEGRADED": degraded}, tuple(notes))

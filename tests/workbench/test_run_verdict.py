@@ -116,3 +116,13 @@ def test_records_logged_in_this_process_are_counted_per_service() -> None:
         logging.getLogger("controller").info("not counted")
     logging.getLogger("controller").warning("after: not counted")
     assert dict(warnings) == {"controller": 1, "plant": 1} and dict(errors) == {"dsp": 1}
+
+
+def test_a_test_knob_degrades_and_a_reconfiguration_is_noted_without_a_level() -> None:
+    knob = judge(summary({"reconfigurations": 2, "test_knob_changes": 1}))
+    assert knob.level == "DEGRADED" and knob.reasons[0].startswith("test knobs set under the run: 1")
+    assert knob.notes == ("configuration changed under the run by 1 command(s) (ralf-hil reconfigure)",)
+    tool = judge(summary({"reconfigurations": 3}), "PASS: deadline misses in a row 0 (<= 1)")
+    assert tool.level == "PASS" and tool.findings["reconfigurations"] == 3
+    assert tool.line() == "PASS: nothing went wrong (note: configuration changed under the run by 3 command(s) (ralf-hil reconfigure))"
+    assert tool.as_dict()["notes"] == list(tool.notes)
