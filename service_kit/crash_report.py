@@ -27,8 +27,17 @@ _FMI_CALL = re.compile(r"^fmi[23][A-Z]\w*$")
 
 
 def enable(stream: TextIO | None = None) -> None:
-    """Dump every thread's Python frames to ``stream`` (default: stderr) on SIGSEGV, SIGFPE, SIGABRT, SIGBUS and SIGILL."""
-    faulthandler.enable(file=stream or sys.stderr, all_threads=True)
+    """Dump every thread's Python frames to ``stream`` (default: stderr) on SIGSEGV, SIGFPE, SIGABRT, SIGBUS and SIGILL.
+
+    A stream without a file descriptor (stderr captured in memory, as by
+    pytest) is replaced by the process's own stderr, ``sys.__stderr__``."""
+    target = stream or sys.stderr
+    try:
+        target.fileno()
+    except (OSError, ValueError, AttributeError):  # io.UnsupportedOperation is an OSError
+        target = sys.__stderr__
+    if target is not None:
+        faulthandler.enable(file=target, all_threads=True)
 
 
 def signal_text(code: int) -> str:

@@ -96,6 +96,15 @@ def compiling_progress() -> str:
     return f"compiling the numba kernels (first run, or a stale cache), once: ~30-60 s; {len(compiled)} compiled so far" if compiled else ""
 
 
+PROGRESS_LINE = re.compile(r"^ralf-hil [\w-]+: \d+ s, ")
+"""A heartbeat's line (``ralf-hil up: 5 s, loading the rig's modules``): progress, not a message."""
+
+
+def messages(text: str) -> list[str]:
+    """The non-empty lines of a command's stderr that are not progress lines: what it had to say."""
+    return [line for line in text.splitlines() if line.strip() and not PROGRESS_LINE.match(line)]
+
+
 class Heartbeat:
     """Writes a progress line whenever nothing was written for ``interval_s``.
 

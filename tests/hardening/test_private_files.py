@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from service_kit.private_files import RunLock, UnsafePath, keep, remove_stale_run_folders, run_folder, runtime_dir
+from workbench.progress import messages
 
 LOCK_CODE = "import sys; from workbench.cli import acquire_rig_lock; acquire_rig_lock('planted', sys.argv[1] if len(sys.argv) > 1 else None)"
 
@@ -44,7 +45,7 @@ def test_a_planted_lock_path_is_one_line_and_exit_2(tmp_path: Path, kind: str) -
     _plant(kind, lock, victim)
     proc = _take_lock(str(tmp_path))
     assert proc.returncode == 2, proc.stderr
-    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr and len(messages(proc.stderr)) == 1, proc.stderr
     assert str(lock) in proc.stderr and kind.split()[-1].lower() in proc.stderr.lower(), proc.stderr
     assert victim.read_text() == "precious\n"  # the file behind the link is untouched
     assert not victim.with_name("absent").exists()  # nothing made through a dangling link
@@ -67,7 +68,7 @@ def test_a_planted_runtime_folder_is_one_line_and_exit_2(tmp_path: Path, kind: s
     env = {k: v for k, v in os.environ.items() if k != "XDG_RUNTIME_DIR"} | {"TMPDIR": str(shared)}
     proc = _take_lock(env=env)
     assert proc.returncode == 2, proc.stderr
-    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr and len(messages(proc.stderr)) == 1, proc.stderr
     assert str(planted) in proc.stderr
     assert not any(victim.iterdir())  # nothing made through the link
     if kind == "folder open to others":
@@ -170,16 +171,16 @@ def test_keys_do_not_outlive_ralf_hil_up_killed_by_sigkill(tmp_path: Path) -> No
     rig_id = f"kill-{os.getpid()}"
     proc = subprocess.Popen(
         [sys.executable, "-m", "workbench", "up", "--duration", "120", "--rig-id", rig_id, "--log-dir", str(tmp_path / "logs")],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,  # the header (stdout) names the credentials, the ready line is on stderr
         text=True,
         start_new_session=True,
     )
     try:
-        assert proc.stderr is not None
+        assert proc.stdout is not None
         seen = ""
         while "all services ready" not in seen:
-            line = proc.stderr.readline()
+            line = proc.stdout.readline()
             assert line, f"up ended before the rig was ready: {seen}"
             seen += line
         tool_env = Path(" ".join(seen.split()).split("tools' credentials in ", 1)[1].split()[0])

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from workbench.progress import messages
+
 BAD = {
     "up misspelt setting value": ["up", "--set", "controller.oatf_mode=adaptve"],
     "up value out of range": ["up", "--set", "seed=-1"],
@@ -40,7 +42,7 @@ def test_bad_argument_is_one_line_and_exit_2(tmp_path: Path, argv: list[str]) ->
     args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     env = {**os.environ, "COLUMNS": "400"}  # a message is one line; rich wraps it at 80 columns when not on a terminal
     proc = subprocess.run([sys.executable, "-m", "workbench", *args], capture_output=True, text=True, timeout=100, cwd=tmp_path, env=env)
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    lines = messages(proc.stderr)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr
     assert len(lines) == 1 and lines[0].startswith("ralf-hil"), proc.stderr

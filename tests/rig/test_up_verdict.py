@@ -26,14 +26,14 @@ def two_mode_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
 DROPS = json.dumps({"name": "drops", "faults": [{"link": "zenoh", "kinds": ["interrupt"], "start_s": 2.0, "stop_s": 2.1, "drop": 1.0}]})
 
 
-def _up(tmp_path: Path, capsys: pytest.CaptureFixture[str], *sets: str) -> tuple[int, dict, str]:
+def _up(tmp_path: Path, capfd: pytest.CaptureFixture[str], *sets: str) -> tuple[int, dict, str]:
     out = tmp_path / "summary.json"
     code = main(["up", "--clock", "cosim", "--duration", "5", "--json", str(out), *[a for s in sets for a in ("--set", s)]])
-    return code, json.loads(out.read_text()), capsys.readouterr().out
+    return code, json.loads(out.read_text()), capfd.readouterr().out
 
 
-def test_a_clean_run_passes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, summary, table = _up(tmp_path, capsys)
+def test_a_clean_run_passes(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    code, summary, table = _up(tmp_path, capfd)
     assert code == 0 and summary["verdict"]["verdict"] == "PASS" and summary["verdict"]["reasons"] == []
     assert summary["verdict"]["findings"]["control_ticks"] == 1000
     assert summary["log_warnings"] == {"controller": 0, "plant": 0, "dsp": 0}
@@ -41,8 +41,8 @@ def test_a_clean_run_passes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert "controller 0 / 0, plant 0 / 0, dsp 0 / 0" in table
 
 
-def test_dropped_interrupts_degrade_the_run_and_are_shown(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, summary, table = _up(tmp_path, capsys, f"controller.fault_scenario={DROPS}")
+def test_dropped_interrupts_degrade_the_run_and_are_shown(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    code, summary, table = _up(tmp_path, capfd, f"controller.fault_scenario={DROPS}")
     lost = summary["health"]["controller"]["counters"]["interrupts_lost"]
     assert lost > 0 and summary["verdict"]["findings"]["interrupts_lost"] == lost
     assert summary["verdict"]["verdict"] == "DEGRADED" and code == 0, summary["verdict"]
@@ -53,9 +53,9 @@ def test_dropped_interrupts_degrade_the_run_and_are_shown(tmp_path: Path, capsys
 
 
 @pytest.mark.timeout(300)
-def test_a_dead_plant_model_ends_the_run_as_a_plant_fault_and_makes_it_invalid(two_mode_fmu: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_dead_plant_model_ends_the_run_as_a_plant_fault_and_makes_it_invalid(two_mode_fmu: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     mapping = write_mapping(tmp_path, parameters={"fault_step": 200, "fault_kind": 2})
-    code, summary, table = _up(tmp_path, capsys, f"plant.model=fmu:{two_mode_fmu}", f"plant.fmu_mapping={mapping}")
+    code, summary, table = _up(tmp_path, capfd, f"plant.model=fmu:{two_mode_fmu}", f"plant.fmu_mapping={mapping}")
     assert code == 1 and summary["exit_codes"] == {"controller": 3}
     assert summary["verdict"]["verdict"] == "INVALID" and summary["verdict"]["findings"]["plant_model_dead"] is True
     assert summary["verdict"]["reasons"][0].startswith("plant model dead (FMU doStep at 1.000 s returned error")

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from workbench.extras import missing_extra
+from workbench.progress import messages
 
 
 def run_without(module: str, argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -27,7 +28,7 @@ def test_a_yaml_sweep_spec_without_yaml_names_the_campaign_extra(tmp_path: Path)
     assert done.returncode == 2, done.stderr
     assert "pip install 'ralf-hil[campaign]'" in done.stderr
     assert "Traceback" not in done.stderr + done.stdout
-    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert len(messages(done.stderr)) == 1, done.stderr
 
 
 def test_an_experiment_on_dask_without_distributed_names_the_campaign_extra(tmp_path: Path) -> None:
@@ -41,7 +42,7 @@ def test_an_experiment_on_dask_without_distributed_names_the_campaign_extra(tmp_
 def test_a_sweep_spec_that_is_not_there_is_named(tmp_path: Path) -> None:
     done = run_without("nothing_at_all", ["sweep", str(tmp_path / "absent.yaml")], tmp_path)
     assert done.returncode == 2
-    assert done.stderr.strip() == f"ralf-hil sweep: {tmp_path / 'absent.yaml'}: no such file"
+    assert done.stderr.strip() == f"ralf-hil sweep: {tmp_path / 'absent.yaml'}: No such file or directory"
 
 
 @pytest.mark.parametrize(

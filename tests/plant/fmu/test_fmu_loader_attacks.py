@@ -26,6 +26,7 @@ from plant_emulator.fmu.instance import FmuRefused
 from plant_emulator.fmu.isolated_check import preflight_isolated
 from service_kit.crash_report import crash_frames, death_line, fmi_call
 from tests.plant.fmu.support import EXAMPLE_MAPPING, plant_settings, write_mapping
+from workbench.progress import messages
 
 CRASH_KINDS = {4: "segfault", 5: "abort"}
 
@@ -169,7 +170,7 @@ def test_ralf_hil_up_reports_a_crashing_fmu_in_one_line(crashing_fmu: Path, tmp_
         check=False,
     )
     assert proc.returncode == 2, (proc.returncode, proc.stderr)
-    lines = proc.stderr.strip().splitlines()
+    lines = messages(proc.stderr)
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert "plant refused" in lines[0] and "SIGSEGV" in lines[0] and "fmi2DoStep" in lines[0] and str(crashing_fmu) in lines[0]
 
