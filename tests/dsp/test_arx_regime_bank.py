@@ -127,11 +127,23 @@ def _learned_bank(regimes: int = 4) -> tuple[Any, Any]:
     return cfg, m.bank_state()
 
 
+def _is_regime_b(signature: Any) -> bool:
+    """A remembered model's signature (its first two poles' Hz) names regime B: both within 5 % of B's true modes."""
+    truth = np.array([REGIME_B[0][0], REGIME_B[1][0]])
+    return signature is not None and bool(np.all(np.abs(np.asarray(signature) / truth - 1.0) <= 0.05))
+
+
 def test_a_bank_carried_from_an_earlier_run_follows_the_first_change_within_a_second() -> None:
     """The bank an earlier run learned (A then B, another noise realisation), loaded before the first batch of a new
     run A, B: at the new run's first change, into a regime *this* run has not shown, the model switches within 1 s
-    and its first pole is within 2 % in ≤ 1 s, where the bank learned in the run alone (nothing of B yet) takes at
-    least twice as long; the same three realisations as above."""
+    and its first pole is within 2 % in ≤ 1 s, where the bank learned in the run alone (holding A only at the change:
+    nothing of B to recall) takes at least twice as long; the same three realisations as above.
+
+    Not asserted: that the bank learned in the run alone never switches after the change. In the transient of a
+    change into a regime it does not hold, the remembered A can explain a few batches better than the live model
+    and be switched to, which only delays it; whether that happens depends on the last bits of the model's
+    trajectory (the Steiglitz–McBride prefilter and the Huber weights feed the model back into its own data, so a
+    rounding difference of the linear-algebra library grows over the 30 s before the change)."""
     cfg, state = _learned_bank()
     assert state.regimes == 2
     change = SEGMENT
@@ -141,8 +153,11 @@ def test_a_bank_carried_from_an_earlier_run_follows_the_first_change_within_a_se
         carried.load_bank(state)
         f, switches = _run(carried, u, y)
         assert any(0 < s - change <= FS for s in switches), switches
-        cold_f, cold_switches = _run(RecursiveArx(cfg), u, y)
-        assert not any(s > change for s in cold_switches)  # learned in the run: B is new, nothing to recall
+        cold = RecursiveArx(cfg)
+        cold_a, _ = _run(cold, u[:, :change], y[:, :change])
+        assert cold.bank and not any(_is_regime_b(reg.signature) for reg in cold.bank)  # B is new: nothing to recall
+        cold_b, _ = _run(cold, u[:, change:], y[:, change:])
+        cold_f = np.concatenate([cold_a, cold_b])
         assert _settle_s(f, f1, change) <= 1.0
         assert _settle_s(cold_f, f1, change) >= 2.0 * max(_settle_s(f, f1, change), 0.5)
 
