@@ -9,13 +9,14 @@ window left the service running on. :func:`end_at_once_on_ctrl_c`, called
 first thing by each service's entry point, ends the process on SIGINT with
 one line and exit code :data:`INTERRUPTED` until the service installs its
 own handler (:func:`service_kit.runtime.stop_on_signals`), which stops it
-in order. This module imports nothing but the standard library's ``os``
-and ``signal`` (and ``logging``, which the services load anyway), so it
-costs nothing to load."""
+in order. This module imports nothing but the standard library's ``os``,
+``signal`` and ``sys`` (``logging`` only when :func:`end` runs), so the
+handler is in place a few milliseconds after the interpreter has started;
+a SIGINT before that, while the interpreter itself starts, gets Python's
+own handling."""
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
 import sys
@@ -44,6 +45,8 @@ def end(code: int) -> int:
     ends the process at once, logs flushed: the interpreter's own teardown of
     the zenoh runtime and numba would add up to a second to a Ctrl-C."""
     if code == INTERRUPTED:
+        import logging  # loaded by every service long before; not at this module's import (it would delay the handler)
+
         logging.shutdown()
         sys.stdout.flush()
         sys.stderr.flush()

@@ -24,19 +24,33 @@ from dsp_service.identifier import IdentifierConfig, arx_config
 from .synth import FS, MODES, correlated_inputs, make_system
 
 SEGMENT = 6000  # 30 s per regime
+FIRST_VISIT = 12000  # 60 s: a regime's first visit, long enough to be learned (stored 9-33 s in, 8 s of calm needed)
 REGIME_B = ((MODES[0][0] * 1.095, MODES[0][1]), (6.0, 0.05))
 BATCH = 20
 
 
+def _starts(segments: int) -> list[int]:
+    """The first sample of each segment of :func:`_alternating`: the first visits of A and B last
+    ``FIRST_VISIT``, every later segment ``SEGMENT``."""
+    lengths = [FIRST_VISIT if k < 2 else SEGMENT for k in range(segments)]
+    return [sum(lengths[:k]) for k in range(segments + 1)]
+
+
 def _alternating(segments: int, noise_seed: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inputs, outputs (2 % noise) and the true first mode per sample of the plant switching A, B, A, B, …"""
-    n = segments * SEGMENT
+    """Inputs, outputs (2 % noise) and the true first mode per sample of the plant switching A, B, A, B, …
+
+    The first visit of each regime lasts ``FIRST_VISIT``: the bank stores a regime after two calm settle periods
+    (8 s), which the bursts of the excitation interrupt; over the noise realisations and the last bits of the
+    reference (``cont2discrete`` goes through the host's BLAS) the first store came 9-33 s into a visit, so a
+    30-s first visit left a regime unlearned on some hosts."""
+    starts = _starts(segments)
+    n = starts[-1]
     u = correlated_inputs(n, seed=3)
     ya, yb = make_system().simulate(u), make_system(modes=REGIME_B).simulate(u)
     y = np.empty_like(u)
     f1 = np.empty(n)
     for k in range(segments):
-        s = slice(k * SEGMENT, (k + 1) * SEGMENT)
+        s = slice(starts[k], starts[k + 1])
         y[:, s] = (ya if k % 2 == 0 else yb)[:, s]
         f1[s] = MODES[0][0] if k % 2 == 0 else REGIME_B[0][0]
     y += 0.02 * y.std(axis=1, keepdims=True) * np.random.default_rng(noise_seed).standard_normal(y.shape)
@@ -70,12 +84,13 @@ def _settle_s(f: np.ndarray, f1: np.ndarray, start: int) -> float:
 
 
 def test_a_regime_seen_before_is_recalled_within_a_second() -> None:
-    """The rig configuration with a bank of 4, three noise realisations of A, B, A, B, A, B (30 s each): the first
-    visit of each regime is learned (no switch), every return switches to the remembered model within 1 s (0.4-0.7 s
-    here) and none happens elsewhere; the first pole is then within 2 % of the regime's true first mode in ≤ 1 s,
-    where the plain model takes at least twice as long (2.5-6.8 s; median over the returns)."""
+    """The rig configuration with a bank of 4, three noise realisations of A, B, A, B, A, B (60 s first visits, then
+    30 s each): the first visit of each regime is learned (no switch), every return switches to the remembered model
+    within 1 s (0.4-0.7 s here) and none happens elsewhere; the first pole is then within 2 % of the regime's true first mode in ≤ 1 s,
+    where the plain model takes at least twice as long (medians over the returns 3.0-4.3 s under the Haswell,
+    SkylakeX and Nehalem kernels of OpenBLAS)."""
     cfg = arx_config(IdentifierConfig(method="arx", arx_regime_bank=4))
-    returns = [k * SEGMENT for k in range(2, 6)]
+    returns = _starts(6)[2:6]
     for seed in (4, 5, 6):
         u, y, f1 = _alternating(6, noise_seed=seed)
         banked = RecursiveArx(cfg)
@@ -96,7 +111,7 @@ def test_off_by_default_and_the_bank_stays_bounded_and_sound() -> None:
     exceeds its size and ``R`` stays finite and upper triangular, ``θ`` finite."""
     u, y, _ = _alternating(8)
     plain = RecursiveArx(arx_config(IdentifierConfig(method="arx")))
-    _run(plain, u[:, : 2 * SEGMENT], y[:, : 2 * SEGMENT])
+    _run(plain, u[:, : 2 * FIRST_VISIT], y[:, : 2 * FIRST_VISIT])
     assert plain.bank == [] and plain.bank_switches == 0
     m = RecursiveArx(arx_config(IdentifierConfig(method="arx", arx_regime_bank=2)))
     _run(m, u, y)
@@ -119,7 +134,7 @@ def test_the_service_setting_reaches_the_identifier() -> None:
 
 
 def _learned_bank(regimes: int = 4) -> tuple[Any, Any]:
-    """A model that ran A, B (30 s each, noise realisation 4): its bank holds both regimes."""
+    """A model that ran A, B (60 s each, noise realisation 4): its bank holds both regimes."""
     cfg = arx_config(IdentifierConfig(method="arx", arx_regime_bank=regimes))
     u, y, _ = _alternating(2, noise_seed=4)
     m = RecursiveArx(cfg)
@@ -127,22 +142,37 @@ def _learned_bank(regimes: int = 4) -> tuple[Any, Any]:
     return cfg, m.bank_state()
 
 
+def _is_regime_b(signature: Any) -> bool:
+    """A remembered model's signature (its first two poles' Hz) names regime B: both within 5 % of B's true modes."""
+    truth = np.array([REGIME_B[0][0], REGIME_B[1][0]])
+    return signature is not None and bool(np.all(np.abs(np.asarray(signature) / truth - 1.0) <= 0.05))
+
+
 def test_a_bank_carried_from_an_earlier_run_follows_the_first_change_within_a_second() -> None:
     """The bank an earlier run learned (A then B, another noise realisation), loaded before the first batch of a new
     run A, B: at the new run's first change, into a regime *this* run has not shown, the model switches within 1 s
-    and its first pole is within 2 % in ≤ 1 s, where the bank learned in the run alone (nothing of B yet) takes at
-    least twice as long; the same three realisations as above."""
+    and its first pole is within 2 % in ≤ 1 s, where the bank learned in the run alone (holding A only at the change:
+    nothing of B to recall) takes at least twice as long; the same three realisations as above.
+
+    Not asserted: that the bank learned in the run alone never switches after the change. In the transient of a
+    change into a regime it does not hold, the remembered A can explain a few batches better than the live model
+    and be switched to, which only delays it; whether that happens depends on the last bits of the model's
+    trajectory (the Steiglitz–McBride prefilter and the Huber weights feed the model back into its own data, so a
+    rounding difference of the linear-algebra library grows over the 30 s before the change)."""
     cfg, state = _learned_bank()
     assert state.regimes == 2
-    change = SEGMENT
+    change = FIRST_VISIT
     for seed in (5, 6, 7):
         u, y, f1 = _alternating(2, noise_seed=seed)
         carried = RecursiveArx(cfg)
         carried.load_bank(state)
         f, switches = _run(carried, u, y)
         assert any(0 < s - change <= FS for s in switches), switches
-        cold_f, cold_switches = _run(RecursiveArx(cfg), u, y)
-        assert not any(s > change for s in cold_switches)  # learned in the run: B is new, nothing to recall
+        cold = RecursiveArx(cfg)
+        cold_a, _ = _run(cold, u[:, :change], y[:, :change])
+        assert not any(_is_regime_b(reg.signature) for reg in cold.bank)  # B is new: nothing to recall
+        cold_b, _ = _run(cold, u[:, change:], y[:, change:])
+        cold_f = np.concatenate([cold_a, cold_b])
         assert _settle_s(f, f1, change) <= 1.0
         assert _settle_s(cold_f, f1, change) >= 2.0 * max(_settle_s(f, f1, change), 0.5)
 

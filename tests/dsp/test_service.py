@@ -290,9 +290,10 @@ def test_the_emulated_latency_is_a_due_time_and_a_stop_is_seen_while_an_interrup
         assert service.block.counters.decode_errors == 1 and service.emulated_latency_s == 10.0
         with pytest.raises(queue.Empty):
             probe.next("irq", timeout=0.3)  # not due yet
-        stopped = time.monotonic()
-    # the context manager set stop and joined the thread: it ended well within its 5 s join
-    assert not thread.is_alive() and time.monotonic() - stopped < 2.0
+    # the context manager set stop and joined the thread for at most 5 s, half the interrupt's 10 s latency: the
+    # board ended without waiting for the interrupt to come due (no wall-clock bound of its own: a loaded host
+    # may take its time to schedule the thread)
+    assert not thread.is_alive() and service.interrupt_seq == 1
 
 
 @pytest.mark.parametrize("inline", [False, True])
