@@ -193,7 +193,8 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
     if summary.get("log_warnings") is not None:
         errors = summary.get("log_errors") or {}
         table.add_row(
-            "warning / error lines in the logs", ", ".join(f"{name} {n} / {errors.get(name, 0)}" for name, n in summary["log_warnings"].items()) or "no log counted"
+            "warning / error lines in the logs",
+            ", ".join(f"{name} {n} / {errors.get(name, 0)}" for name, n in summary["log_warnings"].items()) or "no log counted",
         )
     run = summary.get("verdict")
     if run:
