@@ -9,9 +9,7 @@ import signal
 import sys
 from contextlib import nullcontext
 
-from protocol.setting_hints import refuse_misspelt_settings
 from service_kit.interrupt import INTERRUPTED, end_at_once_on_ctrl_c
-from workbench.progress import LONG_COMMANDS, activity, heartbeat_unless_terminal
 
 
 def main() -> int:
@@ -21,6 +19,9 @@ def main() -> int:
     # extension's import can panic it); then it raises KeyboardInterrupt, and
     # up installs its own handler and stops the rig in order.
     end_at_once_on_ctrl_c("ralf-hil")
+    from protocol.setting_hints import refuse_misspelt_settings  # after the handler: a Ctrl-C while they load is answered
+    from workbench.progress import LONG_COMMANDS, activity, heartbeat_unless_terminal
+
     if sys.argv[1:2] == ["up"]:  # a misspelt setting is refused before the modules load
         refuse_misspelt_settings("ralf-hil up", None, sys.argv[2:])
     command = next((arg for arg in sys.argv[1:] if not arg.startswith("-")), "")
