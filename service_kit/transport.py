@@ -145,7 +145,11 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
             if answering:
                 tls = settings.zenoh_tls() is not None
                 who = f"mutual TLS, user {settings.zenoh_user or '-'}" if tls else f"user {settings.zenoh_user or '-'}"
-                why = "a certificate of another run's authority (this session's or the other end's), or a wrong password?" if tls else "wrong password or unknown user?"
+                why = (
+                    "a certificate of another run's authority (this session's or the other end's), or a wrong password?"
+                    if tls
+                    else "wrong password or unknown user?"
+                )
                 text = f"{', '.join(answering)} accepts connections but refused the session ({who}): {why}"
             if time.monotonic() >= deadline:
                 what = "refused" if answering else "nothing answered"

@@ -80,7 +80,9 @@ def test_the_certificates_cover_the_planned_run(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     until = _cert(tmp_path / "cli" / "ca.pem").not_valid_after_utc
     assert until >= wanted and f"valid until {until:%Y-%m-%d %H:%M} UTC" in " ".join((proc.stdout + proc.stderr).split())
-    bad = subprocess.run([sys.executable, "-m", "workbench", "credentials", "--out", str(tmp_path / "x"), "--duration", "-5"], capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(
+        [sys.executable, "-m", "workbench", "credentials", "--out", str(tmp_path / "x"), "--duration", "-5"], capture_output=True, text=True, timeout=120
+    )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "Traceback" not in bad.stderr
 
 
