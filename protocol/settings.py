@@ -206,15 +206,15 @@ class CommonSettings(BaseSettings):
 
     @field_validator(*TLS_INLINE_FIELDS)
     @classmethod
-    def _inline_pem(cls, value: SecretStr, info: ValidationInfo) -> SecretStr:
+    def _inline_pem(cls, value: SecretStr) -> SecretStr:
         text = value.get_secret_value()
         if text:
             try:
                 pem = base64.b64decode(text, validate=True)
             except ValueError:
-                raise ValueError(f"RALF_{str(info.field_name).upper()} is not base64 (of a PEM file)") from None
+                raise ValueError("not base64 (of a PEM file)") from None
             if b"-----BEGIN " not in pem:
-                raise ValueError(f"RALF_{str(info.field_name).upper()} is base64, but not of a PEM file (no -----BEGIN line)")
+                raise ValueError("base64, but not of a PEM file (no -----BEGIN line)")
         return value
 
     @field_serializer("zenoh_credentials_file", *TLS_FIELDS)

@@ -138,8 +138,8 @@ def test_ralf_env_gives_each_service_its_certificate_inline(tmp_path: Path, monk
 @pytest.mark.parametrize(
     ("values", "said"),
     [
-        ({"zenoh_tls_key_base64": "not base64!"}, "RALF_ZENOH_TLS_KEY_BASE64 is not base64"),
-        ({"zenoh_tls_key_base64": base64.b64encode(b"plain text").decode()}, "not of a PEM file"),
+        ({"zenoh_tls_key_base64": "not base64!"}, "RALF_ZENOH_TLS_KEY_BASE64: Value error, not base64"),
+        ({"zenoh_tls_key_base64": base64.b64encode(b"plain text").decode()}, "RALF_ZENOH_TLS_KEY_BASE64: Value error, base64, but not of a PEM file"),
         ({"zenoh_tls_certificate_base64": "", "zenoh_tls_key_base64": ""}, "RALF_ZENOH_TLS_CERTIFICATE_BASE64, RALF_ZENOH_TLS_KEY_BASE64 not set"),
         ({"zenoh_tls_ca": "/etc/hostname"}, "both as files (RALF_ZENOH_TLS_CA) and inline"),
         ({"zenoh_connect": "tcp/zenoh-router:7447"}, "every zenoh endpoint must be tls/"),
