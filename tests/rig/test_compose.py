@@ -44,6 +44,7 @@ def test_compose_file_describes_router_and_three_services() -> None:
     live = services["live"]  # the live view: only with --profile live, as the tool role, the host's loopback only
     assert live["profiles"] == ["live"] and live["command"] == ["ralf-hil", "live"] and live["environment"]["RALF_ZENOH_USER"] == "tool"
     assert live["environment"]["LIVE_ADDRESS"] == "0.0.0.0:8765" and live["ports"] == ["127.0.0.1:${LIVE_PORT:-8765}:8765"]
+    assert live["environment"]["RALF_ZENOH_TLS_KEY_BASE64"].startswith("${ZENOH_TLS_KEY_TOOL:?")  # the tool's own certificate
     assert live["build"]["dockerfile"] == "Dockerfile.tools" and "COPY workbench " in (ROOT / "Dockerfile.tools").read_text()
     router = services["zenoh-router"]
     assert router["image"].startswith("eclipse/zenoh")
