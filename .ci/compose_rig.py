@@ -5,13 +5,16 @@ with docker-compose.python-router.yml through podman-compose, runs each
 container's healthcheck every second (podman runs them from systemd timers,
 which a host without systemd lacks) and notes when each became healthy,
 takes one ``ralf-hil monitor --once --json`` snapshot from the host with the
-tool's credentials, feeds three kinds of bad input to the image, stops the
+tool's certificate (``tool.env``), feeds four kinds of bad input to the image
+(a missing configuration, a wrong password, a certificate of another
+authority, no router), stops the
 services (SIGTERM) after the run and removes everything compose made. Every
 step is bounded in time. Writes WORK/run.json.
 
 ``report WORK STAGES_JSON RESULTS``: checks run.json (every container exited
 0, no ERROR line in any container's log (WARNING lines counted and reported),
-every service ready with no numba kernel compiled at start, the
+every service ready with no numba kernel compiled at start, the router
+listening on mutual TLS only, the
 controller's log shows ticks, batches and interrupts, the DSP only on the
 ``lab`` network, the plant and controller only on ``cabinet``, each bad input
 refused with a clear line), prints the verdict, writes RESULTS/run.json and
@@ -111,11 +114,27 @@ def first_line(text: str, pattern: str) -> str:
     return ""
 
 
-def bad_inputs(image: str, network: str, env: dict[str, str]) -> dict[str, Any]:
-    """Three kinds of bad input, each as a container of the image: one clear line, a non-zero exit."""
+def bad_inputs(image: str, network: str, env: dict[str, Any]) -> dict[str, Any]:
+    """Four kinds of bad input, each as a container of the image: one clear line, a non-zero exit.
+    ``env``: the router's address, a CAN port, and the certificate variables of the run (``own``)
+    and of another authority (``foreign``)."""
 
     def common(name: str) -> list[str]:
         return ["podman", "run", "--rm", "--name", f"{os.environ['PROJECT']}-bad-{name.replace('_', '-')}"]
+
+    def client(tls: dict[str, str], password: str) -> list[str]:
+        """A plant as compose starts one, on the cabinet network, with these certificate variables (ralf.env's)."""
+        settings = {
+            "RALF_ZENOH_MODE": "client",
+            "RALF_ZENOH_CONNECT": f"tls/{env['router_ip']}:7447",
+            "RALF_ZENOH_USER": "plant",
+            "RALF_ZENOH_PASSWORD": password,
+            "RALF_ZENOH_TLS_CA_BASE64": tls["ZENOH_TLS_CA"],
+            "RALF_ZENOH_TLS_CERTIFICATE_BASE64": tls["ZENOH_TLS_CERTIFICATE_PLANT"],
+            "RALF_ZENOH_TLS_KEY_BASE64": tls["ZENOH_TLS_KEY_PLANT"],
+            "RALF_CAN_PORT": env["can_port"],
+        }
+        return ["--network", network, *(arg for k, v in settings.items() for arg in ("-e", f"{k}={v}"))]
 
     cases = {
         # the router's configuration file is missing (credentials not generated)
@@ -129,24 +148,10 @@ def bad_inputs(image: str, network: str, env: dict[str, str]) -> dict[str, Any]:
             "service_kit.router",
             "/etc/ralf/zenoh-router.json5",
         ],
-        # a service with a wrong password, against the running router
-        "wrong_password": [
-            *common("wrong_password"),
-            "--network",
-            network,
-            "-e",
-            "RALF_ZENOH_MODE=client",
-            "-e",
-            f"RALF_ZENOH_CONNECT=tcp/{env['router_ip']}:7447",
-            "-e",
-            "RALF_ZENOH_USER=plant",
-            "-e",
-            "RALF_ZENOH_PASSWORD=not-the-password",
-            "-e",
-            f"RALF_CAN_PORT={env['can_port']}",
-            image,
-            "ralf-plant",
-        ],
+        # a service with the run's certificate and a wrong password, against the running router
+        "wrong_password": [*common("wrong_password"), *client(env["own"], "not-the-password"), image, "ralf-plant"],
+        # a service with a certificate of another authority (and the right password)
+        "foreign_certificate": [*common("foreign_certificate"), *client(env["foreign"], env["own"]["ZENOH_PASSWORD_PLANT"]), image, "ralf-plant"],
         # no router: a client retries for 30 s with a line per try, then exits with one error line
         "router_not_up": [
             *common("router_not_up"),
@@ -216,6 +221,9 @@ def run(work: Path) -> int:
     pdir = work / "project"
     env_file = pdir / "secrets" / "ralf.env"
     passwords = dict(line.split("=", 1) for line in env_file.read_text().splitlines() if "=" in line)
+    foreign_dir = work / "foreign"  # another run's authority, for the bad input
+    sh([os.environ["RIG_CLI"], "credentials", "--out", str(foreign_dir)], 60)
+    foreign = dict(line.split("=", 1) for line in (foreign_dir / "ralf.env").read_text().splitlines() if "=" in line)
     pc = [
         os.environ["PODMAN_COMPOSE"],
         "--in-pod",
@@ -259,13 +267,13 @@ def run(work: Path) -> int:
         router_ip = sh(
             ["podman", "inspect", "--format", f'{{{{(index .NetworkSettings.Networks "{project}_cabinet").IPAddress}}}}', found["zenoh-router"]["name"]], 20
         )
-        bad = bad_inputs(image, f"{project}_cabinet", {"can_port": "43999", "router_ip": router_ip.stdout.strip()})
+        bad = bad_inputs(image, f"{project}_cabinet", {"can_port": "43999", "router_ip": router_ip.stdout.strip(), "own": passwords, "foreign": foreign})
     while time.monotonic() < end:
         if monitor is None and time.monotonic() > end - 8:
-            monitor = watch(passwords)
+            monitor = watch(pdir / "secrets" / "tool.env")
         time.sleep(max(0.0, min(1.0, end - time.monotonic())))
     if monitor is None:
-        monitor = watch(passwords)
+        monitor = watch(pdir / "secrets" / "tool.env")
     record["monitor"] = monitor
     record["ran_s"] = round(time.monotonic() - t_run, 1)
     record["load_avg_after"] = os.getloadavg()[0]
@@ -287,15 +295,11 @@ def run(work: Path) -> int:
     return 0
 
 
-def watch(passwords: dict[str, str]) -> dict[str, Any]:
-    """``ralf-hil monitor --once --json`` from the host, as a user watches the rig."""
-    env = {
-        **os.environ,
-        "RALF_ZENOH_MODE": "client",
-        "RALF_ZENOH_CONNECT": "tcp/127.0.0.1:7447",
-        "RALF_ZENOH_USER": "tool",
-        "RALF_ZENOH_PASSWORD": passwords.get("ZENOH_PASSWORD_TOOL", ""),
-    }
+def watch(tool_env: Path) -> dict[str, Any]:
+    """``ralf-hil monitor --once --json`` from the host, as a user watches the rig: with the
+    tool's certificate and password (``tool.env``, which ``ralf-hil credentials`` writes)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
+    env.update(dict(line.split("=", 1) for line in tool_env.read_text().splitlines() if "=" in line))
     out = sh([os.environ["RIG_CLI"], "monitor", "--once", "--json", "--window", "3"], 30, env=env)
     try:
         return {"exit": out.returncode, "snapshot": json.loads(out.stdout)}
@@ -303,10 +307,17 @@ def watch(passwords: dict[str, str]) -> dict[str, Any]:
         return {"exit": out.returncode, "error": (out.stderr or out.stdout)[-400:]}
 
 
-MIN_CHECKS = 3 * len(SERVICES) + len(NETWORKS) + 1 + 3 + 1 + 1 + 3
+EXPECTED_BAD = {
+    "missing_credentials": "no such file",
+    "wrong_password": "refused the session",
+    "foreign_certificate": "refused the session",
+    "router_not_up": "nothing answered",
+}
+"""Each bad input and what its last line says."""
+MIN_CHECKS = 3 * len(SERVICES) + len(NETWORKS) + 1 + 1 + 3 + 1 + 1 + len(EXPECTED_BAD)
 """The checks a judged run makes at least: each service's exit, ready line and log, each service's
-networks, the controller's run summary and its ticks, batches and interrupts, the monitor's view of
-its health, the cold-start control and the three bad inputs. A run judged on fewer (a record or
+networks, the router's endpoint (TLS only), the controller's run summary and its ticks, batches and interrupts, the monitor's view of
+its health, the cold-start control and the four bad inputs. A run judged on fewer (a record or
 logs missing their parts) fails as "too few checks", never passes on what was not looked at."""
 
 
@@ -341,6 +352,11 @@ def evaluate(work: Path) -> dict[str, Any]:
         errors, warnings = log_problems(logs[service])
         log_lines[service] = {"errors": len(errors), "warnings": len(warnings), "error_lines": errors[:20], "warning_lines": warnings[:20]}
         check(not errors, f"{service}: {len(errors)} ERROR line(s) in its log: " + " | ".join(errors[:5]))
+    listening = re.search(r"listening on (?P<endpoints>.+)$", logs.get("zenoh-router", ""), flags=re.M)
+    endpoints = listening["endpoints"].split(", ") if listening else []
+    check(
+        bool(endpoints) and all(e.startswith("tls/") for e in endpoints), f"the router does not listen on mutual TLS only: {endpoints or 'no listening line'}"
+    )
     m = RUN_ENDED.search(logs.get("controller", ""))
     controller: dict[str, Any] = {}
     if check(m is not None, "the controller's log has no run summary") and m is not None:
@@ -364,8 +380,7 @@ def evaluate(work: Path) -> dict[str, Any]:
     check(bool(hops), f"ralf-hil monitor from the host saw no controller health: {(record.get('monitor') or {}).get('error', '')[:300]}")
     cold = record.get("cold_start") or {}
     check(bool(cold.get("compiled")), f"the DSP with an empty numba cache reported no compiled kernel (the check could not see one): {cold}")
-    expected_bad = {"missing_credentials": "no such file", "wrong_password": "refused the session", "router_not_up": "nothing answered"}
-    for case, text in expected_bad.items():
+    for case, text in EXPECTED_BAD.items():
         got = record["bad_input"].get(case)
         check(bool(got) and got["exit"] not in (0, "hung") and text in str(got["line"]).lower(), f"bad input {case}: {got}")
     if made < MIN_CHECKS:

@@ -6,6 +6,7 @@ program's ``--help`` prints them.
 
 from __future__ import annotations
 
+import base64
 import math
 import os
 import re
@@ -38,7 +39,14 @@ _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
 """What a dump of the settings shows for a credentials or key file."""
 TLS_FIELDS = ("zenoh_tls_ca", "zenoh_tls_certificate", "zenoh_tls_key")
-ACCESS_FIELDS = frozenset({"zenoh_user", "zenoh_password", "zenoh_credentials_file", *TLS_FIELDS, "zenoh_acl", "zenoh_connect", "zenoh_listen", "launcher_pid"})
+TLS_INLINE_FIELDS = ("zenoh_tls_ca_base64", "zenoh_tls_certificate_base64", "zenoh_tls_key_base64")
+"""Mutual TLS given inline (base64 of each PEM file) instead of as files: a container's
+environment, where a mounted owner-only key file is not the container user's to read."""
+TLS_INLINE_MAX_CHARS = 16384
+"""The longest inline TLS value (base64 of one PEM file: a P-256 key is ~320 characters, a certificate ~900)."""
+ACCESS_FIELDS = frozenset(
+    {"zenoh_user", "zenoh_password", "zenoh_credentials_file", *TLS_FIELDS, *TLS_INLINE_FIELDS, "zenoh_acl", "zenoh_connect", "zenoh_listen", "launcher_pid"}
+)
 """Who a run's sessions were, where they linked and what started them: recorded masked or moot, left out when recorded settings are rebuilt (replay, plots)."""
 
 
@@ -118,6 +126,18 @@ class CommonSettings(BaseSettings):
         "", description="Mutual TLS: this session's certificate, its common name the session's role (controller, dsp, plant...); its path is not recorded"
     )
     zenoh_tls_key: str = Field("", description="Mutual TLS: the private key of zenoh_tls_certificate; its path is not recorded")
+    zenoh_tls_ca_base64: SecretStr = Field(
+        SecretStr(""),
+        max_length=TLS_INLINE_MAX_CHARS,
+        description="Mutual TLS given inline instead of as files (docker compose: ralf-hil credentials writes them into ralf.env): "
+        "the authority's certificate, base64 of its PEM file; not recorded",
+    )
+    zenoh_tls_certificate_base64: SecretStr = Field(
+        SecretStr(""), max_length=TLS_INLINE_MAX_CHARS, description="Mutual TLS inline: this session's certificate, base64 of its PEM file; not recorded"
+    )
+    zenoh_tls_key_base64: SecretStr = Field(
+        SecretStr(""), max_length=TLS_INLINE_MAX_CHARS, description="Mutual TLS inline: its private key, base64 of its PEM file (a secret); not recorded"
+    )
     can_udp: Annotated[UdpCanOptions, NoDecode] = Field(
         UdpCanOptions(),
         description="The udp_multicast interface's options, KEY=VALUE,... (unnamed keys keep their defaults): " + describe_group(UdpCanOptions),
@@ -184,6 +204,19 @@ class CommonSettings(BaseSettings):
     def _credentials_file(cls, value: str) -> str:
         return _regular_file(value)
 
+    @field_validator(*TLS_INLINE_FIELDS)
+    @classmethod
+    def _inline_pem(cls, value: SecretStr) -> SecretStr:
+        text = value.get_secret_value()
+        if text:
+            try:
+                pem = base64.b64decode(text, validate=True)
+            except ValueError:
+                raise ValueError("not base64 (of a PEM file)") from None
+            if b"-----BEGIN " not in pem:
+                raise ValueError("base64, but not of a PEM file (no -----BEGIN line)")
+        return value
+
     @field_serializer("zenoh_credentials_file", *TLS_FIELDS)
     def _credentials_path_unrecorded(self, value: str) -> str:
         # Settings are dumped into recordings and run records, which users share:
@@ -200,10 +233,17 @@ class CommonSettings(BaseSettings):
 
     @model_validator(mode="after")
     def _tls_complete(self) -> CommonSettings:
-        given = [name for name in TLS_FIELDS if getattr(self, name)]
-        names = ", ".join(f"RALF_{n.upper()}" for n in TLS_FIELDS)
-        if given and len(given) < len(TLS_FIELDS):
-            missing = ", ".join(f"RALF_{n.upper()}" for n in TLS_FIELDS if n not in given)
+        files = [name for name in TLS_FIELDS if getattr(self, name)]
+        inline = [name for name in TLS_INLINE_FIELDS if getattr(self, name).get_secret_value()]
+        if files and inline:
+            raise ValueError(
+                f"mutual TLS is given both as files ({', '.join(f'RALF_{n.upper()}' for n in files)}) and inline "
+                f"({', '.join(f'RALF_{n.upper()}' for n in inline)}): give one of the two"
+            )
+        group, given = (TLS_INLINE_FIELDS, inline) if inline else (TLS_FIELDS, files)
+        names = ", ".join(f"RALF_{n.upper()}" for n in group)
+        if given and len(given) < len(group):
+            missing = ", ".join(f"RALF_{n.upper()}" for n in group if n not in given)
             raise ValueError(f"mutual TLS needs all of {names}; {missing} not set")
         endpoints = self.endpoints("connect") + self.endpoints("listen")
         if given and any(not e.startswith("tls/") for e in endpoints):
@@ -217,6 +257,16 @@ class CommonSettings(BaseSettings):
                 "a peer knows the sessions it links to by their certificates"
             )
         return self
+
+    def zenoh_tls(self) -> tuple[tuple[str, str, str], bool] | None:
+        """This session's mutual TLS: (authority, certificate, key) and whether
+        they are inline (base64 of the PEM files) rather than file paths; None without TLS."""
+        inline = tuple(getattr(self, name).get_secret_value() for name in TLS_INLINE_FIELDS)
+        if all(inline):
+            return (inline[0], inline[1], inline[2]), True
+        if self.zenoh_tls_ca:
+            return (self.zenoh_tls_ca, self.zenoh_tls_certificate, self.zenoh_tls_key), False
+        return None
 
     @field_validator("zenoh_connect", "zenoh_listen")
     @classmethod

@@ -1,12 +1,12 @@
-"""Who may drive the rig: who a session is (mutual TLS in peer mode, zenoh's
-``transport/auth/usrpwd`` towards a router) and what its role may do
+"""Who may drive the rig: who a session is (mutual TLS on every link, with
+zenoh's ``transport/auth/usrpwd`` beside it) and what its role may do
 (zenoh's ``access_control``), generated from the rig's description
 (:mod:`protocol.rig_description`).
 
 Every session of a rig has a role (:data:`ROLES`): a certificate whose
-common name is the role (``ralf-hil up``, :mod:`workbench.certificates`),
-or a user name naming it and a password (a client of the docker compose
-router, which accepts only the users of its credentials file).
+common name is the role (``ralf-hil up`` and ``ralf-hil credentials`` for
+docker compose, :mod:`workbench.certificates`), and a user name naming it
+with a password.
 
 The access rules deny by default and allow each role exactly what the rig
 description says it does, on the exact keys (:func:`acl_config`):
@@ -41,11 +41,12 @@ authenticates with its role's user name and password: zenoh adds a second
 link from an already linked zenoh id to that id's session when the user
 names agree, and the certificate does not enter that comparison, so
 without passwords a session could join a running node's session by
-claiming its id. In client mode (docker compose) a client authenticates to
-its router with its role's user name and password
-(``transport/auth/usrpwd``), which proves the opener to the acceptor, here
-the router, the one end that applies the rules, which name roles by user
-name only. Schema: zenoh 1.10's
+claiming its id. In client mode (docker compose) a client's one link is
+the one it opened to its router, mutual TLS as well: the router accepts
+only a certificate of the authority ``ralf-hil credentials`` made (and the
+role's password) and is the one end that applies the rules, by
+certificate; the client accepts only the router's certificate of the same
+authority (:func:`router_config`). Schema: zenoh 1.10's
 ``AclConfig`` (``enabled``, ``default_permission``, ``rules`` of
 ``id``/``permission``/``flows``/``messages``/``key_exprs``, ``subjects`` of
 ``id``/``usernames``/``cert_common_names``, ``policies`` of ``id``/``rules``/``subjects``),
@@ -151,9 +152,9 @@ def _role_rules(keys: Keys, role: str, scenarios: bool, prefix: str) -> list[dic
 
 
 SUBJECT_FIELDS: Final[dict[str, str]] = {"certificate": "cert_common_names", "user": "usernames"}
-"""How a link proves its role: its certificate's common name (mutual TLS, every
-link of a local rig) or the user name it authenticated with (a client of the
-compose router)."""
+"""How a link proves its role: its certificate's common name (mutual TLS: every
+link of a local rig and of the compose rig) or the user name it authenticated
+with (a router configured without TLS)."""
 
 
 def acl_config(keys: Keys, scenarios: bool = False, more_rigs: Iterable[Keys] = (), by: Literal["certificate", "user"] = "certificate") -> dict[str, Any]:
@@ -197,20 +198,36 @@ def write_credentials_file(path: str | Path, credentials: Mapping[str, str]) -> 
     return p
 
 
-def router_config(keys: Keys, credentials_file: str, listen: str = "tcp/0.0.0.0:7447", scenarios: bool = False) -> dict[str, Any]:
+def router_config(
+    keys: Keys,
+    credentials_file: str,
+    listen: str = "tcp/0.0.0.0:7447",
+    scenarios: bool = False,
+    tls: tuple[str, str, str] | None = None,
+) -> dict[str, Any]:
     """A zenoh router's configuration for the distributed rig (docker compose):
     authentication of every client, the rig's access rules, and (used by
     ``zenohd``, which has the plugins) the REST plugin on port 8000 with an
     in-memory storage of each rig's latest health and controller status, so
     ``curl http://localhost:8000/ralf/<rig>/health/**`` answers: a GET is a
     zenoh query, and health is published, not queryable, so the storage
-    keeps the latest sample of every such key and answers for it."""
+    keeps the latest sample of every such key and answers for it.
+
+    With ``tls`` (the router's authority, certificate and key files) every
+    link is mutual TLS, as in a local rig: the router shows its certificate
+    and accepts only clients holding one of the run's authority, ``listen``
+    becomes ``tls/``, and the rules name roles by certificate. The clients'
+    passwords still bind a zenoh id to its role (see the module's text)."""
+    section: dict[str, Any] = {"auth": {"usrpwd": {"dictionary_file": credentials_file}}}
+    if tls is not None:
+        section["link"] = {"tls": tls_section(*tls)}
+        listen = "tls/" + listen.removeprefix("tcp/") if listen.startswith("tcp/") else listen
     return {
         "mode": "router",
         "listen": {"endpoints": [listen]},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}}},
-        "access_control": acl_config(keys, scenarios, by="user"),
+        "transport": section,
+        "access_control": acl_config(keys, scenarios, by="certificate" if tls is not None else "user"),
         "plugins": ROUTER_PLUGINS,
     }
 
@@ -227,17 +244,19 @@ ROUTER_PLUGINS: dict[str, Any] = {
 """The compose router's plugins: REST on 8000 and the health/status storage."""
 
 
-def tls_section(ca: str, certificate: str, key: str) -> dict[str, Any]:
+def tls_section(ca: str, certificate: str, key: str, inline: bool = False) -> dict[str, Any]:
     """``transport/link/tls`` for mutual TLS: this session's certificate on
     the links it accepts and on those it opens, and only peers whose
-    certificate the run's authority signed."""
+    certificate the run's authority signed. ``inline``: the three values
+    are base64 of the PEM files (zenoh's ``*_base64`` options), not paths."""
+    suffix = "_base64" if inline else ""
     return {
-        "root_ca_certificate": ca,
+        f"root_ca_certificate{suffix}": ca,
         "enable_mtls": True,
-        "listen_certificate": certificate,
-        "listen_private_key": key,
-        "connect_certificate": certificate,
-        "connect_private_key": key,
+        f"listen_certificate{suffix}": certificate,
+        f"listen_private_key{suffix}": key,
+        f"connect_certificate{suffix}": certificate,
+        f"connect_private_key{suffix}": key,
     }
 
 
@@ -251,11 +270,12 @@ def insert_access(
     scenarios: bool = False,
     more_rigs: Iterable[str] = (),
     tls: tuple[str, str, str] | None = None,
+    tls_inline: bool = False,
 ) -> Any:
     """Add authentication and the rig's access rules to a ``zenoh.Config``
     (``more_rigs``: the rules of further rigs the same session serves, e.g.
     one DSP process for several rigs; ``tls``: the files of mutual TLS,
-    authority, certificate and key)."""
+    authority, certificate and key, or with ``tls_inline`` base64 of each)."""
     if user or credentials_file:
         usrpwd: dict[str, str] = {}
         if user:
@@ -264,7 +284,7 @@ def insert_access(
             usrpwd["dictionary_file"] = credentials_file
         config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
     if tls is not None:
-        config.insert_json5("transport/link/tls", json.dumps(tls_section(*tls)))
+        config.insert_json5("transport/link/tls", json.dumps(tls_section(*tls, inline=tls_inline)))
     if acl:
         section = acl_config(Keys(rig_id), scenarios, [Keys(r) for r in more_rigs], by="certificate" if tls is not None else "user")
         config.insert_json5("access_control", json.dumps(section))
@@ -279,6 +299,9 @@ def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> 
     """:func:`insert_access` from ``RALF_ZENOH_*`` variables (e.g. a
     launcher's own session, configured like the services)."""
     tls = tuple(env.get(f"RALF_ZENOH_TLS_{part}", "") for part in ("CA", "CERTIFICATE", "KEY"))
+    inline = tuple(env.get(f"RALF_ZENOH_TLS_{part}_BASE64", "") for part in ("CA", "CERTIFICATE", "KEY"))
+    if all(inline):
+        tls = inline
     return insert_access(
         config,
         rig_id,
@@ -288,6 +311,7 @@ def insert_access_from_env(config: Any, rig_id: str, env: Mapping[str, str]) -> 
         acl=_on(env.get("RALF_ZENOH_ACL", "")) or env.get("RALF_ZENOH_ACL", "").lower() == "scenarios",
         scenarios=env.get("RALF_ZENOH_ACL", "").lower() == "scenarios",
         tls=(tls[0], tls[1], tls[2]) if all(tls) else None,
+        tls_inline=all(inline),
     )
 
 

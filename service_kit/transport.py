@@ -59,7 +59,8 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
-    elif settings.zenoh_mode == "peer" and (settings.zenoh_tls_ca or not settings.zenoh_multicast_scouting):
+    tls = settings.zenoh_tls()
+    if not listen and settings.zenoh_mode == "peer" and (tls is not None or not settings.zenoh_multicast_scouting):
         # A peer given no endpoint to listen on listens on none (zenoh's own
         # default is tcp/[::]:0: a plain-TCP listener on every interface, which a
         # node of the rig would then link to without the rig's TLS) and opens its
@@ -84,7 +85,8 @@ def zenoh_config(settings: CommonSettings) -> zenoh.Config:
         acl=settings.zenoh_acl != "off" and settings.zenoh_mode != "client",
         scenarios=settings.zenoh_acl == "scenarios",
         more_rigs=getattr(settings, "rig_ids", ())[1:],  # a DSP serving several rigs
-        tls=(settings.zenoh_tls_ca, settings.zenoh_tls_certificate, settings.zenoh_tls_key) if settings.zenoh_tls_ca else None,
+        tls=tls[0] if tls is not None else None,
+        tls_inline=tls is not None and tls[1],
     )
     return config
 
@@ -141,8 +143,13 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
                 raise TransportError(f"cannot open zenoh session ({where}): {text}") from None
             answering = _answering(settings.endpoints("connect"))
             if answering:
-                who = "mutual TLS" if settings.zenoh_tls_ca else f"user {settings.zenoh_user or '-'}"
-                why = "a certificate of another run's authority?" if settings.zenoh_tls_ca else "wrong password or unknown user?"
+                tls = settings.zenoh_tls() is not None
+                who = f"mutual TLS, user {settings.zenoh_user or '-'}" if tls else f"user {settings.zenoh_user or '-'}"
+                why = (
+                    "a certificate of another run's authority (this session's or the other end's), or a wrong password?"
+                    if tls
+                    else "wrong password or unknown user?"
+                )
                 text = f"{', '.join(answering)} accepts connections but refused the session ({who}): {why}"
             if time.monotonic() >= deadline:
                 what = "refused" if answering else "nothing answered"

@@ -123,6 +123,7 @@ def _healthy(compose_rig: ModuleType, work: Path) -> None:
     data["bad_input"] = {
         "missing_credentials": {"exit": 2, "line": "No such file"},
         "wrong_password": {"exit": 1, "line": "the router refused the session"},
+        "foreign_certificate": {"exit": 1, "line": "the router refused the session"},
         "router_not_up": {"exit": 1, "line": "nothing answered"},
     }
     (work / "logs").mkdir()
@@ -131,6 +132,8 @@ def _healthy(compose_rig: ModuleType, work: Path) -> None:
         (work / "logs" / f"{service}.log").write_text(
             f"2026-12-03 05:12:00,000 {service} INFO x: ready in 1.00 s (process start to ready); numba kernels: 1 loaded from cache, 0 compiled\n"
         )
+    with open(work / "logs" / "zenoh-router.log", "a") as fh:
+        fh.write("2026-12-03 05:12:00,100 router INFO router: zenoh router 1f2e listening on tls/0.0.0.0:7447\n")
     with open(work / "logs" / "controller.log", "a") as fh:
         fh.write(
             "2026-12-03 05:12:40,000 controller INFO controller: run ended after 9475 ticks (47.38 s simulated): {'batches_sent': 310, 'interrupts': 309}\n"
@@ -141,7 +144,7 @@ def test_a_sound_run_passes_and_says_over_how_many_checks(compose_rig: ModuleTyp
     _healthy(compose_rig, tmp_path)
     result = compose_rig.evaluate(tmp_path)
     assert result["failures"] == [] and result["verdict"] == "pass"
-    assert result["checks"] == 4 * 3 + 3 * 2 + 4 + 1 + 3 + 1 + 1 + 3 >= result["min_checks"] == 25
+    assert result["checks"] == 4 * 3 + 3 * 2 + 4 + 1 + 1 + 3 + 1 + 1 + 4 >= result["min_checks"] == 27
 
 
 def test_a_check_over_nothing_does_not_pass(compose_rig: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -154,4 +157,4 @@ def test_a_check_over_nothing_does_not_pass(compose_rig: ModuleType, tmp_path: P
     monkeypatch.setattr(compose_rig, "RUN_ENDED", compose_rig.re.compile("x^"))
     result = compose_rig.evaluate(tmp_path)
     assert result["verdict"] == "fail" and result["checks"] < result["min_checks"]
-    assert f"too few checks: {result['checks']} made, at least 25 needed to judge the run" in result["failures"]
+    assert f"too few checks: {result['checks']} made, at least 27 needed to judge the run" in result["failures"]

@@ -20,7 +20,7 @@ import datetime
 import ipaddress
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -109,10 +109,13 @@ def write_role_certificates(
     hosts: Iterable[str] = LOOPBACK_NAMES,
     valid_for: datetime.timedelta = VALID_FOR,
     now: datetime.datetime | None = None,
+    hosts_of: Mapping[str, Iterable[str]] | None = None,
 ) -> dict[str, RoleCertificate]:
     """A fresh authority (``ca.pem``) and, per role, ``ROLE.pem`` (common
     name = the role, valid for ``hosts``, for both ends of a link) and
-    ``ROLE.key``. Every file is new (an existing file or a link in its
+    ``ROLE.key``. ``hosts_of``: other host names for some roles (none: a
+    certificate that only opens links, as a client of a router does).
+    Every file is new (an existing file or a link in its
     place is an error, never overwritten) and owner-only; a folder made
     here is too. The authority's key is never written."""
     out_dir = Path(directory)
@@ -147,12 +150,12 @@ def write_role_certificates(
     )
     ca_path = out_dir / CA_FILE
     _write_new(ca_path, ca.public_bytes(serialization.Encoding.PEM))
-    san = x509.SubjectAlternativeName(_subject_names(hosts))
+    hosts = tuple(hosts)
     usage = x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH])
     files: dict[str, RoleCertificate] = {}
     for role in roles:
         key = ec.generate_private_key(ec.SECP256R1())
-        cert = (
+        builder = (
             x509.CertificateBuilder()
             .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, role)]))
             .issuer_name(ca_name)
@@ -161,10 +164,12 @@ def write_role_certificates(
             .not_valid_before(start)
             .not_valid_after(start + valid_for)
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(san, critical=False)
             .add_extension(usage, critical=False)
-            .sign(ca_key, hashes.SHA256())
         )
+        names = _subject_names(hosts_of[role] if hosts_of is not None and role in hosts_of else hosts)
+        if names:
+            builder = builder.add_extension(x509.SubjectAlternativeName(names), critical=False)
+        cert = builder.sign(ca_key, hashes.SHA256())
         cert_path, key_path = out_dir / f"{role}.pem", out_dir / f"{role}.key"
         _write_new(cert_path, cert.public_bytes(serialization.Encoding.PEM))
         _write_new(key_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))

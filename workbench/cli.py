@@ -719,33 +719,111 @@ COMPOSE_PASSWORD_VARS = {
 ``RALF_*``: they are compose's, never a service's)."""
 
 
-def write_compose_access(out: Path, rig_id: str = "default", scenarios: bool = False, mounted_at: str = "/etc/ralf") -> dict[str, Path]:
-    """Credentials for the distributed rig: the router's configuration
-    (authentication of every client and the rig's access rules), its
-    credentials file, and ``ralf.env`` for ``docker compose --env-file``."""
+COMPOSE_ROUTER_HOSTS: tuple[str, ...] = ("zenoh-router", "localhost", "127.0.0.1", "::1")
+"""The names the compose router's certificate is valid for: its service name on
+the compose networks and the host's loopback (its published port 7447)."""
+
+
+def _b64(path: Path) -> str:
+    import base64
+
+    return base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _replace(path: Path) -> Path:
+    """``path``, its previous file or link removed (credentials are made fresh
+    each time, never merged with older ones); a folder there is an error."""
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    elif path.exists():
+        raise ValueError(f"{path} is in the way (not a regular file)")
+    return path
+
+
+def write_compose_access(
+    out: Path,
+    rig_id: str = "default",
+    scenarios: bool = False,
+    mounted_at: str = "/etc/ralf",
+    run_s: float | None = None,
+    router_hosts: tuple[str, ...] = (),
+) -> dict[str, Path]:
+    """Credentials for the distributed rig, mutual TLS as in a local rig: a
+    fresh authority (its key forgotten) with the router's certificate (valid
+    for :data:`COMPOSE_ROUTER_HOSTS` and ``router_hosts``) and one per role;
+    the router's configuration (TLS on its one endpoint, every client
+    proven by its certificate and its password, the rig's access rules by
+    certificate), its credentials file, ``ralf.env`` for ``docker compose
+    --env-file`` (each service's password, certificate and key as base64,
+    the authority's certificate) and ``tool.env`` for tools on the host.
+    ``run_s``: the planned run's wall time, which the certificates cover
+    (:func:`workbench.certificates.validity_for`). Every file owner-only."""
     from protocol.keys import Keys
     from service_kit.access import generate_credentials, router_config, write_credentials_file
+    from workbench.certificates import CA_FILE, validity_for, write_role_certificates
 
+    roles = list(COMPOSE_PASSWORD_VARS)
+    out.mkdir(mode=0o700, parents=True, exist_ok=True)
+    for name in (
+        CA_FILE,
+        *(f"{r}.{ext}" for r in ("router", *roles) for ext in ("pem", "key")),
+        "zenoh-credentials.txt",
+        "zenoh-router.json5",
+        "ralf.env",
+        "tool.env",
+    ):
+        _replace(out / name)
+    hosts = tuple(dict.fromkeys((*COMPOSE_ROUTER_HOSTS, *router_hosts)))
+    certificates = write_role_certificates(out, ["router", *roles], hosts=(), valid_for=validity_for(run_s), hosts_of={"router": hosts})
     credentials = generate_credentials()
-    out.mkdir(parents=True, exist_ok=True)
     creds = write_credentials_file(out / "zenoh-credentials.txt", credentials)
     router = out / "zenoh-router.json5"
-    router.write_text(json.dumps(router_config(Keys(rig_id), f"{mounted_at}/zenoh-credentials.txt", scenarios=scenarios), indent=2) + "\n")
-    env = out / "ralf.env"
-    fd = os.open(env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    tls = (f"{mounted_at}/{CA_FILE}", f"{mounted_at}/router.pem", f"{mounted_at}/router.key")
+    config = router_config(Keys(rig_id), f"{mounted_at}/zenoh-credentials.txt", scenarios=scenarios, tls=tls)
+    fd = os.open(router, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w") as fh:
-        fh.writelines(f"{var}={credentials[role]}\n" for role, var in COMPOSE_PASSWORD_VARS.items())
-    return {"credentials": creds, "router": router, "env": env}
+        fh.write(json.dumps(config, indent=2) + "\n")
+    env = out / "ralf.env"
+    fd = os.open(env, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(f"ZENOH_TLS_CA={_b64(certificates['router'].ca)}\n")
+        for role, var in COMPOSE_PASSWORD_VARS.items():
+            suffix = var.removeprefix("ZENOH_PASSWORD_")
+            fh.write(f"{var}={credentials[role]}\n")
+            fh.write(f"ZENOH_TLS_CERTIFICATE_{suffix}={_b64(certificates[role].certificate)}\n")
+            fh.write(f"ZENOH_TLS_KEY_{suffix}={_b64(certificates[role].key)}\n")
+    tool = out / "tool.env"
+    fd = os.open(tool, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        variables = {
+            "RALF_RIG_ID": rig_id,
+            "RALF_ZENOH_MODE": "client",
+            "RALF_ZENOH_CONNECT": "tls/127.0.0.1:7447",
+            **{k: str(Path(v).resolve()) for k, v in certificates["tool"].env().items()},
+            "RALF_ZENOH_USER": "tool",
+            "RALF_ZENOH_PASSWORD": credentials["tool"],
+        }
+        fh.writelines(f"{k}={v}\n" for k, v in variables.items())
+    return {"credentials": creds, "router": router, "env": env, "tool": tool, "ca": certificates["router"].ca}
 
 
 def cmd_credentials(args: argparse.Namespace) -> int:
+    from cryptography import x509
+
     try:
         validate_rig_id(args.rig_id)
-    except ValueError as exc:
-        console.print(f"[red]ralf-hil credentials: {exc}[/red]")
+        files = write_compose_access(Path(args.out), args.rig_id, args.scenarios, run_s=args.duration, router_hosts=tuple(args.router_host))
+    except (ValueError, OSError) as exc:
+        console.print(f"[red]ralf-hil credentials: {exc}[/red]", highlight=False, soft_wrap=True)
         return 2
-    files = write_compose_access(Path(args.out), args.rig_id, args.scenarios)
-    console.print(f"wrote {', '.join(str(p) for p in files.values())}; start the rig with: docker compose --env-file {files['env']} up --build")
+    expires = x509.load_pem_x509_certificate(files["ca"].read_bytes()).not_valid_after_utc
+    console.print(
+        f"wrote {args.out}: the run's authority and certificates (valid until {expires:%Y-%m-%d %H:%M} UTC), "
+        f"the router's configuration, {files['env'].name} and {files['tool'].name}; "
+        f"start the rig with: docker compose --env-file {files['env']} up --build",
+        highlight=False,
+        soft_wrap=True,
+    )
     return 0
 
 
@@ -817,10 +895,23 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
     rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
-    cr = sub.add_parser("credentials", help="generate zenoh credentials and the router's access rules for docker compose")
+    cr = sub.add_parser("credentials", help="generate the certificates, zenoh credentials and the router's access rules for docker compose")
     cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
     cr.add_argument("--rig-id", default="default")
     cr.add_argument("--scenarios", action="store_true", help="accept scenario commands on the plant's test port (from the tester role)")
+    cr.add_argument(
+        "--duration",
+        type=positive_seconds,
+        default=None,
+        help="the planned run's wall seconds: the certificates are valid for twice that and a day, at least 30 days (default: 30 days)",
+    )
+    cr.add_argument(
+        "--router-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="another name or address clients reach the router by (a DSP on another host); repeatable. Always: zenoh-router and the host's loopback",
+    )
     cr.set_defaults(func=cmd_credentials)
     for module in (bench, monitor, experiments, campaign, recording_cli, plant_cli, measure_cli):
         module.register(sub)

@@ -300,12 +300,13 @@ def credentials_hint(settings: Any) -> str:
     rig started by ``ralf-hil up`` links only to sessions holding a
     certificate of the run's own authority and applies access rules; a
     tool without one is not told, it just hears nothing."""
-    if not (settings.zenoh_user or settings.zenoh_credentials_file or settings.zenoh_tls_ca):
+    tls = settings.zenoh_tls() is not None
+    if not (settings.zenoh_user or settings.zenoh_credentials_file or tls):
         return (
             "; no zenoh credentials were given: a rig started by `ralf-hil up` answers only tools with its certificates "
             "(`set -a; . TOOL.env` with the tool.env path its start line prints)"
         )
-    if settings.zenoh_tls_ca:
+    if tls:
         return "; the rig may have refused the tool's certificate (a rig from `ralf-hil up` makes new ones each run)"
     return f"; the rig may have refused the credentials of user {settings.zenoh_user or '(from the credentials file)'} (a rig from `ralf-hil up` makes new ones each run)"
 

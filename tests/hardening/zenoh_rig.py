@@ -1,9 +1,9 @@
 """Sessions configured exactly as the rig configures them (peer mode: the
 launcher's plan and the run's certificates, each service's settings through
 ``service_kit.transport.zenoh_config``; client mode: the compose router's
-access rules), each with a tap on the whole rig, and attacker sessions that
-authenticate with a role's credentials (its certificate in peer mode, its
-password in client mode). Loopback only, scouting off."""
+mutual TLS and access rules), each with a tap on the whole rig, and attacker
+sessions that authenticate with a role's credentials (its certificate and
+its password, in either mode). Loopback only, scouting off."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from protocol.rig_description import RIG
 from protocol.settings import CommonSettings
 from service_kit.access import ROLES, generate_credentials, insert_access, router_config, write_credentials_file
 from service_kit.transport import zenoh_config
-from workbench.certificates import RoleCertificate
+from workbench.certificates import LOOPBACK_NAMES, RoleCertificate, write_role_certificates
 from workbench.launcher import RigObserver, RigPlan, free_tcp_port
 
 SERVICES = RIG.service_names
@@ -100,11 +100,9 @@ def attacker(role: str, rig: PeerRig | RoutedRig, endpoints: list[str] | None = 
     config = base_config("peer" if isinstance(rig, PeerRig) else "client", connect=endpoints or rig.endpoints)
     if zid:
         config.insert_json5("id", json.dumps(zid))
-    if isinstance(rig, PeerRig):
-        files = rig.certificates[role]
-        tls = (str(files.ca), str(files.certificate), str(files.key))
-        return zenoh.open(insert_access(config, rig.keys.rig_id, user=role, password=rig.credentials[role], tls=tls))
-    return zenoh.open(insert_access(config, rig.keys.rig_id, user=role, password=rig.credentials[role]))
+    files = rig.certificates[role]
+    tls = (str(files.ca), str(files.certificate), str(files.key))
+    return zenoh.open(insert_access(config, rig.keys.rig_id, user=role, password=rig.credentials[role], tls=tls))
 
 
 def wait_peers(session: zenoh.Session, count: int, timeout: float = 20.0) -> None:
@@ -178,11 +176,14 @@ class PeerRig:
 
 @dataclass
 class RoutedRig:
-    """The distributed rig: a router with the rules ``ralf-hil credentials``
-    writes for compose (its plugins left out: the Python session has none),
-    and the services and an observer as its clients."""
+    """The distributed rig: a router as ``ralf-hil credentials`` configures it
+    for compose (mutual TLS with the router's certificate, passwords, the
+    rules by certificate; its plugins left out: the Python session has none),
+    and the services and an observer as its clients, each with its role's
+    certificate of the same authority."""
 
     keys: Keys
+    certificates: dict[str, RoleCertificate]
     credentials: dict[str, str]
     endpoints: list[str]
     router: Any
@@ -194,8 +195,10 @@ class RoutedRig:
         keys = Keys(rig_id)
         credentials = generate_credentials()
         path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
-        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-        section = router_config(keys, str(path), listen=endpoint)
+        certificates = write_role_certificates(directory, ["router", *ROLES], hosts=(), hosts_of={"router": LOOPBACK_NAMES})
+        endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+        router_files = certificates["router"]
+        section = router_config(keys, str(path), listen=endpoint, tls=(str(router_files.ca), str(router_files.certificate), str(router_files.key)))
         del section["plugins"]
         section["scouting"]["gossip"] = {"enabled": False}
         router = zenoh.open(zenoh.Config.from_json5(json.dumps(section)))
@@ -209,12 +212,15 @@ class RoutedRig:
                 zenoh_user=name,
                 zenoh_password=credentials[name],
                 zenoh_acl=True,
+                zenoh_tls_ca=str(certificates[name].ca),
+                zenoh_tls_certificate=str(certificates[name].certificate),
+                zenoh_tls_key=str(certificates[name].key),
             )
             session = zenoh.open(zenoh_config(settings))
             wait_peers(session, 1)
             sessions.append(session)
             taps[name] = Tap(session, keys.root, name)
-        return cls(keys, credentials, [endpoint], router, taps, sessions)
+        return cls(keys, certificates, credentials, [endpoint], router, taps, sessions)
 
     def close(self) -> None:
         for tap in self.taps.values():

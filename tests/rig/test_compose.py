@@ -5,6 +5,7 @@ services started as local processes with exactly the compose environment
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import queue
@@ -43,6 +44,7 @@ def test_compose_file_describes_router_and_three_services() -> None:
     live = services["live"]  # the live view: only with --profile live, as the tool role, the host's loopback only
     assert live["profiles"] == ["live"] and live["command"] == ["ralf-hil", "live"] and live["environment"]["RALF_ZENOH_USER"] == "tool"
     assert live["environment"]["LIVE_ADDRESS"] == "0.0.0.0:8765" and live["ports"] == ["127.0.0.1:${LIVE_PORT:-8765}:8765"]
+    assert live["environment"]["RALF_ZENOH_TLS_KEY_BASE64"].startswith("${ZENOH_TLS_KEY_TOOL:?")  # the tool's own certificate
     assert live["build"]["dockerfile"] == "Dockerfile.tools" and "COPY workbench " in (ROOT / "Dockerfile.tools").read_text()
     router = services["zenoh-router"]
     assert router["image"].startswith("eclipse/zenoh")
@@ -53,17 +55,23 @@ def test_compose_file_describes_router_and_three_services() -> None:
     for name in MODELS:
         env = services[name]["environment"]
         assert env["RALF_ZENOH_USER"] == name and env["RALF_ZENOH_PASSWORD"].startswith("${" + COMPOSE_PASSWORD_VARS[name] + ":?")
+        # mutual TLS: the run's authority, the role's own certificate and key (base64, from ralf.env)
+        suffix = COMPOSE_PASSWORD_VARS[name].removeprefix("ZENOH_PASSWORD_")
+        assert env["RALF_ZENOH_TLS_CA_BASE64"].startswith("${ZENOH_TLS_CA:?")
+        assert env["RALF_ZENOH_TLS_CERTIFICATE_BASE64"].startswith("${ZENOH_TLS_CERTIFICATE_" + suffix + ":?")
+        assert env["RALF_ZENOH_TLS_KEY_BASE64"].startswith("${ZENOH_TLS_KEY_" + suffix + ":?")
     for name, model in MODELS.items():
         svc = services[name]
         assert svc["command"][0] in COMMANDS
         assert COMMANDS[svc["command"][0]] == {"dsp": "dsp_service", "plant": "plant_emulator", "controller": "controller"}[name]
         env = svc["environment"]
         assert env["RALF_ZENOH_MODE"] == "client"
-        assert env["RALF_ZENOH_CONNECT"] == "tcp/zenoh-router:7447"
+        assert env["RALF_ZENOH_CONNECT"] == "tls/zenoh-router:7447"
         for var in env:
             field = var.removeprefix("RALF_").lower()
             assert field in model.model_fields, f"{name}: {var} is not a setting of {model.__name__}"
-        model(**{k.removeprefix("RALF_").lower(): v for k, v in env.items()})  # values validate
+        pem = base64.b64encode(b"-----BEGIN CERTIFICATE-----\n").decode()  # the values compose puts there
+        model(**{k.removeprefix("RALF_").lower(): pem if k.startswith("RALF_ZENOH_TLS_") else v for k, v in env.items()})  # values validate
         assert "zenoh-router" in svc["depends_on"]
 
 
@@ -164,8 +172,11 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
 
     files = write_compose_access(tmp_path / "secrets", rig_id)
     router_cfg = zenoh.Config.from_file(str(files["router"]))
-    router_cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    router_cfg.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
     router_cfg.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(files["credentials"])))
+    secrets = tmp_path / "secrets"  # the container's /etc/ralf
+    for option, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"), ("listen_private_key", "router.key")):
+        router_cfg.insert_json5(f"transport/link/tls/{option}", json.dumps(str(secrets / name)))
     passwords = dict(line.split("=", 1) for line in files["env"].read_text().splitlines())
     router = zenoh.open(router_cfg)
     statuses: queue.Queue[ControllerStatus] = queue.Queue()
@@ -177,7 +188,7 @@ def test_services_run_with_the_compose_environment(tmp_path: Path) -> None:
             svc = doc["services"][name]
             env = {k: v for k, v in os.environ.items() if not k.startswith("RALF_")}
             env.update({k: re.sub(r"\$\{(\w+)(:\?[^}]*)?\}", lambda m: passwords[m.group(1)], str(v)) for k, v in svc["environment"].items()})
-            env["RALF_ZENOH_CONNECT"] = env["RALF_ZENOH_CONNECT"].replace("zenoh-router:7447", f"127.0.0.1:{port}")
+            env["RALF_ZENOH_CONNECT"] = env["RALF_ZENOH_CONNECT"].replace("zenoh-router:7447", f"127.0.0.1:{port}")  # a name of the router's certificate
             env["RALF_RIG_ID"] = rig_id
             env["RALF_CAN_PORT"] = can_port
             env["RALF_READY_FILE"] = str(tmp_path / f"{name}.ready")  # the container's /tmp/ralf-ready

@@ -1,6 +1,8 @@
 """service_kit.router, the compose override's zenoh router, on the
-configuration `ralf-hil credentials` writes: it enforces the credentials
-(the right password opens a session, a wrong one is refused with a line
+configuration `ralf-hil credentials` writes: mutual TLS both ways (a client
+with the run's certificate and its password opens a session; a wrong
+password, a certificate of another authority, a plain TCP client, and a
+client that does not trust the router's certificate are refused with a line
 that says so), writes its ready file, stops on SIGTERM with exit 0; bad
 input gets one line and exit 2. And a client waiting for its router logs
 once, not at every try, and stops when asked."""
@@ -31,20 +33,25 @@ from workbench.launcher import free_tcp_port
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _router_files(tmp_path: Path, port: int) -> tuple[Path, dict[str, str]]:
-    files = write_compose_access(tmp_path / "secrets", "routed", mounted_at=str(tmp_path / "secrets"))
+def _router_files(tmp_path: Path, port: int, folder: str = "secrets") -> tuple[Path, dict[str, str]]:
+    files = write_compose_access(tmp_path / folder, "routed", mounted_at=str(tmp_path / folder))
     config = json.loads(files["router"].read_text())
-    config["listen"]["endpoints"] = [f"tcp/127.0.0.1:{port}"]
+    config["listen"]["endpoints"] = [f"tls/127.0.0.1:{port}"]
     files["router"].write_text(json.dumps(config))
-    passwords = dict(line.split("=", 1) for line in files["env"].read_text().splitlines())
-    return files["router"], passwords
+    variables = dict(line.split("=", 1) for line in files["env"].read_text().splitlines())
+    return files["router"], variables
 
 
-def _client(port: int, user: str, password: str) -> CommonSettings:
-    return load_settings(
-        CommonSettings,
-        {"rig_id": "routed", "zenoh_mode": "client", "zenoh_connect": f"tcp/127.0.0.1:{port}", "zenoh_user": user, "zenoh_password": password},
-    )
+def _client(port: int, user: str, password: str, tls: dict[str, str] | None = None, scheme: str = "tls") -> CommonSettings:
+    """A client as compose starts one; ``tls``: its certificate variables of ralf.env (role PLANT), None: no TLS."""
+    values = {"rig_id": "routed", "zenoh_mode": "client", "zenoh_connect": f"{scheme}/127.0.0.1:{port}", "zenoh_user": user, "zenoh_password": password}
+    if tls is not None:
+        values.update(
+            zenoh_tls_ca_base64=tls["ZENOH_TLS_CA"],
+            zenoh_tls_certificate_base64=tls["ZENOH_TLS_CERTIFICATE_PLANT"],
+            zenoh_tls_key_base64=tls["ZENOH_TLS_KEY_PLANT"],
+        )
+    return load_settings(CommonSettings, values)
 
 
 @pytest.mark.timeout(120)
@@ -64,15 +71,27 @@ def test_the_router_enforces_the_generated_credentials_and_stops_cleanly(tmp_pat
         while not check(ready)[0] and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.1)
         assert check(ready)[0], proc.stdout.read() if proc.poll() is not None and proc.stdout else "no ready file"
-        session = open_zenoh(_client(port, "plant", passwords["ZENOH_PASSWORD_PLANT"]), retry_for_s=10.0)
+        session = open_zenoh(_client(port, "plant", passwords["ZENOH_PASSWORD_PLANT"], passwords), retry_for_s=10.0)
         session.close()
-        with pytest.raises(TransportError, match="refused for 0 s: .*accepts connections but refused the session"):
-            open_zenoh(_client(port, "plant", "not-the-password"), retry_for_s=0.0)
+        _, other = _router_files(tmp_path, port, "other")  # another run's authority
+        refused = {
+            "a wrong password": _client(port, "plant", "not-the-password", passwords),
+            "a certificate of another authority": _client(port, "plant", passwords["ZENOH_PASSWORD_PLANT"], other),
+            # its own certificate is the run's, but it trusts another authority: it refuses the router
+            "a client that does not trust the router": _client(
+                port, "plant", passwords["ZENOH_PASSWORD_PLANT"], {**passwords, "ZENOH_TLS_CA": other["ZENOH_TLS_CA"]}
+            ),
+            "no TLS": _client(port, "plant", passwords["ZENOH_PASSWORD_PLANT"], None, scheme="tcp"),
+        }
+        for case, settings in refused.items():
+            with pytest.raises(TransportError, match="refused for 0 s: .*accepts connections but refused the session"):
+                open_zenoh(settings, retry_for_s=0.0)
+                pytest.fail(f"{case}: the session opened")
     finally:
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
-    assert "listening on tcp/127.0.0.1" in out and "ready in" in out
+    assert "listening on tls/127.0.0.1" in out and "ready in" in out
     assert not ready.exists()
 
 

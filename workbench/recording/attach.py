@@ -42,6 +42,9 @@ def recorder_env(settings: BaseModel) -> dict[str, str]:
     env["RALF_ZENOH_PASSWORD"] = password.get_secret_value() if password is not None else ""
     for name in ("zenoh_credentials_file", "zenoh_tls_ca", "zenoh_tls_certificate", "zenoh_tls_key"):  # paths the dump does not show
         env[f"RALF_{name.upper()}"] = str(getattr(settings, name, ""))
+    for name in ("zenoh_tls_ca_base64", "zenoh_tls_certificate_base64", "zenoh_tls_key_base64"):  # inline TLS, masked by the dump
+        secret = getattr(settings, name, None)
+        env[f"RALF_{name.upper()}"] = secret.get_secret_value() if secret is not None else ""
     endpoints = [e for e in (getattr(settings, "zenoh_listen", "") + "," + getattr(settings, "zenoh_connect", "")).split(",") if e.strip()]
     env["RALF_ZENOH_CONNECT"] = ",".join(e.strip().replace("0.0.0.0", "127.0.0.1") for e in endpoints)
     env["RALF_ZENOH_LISTEN"] = ""
