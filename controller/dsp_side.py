@@ -163,7 +163,8 @@ class DspSide:
                 self.last_miss = f"DSP lost at tick {tick}"
                 self.link.in_flight = None
                 self.link.block_empty = False
-                self.monitors.fire("dsp_lost", f"DSP lost at tick {tick}; controlling on with the fallback parameters")
+                then = "" if self.monitors.policies.get("dsp_lost") == "stop" else "; controlling on with the fallback parameters"
+                self.monitors.fire("dsp_lost", f"DSP lost at tick {tick}{then}")
         self.dsp_alive = up
 
     def _echoes_interrupt(self, flag: BlockFlag) -> bool:

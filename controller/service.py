@@ -263,6 +263,7 @@ class ControllerService:
             self._loop(stop)
         except PlantFault as exc:
             error = str(exc)
+            self.timing.plant_faults += 1
             log.error("plant fault: %s; valves to zero", error)
         except StopRequested:
             log.info("stopped before the run began")
@@ -301,6 +302,7 @@ class ControllerService:
         """Valves to zero, the node pre-operational, the last status out."""
         try:
             self.plant.send_outputs(np.zeros(2))
+            self.timing.valves_zeroed += 1
             # A clean end leaves the node pre-operational (valves at zero) rather
             # than tripping its SYNC watchdog.
             self.plant.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)

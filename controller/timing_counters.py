@@ -47,3 +47,7 @@ class TimingCounters(Counters):
     """lockstep: batches sent again while waiting for their interrupt"""
     tf_download_retries: int = 0
     """lockstep: TF downloads asked again after no reply"""
+    plant_faults: int = 0
+    """plant faults that ended the run (heartbeat or TPDOs lost, the node out of OPERATIONAL, the model dead)"""
+    valves_zeroed: int = 0
+    """times the valves were commanded to zero at the run's end (every end, a plant fault's included)"""

@@ -37,6 +37,7 @@ from service_kit.access import insert_access_from_env
 from service_kit.crash_report import death_line
 from service_kit.transport import PEER_AUTOCONNECT_STRATEGY
 from service_kit.zenoh_log import init_zenoh_log
+from workbench.loss_grace import controller_acts_on
 from workbench.monitor import health_key_service
 
 SERVICE_MODULES: dict[str, str] = {s.name: s.module for s in RIG.services}
@@ -284,6 +285,9 @@ class Supervision:
     """When the controller's first tick was seen: every service had answered (tick 0 waits for them)."""
     ended_at: float = 0.0
     """When the run ended, before the services were stopped."""
+    policy_grace_s: float | None = None
+    """Set when a service died mid-run whose death the controller answers
+    itself (:mod:`workbench.loss_grace`): the wall seconds it was given."""
 
     @property
     def startup_s(self) -> float | None:
@@ -313,7 +317,10 @@ def supervise(
     end, and always stop them in :data:`STOP_ORDER`.
 
     The run ends when the controller exits (its run is over; non-zero is a
-    failure), when another service dies (a failure), ``run_for_s`` wall
+    failure), when another service dies (a failure; a death mid-run that the
+    controller answers itself, the plant's, ends the run when the controller
+    has, or after the grace :mod:`workbench.loss_grace` derives from its
+    timeouts), ``run_for_s`` wall
     seconds after the controller's first tick (start-up is not counted),
     when ``stop`` is set, after ``timeout_s`` in all (a failure), or when no
     tick came within ``startup_timeout_s`` of the launch (a failure).
@@ -323,6 +330,8 @@ def supervise(
     sup = Supervision(procs={}, started=time.monotonic())
     stop = stop or threading.Event()
     interrupted = False
+    grace = controller_acts_on(plan.env_for("controller"), stop_timeout_s)
+    acting_until: float | None = None
     try:
         for name in START_ORDER:
             sup.procs[name] = start_service(plan, name, log_dir)
@@ -334,16 +343,31 @@ def supervise(
             if on_poll is not None:
                 on_poll(sup, current)
             dead = {p.name: p.returncode for p in sup.procs.values() if p.returncode is not None}
-            if "controller" in dead and all(code == 0 or name == "controller" for name, code in dead.items()):
+            lost = {name: code for name, code in dead.items() if name != "controller" and (code != 0 or "controller" not in dead)}
+            if lost:  # a death by signal named, with the FMI call in progress where the log's faulthandler dump has one
+                fmu = plan.env_for("plant").get("RALF_MODEL", "").removeprefix("fmu:") if "plant" in lost else ""
+                sup.failure = ", ".join(death_line(name, code, sup.procs[name].log_path, fmu if name == "plant" else None) for name, code in lost.items())
+                # The controller's own policy for a lost plant (or DSP) acts first, bounded (workbench/loss_grace.py)
+                answered = sup.ready_at is not None and lost.keys() <= grace.keys()
+                if acting_until is None and "controller" not in dead and answered:
+                    acting_until = now + max(grace[name] for name in lost)
+                    sup.policy_grace_s = acting_until - now
+                elif acting_until is None or "controller" in dead:
+                    if not answered and dead.get("controller", 0) != 0:  # died along, not as its policy's answer
+                        sup.failure += ", " + death_line("controller", dead["controller"], sup.procs["controller"].log_path)
+                    break
+                elif now >= acting_until:
+                    sup.failure += f"; the controller did not end its run within {sup.policy_grace_s:.1f} s of it"
+                    break
+            elif "controller" in dead:
                 if dead["controller"] != 0:
                     sup.failure = death_line("controller", dead["controller"], sup.procs["controller"].log_path)
                 break
-            if dead:  # a death by signal named, with the FMI call in progress where the log's faulthandler dump has one
-                fmu = plan.env_for("plant").get("RALF_MODEL", "").removeprefix("fmu:") if "plant" in dead else ""
-                sup.failure = ", ".join(death_line(name, code, sup.procs[name].log_path, fmu if name == "plant" else None) for name, code in dead.items())
-                break
             if stop.is_set():
                 break
+            if acting_until is not None:  # the controller ends its run within its timeouts: no other end meanwhile
+                stop.wait(poll_s)
+                continue
             if run_for_s is not None and sup.ready_at is not None and now - sup.ready_at >= run_for_s:
                 break
             if timeout_s is not None and now - sup.started > timeout_s:

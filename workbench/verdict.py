@@ -14,7 +14,10 @@ The rule (docs/reliability.md, "The run's verdict"), the first that applies:
 * **FAIL**: a service exited non-zero or the rig failed (a plant fault, a
   monitor's ``stop``, a service that died, no start), or the timing verdict
   failed (deadline misses in a row beyond the criterion; with ``strict``
-  the wake-up latency and the runs of overruns too).
+  the wake-up latency and the runs of overruns too). A plant process that
+  died (a crash inside its FMU included) is FAIL, not INVALID: its samples
+  stopped rather than froze, and the controller ended the run on its
+  plant-fault policy (:mod:`workbench.loss_grace`).
 * **DEGRADED**: the run went on but something went wrong on the way: a
   deadline missed (one at a time: absorbed), an interrupt lost, a schedule
   re-based with samples skipped, a plant SYNC watchdog trip (valves held
