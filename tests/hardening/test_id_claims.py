@@ -1,11 +1,14 @@
-"""A session that claims a node's zenoh id cannot keep the node out: the
-DSP stopped (SIGSTOP) until its links' lease has expired, a session with
+"""A session that claims a node's zenoh id cannot keep the node out: a
+node stopped (SIGSTOP) until its links' lease has expired, a session with
 the tool's certificate and password claiming its id linked to the other
-nodes meanwhile, the DSP resumed (SIGCONT): the DSP finds itself alone,
-gives the id up, links again under a new one and its flags reach the
+nodes meanwhile, the node resumed (SIGCONT): the node finds itself alone,
+gives the id up, links again under a new one and its messages reach the
 other nodes while the claimer still holds the old id
-(service_kit/relink.py). The decision is also checked alone, on an
-injected clock (no timing)."""
+(service_kit/relink.py). The DSP is tried beside in-process sessions of
+the other two (its flags carry its id); the controller and the plant in a
+real-time rig of three processes, whose run goes on through the move and
+ends cleanly. The decision is also checked alone, on an injected clock (no
+timing)."""
 
 from __future__ import annotations
 
@@ -22,7 +25,8 @@ import pytest
 
 from protocol.messages import ConfigChange, encode
 from service_kit.relink import ALONE_S, MAX_BACKOFF_S, RelinkWatch
-from tests.hardening.zenoh_rig import PeerRig, attacker, wait_peers
+from tests.hardening.zenoh_rig import SERVICES, PeerRig, attacker, wait_peers
+from workbench.launcher import ServiceProcess, start_service, stop_service
 
 
 class _Session:
@@ -127,3 +131,68 @@ def test_a_claimed_id_does_not_keep_the_dsp_out(tmp_path: Path) -> None:
         rig.close()
     text = log_path.read_text()
     assert f"zenoh id {board.decode()} given up" in text and "linking again as" in text, text[-3000:]
+
+
+def _peers(rig: PeerRig) -> set[str]:
+    """The zenoh ids the launcher's node (every service links to it) is linked to."""
+    return {str(z) for z in rig.observer.session.info.peers_zid()}
+
+
+def _health_of(rig: PeerRig, node: str, start: int) -> int:
+    """Health messages of ``node`` the launcher's node received since ``start``."""
+    tap = rig.taps["launcher"]
+    with tap.cond:
+        return sum(1 for k, kind, _, _ in tap.got[start:] if k == rig.keys.health(node) and kind == "sample:put")
+
+
+@pytest.mark.rig
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("node", ["controller", "plant"])
+def test_a_claimed_id_does_not_keep_the_controller_or_the_plant_out(node: str, tmp_path: Path) -> None:
+    rig = PeerRig.start(f"idclaim-{node[0]}{zlib.crc32(str(tmp_path).encode()) % 100000}", tmp_path, leave_out=SERVICES)
+    # the stop freezes one end of the CAN link for seconds: the controller waits for the plant's heartbeat, it does not end the run
+    rig.plan.service_env["controller"]["RALF_TIMEOUTS"] = "plant_heartbeat_s=60"
+    # a plant resumed after seconds reads the SYNCs and RPDOs queued in its socket meanwhile and reports them as a second
+    # master's (counter going back, two RPDO1 in a period): warned, not the run's end, which is not the subject here
+    rig.plan.service_env["controller"]["RALF_POLICIES"] = "can_conflict=warn"
+    for name in SERVICES:
+        rig.plan.service_env[name]["RALF_LOG_LEVEL"] = "INFO"
+    procs: dict[str, ServiceProcess] = {}
+    claimer = None
+    observer = rig.observer
+
+    def logs() -> str:
+        return "\n".join(f"--- {n}\n{p.log_path.read_text()[-2500:]}" for n, p in procs.items())
+
+    def ticks() -> int:
+        return observer.status.ticks if observer.status is not None else 0
+
+    try:
+        for name in ("dsp", "plant", "controller"):
+            procs[name] = start_service(rig.plan, name, tmp_path / "logs")
+        assert _wait(lambda: ticks() > 200 and len(_peers(rig)) == len(SERVICES), 120.0), logs()
+        before = _peers(rig)
+        os.kill(procs[node].popen.pid, signal.SIGSTOP)
+        try:
+            assert _wait(lambda: len(_peers(rig)) == len(SERVICES) - 1, 30.0), logs()  # its lease expired
+            (claimed,) = before - _peers(rig)
+            others = [f"tls/127.0.0.1:{rig.plan.service_ports[n]}" for n in SERVICES if n != node]
+            claimer = attacker("tool", rig, endpoints=[rig.plan.zenoh_endpoint, *others], zid=claimed)
+            wait_peers(claimer, len(SERVICES))
+            start = len(rig.taps["launcher"].got)
+        finally:
+            os.kill(procs[node].popen.pid, signal.SIGCONT)
+        # back under a new id while the claimer holds the old one
+        assert _wait(lambda: _health_of(rig, node, start) >= 2 and len(_peers(rig) - before) == 1, 60.0), logs()
+        (new_id,) = _peers(rig) - before
+        assert claimed in _peers(rig)  # the claimer still holds it
+        resumed = ticks()
+        assert _wait(lambda: ticks() > resumed + 400, 60.0), logs()  # the loop runs on: the CAN side and the run unbroken
+        text = procs[node].log_path.read_text()
+        assert f"zenoh id {claimed} given up" in text and f"linking again as {new_id}" in text, logs()
+    finally:
+        if claimer is not None:
+            claimer.close()
+        codes = {name: stop_service(procs[name]) for name in ("controller", "plant", "dsp") if name in procs}
+        rig.close()
+    assert codes == {"controller": 0, "plant": 0, "dsp": 0}, logs()
