@@ -53,8 +53,12 @@ MAX_BACKOFF_S = 30.0
 
 
 def linked(session: Any) -> int:
-    """The peers and routers ``session`` has a link to."""
-    return len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
+    """The peers and routers ``session`` has a link to (none for a session
+    that cannot say: closed by a move whose new session failed to open)."""
+    try:
+        return len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
+    except Exception:  # noqa: BLE001 (zenoh raises its own error on a closed session)
+        return 0
 
 
 class RelinkWatch:

@@ -16,15 +16,17 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from protocol.messages import ConfigChange, encode
-from service_kit.relink import ALONE_S, MAX_BACKOFF_S, RelinkWatch
+from service_kit.relink import ALONE_S, MAX_BACKOFF_S, RelinkWatch, move_to_new_session
 from tests.hardening.zenoh_rig import SERVICES, PeerRig, attacker, wait_peers
 from workbench.launcher import ServiceProcess, start_service, stop_service
 
@@ -75,6 +77,117 @@ def test_a_node_takes_a_new_session_only_after_being_alone_having_been_linked() 
     watch.check()
     now[0] += ALONE_S
     assert watch.check()
+
+
+class _Handle:
+    def __init__(self, session: _FakeZenoh, key: str) -> None:
+        self.session, self.key = session, key
+
+    def put(self, payload: bytes, **_: Any) -> None:
+        self.session.sent.append((self.key, payload))
+
+    def undeclare(self) -> None:
+        self.session.undeclared += 1
+
+
+class _FakeZenoh:
+    """What a node's parts declare on a zenoh session, recorded."""
+
+    def __init__(self, name: str, log: list[str]) -> None:
+        self.name, self.log = name, log
+        self.info = self
+        self.sent: list[tuple[str, bytes]] = []
+        self.undeclared = 0
+
+    def zid(self) -> str:
+        return self.name
+
+    def declare_publisher(self, key: str, **_: Any) -> _Handle:
+        return _Handle(self, key)
+
+    def declare_subscriber(self, key: str, *_: Any, **__: Any) -> _Handle:
+        return _Handle(self, key)
+
+    def liveliness(self) -> Any:
+        return type("Liveliness", (), {"declare_token": lambda _, key: _Handle(self, key), "declare_subscriber": lambda _, key, *a, **k: _Handle(self, key)})()
+
+    def close(self) -> None:
+        self.log.append(f"close {self.name}")
+
+
+class _Part:
+    def __init__(self, name: str, log: list[str]) -> None:
+        self.name, self.log = name, log
+        self.out_lock = threading.Lock()
+
+    def unbind(self) -> None:
+        assert self.out_lock.locked()
+        self.log.append(f"unbind {self.name}")
+
+    def bind(self, session: Any) -> None:
+        assert self.out_lock.locked()
+        self.log.append(f"bind {self.name} {session.name}")
+
+
+def test_a_move_holds_every_part_and_a_failed_open_is_tried_again() -> None:
+    log: list[str] = []
+    parts = [_Part("a", log), _Part("b", log)]
+    opened: Iterator[OSError | _FakeZenoh] = iter([OSError("port in use"), _FakeZenoh("s1", log)])
+
+    def open_session() -> Any:
+        got = next(opened)
+        if isinstance(got, Exception):
+            log.append("open failed")
+            raise got
+        log.append(f"open {got.name}")
+        return got
+
+    old = _FakeZenoh("s0", log)
+    with pytest.raises(OSError):
+        move_to_new_session(open_session, parts, old)
+    assert log == ["unbind a", "unbind b", "close s0", "open failed"] and not any(p.out_lock.locked() for p in parts)
+    log.clear()
+    new = move_to_new_session(open_session, parts, old)  # the watch tries again with the session it still holds
+    assert new.name == "s1" and log == ["unbind a", "unbind b", "close s0", "open s1", "bind a s1", "bind b s1"]
+
+
+def test_the_controller_and_the_plant_never_wait_for_a_move() -> None:
+    """While a move holds a port's lock, what the control loop or the node
+    thread sends is dropped at once and counted; after it, it goes out on
+    the new session."""
+    from controller.dsp_port import ZenohDspPort
+    from plant_emulator.service import PlantTestPort
+    from protocol.messages import GroundTruth
+    from protocol.settings import PlantSettings
+
+    log: list[str] = []
+    first, second = _FakeZenoh("s0", log), _FakeZenoh("s1", log)
+    controller = ZenohDspPort(first, "r")  # type: ignore[arg-type]
+    plant = PlantTestPort(PlantSettings(rig_id="r"), first)  # type: ignore[arg-type]
+    truth = GroundTruth(
+        seq=0,
+        sim_time_s=0.0,
+        modal_frequencies_hz=(1.0,),
+        damping_ratios=(0.1,),
+        deflections_in=(0.0, 0.0),
+        theta_rad=(0.0, 0.0),
+        tip_in=(0.0, 0.0),
+        payload_attached=False,
+        valves_held=False,
+    )
+    for port in (controller, plant):
+        with port.out_lock:  # a move under way
+            port.unbind()
+            if port is controller:
+                controller.send_batch(b"batch")
+            else:
+                plant.publish_truth(truth)
+            assert port.dropped_moving == 1
+            port.bind(second)  # type: ignore[arg-type]
+    controller.send_batch(b"batch")
+    plant.publish_truth(truth)
+    assert first.sent == [] and [k for k, _ in second.sent] == ["ralf/r/dsp/batch", "ralf/r/plant/truth"]
+    assert controller.dropped_moving == plant.dropped_moving == 1
 
 
 def _flags_from(rig: PeerRig, start: int) -> list[bytes]:
