@@ -34,6 +34,7 @@ import zenoh
 from protocol.keys import Keys
 from protocol.messages import Health
 from service_kit.encodings import BATCH, JSON, TF
+from service_kit.relink import MovingOut
 from service_kit.runtime import HealthPublisher
 
 log = logging.getLogger(__name__)
@@ -72,15 +73,14 @@ class ZenohDspPort:
     """The DSP, the launcher and the monitor on zenoh. Movable to a new
     session (:mod:`service_kit.relink`): what the loop would send while it
     moves is dropped (the controller is alone then, nobody would hear it)
-    and counted in :attr:`dropped_moving`; the loop never waits for the move."""
+    and counted (:attr:`moves`, in health); the loop never waits for the move."""
 
     synchronous = False
 
     def __init__(self, session: zenoh.Session, rig_id: str) -> None:
         self.keys = Keys(rig_id)
-        self._out_lock = threading.Lock()
-        self.dropped_moving = 0
-        """Messages the loop sent while the port moved to a new session, dropped."""
+        self.moves = MovingOut()
+        """The out lock; moves to a new session and what the loop sent meanwhile, dropped."""
         self._sink: tuple[Sink, Callable[[], float]] | None = None
         self._subs: list[object] = []
         self._token: object | None = None
@@ -91,7 +91,11 @@ class ZenohDspPort:
     @property
     def out_lock(self) -> threading.Lock:
         """Held while a message goes out, and while the port moves to a new session."""
-        return self._out_lock
+        return self.moves.lock
+
+    @property
+    def dropped_moving(self) -> int:
+        return self.moves.dropped
 
     def bind(self, session: zenoh.Session) -> None:
         """Publishers on ``session``; the subscribers, token and health too once connected and started."""
@@ -105,11 +109,11 @@ class ZenohDspPort:
             self._declare_inputs(*self._sink)
         if self._health_args is not None:
             self._health = HealthPublisher(session, self.keys.health("controller"), *self._health_args).start()
-        self._bound = True
+        self.moves.bound_to_new()
 
     def unbind(self) -> None:
         """Everything :meth:`bind` declared, undeclared (the session may be broken: nothing raises)."""
-        self._bound = False
+        self.moves.bound = False
         if self._health is not None:
             self._health.stop()
             self._health = None
@@ -155,16 +159,7 @@ class ZenohDspPort:
 
     def _put(self, publisher: Callable[[], zenoh.Publisher], payload: bytes) -> None:
         """Sent on the current session; dropped and counted while the port moves (never waits)."""
-        if not self._out_lock.acquire(blocking=False):
-            self.dropped_moving += 1
-            return
-        try:
-            if self._bound:
-                publisher().put(payload)
-            else:  # a move that failed half-way: the next one binds again
-                self.dropped_moving += 1
-        finally:
-            self._out_lock.release()
+        self.moves.send(lambda: publisher().put(payload))
 
     def send_batch(self, payload: bytes) -> None:
         self._put(lambda: self._batch_pub, payload)
@@ -186,5 +181,5 @@ class ZenohDspPort:
         self._health = HealthPublisher(self.session, self.keys.health("controller"), period_s, build).start()
 
     def close(self) -> None:
-        with self._out_lock:
+        with self.moves.lock:
             self.unbind()

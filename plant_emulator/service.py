@@ -47,7 +47,7 @@ from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
 from service_kit.inbox import LIMITS, Inbox
 from service_kit.realtime import RealtimeMeasures, apply_realtime
-from service_kit.relink import relinking
+from service_kit.relink import MovingOut, relinking
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -367,15 +367,14 @@ class PlantTestPort:
     """zenoh side of the plant: truth and events out, scenario commands in,
     health. Movable to a new session (:mod:`service_kit.relink`): what the
     node would send while it moves is dropped (the plant is alone then,
-    nobody would hear it) and counted in :attr:`dropped_moving`; the node's
+    nobody would hear it) and counted (:attr:`moves`, in health); the node's
     thread never waits for the move."""
 
     def __init__(self, settings: PlantSettings, session: zenoh.Session) -> None:
         self.keys = Keys(settings.rig_id)
         self.inbox = Inbox("plant", capacity=64, limits=LIMITS)
-        self._out_lock = threading.Lock()
-        self.dropped_moving = 0
-        """Truth and events sent while the port moved to a new session, dropped."""
+        self.moves = MovingOut()
+        """The out lock; moves to a new session and the truth and events sent meanwhile, dropped."""
         self._health_args: tuple[float, Callable[[int], Health]] | None = None
         self._health: HealthPublisher | None = None
         self.bind(session)
@@ -383,7 +382,11 @@ class PlantTestPort:
     @property
     def out_lock(self) -> threading.Lock:
         """Held while a message goes out, and while the port moves to a new session."""
-        return self._out_lock
+        return self.moves.lock
+
+    @property
+    def dropped_moving(self) -> int:
+        return self.moves.dropped
 
     def bind(self, session: zenoh.Session) -> None:
         """Publishers, the scenario subscriber, the liveliness token and (once started) health on ``session``."""
@@ -394,11 +397,11 @@ class PlantTestPort:
         self._token = session.liveliness().declare_token(self.keys.alive("plant"))
         if self._health_args is not None:
             self._health = HealthPublisher(session, self.keys.health("plant"), *self._health_args).start()
-        self._bound = True
+        self.moves.bound_to_new()
 
     def unbind(self) -> None:
         """Everything :meth:`bind` declared, undeclared (the session may be broken: nothing raises)."""
-        self._bound = False
+        self.moves.bound = False
         if self._health is not None:
             self._health.stop()
             self._health = None
@@ -415,16 +418,7 @@ class PlantTestPort:
 
     def _put(self, publisher: Callable[[], zenoh.Publisher], payload: bytes) -> None:
         """Sent on the current session; dropped and counted while the port moves (never waits)."""
-        if not self._out_lock.acquire(blocking=False):
-            self.dropped_moving += 1
-            return
-        try:
-            if self._bound:
-                publisher().put(payload)
-            else:  # a move that failed half-way: the next one binds again
-                self.dropped_moving += 1
-        finally:
-            self._out_lock.release()
+        self.moves.send(lambda: publisher().put(payload))
 
     def publish_truth(self, truth: GroundTruth) -> None:
         self._put(lambda: self._truth_pub, encode(truth))
@@ -433,7 +427,7 @@ class PlantTestPort:
         self._put(lambda: self._event_pub, encode(event))
 
     def close(self) -> None:
-        with self._out_lock:
+        with self.moves.lock:
             self.unbind()
 
 
@@ -444,6 +438,7 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, scenario_pending_dropped=app.scenario.dropped)
     if port is not None:
         counters.update(port.inbox.as_dict())
+        counters.update(port.moves.as_dict())
     counters.update((measures or RealtimeMeasures()).as_counters())
     model_counters, model_latencies, model_problem = app.model_health()
     counters.update(model_counters)

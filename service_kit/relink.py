@@ -133,6 +133,39 @@ class RelinkWatch:
             self._thread.join(timeout)
 
 
+class MovingOut:
+    """The out lock of a part on a real-time path, and its counts: :meth:`send`
+    puts through it without waiting; while the part moves (or after a move
+    that failed half-way) what is sent is dropped and counted."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.bound = False
+        self.binds = 0
+        self.dropped = 0
+
+    def bound_to_new(self) -> None:
+        """The part is on a session (its first, or a new one after a move)."""
+        self.bound = True
+        self.binds += 1
+
+    def send(self, put: Callable[[], None]) -> None:
+        if not self.lock.acquire(blocking=False):
+            self.dropped += 1
+            return
+        try:
+            if self.bound:
+                put()
+            else:
+                self.dropped += 1
+        finally:
+            self.lock.release()
+
+    def as_dict(self) -> dict[str, int]:
+        """``zenoh_relinks`` (moves to a new session) and ``zenoh_dropped_moving``, for health."""
+        return {"zenoh_relinks": max(0, self.binds - 1), "zenoh_dropped_moving": self.dropped}
+
+
 class Rebinds(Protocol):
     """What a node declares on its zenoh session, movable to another one."""
 

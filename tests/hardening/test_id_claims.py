@@ -302,6 +302,7 @@ def test_a_claimed_id_does_not_keep_the_controller_or_the_plant_out(node: str, t
         resumed, interrupts = ticks(), observer.status.interrupts  # type: ignore[union-attr]
         # the loop runs on (the CAN side and the run unbroken) and the DSP still answers its batches
         assert _wait(lambda: ticks() > resumed + 400 and observer.status.interrupts > interrupts + 3, 60.0), logs()  # type: ignore[union-attr]
+        assert _wait(lambda: observer.health[node].counters.get("zenoh_relinks", 0) >= 1, 10.0), observer.health[node]  # said in its health too
         text = procs[node].log_path.read_text()
         assert f"zenoh id {claimed} given up" in text and f"linking again as {new_id}" in text, logs()
     finally:
