@@ -27,27 +27,33 @@ log = logging.getLogger("controller")
 
 
 def control(settings: ControllerSettings, session: zenoh.Session, stop: threading.Event) -> int:
+    from controller.dsp_port import ZenohDspPort
     from controller.plant_link import PlantLink
     from controller.service import ControllerService
+    from service_kit.relink import relinking
     from service_kit.runtime import build_or_config_error
     from service_kit.transport import open_can_bus
     from service_kit.waits import log_waits
 
     bus = open_can_bus(settings)
     try:
-        service = build_or_config_error("controller configuration", lambda: ControllerService(settings, session, PlantLink(bus, settings.node_id)))
-        try:
-            log.info("controller up on rig %r: %s clock, %.0f Hz, OATF %s", settings.rig_id, settings.clock, settings.sample_rate_hz, settings.oatf_mode)
-            started = threading.Event()
-            log_waits(start_up_waits(service, settings), log, started)
+        port = ZenohDspPort(session, settings.rig_id)
+        service = build_or_config_error("controller configuration", lambda: ControllerService(settings, None, PlantLink(bus, settings.node_id), port=port))
+        # a claimed zenoh id: the port moves to a new session; the loop and the CAN side go on (service_kit/relink.py)
+        with relinking(settings, session, [port]) as watch:
             try:
-                result = service.run(stop)
+                log.info("controller up on rig %r: %s clock, %.0f Hz, OATF %s", settings.rig_id, settings.clock, settings.sample_rate_hz, settings.oatf_mode)
+                started = threading.Event()
+                log_waits(start_up_waits(service, settings), log, started)
+                try:
+                    result = service.run(stop)
+                finally:
+                    started.set()
+                service.finish(result)
+                log.info("run ended after %d ticks (%.2f s simulated): %s", result.ticks, result.sim_time_s, result.counters)
             finally:
-                started.set()
-            service.finish(result)
-            log.info("run ended after %d ticks (%.2f s simulated): %s", result.ticks, result.sim_time_s, result.counters)
-        finally:
-            service.close()
+                watch.halt()
+                service.close()
     finally:
         bus.shutdown()
     if result.error:

@@ -24,15 +24,20 @@ the sink in zenoh's threads, so decoding happens at the edge.
 
 from __future__ import annotations
 
+import logging
+import threading
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
 import zenoh
 
 from protocol.keys import Keys
 from protocol.messages import Health
 from service_kit.encodings import BATCH, JSON, TF
+from service_kit.relink import MovingOut
 from service_kit.runtime import HealthPublisher
+
+log = logging.getLogger(__name__)
 
 Sink = Callable[..., None]
 """``sink(kind, payload, arrival, attachment=None)``."""
@@ -65,23 +70,73 @@ class DspPort(Protocol):
 
 
 class ZenohDspPort:
-    """The DSP, the launcher and the monitor on zenoh."""
+    """The DSP, the launcher and the monitor on zenoh. Movable to a new
+    session (:mod:`service_kit.relink`): what the loop would send while it
+    moves is dropped (the controller is alone then, nobody would hear it)
+    and counted (:attr:`moves`, in health); the loop never waits for the move."""
 
     synchronous = False
 
     def __init__(self, session: zenoh.Session, rig_id: str) -> None:
-        self.session = session
         self.keys = Keys(rig_id)
+        self.moves = MovingOut()
+        """The out lock; moves to a new session and what the loop sent meanwhile, dropped."""
+        self._sink: tuple[Sink, Callable[[], float]] | None = None
+        self._subs: list[object] = []
+        self._token: object | None = None
+        self._health_args: tuple[float, Callable[[int], Health]] | None = None
+        self._health: HealthPublisher | None = None
+        self.bind(session)
+
+    @property
+    def out_lock(self) -> threading.Lock:
+        """Held while a message goes out, and while the port moves to a new session."""
+        return self.moves.lock
+
+    @property
+    def dropped_moving(self) -> int:
+        return self.moves.dropped
+
+    def bind(self, session: zenoh.Session) -> None:
+        """Publishers on ``session``; the subscribers, token and health too once connected and started."""
+        self.session = session
         block = zenoh.CongestionControl.BLOCK
         self._batch_pub = session.declare_publisher(self.keys.batch, encoding=BATCH, congestion_control=block, priority=zenoh.Priority.REAL_TIME, express=True)
         self._config_pub = session.declare_publisher(self.keys.dsp_config, encoding=JSON, congestion_control=block)
         self._status_pub = session.declare_publisher(self.keys.controller_status, encoding=JSON)
         self._tf_pub = session.declare_publisher(self.keys.tf_downloads, encoding=TF)
-        self._subs: list[object] = []
-        self._token: object | None = None
-        self._health: HealthPublisher | None = None
+        if self._sink is not None:
+            self._declare_inputs(*self._sink)
+        if self._health_args is not None:
+            self._health = HealthPublisher(session, self.keys.health("controller"), *self._health_args).start()
+        self.moves.bound_to_new()
+
+    def unbind(self) -> None:
+        """Everything :meth:`bind` declared, undeclared (the session may be broken: nothing raises)."""
+        self.moves.bound = False
+        if self._health is not None:
+            self._health.stop()
+            self._health = None
+        handles: list[Any] = [
+            *self._subs,
+            *([self._token] if self._token is not None else []),
+            self._batch_pub,
+            self._config_pub,
+            self._status_pub,
+            self._tf_pub,
+        ]
+        self._subs, self._token = [], None
+        for handle in handles:
+            try:
+                handle.undeclare()
+            except Exception as exc:  # noqa: BLE001 (a closed session's handles)
+                log.debug("undeclare on the old session: %s", exc)
 
     def connect(self, sink: Sink, clock: Callable[[], float]) -> None:
+        self._sink = (sink, clock)
+        self._declare_inputs(sink, clock)
+
+    def _declare_inputs(self, sink: Sink, clock: Callable[[], float]) -> None:
         keys, session = self.keys, self.session
 
         def put(kind: str) -> Callable[[zenoh.Sample], None]:
@@ -102,30 +157,29 @@ class ZenohDspPort:
         ]
         self._token = session.liveliness().declare_token(keys.alive("controller"))
 
+    def _put(self, publisher: Callable[[], zenoh.Publisher], payload: bytes) -> None:
+        """Sent on the current session; dropped and counted while the port moves (never waits)."""
+        self.moves.send(lambda: publisher().put(payload))
+
     def send_batch(self, payload: bytes) -> None:
-        self._batch_pub.put(payload)
+        self._put(lambda: self._batch_pub, payload)
 
     def send_config(self, payload: bytes) -> None:
-        self._config_pub.put(payload)
+        self._put(lambda: self._config_pub, payload)
 
     def send_status(self, payload: bytes) -> None:
-        self._status_pub.put(payload)
+        self._put(lambda: self._status_pub, payload)
 
     def download_tf(self, timeout_s: float) -> list[bytes]:
         return [reply.ok.payload.to_bytes() for reply in self.session.get(self.keys.tf, timeout=timeout_s) if reply.ok is not None]
 
     def publish_tf(self, payload: bytes) -> None:
-        self._tf_pub.put(payload)
+        self._put(lambda: self._tf_pub, payload)
 
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None:
+        self._health_args = (period_s, build)
         self._health = HealthPublisher(self.session, self.keys.health("controller"), period_s, build).start()
 
     def close(self) -> None:
-        if self._health is not None:
-            self._health.stop()
-        for sub in self._subs:
-            sub.undeclare()  # type: ignore[attr-defined]
-        if self._token is not None:
-            self._token.undeclare()  # type: ignore[attr-defined]
-        for pub in (self._batch_pub, self._config_pub, self._status_pub, self._tf_pub):
-            pub.undeclare()
+        with self.moves.lock:
+            self.unbind()

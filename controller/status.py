@@ -8,7 +8,7 @@ from collections import deque
 from typing import Protocol
 
 from controller.dsp_link import DspLink
-from controller.dsp_port import DspPort
+from controller.dsp_port import DspPort, ZenohDspPort
 from controller.dsp_side import DspSide
 from controller.fault_stage import FaultStage
 from controller.hop_timing import HopTimer
@@ -60,6 +60,8 @@ def build_health(svc: ControllerService, seq: int) -> Health:
         **svc.realtime.as_counters(),
         **svc.dsp.inbox.events.as_dict(),
     }
+    if isinstance(svc.port, ZenohDspPort):  # moves to a new zenoh session (service_kit/relink.py)
+        counters.update(svc.port.moves.as_dict())
     if svc.faults is not None:
         counters.update(svc.faults.as_counters())
     counters["deadline_miss_run_max"] = svc.link.miss_run_max

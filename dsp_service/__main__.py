@@ -32,7 +32,7 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
     batch -> interrupt path (docs/dsp-performance.md)."""
     from dsp_service.service import DspService
     from service_kit import readiness
-    from service_kit.relink import RelinkWatch
+    from service_kit.relink import relinking
     from service_kit.runtime import build_or_config_error
     from service_kit.waits import log_waits
 
@@ -55,43 +55,20 @@ def serve(settings: DspSettings, session: zenoh.Session, stop: threading.Event) 
     for service in services:  # each board waits for its own rig's controller
         log_waits([controller_heard(service)], log, stop)
     threads = [threading.Thread(target=service.run, args=(stop,), name=f"dsp-{service.settings.rig_id}", daemon=True) for service in services[1:]]
-    watch = RelinkWatch(session, partial(move_to_new_session, settings, services)).start(stop)
-    try:
-        for thread in threads:
-            thread.start()
-        services[0].run(stop)
-    finally:
-        stop.set()
-        for thread in threads:
-            thread.join()
-        watch.join()
-        for service in services:
-            service.close()
-            log.info("DSP board of rig %r stopped: %s", service.settings.rig_id, service.block.counters.as_dict())
-        if watch.session is not session:
-            watch.session.close()  # the caller closes the one it opened
+    with relinking(settings, session, services) as watch:  # a claimed zenoh id: the boards move to a new session
+        try:
+            for thread in threads:
+                thread.start()
+            services[0].run(stop)
+        finally:
+            stop.set()
+            for thread in threads:
+                thread.join()
+            watch.halt()
+            for service in services:
+                service.close()
+                log.info("DSP board of rig %r stopped: %s", service.settings.rig_id, service.block.counters.as_dict())
     return 0
-
-
-def move_to_new_session(settings: DspSettings, services: list[DspService], old: zenoh.Session) -> zenoh.Session:
-    """The boards off ``old``, ``old`` closed (its listening port freed), the
-    boards on a new session of the same configuration (a new zenoh id):
-    service_kit/relink.py. Called only while no node links to this one, so
-    no message is on its way in; no message goes out meanwhile."""
-    from contextlib import ExitStack
-
-    from service_kit.transport import open_zenoh
-
-    with ExitStack() as held:
-        for service in services:
-            held.enter_context(service.out_lock)
-        for service in services:
-            service.unbind()
-        old.close()
-        new = open_zenoh(settings, retry_for_s=0.0)
-        for service in services:
-            service.bind(new)
-    return new
 
 
 def controller_heard(service: DspService) -> Awaited:

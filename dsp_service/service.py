@@ -101,6 +101,8 @@ class DspService:
         self._tf_gate = query_gate("tf")
         self._health_on = False
         """Health is being published (from :meth:`run` on): a new session's publisher starts at once."""
+        self._binds = 0
+        """Sessions the board was put on: its first, then one per move (service_kit/relink.py)."""
         self.bind(session)
 
     def bind(self, session: zenoh.Session) -> None:
@@ -123,6 +125,7 @@ class DspService:
         self._health = HealthPublisher(session, self.keys.health("dsp"), self.settings.health_period_s, self._build_health)
         if self._health_on:
             self._health.start()
+        self._binds += 1
 
     @property
     def out_lock(self) -> threading.Lock:
@@ -181,6 +184,7 @@ class DspService:
         counters.update(self._events.as_dict())
         counters.update(self._tf_gate.as_dict())
         counters["interrupts"] = self.core.interrupt_seq
+        counters["zenoh_relinks"] = max(0, self._binds - 1)
         state = "degraded" if self.core.last_batch_missed else "running"
         return Health(
             seq=seq,

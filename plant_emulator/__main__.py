@@ -42,7 +42,7 @@ def serve_on_bus(settings: PlantSettings, session: zenoh.Session, stop: threadin
             settings.clock,
             settings.model,
         )
-        serve(settings, session, bus, stop, model=model)
+        serve(settings, session, bus, stop, model=model, relink=True)  # a claimed zenoh id: the test port moves to a new session
     finally:
         bus.shutdown()
     return 0

@@ -24,6 +24,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
 from typing import BinaryIO
 
@@ -46,6 +47,7 @@ from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
 from service_kit.inbox import LIMITS, Inbox
 from service_kit.realtime import RealtimeMeasures, apply_realtime
+from service_kit.relink import MovingOut, relinking
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -362,28 +364,71 @@ class PlantApplication:
 
 
 class PlantTestPort:
-    """zenoh side of the plant: truth and events out, scenario commands in, health."""
+    """zenoh side of the plant: truth and events out, scenario commands in,
+    health. Movable to a new session (:mod:`service_kit.relink`): what the
+    node would send while it moves is dropped (the plant is alone then,
+    nobody would hear it) and counted (:attr:`moves`, in health); the node's
+    thread never waits for the move."""
 
     def __init__(self, settings: PlantSettings, session: zenoh.Session) -> None:
         self.keys = Keys(settings.rig_id)
+        self.inbox = Inbox("plant", capacity=64, limits=LIMITS)
+        self.moves = MovingOut()
+        """The out lock; moves to a new session and the truth and events sent meanwhile, dropped."""
+        self._health_args: tuple[float, Callable[[int], Health]] | None = None
+        self._health: HealthPublisher | None = None
+        self.bind(session)
+
+    @property
+    def out_lock(self) -> threading.Lock:
+        """Held while a message goes out, and while the port moves to a new session."""
+        return self.moves.lock
+
+    @property
+    def dropped_moving(self) -> int:
+        return self.moves.dropped
+
+    def bind(self, session: zenoh.Session) -> None:
+        """Publishers, the scenario subscriber, the liveliness token and (once started) health on ``session``."""
         self.session = session
         self._truth_pub = session.declare_publisher(self.keys.truth, encoding=JSON)
         self._event_pub = session.declare_publisher(self.keys.plant_events, encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK)
-        self.inbox = Inbox("plant", capacity=64, limits=LIMITS)
         self._sub = session.declare_subscriber(self.keys.scenario, self.inbox.subscriber("scenario", lambda b: decode(ScenarioCommand, b)))
         self._token = session.liveliness().declare_token(self.keys.alive("plant"))
+        if self._health_args is not None:
+            self._health = HealthPublisher(session, self.keys.health("plant"), *self._health_args).start()
+        self.moves.bound_to_new()
+
+    def unbind(self) -> None:
+        """Everything :meth:`bind` declared, undeclared (the session may be broken: nothing raises)."""
+        self.moves.bound = False
+        if self._health is not None:
+            self._health.stop()
+            self._health = None
+        for handle in (self._sub, self._token, self._truth_pub, self._event_pub):
+            try:
+                handle.undeclare()
+            except Exception as exc:  # noqa: BLE001 (a closed session's handles)
+                log.debug("undeclare on the old session: %s", exc)
+
+    def start_health(self, period_s: float, build: Callable[[int], Health]) -> None:
+        """Health every ``period_s``, on this session and on every one after."""
+        self._health_args = (period_s, build)
+        self._health = HealthPublisher(self.session, self.keys.health("plant"), period_s, build).start()
+
+    def _put(self, publisher: Callable[[], zenoh.Publisher], payload: bytes) -> None:
+        """Sent on the current session; dropped and counted while the port moves (never waits)."""
+        self.moves.send(lambda: publisher().put(payload))
 
     def publish_truth(self, truth: GroundTruth) -> None:
-        self._truth_pub.put(encode(truth))
+        self._put(lambda: self._truth_pub, encode(truth))
 
     def publish_event(self, event: PlantEvent) -> None:
-        self._event_pub.put(encode(event))
+        self._put(lambda: self._event_pub, encode(event))
 
     def close(self) -> None:
-        self._sub.undeclare()
-        self._token.undeclare()
-        self._truth_pub.undeclare()
-        self._event_pub.undeclare()
+        with self.moves.lock:
+            self.unbind()
 
 
 def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: PlantTestPort | None, measures: RealtimeMeasures | None = None) -> Health:
@@ -393,6 +438,7 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, scenario_pending_dropped=app.scenario.dropped)
     if port is not None:
         counters.update(port.inbox.as_dict())
+        counters.update(port.moves.as_dict())
     counters.update((measures or RealtimeMeasures()).as_counters())
     model_counters, model_latencies, model_problem = app.model_health()
     counters.update(model_counters)
@@ -418,12 +464,15 @@ def serve(
     *,
     owns_process: bool = True,
     model: PlantModel | None = None,
+    relink: bool = False,
 ) -> None:
     """Run the node on ``bus`` until ``stop``; the test port on ``session``.
     ``owns_process``: False when other services share the process (the
     one-process composition): the real-time measures then stay on this thread.
     ``model``: the plant model, already built (default: the one the settings
-    name, built here); freed when the node stops."""
+    name, built here); freed when the node stops. ``relink``: the session is
+    the process's own; the port moves to a new one when a session claims
+    the plant's zenoh id (:mod:`service_kit.relink`)."""
     from plant_emulator.node import run_node
 
     model = model if model is not None else build_plant_model(settings)
@@ -439,18 +488,22 @@ def serve(
             if settings.clock == "realtime"
             else RealtimeMeasures()
         )
-        health = HealthPublisher(session, port.keys.health("plant"), settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures)).start()
+        port.start_health(settings.health_period_s, lambda seq: build_health(seq, app, node, port, measures))
     except BaseException:  # the model (an FMU instance) freed on any failure before the node runs
         model.close()
         raise
     try:
         readiness.mark_ready(settings.ready_file, log)  # kernels warm, node and test port up
-        run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
+        with relinking(settings, session, [port]) if relink else nullcontext() as watch:
+            try:
+                run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
+            finally:
+                if watch is not None:
+                    watch.halt()
     finally:
         app.flush_side_channels()
         if settings.truth_record:
             app.save_truth(settings.truth_record)
-        health.stop()
         port.close()
         app.close()
         log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())

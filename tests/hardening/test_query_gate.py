@@ -30,3 +30,27 @@ def test_every_query_kind_the_rig_answers_has_a_limit() -> None:
     queryables = {c.suffix.rsplit("/", 1)[-1] for c in RIG.channels if c.kind == "queryable"}
     assert queryables <= set(QUERY_LIMITS), queryables
     assert gate("tf").limit == QUERY_LIMITS["tf"]
+
+
+def test_the_rig_answers_queries_only_on_its_gated_queryables() -> None:
+    """Every ``declare_queryable`` of the rig's packages is the DSP's TF
+    queryable, the one queryable channel of the rig description, whose
+    answer goes through its gate; no other code of the rig answers a query
+    (liveliness and admin-space queries are zenoh's: docs/reliability.md)."""
+    import re
+    from pathlib import Path
+
+    from protocol.rig_description import RIG
+
+    root = Path(__file__).resolve().parents[2]
+    declared = {
+        f"{path.relative_to(root)}: {match}"
+        for package in ("controller", "dsp_service", "plant_emulator", "protocol", "service_kit", "workbench")
+        for path in sorted((root / package).rglob("*.py"))
+        for match in re.findall(r"declare_queryable\(([^)]*)\)", path.read_text())
+    }
+    assert declared == {"dsp_service/service.py: self.keys.tf, self._on_tf_query"}, declared
+    assert [c.suffix for c in RIG.channels if c.kind == "queryable"] == ["dsp/tf"]
+    source = (root / "dsp_service/service.py").read_text()
+    handler = source.split("def _on_tf_query", 1)[1].split("\n    def ", 1)[0]
+    assert "self._tf_gate.admit()" in handler and 'query_gate("tf")' in source

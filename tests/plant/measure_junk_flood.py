@@ -6,11 +6,16 @@ inside the loopback-only namespace)::
 20,000 undecodable datagrams at 2,000 a second on the CAN group and port for
 10 s, while a controller link ticks at 200 Hz (SYNC, TPDO1 within 4 ms,
 RPDO1) against the node served by its runner, both on the rig's
-udp_multicast bus. Prints the ticks answered and, per end, the datagrams
+udp_multicast bus. Prints the ticks answered, the link's TPDO timeouts, the
+node's SYNC watchdog trips and, per end, the datagrams
 read and counted (``rx_errors``; ``junk_frames``: skipped by the rig's bus
 before decoding) and dropped by the kernel and counted (``kernel_drops``): their sum is the flood plus any real frame the kernel
 dropped. ``--runner FILE`` serves the node with the ``run_node`` of another
-runner module (e.g. an older one, ``git show REV:plant_emulator/canopen_node/runner.py``)."""
+runner module (e.g. an older one, ``git show REV:plant_emulator/canopen_node/runner.py``);
+``--baseline`` sends the same datagrams to the next port, so the rig's bus
+sees none: what the host's load and the sender cost the link alone.
+The watchdog trips are counted from the first tick to the last (the pause
+after the last tick, before the final frame, trips it once more, not counted)."""
 
 from __future__ import annotations
 
@@ -35,6 +40,7 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=20_000)
     parser.add_argument("--rate", type=float, default=2000.0)
     parser.add_argument("--runner", help="a runner module file whose run_node serves the node")
+    parser.add_argument("--baseline", action="store_true", help="send the datagrams to the next port: the sender's cost, no junk on the bus")
     args = parser.parse_args()
     serve = run_node
     if args.runner:
@@ -61,9 +67,11 @@ def main() -> None:
                 wait = t0 + k / args.rate - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
-                attacker.sendto(b"\xc1\xc1 junk", (GROUP, args.port))
+                attacker.sendto(b"\xc1\xc1 junk", (GROUP, target))
 
+        target = args.port + 1 if args.baseline else args.port
         flooder = threading.Thread(target=flood, daemon=True)
+        trips_before = node.counters.watchdog_trips
         flooder.start()
         t0 = time.monotonic()
         ticks = answered = 0
@@ -75,6 +83,7 @@ def main() -> None:
             answered += link.wait_tpdo(0.004) is not None
             link.send_outputs((0.0, 0.0))
             ticks += 1
+        trips = node.counters.watchdog_trips - trips_before  # the pause below trips it once more
         time.sleep(0.5)
         link.send_sync()  # a last frame each way carries the kernel's drop count
         link.wait_tpdo(0.5)
@@ -86,7 +95,11 @@ def main() -> None:
         node_bus.shutdown()
         link_bus.shutdown()
     c, lc = node.counters, link.counters
-    print(f"{args.count} junk datagrams at {args.rate:.0f}/s; ticks {ticks}, answered {answered}, TPDO timeouts {lc.tpdo_timeouts}")
+    what = f"to port {args.port + 1} (baseline)" if args.baseline else "on the bus"
+    print(
+        f"{args.count} junk datagrams at {args.rate:.0f}/s {what}; ticks {ticks}, answered {answered}, TPDO timeouts {lc.tpdo_timeouts}, "
+        f"node watchdog trips during the ticks {trips}"
+    )
     for name, k in (("node", c), ("link", lc)):
         junk, drops = getattr(k, "junk_frames", 0), getattr(k, "kernel_drops", 0)
         print(f"{name}: rx_errors {k.rx_errors} + junk_frames {junk} + kernel_drops {drops} = {k.rx_errors + junk + drops}")
