@@ -37,7 +37,9 @@ def test_ci_runs_the_readme_test_command_verbatim() -> None:
 def test_readme_figures_table_is_the_generated_one() -> None:
     readme = (ROOT / "README.md").read_text()
     section = readme.split(BEGIN, 1)[1].split(END, 1)[0]
-    assert section == f"\n{figures_table(ROOT / 'docs' / 'results')}\n", "regenerate the README's figures with: python -m workbench.results_table --write README.md"
+    assert section == f"\n{figures_table(ROOT / 'docs' / 'results')}\n", (
+        "regenerate the README's figures with: python -m workbench.results_table --write README.md"
+    )
 
 
 def test_readme_stays_a_short_manual() -> None:
