@@ -28,9 +28,6 @@ RECONFIGURE_FIELDS: Final[frozenset[str]] = frozenset({"fft_width", "batch_size"
 TEST_KNOBS: Final[frozenset[str]] = frozenset({"emulated_latency_s"})
 """Fields meant for tests: they make the rig worse on purpose."""
 
-CONTROLLER_ONLY: Final[frozenset[str]] = frozenset({"reset"})
-"""Fields only the controller itself sets (towards the DSP)."""
-
 HEADER_FIELDS: Final[frozenset[str]] = frozenset({"seq", "sim_time_s", "wall_time_s", "request_id"})
 """Fields that change nothing: numbering, times, the acknowledgement's id."""
 

@@ -8,6 +8,7 @@ import math
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -354,6 +355,19 @@ INTERRUPTED = 130
 """``ralf-hil up``'s exit code when Ctrl-C (SIGINT), SIGTERM or a closed terminal ended it."""
 
 
+def refuse_unwritable_outputs(args: argparse.Namespace) -> None:
+    """``--json`` and ``--record`` into a folder that is not there or not writable, and a
+    ``--log-dir`` that cannot be a folder, are one line and exit 2 before the run, not an
+    error after it."""
+    for option, value in (("--json", args.json), ("--record", args.record), ("--can-log", args.can_log)):
+        if value:
+            folder = Path(value).parent
+            if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+                raise SystemExit(f"ralf-hil up: {option} {value}: {folder} is not a folder this user can write in")
+    if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
+        raise SystemExit(f"ralf-hil up: --log-dir {args.log_dir}: not a folder")
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     try:
         validate_rig_id(args.rig_id)
@@ -368,6 +382,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         overrides["controller"]["RALF_DURATION_S"] = shorter_duration(overrides["controller"].get("RALF_DURATION_S"), args.duration)
     refuse_clashing_outputs(args, overrides)
     refuse_bad_plant_model(overrides)
+    refuse_unwritable_outputs(args)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
     if args.clock == "cosim":
@@ -388,16 +403,20 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
         return 2
     refuse_bad_settings(overrides)  # before the logs and any service
     live_view = _start_live(args)  # before anything is created: a port in use is one line, the rig untouched
+    access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")  # may refuse (exit 2): before the logs, so a refusal leaves none
     try:
         logs = RunLogs.create(args.log_dir, args.rig_id, keep=args.keep_logs)
     except OSError as exc:
         if live_view is not None:
             live_view.close()
+        shutil.rmtree(access_dir, ignore_errors=True)
         raise SystemExit(f"ralf-hil up: --log-dir {args.log_dir}: {exc.strerror or exc}") from None
-    access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")
-    start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
     code = 1  # an exception on the way: the logs stay
     try:
+        try:
+            start_remover(access_dir)  # removes it if this process is killed (SIGKILL) before the finally below
+        except (OSError, subprocess.SubprocessError) as exc:
+            console.print(f"ralf-hil up: no remover for the run's credentials ({exc}): a SIGKILL of up leaves {access_dir}", highlight=False, soft_wrap=True)
         from workbench.certificates import planned_run_s
 
         run_s = planned_run_s(args.duration, args.clock, plan.service_env.get("controller", {}).get("RALF_DURATION_S"))
@@ -573,6 +592,9 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
             )  # fmt: skip
     except (ConfigError, ValueError) as exc:
         console.print(f"[red]ralf-hil up: {exc}[/red]")
+        return 2
+    except OSError as exc:  # an output that cannot be written (checked before, but a file system can still refuse)
+        console.print(f"[red]ralf-hil up: {exc.filename or ''}: {exc.strerror or exc}[/red]", highlight=False, soft_wrap=True)
         return 2
     wall = time.monotonic() - started
     status = decode(ControllerStatus, run.controller.port.status) if getattr(run.controller.port, "status", None) else None  # type: ignore[attr-defined]

@@ -40,6 +40,9 @@ def guarded_child_faults() -> TextIO | None:
 
 def run_guarded(argv: Sequence[str], fmu: str) -> int:
     """Run ``ralf-hil`` with ``argv`` in a child process; its exit code, or for a death by signal one line and 1."""
+    beat = getattr(sys.stderr, "heartbeat", None)
+    if beat is not None:  # the child's own progress lines speak for the run: this process keeps quiet
+        beat.stop()
     with tempfile.TemporaryDirectory(prefix="ralf-cosim-") as tmp:
         faults = Path(tmp) / "faults.txt"
         child = subprocess.Popen([sys.executable, "-P", "-m", "workbench", *argv], env={**os.environ, FAULT_FILE_VARIABLE: str(faults)})

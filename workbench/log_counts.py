@@ -57,8 +57,16 @@ def counting_warnings() -> Iterator[tuple[Counter[str], Counter[str]]]:
     inside, per service; yields the two counters (filled as records come)."""
     handler = _Counting()
     root = logging.getLogger()
+    # A handler on the root switches logging's last resort off: where nothing
+    # else prints the records, one that prints them as it would stands in.
+    shown = None if root.handlers else logging.StreamHandler()
+    if shown is not None:
+        shown.setLevel(logging.WARNING)
+        root.addHandler(shown)
     root.addHandler(handler)
     try:
         yield handler.warnings, handler.errors
     finally:
         root.removeHandler(handler)
+        if shown is not None:
+            root.removeHandler(shown)

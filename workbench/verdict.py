@@ -2,7 +2,7 @@
 
 A pure function of what the run left behind (its summary: the controller's
 status and every service's health, the exit codes, the supervisor's
-failure, the WARNING lines counted in each service's log), used by
+failure, the WARNING and ERROR lines counted in each service's log), used by
 ``ralf-hil up`` (its table, ``--json`` and exit code), ``ralf-hil
 timing-test`` (report and JUnit) and the pytest plugin's run record.
 
@@ -12,7 +12,7 @@ The rule (docs/reliability.md, "The run's verdict"), the first that applies:
   returned Error or Fatal, or asked to terminate: its samples are frozen
   from then on), or the controller made no control tick.
 * **FAIL**: a service exited non-zero or the rig failed (a plant fault, a
-  monitor's ``stop``, a service that died, no start), or the timing verdict
+  monitor's ``stop``, a service that died), or the timing verdict
   failed (deadline misses in a row beyond the criterion; with ``strict``
   the wake-up latency and the runs of overruns too). A plant process that
   died (a crash inside its FMU included) is FAIL, not INVALID: its samples
@@ -54,8 +54,6 @@ EXIT_CODES: Mapping[Level, int] = {"PASS": 0, "DEGRADED": 0, "FAIL": 1, "INVALID
 
 PLANT_MODEL_DEAD = ("fmu_step_errors", "fmu_terminated")
 """Plant health counters of a model that made its last step (FMI allows no doStep after Error/Fatal/Terminate)."""
-PLANT_MODEL_HELD = ("fmu_step_discards", "fmu_non_finite_outputs")
-"""Plant health counters of steps whose outputs were held (the model goes on)."""
 
 DEGRADING: tuple[tuple[str, str, str], ...] = (
     # (service, counter, what it means): each non-zero one degrades the run

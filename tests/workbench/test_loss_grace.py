@@ -64,8 +64,8 @@ def test_the_grace_is_derived_from_the_controllers_timeouts() -> None:
 
 def test_a_dead_plant_waits_for_the_controllers_plant_fault(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     _rig(monkeypatch, {"dsp": LIVE, "plant": KILL_SELF, "controller": _ends_on(tmp_path / "go", 3)})
-    sup = _run(tmp_path, RALF_TIMEOUTS="plant_heartbeat_s=0.5")
-    assert sup.policy_grace_s == pytest.approx(2.5)
+    sup = _run(tmp_path, stop_timeout_s=60.0, RALF_TIMEOUTS="plant_heartbeat_s=0.5")  # a grace no loaded host outlasts
+    assert sup.policy_grace_s == pytest.approx(60.5)
     assert sup.failure == "plant ended by SIGKILL (Killed)"
     assert sup.exit_codes["controller"] == 3 and sup.exit_codes["plant"] == -signal.SIGKILL
 
@@ -87,7 +87,7 @@ def test_a_dead_plant_before_the_first_tick_ends_the_run_at_once(tmp_path: Path,
 @pytest.mark.parametrize(("policy", "waits"), [("degrade", False), ("stop", True)])
 def test_a_dead_dsp_waits_only_under_the_stop_policy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, policy: str, waits: bool) -> None:
     _rig(monkeypatch, {"dsp": KILL_SELF, "plant": LIVE, "controller": _ends_on(tmp_path / "go", 4)})
-    sup = _run(tmp_path, RALF_POLICIES=f"dsp_lost={policy}")
+    sup = _run(tmp_path, stop_timeout_s=60.0, RALF_POLICIES=f"dsp_lost={policy}")
     assert sup.failure == "dsp ended by SIGKILL (Killed)"
     assert (sup.policy_grace_s is not None) is waits
     assert sup.exit_codes["controller"] == (4 if waits else -signal.SIGTERM)

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from workbench.log_counts import count_log_lines, counting_warnings
-from workbench.verdict import EXIT_CODES, judge
+from workbench.verdict import judge
 
 
 def summary(controller: dict[str, int] | None = None, plant: dict[str, int] | None = None, **more: Any) -> dict[str, Any]:
@@ -87,10 +87,6 @@ def test_a_dead_plant_model_makes_the_run_invalid_over_a_failure(controller: dic
 def test_no_tick_is_invalid_and_a_missing_summary_part_is_no_crash() -> None:
     v = judge({"controller": None, "health": {}, "exit_codes": {}})
     assert v.level == "INVALID" and v.reasons == ("no control tick",)
-
-
-def test_exit_codes_per_level() -> None:
-    assert EXIT_CODES == {"PASS": 0, "DEGRADED": 0, "FAIL": 1, "INVALID": 1}
 
 
 def test_log_lines_are_counted_by_their_level_field_only() -> None:

@@ -800,8 +800,10 @@ def _lag_checks(
         al["error_at_lag_hz"] < al["error_at_zero_hz"],
         f"{al['error_at_zero_hz']:.3f} → {al['error_at_lag_hz']:.3f} Hz",
     )
-    if quick and not lags_ok:  # said, not judged: a quick run's runs are too short for a transition to settle
-        rep.text(f"Transition lags: none of {len(trans)} measurable in a quick run (too short for a transition to settle); the full run judges them.")
+    if quick and not lags_ok:  # not judged, and said so: a quick run's runs are too short for a transition to settle
+        rep.known_limit(
+            "every measurable transition lag is positive (judged by the full run)", f"none of {len(trans)} transitions measurable in a quick run", False
+        )
     else:
         rep.check_every(
             "every measurable transition lag is positive",
