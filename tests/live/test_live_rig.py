@@ -187,5 +187,5 @@ def test_a_slow_client_leaves_the_rig_alone(tmp_path: Path) -> None:
     assert proc.returncode == 0, err[-2000:]
     summary = json.loads((tmp_path / "summary.json").read_text())
     live, controller = summary["live"], summary["controller"]
-    assert live["clients_seen"] == 1 and live["published"] > read > 0 and live["decimated"] > 0 and live["handoff_dropped"] == 0, (live, read)
+    assert live["clients_seen"] == 1 and live["published"] >= read > 0 and live["decimated"] > 0 and live["handoff_dropped"] == 0, (live, read)
     assert controller["ticks"] >= round(duration * 200) and controller["deadline_misses"] == 0, controller

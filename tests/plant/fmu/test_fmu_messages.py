@@ -56,6 +56,7 @@ def _fmu_lines(caplog: pytest.LogCaptureFixture, level: int) -> list[str]:
 FATAL_PROBE = """
 import json, logging, os, sys
 from pathlib import Path
+sys.path.append(os.getcwd())  # the checkout, for its tests package only (ralf-hil may be installed)
 from plant_emulator.service import build_health
 from tests.plant.fmu.test_fmu_messages import FAULT_STEP, RAISE, _rig
 lines = []
