@@ -153,12 +153,12 @@ class ChannelFault(BaseModel):
         needs = _NEEDS.get(self.kind, ())
         missing = [p for p in needs if getattr(self, p) is None]
         if missing:
-            raise ValueError(f"a {self.kind!r} fault needs {', '.join(missing)}")
+            raise ValueError(f"a fault of kind {self.kind!r} needs {', '.join(missing)}")
         takes = _TAKES.get(self.kind, frozenset(needs))
         extra = [p for p in _PARAMETERS if getattr(self, p) is not None and p not in takes]
         if extra:
             allowed = ", ".join(sorted(takes)) or "no parameter"
-            raise ValueError(f"a {self.kind!r} fault takes {allowed}, not {', '.join(extra)}")
+            raise ValueError(f"a fault of kind {self.kind!r} takes {allowed}, not {', '.join(extra)}")
         if self.kind == "stuck" and not analog_input and self.value_v is not None and abs(self.value_v) > FULL_SCALE_V:
             raise ValueError(f"a D/A output is stuck within +-{FULL_SCALE_V:g} V, not {self.value_v}")
         if self.kind == "short_channels" and self.other == self.channel:
