@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import can
 import cantools
@@ -28,7 +28,7 @@ from protocol.scenario_setting import parse_channel_faults
 from protocol.settings import PlantSettings, load_settings
 from workbench.cosim import run_cosim
 
-DBC = cantools.database.load_file(str(Path(__file__).resolve().parents[2] / "protocol" / "ralf.dbc"))
+DBC = cast(cantools.database.can.Database, cantools.database.load_file(str(Path(__file__).resolve().parents[2] / "protocol" / "ralf.dbc")))
 TPDO1 = DBC.get_message_by_name("TPDO1_AnalogInputs16")
 RPDO1 = DBC.get_message_by_name("RPDO1_AnalogOutputs16")
 CONTROLLER = {"duration_s": 1.2, "tf_download_samples": 0, "batch_size": 20}
@@ -43,12 +43,12 @@ MOVING = {"dither": "amplitude_v=0.5"}
 class Run:
     """One faulted co-simulation: the frames on the bus and the truth file."""
 
-    def __init__(self, tmp: Path, faults: list[dict[str, Any]], controller: dict[str, Any] | None = None) -> None:
+    def __init__(self, tmp: Path, faults: list[dict[str, Any]], controller: dict[str, Any] | None = None, plant: dict[str, Any] | None = None) -> None:
         scenario = json.dumps({"commands": [], "channel_faults": faults})
         run_cosim(
             controller={**CONTROLLER, **(controller or {})},
             dsp=dict(DSP),
-            plant={"scenario": scenario, "truth_record": str(tmp / "run")},
+            plant={"scenario": scenario, "truth_record": str(tmp / "run"), **(plant or {})},
             record=str(tmp / "run.mcap"),
             can_log=str(tmp / "run.asc"),
         )
@@ -66,7 +66,7 @@ class Run:
         return self.tpdo >> (16 - BITS)
 
 
-def _raw(message: Any, data: bytes, names: tuple[str, ...]) -> list[int]:
+def _raw(message: Any, data: bytes | bytearray, names: tuple[str, ...]) -> list[int]:
     decoded = message.decode(bytes(data), scaling=False)
     return [int(decoded[n]) for n in names]
 
