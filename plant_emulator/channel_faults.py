@@ -110,8 +110,10 @@ class ChannelRecord:
 class ChannelFaultUnit:
     """The fault schedule's faults, applied to the A/D conversions and D/A updates they act on."""
 
-    def __init__(self, schedule: FaultSchedule) -> None:
+    def __init__(self, schedule: FaultSchedule, keep_record: bool = True) -> None:
         self.schedule = schedule
+        self.keep_record = keep_record
+        """Keep every conversion and D/A update in :attr:`record` (the plant does when it writes a truth file)."""
         self._states = [_State(f, np.random.Generator(np.random.PCG64(f.seed)) if f.kind == "noise" else None) for f in schedule.faults]
         self._ad = [[s for s in self._states if s.fault.is_input and s.fault.kind == kind] for kind in AD_ORDER]
         self._lost_bits = [s for s in self._states if s.fault.kind == "lost_bits"]
@@ -150,13 +152,17 @@ class ChannelFaultUnit:
                 i = s.fault.index
                 n = min(int(s.fault.bits or 0), scale.bits - 1)
                 codes[i] = (codes[i] >> n) << n
+        if self.keep_record:
+            self._keep_conversion(time_s, true_v, v, codes, flags)
+        return codes, flags
+
+    def _keep_conversion(self, time_s: float, true_v: list[float], v: list[float], codes: list[int], flags: list[bool]) -> None:
         rec = self.record
         rec.ad_time_s.append(time_s)
         rec.ad_true_v.extend(true_v)
         rec.ad_faulted_v.extend(v)
         rec.ad_codes.extend(codes)
         rec.ad_saturated.extend(int(b) for b in flags)
-        return codes, flags
 
     def drive(self, time_s: float, volts0: float, volts1: float) -> tuple[float, float]:
         """The two D/A voltages at ``time_s`` through the active faults: what the valves see."""
@@ -165,10 +171,11 @@ class ChannelFaultUnit:
             for s in stage:
                 if _acting(s, time_s):
                     _output_stage(s, v)
-        rec = self.record
-        rec.da_time_s.append(time_s)
-        rec.da_commanded_v.extend((float(volts0), float(volts1)))
-        rec.da_applied_v.extend(v)
+        if self.keep_record:
+            rec = self.record
+            rec.da_time_s.append(time_s)
+            rec.da_commanded_v.extend((float(volts0), float(volts1)))
+            rec.da_applied_v.extend(v)
         return v[0], v[1]
 
 

@@ -181,7 +181,7 @@ class PlantApplication:
         schedule = parse_channel_faults(settings.scenario)
         if not schedule:
             return None
-        unit = ChannelFaultUnit(schedule)
+        unit = ChannelFaultUnit(schedule, keep_record=bool(settings.truth_record))
         if unit.on_inputs and not isinstance(arm, SamplesVolts):
             raise ConfigError(f"channel_faults on the A/D inputs need a model whose input voltages can be read; {type(arm).__name__} has no sample_volts")
         return unit

@@ -7,6 +7,7 @@ program's ``--help`` prints them.
 from __future__ import annotations
 
 import base64
+import json
 import math
 import os
 import re
@@ -309,6 +310,12 @@ class PlantSettings(CommonSettings):
     truth_record: str = Field(
         "", description="Write the ground truth at truth_rate_hz to PATH.truth.npz when the plant stops (the plant's only file; empty = none)"
     )
+
+    @field_validator("scenario", mode="before")
+    @classmethod
+    def _scenario_as_json(cls, value: Any) -> Any:
+        """A list or mapping (a YAML scenario file's ``settings: {plant: {scenario: ...}}``, a dict in Python) as its JSON text."""
+        return json.dumps(value) if isinstance(value, list | dict) else value
 
     @field_validator("scenario")
     @classmethod

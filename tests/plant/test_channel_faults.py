@@ -317,3 +317,10 @@ def test_bad_section_and_bits_are_refused_at_settings_load() -> None:
     with pytest.raises(ConfigError) as caught:
         load_settings(PlantSettings, {"scenario": json.dumps({"channel_faults": [{"channel": "AI9", "kind": "open"}]})})
     assert "channel_faults item 0: channel: Input should be 'AI1'" in str(caught.value).splitlines()[-1]
+
+
+def test_the_scenario_may_be_given_as_a_mapping() -> None:
+    """As a YAML scenario file's ``settings: {plant: {scenario: {...}}}`` gives it."""
+    faults = [{"channel": "AI3", "kind": "short_ground", "start_s": 5.0, "end_s": 7.0}]
+    settings = load_settings(PlantSettings, {"scenario": {"commands": [{"kind": "seed", "at_sim_time_s": 1.0, "seed": 2}], "channel_faults": faults}})
+    assert parse_channel_faults(settings.scenario).faults[0].describe() == "AI3 short_ground from 5 s until 7 s"
