@@ -18,6 +18,7 @@ import cantools
 import numpy as np
 import numpy.typing as npt
 import pytest
+from mcap.reader import make_reader
 
 from plant_emulator.channel_faults import ChannelFaultUnit
 from plant_emulator.service import PlantApplication
@@ -224,6 +225,23 @@ def test_a_faulted_run_is_bit_identical_run_to_run(tmp_path: Path) -> None:
     np.testing.assert_array_equal(a.rpdo, b.rpdo)
     for key in a.truth:
         np.testing.assert_array_equal(a.truth[key], b.truth[key], err_msg=key)
+    events = _recorded_events(tmp_path / "a" / "run.mcap")
+    assert events == _recorded_events(tmp_path / "b" / "run.mcap")
+    assert [(e["kind"], round(e["sim_time_s"], 6), e["detail"].split(" from ")[0]) for e in events] == [
+        ("channel_fault", 0.2, "AI4 noise sigma_v=0.3 seed=11"),
+        ("channel_fault", 0.3, "AO1 gain factor=0.7"),
+        ("channel_fault", 0.4, "AI3 drift rate_v_s=1.0"),
+        ("channel_fault", 0.6, "AI3 stuck"),
+        ("channel_fault_cleared", 0.8, "AI3 stuck"),
+        ("channel_fault_cleared", 1.0, "AI3 drift rate_v_s=1.0"),
+    ]
+
+
+def _recorded_events(path: Path) -> list[dict[str, Any]]:
+    """The channel-fault events in a run's MCAP recording, in order, without their wall time."""
+    with open(path, "rb") as f:
+        events = [json.loads(m.data) for _, channel, m in make_reader(f).iter_messages() if channel.topic.endswith("/plant/events")]
+    return [{k: v for k, v in e.items() if k != "wall_time_s"} for e in events if e["kind"].startswith("channel_fault")]
 
 
 def test_seeded_noise_is_reproducible_and_the_seed_matters() -> None:
