@@ -342,3 +342,25 @@ def test_the_scenario_may_be_given_as_a_mapping() -> None:
     faults = [{"channel": "AI3", "kind": "short_ground", "start_s": 5.0, "end_s": 7.0}]
     settings = load_settings(PlantSettings, {"scenario": {"commands": [{"kind": "seed", "at_sim_time_s": 1.0, "seed": 2}], "channel_faults": faults}})
     assert parse_channel_faults(settings.scenario).faults[0].describe() == "AI3 short_ground from 5 s until 7 s"
+
+
+class _Opaque:
+    """A plant model whose A/D voltages cannot be read before its converter."""
+
+    def __init__(self, arm: Any) -> None:
+        self._arm = arm
+
+    def __getattr__(self, name: str) -> Any:
+        if name in ("sample_volts", "adc_scale"):
+            raise AttributeError(name)
+        return getattr(self._arm, name)
+
+
+def test_input_faults_on_a_model_without_input_voltages_are_refused_at_start() -> None:
+    settings = load_settings(PlantSettings, {"scenario": {"channel_faults": [{"channel": "AI1", "kind": "open"}]}})
+    model = _Opaque(PlantApplication(load_settings(PlantSettings, {})).arm)
+    with pytest.raises(ConfigError) as caught:
+        PlantApplication(settings, arm=model)
+    assert str(caught.value) == "channel_faults on the A/D inputs need a model whose input voltages can be read; _Opaque has no sample_volts"
+    valves_only = load_settings(PlantSettings, {"scenario": {"channel_faults": [{"channel": "AO1", "kind": "open"}]}})
+    assert PlantApplication(valves_only, arm=model).channel_faults is not None  # the D/A side needs nothing of the model
