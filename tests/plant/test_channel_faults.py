@@ -278,11 +278,14 @@ def test_stacked_faults_act_in_the_documented_order() -> None:
 def test_insertion_and_removal_are_plant_events() -> None:
     settings = load_settings(
         PlantSettings,
-        {"scenario": json.dumps({"channel_faults": [{"channel": "AI3", "kind": "short_ground", "start_s": 0.02, "end_s": 0.04}]}), "sensor_noise_scale": 0},
+        {
+            "scenario": json.dumps({"channel_faults": [{"channel": "AI3", "kind": "short_ground", "start_s": 0.02, "end_s": 0.04}]}),
+            "sensor_noise_scale": 0,
+            "clock": "lockstep",
+        },
     )
     events: list[Any] = []
     app = PlantApplication(settings, publish_event=events.append)
-    app.lockstep, app.realtime = True, False
     codes = [app.on_sync(0)[0][2] for _ in range(10)]
     assert [(e.kind, round(e.sim_time_s, 6)) for e in events] == [("channel_fault", 0.02), ("channel_fault_cleared", 0.04)]
     assert "AI3 short_ground" in events[0].detail
