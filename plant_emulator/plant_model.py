@@ -16,7 +16,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy.typing as npt
 
-__all__ = ["PlantModel", "ReportsStepFaults", "TruthSummary"]
+from protocol.can_map import ConverterScale
+
+__all__ = ["PlantModel", "ReportsStepFaults", "SamplesVolts", "TruthSummary"]
 
 TruthSummary = tuple[tuple[float, ...], tuple[float, ...], tuple[float, float], tuple[float, float], tuple[float, float], bool]
 """Modal frequencies (Hz), damping ratios, deflections (in), joint angles (rad), tip (in), payload attached."""
@@ -73,3 +75,18 @@ class ReportsStepFaults(Protocol):
     active, detail)`` when a fault appears or clears."""
 
     on_fault: Callable[[int, bool, str], None] | None
+
+
+@runtime_checkable
+class SamplesVolts(Protocol):
+    """A model whose A/D voltages can be read before the converter (both
+    built-in models): what faults on the A/D inputs need
+    (:mod:`plant_emulator.channel_faults`)."""
+
+    @property
+    def adc_scale(self) -> ConverterScale: ...
+
+    def sample_volts(self) -> list[float]:
+        """The four A/D inputs' voltages now, before the converter; drawing
+        the same sensor noise as :meth:`PlantModel.sample_codes` would."""
+        ...

@@ -26,21 +26,23 @@ import time
 from collections.abc import Callable
 from contextlib import nullcontext
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from plant_emulator.channel_faults import ChannelFaultUnit
 from plant_emulator.node import CanopenNode, NodeConfig
 from plant_emulator.plant_factory import build_plant_model
-from plant_emulator.plant_model import PlantModel, ReportsStepFaults
+from plant_emulator.plant_model import PlantModel, ReportsStepFaults, SamplesVolts
 from plant_emulator.scenario import PendingCommands
 from protocol.can_map import EmcyCode
+from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
-from protocol.scenario_setting import parse_scenario
+from protocol.scenario_setting import parse_channel_faults, parse_scenario
 from protocol.settings import PlantSettings
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
@@ -162,6 +164,8 @@ class PlantApplication:
         """Scenario commands waiting for their time (the setting's and the test port's), bounded."""
         for cmd in planned:
             self.scenario.add(cmd)
+        self.channel_faults = self._fault_unit(settings, self.arm)
+        """The scenario's channel faults (None: no ``channel_faults`` section, the node's path untouched)."""
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -170,6 +174,17 @@ class PlantApplication:
         self.realtime = settings.clock == "realtime"
         self._recording_truth = bool(settings.truth_record)
         self._side_channels_due = False
+
+    @staticmethod
+    def _fault_unit(settings: PlantSettings, arm: PlantModel) -> ChannelFaultUnit | None:
+        """The fault unit of the scenario's ``channel_faults``; refused (one line) for a model whose A/D voltages cannot be read."""
+        schedule = parse_channel_faults(settings.scenario)
+        if not schedule:
+            return None
+        unit = ChannelFaultUnit(schedule, keep_record=bool(settings.truth_record))
+        if unit.on_inputs and not isinstance(arm, SamplesVolts):
+            raise ConfigError(f"channel_faults on the A/D inputs need a model whose input voltages can be read; {type(arm).__name__} has no sample_volts")
+        return unit
 
     # -- time ----------------------------------------------------------------------------
     def _catch_up(self) -> None:
@@ -201,12 +216,27 @@ class PlantApplication:
             self.syncs += 1
             if self.scenario or len(self.scenario_inbox):
                 self._apply_scenario()
-            codes, saturated = self.arm.sample_codes()
+            faults = self.channel_faults
+            if faults is None:
+                codes, saturated = self.arm.sample_codes()
+            else:
+                codes, saturated = self._faulted_sample(faults)
             if self.publish_truth is not None or self._recording_truth or self.arm.hard_stop_count != self._hard_stops_seen:
                 self._side_channels_due = True  # published once the TPDO is out (flush_side_channels)
             return codes, saturated  # plain ints and bools: the node packs them as they are
         finally:
             self.sync_service.add(self.stopwatch() - arrived)
+
+    def _faulted_sample(self, faults: ChannelFaultUnit) -> tuple[list[int], list[bool]]:
+        """The scenario's channel faults inserted or removed by now (plant events), then the A/D sample through them."""
+        now = self.arm.time_s
+        for change in faults.transitions(now):
+            self._event("channel_fault" if change.inserted else "channel_fault_cleared", change.fault.describe())
+        if not faults.on_inputs:
+            return self.arm.sample_codes()
+        arm = self.arm
+        assert isinstance(arm, SamplesVolts)
+        return faults.convert(now, arm.sample_volts(), arm.adc_scale)
 
     def flush_side_channels(self) -> None:
         """Publish what the last SYNC left for the test port (ground truth,
@@ -223,6 +253,10 @@ class PlantApplication:
         if self.realtime:
             self._catch_up()
         if not self.held:
+            faults = self.channel_faults
+            if faults is not None and faults.on_outputs:
+                self.arm.set_valve_values(*faults.drive(self.arm.time_s, float(volts[0]), float(volts[1])))
+                return
             self.arm.set_valve_voltages(volts if type(volts) is np.ndarray and volts.dtype == np.float64 else np.asarray(volts, dtype=np.float64))
 
     def on_output_values(self, volts0: float, volts1: float) -> None:
@@ -232,6 +266,9 @@ class PlantApplication:
         if self.realtime:
             self._catch_up()
         if not self.held:
+            faults = self.channel_faults
+            if faults is not None and faults.on_outputs:
+                volts0, volts1 = faults.drive(self.arm.time_s, volts0, volts1)
             self.arm.set_valve_values(volts0, volts1)
 
     def on_watchdog(self, tripped: bool) -> None:
@@ -239,7 +276,11 @@ class PlantApplication:
         self._catch_up()
         self.held = tripped
         if tripped:
-            self.arm.set_valve_voltages(np.zeros(2))
+            faults = self.channel_faults
+            if faults is not None and faults.on_outputs:  # the D/A writes zero; a fault behind it still acts
+                self.arm.set_valve_values(*faults.drive(self.arm.time_s, 0.0, 0.0))
+            else:
+                self.arm.set_valve_voltages(np.zeros(2))
             self._event("watchdog", "SYNC lost: valves held at zero")
         else:
             self._event("watchdog_cleared", "SYNC back: valves follow the RPDO again")
@@ -343,24 +384,27 @@ class PlantApplication:
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = target.with_name(target.name + ".tmp")
         n_modes = min(len(t.modal_frequencies_hz) for t in log_)
+        channels = self.channel_faults.record.arrays() if self.channel_faults is not None else {}
         with open(tmp, "wb") as fh:
-            self._write_truth(fh, log_, n_modes)
+            self._write_truth(fh, log_, n_modes, channels)
         os.replace(tmp, target)
         return target
 
     @staticmethod
-    def _write_truth(fh: BinaryIO, log_: list[GroundTruth], n_modes: int) -> None:
-        np.savez_compressed(
-            fh,
-            sim_time_s=np.array([t.sim_time_s for t in log_]),
-            modal_frequencies_hz=np.array([t.modal_frequencies_hz[:n_modes] for t in log_]),
-            damping_ratios=np.array([t.damping_ratios[:n_modes] for t in log_]),
-            deflections_in=np.array([t.deflections_in for t in log_]),
-            theta_rad=np.array([t.theta_rad for t in log_]),
-            tip_in=np.array([t.tip_in for t in log_]),
-            payload_attached=np.array([t.payload_attached for t in log_]),
-            valves_held=np.array([t.valves_held for t in log_]),
-        )
+    def _write_truth(fh: BinaryIO, log_: list[GroundTruth], n_modes: int, channels: dict[str, npt.NDArray[np.generic]]) -> None:
+        """The truth rows; with channel faults, also every A/D conversion's and D/A update's true and faulted values (``channel_*``)."""
+        arrays: dict[str, Any] = {
+            "sim_time_s": np.array([t.sim_time_s for t in log_]),
+            "modal_frequencies_hz": np.array([t.modal_frequencies_hz[:n_modes] for t in log_]),
+            "damping_ratios": np.array([t.damping_ratios[:n_modes] for t in log_]),
+            "deflections_in": np.array([t.deflections_in for t in log_]),
+            "theta_rad": np.array([t.theta_rad for t in log_]),
+            "tip_in": np.array([t.tip_in for t in log_]),
+            "payload_attached": np.array([t.payload_attached for t in log_]),
+            "valves_held": np.array([t.valves_held for t in log_]),
+            **channels,
+        }
+        np.savez_compressed(fh, **arrays)
 
 
 class PlantTestPort:

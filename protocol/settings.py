@@ -7,6 +7,7 @@ program's ``--help`` prints them.
 from __future__ import annotations
 
 import base64
+import json
 import math
 import os
 import re
@@ -19,7 +20,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict, Settin
 from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
-from protocol.scenario_setting import parse_scenario
+from protocol.scenario_setting import parse_channel_faults, parse_scenario
 from protocol.setting_groups import (
     DitherTuning,
     OatfTuning,
@@ -303,20 +304,33 @@ class PlantSettings(CommonSettings):
     heartbeat_ms: int = Field(100, ge=0, le=65535, description="CANopen heartbeat producer period (0 = off)")
     scenario: str = Field(
         "",
-        description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]',
+        description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]; '
+        "or an object with sections commands (that list) and channel_faults (faults on the A/D and D/A channels, docs/fault-insertion.md)",
     )
     truth_record: str = Field(
         "", description="Write the ground truth at truth_rate_hz to PATH.truth.npz when the plant stops (the plant's only file; empty = none)"
     )
+
+    @field_validator("scenario", mode="before")
+    @classmethod
+    def _scenario_as_json(cls, value: Any) -> Any:
+        """A list or mapping (a YAML scenario file's ``settings: {plant: {scenario: ...}}``, a dict in Python) as its JSON text."""
+        return json.dumps(value) if isinstance(value, list | dict) else value
 
     @field_validator("scenario")
     @classmethod
     def _scenario_commands(cls, value: str) -> str:
         try:
             parse_scenario(value)
+            parse_channel_faults(value)
         except ConfigError as exc:
             raise ValueError(str(exc).removeprefix("RALF_SCENARIO ")) from None
         return value
+
+    @model_validator(mode="after")
+    def _channel_faults_fit_the_converter(self) -> PlantSettings:
+        parse_channel_faults(self.scenario).check_resolution(self.adc_bits)
+        return self
 
     model: str = Field(
         "ralf",

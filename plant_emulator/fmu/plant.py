@@ -136,6 +136,17 @@ class FmuPlant:
         (s0, o0), (s1, o1), (s2, o2), (s3, o3) = self._maps
         return self._scale.quantize_floats((s0 * v[0] + o0, s1 * v[1] + o1, s2 * v[2] + o2, s3 * v[3] + o3))
 
+    def sample_volts(self) -> list[float]:
+        """The four A/D inputs' voltages now, before the converter: the mapped outputs."""
+        v = self._values
+        (s0, o0), (s1, o1), (s2, o2), (s3, o3) = self._maps
+        return [s0 * v[0] + o0, s1 * v[1] + o1, s2 * v[2] + o2, s3 * v[3] + o3]
+
+    @property
+    def adc_scale(self) -> ConverterScale:
+        """The A/D converter (its resolution follows :meth:`set_adc_bits`)."""
+        return self._scale
+
     def truth_summary(self) -> TruthSummary:
         v = self._values
         i = 4

@@ -368,6 +368,16 @@ class RalfArm:
         ext, aa = self._sensed()
         return read_codes(ext, aa, self._ext_noise, self._scale, self._noise.sample if self.cfg.sensor_noise else None)  # type: ignore[arg-type]
 
+    def sample_volts(self) -> list[float]:
+        """The four A/D inputs' voltages now, before the converter (sensor noise
+        included): :meth:`sample`'s ``analog_volts``, the same deviates drawn."""
+        return self.sample().analog_volts.tolist()
+
+    @property
+    def adc_scale(self) -> ConverterScale:
+        """The A/D converter (its resolution follows :meth:`set_adc_bits`)."""
+        return self._scale
+
     def _sensed(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """The A/D's analog inputs from the state: the cylinder extensions and the anti-alias filters' outputs."""
         v = self._stv
