@@ -356,12 +356,12 @@ INTERRUPTED = 130
 
 
 def refuse_unwritable_outputs(args: argparse.Namespace) -> None:
-    """``--json`` and ``--record`` into a folder that is not there or not writable, and a
+    """``--json``, ``--record`` and ``--can-log`` under a path this user cannot write in, and a
     ``--log-dir`` that cannot be a folder, are one line and exit 2 before the run, not an
     error after it."""
     for option, value in (("--json", args.json), ("--record", args.record), ("--can-log", args.can_log)):
         if value:
-            folder = Path(value).parent
+            folder = next(p for p in Path(value).absolute().parents if p.exists())  # the folders below it are made
             if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
                 raise SystemExit(f"ralf-hil up: {option} {value}: {folder} is not a folder this user can write in")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
@@ -521,6 +521,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     add_verdict(summary)
     print_summary(summary, verbose=args.verbose)
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if received:
         console.print(f"interrupted ({received[0]}) {sup.ended_at - sup.started:.1f} s after the launch: every service stopped")
@@ -621,6 +622,7 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     add_verdict(summary)
     print_summary(summary, verbose=args.verbose)
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(summary, indent=2))
     if run.result.error or run.result.ticks == 0:
         console.print(f"[red]rig failed: {run.result.error or 'the controller made no progress (0 control ticks)'}[/red]")
