@@ -25,7 +25,6 @@ the sink in zenoh's threads, so decoding happens at the edge.
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -34,7 +33,7 @@ import zenoh
 from protocol.keys import Keys
 from protocol.messages import Health
 from service_kit.encodings import BATCH, JSON, TF
-from service_kit.relink import MovingOut
+from service_kit.relink import MovablePort, MovingOut
 from service_kit.runtime import HealthPublisher
 
 log = logging.getLogger(__name__)
@@ -69,7 +68,7 @@ class DspPort(Protocol):
     def close(self) -> None: ...
 
 
-class ZenohDspPort:
+class ZenohDspPort(MovablePort):
     """The DSP, the launcher and the monitor on zenoh. Movable to a new
     session (:mod:`service_kit.relink`): what the loop would send while it
     moves is dropped (the controller is alone then, nobody would hear it)
@@ -87,15 +86,6 @@ class ZenohDspPort:
         self._health_args: tuple[float, Callable[[int], Health]] | None = None
         self._health: HealthPublisher | None = None
         self.bind(session)
-
-    @property
-    def out_lock(self) -> threading.Lock:
-        """Held while a message goes out, and while the port moves to a new session."""
-        return self.moves.lock
-
-    @property
-    def dropped_moving(self) -> int:
-        return self.moves.dropped
 
     def bind(self, session: zenoh.Session) -> None:
         """Publishers on ``session``; the subscribers, token and health too once connected and started."""

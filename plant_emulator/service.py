@@ -49,7 +49,7 @@ from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
 from service_kit.inbox import LIMITS, Inbox
 from service_kit.realtime import RealtimeMeasures, apply_realtime
-from service_kit.relink import MovingOut, relinking
+from service_kit.relink import MovablePort, MovingOut, relinking
 from service_kit.runtime import HealthPublisher, LatencyTracker
 
 log = logging.getLogger(__name__)
@@ -407,7 +407,7 @@ class PlantApplication:
         np.savez_compressed(fh, **arrays)
 
 
-class PlantTestPort:
+class PlantTestPort(MovablePort):
     """zenoh side of the plant: truth and events out, scenario commands in,
     health. Movable to a new session (:mod:`service_kit.relink`): what the
     node would send while it moves is dropped (the plant is alone then,
@@ -422,15 +422,6 @@ class PlantTestPort:
         self._health_args: tuple[float, Callable[[int], Health]] | None = None
         self._health: HealthPublisher | None = None
         self.bind(session)
-
-    @property
-    def out_lock(self) -> threading.Lock:
-        """Held while a message goes out, and while the port moves to a new session."""
-        return self.moves.lock
-
-    @property
-    def dropped_moving(self) -> int:
-        return self.moves.dropped
 
     def bind(self, session: zenoh.Session) -> None:
         """Publishers, the scenario subscriber, the liveliness token and (once started) health on ``session``."""

@@ -12,7 +12,7 @@ describes every kind.
 
 from __future__ import annotations
 
-from typing import Final, Literal
+from typing import Final, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -33,7 +33,7 @@ AD_CHANNELS: Final[tuple[str, ...]] = ("AI1", "AI2", "AI3", "AI4")
 """The A/D inputs, TPDO1 order (0x6401 sub 1-4)."""
 DA_CHANNELS: Final[tuple[str, ...]] = ("AO1", "AO2")
 """The D/A outputs, RPDO1 order (0x6411 sub 1-2): the two valves."""
-AD_KINDS: Final[tuple[str, ...]] = (
+AdKind = Literal[
     "open",
     "short_ground",
     "short_supply",
@@ -46,8 +46,12 @@ AD_KINDS: Final[tuple[str, ...]] = (
     "lost_bits",
     "delay",
     "short_channels",
-)
-DA_KINDS: Final[tuple[str, ...]] = ("open", "stuck", "offset", "gain", "saturate", "delay")
+]
+"""The fault kinds of an A/D input."""
+AD_KINDS: Final[tuple[str, ...]] = get_args(AdKind)
+DaKind = Literal["open", "stuck", "offset", "gain", "saturate", "delay"]
+"""The fault kinds of a D/A output."""
+DA_KINDS: Final[tuple[str, ...]] = get_args(DaKind)
 
 DEFAULT_OPEN_V: Final[float] = 0.0
 """What an open A/D input reads unless ``value_v`` says otherwise: the
@@ -62,21 +66,8 @@ MAX_DELAY_SAMPLES: Final[int] = 10_000
 MAX_LOST_BITS: Final[int] = max(ADC_RESOLUTIONS) - 1
 
 Channel = Literal["AI1", "AI2", "AI3", "AI4", "AO1", "AO2"]
-Kind = Literal[
-    "open",
-    "short_ground",
-    "short_supply",
-    "stuck",
-    "offset",
-    "gain",
-    "noise",
-    "drift",
-    "intermittent",
-    "lost_bits",
-    "delay",
-    "short_channels",
-    "saturate",
-]
+Kind = Literal[AdKind, DaKind]
+"""Every fault kind (an A/D input's, then the D/A outputs' own)."""
 
 _NEEDS: Final[dict[str, tuple[str, ...]]] = {
     "offset": ("offset_v",),

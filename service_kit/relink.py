@@ -166,6 +166,22 @@ class MovingOut:
         return {"zenoh_relinks": max(0, self.binds - 1), "zenoh_dropped_moving": self.dropped}
 
 
+class MovablePort:
+    """A port whose parts move to a new session: its :class:`MovingOut` (set
+    by the port's ``__init__``), its out lock and what it dropped meanwhile."""
+
+    moves: MovingOut
+
+    @property
+    def out_lock(self) -> threading.Lock:
+        """Held while a message goes out, and while the port moves to a new session."""
+        return self.moves.lock
+
+    @property
+    def dropped_moving(self) -> int:
+        return self.moves.dropped
+
+
 class Rebinds(Protocol):
     """What a node declares on its zenoh session, movable to another one."""
 
