@@ -183,7 +183,9 @@ class ControlLaw:
         for change in stim.transitions(t):
             p = change.profile
             event = "start" if change.started else "end"
-            self.stimulus_events.append({"time_s": change.time_s, "tick": tick, "profile": change.index, "input": p.input, "event": event, "detail": p.describe()})
+            self.stimulus_events.append(
+                {"time_s": change.time_s, "tick": tick, "profile": change.index, "input": p.input, "event": event, "detail": p.describe()}
+            )
             log.info("stimulus %s at %.3f s: %s", event, t, change.describe())
         u1 = stim.value("valve.u1", t) if stim.any_active("valve.u1", t) else math.nan
         u2 = stim.value("valve.u2", t) if stim.any_active("valve.u2", t) else math.nan

@@ -43,8 +43,8 @@ from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
-from protocol.stimulus_eval import StimulusSource
 from protocol.settings import PlantSettings
+from protocol.stimulus_eval import StimulusSource
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON

@@ -21,7 +21,6 @@ from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
-from protocol.stimulus import parse_stimulus
 from protocol.setting_groups import (
     DitherTuning,
     OatfTuning,
@@ -36,6 +35,7 @@ from protocol.setting_groups import (
     describe_group,
 )
 from protocol.setting_hints import ANY, unknown_setting, variable
+from protocol.stimulus import parse_stimulus
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"

@@ -86,7 +86,7 @@ class _Shape(BaseModel):
             raise ValueError(f"end_s {self.end_s:g} is not after at_s {self.at_s:g}")
         return self
 
-    @property
+    @functools.cached_property
     def end(self) -> float | None:
         """The window's end (simulated s; None: the run's end)."""
         if self.end_s is not None:
@@ -227,9 +227,16 @@ class Playback(_Shape):
         return str(self.csv or self.npz or self.mcap or "inline samples")
 
     def samples(self) -> tuple[FloatArray, FloatArray]:
-        """``(t, value)``: times from the profile's start (s) and values (scaled)."""
+        """``(t, value)``: times from the profile's start (s) and values (scaled), read once."""
+        return self._samples
+
+    @functools.cached_property
+    def _samples(self) -> tuple[FloatArray, FloatArray]:
         t, v = _load_samples(self.csv, self.npz, self.mcap, self.topic, self.field, self.column, self.time_column, self.t, self.values)
-        return t - self.time_offset_s, v * self.scale
+        t, v = t - self.time_offset_s, v * self.scale
+        t.setflags(write=False)
+        v.setflags(write=False)
+        return t, v
 
     def _own_length(self) -> float | None:
         t, _ = self.samples()
@@ -311,7 +318,6 @@ def _one_line(exc: ValidationError) -> str:
     return "; ".join(dict.fromkeys(parts))
 
 
-@functools.lru_cache(maxsize=32)
 def _load_samples(
     csv_path: str | None,
     npz: str | None,
@@ -323,7 +329,7 @@ def _load_samples(
     t: tuple[float, ...] | None,
     values: tuple[float, ...] | None,
 ) -> tuple[FloatArray, FloatArray]:
-    """The samples of one playback source, read once per process (read-only arrays)."""
+    """The samples of one playback source (read-only arrays)."""
     if t is not None and values is not None:
         if len(t) != len(values):
             raise ValueError(f"inline playback: {len(t)} times but {len(values)} values")

@@ -79,7 +79,7 @@ def profile_value(profile: Profile, data: tuple[FloatArray, FloatArray] | None, 
     if isinstance(profile, Prbs):
         assert data is not None
         bits = data[0]
-        k = int(math.floor(tau / profile.bit_s)) % bits.shape[0]
+        k = int(math.floor((tau + EDGE_S) / profile.bit_s)) % bits.shape[0]  # a bit edge within EDGE_S counts as reached
         return profile.amplitude * float(bits[k])
     assert isinstance(profile, Playback) and data is not None
     ts, vs = data
