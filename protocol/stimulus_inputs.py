@@ -101,3 +101,7 @@ def describe_inputs() -> str:
     for i in _TABLE:
         lines.append(f"| `{i.name}` | {i.side} | {i.unit} | {i.low:g} .. {i.high:g} | {i.meaning} |")
     return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(describe_inputs())
