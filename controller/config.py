@@ -10,12 +10,14 @@ from controller.loop import LawConfig
 from controller.oatf import OatfConfig
 from controller.trajectory import DEFAULT_TRAJECTORY_PATH, SampledTrajectory, load_trajectory, sample_trajectory
 from protocol.settings import ControllerSettings
+from protocol.stimulus import parse_stimulus
 
 
 def law_config(settings: ControllerSettings) -> LawConfig:
     """The control law's configuration: sample period and the OATF's mode,
     place, initial design and fallback, and its design rules (thesis §4.1);
-    the valve commands' dither (off by default, :mod:`controller.excitation`); the PI gains."""
+    the valve commands' dither (off by default, :mod:`controller.excitation`); the PI gains;
+    the stimulus profiles (none by default, :mod:`protocol.stimulus`)."""
     ts = settings.sample_period_s
     tuning, dither = settings.oatf, settings.dither
     oatf = OatfConfig(
@@ -37,6 +39,7 @@ def law_config(settings: ControllerSettings) -> LawConfig:
         oatf=oatf if settings.oatf_mode != "off" else None,
         dither=DitherConfig(amplitude_v=dither.amplitude_v, band_hz=dither.band_hz, seed=dither.seed),
         pi_gains=settings.pi,
+        stimulus=parse_stimulus(settings.stimulus, "controller"),
     )
 
 

@@ -69,7 +69,12 @@ HEAD = 5
 """ints[HEAD]: the OATF's delay-line head (:attr:`controller.oatf.OatfFilter.head_state`)."""
 DITHER = 6
 """ints[DITHER]: the dither table's length in ticks (0: none); the table, (d0, d1) per tick, follows the set-points in ``data``."""
-N_INTS = 7
+STIMULUS = 7
+"""ints[STIMULUS]: 0 (no stimulus), or :data:`STIMULUS_SLOTS`: the last slots of ``data`` hold this tick's stimulus."""
+STIMULUS_SLOTS = 4
+"""data[-4:] with a stimulus: the set-point offsets of joints 1 and 2 (rad), then the
+valve overrides of valves 1 and 2 (V; NaN: no override, the command goes to the D/A)."""
+N_INTS = 8
 """The length of ``ints``."""
 
 
@@ -152,7 +157,8 @@ def law_tick(
     the PI's state (:attr:`controller.pi.PIController.state`), the row (the
     values of :data:`controller.loop.ROW_NAMES`, the words as floats), the
     lap's set-points, then the dither table (``ints[DITHER]`` ticks of two
-    valve values, :mod:`controller.excitation`). ``ints`` (int64,
+    valve values, :mod:`controller.excitation`), then, with a stimulus
+    (``ints[STIMULUS]``), this tick's :data:`STIMULUS_SLOTS` (:mod:`protocol.stimulus_eval`). ``ints`` (int64,
     :data:`N_INTS`): the D/A codes and their saturation flags
     ``(c0, c1, s0, s1)``, the OATF mode (0 none, 1 outer, 2 inner), the head
     of its delay line ``obuf`` (moved in place), the dither's length. Few
@@ -170,10 +176,15 @@ def law_tick(
     phi1 = t1 - consts[_ENG + 9]
     phi2 = t2 + consts[_ENG + 9]
     n_dither = ints[DITHER]
-    lap = (data.shape[0] - SETPOINTS - 2 * n_dither) // 2
+    n_stim = ints[STIMULUS]
+    ks = data.shape[0] - n_stim
+    lap = (ks - SETPOINTS - 2 * n_dither) // 2
     k = SETPOINTS + 2 * (tick % lap)
     ref1 = data[k]
     ref2 = data[k + 1]
+    if n_stim > 0:  # set-point offsets
+        ref1 = ref1 + data[ks]
+        ref2 = ref2 + data[ks + 1]
     sh1, sh2 = ref1, ref2
     if mode == 1:  # outer OATF, on the set-points [3-34]
         sh1, sh2 = _oatf_step(obuf, orows, oweights, ints, ref1, ref2)
@@ -195,6 +206,13 @@ def law_tick(
         kd = SETPOINTS + 2 * lap + 2 * (tick % n_dither)
         x0 = u0 + data[kd]
         x1 = u1 + data[kd + 1]
+    if n_stim > 0:  # valve overrides replace the command (NaN: none)
+        o0 = data[ks + 2]
+        o1 = data[ks + 3]
+        if o0 == o0:
+            x0 = o0
+        if o1 == o1:
+            x1 = o1
     _dac(x0, consts, ints, 0)
     _dac(x1, consts, ints, 1)
     _measure(w0, w1, w2, w3, t1, t2, consts, row)

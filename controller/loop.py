@@ -10,8 +10,9 @@ model in one.
 
 from __future__ import annotations
 
+import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -24,6 +25,10 @@ from controller.pi import PIConfig, PIController
 from controller.trajectory import SampledTrajectory
 from protocol.messages import Interrupt
 from protocol.setting_groups import PiGains
+from protocol.stimulus import StimulusPlan
+from protocol.stimulus_eval import StimulusSource
+
+log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -60,6 +65,8 @@ ROW_VOLTS = ROW_NAMES.index("u1_v")
 """``row[ROW_VOLTS:ROW_VOLTS + 2]``: the valve voltages after D/A quantization."""
 ROW_DEFLECTIONS = ROW_NAMES.index("defl1_in")
 """``row[ROW_DEFLECTIONS:ROW_DEFLECTIONS + 2]``: the two link deflections (in)."""
+STIMULUS_NAMES: tuple[str, ...] = ("stim_phi1_rad", "stim_phi2_rad", "stim_u1_v", "stim_u2_v")
+"""The run record's stimulus columns (only with a controller stimulus): :attr:`ControlLaw.stimulus_row`."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +86,8 @@ class LawConfig:
     """Persistent excitation added to the valve commands before the D/A (:mod:`controller.excitation`; off by default)."""
     pi_gains: PiGains = PiGains()
     """The joints' PI gains (the thesis's by default)."""
+    stimulus: StimulusPlan = field(default_factory=StimulusPlan)
+    """Stimulus profiles on the set-points and valves (:mod:`protocol.stimulus`; empty: off, the tick untouched)."""
 
 
 class ControlLaw:
@@ -107,12 +116,19 @@ class ControlLaw:
         # the OATF's head and the row are views into them.
         f = fast_tick
         dither = dither_table(config.dither, self._ts) if config.dither.enabled else np.zeros((0, 2))
-        data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks + dither.size)
+        self.stimulus = StimulusSource(config.stimulus) if config.stimulus else None
+        """The controller's stimulus (None: none; the compiled tick then reads no slot)."""
+        self.stimulus_row: list[float] = [0.0, 0.0, math.nan, math.nan] if self.stimulus is not None else []
+        """This tick's stimulus as applied (:data:`STIMULUS_NAMES`): set-point offsets (rad), valve overrides (V; NaN: none); empty without a stimulus."""
+        self.stimulus_events: list[dict[str, Any]] = []
+        """Each profile's start and end: ``time_s``, ``tick``, ``profile`` (its index), ``input``, ``event`` (start, end), ``detail``."""
+        n_stim = f.STIMULUS_SLOTS if self.stimulus is not None else 0
+        data = np.zeros(f.SETPOINTS + 2 * self.lap_ticks + dither.size + n_stim)
         data[: f.PI_STATE] = f.law_consts(self.pi, self._ts)
         data[f.PI_STATE : f.ROW] = self.pi.state
         self.pi.state = data[f.PI_STATE : f.ROW]
         data[f.SETPOINTS : f.SETPOINTS + 2 * self.lap_ticks] = np.asarray(self.setpoints, dtype=np.float64).ravel()
-        data[f.SETPOINTS + 2 * self.lap_ticks :] = dither.ravel()
+        data[f.SETPOINTS + 2 * self.lap_ticks : data.size - n_stim] = dither.ravel()
         self._data = data
         self.row = data[f.ROW : f.SETPOINTS]
         """The tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
@@ -121,6 +137,7 @@ class ControlLaw:
         """The tick's D/A codes and saturation flags ``(c0, c1, s0, s1)``."""
         self.ints[f.MODE] = 0 if self.oatf is None else (1 if self._outer else 2)
         self.ints[f.DITHER] = len(dither)
+        self.ints[f.STIMULUS] = n_stim
         if self.oatf is not None:
             self.ints[f.HEAD] = self.oatf.head_state[0]
             self.oatf.head_state = self.ints[f.HEAD : f.HEAD + 1]
@@ -142,6 +159,8 @@ class ControlLaw:
         (:func:`controller.fast_tick.law_tick`): engineering values [A.7, A.8],
         set-point, OATF (§3.3, [3-34]), PI (§4), 12-bit D/A. :attr:`row` and
         :attr:`codes` hold the result."""
+        if self.stimulus is not None:
+            self._apply_stimulus(tick)
         oatf = self.oatf
         if oatf is not None:
             buf, rows, weights = oatf._buf, oatf._tap_rows, oatf._weights
@@ -155,6 +174,24 @@ class ControlLaw:
             raise ValueError(f"non-finite angle error {np.asarray(self.row[:2].tolist())!r}")
         if status < 0:
             raise RuntimeError(f"the compiled tick failed with status {status}")
+
+    def _apply_stimulus(self, tick: int) -> None:
+        """This tick's stimulus at ``t = tick * Ts`` (the record's ``t_s``) into the compiled tick's slots."""
+        stim = self.stimulus
+        assert stim is not None
+        t = tick * self._ts
+        for change in stim.transitions(t):
+            p = change.profile
+            event = "start" if change.started else "end"
+            self.stimulus_events.append(
+                {"time_s": change.time_s, "tick": tick, "profile": change.index, "input": p.input, "event": event, "detail": p.describe()}
+            )
+            log.info("stimulus %s at %.3f s: %s", event, t, change.describe())
+        u1 = stim.value("valve.u1", t) if stim.any_active("valve.u1", t) else math.nan
+        u2 = stim.value("valve.u2", t) if stim.any_active("valve.u2", t) else math.nan
+        values = [stim.value("setpoint.phi1", t), stim.value("setpoint.phi2", t), u1, u2]
+        self.stimulus_row = values
+        self._data[-len(values) :] = values
 
     def _row_and_flags(self, tick: int, w: list[int]) -> tuple[list[Any], bool, bool]:
         """:meth:`tick_compiled`, read back as floats (the words as ints) and the two D/A saturation flags."""

@@ -40,7 +40,7 @@ from controller.dsp_port import DspPort, ZenohDspPort
 from controller.dsp_side import ConfigChangeTaken, DspSide, DspTimes
 from controller.fault_stage import FaultStage, LoopStalls
 from controller.interrupt_wait import BATCH_RESEND_S
-from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, ControlLaw
+from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, STIMULUS_NAMES, ControlLaw
 from controller.monitors import Monitors, MonitorStop
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from controller.run_files import make_records, save_run
@@ -102,6 +102,14 @@ def make_faults(settings: ControllerSettings, scenario: Scenario | None, lockste
 
 RECORD_COLUMNS: dict[str, type] = {**{name: np.float64 for name in (*ROW_NAMES, *RECORD_EXTRA)}, "tick": np.int64}
 """The run record's columns: the law's row, the service's extras, the tick."""
+
+
+def record_columns(stimulus: bool) -> dict[str, type]:
+    """:data:`RECORD_COLUMNS`; with a controller stimulus, its applied values (:data:`controller.loop.STIMULUS_NAMES`) before the tick."""
+    if not stimulus:
+        return RECORD_COLUMNS
+    names = (*ROW_NAMES, *RECORD_EXTRA, *STIMULUS_NAMES)
+    return {**{name: np.float64 for name in names}, "tick": np.int64}
 
 
 class ControllerService:
@@ -180,7 +188,7 @@ class ControllerService:
         )
         keep_all = bool(s.run_record) or keep_record
         self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.timeouts.lockstep_s, BATCH_RESEND_S, keep_all)
-        self.record, self.timing_record = make_records(s.run_record, keep_record, RECORD_COLUMNS)
+        self.record, self.timing_record = make_records(s.run_record, keep_record, record_columns(self.law.stimulus is not None))
         self.port.connect(self.dsp.inbox.on_port_event, self.clock.now)
 
     # -- views kept on the service (its health, the tests and the workbench read them) --
@@ -246,7 +254,7 @@ class ControllerService:
         degraded = self.monitors.degraded
         if degraded != law.degraded:  # set_degraded of the same state changes nothing
             law.set_degraded(degraded)
-        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale_watch.stale), *dsp.interrupt_columns(), tick))
+        row.extend((law.oatf_frequency_hz, float(applied), float(self.stale_watch.stale), *dsp.interrupt_columns(), *law.stimulus_row, tick))
         self.record.append_row(row)
 
     # -- the run ------------------------------------------------------------------------
@@ -386,6 +394,9 @@ class ControllerService:
     def save(self, path: str, result: RunResult) -> None:
         """Write the run record (deterministic columns), timing and TF downloads."""
         metadata: dict[str, Any] = {"result": result.__dict__, "trajectory": self.law.trajectory.name}
+        if self.law.stimulus is not None:
+            plan = self.law.stimulus.plan
+            metadata["stimulus"] = {"profiles": [p.model_dump(exclude_none=True) for p in plan.profiles], "events": self.law.stimulus_events}
         hops = self.hops if not self.lockstep else None
         save_run(path, (self.record, self.timing_record), self.settings.model_dump(), metadata, self.faults, hops, self.tf_snapshots)
 

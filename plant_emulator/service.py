@@ -42,8 +42,9 @@ from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
-from protocol.scenario_setting import parse_channel_faults, parse_scenario
+from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.settings import PlantSettings
+from protocol.stimulus_eval import StimulusSource
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
@@ -166,6 +167,10 @@ class PlantApplication:
             self.scenario.add(cmd)
         self.channel_faults = self._fault_unit(settings, self.arm)
         """The scenario's channel faults (None: no ``channel_faults`` section, the node's path untouched)."""
+        self.stimulus = self._stimulus_source(settings, self.arm)
+        """The scenario's stimulus on the plant's inputs (None: no ``stimulus`` section, the SYNC path untouched)."""
+        self._payload_before: bool | None = None
+        self._forces = (0.0, 0.0)
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -185,6 +190,42 @@ class PlantApplication:
         if unit.on_inputs and not isinstance(arm, SamplesVolts):
             raise ConfigError(f"channel_faults on the A/D inputs need a model whose input voltages can be read; {type(arm).__name__} has no sample_volts")
         return unit
+
+    @staticmethod
+    def _stimulus_source(settings: PlantSettings, arm: PlantModel) -> StimulusSource | None:
+        """The source of the scenario's ``stimulus``; refused (one line) for a model without the inputs it drives."""
+        plan = parse_scenario_stimulus(settings.scenario)
+        if not plan:
+            return None
+        for name in plan.inputs():
+            needs = "set_tip_forces" if name.startswith("disturbance.") else "payload_attached"
+            if not hasattr(arm, needs):
+                raise ConfigError(f"stimulus on {name}: the plant model {type(arm).__name__} maps no such input (the built-in arm has it)")
+        return StimulusSource(plan)
+
+    def _apply_stimulus(self, source: StimulusSource) -> None:
+        """The stimulus at the model's time (docs/stimulus.md): profiles started or ended (plant
+        events), the payload while a profile on it is active, the links' tip forces."""
+        t = self.arm.time_s
+        for change in source.transitions(t):
+            self._event("stimulus_start" if change.started else "stimulus_end", change.describe())
+        if "payload" in source.inputs:
+            if source.any_active("payload", t):
+                if self._payload_before is None:
+                    self._payload_before = bool(self.arm.payload_attached)  # type: ignore[attr-defined]
+                self._set_payload(source.value("payload", t) >= 0.5)
+            elif self._payload_before is not None:  # the last window ended: back to the payload before it
+                self._set_payload(self._payload_before)
+                self._payload_before = None
+        forces = (source.value("disturbance.link1", t), source.value("disturbance.link2", t))
+        if forces != self._forces:
+            self._forces = forces
+            self.arm.set_tip_forces(*forces)  # type: ignore[attr-defined]  # checked at the start (_stimulus_source)
+
+    def _set_payload(self, attached: bool) -> None:
+        if attached != bool(self.arm.payload_attached):  # type: ignore[attr-defined]  # checked at the start
+            self.arm.attach_payload(attached)
+            self._event("payload", f"payload {'attached' if attached else 'released'} by the stimulus at {self.arm.time_s:.3f} s")
 
     # -- time ----------------------------------------------------------------------------
     def _catch_up(self) -> None:
@@ -214,6 +255,8 @@ class PlantApplication:
             else:
                 self._catch_up()
             self.syncs += 1
+            if self.stimulus is not None:
+                self._apply_stimulus(self.stimulus)
             if self.scenario or len(self.scenario_inbox):
                 self._apply_scenario()
             faults = self.channel_faults

@@ -1,7 +1,8 @@
 """The plant's ``scenario`` setting: a JSON list of :class:`ScenarioCommand`
-applied at their simulated times, or a JSON object with two sections,
-``commands`` (that list) and ``channel_faults`` (faults on the node's signal
-channels, :mod:`protocol.channel_faults`). Parsed here, where the settings
+applied at their simulated times, or a JSON object with sections
+``commands`` (that list), ``channel_faults`` (faults on the node's signal
+channels, :mod:`protocol.channel_faults`) and ``stimulus`` (profiles on the
+plant's inputs, :mod:`protocol.stimulus`). Parsed here, where the settings
 validate it at load (a bad list is refused before the plant's node boots on
 the bus), and by the plant when it starts."""
 
@@ -14,10 +15,11 @@ from protocol.bounded_parse import TooLarge, load_json
 from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
 from protocol.messages import ScenarioCommand
+from protocol.stimulus import StimulusPlan, parse_stimulus
 
-__all__ = ["SECTIONS", "parse_channel_faults", "parse_scenario"]
+__all__ = ["SECTIONS", "parse_channel_faults", "parse_scenario", "parse_scenario_stimulus"]
 
-SECTIONS = ("commands", "channel_faults")
+SECTIONS = ("commands", "channel_faults", "stimulus")
 """The sections of a scenario given as a JSON object."""
 
 
@@ -43,6 +45,11 @@ def parse_channel_faults(text: str) -> FaultSchedule:
         except Exception as exc:
             raise ConfigError(f"RALF_SCENARIO channel_faults item {n}: {_one_line(exc)}") from None
     return FaultSchedule(faults=tuple(faults))
+
+
+def parse_scenario_stimulus(text: str) -> StimulusPlan:
+    """The ``stimulus`` section of the ``scenario`` setting: the plant inputs' profiles (:mod:`protocol.stimulus`; empty for a plain list)."""
+    return parse_stimulus(_section(text, "stimulus"), "plant", where="RALF_SCENARIO stimulus")
 
 
 def _section(text: str, name: str) -> list[Any]:

@@ -123,6 +123,7 @@ SERVICES: Final[dict[str, tuple[str, ...]]] = {
         "run_record",
         "policies",
         "fault_scenario",
+        "stimulus",
     ),
     "dsp": (
         "rig_id",

@@ -20,7 +20,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict, Settin
 from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
-from protocol.scenario_setting import parse_channel_faults, parse_scenario
+from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.setting_groups import (
     DitherTuning,
     OatfTuning,
@@ -35,6 +35,7 @@ from protocol.setting_groups import (
     describe_group,
 )
 from protocol.setting_hints import ANY, unknown_setting, variable
+from protocol.stimulus import parse_stimulus
 
 _ENDPOINT = re.compile(r"(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})|unixsock-stream/\S+)(?:[?#]\S*)?")
 CREDENTIALS_FILE_MASK = "(set; path not recorded)"
@@ -305,7 +306,8 @@ class PlantSettings(CommonSettings):
     scenario: str = Field(
         "",
         description='Scenario commands applied at their simulated times, JSON list, e.g. [{"kind": "payload", "at_sim_time_s": 30, "payload_attached": false}]; '
-        "or an object with sections commands (that list) and channel_faults (faults on the A/D and D/A channels, docs/fault-insertion.md)",
+        "or an object with sections commands (that list), channel_faults (faults on the A/D and D/A channels, docs/fault-insertion.md) "
+        "and stimulus (profiles on the payload and the links' disturbance forces, docs/stimulus.md)",
     )
     truth_record: str = Field(
         "", description="Write the ground truth at truth_rate_hz to PATH.truth.npz when the plant stops (the plant's only file; empty = none)"
@@ -323,6 +325,7 @@ class PlantSettings(CommonSettings):
         try:
             parse_scenario(value)
             parse_channel_faults(value)
+            parse_scenario_stimulus(value)
         except ConfigError as exc:
             raise ValueError(str(exc).removeprefix("RALF_SCENARIO ")) from None
         return value
@@ -416,10 +419,32 @@ class ControllerSettings(CommonSettings):
         description="Faults (link faults on CAN and zenoh, loop stalls; the DSP reads its dsp_delay_s): a scenario file (YAML/JSON) or inline JSON, docs/timing-faults.md (empty = none)",
     )
 
+    stimulus: str = Field(
+        "",
+        max_length=1_000_000,
+        description="Stimulus profiles on the set-points and valves, a JSON list, e.g. "
+        '[{"input": "valve.u1", "shape": "step", "size": 2, "at_s": 1, "for_s": 0.5}] (docs/stimulus.md; empty = none)',
+    )
+
     @field_validator("oatf", "dither", "pi", "timeouts", "policies", mode="before")
     @classmethod
     def _group_text(cls, value: Any) -> Any:
         return SettingGroup.coerce(value)
+
+    @field_validator("stimulus", mode="before")
+    @classmethod
+    def _stimulus_as_json(cls, value: Any) -> Any:
+        """A list (a YAML file's, Python's) as its JSON text."""
+        return json.dumps(value) if isinstance(value, list | tuple) else value
+
+    @field_validator("stimulus")
+    @classmethod
+    def _stimulus_profiles(cls, value: str) -> str:
+        try:
+            parse_stimulus(value, "controller")
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("stimulus ")) from None
+        return value
 
     @field_validator("run_record")
     @classmethod

@@ -289,8 +289,8 @@ class RalfArm:
         pk.warm_up()
         self._advance_steps = pk.advance_steps
         self._sp = _sensor_parameters(self._zero, self._defl_noise_in, aa)
-        self._ma = (np.array(self._modal_args[0]), np.array(self._modal_args[1]))
-        """:attr:`_modal_args` as the kernel's arrays."""
+        self._ma = (np.array([*self._modal_args[0], 0.0, 0.0, L2_M]), np.array([*self._modal_args[1], 0.0, 0.0, L2_M]))
+        """:attr:`_modal_args` as the kernel's arrays, then the tip forces (N) and link 2's length (``period_kernel.MA_FORCE1``)."""
         self._st = np.zeros(pk.STATE_SIZE)
         self._stv = memoryview(self._st)  # type: ignore[arg-type]  # numpy arrays are buffers; its stubs do not say so
         """``_st`` read element by element as Python floats (``sample``'s four reads per SYNC)."""
@@ -433,6 +433,17 @@ class RalfArm:
         modes and static load change at once; positions and velocities of the
         links are continuous, so the arm rings about its new equilibrium."""
         self._payload = bool(attached)
+
+    def set_tip_forces(self, force1_n: float, force2_n: float) -> None:
+        """Disturbance forces (N) at the tips of link 1 (the elbow) and link 2,
+        perpendicular to each link, positive towards increasing beta; held
+        until the next call (0, 0: none). They load the flexible links as
+        generalized forces (:func:`.period_kernel.links_step`)."""
+        if not (math.isfinite(force1_n) and math.isfinite(force2_n)):
+            raise ValueError("tip forces must be finite")
+        for ma in self._ma:
+            ma[pk.MA_FORCE1] = force1_n
+            ma[pk.MA_FORCE1 + 1] = force2_n
 
     def set_adc_bits(self, bits: int) -> None:
         """Change the A/D resolution (12, 16, 20 ...); the analog noise stays."""

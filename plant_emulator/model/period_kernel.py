@@ -113,6 +113,12 @@ MA_OFFSET1: Final = 15
 MA_PQ: Final = 16
 MA_PQ2: Final = 17
 MA_SIZE: Final = 20
+"""The modal step's constant arguments (:func:`~.modes.modal_arguments`); the arm's arrays add three after them:"""
+MA_FORCE1: Final = 20
+"""ma[MA_FORCE1], ma[MA_FORCE1 + 1]: the disturbance forces at the tips of links 1 and 2 (N), perpendicular to each link."""
+MA_L2: Final = 22
+"""ma[MA_L2]: link 2's length (m), the lever of its tip force."""
+MA_SIZE_FORCES: Final = 23
 
 STATUS_DONE: Final = 0
 STATUS_NOISE: Final = 1
@@ -328,7 +334,12 @@ def joint_angle_and_rate(hp: npt.NDArray[np.float64], j: int, extension: float, 
 @_jitable
 def links_step(st: npt.NDArray[np.float64], ma: npt.NDArray[np.float64], tm0: float, tm1: float, acc0: float, acc1: float) -> None:
     """The flexible links' exact modal step at the mid configuration (tm0, tm1)
-    under the joints' acceleration: beta and beta' in ``st``."""
+    under the joints' acceleration: beta and beta' in ``st``. With the arm's
+    tip forces (``ma[MA_FORCE1:MA_FORCE1 + 2]``, not zero) their generalized
+    loads join the right side of M q'' + D q' + K q = E f [2-1, 2-2]: a force
+    ``F1`` at link 1's tip does the virtual work ``F1 L1 dbeta1``, a force
+    ``F2`` at link 2's tip ``F2 ((L1 cos theta2 + kappa L2) dbeta1 + L2 dbeta2)``
+    (the tip's displacement perpendicular to link 2, as in ``M12``)."""
     r = modal_step(
         tm0,
         tm1,
@@ -358,6 +369,14 @@ def links_step(st: npt.NDArray[np.float64], ma: npt.NDArray[np.float64], tm0: fl
     M22 = r[2]
     f1 = r[10] - r[6] * acc0 - r[7] * acc1  # G1 - E11 acc0 - E12 acc1
     f2 = r[11] - r[8] * acc0 - r[9] * acc1  # G2 - E21 acc0 - E22 acc1
+    if ma.shape[0] >= MA_SIZE_FORCES:  # tip forces: their generalized loads J^T F beside G [2-1, 2-2]
+        fa = ma[MA_FORCE1]
+        fb = ma[MA_FORCE1 + 1]
+        if fa != 0.0 or fb != 0.0:
+            l1 = ma[19]
+            l2 = ma[MA_L2]
+            f1 = f1 + fa * l1 + fb * (l1 * math.cos(tm1) + ma[5] * l2)
+            f2 = f2 + fb * l2
     b1 = st[ST_BETA]
     b2 = st[ST_BETA + 1]
     vb1 = st[ST_BETA_DOT]

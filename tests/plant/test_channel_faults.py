@@ -330,7 +330,7 @@ def test_bad_fault_is_one_line_naming_it(case: str) -> None:
 
 
 def test_bad_section_and_bits_are_refused_at_settings_load() -> None:
-    with pytest.raises(ConfigError, match=r"^.*has no section 'faults'; allowed: commands, channel_faults$"):
+    with pytest.raises(ConfigError, match=r"^.*has no section 'faults'; allowed: commands, channel_faults, stimulus$"):
         parse_channel_faults(json.dumps({"faults": []}))
     with pytest.raises(ConfigError) as caught:
         load_settings(PlantSettings, {"scenario": json.dumps({"channel_faults": [{"channel": "AI1", "kind": "lost_bits", "bits": 12}]})})
