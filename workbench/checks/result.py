@@ -1,0 +1,137 @@
+"""What a check returns: its verdict, the measured value against the limit, one
+line that says so, and the data of its figure.
+
+A result is PASS, FAIL or INVALID. INVALID means the check compared nothing
+(an empty or too short signal, a window with no sample, a cause that never
+came): it is never a pass.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+Level = Literal["PASS", "FAIL", "INVALID"]
+
+
+def fmt(x: float) -> str:
+    """A measured value or limit as the lines print it (4 significant digits)."""
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return f"{x:.4g}"
+
+
+@dataclass(frozen=True, eq=False)
+class Trace:
+    """A curve of a figure (``style``: a ``line``, a ``step`` curve or ``points``)."""
+
+    t: npt.NDArray[np.float64]
+    values: npt.NDArray[np.float64]
+    label: str
+    style: Literal["line", "step", "points"] = "line"
+
+
+@dataclass(frozen=True, eq=False)
+class Band:
+    """The allowed region between ``low`` and ``high`` over the times ``t`` (shaded)."""
+
+    t: npt.NDArray[np.float64]
+    low: npt.NDArray[np.float64]
+    high: npt.NDArray[np.float64]
+    label: str
+
+
+@dataclass(frozen=True)
+class Mark:
+    """A marked point (the measured value where it was measured)."""
+
+    t: float
+    value: float
+    label: str
+
+
+@dataclass(frozen=True, eq=False)
+class Panel:
+    """One axes of a figure: curves, allowed bands, limit lines and marked points."""
+
+    ylabel: str
+    traces: tuple[Trace, ...] = ()
+    bands: tuple[Band, ...] = ()
+    hlines: tuple[tuple[float, str], ...] = ()
+    vlines: tuple[tuple[float, str], ...] = ()
+    marks: tuple[Mark, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class FigureData:
+    """The data a check's figure draws: panels stacked over one time axis."""
+
+    title: str
+    panels: tuple[Panel, ...]
+    xlabel: str = "time (s)"
+
+
+@dataclass(frozen=True, eq=False)
+class CheckResult:
+    """One check's outcome.
+
+    ``measured`` is the value the check judged (NaN when it compared nothing),
+    ``limit`` the value it was held to, both in ``unit``; ``details`` holds the
+    other numbers the check found (a lag, a time, a sample count)."""
+
+    name: str
+    """The check and its signal(s): ``overshoot_below(phi1)``."""
+    level: Level
+    measured: float
+    limit: float
+    unit: str
+    sentence: str
+    """What :meth:`explain` says: ``overshoot 23.4 % against a limit of 10 %``."""
+    data: FigureData | None = None
+    details: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return self.level == "PASS"
+
+    def explain(self) -> str:
+        """One line: what was measured against what limit (``overshoot 23.4 % against a limit of 10 %``)."""
+        return self.sentence
+
+    def line(self) -> str:
+        """The check's name, verdict and :meth:`explain` in one line (the assertion's message)."""
+        return f"{self.name} {self.level}: {self.sentence}"
+
+    def property_value(self) -> str:
+        """The JUnit property's value: ``PASS measured=0.0123 limit=0.014 unit=rad``."""
+        unit = f" unit={self.unit}" if self.unit else ""
+        return f"{self.level} measured={fmt(self.measured)} limit={fmt(self.limit)}{unit}"
+
+    def figure(self) -> Figure:
+        """A matplotlib figure (Agg, no pyplot state) of the signal, the limit or band and
+        the measured point; a figure saying it compared nothing when there is no data."""
+        from workbench.checks.figure import draw
+
+        return draw(self)
+
+
+def invalid(name: str, why: str, limit: float, unit: str, data: FigureData | None = None) -> CheckResult:
+    """A result that compared nothing (``why`` says what was missing)."""
+    return CheckResult(name, "INVALID", math.nan, limit, unit, f"compared nothing: {why}", data)
+
+
+def judged(
+    name: str, ok: bool, measured: float, limit: float, unit: str, sentence: str, data: FigureData | None, details: Mapping[str, float] | None = None
+) -> CheckResult:
+    """A result that compared something: PASS when ``ok``, else FAIL."""
+    return CheckResult(name, "PASS" if ok else "FAIL", float(measured), float(limit), unit, sentence, data, dict(details or {}))
