@@ -9,6 +9,7 @@ came): it is never a pass.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
@@ -29,6 +30,11 @@ def fmt(x: float) -> str:
     if math.isinf(x):
         return "inf" if x > 0 else "-inf"
     return f"{x:.4g}"
+
+
+def tidy(sentence: str) -> str:
+    """One line, single spaces, no space before a closing bracket or comma (a unit left empty)."""
+    return re.sub(r"\s+([),;:])", r"\1", " ".join(sentence.split()))
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,11 +133,11 @@ class CheckResult:
 
 def invalid(name: str, why: str, limit: float, unit: str, data: FigureData | None = None) -> CheckResult:
     """A result that compared nothing (``why`` says what was missing)."""
-    return CheckResult(name, "INVALID", math.nan, limit, unit, f"compared nothing: {why}", data)
+    return CheckResult(name, "INVALID", math.nan, limit, unit, tidy(f"compared nothing: {why}"), data)
 
 
 def judged(
     name: str, ok: bool, measured: float, limit: float, unit: str, sentence: str, data: FigureData | None, details: Mapping[str, float] | None = None
 ) -> CheckResult:
     """A result that compared something: PASS when ``ok``, else FAIL."""
-    return CheckResult(name, "PASS" if ok else "FAIL", float(measured), float(limit), unit, sentence, data, dict(details or {}))
+    return CheckResult(name, "PASS" if ok else "FAIL", float(measured), float(limit), unit, tidy(sentence), data, dict(details or {}))

@@ -65,7 +65,7 @@ def follows_reference(
         )
     dt = float(np.median(np.diff(t)))
     a = np.interp(t, act.t, act.values)
-    max_shift = min(max(1, math.ceil((search_s if search_s is not None else 2.0 * max_lag_s) / dt)), (t.size - MIN_SAMPLES) // 2)
+    max_shift = min(max(1, math.ceil((search_s if search_s is not None else 2.0 * max_lag_s) / dt - 1e-9)), (t.size - MIN_SAMPLES) // 2)
     if max_shift < 1:
         return collected(invalid(title, f"{t.size} samples leave no room to search a lag", tolerance, reference.unit))
     flat = float(np.ptp(r)) == 0.0
@@ -96,10 +96,10 @@ def follows_reference(
             ),
         ),
     )
-    lag_text = "(a constant reference: no lag to estimate) 0 ms" if flat else f"{'at least ' if at_edge else ''}{fmt(lag * 1e3)} ms"
-    sentence = (
-        f"{actual.name} follows {reference.name} {lag_text} behind (limit {fmt(max_lag_s * 1e3)} ms) with a largest error of "
-        f"{fmt(peak)} {unit} after the lag against a tolerance of {fmt(tolerance)} {unit}"
-    )
+    if flat:
+        behind = f"the constant {reference.name} (no lag to estimate)"
+    else:
+        behind = f"{reference.name} {'at least ' if at_edge else ''}{fmt(lag * 1e3)} ms behind (limit {fmt(max_lag_s * 1e3)} ms)"
+    sentence = f"{actual.name} follows {behind} with a largest error of {fmt(peak)} {unit} after the lag against a tolerance of {fmt(tolerance)} {unit}"
     details = {"lag_s": lag, "rms_error": float(np.sqrt(np.mean(error * error))), "samples": float(error.size)}
     return collected(judged(title, lag_ok and peak <= tolerance, peak, tolerance, unit, " ".join(sentence.split()), data, details))
