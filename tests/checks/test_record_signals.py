@@ -86,7 +86,7 @@ def test_events_interrupts_counters_and_health(record: RunRecord) -> None:
         ("events.payloads", "did you mean 'events.payload'?"),
         ("interrupts.poles[0].freq", "interrupts.poles[0.."),
         ("counters.deadline_miss", "counters.<"),
-        ("health.dsp.nothing", "health.controller.<"),
+        ("health.dsp.nothing", "health.<service>.<counter> of "),
         ("nothing.at.all", "columns t_s, "),
     ],
 )

@@ -143,8 +143,10 @@ def _holdings(record: Any) -> str:
     else:
         parts.append("no interrupts")
     parts.append(f"counters.<{'|'.join(record.counters) or 'none'}>")
-    for svc, cs in _health_counters(record).items():
-        parts.append(f"health.{svc}.<{'|'.join(cs) or 'none'}>")
+    health = _health_counters(record)
+    if health:
+        services = ", ".join(f"{svc} ({len(cs)} counters)" for svc, cs in health.items())
+        parts.append(f"health.<service>.<counter> of {services}; every name: workbench.checks.record_signals.names(record)")
     return "; ".join(parts)
 
 
