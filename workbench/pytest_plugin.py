@@ -208,7 +208,7 @@ def _figures(results: list[CheckResult]) -> list[dict[str, Any]]:
         from workbench.checks.figure import png
     except ImportError as exc:  # matplotlib missing: say so in the report, once
         return [extras.text(f"check figures need matplotlib (pip install 'ralf-hil[rig]'): {exc}", name="check figures")]
-    return [extras.png(base64.b64encode(png(r)).decode("ascii"), name=f"{r.name} {r.level}") for r in results]
+    return [extras.png(base64.b64encode(png(r.figure())).decode("ascii"), name=f"{r.name} {r.level}") for r in results]
 
 
 @pytest.hookimpl(wrapper=True)

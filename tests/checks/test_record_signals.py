@@ -155,7 +155,7 @@ def test_every_check_draws_its_figure(record: RunRecord) -> None:
         fig = result.figure()
         assert isinstance(fig, Figure) and fig.axes, result.name
         assert result.level in fig.get_suptitle()
-        data = png(result)
+        data = png(fig)
         assert data.startswith(b"\x89PNG") and len(data) > 2000
         buf = io.BytesIO()
         fig.savefig(buf, format="svg")

@@ -1,4 +1,4 @@
-"""A check's figure from its :class:`~workbench.checks.result.FigureData`: matplotlib's
+"""A check's figure from its :class:`~workbench.checks.figure_data.FigureData`: matplotlib's
 Agg canvas, no pyplot (no global state: safe in a test session and in threads)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from workbench.checks.result import CheckResult, Panel
+from workbench.checks.figure_data import FigureData, Panel
 
 COLOURS = {"PASS": "tab:green", "FAIL": "tab:red", "INVALID": "tab:gray"}
 
@@ -43,13 +43,13 @@ def _panel(ax: object, panel: Panel, colour: str) -> None:
         ax.legend(fontsize=7, loc="best")
 
 
-def draw(result: CheckResult) -> Figure:
+def draw(data: FigureData | None, title: str, level: str) -> Figure:
     """The figure of one check: its signal(s), the limit or band, the measured point; the
-    title is the check's line (name, verdict, what it measured)."""
-    panels = result.data.panels if result.data is not None else ()
+    title is the check's line (name, verdict, what it measured), in the verdict's colour."""
+    panels = data.panels if data is not None else ()
     fig = Figure(figsize=(7.0, 1.2 + 2.4 * max(1, len(panels))), layout="constrained")
     FigureCanvasAgg(fig)
-    colour = COLOURS[result.level]
+    colour = COLOURS.get(level, "black")
     if not panels:
         ax = fig.add_subplot()
         ax.text(0.5, 0.5, "no data to draw", ha="center", va="center", transform=ax.transAxes)
@@ -58,8 +58,8 @@ def draw(result: CheckResult) -> Figure:
         axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
         for ax, panel in zip(axes, panels):
             _panel(ax, panel, colour)
-        axes[-1].set_xlabel(result.data.xlabel if result.data is not None else "time (s)")
-    fig.suptitle(_wrap(result.line()), fontsize=9, color=colour)
+        axes[-1].set_xlabel(data.xlabel if data is not None else "time (s)")
+    fig.suptitle(_wrap(title), fontsize=9, color=colour)
     return fig
 
 
@@ -69,8 +69,8 @@ def _wrap(text: str, width: int = 95) -> str:
     return "\n".join(textwrap.wrap(text, width)) or text
 
 
-def png(result: CheckResult, dpi: int = 90) -> bytes:
-    """The figure as PNG bytes (the HTML report's attachment)."""
+def png(fig: Figure, dpi: int = 90) -> bytes:
+    """A figure as PNG bytes (the HTML report's attachment)."""
     buf = io.BytesIO()
-    result.figure().savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()

@@ -14,11 +14,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
-import numpy as np
-import numpy.typing as npt
+from workbench.checks.figure_data import Band, FigureData, Mark, Panel, Trace
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+__all__ = ["Band", "CheckResult", "FigureData", "Level", "Mark", "Panel", "Trace", "fmt", "invalid", "judged", "tidy"]
 
 Level = Literal["PASS", "FAIL", "INVALID"]
 
@@ -35,56 +36,6 @@ def fmt(x: float) -> str:
 def tidy(sentence: str) -> str:
     """One line, single spaces, no space before a closing bracket or comma (a unit left empty)."""
     return re.sub(r"\s+([),;:])", r"\1", " ".join(sentence.split()))
-
-
-@dataclass(frozen=True, eq=False)
-class Trace:
-    """A curve of a figure (``style``: a ``line``, a ``step`` curve or ``points``)."""
-
-    t: npt.NDArray[np.float64]
-    values: npt.NDArray[np.float64]
-    label: str
-    style: Literal["line", "step", "points"] = "line"
-
-
-@dataclass(frozen=True, eq=False)
-class Band:
-    """The allowed region between ``low`` and ``high`` over the times ``t`` (shaded)."""
-
-    t: npt.NDArray[np.float64]
-    low: npt.NDArray[np.float64]
-    high: npt.NDArray[np.float64]
-    label: str
-
-
-@dataclass(frozen=True)
-class Mark:
-    """A marked point (the measured value where it was measured)."""
-
-    t: float
-    value: float
-    label: str
-
-
-@dataclass(frozen=True, eq=False)
-class Panel:
-    """One axes of a figure: curves, allowed bands, limit lines and marked points."""
-
-    ylabel: str
-    traces: tuple[Trace, ...] = ()
-    bands: tuple[Band, ...] = ()
-    hlines: tuple[tuple[float, str], ...] = ()
-    vlines: tuple[tuple[float, str], ...] = ()
-    marks: tuple[Mark, ...] = ()
-
-
-@dataclass(frozen=True, eq=False)
-class FigureData:
-    """The data a check's figure draws: panels stacked over one time axis."""
-
-    title: str
-    panels: tuple[Panel, ...]
-    xlabel: str = "time (s)"
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,7 +79,7 @@ class CheckResult:
         the measured point; a figure saying it compared nothing when there is no data."""
         from workbench.checks.figure import draw
 
-        return draw(self)
+        return draw(self.data, self.line(), self.level)
 
 
 def invalid(name: str, why: str, limit: float, unit: str, data: FigureData | None = None) -> CheckResult:
