@@ -95,3 +95,8 @@ def test_a_constant_reference_has_no_lag_to_find() -> None:
         Signal.of(T, np.ones(T.size), "ref"), Signal.of(T, 1 + 0.001 * rng.standard_normal(T.size), "out"), tolerance=0.01, max_lag_s=0.05
     )
     assert result.passed and result.details["lag_s"] == 0.0 and "no lag to estimate" in result.explain()
+
+
+def test_signals_in_different_units_are_refused() -> None:
+    with pytest.raises(ValueError, match="ref is in rad, out in deg"):
+        follows_reference(Signal.of(T, CHIRP, "ref", "rad"), Signal.of(T, CHIRP, "out", "deg"), tolerance=1.0, max_lag_s=1.0)

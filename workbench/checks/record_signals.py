@@ -163,6 +163,7 @@ def _times(messages: Sequence[Any]) -> np.ndarray:
 def signal(record: Any, name: str) -> Signal:
     """The record's signal ``name`` (see the module's doc for the names); raises
     :class:`SignalNotInRecord` for one it does not hold."""
+    __tracebackhide__ = True  # pytest: the test's line, then the one-line error
     if not isinstance(name, str) or not name:
         raise SignalNotInRecord(f"a signal name is a non-empty string, got {name!r}")
     columns = record.columns

@@ -51,6 +51,8 @@ def follows_reference(
     ``actual`` is taken at the reference's times (linear interpolation), from ``start_s`` on.
     A reference constant over the window has no lag to find: the lag is then 0."""
     title = name or label("follows_reference", reference, actual)
+    if reference.unit and actual.unit and reference.unit != actual.unit:
+        raise ValueError(f"follows_reference: {reference.name} is in {reference.unit}, {actual.name} in {actual.unit}; compare signals in one unit")
     ref, short = window(reference, start_s, MIN_SAMPLES)
     act, short_a = window(actual, start_s, MIN_SAMPLES)
     problem = short or short_a or non_finite(ref) or non_finite(act)
