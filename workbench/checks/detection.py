@@ -46,7 +46,8 @@ def detected_within(cause: Signal | float, detection: Signal, within_s: float, *
             Panel(
                 detection.name,
                 traces=(Trace(detection.t, detection.values, detection.name, style),),
-                vlines=((t_cause, f"cause {cause_name}"), (t_cause + within_s, f"limit {fmt(within_s)} s")),
+                instants=((t_cause, f"cause {cause_name}"),),
+                vlines=((t_cause + within_s, f"limit {fmt(within_s)} s"),),
                 marks=(Mark(float(detection.t[hit]), float(detection.values[hit]), f"detected after {fmt(latency)} s"),) if hit is not None else (),
             ),
         ),

@@ -34,6 +34,9 @@ def _panel(ax: object, panel: Panel, colour: str) -> None:
     for value, label in panel.vlines:
         if np.isfinite(value):
             ax.axvline(value, color="tab:orange", linestyle=":", linewidth=1.2, label=label)
+    for value, label in panel.instants:
+        if np.isfinite(value):
+            ax.axvline(value, color="tab:gray", linestyle="-.", linewidth=1.0, label=label)
     for mark in panel.marks:
         if np.isfinite(mark.t) and np.isfinite(mark.value):
             ax.plot([mark.t], [mark.value], "o", color=colour, markersize=7, markerfacecolor="none", markeredgewidth=2, label=mark.label)

@@ -48,6 +48,9 @@ class Panel:
     bands: tuple[Band, ...] = ()
     hlines: tuple[tuple[float, str], ...] = ()
     vlines: tuple[tuple[float, str], ...] = ()
+    """Limits in time (``start + within_s``)."""
+    instants: tuple[tuple[float, str], ...] = ()
+    """Times the check measured from (a cause), drawn apart from the limits."""
     marks: tuple[Mark, ...] = ()
 
 

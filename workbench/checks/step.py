@@ -69,6 +69,7 @@ def settles_within(
                 f"{sig.name} ({sig.unit})" if sig.unit else sig.name,
                 traces=(Trace(part.t, part.values, sig.name),),
                 bands=(Band(part.t, np.full(len(part), yf - half), np.full(len(part), yf + half), f"final ±{fmt(half)} {sig.unit}"),),
+                instants=((t0, f"start {fmt(t0)} s"),),
                 vlines=((t0 + within_s, f"limit {fmt(within_s)} s"),),
                 marks=(Mark(at[0], at[1], f"settled after {fmt(settled)} s"),),
             ),
