@@ -31,6 +31,12 @@ the line names the closest marker. A run whose verdict
 (:mod:`workbench.verdict`, ``record.verdict``) is INVALID tested nothing:
 a test that passed over it fails at teardown with the run's one-line
 summary (ticks, interrupts, verdict), unless marked ``rig_invalid_ok``.
+
+Signal checks (:mod:`workbench.checks`): every :class:`~workbench.checks.CheckResult`
+a test makes, in its setup, body or teardown, is kept for its report: a JUnit
+property each (``check:<name>`` -> ``PASS measured=... limit=...``, as
+``record_property`` writes them) and, when pytest-html writes a report
+(``--html``), a figure each in it. The ``checks`` fixture is the test's list of them.
 """
 
 from __future__ import annotations
@@ -41,6 +47,8 @@ from typing import Any
 
 import pytest
 
+from workbench.checks.collect import collecting
+from workbench.checks.result import CheckResult
 from workbench.hil import CLOCKS, HilRig, RigSettingError
 
 MARKERS = (
@@ -155,10 +163,67 @@ def rig(request: pytest.FixtureRequest, tmp_path: Any) -> Iterator[HilRig]:
         pytest.fail(f"rig fixture: the run tested nothing: {record.summary()} (mark the test rig_invalid_ok if it expects that)", pytrace=False)
 
 
+CHECK_RESULTS = pytest.StashKey[list[CheckResult]]()
+"""The check results of the test running (its setup, body and teardown)."""
+CHECKS_REPORTED = pytest.StashKey[int]()
+"""How many of them the test's reports already carry."""
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Any:
+    """Collect every check result the test makes, from its setup to its teardown."""
+    with collecting() as results:
+        item.stash[CHECK_RESULTS] = results
+        item.stash[CHECKS_REPORTED] = 0
+        return (yield)
+
+
+@pytest.fixture
+def checks(request: pytest.FixtureRequest) -> list[CheckResult]:
+    """The check results the test has made so far (each also goes into its report)."""
+    return request.node.stash.setdefault(CHECK_RESULTS, [])
+
+
+def _property_name(item: pytest.Item, result: CheckResult) -> str:
+    taken = {name for name, _ in item.user_properties}
+    name, n = f"check:{result.name}", 1
+    while name in taken:
+        n += 1
+        name = f"check:{result.name} #{n}"
+    return name
+
+
+def _html_report(config: pytest.Config) -> bool:
+    """pytest-html is installed and writes a report in this session."""
+    return config.pluginmanager.hasplugin("html") and bool(config.getoption("htmlpath", None))
+
+
+def _figures(results: list[CheckResult]) -> list[dict[str, Any]]:
+    """pytest-html extras: one PNG figure (base64) per result."""
+    import base64
+
+    from pytest_html import extras
+
+    try:
+        from workbench.checks.figure import png
+    except ImportError as exc:  # matplotlib missing: say so in the report, once
+        return [extras.text(f"check figures need matplotlib (pip install 'ralf-hil[rig]'): {exc}", name="check figures")]
+    return [extras.png(base64.b64encode(png(r.figure())).decode("ascii"), name=f"{r.name} {r.level}") for r in results]
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Any:
-    """Note whether the test's own body passed (the rig fixture judges its run only then)."""
+    """Note whether the test's own body passed (the rig fixture judges its run only then);
+    put the check results of this phase in its report: JUnit properties, HTML figures."""
+    results = item.stash.get(CHECK_RESULTS, [])
+    done = item.stash.get(CHECKS_REPORTED, 0)
+    new = results[done:]
+    item.stash[CHECKS_REPORTED] = len(results)
+    for result in new:  # before the report is made: it copies the properties
+        item.user_properties.append((_property_name(item, result), result.property_value()))
     report = yield
     if call.when == "call":
         item.rig_call_passed = report.passed  # type: ignore[attr-defined]
+    if new and _html_report(item.config):
+        report.extras = [*getattr(report, "extras", []), *_figures(new)]
     return report
