@@ -42,6 +42,7 @@ bus model does not have: not modelled.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -124,7 +125,7 @@ class FaultConfinement:
         elif self.rec > 127:
             self.rec = self.rec_after_passive_success
 
-    def monitor(self, bits: tuple[int, ...] | list[int]) -> int | None:
+    def monitor(self, bits: Sequence[int]) -> int | None:
         """Rule 12 while bus off: the bits the node sees on the bus, in order.
         Returns the number of bits after which the node recovered (error
         active, counters 0), or None if it is still bus off (or was not)."""
