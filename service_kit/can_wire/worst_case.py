@@ -5,8 +5,8 @@ assumes ``floor((g + 8 s - 1) / 4)`` stuff bits, which needs SOF..CRC to
 follow the pattern ``00000 1111 0000 1111 ...`` throughout; the fixed bits
 of a frame (IDE, r0, SRR, the DLC) and the CRC that the data determine break
 that pattern, so a real frame is often shorter. :func:`longest_payload`
-finds, for one identifier and DLC, a payload whose frame has the most stuff
-bits, exactly: a dynamic programme over the data bits whose state is the
+finds, for one identifier and DLC, a payload whose frame has the most (or,
+``shortest=True``, the fewest) stuff bits, exactly: a dynamic programme over the data bits whose state is the
 CRC register and the current run of equal bits (value and length),
 2^15 x 8 states, then the CRC sequence's own stuff bits from each final
 state. It returns the payload; :func:`service_kit.can_wire.bits.frame_bits`
@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from service_kit.can_wire.bits import CRC15_POLY, FrameBits, frame_bits
 
+_UNREACHABLE = -(1 << 20)
 _N_STATES = (1 << 15) * 8
 """(CRC register, run value 0/1, run length 1..4) packed as crc * 8 + value * 4 + length - 1."""
 
@@ -49,9 +50,10 @@ def _state_after(bits: list[int]) -> tuple[int, int, int, int]:
     return int(crc[0]), int(value[0]), int(length[0]), count
 
 
-def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False) -> bytes:
+def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False, shortest: bool = False) -> bytes:
     """A payload of ``n_bytes`` that gives the frame ``arbitration_id`` the
-    most stuff bits any payload can (module docstring)."""
+    most stuff bits any payload can (module docstring); ``shortest=True``:
+    the fewest."""
     if not 0 <= n_bytes <= 8:
         raise ValueError(f"classical CAN carries 0..8 data bytes, got {n_bytes}")
     if n_bytes == 0:
@@ -62,18 +64,19 @@ def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False
     crc = states >> 3
     value = (states >> 2) & 1
     length = (states & 3) + 1
+    sign = -1 if shortest else 1  # the programme maximises sign * stuff bits
     nexts: list[npt.NDArray[np.int64]] = []
     adds: list[npt.NDArray[np.int64]] = []
     for bit in (0, 1):
         c, v, n, s = _step(crc, value, length, bit)
         nexts.append(c * 8 + v * 4 + n - 1)
-        adds.append(s)
-    best = np.full(_N_STATES, -1, dtype=np.int64)
-    best[crc0 * 8 + value0 * 4 + length0 - 1] = count0
+        adds.append(sign * s)
+    best = np.full(_N_STATES, _UNREACHABLE, dtype=np.int64)
+    best[crc0 * 8 + value0 * 4 + length0 - 1] = sign * count0
     history = [best]
     for _ in range(8 * n_bytes):
-        new = np.full(_N_STATES, -1, dtype=np.int64)
-        reachable = best >= 0
+        new = np.full(_N_STATES, _UNREACHABLE, dtype=np.int64)
+        reachable = best > _UNREACHABLE
         for bit in (0, 1):
             np.maximum.at(new, nexts[bit][reachable], best[reachable] + adds[bit][reachable])
         best = new
@@ -90,13 +93,13 @@ def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False
         tail_length = np.where(stuffed, 1, run)
         tail_count += stuffed
     del tail_crc
-    total = np.where(best >= 0, best + tail_count, -1)
+    total = np.where(best > _UNREACHABLE, best + sign * tail_count, _UNREACHABLE)
     state = int(np.argmax(total))
     bits: list[int] = []
     for step in range(8 * n_bytes, 0, -1):
         before = history[step - 1]
         for bit in (0, 1):
-            candidates = np.nonzero((nexts[bit] == state) & (before >= 0) & (before + adds[bit] == history[step][state]))[0]
+            candidates = np.nonzero((nexts[bit] == state) & (before > _UNREACHABLE) & (before + adds[bit] == history[step][state]))[0]
             if candidates.size:
                 state = int(candidates[0])
                 bits.append(bit)
@@ -110,3 +113,8 @@ def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False
 def longest_frame(arbitration_id: int, n_bytes: int, *, extended: bool = False) -> FrameBits:
     """The frame of :func:`longest_payload`."""
     return frame_bits(arbitration_id, longest_payload(arbitration_id, n_bytes, extended=extended), extended=extended)
+
+
+def shortest_frame(arbitration_id: int, n_bytes: int, *, extended: bool = False) -> FrameBits:
+    """The frame with the fewest stuff bits any payload of ``n_bytes`` gives ``arbitration_id``."""
+    return frame_bits(arbitration_id, longest_payload(arbitration_id, n_bytes, extended=extended, shortest=True), extended=extended)

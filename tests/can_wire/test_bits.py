@@ -5,9 +5,6 @@ project's notes (0x181, 8 bytes 11..88)."""
 
 from __future__ import annotations
 
-import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import can
@@ -17,9 +14,9 @@ from hypothesis import strategies as st
 
 from service_kit.can_wire.bits import IFS_BITS, crc15, frame_bits, frame_of_message, stuff
 from service_kit.can_wire.timing import STANDARD_BITRATES, bit_time_ns, wire_time_ns, worst_case_bits
-from service_kit.can_wire.worst_case import longest_frame, longest_payload
+from service_kit.can_wire.worst_case import longest_frame, longest_payload, shortest_frame
+from tests.can_wire.sigrok import decode, needs_sigrok
 
-SAMPLES_PER_BIT = 10
 HAND_CHECKED = bytes([0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88])
 
 
@@ -91,14 +88,17 @@ def test_stuffing_counts_stuff_bits_in_the_next_run() -> None:
 @pytest.mark.parametrize("ident", [0x000, 0x181, 0x7FF])
 def test_longest_payload_matches_brute_force(ident: int) -> None:
     """Every one of the 256 one-byte payloads against the dynamic programme."""
-    worst = max(frame_bits(ident, bytes([b])).n_bits for b in range(256))
+    lengths = [frame_bits(ident, bytes([b])).n_bits for b in range(256)]
+    worst = max(lengths)
     assert longest_frame(ident, 1).n_bits == worst
+    assert shortest_frame(ident, 1).n_bits == min(lengths)
     assert worst <= worst_case_bits(1)
 
 
 def test_longest_two_byte_payload_matches_brute_force() -> None:
-    worst = max(frame_bits(0x080, i.to_bytes(2, "big")).n_bits for i in range(1 << 16))
-    assert longest_frame(0x080, 2).n_bits == worst
+    lengths = [frame_bits(0x080, i.to_bytes(2, "big")).n_bits for i in range(1 << 16)]
+    assert longest_frame(0x080, 2).n_bits == max(lengths)
+    assert shortest_frame(0x080, 2).n_bits == min(lengths)
 
 
 @pytest.mark.parametrize("extended", [False, True])
@@ -159,50 +159,13 @@ SIGROK_FRAMES = [
 ]
 
 
-def _decode_with_sigrok(bitrate: int, tmp_path: Path) -> tuple[str, str]:
-    samples = bytearray([1] * SAMPLES_PER_BIT * 20)
-    for ident, data, extended, remote in SIGROK_FRAMES:
-        frame = frame_bits(ident, data, extended=extended, remote=remote)
-        samples += bytes(b for b in frame.bits for _ in range(SAMPLES_PER_BIT))
-        samples += bytes([1] * SAMPLES_PER_BIT * 20)
-    path = tmp_path / "frames.bin"
-    path.write_bytes(bytes(samples))
-    base = [
-        "sigrok-cli",
-        "-I",
-        f"binary:numchannels=1:samplerate={bitrate * SAMPLES_PER_BIT}",
-        "-i",
-        str(path),
-        "-P",
-        f"can:can_rx=0:nominal_bitrate={bitrate}",
-    ]
-    fields = subprocess.run([*base, "-A", "can=fields:warnings"], capture_output=True, text=True, timeout=120, check=True).stdout
-    stuffs = subprocess.run([*base, "-A", "can=stuff-bit", "--protocol-decoder-samplenum"], capture_output=True, text=True, timeout=120, check=True).stdout
-    return fields, stuffs
-
-
-@pytest.mark.skipif(shutil.which("sigrok-cli") is None, reason="sigrok-cli not installed (Debian package sigrok-cli)")
+@needs_sigrok
 @pytest.mark.parametrize("bitrate", STANDARD_BITRATES)
 def test_sigrok_decodes_our_bits(bitrate: int, tmp_path: Path) -> None:
-    fields, stuffs = _decode_with_sigrok(bitrate, tmp_path)
-    assert "warning" not in fields.lower() and "must" not in fields.lower(), fields
-    frames = [f for f in fields.split("can-1: Start of frame")[1:]]
-    assert len(frames) == len(SIGROK_FRAMES)
-    # stuff bits: one line per stuff bit, "START-END can-1: BIT"; assign each to its frame by sample number
-    stuff_samples = [int(m.group(1)) for m in re.finditer(r"^(\d+)-\d+ can-1:", stuffs, re.M)]
-    start = SAMPLES_PER_BIT * 20
-    for text, (ident, data, extended, remote) in zip(frames, SIGROK_FRAMES):
-        ours = frame_bits(ident, data, extended=extended, remote=remote)
-        key = "Full Identifier" if extended else "Identifier"
-        assert re.search(rf"{key}: {ident} \(0x{ident:x}\)", text), text
-        assert ("extended frame" if extended else "standard frame") in text
-        assert f"Remote transmission request: {'remote' if remote else 'data'} frame" in text
-        assert f"Data length code: {ours.dlc}\n" in text
-        decoded = bytes(int(b, 16) for b in re.findall(r"Data byte \d+: 0x([0-9a-f]{2})", text))
-        assert decoded == data
-        assert f"CRC-15 sequence: 0x{ours.crc:04x}" in text
-        assert "ACK slot: ACK" in text and "End of frame" in text
-        end = start + ours.n_bits * SAMPLES_PER_BIT
-        found = [s for s in stuff_samples if start <= s < end]
-        assert [(s - start) // SAMPLES_PER_BIT for s in found] == list(ours.stuff_positions)
-        start = end + SAMPLES_PER_BIT * 20
+    ours = [frame_bits(ident, data, extended=extended, remote=remote) for ident, data, extended, remote in SIGROK_FRAMES]
+    for frame, got in zip(ours, decode(ours, bitrate, tmp_path)):
+        assert (got.identifier, got.extended, got.remote, got.dlc) == (frame.arbitration_id, frame.extended, frame.remote, frame.dlc)
+        assert got.data == frame.data
+        assert got.crc == frame.crc
+        assert got.stuff_positions == frame.stuff_positions
+        assert "ACK slot: ACK" in got.text and "End of frame" in got.text
