@@ -21,6 +21,7 @@ import numpy.typing as npt
 from service_kit.can_wire.bits import CRC15_POLY, FrameBits, frame_bits
 
 _UNREACHABLE = -(1 << 20)
+_REACHABLE_ABOVE = _UNREACHABLE // 2
 _N_STATES = (1 << 15) * 8
 """(CRC register, run value 0/1, run length 1..4) packed as crc * 8 + value * 4 + length - 1."""
 
@@ -71,15 +72,22 @@ def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False
         c, v, n, s = _step(crc, value, length, bit)
         nexts.append(c * 8 + v * 4 + n - 1)
         adds.append(sign * s)
-    best = np.full(_N_STATES, _UNREACHABLE, dtype=np.int64)
+    # the best of all predecessors of each state: both bits' transitions sorted by target once, then a max per group
+    targets = np.concatenate(nexts)
+    order = np.argsort(targets, kind="stable")
+    sorted_targets = targets[order]
+    group_starts = np.flatnonzero(np.r_[True, sorted_targets[1:] != sorted_targets[:-1]])
+    group_targets = sorted_targets[group_starts]
+    add_sorted = np.concatenate(adds)[order].astype(np.int32)
+    source_sorted = np.concatenate([states, states])[order]
+    # unreachable states carry _UNREACHABLE (plus at most 64 steps of +-1): far below any reachable count
+    best = np.full(_N_STATES, _UNREACHABLE, dtype=np.int32)
     best[crc0 * 8 + value0 * 4 + length0 - 1] = sign * count0
     history = [best]
     for _ in range(8 * n_bytes):
-        new = np.full(_N_STATES, _UNREACHABLE, dtype=np.int64)
-        reachable = best > _UNREACHABLE
-        for bit in (0, 1):
-            np.maximum.at(new, nexts[bit][reachable], best[reachable] + adds[bit][reachable])
-        best = new
+        candidates = best[source_sorted] + add_sorted
+        best = np.full(_N_STATES, _UNREACHABLE, dtype=np.int32)
+        best[group_targets] = np.maximum.reduceat(candidates, group_starts)
         history.append(best)
     # the CRC sequence is the final register; stuff it on from each state's run
     tail_crc, tail_value, tail_length = crc, value, length
@@ -93,15 +101,17 @@ def longest_payload(arbitration_id: int, n_bytes: int, *, extended: bool = False
         tail_length = np.where(stuffed, 1, run)
         tail_count += stuffed
     del tail_crc
-    total = np.where(best > _UNREACHABLE, best + sign * tail_count, _UNREACHABLE)
+    total = np.where(best > _REACHABLE_ABOVE, best + sign * tail_count, _UNREACHABLE)
     state = int(np.argmax(total))
     bits: list[int] = []
+    group_ends = np.r_[group_starts[1:], len(order)]
     for step in range(8 * n_bytes, 0, -1):
         before = history[step - 1]
-        for bit in (0, 1):
-            candidates = np.nonzero((nexts[bit] == state) & (before > _UNREACHABLE) & (before + adds[bit] == history[step][state]))[0]
-            if candidates.size:
-                state = int(candidates[0])
+        group = int(np.searchsorted(group_targets, state))
+        for k in order[group_starts[group] : group_ends[group]]:
+            bit, source = divmod(int(k), _N_STATES)
+            if before[source] > _REACHABLE_ABOVE and before[source] + adds[bit][source] == history[step][state]:
+                state = source
                 bits.append(bit)
                 break
         else:  # pragma: no cover - every reachable state has a predecessor
