@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import random
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from service_kit.can_wire.bits import FrameBits
 from service_kit.can_wire.error_state import (
@@ -62,7 +62,7 @@ class QueuedFrame:
     frame: FrameBits
 
 
-@dataclass
+@dataclass(frozen=True)
 class ErrorInjection:
     """Destroys attempts on the wire: those of ``arbitration_id`` (any if
     None) sent by ``node`` (any if None) starting in ``[start_ns, end_ns)``;
@@ -71,7 +71,8 @@ class ErrorInjection:
     errors (None: no limit). ``bit`` is the index in the frame's bits of the
     last bit sent before the error flag (default: the ACK delimiter, where a
     CRC error is signalled); ``echo_bits`` (0..6) are other nodes' flags
-    superposed on the first."""
+    superposed on the first. The counts start afresh in every
+    :func:`simulate` call."""
 
     arbitration_id: int | None = None
     node: str | None = None
@@ -83,9 +84,6 @@ class ErrorInjection:
     count: int | None = 1
     bit: int | None = None
     echo_bits: int = 0
-    _seen: int = field(default=0, repr=False)
-    _fired: int = field(default=0, repr=False)
-    _rng: random.Random | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.every < 1:
@@ -94,31 +92,43 @@ class ErrorInjection:
             raise ValueError(f"probability must be 0..1, got {self.probability}")
         if not 0 <= self.echo_bits <= ERROR_ECHO_MAX:
             raise ValueError(f"echo_bits must be 0..{ERROR_ECHO_MAX}, got {self.echo_bits}")
-        self._rng = random.Random(self.seed)
 
-    def fires(self, node: str, frame: FrameBits, start_ns: int) -> bool:
-        if self.count is not None and self._fired >= self.count:
-            return False
+    def matches(self, node: str, frame: FrameBits, start_ns: int) -> bool:
         if self.arbitration_id is not None and frame.arbitration_id != self.arbitration_id:
             return False
         if self.node is not None and node != self.node:
             return False
-        if start_ns < self.start_ns or (self.end_ns is not None and start_ns >= self.end_ns):
-            return False
-        self._seen += 1
-        if self._seen % self.every:
-            return False
-        assert self._rng is not None
-        if self.probability < 1.0 and self._rng.random() >= self.probability:
-            return False
-        self._fired += 1
-        return True
+        return start_ns >= self.start_ns and (self.end_ns is None or start_ns < self.end_ns)
 
     def last_bit(self, frame: FrameBits) -> int:
         bit = frame.ack_delimiter_index if self.bit is None else self.bit
         if not 0 <= bit < frame.n_bits_to_eof:
             raise ValueError(f"error bit {bit} outside the frame (0..{frame.n_bits_to_eof - 1})")
         return bit
+
+
+class _Injector:
+    """One run's state of an :class:`ErrorInjection`: attempts matched, errors made, its random draws."""
+
+    def __init__(self, spec: ErrorInjection) -> None:
+        self.spec = spec
+        self.seen = 0
+        self.fired = 0
+        self.rng = random.Random(spec.seed)
+
+    def fires(self, node: str, frame: FrameBits, start_ns: int) -> bool:
+        spec = self.spec
+        if spec.count is not None and self.fired >= spec.count:
+            return False
+        if not spec.matches(node, frame, start_ns):
+            return False
+        self.seen += 1
+        if self.seen % spec.every:
+            return False
+        if spec.probability < 1.0 and self.rng.random() >= spec.probability:
+            return False
+        self.fired += 1
+        return True
 
 
 @dataclass(frozen=True)
@@ -204,6 +214,7 @@ def simulate(
     time (needed when errors never stop: a lone error-passive transmitter
     retries for ever); more than ``max_attempts`` attempts raise ValueError."""
     bit = bit_time_ns(bitrate)
+    injectors = [_Injector(e) for e in errors]
     all_nodes = sorted({q.node for q in frames} | set(nodes))
     counters = {n: FaultConfinement(rec_after_passive_success=rec_after_passive_success) for n in all_nodes}
     suspend_until = dict.fromkeys(all_nodes, 0)
@@ -277,7 +288,7 @@ def simulate(
         attempts_of[winner] += 1
         if len(run.attempts) >= max_attempts:
             raise ValueError(f"more than {max_attempts} attempts on the bus: give until_ns or fewer errors")
-        injected = next((e for e in errors if e.fires(q.node, frame, start)), None)
+        injected = next((e.spec for e in injectors if e.fires(q.node, frame, start)), None)
         ack_error = injected is None and not receivers
         if injected is None and not ack_error:
             end = start + frame.n_bits * bit

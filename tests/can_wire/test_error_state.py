@@ -168,3 +168,11 @@ def test_errors_by_rate_by_id_and_at_a_time() -> None:
     assert rated[0].attempts == rated[1].attempts
     assert 5 <= sum(not x.ok for x in rated[0].attempts) <= 40
     assert len(rated[0].transmissions) == 60
+
+
+def test_an_injection_reused_gives_the_same_run() -> None:
+    frames = [QueuedFrame("a", k * 500_000, frame_bits(0x181, bytes([k]))) for k in range(20)]
+    spec = [ErrorInjection(probability=0.5, seed=3, count=4)]
+    first = simulate(frames, 1_000_000, nodes=["b"], errors=spec)
+    again = simulate(frames, 1_000_000, nodes=["b"], errors=spec)
+    assert first.attempts == again.attempts and sum(not a.ok for a in first.attempts) == 4
