@@ -1,7 +1,7 @@
 """The frame's bits against references: sigrok-cli's CAN decoder, the
 CRC-15/CAN catalogue check value, Davis et al.'s worst-case length, a
-brute-force search of every payload, and the frame worked by hand in the
-project's notes (0x181, 8 bytes 11..88)."""
+brute-force search of every payload, and a frame worked by hand and
+decoded by sigrok-cli (0x181, 8 bytes 11..88)."""
 
 from __future__ import annotations
 
