@@ -266,6 +266,7 @@ class WireBus(can.BusABC):
         keep_log: bool = False,
         **kwargs: Any,
     ) -> None:
+        self._is_shutdown = True  # until opened: a refused bus has nothing to shut down
         try:
             bit_time_ns(int(bitrate))
         except ValueError as exc:

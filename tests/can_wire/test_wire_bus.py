@@ -10,6 +10,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from pathlib import Path
 
 import can
 import canopen
@@ -175,3 +176,34 @@ def test_pending_frames_of_a_closed_bus_are_dropped_and_counted() -> None:
     finally:
         a.shutdown()
         c.shutdown()
+
+
+def test_logger_on_a_notifier_records_wire_time_stamps(tmp_path: Path) -> None:
+    """python-can's Notifier and Logger on a ralfwire bus: the BLF file holds
+    each frame stamped at its last EOF bit, as the bus model places it."""
+    clock = ManualWireClock()
+    channel = _channel()
+    sender = WireBus(channel=channel, bitrate=BITRATE, clock=clock)
+    listener = WireBus(channel=channel, bitrate=BITRATE, clock=clock)
+    path = tmp_path / "wire.blf"
+    logger = can.Logger(str(path))
+    seen: queue.Queue[can.Message] = queue.Queue()
+    notifier = can.Notifier(listener, [logger, seen.put], timeout=0.05)
+    msgs = [can.Message(arbitration_id=0x181 + k % 2, data=bytes([k] * 8), is_extended_id=False) for k in range(6)]
+    try:
+        for k, msg in enumerate(msgs):
+            clock.advance_to(k * 50_000)
+            sender.send(msg)
+        while (t := clock.next_event_ns()) is not None:
+            clock.advance_to(t)
+        for _ in msgs:
+            seen.get(timeout=10.0)
+    finally:
+        notifier.stop()  # stops the logger too
+        sender.shutdown()
+        listener.shutdown()
+    model = simulate([QueuedFrame("s", k * 50_000, frame_of_message(m)) for k, m in enumerate(msgs)], BITRATE, nodes=["l"])
+    logged = list(can.LogReader(str(path)))
+    assert [m.arbitration_id for m in logged] == [tx.arbitration_id for tx in model.transmissions]
+    for m, tx in zip(logged, model.transmissions):
+        assert abs(round(m.timestamp * 1e9) - tx.last_bit_ns) <= 1  # BLF's nanoseconds through a float
