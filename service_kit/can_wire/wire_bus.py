@@ -143,7 +143,7 @@ class Wire:
     keep_log: bool = False
     log: list[Delivery] = field(default_factory=list)
     dropped: int = 0
-    """Pending frames of a bus shut down before they went on the wire."""
+    """Frames of a bus shut down before they went on the wire or while on it."""
     _pending: list[_Pending] = field(default_factory=list)
     _in_flight: _InFlight | None = None
     _bus_free_ns: int = 0
@@ -214,7 +214,10 @@ class Wire:
             return
         msg = copy.copy(item.msg)
         msg.timestamp = self.clock.timestamp(flight.last_bit_ns)
-        item.sender.send(msg)
+        try:
+            item.sender.send(msg)
+        except can.CanOperationError:  # the sender closed while its frame was on the wire
+            self.dropped += 1
 
     def _run(self) -> None:
         while True:
