@@ -42,6 +42,7 @@ from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
+from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.scenario_setting import parse_channel_faults, parse_scenario
 from protocol.settings import PlantSettings
 from service_kit import readiness
@@ -166,6 +167,8 @@ class PlantApplication:
             self.scenario.add(cmd)
         self.channel_faults = self._fault_unit(settings, self.arm)
         """The scenario's channel faults (None: no ``channel_faults`` section, the node's path untouched)."""
+        self.channel_faults_refused = 0
+        """Channel faults from the test port this plant could not apply."""
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -338,6 +341,25 @@ class PlantApplication:
             elif cmd.kind == "adc_bits":
                 self.arm.set_adc_bits(int(cmd.adc_bits or 12))
                 self._event("adc_bits", f"A/D resolution set to {cmd.adc_bits} bits")
+            elif cmd.kind == "channel_fault" and cmd.channel_fault is not None:
+                self._add_channel_fault(cmd.channel_fault)
+
+    def _add_channel_fault(self, fault: ChannelFault) -> None:
+        """A channel fault from the test port joins the unit (made now if the scenario had none);
+        one this plant cannot apply is refused, counted and told as an event, the node unaffected."""
+        problem = None
+        arm = self.arm
+        if fault.is_input and not isinstance(arm, SamplesVolts):
+            problem = f"{type(arm).__name__} has no sample_volts"
+        elif fault.kind == "lost_bits" and isinstance(arm, SamplesVolts) and fault.bits is not None and fault.bits >= arm.adc_scale.bits:
+            problem = f"lost_bits {fault.bits} leaves no bit of the {arm.adc_scale.bits}-bit A/D"
+        if problem is not None:
+            self.channel_faults_refused += 1
+            self._event("channel_fault_refused", f"{fault.describe()}: {problem}")
+            return
+        if self.channel_faults is None:
+            self.channel_faults = ChannelFaultUnit(FaultSchedule(), keep_record=self._recording_truth)
+        self.channel_faults.add(fault)
 
     def _event(self, kind: str, detail: str) -> None:
         log.info("plant event %s: %s", kind, detail)
@@ -471,6 +493,8 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     (the model's step included) and, for an FMU, its step counters and times."""
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, scenario_pending_dropped=app.scenario.dropped)
+    if app.channel_faults_refused:
+        counters["channel_faults_refused"] = app.channel_faults_refused
     if port is not None:
         counters.update(port.inbox.as_dict())
         counters.update(port.moves.as_dict())
