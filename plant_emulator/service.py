@@ -169,6 +169,8 @@ class PlantApplication:
         """The scenario's channel faults (None: no ``channel_faults`` section, the node's path untouched)."""
         self.channel_faults_refused = 0
         """Channel faults from the test port this plant could not apply."""
+        self._live_faults: set[tuple[int, ChannelFault]] = set()
+        """The test port's channel-fault commands taken, by (seq, fault)."""
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -342,11 +344,16 @@ class PlantApplication:
                 self.arm.set_adc_bits(int(cmd.adc_bits or 12))
                 self._event("adc_bits", f"A/D resolution set to {cmd.adc_bits} bits")
             elif cmd.kind == "channel_fault" and cmd.channel_fault is not None:
-                self._add_channel_fault(cmd.channel_fault)
+                self._add_channel_fault(cmd.seq, cmd.channel_fault)
 
-    def _add_channel_fault(self, fault: ChannelFault) -> None:
-        """A channel fault from the test port joins the unit (made now if the scenario had none);
-        one this plant cannot apply is refused, counted and told as an event, the node unaffected."""
+    def _add_channel_fault(self, seq: int, fault: ChannelFault) -> None:
+        """A channel fault from the test port joins the unit (made now if the scenario had none)
+        and is told as a plant event (``channel_fault_added``); the same command sent again (same
+        ``seq``, same fault: a sender's resend) is taken once. One this plant cannot apply is
+        refused, counted and told as an event (``channel_fault_refused``), the node unaffected."""
+        if (seq, fault) in self._live_faults:
+            return
+        self._live_faults.add((seq, fault))
         problem = None
         arm = self.arm
         if fault.is_input and not isinstance(arm, SamplesVolts):
@@ -360,6 +367,7 @@ class PlantApplication:
         if self.channel_faults is None:
             self.channel_faults = ChannelFaultUnit(FaultSchedule(), keep_record=self._recording_truth)
         self.channel_faults.add(fault)
+        self._event("channel_fault_added", fault.describe())
 
     def _event(self, kind: str, detail: str) -> None:
         log.info("plant event %s: %s", kind, detail)
