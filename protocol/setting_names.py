@@ -122,6 +122,7 @@ SERVICES: Final[dict[str, tuple[str, ...]]] = {
         "timeouts",
         "run_record",
         "policies",
+        "input_monitors",
         "fault_scenario",
     ),
     "dsp": (
@@ -197,6 +198,10 @@ RETIRED: Final[frozenset[str]] = frozenset(
         "policy_can_conflict",
         "policy_deadline",
         "policy_dsp_lost",
+        "policy_input_disagree",
+        "policy_input_range",
+        "policy_input_rate",
+        "policy_input_stuck",
         "policy_overrun",
         "policy_stale",
         "record",
