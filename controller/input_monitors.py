@@ -104,7 +104,9 @@ class InputMonitorChecks:
             for j in range(4):
                 step = abs(words[j] - prev[j])
                 if step > self._rate_words[j]:
-                    found.append(f"{CHANNELS[j]} changed {step * WORD16_VOLTS_PER_LSB:.3f} V in one tick ({step * WORD16_VOLTS_PER_LSB / self.sample_period_s:.0f} V/s)")
+                    found.append(
+                        f"{CHANNELS[j]} changed {step * WORD16_VOLTS_PER_LSB:.3f} V in one tick ({step * WORD16_VOLTS_PER_LSB / self.sample_period_s:.0f} V/s)"
+                    )
             self._report(tick, "input_rate", found)
         if lim.disagree:
             sag = static_sag_in(row[_THETA], row[_THETA + 1])

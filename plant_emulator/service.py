@@ -38,11 +38,11 @@ from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.plant_model import PlantModel, ReportsStepFaults, SamplesVolts
 from plant_emulator.scenario import PendingCommands
 from protocol.can_map import EmcyCode
+from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
-from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.scenario_setting import parse_channel_faults, parse_scenario
 from protocol.settings import PlantSettings
 from service_kit import readiness

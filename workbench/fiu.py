@@ -167,4 +167,3 @@ def merge_scenario(scenario: Any, faults: list[ChannelFault]) -> dict[str, Any]:
     extra = [f.model_dump(mode="json", exclude_none=True) for f in faults]
     sections["channel_faults"] = own + extra
     return sections
-

@@ -56,7 +56,10 @@ def test_off_by_default_and_nothing_counted() -> None:
     assert not InputMonitors().any
     monitors = Monitors(Policies().as_dict())
     assert set(monitors.episodes) == {"deadline", "stale", "dsp_lost", "overrun", "can_conflict"}
-    run = run_cosim(controller={"duration_s": 0.5, "tf_download_samples": 0}, plant={"scenario": {"channel_faults": [{"channel": "AI3", "kind": "short_ground", "start_s": 0.1}]}})
+    run = run_cosim(
+        controller={"duration_s": 0.5, "tf_download_samples": 0},
+        plant={"scenario": {"channel_faults": [{"channel": "AI3", "kind": "short_ground", "start_s": 0.1}]}},
+    )
     assert run.controller.inputs is None
     assert not any(key.startswith("episodes_input") for key in run.health["controller"].counters)
 
