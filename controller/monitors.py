@@ -7,7 +7,9 @@ due; ``can_conflict``: another master on the CAN bus, i.e. a SYNC, NMT
 command, RPDO1 or SDO write this controller did not send, the plant's
 SYNC_CONFLICT / RPDO_CONFLICT emergency, or frames forged on the plant's
 COB-IDs (a second TPDO1 per SYNC, a heartbeat or EMCY the plant disowns),
-see :mod:`controller.plant_link`; its default policy is ``stop``) has a policy:
+see :mod:`controller.plant_link`; its default policy is ``stop``; and, when
+the ``input_monitors`` setting turns them on, the plausibility checks on the
+A/D inputs of :mod:`controller.input_monitors`) has a policy:
 
 * ``count``: count it, nothing else;
 * ``warn``: count it and log a warning (once per episode);
@@ -25,6 +27,9 @@ from typing import Literal
 
 Policy = Literal["count", "warn", "degrade", "stop"]
 MONITORS = ("deadline", "stale", "dsp_lost", "overrun", "can_conflict")
+INPUT_MONITORS = ("input_range", "input_stuck", "input_rate", "input_disagree")
+"""The plausibility checks on the A/D inputs (:mod:`controller.input_monitors`):
+counted only in a run that turns them on (``input_monitors``)."""
 
 log = logging.getLogger(__name__)
 
@@ -43,9 +48,9 @@ class Monitors:
     last: str | None = None
 
     def __post_init__(self) -> None:
-        unknown = set(self.policies) - set(MONITORS)
+        unknown = set(self.policies) - set(MONITORS) - set(INPUT_MONITORS)
         if unknown:
-            raise ValueError(f"unknown monitors {sorted(unknown)}; known: {MONITORS}")
+            raise ValueError(f"unknown monitors {sorted(unknown)}; known: {MONITORS + INPUT_MONITORS}")
 
     @property
     def degraded(self) -> bool:

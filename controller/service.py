@@ -39,6 +39,7 @@ from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
 from controller.dsp_side import ConfigChangeTaken, DspSide, DspTimes
 from controller.fault_stage import FaultStage, LoopStalls
+from controller.input_monitors import InputMonitorChecks
 from controller.interrupt_wait import BATCH_RESEND_S
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, STIMULUS_NAMES, ControlLaw
 from controller.monitors import Monitors, MonitorStop
@@ -141,6 +142,8 @@ class ControllerService:
         self.link = DspLink(sample_rate_hz=s.sample_rate_hz, batch_size=s.batch_size, deadline_s=s.timeouts.dsp_deadline_s)
         self.timing = TimingCounters()
         self.monitors = make_monitors(s)
+        self.inputs = InputMonitorChecks(s.input_monitors, self.monitors, s.sample_period_s) if s.input_monitors.any else None
+        """The plausibility checks on the A/D inputs, when turned on (controller/input_monitors.py)."""
         self.tet, self.jitter, self.period_jitter = LatencyTracker(), LatencyTracker(), LatencyTracker()
         self.policy: TickPolicy | None = None
         """The per-tick checks of the running loop (controller/tick_policy.py)."""
@@ -231,6 +234,8 @@ class ControllerService:
         w0, w1, w2, w3 = words
         law.tick_compiled(tick, w0, w1, w2, w3)  # the law in one compiled call (controller/fast_tick.py)
         row: list[Any] = law.row.tolist()  # the words as floats: the record stores them as float64 all the same
+        if self.inputs is not None:  # before the valves get this tick's command
+            self.inputs.check(tick, row)
         volts = row[ROW_VOLTS : ROW_VOLTS + 2]
         if faults is None:
             c0, c1, _, _ = law.codes.tolist()
@@ -397,6 +402,8 @@ class ControllerService:
         if self.law.stimulus is not None:
             plan = self.law.stimulus.plan
             metadata["stimulus"] = {"profiles": [p.model_dump(exclude_none=True) for p in plan.profiles], "events": self.law.stimulus_events}
+        if self.inputs is not None:
+            metadata["input_monitor_events"] = [{"tick": t, "monitor": m, "detail": d} for t, m, d in self.inputs.events]
         hops = self.hops if not self.lockstep else None
         save_run(path, (self.record, self.timing_record), self.settings.model_dump(), metadata, self.faults, hops, self.tf_snapshots)
 

@@ -114,7 +114,14 @@ class ChannelFaultUnit:
         self.schedule = schedule
         self.keep_record = keep_record
         """Keep every conversion and D/A update in :attr:`record` (the plant does when it writes a truth file)."""
-        self._states = [_State(f, np.random.Generator(np.random.PCG64(f.seed)) if f.kind == "noise" else None) for f in schedule.faults]
+        self._states = [_state(f) for f in schedule.faults]
+        self.record = ChannelRecord()
+        self._seen = [False] * len(self._states)
+        self._ended = [False] * len(self._states)
+        self._sort()
+
+    def _sort(self) -> None:
+        """The faults by stage, in schedule order within each."""
         self._ad = [[s for s in self._states if s.fault.is_input and s.fault.kind == kind] for kind in AD_ORDER]
         self._lost_bits = [s for s in self._states if s.fault.kind == "lost_bits"]
         self._da = [[s for s in self._states if not s.fault.is_input and s.fault.kind == kind] for kind in DA_ORDER]
@@ -122,9 +129,15 @@ class ChannelFaultUnit:
         """Faults on the A/D inputs: TPDO1's codes come from :meth:`convert`."""
         self.on_outputs = any(not s.fault.is_input for s in self._states)
         """Faults on the D/A outputs: the valves get :meth:`drive`'s voltages."""
-        self.record = ChannelRecord()
-        self._seen = [False] * len(self._states)
-        self._ended = [False] * len(self._states)
+
+    def add(self, fault: ChannelFault) -> None:
+        """One more fault, after those of the schedule (a test port's ``channel_fault``
+        command): it acts from its ``start_s``, or from the next sample if that has passed."""
+        self.schedule = FaultSchedule(faults=(*self.schedule.faults, fault))
+        self._states.append(_state(fault))
+        self._seen.append(False)
+        self._ended.append(False)
+        self._sort()
 
     def transitions(self, time_s: float) -> list[Transition]:
         """The faults that started or ended by ``time_s`` since the last call, in schedule order."""
@@ -177,6 +190,11 @@ class ChannelFaultUnit:
             rec.da_commanded_v.extend((float(volts0), float(volts1)))
             rec.da_applied_v.extend(v)
         return v[0], v[1]
+
+
+def _state(fault: ChannelFault) -> _State:
+    """A fault's state; a ``noise`` fault's generator seeded with its ``seed``."""
+    return _State(fault, np.random.Generator(np.random.PCG64(fault.seed)) if fault.kind == "noise" else None)
 
 
 def _acting(s: _State, time_s: float) -> bool:

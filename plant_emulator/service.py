@@ -38,6 +38,7 @@ from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.plant_model import PlantModel, ReportsStepFaults, SamplesVolts
 from plant_emulator.scenario import PendingCommands
 from protocol.can_map import EmcyCode
+from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
@@ -171,6 +172,10 @@ class PlantApplication:
         """The scenario's stimulus on the plant's inputs (None: no ``stimulus`` section, the SYNC path untouched)."""
         self._payload_before: bool | None = None
         self._forces = (0.0, 0.0)
+        self.channel_faults_refused = 0
+        """Channel faults from the test port this plant could not apply."""
+        self._live_faults: set[tuple[int, ChannelFault]] = set()
+        """The test port's channel-fault commands taken, by (seq, fault)."""
         self._event_seq = 0
         self._next_truth_s = 0.0
         self._hard_stops_seen = 0
@@ -381,6 +386,31 @@ class PlantApplication:
             elif cmd.kind == "adc_bits":
                 self.arm.set_adc_bits(int(cmd.adc_bits or 12))
                 self._event("adc_bits", f"A/D resolution set to {cmd.adc_bits} bits")
+            elif cmd.kind == "channel_fault" and cmd.channel_fault is not None:
+                self._add_channel_fault(cmd.seq, cmd.channel_fault)
+
+    def _add_channel_fault(self, seq: int, fault: ChannelFault) -> None:
+        """A channel fault from the test port joins the unit (made now if the scenario had none)
+        and is told as a plant event (``channel_fault_added``); the same command sent again (same
+        ``seq``, same fault: a sender's resend) is taken once. One this plant cannot apply is
+        refused, counted and told as an event (``channel_fault_refused``), the node unaffected."""
+        if (seq, fault) in self._live_faults:
+            return
+        self._live_faults.add((seq, fault))
+        problem = None
+        arm = self.arm
+        if fault.is_input and not isinstance(arm, SamplesVolts):
+            problem = f"{type(arm).__name__} has no sample_volts"
+        elif fault.kind == "lost_bits" and isinstance(arm, SamplesVolts) and fault.bits is not None and fault.bits >= arm.adc_scale.bits:
+            problem = f"lost_bits {fault.bits} leaves no bit of the {arm.adc_scale.bits}-bit A/D"
+        if problem is not None:
+            self.channel_faults_refused += 1
+            self._event("channel_fault_refused", f"{fault.describe()}: {problem}")
+            return
+        if self.channel_faults is None:
+            self.channel_faults = ChannelFaultUnit(FaultSchedule(), keep_record=self._recording_truth)
+        self.channel_faults.add(fault)
+        self._event("channel_fault_added", fault.describe())
 
     def _event(self, kind: str, detail: str) -> None:
         log.info("plant event %s: %s", kind, detail)
@@ -514,6 +544,8 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     (the model's step included) and, for an FMU, its step counters and times."""
     counters = {k: int(v) for k, v in node.counters.as_dict().items()}
     counters.update(syncs_applied=app.syncs, hard_stops=app.arm.hard_stop_count, scenario_pending_dropped=app.scenario.dropped)
+    if app.channel_faults_refused:
+        counters["channel_faults_refused"] = app.channel_faults_refused
     if port is not None:
         counters.update(port.inbox.as_dict())
         counters.update(port.moves.as_dict())

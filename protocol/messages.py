@@ -22,6 +22,7 @@ import numpy.typing as npt
 import pydantic_core
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from protocol.channel_faults import ChannelFault
 from protocol.errors import ProtocolError
 
 # Every numeric field is bounded (a peer's 1e300 is refused at decoding, not
@@ -345,15 +346,18 @@ class ScenarioCommand(Message):
     """A scenario input on the plant's test port, applied at ``at_sim_time_s``
     (or at once if that time has passed)."""
 
-    kind: Literal["payload", "seed", "adc_bits"]
+    kind: Literal["payload", "seed", "adc_bits", "channel_fault"]
     at_sim_time_s: NonNegFloat = 0.0
     payload_attached: bool | None = None
     seed: Annotated[int, Field(ge=0, lt=2**32)] | None = None
     adc_bits: Literal[12, 16, 20] | None = None
+    channel_fault: ChannelFault | None = None
+    """``channel_fault``: a fault joining the plant's channel faults (docs/fault-insertion.md);
+    it acts from its own ``start_s`` to its ``end_s``."""
 
     @model_validator(mode="after")
     def _value_present(self) -> ScenarioCommand:
-        needed = {"payload": self.payload_attached, "seed": self.seed, "adc_bits": self.adc_bits}[self.kind]
+        needed = {"payload": self.payload_attached, "seed": self.seed, "adc_bits": self.adc_bits, "channel_fault": self.channel_fault}[self.kind]
         if needed is None:
             raise ValueError(f"scenario command {self.kind!r} needs its value")
         return self

@@ -229,8 +229,42 @@ class Policies(SettingGroup):
     overrun: Policy = Field("count", description="A tick finishing after the next was due")
     can_conflict: Policy = Field("stop", description="Another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames, on the CAN bus")
 
+    input_range: Policy = Field("stop", description="An input out of its sensor's range or at the converter's clip code (when input_monitors turns it on)")
+    input_stuck: Policy = Field("stop", description="An input's code unchanged for stuck_samples ticks while the set-point moves (when on)")
+    input_rate: Policy = Field("stop", description="An input changing faster than its rate limit (when on)")
+    input_disagree: Policy = Field("stop", description="A measured deflection far from the sag the measured joints imply (when on)")
+
     def as_dict(self) -> dict[str, Policy]:
-        return {"deadline": self.deadline, "stale": self.stale, "dsp_lost": self.dsp_lost, "overrun": self.overrun, "can_conflict": self.can_conflict}
+        return {name: getattr(self, name) for name in type(self).model_fields}
+
+
+class InputMonitors(SettingGroup):
+    """Plausibility checks on the controller's A/D inputs (controller/input_monitors.py,
+    docs/fault-insertion.md); each is off unless named, its policy is ``policies.input_*``."""
+
+    range: bool = Field(False, description="Check each input against its sensor's range and the converter's clip codes")
+    stuck: bool = Field(False, description="Check that each input's code changes while the set-point moves")
+    rate: bool = Field(False, description="Check each input's change per tick against its rate limit")
+    disagree: bool = Field(False, description="Check the measured deflections against the sag the measured joint angles imply")
+    extension_range_in: Annotated[tuple[float, float], BeforeValidator(band_text)] = Field(
+        (0.0, 20.0), description="The cylinders' extensions (in) a sound sensor reads: their stroke"
+    )
+    stuck_samples: int = Field(20, ge=2, le=100_000, description="Ticks with an unchanged code while the set-point moves before stuck fires")
+    extension_rate_v_s: float = Field(20.0, gt=0, le=1e6, description="Rate limit of the extension inputs AI1, AI2 (V/s; 1 V/in)")
+    deflection_rate_v_s: float = Field(100.0, gt=0, le=1e6, description="Rate limit of the deflection inputs AI3, AI4 (V/s)")
+    disagree_in: float = Field(0.3, gt=0, le=10, description="Largest |measured - implied| deflection (in) before disagree fires")
+
+    @field_validator("extension_range_in")
+    @classmethod
+    def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] < value[1]:
+            raise ValueError(f"extension_range_in {value[0]:g},{value[1]:g}: the low end must be below the high end")
+        return value
+
+    @property
+    def any(self) -> bool:
+        """Whether any check is on."""
+        return self.range or self.stuck or self.rate or self.disagree
 
 
 def describe_group(group: type[SettingGroup]) -> str:

@@ -23,6 +23,7 @@ from protocol.keys import validate_rig_id
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.setting_groups import (
     DitherTuning,
+    InputMonitors,
     OatfTuning,
     PiGains,
     Policies,
@@ -413,6 +414,10 @@ class ControllerSettings(CommonSettings):
         description="What the controller does on each monitored event, KEY=VALUE,... of count, warn, degrade or stop (unnamed keys keep their defaults): "
         + describe_group(Policies),
     )
+    input_monitors: Annotated[InputMonitors, NoDecode] = Field(
+        InputMonitors(),
+        description="Plausibility checks on the A/D inputs, KEY=VALUE,... (all off unless named; docs/fault-insertion.md): " + describe_group(InputMonitors),
+    )
     fault_scenario: str = Field(
         "",
         max_length=100_000,
@@ -426,7 +431,7 @@ class ControllerSettings(CommonSettings):
         '[{"input": "valve.u1", "shape": "step", "size": 2, "at_s": 1, "for_s": 0.5}] (docs/stimulus.md; empty = none)',
     )
 
-    @field_validator("oatf", "dither", "pi", "timeouts", "policies", mode="before")
+    @field_validator("oatf", "dither", "pi", "timeouts", "policies", "input_monitors", mode="before")
     @classmethod
     def _group_text(cls, value: Any) -> Any:
         return SettingGroup.coerce(value)
@@ -594,7 +599,7 @@ RETIRED: dict[str, str] = {
     f'with drop or outage, e.g. {{"faults": [{{"link": "can", "kinds": ["sync"], "outage": {{"every_s": 0.25, "length_s": 0.005}}}}]}} ({_FAULTS})',
     "inject_delay_s": f'faults are scripted in RALF_FAULT_SCENARIO: a slowed DSP board is {{"dsp_delay_s": S}} ({_FAULTS})',
     **{
-        f"policy_{key}": f"the five policies are one setting: RALF_POLICIES={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
+        f"policy_{key}": f"the policies are one setting: RALF_POLICIES={key}=VALUE (KEY=VALUE,...; unnamed keys keep their defaults)"
         for key in Policies.model_fields
     },
     **{

@@ -31,6 +31,7 @@ from service_kit.runtime import stop_on_signals
 from workbench import bench, campaign, experiments, measure_cli, memory_slope, monitor, timing_test
 from workbench.cosim_guard import FAULT_FILE_VARIABLE
 from workbench.extras import missing_extra
+from workbench.fault_cli import add_fault_parser
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
@@ -265,18 +266,18 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False, ru
     path = write_credentials_file(directory / "zenoh-credentials.txt", credentials)
     plan.common_env.update(RALF_ZENOH_CREDENTIALS_FILE=str(path), RALF_ZENOH_ACL="scenarios" if scenarios else "on")
     plan.use_tls({role: {**files.env(), **role_env(role, credentials)} for role, files in certificates.items()})
-    tool_env = directory / "tool.env"
-    fd = os.open(tool_env, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as fh:
-        variables = {
-            **certificates["tool"].env(),
-            **role_env("tool", credentials),
-            "RALF_ZENOH_CONNECT": plan.zenoh_endpoint,
-            "RALF_CAN_PORT": str(plan.can_port),  # ralf-hil record and live tap the bus too
-            "RALF_RIG_ID": plan.rig_id,
-        }
-        fh.writelines(f"{k}={v}\n" for k, v in variables.items())
-    return tool_env
+    for role in ("tool", "tester") if scenarios else ("tool",):  # tester.env: ralf-hil fault, where scenarios are on
+        fd = os.open(directory / f"{role}.env", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            variables = {
+                **certificates[role].env(),
+                **role_env(role, credentials),
+                "RALF_ZENOH_CONNECT": plan.zenoh_endpoint,
+                "RALF_CAN_PORT": str(plan.can_port),  # ralf-hil record and live tap the bus too
+                "RALF_RIG_ID": plan.rig_id,
+            }
+            fh.writelines(f"{k}={v}\n" for k, v in variables.items())
+    return directory / "tool.env"
 
 
 def shorter_duration(given: str | None, duration_s: float) -> str:
@@ -420,7 +421,7 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
         from workbench.certificates import planned_run_s
 
         run_s = planned_run_s(args.duration, args.clock, plan.service_env.get("controller", {}).get("RALF_DURATION_S"))
-        tool_env = provision_access(plan, access_dir, run_s=run_s)  # credentials of this run, valid for all of it; access rules on
+        tool_env = provision_access(plan, access_dir, scenarios=args.scenarios, run_s=run_s)  # credentials of this run, valid for all of it; access rules on
         code = _up_supervised(args, plan, logs.path, tool_env, live_view)
         return code
     finally:
@@ -892,6 +893,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="keep the run's zenoh credentials (an owner-only folder, printed at start) after it ends; by default they are removed at exit",
     )
     up.add_argument(
+        "--scenarios",
+        action="store_true",
+        help="accept scenario commands on the plant's test port from the tester role (tester.env beside tool.env: `ralf-hil fault`)",
+    )
+    up.add_argument(
         "--record",
         default=None,
         metavar="RUN.mcap",
@@ -919,6 +925,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--alpha", type=float, default=None, help="DSP exponential averaging weight")
     rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
+    add_fault_parser(sub)
     cr = sub.add_parser("credentials", help="generate the certificates, zenoh credentials and the router's access rules for docker compose")
     cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
     cr.add_argument("--rig-id", default="default")

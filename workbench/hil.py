@@ -43,6 +43,7 @@ from protocol.messages import GroundTruth, Health, Interrupt, PlantEvent, Scenar
 from protocol.setting_groups import Timeouts
 from protocol.setting_hints import unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
+from workbench.fiu import FaultInsertion
 from workbench.log_counts import counting_warnings
 from workbench.verdict import Verdict, judge
 
@@ -239,6 +240,7 @@ class HilRig:
         self.can_channel = f"ralf-{self.rig_id}"
         self.node_id = int(self.common.get("node_id", self.controller.get("node_id", 1)))
         self.plant = PlantPort(self)
+        self.fiu = FaultInsertion(self)
         self.dsp = DspPort()
         self.can = CanPort(self)
         self.record: RunRecord | None = None
@@ -357,7 +359,7 @@ class HilRig:
         path = self._workdir / f"{self.rig_id}.mcap"
         run = run_cosim(
             controller=self._controller_settings(duration_s),
-            plant=plant,
+            plant=self.fiu.merge(plant),
             dsp=self._dsp_settings(),
             common={**self.common, "rig_id": self.rig_id},
             record=str(path),
@@ -402,7 +404,7 @@ class HilRig:
             rate = float(self.common.get("sample_rate_hz", 200.0))
             plant.setdefault("watchdog_periods", min(10_000, max(5, math.ceil(timeout * rate))))  # its upper bound
         run = run_in_process(
-            controller=self._controller_settings(duration_s), plant=plant, dsp=self._dsp_settings(), common=common, session=session,
+            controller=self._controller_settings(duration_s), plant=self.fiu.merge(plant), dsp=self._dsp_settings(), common=common, session=session,
             at_tick=(0, send_scenario) if pending else None, stop=self._stop,
         )  # fmt: skip
         return self._record(run, None)

@@ -68,6 +68,7 @@ VARIANTS: dict[str, list[dict[str, Any]]] = {
         {"kind": "payload", "payload_attached": True, "at_sim_time_s": 5.0},
         {"kind": "seed", "seed": 7},
         {"kind": "adc_bits", "adc_bits": 16},
+        {"kind": "channel_fault", "channel_fault": {"channel": "AI3", "kind": "short_ground", "start_s": 900.0}},
     ],
     "PlantEvent": [{"kind": "watchdog", "detail": "tripped"}],
     "ControllerStatus": [

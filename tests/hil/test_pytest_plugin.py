@@ -73,7 +73,7 @@ def test_unknown_setting_is_one_clear_error(pytester: pytest.Pytester) -> None:
             "*rig fixture: dsp: invalid configuration: RALF_FFT_WIDTH: Input should be greater than or equal to 32*",
             "*rig fixture: unknown rig clock 'wallclock' (cosim, lockstep, realtime)*",
             "*rig fixture: common.clock is chosen by the rig fixture*",
-            "*rig fixture: controller.policy_deadline: the five policies are one setting: RALF_POLICIES=deadline=VALUE*",
+            "*rig fixture: controller.policy_deadline: the policies are one setting: RALF_POLICIES=deadline=VALUE*",
         ]
     )
     assert "Traceback" not in result.stdout.str()

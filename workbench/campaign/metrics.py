@@ -19,7 +19,7 @@ import numpy as np
 
 from workbench.experiments.onrig.runner import costs_over
 
-__all__ = ["COUNTERS", "run_metrics"]
+__all__ = ["COUNTERS", "detection_metrics", "run_metrics"]
 
 COUNTERS = (
     "batches_sent",
@@ -92,4 +92,16 @@ def run_metrics(
         truth_period = float(np.median(np.diff(ts)))
         if abs(truth_period - sample_period_s) <= 1e-6 * sample_period_s:
             row.update(_costs("true_", np.asarray(truth["deflections_in"], dtype=float), sample_period_s))
+    return row
+
+
+def detection_metrics(events: list[tuple[int, str, str]], monitors: tuple[str, ...], sample_period_s: float) -> dict[str, float]:
+    """When each input monitor first fired (``<monitor>_first_s``: simulated time of the
+    sample whose check fired, tick ``k`` sampling at ``(k + 1) Ts``; NaN: never) and how many
+    times (``<monitor>_episodes``), for a run whose ``input_monitors`` are on."""
+    row: dict[str, float] = {}
+    for name in monitors:
+        ticks = [tick for tick, monitor, _ in events if monitor == name]
+        row[f"{name}_first_s"] = (ticks[0] + 1) * sample_period_s if ticks else float("nan")
+        row[f"{name}_episodes"] = len(ticks)
     return row

@@ -46,9 +46,10 @@ from typing import Any
 
 import numpy as np
 
+from controller.monitors import INPUT_MONITORS
 from protocol.record_paths import truth_file
 from protocol.setting_groups import Timeouts
-from workbench.campaign.metrics import run_metrics
+from workbench.campaign.metrics import detection_metrics, run_metrics
 from workbench.campaign.spec import DEFAULT_MODE, VOLATILE, RunMode, RunPoint, get_mode, known_modes, register_mode
 
 __all__ = ["DEFAULT_MODE", "RunFailed", "RunMode", "get_mode", "known_modes", "register_mode", "run_point"]
@@ -89,7 +90,11 @@ def _one_process_row(point: RunPoint, run_rig: Callable[..., Any], controller: d
         truth = _load_npz(truth_path)
     columns = run.controller.record.to_columns()
     period = 1.0 / float(s["controller"]["sample_rate_hz"])
-    return run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+    row = run_metrics(columns, truth, run.result.counters, sample_period_s=period, wall_s=wall)
+    inputs = getattr(run.controller, "inputs", None)
+    if inputs is not None:  # the input monitors on: when each fired (a fault sweep's figure)
+        row.update(detection_metrics(inputs.events, INPUT_MONITORS, period))
+    return row
 
 
 @register_mode("cosim")

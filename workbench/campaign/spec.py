@@ -5,8 +5,13 @@ A spec (YAML or TOML, see docs/campaigns.md) names settings as
 ``dsp.fft_width``), ``common.FIELD`` or a bare ``FIELD`` (every service that
 has it, like ``ralf-hil up --set``), one key of a structured setting as
 ``SERVICE.FIELD.KEY`` (``controller.oatf.frequency_hz``: the keys named
-merge, the others keep their defaults), plus two special names, ``seed`` (the
-plant's sensor-noise seed) and ``mode`` (the run mode, :mod:`workbench.campaign.modes`).
+merge, the others keep their defaults), plus three special names, ``seed`` (the
+plant's sensor-noise seed), ``mode`` (the run mode, :mod:`workbench.campaign.modes`)
+and ``fault``: one channel fault (docs/fault-insertion.md) given as a table
+(``fault: {channel: AI3, kind: short_ground, start_s: 5}``) or one field at a
+time (``fault.kind``, ``fault.channel``, ``fault.offset_v``: the fields named
+merge), checked as the plant checks it and added to the ``channel_faults`` of
+the plant's ``scenario``, so a fault's kind, channel or size can be a grid axis.
 
 The runs are ``points × grid × seeds``: every explicit point (default: one
 empty point), crossed with the Cartesian product of the grid's axes, crossed
@@ -79,7 +84,7 @@ VOLATILE = frozenset(
 )
 """Per-run plumbing the run mode chooses: not part of a run's identity (its key)."""
 
-SPECIAL = ("seed", "mode")
+SPECIAL = ("seed", "mode", "fault")
 
 DEFAULT_MODE = "cosim"
 """The run mode of a spec that names none (:mod:`workbench.campaign.modes`): the one-thread
@@ -278,12 +283,21 @@ def resolve(assignments: Mapping[str, Any]) -> tuple[str | None, dict[str, dict[
     """(mode or None, resolved settings per service) of a flat ``name -> value`` mapping; :class:`SpecError` if invalid."""
     mode: str | None = None
     given: dict[str, dict[str, Any]] = {s: {} for s in SERVICES}
+    fault: dict[str, Any] = {}
     for name, value in assignments.items():
         if name == "mode":
             mode = str(value)
             continue
         if name == "seed":
             given["plant"]["seed"] = value
+            continue
+        if name == "fault":
+            if not isinstance(value, Mapping):
+                raise SpecError(f"fault: give a table of a channel fault's fields (channel, kind, start_s, ...), not {value!r}")
+            fault.update(value)
+            continue
+        if name.startswith("fault."):
+            fault[name.removeprefix("fault.")] = value
             continue
         for service, fld in _split(name):
             group, dot, key = fld.partition(".")
@@ -292,6 +306,8 @@ def resolve(assignments: Mapping[str, Any]) -> tuple[str | None, dict[str, dict[
                 given[service][group] = {**(parse_group_text(entry) if isinstance(entry, str) else dict(entry)), key: value}
             else:
                 given[service][fld] = value
+    if fault:
+        given["plant"]["scenario"] = _with_fault(given["plant"].get("scenario"), fault)
     out: dict[str, dict[str, Any]] = {}
     for service, model in SERVICES.items():
         try:
@@ -300,6 +316,24 @@ def resolve(assignments: Mapping[str, Any]) -> tuple[str | None, dict[str, dict[
             errs = "; ".join(f"{service}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
             raise SpecError(f"invalid settings {dict(assignments)!r}: {errs}") from None
     return mode, out
+
+
+def _with_fault(scenario: Any, fields: Mapping[str, Any]) -> str:
+    """The plant's ``scenario`` with the sweep's channel fault added (checked: :class:`SpecError`, one line)."""
+    from workbench.fiu import FaultError, build_fault, merge_scenario
+
+    own = dict(fields)
+    channel, kind = own.pop("channel", None), own.pop("kind", None)
+    if channel is None or kind is None:
+        raise SpecError(f"fault {dict(fields)!r}: needs channel and kind (docs/fault-insertion.md)")
+    start, end = own.pop("start_s", 0.0), own.pop("end_s", None)
+    try:
+        if end is not None and not float(end) > float(start):
+            raise FaultError(f"{kind} on {channel}: end_s {end} is not after start_s {start}")
+        fault = build_fault(str(channel), str(kind), float(start), None if end is None else float(end) - float(start), **own)
+    except (FaultError, TypeError, ValueError) as exc:
+        raise SpecError(f"fault: {' '.join(str(exc).split())}") from None
+    return json.dumps(merge_scenario(scenario, [fault]))
 
 
 def identity(mode: str, settings: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -317,6 +351,9 @@ def run_key(mode: str, settings: Mapping[str, Mapping[str, Any]]) -> str:
 
 def _axis_values(axis: str, value: Any) -> tuple[dict[str, Any], Any]:
     """(assignments, value shown in the table) of one grid value."""
+    if axis == "fault" and isinstance(value, Mapping):  # a channel fault's fields per value, merged over the base's
+        shown = {k: v for k, v in value.items() if k != "label"}
+        return {f"fault.{k}": v for k, v in shown.items()}, value.get("label", json.dumps(shown, sort_keys=True))
     if isinstance(value, Mapping):
         bundle = flatten(value)
         label = bundle.pop("label", None)
