@@ -122,6 +122,10 @@ SERVICES: Final[dict[str, tuple[str, ...]]] = {
         "timeouts",
         "run_record",
         "policies",
+        "xcp_udp_port",
+        "xcp_tcp_port",
+        "xcp_host",
+        "xcp_a2l",
         "fault_scenario",
     ),
     "dsp": (
