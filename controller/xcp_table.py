@@ -128,13 +128,20 @@ def controller_a2l(sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: 
     )
 
 
+def port_number(text: str) -> int:
+    port = int(text)
+    if not 0 <= port <= 65535:
+        raise ValueError(text)
+    return port
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m controller.xcp_table [-o FILE] [--udp-port N] [--tcp-port N]``: write the A2L."""
     parser = argparse.ArgumentParser(prog="python -m controller.xcp_table", description="Write the controller's A2L (docs/xcp.md).")
     parser.add_argument("-o", "--output", help="the A2L file (default: standard output)")
     parser.add_argument("--sample-rate-hz", type=float, default=200.0)
-    parser.add_argument("--udp-port", type=int, default=0, choices=range(0, 65536), metavar="PORT")
-    parser.add_argument("--tcp-port", type=int, default=0, choices=range(0, 65536), metavar="PORT")
+    parser.add_argument("--udp-port", type=port_number, default=0, metavar="PORT", help="the XCP_ON_UDP_IP port (0: none)")
+    parser.add_argument("--tcp-port", type=port_number, default=0, metavar="PORT", help="the XCP_ON_TCP_IP port (0: none)")
     parser.add_argument("--host", default="127.0.0.1")
     args = parser.parse_args(argv)
     if not args.sample_rate_hz > 0:

@@ -14,7 +14,7 @@ import pytest
 from pyxcp.daq_stim import DaqList
 from pyxcp.master.errorhandler import SystemExit as XcpError
 
-from controller.xcp_table import A2L_MODULE, controller_layout
+from controller.xcp_table import A2L_MODULE, controller_a2l, controller_layout
 from service_kit.xcp.memory import ASAM_TYPES
 from tests.xcp.rig_client import BackgroundRig, Collect, free_port, master, wait_for
 
@@ -64,6 +64,8 @@ def test_measure_and_calibrate(protocol: str, tmp_path: Path) -> None:
             assert x.identifier(0) == A2L_MODULE
             assert x.identifier(1) == "controller"
             assert x.identifier(2) == str(a2l)
+            udp, tcp = (port, 0) if protocol == "UDP" else (0, port)
+            assert a2l.read_text() == controller_a2l(TS, udp, tcp)  # the file GET_ID names: the table's A2L with this run's port
             assert upload(x, "kp1") == 7.5  # the thesis's 7500 mV/rad, raw in V/rad
             assert upload(x, "ki2") == 4.166
             # refused writes, each with its XCP error code (the map is unchanged after them)
