@@ -51,7 +51,7 @@ from controller.sync_driver import SyncDriver
 from controller.tf_download import TfDownloader
 from controller.tick_policy import TickPolicy
 from controller.timing_counters import TimingCounters
-from controller.xcp_link import make_xcp
+from controller.xcp_link import XcpLink, make_xcp
 from protocol.can_map import NmtCommand
 from protocol.messages import TfSnapshot
 from protocol.settings import ControllerSettings
@@ -183,7 +183,7 @@ class ControllerService:
         self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.timeouts.lockstep_s, BATCH_RESEND_S, keep_all)
         self.record, self.timing_record = make_records(s.run_record, keep_record, RECORD_COLUMNS)
         self.port.connect(self.dsp.inbox.on_port_event, self.clock.now)
-        self.xcp = make_xcp(self, list(RECORD_COLUMNS))
+        self.xcp: XcpLink | None = make_xcp(self, list(RECORD_COLUMNS))
         """The XCP slave (controller/xcp_link.py), or None (off: the default)."""
 
     # -- views kept on the service (its health, the tests and the workbench read them) --

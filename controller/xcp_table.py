@@ -27,7 +27,7 @@ from service_kit.xcp.a2l import a2l_text
 from service_kit.xcp.memory import MemoryLayout, Variable
 from service_kit.xcp.slave import EventChannel
 
-__all__ = ["A2L_MODULE", "SERVICE_SOURCES", "XCP_TABLE", "XcpEntry", "controller_a2l", "controller_layout", "xcp_events"]
+__all__ = ["A2L_MODULE", "SERVICE_SOURCES", "XCP_TABLE", "XcpEntry", "controller_a2l", "controller_layout", "table_markdown", "xcp_events"]
 
 A2L_MODULE: Final = "RALF_CONTROLLER"
 """The A2L MODULE's name; GET_ID 0 answers it."""
@@ -135,6 +135,22 @@ def port_number(text: str) -> int:
     return port
 
 
+def table_markdown() -> str:
+    """The table as docs/xcp.md shows it (``python -m controller.xcp_table --markdown``; a test checks the page)."""
+    lines = [
+        "| name | kind | address | ASAM type | unit | limits (physical) | conversion | from |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    sources = {e.variable.name: e.source for e in XCP_TABLE}
+    for v in controller_layout().variables:
+        conversion = "identity" if (v.factor, v.offset) == (1.0, 0.0) else f"{v.factor:.9g} × raw + {v.offset:g}"
+        source = "control law" if v.kind == "calibration" else ("service" if sources[v.name] in SERVICE_SOURCES else "run record")
+        lines.append(
+            f"| `{v.name}` | {v.kind} | 0x{v.address:X} | {v.datatype} | {v.unit or '-'} | {v.lower:.10g} .. {v.upper:.10g} | {conversion} | {source} |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m controller.xcp_table [-o FILE] [--udp-port N] [--tcp-port N]``: write the A2L."""
     parser = argparse.ArgumentParser(prog="python -m controller.xcp_table", description="Write the controller's A2L (docs/xcp.md).")
@@ -143,7 +159,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--udp-port", type=port_number, default=0, metavar="PORT", help="the XCP_ON_UDP_IP port (0: none)")
     parser.add_argument("--tcp-port", type=port_number, default=0, metavar="PORT", help="the XCP_ON_TCP_IP port (0: none)")
     parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--markdown", action="store_true", help="print the table as docs/xcp.md shows it instead")
     args = parser.parse_args(argv)
+    if args.markdown:
+        print(table_markdown())
+        return 0
     if not args.sample_rate_hz > 0:
         parser.error("--sample-rate-hz must be positive")
     text = controller_a2l(1.0 / args.sample_rate_hz, args.udp_port, args.tcp_port, args.host)
