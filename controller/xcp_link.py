@@ -30,11 +30,16 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Literal, Protocol
 
-from controller.dsp_side import ConfigChangeTaken
+from controller.dsp_link import DspLink
+from controller.dsp_side import ConfigChangeTaken, DspSide
+from controller.loop import ControlLaw
 from controller.oatf import OatfDesignError
+from controller.timing_counters import TimingCounters
 from controller.xcp_table import A2L_MODULE, XCP_TABLE, controller_a2l, controller_layout, xcp_events
+from protocol.settings import ControllerSettings
+from service_kit.runtime import LatencyTracker
 from service_kit.xcp.memory import Variable, WriteRefused
 from service_kit.xcp.packets import Err
 from service_kit.xcp.server import Server
@@ -50,14 +55,26 @@ PENDING_CAPACITY: Final = 64
 """Accepted writes waiting for the next tick."""
 TIMESTAMP_PER_S: Final = 1_000_000
 """DAQ timestamp ticks per second (1 µs, DAQ_TIMESTAMP_UNIT_1US)."""
-_PI: Final = {"kp1": ("kp", 0), "kp2": ("kp", 1), "ki1": ("ki", 0), "ki2": ("ki", 1)}
+_PI: Final[dict[str, tuple[Literal["kp", "ki"], int]]] = {"kp1": ("kp", 0), "kp2": ("kp", 1), "ki1": ("ki", 0), "ki2": ("ki", 1)}
+
+
+class Service(Protocol):
+    """What the XCP link reads of :class:`controller.service.ControllerService`."""
+
+    settings: ControllerSettings
+    law: ControlLaw
+    tet: LatencyTracker
+    link: DspLink
+    timing: TimingCounters
+    dsp: DspSide
+    tick: int
 
 
 def default_a2l_path(rig_id: str) -> str:
     return str(Path(tempfile.gettempdir()) / f"ralf-{rig_id}.a2l")
 
 
-def make_xcp(service: Any, record_columns: Sequence[str]) -> XcpLink | None:
+def make_xcp(service: Service, record_columns: Sequence[str]) -> XcpLink | None:
     """The XCP slave of ``service`` (a :class:`controller.service.ControllerService`; its
     run record has ``record_columns``), or None when both ports are 0 (the default)."""
     s = service.settings
@@ -69,7 +86,7 @@ def make_xcp(service: Any, record_columns: Sequence[str]) -> XcpLink | None:
 class XcpLink:
     """The table's map, its A2L, its transports, and the loop's side of them."""
 
-    def __init__(self, service: Any, record_columns: Sequence[str]) -> None:
+    def __init__(self, service: Service, record_columns: Sequence[str]) -> None:
         s = service.settings
         self.service = service
         self._columns = list(record_columns)
