@@ -40,7 +40,7 @@ from controller.timing_counters import TimingCounters
 from controller.xcp_table import A2L_MODULE, XCP_TABLE, controller_a2l, controller_layout, xcp_events
 from protocol.settings import ControllerSettings
 from service_kit.runtime import LatencyTracker
-from service_kit.xcp.memory import Variable, WriteRefused
+from service_kit.xcp.memory import Variable, Write, WriteRefused
 from service_kit.xcp.packets import Err
 from service_kit.xcp.server import Server
 from service_kit.xcp.slave import Slave, SlaveInfo, Snapshot
@@ -94,7 +94,7 @@ class XcpLink:
         self.layout = controller_layout()
         self.period_s = s.sample_period_s
         self.events = xcp_events(self.period_s)
-        self._pending: deque[list[tuple[Variable, float]]] = deque()
+        self._pending: deque[list[Write]] = deque()
         self._lock = threading.Lock()
         self.applied = 0
         self.failed = 0
@@ -169,13 +169,12 @@ class XcpLink:
             self._pending.clear()
         for changes in batches:
             oatf: dict[str, float] = {}
-            for v, physical in changes:
-                raw = v.to_raw(physical)
-                if v.name in _PI:
-                    term, joint = _PI[v.name]
-                    law.set_pi_gain(term, joint, float(raw))
+            for w in changes:  # the raw values as written: the law holds raw values
+                if w.variable.name in _PI:
+                    term, joint = _PI[w.variable.name]
+                    law.set_pi_gain(term, joint, float(w.raw))
                 else:
-                    oatf[v.name] = float(raw)
+                    oatf[w.variable.name] = float(w.raw)
             if oatf and law.oatf is not None:
                 try:
                     law.oatf.update_modes(*self._oatf_design(oatf))
@@ -183,7 +182,7 @@ class XcpLink:
                     self.failed += 1
                     log.warning("XCP: OATF change %s not taken: %s", oatf, exc)
                     continue
-            fields = {v.name: physical for v, physical in changes}
+            fields = {w.variable.name: w.physical for w in changes}
             self.service.dsp.config_changes.append(ConfigChangeTaken(first_tick * self.period_s, "xcp", fields))
             self.applied += 1
             log.info("XCP calibration from tick %d: %s", first_tick, fields)
@@ -200,9 +199,9 @@ class XcpLink:
         return freqs, zetas
 
     # -- the transports' side ----------------------------------------------------------------
-    def _calibrate(self, changes: list[tuple[Variable, float]]) -> None:
+    def _calibrate(self, changes: list[Write]) -> None:
         """A write the map accepted (limits checked): queued for the next tick, or refused."""
-        oatf = {v.name: v.to_raw(p) for v, p in changes if v.name.startswith("oatf_")}
+        oatf = {w.variable.name: w.raw for w in changes if w.variable.name.startswith("oatf_")}
         if oatf:
             if self.law.oatf is None:
                 raise WriteRefused(Err.ERR_ACCESS_DENIED, "this run has no OATF (oatf_mode off)")

@@ -27,7 +27,7 @@ from typing import Final, Literal
 
 from service_kit.xcp.packets import Err
 
-__all__ = ["ASAM_TYPES", "MemoryLayout", "Variable", "WriteRefused"]
+__all__ = ["ASAM_TYPES", "MemoryLayout", "Variable", "Write", "WriteRefused"]
 
 ASAM_TYPES: Final[dict[str, tuple[str, str]]] = {
     "UBYTE": ("B", "U8"),
@@ -76,15 +76,17 @@ class Variable:
     def is_float(self) -> bool:
         return self.datatype.startswith("FLOAT")
 
-    def to_raw(self, physical: float) -> float | int:
-        """The raw value of a physical one (rounded for integer types)."""
-        raw = (physical - self.offset) / self.factor if (self.factor != 1.0 or self.offset != 0.0) else physical
-        if self.is_float:
-            return float(raw)
-        return int(round(raw)) if math.isfinite(raw) else 0
-
     def to_physical(self, raw: float) -> float:
         return self.factor * raw + self.offset if (self.factor != 1.0 or self.offset != 0.0) else float(raw)
+
+
+@dataclass(frozen=True)
+class Write:
+    """One parameter a write sets: its raw value as written and the physical value it stands for."""
+
+    variable: Variable
+    raw: float | int
+    physical: float
 
 
 class WriteRefused(Exception):
@@ -139,10 +141,9 @@ class MemoryLayout:
     def readable(self, address: int, n: int) -> bool:
         return n >= 0 and self.base <= address and address + n <= self.end
 
-    def check_write(self, image: bytes | bytearray, address: int, data: bytes) -> list[tuple[Variable, float]]:
-        """The calibration parameters a write of ``data`` at ``address`` sets and
-        their new physical values (``image``: the current image, for the
-        bytes the write leaves); raises :class:`WriteRefused`."""
+    def check_write(self, address: int, data: bytes) -> list[Write]:
+        """The calibration parameters a write of ``data`` at ``address`` sets, with
+        their new values; raises :class:`WriteRefused`."""
         end = address + len(data)
         if not data or address < self.base or end > self.end:
             raise WriteRefused(Err.ERR_ACCESS_DENIED, f"write of {len(data)} bytes at 0x{address:X} is outside the map")
@@ -154,11 +155,11 @@ class MemoryLayout:
                 raise WriteRefused(Err.ERR_WRITE_PROTECTED, f"{v.name} is a measurement")
             if v.address < address or v.address + v.size > end:
                 raise WriteRefused(Err.ERR_ACCESS_DENIED, f"write covers {v.name} only in part")
-        changes: list[tuple[Variable, float]] = []
+        changes: list[Write] = []
         for v in touched:
             (raw,) = struct.unpack_from("<" + v.code, data, v.address - address)
             physical = v.to_physical(raw)
             if not (math.isfinite(physical) and v.lower <= physical <= v.upper):
                 raise WriteRefused(Err.ERR_OUT_OF_RANGE, f"{v.name} = {physical!r} outside {v.lower}..{v.upper} {v.unit}")
-            changes.append((v, physical))
+            changes.append(Write(v, raw, physical))
         return changes

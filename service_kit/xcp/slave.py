@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from service_kit.counters import Counters
-from service_kit.xcp.memory import MemoryLayout, Variable, WriteRefused
+from service_kit.xcp.memory import MemoryLayout, Variable, Write, WriteRefused
 from service_kit.xcp.packets import Cmd, Err, error, ok
 
 __all__ = ["DaqList", "EventChannel", "Slave", "SlaveCounters", "SlaveInfo", "Snapshot"]
@@ -147,14 +147,14 @@ class Slave:
         self,
         layout: MemoryLayout,
         info: SlaveInfo,
-        calibrate: Callable[[list[tuple[Variable, float]]], None],
+        calibrate: Callable[[list[Write]], None],
         initial_image: bytes | None = None,
         counters: SlaveCounters | None = None,
     ) -> None:
         self.layout = layout
         self.info = info
         self._calibrate = calibrate
-        """Takes an accepted write (parameters, physical values); may raise :class:`WriteRefused`."""
+        """Takes an accepted write (its parameters and values); may raise :class:`WriteRefused`."""
         self.image = bytearray(initial_image if initial_image is not None else bytes(layout.size))
         self.counters = counters or SlaveCounters()
         self.connected = False
@@ -270,7 +270,7 @@ class Slave:
         return bytes(self.image[start : start + n])
 
     def _write(self, address: int, data: bytes) -> None:
-        changes = self.layout.check_write(self.image, address, data)
+        changes = self.layout.check_write(address, data)
         self._calibrate(changes)  # may refuse (WriteRefused)
         start = address - self.layout.base
         self.image[start : start + len(data)] = data

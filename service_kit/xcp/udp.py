@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import select
 import socket
+from typing import Final
 
 from service_kit.xcp.packets import FrameError, split_frames
 from service_kit.xcp.server import QUEUE_CAPACITY, Server
 from service_kit.xcp.slave import MAX_CTO, Slave
 
 __all__ = ["UdpServer"]
+
+MAX_DATAGRAMS: Final = 256
+"""Datagrams read in one turn of the thread before it looks at the DAQ queue again."""
 
 
 class UdpServer(Server):
@@ -32,7 +36,7 @@ class UdpServer(Server):
 
     def _serve(self, timeout: float) -> None:
         readable, _, _ = select.select([self.sock], [], [], timeout)
-        while readable:
+        for _ in range(MAX_DATAGRAMS if readable else 0):  # bounded: a flood must not starve the DAQ queue
             try:
                 data, address = self.sock.recvfrom(65536)
             except (BlockingIOError, InterruptedError):

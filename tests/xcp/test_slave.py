@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from controller.xcp_table import controller_layout, xcp_events
-from service_kit.xcp.memory import Variable, WriteRefused
+from service_kit.xcp.memory import Write, WriteRefused
 from service_kit.xcp.packets import FRAME_HEADER, Cmd, Err, frame, split_frames
 from service_kit.xcp.server import Server
 from service_kit.xcp.slave import Slave, SlaveInfo, Snapshot
@@ -25,10 +25,10 @@ LAYOUT = controller_layout()
 
 
 def make_slave(written: list[Any] | None = None) -> Slave:
-    def calibrate(changes: list[tuple[Variable, float]]) -> None:
+    def calibrate(changes: list[Write]) -> None:
         if written is None:
             raise WriteRefused(Err.ERR_MEMORY_OVERFLOW, "full")
-        written.append([(v.name, p) for v, p in changes])
+        written.append([(w.variable.name, w.raw, w.physical) for w in changes])
 
     values = [7.5 if v.name == "kp1" else 0 for v in LAYOUT.variables]
     return Slave(LAYOUT, SlaveInfo("TEST", "/x/test.a2l", xcp_events(0.005)), calibrate, LAYOUT.pack(values))
@@ -88,7 +88,7 @@ def test_writes_checked_and_handed_over() -> None:
     cmd(s, Cmd.CONNECT, 0, fmt="BB")
     kp1, kp2, tick = LAYOUT.by_name["kp1"], LAYOUT.by_name["kp2"], LAYOUT.by_name["tick"]
     assert cmd(s, Cmd.SHORT_DOWNLOAD, 16, 0, 0, kp1.address, 1.0, 2.0, fmt="BBBBIdd") == b"\xff"
-    assert written == [[("kp1", 1000.0), ("kp2", 2000.0)]]
+    assert written == [[("kp1", 1.0, 1000.0), ("kp2", 2.0, 2000.0)]]
     assert s.values([kp1, kp2]) == [1000.0, 2000.0]
     assert cmd(s, Cmd.SHORT_DOWNLOAD, 8, 0, 0, kp2.address, 1e4, fmt="BBBBId") == bytes((0xFE, Err.ERR_OUT_OF_RANGE))
     assert cmd(s, Cmd.SHORT_DOWNLOAD, 4, 0, 0, tick.address, 1, fmt="BBBBII") == bytes((0xFE, Err.ERR_WRITE_PROTECTED))
