@@ -38,6 +38,7 @@ from controller.loop import ControlLaw
 from controller.oatf import OatfDesignError
 from controller.timing_counters import TimingCounters
 from controller.xcp_table import A2L_MODULE, XCP_TABLE, controller_a2l, controller_layout, xcp_events
+from protocol.errors import ConfigError
 from protocol.settings import ControllerSettings
 from service_kit.runtime import LatencyTracker
 from service_kit.xcp.memory import Variable, Write, WriteRefused
@@ -104,16 +105,19 @@ class XcpLink:
         self._getters = [g for _, g in sorted(zip((order[e.variable.name] for e in XCP_TABLE), self._getters, strict=True), key=lambda t: t[0])]
         self.a2l_path = s.xcp_a2l or default_a2l_path(s.rig_id)
         self.servers: list[Server] = []
+        what = ""
         try:
-            for port, kind in ((s.xcp_udp_port, UdpServer), (s.xcp_tcp_port, TcpServer)):
+            for name, port, kind in (("xcp_udp_port", s.xcp_udp_port, UdpServer), ("xcp_tcp_port", s.xcp_tcp_port, TcpServer)):
                 if port:
+                    what = f"{name} {port} on {s.xcp_host}"
                     self.servers.append(kind(self._slave(), s.xcp_host, port))
             udp = next((x.port for x in self.servers if isinstance(x, UdpServer)), 0)
             tcp = next((x.port for x in self.servers if isinstance(x, TcpServer)), 0)
+            what = f"xcp_a2l {self.a2l_path}"
             Path(self.a2l_path).write_text(controller_a2l(self.period_s, udp, tcp, s.xcp_host), encoding="utf-8")
-        except OSError:
+        except OSError as exc:
             self.close()
-            raise
+            raise ConfigError(f"{what}: {exc.strerror or exc}") from exc
         log.info("XCP on %s (UDP %d, TCP %d); A2L %s", s.xcp_host, udp, tcp, self.a2l_path)
 
     def _slave(self) -> Slave:
