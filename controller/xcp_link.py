@@ -150,7 +150,7 @@ class XcpLink:
 
     def _image(self, tick: int, row: list[Any]) -> bytes:
         if not row:  # before the first tick: zeros, the parameters as the law holds them
-            row = [0.0] * 64
+            row = [0.0] * len(self._columns)
         return self.layout.pack([g(row) for g in self._getters])
 
     # -- the loop's side ------------------------------------------------------------------

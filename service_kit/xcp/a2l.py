@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from service_kit.xcp.memory import MemoryLayout, Variable
-from service_kit.xcp.slave import MAX_CTO, MAX_DTO, EventChannel
+from service_kit.xcp.slave import MAX_CTO, MAX_DAQ, MAX_DTO, MAX_ODT_ENTRY_SIZE, EventChannel
 
 __all__ = ["a2l_text"]
 
@@ -61,8 +61,8 @@ def _if_data(events: Sequence[EventChannel], udp_port: int, tcp_port: int, host:
         "        OPTIONAL_CMD GET_DAQ_PROCESSOR_INFO OPTIONAL_CMD GET_DAQ_RESOLUTION_INFO OPTIONAL_CMD GET_DAQ_EVENT_INFO",
         "        OPTIONAL_CMD FREE_DAQ OPTIONAL_CMD ALLOC_DAQ OPTIONAL_CMD ALLOC_ODT OPTIONAL_CMD ALLOC_ODT_ENTRY",
         "      /end PROTOCOL_LAYER",
-        f"      /begin DAQ DYNAMIC 0 {len(events)} 0 OPTIMISATION_TYPE_DEFAULT ADDRESS_EXTENSION_FREE IDENTIFICATION_FIELD_TYPE_ABSOLUTE",
-        "        GRANULARITY_ODT_ENTRY_SIZE_DAQ_BYTE 255 OVERLOAD_INDICATION_PID",
+        f"      /begin DAQ DYNAMIC {MAX_DAQ} {len(events)} 0 OPTIMISATION_TYPE_DEFAULT ADDRESS_EXTENSION_FREE IDENTIFICATION_FIELD_TYPE_ABSOLUTE",
+        f"        GRANULARITY_ODT_ENTRY_SIZE_DAQ_BYTE {MAX_ODT_ENTRY_SIZE} NO_OVERLOAD_INDICATION",
         "        /begin TIMESTAMP_SUPPORTED 1 SIZE_DWORD UNIT_1US /end TIMESTAMP_SUPPORTED",
     ]
     for i, e in enumerate(events):

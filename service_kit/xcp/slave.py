@@ -27,6 +27,7 @@ before CONNECT every command but CONNECT is dropped (counted).
 from __future__ import annotations
 
 import logging
+import os
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -253,7 +254,7 @@ class Slave:
     def _get_id(self, body: bytes) -> bytes:
         (kind,) = _unpack("B", body)
         path = self.info.a2l_path
-        texts = {0: self.info.identification, 1: path.rsplit("/", 1)[-1].rsplit(".", 1)[0], 2: path}
+        texts = {0: self.info.identification, 1: os.path.splitext(os.path.basename(path))[0], 2: path}
         if kind not in texts:
             return error(Err.ERR_OUT_OF_RANGE)
         self._text = texts[kind].encode()
