@@ -100,6 +100,8 @@ class XcpLink:
         self.applied = 0
         self.failed = 0
         self._last_irq: Any = None
+        self._pi_gains = {name: self.law.pi_gain(term, joint) for name, (term, joint) in _PI.items()}
+        """The PI gains in effect (V/rad), as the law holds them."""
         self._getters = [self._getter(e.variable, e.source) for e in XCP_TABLE]
         order = {v.name: i for i, v in enumerate(self.layout.variables)}
         self._getters = [g for _, g in sorted(zip((order[e.variable.name] for e in XCP_TABLE), self._getters, strict=True), key=lambda t: t[0])]
@@ -139,9 +141,9 @@ class XcpLink:
             return lambda row: svc.link.counters.deadline_misses
         if source == "overruns":
             return lambda row: svc.timing.overruns
-        if source in _PI:
-            term, joint = _PI[source]
-            return lambda row: law.pi_gain(term, joint)
+        if source in _PI:  # kept here: they change only by a write (:meth:`_apply`)
+            gains = self._pi_gains
+            return lambda row: gains[source]
         if source == "oatf_frequency_hz":
             return lambda row: law.oatf.stages[0].frequency_hz if law.oatf is not None and law.oatf.stages else float("nan")
         if source == "oatf_zeta":
@@ -177,6 +179,7 @@ class XcpLink:
                 if w.variable.name in _PI:
                     term, joint = _PI[w.variable.name]
                     law.set_pi_gain(term, joint, float(w.raw))
+                    self._pi_gains[w.variable.name] = law.pi_gain(term, joint)
                 else:
                     oatf[w.variable.name] = float(w.raw)
             if oatf and law.oatf is not None:

@@ -263,7 +263,7 @@ class LatencyTracker:
     def last(self) -> float:
         """The most recent sample (0.0 before the first)."""
         n = self._n
-        return float(self._buf[(n - 1) % self._size]) if n else 0.0
+        return float(self._store[(n - 1) % self._size]) if n else 0.0
 
     def values(self) -> np.ndarray:
         with self._lock:
