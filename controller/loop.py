@@ -214,6 +214,23 @@ class ControlLaw:
             self.oatf.update_modes([self.config.oatf_frequency_hz])
         self.degraded = degraded
 
+    def _pi_index(self, term: Literal["kp", "ki"], joint: int) -> int:
+        n = self.pi.n_joints
+        if not 0 <= joint < n:
+            raise ValueError(f"joint {joint} outside 0..{n - 1}")
+        return len(self.pi.consts) - 2 * n + (0 if term == "kp" else n) + joint
+
+    def pi_gain(self, term: Literal["kp", "ki"], joint: int) -> float:
+        """One PI gain (V/rad) as the compiled tick reads it."""
+        return float(self._data[self._pi_index(term, joint)])
+
+    def set_pi_gain(self, term: Literal["kp", "ki"], joint: int, v_per_rad: float) -> None:
+        """Change one PI gain (V/rad) from the next tick on (§4): the compiled tick
+        reads it from its constants; the integrator's state is kept."""
+        i = self._pi_index(term, joint)
+        self.pi.consts[i] = v_per_rad
+        self._data[i] = v_per_rad
+
     def apply_interrupt(self, interrupt: Interrupt) -> bool:
         """Adaptive OATF: offer the identified first mode; True if the filter changed."""
         if self.supervisor is None or self.config.oatf_mode != "adaptive" or not interrupt.poles or self.degraded:

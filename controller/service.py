@@ -52,6 +52,7 @@ from controller.sync_driver import SyncDriver
 from controller.tf_download import TfDownloader
 from controller.tick_policy import TickPolicy
 from controller.timing_counters import TimingCounters
+from controller.xcp_link import XcpLink, make_xcp
 from protocol.can_map import NmtCommand
 from protocol.messages import TfSnapshot
 from protocol.settings import ControllerSettings
@@ -193,6 +194,8 @@ class ControllerService:
         self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.timeouts.lockstep_s, BATCH_RESEND_S, keep_all)
         self.record, self.timing_record = make_records(s.run_record, keep_record, record_columns(self.law.stimulus is not None))
         self.port.connect(self.dsp.inbox.on_port_event, self.clock.now)
+        self.xcp: XcpLink | None = make_xcp(self, list(RECORD_COLUMNS))
+        """The XCP slave (controller/xcp_link.py), or None (off: the default)."""
 
     # -- views kept on the service (its health, the tests and the workbench read them) --
     @property
@@ -261,6 +264,8 @@ class ControllerService:
             law.set_degraded(degraded)
         row.extend((law.oatf_frequency_hz, float(applied), float(self.stale_watch.stale), *dsp.interrupt_columns(), *law.stimulus_row, tick))
         self.record.append_row(row)
+        if self.xcp is not None:
+            self.xcp.after_tick(tick, row)
 
     # -- the run ------------------------------------------------------------------------
     def run(self, stop: threading.Event) -> RunResult:
@@ -271,6 +276,8 @@ class ControllerService:
         self.port.start_health(self.settings.health_period_s, lambda seq: build_health(self, seq))
         error: str | None = None
         self._n_ticks = run_ticks(self.settings, self.law.lap_ticks)
+        if self.xcp is not None:
+            self.xcp.start()
         try:
             self._start(stop)
             self._loop(stop)
@@ -294,6 +301,7 @@ class ControllerService:
                 **self.plant.counters.as_dict(),
                 **self.dsp.inbox.events.as_dict(),
                 **(self.faults.as_counters() if self.faults is not None else {}),
+                **(self.xcp.counters() if self.xcp is not None else {}),
             },
             error=error,
             liveliness=self.dsp.liveliness,
@@ -414,4 +422,6 @@ class ControllerService:
 
     def close(self) -> None:
         self.tf.join(timeout=3.0)
+        if self.xcp is not None:
+            self.xcp.close()
         self.port.close()

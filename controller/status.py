@@ -16,6 +16,7 @@ from controller.loop import ControlLaw
 from controller.monitors import Monitors
 from controller.plant_link import PlantLink
 from controller.timing_counters import TimingCounters
+from controller.xcp_link import XcpLink
 from protocol.messages import ControllerStatus, Health, encode
 from protocol.settings import ControllerSettings
 from service_kit.realtime import RealtimeMeasures
@@ -40,6 +41,7 @@ class ControllerService(Protocol):
     period_jitter: LatencyTracker
     hops: HopTimer
     tick: int
+    xcp: XcpLink | None
 
     @property
     def overrun_run_max(self) -> int: ...
@@ -64,6 +66,8 @@ def build_health(svc: ControllerService, seq: int) -> Health:
         counters.update(svc.port.moves.as_dict())
     if svc.faults is not None:
         counters.update(svc.faults.as_counters())
+    if svc.xcp is not None:  # the XCP slave's, when it is on (docs/xcp.md)
+        counters.update(svc.xcp.counters())
     counters["deadline_miss_run_max"] = svc.link.miss_run_max
     counters["overrun_run_max"] = svc.overrun_run_max
     counters.update({f"episodes_{name}": n for name, n in svc.monitors.episodes.items()})

@@ -418,6 +418,12 @@ class ControllerSettings(CommonSettings):
         InputMonitors(),
         description="Plausibility checks on the A/D inputs, KEY=VALUE,... (all off unless named; docs/fault-insertion.md): " + describe_group(InputMonitors),
     )
+    xcp_udp_port: int = Field(0, ge=0, le=65535, description="Serve XCP (measurement and calibration, docs/xcp.md) on this UDP port (0 = off)")
+    xcp_tcp_port: int = Field(0, ge=0, le=65535, description="Serve XCP on this TCP port (0 = off)")
+    xcp_host: str = Field("127.0.0.1", min_length=1, max_length=255, description="The address the XCP ports bind to")
+    xcp_a2l: str = Field(
+        "", max_length=4096, description="Where the running controller writes its A2L, named by XCP GET_ID (empty = ralf-RIG_ID.a2l in the temporary directory)"
+    )
     fault_scenario: str = Field(
         "",
         max_length=100_000,

@@ -259,6 +259,12 @@ class LatencyTracker:
     def count(self) -> int:
         return self._n
 
+    @property
+    def last(self) -> float:
+        """The most recent sample (0.0 before the first)."""
+        n = self._n
+        return float(self._store[(n - 1) % self._size]) if n else 0.0
+
     def values(self) -> np.ndarray:
         with self._lock:
             return self._buf[: min(self._n, self._buf.size)].copy()
