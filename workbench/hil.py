@@ -264,6 +264,9 @@ class HilRig:
         self.dsp = DspPort()
         self.can = CanPort(self)
         self.record: RunRecord | None = None
+        self.controller_service: Any = None
+        """After a run in this process (co-simulated or one process): the controller's service,
+        its timing instruments (wake-up jitter, TET, hop stamps, misses) for a timing analysis."""
         self._spec_duration_s: float | None = None
         self._session: Any = None
         self._subs: list[Any] = []
@@ -437,6 +440,7 @@ class HilRig:
             )
         except (ConfigError, ValueError) as exc:
             raise RigRunError(f"run {self.stem!r} (co-simulation): {exc}") from None
+        self.controller_service = run.controller
         if files is not None:
             run.controller.save(str(files[0]), run.result)
         if path is not None:
@@ -491,6 +495,7 @@ class HilRig:
             controller=controller, plant=plant, dsp=self._dsp_settings(), common=common, session=session,
             at_tick=(0, send_scenario) if pending else None, stop=self._stop,
         )  # fmt: skip
+        self.controller_service = run.controller
         if files is not None:
             run.controller.save(str(files[0]), run.result)
         return self._record(run, None, files)
