@@ -274,7 +274,22 @@ class HilRig:
         self._failure: BaseException | None = None
         self._stop = threading.Event()
         """Set by :meth:`close`: a ``lockstep``/``realtime`` run still going ends at once."""
-        self._workdir = self.workdir or Path(tempfile.mkdtemp(prefix="ralf-hil-test-"))
+        self._own_workdir: Path | None = None
+
+    @property
+    def _workdir(self) -> Path:
+        """The workdir, a temporary folder made on first need if none was given."""
+        if self.workdir is not None:
+            return Path(self.workdir)
+        if self._own_workdir is None:
+            self._own_workdir = Path(tempfile.mkdtemp(prefix="ralf-hil-test-"))
+        return self._own_workdir
+
+    def __enter__(self) -> HilRig:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @property
     def layout(self) -> Layout:

@@ -83,6 +83,7 @@ def test_one_process_lockstep_with_outputs_equals_the_cosimulation(tmp_path: Pat
         assert np.array_equal(rec.columns[name], co.columns[name], equal_nan=True), name
 
 
+@pytest.mark.rig
 @pytest.mark.timeout(180)
 def test_three_processes_lockstep_with_outputs(tmp_path: Path) -> None:
     progress: list[float] = []
@@ -102,6 +103,7 @@ def test_three_processes_lockstep_with_outputs(tmp_path: Path) -> None:
         assert np.array_equal(rec.columns[name], co.columns[name], equal_nan=True), name
 
 
+@pytest.mark.rig
 @pytest.mark.timeout(120)
 def test_three_processes_a_failing_service_is_the_records_error_with_its_log(tmp_path: Path) -> None:
     missing = tmp_path / "missing.fmu"  # with a mapping without inputs: the plant service refuses it at its start

@@ -63,14 +63,10 @@ def _own(settings: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in settings.items() if k not in VOLATILE and k not in PLUMBING}
 
 
-def _row(point: RunPoint, rig: HilRig) -> dict[str, Any]:
-    """Run the point's rig, its plant's truth and controller record through a temporary folder; its row."""
-    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp:
-        rig.outputs, rig.name = Path(tmp), "run"
-        try:
-            rec = rig.run()
-        finally:
-            rig.close()
+def _row(point: RunPoint, **rig: Any) -> dict[str, Any]:
+    """Run the point's rig (:class:`HilRig` of ``rig``), its plant's truth and controller record through a temporary folder; its row."""
+    with tempfile.TemporaryDirectory(prefix="ralf-sweep-") as tmp, HilRig(rig_id=point.rig_id, name="run", outputs=Path(tmp), **rig) as hil:
+        rec = hil.run()
     if rec.error:
         raise RunFailed(f"run {point.key} ended with a fault: {rec.error}")
     period = 1.0 / float(point.settings["controller"]["sample_rate_hz"])
@@ -83,9 +79,7 @@ def run_cosim_point(point: RunPoint) -> dict[str, Any]:
     three-process lockstep rig, no processes, no sockets, so runs on one worker never disturb
     each other and a loaded host changes only the wall time."""
     s = point.settings
-    return _row(
-        point, HilRig(clock="cosim", rig_id=point.rig_id, controller=_own(s["controller"]), plant_settings=_own(s["plant"]), dsp_settings=_own(s["dsp"]))
-    )
+    return _row(point, clock="cosim", controller=_own(s["controller"]), plant_settings=_own(s["plant"]), dsp_settings=_own(s["dsp"]))
 
 
 @register_mode("lockstep")
@@ -100,18 +94,11 @@ def run_lockstep(point: RunPoint) -> dict[str, Any]:
     timeout_s = Timeouts.read(controller.get("timeouts")).lockstep_s
     plant = _own(s["plant"])
     plant["watchdog_periods"] = max(int(plant["watchdog_periods"]), math.ceil(timeout_s * float(s["plant"]["sample_rate_hz"])))
-    return _row(point, HilRig(clock="lockstep", rig_id=point.rig_id, controller=controller, plant_settings=plant, dsp_settings=_own(s["dsp"])))
+    return _row(point, clock="lockstep", controller=controller, plant_settings=plant, dsp_settings=_own(s["dsp"]))
 
 
 @register_mode("onrig")
 def run_onrig(point: RunPoint) -> dict[str, Any]:
     """Three processes (plant, controller, DSP) over zenoh and udp_multicast CAN, lockstep."""
-    rig = HilRig(
-        clock="lockstep",
-        processes=True,
-        rig_id=point.rig_id,
-        controller=point.changed("controller"),
-        plant_settings=point.changed("plant"),
-        dsp_settings=point.changed("dsp"),
-    )
-    return _row(point, rig)
+    changed = {"controller": point.changed("controller"), "plant_settings": point.changed("plant"), "dsp_settings": point.changed("dsp")}
+    return _row(point, clock="lockstep", processes=True, **changed)

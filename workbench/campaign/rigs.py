@@ -42,8 +42,9 @@ def in_context(ctx: ExperimentContext, spec: RigSpec, in_process: bool) -> RigSp
 
 
 def run_spec(spec: RigSpec) -> RunRecord:
-    """Worker side: the spec's rig, run."""
-    return HilRig.from_spec(spec).run()
+    """Worker side: the spec's rig, run (and closed)."""
+    with HilRig.from_spec(spec) as rig:
+        return rig.run()
 
 
 def _materialise(rec: RunRecord) -> None:

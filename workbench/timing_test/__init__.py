@@ -71,10 +71,8 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
     try:
         rig = scenario_rig(scenario, args.mode)
         with activity(f"timing test {scenario.name}: the rig runs ({args.mode or scenario.mode}, {args.duration or scenario.duration_s:g} s simulated)"):
-            try:
+            with rig:
                 run = rig.run(args.duration or scenario.duration_s)
-            finally:
-                rig.close()
     except (RigSettingError, RigRunError) as exc:
         print(f"ralf-hil timing-test: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2

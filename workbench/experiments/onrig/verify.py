@@ -271,7 +271,8 @@ def run(ctx: ExperimentContext) -> Report:
         dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": FFT_WIDTH, "alpha": ALPHA, "smoothing": {"window": SMOOTH_WINDOW, "order": SMOOTH_ORDER}},
         label="PI only, inspection loop, 5 in/s",
     )
-    res = HilRig.from_spec(in_context(ctx, spec, quick)).run()
+    with HilRig.from_spec(in_context(ctx, spec, quick)) as rig:
+        res = rig.run()
     if res.error:
         raise RigRunError(f"run {res.name!r} ({res.layout}) ended with a fault: {res.error}")
     rec = res.controller_record()
