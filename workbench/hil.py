@@ -233,6 +233,8 @@ class HilRig:
     """Three processes: the run's wall-clock allowance (default: from its simulated time)."""
     rig_id: str = ""
     """The rig's id, its ``ralf/<rig-id>`` key space (default: a fresh ``hil-<hex>``)."""
+    duration_s: float | None = None
+    """Simulated seconds of a :meth:`run` given none (else the controller's ``duration_s`` or ``repeats`` laps)."""
 
     @classmethod
     def from_spec(cls, spec: RigSpec, *, on_progress: Callable[[float], None] | None = None) -> HilRig:
@@ -241,8 +243,8 @@ class HilRig:
             clock=spec.clock, processes=spec.processes, name=spec.name, label=spec.label,
             controller=dict(spec.controller), plant_settings=dict(spec.plant), dsp_settings=dict(spec.dsp), common=dict(spec.common),
             faults=spec.faults, outputs=spec.outputs, mcap=spec.mcap, meta=dict(spec.meta), on_progress=on_progress, timeout_s=spec.timeout_s,
+            duration_s=spec.duration_s,
         )  # fmt: skip
-        rig._spec_duration_s = spec.duration_s
         return rig
 
     def __post_init__(self) -> None:
@@ -267,7 +269,6 @@ class HilRig:
         self.controller_service: Any = None
         """After a run in this process (co-simulated or one process): the controller's service,
         its timing instruments (wake-up jitter, TET, hop stamps, misses) for a timing analysis."""
-        self._spec_duration_s: float | None = None
         self._session: Any = None
         self._subs: list[Any] = []
         self._thread: threading.Thread | None = None
@@ -344,7 +345,7 @@ class HilRig:
 
     def expected_sim_s(self, duration_s: float | None = None) -> float:
         """Simulated seconds the run lasts: ``duration_s``, or the controller's ``duration_s`` or ``repeats`` laps."""
-        return RigSpec(self.stem, controller=self.controller, duration_s=duration_s if duration_s is not None else self._spec_duration_s).expected_sim_s()
+        return RigSpec(self.stem, controller=self.controller, duration_s=duration_s if duration_s is not None else self.duration_s).expected_sim_s()
 
     def start(self, duration_s: float | None = None) -> HilRig:
         """Start a run of ``duration_s`` simulated seconds (None: the controller's ``duration_s``
@@ -352,7 +353,7 @@ class HilRig:
         one process: returns once the plant runs, its first ground truth in); :meth:`wait` for its record."""
         if self._thread is not None:
             raise RuntimeError("this rig has already run; a test gets one run per rig")
-        duration_s = duration_s if duration_s is not None else self._spec_duration_s
+        duration_s = duration_s if duration_s is not None else self.duration_s
         if duration_s is not None and not duration_s > 0:
             raise RigSettingError(f"duration_s must be positive, got {duration_s}")
         try:
