@@ -35,7 +35,7 @@ from workbench.fault_cli import add_fault_parser
 from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
-from workbench.log_counts import count_log_files, counting_warnings
+from workbench.log_counts import count_log_files
 from workbench.plant_figures import cli as plant_cli
 from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
@@ -553,14 +553,13 @@ def _start_live(args: argparse.Namespace) -> Any:
 
 def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     """``ralf-hil up --clock cosim``: the three boards co-simulated in this
-    process, one thread (:mod:`workbench.cosim`); ``--duration`` is simulated time."""
+    process (:class:`workbench.hil.HilRig`, one thread); ``--duration`` is simulated time."""
     with activity("loading the co-simulation's modules"):
-        from protocol.errors import ConfigError
-        from protocol.messages import ControllerStatus, decode
         from service_kit import crash_report
         from service_kit.readiness import watch_compiles
-        from workbench.cosim import logging_to, run_cosim
+        from workbench.cosim import logging_to
         from workbench.cosim_guard import guarded_child_faults, run_guarded
+        from workbench.hil import HilRig, RigRunError, RigSettingError
         from workbench.output_paths import COSIM_LOG
 
     faults = guarded_child_faults()
@@ -583,50 +582,46 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
 
     watch_compiles()
     try:
-        with (
-            logging_to(Path(args.log_dir) / COSIM_LOG if args.log_dir else None),
-            counting_warnings() as (warnings, errors),
-            activity(progress),
-        ):
-            run = run_cosim(
-                controller=own["controller"], plant=own["plant"], dsp=own["dsp"], common={"rig_id": args.rig_id},
-                record=args.record, can_log=args.can_log, record_metadata={"argv": sys.argv} if args.record else None, on_start=running.append,
-            )  # fmt: skip
-    except (ConfigError, ValueError) as exc:
+        rig = HilRig(
+            clock="cosim", controller=own["controller"], plant_settings=own["plant"], dsp_settings=own["dsp"], rig_id=args.rig_id,
+            mcap=args.record or False, can_log=args.can_log, meta={"argv": sys.argv} if args.record else {}, on_start=running.append,
+        )  # fmt: skip
+        with logging_to(Path(args.log_dir) / COSIM_LOG if args.log_dir else None), activity(progress):
+            rec = rig.run()
+    except (RigSettingError, RigRunError) as exc:
         console.print(f"[red]ralf-hil up: {exc}[/red]")
         return 2
     except OSError as exc:  # an output that cannot be written (checked before, but a file system can still refuse)
         console.print(f"[red]ralf-hil up: {exc.filename or ''}: {exc.strerror or exc}[/red]", highlight=False, soft_wrap=True)
         return 2
     wall = time.monotonic() - started
-    status = decode(ControllerStatus, run.controller.port.status) if getattr(run.controller.port, "status", None) else None  # type: ignore[attr-defined]
     summary: dict[str, Any] = {
         "wall_time_s": round(wall, 3),
-        "exit_codes": {"controller": 0 if run.result.error is None else 3},
-        "controller": status.model_dump(exclude={"wall_time_s"}) if status else None,
-        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in run.health.items()},
+        "exit_codes": {"controller": 0 if rec.error is None else 3},
+        "controller": rec.status.model_dump(exclude={"wall_time_s"}) if rec.status else None,
+        "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in rec.health.items()},
         "liveliness_events": [],
         "undecodable_messages": 0,
         "startup_s": 0.0,
         "control_wall_s": round(wall, 3),
-        "sim_per_wall": round(run.result.sim_time_s / wall, 3) if wall > 0 else None,
+        "sim_per_wall": round(rec.sim_time_s / wall, 3) if wall > 0 else None,
         "clock": "cosim",
         "host": host_info(),
-        "failure": run.result.error or ("" if run.result.ticks else "the controller made no progress (0 control ticks)"),
-        "log_warnings": {name: warnings[name] for name in ("controller", "plant", "dsp", "rig") if name in warnings or name != "rig"},
-        "log_errors": {name: errors[name] for name in ("controller", "plant", "dsp", "rig") if name in errors or name != "rig"},
+        "failure": rec.error or ("" if rec.ticks else "the controller made no progress (0 control ticks)"),
+        "log_warnings": {name: rec.log_warnings.get(name, 0) for name in ("controller", "plant", "dsp", "rig") if name in rec.log_warnings or name != "rig"},
+        "log_errors": {name: rec.log_errors.get(name, 0) for name in ("controller", "plant", "dsp", "rig") if name in rec.log_errors or name != "rig"},
     }
-    console.print(f"co-simulated {run.result.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
+    console.print(f"co-simulated {rec.sim_time_s:.2f} s in {wall:.2f} s wall: {summary['sim_per_wall']}x real time")
     if args.record:
-        summary["recording"] = {"path": args.record, "can_log": args.can_log, **(run.recording or {})}
+        summary["recording"] = {"path": args.record, "can_log": args.can_log, **(rec.recording_counts or {})}
         console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
     add_verdict(summary)
     print_summary(summary, verbose=args.verbose)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(summary, indent=2))
-    if run.result.error or run.result.ticks == 0:
-        console.print(f"[red]rig failed: {run.result.error or 'the controller made no progress (0 control ticks)'}[/red]")
+    if rec.error or rec.ticks == 0:
+        console.print(f"[red]rig failed: {rec.error or 'the controller made no progress (0 control ticks)'}[/red]")
         return 1
     return int(summary["verdict"]["exit_code"])
 

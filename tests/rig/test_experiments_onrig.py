@@ -1,4 +1,4 @@
-"""The on-rig experiments (quick mode, one-process rig) and their runner: report structure and physics."""
+"""The on-rig experiments (quick mode): report structure and physics; the laps and costs they share."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from workbench.experiments import framework, get_experiment, list_experiments, run_experiment
-from workbench.experiments.framework import ExperimentContext
-from workbench.experiments.onrig.runner import RigRun, RigRunError, costs_over, lap_seconds, run_rig
+from workbench.experiments.analysis import costs_over
+from workbench.laps import lap_seconds
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ONRIG = ("verify", "pi-spectrogram", "battery", "reduced-damping", "id-lag")
@@ -60,7 +60,7 @@ def test_onrig_experiments_are_registered() -> None:
     assert not [m for m in framework.broken_modules() if ".onrig" in m]
 
 
-# ------------------------------------------------------------------ runner
+# ------------------------------------------------------------------ shared
 
 
 def test_lap_seconds_match_the_thesis() -> None:
@@ -79,29 +79,6 @@ def test_costs_over_a_mask_equal_the_whole_run_costs() -> None:
     assert np.allclose(whole["acceleration_rms"], ref.acceleration_rms)
     part = costs_over(d, np.arange(2000) >= 1000)
     assert not np.allclose(part["velocity_rms"], whole["velocity_rms"])
-
-
-@pytest.mark.timeout(120)
-def test_runner_three_processes_lockstep(tmp_path: Path) -> None:
-    """The default path: three processes in lockstep, both records loaded, exit codes 0."""
-    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False, mode="lockstep")
-    res = run_rig(ctx, RigRun("short", controller={"duration_s": 2.0, "batch_size": 20, "tf_download_samples": 200}, dsp={"batch_size": 20}))
-    assert not res.in_process and res.exit_codes == {"controller": 0, "plant": 0, "dsp": 0}
-    assert len(res.record) == 400 and res.record["t_s"][-1] == pytest.approx(1.995)
-    assert res.truth["modal_frequencies_hz"].shape[1] == 2 and res.truth["sim_time_s"][-1] > 1.9
-    assert res.tf is not None and res.tf["Htot_mag"].shape[0] == 1
-    assert (tmp_path / "records" / "short.npz").is_file() and (tmp_path / "records" / "short.truth.npz").is_file()
-    assert (tmp_path / "records" / "logs" / "short" / "controller.log").is_file()
-    assert res.summary()["counters"]["batches_sent"] >= 19
-
-
-@pytest.mark.timeout(60)
-def test_runner_reports_a_failing_service_with_its_log(tmp_path: Path) -> None:
-    ctx = ExperimentContext(out_dir=tmp_path, quick=True, show_progress=False, mode="lockstep")
-    with pytest.raises(RigRunError) as err:
-        run_rig(ctx, RigRun("bad", controller={"duration_s": 1.0, "oatf_mode": "sideways"}))
-    text = str(err.value)
-    assert "controller" in text and "RALF_OATF_MODE" in text
 
 
 # ------------------------------------------------------------------ experiments

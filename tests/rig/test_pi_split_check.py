@@ -70,15 +70,13 @@ def test_the_check_fails_when_the_estimate_invents_a_second_mode() -> None:
 
 
 def _result(theta: np.ndarray, t: np.ndarray) -> object:
-    """A RigResult with a given true configuration over time and white valve commands."""
-    from pathlib import Path
-
-    from workbench.experiments.onrig.runner import RigResult, RigRun
+    """A run's record with a given true configuration over time and white valve commands."""
+    from workbench.hil import RunRecord
 
     rng = np.random.default_rng(1)
-    record = {"t_s": t, "u1_v": rng.normal(size=t.size), "u2_v": rng.normal(size=t.size)}
+    columns = {"t_s": t, "u1_v": rng.normal(size=t.size), "u2_v": rng.normal(size=t.size)}
     truth = {"sim_time_s": t, "theta_rad": theta, "modal_frequencies_hz": np.ones((t.size, 2))}
-    return RigResult(RigRun("x"), record, truth, None, Path("x"), Path("x"), 0.0, False, "cosim")  # type: ignore[arg-type]
+    return RunRecord("cosim", None, t.size, float(t[-1]), {}, columns, [], [], [], {}, 0.0, truth_columns=truth)
 
 
 def test_the_window_response_of_a_fixed_configuration_is_the_plant_s_own() -> None:

@@ -9,7 +9,7 @@
 * :mod:`.metrics`: the row of one run (the §4.2.1 costs and the run's facts);
 * :mod:`.table`: the journal and the tidy table (Parquet, CSV);
 * :mod:`.sweep`: :func:`run_sweep`;
-* :mod:`.rigs`: :func:`map_rigs`, the experiments' fan-out of :class:`~workbench.experiments.onrig.runner.RigRun`.
+* :mod:`.rigs`: :func:`map_rigs`, the experiments' fan-out of :class:`~workbench.rig_spec.RigSpec` runs (:class:`~workbench.hil.HilRig`).
 
 See docs/campaigns.md.
 """

@@ -1,7 +1,7 @@
 """The metrics row of one run, from the controller's record and the plant's ground truth.
 
 Costs are the thesis's §4.2.1 figures of merit (``controller.metrics``, as
-the battery computes them through :func:`workbench.experiments.onrig.runner.costs_over`):
+the battery computes them through :func:`workbench.experiments.analysis.costs_over`):
 the RMS (standard deviation over the run) of the deflection velocity
 (10-sample linear regression) and acceleration (40-sample quadratic
 regression) per link, of the deflections the controller *measured*
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from workbench.experiments.onrig.runner import costs_over
+from workbench.experiments.analysis import costs_over
 
 __all__ = ["COUNTERS", "detection_metrics", "run_metrics"]
 

@@ -22,6 +22,9 @@ from scipy.signal.windows import hann
 
 from controller.metrics import deflection_acceleration, deflection_velocity
 
+THESIS_BATCH_SIZE = 20
+"""The batch size l the experiments use (thesis: 20-50 samples; its identification runs: 20)."""
+
 LAG_STEP_S = 0.05
 """The step of the shifts :func:`alignment_lag` tries (s)."""
 

@@ -2,7 +2,7 @@
 faults and judge its timing against acceptance criteria.
 
 The scenario file (:class:`service_kit.link_faults.Scenario`) names the
-faults, the mode (``cosim``, ``lockstep``: the one-process rig on a
+faults, the mode of the rig (:class:`workbench.hil.HilRig`) (``cosim``, ``lockstep``: the one-process rig on a
 virtual CAN bus and an in-process zenoh session, or ``realtime``: the same
 on the wall clock), the duration, settings per service and the criteria.
 The report (:mod:`workbench.timing_test.report`): Markdown, JSON and PNG
@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from service_kit.link_faults import Scenario, ScenarioError, load_scenario
+from workbench.hil import HilRig, RigRunError, RigSettingError
 from workbench.hostinfo import host_info
-from workbench.log_counts import counting_warnings
 from workbench.progress import activity
 from workbench.timing_test.report import Criteria, evaluate, verdict_failed, write_report
 from workbench.verdict import judge
@@ -34,19 +34,15 @@ from workbench.verdict import judge
 log = logging.getLogger(__name__)
 
 
-def run_scenario(scenario: Scenario, duration_s: float | None = None, mode: str | None = None) -> Any:
-    """Run the rig of ``scenario`` (cosim, or the one-process rig in lockstep/real time)."""
-    mode = mode or scenario.mode
+def scenario_rig(scenario: Scenario, mode: str | None = None) -> HilRig:
+    """The rig of ``scenario`` (cosim, or the one-process rig in lockstep/real time), its faults
+    on the controller's links and the DSP board (``dsp_delay_s``); not recorded."""
     cfg = scenario.settings
-    controller = {**cfg.get("controller", {}), "duration_s": duration_s or scenario.duration_s, "fault_scenario": scenario.model_dump_json()}
-    dsp = {**cfg.get("dsp", {}), "fault_scenario": scenario.model_dump_json()}  # a slowed board (dsp_delay_s)
-    if mode == "cosim":
-        from workbench.cosim import run_cosim
-
-        return run_cosim(controller=controller, plant=cfg.get("plant"), dsp=dsp)
-    from workbench.composition import run_in_process
-
-    return run_in_process(controller=controller, plant=cfg.get("plant"), dsp=dsp, common={"clock": mode})
+    return HilRig(
+        clock=mode or scenario.mode,  # type: ignore[arg-type]  # the scenario's mode is checked by its model
+        controller=dict(cfg.get("controller", {})), plant_settings=dict(cfg.get("plant", {})), dsp_settings=dict(cfg.get("dsp", {})),
+        faults=json.loads(scenario.model_dump_json()), mcap=False,
+    )  # fmt: skip
 
 
 def cmd_timing_test(args: argparse.Namespace) -> int:
@@ -72,35 +68,38 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
     if scenario.description:
         print(f"timing test {scenario.name}: {' '.join(scenario.description.split())}")
     host_before = host_info()
-    with (
-        counting_warnings() as (warnings, errors),
-        activity(f"timing test {scenario.name}: the rig runs ({args.mode or scenario.mode}, {args.duration or scenario.duration_s:g} s simulated)"),
-    ):
-        run = run_scenario(scenario, args.duration, args.mode)
+    try:
+        rig = scenario_rig(scenario, args.mode)
+        with activity(f"timing test {scenario.name}: the rig runs ({args.mode or scenario.mode}, {args.duration or scenario.duration_s:g} s simulated)"):
+            with rig:
+                run = rig.run(args.duration or scenario.duration_s)
+    except (RigSettingError, RigRunError) as exc:
+        print(f"ralf-hil timing-test: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     host_after = host_info()
-    verdict = evaluate(run.controller, criteria, mode=args.mode or scenario.mode)
+    verdict = evaluate(rig.controller_service, criteria, mode=args.mode or scenario.mode)
     failed = [c["name"] for c in verdict["criteria"] if verdict_failed(str(c["verdict"]))]
     facts = {
-        "controller": {"ticks": run.result.ticks},
+        "controller": {"ticks": run.ticks},
         "health": {name: h.model_dump(exclude={"wall_time_s"}) for name, h in run.health.items()},
         "exit_codes": {},
-        "failure": run.result.error or "",
-        "log_warnings": dict(warnings),
-        "log_errors": dict(errors),
+        "failure": run.error or "",
+        "log_warnings": dict(run.log_warnings),
+        "log_errors": dict(run.log_errors),
     }
     run_verdict = judge(facts, "FAIL: " + ", ".join(failed) if failed else "PASS")
     out = Path(args.out)
     report = {
         "scenario": json.loads(scenario.model_dump_json()),
         "mode": args.mode or scenario.mode,
-        "error": run.result.error,
-        "ticks": run.result.ticks,
+        "error": run.error,
+        "ticks": run.ticks,
         "wall_time_s": run.wall_time_s,
         "host": {**host_before, "load_average_after": host_after["load_average"]},
         **verdict,
         "run_verdict": run_verdict.as_dict(),
     }
-    paths = write_report(report, run.controller, out)
+    paths = write_report(report, rig.controller_service, out)
     if args.junit:
         from workbench.junit import timing_suite, write_junit
 
@@ -110,7 +109,7 @@ def cmd_timing_test(args: argparse.Namespace) -> int:
         judged = f" over {c['judged']} {c['unit']}" if "judged" in c else ""
         print(f"  {c['name']}: {c['value']} (limit {c['limit']}{judged}) {c['verdict']}")
     print(f"run verdict: {run_verdict.line()}")
-    return 0 if report["passed"] and run.result.error is None and run_verdict.exit_code == 0 else 1
+    return 0 if report["passed"] and run.error is None and run_verdict.exit_code == 0 else 1
 
 
 def register(subparsers: Any) -> None:

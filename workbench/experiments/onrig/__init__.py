@@ -9,7 +9,8 @@
 | ``id-lag`` | §5.3 (future work) | :mod:`.id_lag` |
 | ``noise-vs-lag`` | §5.3 (future work) | :mod:`.noise_vs_lag` |
 
-Every experiment runs the rig through :mod:`.runner`: by default as the
+Every experiment runs the rig through :class:`workbench.hil.HilRig` (its runs as
+:class:`workbench.rig_spec.RigSpec` on the campaign engine, :mod:`workbench.campaign.rigs`): by default as the
 one-thread co-simulation (:mod:`workbench.cosim`, bit-identical to the
 three-process rig in lockstep); ``--mode lockstep`` starts the full
 three-process rig (``--mode realtime`` on the wall clock), where ``--quick``

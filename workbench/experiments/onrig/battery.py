@@ -38,10 +38,12 @@ import numpy as np
 
 from controller.oatf import OatfConfig, OatfFilter, design_stage
 from workbench.campaign.rigs import map_rigs
-from workbench.experiments.analysis import costs_over
+from workbench.experiments.analysis import THESIS_BATCH_SIZE, costs_over
 from workbench.experiments.framework import ExperimentContext, experiment, run_layout
-from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, lap_seconds
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
+from workbench.hil import RunRecord
+from workbench.laps import lap_seconds
+from workbench.rig_spec import RigSpec
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -99,17 +101,17 @@ def _velocity_pct(table: dict[str, dict[str, Any]]) -> VelocityPct:
     return get
 
 
-def run_costs(res: RigResult, mask: np.ndarray | None = None) -> dict[str, list[float]]:
+def run_costs(res: RunRecord, mask: np.ndarray | None = None) -> dict[str, list[float]]:
     """§4.2.1 costs of a run over ``mask`` (default: every sample)."""
     d = res.deflections
     m = np.ones(d.shape[0], dtype=bool) if mask is None else mask
     return costs_over(d, m, res.sample_period_s)
 
 
-def adaptive_summary(res: RigResult) -> dict[str, Any]:
+def adaptive_summary(res: RunRecord) -> dict[str, Any]:
     """How the OATF frequency moved and how close it stayed to the true first mode."""
     t = res.t_s
-    f = np.asarray(res.record["oatf_hz"], dtype=float)
+    f = np.asarray(res.columns["oatf_hz"], dtype=float)
     true1 = res.true_mode_hz(t, 0)
     changed = np.flatnonzero(np.abs(np.diff(f)) > 1e-12)
     first = float(t[changed[0] + 1]) if changed.size else float("nan")
@@ -142,9 +144,9 @@ def run(ctx: ExperimentContext) -> Report:
     seeds = {group_key(s, p): int(rng.integers(0, 2**31 - 1)) for s, p in groups}
     laps = {s: lap_seconds(s) for s in SPEEDS}
 
-    def spec(speed: float, payload: bool, config: str, right_hz: float) -> RigRun:
+    def spec(speed: float, payload: bool, config: str, right_hz: float) -> RigSpec:
         duration = 20.0 if quick else laps[speed]
-        return RigRun(
+        return RigSpec(
             f"{group_key(speed, payload)}_{config}",
             controller={
                 "duration_s": duration,
@@ -159,7 +161,7 @@ def run(ctx: ExperimentContext) -> Report:
         )
 
     base_runs = map_rigs(ctx, [spec(s, p, "a", 0.0) for s, p in groups], in_process=quick, description="battery (a) runs")
-    results: dict[tuple[str, str], RigResult] = {}
+    results: dict[tuple[str, str], RunRecord] = {}
     right: dict[str, float] = {}
     truth_stats: dict[str, dict[str, float]] = {}
     for (s, p), res in zip(groups, base_runs):
@@ -176,7 +178,7 @@ def run(ctx: ExperimentContext) -> Report:
     ctx.log("tuned-right frequencies: " + ", ".join(f"{k} {v:.2f} Hz" for k, v in right.items()))
     rest = [spec(s, p, c, right[group_key(s, p)]) for s, p in groups for c in configs if c != "a"]
     for r in map_rigs(ctx, rest, in_process=quick, description="battery (b)-(e) runs"):
-        gk, c = r.spec.name.rsplit("_", 1)
+        gk, c = r.name.rsplit("_", 1)
         results[(gk, c)] = r
     table = _cost_table(rep, groups, results, right, truth_stats, configs, quick, laps)
     _runs_section(ctx, rep, quick, results, right, truth_stats, groups)
@@ -186,14 +188,14 @@ def run(ctx: ExperimentContext) -> Report:
     _thesis_right_frequencies(rep, groups, right)
     _discussion(rep, quick, groups, table, pv, gks)
     for r in results.values():
-        rep.attach(r.record_path.with_name(r.record_path.name + ".npz"), f"run record: {r.spec.label}")
+        rep.attach(r.output(".npz"), f"run record: {r.label}")
     return rep
 
 
 def _cost_table(
     rep: Report,
     groups: list[tuple[float, bool]],
-    results: dict[tuple[str, str], RigResult],
+    results: dict[tuple[str, str], RunRecord],
     right: dict[str, float],
     truth_stats: dict[str, dict[str, float]],
     configs: tuple[str, ...],
@@ -218,12 +220,13 @@ def _cost_table(
                 "acceleration_pct": [100 * a / b for a, b in zip(cost["acceleration_rms"], base["acceleration_rms"])],
                 "tracking_error_rms_rad": np.sqrt(
                     np.mean(
-                        (np.column_stack([res.record["phi_ref1"], res.record["phi_ref2"]]) - np.column_stack([res.record["phi1"], res.record["phi2"]])) ** 2,
+                        (np.column_stack([res.columns["phi_ref1"], res.columns["phi_ref2"]]) - np.column_stack([res.columns["phi1"], res.columns["phi2"]]))
+                        ** 2,
                         axis=0,
                     )
                 ).tolist(),
-                "max_abs_valve_v": float(np.max(np.abs(np.column_stack([res.record["u1_v"], res.record["u2_v"]])))),
-                "run": res.summary(),
+                "max_abs_valve_v": float(np.max(np.abs(np.column_stack([res.columns["u1_v"], res.columns["u2_v"]])))),
+                "run": res.run_facts(),
             }
             if c in ("c", "e"):
                 entry["adaptation"] = adaptive_summary(res)
@@ -237,7 +240,7 @@ def _runs_section(
     ctx: ExperimentContext,
     rep: Report,
     quick: bool,
-    results: dict[tuple[str, str], RigResult],
+    results: dict[tuple[str, str], RunRecord],
     right: dict[str, float],
     truth_stats: dict[str, dict[str, float]],
     groups: list[tuple[float, bool]],
@@ -294,7 +297,7 @@ def _costs_section(rep: Report, groups: list[tuple[float, bool]], configs: tuple
     )
 
 
-def _adaptation_section(rep: Report, groups: list[tuple[float, bool]], table: dict[str, dict[str, Any]], results: dict[tuple[str, str], RigResult]) -> None:
+def _adaptation_section(rep: Report, groups: list[tuple[float, bool]], table: dict[str, dict[str, Any]], results: dict[tuple[str, str], RunRecord]) -> None:
     """How the adaptive configurations moved their design frequency."""
     adaptive_rows = []
     for s, p in groups:
@@ -524,7 +527,7 @@ def _bar_chart(table: dict[str, dict[str, Any]], groups: list[tuple[float, bool]
     return fig
 
 
-def _adaptation_figure(results: dict[tuple[str, str], RigResult], groups: list[tuple[float, bool]]) -> Figure:
+def _adaptation_figure(results: dict[tuple[str, str], RunRecord], groups: list[tuple[float, bool]]) -> Figure:
     fig = new_figure(12.0, 2.6 * len(groups))
     axes = np.atleast_1d(fig.subplots(len(groups), 1, sharex=False))
     for ax, (s, p) in zip(axes, groups):
@@ -534,7 +537,7 @@ def _adaptation_figure(results: dict[tuple[str, str], RigResult], groups: list[t
         for c, ls in (("c", "-"), ("e", "--")):
             if (gk, c) in results:
                 r = results[(gk, c)]
-                ax.plot(r.t_s, r.record["oatf_hz"], ls=ls, lw=1.0, label=CONFIG_LABELS[c])
+                ax.plot(r.t_s, r.columns["oatf_hz"], ls=ls, lw=1.0, label=CONFIG_LABELS[c])
         ax.set_ylabel("Hz")
         ax.set_title(group_label(s, p), fontsize=9)
         ax.grid(True, lw=0.3)

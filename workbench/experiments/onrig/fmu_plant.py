@@ -31,8 +31,9 @@ import numpy as np
 from workbench.campaign.rigs import run_rigs
 from workbench.experiments.analysis import costs_over
 from workbench.experiments.framework import ExperimentContext, experiment
-from workbench.experiments.onrig.runner import RigResult, RigRun
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
+from workbench.hil import RunRecord
+from workbench.rig_spec import RigSpec
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -44,21 +45,21 @@ TRUE_ZETA = 0.05
 """The example mapping's first-mode damping ratio (zeta_a)."""
 
 
-def identification(res: RigResult) -> dict[str, Any]:
+def identification(res: RunRecord) -> dict[str, Any]:
     """The identified modes and the OATF's design against the plant's truth, after :data:`SETTLE_S`."""
     t = res.t_s
     late = t > SETTLE_S
-    f1 = np.asarray(res.record["f_id_hz"], dtype=float)
-    f2 = np.asarray(res.record["f_id2_hz"], dtype=float)
-    zeta = np.asarray(res.record["zeta_id"], dtype=float)
-    oatf = np.asarray(res.record["oatf_hz"], dtype=float)
+    f1 = np.asarray(res.columns["f_id_hz"], dtype=float)
+    f2 = np.asarray(res.columns["f_id2_hz"], dtype=float)
+    zeta = np.asarray(res.columns["zeta_id"], dtype=float)
+    oatf = np.asarray(res.columns["oatf_hz"], dtype=float)
     true1, true2 = res.true_mode_hz(t, 0), res.true_mode_hz(t, 1)
     valid = np.flatnonzero(np.isfinite(f1) & late)
     err = np.abs(f1[valid] - true1[valid])
     inside = [true1[(t >= t[k] - LAG_S) & (t <= t[k])].min() - BIN_HZ <= f1[k] <= true1[(t >= t[k] - LAG_S) & (t <= t[k])].max() + BIN_HZ for k in valid]
     ok2 = np.isfinite(f2) & late
     z = zeta[np.isfinite(zeta) & late]
-    true_zeta = np.asarray(res.truth["damping_ratios"], dtype=float)[:, 0] if "damping_ratios" in res.truth else np.array([np.nan])
+    true_zeta = np.asarray(res.truth_columns["damping_ratios"], dtype=float)[:, 0] if "damping_ratios" in res.truth_columns else np.array([np.nan])
     return {
         "true_f1_range_hz": [float(true1[late].min()), float(true1[late].max())],
         "identified_share": float(valid.size / max(1, int(late.sum()))),
@@ -73,14 +74,14 @@ def identification(res: RigResult) -> dict[str, Any]:
     }
 
 
-def _figure(fmu: RigResult, ralf: RigResult) -> Figure:
+def _figure(fmu: RunRecord, ralf: RunRecord) -> Figure:
     fig = new_figure(9.0, 6.0)
     axes = fig.subplots(2, 1, sharex=True)
     for ax, res, title in ((axes[0], fmu, "example FMU"), (axes[1], ralf, "built-in arm")):
         t = res.t_s
         ax.plot(t, res.true_mode_hz(t, 0), "k-", lw=1.2, label="true first mode")
-        ax.plot(t, np.asarray(res.record["f_id_hz"], dtype=float), ".", ms=1.5, label="identified first mode")
-        ax.plot(t, np.asarray(res.record["oatf_hz"], dtype=float), "-", lw=0.8, label="OATF design")
+        ax.plot(t, np.asarray(res.columns["f_id_hz"], dtype=float), ".", ms=1.5, label="identified first mode")
+        ax.plot(t, np.asarray(res.columns["oatf_hz"], dtype=float), "-", lw=0.8, label="OATF design")
         ax.set_ylabel("Hz")
         ax.set_title(title)
         ax.set_ylim(2.0, 8.0)
@@ -110,12 +111,12 @@ def run(ctx: ExperimentContext) -> Report:
     duration = 30.0 if ctx.quick else 84.0
     adaptive = {"oatf_mode": "adaptive", "oatf": {"frequency_hz": 4.4}, "duration_s": duration}
     specs = [
-        RigRun("fmu_off", controller={"oatf_mode": "off", "duration_s": duration}, plant=fmu_plant, label="example FMU, OATF off"),
-        RigRun("fmu_adaptive", controller=adaptive, plant=fmu_plant, label="example FMU, adaptive OATF"),
-        RigRun("ralf_adaptive", controller=adaptive, plant={"seed": ctx.seed}, label="built-in arm, adaptive OATF"),
+        RigSpec("fmu_off", controller={"oatf_mode": "off", "duration_s": duration}, plant=fmu_plant, label="example FMU, OATF off"),
+        RigSpec("fmu_adaptive", controller=adaptive, plant=fmu_plant, label="example FMU, adaptive OATF"),
+        RigSpec("ralf_adaptive", controller=adaptive, plant={"seed": ctx.seed}, label="built-in arm, adaptive OATF"),
     ]
     off, fmu_run, ralf_run = run_rigs(ctx, specs, description="FMU and built-in runs")
-    ident = {res.spec.name: identification(res) for res in (fmu_run, ralf_run)}
+    ident = {res.name: identification(res) for res in (fmu_run, ralf_run)}
     rep.heading("Runs")
     rep.text(
         f"Co-simulated, {duration:g} s each along the inspection loop at 5 in/s, seed {ctx.seed}, the thesis's DSP settings. "
@@ -163,8 +164,8 @@ def run(ctx: ExperimentContext) -> Report:
         c["velocity_rms_in_s"], c["acceleration_rms_in_s2"] = c.pop("velocity_rms"), c.pop("acceleration_rms")
         c["velocity_pct"] = [100.0 * v / b for v, b in zip(c["velocity_rms_in_s"], base["velocity_rms"])]
         c["acceleration_pct"] = [100.0 * v / b for v, b in zip(c["acceleration_rms_in_s2"], base["acceleration_rms"])]
-        costs[res.spec.name] = c
-    rep.table(["run", *COST_HEADERS], [[res.spec.label, *cost_cells(costs[res.spec.name])] for res in (off, fmu_run)], caption="§4.2.1 costs, whole run")
+        costs[res.name] = c
+    rep.table(["run", *COST_HEADERS], [[res.label, *cost_cells(costs[res.name])] for res in (off, fmu_run)], caption="§4.2.1 costs, whole run")
     e = ident["fmu_adaptive"]
     rep.check("first mode identified within two bins (median)", e["f1_median_abs_error_hz"] < 2 * BIN_HZ, f"{e['f1_median_abs_error_hz']:.3f} Hz")
     rep.check("mostly within a bin of the truth's last 4 s", e["f1_within_bin_of_lagged_truth"] > 0.5, f"{100 * e['f1_within_bin_of_lagged_truth']:.0f} %")
@@ -174,5 +175,5 @@ def run(ctx: ExperimentContext) -> Report:
         f"FMU: median error {e['f1_median_abs_error_hz']:.3f} Hz, {100 * e['f1_within_bin_of_lagged_truth']:.0f} % of ticks within a bin of the last 4 s' truth",
         e["f1_within_bin_of_lagged_truth"] > 0.5,
     )
-    rep.results = {"identification": ident, "costs": costs, "runs": {r.spec.name: r.summary() for r in (off, fmu_run, ralf_run)}, "fmu": Path(fmu).name}
+    rep.results = {"identification": ident, "costs": costs, "runs": {r.name: r.run_facts() for r in (off, fmu_run, ralf_run)}, "fmu": Path(fmu).name}
     return rep

@@ -55,14 +55,11 @@ from dsp_service.arx import RecursiveArx, RegimeBankState
 from dsp_service.identifier import IdentifierConfig, arx_config
 from plant_emulator.model.modes import modal_parameters
 from workbench.campaign.rigs import run_rigs
-from workbench.experiments.analysis import centred_median, costs_over
+from workbench.experiments.analysis import THESIS_BATCH_SIZE, centred_median, costs_over
 from workbench.experiments.framework import ExperimentContext, experiment, run_layout
-from workbench.experiments.onrig.runner import (
-    THESIS_BATCH_SIZE,
-    RigResult,
-    RigRun,
-)
 from workbench.experiments.report import Report, new_figure
+from workbench.hil import RunRecord
+from workbench.rig_spec import RigSpec
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -238,19 +235,19 @@ def series_delays(t: np.ndarray, f: np.ndarray, true1: np.ndarray, events_s: Seq
     }
 
 
-def applied_events(res: RigResult) -> list[float]:
+def applied_events(res: RunRecord) -> list[float]:
     """The times the plant's record shows the payload switching (controller time)."""
-    truth_t = np.asarray(res.truth["sim_time_s"]) - res.sample_period_s
-    attached = np.asarray(res.truth["payload_attached"]).astype(bool)
+    truth_t = np.asarray(res.truth_columns["sim_time_s"]) - res.sample_period_s
+    attached = np.asarray(res.truth_columns["payload_attached"]).astype(bool)
     switch = np.flatnonzero(attached[:-1] != attached[1:])
     return [float(truth_t[i + 1]) for i in switch]
 
 
-def step_delays(res: RigResult, events_s: list[float], tolerance: float = TOLERANCE) -> dict[str, Any]:
+def step_delays(res: RunRecord, events_s: list[float], tolerance: float = TOLERANCE) -> dict[str, Any]:
     """Every event's delays for one run (:func:`series_delays` of the record's identified first pole)."""
     t = res.t_s
-    f = np.asarray(res.record["f_id_hz"], dtype=float)
-    conf = np.asarray(res.record["id_confidence"], dtype=float)
+    f = np.asarray(res.columns["f_id_hz"], dtype=float)
+    conf = np.asarray(res.columns["id_confidence"], dtype=float)
     out = series_delays(t, f, res.true_mode_hz(t, 0), events_s, tolerance)
     out["events_applied_s"] = applied_events(res)
     out["median_confidence"] = float(np.median(conf[t >= events_s[0]]))
@@ -264,7 +261,7 @@ def payload_scenario(events: Sequence[float]) -> str:
 
 
 def replay_arx(
-    res: RigResult,
+    res: RunRecord,
     batch_size: int,
     discount_at_s: Sequence[float] = (),
     gamma: float = ORACLE_GAMMA,
@@ -289,21 +286,21 @@ def replay_arx(
     return first_pole, alarms
 
 
-def learn_bank(res: RigResult, batch_size: int) -> RegimeBankState:
+def learn_bank(res: RunRecord, batch_size: int) -> RegimeBankState:
     """The regime bank the DSP's ARX (``_BANKED``) holds at the end of ``res`` (replayed from its record):
     what ``arx_regime_bank_file`` would carry out of that run."""
     return _replayed_arx(res, batch_size, _BANKED, None)[2].bank_state()
 
 
 def _replayed_arx(
-    res: RigResult,
+    res: RunRecord,
     batch_size: int,
     cfg: IdentifierConfig | None,
     bank: RegimeBankState | None,
     discount_at_s: Sequence[float] = (),
     gamma: float = ORACLE_GAMMA,
 ) -> tuple[np.ndarray, list[float], RecursiveArx]:
-    rec = res.record
+    rec = res.controller_record()
     u = np.vstack([np.asarray(rec["u1_v"], dtype=float), np.asarray(rec["u2_v"], dtype=float)])
     y = np.vstack([np.asarray(rec["defl1_in"], dtype=float), np.asarray(rec["defl2_in"], dtype=float)])
     arx = RecursiveArx(arx_config(cfg if cfg is not None else IdentifierConfig(method="arx", sample_rate_hz=1.0 / res.sample_period_s)))
@@ -334,10 +331,10 @@ def held(per_batch: np.ndarray, n_ticks: int, batch_size: int) -> np.ndarray:
     return np.where(k >= 0, per_batch[np.clip(k, 0, per_batch.size - 1)], np.nan)
 
 
-def replay_matches_record(res: RigResult, per_batch: np.ndarray, batch_size: int) -> float:
+def replay_matches_record(res: RunRecord, per_batch: np.ndarray, batch_size: int) -> float:
     """Largest difference between the replayed first pole and the record's ``f_id_hz`` at the middle of each
     holding interval (∞ if their missing estimates differ)."""
-    rec = np.asarray(res.record["f_id_hz"], dtype=float)
+    rec = np.asarray(res.columns["f_id_hz"], dtype=float)
     ticks = (np.arange(per_batch.size) + 2) * batch_size + batch_size // 2
     keep = ticks < rec.size
     a, b = per_batch[keep], rec[ticks[keep]]
@@ -370,7 +367,7 @@ def steady_share(t: np.ndarray, f: np.ndarray, true1: np.ndarray, events: Sequen
     return float(np.mean(np.abs(m[ok] - truth[ok]) / truth[ok] <= tolerance)) if ok.any() else float("nan")
 
 
-def arx_replays(res: RigResult, events: Sequence[float], calibration: RigResult | None = None) -> dict[str, Any]:
+def arx_replays(res: RunRecord, events: Sequence[float], calibration: RunRecord | None = None) -> dict[str, Any]:
     """The DSP's ARX replayed from one run's record (:func:`replay_arx`): as run, reset at the true events
     (γ ``ORACLE_GAMMA``), with its change detector, with a regime bank learned in the run, and (``calibration``:
     an earlier run of the same rig, another noise seed) with the bank that run learned carried in from its
@@ -399,8 +396,8 @@ def arx_replays(res: RigResult, events: Sequence[float], calibration: RigResult 
         out["carried_bank"] = {
             "regimes": carried_bank.regimes,
             "signatures_hz": carried_bank.signature.tolist(),
-            "seed": calibration.spec.plant.get("seed"),
-            "events_s": [float(e["at_sim_time_s"]) for e in json.loads(str(calibration.spec.plant.get("scenario", "[]")))],
+            "seed": calibration.settings["plant"].get("seed"),
+            "events_s": [float(e["at_sim_time_s"]) for e in json.loads(str(calibration.settings["plant"].get("scenario", "[]")))],
         }
         keys.append("regime_bank_carried")
     for key in keys:
@@ -409,7 +406,7 @@ def arx_replays(res: RigResult, events: Sequence[float], calibration: RigResult 
     return out
 
 
-def dither_study(base: RigResult, base_arx: dict[str, Any], runs: Sequence[RigResult], amplitudes: Sequence[float], events: Sequence[float]) -> dict[str, Any]:
+def dither_study(base: RunRecord, base_arx: dict[str, Any], runs: Sequence[RunRecord], amplitudes: Sequence[float], events: Sequence[float]) -> dict[str, Any]:
     """Cost and benefit of the valve commands' dither: per amplitude, the §4.2.1 costs over the whole run
     (RMS deflection velocity and acceleration per link, :func:`costs_over`) against the undithered ARX run
     ``base`` (the same seed and trajectory; with the OATF off the identifier does not act on the plant, so
@@ -420,7 +417,7 @@ def dither_study(base: RigResult, base_arx: dict[str, Any], runs: Sequence[RigRe
     rows = []
     for amp, r in zip(amplitudes, runs):
         cost = costs_over(r.deflections, np.ones(r.t_s.size, dtype=bool), r.sample_period_s)
-        rec = r.record
+        rec = r.controller_record()
         sent = np.vstack(
             [
                 np.asarray(rec["u1_v"], dtype=float) - np.asarray(rec["pi1_v"], dtype=float),
@@ -599,14 +596,14 @@ def run(ctx: ExperimentContext) -> Report:
     _checks_and_thesis(rep, rows_data, thesis_key, events, th0, best_key, quick)
     rep.attach(traj_path, "the trajectory (way-points) of the runs")
     for r in runs:
-        rep.attach(r.record_path.with_name(r.record_path.name + ".npz"), f"run record: {r.spec.label}")
+        rep.attach(r.output(".npz"), f"run record: {r.label}")
     return rep
 
 
-def _setting_specs(duration: float, traj_path: Path, scenario: str, seed: int, settings: tuple[tuple[int, float, str], ...]) -> list[RigRun]:
+def _setting_specs(duration: float, traj_path: Path, scenario: str, seed: int, settings: tuple[tuple[int, float, str], ...]) -> list[RigSpec]:
     """One run per identifier setting, PI only along the loop of teeth with the payload events."""
     specs = [
-        RigRun(
+        RigSpec(
             _name(n, a, m),
             controller={
                 "duration_s": duration,
@@ -629,13 +626,13 @@ def _setting_specs(duration: float, traj_path: Path, scenario: str, seed: int, s
 
 
 def _dither_and_calibration_specs(
-    quick: bool, specs: list[RigRun], settings: tuple[tuple[int, float, str], ...], events: list[float], seed: int
-) -> tuple[tuple[float, ...], list[RigRun], RigRun]:
+    quick: bool, specs: list[RigSpec], settings: tuple[tuple[int, float, str], ...], events: list[float], seed: int
+) -> tuple[tuple[float, ...], list[RigSpec], RigSpec]:
     """The ARX run with each dither amplitude, and the calibration run whose regime bank is carried in."""
     amplitudes = QUICK_DITHER_AMPLITUDES_V if quick else DITHER_AMPLITUDES_V
     arx_spec = next(sp for sp, (_n, _a, m) in zip(specs, settings) if m == "arx")
     dither_specs = [
-        RigRun(
+        RigSpec(
             _dither_name(amp),
             controller={**arx_spec.controller, "dither": {"amplitude_v": amp}},
             plant=dict(arx_spec.plant),
@@ -645,7 +642,7 @@ def _dither_and_calibration_specs(
         for amp in amplitudes
     ]
     calibration_events = [at + CALIBRATION_SHIFT_S for at in events]
-    calibration_spec = RigRun(
+    calibration_spec = RigSpec(
         "arx_calibration",
         controller=dict(arx_spec.controller),
         plant={
@@ -661,7 +658,7 @@ def _dither_and_calibration_specs(
     return amplitudes, dither_specs, calibration_spec
 
 
-def _settings_rows(settings: tuple[tuple[int, float, str], ...], runs: list[RigResult], events: list[float]) -> dict[str, dict[str, Any]]:
+def _settings_rows(settings: tuple[tuple[int, float, str], ...], runs: list[RunRecord], events: list[float]) -> dict[str, dict[str, Any]]:
     """The delays of every setting's run, with its settings."""
     rows_data: dict[str, dict[str, Any]] = {}
     for (n, a, m), r in zip(settings, runs):
@@ -675,7 +672,7 @@ def _settings_rows(settings: tuple[tuple[int, float, str], ...], runs: list[RigR
                 "smoothing_window": smoothing_window(n),
                 "window_s": n / FS_HZ,
                 "averaging_span_s": (n + THESIS_BATCH_SIZE * (1 / a - 1)) / FS_HZ,
-                "run": r.summary(),
+                "run": r.run_facts(),
             }
         )
         rows_data[_name(n, a, m)] = d
@@ -684,10 +681,10 @@ def _settings_rows(settings: tuple[tuple[int, float, str], ...], runs: list[RigR
 
 def _arx_studies(
     settings: tuple[tuple[int, float, str], ...],
-    runs: list[RigResult],
+    runs: list[RunRecord],
     events: list[float],
-    calibration_run: RigResult,
-    dither_runs: list[RigResult],
+    calibration_run: RunRecord,
+    dither_runs: list[RunRecord],
     amplitudes: tuple[float, ...],
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """The ARX replayed from its record, and the dither study."""
@@ -743,7 +740,7 @@ def _runs_section(
     rep: Report,
     rows_data: dict[str, dict[str, Any]],
     thesis_key: str,
-    runs: list[RigResult],
+    runs: list[RunRecord],
     quick: bool,
     traj_path: Path,
     sampled: SampledTrajectory,
@@ -810,7 +807,7 @@ def _runs_section(
 
 
 def _events_section(
-    rep: Report, rows_data: dict[str, dict[str, Any]], runs: list[RigResult], settings: tuple[tuple[int, float, str], ...], events: list[float]
+    rep: Report, rows_data: dict[str, dict[str, Any]], runs: list[RunRecord], settings: tuple[tuple[int, float, str], ...], events: list[float]
 ) -> None:
     """The table of every event and the tracks figure."""
     ev_rows = []
@@ -1050,7 +1047,7 @@ def _arx_carried_bank(rep: Report, arx_replay: dict[str, Any], quick: bool) -> N
             )
 
 
-def _tracks_figure(runs: list[RigResult], rows: dict[str, dict[str, Any]], settings: tuple[tuple[int, float, str], ...], events: list[float]) -> Figure:
+def _tracks_figure(runs: list[RunRecord], rows: dict[str, dict[str, Any]], settings: tuple[tuple[int, float, str], ...], events: list[float]) -> Figure:
     fig = new_figure(11.0, 2.1 * len(runs) + 0.6)
     axes = np.atleast_1d(fig.subplots(len(runs), 1, sharex=True))
     for ax, (n, a, m), r in zip(axes, settings, runs):
@@ -1059,7 +1056,7 @@ def _tracks_figure(runs: list[RigResult], rows: dict[str, dict[str, Any]], setti
         true1 = r.true_mode_hz(t, 0)
         ax.fill_between(t, true1 * (1 - TOLERANCE), true1 * (1 + TOLERANCE), color="0.85", lw=0)
         ax.plot(t, true1, color="k", lw=1.0)
-        ax.plot(t[::10], np.asarray(r.record["f_id_hz"])[::10], ".", ms=1.5, color="tab:blue")
+        ax.plot(t[::10], np.asarray(r.columns["f_id_hz"])[::10], ".", ms=1.5, color="tab:blue")
         ax.plot(d["median_series"]["t_s"], d["median_series"]["f_hz"], color="tab:red", lw=1.0)
         for e in events:
             ax.axvline(e, color="k", ls=":", lw=0.8)

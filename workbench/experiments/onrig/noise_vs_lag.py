@@ -45,10 +45,11 @@ import numpy as np
 
 from controller.trajectory import DEFAULT_TRAJECTORY_PATH, load_trajectory, sample_trajectory
 from plant_emulator.model.modes import modal_parameters
+from workbench.experiments.analysis import THESIS_BATCH_SIZE
 from workbench.experiments.framework import ExperimentContext, experiment
 from workbench.experiments.onrig.id_lag import smoothing_window
-from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, lap_seconds
 from workbench.experiments.report import Report, new_figure
+from workbench.laps import lap_seconds
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

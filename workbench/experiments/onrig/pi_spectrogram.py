@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 
 from workbench.campaign.rigs import run_rigs
 from workbench.experiments.analysis import (
+    THESIS_BATCH_SIZE,
     Alignment,
     IdentificationLag,
     Transition,
@@ -57,18 +58,15 @@ from workbench.experiments.analysis import (
     transition_lags,
 )
 from workbench.experiments.framework import ExperimentContext, experiment
-from workbench.experiments.onrig.runner import (
-    THESIS_BATCH_SIZE,
-    RigResult,
-    RigRun,
-    lap_seconds,
-)
 from workbench.experiments.report import Report, new_figure
+from workbench.hil import RunRecord
+from workbench.laps import lap_seconds
+from workbench.rig_spec import RigSpec
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from controller.record import RunRecord
+    from controller.record import RunRecord as ControllerRecord
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -211,7 +209,7 @@ def split_agreement(pairs: list[tuple[dict[str, Any], dict[str, Any]]], share: f
     return {"truth_two": len(two), "shown_both": shown, "truth_one": len(one), "invented": invented, "passed": bool(ok)}
 
 
-def replay_downloads(res: RigResult, batch_size: int) -> dict[int, Any]:
+def replay_downloads(res: RunRecord, batch_size: int) -> dict[int, Any]:
     """The DSP's ETFE replayed from the controller's record: per download index, the
     :class:`~dsp_service.identifier.TransferFunctionEstimate` (complex H, per-bin solve ``mode``) whose
     magnitudes equal the download's (the DSP's inputs are the record's ``u1_v``, ``u2_v``, its outputs
@@ -225,10 +223,10 @@ def replay_downloads(res: RigResult, batch_size: int) -> dict[int, Any]:
     tf = res.tf
     if tf is None:
         return {}
-    rec = res.record
+    rec = res.controller_record()
     u = np.vstack([np.asarray(rec["u1_v"], dtype=float), np.asarray(rec["u2_v"], dtype=float)])
     y = np.vstack([np.asarray(rec["defl1_in"], dtype=float), np.asarray(rec["defl2_in"], dtype=float)])
-    ident = Identifier(identifier_config(DspSettings(**dict(res.spec.dsp))))
+    ident = Identifier(identifier_config(DspSettings(**dict(res.settings["dsp"]))))
     dl_t = np.asarray(tf["sim_time_s"], dtype=float)
     want: dict[int, list[int]] = {}
     for i, ts in enumerate(dl_t):
@@ -252,7 +250,7 @@ def replay_downloads(res: RigResult, batch_size: int) -> dict[int, Any]:
 
 
 def window_response(
-    res: RigResult, t_end: float, freqs: np.ndarray, payload: bool, points: int = WINDOW_POINTS, memory_s: float | None = None
+    res: RunRecord, t_end: float, freqs: np.ndarray, payload: bool, points: int = WINDOW_POINTS, memory_s: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plant's own transfer functions as an estimate from the window ending at ``t_end`` sees them:
     ``frequency_response`` at ``points`` configurations across the window (the true θ), averaged (complex)
@@ -268,7 +266,7 @@ def window_response(
     span = FFT_WIDTH / FS_HZ if memory_s is None else 5.0 * memory_s
     tk = np.linspace(t_end - span, t_end, points + 2)[1:-1]
     theta = res.true_theta(tk)
-    rec = res.record
+    rec = res.controller_record()
     u = np.vstack([np.asarray(rec["u1_v"], dtype=float), np.asarray(rec["u2_v"], dtype=float)])
     sos = ss.butter(4, (2.0, 10.0), btype="bandpass", fs=FS_HZ, output="sos")
     power = ss.sosfiltfilt(sos, u, axis=1) ** 2
@@ -281,7 +279,7 @@ def window_response(
     return h / max(float(weights.sum()), 1e-300), tk, weights
 
 
-def replay_arx_responses(res: RigResult, batch_size: int, at_batches: dict[int, int], freqs: np.ndarray) -> dict[int, np.ndarray]:
+def replay_arx_responses(res: RunRecord, batch_size: int, at_batches: dict[int, int], freqs: np.ndarray) -> dict[int, np.ndarray]:
     """The DSP's recursive ARX replayed from the record (as ``id-lag`` replays it, the same configuration as the
     run's DSP): per download index, the model's ``H11, H12, H21, H22`` (``(4, n)``) after the batch
     ``at_batches`` names for it."""
@@ -290,10 +288,10 @@ def replay_arx_responses(res: RigResult, batch_size: int, at_batches: dict[int, 
     from dsp_service.identifier import arx_config
     from protocol.settings import DspSettings
 
-    rec = res.record
+    rec = res.controller_record()
     u = np.vstack([np.asarray(rec["u1_v"], dtype=float), np.asarray(rec["u2_v"], dtype=float)])
     y = np.vstack([np.asarray(rec["defl1_in"], dtype=float), np.asarray(rec["defl2_in"], dtype=float)])
-    model = RecursiveArx(arx_config(identifier_config(DspSettings(**dict(res.spec.dsp)))))
+    model = RecursiveArx(arx_config(identifier_config(DspSettings(**dict(res.settings["dsp"])))))
     model.restart()
     out: dict[int, np.ndarray] = {}
     last = max(at_batches, default=-1)
@@ -324,7 +322,7 @@ def _solves(est: Any, freqs: np.ndarray, f1: float, f2: float, band: np.ndarray)
     return {"replayed": True, "solve_at_f1": int(mode[k1]), "solve_at_f2": int(mode[k2]), "full_2x2_share_3_6hz": float(np.mean(mode[band] == 2))}
 
 
-def apex_split(res: RigResult, apex: np.ndarray, batch_size: int = THESIS_BATCH_SIZE) -> dict[str, Any]:
+def apex_split(res: RunRecord, apex: np.ndarray, batch_size: int = THESIS_BATCH_SIZE) -> dict[str, Any]:
     """The split check's numbers for one run, per apex download (≥ APEX_WINDOW_SHARE of the window at the apex):
     the plant's own transfer functions over the download's window (:func:`window_response`: the reference of
     the check) and at the median true configuration of the window's apex samples (``truth_at_apex``), in the
@@ -344,8 +342,8 @@ def apex_split(res: RigResult, apex: np.ndarray, batch_size: int = THESIS_BATCH_
     dl_t = np.asarray(tf["sim_time_s"])
     tr1, tr2 = res.true_mode_hz(t, 0), res.true_mode_hz(t, 1)
     theta = res.true_theta(t)
-    payload = bool(np.median(np.asarray(res.truth["payload_attached"], dtype=float)) > 0.5)
-    is_arx = res.spec.dsp.get("identifier") == "arx"
+    payload = bool(np.median(np.asarray(res.truth_columns["payload_attached"], dtype=float)) > 0.5)
+    is_arx = res.settings["dsp"].get("identifier") == "arx"
     replayed = {} if is_arx else replay_downloads(res, batch_size)
     arx_h: dict[int, np.ndarray] = {}
     memory_s: float | None = None
@@ -406,14 +404,14 @@ def apex_split(res: RigResult, apex: np.ndarray, batch_size: int = THESIS_BATCH_
     }
 
 
-def identification_errors(res: RigResult, apex: np.ndarray, after_s: float) -> dict[str, Any]:
+def identification_errors(res: RunRecord, apex: np.ndarray, after_s: float) -> dict[str, Any]:
     """First identified pole against the plant's first mode (frequency and damping), at and away from the apex,
     over the samples after ``after_s`` with an estimate; damping only where the pole is on the first mode (±10 %)."""
     t = res.t_s
-    f = np.asarray(res.record["f_id_hz"], dtype=float)
-    z = np.asarray(res.record["zeta_id"], dtype=float)
+    f = np.asarray(res.columns["f_id_hz"], dtype=float)
+    z = np.asarray(res.columns["zeta_id"], dtype=float)
     f1 = res.true_mode_hz(t, 0)
-    z1 = np.interp(t, np.asarray(res.truth["sim_time_s"]) - res.sample_period_s, np.asarray(res.truth["damping_ratios"])[:, 0])
+    z1 = np.interp(t, np.asarray(res.truth_columns["sim_time_s"]) - res.sample_period_s, np.asarray(res.truth_columns["damping_ratios"])[:, 0])
     late = (t >= after_s) & np.isfinite(f)
     out: dict[str, Any] = {}
     for name, m in (("whole", late), ("apex", late & apex[: t.size]), ("away", late & ~apex[: t.size])):
@@ -450,7 +448,7 @@ def run(ctx: ExperimentContext) -> Report:
     specs = _run_specs(duration, speed, download, seed, quick)
     all_runs = run_rigs(ctx, specs, in_process=quick, description="pi-spectrogram runs")
     res = all_runs[0]
-    rec = res.record
+    rec = res.controller_record()
     t = res.t_s
     ts = res.sample_period_s
     tf = res.tf
@@ -460,8 +458,8 @@ def run(ctx: ExperimentContext) -> Report:
     dl_t = np.asarray(tf["sim_time_s"])
     has = np.array([np.any(tf["Htot_mag"][i] > 0) for i in range(dl_t.size)])
 
-    truth_t = np.asarray(res.truth["sim_time_s"]) - ts  # on the controller's clock
-    truth_f = np.asarray(res.truth["modal_frequencies_hz"])
+    truth_t = np.asarray(res.truth_columns["sim_time_s"]) - ts  # on the controller's clock
+    truth_f = np.asarray(res.truth_columns["modal_frequencies_hz"])
     f_id, f_id2, conf, t_first, max_lag, f_smooth, grid, m_grid, trans, lag = _identification_lag(rec, t, truth_t, truth_f)
     th2, apex, est, apex_stats = _apex_samples(t, res, f_id)
     th2_thr, splits, errors, split_runs = _identifiers(th2, apex, all_runs, t_first)
@@ -480,10 +478,10 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _run_specs(duration: float, speed: float, download: int, seed: int, quick: bool) -> list[RigRun]:
+def _run_specs(duration: float, speed: float, download: int, seed: int, quick: bool) -> list[RigSpec]:
     """The runs: PI only along the loop, one per identifier, and (full runs) the payload, ARX-payload and dither runs."""
     specs = [
-        RigRun(
+        RigSpec(
             "pi_loop" if ident == "etfe" else f"pi_loop_{ident.replace('-', '_')}",
             controller={"duration_s": duration, "tip_speed_in_s": speed, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": download, "oatf_mode": "off"},
             plant={"seed": seed},
@@ -494,7 +492,7 @@ def _run_specs(duration: float, speed: float, download: int, seed: int, quick: b
     ]
     if not quick:  # the quick run ends before the apex
         specs.append(
-            RigRun(
+            RigSpec(
                 PAYLOAD_RUN,
                 controller=dict(specs[0].controller),
                 plant={"seed": seed, "payload_attached": True},
@@ -505,7 +503,7 @@ def _run_specs(duration: float, speed: float, download: int, seed: int, quick: b
     if not quick:
         arx = next(sp for sp in specs if sp.dsp["identifier"] == "arx")
         specs.append(
-            RigRun(
+            RigSpec(
                 ARX_PAYLOAD_RUN,
                 controller=dict(arx.controller),
                 plant={**arx.plant, "payload_attached": True},
@@ -514,7 +512,7 @@ def _run_specs(duration: float, speed: float, download: int, seed: int, quick: b
             )
         )
         specs.append(
-            RigRun(
+            RigSpec(
                 DITHER_RUN,
                 controller={**arx.controller, "dither": {"amplitude_v": DITHER_V}},
                 plant=dict(arx.plant),
@@ -526,7 +524,7 @@ def _run_specs(duration: float, speed: float, download: int, seed: int, quick: b
 
 
 def _identification_lag(
-    rec: RunRecord, t: np.ndarray, truth_t: np.ndarray, truth_f: np.ndarray
+    rec: ControllerRecord, t: np.ndarray, truth_t: np.ndarray, truth_f: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray, np.ndarray, np.ndarray, list[Transition], IdentificationLag]:
     """The identified first pole's lag behind the true one: transitions and whole-run alignment."""
     f_id = np.asarray(rec["f_id_hz"], dtype=float)
@@ -554,7 +552,7 @@ def _identification_lag(
     return f_id, f_id2, conf, t_first, max_lag, f_smooth, grid, m_grid, trans, lag
 
 
-def _apex_samples(t: np.ndarray, res: RigResult, f_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, ApexStats]:
+def _apex_samples(t: np.ndarray, res: RunRecord, f_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, ApexStats]:
     """The apex (θ2 in its lowest decile): where the identified pole sits and how close the true modes come."""
     # apex: lowest decile of theta2 over the run, where an estimate exists
     th2 = res.true_theta(t)[:, 1]
@@ -571,18 +569,18 @@ def _apex_samples(t: np.ndarray, res: RigResult, f_id: np.ndarray) -> tuple[np.n
 
 
 def _identifiers(
-    th2: np.ndarray, apex: np.ndarray, all_runs: list[RigResult], t_first: float
+    th2: np.ndarray, apex: np.ndarray, all_runs: list[RunRecord], t_first: float
 ) -> tuple[float, dict[str, dict[str, Any]], dict[str, dict[str, Any]], tuple[str, ...]]:
     """The split at the apex and the identification errors of every run."""
     th2_thr = float(np.quantile(th2, APEX_QUANTILE))
-    splits = {r.spec.name: apex_split(r, apex) for r in all_runs}
-    errors = {r.spec.name: identification_errors(r, apex, t_first + 2.0) for r in all_runs}
+    splits = {r.name: apex_split(r, apex) for r in all_runs}
+    errors = {r.name: identification_errors(r, apex, t_first + 2.0) for r in all_runs}
     # checked at the thesis's resolution (Welch segments widen the peaks), both payload states (the payload run: full mode only)
-    split_runs = tuple(n for n in (all_runs[0].spec.name, PAYLOAD_RUN) if n in splits)
+    split_runs = tuple(n for n in (all_runs[0].name, PAYLOAD_RUN) if n in splits)
     return th2_thr, splits, errors, split_runs
 
 
-def _plain_spectrogram(rec: RunRecord) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _plain_spectrogram(rec: ControllerRecord) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A plain spectrogram of the link-2 deflection (full 2048-sample Hann windows, 1 s hop, PSD)."""
     return plain_spectrogram(np.asarray(rec["defl2_in"], dtype=float), FFT_WIDTH, FS_HZ)
 
@@ -615,7 +613,7 @@ def _clutter(
 
 def _results(
     rep: Report,
-    res: RigResult,
+    res: RunRecord,
     lap: float,
     download: int,
     dl_t: np.ndarray,
@@ -625,7 +623,7 @@ def _results(
     th2_thr: float,
     splits: dict[str, dict[str, Any]],
     errors: dict[str, dict[str, Any]],
-    all_runs: list[RigResult],
+    all_runs: list[RunRecord],
     th2: np.ndarray,
     apex_stats: ApexStats,
     clutter: Clutter,
@@ -636,13 +634,13 @@ def _results(
     """Everything numeric the report keeps."""
     defl = res.deflections
     rep.results = {
-        "run": res.summary(),
+        "run": res.run_facts(),
         "lap_s": lap,
         "downloads": {"count": int(dl_t.size), "with_estimate": int(has.sum()), "every_samples": download, "times_s": dl_t.tolist()},
         "first_estimate_s": t_first,
         "lag": lag,
         "apex_downloads": {"theta2_threshold_rad": th2_thr, "window_share": APEX_WINDOW_SHARE, "per_run": splits},
-        "identifiers": {"runs": {r.spec.name: r.spec.label for r in all_runs}, "errors": errors},
+        "identifiers": {"runs": {r.name: r.label for r in all_runs}, "errors": errors},
         "apex": {
             "theta2_threshold_rad": float(np.quantile(th2, APEX_QUANTILE)),
             "fraction_identified_nearer_upper_pole_at_apex": apex_stats.apex_upper,
@@ -674,13 +672,13 @@ def _run_section(
     duration: float,
     quick: bool,
     lap: float,
-    res: RigResult,
+    res: RunRecord,
     download: int,
     t_first: float,
     dl_t: np.ndarray,
     has: np.ndarray,
     t: np.ndarray,
-    rec: RunRecord,
+    rec: ControllerRecord,
     th2: np.ndarray,
     truth_t: np.ndarray,
     truth_f: np.ndarray,
@@ -694,7 +692,7 @@ def _run_section(
     rep.text(
         f"PI control alone (OATF off) along the inspection loop at {speed:g} in/s for {duration:.1f} s simulated "
         f"({'the first ' + format(duration, 'g') + ' s of a lap' if quick else format(duration / lap, '.0f') + ' laps of ' + format(lap, '.1f') + ' s'}; "
-        f"{'one process' if res.in_process else 'three processes'}, {res.mode}, {res.wall_time_s:.1f} s wall). DSP: N = {FFT_WIDTH}, "
+        f"{'three processes' if res.layout == 'three processes' else 'one process'}, {res.clock}, {res.wall_time_s:.1f} s wall). DSP: N = {FFT_WIDTH}, "
         f"α = {ALPHA}, l = {THESIS_BATCH_SIZE}; transfer functions downloaded every {download} samples ({download / FS_HZ:g} s), "
         f"{int(has.sum())} of {dl_t.size} with an estimate (the first estimate at {t_first:.2f} s: the identifier waits for a full history)."
     )
@@ -818,16 +816,16 @@ def _lag_checks(
     return lags_ok
 
 
-def _identifiers_section(rep: Report, all_runs: list[RigResult], errors: dict[str, dict[str, Any]], splits: dict[str, dict[str, Any]]) -> None:
+def _identifiers_section(rep: Report, all_runs: list[RunRecord], errors: dict[str, dict[str, Any]], splits: dict[str, dict[str, Any]]) -> None:
     """The identifiers compared against the plant's first mode, and the damping check."""
     rep.heading("Identifiers compared")
     rows_cmp = []
     for r in all_runs:
-        e = errors[r.spec.name]
-        sp = splits[r.spec.name]
+        e = errors[r.name]
+        sp = splits[r.name]
         rows_cmp.append(
             [
-                r.spec.label,
+                r.label,
                 100 * e["whole"]["median_rel_f_error"],
                 100 * e["apex"]["median_rel_f_error"],
                 100 * e["away"]["median_rel_f_error"],
@@ -991,7 +989,7 @@ def _thesis(
     lags_ok: list[float],
     apex_stats: ApexStats,
     clutter: Clutter,
-    res: RigResult,
+    res: RunRecord,
 ) -> None:
     """The comparison with the thesis, and the files."""
     headline = lag["median_transition_lag_s"] if math.isfinite(lag["median_transition_lag_s"]) else al["lag_s"]
@@ -1018,14 +1016,14 @@ def _thesis(
         if (clutter.st_low > clutter.tf_low and clutter.st_near <= clutter.tf_near)
         else ("partly" if (clutter.st_low > clutter.tf_low or clutter.st_near < clutter.tf_near) else False),
     )
-    rep.attach(res.record_path.with_name(res.record_path.name + ".npz"), "controller run record")
-    rep.attach(res.record_path.with_name(res.record_path.name + ".tf.npz"), "the DSP's transfer-function downloads (the spectrogram data)")
-    rep.attach(res.truth_path, "plant ground truth")
+    rep.attach(res.output(".npz"), "controller run record")
+    rep.attach(res.output(".tf.npz"), "the DSP's transfer-function downloads (the spectrogram data)")
+    rep.attach(res.output(".truth.npz"), "plant ground truth")
 
 
 def _deflection_figure(
     t: NDArray[np.float64],
-    rec: RunRecord,
+    rec: ControllerRecord,
     th2: NDArray[np.float64],
     truth_t: NDArray[np.float64],
     truth_f: np.ndarray,

@@ -32,16 +32,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from workbench.campaign.rigs import run_rigs
+from workbench.experiments.analysis import THESIS_BATCH_SIZE, costs_over
 from workbench.experiments.framework import ExperimentContext, experiment, run_layout
 from workbench.experiments.onrig.battery import adaptive_summary
-from workbench.experiments.onrig.runner import (
-    THESIS_BATCH_SIZE,
-    RigResult,
-    RigRun,
-    costs_over,
-    lap_seconds,
-)
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
+from workbench.hil import RunRecord
+from workbench.laps import lap_seconds
+from workbench.rig_spec import RigSpec
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -87,7 +84,7 @@ def run(ctx: ExperimentContext) -> Report:
     duration = 18.0 if quick else 2 * lap
     seed = int(ctx.rng("plant-seed").integers(0, 2**31 - 1))
     specs = _specs(duration, seed)
-    runs = {r.spec.name: r for r in run_rigs(ctx, specs, in_process=quick, description="reduced-damping runs")}
+    runs = {r.name: r for r in run_rigs(ctx, specs, in_process=quick, description="reduced-damping runs")}
     base = runs["unfiltered"]
     t = base.t_s
     th2 = base.true_theta(t)[:, 1]
@@ -110,10 +107,10 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _specs(duration: float, seed: int) -> list[RigRun]:
+def _specs(duration: float, seed: int) -> list[RigSpec]:
     """The runs: unfiltered, fixed 10 Hz and the adaptive OATFs, all designed for ζ = 0.01."""
     specs = [
-        RigRun(
+        RigSpec(
             name,
             controller={"duration_s": duration, "tip_speed_in_s": SPEED, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": 0, **settings},
             plant={"payload_attached": False, "seed": seed},
@@ -125,7 +122,7 @@ def _specs(duration: float, seed: int) -> list[RigRun]:
     return specs
 
 
-def _cost_table(windows: dict[str, np.ndarray], base: RigResult, runs: dict[str, RigResult]) -> dict[str, dict[str, Any]]:
+def _cost_table(windows: dict[str, np.ndarray], base: RunRecord, runs: dict[str, RunRecord]) -> dict[str, dict[str, Any]]:
     """RMS deflection velocity and acceleration per window and run, in % of the unfiltered run."""
     table: dict[str, dict[str, Any]] = {}
     for wname, mask in windows.items():
@@ -146,8 +143,8 @@ def _cost_table(windows: dict[str, np.ndarray], base: RigResult, runs: dict[str,
 def _results(
     rep: Report,
     t: np.ndarray,
-    base: RigResult,
-    runs: dict[str, RigResult],
+    base: RunRecord,
+    runs: dict[str, RunRecord],
     apex: np.ndarray,
     adapt: dict[str, Any],
     lap: float,
@@ -156,7 +153,7 @@ def _results(
 ) -> np.ndarray:
     """The adaptive filter's frequency against the true first mode, and everything numeric the report keeps."""
     true1 = base.true_mode_hz(t, 0)
-    f_ad = np.asarray(runs["adaptive"].record["oatf_hz"], dtype=float)
+    f_ad = np.asarray(runs["adaptive"].columns["oatf_hz"], dtype=float)
     rel_apex = np.abs(f_ad[apex] - true1[apex]) / true1[apex]
     rel_else = (
         np.abs(f_ad[~apex & (t >= adapt["first_change_s"])] - true1[~apex & (t >= adapt["first_change_s"])]) / true1[~apex & (t >= adapt["first_change_s"])]
@@ -164,7 +161,7 @@ def _results(
         else np.array([np.nan])
     )
     rep.results = {
-        "runs": {k: r.summary() for k, r in runs.items()},
+        "runs": {k: r.run_facts() for k, r in runs.items()},
         "design_zeta": DESIGN_ZETA,
         "wrong_hz": WRONG_HZ,
         "lap_s": lap,
@@ -195,7 +192,7 @@ def _report_section(
     adapt: dict[str, Any],
     windows: dict[str, np.ndarray],
     table: dict[str, dict[str, Any]],
-    runs: dict[str, RigResult],
+    runs: dict[str, RunRecord],
     t: np.ndarray,
 ) -> None:
     """The runs, the cost tables and the figures."""
@@ -286,7 +283,7 @@ def _thesis(
     ad_better: Any,
     whole_better: Any,
     apex_better: Any,
-    runs: dict[str, RigResult],
+    runs: dict[str, RunRecord],
 ) -> None:
     """The comparison with the thesis, and the files."""
     rep.thesis(
@@ -306,10 +303,10 @@ def _thesis(
         None,
     )
     for r in runs.values():
-        rep.attach(r.record_path.with_name(r.record_path.name + ".npz"), f"run record: {r.spec.label}")
+        rep.attach(r.output(".npz"), f"run record: {r.label}")
 
 
-def _traces(runs: dict[str, RigResult], t: NDArray[np.float64], apex: NDArray[np.bool_], true1: NDArray[np.float64]) -> Figure:
+def _traces(runs: dict[str, RunRecord], t: NDArray[np.float64], apex: NDArray[np.bool_], true1: NDArray[np.float64]) -> Figure:
     fig = new_figure(11.0, 7.5)
     ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [1.4, 0.7, 1]})
     for ax in (ax1, ax2, ax3):
@@ -317,13 +314,13 @@ def _traces(runs: dict[str, RigResult], t: NDArray[np.float64], apex: NDArray[np
         ax.grid(True, lw=0.3)
     for name, _ in RUNS:
         r = runs[name]
-        ax1.plot(r.t_s, r.record["defl2_in"], lw=0.6, label=LABELS[name])
+        ax1.plot(r.t_s, r.columns["defl2_in"], lw=0.6, label=LABELS[name])
     ax1.set_ylabel("link-2 deflection (in)")
     ax1.legend(fontsize=7, ncol=3)
     ax2.plot(t, runs["unfiltered"].true_theta(t)[:, 1], color="k", lw=0.8)
     ax2.set_ylabel("θ2 (rad)")
     ax3.plot(t, true1, color="k", lw=1.0, label="true first mode")
-    ax3.plot(runs["adaptive"].t_s, runs["adaptive"].record["oatf_hz"], color="tab:green", lw=1.0, label="adaptive OATF design")
+    ax3.plot(runs["adaptive"].t_s, runs["adaptive"].columns["oatf_hz"], color="tab:green", lw=1.0, label="adaptive OATF design")
     ax3.axhline(WRONG_HZ, color="tab:orange", lw=1.0, ls="--", label=f"fixed OATF ({WRONG_HZ:g} Hz)")
     ax3.set_ylim(0, 11)
     ax3.set_ylabel("Hz")

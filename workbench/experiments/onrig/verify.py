@@ -51,14 +51,17 @@ import numpy as np
 import scipy.signal as ss
 from numpy.typing import NDArray
 
+from workbench.campaign.rigs import in_context
+from workbench.experiments.analysis import THESIS_BATCH_SIZE
 from workbench.experiments.framework import ExperimentContext, experiment
-from workbench.experiments.onrig.runner import THESIS_BATCH_SIZE, RigResult, RigRun, run_rig
 from workbench.experiments.report import Report, new_figure
+from workbench.hil import HilRig, RigRunError, RunRecord
+from workbench.rig_spec import RigSpec
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from controller.record import RunRecord
+    from controller.record import RunRecord as ControllerRecord
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
@@ -261,15 +264,18 @@ def run(ctx: ExperimentContext) -> Report:
     quick = ctx.quick
     duration = 12.6 if quick else 30.0
     download = 2500 if quick else 1000
-    spec = RigRun(
+    spec = RigSpec(
         "verify_pi",
         controller={"duration_s": duration, "batch_size": THESIS_BATCH_SIZE, "tf_download_samples": download, "oatf_mode": "off"},
         plant={"seed": int(ctx.rng("plant-seed").integers(0, 2**31 - 1))},
         dsp={"batch_size": THESIS_BATCH_SIZE, "fft_width": FFT_WIDTH, "alpha": ALPHA, "smoothing": {"window": SMOOTH_WINDOW, "order": SMOOTH_ORDER}},
         label="PI only, inspection loop, 5 in/s",
     )
-    res = run_rig(ctx, spec, in_process=quick)
-    rec = res.record
+    with HilRig.from_spec(in_context(ctx, spec, quick)) as rig:
+        res = rig.run()
+    if res.error:
+        raise RigRunError(f"run {res.name!r} ({res.layout}) ended with a fault: {res.error}")
+    rec = res.controller_record()
     n_ticks = len(rec)
     channels = np.vstack([rec["u1_v"], rec["u2_v"], rec["defl1_in"], rec["defl2_in"]]).astype(float)
     ends = batch_ends(rec["irq_applied"], THESIS_BATCH_SIZE, n_ticks)
@@ -376,7 +382,7 @@ def _named_tfs(spectra: np.ndarray) -> dict[str, np.ndarray]:
 def _algorithm_check(
     impl: list[dict[str, Any]],
     times: np.ndarray,
-    res: RigResult,
+    res: RunRecord,
     channels: np.ndarray,
     spectra_at: dict[int, np.ndarray],
     tf: dict[str, np.ndarray],
@@ -463,7 +469,7 @@ def _results(
     impl: list[dict[str, Any]],
     channels: np.ndarray,
     true_last: tuple[np.ndarray, np.ndarray],
-    res: RigResult,
+    res: RunRecord,
     download: int,
     ends: np.ndarray,
     counters: dict[str, Any],
@@ -472,7 +478,7 @@ def _results(
     last_i: int,
     lowest_valid: float,
     invalid_below: np.ndarray,
-    rec: RunRecord,
+    rec: ControllerRecord,
     n_ticks: int,
     freqs: np.ndarray,
     tf: dict[str, np.ndarray],
@@ -494,7 +500,7 @@ def _results(
     true1, true2 = true_last
 
     rep.results = {
-        "run": res.summary(),
+        "run": res.run_facts(),
         "settings": {
             "fft_width": FFT_WIDTH,
             "alpha": ALPHA,
@@ -537,7 +543,7 @@ def _results(
 def _implementation_section(
     rep: Report,
     duration: float,
-    res: RigResult,
+    res: RunRecord,
     download: int,
     have: list[int],
     times: np.ndarray,
@@ -551,7 +557,7 @@ def _implementation_section(
     rep.heading("Run")
     rep.text(
         f"PI control alone along the inspection loop at 5 in/s for {duration:g} s simulated "
-        f"({'one process, ' if res.in_process else 'three processes, '}{res.mode}, {res.wall_time_s:.1f} s wall), "
+        f"({'three processes, ' if res.layout == 'three processes' else 'one process, '}{res.clock}, {res.wall_time_s:.1f} s wall), "
         f"DSP at N = {FFT_WIDTH}, α = {ALPHA}, l = {THESIS_BATCH_SIZE}, Savitzky–Golay {SMOOTH_WINDOW} bins order {SMOOTH_ORDER}; "
         f"transfer functions downloaded every {download} samples ({download / FS_HZ:g} s): {len(have)} of {times.size} downloads carry an estimate "
         f"(the identifier waits for a full history, {FFT_WIDTH / FS_HZ:.2f} s). "
@@ -722,7 +728,7 @@ def _thesis(
     m_match: int,
     smoother_matched: list[bool],
     frac_half_n: float,
-    res: RigResult,
+    res: RunRecord,
 ) -> None:
     """The comparison with the thesis, and the files."""
     rep.thesis(
@@ -745,11 +751,9 @@ def _thesis(
         "smoother smooths the solved transfer functions).",
         True if frac_half_n >= 0.8 and sum(smoother_matched) >= 0.5 * len(smoother_matched) else ("partly" if frac_half_n >= 0.8 else False),
     )
-    rep.attach(
-        res.record_path.with_name(res.record_path.name + ".npz"), "controller run record (inputs u1_v, u2_v and outputs defl1_in, defl2_in sent to the DSP)"
-    )
-    rep.attach(res.record_path.with_name(res.record_path.name + ".tf.npz"), "the DSP's transfer-function downloads")
-    rep.attach(res.truth_path, "plant ground truth (modal frequencies)")
+    rep.attach(res.output(".npz"), "controller run record (inputs u1_v, u2_v and outputs defl1_in, defl2_in sent to the DSP)")
+    rep.attach(res.output(".tf.npz"), "the DSP's transfer-function downloads")
+    rep.attach(res.output(".truth.npz"), "plant ground truth (modal frequencies)")
 
 
 def _spectra_figure(
