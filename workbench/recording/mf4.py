@@ -78,7 +78,7 @@ def export(rec: Recording, out: str | Path) -> ExportSummary:
     units = table.dbc_units()
     summary = ExportSummary(str(out))
     mdf: Any = MDF(version=MDF_VERSION)
-    mdf.header.start_time = dt.datetime.fromtimestamp(t0, tz=dt.timezone.utc)
+    mdf.header.start_time = dt.datetime.fromtimestamp(t0, tz=dt.UTC)
     mdf.header.comment = header_comment(rec)
     try:
         for topic, (schema, rows, log_ns) in table.topic_rows(rec.messages).items():
@@ -122,7 +122,7 @@ def append_group(mdf: Any, group: table.Group) -> None:
         samples: Any = c.values
         if c.values.ndim == 2:
             samples = np.rec.fromarrays([c.values], dtype=np.dtype([(c.name, c.values.dtype, (c.values.shape[1],))]))
-        conversion = None
+        conversion: dict[str, object] | None = None
         if c.states:
             conversion = {k: v for i, s in enumerate(c.states) for k, v in ((f"val_{i}", i), (f"text_{i}", s))}
         signals.append(
@@ -161,7 +161,7 @@ def append_can(mdf: Any, rows: list[dict[str, Any]], times: list[float]) -> int:
             name="CAN_DataFrame",
             samples=frames,
             timestamps=np.asarray(times, dtype=np.float64),
-            attachment=(dbc, "ralf.dbc", hashlib.md5(dbc).digest()),
+            attachment=(dbc, Path("ralf.dbc"), hashlib.md5(dbc).digest()),
             source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN),
         ),
         comment=f"{schemas.CAN_TOPIC}: every CAN frame (ASAM bus logging); time: simulated time (s) of the frame's SYNC period",

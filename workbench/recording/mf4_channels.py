@@ -20,7 +20,7 @@ writes the result with asammdf.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -196,8 +196,7 @@ def _expanded(prefix: str, spec: Field, rows: Sequence[dict[str, Any]]) -> list[
     if any(isinstance(v, list) for v in values):
         width = max(len(v) for v in values if isinstance(v, list))
         out = [
-            column(f"{prefix}.{spec.channel}_{i + 1}", spec.unit, [v[i] if isinstance(v, list) and i < len(v) else None for v in values])
-            for i in range(width)
+            column(f"{prefix}.{spec.channel}_{i + 1}", spec.unit, [v[i] if isinstance(v, list) and i < len(v) else None for v in values]) for i in range(width)
         ]
     else:
         out = [column(f"{prefix}.{spec.channel}", spec.unit, values, spec.states)]
@@ -309,11 +308,11 @@ def topic_rows(messages: Iterable[Any]) -> dict[str, tuple[str, list[dict[str, A
     return out
 
 
-def sim_times(rows: Sequence[dict[str, Any]], log_ns: Sequence[int], t0_s: float, fallback: Callable[[int], float] | None = None) -> list[float]:
+def sim_times(rows: Sequence[dict[str, Any]], log_ns: Sequence[int], t0_s: float) -> list[float]:
     """Each row's ``sim_time_s``; a row without one (a CAN frame before the first SYNC)
     at its log time's distance from ``t0_s``, the wall-clock time of simulated time 0."""
     out: list[float] = []
     for r, ns in zip(rows, log_ns):
         s = r.get("sim_time_s")
-        out.append(float(s) if s is not None else (fallback(ns) if fallback else ns / 1e9 - t0_s))
+        out.append(float(s) if s is not None else ns / 1e9 - t0_s)
     return out
