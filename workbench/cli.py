@@ -370,8 +370,6 @@ def refuse_unwritable_outputs(args: argparse.Namespace) -> None:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    if is_mf4(args.record):  # recorded as MCAP, then exported (workbench/recording/mf4_cli.py)
-        return record_mf4(cmd_up, args)
     try:
         validate_rig_id(args.rig_id)
     except ValueError as exc:
@@ -388,6 +386,12 @@ def cmd_up(args: argparse.Namespace) -> int:
     refuse_unwritable_outputs(args)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
+    if is_mf4(args.record):  # recorded as MCAP, then exported (workbench/recording/mf4_cli.py)
+        return record_mf4(lambda a: _up_checked(a, overrides), args)
+    return _up_checked(args, overrides)
+
+
+def _up_checked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
     lock = acquire_rig_lock(args.rig_id)

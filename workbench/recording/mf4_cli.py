@@ -53,13 +53,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def record_mf4(run: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
     """``up --record run.mf4``: the run records MCAP into a temporary file as always, which
-    is then exported to ``run.mf4`` and removed (kept beside ``run.mf4`` if the export fails)."""
+    is then exported to ``run.mf4`` and removed (kept beside ``run.mf4`` if the export fails).
+    ``run`` starts the rig; ``up`` has checked its outputs (``run.mf4`` among them) before."""
     out = str(args.record)
     problem = output_problem(out)
-    for option in ("json", "can_log"):
-        other = getattr(args, option, None)
-        if other and Path(other).absolute() == Path(out).absolute():
-            problem = f"{out} would be both the recording (--record) and --{option.replace('_', '-')}"
     if problem:
         print(f"ralf-hil up: --record {problem}", file=sys.stderr)
         return 2
@@ -79,7 +76,7 @@ def record_mf4(run: Callable[[argparse.Namespace], int], args: argparse.Namespac
             shutil.move(str(mcap), kept)
             print(f"ralf-hil up: --record {out}: MF4 export failed ({' '.join(str(exc).split())}); the MCAP recording is kept in {kept}", file=sys.stderr)
             return code or 1
-        print(summary.line(), file=sys.stderr)
+        print(f"exported to MF4: {summary.line()} (the run was recorded as MCAP into {mcap}, now removed)", file=sys.stderr)
         return code
     finally:
         args.record = out
