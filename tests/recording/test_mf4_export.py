@@ -143,12 +143,20 @@ def test_asammdf_decodes_the_bus_logging_with_the_dbc_like_cantools(exported: di
 def test_bad_input_is_one_line_and_a_non_zero_exit(exported: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     not_mcap = tmp_path / "x.mcap"
     not_mcap.write_text("hello")
+    from mcap.writer import Writer
+
+    empty = tmp_path / "empty.mcap"
+    with open(empty, "wb") as fh:
+        writer = Writer(fh)
+        writer.start(profile="", library="test")
+        writer.finish()
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
     cases = [
         (["export", "--mf4", str(tmp_path / "o.mf4"), str(not_mcap)], "not an MCAP recording"),
         (["export", "--mf4", str(tmp_path / "o.blf"), str(exported["mcap"])], "ends in .mf4"),
+        (["export", "--mf4", str(tmp_path / "o.mf4"), str(empty)], "holds no message: nothing to export"),
         (["export", "--mf4", str(tmp_path / "o.mf4"), str(tmp_path / "missing.mcap")], "no such file"),
         (["up", "--clock", "cosim", "--record", str(tmp_path / "o.mf4"), "--json", str(tmp_path / "o.mf4")], "would be written by both"),
     ]

@@ -144,17 +144,20 @@ def append_can(mdf: Any, rows: list[dict[str, Any]], times: list[float]) -> int:
     """The CAN frames as one ASAM bus logging group ``CAN_DataFrame`` (python-can's layout;
     Dir: Tx for controller -> plant, Rx otherwise, as ``replay --export-can`` marks them)."""
     frames = np.zeros(len(rows), dtype=can.io.mf4.STD_DTYPE)
+    lengths = np.array([len(r["data"]) for r in rows], dtype=np.int64)
+    if lengths.size and lengths.max() > 8:
+        i = int(np.argmax(lengths))
+        raise ValueError(f"CAN frame {i}: {lengths[i]} data bytes (classic CAN holds 8)")
+    payload = np.zeros((len(rows), 8), dtype=np.uint8)
     for i, r in enumerate(rows):
-        data = bytes(r["data"])
-        if len(data) > 8:
-            raise ValueError(f"CAN frame {i}: {len(data)} data bytes (classic CAN holds 8)")
-        frames[i]["CAN_DataFrame.BusChannel"] = CAN_BUS_CHANNEL
-        frames[i]["CAN_DataFrame.ID"] = int(r["arbitration_id"])
-        frames[i]["CAN_DataFrame.IDE"] = int(bool(r["is_extended_id"]))
-        frames[i]["CAN_DataFrame.DLC"] = int(r.get("dlc", len(data)))
-        frames[i]["CAN_DataFrame.DataLength"] = len(data)
-        frames[i]["CAN_DataFrame.DataBytes"][: len(data)] = np.frombuffer(data, dtype=np.uint8)
-        frames[i]["CAN_DataFrame.Dir"] = 1 if r.get("direction") == schemas.TO_PLANT else 0
+        payload[i, : lengths[i]] = r["data"]
+    frames["CAN_DataFrame.BusChannel"] = CAN_BUS_CHANNEL
+    frames["CAN_DataFrame.ID"] = [int(r["arbitration_id"]) for r in rows]
+    frames["CAN_DataFrame.IDE"] = [bool(r["is_extended_id"]) for r in rows]
+    frames["CAN_DataFrame.DLC"] = [int(r.get("dlc", n)) for r, n in zip(rows, lengths)]
+    frames["CAN_DataFrame.DataLength"] = lengths
+    frames["CAN_DataFrame.DataBytes"][:, :8] = payload
+    frames["CAN_DataFrame.Dir"] = [r.get("direction") == schemas.TO_PLANT for r in rows]
     dbc = files("protocol").joinpath("ralf.dbc").read_bytes()
     mdf.append(
         Signal(
@@ -172,6 +175,8 @@ def append_can(mdf: Any, rows: list[dict[str, Any]], times: list[float]) -> int:
 def export_file(recording: str | Path, out: str | Path) -> ExportSummary:
     """Read ``recording`` (MCAP) and write ``out`` (MF4)."""
     rec = Recording.load(recording)
+    if not rec.messages:
+        raise ValueError(f"{rec.cut or 'the recording holds no message'}: nothing to export")
     summary = export(rec, out)
     if rec.cut:
         summary.left_out["the rest of the file"] = rec.cut

@@ -203,7 +203,7 @@ def _expanded(prefix: str, spec: Field, rows: Sequence[dict[str, Any]]) -> list[
     return [c for c in out if c is not None]
 
 
-def _keyed(prefix: str, rows: Sequence[dict[str, Any]], key: str) -> list[str]:
+def _keyed(rows: Sequence[dict[str, Any]], key: str) -> list[str]:
     """The names a dict field holds over all rows, in order of first appearance."""
     names: dict[str, None] = {}
     for r in rows:
@@ -213,9 +213,9 @@ def _keyed(prefix: str, rows: Sequence[dict[str, Any]], key: str) -> list[str]:
 
 def _health(prefix: str, rows: Sequence[dict[str, Any]]) -> list[Column]:
     cols: list[Column | None] = []
-    for name in _keyed(prefix, rows, "counters"):
+    for name in _keyed(rows, "counters"):
         cols.append(column(f"{prefix}.counter.{name}", "", [(r.get("counters") or {}).get(name) for r in rows]))
-    for name in _keyed(prefix, rows, "latencies"):
+    for name in _keyed(rows, "latencies"):
         stats = [(r.get("latencies") or {}).get(name) or {} for r in rows]
         cols += [column(f"{prefix}.latency.{name}.{s.channel}", s.unit, [x.get(s.key) for x in stats]) for s in LATENCY_FIELDS]
     return [c for c in cols if c is not None]
@@ -287,7 +287,7 @@ def tf_groups(prefix: str, topic: str, rows: Sequence[dict[str, Any]], times: np
         g = Group(f"{prefix}.bins_{n}", topic, times[idx], note=f"transfer-function downloads of {n} bins: one row of {n} values per download")
         for key, unit in TF_ARRAYS:
             g.columns.append(Column(f"{g.name}.{key}", unit, np.array([rows[i][key] for i in idx], dtype=np.float64).reshape(len(idx), n)))
-        names = _keyed(prefix, [rows[i] for i in idx], "estimates")
+        names = _keyed([rows[i] for i in idx], "estimates")
         for name in names:
             for key, unit in (("magnitude", ""), ("phase_rad", "rad")):
                 est = [rows[i]["estimates"].get(name) for i in idx]
