@@ -175,6 +175,18 @@ def test_bad_input_is_one_line_and_a_non_zero_exit(exported: dict[str, Any], tmp
         assert not (tmp_path / "o.mf4").exists()
 
 
+def test_every_schema_a_recording_may_hold_has_its_place() -> None:
+    """Each topic the recorder writes (the rig description's, the DBC's) has channels in the
+    table or a stated reason to stay out; a schema the table does not know is left out, said so."""
+    from workbench.recording import schemas
+
+    titles = {schema["title"] for _topic, schema in schemas.rig_topics("r")}
+    unplaced = {t for t in titles if mf4_channels.left_out_because(t).startswith("no MF4 channels")}
+    assert unplaced == set() and len(titles) > 15
+    assert mf4_channels.left_out_because("ralf.Unknown") == "no MF4 channels defined for schema ralf.Unknown"
+    assert mf4_channels.message_groups("/ralf/r/x", "ralf.Unknown", [{"seq": 1}], [0.0], {}) == []
+
+
 def test_column_rules() -> None:
     c = mf4_channels.column("x", "", [1, None, 3])
     assert c is not None and c.values.dtype == np.int64 and c.invalid is not None and c.invalid.tolist() == [False, True, False]

@@ -89,7 +89,7 @@ def export(rec: Recording, out: str | Path) -> ExportSummary:
                 continue
             groups = table.message_groups(topic, schema, rows, times, units)
             if not groups:
-                summary.left_out[topic] = table.LEFT_OUT.get(schema, "no numbers")
+                summary.left_out[topic] = table.left_out_because(schema) or "no numbers"
             for group in groups:
                 if not group.columns:
                     summary.left_out[f"{topic} ({group.name})"] = "no numbers"

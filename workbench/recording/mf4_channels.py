@@ -110,6 +110,14 @@ FIELDS: Final[dict[str, tuple[Field, ...]]] = {
     "ralf.Health": (SEQ, _f("state", states=SERVICE_STATES)),
     "ralf.SampleBatch": (SEQ, _f("first_tick"), _f("n_samples"), _f("dropped_before"), _f("sample_rate_hz", "Hz", channel="sample_rate")),
     "ralf.TfSnapshot": (SEQ, _f("batch_seq")),
+    "ralf.ScenarioCommand": (
+        SEQ,
+        _f("kind", states=("payload", "seed", "adc_bits")),
+        _f("at_sim_time_s", "s", channel="at_sim_time"),
+        _f("payload_attached"),
+        _f("seed"),
+        _f("adc_bits", "bit"),
+    ),
 }
 """Schema name -> its fields (the message's own numbers; ``sim_time_s`` is the time axis)."""
 
@@ -235,10 +243,19 @@ def dbc_units() -> dict[str, dict[str, str]]:
     return {m.name: {s.name: s.unit or "" for s in m.signals} for m in schemas.load_dbc().messages}
 
 
-def message_groups(topic: str, schema: str, rows: Sequence[dict[str, Any]], times: Sequence[float], units: dict[str, dict[str, str]]) -> list[Group]:
-    """The channel group(s) of one topic's messages (empty for a schema :data:`LEFT_OUT`).
-    Raises ``ValueError`` for a schema this table does not know."""
+def left_out_because(schema: str) -> str:
+    """Why a schema's messages give no channel group ("" when they give one)."""
     if schema in LEFT_OUT:
+        return LEFT_OUT[schema] or "written another way"
+    if schema in FIELDS or schema.startswith("ralf.dbc."):
+        return ""
+    return f"no MF4 channels defined for schema {schema or 'none'}"
+
+
+def message_groups(topic: str, schema: str, rows: Sequence[dict[str, Any]], times: Sequence[float], units: dict[str, dict[str, str]]) -> list[Group]:
+    """The channel group(s) of one topic's messages (empty for a schema :data:`LEFT_OUT`
+    or one this table does not know: :func:`left_out_because` says why)."""
+    if left_out_because(schema):
         return []
     prefix = group_name(topic)
     t = np.asarray(times, dtype=np.float64)
@@ -247,8 +264,6 @@ def message_groups(topic: str, schema: str, rows: Sequence[dict[str, Any]], time
         signals = [k for k in (rows[0] if rows else {}) if k not in DECODED_CAN_TIME_KEYS]
         cols = [column(f"{prefix}.{s}", units.get(message, {}).get(s, ""), [r.get(s) for r in rows]) for s in signals]
         return [Group(prefix, topic, t, [c for c in cols if c is not None], note=f"signals of DBC message {message}, decoded with protocol/ralf.dbc")]
-    if schema not in FIELDS:
-        raise ValueError(f"{topic}: no MF4 channels defined for schema {schema!r}")
     group = Group(prefix, topic, t, [c for spec in FIELDS[schema] for c in _expanded(prefix, spec, rows)])
     if schema == "ralf.Health":
         group.columns += _health(prefix, rows)
