@@ -39,6 +39,7 @@ from workbench.log_counts import count_log_files
 from workbench.plant_figures import cli as plant_cli
 from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
+from workbench.recording.mf4_cli import is_mf4, record_mf4
 from workbench.recording.tap import RigRecording
 from workbench.run_logs import RunLogs
 from workbench.timing_test.report import health_verdict, latency_class
@@ -386,6 +387,12 @@ def cmd_up(args: argparse.Namespace) -> int:
     refuse_unwritable_outputs(args)
     if args.live and args.clock == "cosim":
         raise SystemExit("ralf-hil up: --live serves a running rig (--clock realtime or lockstep); record a co-simulation with --record and open the file")
+    if is_mf4(args.record):  # recorded as MCAP, then exported (workbench/recording/mf4_cli.py)
+        return record_mf4(lambda a: _up_checked(a, overrides), args)
+    return _up_checked(args, overrides)
+
+
+def _up_checked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -> int:
     if args.clock == "cosim":
         return _up_cosim(args, overrides)
     lock = acquire_rig_lock(args.rig_id)
@@ -896,7 +903,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--record",
         default=None,
         metavar="RUN.mcap",
-        help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file",
+        help="record the run (CAN frames, zenoh messages, truth, DSP answers, TF downloads, metadata) into this MCAP file (.mf4: an ASAM MDF 4.1 file)",
     )
     up.add_argument(
         "--can-log", default=None, metavar="BUS.blf", help="with --record: also write the CAN side in python-can's format for this suffix (.blf, .asc, .log)"
@@ -954,7 +961,7 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 def input_problem(command: str, args: argparse.Namespace) -> str | None:
     """What is wrong with a command's input file before it starts: missing,
     not a readable file, or (a recording) not an MCAP file at all."""
-    if command not in ("plot", "replay"):
+    if command not in ("plot", "replay", "export"):
         return None
     path = Path(args.path)
     if not path.exists():

@@ -1,4 +1,4 @@
-"""``ralf-hil record``, ``ralf-hil replay`` and ``ralf-hil plot``."""
+"""``ralf-hil record``, ``replay``, ``plot``, ``doctor`` and ``export`` (MF4: :mod:`workbench.recording.mf4_cli`)."""
 
 from __future__ import annotations
 
@@ -184,7 +184,9 @@ def cmd_doctor(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: Any) -> None:
-    """Add ``record``, ``replay``, ``plot`` and ``doctor`` to ``ralf-hil``."""
+    """Add ``record``, ``replay``, ``plot``, ``doctor`` and ``export`` to ``ralf-hil``."""
+    from workbench.recording import mf4_cli
+
     p = subparsers.add_parser(
         "record",
         help="record a rig whose services run on their own into an MCAP file",
@@ -235,3 +237,5 @@ def register(subparsers: Any) -> None:
     p.add_argument("paths", nargs="+", metavar="RUN.mcap")
     p.add_argument("--max-problems", type=int, default=20, help="problems printed per file (default 20)")
     p.set_defaults(func=cmd_doctor)
+
+    mf4_cli.register(subparsers)
