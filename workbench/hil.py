@@ -62,6 +62,7 @@ from workbench.fiu import FaultInsertion
 from workbench.log_counts import counting_warnings
 from workbench.rig_record import Clock, Layout, RunRecord, truth_columns_of, truth_of
 from workbench.rig_spec import RigSpec
+from workbench.stimulus import Stimulus
 from workbench.verdict import judge
 
 __all__ = ["CLOCKS", "Clock", "HilRig", "NoCanBusError", "RigRunError", "RigSettingError", "RigSpec", "RunRecord", "check_settings"]
@@ -236,6 +237,10 @@ class HilRig:
     """The rig's id, its ``ralf/<rig-id>`` key space (default: a fresh ``hil-<hex>``)."""
     duration_s: float | None = None
     """Simulated seconds of a :meth:`run` given none (else the controller's ``duration_s`` or ``repeats`` laps)."""
+    stimulus: Stimulus = field(default_factory=Stimulus)
+    """Stimulus profiles on the rig's inputs (:mod:`workbench.stimulus`, docs/stimulus.md), added to before the
+    run (``rig.stimulus.step("valve.u1", 2.0, at_s=1.0, for_s=0.5)``): the controller's go into its ``stimulus``
+    setting, the plant's into its scenario's ``stimulus`` section, both checked when the run starts."""
 
     @classmethod
     def from_spec(cls, spec: RigSpec, *, on_progress: Callable[[float], None] | None = None) -> HilRig:
@@ -244,7 +249,7 @@ class HilRig:
             clock=spec.clock, processes=spec.processes, name=spec.name, label=spec.label,
             controller=dict(spec.controller), plant_settings=dict(spec.plant), dsp_settings=dict(spec.dsp), common=dict(spec.common),
             faults=spec.faults, outputs=spec.outputs, mcap=spec.mcap, meta=dict(spec.meta), on_progress=on_progress, timeout_s=spec.timeout_s,
-            duration_s=spec.duration_s,
+            duration_s=spec.duration_s, stimulus=Stimulus([dict(p) for p in spec.stimulus]),
         )  # fmt: skip
         return rig
 
@@ -306,6 +311,10 @@ class HilRig:
     # -- running -----------------------------------------------------------------------------
     def _controller_settings(self, duration_s: float | None) -> dict[str, Any]:
         own = dict(self.controller) if duration_s is None else {**self.controller, "duration_s": duration_s}
+        profiles = self.stimulus.side("controller")
+        if profiles:  # after the controller's own stimulus setting, if it has one
+            given = own.get("stimulus") or []
+            own["stimulus"] = json.dumps([*(json.loads(given) if isinstance(given, str) else given), *profiles])
         if self.faults is not None:
             own["fault_scenario"] = self.faults if isinstance(self.faults, str) else json.dumps(dict(self.faults))
         return own
@@ -316,9 +325,17 @@ class HilRig:
             return self.dsp_settings
         return {**self.dsp_settings, "fault_scenario": self.faults if isinstance(self.faults, str) else json.dumps(dict(self.faults))}
 
+    def _plant_with_stimulus(self) -> dict[str, Any]:
+        """The plant's settings with the channel faults (:attr:`fiu`) and the plant's stimulus profiles in its ``scenario``."""
+        plant = self.fiu.merge(self.plant_settings)
+        if self.stimulus.side("plant"):
+            only_plant = Stimulus(self.stimulus.side("plant"))
+            plant["scenario"] = json.dumps(only_plant.settings(scenario=plant.get("scenario"))["plant"]["scenario"])
+        return plant
+
     def _plant_with_pending(self) -> dict[str, Any]:
         """The plant's settings with the scenario commands and channel faults (:attr:`fiu`) given before the run in its ``scenario``."""
-        plant = self.fiu.merge(self.plant_settings)
+        plant = self._plant_with_stimulus()
         if self.plant.pending:
             own = json.loads(plant.get("scenario") or "[]")
             extra = [c.model_dump(mode="json", exclude_none=True, exclude={"seq", "sim_time_s", "wall_time_s"}) for c in self.plant.pending]
@@ -365,6 +382,10 @@ class HilRig:
             expected = self.expected_sim_s(duration_s)
         except ValueError as exc:
             raise RigSettingError(str(exc)) from None
+        try:
+            self.stimulus.plans()
+        except ConfigError as exc:
+            raise RigSettingError(" ".join(str(exc).split())) from None
         if self.layout == "one process":
             self._open_test_port()
         self._thread = threading.Thread(target=self._run_guarded, args=(duration_s, expected), name="hil-rig", daemon=True)
@@ -504,7 +525,7 @@ class HilRig:
         files = self._files()
         controller = self._controller_settings(duration_s)
         common = {**self.common, "rig_id": self.rig_id, "clock": self.clock, "can_interface": "virtual", "can_channel": self.can_channel}
-        plant = self.fiu.merge(self.plant_settings)  # the commands given before the run go on the test port, as a tester's would
+        plant = self._plant_with_stimulus()  # the commands given before the run go on the test port, as a tester's would
         if files is not None:
             controller["run_record"] = str(files[0])  # the record streams to disk (controller.record.ChunkedRecord)
             plant["truth_record"] = str(files[1])

@@ -45,6 +45,8 @@ class RigSpec:
     """Extra facts for the recording's run record (e.g. ``{"experiment": ...}``)."""
     timeout_s: float | None = None
     """Three processes: the wall-clock allowance (default from the expected simulated time)."""
+    stimulus: tuple[Mapping[str, Any], ...] = ()
+    """Stimulus profiles on the rig's inputs (:mod:`workbench.stimulus`: ``tuple(Stimulus().step(...).profiles)``)."""
 
     def expected_sim_s(self) -> float:
         """Simulated seconds the run lasts (``duration_s``, the controller's, or its repeats laps)."""
