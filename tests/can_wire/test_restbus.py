@@ -1,4 +1,4 @@
-"""The restbus (service_kit/can_wire/restbus.py) against references it did
+"""The restbus (service_kit/can_wire/restbus/) against references it did
 not write: the AUTOSAR CRC library's test vectors through crccheck, cantools
 decoding what was sent, the bus-load module measuring the simulated bus,
 Davis et al.'s analysis (checked against the paper's example in
@@ -6,6 +6,7 @@ test_arbitration.py), and the arbitration model's own delivery times."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,7 +18,9 @@ from crccheck.crc import Crc8Autosar, Crc8SaeJ1850
 
 from protocol import can_map
 from service_kit.can_wire.bus_load import bus_load, intervals_from_run
-from service_kit.can_wire.restbus import (
+from service_kit.can_wire.restbus.cli import analysis, main
+from service_kit.can_wire.restbus.sender import RestbusSender
+from service_kit.can_wire.restbus.traffic import (
     NS_PER_MS,
     RestbusError,
     check,
@@ -32,8 +35,6 @@ from service_kit.can_wire.restbus import (
     simulate_restbus,
     spread_drift,
 )
-from service_kit.can_wire.restbus_cli import analysis, main
-from service_kit.can_wire.restbus_sender import RestbusSender
 from service_kit.can_wire.wire_bus import ManualWireClock, WireBus
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -91,6 +92,9 @@ def test_checksum_runs_over_data_id_low_high_then_the_other_bytes() -> None:
 def test_example_messages_and_load(example: object) -> None:
     rb = example
     assert rb.not_sent == ("Crash_Event", "OBD_Request")
+    # what docs/can-wire.md says of it
+    assert (len(rb.messages), len({m.node for m in rb.messages})) == (19, 9)
+    assert (sum(m.counter is not None for m in rb.messages), sum(m.checksum is not None for m in rb.messages)) == (6, 4)
     ids = [m.frame_id for m in rb.messages]
     assert min(ids) < can_map.SYNC_COB_ID and max(ids) > can_map.HEARTBEAT_BASE + can_map.DEFAULT_NODE_ID
     load_alone = offered_load(rb, BITRATE)
@@ -309,3 +313,14 @@ def test_cli_sends_on_a_virtual_bus_for_a_bounded_time() -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("restbus: ") and "frames sent" in proc.stdout
+
+
+def test_cli_sends_on_the_rig_bus_from_its_settings() -> None:
+    env = {**os.environ, "RALF_CAN_INTERFACE": "virtual", "RALF_CAN_CHANNEL": "restbus-rig"}
+    cmd = [sys.executable, "-m", "service_kit.can_wire.restbus", str(EXAMPLE), "--bitrate", "1000000", "--send", "--rig-bus", "--seconds", "0.02"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "frames sent" in proc.stdout
+    env["RALF_CAN_INTERFACE"] = "no_such_interface"
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "cannot open the rig's bus" in proc.stderr

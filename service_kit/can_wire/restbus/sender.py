@@ -1,6 +1,6 @@
 """The restbus on a python-can bus (``virtual``, ``udp_multicast``,
 ``ralfwire``, or hardware): a sender that sends each instance of
-:func:`service_kit.can_wire.restbus.schedule` when it is due.
+:func:`service_kit.can_wire.restbus.traffic.schedule` when it is due.
 
 The clock is injected: ``clock_ns()`` gives the time and ``wait_until(t_ns)``
 waits for it (False: stop). By default they are ``time.monotonic_ns`` and
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import can
 
-from service_kit.can_wire.restbus import Restbus, schedule
+from service_kit.can_wire.restbus.traffic import Restbus, schedule
 
 
 @dataclass(frozen=True)

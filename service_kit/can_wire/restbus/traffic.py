@@ -28,7 +28,7 @@ priority-ordered transmit buffers. Signals start at ``GenSigStartValue``
 Payloads are encoded by cantools. :func:`schedule` lists the instances in
 time order; two back-ends send them: :func:`simulate_restbus` (the
 arbitration model, simulated time, deterministic) and
-:class:`service_kit.can_wire.restbus_sender.RestbusSender` (a python-can
+:class:`service_kit.can_wire.restbus.sender.RestbusSender` (a python-can
 bus, real time or an injected clock).
 
 :func:`check` lists what forbids a start: an unsupported bit rate, a load
@@ -407,15 +407,3 @@ def simulate_restbus(
 
 def nodes_of(restbus: Restbus, rig: Sequence[RigMessage] = ()) -> list[str]:
     return sorted({m.node for m in restbus.messages} | {r.node for r in rig})
-
-
-def main(argv: list[str] | None = None) -> int:
-    from service_kit.can_wire.restbus_cli import main as cli_main
-
-    return cli_main(argv)
-
-
-if __name__ == "__main__":
-    import sys
-
-    sys.exit(main())

@@ -1,7 +1,7 @@
 """``python -m service_kit.can_wire.restbus DBC --bitrate 1000000``: checks a
 restbus DBC against the rig and reports its load and response times.
 
-- no option: the checks (:func:`service_kit.can_wire.restbus.check`) and
+- no option: the checks (:func:`service_kit.can_wire.restbus.traffic.check`) and
   one line of load; exit 2 with one line per problem;
 - ``--report``: the Markdown table of :func:`render` (load, per message the
   worst response time simulated on the arbitration model beside the rig's
@@ -9,8 +9,9 @@ restbus DBC against the rig and reports its load and response times.
 - ``--write FILE`` / ``--check FILE``: write that table, or exit 1 when FILE
   differs from it (``docs/results/restbus-example.md`` for the example);
 - ``--send``: after the checks, sends the restbus on a python-can bus
-  (``--interface``, ``--channel``) in real time for ``--seconds`` (or until
-  Ctrl-C), and prints the frames sent.
+  (``--interface``, ``--channel``; or ``--rig-bus``: the rig's bus as its
+  services open it from the ``RALF_CAN_*`` settings) in real time for
+  ``--seconds`` (or until Ctrl-C), and prints the frames sent.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pathlib import Path
 
 from service_kit.can_wire.bits import frame_bits
 from service_kit.can_wire.response_time import Message, response_times
-from service_kit.can_wire.restbus import (
+from service_kit.can_wire.restbus.traffic import (
     NS_PER_MS,
     Restbus,
     RestbusError,
@@ -124,12 +125,20 @@ def render(restbus: Restbus, bitrate: int, *, duration_ms: int = DEFAULT_DURATIO
 def _send(restbus: Restbus, args: argparse.Namespace) -> int:
     import can
 
-    from service_kit.can_wire.restbus_sender import RestbusSender
+    from service_kit.can_wire.restbus.sender import RestbusSender
 
     try:
-        bus = can.Bus(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
-    except (can.CanError, ValueError, ImportError, OSError) as exc:
-        print(f"restbus: cannot open {args.interface} bus {args.channel!r}: {exc}", file=sys.stderr)
+        if args.rig_bus:
+            from protocol.settings import CommonSettings
+            from service_kit.transport import open_can_bus
+
+            bus = open_can_bus(CommonSettings())
+        else:
+            bus = can.Bus(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
+    except Exception as exc:  # python-can raises several types by interface; settings raise pydantic's
+        detail = " ".join(str(exc).split()) or type(exc).__name__
+        where = "the rig's bus (RALF_CAN_* settings)" if args.rig_bus else f"{args.interface} bus {args.channel!r}"
+        print(f"restbus: cannot open {where}: {detail[:300]}", file=sys.stderr)
         return 2
     until = int(args.seconds * 1e9) if args.seconds is not None else None
     sender = RestbusSender(bus, restbus, until_ns=until)
@@ -158,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--send", action="store_true", help="send the restbus on a python-can bus in real time")
     parser.add_argument("--interface", default="virtual", help="python-can interface for --send (default %(default)s)")
     parser.add_argument("--channel", default="restbus", help="python-can channel for --send (default %(default)s)")
+    parser.add_argument("--rig-bus", action="store_true", help="--send on the rig's bus as its services open it (RALF_CAN_INTERFACE, _CHANNEL, _PORT)")
     parser.add_argument("--seconds", type=float, default=None, help="--send for this long (default: until Ctrl-C)")
     args = parser.parse_args(argv)
     if args.duration_ms <= 0 or args.drift_ppm < 0:
