@@ -60,6 +60,8 @@ BU_: Ecu
 """
 DEFS = """BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;
 BA_DEF_ SG_ "RestbusRole" STRING ;
+BA_DEF_ SG_ "GenSigStartValue" INT 0 100000;
+BA_DEF_DEF_ "GenSigStartValue" 0;
 BA_DEF_DEF_ "GenMsgCycleTime" 0;
 BA_DEF_DEF_ "RestbusRole" "";
 """
@@ -149,6 +151,8 @@ def test_checks_refuse_bit_rate_load_and_rig_identifiers(example: object) -> Non
         ('SG_ K : 4|8@1+ (1,0) [0|255] "" Vector__XXX', 'BA_ "RestbusRole" SG_ 16 K "crc8_sae_j1850";', "exactly one byte"),
         ('SG_ K : 0|4@1+ (1,0) [0|15] "" Vector__XXX', 'BA_ "RestbusRole" SG_ 16 K "crc8_h2f";', "unsigned 8-bit"),
         ('SG_ K : 0|8@1+ (1,0) [0|255] "" Vector__XXX', 'BA_ "RestbusRole" SG_ 16 K "md5";', "is none of"),
+        ('SG_ A : 0|4@1+ (1,0) [0|15] "" Vector__XXX', 'BA_ "GenSigStartValue" SG_ 16 A 300;', "start value 300 is no raw value of 4 unsigned bits"),
+        ('SG_ C : 0|4@1+ (1,0) [0|14] "" Vector__XXX', 'BA_ "RestbusRole" SG_ 16 C "counter";\nBA_ "GenSigStartValue" SG_ 16 C 15;', "outside 0..14"),
     ],
 )
 def test_bad_conventions_are_one_line(signals: str, attrs: str, message: str) -> None:
@@ -264,8 +268,9 @@ def test_real_time_sender_is_bounded_and_stops(example: object) -> None:
         assert bounded.run() == 25
         endless = RestbusSender(bus, example)
         endless.start()
+        assert endless.running
         endless.stop(timeout=10.0)
-        assert endless._thread is not None and not endless._thread.is_alive()
+        assert not endless.running
         assert endless.send_errors == 0
 
 

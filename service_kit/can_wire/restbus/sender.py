@@ -102,6 +102,11 @@ class RestbusSender:
         self._thread = threading.Thread(target=self.run, name="restbus-sender", daemon=True)
         self._thread.start()
 
+    @property
+    def running(self) -> bool:
+        """The thread of :meth:`start` is still sending."""
+        return self._thread is not None and self._thread.is_alive()
+
     def stop(self, timeout: float | None = 5.0) -> None:
         self._stop.set()
         if self._thread is not None:

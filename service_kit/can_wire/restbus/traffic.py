@@ -165,11 +165,16 @@ def _checksum_byte(message: Any, signal: Any, raw: dict[str, float]) -> int:
     return changed[0]
 
 
+def _raw_limits(signal: Any) -> tuple[int, int]:
+    if signal.is_signed:
+        return -(1 << (signal.length - 1)), (1 << (signal.length - 1)) - 1
+    return 0, (1 << signal.length) - 1
+
+
 def _counter_range(message: Any, signal: Any) -> tuple[int, int]:
     if signal.scale != 1 or signal.offset != 0:
         raise RestbusError(f"counter {message.name}.{signal.name} must have factor 1, offset 0")
-    raw_lo = -(1 << (signal.length - 1)) if signal.is_signed else 0
-    raw_hi = (1 << (signal.length - 1)) - 1 if signal.is_signed else (1 << signal.length) - 1
+    raw_lo, raw_hi = _raw_limits(signal)
     lo = raw_lo if signal.minimum is None else max(raw_lo, math.ceil(signal.minimum))
     hi = raw_hi if signal.maximum is None else min(raw_hi, math.floor(signal.maximum))
     if hi <= lo:
@@ -212,7 +217,14 @@ def _cyclic(message: Any) -> CyclicMessage | None:
         lo, hi = counter_range
         if not lo <= raw[counter] <= hi:
             raise RestbusError(f"counter {message.name}.{counter} starts at {raw[counter]:g}, outside {lo}..{hi}")
-    return CyclicMessage(
+    for s in message.signals:
+        if s.is_float:
+            continue
+        lo, hi = _raw_limits(s)
+        if not lo <= raw[s.name] <= hi or raw[s.name] != int(raw[s.name]):
+            kind = "signed" if s.is_signed else "unsigned"
+            raise RestbusError(f"signal {message.name}.{s.name}: start value {raw[s.name]:g} is no raw value of {s.length} {kind} bits")
+    cyclic = CyclicMessage(
         name=message.name,
         frame_id=int(message.frame_id),
         extended=bool(message.is_extended_frame),
@@ -228,6 +240,11 @@ def _cyclic(message: Any) -> CyclicMessage | None:
         data_id=int(data_id) if data_id is not None else int(message.frame_id),
         message=message,
     )
+    try:
+        cyclic.payload(0)
+    except Exception as exc:  # cantools' encoders raise several types
+        raise RestbusError(f"message {message.name} cannot be encoded from its start values: {exc}") from exc
+    return cyclic
 
 
 def from_database(db: Any, source: str = "") -> Restbus:
