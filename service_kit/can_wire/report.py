@@ -47,7 +47,7 @@ def load_dbc() -> Any:
     return cantools.database.load_string(files("protocol").joinpath("ralf.dbc").read_text(), database_format="dbc")
 
 
-def _at_rest(signal: Any) -> float:
+def at_rest_value(signal: Any) -> float:
     lo, hi = signal.minimum, signal.maximum
     if lo is not None and lo > 0:
         return float(lo)
@@ -62,7 +62,7 @@ def rig_frames() -> tuple[RigFrame, ...]:
     db = load_dbc()
     out: list[RigFrame] = []
     for message in db.messages:
-        values = {s.name: _at_rest(s) for s in message.signals}
+        values = {s.name: at_rest_value(s) for s in message.signals}
         data = bytes(db.encode_message(message.frame_id, values))
         ext = bool(message.is_extended_frame)
         at_rest = frame_bits(message.frame_id, data, extended=ext)

@@ -1,5 +1,5 @@
 """The bus model against Davis et al.'s response-time analysis
-(tests/can_wire/rta_reference.py, from the paper's equations) and the
+(service_kit/can_wire/response_time.py, from the paper's equations) and the
 arbitration rules of ISO 11898-1."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from service_kit.can_wire.arbitration import QueuedFrame, simulate
 from service_kit.can_wire.bits import frame_bits
+from service_kit.can_wire.response_time import Message, response_times
 from service_kit.can_wire.timing import bit_time_ns
-from tests.can_wire.rta_reference import Message, response_times
 
 PAYLOAD = bytes([0xA5] * 8)  # 112 bits for ids 0x101..0x103
 

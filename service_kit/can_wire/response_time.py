@@ -1,8 +1,16 @@
 """Worst-case response times of CAN messages, written from Davis, Burns,
 Bril and Lukkien (2007), "Controller Area Network (CAN) schedulability
 analysis: refuted, revisited and revised", Real-Time Systems 35:239-272,
-section 4 (the revised analysis), as a test reference for the bus model.
+section 4 (the revised analysis): the bound the arbitration model
+(:mod:`service_kit.can_wire.arbitration`) is tested against, and the
+"analysis" column of the restbus report (:mod:`service_kit.can_wire.restbus`).
 Integer nanoseconds throughout; jitter J defaults to 0.
+
+- ``B_m``: the longest lower-priority ``C_k`` (0 for the lowest);
+- busy period ``t_m = B_m + sum_{k in hep(m)} ceil((t_m + J_k) / T_k) C_k``,
+  ``Q_m = ceil((t_m + J_m) / T_m)`` instances in it;
+- for ``q < Q_m``: ``w_m(q) = B_m + q C_m + sum_{k in hp(m)} ceil((w_m(q) + J_k + tau_bit) / T_k) C_k``,
+  ``R_m(q) = J_m + w_m(q) - q T_m + C_m``; ``R_m = max_q R_m(q)``.
 """
 
 from __future__ import annotations
