@@ -19,12 +19,15 @@ import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from controller.record import to_jsonable
+
+if TYPE_CHECKING:
+    from workbench.checks.result import CheckResult
 
 __all__ = ["Check", "KnownLimit", "Report", "fmt", "new_figure"]
 
@@ -201,6 +204,14 @@ class Report:
         """Record a physics/consistency check; returns ``passed``."""
         self.checks.append(Check(name, bool(passed), detail))
         return bool(passed)
+
+    def signal_check(self, result: CheckResult, name: str = "", *, figure: str = "") -> bool:
+        """Record a signal check (:mod:`workbench.checks`) as one of this report's checks: its
+        one-line measurement against its limit is the detail (an INVALID check, which compared
+        nothing, fails); with ``figure`` (a file name) its figure joins the report."""
+        if figure:
+            self.figure(result.figure(), figure, caption=result.line())
+        return self.check(name or result.name, result.passed, result.explain())
 
     def check_every(self, name: str, outcomes: Iterable[bool], detail: str = "", *, at_least: int = 1, also: bool = True) -> bool:
         """A check that holds for every item of a set judged over at least ``at_least`` items (and
