@@ -40,6 +40,7 @@ from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compili
 from workbench.recording import cli as recording_cli
 from workbench.recording.tap import RigRecording
 from workbench.run_logs import RunLogs
+from workbench.search import cli as search_cli
 from workbench.timing_test.report import health_verdict, latency_class
 from workbench.verdict import judge
 
@@ -942,6 +943,7 @@ def build_parser() -> argparse.ArgumentParser:
     timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
     memory_slope.register(sub)
     live_cli.register(sub)  # ralf-hil live (workbench/live)
+    search_cli.register(sub)  # ralf-hil search (workbench/search)
     return parser
 
 
