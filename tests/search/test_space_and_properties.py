@@ -23,7 +23,9 @@ SPACE = space_from(
         ],
         "max_link_faults": 3,
         "stalls": [{"at_s": [0.5, 1.0, 0.1], "wall_s": [0.0, 0.1, 0.01]}],
-        "channel_faults": [{"channels": ["AI3", "AI4"], "kind": "offset", "start_s": [0.5, 2.0, 0.1], "length_s": [0.1, 1.0, 0.1], "params": {"offset_v": 0.5}}],
+        "channel_faults": [
+            {"channels": ["AI3", "AI4"], "kind": "offset", "start_s": [0.5, 2.0, 0.1], "length_s": [0.1, 1.0, 0.1], "params": {"offset_v": 0.5}}
+        ],
         "fault_seed": [0, 5],
         "settings": {"controller.batch_size": [10, 40, 10], "dsp.fft_width": {"choices": [256, 512]}, "controller.timeouts.stale_after_s": [0.5, 2.0, 0.5]},
         "fixed": {"controller": {"tf_download_samples": 0, "timeouts": {"plant_heartbeat_s": 0.5}}},

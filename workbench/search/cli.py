@@ -113,15 +113,16 @@ def cmd_search(args: argparse.Namespace) -> int:
     out = Path(args.out)
     db = Path(args.db) if args.db else out / "examples"
     clock: SearchClock = args.clock
-    state = {"runs": 0, "violations": 0, "last": ""}
+    counts = {"runs": 0, "violations": 0}
+    last = [""]
 
     def on_run(n: int, candidate: Candidate, outcome: Outcome) -> None:
-        state["runs"] = n
-        state["violations"] += int(outcome.violated)
-        state["last"] = candidate.describe()
+        counts["runs"] = n
+        counts["violations"] += int(outcome.violated)
+        last[0] = candidate.describe()
 
     def progress() -> str:
-        return f"search: {state['runs']} runs, {state['violations']} violating; last: {state['last'][:120]}"
+        return f"search: {counts['runs']} runs, {counts['violations']} violating; last: {last[0][:120]}"
 
     staging = Path(tempfile.mkdtemp(prefix="ralf-search-confirm-"))
     confirm = confirm_into(staging, properties, clock)

@@ -94,7 +94,7 @@ class Property:
 
 
 def _verdict(level: str) -> Callable[[Any], CheckResult]:
-    limit = LEVELS.index(level)  # type: ignore[arg-type]
+    limit = LEVELS.index(level)
 
     def judge(record: Any) -> CheckResult:
         name = f"verdict({level})"
