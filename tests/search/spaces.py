@@ -20,9 +20,10 @@ INTERRUPT_OUTAGE: dict[str, Any] = {
     "fixed": {"controller": {**FAST, "timeouts": {"stale_after_s": STALE_AFTER_S}}, "dsp": FAST_DSP},
 }
 
-PLANT_HEARTBEAT_S = 0.1
+PLANT_HEARTBEAT_S = 0.25
 """The controller's plant-loss allowance: TPDO1s missing in a row for longer than this end the run
-(timeouts.plant_heartbeat_s; lockstep and co-simulation: at least lockstep_s, set equal)."""
+(timeouts.plant_heartbeat_s; lockstep and co-simulation: at least lockstep_s, set equal). Longer
+than the plant's heartbeat period (0x1017), so the heartbeat's age alone never trips it."""
 TPDO_LOSS: dict[str, Any] = {
     "name": "tpdo-loss",
     "duration_s": [1.5, 3.0, 0.5],

@@ -90,3 +90,18 @@ def test_a_confirmation_that_differs_is_not_reproduced() -> None:
     fine = Outcome((judged("outage", True, 0, ALLOWANCE_S, "s", "outage 0 s", None),), "stand-in", 0.0)
     result = search(SPACE, runner, Budget(runs=30, shrink_runs=50), property_text="outage", seed=3, confirm=lambda c: fine)
     assert result.minimal is not None and not result.reproduced
+
+
+def test_batches_run_ahead_and_the_search_ends_as_without_them() -> None:
+    batches: list[int] = []
+    plain = search(SPACE, outage_runner(), Budget(runs=30, shrink_runs=200), property_text="outage", seed=3)
+    runner = outage_runner()
+
+    def prefetch(chunk: list[Candidate]) -> list[Outcome]:
+        batches.append(len(chunk))
+        return [runner(c) for c in chunk]
+
+    batched = search(SPACE, runner, Budget(runs=30, shrink_runs=200), property_text="outage", seed=3, prefetch=prefetch, batch=4)
+    assert batched.minimal == plain.minimal and batched.first == plain.first
+    assert batches and all(n == 4 for n in batches[:-1])
+    assert batched.coverage.runs >= plain.coverage.runs  # a batch may run past the first violation

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import pytest
 from hypothesis import Phase, given, settings
 
-from tests.search.spaces import INTERRUPT_OUTAGE, STALE_AFTER_S
+from tests.search.spaces import INTERRUPT_OUTAGE, STALE_AFTER_S, TPDO_LOSS
 from workbench.search.assertions import assert_holds
 from workbench.search.properties import Properties
 from workbench.search.runner import evaluate
@@ -39,3 +40,32 @@ def test_lockstep_judges_a_candidate_as_the_cosimulation_does() -> None:
     cosim, _ = evaluate(candidate, prop, "cosim")
     lockstep, _ = evaluate(candidate, prop, "lockstep")
     assert cosim.violated and cosim.same_as(lockstep), (cosim.lines(), lockstep.lines())
+
+
+class PicklingEngine:
+    """The campaign engine's ``map`` in this process: each item and result through pickle, as to a Dask worker."""
+
+    def __init__(self) -> None:
+        self.batches: list[int] = []
+
+    def map(self, fn, items, **_: object):  # type: ignore[no-untyped-def]
+        from workbench.campaign.engine import TaskOutcome
+
+        self.batches.append(len(items))
+        return [TaskOutcome(i, str(i), pickle.loads(pickle.dumps(fn(pickle.loads(pickle.dumps(item)))))) for i, item in enumerate(items)]
+
+
+def test_batches_through_the_engine_find_what_one_process_finds() -> None:
+    """Candidates run as engine tasks (pickled there and back), then fed to Hypothesis: the same search."""
+    from workbench.search.batches import engine_prefetch
+    from workbench.search.engine import Budget, search
+    from workbench.search.runner import rig_runner
+
+    space = space_from(TPDO_LOSS)
+    prop = Properties.parse(["no_error()"])
+    budget = Budget(runs=6, shrink_runs=0)
+    alone = search(space, rig_runner(prop), budget, property_text=prop.text, seed=2)
+    engine = PicklingEngine()
+    batched = search(space, rig_runner(prop), budget, property_text=prop.text, seed=2, prefetch=engine_prefetch([prop.text], "cosim", engine), batch=3)
+    assert alone.first is not None and batched.first == alone.first and batched.minimal == alone.minimal
+    assert engine.batches and engine.batches[0] == 3

@@ -14,6 +14,7 @@ import logging
 import shutil
 import sys
 import tempfile
+from contextlib import nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -40,6 +41,15 @@ def register(sub: Any) -> None:
     p.add_argument("--clock", choices=("cosim", "lockstep"), default="cosim", help="the rig's clock (default cosim; lockstep: the services in one process)")
     p.add_argument("--out", default="search-out", help="where the failure bundle goes (default: search-out)")
     p.add_argument("--db", default=None, help="Hypothesis's example database (default: OUT/examples): a later search starts from the violations kept there")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run the candidates in batches as Dask tasks on a local cluster of N workers (default: one process)",
+    )
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786", help="run the batches on this Dask scheduler's workers (docs/campaigns.md)")
+    p.add_argument("--batch", type=int, default=None, metavar="N", help="candidates per batch with --workers/--scheduler (default: the engine's workers)")
     p.add_argument("--replay", default=None, metavar="BUNDLE", help="run a failure bundle again and judge its property (exit 1: it fails again)")
     p.set_defaults(func=cmd_search)
 
@@ -88,9 +98,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_search(args: argparse.Namespace) -> int:
+    from workbench.campaign.engine import current_engine, engine_scope
     from workbench.checks.record_signals import SignalNotInRecord
     from workbench.hil import RigSettingError
     from workbench.progress import activity
+    from workbench.search.batches import engine_prefetch
     from workbench.search.bundle import bundle_name, write_bundle
     from workbench.search.engine import Budget, SearchFlaky, search
     from workbench.search.properties import Properties, PropertyError
@@ -130,11 +142,17 @@ def cmd_search(args: argparse.Namespace) -> int:
         f"ralf-hil search: {space.name}, property {properties.text}, budget {budget.runs} runs (+{budget.runs if budget.shrink_runs is None else budget.shrink_runs} to shrink), seed {args.seed}, {clock}",
         file=sys.stderr,
     )
+    if args.workers is not None and args.workers < 1:
+        return _fail(f"--workers must be at least 1, got {args.workers}")
+    if args.batch is not None and args.batch < 1:
+        return _fail(f"--batch must be at least 1, got {args.batch}")
+    batched = args.workers is not None or args.scheduler is not None
     try:
-        with activity(progress):
+        with activity(progress), engine_scope(args.scheduler, args.workers) if batched else nullcontext():
+            batch = args.batch or (current_engine().slots() if batched else 1)
             result = search(
                 space, lambda c: evaluate(c, properties, clock)[0], budget, property_text=properties.text, seed=args.seed, database=db, clock=clock,
-                on_run=on_run, confirm=confirm,
+                on_run=on_run, confirm=confirm, prefetch=engine_prefetch([p.text for p in properties.items], clock) if batched else None, batch=batch,
             )  # fmt: skip
     except SearchFlaky as exc:
         shutil.rmtree(staging, ignore_errors=True)

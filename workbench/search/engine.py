@@ -127,6 +127,47 @@ def database_key(space: SearchSpace, property_text: str, clock: str) -> bytes:
     return hashlib.sha384(f"{space.digest()}\n{property_text}\n{clock}".encode()).digest()
 
 
+def _hypothesis(space: SearchSpace, runs: int, seed: int, database: Path | None, key: bytes | None, body: Callable[[Candidate], None]) -> Callable[[], None]:
+    """``body`` as a Hypothesis test over ``space``'s candidates (seeded, no deadline, one bug)."""
+
+    @hypothesis_settings(
+        max_examples=runs,
+        deadline=None,
+        database=DirectoryBasedExampleDatabase(str(database)) if database is not None else None,
+        report_multiple_bugs=False,
+        suppress_health_check=list(HealthCheck),
+        phases=(Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink),
+        print_blob=False,
+    )
+    @hypothesis_seed(seed)
+    @given(candidates(space))
+    def probe(candidate: Candidate) -> None:
+        body(candidate)
+
+    if key is not None:
+        probe._hypothesis_internal_database_key = key  # type: ignore[attr-defined]
+    return probe
+
+
+def generated(space: SearchSpace, runs: int, seed: int) -> list[Candidate]:
+    """The candidates a search of ``space`` with ``seed`` generates, in order, while none
+    violates (Hypothesis run with every candidate holding: nothing runs)."""
+    seen: list[Candidate] = []
+    keys: set[str] = set()
+
+    def note(candidate: Candidate) -> None:
+        if candidate.key() not in keys:
+            keys.add(candidate.key())
+            seen.append(candidate)
+
+    _hypothesis(space, runs, seed, None, None, note)()
+    return seen
+
+
+Prefetch = Callable[[list[Candidate]], list[Outcome]]
+"""Runs a batch of candidates at once (:mod:`workbench.search.batches`: Dask tasks)."""
+
+
 def search(
     space: SearchSpace,
     runner: Callable[[Candidate], Outcome],
@@ -138,17 +179,43 @@ def search(
     clock: str = "cosim",
     on_run: Callable[[int, Candidate, Outcome], None] | None = None,
     confirm: Callable[[Candidate], Outcome] | None = None,
+    prefetch: Prefetch | None = None,
+    batch: int = 4,
     monotonic: Callable[[], float] = time.monotonic,
 ) -> SearchResult:
     """Search ``space`` for a candidate whose run violates the property; shrink it; run the minimal
-    one again (through ``confirm``, default the runner: a fresh run, not the kept outcome)."""
+    one again (through ``confirm``, default the runner: a fresh run, not the kept outcome).
+
+    With ``prefetch`` the candidates Hypothesis will generate (:func:`generated`: the same seed
+    draws the same ones while none violates) are run ``batch`` at a time through it, until a
+    batch holds a violation or the budget is spent; Hypothesis then finds their outcomes kept
+    and runs only what it asks beyond them (the database's examples, shrinking) one by one."""
     outcomes: dict[str, Outcome] = {}
     coverage = Coverage()
     state = {"shrink_runs": 0}
     first: list[Candidate] = []
-    last: list[tuple[Candidate, Outcome]] = []
     shrink_budget = budget.runs if budget.shrink_runs is None else budget.shrink_runs
     started = monotonic()
+
+    def keep(candidate: Candidate, outcome: Outcome) -> None:
+        outcomes[candidate.key()] = outcome
+        coverage.add(candidate)
+        if on_run is not None:
+            on_run(coverage.runs, candidate, outcome)
+
+    if prefetch is not None:
+        if batch < 1:
+            raise ValueError(f"a batch holds at least one candidate, got {batch}")
+        ahead = generated(space, budget.runs, seed)
+        for i in range(0, len(ahead), batch):
+            if budget.seconds is not None and monotonic() - started > budget.seconds:
+                break
+            chunk = ahead[i : i + batch]
+            results = prefetch(chunk)
+            for candidate, outcome in zip(chunk, results, strict=True):
+                keep(candidate, outcome)
+            if any(o.violated for o in results):
+                break
 
     def outcome_of(candidate: Candidate) -> Outcome | None:
         key = candidate.key()
@@ -161,39 +228,24 @@ def search(
         elif budget.seconds is not None and monotonic() - started > budget.seconds:
             return None  # generating has spent its time
         outcome = runner(candidate)
-        outcomes[key] = outcome
-        coverage.add(candidate)
-        if on_run is not None:
-            on_run(coverage.runs, candidate, outcome)
+        keep(candidate, outcome)
         return outcome
 
-    @hypothesis_settings(
-        max_examples=budget.runs,
-        deadline=None,
-        database=DirectoryBasedExampleDatabase(str(database)) if database is not None else None,
-        report_multiple_bugs=False,
-        suppress_health_check=list(HealthCheck),
-        phases=(Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink),
-        print_blob=False,
-    )
-    @hypothesis_seed(seed)
-    @given(candidates(space))
-    def probe(candidate: Candidate) -> None:
+    def body(candidate: Candidate) -> None:
         outcome = outcome_of(candidate)
         if outcome is not None and outcome.violated:
             if not first:
                 first.append(candidate)
-            last.append((candidate, outcome))
             raise Violation(candidate, outcome)
 
-    probe._hypothesis_internal_database_key = database_key(space, property_text, clock)  # type: ignore[attr-defined]
+    probe = _hypothesis(space, budget.runs, seed, database, database_key(space, property_text, clock), body)
     minimal: Candidate | None = None
-    outcome: Outcome | None = None
+    violated: Outcome | None = None
     try:
         probe()
     except Violation as v:
-        minimal, outcome = v.candidate, v.outcome
+        minimal, violated = v.candidate, v.outcome
     except Flaky as exc:
         raise SearchFlaky(f"the runner gave two answers for one candidate: {' '.join(str(exc).split())[:300]}") from None
     confirmed = (confirm or runner)(minimal) if minimal is not None else None
-    return SearchResult(minimal, outcome, confirmed, coverage, state["shrink_runs"], first[0] if first else None, monotonic() - started)
+    return SearchResult(minimal, violated, confirmed, coverage, state["shrink_runs"], first[0] if first else None, monotonic() - started)
