@@ -105,3 +105,19 @@ def test_batches_run_ahead_and_the_search_ends_as_without_them() -> None:
     assert batched.minimal == plain.minimal and batched.first == plain.first
     assert batches and all(n == 4 for n in batches[:-1])
     assert batched.coverage.runs >= plain.coverage.runs  # a batch may run past the first violation
+
+
+def test_a_runner_that_raises_ends_the_search_unshrunk() -> None:
+    calls: list[Candidate] = []
+
+    def broken(c: Candidate) -> Outcome:
+        calls.append(c)
+        raise LookupError("the record holds no signal 'counters.nothing'")
+
+    try:
+        search(SPACE, broken, Budget(runs=20), property_text="broken", seed=1)
+    except LookupError as exc:
+        assert "counters.nothing" in str(exc)
+    else:
+        raise AssertionError("the runner's error was swallowed")
+    assert len(calls) == 1  # not shrunk as a violation

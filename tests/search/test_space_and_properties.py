@@ -46,6 +46,8 @@ SPACE = space_from(
         ({**BASE, "channel_faults": [{"channels": ["AI1"], "kind": "offset", "start_s": 0, "length_s": 1}]}, "AI1 offset"),
         ({"duration_s": [0.0, 1.0]}, "duration_s must be positive"),
         ({**BASE, "fixed": {"pump": {}}}, "unknown service 'pump'"),
+        ({**BASE, "settings": {"dsp.fft_width": [256, 300000, 256]}}, "dsp: "),
+        ({**BASE, "settings": {"dsp.fft_width": {"choices": [256, 7]}}}, "dsp: "),
     ],
 )
 def test_a_bad_space_is_one_line(space: dict, says: str) -> None:

@@ -189,7 +189,11 @@ def search(
     With ``prefetch`` the candidates Hypothesis will generate (:func:`generated`: the same seed
     draws the same ones while none violates) are run ``batch`` at a time through it, until a
     batch holds a violation or the budget is spent; Hypothesis then finds their outcomes kept
-    and runs only what it asks beyond them (the database's examples, shrinking) one by one."""
+    and runs only what it asks beyond them (the database's examples, shrinking) one by one.
+
+    A runner that raises (a signal the record does not hold, a setting the rig refuses) ends
+    the search at once: every later candidate is taken as holding, and the error is raised
+    once Hypothesis is done, instead of being shrunk as if it were a violation."""
     outcomes: dict[str, Outcome] = {}
     coverage = Coverage()
     state = {"shrink_runs": 0}
@@ -217,17 +221,25 @@ def search(
             if any(o.violated for o in results):
                 break
 
+    error: list[BaseException] = []
+
     def outcome_of(candidate: Candidate) -> Outcome | None:
         key = candidate.key()
         if key in outcomes:
             return outcomes[key]
+        if error:
+            return None  # the search is over: see below
         if first:
             if state["shrink_runs"] >= shrink_budget:
                 return None  # shrinking has spent its runs: not run, taken as holding
             state["shrink_runs"] += 1
         elif budget.seconds is not None and monotonic() - started > budget.seconds:
             return None  # generating has spent its time
-        outcome = runner(candidate)
+        try:
+            outcome = runner(candidate)
+        except Exception as exc:  # noqa: BLE001 - not a violation: the search ends with it, unshrunk
+            error.append(exc)
+            return None
         keep(candidate, outcome)
         return outcome
 
@@ -247,5 +259,7 @@ def search(
         minimal, violated = v.candidate, v.outcome
     except Flaky as exc:
         raise SearchFlaky(f"the runner gave two answers for one candidate: {' '.join(str(exc).split())[:300]}") from None
+    if error:
+        raise error[0]
     confirmed = (confirm or runner)(minimal) if minimal is not None else None
     return SearchResult(minimal, violated, confirmed, coverage, state["shrink_runs"], first[0] if first else None, monotonic() - started)

@@ -205,8 +205,15 @@ class SearchSpace(BaseModel):
         unknown = set(self.fixed) - set(SERVICES)
         if unknown:
             raise ValueError(f"fixed: unknown service {sorted(unknown)[0]!r} ({', '.join(SERVICES)})")
-        try:  # each name, and the fixed values, as the rig will judge them
-            check_settings({svc: {**self.fixed.get(svc, {}), **_first_values(self, svc)} for svc in SERVICES})
+        try:  # each name, the fixed values and every setting's ends (each choice), as the rig will judge them
+            for end in (0, -1):
+                check_settings({svc: {**self.fixed.get(svc, {}), **_end_values(self, svc, end)} for svc in SERVICES})
+            for key, setting in self.settings.items():
+                for choice in setting.choices if isinstance(setting, Choices) else ():
+                    parts = key.split(".")
+                    one: dict[str, Any] = {}
+                    place_setting(one, parts[1:], choice, self.fixed.get(parts[0], {}))
+                    check_settings({parts[0]: {**self.fixed.get(parts[0], {}), **one}})
         except RigSettingError as exc:
             raise ValueError(str(exc)) from None
         return self
@@ -216,14 +223,16 @@ class SearchSpace(BaseModel):
         return json.dumps(self.model_dump(mode="json"), sort_keys=True)
 
 
-def _first_values(space: SearchSpace, service: str) -> dict[str, Any]:
-    """The space's varied settings of ``service`` at their first value (to check their names)."""
+def _end_values(space: SearchSpace, service: str, end: int) -> dict[str, Any]:
+    """The space's varied settings of ``service`` at their first (``end`` 0) or last (-1) value."""
     out: dict[str, Any] = {}
     for key, setting in space.settings.items():
         parts = key.split(".")
         if parts[0] != service:
             continue
-        value = setting.choices[0] if isinstance(setting, Choices) else setting.value(0)
+        value = setting.choices[end] if isinstance(setting, Choices) else setting.value(0 if end == 0 else setting.count - 1)
+        if isinstance(setting, Range) and float(setting.min).is_integer() and float(setting.step).is_integer():
+            value = int(value)  # as the strategies draw it
         place_setting(out, parts[1:], value, space.fixed.get(service, {}))
     return out
 
