@@ -31,3 +31,13 @@ TPDO_LOSS: dict[str, Any] = {
     "max_link_faults": 2,
     "fixed": {"controller": {**FAST, "timeouts": {"plant_heartbeat_s": PLANT_HEARTBEAT_S, "lockstep_s": PLANT_HEARTBEAT_S}}, "dsp": FAST_DSP},
 }
+
+DEFLECTION_BOUND_IN = 0.3
+"""A bound on link 2's measured tip deflection that a push on its tip can break."""
+PUSH: dict[str, Any] = {
+    "name": "push-on-link-2",
+    "duration_s": [2.0, 3.0, 0.5],
+    "stimuli": [{"inputs": ["disturbance.link2"], "shape": "step", "start_s": [1.0, 1.5, 0.05], "length_s": [0.1, 1.0, 0.05], "params": {"size": [0, 100, 1]}}],
+    "max_stimuli": 2,
+    "fixed": {"controller": FAST, "dsp": FAST_DSP},
+}

@@ -7,11 +7,12 @@ import math
 
 import pytest
 
-from tests.search.spaces import BATCH_PERIOD_S, INTERRUPT_OUTAGE, PLANT_HEARTBEAT_S, SAMPLE_PERIOD_S, STALE_AFTER_S, TPDO_LOSS
+from tests.search.spaces import BATCH_PERIOD_S, DEFLECTION_BOUND_IN, INTERRUPT_OUTAGE, PLANT_HEARTBEAT_S, PUSH, SAMPLE_PERIOD_S, STALE_AFTER_S, TPDO_LOSS
 from workbench.search.engine import Budget, search
 from workbench.search.properties import Properties
 from workbench.search.runner import evaluate, rig_runner
 from workbench.search.space import space_from
+from workbench.search.strategies import Candidate
 
 pytestmark = pytest.mark.slow
 
@@ -43,3 +44,16 @@ def test_a_tpdo_loss_streak_past_the_plant_loss_allowance_shrinks_to_it() -> Non
     allowance = round(PLANT_HEARTBEAT_S / SAMPLE_PERIOD_S)
     assert dropped == allowance + 1, result.minimal.describe()
     assert f"{allowance + 1} TPDOs missing in a row" in result.outcome.lines()[0]  # type: ignore[union-attr]
+
+
+def test_a_push_on_the_tip_shrinks_to_the_smallest_force_that_breaks_the_bound() -> None:
+    """A step force on link 2's tip (stimulus disturbance.link2) drawn up to 100 N: the search
+    ends on one push whose force breaks the deflection bound while one newton less does not."""
+    space, prop = space_from(PUSH), Properties.parse([f"within(defl2_in, -{DEFLECTION_BOUND_IN}, {DEFLECTION_BOUND_IN})"])
+    result = search(space, rig_runner(prop), Budget(runs=10, shrink_runs=60), property_text=prop.text, seed=4)
+    assert result.minimal is not None and result.reproduced, result.coverage.line()
+    (push,) = result.minimal.stimulus
+    assert push["at_s"] == 1.0 and result.minimal.duration_s == 2.0 and 0 < push["size"] < 100
+    weaker = Candidate(result.minimal.duration_s, {}, [], result.minimal.settings, [{**push, "size": push["size"] - 1}])
+    held, _ = evaluate(weaker, prop)
+    assert not held.violated, (result.minimal.describe(), held.lines())

@@ -12,6 +12,7 @@ from workbench.search.engine import Budget
 from workbench.search.properties import Properties, PropertyError, parse_property
 from workbench.search.space import SpaceError, parse_space, space_from
 from workbench.search.strategies import candidates
+from workbench.stimulus import Stimulus
 
 BASE = {"duration_s": [1.0, 4.0, 0.5]}
 SPACE = space_from(
@@ -25,6 +26,15 @@ SPACE = space_from(
         "stalls": [{"at_s": [0.5, 1.0, 0.1], "wall_s": [0.0, 0.1, 0.01]}],
         "channel_faults": [
             {"channels": ["AI3", "AI4"], "kind": "offset", "start_s": [0.5, 2.0, 0.1], "length_s": [0.1, 1.0, 0.1], "params": {"offset_v": 0.5}}
+        ],
+        "stimuli": [
+            {
+                "inputs": ["disturbance.link2", "valve.u1"],
+                "shape": "step",
+                "start_s": [0.5, 2.0, 0.1],
+                "length_s": [0.1, 1.0, 0.1],
+                "params": {"size": [0, 8, 1]},
+            }
         ],
         "fault_seed": [0, 5],
         "settings": {"controller.batch_size": [10, 40, 10], "dsp.fft_width": {"choices": [256, 512]}, "controller.timeouts.stale_after_s": [0.5, 2.0, 0.5]},
@@ -46,6 +56,8 @@ SPACE = space_from(
         ({**BASE, "channel_faults": [{"channels": ["AI1"], "kind": "offset", "start_s": 0, "length_s": 1}]}, "AI1 offset"),
         ({"duration_s": [0.0, 1.0]}, "duration_s must be positive"),
         ({**BASE, "fixed": {"pump": {}}}, "unknown service 'pump'"),
+        ({**BASE, "stimuli": [{"inputs": ["valve.u9"], "shape": "step", "start_s": 0, "length_s": 1, "params": {"size": 1}}]}, "valve.u9 step"),
+        ({**BASE, "stimuli": [{"inputs": ["valve.u1"], "shape": "step", "start_s": 0, "length_s": 1, "params": {"size": [0, 50]}}]}, "valve.u1 step"),
         ({**BASE, "settings": {"dsp.fft_width": [256, 300000, 256]}}, "dsp: "),
         ({**BASE, "settings": {"dsp.fft_width": {"choices": [256, 7]}}}, "dsp: "),
     ],
@@ -102,6 +114,7 @@ def test_every_candidate_is_a_valid_scenario_and_valid_settings(candidate) -> No
             assert f.stop_s is not None and 0 <= f.stop_s - f.start_s <= 1.0 + 1e-9
     for c in candidate.channel_faults:
         ChannelFault.model_validate(c)
+    Stimulus(candidate.stimulus).plans()  # the services' own check of the profiles
     check_settings(candidate.rig_settings())
     assert 1.0 <= candidate.duration_s <= 4.0
     assert candidate.settings["controller"]["timeouts"]["plant_heartbeat_s"] == 0.5  # a group keeps its fixed keys
@@ -118,7 +131,7 @@ def test_shrinking_goes_to_fewer_faults_shorter_runs_smaller_and_earlier_faults(
     )
     (fault,) = minimal.scenario["faults"]
     assert fault == {"link": "zenoh", "kinds": ["interrupt"], "start_s": 0.5, "stop_s": 0.805, "drop": 1.0}
-    assert minimal.duration_s == 1.0 and minimal.scenario["stalls"] == [] and minimal.channel_faults == []
+    assert minimal.duration_s == 1.0 and minimal.scenario["stalls"] == [] and minimal.channel_faults == [] and minimal.stimulus == []
     assert minimal.scenario["seed"] == 0
     assert minimal.settings["controller"]["batch_size"] == 10 and minimal.settings["dsp"]["fft_width"] == 256
 
@@ -126,3 +139,13 @@ def test_shrinking_goes_to_fewer_faults_shorter_runs_smaller_and_earlier_faults(
 def test_integer_settings_stay_integers() -> None:
     value = find(st.just(0).flatmap(lambda _: candidates(SPACE)), lambda c: True, settings=settings(database=None))
     assert isinstance(value.settings["controller"]["batch_size"], int)
+
+
+def test_a_pushing_candidate_shrinks_to_a_small_push() -> None:
+    minimal = find(
+        candidates(SPACE),
+        lambda c: any(p["size"] >= 3 for p in c.stimulus),
+        settings=settings(database=None, max_examples=500, suppress_health_check=list(HealthCheck)),
+    )
+    assert minimal.stimulus == [{"input": "disturbance.link2", "shape": "step", "at_s": 0.5, "for_s": 0.1, "size": 3}]
+    assert minimal.scenario == {} and minimal.channel_faults == []

@@ -88,6 +88,7 @@ class Coverage:
         self.most_stalls = max(self.most_stalls, len(c.scenario.get("stalls") or []))
         self.most_channel_faults = max(self.most_channel_faults, len(c.channel_faults))
         self.kinds |= {f"{f['link']}/{k}" for f in faults for k in f["kinds"]} | {f"{x['channel']}/{x['kind']}" for x in c.channel_faults}
+        self.kinds |= {f"{p['input']}/{p['shape']}" for p in c.stimulus}
         self.durations.append(c.duration_s)
         for svc, values in c.settings.items():
             for name, value in values.items():

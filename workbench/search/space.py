@@ -157,6 +157,47 @@ class ChannelFaultTemplate(BaseModel):
         return self
 
 
+class StimulusTemplate(BaseModel):
+    """A stimulus profile (docs/stimulus.md) a run may have: ``shape`` on one of ``inputs``,
+    from ``start_s`` for ``length_s``; each of ``params`` is fixed, or drawn when it is a range
+    (``size: [0, 40, 5]``: a search shrinks it toward ``min``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    inputs: list[str] = Field(min_length=1, max_length=16)
+    shape: str
+    start_s: Range
+    length_s: Range
+    params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("params", mode="after")
+    @classmethod
+    def _ranges(cls, params: dict[str, Any]) -> dict[str, Any]:
+        def ranged(v: Any) -> bool:
+            numbers = isinstance(v, (list, tuple)) and len(v) in (2, 3) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+            return numbers or (isinstance(v, dict) and {"min", "max"} <= set(v))
+
+        return {k: Range.model_validate(v) if ranged(v) else v for k, v in params.items()}
+
+    @model_validator(mode="after")
+    def _valid(self) -> StimulusTemplate:
+        from protocol.errors import ConfigError
+        from workbench.stimulus import Stimulus
+
+        if self.start_s.min < 0 or self.length_s.min < 0:
+            raise ValueError("a stimulus's start_s and length_s must not be negative")
+        for end in (0, -1):
+            fields = {k: (v.value(0 if end == 0 else v.count - 1) if isinstance(v, Range) else v) for k, v in self.params.items()}
+            for name in self.inputs:
+                try:  # the services' own check of the profile, at each end of its ranges
+                    Stimulus(
+                        [{"input": name, "shape": self.shape, "at_s": self.start_s.value(0), "for_s": max(self.length_s.value(0), 1e-3), **fields}]
+                    ).plans()
+                except ConfigError as exc:
+                    raise ValueError(f"{name} {self.shape}: {' '.join(str(exc).split())}") from None
+        return self
+
+
 Setting = Range | Choices
 SERVICES = ("controller", "plant", "dsp", "common")
 
@@ -175,6 +216,8 @@ class SearchSpace(BaseModel):
     max_stalls: Annotated[int, Field(ge=0, le=64)] = 1
     channel_faults: list[ChannelFaultTemplate] = Field(default_factory=list, max_length=32)
     max_channel_faults: Annotated[int, Field(ge=0, le=64)] = 1
+    stimuli: list[StimulusTemplate] = Field(default_factory=list, max_length=32)
+    max_stimuli: Annotated[int, Field(ge=0, le=64)] = 1
     fault_seed: Range = Range(min=0, max=0)
     """The link-fault scenario's seed (its random drops, jitter, duplicates)."""
     settings: dict[str, Setting] = Field(default_factory=dict)

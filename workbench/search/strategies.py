@@ -3,7 +3,8 @@
 :func:`candidates` draws a :class:`Candidate` from a :class:`SearchSpace`:
 the run's length, a link-fault scenario (:mod:`service_kit.link_faults`:
 ``faults``, ``stalls``, ``seed``), the plant's channel faults
-(:mod:`protocol.channel_faults`) and the varied settings. Every number is
+(:mod:`protocol.channel_faults`), stimulus profiles (:mod:`protocol.stimulus`)
+and the varied settings. Every number is
 drawn as an index into its range's grid and every list's length from 0, so
 Hypothesis's shrinking (toward smaller integers, shorter lists, earlier
 ``one_of`` branches) moves a failing run toward fewer faults, a shorter
@@ -19,7 +20,17 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from workbench.search.space import SERVICES, ChannelFaultTemplate, Choices, LinkFaultTemplate, Range, SearchSpace, StallTemplate, place_setting
+from workbench.search.space import (
+    SERVICES,
+    ChannelFaultTemplate,
+    Choices,
+    LinkFaultTemplate,
+    Range,
+    SearchSpace,
+    StallTemplate,
+    StimulusTemplate,
+    place_setting,
+)
 
 
 @dataclass(frozen=True)
@@ -33,17 +44,31 @@ class Candidate:
     """The plant's channel faults (:class:`protocol.channel_faults.ChannelFault`'s fields)."""
     settings: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Per service (controller, plant, dsp, common): the fixed and the drawn settings."""
+    stimulus: list[dict[str, Any]] = field(default_factory=list)
+    """Stimulus profiles (:mod:`protocol.stimulus`'s fields), either side's inputs."""
 
     def key(self) -> str:
         """The candidate as one stable text (equal runs, equal keys)."""
         return json.dumps(self.as_dict(), sort_keys=True)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"duration_s": self.duration_s, "scenario": self.scenario, "channel_faults": self.channel_faults, "settings": self.settings}
+        return {
+            "duration_s": self.duration_s,
+            "scenario": self.scenario,
+            "channel_faults": self.channel_faults,
+            "settings": self.settings,
+            "stimulus": self.stimulus,
+        }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Candidate:
-        return cls(float(data["duration_s"]), dict(data.get("scenario") or {}), list(data.get("channel_faults") or []), dict(data.get("settings") or {}))
+        return cls(
+            float(data["duration_s"]),
+            dict(data.get("scenario") or {}),
+            list(data.get("channel_faults") or []),
+            dict(data.get("settings") or {}),
+            list(data.get("stimulus") or []),
+        )
 
     def faults(self) -> dict[str, Any] | None:
         """The rig's ``faults`` (None when the scenario holds no fault and no stall)."""
@@ -52,10 +77,17 @@ class Candidate:
         return {"name": "search", **self.scenario}
 
     def rig_settings(self) -> dict[str, dict[str, Any]]:
-        """Settings per service, the channel faults in the plant's ``scenario`` setting."""
+        """Settings per service: the channel faults and the plant's stimulus in its ``scenario``
+        setting, the controller's stimulus in its ``stimulus`` setting (:class:`workbench.stimulus.Stimulus`)."""
+        from workbench.stimulus import Stimulus
+
         out = {svc: dict(self.settings.get(svc, {})) for svc in SERVICES}
-        if self.channel_faults:
-            out["plant"]["scenario"] = json.dumps({"channel_faults": self.channel_faults})
+        scenario = {"channel_faults": self.channel_faults} if self.channel_faults else None
+        fragments = Stimulus(self.stimulus).settings(scenario=scenario) if self.stimulus or scenario else {}
+        if "controller" in fragments:
+            out["controller"]["stimulus"] = json.dumps(fragments["controller"]["stimulus"])
+        if "plant" in fragments:
+            out["plant"]["scenario"] = json.dumps(fragments["plant"]["scenario"])
         return out
 
     def describe(self) -> str:
@@ -67,6 +99,9 @@ class Candidate:
             parts.append(f"{f['link']} {'/'.join(f['kinds'])} drop {f.get('drop', 0):g} at {f['start_s']:g}{end} s")
         parts += [f"stall {s['wall_s']:g} s at {s['at_s']:g} s" for s in self.scenario.get("stalls") or []]
         parts += [f"{c['channel']} {c['kind']} {c['start_s']:g}-{c['end_s']:g} s" for c in self.channel_faults]
+        for p in self.stimulus:
+            extra = ", ".join(f"{k} {v:g}" for k, v in p.items() if k not in ("input", "shape", "at_s", "for_s") and isinstance(v, (int, float)))
+            parts.append(f"{p['input']} {p['shape']}{' ' + extra if extra else ''} {p['at_s']:g}-{p['at_s'] + p['for_s']:g} s")
         varied = {f"{svc}.{k}": v for svc, values in self.settings.items() for k, v in values.items()}
         if varied:
             parts.append(", ".join(f"{k}={json.dumps(v)}" for k, v in varied.items()))
@@ -109,6 +144,16 @@ def channel_fault(t: ChannelFaultTemplate) -> st.SearchStrategy[dict[str, Any]]:
     return st.builds(build, st.sampled_from(t.channels), values(t.start_s), values(t.length_s))
 
 
+def stimulus_profile(t: StimulusTemplate) -> st.SearchStrategy[dict[str, Any]]:
+    """One profile (its window ``[start_s, start_s + length_s)``, at least 1 ms), its ranged params drawn."""
+
+    def build(name: str, start: float, length: float, params: dict[str, Any]) -> dict[str, Any]:
+        return {"input": name, "shape": t.shape, "at_s": start, "for_s": max(length, 1e-3), **params}
+
+    params = st.fixed_dictionaries({k: values(v) if isinstance(v, Range) else st.just(v) for k, v in t.params.items()})
+    return st.builds(build, st.sampled_from(t.inputs), values(t.start_s), values(t.length_s), params)
+
+
 def _some(templates: list[Any], make: Any, most: int) -> st.SearchStrategy[list[dict[str, Any]]]:
     if most == 0 or not templates:
         return st.just([])
@@ -126,14 +171,20 @@ def candidates(space: SearchSpace) -> st.SearchStrategy[Candidate]:
     """Candidates of ``space``, shrinking toward fewer faults, shorter runs, smaller values."""
 
     def build(
-        duration: float, faults: list[dict[str, Any]], stalls: list[dict[str, Any]], channel: list[dict[str, Any]], seed: float, drawn: dict[str, Any]
+        duration: float,
+        faults: list[dict[str, Any]],
+        stalls: list[dict[str, Any]],
+        channel: list[dict[str, Any]],
+        stimulus: list[dict[str, Any]],
+        seed: float,
+        drawn: dict[str, Any],
     ) -> Candidate:
         settings: dict[str, dict[str, Any]] = {svc: dict(v) for svc, v in space.fixed.items()}
         for key, value in drawn.items():
             parts = key.split(".")
             place_setting(settings.setdefault(parts[0], {}), parts[1:], value, space.fixed.get(parts[0], {}))
         scenario: dict[str, Any] = {"seed": int(seed), "faults": faults, "stalls": stalls} if faults or stalls else {}
-        return Candidate(duration, scenario, channel, {k: v for k, v in settings.items() if v})
+        return Candidate(duration, scenario, channel, {k: v for k, v in settings.items() if v}, stimulus)
 
     return st.builds(
         build,
@@ -141,6 +192,7 @@ def candidates(space: SearchSpace) -> st.SearchStrategy[Candidate]:
         _some(space.link_faults, link_fault, space.max_link_faults),
         _some(space.stalls, stall, space.max_stalls),
         _some(space.channel_faults, channel_fault, space.max_channel_faults),
+        _some(space.stimuli, stimulus_profile, space.max_stimuli),
         values(space.fault_seed),
         st.fixed_dictionaries({k: setting_value(v) for k, v in space.settings.items()}),
     )
