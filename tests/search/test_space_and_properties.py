@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import pytest
 from hypothesis import HealthCheck, find, given, settings
-from hypothesis import strategies as st
 
 from protocol.channel_faults import ChannelFault
 from service_kit.link_faults import Scenario
@@ -118,6 +117,7 @@ def test_every_candidate_is_a_valid_scenario_and_valid_settings(candidate) -> No
     check_settings(candidate.rig_settings())
     assert 1.0 <= candidate.duration_s <= 4.0
     assert candidate.settings["controller"]["timeouts"]["plant_heartbeat_s"] == 0.5  # a group keeps its fixed keys
+    assert isinstance(candidate.settings["controller"]["batch_size"], int)  # an integer grid stays integers
 
 
 def test_shrinking_goes_to_fewer_faults_shorter_runs_smaller_and_earlier_faults() -> None:
@@ -134,11 +134,6 @@ def test_shrinking_goes_to_fewer_faults_shorter_runs_smaller_and_earlier_faults(
     assert minimal.duration_s == 1.0 and minimal.scenario["stalls"] == [] and minimal.channel_faults == [] and minimal.stimulus == []
     assert minimal.scenario["seed"] == 0
     assert minimal.settings["controller"]["batch_size"] == 10 and minimal.settings["dsp"]["fft_width"] == 256
-
-
-def test_integer_settings_stay_integers() -> None:
-    value = find(st.just(0).flatmap(lambda _: candidates(SPACE)), lambda c: True, settings=settings(database=None))
-    assert isinstance(value.settings["controller"]["batch_size"], int)
 
 
 def test_a_pushing_candidate_shrinks_to_a_small_push() -> None:
