@@ -42,6 +42,7 @@ from workbench.recording import cli as recording_cli
 from workbench.recording.mf4_cli import is_mf4, record_mf4
 from workbench.recording.tap import RigRecording
 from workbench.run_logs import RunLogs
+from workbench.search import cli as search_cli
 from workbench.timing_test.report import health_verdict, latency_class
 from workbench.verdict import judge
 
@@ -951,6 +952,7 @@ def build_parser() -> argparse.ArgumentParser:
     timing_test.register(sub)  # ralf-hil timing-test (workbench/timing_test)
     memory_slope.register(sub)
     live_cli.register(sub)  # ralf-hil live (workbench/live)
+    search_cli.register(sub)  # ralf-hil search (workbench/search)
     return parser
 
 

@@ -8,7 +8,7 @@ traceback.
 
 from __future__ import annotations
 
-EXTRAS = {"distributed": "campaign", "dask": "campaign", "pyarrow": "campaign", "yaml": "campaign", "fmpy": "fmu", "asammdf": "mf4"}
+EXTRAS = {"distributed": "campaign", "dask": "campaign", "pyarrow": "campaign", "yaml": "campaign", "fmpy": "fmu", "asammdf": "mf4", "hypothesis": "search"}
 """Top-level module -> the extra of pyproject.toml that installs it."""
 
 

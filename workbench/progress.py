@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # this module loads before the rig's modules (workbench/__mai
 PROGRESS_INTERVAL_S = 5.0
 """Without a terminal, the longest a long command stays silent."""
 
-LONG_COMMANDS = frozenset({"up", "experiment", "timing-test", "sweep", "bench", "memory-slope", "measure", "plant", "replay"})
+LONG_COMMANDS = frozenset({"up", "experiment", "timing-test", "sweep", "bench", "memory-slope", "measure", "plant", "replay", "search"})
 """``ralf-hil`` commands that can run for minutes: without a terminal they say how they progress."""
 
 _activity: list[Callable[[], str]] = []

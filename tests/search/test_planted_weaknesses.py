@@ -1,0 +1,59 @@
+"""The search finds planted weaknesses on the co-simulated rig and shrinks them to
+their allowance, each from a random start (a seed) within a small budget."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from tests.search.spaces import BATCH_PERIOD_S, DEFLECTION_BOUND_IN, INTERRUPT_OUTAGE, PLANT_HEARTBEAT_S, PUSH, SAMPLE_PERIOD_S, STALE_AFTER_S, TPDO_LOSS
+from workbench.search.engine import Budget, search
+from workbench.search.properties import Properties
+from workbench.search.runner import evaluate, rig_runner
+from workbench.search.space import space_from
+from workbench.search.strategies import Candidate
+
+pytestmark = pytest.mark.slow
+
+
+def test_an_interrupt_outage_past_the_stale_allowance_shrinks_to_it() -> None:
+    """Interrupts lost on zenoh for longer than timeouts.stale_after_s leave the parameters
+    stale (the stale monitor, policy degrade, fires): the minimal outage is within one
+    DSP period (one batch) of the allowance."""
+    space, prop = space_from(INTERRUPT_OUTAGE), Properties.parse(["within(counters.stale_episodes, 0, 0)"])
+    result = search(space, rig_runner(prop), Budget(runs=15, shrink_runs=40), property_text=prop.text, seed=1)
+    assert result.minimal is not None and result.reproduced, result.coverage.line()
+    (fault,) = result.minimal.scenario["faults"]
+    length = fault["stop_s"] - fault["start_s"]
+    assert abs(length - STALE_AFTER_S) <= BATCH_PERIOD_S + 1e-9, result.minimal.describe()
+    assert fault["start_s"] == 2.0 and result.minimal.duration_s == 3.0
+    shorter = {**result.minimal.scenario, "faults": [{**fault, "stop_s": round(fault["stop_s"] - BATCH_PERIOD_S, 9)}]}
+    held, _ = evaluate(type(result.minimal)(result.minimal.duration_s, shorter, [], result.minimal.settings), prop)
+    assert not held.violated  # a batch less of outage: no stale episode
+
+
+def test_a_tpdo_loss_streak_past_the_plant_loss_allowance_shrinks_to_it() -> None:
+    """TPDO1s lost on CAN for longer than timeouts.plant_heartbeat_s end the run with a
+    plant fault: the minimal streak is the allowance's periods plus one."""
+    space, prop = space_from(TPDO_LOSS), Properties.parse(["no_error()"])
+    result = search(space, rig_runner(prop), Budget(runs=10, shrink_runs=40), property_text=prop.text, seed=2)
+    assert result.minimal is not None and result.reproduced, result.coverage.line()
+    (fault,) = result.minimal.scenario["faults"]
+    dropped = math.ceil((fault["stop_s"] - fault["start_s"]) / SAMPLE_PERIOD_S - 1e-6)
+    allowance = round(PLANT_HEARTBEAT_S / SAMPLE_PERIOD_S)
+    assert dropped == allowance + 1, result.minimal.describe()
+    assert f"{allowance + 1} TPDOs missing in a row" in result.outcome.lines()[0]  # type: ignore[union-attr]
+
+
+def test_a_push_on_the_tip_shrinks_to_the_smallest_force_that_breaks_the_bound() -> None:
+    """A step force on link 2's tip (stimulus disturbance.link2) drawn up to 100 N: the search
+    ends on one push whose force breaks the deflection bound while one newton less does not."""
+    space, prop = space_from(PUSH), Properties.parse([f"within(defl2_in, -{DEFLECTION_BOUND_IN}, {DEFLECTION_BOUND_IN})"])
+    result = search(space, rig_runner(prop), Budget(runs=10, shrink_runs=60), property_text=prop.text, seed=4)
+    assert result.minimal is not None and result.reproduced, result.coverage.line()
+    (push,) = result.minimal.stimulus
+    assert push["at_s"] == 1.0 and result.minimal.duration_s == 2.0 and 0 < push["size"] < 100
+    weaker = Candidate(result.minimal.duration_s, {}, [], result.minimal.settings, [{**push, "size": push["size"] - 1}])
+    held, _ = evaluate(weaker, prop)
+    assert not held.violated, (result.minimal.describe(), held.lines())
