@@ -8,13 +8,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from workbench.laps import lap_seconds
 from workbench.rig_record import Clock
-
-if TYPE_CHECKING:
-    from workbench.hil import HilRig
 
 __all__ = ["RigSpec"]
 
@@ -59,9 +56,3 @@ class RigSpec:
         if repeats <= 0:
             raise ValueError(f"run {self.name!r}: set duration_s, or the controller's duration_s or repeats")
         return repeats * lap_seconds(float(c.get("tip_speed_in_s", 5.0)), c.get("trajectory") or None)
-
-    def rig(self) -> HilRig:
-        """The rig that runs this spec (not yet started)."""
-        from workbench.hil import HilRig
-
-        return HilRig.from_spec(self)

@@ -127,7 +127,7 @@ def test_a_spec_pickles_and_makes_its_rig(tmp_path: Path) -> None:
     assert back == spec
     assert spec.expected_sim_s() == lap_seconds(5.0)
     assert replace(spec, duration_s=3.0).expected_sim_s() == 3.0
-    rig = back.rig()
+    rig = HilRig.from_spec(back)
     assert (rig.clock, rig.processes, rig.name, rig.outputs, rig.mcap, rig.label) == ("lockstep", True, "s", tmp_path, True, "x")
     with pytest.raises(ValueError, match="repeats"):
         RigSpec("none").expected_sim_s()

@@ -53,7 +53,7 @@ def test_one_process_lockstep_equals_the_cosimulation_with_a_stimulus() -> None:
 def test_a_spec_carries_its_stimulus() -> None:
     spec = RigSpec("s", duration_s=1.0, controller={"tf_download_samples": 0}, dsp=DSP, stimulus=tuple(Stimulus().step("valve.u2", -1.0, at_s=0.2).profiles))
     spec = pickle.loads(pickle.dumps(spec))
-    with spec.rig() as rig:
+    with HilRig.from_spec(spec) as rig:
         rec = rig.run()
     assert np.all(rec.columns["stim_u2_v"][rec.columns["t_s"] >= 0.2] == -1.0)
 
