@@ -40,3 +40,23 @@ def band_below(freqs: np.ndarray, mag: np.ndarray, centre: float, level: float) 
     while hi < below.size - 1 and below[hi + 1]:
         hi += 1
     return float(freqs[lo]), float(freqs[hi])
+
+
+def magnitude_agreement(freqs: np.ndarray, reference_mag: np.ndarray, other: np.ndarray, band: tuple[float, float]) -> dict[str, float | int]:
+    """How closely ``|other|`` matches ``reference_mag`` on the bins where the reference is non-zero.
+
+    Relative differences ``||other| − ref| / ref``: their median, 99th
+    percentile and maximum over those bins, the maximum within ``band``
+    (NaN if no such bin there), and the number of bins compared.
+    """
+    valid = reference_mag > 0
+    rel = np.abs(np.abs(other[valid]) - reference_mag[valid]) / reference_mag[valid]
+    inband = valid & (freqs >= band[0]) & (freqs <= band[1])
+    rel_band = np.abs(np.abs(other[inband]) - reference_mag[inband]) / reference_mag[inband]
+    return {
+        "valid_bins": int(valid.sum()),
+        "median_rel_diff": float(np.median(rel)),
+        "p99_rel_diff": float(np.percentile(rel, 99)),
+        "max_rel_diff": float(rel.max()),
+        f"max_rel_diff_{band[0]:g}_{band[1]:g}Hz": float(rel_band.max()) if rel_band.size else float("nan"),
+    }

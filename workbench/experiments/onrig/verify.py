@@ -2,37 +2,26 @@
 
 The rig runs PI control along the inspection loop (30 s; ``--quick`` 12.6 s)
 with the DSP at the thesis's settings (N = 2048, α = 0.1, l = 20, 17-bin
-order-2 smoothing) and downloads the transfer-function estimates every
-``tf_download_samples``.  The run record holds exactly what went to the DSP:
-the D/A commands ``u1_v``, ``u2_v`` (inputs) and the measured deflections
-``defl1_in``, ``defl2_in`` (outputs), one row per tick.
+order-2 smoothing) and downloads its transfer-function estimates.  The run
+record holds exactly what went to the DSP: the D/A commands ``u1_v``,
+``u2_v`` (inputs) and the measured deflections ``defl1_in``, ``defl2_in``
+(outputs), one row per tick.
 
-§4.1.1, implementation check.  Every download with an estimate is
-recomputed off line from the record with SciPy only
-(:mod:`workbench.experiments.lib.dsp_tf_recompute`: the batches from the
-interrupt ticks, csd/welch over the N samples ending at each, exponential
-averaging [2-9], the corrected 2×2 solve, Savitzky–Golay smoothing, H_tot the
-mean of the four); the download's time stamp must be a batch end, and the
-magnitudes are compared on every bin the DSP reports valid (it zeroes bins
-whose inputs are too nearly collinear to solve, and their smoothing
-neighbours).
-
-§4.1.2, algorithm check.  A correlation-based (Blackman–Tukey) estimate of
-the same data (:mod:`workbench.experiments.lib.blackman_tukey`): ensembles of
-``BT_ENSEMBLE`` samples every ``BT_HOP`` over the stretch the on-line
-estimate drew on (the N samples of its last snapshot and ``BT_EXTRA``
-before them, about 1/α batches), a lag window matched to the on-line
-estimate's bandwidth and one of N/2 lags, the same 2×2 solve.  Compared: the
-peaks (poles) of each estimate within the band the on-line estimate is
-valid, and their roughness (RMS second difference of 20 log10|H| across
-bins, 1–20 Hz, valid bins; :mod:`workbench.experiments.lib.spectrum_features`).
+§4.1.1: every download with an estimate against its recomputation from the
+record with SciPy only (:mod:`workbench.experiments.lib.dsp_tf_recompute`),
+magnitudes compared on every bin the DSP reports valid; the download's time
+stamp must be a batch end.  §4.1.2: a Blackman–Tukey estimate of the same
+data (:mod:`workbench.experiments.lib.blackman_tukey`) over the stretch the
+on-line estimate drew on (its last snapshot's N samples and ``BT_EXTRA``
+before them), with a lag window of the on-line estimate's bandwidth and one
+of N/2 lags: their poles and roughness
+(:mod:`workbench.experiments.lib.spectrum_features`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.signal as ss
@@ -42,7 +31,8 @@ from workbench.experiments.analysis import THESIS_BATCH_SIZE
 from workbench.experiments.framework import ExperimentContext, experiment
 from workbench.experiments.lib.blackman_tukey import blackman_tukey, bt_bandwidth_bins, matched_max_lag, online_bandwidth_bins
 from workbench.experiments.lib.dsp_tf_recompute import PAIRS, TF_NAMES, averaged_spectra, batch_ends, named_tfs
-from workbench.experiments.lib.spectrum_features import dominant_peak_hz, roughness_db
+from workbench.experiments.lib.spectrum_features import dominant_peak_hz, magnitude_agreement, roughness_db
+from workbench.experiments.lib.tf_downloads import TfDownloads
 from workbench.experiments.report import Report, new_figure
 from workbench.hil import HilRig, RigRunError, RunRecord
 from workbench.rig_spec import RigSpec
@@ -60,23 +50,24 @@ ROUGH_BAND_HZ = (1.0, 20.0)
 POLE_TOLERANCE_HZ = 0.5
 
 
-@dataclass
-class Downloads:
-    """The run's transfer-function downloads and the record's DSP channels (u1, u2, y1, y2)."""
+class DspIo(NamedTuple):
+    """What went to the DSP, a column per tick (rows u1, u2, y1, y2), and the last tick of every batch."""
 
-    tf: dict[str, np.ndarray]
-    freqs: np.ndarray
-    times: np.ndarray
-    have: list[int]
     channels: np.ndarray
     ends: np.ndarray
 
-    def online(self, i: int, name: str) -> np.ndarray:
-        return np.asarray(self.tf[f"{name}_mag"][i], dtype=float)
 
-    def stretch(self, end_tick: int) -> int:
-        """First tick of the stretch the on-line estimate ending at ``end_tick`` drew on (plus ``BT_EXTRA``)."""
-        return max(0, end_tick + 1 - FFT_WIDTH - BT_EXTRA)
+def _stretch_start(end_tick: int) -> int:
+    """First tick of the stretch the on-line estimate ending at ``end_tick`` drew on, and ``BT_EXTRA`` before it."""
+    return max(0, end_tick + 1 - FFT_WIDTH - BT_EXTRA)
+
+
+class LastEstimates(NamedTuple):
+    """The last download's off-line recomputation, Blackman–Tukey estimates (by lag window) and unsmoothed solve (complex)."""
+
+    offline: dict[str, np.ndarray]
+    bt: dict[str, dict[str, np.ndarray]]
+    unsmoothed: dict[str, np.ndarray]
 
 
 @experiment(
@@ -99,21 +90,16 @@ def run(ctx: ExperimentContext) -> Report:
         res = rig.run()
     if res.error:
         raise RigRunError(f"run {res.name!r} ({res.layout}) ended with a fault: {res.error}")
-    if res.tf is None:
-        raise RuntimeError("the controller downloaded no transfer functions")
-    times = np.asarray(res.tf["sim_time_s"])
-    have = [i for i in range(times.size) if np.any(res.tf["Htot_mag"][i] > 0)]
-    if not have:
-        raise RuntimeError("no download carries an estimate (the history never filled)")
+    dl = TfDownloads.of(res)
     channels = np.vstack([res.columns[c] for c in ("u1_v", "u2_v", "defl1_in", "defl2_in")]).astype(float)
-    ends = batch_ends(res.columns["irq_applied"], THESIS_BATCH_SIZE, channels.shape[1])
-    dl = Downloads(res.tf, np.asarray(res.tf["freqs_hz"]), times, have, channels, ends)
+    io = DspIo(channels, batch_ends(res.columns["irq_applied"], THESIS_BATCH_SIZE, channels.shape[1]))
 
-    impl, offline, spectra_at = _implementation_check(dl)
-    algo, bt_last, raw_last = _algorithm_check(dl, impl, spectra_at, res)
-    _results(rep, res, dl, download, impl, algo, offline, bt_last, raw_last)
-    _run_and_implementation(rep, res, dl, duration, download, impl)
-    _implementation_figures(rep, dl, offline, bt_last, raw_last, algo["downloads"][-1])
+    impl, offline, spectra_at = _implementation_check(dl, io)
+    algo, bt_last, raw_last = _algorithm_check(dl, io, impl, spectra_at, res)
+    last = LastEstimates(offline, bt_last, raw_last)
+    _results(rep, res, dl, io, download, impl, algo, last)
+    _run_and_implementation(rep, res, dl, io, duration, download, impl)
+    _implementation_figures(rep, dl, last, algo["downloads"][-1])
     _algorithm_section(rep, algo)
     _checks_and_thesis(rep, dl, impl, algo)
     rep.attach(res.output(".npz"), "controller run record (inputs u1_v, u2_v and outputs defl1_in, defl2_in sent to the DSP)")
@@ -122,44 +108,36 @@ def run(ctx: ExperimentContext) -> Report:
     return rep
 
 
-def _implementation_check(dl: Downloads) -> tuple[list[dict[str, Any]], dict[str, np.ndarray], dict[int, np.ndarray]]:
+def _implementation_check(dl: TfDownloads, io: DspIo) -> tuple[list[dict[str, Any]], dict[str, np.ndarray], dict[int, np.ndarray]]:
     """§4.1.1: every download with data against the off-line recomputation; the last one's estimates, the averaged spectra of each."""
     impl: list[dict[str, Any]] = []
     spectra_at: dict[int, np.ndarray] = {}
     off: dict[str, np.ndarray] = {}
     for i in dl.have:
         end_tick = int(round(dl.times[i] * FS_HZ)) - 1
-        spectra, f_off, n_snap = averaged_spectra(dl.channels, dl.ends[dl.ends <= end_tick], FFT_WIDTH, ALPHA, FS_HZ)
+        spectra, f_off, n_snap = averaged_spectra(io.channels, io.ends[io.ends <= end_tick], FFT_WIDTH, ALPHA, FS_HZ)
         spectra_at[i] = spectra
         off = named_tfs(spectra, SMOOTHING)
         row: dict[str, Any] = {
             "sim_time_s": float(dl.times[i]),
             "end_tick": end_tick,
-            "end_is_a_batch_end": bool(np.any(dl.ends == end_tick)),
+            "end_is_a_batch_end": bool(np.any(io.ends == end_tick)),
             "snapshots": n_snap,
             "grid_equal": bool(np.allclose(f_off, dl.freqs, rtol=0, atol=1e-12)),
         }
         for name in TF_NAMES:
-            on = dl.online(i, name)
-            valid = on > 0
-            rel = np.abs(np.abs(off[name][valid]) - on[valid]) / on[valid]
-            band = valid & (dl.freqs >= 0.5) & (dl.freqs <= 40.0)
-            rel_band = np.abs(np.abs(off[name][band]) - on[band]) / on[band]
+            on = dl.magnitude(i, name)
             row[name] = {
-                "valid_bins": int(valid.sum()),
-                "median_rel_diff": float(np.median(rel)),
-                "p99_rel_diff": float(np.percentile(rel, 99)),
-                "max_rel_diff": float(rel.max()),
-                "max_rel_diff_0.5_40Hz": float(rel_band.max()) if rel_band.size else float("nan"),
-                "peak_online_hz": dominant_peak_hz(dl.freqs, on, valid, PEAK_BAND_HZ),
-                "peak_offline_hz": dominant_peak_hz(dl.freqs, np.abs(off[name]), valid, PEAK_BAND_HZ),
+                **magnitude_agreement(dl.freqs, on, off[name], (0.5, 40.0)),
+                "peak_online_hz": dominant_peak_hz(dl.freqs, on, on > 0, PEAK_BAND_HZ),
+                "peak_offline_hz": dominant_peak_hz(dl.freqs, np.abs(off[name]), on > 0, PEAK_BAND_HZ),
             }
         impl.append(row)
     return impl, off, spectra_at
 
 
 def _algorithm_check(
-    dl: Downloads, impl: list[dict[str, Any]], spectra_at: dict[int, np.ndarray], res: RunRecord
+    dl: TfDownloads, io: DspIo, impl: list[dict[str, Any]], spectra_at: dict[int, np.ndarray], res: RunRecord
 ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]], dict[str, np.ndarray]]:
     """§4.1.2: Blackman–Tukey at every download with a matched and a half-N lag window; the last one's BT and unsmoothed estimates."""
     b_online = online_bandwidth_bins(FFT_WIDTH, *SMOOTHING)
@@ -176,7 +154,7 @@ def _algorithm_check(
     raws: dict[str, np.ndarray] = {}
     for r in impl:
         i = int(np.flatnonzero(np.isclose(dl.times, r["sim_time_s"]))[0])
-        start, stop = dl.stretch(r["end_tick"]), r["end_tick"] + 1
+        start, stop = _stretch_start(r["end_tick"]), r["end_tick"] + 1
         t_span = np.arange(start, stop) / FS_HZ
         true1, true2 = res.true_mode_hz(t_span, 0), res.true_mode_hz(t_span, 1)
         entry: dict[str, Any] = {
@@ -186,11 +164,11 @@ def _algorithm_check(
             "true_f2_hz": [float(true2.min()), float(true2.mean()), float(true2.max())],
         }
         for key, m in lag_sets.items():
-            spectra_bt, entry[f"ensembles_{key}"] = blackman_tukey(dl.channels, PAIRS, start, stop, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
+            spectra_bt, entry[f"ensembles_{key}"] = blackman_tukey(io.channels, PAIRS, start, stop, max(BT_ENSEMBLE, 2 * m), BT_HOP, m, FFT_WIDTH)
             ests[key] = named_tfs(spectra_bt)
         raws = named_tfs(spectra_at[i])
         for name in TF_NAMES:
-            on = dl.online(i, name)
+            on = dl.magnitude(i, name)
             valid = on > 0
             dom_on = dominant_peak_hz(dl.freqs, on, valid, PEAK_BAND_HZ)
             dom_bt = dominant_peak_hz(dl.freqs, np.abs(ests["matched"][name]), valid, PEAK_BAND_HZ)
@@ -206,38 +184,35 @@ def _pairs(algo: dict[str, Any], name: str | None = None) -> list[tuple[dict[str
     return [(e, n, e[n]) for e in algo["downloads"] for n in TF_NAMES if name in (None, n)]
 
 
+def _smoother(algo: dict[str, Any], than: str, name: str | None = None) -> list[bool]:
+    """Per download and estimate (or one estimate): is the on-line estimate less rough than ``than`` (a ``roughness_db`` key)?"""
+    return [c["roughness_db"]["online"] < c["roughness_db"][than] for _, _, c in _pairs(algo, name)]
+
+
 def _results(
-    rep: Report,
-    res: RunRecord,
-    dl: Downloads,
-    download: int,
-    impl: list[dict[str, Any]],
-    algo: dict[str, Any],
-    off: dict[str, np.ndarray],
-    bt_last: dict[str, dict[str, np.ndarray]],
-    raw_last: dict[str, np.ndarray],
+    rep: Report, res: RunRecord, dl: TfDownloads, io: DspIo, download: int, impl: list[dict[str, Any]], algo: dict[str, Any], last: LastEstimates
 ) -> None:
     """Everything numeric the report keeps."""
     diffs = [c["abs_diff_hz"] for _, _, c in _pairs(algo) if math.isfinite(c["abs_diff_hz"])]
     htot_diffs = [c["abs_diff_hz"] for _, _, c in _pairs(algo, "Htot") if math.isfinite(c["abs_diff_hz"])]
-    smoother = {k: [c["roughness_db"]["online"] < c["roughness_db"][f"bt_{k}"] for _, _, c in _pairs(algo)] for k in ("half_N", "matched")}
+    smoother = {k: _smoother(algo, f"bt_{k}") for k in ("half_N", "matched")}
     last_end, last_i = impl[-1]["end_tick"], dl.have[-1]
-    u = dl.channels[:2, dl.stretch(last_end) : last_end + 1]
+    u = io.channels[:2, _stretch_start(last_end) : last_end + 1]
     coh_f, coh = ss.coherence(u[0], u[1], fs=FS_HZ, nperseg=512)
-    valid_last = dl.online(last_i, "Htot") > 0
+    valid_last = dl.valid(last_i)
     above = valid_last & (dl.freqs > 0.3)
     last_entry = algo["downloads"][-1]
     rep.results = {
         "run": res.run_facts(),
         "settings": {"fft_width": FFT_WIDTH, "alpha": ALPHA, "batch_size": THESIS_BATCH_SIZE, "smoothing": list(SMOOTHING), "tf_download_samples": download},
-        "batches": {"reconstructed": int(dl.ends.size), "sent_by_controller": res.counters.get("batches_sent")},
+        "batches": {"reconstructed": int(io.ends.size), "sent_by_controller": res.counters.get("batches_sent")},
         "implementation": impl,
         "algorithm": algo,
         "last_download": {
             "sim_time_s": float(dl.times[last_i]),
             "lowest_valid_hz": float(dl.freqs[above].min()) if np.any(above) else float("nan"),
             "invalid_bins_below_20hz": int(np.count_nonzero((~valid_last) & (dl.freqs < 20.0) & (dl.freqs > 0))),
-            "identified_f1_hz": float(res.columns["f_id_hz"][min(last_end + 1, dl.channels.shape[1] - 1)]),
+            "identified_f1_hz": float(res.columns["f_id_hz"][min(last_end + 1, io.channels.shape[1] - 1)]),
             "true_f1_hz": last_entry["true_f1_hz"],
             "true_f2_hz": last_entry["true_f2_hz"],
             "input_correlation": float(np.corrcoef(u)[0, 1]),
@@ -245,10 +220,10 @@ def _results(
         },
         "spectra_last": {
             "freqs_hz": dl.freqs.tolist(),
-            **{f"{n}_online": dl.online(last_i, n).tolist() for n in TF_NAMES},
-            **{f"{n}_offline": np.abs(off[n]).tolist() for n in TF_NAMES},
-            **{f"{n}_unsmoothed": np.abs(raw_last[n]).tolist() for n in TF_NAMES},
-            **{f"{n}_bt_{k}": np.abs(bt_last[k][n]).tolist() for n in TF_NAMES for k in bt_last},
+            **{f"{n}_online": dl.magnitude(last_i, n).tolist() for n in TF_NAMES},
+            **{f"{n}_offline": np.abs(last.offline[n]).tolist() for n in TF_NAMES},
+            **{f"{n}_unsmoothed": np.abs(last.unsmoothed[n]).tolist() for n in TF_NAMES},
+            **{f"{n}_bt_{k}": np.abs(last.bt[k][n]).tolist() for n in TF_NAMES for k in last.bt},
         },
         "summary": {
             "worst_median_rel_diff": max(r[n]["median_rel_diff"] for r in impl for n in TF_NAMES),
@@ -261,7 +236,7 @@ def _results(
     }
 
 
-def _run_and_implementation(rep: Report, res: RunRecord, dl: Downloads, duration: float, download: int, impl: list[dict[str, Any]]) -> None:
+def _run_and_implementation(rep: Report, res: RunRecord, dl: TfDownloads, io: DspIo, duration: float, download: int, impl: list[dict[str, Any]]) -> None:
     """The run and the implementation check's table."""
     rep.heading("Run")
     rep.text(
@@ -270,7 +245,7 @@ def _run_and_implementation(rep: Report, res: RunRecord, dl: Downloads, duration
         f"DSP at N = {FFT_WIDTH}, α = {ALPHA}, l = {THESIS_BATCH_SIZE}, Savitzky–Golay {SMOOTHING[0]} bins order {SMOOTHING[1]}; "
         f"transfer functions downloaded every {download} samples ({download / FS_HZ:g} s): {len(dl.have)} of {dl.times.size} downloads carry an estimate "
         f"(the identifier waits for a full history, {FFT_WIDTH / FS_HZ:.2f} s). "
-        f"Batches: {dl.ends.size} reconstructed from the record's interrupt ticks, {rep.results['batches']['sent_by_controller'] or '?'} sent by the controller."
+        f"Batches: {io.ends.size} reconstructed from the record's interrupt ticks, {rep.results['batches']['sent_by_controller'] or '?'} sent by the controller."
     )
     rep.heading("Implementation check (§4.1.1)")
     rep.text(
@@ -290,17 +265,16 @@ def _run_and_implementation(rep: Report, res: RunRecord, dl: Downloads, duration
     )
 
 
-def _implementation_figures(
-    rep: Report, dl: Downloads, off: dict[str, np.ndarray], bt: dict[str, dict[str, np.ndarray]], raws: dict[str, np.ndarray], last: dict[str, Any]
-) -> None:
+def _implementation_figures(rep: Report, dl: TfDownloads, est: LastEstimates, last: dict[str, Any]) -> None:
     """The spectra and the relative difference of the last download."""
+    off, bt, raws = est
     i, ld = dl.have[-1], rep.results["last_download"]
-    freqs, valid = dl.freqs, dl.online(dl.have[-1], "Htot") > 0
+    freqs, valid = dl.freqs, dl.valid(i)
     fig = new_figure(11.0, 11.0)
     axes = fig.subplots(5, 1, sharex=True)
     m = freqs <= 20.0
     for ax, name in zip(axes, TF_NAMES):
-        on, raw = dl.online(i, name), np.abs(raws[name])
+        on, raw = dl.magnitude(i, name), np.abs(raws[name])
         ax.axvspan(last["true_f1_hz"][0], last["true_f1_hz"][2], color="0.85", lw=0)
         ax.axvspan(last["true_f2_hz"][0], last["true_f2_hz"][2], color="mistyrose", lw=0)
         ax.semilogy(freqs[m], np.where(raw[m] > 0, raw[m], np.nan), color="0.6", lw=0.6, label="unsmoothed solve")
@@ -315,8 +289,7 @@ def _implementation_figures(
         ax.set_ylabel(f"|{name}|")
         ax.grid(True, lw=0.3, which="both")
     axes[0].legend(fontsize=7, ncol=4, loc="upper right")
-    axes[-1].set_xlabel("frequency (Hz)")
-    axes[-1].set_xlim(0, 20)
+    axes[-1].set(xlabel="frequency (Hz)", xlim=(0, 20))
     rep.figure(
         fig,
         "verify_tf.png",
@@ -325,12 +298,9 @@ def _implementation_figures(
     fig = new_figure(9.0, 3.8)
     ax = fig.add_subplot(1, 1, 1)
     for name in TF_NAMES:
-        on = dl.online(i, name)
-        v = on > 0
+        on, v = dl.magnitude(i, name), dl.valid(i, name)
         ax.semilogy(freqs[v], np.maximum(np.abs(np.abs(off[name][v]) - on[v]) / on[v], 1e-18), ".", ms=2, label=name)
-    ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("relative magnitude difference")
-    ax.set_ylim(1e-18, 1e-6)
+    ax.set(xlabel="frequency (Hz)", ylabel="relative magnitude difference", ylim=(1e-18, 1e-6))
     ax.grid(True, lw=0.3, which="both")
     ax.legend(fontsize=7, ncol=5)
     rep.figure(fig, "verify_difference.png", "Relative difference |off-line − on-line| / on-line of the magnitudes at the last download, valid bins.")
@@ -376,14 +346,12 @@ def _algorithm_section(rep: Report, algo: dict[str, Any]) -> None:
     )
 
 
-def _checks_and_thesis(rep: Report, dl: Downloads, impl: list[dict[str, Any]], algo: dict[str, Any]) -> None:
+def _checks_and_thesis(rep: Report, dl: TfDownloads, impl: list[dict[str, Any]], algo: dict[str, Any]) -> None:
     """The pass/fail checks and the comparison with the thesis."""
     summ = rep.results["summary"]
     worst_median, worst_max = summ["worst_median_rel_diff"], summ["worst_max_rel_diff"]
     exact = worst_median < 1e-9 and worst_max < 1e-6
-    rough = [c["roughness_db"] for _, _, c in _pairs(algo)]
-    smoother_half_n = [r["online"] < r["bt_half_N"] for r in rough]
-    smoother_matched = [r["online"] < r["bt_matched"] for r in rough]
+    smoother_half_n, smoother_matched = _smoother(algo, "bt_half_N"), _smoother(algo, "bt_matched")
     frac_half_n = sum(smoother_half_n) / len(smoother_half_n) if smoother_half_n else math.nan
     rep.check_every(
         "every download's time stamp is a reconstructed batch end", [r["end_is_a_batch_end"] for r in impl], ", ".join(f"{r['sim_time_s']:g} s" for r in impl)
@@ -409,13 +377,11 @@ def _checks_and_thesis(rep: Report, dl: Downloads, impl: list[dict[str, Any]], a
     )
     rep.check_every(
         "the on-line estimate is smoother than Blackman–Tukey at the FFT's resolution (M = N/2): H_tot at every download, ≥ 80 % of all estimates",
-        [c["roughness_db"]["online"] < c["roughness_db"]["bt_half_N"] for _, _, c in _pairs(algo, "Htot")],
+        _smoother(algo, "bt_half_N", "Htot"),
         f"all estimates {sum(smoother_half_n)} of {len(smoother_half_n)}",
         also=frac_half_n >= 0.8,
     )
-    rep.check_every(
-        "smoothing lowers the roughness of the solve (on-line < unsmoothed), every download and estimate", [r["online"] < r["unsmoothed"] for r in rough]
-    )
+    rep.check_every("smoothing lowers the roughness of the solve (on-line < unsmoothed), every download and estimate", _smoother(algo, "unsmoothed"))
     rep.thesis(
         "§4.1.1: the DSP's FFT, spectra and transfer functions are virtually identical to an independent off-line implementation, apart from rounding in the noise floor.",
         f"{len(impl)} download(s) × 5 estimates: median relative difference ≤ {worst_median:.1e}, largest {worst_max:.1e} (double precision; the C40 computed in single).",
