@@ -10,10 +10,12 @@ filled.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from workbench.rig_record import RunRecord
+if TYPE_CHECKING:
+    from workbench.hil import RunRecord
 
 
 @dataclass(frozen=True)

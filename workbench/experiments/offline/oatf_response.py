@@ -45,22 +45,20 @@ def run(ctx: ExperimentContext) -> Report:
     n_grid = 2001 if ctx.quick else 20001
     ts = 1.0 / EXAMPLE_FS_HZ
 
-    t1, disc, cont, f_disc, m_disc, f_cont, m_cont, at51, rv = _example_designs(rep, ts, n_grid)
-    _example_tables(rep, t1, disc, at51, f_disc, m_disc, cont, f_cont, m_cont, rv)
-    _example_figure(rep, n_grid, disc, cont, f_cont, ts)
+    disc, cont = _example_designs(rep, ts, n_grid)
+    _example_tables(rep, disc, cont)
+    _example_figure(rep, n_grid, disc, cont, ts)
     designs, f2, arm = _arm_designs(rep, n_grid)
     ratio, sens = _arm_sensitivity(ctx, rep, designs, arm)
     _arm_response_figure(rep, designs, f2)
     _sensitivity_figure(rep, designs, ratio)
     _sensitivity_table(rep, sens)
-    _checks(rep, at51, f_cont, rv, arm, sens)
+    _checks(rep)
     return rep
 
 
-def _example_designs(
-    rep: Report, ts: float, n_grid: int
-) -> tuple[float, StageDesign, StageDesign, float, float, float, float, dict[str, float], dict[str, dict[str, float]]]:
-    """The 51 Hz example at 500 Hz (Figs. 3.7, 3.8): both designs, their notches and residual vibration."""
+def _example_designs(rep: Report, ts: float, n_grid: int) -> tuple[StageDesign, StageDesign]:
+    """The 51 Hz example at 500 Hz (Figs. 3.7, 3.8): both designs; their notches and residual vibration into the results."""
     rep.heading("1. Integer delay versus continuous delay: 51 Hz at 500 Hz (Figs. 3.7, 3.8)")
     t1 = robust_delay_s(EXAMPLE_F_HZ, 0.0)
     disc = design_stage(EXAMPLE_F_HZ, 0.0, ts)
@@ -99,22 +97,13 @@ def _example_designs(
         "zeros_continuous": zeros_hz(cont),
         "residual_vibration_at_51hz": rv,
     }
-    return t1, disc, cont, f_disc, m_disc, f_cont, m_cont, at51, rv
+    return disc, cont
 
 
-def _example_tables(
-    rep: Report,
-    t1: float,
-    disc: StageDesign,
-    at51: dict[str, float],
-    f_disc: float,
-    m_disc: float,
-    cont: StageDesign,
-    f_cont: float,
-    m_cont: float,
-    rv: dict[str, dict[str, float]],
-) -> None:
+def _example_tables(rep: Report, disc: StageDesign, cont: StageDesign) -> None:
     """The 51 Hz example's text and tables."""
+    ex = rep.results["example_51hz"]
+    t1, at51, rv = ex["t1_continuous_s"], ex["abs_F_at_51hz"], ex["residual_vibration_at_51hz"]
     rep.text(
         f"Robust delay T1 = π/ω_d = {t1 * 1e3:.3f} ms; n1 = int(T1/Ts) = {disc.delay_samples} samples "
         f"({disc.delay_s * 1e3:.1f} ms). Both designs put their taps at 0, n1, 2·n1; they differ only in "
@@ -133,8 +122,8 @@ def _example_tables(
                 ", ".join(f"{z['frequency_hz']:.2f}" for z in zeros_hz(s) if abs(z["radius"] - 1) < 1e-6),
             ]
             for name, key, s, fn, mn in (
-                ("from n1·Ts (discrete, [3-34])", "discrete", disc, f_disc, m_disc),
-                ("from T1 (continuous, [3-32])", "continuous", cont, f_cont, m_cont),
+                ("from n1·Ts (discrete, [3-34])", "discrete", disc, ex["notch_discrete_hz"], ex["notch_discrete_abs"]),
+                ("from T1 (continuous, [3-32])", "continuous", cont, ex["notch_continuous_hz"], ex["notch_continuous_abs"]),
             )
         ],
         caption="The 51 Hz example at 500 Hz (ζ = 0)",
@@ -147,8 +136,9 @@ def _example_tables(
     )
 
 
-def _example_figure(rep: Report, n_grid: int, disc: StageDesign, cont: StageDesign, f_cont: float, ts: float) -> None:
+def _example_figure(rep: Report, n_grid: int, disc: StageDesign, cont: StageDesign, ts: float) -> None:
     """Magnitude response and zeros of the two 51 Hz designs."""
+    f_cont = rep.results["example_51hz"]["notch_continuous_hz"]
     freqs = np.linspace(0.0, EXAMPLE_FS_HZ / 2, n_grid)
     fig = new_figure(9.0, 4.2)
     ax1, ax2 = fig.subplots(1, 2, width_ratios=[2.2, 1])
@@ -318,9 +308,11 @@ def _sensitivity_table(rep: Report, sens: dict[str, dict]) -> None:
     )
 
 
-def _checks(rep: Report, at51: dict[str, float], f_cont: float, rv: dict[str, dict[str, float]], arm: dict[str, dict], sens: dict[str, dict]) -> None:
-    """The checks and the comparison with the thesis."""
-    ex = rep.results["example_51hz"]
+def _checks(rep: Report) -> None:
+    """The checks and the comparison with the thesis, from the results."""
+    ex, arm4 = rep.results["example_51hz"], rep.results["arm_4p4hz"]
+    at51, f_cont, rv = ex["abs_F_at_51hz"], ex["notch_continuous_hz"], ex["residual_vibration_at_51hz"]
+    arm, sens = arm4["designs"], arm4["sensitivity"]
     rep.check("discrete design: |F(51 Hz)| ≈ 0", at51["discrete"] < 1e-9, f"|F(51 Hz)| = {at51['discrete']:.2e}")
     rep.check(
         "continuous-delay design misses 51 Hz",

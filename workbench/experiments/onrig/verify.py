@@ -34,8 +34,7 @@ from workbench.experiments.lib.dsp_tf_recompute import PAIRS, TF_NAMES, averaged
 from workbench.experiments.lib.spectrum_features import dominant_peak_hz, magnitude_agreement, roughness_db
 from workbench.experiments.lib.tf_downloads import TfDownloads
 from workbench.experiments.report import Report, new_figure
-from workbench.hil import HilRig, RigRunError, RunRecord
-from workbench.rig_spec import RigSpec
+from workbench.hil import HilRig, RigRunError, RigSpec, RunRecord
 
 FS_HZ = 200.0
 FFT_WIDTH = 2048
