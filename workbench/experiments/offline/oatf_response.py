@@ -17,22 +17,12 @@ the design damping and on the arm's own ``zeta = 0.09`` mode.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from scipy.optimize import minimize_scalar
 
-from controller.oatf import (
-    StageDesign,
-    design_stage,
-    design_stage_continuous,
-    frequency_response,
-    kernel_impulses,
-    residual_vibration,
-    robust_delay_s,
-    transfer_function,
-)
+from controller.oatf import StageDesign, design_stage, design_stage_continuous, frequency_response, kernel_impulses, residual_vibration, robust_delay_s
 from workbench.experiments.framework import ExperimentContext, experiment
+from workbench.experiments.lib.oatf_zeros import abs_at_pole, notch, zeros, zeros_hz
+from workbench.experiments.lib.spectrum_features import band_below
 from workbench.experiments.report import Report, new_figure
 
 EXAMPLE_F_HZ = 51.0
@@ -45,67 +35,6 @@ DESIGN_ZETAS = (0.09, 0.01)
 ARM_ZETA = 0.09
 
 
-def _notch(stage: StageDesign, near_hz: float, f_hi: float, n_grid: int) -> tuple[float, float]:
-    """The local minimum of ``|F|`` on (0, f_hi) nearest ``near_hz``: (frequency in Hz, ``|F|`` there).
-
-    Local minima are found on a grid and refined by Brent's method.
-    """
-    grid = np.linspace(0.0, f_hi, n_grid)
-    mag = np.abs(frequency_response(grid, [stage]))
-    interior = np.flatnonzero((mag[1:-1] <= mag[:-2]) & (mag[1:-1] <= mag[2:])) + 1
-    if interior.size == 0:
-        interior = np.array([int(np.argmin(mag))])
-    i = int(interior[np.argmin(np.abs(grid[interior] - near_hz))])
-    a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-    res = minimize_scalar(
-        lambda f: float(abs(frequency_response([f], [stage])[0])),
-        bounds=(a, b),
-        method="bounded",
-        options={"xatol": 1e-10},
-    )
-    return float(res.x), float(res.fun)
-
-
-def _at_pole(stage: StageDesign, frequency_hz: float, zeta: float) -> float:
-    """``|F(e^(s Ts))|`` at the mode's pole ``s = -zeta w_n + j w_d``: 0 when the zero cancels the mode."""
-    wn = 2 * math.pi * frequency_hz
-    s = complex(-zeta * wn, wn * math.sqrt(1 - zeta * zeta))
-    return float(abs(transfer_function([np.exp(s * stage.sample_period_s)], [stage])[0]))
-
-
-def _zeros_hz(stage: StageDesign) -> list[dict[str, float]]:
-    """Zeros of ``a0 z^(2n) + a1 z^n + a2`` in the upper half plane: frequency (Hz) and radius."""
-    n = stage.delay_samples
-    poly = np.zeros(2 * n + 1)
-    poly[[0, n, 2 * n]] = stage.coefficients
-    roots = np.roots(poly)
-    out = []
-    for r in roots:
-        ang = math.atan2(r.imag, r.real)
-        if ang >= -1e-12:
-            out.append({"frequency_hz": ang / (2 * math.pi * stage.sample_period_s), "radius": abs(r)})
-    return sorted(out, key=lambda d: d["frequency_hz"])
-
-
-def _band_below(freqs: np.ndarray, mag: np.ndarray, centre_hz: float, level: float) -> tuple[float, float] | None:
-    """The contiguous band around ``centre_hz`` where ``mag <= level`` (grid resolution), or None."""
-    below = mag <= level
-    k = int(np.argmin(np.abs(freqs - centre_hz)))
-    if not below[k]:
-        return None
-    lo = k
-    while lo > 0 and below[lo - 1]:
-        lo -= 1
-    hi = k
-    while hi < below.size - 1 and below[hi + 1]:
-        hi += 1
-    return float(freqs[lo]), float(freqs[hi])
-
-
-def _ratio_band(ratio: np.ndarray, v: np.ndarray, level: float) -> tuple[float, float] | None:
-    return _band_below(ratio, v, 1.0, level)
-
-
 @experiment(
     "oatf-response",
     section="§3.3 Figs. 3.7–3.8, Fig. 4.8",
@@ -116,28 +45,26 @@ def run(ctx: ExperimentContext) -> Report:
     n_grid = 2001 if ctx.quick else 20001
     ts = 1.0 / EXAMPLE_FS_HZ
 
-    t1, disc, cont, f_disc, m_disc, f_cont, m_cont, at51, rv = _example_designs(rep, ts, n_grid)
-    _example_tables(rep, t1, disc, at51, f_disc, m_disc, cont, f_cont, m_cont, rv)
-    _example_figure(rep, n_grid, disc, cont, f_cont, ts)
+    disc, cont = _example_designs(rep, ts, n_grid)
+    _example_tables(rep, disc, cont)
+    _example_figure(rep, n_grid, disc, cont, ts)
     designs, f2, arm = _arm_designs(rep, n_grid)
     ratio, sens = _arm_sensitivity(ctx, rep, designs, arm)
     _arm_response_figure(rep, designs, f2)
     _sensitivity_figure(rep, designs, ratio)
     _sensitivity_table(rep, sens)
-    _checks(rep, at51, f_cont, rv, arm, sens)
+    _checks(rep)
     return rep
 
 
-def _example_designs(
-    rep: Report, ts: float, n_grid: int
-) -> tuple[float, StageDesign, StageDesign, float, float, float, float, dict[str, float], dict[str, dict[str, float]]]:
-    """The 51 Hz example at 500 Hz (Figs. 3.7, 3.8): both designs, their notches and residual vibration."""
+def _example_designs(rep: Report, ts: float, n_grid: int) -> tuple[StageDesign, StageDesign]:
+    """The 51 Hz example at 500 Hz (Figs. 3.7, 3.8): both designs; their notches and residual vibration into the results."""
     rep.heading("1. Integer delay versus continuous delay: 51 Hz at 500 Hz (Figs. 3.7, 3.8)")
     t1 = robust_delay_s(EXAMPLE_F_HZ, 0.0)
     disc = design_stage(EXAMPLE_F_HZ, 0.0, ts)
     cont = design_stage_continuous(EXAMPLE_F_HZ, 0.0, ts)
-    f_disc, m_disc = _notch(disc, EXAMPLE_F_HZ, EXAMPLE_FS_HZ / 2, n_grid)
-    f_cont, m_cont = _notch(cont, EXAMPLE_F_HZ, EXAMPLE_FS_HZ / 2, n_grid)
+    f_disc, m_disc = notch(disc, EXAMPLE_F_HZ, EXAMPLE_FS_HZ / 2, n_grid)
+    f_cont, m_cont = notch(cont, EXAMPLE_F_HZ, EXAMPLE_FS_HZ / 2, n_grid)
     at51 = {
         "discrete": float(abs(frequency_response([EXAMPLE_F_HZ], [disc])[0])),
         "continuous": float(abs(frequency_response([EXAMPLE_F_HZ], [cont])[0])),
@@ -149,8 +76,8 @@ def _example_designs(
         rv[str(z)] = {
             "discrete": float(residual_vibration(*kernel_impulses([d]), EXAMPLE_F_HZ, z)),
             "continuous": float(residual_vibration(*kernel_impulses([c]), EXAMPLE_F_HZ, z)),
-            "discrete_at_pole_abs": _at_pole(d, EXAMPLE_F_HZ, z),
-            "continuous_at_pole_abs": _at_pole(c, EXAMPLE_F_HZ, z),
+            "discrete_at_pole_abs": abs_at_pole(d, EXAMPLE_F_HZ, z),
+            "continuous_at_pole_abs": abs_at_pole(c, EXAMPLE_F_HZ, z),
         }
     rep.results["example_51hz"] = {
         "frequency_hz": EXAMPLE_F_HZ,
@@ -166,26 +93,17 @@ def _example_designs(
         "notch_discrete_abs": m_disc,
         "notch_continuous_hz": f_cont,
         "notch_continuous_abs": m_cont,
-        "zeros_discrete": _zeros_hz(disc),
-        "zeros_continuous": _zeros_hz(cont),
+        "zeros_discrete": zeros_hz(disc),
+        "zeros_continuous": zeros_hz(cont),
         "residual_vibration_at_51hz": rv,
     }
-    return t1, disc, cont, f_disc, m_disc, f_cont, m_cont, at51, rv
+    return disc, cont
 
 
-def _example_tables(
-    rep: Report,
-    t1: float,
-    disc: StageDesign,
-    at51: dict[str, float],
-    f_disc: float,
-    m_disc: float,
-    cont: StageDesign,
-    f_cont: float,
-    m_cont: float,
-    rv: dict[str, dict[str, float]],
-) -> None:
+def _example_tables(rep: Report, disc: StageDesign, cont: StageDesign) -> None:
     """The 51 Hz example's text and tables."""
+    ex = rep.results["example_51hz"]
+    t1, at51, rv = ex["t1_continuous_s"], ex["abs_F_at_51hz"], ex["residual_vibration_at_51hz"]
     rep.text(
         f"Robust delay T1 = π/ω_d = {t1 * 1e3:.3f} ms; n1 = int(T1/Ts) = {disc.delay_samples} samples "
         f"({disc.delay_s * 1e3:.1f} ms). Both designs put their taps at 0, n1, 2·n1; they differ only in "
@@ -201,11 +119,11 @@ def _example_tables(
                 at51[key],
                 fn,
                 mn,
-                ", ".join(f"{z['frequency_hz']:.2f}" for z in _zeros_hz(s) if abs(z["radius"] - 1) < 1e-6),
+                ", ".join(f"{z['frequency_hz']:.2f}" for z in zeros_hz(s) if abs(z["radius"] - 1) < 1e-6),
             ]
             for name, key, s, fn, mn in (
-                ("from n1·Ts (discrete, [3-34])", "discrete", disc, f_disc, m_disc),
-                ("from T1 (continuous, [3-32])", "continuous", cont, f_cont, m_cont),
+                ("from n1·Ts (discrete, [3-34])", "discrete", disc, ex["notch_discrete_hz"], ex["notch_discrete_abs"]),
+                ("from T1 (continuous, [3-32])", "continuous", cont, ex["notch_continuous_hz"], ex["notch_continuous_abs"]),
             )
         ],
         caption="The 51 Hz example at 500 Hz (ζ = 0)",
@@ -218,8 +136,9 @@ def _example_tables(
     )
 
 
-def _example_figure(rep: Report, n_grid: int, disc: StageDesign, cont: StageDesign, f_cont: float, ts: float) -> None:
+def _example_figure(rep: Report, n_grid: int, disc: StageDesign, cont: StageDesign, ts: float) -> None:
     """Magnitude response and zeros of the two 51 Hz designs."""
+    f_cont = rep.results["example_51hz"]["notch_continuous_hz"]
     freqs = np.linspace(0.0, EXAMPLE_FS_HZ / 2, n_grid)
     fig = new_figure(9.0, 4.2)
     ax1, ax2 = fig.subplots(1, 2, width_ratios=[2.2, 1])
@@ -237,10 +156,7 @@ def _example_figure(rep: Report, n_grid: int, disc: StageDesign, cont: StageDesi
     th = np.linspace(0, 2 * np.pi, 400)
     ax2.plot(np.cos(th), np.sin(th), color="0.6", lw=0.8)
     for s, col, mk in ((disc, "tab:blue", "o"), (cont, "tab:red", "x")):
-        n = s.delay_samples
-        poly = np.zeros(2 * n + 1)
-        poly[[0, n, 2 * n]] = s.coefficients
-        r = np.roots(poly)
+        r = zeros(s)
         ax2.plot(r.real, r.imag, mk, color=col, mfc="none", ms=7)
     w51 = 2 * np.pi * EXAMPLE_F_HZ * ts
     ax2.plot([0, 1.2 * np.cos(w51)], [0, 1.2 * np.sin(w51)], "k--", lw=0.8)
@@ -260,15 +176,15 @@ def _arm_designs(rep: Report, n_grid: int) -> tuple[dict[float, StageDesign], np
     rows = []
     for z, s in designs.items():
         mag = np.abs(frequency_response(f2, [s]))
-        band20 = _band_below(f2, mag, ARM_F_HZ, 0.1)
-        notch_f, notch_m = _notch(s, ARM_F_HZ, ARM_FS_HZ / 2, n_grid)
+        band20 = band_below(f2, mag, ARM_F_HZ, 0.1)
+        notch_f, notch_m = notch(s, ARM_F_HZ, ARM_FS_HZ / 2, n_grid)
         arm[str(z)] = {
             "design_zeta": z,
             "t1_robust_s": robust_delay_s(ARM_F_HZ, z),
             "n1_samples": s.delay_samples,
             "coefficients": list(s.coefficients),
             "abs_F_at_design": float(abs(frequency_response([ARM_F_HZ], [s])[0])),
-            "abs_F_at_pole": _at_pole(s, ARM_F_HZ, z),
+            "abs_F_at_pole": abs_at_pole(s, ARM_F_HZ, z),
             "notch_hz": notch_f,
             "notch_abs": notch_m,
             "band_below_minus20db_hz": list(band20) if band20 else None,
@@ -308,7 +224,7 @@ def _arm_sensitivity(ctx: ExperimentContext, rep: Report, designs: dict[float, S
                 sens[str(z)][key] = sens[str(z)]["mode_zeta_equals_design"]
                 continue
             v = residual_vibration(amps, times, ratio * ARM_F_HZ, plant_zeta)
-            b5 = _ratio_band(ratio, v, 0.05)
+            b5 = band_below(ratio, v, 1.0, 0.05)
             sens.setdefault(str(z), {})[key] = {
                 "mode_zeta": plant_zeta,
                 "V_at_design": float(residual_vibration(amps, times, ARM_F_HZ, plant_zeta)),
@@ -392,9 +308,11 @@ def _sensitivity_table(rep: Report, sens: dict[str, dict]) -> None:
     )
 
 
-def _checks(rep: Report, at51: dict[str, float], f_cont: float, rv: dict[str, dict[str, float]], arm: dict[str, dict], sens: dict[str, dict]) -> None:
-    """The checks and the comparison with the thesis."""
-    ex = rep.results["example_51hz"]
+def _checks(rep: Report) -> None:
+    """The checks and the comparison with the thesis, from the results."""
+    ex, arm4 = rep.results["example_51hz"], rep.results["arm_4p4hz"]
+    at51, f_cont, rv = ex["abs_F_at_51hz"], ex["notch_continuous_hz"], ex["residual_vibration_at_51hz"]
+    arm, sens = arm4["designs"], arm4["sensitivity"]
     rep.check("discrete design: |F(51 Hz)| ≈ 0", at51["discrete"] < 1e-9, f"|F(51 Hz)| = {at51['discrete']:.2e}")
     rep.check(
         "continuous-delay design misses 51 Hz",
