@@ -1,0 +1,1 @@
+"""Analysis the experiments share: each module named after what it computes."""
