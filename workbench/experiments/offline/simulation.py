@@ -113,10 +113,7 @@ def run(ctx: ExperimentContext) -> Report:
             "duration_s": duration_s,
             "samples": n,
             "phi_variance_rad2": ph_var.tolist(),
-            "noise_std_for_0.2pct_of_phi_variance_rad": np.sqrt(0.002 * ph_var).tolist(),
-            "noise_std_used_rad": model.noise_std_rad,
-            "noise_quoted_std_rad": model.noise_quoted_std_rad,
-            "noise_power_pct_of_phi_variance": (100 * model.noise_std_rad**2 / ph_var).tolist(),
+            **model.noise_facts(ph_var),
         },
         "noise_draws": n_draws,
         "baselines": baselines(unfiltered, THESIS_UNFILTERED),
@@ -127,7 +124,22 @@ def run(ctx: ExperimentContext) -> Report:
         "designs": designs_info,
         "groups": table,
     }
-    _model_section(ctx, rep, model, duration_s, n, zoh_dev, n_draws, ph_var, grps, designs_info)
+    # the model, the noise and the OATF designs
+    rep.heading("Model")
+    rep.text(
+        model.describe(f"the first {duration_s:g} s" if ctx.quick else f"one full lap, {duration_s:.1f} s", n, zoh_dev), model.describe_noise(n_draws, ph_var)
+    )
+    drows: list[list[Any]] = []
+    for g in grps:
+        for f in DESIGNS[1:]:
+            i = designs_info[f"group{g.number}/{_design_label(f)}"]
+            cells = ["rejected", "–", "–", "–", "–"] if "rejected" in i else [i["delay_samples"], ", ".join(f"{a:.3f}" for a in i["coefficients"])]
+            drows.append([g.number, f, *cells, *([] if "rejected" in i else [i["abs_coefficient_sum"], i["abs_F_at_mode"], i["abs_F_at_mode_pole"]])])
+    rep.table(
+        ["group", "design (Hz)", "n1", "coefficients", "Σ|a|", "|F(j·2π·5 Hz)|", "|F| at the mode's pole"],
+        drows,
+        caption="OATF designs (design ζ 0.09, group 4: 0.01); |F| at the pole z = e^(s·Ts) of the 5 Hz, ζ 0.09 mode is 0 when the filter cancels it",
+    )
     _calibration_section(rep, ts)
     _results_section(rep, grps, table, n_draws, t, setpoints, runs, out["deflection_in"])
     gains = (0.5, 1.0, 2.0, 4.0)
@@ -167,55 +179,6 @@ def _setpoints(
                 runs.append((g.number, d, f))
                 sps.append(filtered + noise[d] if g.noise else filtered)
     return runs, designs_info, np.stack(sps)
-
-
-def _model_section(
-    ctx: ExperimentContext,
-    rep: Report,
-    model: SimulationModel,
-    duration_s: float,
-    n: int,
-    zoh_dev: float,
-    n_draws: int,
-    ph_var: np.ndarray,
-    grps: list[Group],
-    designs_info: dict[str, dict[str, Any]],
-) -> None:
-    """The model, the noise and the OATF designs."""
-    ts = model.sample_period_s
-    rep.heading("Model")
-    rep.text(
-        f"Both joints follow the inspection loop's joint set-points (φ, {model.tip_speed_in_s:g} in/s, "
-        f"{'the first ' + format(duration_s, 'g') + ' s' if ctx.quick else 'one full lap, ' + format(duration_s, '.1f') + ' s'}, "
-        f"{n} samples at {1 / ts:g} Hz) through velocity-controlled actuators (v̇ = (G·u − v)/τ, τ = {1e3 * model.valve_lag_s:g} ms: "
-        f"98 % of a step's velocity in {4e3 * model.valve_lag_s:g} ms; G = {model.velocity_gain_rad_s_per_v[0]:g} rad/s per V) under the thesis's PI "
-        "(`controller.pi`, 7500/6250 mV/rad, 5000/4166 mV/(rad·s)). "
-        f"Each link has one mode, {model.mode_hz:g} Hz, ζ = {model.mode_zeta:g}, driven by the link's angular acceleration (base excitation); "
-        f"deflection = link length × modal coordinate (in). Exact zero-order-hold discretisation at {1 / ts:g} Hz "
-        f"(`scipy.signal.cont2discrete`; ten sub-steps of Ts/10 agree to {zoh_dev:.1e}). "
-        "Costs: `controller.metrics.rms_costs` (10-sample slope, 40-sample quadratic, §4.2.1), in % of the unfiltered run of the same group and noise draw."
-    )
-    rep.text(
-        f"Noise (groups 2–4): Simulink's band-limited white noise, power P = {model.noise_power_rad2_s:g} rad²·s at a sample time "
-        f"t_c = {1e3 * model.noise_sample_time_s:g} ms: a fresh Gaussian value every t_c of std √(P/t_c) = {model.noise_std_rad:.3g} rad per joint, "
-        f"added to the filtered set-points, {n_draws} draws (mean ± std below), the same draws for every design and group. "
-        f"The thesis quotes the std as {model.noise_quoted_std_rad:.3g} rad, which is √(P/{model.noise_quoted_sample_time_s:g} s): the block's "
-        f"value at its default sample time {model.noise_quoted_sample_time_s:g} s, not at the model's {1e3 * ts:g} ms. "
-        f"It also calls the noise 0.2 % of the trajectory signal's power; our loop's φ variance is {ph_var[0]:.3g} and {ph_var[1]:.3g} rad², "
-        f"of which 0.2 % would be a std of {math.sqrt(0.002 * ph_var[0]):.2g} and {math.sqrt(0.002 * ph_var[1]):.2g} rad, 13–25 times more than "
-        "reproduces the thesis's rise of the unfiltered cost (see 'Calibration')."
-    )
-    drows: list[list[Any]] = []
-    for g in grps:
-        for f in DESIGNS[1:]:
-            i = designs_info[f"group{g.number}/{_design_label(f)}"]
-            cells = ["rejected", "–", "–", "–", "–"] if "rejected" in i else [i["delay_samples"], ", ".join(f"{a:.3f}" for a in i["coefficients"])]
-            drows.append([g.number, f, *cells, *([] if "rejected" in i else [i["abs_coefficient_sum"], i["abs_F_at_mode"], i["abs_F_at_mode_pole"]])])
-    rep.table(
-        ["group", "design (Hz)", "n1", "coefficients", "Σ|a|", "|F(j·2π·5 Hz)|", "|F| at the mode's pole"],
-        drows,
-        caption="OATF designs (design ζ 0.09, group 4: 0.01); |F| at the pole z = e^(s·Ts) of the 5 Hz, ζ 0.09 mode is 0 when the filter cancels it",
-    )
 
 
 def _calibration_section(rep: Report, ts: float) -> None:

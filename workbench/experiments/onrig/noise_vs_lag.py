@@ -22,7 +22,9 @@ loop at 5 in/s, payload removed, the OATF at the outer location, design
   only the new points.
 
 Every run is one deterministic lockstep run of the one-process rig (the
-campaign's default run mode), seeded (``FULL_SEEDS`` sensor-noise seeds per
+campaign's default run mode: ``workbench.campaign.modes.run_point`` runs each
+point as a ``workbench.hil.HilRig``; the campaign, not ``map_rigs``, for its
+journal and table), seeded (``FULL_SEEDS`` sensor-noise seeds per
 point, the same for every point). The cost is the battery's (§4.2.1): RMS
 deflection velocity per link over the lap, of the arm's *true* deflection
 (the plant's ground truth at the sample rate: the vibration itself) and of
@@ -30,7 +32,9 @@ the deflection the controller *measured* (the battery's, sensor noise
 included), each also in % of the unfiltered run (a) of the same A/D, noise
 and seed. The table of every run is ``sweep/results.parquet`` / ``.csv``;
 re-running the experiment into the same directory skips the runs its
-journal already has (delete ``sweep/`` to run everything again).
+journal already has (delete ``sweep/`` to run everything again). The cells,
+their seed spread, main effects and heatmaps are
+:mod:`workbench.experiments.lib.campaign_cells`.
 
 ``--quick``: 12 and 20 bits, noise × 1, N = 1024, α = 0.05 only, (a), (b), (e), 12 s.
 """
@@ -178,30 +182,23 @@ def run(ctx: ExperimentContext) -> Report:
         "table": {"parquet": res.parquet.name, "csv": res.csv.name},
     }
 
-    labels_all = _campaign_section(rep, res, rows, failed, engine, spec, right, adaptive, cells, bits, noise)
+    labels_all = _campaign_section(rep, res, engine, spec, adaptive, cells, bits, noise)
     _costs_section(rep, labels_all, bits, noise, cells)
     _effects_section(rep, effects, cells)
-    _checks(rep, failed, bits, noise, cells, rows, quick, effects, idents)
+    _checks(rep, rows, failed, cells, bits, noise)
+    if not quick:  # the conclusion and discussion
+        _conclusion(rep, cells, effects, bits, noise, idents)
     return rep
 
 
 def _campaign_section(
-    rep: Report,
-    res: SweepResult,
-    rows: list[dict[str, Any]],
-    failed: list[dict[str, Any]],
-    engine: Engine,
-    spec: SweepSpec,
-    right: float,
-    adaptive: dict[str, list[str]],
-    cells: Cells,
-    bits: list[int],
-    noise: list[float],
+    rep: Report, res: SweepResult, engine: Engine, spec: SweepSpec, adaptive: dict[str, list[str]], cells: Cells, bits: list[int], noise: list[float]
 ) -> list[str]:
     """The campaign and its heatmaps."""
+    rows, right = res.rows, rep.results["right_hz"]
     rep.heading("Campaign")
     rep.text(
-        f"{len(rows)} runs ({res.ran} run now, {res.skipped} reused from the journal, {len(failed)} failed) on {engine.describe()}; "
+        f"{len(rows)} runs ({res.ran} run now, {res.skipped} reused from the journal, {rep.results['failed']} failed) on {engine.describe()}; "
         + (f"{res.wall_s:.0f} s wall ({res.runs_per_hour:.0f} runs/h now); " if res.ran else "")
         + f"mean {rep.results['mean_run_s']:.1f} s per run on a worker; the runs finished between {_span(rows)} (UTC). "
         + f"Each run: {spec.base['controller.duration_s']:.0f} s of the inspection loop at {SPEED:g} in/s from rest, payload removed, one-process rig in lockstep, "
@@ -261,18 +258,8 @@ def _effects_section(rep: Report, effects: dict[str, Any], cells: Cells) -> None
     )
 
 
-def _checks(
-    rep: Report,
-    failed: list[dict[str, Any]],
-    bits: list[int],
-    noise: list[float],
-    cells: Cells,
-    rows: list[dict[str, Any]],
-    quick: bool,
-    effects: dict[str, Any],
-    idents: list[str],
-) -> None:
-    """The checks, and the conclusion and discussion (full runs)."""
+def _checks(rep: Report, rows: list[dict[str, Any]], failed: list[dict[str, Any]], cells: Cells, bits: list[int], noise: list[float]) -> None:
+    """The checks."""
     rep.check_every(
         "every run of the campaign finished",
         (r.get("status") == "ok" for r in rows),
@@ -286,8 +273,6 @@ def _checks(
     )
     adapted = [r for r in rows if r.get("status") == "ok" and str(r.get("point", "")).startswith(("c ", "e "))]
     rep.check_every("every adaptive run changed its OATF design", (int(r["oatf_design_changes"]) > 0 for r in adapted), f"{len(adapted)} adaptive runs")
-    if not quick:
-        _conclusion(rep, cells, effects, bits, noise, idents)
 
 
 def _ident_of(lab: str, idents: list[str]) -> str:
