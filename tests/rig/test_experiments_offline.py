@@ -256,7 +256,7 @@ def test_simulation(tmp_path: Path) -> None:
 
 
 def test_simulation_fine_log_is_the_same_run_sampled_finer() -> None:
-    from workbench.experiments.offline.simulation import SimulationModel, simulate
+    from workbench.experiments.lib.velocity_feedback_arm import SimulationModel, simulate
 
     model = SimulationModel()
     t = np.arange(400) * model.sample_period_s

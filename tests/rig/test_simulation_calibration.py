@@ -8,11 +8,8 @@ import numpy as np
 
 from controller.metrics import rms_costs
 from controller.trajectory import load_trajectory, sample_trajectory
-from workbench.experiments.offline.simulation import (
-    SimulationModel,
-    estimator_ratio_bound,
-    simulate,
-)
+from workbench.experiments.lib.acceleration_readings import estimator_ratio_bound
+from workbench.experiments.lib.velocity_feedback_arm import SimulationModel, simulate
 
 
 def _pooled(c: np.ndarray) -> float:

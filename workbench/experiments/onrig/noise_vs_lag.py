@@ -22,7 +22,9 @@ loop at 5 in/s, payload removed, the OATF at the outer location, design
   only the new points.
 
 Every run is one deterministic lockstep run of the one-process rig (the
-campaign's default run mode), seeded (``FULL_SEEDS`` sensor-noise seeds per
+campaign's default run mode: ``workbench.campaign.modes.run_point`` runs each
+point as a ``workbench.hil.HilRig``; the campaign, not ``map_rigs``, for its
+journal and table), seeded (``FULL_SEEDS`` sensor-noise seeds per
 point, the same for every point). The cost is the battery's (§4.2.1): RMS
 deflection velocity per link over the lap, of the arm's *true* deflection
 (the plant's ground truth at the sample rate: the vibration itself) and of
@@ -30,7 +32,9 @@ the deflection the controller *measured* (the battery's, sensor noise
 included), each also in % of the unfiltered run (a) of the same A/D, noise
 and seed. The table of every run is ``sweep/results.parquet`` / ``.csv``;
 re-running the experiment into the same directory skips the runs its
-journal already has (delete ``sweep/`` to run everything again).
+journal already has (delete ``sweep/`` to run everything again). The cells,
+their seed spread, main effects and heatmaps are
+:mod:`workbench.experiments.lib.campaign_cells`.
 
 ``--quick``: 12 and 20 bits, noise × 1, N = 1024, α = 0.05 only, (a), (b), (e), 12 s.
 """
@@ -38,7 +42,6 @@ journal already has (delete ``sweep/`` to run everything again).
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -47,13 +50,12 @@ from controller.trajectory import DEFAULT_TRAJECTORY_PATH, load_trajectory, samp
 from plant_emulator.model.modes import modal_parameters
 from workbench.experiments.analysis import THESIS_BATCH_SIZE
 from workbench.experiments.framework import ExperimentContext, experiment
+from workbench.experiments.lib.campaign_cells import Cells, cell, cell_heatmaps, cell_mean, main_effects, pct_of_baseline_cells, seed_spread
 from workbench.experiments.onrig.id_lag import smoothing_window
-from workbench.experiments.report import Report, new_figure
+from workbench.experiments.report import Report
 from workbench.laps import lap_seconds
 
 if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
     from workbench.campaign.engine import Engine
     from workbench.campaign.spec import SweepSpec
     from workbench.campaign.sweep import SweepResult
@@ -73,6 +75,10 @@ QUICK_BITS = (12, 20)
 QUICK_NOISE = (1.0,)
 QUICK_IDENTIFIERS: tuple[tuple[int, float], ...] = ((1024, 0.05),)
 QUICK_DURATION_S = 12.0
+AXES = ("plant.adc_bits", "plant.sensor_noise_scale")
+COSTS = ("true_velocity_rms_1", "true_velocity_rms_2", "velocity_rms_1", "velocity_rms_2")
+"""The battery's cost per link, of the true deflection (plant truth) and of the measured one."""
+PCT = tuple(f"{c}_pct" for c in COSTS)
 CONFIG_LABELS = {"a": "(a) unfiltered", "b": "(b) fixed, tuned right", "c": "(c) tuned right, adaptive", "e": f"(e) {WRONG_HZ:g} Hz, then adaptive"}
 
 
@@ -128,82 +134,6 @@ def study_spec(quick: bool, seed: int, right_hz: float) -> Any:
     )
 
 
-def _f(value: Any) -> float:
-    """A table cell as a float (missing -> NaN; the journal keeps non-finite numbers as null or text)."""
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return float("nan")
-
-
-def _pct(v: float, base: float) -> float:
-    return 100.0 * v / base if base and math.isfinite(base) else float("nan")
-
-
-def analyse(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Per (config label, bits, noise): the costs (mean over seeds) and their % of (a) of the same bits, noise and seed."""
-    ok = [r for r in rows if r.get("status") == "ok"]
-    base: dict[tuple[int, float, int], dict[str, Any]] = {
-        (r["plant.adc_bits"], r["plant.sensor_noise_scale"], r["plant.seed"]): r for r in ok if r["point"] == "a"
-    }
-    cells: dict[tuple[str, int, float], list[dict[str, float]]] = defaultdict(list)
-    for r in ok:
-        b = base.get((r["plant.adc_bits"], r["plant.sensor_noise_scale"], r["plant.seed"]))
-        if b is None:
-            continue
-        entry: dict[str, float] = {}
-        for kind in ("true_", ""):
-            for link in (1, 2):
-                k = f"{kind}velocity_rms_{link}"
-                entry[k] = _f(r.get(k))
-                entry[f"{k}_pct"] = _pct(_f(r.get(k)), _f(b.get(k)))
-        for k in ("oatf_median_rel_error", "oatf_time_within_10pct", "oatf_first_change_s"):
-            entry[k] = _f(r.get(k))
-        cells[(r["point"], r["plant.adc_bits"], r["plant.sensor_noise_scale"])].append(entry)
-    out: dict[str, Any] = {}
-    for (label, bits, noise), entries in cells.items():
-        mean = {k: float(np.nanmean([e[k] for e in entries])) if any(math.isfinite(e[k]) for e in entries) else float("nan") for k in entries[0]}
-        mean["seeds"] = len(entries)
-        for k in [k for k in entries[0] if k.endswith("_pct")]:
-            vals = [e[k] for e in entries if math.isfinite(e[k])]
-            mean[f"{k}_seed_spread"] = float(max(vals) - min(vals)) if len(vals) > 1 else float("nan")
-        out.setdefault(label, {}).setdefault(str(bits), {})[f"{noise:g}"] = mean
-    return out
-
-
-def seed_spread(cells: dict[str, Any], metric: str) -> float:
-    """Median over every cell of the range of ``metric`` between its seeds (NaN with one seed)."""
-    vals = [
-        c[f"{metric}_seed_spread"] for by_bits in cells.values() for by_noise in by_bits.values() for c in by_noise.values() if f"{metric}_seed_spread" in c
-    ]
-    vals = [v for v in vals if math.isfinite(v)]
-    return float(np.median(vals)) if vals else float("nan")
-
-
-def main_effects(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], idents: list[str], metric: str) -> dict[str, float]:
-    """Range (max − min) of the mean of ``metric`` over each axis's values, the other axes averaged: how much each axis moves it."""
-    values: dict[tuple[str, int, float], float] = {}
-    for lab in labels:
-        for b in bits:
-            for n in noise:
-                c = cells.get(lab, {}).get(str(b), {}).get(f"{n:g}")
-                if c is not None:
-                    values[(lab, b, n)] = c[metric]
-
-    def rng(groups: dict[Any, list[float]]) -> float:
-        means = [float(np.nanmean(v)) for v in groups.values() if v]
-        return float(max(means) - min(means)) if len(means) > 1 else 0.0
-
-    by_bits: dict[Any, list[float]] = defaultdict(list)
-    by_noise: dict[Any, list[float]] = defaultdict(list)
-    by_ident: dict[Any, list[float]] = defaultdict(list)
-    for (lab, b, n), v in values.items():
-        by_bits[b].append(v)
-        by_noise[n].append(v)
-        by_ident[next((i for i in idents if lab.endswith(i)), lab)].append(v)
-    return {"adc_bits": rng(by_bits), "noise_scale": rng(by_noise), "identifier": rng(by_ident)}
-
-
 @experiment(
     "noise-vs-lag",
     section="§5.3 (future work)",
@@ -225,13 +155,15 @@ def run(ctx: ExperimentContext) -> Report:
     bits = list(QUICK_BITS if quick else BITS)
     noise = list(QUICK_NOISE if quick else NOISE)
     idents = [ident_label(n, a) for n, a in (QUICK_IDENTIFIERS if quick else IDENTIFIERS)]
-    cells = analyse(rows)
+    cells = pct_of_baseline_cells(rows, AXES, "plant.seed", "a", COSTS, also=("oatf_median_rel_error", "oatf_time_within_10pct", "oatf_first_change_s"))
     adaptive = {cfg: [f"{cfg} {i}" for i in idents] for cfg in ADAPTIVE}
     failed = [r for r in rows if r.get("status") != "ok"]
     effects = {
-        f"{grp}_{metric}": main_effects(cells, labels, bits, noise, idents, metric)
+        f"{grp}_{metric}": dict(
+            zip(("adc_bits", "noise_scale", "identifier"), main_effects(cells, labels, bits, noise, lambda lab: _ident_of(lab, idents), metric))
+        )
         for grp, labels in adaptive.items()
-        for metric in ("true_velocity_rms_1_pct", "true_velocity_rms_2_pct", "velocity_rms_1_pct", "velocity_rms_2_pct")
+        for metric in PCT
     }
     wall_run = [float(r["run_s"]) for r in rows if r.get("status") == "ok" and r.get("run_s") is not None]
     rep.results = {
@@ -250,30 +182,23 @@ def run(ctx: ExperimentContext) -> Report:
         "table": {"parquet": res.parquet.name, "csv": res.csv.name},
     }
 
-    labels_all = _campaign_section(rep, res, rows, failed, engine, spec, right, adaptive, cells, bits, noise)
+    labels_all = _campaign_section(rep, res, engine, spec, adaptive, cells, bits, noise)
     _costs_section(rep, labels_all, bits, noise, cells)
     _effects_section(rep, effects, cells)
-    _checks(rep, failed, bits, noise, cells, rows, quick, effects, idents)
+    _checks(rep, rows, failed, cells, bits, noise)
+    if not quick:  # the conclusion and discussion
+        _conclusion(rep, cells, effects, bits, noise, idents)
     return rep
 
 
 def _campaign_section(
-    rep: Report,
-    res: SweepResult,
-    rows: list[dict[str, Any]],
-    failed: list[dict[str, Any]],
-    engine: Engine,
-    spec: SweepSpec,
-    right: float,
-    adaptive: dict[str, list[str]],
-    cells: dict[str, Any],
-    bits: list[int],
-    noise: list[float],
+    rep: Report, res: SweepResult, engine: Engine, spec: SweepSpec, adaptive: dict[str, list[str]], cells: Cells, bits: list[int], noise: list[float]
 ) -> list[str]:
     """The campaign and its heatmaps."""
+    rows, right = res.rows, rep.results["right_hz"]
     rep.heading("Campaign")
     rep.text(
-        f"{len(rows)} runs ({res.ran} run now, {res.skipped} reused from the journal, {len(failed)} failed) on {engine.describe()}; "
+        f"{len(rows)} runs ({res.ran} run now, {res.skipped} reused from the journal, {rep.results['failed']} failed) on {engine.describe()}; "
         + (f"{res.wall_s:.0f} s wall ({res.runs_per_hour:.0f} runs/h now); " if res.ran else "")
         + f"mean {rep.results['mean_run_s']:.1f} s per run on a worker; the runs finished between {_span(rows)} (UTC). "
         + f"Each run: {spec.base['controller.duration_s']:.0f} s of the inspection loop at {SPEED:g} in/s from rest, payload removed, one-process rig in lockstep, "
@@ -284,7 +209,7 @@ def _campaign_section(
     rep.attach(res.csv, "the same table as CSV")
     labels_all = ["b"] + [lab for labs in adaptive.values() for lab in labs]
     for kind, what in (("true_", "true deflection (plant ground truth)"), ("", "measured deflection (the battery's cost, sensor noise included)")):
-        fig = _heatmaps(cells, labels_all, bits, noise, kind)
+        fig = cell_heatmaps(cells, labels_all, bits, noise, kind + "velocity_rms_{}_pct", _label, ("A/D bits", "sensor-noise scale"), "% of (a)")
         rep.figure(
             fig,
             f"heatmaps_{'true' if kind else 'measured'}.png",
@@ -294,57 +219,33 @@ def _campaign_section(
     return labels_all
 
 
-def _costs_section(rep: Report, labels_all: list[str], bits: list[int], noise: list[float], cells: dict[str, Any]) -> None:
+def _costs_section(rep: Report, labels_all: list[str], bits: list[int], noise: list[float], cells: Cells) -> None:
     """The cost table per configuration."""
     rep.heading("Costs")
-    table_rows = []
-    for lab in labels_all:
-        for b in bits:
-            for n in noise:
-                c = cells.get(lab, {}).get(str(b), {}).get(f"{n:g}")
-                if c is None:
-                    continue
-                table_rows.append(
-                    [
-                        _label(lab),
-                        b,
-                        n,
-                        c["true_velocity_rms_1_pct"],
-                        c["true_velocity_rms_2_pct"],
-                        c["velocity_rms_1_pct"],
-                        c["velocity_rms_2_pct"],
-                        100 * c["oatf_median_rel_error"] if lab != "b" else None,
-                        c["oatf_first_change_s"] if lab != "b" else None,
-                    ]
-                )
+    rows = [
+        [_label(lab), b, n, *(c[m] for m in PCT), *((100 * c["oatf_median_rel_error"], c["oatf_first_change_s"]) if lab != "b" else (None, None))]
+        for lab in labels_all
+        for b in bits
+        for n in noise
+        if (c := cell(cells, lab, b, n)) is not None
+    ]
     rep.table(
-        [
-            "configuration",
-            "A/D bits",
-            "noise ×",
-            "true vel. link 1 (% of a)",
-            "true vel. link 2 (%)",
-            "measured vel. link 1 (%)",
-            "measured vel. link 2 (%)",
-            "median |f_OATF − f1| (%)",
-            "first design change (s)",
-        ],
-        table_rows,
+        ["configuration", "A/D bits", "noise ×", "true vel. link 1 (% of a)", "true vel. link 2 (%)", "measured vel. link 1 (%)", "measured vel. link 2 (%)"]
+        + ["median |f_OATF − f1| (%)", "first design change (s)"],
+        rows,
         caption="Mean over seeds; % of the unfiltered run (a) of the same A/D bits, noise scale and seed",
         digits=3,
     )
 
 
-def _effects_section(rep: Report, effects: dict[str, Any], cells: dict[str, Any]) -> None:
+def _effects_section(rep: Report, effects: dict[str, Any], cells: Cells) -> None:
     """What moves the adaptive cost: main effects and the seeds' spread."""
     rep.heading("What moves the adaptive cost")
     eff_rows = []
     for key, e in effects.items():
         grp, metric = key.split("_", 1)
         eff_rows.append([CONFIG_LABELS[grp], metric.replace("_pct", " (% of a)"), e["adc_bits"], e["noise_scale"], e["identifier"]])
-    spreads = {
-        metric: seed_spread(cells, metric) for metric in ("true_velocity_rms_1_pct", "true_velocity_rms_2_pct", "velocity_rms_1_pct", "velocity_rms_2_pct")
-    }
+    spreads = {metric: seed_spread(cells, metric) for metric in PCT}
     rep.results["seed_spread_pct_points"] = spreads
     for row in eff_rows:
         row.append(spreads[str(row[1]).replace(" (% of a)", "_pct")])
@@ -357,35 +258,26 @@ def _effects_section(rep: Report, effects: dict[str, Any], cells: dict[str, Any]
     )
 
 
-def _checks(
-    rep: Report,
-    failed: list[dict[str, Any]],
-    bits: list[int],
-    noise: list[float],
-    cells: dict[str, Any],
-    rows: list[dict[str, Any]],
-    quick: bool,
-    effects: dict[str, Any],
-    idents: list[str],
-) -> None:
-    """The checks, and the conclusion and discussion (full runs)."""
-    rep.check(
+def _checks(rep: Report, rows: list[dict[str, Any]], failed: list[dict[str, Any]], cells: Cells, bits: list[int], noise: list[float]) -> None:
+    """The checks."""
+    rep.check_every(
         "every run of the campaign finished",
-        not failed,
+        (r.get("status") == "ok" for r in rows),
         "; ".join(f"{r['key']}: {str(r.get('error', '')).splitlines()[0] if r.get('error') else r.get('status')}" for r in failed[:5]),
     )
-    b_cells = [cells["b"][str(b)][f"{n:g}"] for b in bits for n in noise if "b" in cells and str(b) in cells["b"] and f"{n:g}" in cells["b"][str(b)]]
-    rep.check(
+    b_cells = [c for b in bits for n in noise if (c := cell(cells, "b", b, n)) is not None]
+    rep.check_every(
         "(b) the tuned fixed OATF lowers the true RMS deflection velocity against (a) in every cell, both links",
-        bool(b_cells) and all(c[f"true_velocity_rms_{j}_pct"] < 100.0 for c in b_cells for j in (1, 2)),
+        (c[f"true_velocity_rms_{j}_pct"] < 100.0 for c in b_cells for j in (1, 2)),
         f"max {max((max(c['true_velocity_rms_1_pct'], c['true_velocity_rms_2_pct']) for c in b_cells), default=float('nan')):.1f} %",
     )
     adapted = [r for r in rows if r.get("status") == "ok" and str(r.get("point", "")).startswith(("c ", "e "))]
-    rep.check(
-        "every adaptive run changed its OATF design", bool(adapted) and all(int(r["oatf_design_changes"]) > 0 for r in adapted), f"{len(adapted)} adaptive runs"
-    )
-    if not quick:
-        _conclusion(rep, cells, effects, bits, noise, idents)
+    rep.check_every("every adaptive run changed its OATF design", (int(r["oatf_design_changes"]) > 0 for r in adapted), f"{len(adapted)} adaptive runs")
+
+
+def _ident_of(lab: str, idents: list[str]) -> str:
+    """The identifier of an adaptive configuration's label (the label itself for the others)."""
+    return next((i for i in idents if lab.endswith(i)), lab)
 
 
 def _span(rows: list[dict[str, Any]]) -> str:
@@ -398,18 +290,7 @@ def _label(lab: str) -> str:
     return CONFIG_LABELS[cfg] + (f", {ident}" if ident else "")
 
 
-def _mean(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], metric: str) -> float:
-    vals = [
-        cells[lab][str(b)][f"{n:g}"][metric]
-        for lab in labels
-        for b in bits
-        for n in noise
-        if lab in cells and str(b) in cells[lab] and f"{n:g}" in cells[lab][str(b)]
-    ]
-    return float(np.nanmean(vals)) if vals else float("nan")
-
-
-def _conclusion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bits: list[int], noise: list[float], idents: list[str]) -> None:
+def _conclusion(rep: Report, cells: Cells, effects: dict[str, Any], bits: list[int], noise: list[float], idents: list[str]) -> None:
     """The comparison with the thesis's open question, from the numbers."""
     m = "true_velocity_rms_{}_pct"
     lines = []
@@ -420,14 +301,14 @@ def _conclusion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
                 f"{CONFIG_LABELS[grp]}, link {link}: A/D {e['adc_bits']:.1f}, noise {e['noise_scale']:.1f}, identifier {e['identifier']:.1f} points "
                 f"(seed-to-seed spread {seed_spread(cells, m.format(link)):.1f})"
             )
-    fixed = {b: [_mean(cells, ["b"], [b], noise, m.format(j)) for j in (1, 2)] for b in bits}
-    fixed_noise = {n: [_mean(cells, ["b"], bits, [n], m.format(j)) for j in (1, 2)] for n in noise}
+    fixed = {b: [cell_mean(cells, ["b"], [b], noise, m.format(j)) for j in (1, 2)] for b in bits}
+    fixed_noise = {n: [cell_mean(cells, ["b"], bits, [n], m.format(j)) for j in (1, 2)] for n in noise}
     parts_lag, parts_bits = [], []
     for grp in ADAPTIVE:
         labs = [f"{grp} {i}" for i in idents]
-        by_id = {i: [_mean(cells, [f"{grp} {i}"], bits, noise, m.format(j)) for j in (1, 2)] for i in idents}
-        by_noise = {n: [_mean(cells, labs, bits, [n], m.format(j)) for j in (1, 2)] for n in noise}
-        by_bits = {b: [_mean(cells, labs, [b], noise, m.format(j)) for j in (1, 2)] for b in bits}
+        by_id = {i: [cell_mean(cells, [f"{grp} {i}"], bits, noise, m.format(j)) for j in (1, 2)] for i in idents}
+        by_noise = {n: [cell_mean(cells, labs, bits, [n], m.format(j)) for j in (1, 2)] for n in noise}
+        by_bits = {b: [cell_mean(cells, labs, [b], noise, m.format(j)) for j in (1, 2)] for b in bits}
         parts_lag.append(
             f"{CONFIG_LABELS[grp]} by identifier: "
             + ", ".join(f"{i} {v[0]:.0f}/{v[1]:.0f} %" for i, v in by_id.items())
@@ -458,7 +339,7 @@ def _conclusion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
     )
 
 
-def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bits: list[int], noise: list[float], idents: list[str]) -> None:
+def _discussion(rep: Report, cells: Cells, effects: dict[str, Any], bits: list[int], noise: list[float], idents: list[str]) -> None:
     """The written conclusion: every statement is a comparison of this run's numbers (against the seed-to-seed spread)."""
     m = "true_velocity_rms_{}_pct"
     spread = max(seed_spread(cells, m.format(1)), seed_spread(cells, m.format(2)))
@@ -477,8 +358,8 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
             + (f"the effects above that spread are those of {', '.join(names[a] for a in resolved)}." if resolved else "none of them stands out of it.")
         )
         lo, mid, hi = noise[0], noise[len(noise) // 2], noise[-1]
-        e_n = {n: np.mean([_mean(cells, labs, bits, [n], m.format(j)) for j in (1, 2)]) for n in noise}
-        b_n = {n: np.mean([_mean(cells, ["b"], bits, [n], m.format(j)) for j in (1, 2)]) for n in noise}
+        e_n = {n: np.mean([cell_mean(cells, labs, bits, [n], m.format(j)) for j in (1, 2)]) for n in noise}
+        b_n = {n: np.mean([cell_mean(cells, ["b"], bits, [n], m.format(j)) for j in (1, 2)]) for n in noise}
         paras.append(
             f"The noise acts at its high end: from ×{lo:g} to ×{mid:g} the adaptive cost changes by {e_n[mid] - e_n[lo]:+.1f} points and the fixed filter's by {b_n[mid] - b_n[lo]:+.1f}; "
             f"from ×{mid:g} to ×{hi:g} by {e_n[hi] - e_n[mid]:+.1f} and {b_n[hi] - b_n[mid]:+.1f} (mean of both links). "
@@ -489,10 +370,10 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
                 else "The adaptive filter loses more than the fixed one, so part of the noise effect goes through the identifier."
             )
         )
-        by_id = {i: np.mean([_mean(cells, [f"{grp} {i}"], bits, noise, m.format(j)) for j in (1, 2)]) for i in idents}
-        first = {i: _mean(cells, [f"{grp} {i}"], bits, noise, "oatf_first_change_s") for i in idents}
-        err = {i: 100 * _mean(cells, [f"{grp} {i}"], bits, noise, "oatf_median_rel_error") for i in idents}
-        fixed = np.mean([_mean(cells, ["b"], bits, noise, m.format(j)) for j in (1, 2)])
+        by_id = {i: np.mean([cell_mean(cells, [f"{grp} {i}"], bits, noise, m.format(j)) for j in (1, 2)]) for i in idents}
+        first = {i: cell_mean(cells, [f"{grp} {i}"], bits, noise, "oatf_first_change_s") for i in idents}
+        err = {i: 100 * cell_mean(cells, [f"{grp} {i}"], bits, noise, "oatf_median_rel_error") for i in idents}
+        fixed = np.mean([cell_mean(cells, ["b"], bits, noise, m.format(j)) for j in (1, 2)])
         paras.append(
             "Identification delay: "
             + ", ".join(f"{i} adapts after {first[i]:.1f} s, median |f_OATF − f1| {err[i]:.1f} %, cost {by_id[i]:.1f} %" for i in idents)
@@ -500,8 +381,8 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
             f"but the cost improves by {max(by_id.values()) - min(by_id.values()):.1f} points only: most of the gap to the tuned fixed filter ({min(by_id.values()) - fixed:.1f} points at best) "
             "is not the lag (adapting from 10 Hz keeps that design's integer delay, whose coefficients then overshoot at 4 Hz; see the battery)."
         )
-    b_bits = {b: np.mean([_mean(cells, ["b"], [b], noise, m.format(j)) for j in (1, 2)]) for b in bits}
-    a_bits = {b: np.mean([_mean(cells, [f"{g} {i}" for g in ADAPTIVE for i in idents], [b], noise, m.format(j)) for j in (1, 2)]) for b in bits}
+    b_bits = {b: np.mean([cell_mean(cells, ["b"], [b], noise, m.format(j)) for j in (1, 2)]) for b in bits}
+    a_bits = {b: np.mean([cell_mean(cells, [f"{g} {i}" for g in ADAPTIVE for i in idents], [b], noise, m.format(j)) for j in (1, 2)]) for b in bits}
     gain_b = b_bits[bits[0]] - min(b_bits[b] for b in bits[1:])
     gain_a = a_bits[bits[0]] - min(a_bits[b] for b in bits[1:])
     paras.append(
@@ -515,31 +396,3 @@ def _discussion(rep: Report, cells: dict[str, Any], effects: dict[str, Any], bit
         + "(The controller reads the plant's 16-bit TPDO1 words, so the 20-bit converter reaches it with 16 bits.)"
     )
     rep.text(*paras)
-
-
-def _heatmaps(cells: dict[str, Any], labels: list[str], bits: list[int], noise: list[float], kind: str) -> Figure:
-    fig = new_figure(7.5, 1.9 * len(labels) + 0.6)
-    axes = np.atleast_2d(fig.subplots(len(labels), 2, squeeze=False))
-    for r, lab in enumerate(labels):
-        for j in (1, 2):
-            ax = axes[r][j - 1]
-            grid = np.full((len(bits), len(noise)), np.nan)
-            for bi, b in enumerate(bits):
-                for ni, n in enumerate(noise):
-                    c = cells.get(lab, {}).get(str(b), {}).get(f"{n:g}")
-                    if c is not None:
-                        grid[bi, ni] = c[f"{kind}velocity_rms_{j}_pct"]
-            im = ax.imshow(grid, origin="lower", cmap="viridis_r", vmin=20, vmax=100, aspect="auto")
-            for bi in range(len(bits)):
-                for ni in range(len(noise)):
-                    if np.isfinite(grid[bi, ni]):
-                        ax.text(ni, bi, f"{grid[bi, ni]:.0f}", ha="center", va="center", fontsize=7, color="w" if grid[bi, ni] > 60 else "k")
-            ax.set_xticks(range(len(noise)), [f"×{n:g}" for n in noise], fontsize=7)
-            ax.set_yticks(range(len(bits)), [str(b) for b in bits], fontsize=7)
-            ax.set_title(f"{_label(lab)}, link {j}", fontsize=7)
-            if j == 1:
-                ax.set_ylabel("A/D bits", fontsize=7)
-            if r == len(labels) - 1:
-                ax.set_xlabel("sensor-noise scale", fontsize=7)
-    fig.colorbar(im, ax=axes, shrink=0.6, label="% of (a)")
-    return fig
