@@ -456,14 +456,14 @@ class PlantApplication:
         """The last conversion's and D/A update's true and faulted values, and the faults acting now
         (a side the unit does not take, because none of its channels has a fault, is null)."""
         now = self.arm.time_s
-        ad, da = unit.last_conversion, unit.last_update
-        ad_now = ad is not None and unit.on_inputs
+        ad = unit.last_conversion if unit.on_inputs else None
+        da = unit.last_update
         message = ChannelTruth(
             seq=self._channel_truth_seq,
             sim_time_s=now,
-            ai_true_v=tuple(ad[1]) if ad_now else None,  # type: ignore[arg-type, index]
-            ai_faulted_v=tuple(ad[2]) if ad_now else None,  # type: ignore[arg-type, index]
-            ai_saturated=tuple(ad[3]) if ad_now else None,  # type: ignore[arg-type, index]
+            ai_true_v=tuple(ad[1]) if ad is not None else None,
+            ai_faulted_v=tuple(ad[2]) if ad is not None else None,
+            ai_saturated=tuple(ad[3]) if ad is not None else None,
             ao_time_s=da[0] if da is not None else None,
             ao_commanded_v=da[1] if da is not None else None,
             ao_applied_v=da[2] if da is not None else None,
