@@ -136,3 +136,29 @@ def test_a_side_without_faults_is_null_and_the_live_view_offers_the_topic() -> N
 def test_a_bad_channel_truth_is_refused(bad: dict[str, Any]) -> None:
     with pytest.raises(ValueError):
         ChannelTruth.model_validate({"seq": 0, "sim_time_s": 0.0, **bad})
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("clock", ["cosim", "lockstep"])
+def test_the_run_record_keeps_the_channel_truth(clock: str) -> None:
+    """The rig's run record: from the recording (co-simulation) or the test port over zenoh
+    (the one-process lockstep rig, the plant service's own publisher)."""
+    from workbench.hil import HilRig
+
+    rig = HilRig(clock=clock, controller={"tf_download_samples": 0})  # type: ignore[arg-type]
+    rig.fiu.short("AI3", to="supply", at_s=0.3, for_s=0.3)
+    try:
+        record = rig.run(1.0)
+    finally:
+        rig.close()
+    assert record.error is None
+    detail = next(e.detail for e in record.events if e.kind == "channel_fault")
+    truth_times = {t.sim_time_s for t in record.truth}
+    assert len(record.channel_truth) > 10 and {m.sim_time_s for m in record.channel_truth} <= truth_times
+    assert record.channel_truth[0].ao_time_s is None and record.channel_truth[0].ao_commanded_v is None  # no valve fault
+    for m in record.channel_truth:
+        assert m.ai_true_v is not None and m.ai_faulted_v is not None and m.ai_saturated is not None
+        on = 0.3 <= m.sim_time_s + 1e-9 < 0.6
+        assert m.active_faults == ((detail,) if on else ())
+        assert (m.ai_faulted_v[2], m.ai_saturated[2]) == ((15.0, True) if on else (m.ai_true_v[2], False))
+    assert any(0.3 <= m.sim_time_s < 0.6 for m in record.channel_truth)
