@@ -162,3 +162,15 @@ def test_the_run_record_keeps_the_channel_truth(clock: str) -> None:
         assert m.active_faults == ((detail,) if on else ())
         assert (m.ai_faulted_v[2], m.ai_saturated[2]) == ((15.0, True) if on else (m.ai_true_v[2], False))
     assert any(0.3 <= m.sim_time_s < 0.6 for m in record.channel_truth)
+
+
+def test_a_recorded_channel_fault_command_has_its_mf4_kind() -> None:
+    """A fault sent to a running rig is a scenario command of kind ``channel_fault`` in its recording."""
+    from protocol.channel_faults import ChannelFault
+    from protocol.messages import ScenarioCommand, encode
+
+    cmd = ScenarioCommand(seq=0, sim_time_s=0.0, kind="channel_fault", channel_fault=ChannelFault(channel="AI3", kind="short_ground"))
+    row = json.loads(encode(cmd))
+    (group,) = mf4_channels.message_groups("/ralf/r/plant/scenario", "ralf.ScenarioCommand", [row], [0.0], {})
+    kind = next(c for c in group.columns if c.name == "plant.scenario.kind")
+    assert kind.states[int(kind.values[0])] == "channel_fault"
