@@ -139,13 +139,13 @@ def test_a_bad_channel_truth_is_refused(bad: dict[str, Any]) -> None:
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("clock", ["cosim", "lockstep"])
-def test_the_run_record_keeps_the_channel_truth(clock: str) -> None:
+@pytest.mark.parametrize(("clock", "processes"), [("cosim", False), ("lockstep", False), ("lockstep", True)])
+def test_the_run_record_keeps_the_channel_truth(clock: str, processes: bool, tmp_path: Path) -> None:
     """The rig's run record: from the recording (co-simulation) or the test port over zenoh
-    (the one-process lockstep rig, the plant service's own publisher)."""
+    (the lockstep rig in one process and in three, the plant service's own publisher)."""
     from workbench.hil import HilRig
 
-    rig = HilRig(clock=clock, controller={"tf_download_samples": 0})  # type: ignore[arg-type]
+    rig = HilRig(clock=clock, processes=processes, outputs=tmp_path if processes else None, controller={"tf_download_samples": 0})  # type: ignore[arg-type]
     rig.fiu.short("AI3", to="supply", at_s=0.3, for_s=0.3)
     try:
         record = rig.run(1.0)
