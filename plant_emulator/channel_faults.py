@@ -118,6 +118,10 @@ class ChannelFaultUnit:
         self.record = ChannelRecord()
         self._seen = [False] * len(self._states)
         self._ended = [False] * len(self._states)
+        self.last_conversion: tuple[float, list[float], list[float], list[bool]] | None = None
+        """The last A/D conversion: time, true volts, faulted volts, saturation flags (the live channel truth)."""
+        self.last_update: tuple[float, tuple[float, float], tuple[float, float]] | None = None
+        """The last D/A update: time, commanded volts, applied volts (the live channel truth)."""
         self._sort()
 
     def _sort(self) -> None:
@@ -138,6 +142,10 @@ class ChannelFaultUnit:
         self._seen.append(False)
         self._ended.append(False)
         self._sort()
+
+    def acting(self, time_s: float) -> list[ChannelFault]:
+        """The faults whose interval holds ``time_s``, in schedule order."""
+        return [s.fault for s in self._states if s.fault.active(time_s)]
 
     def transitions(self, time_s: float) -> list[Transition]:
         """The faults that started or ended by ``time_s`` since the last call, in schedule order."""
@@ -165,6 +173,7 @@ class ChannelFaultUnit:
                 i = s.fault.index
                 n = min(int(s.fault.bits or 0), scale.bits - 1)
                 codes[i] = (codes[i] >> n) << n
+        self.last_conversion = (time_s, true_v, v, flags)
         if self.keep_record:
             self._keep_conversion(time_s, true_v, v, codes, flags)
         return codes, flags
@@ -184,6 +193,7 @@ class ChannelFaultUnit:
             for s in stage:
                 if _acting(s, time_s):
                     _output_stage(s, v)
+        self.last_update = (time_s, (float(volts0), float(volts1)), (v[0], v[1]))
         if self.keep_record:
             rec = self.record
             rec.da_time_s.append(time_s)

@@ -41,7 +41,7 @@ from protocol.can_map import EmcyCode
 from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
 from protocol.keys import Keys
-from protocol.messages import GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
+from protocol.messages import ChannelTruth, GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
 from protocol.record_paths import truth_file
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.settings import PlantSettings
@@ -137,6 +137,7 @@ class PlantApplication:
         stopwatch: Callable[[], float] = time.perf_counter,
         publish_truth: Callable[[GroundTruth], None] | None = None,
         publish_event: Callable[[PlantEvent], None] | None = None,
+        publish_channel_truth: Callable[[ChannelTruth], None] | None = None,
     ) -> None:
         self.settings = settings
         self.arm: PlantModel = arm if arm is not None else build_plant_model(settings)
@@ -154,7 +155,10 @@ class PlantApplication:
         """Scenario commands from the test port: rate-limited, bounded, decoded in zenoh's thread (service_kit/inbox.py)."""
         self.publish_truth = publish_truth
         self.publish_event = publish_event
+        self.publish_channel_truth = publish_channel_truth
+        """The channels' true and faulted values, beside each ground truth while the plant has channel faults."""
         self._truth_seq = 0
+        self._channel_truth_seq = 0
         self.sync_service: LatencyTracker = DeferredLatency()
         """Wall time from a SYNC to its sample being ready (model step + A/D)."""
         self.sync_interval: LatencyTracker = DeferredLatency()
@@ -445,6 +449,28 @@ class PlantApplication:
         if self.settings.truth_record:
             self.truth_log.append(message)
         self._truth_seq += 1
+        if self.channel_faults is not None and self.publish_channel_truth is not None:
+            self.publish_channel_truth(self._channel_truth(self.channel_faults))
+
+    def _channel_truth(self, unit: ChannelFaultUnit) -> ChannelTruth:
+        """The last conversion's and D/A update's true and faulted values, and the faults acting now
+        (a side the unit does not take, because none of its channels has a fault, is null)."""
+        now = self.arm.time_s
+        ad = unit.last_conversion if unit.on_inputs else None
+        da = unit.last_update
+        message = ChannelTruth(
+            seq=self._channel_truth_seq,
+            sim_time_s=now,
+            ai_true_v=tuple(ad[1]) if ad is not None else None,
+            ai_faulted_v=tuple(ad[2]) if ad is not None else None,
+            ai_saturated=tuple(ad[3]) if ad is not None else None,
+            ao_time_s=da[0] if da is not None else None,
+            ao_commanded_v=da[1] if da is not None else None,
+            ao_applied_v=da[2] if da is not None else None,
+            active_faults=tuple(f.describe() for f in unit.acting(now)),
+        )
+        self._channel_truth_seq += 1
+        return message
 
     def save_truth(self, path: str) -> Path | None:
         """The ground truth recorded during the run, one row per truth sample, in
@@ -500,6 +526,7 @@ class PlantTestPort(MovablePort):
         """Publishers, the scenario subscriber, the liveliness token and (once started) health on ``session``."""
         self.session = session
         self._truth_pub = session.declare_publisher(self.keys.truth, encoding=JSON)
+        self._channels_pub = session.declare_publisher(self.keys.channel_truth, encoding=JSON)
         self._event_pub = session.declare_publisher(self.keys.plant_events, encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK)
         self._sub = session.declare_subscriber(self.keys.scenario, self.inbox.subscriber("scenario", lambda b: decode(ScenarioCommand, b)))
         self._token = session.liveliness().declare_token(self.keys.alive("plant"))
@@ -513,7 +540,7 @@ class PlantTestPort(MovablePort):
         if self._health is not None:
             self._health.stop()
             self._health = None
-        for handle in (self._sub, self._token, self._truth_pub, self._event_pub):
+        for handle in (self._sub, self._token, self._truth_pub, self._channels_pub, self._event_pub):
             try:
                 handle.undeclare()
             except Exception as exc:  # noqa: BLE001 (a closed session's handles)
@@ -533,6 +560,9 @@ class PlantTestPort(MovablePort):
 
     def publish_event(self, event: PlantEvent) -> None:
         self._put(lambda: self._event_pub, encode(event))
+
+    def publish_channel_truth(self, truth: ChannelTruth) -> None:
+        self._put(lambda: self._channels_pub, encode(truth))
 
     def close(self) -> None:
         with self.moves.lock:
@@ -589,7 +619,14 @@ def serve(
     try:
         clock = (scheduler or scheduler_for(settings.clock, stop)).now
         port = PlantTestPort(settings, session)
-        app = PlantApplication(settings, arm=model, clock=clock, publish_truth=port.publish_truth, publish_event=port.publish_event)
+        app = PlantApplication(
+            settings,
+            arm=model,
+            clock=clock,
+            publish_truth=port.publish_truth,
+            publish_event=port.publish_event,
+            publish_channel_truth=port.publish_channel_truth,
+        )
         app.scenario_inbox = port.inbox
         node = CanopenNode(app, node_config(settings))
         app.set_fault = node.set_fault

@@ -67,6 +67,10 @@ class Keys:
         return f"{self.root}/plant/truth"
 
     @property
+    def channel_truth(self) -> str:
+        return f"{self.root}/plant/channels"
+
+    @property
     def scenario(self) -> str:
         return f"{self.root}/plant/scenario"
 

@@ -342,6 +342,28 @@ class GroundTruth(Message):
     valves_held: bool = False
 
 
+Volts4 = tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat]
+Volts2 = tuple[FiniteFloat, FiniteFloat]
+
+
+class ChannelTruth(Message):
+    """The plant's signal channels beside their faults, on the test port at the truth rate
+    while the plant has channel faults (docs/fault-insertion.md; never used by the controller).
+
+    The A/D side is the conversion of this SYNC (at ``sim_time_s``), the D/A side the last D/A
+    update (at ``ao_time_s``). A side whose channels have no fault in the plant's schedule is
+    not taken through the fault unit and is null here (its values are TPDO1's and RPDO1's on
+    the bus), as is the D/A side before its first update."""
+
+    ai_true_v: Volts4 | None = Field(None, description="AI1-AI4: the inputs' true voltages, sensor noise included (V)")
+    ai_faulted_v: Volts4 | None = Field(None, description="AI1-AI4: the voltages after the faults, at the converter (V)")
+    ai_saturated: tuple[bool, bool, bool, bool] | None = Field(None, description="AI1-AI4: the converter clipped the input (EMCY INPUT_SATURATED)")
+    ao_time_s: NonNegFloat | None = Field(None, description="Simulated time of the last D/A update")
+    ao_commanded_v: Volts2 | None = Field(None, description="AO1-AO2: the D/A's voltages (V)")
+    ao_applied_v: Volts2 | None = Field(None, description="AO1-AO2: what the valves got, after the faults (V)")
+    active_faults: Annotated[tuple[LongText, ...], Field(max_length=64)] = Field((), description="The faults acting at sim_time_s, one line each")
+
+
 class ScenarioCommand(Message):
     """A scenario input on the plant's test port, applied at ``at_sim_time_s``
     (or at once if that time has passed)."""

@@ -28,6 +28,7 @@ from pydantic import BaseModel
 
 from protocol.messages import (
     BlockFlag,
+    ChannelTruth,
     ConfigAck,
     ConfigChange,
     ControllerStatus,
@@ -135,6 +136,14 @@ RIG: Final[RigDescription] = RigDescription(
         Channel("dsp/config_ack", "publication", ConfigAck, ("dsp",), ("controller", "tool"), "a configuration change taken or refused"),
         Channel("dsp/tf", "queryable", "tf", ("dsp",), ("controller", "tool"), "the identified transfer functions, on request (binary, protocol.tf_codec)"),
         Channel("plant/truth", "publication", GroundTruth, ("plant",), ("tester",), "the emulated arm's true state (test port)"),
+        Channel(
+            "plant/channels",
+            "publication",
+            ChannelTruth,
+            ("plant",),
+            ("tester",),
+            "the signal channels' true and faulted values, only while the plant has channel faults (test port)",
+        ),
         Channel(
             "plant/scenario", "publication", ScenarioCommand, ("tester",), ("plant",), "scenario commands (payload, faults)", gated_by="zenoh_acl=scenarios"
         ),

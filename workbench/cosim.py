@@ -277,7 +277,7 @@ def run_cosim(
         load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
         port: Any = DirectDspPort(core)
         if recording is not None:
-            app.publish_truth, app.publish_event = recording.truth, recording.event
+            app.publish_truth, app.publish_event, app.publish_channel_truth = recording.truth, recording.event, recording.channel_truth
             wire, port = recording.wire(wire), recording.port(port)
         link = PlantLink(wire, cs.node_id, clock=scheduler.now)
         started = time.monotonic()

@@ -54,7 +54,7 @@ from typing import Any, Literal
 import numpy as np
 
 from protocol.errors import ConfigError
-from protocol.messages import ControllerStatus, GroundTruth, Interrupt, PlantEvent, ScenarioCommand, decode, encode
+from protocol.messages import ChannelTruth, ControllerStatus, GroundTruth, Interrupt, PlantEvent, ScenarioCommand, decode, encode
 from protocol.setting_groups import Timeouts
 from protocol.setting_hints import unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
@@ -114,6 +114,7 @@ class PlantPort:
         self._sent = 0
         self.truth: list[GroundTruth] = []
         self.events: list[PlantEvent] = []
+        self.channel_truth: list[ChannelTruth] = []
 
     def command(self, kind: Literal["payload", "seed", "adc_bits"], at_s: float, **value: Any) -> ScenarioCommand:
         """A scenario command, applied by the plant at simulated ``at_s`` (at once if past):
@@ -486,9 +487,10 @@ class HilRig:
         if files is not None:
             run.controller.save(str(files[0]), run.result)
         if path is not None:
-            rec = Recording.load(path, only=("plant/truth", "plant/events", "dsp/interrupt"))
+            rec = Recording.load(path, only=("plant/truth", "plant/events", "dsp/interrupt", "plant/channels"))
             self.plant.truth = [GroundTruth.model_validate(d) for d in rec.data("plant/truth")]
             self.plant.events = [PlantEvent.model_validate(d) for d in rec.data("plant/events")]
+            self.plant.channel_truth = [ChannelTruth.model_validate(d) for d in rec.data("plant/channels")]
             self.dsp.interrupts = [Interrupt.model_validate(d) for d in rec.data("dsp/interrupt")]
         return self._record(run, path, files)
 
@@ -509,6 +511,7 @@ class HilRig:
         return [
             (keys.truth, keep(GroundTruth, self.plant.truth)),
             (keys.plant_events, keep(PlantEvent, self.plant.events)),
+            (keys.channel_truth, keep(ChannelTruth, self.plant.channel_truth)),
             (keys.interrupt, keep(Interrupt, self.dsp.interrupts)),
         ]
 
@@ -574,6 +577,7 @@ class HilRig:
             health=run.health,
             wall_time_s=run.wall_time_s,
             recording=self._mcap_path(),
+            channel_truth=list(self.plant.channel_truth),
             exit_codes=run.exit_codes,
             status=run.status,
             config=loaded[2],
@@ -633,6 +637,7 @@ class HilRig:
             truth_path=files[1] if files is not None else None,
             status=_status(run.controller),
             recording_counts=getattr(run, "recording", None),
+            channel_truth=list(self.plant.channel_truth),
             **self._identity(),
         )
 

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controller import record as controller_record
-from protocol.messages import ControllerStatus, GroundTruth, Health, Interrupt, PlantEvent
+from protocol.messages import ChannelTruth, ControllerStatus, GroundTruth, Health, Interrupt, PlantEvent
 from workbench.verdict import Verdict
 
 __all__ = ["LAYOUT_TEXT", "Clock", "Layout", "RunRecord", "truth_columns_of", "truth_of"]
@@ -146,6 +146,9 @@ class RunRecord:
     """ERROR-or-worse log records during the run, by service."""
     recording_counts: dict[str, int] | None = None
     """The recorder's counters (messages and frames written, dropped), when the run was recorded."""
+    channel_truth: list[ChannelTruth] = field(default_factory=list)
+    """The plant's channels beside their faults (true and faulted volts, the faults acting), in order: only
+    while it has channel faults (docs/fault-insertion.md; a co-simulated run with ``outputs``: only when recorded)."""
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickled light: a truth list that is only the truth columns again goes as the columns alone."""

@@ -544,6 +544,7 @@ def test_key_expressions() -> None:
     assert keys.dsp_config == "ralf/lab1/dsp/config"
     assert keys.tf == "ralf/lab1/dsp/tf"
     assert keys.truth == "ralf/lab1/plant/truth"
+    assert keys.channel_truth == "ralf/lab1/plant/channels"
     assert keys.scenario == "ralf/lab1/plant/scenario"
     assert keys.plant_events == "ralf/lab1/plant/events"
     assert keys.controller_status == "ralf/lab1/controller/status"
@@ -566,7 +567,7 @@ def _all_keys(keys: Keys) -> list[str]:
 def test_keys_are_distinct_and_live_under_the_rig(rig_id: str) -> None:
     keys = Keys(rig_id)
     exprs = _all_keys(keys)
-    assert len(exprs) == len(set(exprs)) == 13 + 2 * len(SERVICES)
+    assert len(exprs) == len(set(exprs)) == 14 + 2 * len(SERVICES)
     for expr in exprs:
         assert expr.startswith(f"ralf/{rig_id}/")
         assert "*" not in expr and "//" not in expr and not expr.endswith("/")

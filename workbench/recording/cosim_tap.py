@@ -6,8 +6,9 @@ sits where they would be: :class:`RecordingWire` wraps the CAN wire between
 the controller's link and the plant's node (every frame, both ways), and
 :class:`RecordingDspPort` wraps the controller's DSP port (batches, the
 DSP's configuration, status, TF downloads one way; flags, interrupts,
-configuration acknowledgements and liveliness the other). The plant's truth
-and events come through the plant application's own publish hooks. Every
+configuration acknowledgements and liveliness the other). The plant's truth,
+channel truth (with channel faults) and events come through the plant
+application's own publish hooks. Every
 payload is recorded as it travelled: the encoded CAN frame, the JSON or
 binary zenoh payload, on the key it would have had in ``ralf/<rig-id>/``.
 
@@ -28,7 +29,7 @@ from typing import Any
 import can
 
 from protocol.keys import Keys
-from protocol.messages import GroundTruth, Health, PlantEvent, encode
+from protocol.messages import ChannelTruth, GroundTruth, Health, PlantEvent, encode
 from service_kit.encodings import BATCH, JSON, TF
 from workbench.recording.recorder import Recorder
 from workbench.recording.schemas import TO_CONTROLLER, TO_PLANT
@@ -157,6 +158,9 @@ class CosimRecording:
 
     def truth(self, message: GroundTruth) -> None:
         self.recorder.on_message(self.keys.truth, encode(message), wall_time_s=self.epoch_s + message.sim_time_s, encoding=str(JSON))
+
+    def channel_truth(self, message: ChannelTruth) -> None:
+        self.recorder.on_message(self.keys.channel_truth, encode(message), wall_time_s=self.epoch_s + message.sim_time_s, encoding=str(JSON))
 
     def event(self, message: PlantEvent) -> None:
         self.recorder.on_message(self.keys.plant_events, encode(message), wall_time_s=self.epoch_s + message.sim_time_s, encoding=str(JSON))

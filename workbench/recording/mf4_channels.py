@@ -60,6 +60,15 @@ FIELDS: Final[dict[str, tuple[Field, ...]]] = {
         _f("payload_attached"),
         _f("valves_held"),
     ),
+    "ralf.ChannelTruth": (
+        SEQ,
+        _f("ai_true_v", "V", channel="ai_true"),
+        _f("ai_faulted_v", "V", channel="ai_faulted"),
+        _f("ai_saturated", channel="ai_saturated"),
+        _f("ao_time_s", "s", channel="ao_time"),
+        _f("ao_commanded_v", "V", channel="ao_commanded"),
+        _f("ao_applied_v", "V", channel="ao_applied"),
+    ),
     "ralf.Interrupt": (
         SEQ,
         _f("version"),
@@ -112,7 +121,7 @@ FIELDS: Final[dict[str, tuple[Field, ...]]] = {
     "ralf.TfSnapshot": (SEQ, _f("batch_seq")),
     "ralf.ScenarioCommand": (
         SEQ,
-        _f("kind", states=("payload", "seed", "adc_bits")),
+        _f("kind", states=("payload", "seed", "adc_bits", "channel_fault")),
         _f("at_sim_time_s", "s", channel="at_sim_time"),
         _f("payload_attached"),
         _f("seed"),

@@ -11,6 +11,7 @@ Topics (``<rig>`` the rig id; every zenoh key becomes the topic ``/`` + key)::
     /ralf/<rig>/dsp/interrupt         the DSP's answers               ralf.Interrupt
     /ralf/<rig>/dsp/config            configuration changes           ralf.ConfigChange
     /ralf/<rig>/plant/truth           the plant's ground truth        ralf.GroundTruth
+    /ralf/<rig>/plant/channels        channel truth (channel faults)  ralf.ChannelTruth
     /ralf/<rig>/plant/scenario        scenario commands               ralf.ScenarioCommand
     /ralf/<rig>/plant/events          plant events                    ralf.PlantEvent
     /ralf/<rig>/controller/status     controller status               ralf.ControllerStatus
