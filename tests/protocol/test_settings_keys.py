@@ -162,6 +162,10 @@ def test_policies_defaults_and_one_changed(clean_env: pytest.MonkeyPatch) -> Non
         "dsp_lost": "degrade",
         "overrun": "count",
         "can_conflict": "stop",
+        "input_range": "stop",  # the input monitors' (all off unless named in input_monitors)
+        "input_stuck": "stop",
+        "input_rate": "stop",
+        "input_disagree": "stop",
     }
     clean_env.setenv("RALF_POLICIES", "deadline=stop")
     policies = load_settings(ControllerSettings).policies
