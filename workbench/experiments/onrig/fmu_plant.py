@@ -17,7 +17,8 @@ in the last 4 s (thesis §2.4: one bin, 1-4 s lag), the second mode's
 relative error, the identified damping against the truth, the OATF's
 design frequency against the truth, and the §4.2.1 costs (RMS deflection
 velocity and acceleration per link) of the adaptive run in % of the
-unfiltered one.
+unfiltered one (:mod:`workbench.experiments.lib.identification_truth`,
+:mod:`workbench.experiments.lib.oatf_costs`).
 """
 
 from __future__ import annotations
@@ -28,50 +29,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from workbench.campaign.rigs import run_rigs
-from workbench.experiments.analysis import costs_over
+from workbench.campaign.rigs import map_rigs
 from workbench.experiments.framework import ExperimentContext, experiment
+from workbench.experiments.lib.identification_truth import BIN_HZ, identification_against_truth
+from workbench.experiments.lib.oatf_costs import costs_against, run_costs
 from workbench.experiments.report import COST_HEADERS, Report, cost_cells, new_figure
-from workbench.hil import RunRecord
-from workbench.rig_spec import RigSpec
+from workbench.hil import RigSpec, RunRecord
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-BIN_HZ = 200.0 / 2048
 LAG_S = 4.0
 SETTLE_S = 20.0
 TRUE_ZETA = 0.05
 """The example mapping's first-mode damping ratio (zeta_a)."""
-
-
-def identification(res: RunRecord) -> dict[str, Any]:
-    """The identified modes and the OATF's design against the plant's truth, after :data:`SETTLE_S`."""
-    t = res.t_s
-    late = t > SETTLE_S
-    f1 = np.asarray(res.columns["f_id_hz"], dtype=float)
-    f2 = np.asarray(res.columns["f_id2_hz"], dtype=float)
-    zeta = np.asarray(res.columns["zeta_id"], dtype=float)
-    oatf = np.asarray(res.columns["oatf_hz"], dtype=float)
-    true1, true2 = res.true_mode_hz(t, 0), res.true_mode_hz(t, 1)
-    valid = np.flatnonzero(np.isfinite(f1) & late)
-    err = np.abs(f1[valid] - true1[valid])
-    inside = [true1[(t >= t[k] - LAG_S) & (t <= t[k])].min() - BIN_HZ <= f1[k] <= true1[(t >= t[k] - LAG_S) & (t <= t[k])].max() + BIN_HZ for k in valid]
-    ok2 = np.isfinite(f2) & late
-    z = zeta[np.isfinite(zeta) & late]
-    true_zeta = np.asarray(res.truth_columns["damping_ratios"], dtype=float)[:, 0] if "damping_ratios" in res.truth_columns else np.array([np.nan])
-    return {
-        "true_f1_range_hz": [float(true1[late].min()), float(true1[late].max())],
-        "identified_share": float(valid.size / max(1, int(late.sum()))),
-        "f1_median_abs_error_hz": float(np.median(err)) if err.size else float("nan"),
-        "f1_p90_abs_error_hz": float(np.percentile(err, 90)) if err.size else float("nan"),
-        "f1_within_bin_of_lagged_truth": float(np.mean(inside)) if inside else float("nan"),
-        "f2_median_rel_error": float(np.median(np.abs(f2[ok2] - true2[ok2]) / true2[ok2])) if ok2.any() else float("nan"),
-        "zeta_median": float(np.median(z)) if z.size else float("nan"),
-        "zeta_p10_p90": [float(x) for x in np.percentile(z, [10, 90])] if z.size else [float("nan")] * 2,
-        "true_zeta": float(np.median(true_zeta)),
-        "oatf_median_rel_error": float(np.median(np.abs(oatf[late] - true1[late]) / true1[late])),
-    }
 
 
 def _figure(fmu: RunRecord, ralf: RunRecord) -> Figure:
@@ -115,8 +86,8 @@ def run(ctx: ExperimentContext) -> Report:
         RigSpec("fmu_adaptive", controller=adaptive, plant=fmu_plant, label="example FMU, adaptive OATF"),
         RigSpec("ralf_adaptive", controller=adaptive, plant={"seed": ctx.seed}, label="built-in arm, adaptive OATF"),
     ]
-    off, fmu_run, ralf_run = run_rigs(ctx, specs, description="FMU and built-in runs")
-    ident = {res.name: identification(res) for res in (fmu_run, ralf_run)}
+    off, fmu_run, ralf_run = map_rigs(ctx, specs, description="FMU and built-in runs")
+    ident = {res.name: identification_against_truth(res, SETTLE_S, LAG_S) for res in (fmu_run, ralf_run)}
     rep.heading("Runs")
     rep.text(
         f"Co-simulated, {duration:g} s each along the inspection loop at 5 in/s, seed {ctx.seed}, the thesis's DSP settings. "
@@ -156,15 +127,8 @@ def run(ctx: ExperimentContext) -> Report:
     )
     rep.figure(_figure(fmu_run, ralf_run), "fmu_plant_tracking.png", "identified first mode and OATF design against each plant's truth")
     rep.heading("Costs")
-    whole = np.ones(len(off.t_s), dtype=bool)
-    base = costs_over(off.deflections, whole, off.sample_period_s)
-    costs: dict[str, Any] = {}
-    for res in (off, fmu_run):
-        c = costs_over(res.deflections, np.ones(len(res.t_s), dtype=bool), res.sample_period_s)
-        c["velocity_rms_in_s"], c["acceleration_rms_in_s2"] = c.pop("velocity_rms"), c.pop("acceleration_rms")
-        c["velocity_pct"] = [100.0 * v / b for v, b in zip(c["velocity_rms_in_s"], base["velocity_rms"])]
-        c["acceleration_pct"] = [100.0 * v / b for v, b in zip(c["acceleration_rms_in_s2"], base["acceleration_rms"])]
-        costs[res.name] = c
+    base = run_costs(off)
+    costs: dict[str, Any] = {res.name: {"samples": [len(res.t_s)], **costs_against(res, base)} for res in (off, fmu_run)}
     rep.table(["run", *COST_HEADERS], [[res.label, *cost_cells(costs[res.name])] for res in (off, fmu_run)], caption="§4.2.1 costs, whole run")
     e = ident["fmu_adaptive"]
     rep.check("first mode identified within two bins (median)", e["f1_median_abs_error_hz"] < 2 * BIN_HZ, f"{e['f1_median_abs_error_hz']:.3f} Hz")
