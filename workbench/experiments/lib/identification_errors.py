@@ -8,7 +8,7 @@ import numpy as np
 
 from workbench.rig_record import RunRecord
 
-__all__ = ["identification_errors"]
+__all__ = ["ERROR_COLUMNS", "error_cells", "identification_errors"]
 
 
 def identification_errors(res: RunRecord, apex: np.ndarray, after_s: float) -> dict[str, Any]:
@@ -37,3 +37,29 @@ def identification_errors(res: RunRecord, apex: np.ndarray, after_s: float) -> d
             "zeta_within_25pct": float(np.mean(np.abs(zr) <= 0.25)) if zr.size else float("nan"),
         }
     return out
+
+
+ERROR_COLUMNS = [
+    "median |f1 error| whole (%)",
+    "at the apex (%)",
+    "away (%)",
+    "away: within 5 % (% of samples)",
+    "away: median ζ",
+    "true ζ1",
+    "away: ζ within ±25 % (%)",
+]
+"""The table columns of :func:`error_cells`."""
+
+
+def error_cells(errors: dict[str, Any]) -> list[float]:
+    """One run's :func:`identification_errors` as table cells (:data:`ERROR_COLUMNS`; shares in %)."""
+    whole, apex, away = errors["whole"], errors["apex"], errors["away"]
+    return [
+        100 * whole["median_rel_f_error"],
+        100 * apex["median_rel_f_error"],
+        100 * away["median_rel_f_error"],
+        100 * away["within_5pct"],
+        away["median_zeta"],
+        away["true_zeta"],
+        100 * away["zeta_within_25pct"],
+    ]
