@@ -1,4 +1,4 @@
-"""The apex split check of ``pi-spectrogram`` (``split_peaks``, ``split_agreement``) on synthetic two-mode
+"""The apex split check of ``pi-spectrogram`` (:mod:`workbench.experiments.lib.apex_split`: ``split_peaks``, ``split_agreement``) on synthetic two-mode
 responses built with ``scipy.signal.freqs``: it passes when the estimate shows what the truth shows, and fails
 when the estimate misses a second mode the truth has, or shows one the truth does not (the check can fail)."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal as ss
 
-from workbench.experiments.onrig.pi_spectrogram import split_agreement, split_peaks
+from workbench.experiments.lib.apex_split import split_agreement, split_codes, split_peaks
 
 FREQS = np.arange(1025) * 200.0 / 2048
 
@@ -83,7 +83,7 @@ def test_the_window_response_of_a_fixed_configuration_is_the_plant_s_own() -> No
     """Averaging over a window where nothing moves gives back ``frequency_response`` at that configuration
     (weights sum to one); a moving configuration gives a different response."""
     from plant_emulator.model.modes import frequency_response
-    from workbench.experiments.onrig.pi_spectrogram import window_response
+    from workbench.experiments.lib.windowed_plant_response import window_response
 
     t = np.arange(4000) * 0.005
     fixed = np.tile([1.2, 0.4], (t.size, 1))
@@ -93,3 +93,23 @@ def test_the_window_response_of_a_fixed_configuration_is_the_plant_s_own() -> No
     moving = np.column_stack([np.full(t.size, 1.2), np.linspace(0.2, 0.9, t.size)])
     h2, _, _ = window_response(_result(moving, t), 19.0, FREQS, payload=True)  # type: ignore[arg-type]
     assert np.max(np.abs(h2 - h)) > 0.1 * np.max(np.abs(h))
+
+
+def test_split_codes_name_the_modes_each_response_shows_and_the_invented_ones() -> None:
+    """One digit a transfer function (H_tot, H11, H12, H21, H22): 2 both modes, 1 the first only, 0 neither;
+    a ``+`` per second mode the estimate shows where the truth shows none."""
+    two, one, none = split_peaks(FREQS, TWO, 2.5, 5.0), split_peaks(FREQS, ONE, 4.0, 5.7), split_peaks(FREQS, np.zeros(FREQS.size), 4.0, 5.7)
+    names = ("Htot", "H11", "H12", "H21", "H22")
+    truth = dict(zip(names, (one, one, two, none, one)))
+    estimate = dict(zip(names, (two, one, two, none, two)))
+    assert split_codes(truth) == "11201"
+    assert split_codes(estimate, truth) == "21202++"
+
+
+def test_tf_magnitudes_take_h_tot_as_the_mean_of_the_four() -> None:
+    from workbench.experiments.lib.windowed_plant_response import tf_magnitudes
+
+    h = np.array([[[1.0, 2j], [-3.0, 4.0]], [[0.5, 0.5], [0.5, -1.5]]])
+    mags = tf_magnitudes(h)
+    np.testing.assert_allclose(mags["Htot"], [abs(1 + 2j - 3 + 4) / 4, 0.0])
+    np.testing.assert_allclose(np.column_stack([mags[k] for k in ("H11", "H12", "H21", "H22")]), np.abs(h.reshape(2, 4)))
