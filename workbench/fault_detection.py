@@ -32,6 +32,7 @@ from controller.monitors import INPUT_MONITORS
 from protocol.can_map import WORD16_VOLTS_PER_LSB
 from protocol.setting_groups import InputMonitors
 from protocol.static_sag import static_sag_in
+from workbench.hil import HilRig, RunRecord
 
 __all__ = ["CASES", "Case", "detection_table", "main"]
 
@@ -89,17 +90,19 @@ CASES: Final[tuple[Case, ...]] = (
 """The table's rows."""
 
 
-def _run(controller: dict[str, Any], plant: dict[str, Any] | None = None) -> Any:
-    from workbench.cosim import run_cosim
-
-    return run_cosim(controller={"tf_download_samples": 0, "input_monitors": ALL_ON, "policies": COUNT, **controller}, plant=plant)
+def _run(controller: dict[str, Any], plant: dict[str, Any] | None = None) -> tuple[Any, RunRecord]:
+    """A co-simulated run with every monitor on and counting: its controller (monitors, record) and its record."""
+    own = {"tf_download_samples": 0, "input_monitors": ALL_ON, "policies": COUNT, **controller}
+    with HilRig(controller=own, plant_settings=dict(plant or {}), mcap=False) as rig:
+        record = rig.run()
+        return rig.controller_service, record
 
 
 def latencies(case: Case) -> dict[str, float | None]:
     """Per monitor, ms from the insertion to the first firing (None: not detected)."""
-    run = _run({"duration_s": RUN_S}, {"scenario": {"channel_faults": [case.fault()]}})
-    inputs = run.controller.inputs
-    ts = run.controller.settings.sample_period_s
+    ctrl, _ = _run({"duration_s": RUN_S}, {"scenario": {"channel_faults": [case.fault()]}})
+    inputs = ctrl.inputs
+    ts = ctrl.settings.sample_period_s
     before = [e for e in inputs.events if (e[0] + 1) * ts < INSERT_S - 1e-9]
     if before:
         raise RuntimeError(f"{case.label()}: a monitor fired before the fault: {before[0]}")
@@ -112,9 +115,9 @@ def latencies(case: Case) -> dict[str, float | None]:
 
 def clean_lap() -> dict[str, Any]:
     """A clean lap's largest figures against each monitor's default limit."""
-    run = _run({"repeats": 1})
-    cols = run.controller.record.to_columns()
-    ts = run.controller.settings.sample_period_s
+    ctrl, record = _run({"repeats": 1})
+    cols = ctrl.record.to_columns()
+    ts = ctrl.settings.sample_period_s
     words = np.stack([cols[f"ai{j}_word"] for j in range(1, 5)]).astype(np.int64)
     ref = np.stack([cols["phi_ref1"], cols["phi_ref2"]])
     moved = np.any(np.diff(ref, axis=1) != 0, axis=0)
@@ -129,8 +132,8 @@ def clean_lap() -> dict[str, Any]:
     sag = np.array([static_sag_in(a, b) for a, b in zip(cols["theta1"].tolist(), cols["theta2"].tolist(), strict=True)])
     gap = np.abs(np.stack([cols["defl1_in"], cols["defl2_in"]], axis=1) - sag).max(axis=0)
     return {
-        "ticks": run.result.ticks,
-        "events": list(run.controller.inputs.events),
+        "ticks": record.ticks,
+        "events": list(ctrl.inputs.events),
         "longest_unchanged": longest,
         "max_rate_v_s": rate.tolist(),
         "max_gap_in": gap.tolist(),
