@@ -6,10 +6,11 @@ from __future__ import annotations
 from typing import Any
 
 from controller.excitation import DitherConfig
+from workbench.experiments.lib.dither_cost import expected_sent_rms_v
 from workbench.experiments.lib.identification_delay import STEADY_AFTER_S
 from workbench.experiments.report import Report
 
-__all__ = ["dither_section"]
+__all__ = ["dither_section", "dither_sent_checks"]
 
 
 def _arx_cells(a: dict[str, Any]) -> list[Any]:
@@ -71,3 +72,15 @@ def dither_section(rep: Report, dither: dict[str, Any], sample_rate_hz: float, d
         caption="The dither's cost and the ARX's delays per amplitude (undithered: the ARX run above)",
         digits=3,
     )
+
+
+def dither_sent_checks(rep: Report, dither: dict[str, Any], rel: float = 0.2) -> None:
+    """Per amplitude, the check that the D/A carried the dither: what it sent above the PI's output (the dither
+    and the D/A's rounding) within ``rel`` of :func:`.dither_cost.expected_sent_rms_v` on both valves."""
+    for d in dither["runs"]:
+        expect = expected_sent_rms_v(d["amplitude_v"])
+        rep.check(
+            f"dither {1e3 * d['amplitude_v']:g} mV: the D/A carries it (RMS of u − PI output within {100 * rel:g} % of √(A² + LSB²/12))",
+            all(abs(x / expect - 1.0) <= rel for x in d["sent_rms_v"]),
+            " / ".join(f"{1e3 * x:.2f}" for x in d["sent_rms_v"]) + f" mV for {1e3 * expect:.2f} mV",
+        )
