@@ -51,7 +51,7 @@ from plant_emulator.model.modes import modal_parameters
 from workbench.experiments.analysis import THESIS_BATCH_SIZE
 from workbench.experiments.framework import ExperimentContext, experiment
 from workbench.experiments.lib.campaign_cells import Cells, cell, cell_heatmaps, cell_mean, main_effects, pct_of_baseline_cells, seed_spread
-from workbench.experiments.onrig.id_lag import smoothing_window
+from workbench.experiments.lib.etfe_smoothing import smoothing_window
 from workbench.experiments.report import Report
 from workbench.laps import lap_seconds
 
