@@ -238,6 +238,10 @@ class Policies(SettingGroup):
         return {name: getattr(self, name) for name in type(self).model_fields}
 
 
+EXTENSION_LIMIT_IN = 100.0
+"""The largest extension (in) a monitor's range may name: five times the cylinders' 20-in stroke."""
+
+
 class InputMonitors(SettingGroup):
     """Plausibility checks on the controller's A/D inputs (controller/input_monitors.py,
     docs/fault-insertion.md); each is off unless named, its policy is ``policies.input_*``."""
@@ -250,15 +254,17 @@ class InputMonitors(SettingGroup):
         (0.0, 20.0), description="The cylinders' extensions (in) a sound sensor reads: their stroke"
     )
     stuck_samples: int = Field(20, ge=2, le=100_000, description="Ticks with an unchanged code while the set-point moves before stuck fires")
-    extension_rate_v_s: float = Field(20.0, gt=0, le=1e6, description="Rate limit of the extension inputs AI1, AI2 (V/s; 1 V/in)")
-    deflection_rate_v_s: float = Field(100.0, gt=0, le=1e6, description="Rate limit of the deflection inputs AI3, AI4 (V/s)")
-    disagree_in: float = Field(0.3, gt=0, le=10, description="Largest |measured - implied| deflection (in) before disagree fires")
+    extension_rate_v_s: float = Field(20.0, ge=0.1, le=1e6, description="Rate limit of the extension inputs AI1, AI2 (V/s; 1 V/in)")
+    deflection_rate_v_s: float = Field(100.0, ge=0.1, le=1e6, description="Rate limit of the deflection inputs AI3, AI4 (V/s)")
+    disagree_in: float = Field(0.3, ge=0.001, le=10, description="Largest |measured - implied| deflection (in) before disagree fires")
 
     @field_validator("extension_range_in")
     @classmethod
     def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
         if not value[0] < value[1]:
             raise ValueError(f"extension_range_in {value[0]:g},{value[1]:g}: the low end must be below the high end")
+        if not (-EXTENSION_LIMIT_IN <= value[0] and value[1] <= EXTENSION_LIMIT_IN):
+            raise ValueError(f"extension_range_in {value[0]:g},{value[1]:g}: each end must be within ±{EXTENSION_LIMIT_IN:g} in")
         return value
 
     @property

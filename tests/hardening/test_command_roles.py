@@ -64,6 +64,17 @@ VARIANTS: dict[str, list[dict[str, Any]]] = {
             "valves_held": True,
         }
     ],
+    "ChannelTruth": [
+        {
+            "ai_true_v": [1.0, 2.0, 3.0, 4.0],
+            "ai_faulted_v": [1.0, 0.0, 3.0, 4.0],
+            "ai_saturated": [False, True, False, False],
+            "ao_time_s": 0.995,
+            "ao_commanded_v": [0.5, -0.5],
+            "ao_applied_v": [0.0, -0.5],
+            "active_faults": ["AI2 short_ground from 0.5 s"],
+        }
+    ],
     "ScenarioCommand": [
         {"kind": "payload", "payload_attached": True, "at_sim_time_s": 5.0},
         {"kind": "seed", "seed": 7},

@@ -76,7 +76,7 @@ def _has_upper(metadata: list[Any]) -> bool:
 
 @pytest.mark.parametrize("model", settings_models(), ids=lambda c: c.__name__)
 def test_every_numeric_setting_is_bounded(model: type[CommonSettings]) -> None:
-    bands = ("oatf.band_hz", "dither.band_hz", "search_band_hz")  # pairs of bounded frequencies (Hz): checked below
+    bands = ("oatf.band_hz", "dither.band_hz", "search_band_hz", "input_monitors.extension_range_in")  # bounded pairs: checked below
     gains = ("pi.kp_mv_per_rad", "pi.ki_mv_per_rad")  # a bounded gain per joint: checked below
     unbounded = [name for name, field in _numeric_fields(model) if not _has_upper(field.metadata) and name not in bands + gains]
     assert unbounded == []
@@ -84,6 +84,7 @@ def test_every_numeric_setting_is_bounded(model: type[CommonSettings]) -> None:
         group, _, key = band.partition(".")
         assert "less than or equal to 2500" in _error(ControllerSettings, **{group: f"{key}=1,1e9"})
     assert "less than or equal to 2500" in _error(DspSettings, search_band_hz="1,1e9")
+    assert "within ±100 in" in _error(ControllerSettings, input_monitors="extension_range_in=0,1e9")
     for gain in gains:
         group, _, key = gain.partition(".")
         assert "less than or equal to 1000000" in _error(ControllerSettings, **{group: f"{key}=1,1e9"})
