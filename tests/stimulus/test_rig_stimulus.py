@@ -10,9 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.signal
 
+import workbench.cosim as cosim
 from controller.record import load_record
 from controller.service import RECORD_COLUMNS
+from protocol.batch_codec import SampleBatch, decode_batch
 from protocol.can_map import DAC12
 from workbench.cosim import run_cosim
 from workbench.stimulus import Stimulus
@@ -118,3 +121,30 @@ def test_hil_rig_takes_the_fragments_and_the_plant_reports_each_profile(tmp_path
     on = (record.columns["t_s"] >= 0.5 - 1e-9) & (record.columns["t_s"] < 0.75 - 1e-9)
     assert np.all(record.columns["u1_v"][on] == round(1.0 / DAC12.lsb_v) * DAC12.lsb_v)
     assert math.isnan(record.columns["stim_u1_v"][0])
+
+
+def test_the_dsp_batches_carry_the_valve_override_not_the_pi_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The identifier is fed what the D/A applied: while a valve profile is active, the override."""
+    batches: list[SampleBatch] = []
+    send = cosim.DirectDspPort.send_batch
+
+    def spy(port: cosim.DirectDspPort, payload: bytes) -> None:
+        batches.append(decode_batch(payload))
+        send(port, payload)
+
+    monkeypatch.setattr(cosim.DirectDspPort, "send_batch", spy)
+    stim = Stimulus().chirp("valve.u2", 0.3, 1.0, 8.0, 2.0, at_s=0.5)
+    run = run_cosim(controller={"duration_s": 3.0, "tf_download_samples": 0, **stim.settings()["controller"]}, dsp=DSP)
+    assert run.result.error is None
+    c = run.controller.record.to_columns()
+    assert batches and batches[0].first_tick == 0
+    inputs = np.concatenate([np.asarray(b.inputs, dtype=float) for b in batches], axis=1)  # (2, samples): valve 1, valve 2
+    ticks = np.arange(inputs.shape[1])
+    t = ticks * 0.005
+    active = (t >= 0.5 - 1e-9) & (t < 2.5 - 1e-9)
+    assert active.sum() == 400
+    chirp = 0.3 * scipy.signal.chirp(t[active] - 0.5, 1.0, 2.0, 8.0)
+    np.testing.assert_allclose(inputs[1, active], chirp, rtol=0, atol=DAC12.lsb_v / 2 + 1e-12)  # the chirp, through the D/A
+    assert np.abs(inputs[1, active] - c["pi2_v"][ticks][active]).max() > 0.1  # not the PI's command
+    np.testing.assert_array_equal(inputs[1, ~active], c["u2_v"][ticks][~active])  # the PI's, through the D/A, outside
+    np.testing.assert_array_equal(inputs[0], c["u1_v"][ticks])
