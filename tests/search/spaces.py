@@ -41,3 +41,28 @@ PUSH: dict[str, Any] = {
     "max_stimuli": 2,
     "fixed": {"controller": FAST, "dsp": FAST_DSP},
 }
+
+ALL_INPUT_MONITORS = "range=true,stuck=true,rate=true,disagree=true"
+"""Every plausibility check on the controller's inputs (docs/fault-insertion.md), each under policy stop."""
+OFFSET_STEP_V = 0.05
+"""The offsets' grid step."""
+VALVES_ZERO_MS = 50.0
+"""The property's allowance: both valves at zero within this many ms of the first channel fault."""
+BLIND_BAND: dict[str, Any] = {
+    "name": "input-monitor-blind-band",
+    "duration_s": [1.5, 2.0, 0.5],
+    "channel_faults": [
+        {"channels": ["AI3", "AI1"], "kind": "short_ground", "start_s": [1.0, 1.2, 0.05], "length_s": 1.0},
+        {"channels": ["AI3", "AI1"], "kind": "offset", "start_s": [1.0, 1.2, 0.05], "length_s": 1.0, "params": {"offset_v": [-2.0, 0.0, OFFSET_STEP_V]}},
+    ],
+    "max_channel_faults": 1,
+    "fixed": {
+        "controller": {**FAST, "input_monitors": ALL_INPUT_MONITORS, "policies": "input_range=stop,input_stuck=stop,input_rate=stop,input_disagree=stop"},
+        "dsp": FAST_DSP,
+    },
+}
+"""Channel faults on a link-1 deflection input (AI3) and a cylinder-1 extension input (AI1) of an arm at
+rest, from 1 s on to past the run's end: a short to ground (both inputs read well away from 0 V, the rate
+monitor sees the step) or a downward offset of -2 V (seen at once) up to 0 V. Shrinking goes toward the
+first template, the first channel and the most negative offset, so the minimal violation is the largest
+offset the monitors let through."""

@@ -7,7 +7,20 @@ import math
 
 import pytest
 
-from tests.search.spaces import BATCH_PERIOD_S, DEFLECTION_BOUND_IN, INTERRUPT_OUTAGE, PLANT_HEARTBEAT_S, PUSH, SAMPLE_PERIOD_S, STALE_AFTER_S, TPDO_LOSS
+from protocol.setting_groups import InputMonitors
+from tests.search.spaces import (
+    BATCH_PERIOD_S,
+    BLIND_BAND,
+    DEFLECTION_BOUND_IN,
+    INTERRUPT_OUTAGE,
+    OFFSET_STEP_V,
+    PLANT_HEARTBEAT_S,
+    PUSH,
+    SAMPLE_PERIOD_S,
+    STALE_AFTER_S,
+    TPDO_LOSS,
+    VALVES_ZERO_MS,
+)
 from workbench.search.engine import Budget, search
 from workbench.search.properties import Properties
 from workbench.search.runner import evaluate, rig_runner
@@ -57,3 +70,24 @@ def test_a_push_on_the_tip_shrinks_to_the_smallest_force_that_breaks_the_bound()
     weaker = Candidate(result.minimal.duration_s, {}, [], result.minimal.settings, [{**push, "size": push["size"] - 1}])
     held, _ = evaluate(weaker, prop)
     assert not held.violated, (result.minimal.describe(), held.lines())
+
+
+def test_an_offset_inside_the_rate_limit_escapes_the_input_monitors() -> None:
+    """With every input monitor on (policy stop), a channel fault must send both valves to zero
+    within 50 ms. A step the rate monitor lets through (at most deflection_rate_v_s x Ts = 0.5 V
+    on a deflection input; the disagreement bound, 0.3 in = 5.2 V on AI3, is wider) is seen by no
+    monitor: the search finds one and shrinks it to the first channel, AI3, with the largest
+    downward offset inside the rate limit (within one grid step), at the earliest start on the
+    shortest run; one grid step more stops the run at once."""
+    space, prop = space_from(BLIND_BAND), Properties.parse([f"valves_zero_within(events.channel_fault, {VALVES_ZERO_MS:g})"])
+    result = search(space, rig_runner(prop), Budget(runs=15, shrink_runs=40), property_text=prop.text, seed=2)
+    assert result.minimal is not None and result.reproduced, result.coverage.line()
+    (fault,) = result.minimal.channel_faults
+    limit_v = InputMonitors().deflection_rate_v_s * SAMPLE_PERIOD_S
+    assert (fault["channel"], fault["kind"], fault["start_s"], result.minimal.duration_s) == ("AI3", "offset", 1.0, 1.5), result.minimal.describe()
+    assert -limit_v < fault["offset_v"] <= -limit_v + OFFSET_STEP_V + 1e-9, result.minimal.describe()
+    (line,) = result.outcome.lines()  # type: ignore[union-attr]
+    assert "FAIL: no valves_at_zero(u1_v, u2_v) after the cause events.channel_fault at 1 s" in line and "no monitor stopped the run" in line, line
+    larger = Candidate(result.minimal.duration_s, {}, [{**fault, "offset_v": round(fault["offset_v"] - OFFSET_STEP_V, 9)}], result.minimal.settings)
+    held, record = evaluate(larger, prop)
+    assert not held.violated and record.error is not None and "input_rate" in record.error, held.lines()

@@ -61,6 +61,8 @@ def test_a_spent_budget_exits_0_and_says_what_it_covered(tmp_path: Path, capsys:
         (["--budget", "3"], "no property given"),
         (["--property", "no_error()"], "give a budget"),
         (["--property", "within(counters.no_such_counter, 0, 0)", "--budget", "3"], "the record holds no signal 'counters.no_such_counter'"),
+        (["--property", "valves_zero_within(events.channel_fault, -5)", "--budget", "3"], "valves_zero_within's N_MS must not be negative, got '-5'"),
+        (["--property", "valves_zero_within(sensor_short, 50)", "--budget", "3"], "valves_zero_within's CAUSE is a plant event"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], says: str) -> None:

@@ -32,7 +32,7 @@ def register(sub: Any) -> None:
         action="append",
         default=[],
         metavar="P",
-        help="what every run must hold: streak(1), within(SIGNAL, LOW, HIGH), mode(0.1, 7), verdict(DEGRADED), no_error(); repeatable",
+        help="what every run must hold: streak(1), within(SIGNAL, LOW, HIGH), mode(0.1, 7), detected(CAUSE, DETECTION, S), valves_zero_within(events.channel_fault, 50), verdict(DEGRADED), no_error(); repeatable",
     )
     p.add_argument("--budget", type=int, default=None, metavar="N", help="candidates to try (co-simulated runs)")
     p.add_argument("--shrink-budget", type=int, default=None, metavar="N", help="further runs shrinking a violation may take (default: --budget)")

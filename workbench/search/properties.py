@@ -18,6 +18,13 @@ run's verdict (:mod:`workbench.verdict`):
 ``detected(CAUSE, DETECTION, WITHIN_S)``
     DETECTION's first sample within WITHIN_S of CAUSE's, when CAUSE came at all
     (:func:`~workbench.checks.detected_within`; a run without the cause holds it);
+``valves_zero_within(CAUSE, N_MS)``
+    both valve commands (``u1_v``, ``u2_v``) at 0 V within N_MS milliseconds of
+    CAUSE and staying there (:func:`~workbench.checks.detected_within` over
+    :func:`~workbench.search.valves.valves_at_zero`): CAUSE is a plant event
+    (``events.channel_fault``: the first channel-fault insertion) or ``fault``
+    (the earliest channel-fault start of the run's plant ``scenario`` setting);
+    a run without the cause holds it;
 ``verdict(LEVEL)``
     the run's verdict at most LEVEL (PASS < DEGRADED < FAIL < INVALID);
 ``no_error()``
@@ -33,20 +40,25 @@ import difflib
 import math
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
+
+import numpy as np
 
 from controller.loop import ROW_NAMES, STIMULUS_NAMES
 from protocol.messages import GroundTruth
 from workbench.checks import deadline_misses, detected_within, mode_frequency_within, no_deadline_miss_streak, signal, stays_within
 from workbench.checks.record_signals import PLANT_EVENT_KINDS
 from workbench.checks.result import CheckResult, invalid, judged
+from workbench.checks.signal import Signal
+from workbench.search.valves import scenario_fault_start, valves_at_zero
 from workbench.verdict import LEVELS
 
 COLUMNS = frozenset(("t_s", *ROW_NAMES, *STIMULUS_NAMES, "oatf_hz", "irq_applied", "stale", "f_id_hz", "f_id2_hz", "zeta_id", "id_confidence", "tick"))
 """The controller record's columns a property may name."""
 PREFIXES = ("truth.", "events.", "interrupts.", "counters.", "health.")
 _CALL = re.compile(r"^\s*([a-z_]+)\s*\((.*)\)\s*$")
+KNOWN = ("streak", "within", "mode", "detected", "valves_zero_within", "verdict", "no_error")
 
 
 class PropertyError(ValueError):
@@ -120,6 +132,29 @@ def _detected(cause: str, detection: str, within_s: float) -> Callable[[Any], Ch
     return judge
 
 
+FAULT_CAUSE = "fault"
+"""``valves_zero_within``'s cause: the earliest channel-fault start of the run's plant scenario."""
+
+
+def _valves_zero(cause: str, within_ms: float) -> Callable[[Any], CheckResult]:
+    title = f"valves_zero_within({cause}, {within_ms:g} ms)"
+
+    def judge(record: Any) -> CheckResult:
+        if cause == FAULT_CAUSE:
+            start = scenario_fault_start(record)
+            when: Signal | float | None = start
+        else:
+            c = signal(record, cause)
+            when = Signal.of(np.round(c.t, 9), c.values, c.name) if (c.values != 0).any() else None  # on the valves' 1 ns grid
+        if when is None:
+            return judged(title, True, 0, within_ms / 1e3, "s", f"{cause} never came: nothing to detect", None)
+        result = detected_within(when, valves_at_zero(record), within_ms / 1e3, name=title)
+        how = f"the controller stopped the run: {record.error}" if record.error else "no monitor stopped the run"
+        return replace(result, sentence=f"{result.sentence}; {how}")
+
+    return judge
+
+
 def parse_property(text: str) -> Property:
     """A :class:`Property` from its text (:class:`PropertyError` on a bad one)."""
     m = _CALL.match(text)
@@ -162,6 +197,19 @@ def parse_property(text: str) -> Property:
         if within < 0:
             raise PropertyError(f"detected's WITHIN_S must not be negative, got {args[2]!r}")
         return Property(text, _detected(args[0], args[1], within))
+    if name == "valves_zero_within":
+        arity(2, 2)
+        cause = args[0]
+        if cause != FAULT_CAUSE:
+            if not cause.startswith("events."):
+                raise PropertyError(
+                    f"valves_zero_within's CAUSE is a plant event (events.channel_fault) or {FAULT_CAUSE} (the scenario's first channel fault), got {cause!r}"
+                )
+            check_signal_name(cause)
+        within_ms = _number(args[1], "valves_zero_within's N_MS")
+        if within_ms < 0:
+            raise PropertyError(f"valves_zero_within's N_MS must not be negative, got {args[1]!r}")
+        return Property(text, _valves_zero(cause, within_ms))
     if name == "verdict":
         arity(1, 1)
         level = args[0].upper()
@@ -171,9 +219,9 @@ def parse_property(text: str) -> Property:
     if name == "no_error":
         arity(0, 0)
         return Property(text, _no_error)
-    close = difflib.get_close_matches(name, ["streak", "within", "mode", "detected", "verdict", "no_error"], n=1)
+    close = difflib.get_close_matches(name, list(KNOWN), n=1)
     hint = f" (did you mean {close[0]!r}?)" if close else ""
-    raise PropertyError(f"no property named {name!r}{hint}; known: streak, within, mode, detected, verdict, no_error")
+    raise PropertyError(f"no property named {name!r}{hint}; known: {', '.join(KNOWN)}")
 
 
 @dataclass(frozen=True)

@@ -132,10 +132,32 @@ class StallTemplate(BaseModel):
         return self
 
 
+def _ranged_params(params: dict[str, Any]) -> dict[str, Any]:
+    """A template's parameters: a list of 2 or 3 numbers or a ``{min, max}`` mapping is a :class:`Range` (drawn), anything else fixed."""
+
+    def ranged(v: Any) -> bool:
+        numbers = isinstance(v, (list, tuple)) and len(v) in (2, 3) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        return numbers or (isinstance(v, dict) and {"min", "max"} <= set(v))
+
+    return {k: Range.model_validate(v) if ranged(v) else v for k, v in params.items()}
+
+
+def param_value(r: Range, index: int) -> float | int:
+    """A drawn parameter's value: an integer on an integer grid (a seed, a bit count), else the grid's float."""
+    value = r.value(index)
+    return int(value) if float(r.min).is_integer() and float(r.step).is_integer() else value
+
+
+def params_at(params: dict[str, Any], end: int) -> dict[str, Any]:
+    """The parameters with every range at its first (``end`` 0) or last (-1) value."""
+    return {k: (param_value(v, 0 if end == 0 else v.count - 1) if isinstance(v, Range) else v) for k, v in params.items()}
+
+
 class ChannelFaultTemplate(BaseModel):
     """A fault on one of the plant's signal channels (docs/fault-insertion.md):
     ``kind`` on one of ``channels``, from ``start_s`` for ``length_s``, with the
-    kind's own fields in ``params`` (fixed)."""
+    kind's own fields in ``params``: each fixed, or drawn when it is a range
+    (``offset_v: [-2, 0, 0.05]``: a search shrinks it toward ``min``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -145,15 +167,21 @@ class ChannelFaultTemplate(BaseModel):
     length_s: Range
     params: dict[str, Any] = Field(default_factory=dict)
 
+    @field_validator("params", mode="after")
+    @classmethod
+    def _ranges(cls, params: dict[str, Any]) -> dict[str, Any]:
+        return _ranged_params(params)
+
     @model_validator(mode="after")
     def _valid(self) -> ChannelFaultTemplate:
         for channel in self.channels:
             if channel not in AD_CHANNELS + DA_CHANNELS:
                 raise ValueError(f"unknown channel {channel!r} ({', '.join(AD_CHANNELS + DA_CHANNELS)})")
-            try:  # the plant's own schema judges kind and params, once per channel
-                ChannelFault.model_validate({"channel": channel, "kind": self.kind, "start_s": 0.0, "end_s": 1.0, **self.params})
-            except ValidationError as exc:
-                raise ValueError(f"{channel} {self.kind}: " + "; ".join(e["msg"] for e in exc.errors())) from None
+            for end in (0, -1):
+                try:  # the plant's own schema judges kind and params, per channel, at each end of the params' ranges
+                    ChannelFault.model_validate({"channel": channel, "kind": self.kind, "start_s": 0.0, "end_s": 1.0, **params_at(self.params, end)})
+                except ValidationError as exc:
+                    raise ValueError(f"{channel} {self.kind}: " + "; ".join(e["msg"] for e in exc.errors())) from None
         return self
 
 
@@ -173,11 +201,7 @@ class StimulusTemplate(BaseModel):
     @field_validator("params", mode="after")
     @classmethod
     def _ranges(cls, params: dict[str, Any]) -> dict[str, Any]:
-        def ranged(v: Any) -> bool:
-            numbers = isinstance(v, (list, tuple)) and len(v) in (2, 3) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
-            return numbers or (isinstance(v, dict) and {"min", "max"} <= set(v))
-
-        return {k: Range.model_validate(v) if ranged(v) else v for k, v in params.items()}
+        return _ranged_params(params)
 
     @model_validator(mode="after")
     def _valid(self) -> StimulusTemplate:

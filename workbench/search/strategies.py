@@ -29,6 +29,7 @@ from workbench.search.space import (
     SearchSpace,
     StallTemplate,
     StimulusTemplate,
+    param_value,
     place_setting,
 )
 
@@ -98,7 +99,9 @@ class Candidate:
             end = "" if f.get("stop_s") is None else f"-{f['stop_s']:g}"
             parts.append(f"{f['link']} {'/'.join(f['kinds'])} drop {f.get('drop', 0):g} at {f['start_s']:g}{end} s")
         parts += [f"stall {s['wall_s']:g} s at {s['at_s']:g} s" for s in self.scenario.get("stalls") or []]
-        parts += [f"{c['channel']} {c['kind']} {c['start_s']:g}-{c['end_s']:g} s" for c in self.channel_faults]
+        for c in self.channel_faults:
+            extra = ", ".join(f"{k} {v:g}" for k, v in c.items() if k not in ("channel", "kind", "start_s", "end_s") and isinstance(v, (int, float)))
+            parts.append(f"{c['channel']} {c['kind']}{' ' + extra if extra else ''} {c['start_s']:g}-{c['end_s']:g} s")
         for p in self.stimulus:
             extra = ", ".join(f"{k} {v:g}" for k, v in p.items() if k not in ("input", "shape", "at_s", "for_s") and isinstance(v, (int, float)))
             parts.append(f"{p['input']} {p['shape']}{' ' + extra if extra else ''} {p['at_s']:g}-{p['at_s'] + p['for_s']:g} s")
@@ -138,10 +141,19 @@ def stall(t: StallTemplate) -> st.SearchStrategy[dict[str, Any]]:
 
 
 def channel_fault(t: ChannelFaultTemplate) -> st.SearchStrategy[dict[str, Any]]:
-    def build(channel: str, start: float, length: float) -> dict[str, Any]:
-        return {"channel": channel, "kind": t.kind, "start_s": start, "end_s": round(start + length, 9), **t.params}
+    """One channel fault (its window ``[start_s, start_s + length_s)``), its ranged params drawn
+    (an integer grid's as integers)."""
 
-    return st.builds(build, st.sampled_from(t.channels), values(t.start_s), values(t.length_s))
+    def build(channel: str, start: float, length: float, params: dict[str, Any]) -> dict[str, Any]:
+        return {"channel": channel, "kind": t.kind, "start_s": start, "end_s": round(start + length, 9), **params}
+
+    def param(r: Range) -> st.SearchStrategy[float | int]:
+        if r.count == 1:
+            return st.just(param_value(r, 0))
+        return st.integers(min_value=0, max_value=r.count - 1).map(lambda i: param_value(r, i))
+
+    params = st.fixed_dictionaries({k: param(v) if isinstance(v, Range) else st.just(v) for k, v in t.params.items()})
+    return st.builds(build, st.sampled_from(t.channels), values(t.start_s), values(t.length_s), params)
 
 
 def stimulus_profile(t: StimulusTemplate) -> st.SearchStrategy[dict[str, Any]]:
