@@ -25,6 +25,7 @@ from typing import Any
 from service_kit.can_wire.bits import FrameBits, frame_bits
 from service_kit.can_wire.timing import STANDARD_BITRATES, bit_time_ns, worst_case_bits
 from service_kit.can_wire.worst_case import longest_frame, shortest_frame
+from service_kit.generated_file import emit
 
 CYCLE = ("SYNC", "TPDO1_AnalogInputs16", "RPDO1_AnalogOutputs16")
 """What crosses the bus every sample period: SYNC, the plant's TPDO1, the controller's RPDO1."""
@@ -148,26 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--write", type=Path, metavar="FILE", help="write the table to FILE")
     group.add_argument("--check", type=Path, metavar="FILE", help="exit 1 if FILE differs from the table")
     args = parser.parse_args(argv)
-    text = render()
-    if args.write is not None:
-        try:
-            args.write.write_text(text, encoding="utf-8")
-        except OSError as exc:
-            print(f"report: cannot write {args.write}: {exc}", file=sys.stderr)
-            return 2
-        return 0
-    if args.check is not None:
-        try:
-            current = args.check.read_text(encoding="utf-8")
-        except OSError as exc:
-            print(f"report: cannot read {args.check}: {exc}", file=sys.stderr)
-            return 2
-        if current != text:
-            print(f"report: {args.check} is out of date: python -m service_kit.can_wire.report --write {args.check}", file=sys.stderr)
-            return 1
-        return 0
-    sys.stdout.write(text)
-    return 0
+    return emit(render(), write=args.write, check=args.check, prog="report", regenerate=f"python -m service_kit.can_wire.report --write {args.check}")
 
 
 if __name__ == "__main__":

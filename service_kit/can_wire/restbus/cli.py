@@ -37,6 +37,7 @@ from service_kit.can_wire.restbus.traffic import (
     spread_drift,
 )
 from service_kit.can_wire.timing import bit_time_ns, worst_case_bits
+from service_kit.generated_file import emit
 
 PROG = "python -m service_kit.can_wire.restbus"
 DEFAULT_DURATION_MS = 1000
@@ -201,22 +202,5 @@ def main(argv: list[str] | None = None) -> int:
     except RestbusError as exc:
         print(f"restbus: {exc}", file=sys.stderr)
         return 2
-    if args.write is not None:
-        try:
-            args.write.write_text(text, encoding="utf-8")
-        except OSError as exc:
-            print(f"restbus: cannot write {args.write}: {exc}", file=sys.stderr)
-            return 2
-        return 0
-    if args.check is not None:
-        try:
-            current = args.check.read_text(encoding="utf-8")
-        except OSError as exc:
-            print(f"restbus: cannot read {args.check}: {exc}", file=sys.stderr)
-            return 2
-        if current != text:
-            print(f"restbus: {args.check} is out of date: {PROG} {args.dbc} --bitrate {args.bitrate} --write {args.check}", file=sys.stderr)
-            return 1
-        return 0
-    sys.stdout.write(text)
-    return 0
+    regenerate = f"{PROG} {args.dbc} --bitrate {args.bitrate} --write {args.check}"
+    return emit(text, write=args.write, check=args.check, prog="restbus", regenerate=regenerate)
