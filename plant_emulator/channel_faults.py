@@ -68,6 +68,8 @@ class _State:
     held: float | None = None
     line: deque[float] | None = None
     active: bool = False
+    sizes: dict[str, float] = field(default_factory=dict)
+    """Sizes a stimulus profile replaces now (:meth:`ChannelFaultUnit.set_size`)."""
 
 
 @dataclass
@@ -143,6 +145,15 @@ class ChannelFaultUnit:
         self._ended.append(False)
         self._sort()
 
+    def set_size(self, index: int, size: str, value: float | None) -> None:
+        """Fault ``index``'s parameter ``size`` reads ``value`` from now on (a stimulus profile's,
+        docs/stimulus.md); None: its own value again."""
+        sizes = self._states[index].sizes
+        if value is None:
+            sizes.pop(size, None)
+        else:
+            sizes[size] = value
+
     def acting(self, time_s: float) -> list[ChannelFault]:
         """The faults whose interval holds ``time_s``, in schedule order."""
         return [s.fault for s in self._states if s.fault.active(time_s)]
@@ -216,6 +227,12 @@ def _acting(s: _State, time_s: float) -> bool:
     return on
 
 
+def _size(s: _State, name: str) -> float | None:
+    """The fault's parameter ``name``: a stimulus profile's value while one replaces it, else the fault's own."""
+    value = s.sizes.get(name) if s.sizes else None
+    return value if value is not None else getattr(s.fault, name)
+
+
 def _delayed(s: _State, x: float) -> float:
     """The value ``samples`` calls ago (the value at the fault's start until that many have passed)."""
     n = int(s.fault.samples or 1)
@@ -234,30 +251,33 @@ def _input_stage(s: _State, v: list[float], time_s: float) -> None:
         mean = (v[i] + v[j]) / 2.0
         v[i] = v[j] = mean
     elif kind == "gain":
-        v[i] = v[i] * float(f.factor or 0.0)
+        v[i] = v[i] * float(_size(s, "factor") or 0.0)
     elif kind == "offset":
-        v[i] = v[i] + float(f.offset_v or 0.0)
+        v[i] = v[i] + float(_size(s, "offset_v") or 0.0)
     elif kind == "drift":
-        v[i] = v[i] + float(f.rate_v_s or 0.0) * (time_s - f.start_s)
+        v[i] = v[i] + float(_size(s, "rate_v_s") or 0.0) * (time_s - f.start_s)
     elif kind == "noise":
         assert s.generator is not None
-        v[i] = v[i] + float(f.sigma_v or 0.0) * float(s.generator.standard_normal())
+        v[i] = v[i] + float(_size(s, "sigma_v") or 0.0) * float(s.generator.standard_normal())
     elif kind == "delay":
         v[i] = _delayed(s, v[i])
     elif kind == "stuck":
         if s.held is None:
             s.held = v[i] if f.value_v is None else f.value_v
-        v[i] = s.held
+        v[i] = s.held if "value_v" not in s.sizes else s.sizes["value_v"]
     elif kind == "intermittent":
         period = float(f.period_s or 1.0)
         if math.fmod(time_s - f.start_s, period) >= float(f.duty or 0.0) * period:
-            v[i] = DEFAULT_OPEN_V if f.value_v is None else f.value_v
+            value = _size(s, "value_v")
+            v[i] = DEFAULT_OPEN_V if value is None else value
     elif kind == "open":
-        v[i] = DEFAULT_OPEN_V if f.value_v is None else f.value_v
+        value = _size(s, "value_v")
+        v[i] = DEFAULT_OPEN_V if value is None else value
     elif kind == "short_ground":
         v[i] = 0.0
     elif kind == "short_supply":
-        v[i] = DEFAULT_SUPPLY_V if f.value_v is None else f.value_v
+        value = _size(s, "value_v")
+        v[i] = DEFAULT_SUPPLY_V if value is None else value
 
 
 def _output_stage(s: _State, v: list[float]) -> None:
@@ -269,11 +289,11 @@ def _output_stage(s: _State, v: list[float]) -> None:
     elif kind == "stuck":
         if s.held is None:
             s.held = v[i] if f.value_v is None else f.value_v
-        v[i] = s.held
+        v[i] = s.held if "value_v" not in s.sizes else s.sizes["value_v"]
     elif kind == "gain":
-        v[i] = v[i] * float(f.factor or 0.0)
+        v[i] = v[i] * float(_size(s, "factor") or 0.0)
     elif kind == "offset":
-        v[i] = v[i] + float(f.offset_v or 0.0)
+        v[i] = v[i] + float(_size(s, "offset_v") or 0.0)
     elif kind == "saturate":
         limit = float(f.limit_v or 0.0)
         v[i] = limit if v[i] > limit else (-limit if v[i] < -limit else v[i])

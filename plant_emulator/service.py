@@ -45,7 +45,9 @@ from protocol.messages import ChannelTruth, GroundTruth, Health, LatencyStats, P
 from protocol.record_paths import truth_file
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.settings import PlantSettings
+from protocol.stimulus import fault_size_ranges
 from protocol.stimulus_eval import StimulusSource
+from protocol.stimulus_inputs import channel_fault_target
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
@@ -172,10 +174,12 @@ class PlantApplication:
             self.scenario.add(cmd)
         self.channel_faults = self._fault_unit(settings, self.arm)
         """The scenario's channel faults (None: no ``channel_faults`` section, the node's path untouched)."""
-        self.stimulus = self._stimulus_source(settings, self.arm)
+        self.stimulus = self._stimulus_source(settings, self.arm, self.channel_faults)
         """The scenario's stimulus on the plant's inputs (None: no ``stimulus`` section, the SYNC path untouched)."""
         self._payload_before: bool | None = None
         self._forces = (0.0, 0.0)
+        self._fault_sizes = [(name, target) for name in (self.stimulus.inputs if self.stimulus else ()) if (target := channel_fault_target(name))]
+        """The channel faults' sizes the stimulus drives: (input, (fault index, size))."""
         self.channel_faults_refused = 0
         """Channel faults from the test port this plant could not apply."""
         self._live_faults: set[tuple[int, ChannelFault]] = set()
@@ -201,23 +205,33 @@ class PlantApplication:
         return unit
 
     @staticmethod
-    def _stimulus_source(settings: PlantSettings, arm: PlantModel) -> StimulusSource | None:
-        """The source of the scenario's ``stimulus``; refused (one line) for a model without the inputs it drives."""
+    def _stimulus_source(settings: PlantSettings, arm: PlantModel, unit: ChannelFaultUnit | None) -> StimulusSource | None:
+        """The source of the scenario's ``stimulus``; refused (one line) for a model without the inputs it drives.
+        A channel fault's size is clipped to the fault's own range (:func:`protocol.stimulus.fault_size_ranges`)."""
         plan = parse_scenario_stimulus(settings.scenario)
         if not plan:
             return None
+        ranges = fault_size_ranges(plan, unit.schedule.faults if unit is not None else (), "RALF_SCENARIO stimulus")
         for name in plan.inputs():
+            if name in ranges:
+                continue
             needs = "set_tip_forces" if name.startswith("disturbance.") else "payload_attached"
             if not hasattr(arm, needs):
                 raise ConfigError(f"stimulus on {name}: the plant model {type(arm).__name__} maps no such input (the built-in arm has it)")
-        return StimulusSource(plan)
+        return StimulusSource(plan, ranges)
 
     def _apply_stimulus(self, source: StimulusSource) -> None:
         """The stimulus at the model's time (docs/stimulus.md): profiles started or ended (plant
-        events), the payload while a profile on it is active, the links' tip forces."""
+        events), the payload while a profile on it is active, the links' tip forces, the channel
+        faults' sizes (before this SYNC's conversion, held until the next SYNC)."""
         t = self.arm.time_s
         for change in source.transitions(t):
             self._event("stimulus_start" if change.started else "stimulus_end", change.describe())
+        if self._fault_sizes:
+            unit = self.channel_faults
+            assert unit is not None  # checked at the start (_stimulus_source)
+            for name, (index, size) in self._fault_sizes:
+                unit.set_size(index, size, source.value(name, t) if source.any_active(name, t) else None)
         if "payload" in source.inputs:
             if source.any_active("payload", t):
                 if self._payload_before is None:

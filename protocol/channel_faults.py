@@ -12,6 +12,7 @@ describes every kind.
 
 from __future__ import annotations
 
+import math
 from typing import Final, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -26,7 +27,9 @@ __all__ = [
     "DEFAULT_OPEN_V",
     "DEFAULT_SUPPLY_V",
     "ChannelFault",
+    "SIZES",
     "FaultSchedule",
+    "size_range",
 ]
 
 AD_CHANNELS: Final[tuple[str, ...]] = ("AI1", "AI2", "AI3", "AI4")
@@ -104,6 +107,17 @@ _PARAMETERS: Final[tuple[str, ...]] = (
 )
 
 
+SIZES: Final[dict[str, str]] = {
+    "offset_v": "V",
+    "factor": "1",
+    "sigma_v": "V",
+    "rate_v_s": "V/s",
+    "value_v": "V",
+}
+"""The sizes a stimulus profile may drive (docs/stimulus.md), with their units: the float
+parameters whose range holds 0 (a profile is 0 outside its window)."""
+
+
 class ChannelFault(BaseModel):
     """One fault on one channel, active from ``start_s`` (inclusive) until
     ``end_s`` (exclusive; None: to the end of the run), simulated seconds."""
@@ -175,6 +189,29 @@ class ChannelFault(BaseModel):
         params = [f"{p}={getattr(self, p)}" for p in _PARAMETERS if getattr(self, p) is not None]
         until = "" if self.end_s is None else f" until {self.end_s:g} s"
         return f"{self.channel} {self.kind}{' ' + ' '.join(params) if params else ''} from {self.start_s:g} s{until}"
+
+
+def parameter_range(name: str) -> tuple[float, float]:
+    """A parameter's range as the schema bounds it (the field's ``ge`` and ``le``)."""
+    lo, hi = -math.inf, math.inf
+    for m in ChannelFault.model_fields[name].metadata:
+        lo = float(getattr(m, "ge", lo))
+        hi = float(getattr(m, "le", hi))
+    return lo, hi
+
+
+def size_range(fault: ChannelFault, name: str) -> tuple[float, float]:
+    """The range a stimulus profile on ``fault``'s size ``name`` must stay in: the schema's
+    bounds (a D/A output's stuck value within the D/A's); ValueError for a size the kind does not take."""
+    needs = _NEEDS.get(fault.kind, ())
+    takes = _TAKES.get(fault.kind, frozenset(needs))
+    if name not in SIZES or name not in takes:
+        sizes = ", ".join(p for p in SIZES if p in takes) or "none"
+        raise ValueError(f"a fault of kind {fault.kind!r} has no size {name!r}; its sizes a profile may drive: {sizes}")
+    lo, hi = parameter_range(name)
+    if fault.kind == "stuck" and not fault.is_input:
+        lo, hi = max(lo, -FULL_SCALE_V), min(hi, FULL_SCALE_V)
+    return lo, hi
 
 
 class FaultSchedule(BaseModel):

@@ -15,7 +15,7 @@ from protocol.bounded_parse import TooLarge, load_json
 from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
 from protocol.messages import ScenarioCommand
-from protocol.stimulus import StimulusPlan, parse_stimulus
+from protocol.stimulus import StimulusPlan, fault_size_ranges, parse_stimulus
 
 __all__ = ["SECTIONS", "parse_channel_faults", "parse_scenario", "parse_scenario_stimulus"]
 
@@ -48,8 +48,13 @@ def parse_channel_faults(text: str) -> FaultSchedule:
 
 
 def parse_scenario_stimulus(text: str) -> StimulusPlan:
-    """The ``stimulus`` section of the ``scenario`` setting: the plant inputs' profiles (:mod:`protocol.stimulus`; empty for a plain list)."""
-    return parse_stimulus(_section(text, "stimulus"), "plant", where="RALF_SCENARIO stimulus")
+    """The ``stimulus`` section of the ``scenario`` setting: the plant inputs' profiles (:mod:`protocol.stimulus`; empty for a plain list),
+    a profile on a channel fault's size checked against the ``channel_faults`` section (:func:`protocol.stimulus.fault_size_ranges`)."""
+    where = "RALF_SCENARIO stimulus"
+    plan = parse_stimulus(_section(text, "stimulus"), "plant", where=where)
+    if any(p.input.startswith("channel_fault.") for p in plan.profiles):
+        fault_size_ranges(plan, parse_channel_faults(text).faults, where)
+    return plan
 
 
 def _section(text: str, name: str) -> list[Any]:

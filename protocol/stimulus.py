@@ -47,8 +47,9 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from protocol.bounded_parse import TooLarge, load_json
+from protocol.channel_faults import SIZES, ChannelFault, size_range
 from protocol.errors import ConfigError
-from protocol.stimulus_inputs import INPUTS, Side
+from protocol.stimulus_inputs import CONTROLLER_INPUTS, INPUTS, NAMES, PLANT_INPUTS, Side, channel_fault_target, lookup
 
 __all__ = [
     "Chirp",
@@ -59,6 +60,7 @@ __all__ = [
     "Sine",
     "Step",
     "StimulusPlan",
+    "fault_size_ranges",
     "parse_stimulus",
 ]
 
@@ -78,8 +80,11 @@ class _Shape(BaseModel):
 
     @model_validator(mode="after")
     def _window(self) -> Any:
-        if self.input not in INPUTS:
-            raise ValueError(f"no stimulus input {self.input!r}; inputs: {', '.join(INPUTS)}")
+        if lookup(self.input) is None:
+            target = channel_fault_target(self.input)
+            if target is not None:
+                raise ValueError(f"{self.input}: no channel fault size {target[1]!r}; sizes: {', '.join(SIZES)}")
+            raise ValueError(f"no stimulus input {self.input!r}; inputs: {', '.join(NAMES)}")
         if self.for_s is not None and self.end_s is not None:
             raise ValueError("give for_s or end_s, not both")
         if self.end_s is not None and self.end_s <= self.at_s:
@@ -262,7 +267,8 @@ class StimulusPlan(BaseModel):
     def inputs(self) -> tuple[str, ...]:
         """The inputs driven, in the table's order."""
         used = {p.input for p in self.profiles}
-        return tuple(name for name in INPUTS if name in used)
+        sizes = tuple(dict.fromkeys(p.input for p in self.profiles if p.input not in INPUTS))  # channel faults' sizes, in first use
+        return (*(name for name in INPUTS if name in used), *sizes)
 
     def on(self, name: str) -> tuple[Profile, ...]:
         return tuple(p for p in self.profiles if p.input == name)
@@ -295,9 +301,10 @@ def parse_stimulus(value: str | Sequence[Any], side: Side, where: str = "stimulu
             (profile,) = _PROFILES.validate_python([item])
         except ValidationError as exc:
             raise ConfigError(f"{where} item {n}: {_one_line(exc)}") from None
-        spec = INPUTS[profile.input]
+        spec = lookup(profile.input)
+        assert spec is not None  # the profile's own check
         if spec.side != side:
-            others = ", ".join(k for k, v in INPUTS.items() if v.side == side)
+            others = ", ".join(CONTROLLER_INPUTS if side == "controller" else PLANT_INPUTS)
             raise ConfigError(f"{where} item {n}: {profile.input} is a {spec.side} input; the {side}'s inputs: {others}")
         lo, hi = profile.bounds()
         if lo < spec.low or hi > spec.high:
@@ -306,6 +313,34 @@ def parse_stimulus(value: str | Sequence[Any], side: Side, where: str = "stimulu
             )
         profiles.append(profile)
     return StimulusPlan(profiles=tuple(profiles))
+
+
+def fault_size_ranges(plan: StimulusPlan, faults: Sequence[ChannelFault], where: str = "stimulus") -> dict[str, tuple[float, float]]:
+    """The range of each channel fault's size the plan drives (``channel_fault.<n>.<size>``), the
+    fault's own (:func:`protocol.channel_faults.size_range`); a profile on a fault ``faults`` does not
+    have, on a size its kind does not take, or leaving that range is refused in one line."""
+    ranges: dict[str, tuple[float, float]] = {}
+    for n, profile in enumerate(plan.profiles):
+        target = channel_fault_target(profile.input)
+        if target is None:
+            continue
+        index, size = target
+        if index >= len(faults):
+            have = f"faults 0..{len(faults) - 1}" if faults else "no fault"
+            raise ConfigError(f"{where} item {n}: {profile.input}: the scenario's channel_faults has {have}")
+        fault = faults[index]
+        try:
+            lo, hi = size_range(fault, size)
+        except ValueError as exc:
+            raise ConfigError(f"{where} item {n}: {profile.input} ({fault.channel} {fault.kind}): {exc}") from None
+        low, high = profile.bounds()
+        if low < lo or high > hi:
+            unit = SIZES[size]
+            raise ConfigError(
+                f"{where} item {n}: {profile.input} ({fault.channel} {fault.kind}) would reach {low:g} .. {high:g} {unit}, outside its range {lo:g} .. {hi:g} {unit}"
+            )
+        ranges[profile.input] = (lo, hi)
+    return ranges
 
 
 def _one_line(exc: ValidationError) -> str:

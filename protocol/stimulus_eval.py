@@ -21,7 +21,7 @@ import numpy.typing as npt
 from scipy.signal import max_len_seq
 
 from protocol.stimulus import Chirp, Playback, Prbs, Profile, Ramp, Sine, Step, StimulusPlan
-from protocol.stimulus_inputs import INPUTS
+from protocol.stimulus_inputs import lookup
 
 __all__ = ["EDGE_S", "StimulusSource", "Transition", "active", "prbs_bits", "profile_value", "table"]
 
@@ -117,11 +117,13 @@ class Transition:
 class StimulusSource:
     """The plan's profiles, each with its table, evaluated input by input."""
 
-    def __init__(self, plan: StimulusPlan) -> None:
+    def __init__(self, plan: StimulusPlan, ranges: dict[str, tuple[float, float]] | None = None) -> None:
+        """``ranges``: an input's range where it is not the table's (a channel fault's size: the fault's own)."""
         self.plan = plan
         self.inputs = plan.inputs()
         self._profiles = [(n, p, p.end, table(p)) for n, p in enumerate(plan.profiles)]
         self._by_input = {name: [(p, end, d) for _, p, end, d in self._profiles if p.input == name] for name in self.inputs}
+        self._ranges = {name: _range(name, ranges or {}) for name in self.inputs}
         self._started = [False] * len(self._profiles)
         self._ended = [False] * len(self._profiles)
 
@@ -130,8 +132,8 @@ class StimulusSource:
         total = 0.0
         for p, _, d in self._by_input.get(name, ()):
             total = total + profile_value(p, d, t)
-        spec = INPUTS[name]
-        return spec.high if total > spec.high else (spec.low if total < spec.low else total)
+        low, high = self._ranges[name] if name in self._ranges else _range(name, {})
+        return high if total > high else (low if total < low else total)
 
     def any_active(self, name: str, t: float) -> bool:
         """Whether a profile on the input is inside its window at ``t``."""
@@ -148,3 +150,11 @@ class StimulusSource:
                 self._ended[n] = True
                 out.append(Transition(end, n, p, False))
         return out
+
+
+def _range(name: str, ranges: dict[str, tuple[float, float]]) -> tuple[float, float]:
+    if name in ranges:
+        return ranges[name]
+    spec = lookup(name)
+    assert spec is not None, name
+    return spec.low, spec.high

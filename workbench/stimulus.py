@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 from protocol.errors import ConfigError
 from protocol.stimulus import StimulusPlan, parse_stimulus
-from protocol.stimulus_inputs import INPUTS
+from protocol.stimulus_inputs import lookup
 
 __all__ = ["Stimulus"]
 
@@ -154,7 +154,7 @@ class Stimulus:
     # -- settings -------------------------------------------------------------------------
     def side(self, side: Literal["controller", "plant"]) -> list[dict[str, Any]]:
         """The profiles on that side's inputs, in order (an unknown input stays with the controller's, whose check names it)."""
-        return [p for p in self.profiles if (INPUTS[p["input"]].side if p.get("input") in INPUTS else "controller") == side]
+        return [p for p in self.profiles if _side(p.get("input")) == side]
 
     def plans(self) -> tuple[StimulusPlan, StimulusPlan]:
         """Both sides validated as the services will: (controller's, plant's); one-line ConfigError otherwise."""
@@ -178,6 +178,11 @@ class Stimulus:
 
     def __len__(self) -> int:
         return len(self.profiles)
+
+
+def _side(name: Any) -> str:
+    spec = lookup(name) if isinstance(name, str) else None
+    return spec.side if spec is not None else "controller"
 
 
 def _scenario_object(scenario: str | list[Any] | dict[str, Any] | None) -> dict[str, Any]:
