@@ -101,6 +101,11 @@ def push_threshold(template: Candidate) -> int:
     return high
 
 
+def _faults_only(c: Candidate) -> str:
+    """The candidate's line without its settings (the space's fixed ones: nothing in these spaces varies them)."""
+    return Candidate(c.duration_s, c.scenario, c.channel_faults, {}, c.stimulus).describe()
+
+
 def _median(values: list[float]) -> float:
     return float(statistics.median(values))
 
@@ -143,7 +148,7 @@ def measure_planted(out: Path, seeds: tuple[int, ...] = SEEDS, log: Callable[[st
                 "shrink_runs": result.shrink_runs,
                 "known": why is None,
                 "why": why,
-                "minimal": result.minimal.describe() if result.minimal is not None else "none",
+                "minimal": _faults_only(result.minimal) if result.minimal is not None else "none",
                 "reproduced": result.reproduced,
                 "wall_s": round(result.wall_s, 1),
             }
@@ -177,7 +182,8 @@ def measure_planted(out: Path, seeds: tuple[int, ...] = SEEDS, log: Callable[[st
         f"Written by `python -m workbench.search.measure --planted docs/results/fault-search` on {date}: the spaces and properties of "
         f"`workbench/search/planted.py`, co-simulated, one process, seeds {', '.join(map(str, seeds))}, a budget of {runs} candidates and "
         f"{shrink} runs shrinking per seed. Runs to the first violation count from 1 (the first candidate run); the runs shrinking are the "
-        "further runs until Hypothesis ended (a candidate asked for twice costs one); the wall time includes the confirming run. "
+        "further runs until Hypothesis ended (a candidate asked for twice costs one); the wall time includes the confirming run "
+        "(and, for the first search, the imports). The minimal violations are shown without the spaces' fixed settings. "
         f"Load before {before}, after {after}.\n\n" + "\n".join(sections) + f"\n{host_line()}\n",
         encoding="utf-8",
     )
