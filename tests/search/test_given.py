@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from hypothesis import Phase, given, settings
 
-from tests.search.spaces import INTERRUPT_OUTAGE, STALE_AFTER_S, TPDO_LOSS
 from workbench.search.assertions import assert_holds
+from workbench.search.planted import INTERRUPT_OUTAGE, STALE_AFTER_S, TPDO_LOSS
 from workbench.search.properties import Properties
 from workbench.search.runner import evaluate
 from workbench.search.space import space_from

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.search.spaces import PLANT_HEARTBEAT_S, TPDO_LOSS
 from workbench.cli import MCAP_MAGIC, main
+from workbench.search.planted import PLANT_HEARTBEAT_S, TPDO_LOSS
 
 pytestmark = pytest.mark.slow
 
