@@ -139,6 +139,17 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
         payload_attached=st.booleans(),
         valves_held=st.booleans(),
     ),
+    m.ChannelTruth: st.builds(
+        m.ChannelTruth,
+        **_header(),
+        ai_true_v=st.none() | st.tuples(finite, finite, finite, finite),
+        ai_faulted_v=st.none() | st.tuples(finite, finite, finite, finite),
+        ai_saturated=st.none() | st.tuples(st.booleans(), st.booleans(), st.booleans(), st.booleans()),
+        ao_time_s=st.none() | st.floats(min_value=0.0, max_value=1e9),
+        ao_commanded_v=st.none() | st.tuples(finite, finite),
+        ao_applied_v=st.none() | st.tuples(finite, finite),
+        active_faults=st.lists(texts, max_size=3).map(tuple),
+    ),
     m.ScenarioCommand: scenario_commands(),
     m.PlantEvent: st.builds(m.PlantEvent, **_header(), kind=texts, detail=texts),
 }
@@ -238,6 +249,15 @@ VALID: dict[type[BaseModel], dict[str, Any]] = {
     m.LatencyStats: {"count": 3, "p50": 0.1, "p99": 0.2, "p999": 0.3, "max": 0.4},
     m.Health: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "service": "dsp", "counters": {"batches": 3}},
     m.ControllerStatus: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "ticks": 10, "loop_rate_hz": 200.0, "batches_sent": 1, "interrupts": 1},
+    m.ChannelTruth: {
+        "seq": 1,
+        "sim_time_s": 0.5,
+        "wall_time_s": 1.0,
+        "ai_true_v": [1.0, 2.0, 0.1, -0.2],
+        "ai_faulted_v": [1.0, 2.0, 0.0, -0.2],
+        "ai_saturated": [False, False, False, False],
+        "active_faults": ["AI3 short_ground from 0.25 s"],
+    },
     m.GroundTruth: {
         "seq": 1,
         "sim_time_s": 0.5,
