@@ -1,7 +1,7 @@
 """The worked example of docs/fault-search.md, run and measured.
 
 ``python -m workbench.search.measure docs/results/fault-search`` runs
-``ralf-hil search`` on ``docs/scenarios/search-interrupt-outage.yaml`` (seed
+``ralf-hil search`` on ``docs/search/interrupt-outage.yaml`` (seed
 1, a fresh example database) and writes ``example.txt`` (its output, the
 bundle's path made relative) and ``rate.md`` (runs, wall time, runs per
 second, the host and its load before and after).
@@ -34,7 +34,7 @@ SEEDS = (0, 1, 2, 3, 4)
 PLANTED_BUDGET = (60, 100)
 """Candidates to generate and runs shrinking may take, per seed: well past what the tests allow."""
 
-SPACE = Path(__file__).resolve().parents[2] / "docs" / "scenarios" / "search-interrupt-outage.yaml"
+SPACE = Path(__file__).resolve().parents[2] / "docs" / "search" / "interrupt-outage.yaml"
 ARGS = ["--property", "within(counters.stale_episodes, 0, 0)", "--budget", "10", "--shrink-budget", "40", "--seed", "1"]
 
 
@@ -55,7 +55,7 @@ def measure(out: Path) -> dict[str, object]:
         info = json.loads((bundle / "bundle.json").read_text(encoding="utf-8"))
         reproduce = (bundle / "reproduce.txt").read_text(encoding="utf-8").replace(str(Path(tmp).resolve()), "search-out")
     runs = int(info["search"]["runs"]) + 1  # and the confirming run
-    command = "ralf-hil search docs/scenarios/search-interrupt-outage.yaml " + " ".join(f"'{a}'" if "(" in a else a for a in ARGS)
+    command = "ralf-hil search docs/search/interrupt-outage.yaml " + " ".join(f"'{a}'" if "(" in a else a for a in ARGS)
     first = Candidate.from_dict(info["search"]["first"]).describe() if info["search"].get("first") else "none"
     (out / "example.txt").write_text(
         f"$ {command}\n{text}(exit {code})\n\n# the first violation met: {first}\n\n$ cat search-out/{bundle.name}/reproduce.txt\n{reproduce}", encoding="utf-8"
