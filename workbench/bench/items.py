@@ -844,6 +844,10 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
             m["three_process tet"] = latency(
                 from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick"
             )
+            # where the tick goes: SYNC -> TPDO1 (CAN out, the plant, CAN back), then the controller's tick
+            for hop, note in (("sync_to_tpdo", "SYNC sent -> TPDO1 received"), ("tick_compute", "TPDO1 -> tick done")):
+                if ctrl["latencies"].get(f"hop_{hop}", {}).get("count"):
+                    m[f"three_process {hop}"] = latency(from_latency_stats(ctrl["latencies"][f"hop_{hop}"]), "can_pingpong (floor)", canf, note=note)
     _bench_cosim(ctx, result, three)
     try:
         requires("workbench.composition")
