@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from . import kernel
+from . import kernel, rfft_into
 from .identifier_config import IdentifierConfig
 from .modal import PeakRefiner, VrmEstimator, log_weights
 from .smoothing import FrequencySmoother
@@ -134,7 +134,8 @@ class CompiledStep:
         """The compiled overloads of the step, the detrend and the averaging alone, each resolved once
         on arguments that change nothing (no snapshot: weight 0 on a zero state)."""
         self.call = kernel.compiled_entry(kernel.step_packed, (self.zeros_f, 0.0, *self.args))
-        self.fft_args = (est._tmp, est.ffts)
+        fft = rfft_into.bind(est._tmp, est.ffts)  # the snapshot's FFT into the estimator's buffer (module doc there)
+        self.fft, self.fft_args, self.fft_form = fft.func, fft.args, fft.form
         self.dtr_args = (est.means, est.window, est._tmp)
         self.detrend_ring = kernel.compiled_entry(kernel.detrend_window_ring, (ring, 0, *self.dtr_args))
         self.state_f = avg.state.view(np.float64)

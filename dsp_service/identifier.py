@@ -97,7 +97,6 @@ from .spectra import (
     SegmentedSpectralEstimator,
     SpectralAverager,
     SpectralEstimator,
-    rfft_rows,
     welch_equivalent_averages,
 )
 
@@ -300,7 +299,7 @@ class Identifier:
             self._pending = 0
             # detrend='constant', then window (scipy.signal.csd's order)
             ks.detrend_ring(hist._buf, hist._head, *ks.dtr_args)
-            rfft_rows(*ks.fft_args)
+            ks.fft(*ks.fft_args)  # rfft_into.bind's form: scipy.fft.rfft's bits
             if first == 1:
                 ks.call(ks.ffts_f, weight, *ks.args)
                 return True

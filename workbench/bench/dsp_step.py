@@ -13,8 +13,8 @@ same machine state:
   ``conj(X_a)·X_b`` (P11, P12, P1y1, P1y2, P21, P22, P2y1, P2y2: ``conj(U_i)``
   times each of the four rows) as **one** broadcast multiply into a
   preallocated ``(2, 4, n/2+1)`` array. The ratios use this floor. Its FFT is
-  :func:`dsp_service.spectra.rfft_rows`, the one the step uses (``scipy.fft.rfft``), so
-  the ratio does not credit the step with a faster FFT. The slower forms of
+  the one the step uses (:func:`dsp_service.rfft_into.bind`: ``scipy.fft.rfft``'s bits, written
+  into the buffer), so the ratio does not credit the step with a faster FFT. The slower forms of
   the same work, in the same blocks: ``floor_products_p50_us`` (the batched
   FFT and eight separate ``np.conj(X_a) * X_b``, the headline floor of this
   bench until it was found 20–45 % slower than the fused form; its ratio is
@@ -43,6 +43,7 @@ from typing import TypedDict
 import numpy as np
 import scipy.signal
 
+from dsp_service import rfft_into
 from dsp_service.identifier import Identifier, IdentifierConfig
 from dsp_service.spectra import rfft_rows
 
@@ -128,6 +129,8 @@ def bench_identifier(n: int = 2048, repeats: int = 200) -> IdentifierBench:
     floor_np_t = np.empty(repeats)
     k = n // 2 + 1
     X_out = np.empty((4, k), dtype=np.complex128)
+    fft = rfft_into.bind(data, X_out)  # the step's own form (its fft_form)
+    fft_into, fft_args = fft.func, fft.args
     conj = np.empty((2, 1, k), dtype=np.complex128)
     fused = np.empty((2, 4, k), dtype=np.complex128)
     result = None
@@ -143,7 +146,7 @@ def bench_identifier(n: int = 2048, repeats: int = 200) -> IdentifierBench:
             step_t[i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            rfft_rows(data, X_out)
+            fft_into(*fft_args)
             np.conjugate(X_out[:2, None], out=conj)
             np.multiply(conj, X_out, out=fused)  # conj(U_i)·X_j: all eight products at once
             floor_t[i] = perf() - t0
@@ -193,6 +196,33 @@ def bench_sizes(sizes: tuple[int, ...] = SIZES, repeats: int = 200) -> list[Iden
     return [bench_identifier(n, repeats) for n in sizes]
 
 
+class StepPinger:
+    """The step the DSP service makes per batch (a batch appended, then :meth:`Identifier.step`,
+    both timed, as ``Interrupt.compute_time_s`` times them), stand-alone in this process: the
+    zenoh item interleaves it with the service's round trips, so the in-service step is printed
+    against it in the same run (``dsp_compute`` / ``dsp_step_standalone``). ``n``, ``batch``: the
+    service's FFT width and batch size; the history is full before the first timed call."""
+
+    name = "dsp_step_standalone"
+
+    def __init__(self, n: int, batch: int, repeats: int) -> None:
+        self.batch = batch
+        self.idf, self.u, self.y, self.pos = _warmed(n, repeats * max(1, batch // _BATCH) + 2 * repeats)
+        self.fft_form = str(self.idf._k.fft_form)
+
+    def once(self) -> float:
+        """One batch appended and one step, in seconds."""
+        pos, b = self.pos, self.batch
+        if pos + b > self.u.shape[1]:
+            pos = self.idf.fft_width  # wrap over data already seen: the timing is what counts
+        t0 = time.perf_counter()
+        self.idf.push(self.u[:, pos : pos + b], self.y[:, pos : pos + b])
+        self.idf.step()
+        elapsed = time.perf_counter() - t0
+        self.pos = pos + b
+        return elapsed
+
+
 def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
     """p50 (µs) of each stage of the compiled step at FFT width ``n``, and of the whole step.
 
@@ -215,6 +245,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
     perf = time.perf_counter
     k = n // 2 + 1
     X_out = np.empty((4, k), dtype=np.complex128)
+    fft = rfft_into.bind(data, X_out)
     conj = np.empty((2, 1, k), dtype=np.complex128)
     fused = np.empty((2, 4, k), dtype=np.complex128)
     for start in range(0, repeats, _BLOCK):
@@ -237,7 +268,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["detrend"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            rfft_rows(est._tmp, est.ffts)
+            idf._k.fft(*idf._k.fft_args)
             t["fft"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
@@ -297,7 +328,7 @@ def bench_stages(n: int = 2048, repeats: int = 200) -> dict[str, float]:
             t["poles"][i] = perf() - t0
         for i in range(start, stop):
             t0 = perf()
-            rfft_rows(data, X_out)
+            fft.func(*fft.args)
             np.conjugate(X_out[:2, None], out=conj)
             np.multiply(conj, X_out, out=fused)
             t["floor"][i] = perf() - t0

@@ -287,6 +287,12 @@ def _add_dsp_pinger(ctx: BenchContext, result: dict[str, Any], keys: ZenohKeys, 
         dp.flag_wait_s.clear()
         timed.pingers.insert(0, dp)
         timed.dp = dp
+        # the same step stand-alone in this process, interleaved: dsp_compute's floor in the same run
+        from workbench.bench.dsp_step import StepPinger
+
+        step = StepPinger(DSP_FFT_WIDTH, BATCH_SAMPLES, ctx.iterations + ctx.warmup)
+        timed.pingers.insert(1, step)
+        result["config"]["dsp"]["fft_form"] = step.fft_form
     except BenchError as exc:
         result["errors"].append(f"dsp_batch_to_interrupt: {exc}; {dsp.describe_failure()}")
 
@@ -302,7 +308,14 @@ def _zenoh_measurements(result: dict[str, Any], samples: dict[str, list[float]],
         dsp_s = summarize(rtt)
         m["dsp_batch_to_interrupt"] = latency(dsp_s, "zenoh_pingpong", zen_s, vs_udp=ratios(dsp_s, udp_s))
         compute = dp.compute_s[-len(rtt) :]
-        m["dsp_compute"] = latency(summarize(compute), note="Interrupt.compute_time_s: the identifier step inside the service")
+        standalone = summarize(samples["dsp_step_standalone"]) if "dsp_step_standalone" in samples else None
+        m["dsp_compute"] = latency(
+            summarize(compute),
+            *(("dsp_step_standalone", standalone) if standalone is not None else ()),
+            note="Interrupt.compute_time_s: the identifier step inside the service, once per batch",
+        )
+        if standalone is not None:
+            m["dsp_step_standalone"] = latency(standalone, note="the same batch append and step in the bench's process, back to back in blocks of 50")
         overhead = [max(r - c, 0.0) for r, c in zip(rtt, compute)]
         m["dsp_rtt_minus_compute"] = latency(
             summarize(overhead), "zenoh_pingpong", zen_s, note="round trip less the DSP's own compute time: transport + service overhead"
@@ -831,6 +844,10 @@ def bench_lockstep(ctx: BenchContext, result: dict[str, Any]) -> None:
             m["three_process tet"] = latency(
                 from_latency_stats(ctrl["latencies"]["tet"]), "can_pingpong (floor)", canf, note="wall time per lockstep tick, SYNC to end of tick"
             )
+            # where the tick goes: SYNC -> TPDO1 (CAN out, the plant, CAN back), then the controller's tick
+            for hop, note in (("sync_to_tpdo", "SYNC sent -> TPDO1 received"), ("tick_compute", "TPDO1 -> tick done")):
+                if ctrl["latencies"].get(f"hop_{hop}", {}).get("count"):
+                    m[f"three_process {hop}"] = latency(from_latency_stats(ctrl["latencies"][f"hop_{hop}"]), "can_pingpong (floor)", canf, note=note)
     _bench_cosim(ctx, result, three)
     try:
         requires("workbench.composition")
