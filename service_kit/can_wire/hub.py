@@ -13,6 +13,13 @@ winner occupies the wire for its exact bits, and when its last EOF bit has
 passed it is delivered, stamped with that time, to every connected client
 (the sender's own copy marked as such).
 
+- **Transmit order**: each client is one CAN node; by default it offers the
+  wire its oldest pending frame (``tx_order="fifo"``: a host's transmit queue,
+  as SocketCAN's, so a process's frames keep their order: the controller's
+  RPDO1 of a late tick is not overtaken by its next SYNC); ``"priority"``
+  offers its highest-priority one (priority-ordered transmit buffers, the
+  rule of :func:`~service_kit.can_wire.arbitration.simulate`). Between
+  nodes the lowest arbitration field wins either way.
 - **Clock**: real time by default (the wire's thread waits on
   ``time.monotonic_ns``; delivery = wire time + the host's wake-up latency);
   a :class:`~service_kit.can_wire.wire_bus.ManualWireClock` makes it
@@ -185,11 +192,16 @@ class HubWire(Wire):
         self.on_delivery(item.sender, msg, flight.last_bit_ns)
 
 
-def make_wire(bitrate: int, clock: Any, stats: HubStats, on_delivery: Any, channel: str = "hub") -> HubWire:
+TX_ORDERS = ("fifo", "priority")
+
+
+def make_wire(bitrate: int, clock: Any, stats: HubStats, on_delivery: Any, *, tx_order: str = "fifo", channel: str = "hub") -> HubWire:
+    if tx_order not in TX_ORDERS:
+        raise ValueError(f"transmit order {tx_order!r} is none of {', '.join(TX_ORDERS)}")
     wire = HubWire.__new__(HubWire)
     wire.stats = stats
     wire.on_delivery = on_delivery
-    HubWire.__init__(wire, channel, bitrate, clock)  # the real-time thread starts here, with stats in place
+    HubWire.__init__(wire, channel, bitrate, clock, fifo_per_sender=tx_order == "fifo")  # the real-time thread starts here, with stats in place
     return wire
 
 
@@ -223,6 +235,7 @@ class Hub:
         keep: int = 200_000,
         sync_id: int = SYNC_ID,
         tpdo_id: int = TPDO1_ID,
+        tx_order: str = "fifo",
     ) -> None:
         bit_time_ns(bitrate)  # ValueError for a bit rate the wire does not model
         self.bitrate = bitrate
@@ -231,7 +244,7 @@ class Hub:
         self.stats = HubStats(bitrate, window_ns=window_ns, keep=keep, sync_id=sync_id, tpdo_id=tpdo_id)
         self._lock = threading.Lock()
         self._endpoints: list[Endpoint] = []
-        self.wire = make_wire(bitrate, clock if clock is not None else RealTimeWireClock(), self.stats, self._broadcast)
+        self.wire = make_wire(bitrate, clock if clock is not None else RealTimeWireClock(), self.stats, self._broadcast, tx_order=tx_order)
 
     def attach(self, endpoint: Endpoint) -> None:
         with self._lock:
@@ -482,10 +495,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bitrate", required=True, type=int, help="bit/s")
     parser.add_argument("--stats", type=Path, default=None, help="write the figures to this JSON file on exit")
     parser.add_argument("--window-ms", type=float, default=100.0, help="bus load window (default %(default)s ms)")
+    parser.add_argument(
+        "--tx-order", choices=TX_ORDERS, default="fifo", help="what each client offers the wire: its oldest frame (default) or its highest-priority one"
+    )
     args = parser.parse_args(argv)
     stop, _received = stop_on_signals(say=False)
     try:
-        server = HubServer(args.socket, args.bitrate, window_ns=round(args.window_ms * 1e6)).start()
+        server = HubServer(args.socket, args.bitrate, window_ns=round(args.window_ms * 1e6), tx_order=args.tx_order).start()
     except (HubError, ValueError) as exc:
         print(f"can wire hub: {exc}", file=sys.stderr)
         return 2

@@ -141,6 +141,9 @@ class Wire:
     bitrate: int
     clock: Any
     keep_log: bool = False
+    fifo_per_sender: bool = False
+    """True: each sender offers its oldest pending frame (a transmit FIFO, as a SocketCAN
+    host's queue); False: its highest-priority one (priority-ordered transmit buffers)."""
     log: list[Delivery] = field(default_factory=list)
     dropped: int = 0
     """Frames of a bus shut down before they went on the wire or while on it."""
@@ -194,6 +197,11 @@ class Wire:
                 if start >= now:  # a frame handed over at ``start`` itself may still contend
                     return
                 contenders = [p for p in self._pending if p.queued_ns <= start]
+                if self.fifo_per_sender:  # _pending is in submission order: each sender's first is its oldest
+                    heads: dict[int, _Pending] = {}
+                    for p in contenders:
+                        heads.setdefault(id(p.sender), p)
+                    contenders = list(heads.values())
                 winner = min(contenders, key=lambda p: (p.frame.arbitration_key, p.queued_ns, p.seq))
                 self._pending.remove(winner)
                 end = start + winner.frame.n_bits * self._bit

@@ -76,7 +76,7 @@ def test_deliveries_are_the_bus_models(spec: list[tuple[str, int, int, bytes]]) 
     """Frames of three clients queued at given times end exactly when simulate() ends them, in its order."""
     spec = sorted(spec, key=lambda s: s[1])
     clock = ManualWireClock()
-    hub = Hub(BITRATE, clock=clock)
+    hub = Hub(BITRATE, clock=clock, tx_order="priority")
     eps = {n: Endpoint(n) for n in "abc"}
     listener = Endpoint("listener")
     for ep in [*eps.values(), listener]:
@@ -147,6 +147,25 @@ def test_sync_to_tpdo1_is_never_below_its_floor(competitor: int | None) -> None:
     delays = report["queuing_delay_us"]["0x181"]
     assert delays["max"] == (INTERMISSION_BITS * BIT_NS + extra) / 1e3  # queued at SYNC's last bit, waits for the bus
     hub.close()
+
+
+def test_a_node_transmit_fifo_keeps_its_order() -> None:
+    """By default a client's frames leave in the order it sent them (RPDO1 before the next
+    SYNC), other nodes' frames still arbitrate against its oldest; "priority" reorders them."""
+    for order, want in (("fifo", [0x300, 0x100, 0x201, 0x080]), ("priority", [0x300, 0x080, 0x100, 0x201])):
+        clock = ManualWireClock()
+        hub = Hub(BITRATE, clock=clock, tx_order=order)
+        controller, other, listener = Endpoint("controller"), Endpoint("other"), Endpoint("listener")
+        for ep in (controller, other, listener):
+            hub.attach(ep)
+        hub.submit(other, msg(0x300))  # on the wire first: the rest queue behind it
+        clock.advance_to(1)
+        hub.submit(controller, msg(0x201, bytes(4)))
+        hub.submit(controller, msg(0x080))
+        hub.submit(other, msg(0x100))
+        run_clock(clock)
+        assert [d.msg.arbitration_id for d in listener.got] == want, order
+        hub.close()
 
 
 def test_a_full_transmit_buffer_refuses_and_counts() -> None:

@@ -17,6 +17,7 @@ restbus DBC against the rig and reports its load and response times.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -127,6 +128,7 @@ def _send(restbus: Restbus, args: argparse.Namespace) -> int:
     import can
 
     from service_kit.can_wire.restbus.sender import RestbusSender
+    from service_kit.runtime import follow_launcher, stop_on_signals
 
     try:
         if args.rig_bus:
@@ -143,11 +145,15 @@ def _send(restbus: Restbus, args: argparse.Namespace) -> int:
         return 2
     until = int(args.seconds * 1e9) if args.seconds is not None else None
     sender = RestbusSender(bus, restbus, until_ns=until)
+    # SIGINT or SIGTERM ends it, and so does the end of a launcher that started it (RALF_LAUNCHER_PID)
+    stop, _ = stop_on_signals(say=False)
+    follow_launcher(int(os.environ.get("RALF_LAUNCHER_PID", "0") or 0), stop)
+    sender.start()
     try:
-        sender.run()
-    except KeyboardInterrupt:
-        pass
+        while sender.running and not stop.wait(0.2):
+            pass
     finally:
+        sender.stop()
         bus.shutdown()
     print(
         f"restbus: {len(sender.sent)} frames sent, {sender.late} late, {sender.send_errors} refused" + (f" ({sender.last_error})" if sender.send_errors else "")
