@@ -41,7 +41,7 @@ from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compili
 from workbench.recording import cli as recording_cli
 from workbench.recording.mf4_cli import is_mf4, record_mf4
 from workbench.recording.tap import RigRecording
-from workbench.rig_wire import RigWire, point_plan_at, summary_rows, wire_request
+from workbench.rig_wire import RigWire, summary_rows, wire_request
 from workbench.run_logs import RunLogs
 from workbench.search import cli as search_cli
 from workbench.timing_test.report import health_verdict, latency_class
@@ -438,8 +438,7 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
         wire = getattr(args, "wire", None)
         rig_wire = None
         if wire is not None:  # the arbiter's socket in the run's private folder; every node pointed at it
-            rig_wire = RigWire(wire, access_dir, logs.path, {**os.environ, **plan.common_env, "RALF_LAUNCHER_PID": str(os.getpid())})
-            point_plan_at(plan, rig_wire.socket_path)
+            rig_wire = RigWire(wire, access_dir, logs.path, plan)
         tool_env = provision_access(plan, access_dir, scenarios=args.scenarios, run_s=run_s)  # credentials of this run, valid for all of it; access rules on
         code = _up_supervised(args, plan, logs.path, tool_env, live_view, rig_wire)
         return code

@@ -115,12 +115,14 @@ def _wait_ready(proc: subprocess.Popen[bytes], log: Path, socket_path: Path, tim
 class RigWire:
     """The arbiter (and the restbus sender) of one ``ralf-hil up`` run."""
 
-    def __init__(self, request: WireRequest, run_dir: Path, log_dir: Path, env: Mapping[str, str]) -> None:
+    def __init__(self, request: WireRequest, run_dir: Path, log_dir: Path, plan: Any) -> None:
+        """Points ``plan`` at the arbiter's socket in ``run_dir`` (the run's private folder)."""
         self.request = request
         self.socket_path = run_dir / SOCKET_NAME
         self.stats_path = run_dir / STATS_NAME
         self.log_dir = log_dir
-        self.env = dict(env)
+        point_plan_at(plan, self.socket_path)
+        self.env = {**os.environ, **plan.common_env, "RALF_LAUNCHER_PID": str(os.getpid())}
         self.hub: subprocess.Popen[bytes] | None = None
         self.restbus: subprocess.Popen[bytes] | None = None
 
@@ -155,7 +157,7 @@ class RigWire:
         if self.restbus is not None:
             terminate(self.restbus, 10.0)
         if self.hub is not None:
-            terminate(self.hub, 10.0)
+            terminate(self.hub, 20.0)
         try:
             report: dict[str, Any] = json.loads(self.stats_path.read_text())
         except (OSError, ValueError):
@@ -194,7 +196,7 @@ def summary_rows(wire: Mapping[str, Any]) -> list[tuple[str, str]]:
     rows.append(
         (
             "CAN wire clients",
-            f"{c['connected']} connected, {c['vanished']} left, {c['slow']} dropped as too slow, {c['junk']} junk packets, "
+            f"{c['connected']} connected, {c['vanished']} left, {c['overruns']} deliveries lost to a full outbox, {c['junk']} junk packets, "
             f"{c['refused_frames']} frames refused, {c['frames_dropped']} dropped with their sender",
         )
     )

@@ -28,7 +28,9 @@ passed it is delivered, stamped with that time, to every connected client
   counted); at most ``max_pending`` frames of one client waiting for the wire
   (more are refused and counted: a CAN controller's transmit buffers are
   full); deliveries a client does not read wait in its outbox of at most
-  ``max_outbox`` packets, beyond which the client is dropped as too slow.
+  ``max_outbox`` packets, beyond which its oldest are dropped and counted
+  (a CAN controller's receive FIFO overrun: a process busy elsewhere, such
+  as a service compiling its kernels at start-up, loses frames, not its bus).
   A client that vanishes is dropped and counted, its frames still waiting
   for the wire with it; a packet that is not a frame is junk, counted and
   dropped (:mod:`service_kit.can_wire.hub_protocol`).
@@ -211,8 +213,8 @@ class HubCounters:
     """Clients that connected over the run."""
     vanished: int = 0
     """Clients that went away (closed, died) and were dropped."""
-    slow: int = 0
-    """Clients dropped because their outbox was full."""
+    overruns: int = 0
+    """Deliveries dropped, oldest first, from the outbox of a client that did not read them."""
     refused_clients: int = 0
     junk: int = 0
     """Packets that were not a frame: counted and dropped."""
@@ -279,9 +281,13 @@ class Hub:
     def _broadcast(self, sender: Endpoint, msg: can.Message, last_bit_ns: int) -> None:
         with self._lock:
             endpoints = list(self._endpoints)
+        packet = proto.encode_delivery(msg, last_bit_ns, False)
         for ep in endpoints:
-            if ep._open and (ep is not sender or ep.receive_own):
-                ep.put(proto.encode_delivery(msg, last_bit_ns, ep is sender))
+            if ep is sender:
+                if ep._open and ep.receive_own:
+                    ep.put(proto.encode_delivery(msg, last_bit_ns, True))
+            elif ep._open:
+                ep.put(packet)
 
     def report(self) -> dict[str, Any]:
         out = self.stats.report()
@@ -295,13 +301,14 @@ class Hub:
 class _SocketClient:
     """One connected bus: its socket and its outbox of deliveries not yet taken."""
 
-    def __init__(self, sock: socket.socket, max_outbox: int) -> None:
+    def __init__(self, sock: socket.socket, max_outbox: int, counters: HubCounters) -> None:
         self.sock = sock
+        self.counters = counters
         self._open = True
         self.in_wire = 0
         self.receive_own = True
-        self.gone = ""
-        """Why it is dropped ("vanished", "slow"), set by any thread; the I/O thread closes it."""
+        self.gone = False
+        """Set by any thread when the client went away; the I/O thread closes it."""
         self.outbox: deque[bytes] = deque()
         self.max_outbox = max_outbox
         self.lock = threading.Lock()
@@ -317,13 +324,11 @@ class _SocketClient:
                 except BlockingIOError:
                     pass
                 except OSError:
-                    self.gone = "vanished"
-                    self._open = False
+                    self.gone, self._open = True, False
                     return
             if len(self.outbox) >= self.max_outbox:
-                self.gone = "slow"
-                self._open = False
-                return
+                self.outbox.popleft()
+                self.counters.overruns += 1
             self.outbox.append(packet)
 
     def flush(self) -> None:
@@ -334,8 +339,7 @@ class _SocketClient:
                 except BlockingIOError:
                     return
                 except OSError:
-                    self.gone = "vanished"
-                    self._open = False
+                    self.gone, self._open = True, False
                     return
                 self.outbox.popleft()
 
@@ -400,7 +404,7 @@ class HubServer:
                 sock.close()
                 continue
             sock.setblocking(False)
-            client = _SocketClient(sock, self.max_outbox)
+            client = _SocketClient(sock, self.max_outbox, self.hub.counters)
             try:
                 sock.send(proto.encode_hello(self.hub.bitrate))
             except OSError:
@@ -418,10 +422,10 @@ class HubServer:
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
-                client.gone, client._open = "vanished", False
+                client.gone, client._open = True, False
                 return
             if not packet:
-                client.gone, client._open = "vanished", False
+                client.gone, client._open = True, False
                 return
             msg = proto.decode_send(packet)
             if msg is None and (own := proto.decode_options(packet)) is not None:
@@ -434,10 +438,7 @@ class HubServer:
 
     def _drop(self, client: _SocketClient, sel: selectors.BaseSelector) -> None:
         self.hub.detach(client)
-        if client.gone == "slow":
-            self.hub.counters.slow += 1
-        else:
-            self.hub.counters.vanished += 1
+        self.hub.counters.vanished += 1
         sel.unregister(client.sock)
         client.sock.close()
         self._clients.remove(client)
@@ -500,6 +501,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     stop, _received = stop_on_signals(say=False)
+    sys.setswitchinterval(0.0005)  # the wire's thread waits for frames' ends: hand it the interpreter soon
     try:
         server = HubServer(args.socket, args.bitrate, window_ns=round(args.window_ms * 1e6), tx_order=args.tx_order).start()
     except (HubError, ValueError) as exc:
@@ -516,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
     c = report["clients"]
     print(
         f"can wire hub: {report['frames']} frames, busy {report['busy_pct']:.1f} %, {c['connected']} clients, "
-        f"{c['vanished']} vanished, {c['slow']} too slow, {c['junk']} junk packets, {c['refused_frames']} frames refused",
+        f"{c['vanished']} vanished, {c['overruns']} deliveries overrun, {c['junk']} junk packets, {c['refused_frames']} frames refused",
         flush=True,
     )
     return 0
