@@ -19,7 +19,9 @@ passed it is delivered, stamped with that time, to every connected client
   RPDO1 of a late tick is not overtaken by its next SYNC); ``"priority"``
   offers its highest-priority one (priority-ordered transmit buffers, the
   rule of :func:`~service_kit.can_wire.arbitration.simulate`). Between
-  nodes the lowest arbitration field wins either way.
+  nodes the lowest arbitration field wins either way. A client may choose
+  its own order on connect (the restbus sender, standing for many ECUs,
+  asks for priority).
 - **Clock**: real time by default (the wire's thread waits on
   ``time.monotonic_ns``; delivery = wire time + the host's wake-up latency);
   a :class:`~service_kit.can_wire.wire_bus.ManualWireClock` makes it
@@ -307,6 +309,8 @@ class _SocketClient:
         self._open = True
         self.in_wire = 0
         self.receive_own = True
+        self.fifo = True
+        """Offers the wire its oldest frame (False: its highest-priority one)."""
         self.gone = False
         """Set by any thread when the client went away; the I/O thread closes it."""
         self.outbox: deque[bytes] = deque()
@@ -405,6 +409,7 @@ class HubServer:
                 continue
             sock.setblocking(False)
             client = _SocketClient(sock, self.max_outbox, self.hub.counters)
+            client.fifo = self.hub.wire.fifo_per_sender
             try:
                 sock.send(proto.encode_hello(self.hub.bitrate))
             except OSError:
@@ -428,8 +433,10 @@ class HubServer:
                 client.gone, client._open = True, False
                 return
             msg = proto.decode_send(packet)
-            if msg is None and (own := proto.decode_options(packet)) is not None:
-                client.receive_own = own
+            if msg is None and (options := proto.decode_options(packet)) is not None:
+                client.receive_own, order = options
+                if order is not None:
+                    client.fifo = order == "fifo"
                 continue
             if msg is None:
                 self.hub.counters.junk += 1

@@ -7,7 +7,9 @@ arbiter's (it says its own on connect). :meth:`HubBus.send` hands the frame to
 the arbiter and returns at once (a CAN controller's transmit buffer); the
 frames every bus on the wire sent come back when their last EOF bit has
 passed, stamped with that moment, in wire order: the bus's own frames only
-with ``receive_own_messages``. Stock tools join as with any interface:
+with ``receive_own_messages``. ``tx_order`` ("fifo" or "priority"; default
+the arbiter's) is what this bus offers the wire: its oldest pending frame or
+its highest-priority one. Stock tools join as with any interface:
 ``python -m can.logger -i ralfhub -c SOCKET``, ``canopen.Network().connect(
 interface="ralfhub", channel=SOCKET)``, ``cantools monitor``'s python-can
 options.
@@ -40,12 +42,15 @@ class HubBus(can.BusABC):
         channel: Any = None,
         bitrate: int | None = None,
         receive_own_messages: bool = False,
+        tx_order: str | None = None,
         connect_timeout: float = 5.0,
         **kwargs: Any,
     ) -> None:
         self._is_shutdown = True  # until connected: a refused bus has nothing to shut down
         if not channel:
             raise can.CanInitializationError("ralfhub needs the arbiter's socket path as its channel")
+        if tx_order not in proto.TX_ORDER_CODES:
+            raise can.CanInitializationError(f"tx_order {tx_order!r} is none of fifo, priority")
         self.receive_own_messages = receive_own_messages
         self.junk = 0
         """Packets from the arbiter that were not a delivery: counted and skipped."""
@@ -64,7 +69,7 @@ class HubBus(can.BusABC):
             sock.close()
             raise can.CanInitializationError(f"the wire at {channel} runs at {hello} bit/s, not {bitrate}")
         try:
-            sock.send(proto.encode_options(receive_own_messages))
+            sock.send(proto.encode_options(receive_own_messages, tx_order))
         except OSError as exc:
             sock.close()
             raise can.CanInitializationError(f"the wire arbiter at {channel} went away: {exc.strerror or exc}") from None

@@ -3,8 +3,9 @@ CAN frame per packet on a Unix ``SOCK_SEQPACKET`` socket, so a packet is
 never split or merged and junk cannot shift the next frame.
 
 - hub -> client, once on connect: ``HELLO`` (magic, bit rate);
-- client -> hub, optionally: ``OPTIONS`` (magic, whether it wants its own
-  frames back; without it, it does);
+- client -> hub, optionally: ``OPTIONS`` (magic, flags: bit 0 it wants its own
+  frames back, bits 1-2 its transmit order: 0 the arbiter's default, 1 FIFO,
+  2 priority; without it, it gets its own frames and the default order);
 - client -> hub: ``SEND`` (magic, identifier, flags, DLC, 8 data bytes);
 - hub -> client: ``DELIVER`` (the frame as sent, the monotonic nanosecond of
   its last EOF bit, its python-can timestamp on ``time.time``'s axis, and
@@ -63,16 +64,23 @@ def decode_hello(packet: bytes) -> int | None:
     return int(bitrate) if magic == HELLO_MAGIC else None
 
 
-def encode_options(receive_own: bool) -> bytes:
-    return OPTIONS.pack(OPTIONS_MAGIC, 1 if receive_own else 0)
+TX_ORDER_CODES = {None: 0, "fifo": 1, "priority": 2}
 
 
-def decode_options(packet: bytes) -> bool | None:
-    """Whether the client wants its own frames, or None when ``packet`` is no ``OPTIONS``."""
+def encode_options(receive_own: bool, tx_order: str | None = None) -> bytes:
+    return OPTIONS.pack(OPTIONS_MAGIC, (1 if receive_own else 0) | TX_ORDER_CODES[tx_order] << 1)
+
+
+def decode_options(packet: bytes) -> tuple[bool, str | None] | None:
+    """Whether the client wants its own frames and its transmit order (None: the arbiter's),
+    or None when ``packet`` is no ``OPTIONS``."""
     if len(packet) != OPTIONS.size:
         return None
-    magic, own = OPTIONS.unpack(packet)
-    return bool(own) if magic == OPTIONS_MAGIC and own in (0, 1) else None
+    magic, flags = OPTIONS.unpack(packet)
+    orders = {code: order for order, code in TX_ORDER_CODES.items()}
+    if magic != OPTIONS_MAGIC or flags >> 1 not in orders:
+        return None
+    return bool(flags & 1), orders[flags >> 1]
 
 
 def encode_send(msg: can.Message) -> bytes:

@@ -152,10 +152,13 @@ def test_sync_to_tpdo1_is_never_below_its_floor(competitor: int | None) -> None:
 def test_a_node_transmit_fifo_keeps_its_order() -> None:
     """By default a client's frames leave in the order it sent them (RPDO1 before the next
     SYNC), other nodes' frames still arbitrate against its oldest; "priority" reorders them."""
-    for order, want in (("fifo", [0x300, 0x100, 0x201, 0x080]), ("priority", [0x300, 0x080, 0x100, 0x201])):
+    cases = (("fifo", None, [0x300, 0x100, 0x201, 0x080]), ("priority", None, [0x300, 0x080, 0x100, 0x201]), ("fifo", False, [0x300, 0x080, 0x100, 0x201]))
+    for order, own_choice, want in cases:
         clock = ManualWireClock()
         hub = Hub(BITRATE, clock=clock, tx_order=order)
         controller, other, listener = Endpoint("controller"), Endpoint("other"), Endpoint("listener")
+        if own_choice is not None:
+            controller.fifo = own_choice  # type: ignore[attr-defined]  # a client's own choice (OPTIONS)
         for ep in (controller, other, listener):
             hub.attach(ep)
         hub.submit(other, msg(0x300))  # on the wire first: the rest queue behind it
@@ -206,6 +209,9 @@ def test_protocol_refuses_junk() -> None:
     assert remote is not None and remote.is_remote_frame and remote.is_extended_id and remote.dlc == 3
     for junk in (b"", b"hello", good + b"x", b"XXXX" + good[4:], good[:9] + b"\x09" + good[10:], good[:8] + b"\x04" + good[9:]):
         assert proto.decode_send(junk) is None
+    assert proto.decode_options(proto.encode_options(True, "priority")) == (True, "priority")
+    assert proto.decode_options(proto.encode_options(False)) == (False, None)
+    assert proto.decode_options(proto.OPTIONS.pack(proto.OPTIONS_MAGIC, 7)) is None
     too_big = proto.SEND.pack(proto.SEND_MAGIC, 0x800, 0, 0, bytes(8))
     assert proto.decode_send(too_big) is None
 
@@ -277,12 +283,16 @@ def test_junk_overruns_and_vanished_clients_are_counted(private_dir: Path) -> No
         gone.shutdown()
         assert _wait(lambda: server.hub.counters.vanished == 2)  # raw and gone
         assert server.hub.n_clients == 1
+        prio = can.Bus(interface="ralfhub", channel=str(path), tx_order="priority")
+        assert _wait(lambda: [c.fifo for c in server._clients] == [True, False])  # the sender: the default; prio: its choice
+        prio.shutdown()
+        assert _wait(lambda: server.hub.counters.vanished == 3)
         with pytest.raises(can.CanInitializationError, match="not 500000"):
             can.Bus(interface="ralfhub", channel=str(path), bitrate=500_000)
         sender.shutdown()
     finally:
         report = server.close()
-    assert report["clients"]["junk"] == 3 and report["clients"]["overruns"] > 0 and report["clients"]["connected"] == 4
+    assert report["clients"]["junk"] == 3 and report["clients"]["overruns"] > 0 and report["clients"]["connected"] == 5
 
 
 # -- across processes (.ci/loopback-netns) ------------------------------------------------------------------------
@@ -385,3 +395,18 @@ def test_canopen_master_reads_the_plant_node_through_the_arbiter(private_dir: Pa
     report = json.loads(stats.read_text())
     assert report["sync_to_tpdo1_floor_margin_min_us"] >= 0
     assert report["clients"]["vanished"] == 2 and report["clients"]["junk"] == 0
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--socket", "/nonexistent-folder/s", "--bitrate", "1000000"], "/nonexistent-folder"),
+        (["--socket", "SOCKET", "--bitrate", "300000"], "300000"),
+    ],
+)
+def test_hub_cli_refuses_with_one_line(argv: list[str], expected: str, private_dir: Path) -> None:
+    argv = [str(private_dir / "s") if a == "SOCKET" else a for a in argv]
+    proc = subprocess.run([sys.executable, "-m", "service_kit.can_wire.hub", *argv], capture_output=True, text=True, check=False, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and expected in proc.stderr and "Traceback" not in proc.stderr
+    assert not (private_dir / "s").exists()

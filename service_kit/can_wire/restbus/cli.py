@@ -135,7 +135,9 @@ def _send(restbus: Restbus, args: argparse.Namespace) -> int:
             from protocol.settings import CommonSettings
             from service_kit.transport import open_can_bus
 
-            bus = open_can_bus(CommonSettings())
+            settings = CommonSettings()
+            # on the wire arbiter the restbus stands for many ECUs: each offers its highest-priority frame
+            bus = open_can_bus(settings, **({"tx_order": "priority"} if settings.can_interface == "ralfhub" else {}))
         else:
             bus = can.Bus(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
     except Exception as exc:  # python-can raises several types by interface; settings raise pydantic's
