@@ -36,7 +36,9 @@ passed it is delivered, stamped with that time, to every connected client
   A client that vanishes is dropped and counted, its frames still waiting
   for the wire with it; a packet that is not a frame is junk, counted and
   dropped (:mod:`service_kit.can_wire.hub_protocol`).
-- **Bus load** (:class:`HubStats`): busy share overall and per window,
+- **Bus load** (:class:`HubStats`): busy share overall and per window
+  (frames never overlap on the wire: each window's busy time is the sum of
+  the frames' parts in it),
   frames/s, bits/s, per-identifier queuing delay (received by the arbiter
   to SOF), and SYNC→TPDO1 (last EOF bit to last EOF bit) against its
   physical floor (the intermission after SYNC plus TPDO1's bits to EOF).
@@ -67,7 +69,7 @@ import can
 from service_kit.can_wire import hub_protocol as proto
 from service_kit.can_wire.arbitration import INTERMISSION_BITS
 from service_kit.can_wire.bits import FrameBits, frame_of_message
-from service_kit.can_wire.bus_load import BusyInterval, bus_load, delay_stats
+from service_kit.can_wire.bus_load import delay_stats
 from service_kit.can_wire.timing import NS_PER_S, bit_time_ns
 from service_kit.can_wire.wire_bus import RealTimeWireClock, Wire, _InFlight
 
@@ -114,10 +116,25 @@ class HubStats:
     sync_to_tpdo_floor_margin_min_ns: int | None = None
     """Smallest SYNC→TPDO1 less its physical floor (never negative on a wire)."""
     _last_sync_bit_ns: int | None = None
+    max_windows: int = 36_000
+    """Windows kept for the peak (an hour of 100 ms windows)."""
+    _windows: dict[int, int] = field(default_factory=dict)
+    """Busy ns per window index since the first frame (frames never overlap on the wire)."""
 
     def __post_init__(self) -> None:
         self.recent = deque(maxlen=self.keep)
         self.sync_to_tpdo_ns = deque(maxlen=self.keep)
+
+    def _add_busy(self, start_ns: int, end_ns: int) -> None:
+        origin = self.first_start_ns or 0
+        s, e = start_ns - origin, end_ns - origin
+        while s < e:
+            i = s // self.window_ns
+            b = min(e, (i + 1) * self.window_ns)
+            self._windows[i] = self._windows.get(i, 0) + b - s
+            s = b
+        while len(self._windows) > self.max_windows:
+            del self._windows[next(iter(self._windows))]
 
     def add(self, frame: FrameBits, queued_ns: int, start_ns: int, last_bit_ns: int, end_ns: int) -> None:
         self.frames += 1
@@ -126,6 +143,7 @@ class HubStats:
         if self.first_start_ns is None:
             self.first_start_ns = start_ns
         self.last_end_ns = max(self.last_end_ns, end_ns)
+        self._add_busy(start_ns, end_ns)
         self.recent.append((frame.arbitration_id, queued_ns, start_ns, end_ns, frame.n_bits))
         if frame.extended:
             return
@@ -153,12 +171,12 @@ class HubStats:
             "bits_per_s": self.bits * NS_PER_S / span if span > 0 else 0.0,
             "window_ms": self.window_ns / 1e6,
         }
+        if self._windows:
+            last = max(self._windows)
+            full = [busy for i, busy in self._windows.items() if i != last]  # the last is cut short by the end
+            out["peak_window_busy_pct"] = 100 * max(full) / self.window_ns if full else out["busy_pct"]
+            out["windows"] = last + 1
         if self.recent:
-            ivs = [BusyInterval(s, e, ident, bits) for ident, _q, s, e, bits in self.recent]
-            load = bus_load(ivs, self.bitrate, self.window_ns)
-            full = load.windows[:-1] or load.windows  # the last window is cut short by the end
-            out["peak_window_busy_pct"] = 100 * max(w.busy for w in full)
-            out["windows"] = len(load.windows)
             by_id: dict[int, list[int]] = {}
             for ident, q, s, _e, _bits in self.recent:
                 by_id.setdefault(ident, []).append(s - q)

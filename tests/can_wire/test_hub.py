@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 from service_kit.can_wire import hub_protocol as proto
 from service_kit.can_wire.arbitration import INTERMISSION_BITS, QueuedFrame, simulate
 from service_kit.can_wire.bits import frame_bits, frame_of_message
+from service_kit.can_wire.bus_load import bus_load, intervals_from_run
 from service_kit.can_wire.hub import Hub, HubError, HubServer, check_socket_path
 from service_kit.can_wire.wire_bus import ManualWireClock
 
@@ -76,7 +77,7 @@ def test_deliveries_are_the_bus_models(spec: list[tuple[str, int, int, bytes]]) 
     """Frames of three clients queued at given times end exactly when simulate() ends them, in its order."""
     spec = sorted(spec, key=lambda s: s[1])
     clock = ManualWireClock()
-    hub = Hub(BITRATE, clock=clock, tx_order="priority")
+    hub = Hub(BITRATE, clock=clock, tx_order="priority", window_ns=200_000)
     eps = {n: Endpoint(n) for n in "abc"}
     listener = Endpoint("listener")
     for ep in [*eps.values(), listener]:
@@ -94,6 +95,10 @@ def test_deliveries_are_the_bus_models(spec: list[tuple[str, int, int, bytes]]) 
     own = [d for d in eps["a"].got if d.own]
     assert len(own) == sum(1 for s in spec if s[0] == "a")
     report = hub.report()
+    ivs = intervals_from_run(run)
+    reference = bus_load(ivs, BITRATE, hub.stats.window_ns, start_ns=ivs[0].start_ns)
+    full = reference.windows[:-1] or reference.windows
+    assert report["peak_window_busy_pct"] == pytest.approx(100 * max(w.busy for w in full), abs=1e-9)
     assert report["frames"] == len(spec)
     assert report["bits"] == sum(frame_bits(i, d).n_bits for _, _, i, d in spec)
     hub.close()
@@ -326,7 +331,7 @@ def test_stock_logger_in_another_process_sees_the_wire(private_dir: Path) -> Non
         )
         sender = can.Bus(interface="ralfhub", channel=str(path), bitrate=BITRATE, receive_own_messages=True)
         probe = can.Bus(interface="ralfhub", channel=str(path))
-        time.sleep(2.0)  # the logger's python start-up; a frame sent before it connected is not its to see
+        assert _wait(log.exists, 120.0)  # can.logger makes its file once its bus is connected
         sent = [msg(0x300 - i, bytes([i] * 8)) for i in range(20)]
         for m in sent:
             sender.send(m)
