@@ -52,18 +52,20 @@ def _lat(summary: dict[str, Any], name: str) -> str:
 
 def row(label: str, summary: dict[str, Any] | None, code: int) -> str:
     if summary is None:
-        return f"| {label} | no summary (exit {code}) | | | | | | | |"
+        return f"| {label} | no summary (exit {code}) | | | | | | | | | |"
     c = summary.get("controller") or {}
     wire = summary.get("can_wire") or {}
     s2t = wire.get("sync_to_tpdo1_us")
     wire_s2t = f"{s2t['min']:.0f} / {s2t['p50']:.0f} / {s2t['p99']:.0f} / {s2t['max']:.0f}" if s2t else "–"
     load = f"{wire['busy_pct']:.1f} % (peak {wire.get('peak_window_busy_pct', 0):.0f} %), {wire['frames_per_s']:.0f} frames/s" if wire else "–"
+    lost = str(wire["clients"]["overruns"]) if wire else "–"
+    restbus = wire.get("restbus_sender") or "–"
     verdict = (summary.get("verdict") or {}).get("verdict", "?")
     failure = summary.get("failure") or ""
     note = f"{verdict}" + (f": {failure[:80]}" if failure else "")
     return (
         f"| {label} | {c.get('ticks', 0)} | {_lat(summary, 'tet')} | {c.get('deadline_misses', '–')} | {c.get('overruns', '–')} | "
-        f"{_lat(summary, 'hop_sync_to_tpdo')} | {wire_s2t} | {load} | {note} |"
+        f"{_lat(summary, 'hop_sync_to_tpdo')} | {wire_s2t} | {load} | {lost} | {restbus} | {note} |"
     )
 
 
@@ -81,9 +83,12 @@ def render(results: list[tuple[str, dict[str, Any] | None, int]], duration_s: fl
         "- SYNC→TPDO1 (wire): SYNC's last bit to TPDO1's last bit on the arbiter, min / p50 / p99 / max in µs;"
         " its floor at 1 Mbit/s is the 3-bit intermission plus TPDO1's bits to EOF",
         "- bus load: the arbiter's busy share over the run (peak 100 ms window) and frames/s",
+        "- deliveries overrun: frames the arbiter dropped, oldest first, for a node that did not read them in time (its outbox full);"
+        " restbus sender: its own count (an instance more than half its cycle late is counted late)",
         "",
-        "| configuration | ticks | TET ms | deadline misses | overruns | SYNC→TPDO1 ms (controller) | SYNC→TPDO1 µs (wire) | bus load | verdict |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |",
+        "| configuration | ticks | TET ms | deadline misses | overruns | SYNC→TPDO1 ms (controller) | SYNC→TPDO1 µs (wire) | bus load "
+        "| deliveries overrun | restbus sender | verdict |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: | --- | --- |",
         *[row(label, s, code) for label, s, code in results],
     ]
     return "\n".join(lines) + "\n"
