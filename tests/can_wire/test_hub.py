@@ -341,10 +341,12 @@ def test_stock_logger_in_another_process_sees_the_wire(private_dir: Path) -> Non
         probe.shutdown()
         time.sleep(0.5)
     finally:
-        if logger is not None:
-            logger.send_signal(signal.SIGINT)
-            logger.wait(timeout=20)
-        _stop(hub)
+        try:
+            if logger is not None:
+                logger.send_signal(signal.SIGINT)
+                logger.wait(timeout=20)
+        finally:
+            _stop(hub)
     frames = [m for m in can.LogReader(log) if not m.is_error_frame]
     assert len(frames) == 20
     stamps = [m.timestamp for m in frames]
@@ -391,10 +393,12 @@ def test_canopen_master_reads_the_plant_node_through_the_arbiter(private_dir: Pa
         network.sync.transmit()
         assert got.wait(5.0)
     finally:
-        network.disconnect()
-        node.terminate()
-        node.wait(timeout=20)
-        _stop(hub)
+        try:
+            network.disconnect()
+            node.terminate()
+            node.wait(timeout=20)
+        finally:
+            _stop(hub)
     import json
 
     report = json.loads(stats.read_text())
