@@ -93,6 +93,8 @@ class CommonSettings(BaseSettings):
     can_interface: str = Field("udp_multicast", description="python-can interface: udp_multicast, virtual, socketcan, ...")
     can_channel: str = Field("239.74.163.2", description="python-can channel (multicast group, vcan0, ...)")
     can_port: int = Field(43113, ge=1, le=65535, description="UDP port of the udp_multicast interface (one per rig)")
+    can_bitrate: int = Field(0, description="ralf-hil up: the rig's CAN on a wire arbiter at this bit rate (125000, 250000, 500000, 1000000; 0: off)")
+    can_restbus: str = Field("", description="ralf-hil up: a DBC whose cyclic messages the restbus sends on the wire (with can_bitrate)")
     node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, ge=1, le=5000, description="Control and identification sample rate")

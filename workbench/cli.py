@@ -41,6 +41,7 @@ from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compili
 from workbench.recording import cli as recording_cli
 from workbench.recording.mf4_cli import is_mf4, record_mf4
 from workbench.recording.tap import RigRecording
+from workbench.rig_wire import RigWire, summary_rows, wire_request
 from workbench.run_logs import RunLogs
 from workbench.search import cli as search_cli
 from workbench.timing_test.report import health_verdict, latency_class
@@ -205,6 +206,9 @@ def print_summary(summary: dict[str, Any], verbose: bool = False) -> None:
         for reason in run["reasons"]:
             table.add_row("what went wrong", reason)
         table.add_row("run verdict", f"{run['verdict']} (exit {run['exit_code']}; rule: docs/reliability.md#the-runs-verdict)")
+    if summary.get("can_wire"):
+        for item, value in summary_rows(summary["can_wire"]):
+            table.add_row(item, value)
     if summary.get("recording"):
         r = summary["recording"]
         table.add_row(
@@ -276,6 +280,7 @@ def provision_access(plan: RigPlan, directory: Path, scenarios: bool = False, ru
                 **role_env(role, credentials),
                 "RALF_ZENOH_CONNECT": plan.zenoh_endpoint,
                 "RALF_CAN_PORT": str(plan.can_port),  # ralf-hil record and live tap the bus too
+                **{k: plan.common_env[k] for k in ("RALF_CAN_INTERFACE", "RALF_CAN_CHANNEL") if plan.common_env.get("RALF_CAN_INTERFACE") == "ralfhub"},
                 "RALF_RIG_ID": plan.rig_id,
             }
             fh.writelines(f"{k}={v}\n" for k, v in variables.items())
@@ -384,6 +389,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         # (with controller.duration_s too, both simulated seconds: the shorter ends the run).
         overrides["controller"]["RALF_DURATION_S"] = shorter_duration(overrides["controller"].get("RALF_DURATION_S"), args.duration)
     refuse_clashing_outputs(args, overrides)
+    args.wire = wire_request(args.can_bitrate, args.restbus, overrides, args.clock)  # bad input: one line, before any process
     refuse_bad_plant_model(overrides)
     refuse_unwritable_outputs(args)
     if args.live and args.clock == "cosim":
@@ -429,8 +435,12 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
         from workbench.certificates import planned_run_s
 
         run_s = planned_run_s(args.duration, args.clock, plan.service_env.get("controller", {}).get("RALF_DURATION_S"))
+        wire = getattr(args, "wire", None)
+        rig_wire = None
+        if wire is not None:  # the arbiter's socket in the run's private folder; every node pointed at it
+            rig_wire = RigWire(wire, access_dir, logs.path, plan)
         tool_env = provision_access(plan, access_dir, scenarios=args.scenarios, run_s=run_s)  # credentials of this run, valid for all of it; access rules on
-        code = _up_supervised(args, plan, logs.path, tool_env, live_view)
+        code = _up_supervised(args, plan, logs.path, tool_env, live_view, rig_wire)
         return code
     finally:
         if live_view is not None:
@@ -457,7 +467,7 @@ def private_run_dir(prefix: str) -> Path:
         raise SystemExit(2) from None
 
 
-def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any) -> int:
+def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_env: Path, live_view: Any, rig_wire: RigWire | None = None) -> int:
     # A closed terminal too: services stopped, credentials removed.
     stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
@@ -479,15 +489,26 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
         return status_progress(observer.status, waiting=f"starting the services (up: {', '.join(up) or 'none yet'}), waiting for the controller's first tick")
 
     recording: RigRecording | None = None
+    wire_stats: dict[str, Any] | None = None
     try:
+        if rig_wire is not None:  # before the tap and the services: they connect to it
+            from service_kit.can_wire.hub import HubError
+
+            try:
+                rig_wire.start()
+            except HubError as exc:
+                console.print(f"[red]ralf-hil up: the CAN wire: {exc}[/red]", highlight=False, soft_wrap=True)
+                return 2
         if args.record or live_view is not None:  # the tap starts before the services, so it holds their start-up
             recording = RigRecording(plan, args.record, observer.session, can_log=args.can_log, clock=args.clock, mirror=live_view)
         # Before any service starts (their Python start-up takes a second or more), so a bus
         # logger started on this line, or on a --can-port chosen beforehand, sees every frame.
-        print(
-            f"rig {plan.rig_id!r}: CAN udp_multicast port {plan.can_port}, zenoh {plan.zenoh_endpoint}, logs in {log_dir}, tools' credentials in {tool_env}",
-            flush=True,
+        can_line = (
+            f"CAN wire at {rig_wire.request.bitrate} bit/s (ralfhub {rig_wire.socket_path})"
+            if rig_wire is not None
+            else f"CAN udp_multicast port {plan.can_port}"
         )
+        print(f"rig {plan.rig_id!r}: {can_line}, zenoh {plan.zenoh_endpoint}, logs in {log_dir}, tools' credentials in {tool_env}", flush=True)
         with live, activity(progress):
             sup = supervise(
                 plan,
@@ -513,9 +534,14 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             recording = None
         if live_view is not None:
             summary["live"] = {"url": live_view.url, **live_view.close().as_dict()}
+        if rig_wire is not None:
+            wire_stats = rig_wire.stop()
+            summary["can_wire"] = wire_stats
     finally:
         if recording is not None:  # an error on the way: the file is still closed
             recording.close()
+        if rig_wire is not None and wire_stats is None:
+            rig_wire.stop()
         if live_view is not None:
             live_view.close()
         observer.close()
@@ -918,6 +944,19 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--live-rate", type=float, default=20.0, metavar="HZ", help="with --live: at most this many messages per second per topic (default: 20)")
     up.add_argument(
         "--can-port", type=int, default=None, help="udp_multicast port of the rig's CAN bus (default: derived from the rig id; printed before start)"
+    )
+    up.add_argument(
+        "--can-bitrate",
+        type=int,
+        default=None,
+        metavar="BIT/S",
+        help="put the rig's CAN on one wire at this bit rate (125000, 250000, 500000, 1000000): a wire arbiter with bitwise arbitration and wire time in real time (docs/can-bus.md; default: the setting can_bitrate, 0: off)",
+    )
+    up.add_argument(
+        "--restbus",
+        default=None,
+        metavar="FILE.dbc",
+        help="with a bit rate: send this DBC's cyclic messages on the wire beside the rig (docs/can-bus.md; default: the setting can_restbus)",
     )
     up.set_defaults(func=cmd_up)
     rc = sub.add_parser("reconfigure", help="change the FFT width, batch size or averaging of a running rig")

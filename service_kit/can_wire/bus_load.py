@@ -193,8 +193,15 @@ def queuing_delays(run: BusRun) -> dict[int, DelayStats]:
     by_id: dict[int, list[int]] = {}
     for tx in run.transmissions:
         by_id.setdefault(tx.arbitration_id, []).append(tx.queuing_delay_ns)
+    return delay_stats(by_id)
+
+
+def delay_stats(by_id: dict[int, list[int]]) -> dict[int, DelayStats]:
+    """Per identifier: the statistics of its queuing delays (ns); identifiers without one are left out."""
     out: dict[int, DelayStats] = {}
     for ident, delays in sorted(by_id.items()):
+        if not delays:
+            continue
         arr = np.asarray(delays, dtype=np.float64)
         out[ident] = DelayStats(
             n=len(delays),

@@ -141,6 +141,10 @@ class Wire:
     bitrate: int
     clock: Any
     keep_log: bool = False
+    fifo_per_sender: bool = False
+    """True: each sender offers its oldest pending frame (a transmit FIFO, as a SocketCAN
+    host's queue); False: its highest-priority one (priority-ordered transmit buffers).
+    A sender with a ``fifo`` attribute chooses for itself."""
     log: list[Delivery] = field(default_factory=list)
     dropped: int = 0
     """Frames of a bus shut down before they went on the wire or while on it."""
@@ -194,6 +198,15 @@ class Wire:
                 if start >= now:  # a frame handed over at ``start`` itself may still contend
                     return
                 contenders = [p for p in self._pending if p.queued_ns <= start]
+                kept: list[_Pending] = []
+                heads: set[int] = set()
+                for p in contenders:  # _pending is in submission order: a FIFO sender's first is its oldest
+                    if getattr(p.sender, "fifo", self.fifo_per_sender):
+                        if id(p.sender) in heads:
+                            continue
+                        heads.add(id(p.sender))
+                    kept.append(p)
+                contenders = kept
                 winner = min(contenders, key=lambda p: (p.frame.arbitration_key, p.queued_ns, p.seq))
                 self._pending.remove(winner)
                 end = start + winner.frame.n_bits * self._bit

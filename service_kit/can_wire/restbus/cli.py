@@ -17,6 +17,7 @@ restbus DBC against the rig and reports its load and response times.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -127,13 +128,16 @@ def _send(restbus: Restbus, args: argparse.Namespace) -> int:
     import can
 
     from service_kit.can_wire.restbus.sender import RestbusSender
+    from service_kit.runtime import follow_launcher, stop_on_signals
 
     try:
         if args.rig_bus:
             from protocol.settings import CommonSettings
             from service_kit.transport import open_can_bus
 
-            bus = open_can_bus(CommonSettings())
+            settings = CommonSettings()
+            # on the wire arbiter the restbus stands for many ECUs: each offers its highest-priority frame
+            bus = open_can_bus(settings, **({"tx_order": "priority"} if settings.can_interface == "ralfhub" else {}))
         else:
             bus = can.Bus(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
     except Exception as exc:  # python-can raises several types by interface; settings raise pydantic's
@@ -143,11 +147,15 @@ def _send(restbus: Restbus, args: argparse.Namespace) -> int:
         return 2
     until = int(args.seconds * 1e9) if args.seconds is not None else None
     sender = RestbusSender(bus, restbus, until_ns=until)
+    # SIGINT or SIGTERM ends it, and so does the end of a launcher that started it (RALF_LAUNCHER_PID)
+    stop, _ = stop_on_signals(say=False)
+    follow_launcher(int(os.environ.get("RALF_LAUNCHER_PID", "0") or 0), stop)
+    sender.start()
     try:
-        sender.run()
-    except KeyboardInterrupt:
-        pass
+        while sender.running and not stop.wait(0.2):
+            pass
     finally:
+        sender.stop()
         bus.shutdown()
     print(
         f"restbus: {len(sender.sent)} frames sent, {sender.late} late, {sender.send_errors} refused" + (f" ({sender.last_error})" if sender.send_errors else "")
