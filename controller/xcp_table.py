@@ -115,7 +115,9 @@ def xcp_events(sample_period_s: float) -> tuple[EventChannel, ...]:
     return (EventChannel("tick", cycle, unit, 0), EventChannel("dsp_interrupt", 0, 0, 1))
 
 
-def controller_a2l(sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: int = 0, host: str = "127.0.0.1") -> str:
+def controller_a2l(
+    sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: int = 0, host: str = "127.0.0.1", can_ids: tuple[int, int] | None = None
+) -> str:
     """The controller's A2L."""
     return a2l_text(
         controller_layout(),
@@ -125,6 +127,7 @@ def controller_a2l(sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: 
         udp_port=udp_port,
         tcp_port=tcp_port,
         host=host,
+        can_ids=can_ids,
     )
 
 

@@ -30,13 +30,15 @@ class BackgroundRig:
     """A lockstep run in a thread until :meth:`stop`."""
 
     controller: dict[str, Any]
+    common: dict[str, Any] | None = None
+    plant: dict[str, Any] | None = None
     stop_event: threading.Event = field(default_factory=threading.Event)
     run: InProcessRun | None = None
     error: BaseException | None = None
 
     def _target(self) -> None:
         try:
-            self.run = run_in_process(controller=self.controller, stop=self.stop_event)
+            self.run = run_in_process(controller=self.controller, plant=self.plant, common=self.common, stop=self.stop_event)
         except BaseException as exc:  # handed to the test
             self.error = exc
 
@@ -61,6 +63,20 @@ def master(port: int, protocol: str, policy: Any = None) -> Iterator[Master]:
     app.transport.layer = "ETH"
     app.transport.timeout = 2.0
     with Master("eth", config=app, policy=policy) as x:
+        x.connect()
+        yield x
+        x.disconnect()
+
+
+@contextmanager
+def can_master(channel: str, id_master: int, id_slave: int, policy: Any = None) -> Iterator[Master]:
+    """A connected pyxcp master over its CAN transport on python-can's ``virtual`` bus ``channel``."""
+    app = create_application_from_config(
+        {"Transport": {"CAN": {"interface": "virtual", "channel": channel, "can_id_master": id_master, "can_id_slave": id_slave}}}
+    )
+    app.transport.layer = "CAN"
+    app.transport.timeout = 2.0
+    with Master("can", config=app, policy=policy) as x:
         x.connect()
         yield x
         x.disconnect()
