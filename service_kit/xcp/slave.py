@@ -126,6 +126,10 @@ class SlaveCounters(Counters):
     snapshots_dropped: int = 0
     """samples the loop could not hand over (the queue was full): their DAQ packets never existed"""
     internal_errors: int = 0
+    masters_refused: int = 0
+    """TCP connections refused while another master was connected"""
+    sessions_lost: int = 0
+    """sessions that ended without DISCONNECT (a TCP connection closed or broken mid-session)"""
     partial_writes_held: int = 0
     """writes whose last bytes were a parameter's first ones, held for the next write (CAN)"""
     partial_writes_dropped: int = 0

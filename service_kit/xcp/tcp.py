@@ -65,6 +65,7 @@ class TcpServer(Server):
             return
         if self.client is not None:
             self.refused_connections += 1
+            self.counters.masters_refused += 1
             conn.close()
             return
         conn.setblocking(True)
@@ -107,6 +108,8 @@ class TcpServer(Server):
     def _drop_client(self) -> None:
         if self.client is not None:
             self.client.close()
+            if self.slave.connected:
+                self.counters.sessions_lost += 1
         self.client, self._buffer = None, b""
         self.slave.reset()  # the session ends with its connection
 
