@@ -15,11 +15,21 @@ from service_kit.xcp.can import CAN_MAX_CTO, CAN_MAX_DTO
 from service_kit.xcp.memory import MemoryLayout, Variable
 from service_kit.xcp.slave import MAX_CTO, MAX_DAQ, MAX_DTO, MAX_ODT_ENTRY_SIZE, EventChannel
 
-__all__ = ["a2l_text"]
+__all__ = ["a2l_text", "event_cycle"]
 
 
 CAN_BAUDRATE: Final = 500000
 """The A2L's nominal bit rate on CAN (the rig's buses are emulated: python-can virtual or udp_multicast)."""
+
+
+def event_cycle(sample_period_s: float) -> tuple[int, int]:
+    """``(cycle, XCP time unit)`` of a periodic event: the coarsest unit in which the
+    period is a whole number below 256 (``(0, 0)``: none, the event is then sporadic)."""
+    for unit, seconds in ((6, 1e-3), (5, 1e-4), (4, 1e-5), (3, 1e-6)):
+        cycle = sample_period_s / seconds
+        if abs(cycle - round(cycle)) < 1e-9 * max(1.0, cycle) and 1 <= round(cycle) <= 255:
+            return int(round(cycle)), unit
+    return 0, 0
 
 
 def _q(text: str) -> str:
