@@ -36,8 +36,6 @@ class XcpPorts:
     host: str = "127.0.0.1"
     can: CanIds | None = None
     """None: no XCP on CAN."""
-    others_on_can: tuple[CanIds, ...] = ()
-    """Identifiers other slaves of the rig use on the same bus (refused here too)."""
 
     @property
     def any(self) -> bool:
@@ -61,7 +59,7 @@ def open_servers(ports: XcpPorts, settings: CommonSettings, slave: Callable[[boo
                 servers.append(kind(slave(False), ports.host, port))
         if ports.can is not None:
             ids = ports.can
-            check_identifiers({o.setting: (o.master, o.slave) for o in ports.others_on_can} | {ids.setting: (ids.master, ids.slave)}, settings.node_id)
+            check_identifiers({ids.setting: (ids.master, ids.slave)}, settings.node_id)
             what = "xcp_can"
             bus = open_can_bus(settings)
             servers.append(CanServer(slave(True), bus, ids.master, ids.slave))
