@@ -1,5 +1,5 @@
 """The controller's XCP slave (docs/xcp.md): the table's map served over UDP
-and/or TCP on 127.0.0.1, fed by the loop without ever making it wait.
+and/or TCP on 127.0.0.1 and/or CAN on the rig's bus, fed by the loop without ever making it wait.
 
 At the end of every tick (:meth:`XcpLink.after_tick`, in the loop's thread):
 
@@ -83,7 +83,7 @@ def xcp_ports(s: ControllerSettings) -> XcpPorts:
 
 def make_xcp(service: Service, record_columns: Sequence[str]) -> XcpLink | None:
     """The XCP slave of ``service`` (a :class:`controller.service.ControllerService`; its
-    run record has ``record_columns``), or None when both ports are 0 (the default)."""
+    run record has ``record_columns``), or None when no transport is set (the default)."""
     s = service.settings
     if not xcp_ports(s).any:
         return None
@@ -116,12 +116,11 @@ class XcpLink:
         udp = next((x.port for x in self.servers if isinstance(x, UdpServer)), 0)
         tcp = next((x.port for x in self.servers if isinstance(x, TcpServer)), 0)
         can_ids = (s.xcp_can_id_master, s.xcp_can_id_slave) if s.xcp_can else None
-        what = f"xcp_a2l {self.a2l_path}"
         try:
             Path(self.a2l_path).write_text(controller_a2l(self.period_s, udp, tcp, s.xcp_host, can_ids), encoding="utf-8")
         except OSError as exc:
             self.close()
-            raise ConfigError(f"{what}: {exc.strerror or exc}") from exc
+            raise ConfigError(f"xcp_a2l {self.a2l_path}: {exc.strerror or exc}") from exc
         log.info("XCP on %s (UDP %d, TCP %d); A2L %s", s.xcp_host, udp, tcp, self.a2l_path)
 
     def _slave(self, can: bool = False) -> Slave:

@@ -2,7 +2,7 @@
 MEASUREMENT per measurement, one CHARACTERISTIC (VALUE) per calibration
 parameter, each with its own COMPU_METHOD (``LINEAR``, ``COEFFS_LINEAR
 factor offset``: physical = factor * raw + offset), and the XCP IF_DATA
-(protocol layer, DAQ events, the Ethernet transports). Written from the
+(protocol layer, DAQ events, the Ethernet and CAN transports). Written from the
 same layout the slave serves, so the two cannot disagree.
 """
 
