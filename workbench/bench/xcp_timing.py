@@ -56,6 +56,7 @@ def _daq_client(port: int, stop: threading.Event, result: dict[str, Any]) -> Non
     class Count(DaqOnlinePolicy):
         def __init__(self, lists: list[DaqList]) -> None:
             super().__init__(lists, logger=logging.getLogger("pyxcp.daq_stim"))
+            self.pid_off = False  # PID_OFF is CAN's
             self.samples = 0
 
         def on_daq_list(self, daq_list: int, timestamp0: int, timestamp1: int, payload: list[Any]) -> None:
@@ -93,7 +94,9 @@ def run_once(duration_s: float, arm: str) -> dict[str, Any]:
         result: dict[str, Any] = {}
         stop = threading.Event()
         client: threading.Thread | None = None
+        tail: list[str] = []
         for line in proc.stdout:
+            tail = [*tail[-19:], line.rstrip()]
             if line.startswith("start-up: all services ready") and arm == "xcp on, pyxcp DAQ" and client is None:
                 client = threading.Thread(target=_daq_client, args=(port, stop, result), daemon=True)
                 client.start()
@@ -118,6 +121,11 @@ def run_once(duration_s: float, arm: str) -> dict[str, Any]:
         "daq_overloads": counters.get("xcp_udp_daq_overloads"),
         "snapshots_dropped": counters.get("xcp_udp_snapshots_dropped"),
         **({"client_error": result["client_error"]} if "client_error" in result else {}),
+        **(
+            {"exit_reason": next((t for t in reversed(tail) if "verdict" in t.lower() or "fail" in t.lower()), tail[-1] if tail else "")}
+            if proc.returncode
+            else {}
+        ),
         "load_average": summary["host"].get("load_average"),
     }
 
@@ -148,16 +156,27 @@ def markdown(data: dict[str, Any]) -> str:
         "",
         "Every run:",
         "",
-        "| arm | ticks | overruns | TET p50 (µs) | TET p99 (µs) | DAQ samples | DTOs sent | overloads | samples dropped | load average |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| arm | exit | ticks | overruns | TET p50 (µs) | TET p99 (µs) | DAQ samples | DTOs sent | overloads | samples dropped | load average |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         lines.append(
-            f"| {r['arm']} | {r['ticks']} | {r['overruns']} | {r['tet_p50_us']} | {r['tet_p99_us']} | {r['daq_samples']} | "
+            f"| {r['arm']} | {r['exit']} | {r['ticks']} | {r['overruns']} | {r['tet_p50_us']} | {r['tet_p99_us']} | {r['daq_samples']} | "
             f"{r['dtos_sent'] if r['dtos_sent'] is not None else '-'} | {r['daq_overloads'] if r['daq_overloads'] is not None else '-'} | "
             f"{r['snapshots_dropped'] if r['snapshots_dropped'] is not None else '-'} | {r['load_average']} |"
         )
+    lines += [
+        "",
+        "exit: `ralf-hil up`'s (1: the run's verdict failed, docs/reliability.md). DAQ samples: the samples the master "
+        "received, from the moment its DAQ list started (after the rig was ready and the list set up) to the run's end; "
+        "DTOs sent, overloads and samples dropped: the slave's counters.",
+    ]
     return "\n".join(lines) + "\n"
+
+
+def write_page(json_path: str, markdown_path: str) -> None:
+    """The page of figures from a run's JSON (``python -m workbench.bench.xcp_timing JSON MARKDOWN``)."""
+    Path(markdown_path).write_text(markdown(json.loads(Path(json_path).read_text())))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -186,3 +205,7 @@ def main(args: argparse.Namespace) -> int:
         Path(args.markdown).parent.mkdir(parents=True, exist_ok=True)
         Path(args.markdown).write_text(markdown(data))
     return 0
+
+
+if __name__ == "__main__":
+    write_page(sys.argv[1], sys.argv[2])
