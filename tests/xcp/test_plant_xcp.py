@@ -95,7 +95,7 @@ def test_plant_measured_and_payload_written(tmp_path: Path) -> None:
             assert upload(x, "f1_hz") < f1_before  # the payload at the tip lowers the first mode
             with pytest.raises(XcpError) as info:  # a measurement is not written
                 x.shortDownload(LAYOUT.by_name["syncs"].address, 0, b"\0\0\0\0")
-            assert info.value.error_code == 0x23  # ERR_WRITE_PROTECTED
+            assert int(info.value.error_code) == 0x23  # ERR_WRITE_PROTECTED
             n = len(policy.samples) + 100
             assert wait_for(lambda: len(policy.samples) >= n, 120)
             policy.stop()
