@@ -42,8 +42,8 @@ class IdentifierError(ValueError):
 
 
 def check_identifiers(pairs: dict[str, tuple[int, int]], node_id: int) -> None:
-    """Refuse identifiers that collide with the rig's CANopen COB-IDs (node ``node_id``), the
-    LSS pair, each other, or lie outside 11 bits. ``pairs``: a name (the setting) -> (master, slave)."""
+    """Refuse identifiers that collide with the rig's CANopen COB-IDs (node ``node_id``), carry
+    its node id in their low 7 bits, are the LSS pair, each other, or lie outside 11 bits. ``pairs``: a name (the setting) -> (master, slave)."""
     taken = {cob: f"the CANopen {name} COB-ID" for name, cob in cob_ids(node_id).items()}
     taken.update({cob: "the CANopen LSS COB-ID" for cob in LSS_COB_IDS})
     for name, (master, slave) in pairs.items():
@@ -52,6 +52,8 @@ def check_identifiers(pairs: dict[str, tuple[int, int]], node_id: int) -> None:
                 raise IdentifierError(f"{name}: {which} identifier 0x{cob:X} is not an 11-bit CAN identifier (1..0x7FF)")
             if cob in taken:
                 raise IdentifierError(f"{name}: {which} identifier 0x{cob:03X} is {taken[cob]}")
+            if cob & 0x7F == node_id:  # the node would take it for an unknown COB-ID of its own (counted malformed)
+                raise IdentifierError(f"{name}: {which} identifier 0x{cob:03X} carries the CANopen node id {node_id} in its low 7 bits")
         if master == slave:
             raise IdentifierError(f"{name}: master and slave identifiers are both 0x{master:03X}")
         taken.update({master: f"{name}'s master identifier", slave: f"{name}'s slave identifier"})

@@ -136,7 +136,10 @@ def test_identifiers_the_rig_uses_are_refused(tmp_path: Path) -> None:
         check_identifiers({"xcp": (0x7E5, 0x7E1)}, 1)
     with pytest.raises(ValueError, match=r"^xcp: master and slave identifiers are both 0x7E0$"):
         check_identifiers({"xcp": (0x7E0, 0x7E0)}, 1)
+    with pytest.raises(ValueError, match=r"^xcp: slave identifier 0x7E1 carries the CANopen node id 97 in its low 7 bits$"):
+        check_identifiers({"xcp": (0x7E0, 0x7E1)}, 97)
     check_identifiers({"ctrl": (0x7E0, 0x7E1), "plant": (0x7E2, 0x7E3)}, 127)
+    check_identifiers({"ctrl": (0x7E0, 0x7E1), "plant": (0x7E2, 0x7E3)}, 1)
     # the controller refuses its settings in one line, before it opens anything
     service = fake_service(xcp_can=True, xcp_can_id_slave=0x181, can_interface="virtual", can_channel="x", xcp_a2l=str(tmp_path / "x.a2l"))
     with pytest.raises(ConfigError, match=r"^xcp_can_id_master/xcp_can_id_slave: slave identifier 0x181 is the CANopen tpdo1 COB-ID$"):
