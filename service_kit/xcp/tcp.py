@@ -45,18 +45,18 @@ class TcpServer(Server):
     def _serve(self, timeout: float) -> None:
         watched = [self.sock] if self.client is None else [self.sock, self.client]
         readable, _, _ = select.select(watched, [], [], timeout)
-        if self.sock in readable:
-            self._accept()
         client = self.client
-        if client is not None and client in readable:
+        if client is not None and client in readable:  # first: a master that left frees its place for the next
             try:
                 data = client.recv(65536)
             except OSError:
                 data = b""
             if not data:
                 self._drop_client()
-                return
-            self._stream(data)
+            else:
+                self._stream(data)
+        if self.sock in readable:
+            self._accept()
 
     def _accept(self) -> None:
         try:

@@ -180,7 +180,7 @@ def test_tcp_port_closed_is_not_a_master() -> None:
     server.start()
     try:
         with socket.create_connection(("127.0.0.1", server.port), timeout=5):
-            pass
+            pass  # closed: the slave reads its end before it judges the next connection
         with master(server.port, "TCP") as x:
             x.getStatus()
     finally:
