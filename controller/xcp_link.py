@@ -1,5 +1,5 @@
 """The controller's XCP slave (docs/xcp.md): the table's map served over UDP
-and/or TCP on 127.0.0.1, fed by the loop without ever making it wait.
+and/or TCP on 127.0.0.1 and/or CAN on the rig's bus, fed by the loop without ever making it wait.
 
 At the end of every tick (:meth:`XcpLink.after_tick`, in the loop's thread):
 
@@ -46,6 +46,7 @@ from service_kit.xcp.packets import Err
 from service_kit.xcp.server import Server
 from service_kit.xcp.slave import Slave, SlaveInfo, Snapshot
 from service_kit.xcp.tcp import TcpServer
+from service_kit.xcp.transports import CanIds, XcpPorts, counter_prefix, on_can, open_servers
 from service_kit.xcp.udp import UdpServer
 
 __all__ = ["PENDING_CAPACITY", "XcpLink", "make_xcp"]
@@ -75,11 +76,16 @@ def default_a2l_path(rig_id: str) -> str:
     return str(Path(tempfile.gettempdir()) / f"ralf-{rig_id}.a2l")
 
 
+def xcp_ports(s: ControllerSettings) -> XcpPorts:
+    """The transports the settings ask for (all off by default)."""
+    return XcpPorts(s.xcp_udp_port, s.xcp_tcp_port, s.xcp_host, CanIds(s.xcp_can_id_master, s.xcp_can_id_slave) if s.xcp_can else None)
+
+
 def make_xcp(service: Service, record_columns: Sequence[str]) -> XcpLink | None:
     """The XCP slave of ``service`` (a :class:`controller.service.ControllerService`; its
-    run record has ``record_columns``), or None when both ports are 0 (the default)."""
+    run record has ``record_columns``), or None when no transport is set (the default)."""
     s = service.settings
-    if not (s.xcp_udp_port or s.xcp_tcp_port):
+    if not xcp_ports(s).any:
         return None
     return XcpLink(service, record_columns)
 
@@ -106,24 +112,20 @@ class XcpLink:
         order = {v.name: i for i, v in enumerate(self.layout.variables)}
         self._getters = [g for _, g in sorted(zip((order[e.variable.name] for e in XCP_TABLE), self._getters, strict=True), key=lambda t: t[0])]
         self.a2l_path = s.xcp_a2l or default_a2l_path(s.rig_id)
-        self.servers: list[Server] = []
-        what = ""
+        self.servers: list[Server] = open_servers(xcp_ports(s), s, self._slave)
+        udp = next((x.port for x in self.servers if isinstance(x, UdpServer)), 0)
+        tcp = next((x.port for x in self.servers if isinstance(x, TcpServer)), 0)
+        can_ids = (s.xcp_can_id_master, s.xcp_can_id_slave) if s.xcp_can else None
         try:
-            for name, port, kind in (("xcp_udp_port", s.xcp_udp_port, UdpServer), ("xcp_tcp_port", s.xcp_tcp_port, TcpServer)):
-                if port:
-                    what = f"{name} {port} on {s.xcp_host}"
-                    self.servers.append(kind(self._slave(), s.xcp_host, port))
-            udp = next((x.port for x in self.servers if isinstance(x, UdpServer)), 0)
-            tcp = next((x.port for x in self.servers if isinstance(x, TcpServer)), 0)
-            what = f"xcp_a2l {self.a2l_path}"
-            Path(self.a2l_path).write_text(controller_a2l(self.period_s, udp, tcp, s.xcp_host), encoding="utf-8")
+            Path(self.a2l_path).write_text(controller_a2l(self.period_s, udp, tcp, s.xcp_host, can_ids), encoding="utf-8")
         except OSError as exc:
             self.close()
-            raise ConfigError(f"{what}: {exc.strerror or exc}") from exc
+            raise ConfigError(f"xcp_a2l {self.a2l_path}: {exc.strerror or exc}") from exc
         log.info("XCP on %s (UDP %d, TCP %d); A2L %s", s.xcp_host, udp, tcp, self.a2l_path)
 
-    def _slave(self) -> Slave:
+    def _slave(self, can: bool = False) -> Slave:
         info = SlaveInfo(A2L_MODULE, self.a2l_path, self.events, timestamp_unit=3)
+        info = on_can(info) if can else info
         return Slave(self.layout, info, self._calibrate, self._image(self.service.tick, []))
 
     # -- the values --------------------------------------------------------------------
@@ -234,6 +236,6 @@ class XcpLink:
         """The slaves' counters (``xcp_udp_*``, ``xcp_tcp_*``) and the calibrations applied."""
         out = {"xcp_calibrations_applied": self.applied, "xcp_calibrations_failed": self.failed}
         for server in self.servers:
-            prefix = "xcp_udp_" if isinstance(server, UdpServer) else "xcp_tcp_"
+            prefix = counter_prefix(server)
             out.update({prefix + k: n for k, n in server.counters.as_dict().items()})
         return out

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Final
 
 from protocol.can_map import WORD16_VOLTS_PER_LSB
-from service_kit.xcp.a2l import a2l_text
+from service_kit.xcp.a2l import a2l_text, event_cycle
 from service_kit.xcp.memory import MemoryLayout, Variable
 from service_kit.xcp.slave import EventChannel
 
@@ -100,22 +100,15 @@ def controller_layout() -> MemoryLayout:
     return MemoryLayout([e.variable for e in XCP_TABLE], BASE_ADDRESS)
 
 
-def _cycle(sample_period_s: float) -> tuple[int, int]:
-    """``(cycle, XCP time unit)`` of the tick: the coarsest unit in which the period is a whole number below 256."""
-    for unit, seconds in ((6, 1e-3), (5, 1e-4), (4, 1e-5), (3, 1e-6)):
-        cycle = sample_period_s / seconds
-        if abs(cycle - round(cycle)) < 1e-9 * max(1.0, cycle) and 1 <= round(cycle) <= 255:
-            return int(round(cycle)), unit
-    return 0, 0
-
-
 def xcp_events(sample_period_s: float) -> tuple[EventChannel, ...]:
     """Event 0: the tick (every sample period); event 1: the DSP interrupt (sporadic)."""
-    cycle, unit = _cycle(sample_period_s)
+    cycle, unit = event_cycle(sample_period_s)
     return (EventChannel("tick", cycle, unit, 0), EventChannel("dsp_interrupt", 0, 0, 1))
 
 
-def controller_a2l(sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: int = 0, host: str = "127.0.0.1") -> str:
+def controller_a2l(
+    sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: int = 0, host: str = "127.0.0.1", can_ids: tuple[int, int] | None = None
+) -> str:
     """The controller's A2L."""
     return a2l_text(
         controller_layout(),
@@ -125,6 +118,7 @@ def controller_a2l(sample_period_s: float = 0.005, udp_port: int = 0, tcp_port: 
         udp_port=udp_port,
         tcp_port=tcp_port,
         host=host,
+        can_ids=can_ids,
     )
 
 

@@ -37,6 +37,7 @@ from plant_emulator.node import CanopenNode, NodeConfig
 from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.plant_model import PlantModel, ReportsStepFaults, SamplesVolts
 from plant_emulator.scenario import PendingCommands
+from plant_emulator.xcp_link import PlantXcp, make_plant_xcp
 from protocol.can_map import EmcyCode
 from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
@@ -192,6 +193,8 @@ class PlantApplication:
         self.realtime = settings.clock == "realtime"
         self._recording_truth = bool(settings.truth_record)
         self._side_channels_due = False
+        self.xcp: PlantXcp | None = None
+        """The plant's XCP slave (plant_emulator/xcp_link.py), wired by :func:`serve` when a transport is set (off by default)."""
 
     @staticmethod
     def _fault_unit(settings: PlantSettings, arm: PlantModel) -> ChannelFaultUnit | None:
@@ -273,6 +276,9 @@ class PlantApplication:
             self.sync_interval.add(arrived - self._last_sync_wall)
         self._last_sync_wall = arrived
         try:
+            xcp = self.xcp
+            if xcp is not None:
+                xcp.before_step()
             if self.lockstep:
                 self.arm.advance(self.sample_period_s)
             else:
@@ -289,6 +295,8 @@ class PlantApplication:
                 codes, saturated = self._faulted_sample(faults)
             if self.publish_truth is not None or self._recording_truth or self.arm.hard_stop_count != self._hard_stops_seen:
                 self._side_channels_due = True  # published once the TPDO is out (flush_side_channels)
+            if xcp is not None:
+                xcp.after_sync(self.syncs, codes)
             return codes, saturated  # plain ints and bools: the node packs them as they are
         finally:
             self.sync_service.add(self.stopwatch() - arrived)
@@ -594,6 +602,8 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
         counters.update(port.inbox.as_dict())
         counters.update(port.moves.as_dict())
     counters.update((measures or RealtimeMeasures()).as_counters())
+    if app.xcp is not None:
+        counters.update(app.xcp.counters())
     model_counters, model_latencies, model_problem = app.model_health()
     counters.update(model_counters)
     latencies = {"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats(), **model_latencies}
@@ -644,6 +654,7 @@ def serve(
         app.scenario_inbox = port.inbox
         node = CanopenNode(app, node_config(settings))
         app.set_fault = node.set_fault
+        app.xcp = make_plant_xcp(settings, model, app._event)
         measures = (
             apply_realtime(settings.realtime.priority, settings.realtime.cpus, whole_process=owns_process, cpu_latency_us=settings.realtime.cpu_latency_us)
             if settings.clock == "realtime"
@@ -653,6 +664,8 @@ def serve(
     except BaseException:  # the model (an FMU instance) freed on any failure before the node runs
         model.close()
         raise
+    if app.xcp is not None:
+        app.xcp.start()
     try:
         readiness.mark_ready(settings.ready_file, log)  # kernels warm, node and test port up
         with relinking(settings, session, [port]) if relink else nullcontext() as watch:
@@ -666,5 +679,7 @@ def serve(
         if settings.truth_record:
             app.save_truth(settings.truth_record)
         port.close()
+        if app.xcp is not None:
+            app.xcp.close()
         app.close()
         log.info("plant stopped at %.2f s simulated: %s", app.arm.time_s, node.counters.as_dict())

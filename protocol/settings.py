@@ -344,6 +344,13 @@ class PlantSettings(CommonSettings):
         description="The plant behind the node: ralf (the built-in RALF arm) or fmu:PATH (an FMI 2.0/3.0 co-simulation FMU, docs/fmu-plant.md)",
     )
     fmu_mapping: str = Field("", max_length=4096, description="With model=fmu:PATH: the YAML file that maps the node's I/O to the FMU's variables")
+    xcp_udp_port: int = Field(0, ge=0, le=65535, description="Serve the plant over XCP (its state, its parameters; docs/xcp.md) on this UDP port (0 = off)")
+    xcp_tcp_port: int = Field(0, ge=0, le=65535, description="Serve the plant over XCP on this TCP port (0 = off)")
+    xcp_host: str = Field("127.0.0.1", min_length=1, max_length=255, description="The address the plant's XCP ports bind to")
+    xcp_a2l: str = Field("", max_length=4096, description="Where the plant writes its A2L (empty = ralf-RIG_ID-plant.a2l in the temporary directory)")
+    xcp_can: bool = Field(False, description="Serve the plant over XCP on the rig's CAN bus, on xcp_can_id_master/xcp_can_id_slave")
+    xcp_can_id_master: int = Field(0x7E2, ge=1, le=0x7FF, description="The plant's XCP on CAN: the master's identifier (master -> slave)")
+    xcp_can_id_slave: int = Field(0x7E3, ge=1, le=0x7FF, description="The plant's XCP on CAN: the slave's identifier (slave -> master)")
 
     @field_validator("model")
     @classmethod
@@ -426,6 +433,9 @@ class ControllerSettings(CommonSettings):
     xcp_a2l: str = Field(
         "", max_length=4096, description="Where the running controller writes its A2L, named by XCP GET_ID (empty = ralf-RIG_ID.a2l in the temporary directory)"
     )
+    xcp_can: bool = Field(False, description="Serve XCP on the rig's CAN bus as well, on xcp_can_id_master/xcp_can_id_slave (docs/xcp.md)")
+    xcp_can_id_master: int = Field(0x7E0, ge=1, le=0x7FF, description="XCP on CAN: the master's identifier (master -> slave, 11 bit)")
+    xcp_can_id_slave: int = Field(0x7E1, ge=1, le=0x7FF, description="XCP on CAN: the slave's identifier (slave -> master: answers, DAQ)")
     fault_scenario: str = Field(
         "",
         max_length=100_000,

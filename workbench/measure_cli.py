@@ -8,9 +8,10 @@ bench`` measure the headline numbers):
 * ``recording``: what ``--record`` costs the real-time loop (:mod:`workbench.recording.bench`);
 * ``live``: what ``--live`` costs it (:mod:`workbench.live.bench`);
 * ``input-flood``: what a flood of tools' commands costs it (:mod:`workbench.bench.input_flood`);
+* ``xcp-timing``: what the controller's XCP slave and a DAQ master cost it (:mod:`workbench.bench.xcp_timing`);
 * ``campaign``: the campaign engine's throughput and overheads (:mod:`workbench.campaign.measure`).
 
-The rig-running ones (``recording``, ``live``, ``input-flood``, ``campaign``) open the
+The rig-running ones (``recording``, ``live``, ``input-flood``, ``xcp-timing``, ``campaign``) open the
 rig's udp_multicast bus: run them inside ``.ci/loopback-netns``.
 """
 
@@ -62,6 +63,13 @@ def _input_flood(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None, help="also write every run's numbers to this file")
 
 
+def _xcp_timing(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--duration", type=float, default=20.0, help="seconds of control per run (default 20)")
+    p.add_argument("--rounds", type=int, default=2, help="rounds of the three arms, the order rotated each round (default 2)")
+    p.add_argument("--json", default=None, help="also write every run's numbers and the medians to this file")
+    p.add_argument("--markdown", default=None, help="also write the page of figures (docs/results/xcp-timing.md)")
+
+
 def _campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--blocks", type=int, default=2, help="interleaved blocks of one- and two-worker sweeps (default 2)")
     p.add_argument("--runs", type=int, default=6, help="lockstep runs per sweep (default 6)")
@@ -75,6 +83,7 @@ TOOLS: dict[str, tuple[str, str, Callable[[argparse.ArgumentParser], None]]] = {
     "recording": ("workbench.recording.bench", "what recording costs the real-time loop (pairs of ralf-hil up without and with --record)", _recording),
     "live": ("workbench.live.bench", "what the live view costs the real-time loop (without --live, with it, with a client)", _live),
     "input-flood": ("workbench.bench.input_flood", "what a flood of tools' commands costs the real-time loop (undisturbed and flooded runs)", _input_flood),
+    "xcp-timing": ("workbench.bench.xcp_timing", "what XCP costs the real-time loop (off, on without a master, with a pyxcp DAQ master)", _xcp_timing),
     "campaign": ("workbench.campaign.measure", "the campaign engine: throughput on one and two workers, start-up and scheduling costs", _campaign),
 }
 """Tool name -> (module whose ``main(args) -> int`` runs it, one-line help, its options)."""

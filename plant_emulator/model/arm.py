@@ -324,6 +324,11 @@ class RalfArm:
         return self._scale.bits
 
     @property
+    def valve_volts(self) -> tuple[float, float]:
+        """The two valve voltages the arm integrates with (V, after the D/A's clipping)."""
+        return self._volts[0], self._volts[1]
+
+    @property
     def hard_stop_count(self) -> int:
         """Arrivals at a hard stop since the start, both joints."""
         return self._stop_counts[0] + self._stop_counts[1]

@@ -2,18 +2,34 @@
 MEASUREMENT per measurement, one CHARACTERISTIC (VALUE) per calibration
 parameter, each with its own COMPU_METHOD (``LINEAR``, ``COEFFS_LINEAR
 factor offset``: physical = factor * raw + offset), and the XCP IF_DATA
-(protocol layer, DAQ events, the Ethernet transports). Written from the
+(protocol layer, DAQ events, the Ethernet and CAN transports). Written from the
 same layout the slave serves, so the two cannot disagree.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Final
 
+from service_kit.xcp.can import CAN_MAX_CTO, CAN_MAX_DTO
 from service_kit.xcp.memory import MemoryLayout, Variable
 from service_kit.xcp.slave import MAX_CTO, MAX_DAQ, MAX_DTO, MAX_ODT_ENTRY_SIZE, EventChannel
 
-__all__ = ["a2l_text"]
+__all__ = ["a2l_text", "event_cycle"]
+
+
+CAN_BAUDRATE: Final = 500000
+"""The A2L's nominal bit rate on CAN (the rig's buses are emulated: python-can virtual or udp_multicast)."""
+
+
+def event_cycle(sample_period_s: float) -> tuple[int, int]:
+    """``(cycle, XCP time unit)`` of a periodic event: the coarsest unit in which the
+    period is a whole number below 256 (``(0, 0)``: none, the event is then sporadic)."""
+    for unit, seconds in ((6, 1e-3), (5, 1e-4), (4, 1e-5), (3, 1e-6)):
+        cycle = sample_period_s / seconds
+        if abs(cycle - round(cycle)) < 1e-9 * max(1.0, cycle) and 1 <= round(cycle) <= 255:
+            return int(round(cycle)), unit
+    return 0, 0
 
 
 def _q(text: str) -> str:
@@ -51,7 +67,7 @@ def _characteristic(v: Variable) -> str:
     )
 
 
-def _if_data(events: Sequence[EventChannel], udp_port: int, tcp_port: int, host: str) -> str:
+def _if_data(events: Sequence[EventChannel], udp_port: int, tcp_port: int, host: str, can_ids: tuple[int, int] | None) -> str:
     lines = [
         "    /begin IF_DATA XCP",
         "      /begin PROTOCOL_LAYER 0x0104 1000 2000 0 0 0 0 0",
@@ -72,6 +88,14 @@ def _if_data(events: Sequence[EventChannel], udp_port: int, tcp_port: int, host:
         lines.append(f"      /begin XCP_ON_UDP_IP 0x0104 {udp_port} ADDRESS {_q(host)} /end XCP_ON_UDP_IP")
     if tcp_port:
         lines.append(f"      /begin XCP_ON_TCP_IP 0x0104 {tcp_port} ADDRESS {_q(host)} /end XCP_ON_TCP_IP")
+    if can_ids is not None:  # its own protocol layer: a classic CAN frame holds 8 bytes
+        lines += [
+            f"      /begin XCP_ON_CAN 0x0104 CAN_ID_MASTER 0x{can_ids[0]:X} CAN_ID_SLAVE 0x{can_ids[1]:X} BAUDRATE {CAN_BAUDRATE} SAMPLE_POINT 0x4B",
+            "        /begin PROTOCOL_LAYER 0x0104 1000 2000 0 0 0 0 0",
+            f"          {CAN_MAX_CTO} {CAN_MAX_DTO} BYTE_ORDER_MSB_LAST ADDRESS_GRANULARITY_BYTE",
+            "        /end PROTOCOL_LAYER",
+            "      /end XCP_ON_CAN",
+        ]
     lines.append("    /end IF_DATA")
     return "\n".join(lines) + "\n"
 
@@ -85,6 +109,7 @@ def a2l_text(
     udp_port: int = 0,
     tcp_port: int = 0,
     host: str = "127.0.0.1",
+    can_ids: tuple[int, int] | None = None,
 ) -> str:
     """The A2L of ``layout`` as MODULE ``module`` (byte order INTEL: ``MSB_LAST``)."""
     types = sorted({v.datatype for v in layout.calibrations})
@@ -97,7 +122,7 @@ def a2l_text(
         '    /begin MOD_PAR ""\n',
         f'      /begin MEMORY_SEGMENT Map "" DATA RAM INTERN 0x{layout.base:X} 0x{layout.size:X} -1 -1 -1 -1 -1 /end MEMORY_SEGMENT\n',
         "    /end MOD_PAR\n",
-        _if_data(events, udp_port, tcp_port, host),
+        _if_data(events, udp_port, tcp_port, host, can_ids),
     ]
     parts += [f"    /begin RECORD_LAYOUT RL_{t} FNC_VALUES 1 {t} ROW_DIR DIRECT /end RECORD_LAYOUT\n" for t in types]
     for v in layout.variables:

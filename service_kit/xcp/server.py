@@ -1,4 +1,4 @@
-"""What the UDP and TCP transports share: the thread, the bounded queue of
+"""What the UDP, TCP and CAN transports share: the thread, the bounded queue of
 snapshots the loop hands over, and the DTO sending with its overload count.
 
 The control loop never waits here: :meth:`Server.offer` appends to a
@@ -34,12 +34,14 @@ class Server:
     """One transport serving one :class:`Slave` on a thread of its own."""
 
     name = "xcp"
+    sock: socket.socket
 
-    def __init__(self, slave: Slave, sock: socket.socket, capacity: int = QUEUE_CAPACITY) -> None:
+    def __init__(self, slave: Slave, sock: socket.socket | None, capacity: int = QUEUE_CAPACITY) -> None:
         self.slave = slave
         self.counters = slave.counters
-        self.sock = sock
-        self.port: int = sock.getsockname()[1]
+        if sock is not None:  # None on CAN: that transport keeps its bus
+            self.sock = sock
+        self.port: int = sock.getsockname()[1] if sock is not None else 0
         self._queue: deque[Snapshot] = deque()
         self._capacity = capacity
         self._stop = threading.Event()

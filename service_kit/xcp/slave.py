@@ -36,6 +36,7 @@ from typing import Final
 from service_kit.counters import Counters
 from service_kit.xcp.memory import MemoryLayout, Variable, Write, WriteRefused
 from service_kit.xcp.packets import Cmd, Err, error, ok
+from service_kit.xcp.partial import PartialWrites
 
 __all__ = ["DaqList", "EventChannel", "Slave", "SlaveCounters", "SlaveInfo", "Snapshot"]
 
@@ -49,6 +50,8 @@ MAX_DAQ: Final = 16
 """DAQ lists a master may allocate."""
 MAX_ODT_ENTRY_SIZE: Final = 255
 """Bytes one ODT entry may read."""
+MAX_ODT_ENTRIES: Final = 1024
+"""ODT entries a master may allocate over all lists (the slave's DAQ memory)."""
 MAX_PID: Final = 0xFB
 """ODT numbers (PIDs of DTOs) run from 0 to this (0xFC..0xFF are the slave's response PIDs)."""
 TIMESTAMP_BYTES: Final = 4
@@ -81,6 +84,17 @@ class SlaveInfo:
     events: tuple[EventChannel, ...]
     timestamp_unit: int = 3
     """DAQ_TIMESTAMP_UNIT code of one timestamp tick (3 = 1 µs)."""
+    max_cto: int = MAX_CTO
+    """The largest command or response packet (8 on CAN)."""
+    max_dto: int = MAX_DTO
+    """The largest DAQ packet (8 on CAN: an ODT carries at most 7 data bytes after its PID)."""
+    partial_writes: bool = False
+    """Hold a parameter's first bytes until its last arrive (:mod:`.partial`; on CAN, where
+    a DOWNLOAD carries at most 6 bytes). Off: a write over part of a parameter is refused."""
+
+    @property
+    def max_odt_entry_size(self) -> int:
+        return min(MAX_ODT_ENTRY_SIZE, self.max_dto - 1)
 
 
 @dataclass(frozen=True)
@@ -112,6 +126,14 @@ class SlaveCounters(Counters):
     snapshots_dropped: int = 0
     """samples the loop could not hand over (the queue was full): their DAQ packets never existed"""
     internal_errors: int = 0
+    masters_refused: int = 0
+    """TCP connections refused while another master was connected"""
+    sessions_lost: int = 0
+    """sessions that ended without DISCONNECT (a TCP connection closed or broken mid-session)"""
+    partial_writes_held: int = 0
+    """writes whose last bytes were a parameter's first ones, held for the next write (CAN)"""
+    partial_writes_dropped: int = 0
+    """held first bytes dropped: the next write went elsewhere, or the session ended"""
 
 
 @dataclass
@@ -166,6 +188,7 @@ class Slave:
         self._ptr: tuple[int, int, int] | None = None
         self.clock = 0
         """The latest snapshot's timestamp (GET_DAQ_CLOCK)."""
+        self._partial = PartialWrites(layout) if info.partial_writes else None
         self._handlers: dict[int, Callable[[bytes], bytes]] = {
             Cmd.CONNECT: self._connect,
             Cmd.DISCONNECT: self._disconnect,
@@ -235,7 +258,7 @@ class Slave:
         self.connected = True
         resource = 0x01 | 0x04  # CAL/PAG, DAQ
         comm_mode_basic = 0x80  # GET_COMM_MODE_INFO available; INTEL; byte granularity; no slave block mode
-        return ok(bytes((resource, comm_mode_basic, MAX_CTO)), struct.pack("<H", MAX_DTO), b"\x01\x01")
+        return ok(bytes((resource, comm_mode_basic, self.info.max_cto)), struct.pack("<H", self.info.max_dto), b"\x01\x01")
 
     def _disconnect(self, body: bytes) -> bytes:
         self.reset()
@@ -246,6 +269,9 @@ class Slave:
         self.connected = False
         self.daq = []
         self._ptr = None
+        if self._partial is not None:
+            self._partial.drop()
+            self.counters.partial_writes_dropped = self._partial.dropped
 
     def _get_status(self, body: bytes) -> bytes:
         running = any(d.running for d in self.daq)
@@ -271,8 +297,25 @@ class Slave:
         return bytes(self.image[start : start + n])
 
     def _write(self, address: int, data: bytes) -> None:
+        partial = self._partial
+        if partial is not None:
+            try:
+                split = partial.split(address, data)
+            finally:
+                self.counters.partial_writes_dropped = partial.dropped
+            if split.held:
+                self.counters.partial_writes_held += 1
+            if not split.whole:
+                return
+            address, data = split.address, split.whole
         changes = self.layout.check_write(address, data)
-        self._calibrate(changes)  # may refuse (WriteRefused)
+        try:
+            self._calibrate(changes)  # may refuse (WriteRefused)
+        except WriteRefused:
+            if partial is not None and partial.variable is not None:  # the whole part refused: its tail goes too
+                partial.drop()
+                self.counters.partial_writes_dropped = partial.dropped
+            raise
         start = address - self.layout.base
         self.image[start : start + len(data)] = data
         self.counters.calibration_writes += 1
@@ -286,7 +329,7 @@ class Slave:
 
     def _upload(self, body: bytes) -> bytes:
         (n,) = _unpack("B", body)
-        if not 1 <= n <= MAX_CTO - 1:
+        if not 1 <= n <= self.info.max_cto - 1:
             return error(Err.ERR_OUT_OF_RANGE)
         data = self._read(self.mta, n)
         self.mta += n
@@ -294,7 +337,7 @@ class Slave:
 
     def _short_upload(self, body: bytes) -> bytes:
         n, _, ext, address = _unpack("BBBI", body)
-        if not 1 <= n <= MAX_CTO - 1 or ext != 0:
+        if not 1 <= n <= self.info.max_cto - 1 or ext != 0:
             return error(Err.ERR_OUT_OF_RANGE)
         data = self._read(address, n)
         self.mta = address + n
@@ -340,6 +383,8 @@ class Slave:
 
     def _alloc_odt(self, body: bytes) -> bytes:
         _, daq, count = _unpack("BHB", body)
+        if not self.daq:  # ALLOC_ODT before ALLOC_DAQ
+            return error(Err.ERR_SEQUENCE)
         if daq >= len(self.daq):
             return error(Err.ERR_OUT_OF_RANGE)
         if self.daq[daq].odts:
@@ -356,8 +401,13 @@ class Slave:
 
     def _alloc_odt_entry(self, body: bytes) -> bytes:
         _, daq, odt, count = _unpack("BHBB", body)
+        if not self.daq or (daq < len(self.daq) and not self.daq[daq].odts):  # before ALLOC_DAQ / ALLOC_ODT
+            return error(Err.ERR_SEQUENCE)
         if daq >= len(self.daq) or odt >= len(self.daq[daq].odts):
             return error(Err.ERR_OUT_OF_RANGE)
+        used = sum(len(o) for d in self.daq for o in d.odts) - len(self.daq[daq].odts[odt])
+        if used + count > MAX_ODT_ENTRIES:
+            return error(Err.ERR_MEMORY_OVERFLOW)
         self.daq[daq].odts[odt] = [[0, 0] for _ in range(count)]
         return ok()
 
@@ -378,7 +428,7 @@ class Slave:
         entries = self.daq[daq].odts[odt]
         if entry >= len(entries):
             return error(Err.ERR_OUT_OF_RANGE)
-        if bit_offset != 0xFF or ext != 0 or not 1 <= size <= MAX_ODT_ENTRY_SIZE:
+        if bit_offset != 0xFF or ext != 0 or not 1 <= size <= self.info.max_odt_entry_size:
             return error(Err.ERR_OUT_OF_RANGE)
         if not self.layout.readable(address, size):
             return error(Err.ERR_ACCESS_DENIED)
@@ -398,14 +448,17 @@ class Slave:
 
     def _fits(self, d: DaqList) -> bool:
         """Each ODT's DTO (PID, the timestamp in the first, the entries) fits in MAX_DTO."""
+        max_dto = self.info.max_dto
         for j, odt in enumerate(d.odts):
             ts = TIMESTAMP_BYTES if j == 0 and d.mode & MODE_TIMESTAMP else 0
-            if 1 + ts + sum(size for _, size in odt) > MAX_DTO:
+            if 1 + ts + sum(size for _, size in odt) > max_dto:
                 return False
         return True
 
     def _start_stop_daq_list(self, body: bytes) -> bytes:
         mode, daq = _unpack("BH", body)
+        if not self.daq and mode:  # no list allocated yet
+            return error(Err.ERR_SEQUENCE)
         if daq >= len(self.daq) or mode > 2:
             return error(Err.ERR_OUT_OF_RANGE)
         d = self.daq[daq]
@@ -437,7 +490,7 @@ class Slave:
 
     def _resolution_info(self, body: bytes) -> bytes:
         timestamp_mode = (self.info.timestamp_unit << 4) | 0x04  # size 4 bytes, not fixed
-        return ok(bytes((1, MAX_ODT_ENTRY_SIZE, 1, 0, timestamp_mode)), struct.pack("<H", 1))
+        return ok(bytes((1, self.info.max_odt_entry_size, 1, 0, timestamp_mode)), struct.pack("<H", 1))
 
     def _event_info(self, body: bytes) -> bytes:
         _, event = _unpack("BH", body)

@@ -45,18 +45,18 @@ class TcpServer(Server):
     def _serve(self, timeout: float) -> None:
         watched = [self.sock] if self.client is None else [self.sock, self.client]
         readable, _, _ = select.select(watched, [], [], timeout)
-        if self.sock in readable:
-            self._accept()
         client = self.client
-        if client is not None and client in readable:
+        if client is not None and client in readable:  # first: a master that left frees its place for the next
             try:
                 data = client.recv(65536)
             except OSError:
                 data = b""
             if not data:
                 self._drop_client()
-                return
-            self._stream(data)
+            else:
+                self._stream(data)
+        if self.sock in readable:
+            self._accept()
 
     def _accept(self) -> None:
         try:
@@ -65,6 +65,7 @@ class TcpServer(Server):
             return
         if self.client is not None:
             self.refused_connections += 1
+            self.counters.masters_refused += 1
             conn.close()
             return
         conn.setblocking(True)
@@ -107,6 +108,8 @@ class TcpServer(Server):
     def _drop_client(self) -> None:
         if self.client is not None:
             self.client.close()
+            if self.slave.connected:
+                self.counters.sessions_lost += 1
         self.client, self._buffer = None, b""
         self.slave.reset()  # the session ends with its connection
 

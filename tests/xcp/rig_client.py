@@ -30,13 +30,16 @@ class BackgroundRig:
     """A lockstep run in a thread until :meth:`stop`."""
 
     controller: dict[str, Any]
+    common: dict[str, Any] | None = None
+    plant: dict[str, Any] | None = None
+    at_tick: tuple[int, Any] | None = None
     stop_event: threading.Event = field(default_factory=threading.Event)
     run: InProcessRun | None = None
     error: BaseException | None = None
 
     def _target(self) -> None:
         try:
-            self.run = run_in_process(controller=self.controller, stop=self.stop_event)
+            self.run = run_in_process(controller=self.controller, plant=self.plant, common=self.common, at_tick=self.at_tick, stop=self.stop_event)
         except BaseException as exc:  # handed to the test
             self.error = exc
 
@@ -55,12 +58,31 @@ class BackgroundRig:
 
 
 @contextmanager
-def master(port: int, protocol: str, policy: Any = None) -> Iterator[Master]:
-    """A connected pyxcp master on 127.0.0.1:``port`` over ``protocol`` (UDP or TCP)."""
+def master(port: int, protocol: str, policy: Any = None, raw_errors: bool = False, disconnect: bool = True) -> Iterator[Master]:
+    """A connected pyxcp master on 127.0.0.1:``port`` over ``protocol`` (UDP or TCP).
+    ``raw_errors``: pyxcp's error handling off (a negative response raises its
+    ``XcpResponseError`` at once instead of the error matrix's retries).
+    ``disconnect``: False when the slave is gone by the end (no DISCONNECT sent)."""
     app = create_application_from_config({"Transport": {"Eth": {"host": "127.0.0.1", "port": port, "protocol": protocol}}})
     app.transport.layer = "ETH"
+    app.general.disable_error_handling = raw_errors
     app.transport.timeout = 2.0
     with Master("eth", config=app, policy=policy) as x:
+        x.connect()
+        yield x
+        if disconnect:
+            x.disconnect()
+
+
+@contextmanager
+def can_master(channel: str, id_master: int, id_slave: int, policy: Any = None) -> Iterator[Master]:
+    """A connected pyxcp master over its CAN transport on python-can's ``virtual`` bus ``channel``."""
+    app = create_application_from_config(
+        {"Transport": {"CAN": {"interface": "virtual", "channel": channel, "can_id_master": id_master, "can_id_slave": id_slave}}}
+    )
+    app.transport.layer = "CAN"
+    app.transport.timeout = 2.0
+    with Master("can", config=app, policy=policy) as x:
         x.connect()
         yield x
         x.disconnect()
