@@ -190,6 +190,12 @@ class PlantApplication:
         self.lockstep = settings.clock == "lockstep"
         """Each SYNC advances the arm one sample period (else: the wall clock, ``_catch_up``)."""
         self.realtime = settings.clock == "realtime"
+        self.wire_arrival_ns: int | None = None
+        """The simulated CAN wire's time of the frame being handled (its last bit on the
+        plant's sub-step grid, ns since the model's start; docs/can-wire.md "In the simulated
+        rig"): the model advances to it before a SYNC's sample or an RPDO1's D/A. None (no
+        wire model): one sample period per SYNC, the D/A at once."""
+        self._wire_fed_ns = 0
         self._recording_truth = bool(settings.truth_record)
         self._side_channels_due = False
 
@@ -273,7 +279,9 @@ class PlantApplication:
             self.sync_interval.add(arrived - self._last_sync_wall)
         self._last_sync_wall = arrived
         try:
-            if self.lockstep:
+            if self.wire_arrival_ns is not None:
+                self._advance_to_arrival(self.wire_arrival_ns)
+            elif self.lockstep:
                 self.arm.advance(self.sample_period_s)
             else:
                 self._catch_up()
@@ -313,11 +321,19 @@ class PlantApplication:
             self._side_channels_due = False
             self._publish_side_channels()
 
+    def _advance_to_arrival(self, t_ns: int) -> None:
+        """The simulated wire: the model to ``t_ns`` (never back: a frame on the same sub-step adds nothing)."""
+        if t_ns > self._wire_fed_ns:
+            self.arm.advance((t_ns - self._wire_fed_ns) / 1e9)
+            self._wire_fed_ns = t_ns
+
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
         if self._side_channels_due:
             self.flush_side_channels()
         if self.realtime:
             self._catch_up()
+        elif self.wire_arrival_ns is not None:
+            self._advance_to_arrival(self.wire_arrival_ns)
         if not self.held:
             faults = self.channel_faults
             if faults is not None and faults.on_outputs:
@@ -331,6 +347,8 @@ class PlantApplication:
             self.flush_side_channels()
         if self.realtime:
             self._catch_up()
+        elif self.wire_arrival_ns is not None:
+            self._advance_to_arrival(self.wire_arrival_ns)
         if not self.held:
             faults = self.channel_faults
             if faults is not None and faults.on_outputs:

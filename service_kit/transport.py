@@ -165,12 +165,20 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
                 sleep(0.5)
 
 
+WIRE_COSIM_ONLY = (
+    "RALF_CAN_BITRATE={bitrate}: the simulated CAN wire runs in the co-simulation only (ralf-hil up --clock cosim); "
+    "a bus between threads or processes carries frames in no wire time (set 0)"
+)
+
+
 def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:
     """Open the CAN bus named by the settings (udp_multicast, virtual,
     socketcan...). udp_multicast frames get the TTL ``can_udp``'s ``ttl``:
     0 (the default) keeps them on this host. With its ``own_frame_filter``
     (the default) udp_multicast is :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`,
     wire-compatible with python-can's, which does not read its own frames back."""
+    if settings.can_bitrate:
+        raise TransportError(WIRE_COSIM_ONLY.format(bitrate=settings.can_bitrate))
     options: dict[str, Any] = {"interface": settings.can_interface, "channel": settings.can_channel}
     if settings.can_interface == "udp_multicast":
         options["port"] = settings.can_port

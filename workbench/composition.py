@@ -24,6 +24,7 @@ from plant_emulator.service import serve as serve_plant
 from protocol.keys import Keys
 from protocol.messages import Health, decode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
+from service_kit.transport import WIRE_COSIM_ONLY
 
 
 @dataclass
@@ -94,6 +95,8 @@ def run_in_process(
     channel = str((common or {}).get("can_channel") or f"ralf-{uuid.uuid4().hex[:8]}")  # a channel the caller chose: its own bus can join
     base = {"clock": "lockstep", "can_interface": "virtual", "can_channel": channel, "rig_id": f"local-{channel[5:]}", **(common or {})}
     cs = ControllerSettings(**{**base, **(controller or {})})
+    if cs.can_bitrate:
+        raise ValueError(WIRE_COSIM_ONLY.format(bitrate=cs.can_bitrate))
     if cs.duration_s is None and cs.repeats == 0:
         raise ValueError("a one-process run needs controller duration_s or repeats")
     ps = PlantSettings(**{**base, **(plant or {})})
