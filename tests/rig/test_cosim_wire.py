@@ -179,3 +179,17 @@ def test_other_clocks_refuse_the_wire() -> None:
         HilRig(clock="lockstep", common={"can_bitrate": 500_000})
     with pytest.raises(TransportError, match="co-simulation only"):
         open_can_bus(PlantSettings(can_interface="virtual", can_bitrate=500_000))
+
+
+def test_the_bench_item_prices_the_wire_per_frame() -> None:
+    from workbench.bench.entries import BenchContext
+    from workbench.bench.items import run_item
+
+    result = run_item("can-wire", BenchContext(quick=True))
+    assert result["status"] == "ok", result["errors"]
+    m = result["measurements"]
+    assert m["no wire: cpu per tick"]["value"] > 0
+    wired = m["wire 1 Mbit/s + 50 % restbus: cpu per tick"]
+    assert wired["floor"] == "no wire" and wired["ratio"] is not None
+    per_frame = m["wire 1 Mbit/s + 50 % restbus: wire cost per frame"]
+    assert per_frame["frames"] > 5 * 4000  # 5 s at about 4900 frames/s
