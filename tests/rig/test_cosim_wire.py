@@ -193,3 +193,17 @@ def test_the_bench_item_prices_the_wire_per_frame() -> None:
     assert wired["floor"] == "no wire" and wired["ratio"] is not None
     per_frame = m["wire 1 Mbit/s + 50 % restbus: wire cost per frame"]
     assert per_frame["frames"] > 5 * 4000  # 5 s at about 4900 frames/s
+
+
+def test_a_wire_whose_delays_stay_inside_the_first_sub_step_changes_no_sample() -> None:
+    """At 1 Mbit/s without restbus SYNC arrives 56 us and RPDO1 about 0.26 ms after the SYNC's queueing:
+    both round to the SYNC's own grid point, so the record equals the direct wire's bit for bit; at
+    125 kbit/s the RPDO1 (about 2 ms) reaches later sub-steps and the valves act later: the record differs."""
+    direct = _columns(_run())
+    fast = _run({"can_bitrate": 1_000_000})
+    assert fast.can_bus["sync_to_rpdo1_us"]["max"] < 500
+    for name, values in _columns(fast).items():
+        assert np.array_equal(values, direct[name], equal_nan=True), name
+    slow = _run({"can_bitrate": 125_000})
+    assert slow.can_bus["sync_to_rpdo1_us"]["min"] > 1500
+    assert not np.array_equal(_columns(slow)["defl1_in"], direct["defl1_in"])
