@@ -49,7 +49,7 @@ def level_dbc(level: int, bitrate: int, out: Path, source: Path = SOURCE) -> flo
     """Writes ``source`` brought to ``level`` % at ``bitrate`` (module docstring) to ``out``; returns its load."""
     import cantools
 
-    db = cantools.database.load_file(str(source), database_format="dbc", strict=True)
+    db: Any = cantools.database.load_file(str(source), database_format="dbc", strict=True)
     restbus = traffic.from_database(db, str(source))
     share = {m.name: traffic.offered_load(traffic.Restbus((m,), ()), bitrate) for m in restbus.messages}
     by_name = {m.name: m for m in db.messages}
