@@ -660,6 +660,9 @@ def serve(
             publish_channel_truth=port.publish_channel_truth,
         )
         app.scenario_inbox = port.inbox
+        bind = getattr(bus, "bind_application", None)
+        if callable(bind):  # a simulated wire (workbench.lockstep_wire): the model advances to each arrival
+            bind(app)
         node = CanopenNode(app, node_config(settings))
         app.set_fault = node.set_fault
         measures = (

@@ -166,8 +166,8 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
 
 
 WIRE_COSIM_ONLY = (
-    "RALF_CAN_BITRATE={bitrate}: the simulated CAN wire runs in the co-simulation only (ralf-hil up --clock cosim); "
-    "a bus between threads or processes carries frames in no wire time (set 0)"
+    "RALF_CAN_BITRATE={bitrate}: the simulated CAN wire runs in simulated time only (ralf-hil up --clock cosim, "
+    "or the one-process lockstep rig); a bus between processes carries frames in no wire time (set 0)"
 )
 
 

@@ -24,7 +24,6 @@ from plant_emulator.service import serve as serve_plant
 from protocol.keys import Keys
 from protocol.messages import Health, decode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings
-from service_kit.transport import WIRE_COSIM_ONLY
 
 
 @dataclass
@@ -65,6 +64,8 @@ class InProcessRun:
     wall_time_s: float
     health: dict[str, Health]
     """The last health message of each service (their final one, sent on stop)."""
+    can_bus: dict[str, Any] | None = None
+    """The simulated wire's figures (``can_bitrate`` set), as :attr:`workbench.cosim.CosimRun.can_bus`."""
 
 
 def _local_session() -> zenoh.Session:
@@ -95,8 +96,6 @@ def run_in_process(
     channel = str((common or {}).get("can_channel") or f"ralf-{uuid.uuid4().hex[:8]}")  # a channel the caller chose: its own bus can join
     base = {"clock": "lockstep", "can_interface": "virtual", "can_channel": channel, "rig_id": f"local-{channel[5:]}", **(common or {})}
     cs = ControllerSettings(**{**base, **(controller or {})})
-    if cs.can_bitrate:
-        raise ValueError(WIRE_COSIM_ONLY.format(bitrate=cs.can_bitrate))
     if cs.duration_s is None and cs.repeats == 0:
         raise ValueError("a one-process run needs controller duration_s or repeats")
     ps = PlantSettings(**{**base, **(plant or {})})
@@ -111,8 +110,9 @@ def run_in_process(
         health[msg.service] = msg
 
     health_sub = sess.declare_subscriber(Keys(cs.rig_id).health_all, keep_health)
-    plant_bus = can.Bus(interface="virtual", channel=channel)
-    ctrl_bus = can.Bus(interface="virtual", channel=channel)
+    wire = _wire(cs, ps)
+    plant_bus = wire.plant_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
+    ctrl_bus = wire.controller_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
     dsp_service = DspService(ds, sess)
     threads = [
         threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), kwargs={"owns_process": False}, name="plant", daemon=True),
@@ -128,6 +128,8 @@ def run_in_process(
             t.start()
         result = ctrl.run(stop)
     finally:
+        if wire is not None:
+            wire.shutdown()  # the end's frames (valves to zero, NMT) reach the plant before it stops
         stop.set()
         for t in threads:
             t.join(timeout=10)
@@ -140,4 +142,24 @@ def run_in_process(
         if own_session:
             sess.close()
     ctrl.finish(result)  # the run record, as the controller service writes it at its end
-    return InProcessRun(result=result, controller=ctrl, dsp=dsp_service, wall_time_s=time.monotonic() - started, health=dict(health))
+    return InProcessRun(
+        result=result,
+        controller=ctrl,
+        dsp=dsp_service,
+        wall_time_s=time.monotonic() - started,
+        health=dict(health),
+        can_bus=wire.summary() if wire is not None else None,
+    )
+
+
+def _wire(cs: ControllerSettings, ps: PlantSettings) -> Any:
+    """The simulated CAN wire between the two threads (``can_bitrate`` set; :mod:`workbench.lockstep_wire`), else None."""
+    if not cs.can_bitrate:
+        return None
+    if cs.clock != "lockstep":
+        raise ValueError(f"RALF_CAN_BITRATE={cs.can_bitrate}: the simulated CAN wire needs simulated time (clock lockstep or the co-simulation)")
+    from workbench.cosim_wire import load_restbus
+    from workbench.lockstep_wire import LockstepWire
+
+    restbus = load_restbus(cs.can_restbus, cs.can_bitrate, ps.node_id) if cs.can_restbus else None
+    return LockstepWire(node_id=ps.node_id, bitrate=cs.can_bitrate, sample_period_s=cs.sample_period_s, restbus=restbus)

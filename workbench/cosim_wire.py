@@ -21,7 +21,9 @@ axis of integer nanoseconds:
   it has won the bus (the plant node and the restbus nodes offer their
   highest-priority frame, as :func:`~service_kit.can_wire.arbitration.simulate`).
 * The plant node answers a frame when the frame's last bit is gone: its
-  frames (TPDO1, heartbeat, EMCY, SDO answers) are queued then.
+  frames (TPDO1, EMCY, SDO answers) are queued then. Its heartbeat goes
+  beside the wire, untimed (in the one-process lockstep rig it runs on the
+  wall clock: :mod:`workbench.lockstep_wire`).
 * The restbus (``can_restbus``: :mod:`service_kit.can_wire.restbus.traffic`,
   its cycle times, start delays, initial values, counters and checksums)
   starts with the first SYNC. Its frames take wire time and arbitrate;
@@ -129,16 +131,19 @@ class TimedCanWire:
 
     def __init__(
         self,
-        node: CanopenNode,
-        scheduler: SimulatedScheduler,
-        app: PlantApplication,
+        node: CanopenNode | None,
+        scheduler: SimulatedScheduler | None,
+        app: PlantApplication | None,
         *,
         bitrate: int,
         sample_period_s: float,
         restbus: Restbus | None = None,
         grid_ns: int | None = None,
+        node_id: int | None = None,
     ) -> None:
-        self.node, self.scheduler, self.app = node, scheduler, app
+        self.node: Any = node
+        self.scheduler: Any = scheduler
+        self.app: Any = app
         self.bitrate = bitrate
         self.bus = OnlineBus(bitrate)
         self.ts_ns = round(sample_period_s * 1e9)
@@ -147,6 +152,8 @@ class TimedCanWire:
         self.restbus = restbus
         self.stats = WireStats()
         self._to_master: deque[Any] = deque()
+        """Frames for the controller: (arrival ns, or None for an untimed one; the frame; late)."""
+        self._timed_for_master = 0
         self._ctrl_fifo: deque[tuple[int, FrameBits, _Sent]] = deque()
         self._ctrl_on_bus = False
         self._started = False
@@ -161,8 +168,8 @@ class TimedCanWire:
         self._rb_next: Instance | None = None
         self._rb_frames: dict[tuple[str, int], FrameBits] = {}
         self._sync_frames: dict[bytes, FrameBits] = {}
-        ids = can_map.cob_ids(node.node_id)
-        self._tpdo1, self._rpdo1 = ids["tpdo1"], ids["rpdo1"]
+        ids = can_map.cob_ids(node_id if node_id is not None else node.node_id)
+        self._tpdo1, self._rpdo1, self._heartbeat = ids["tpdo1"], ids["rpdo1"], ids["heartbeat"]
         self.frames_to_node = 0
         self.frames_to_master = 0
 
@@ -227,8 +234,13 @@ class TimedCanWire:
         self._untimed(self.node.exchange(arbitration_id, data, self.scheduler.now()))
 
     def _untimed(self, frames: list[Frame]) -> None:
-        self._to_master.extend((self._ctrl_now, f, False) for f in frames)
-        self.frames_to_master += len(frames)
+        for f in frames:
+            self._untimed_one(f)
+
+    def _untimed_one(self, frame: Any) -> None:
+        """A frame for the controller that takes no wire time (the start-up, the heartbeat)."""
+        self._to_master.append((None, frame, False))
+        self.frames_to_master += 1
 
     def recv(self, timeout: float | None = None) -> Frame | can.Message | None:
         if self._to_master:
@@ -250,7 +262,9 @@ class TimedCanWire:
 
     def _take(self) -> Any:
         arrival, frame, late = self._to_master.popleft()
-        self._ctrl_now = max(self._ctrl_now, arrival)
+        if arrival is not None:
+            self._timed_for_master -= 1
+            self._ctrl_now = max(self._ctrl_now, arrival)
         if frame.arbitration_id == self._tpdo1:
             self._last_tpdo_late = late
         return frame
@@ -267,7 +281,8 @@ class TimedCanWire:
         self._to_master.clear()
 
     # -- the wire -----------------------------------------------------------------------------------------
-    def _feed_restbus(self) -> None:
+    def _feed_restbus(self, bound: int | None = None) -> None:
+        """The restbus's instances queued by the bus's next start (``bound``: not needed beyond it)."""
         it = self._rb_iter
         while self._rb_next is not None and it is not None:
             start = self.bus.next_start()
@@ -293,12 +308,8 @@ class TimedCanWire:
                     return
                 if limit is None and not self._rig_pending():
                     return
-                sent = self.bus.commit()
-                tx = sent.transmission
-                self._note(tx, sent.frame)
-                if tx.node == CONTROLLER:
-                    self._ctrl_next()
-                self._in_flight = (tx.last_bit_ns, sent.tag)
+                self._commit()
+            assert self._in_flight is not None
             arrival, tag = self._in_flight
             if limit is not None and arrival > limit:
                 return
@@ -308,16 +319,37 @@ class TimedCanWire:
             if tag.to_plant:
                 self._deliver_to_plant(arrival, tag)
             else:
-                late = False
-                if tag.frame.arbitration_id == self._tpdo1:
-                    latency = arrival - tag.sync_q
-                    self.stats.sync_to_tpdo.append(latency)
-                    late = latency > self.window_ns
-                    self.stats.late_tpdos += late
-                self._to_master.append((arrival, tag.frame, late))
-                self.frames_to_master += 1
+                self._to_ctrl(arrival, tag)
                 if until_master:
                     return
+
+    def _commit(self) -> None:
+        """The next transmission on the wire, in flight until its last bit."""
+        sent = self.bus.commit()
+        tx = sent.transmission
+        self._note(tx, sent.frame)
+        if tx.node == CONTROLLER:
+            self._ctrl_next()
+        self._in_flight = (tx.last_bit_ns, sent.tag)
+
+    def _to_ctrl(self, arrival: int, tag: _Sent) -> None:
+        """A plant frame's last bit is gone: the controller may take it (a TPDO1 judged against its deadline)."""
+        late = False
+        if tag.frame.arbitration_id == self._tpdo1:
+            latency = arrival - tag.sync_q
+            self.stats.sync_to_tpdo.append(latency)
+            late = latency > self.window_ns
+            self.stats.late_tpdos += late
+        self._to_master.append((arrival, tag.frame, late))
+        self._timed_for_master += 1
+        self.frames_to_master += 1
+
+    def _note_to_plant(self, arrival: int, tag: _Sent) -> None:
+        cob = tag.frame[0]
+        if cob == can_map.SYNC_COB_ID:
+            self._plant_sync_q = tag.sync_q
+        elif cob == self._rpdo1:
+            self.stats.sync_to_rpdo.append(arrival - tag.sync_q)
 
     def _rig_pending(self) -> bool:
         return self.bus.pending > 0
@@ -330,10 +362,7 @@ class TimedCanWire:
         cob, data = tag.frame
         grid = self.grid_ns
         self.app.wire_arrival_ns = (arrival + grid // 2) // grid * grid
-        if cob == can_map.SYNC_COB_ID:
-            self._plant_sync_q = tag.sync_q
-        elif cob == self._rpdo1:
-            self.stats.sync_to_rpdo.append(arrival - tag.sync_q)
+        self._note_to_plant(arrival, tag)
         try:
             frames = self.node.exchange(cob, data, self.scheduler.now())
         finally:
@@ -342,8 +371,10 @@ class TimedCanWire:
 
     def _plant_frames(self, frames: list[Frame], at_ns: int) -> None:
         for f in frames:
-            data = bytes(f.data)
-            self.bus.submit(PLANT, at_ns, frame_bits(f.arbitration_id, data), _Sent(f, False, self._plant_sync_q))
+            if f.arbitration_id == self._heartbeat:  # beside the wire: a wall-clock timer in lockstep
+                self._untimed_one(f)
+                continue
+            self.bus.submit(PLANT, at_ns, frame_bits(f.arbitration_id, bytes(f.data)), _Sent(f, False, self._plant_sync_q))
 
     # -- figures ------------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any] | None:
@@ -369,7 +400,7 @@ class TimedCanWire:
         }
 
 
-def _grid_of(app: PlantApplication) -> int:
-    cfg = getattr(app.arm, "cfg", None)
+def _grid_of(app: PlantApplication | None) -> int:
+    cfg = getattr(app.arm, "cfg", None) if app is not None else None
     step = getattr(cfg, "internal_step_s", None)
     return round(float(step) * 1e9) if step else DEFAULT_GRID_NS

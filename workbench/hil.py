@@ -259,8 +259,10 @@ class HilRig:
             raise RigSettingError(f"unknown rig clock {self.clock!r} (cosim, lockstep, realtime)")
         if self.processes and self.clock == "cosim":
             raise RigSettingError("processes=True goes with the lockstep or realtime clock (the co-simulation is one thread)")
-        if self.clock != "cosim" and any(str(part.get("can_bitrate", 0) or 0) != "0" for part in (self.common, self.controller, self.plant_settings)):
-            raise RigSettingError("can_bitrate (the simulated CAN wire) runs in the co-simulation only: clock='cosim'")
+        if (self.processes or self.clock == "realtime") and any(
+            str(part.get("can_bitrate", 0) or 0) != "0" for part in (self.common, self.controller, self.plant_settings)
+        ):
+            raise RigSettingError("can_bitrate (the simulated CAN wire) runs in simulated time in one process: clock='cosim', or 'lockstep' without processes")
         if self.mcap is True and self.outputs is None:
             raise RigSettingError("mcap=True records into <outputs>/<name>.mcap: give outputs (or mcap=PATH)")
         if self.mcap and self.layout == "one process":

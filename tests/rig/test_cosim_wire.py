@@ -169,16 +169,34 @@ def test_a_restbus_on_the_rigs_identifiers_or_unparsable_is_refused(tmp_path: Pa
         _run({"can_bitrate": 1_000_000, "can_restbus": str(broken)})
 
 
-def test_other_clocks_refuse_the_wire() -> None:
+def test_real_time_and_processes_refuse_the_wire() -> None:
     from workbench.composition import run_in_process
     from workbench.hil import HilRig, RigSettingError
 
-    with pytest.raises(ValueError, match="co-simulation only"):
-        run_in_process(controller={"duration_s": 0.1}, common={"can_bitrate": 500_000})
-    with pytest.raises(RigSettingError, match="co-simulation only"):
-        HilRig(clock="lockstep", common={"can_bitrate": 500_000})
-    with pytest.raises(TransportError, match="co-simulation only"):
+    with pytest.raises(ValueError, match="needs simulated time"):
+        run_in_process(controller={"duration_s": 0.1}, common={"can_bitrate": 500_000, "clock": "realtime"})
+    with pytest.raises(RigSettingError, match="simulated time in one process"):
+        HilRig(clock="lockstep", processes=True, common={"can_bitrate": 500_000})
+    with pytest.raises(RigSettingError, match="simulated time in one process"):
+        HilRig(clock="realtime", common={"can_bitrate": 500_000})
+    with pytest.raises(TransportError, match="simulated time only"):
         open_can_bus(PlantSettings(can_interface="virtual", can_bitrate=500_000))
+
+
+def test_late_tpdo1s_are_the_same_in_the_one_process_lockstep_rig(tmp_path: Path) -> None:
+    """The blockers at 125 kbit/s on the wire between two threads: the same late ticks, the same record."""
+    from workbench.composition import run_in_process
+
+    dbc = tmp_path / "blockers.dbc"
+    dbc.write_text(BLOCKERS)
+    common = {"can_bitrate": 125_000, "can_restbus": str(dbc)}
+    cosim = _run(common)
+    one = run_in_process(controller=dict(CONTROLLER), common=common)
+    assert one.result.error is None and one.can_bus is not None
+    assert one.can_bus == cosim.can_bus and one.can_bus["late_tpdo1"] == 200
+    a, b = _columns(cosim), _columns(one)
+    for name in a:
+        assert np.array_equal(a[name], b[name], equal_nan=True), name
 
 
 def test_the_bench_item_prices_the_wire_per_frame() -> None:
