@@ -100,7 +100,7 @@ class CommonSettings(BaseSettings):
     node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
     can_bitrate: int = Field(
         0,
-        description="CAN bit rate of the simulated wire (co-simulation): 0 = no wire model (frames take no time), else 125000, 250000, 500000 or 1000000",
+        description="CAN bit rate of the simulated wire (co-simulation, one-process lockstep): 0 = no wire model (frames take no time), else 125000, 250000, 500000 or 1000000",
     )
     can_restbus: str = Field("", description="DBC of the rest of the bus sent beside the rig on the simulated wire (needs can_bitrate); empty: none")
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")

@@ -150,7 +150,7 @@ class RunRecord:
     """The plant's channels beside their faults (true and faulted volts, the faults acting), in order: only
     while it has channel faults (docs/fault-insertion.md; a co-simulated run with ``outputs``: only when recorded)."""
     can_bus: dict[str, Any] | None = None
-    """The simulated CAN wire's figures (co-simulation with ``can_bitrate`` set; None without the wire,
+    """The simulated CAN wire's figures (co-simulation or one-process lockstep with ``can_bitrate`` set; None without the wire,
     docs/can-wire.md "In the simulated rig"): ``bitrate``, ``restbus``, ``busy_mean_pct`` and ``busy_max_pct``
     (busy share per 100 ms window), ``frames_per_s``, ``bits_per_s``, ``sync_to_tpdo1_us`` and ``sync_to_rpdo1_us``
     (``min``, ``p50``, ``max``: SYNC queued to TPDO1 at the controller, to RPDO1 at the plant), ``late_tpdo1`` (after the
