@@ -168,7 +168,9 @@ class TimedCanWire:
         self._rb_next: Instance | None = None
         self._rb_frames: dict[tuple[str, int], FrameBits] = {}
         self._sync_frames: dict[bytes, FrameBits] = {}
-        ids = can_map.cob_ids(node_id if node_id is not None else self.node.node_id)
+        if node_id is None:
+            node_id = node.node_id if node is not None else can_map.DEFAULT_NODE_ID
+        ids = can_map.cob_ids(node_id)
         self._tpdo1, self._rpdo1, self._heartbeat = ids["tpdo1"], ids["rpdo1"], ids["heartbeat"]
         self.frames_to_node = 0
         self.frames_to_master = 0
