@@ -225,3 +225,20 @@ def test_a_wire_whose_delays_stay_inside_the_first_sub_step_changes_no_sample() 
     slow = _run({"can_bitrate": 125_000})
     assert slow.can_bus["sync_to_rpdo1_us"]["min"] > 1500
     assert not np.array_equal(_columns(slow)["defl1_in"], direct["defl1_in"])
+
+
+def test_the_figures_reach_the_run_record_its_summary_and_the_recording(tmp_path: Path) -> None:
+    from workbench.hil import HilRig
+    from workbench.recording.reader import Recording
+
+    wired = HilRig(clock="cosim", common={"can_bitrate": 500_000}, mcap=tmp_path / "wired.mcap", duration_s=1.0).run()
+    assert wired.can_bus is not None and wired.can_bus["bitrate"] == 500_000
+    assert "CAN 500 kbit/s busy" in wired.summary() and wired.run_facts()["can_bus"] == wired.can_bus
+    recorded = Recording.load(tmp_path / "wired.mcap", only=("can/bus_load",)).data("can/bus_load")
+    assert recorded == [wired.can_bus]
+    plain = HilRig(clock="cosim", mcap=tmp_path / "plain.mcap", duration_s=1.0).run()
+    assert plain.can_bus is None and "CAN" not in plain.summary() and "can_bus" not in plain.run_facts()
+    assert Recording.load(tmp_path / "plain.mcap").data("can/bus_load") == []
+    one = HilRig(clock="lockstep", common={"can_bitrate": 500_000}, duration_s=1.0).run()
+    assert one.layout == "one process" and one.can_bus is not None
+    assert one.can_bus == wired.can_bus  # the same frames on the wire between two threads
