@@ -42,8 +42,9 @@ time: the tick gets no sample and holds the last one
 
 from __future__ import annotations
 
+from array import array
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -95,7 +96,7 @@ def load_restbus(path: str, bitrate: int, node_id: int) -> Restbus:
     return restbus
 
 
-def _us(values: list[int]) -> dict[str, float | None]:
+def _us(values: Sequence[int]) -> dict[str, float | None]:
     """min, p50 (the lower median: a figure seen, never one between two modes) and max of nanosecond figures, in microseconds (None: no figure)."""
     if not values:
         return {"min": None, "p50": None, "max": None}
@@ -107,8 +108,12 @@ def _us(values: list[int]) -> dict[str, float | None]:
 class WireStats:
     """What the wire saw: every transmission's times and the control cycle's latencies (ns)."""
 
-    intervals: list[BusyInterval] = field(default_factory=list)
-    delays: dict[int, list[int]] = field(default_factory=dict)
+    starts: array[int] = field(default_factory=lambda: array("q"))
+    """Each transmission's SOF, end (intermission included), identifier and bits (with its queuing delay: 32 bytes a frame)."""
+    ends: array[int] = field(default_factory=lambda: array("q"))
+    ids: array[int] = field(default_factory=lambda: array("i"))
+    bits: array[int] = field(default_factory=lambda: array("i"))
+    delays: dict[int, array[int]] = field(default_factory=dict)
     """Queuing delay (queued to SOF) per identifier."""
     sync_to_tpdo: list[int] = field(default_factory=list)
     """SYNC queued to its TPDO1 delivered to the controller."""
@@ -357,8 +362,15 @@ class TimedCanWire:
         return self.bus.pending > 0
 
     def _note(self, tx: Any, frame: FrameBits) -> None:
-        self.stats.intervals.append(BusyInterval(tx.start_ns, tx.end_ns, tx.arbitration_id, frame.n_bits))
-        self.stats.delays.setdefault(tx.arbitration_id, []).append(tx.queuing_delay_ns)
+        s = self.stats
+        s.starts.append(tx.start_ns)
+        s.ends.append(tx.end_ns)
+        s.ids.append(tx.arbitration_id)
+        s.bits.append(frame.n_bits)
+        delays = s.delays.get(tx.arbitration_id)
+        if delays is None:
+            delays = s.delays[tx.arbitration_id] = array("q")
+        delays.append(tx.queuing_delay_ns)
 
     def _deliver_to_plant(self, arrival: int, tag: _Sent) -> None:
         cob, data = tag.frame
@@ -382,10 +394,11 @@ class TimedCanWire:
     def summary(self) -> dict[str, Any] | None:
         """The bus load and the control cycle's latencies (docs/can-wire.md); None before the first SYNC."""
         s = self.stats
-        if s.first_ns is None or not s.intervals:
+        if s.first_ns is None or not s.starts:
             return None
-        end = max(iv.end_ns for iv in s.intervals)
-        report = bus_load(s.intervals, self.bitrate, LOAD_WINDOW_NS, start_ns=s.first_ns, end_ns=end)
+        end = max(s.ends)
+        intervals = [BusyInterval(*iv) for iv in zip(s.starts, s.ends, s.ids, s.bits, strict=True)]
+        report = bus_load(intervals, self.bitrate, LOAD_WINDOW_NS, start_ns=s.first_ns, end_ns=end)
         windows = [w.busy for w in report.windows]
         return {
             "bitrate": self.bitrate,
