@@ -69,9 +69,11 @@ CONTROLLER = "controller"
 PLANT = "plant"
 LOAD_WINDOW_NS = 100_000_000
 """The window of the busy share's maximum (100 ms, as ``python -m service_kit.can_wire.bus_load``)."""
+RECV_FOREVER_NS = 3600 * 1_000_000_000
+"""``recv(None)`` on a wire that the restbus keeps busy: an hour of simulated time, then None."""
 DEFAULT_GRID_NS = 1_000_000
 """The plant's sub-step when its model names none (the built-in arm's ``internal_step_s``)."""
-_RESTBUS = object()
+RESTBUS_TAG = object()
 
 
 def rig_identifiers(node_id: int) -> dict[int, str]:
@@ -124,7 +126,7 @@ class WireStats:
 
 
 @dataclass
-class _Sent:
+class SentTag:
     frame: Any
     to_plant: bool
     sync_q: int
@@ -152,14 +154,14 @@ class TimedCanWire:
         self.bitrate = bitrate
         self.bus = OnlineBus(bitrate)
         self.ts_ns = round(sample_period_s * 1e9)
-        self.grid_ns = grid_ns if grid_ns is not None else _grid_of(app)
+        self.grid_ns = grid_ns if grid_ns is not None else grid_of(app)
         self.window_ns = round(TPDO_WINDOW * self.ts_ns)
         self.restbus = restbus
         self.stats = WireStats()
         self._to_master: deque[Any] = deque()
         """Frames for the controller: (arrival ns, or None for an untimed one; the frame; late)."""
         self._timed_for_master = 0
-        self._ctrl_fifo: deque[tuple[int, FrameBits, _Sent]] = deque()
+        self._ctrl_fifo: deque[tuple[int, FrameBits, SentTag]] = deque()
         self._ctrl_on_bus = False
         self._started = False
         self._syncs = 0
@@ -167,7 +169,7 @@ class TimedCanWire:
         self._ctrl_now = 0
         self._ctrl_sync_q = 0
         self._plant_sync_q = 0
-        self._in_flight: tuple[int, _Sent] | None = None
+        self._in_flight: tuple[int, SentTag] | None = None
         self._last_tpdo_late = False
         self._rb_iter: Iterator[Instance] | None = None
         self._rb_next: Instance | None = None
@@ -195,9 +197,9 @@ class TimedCanWire:
             self._direct(arbitration_id, data)
             return
         q = max(self._ctrl_now, self._ctrl_sync_q)
-        self._ctrl_submit(q, frame_bits(arbitration_id, data), _Sent((arbitration_id, data), True, self._ctrl_sync_q))
+        self._ctrl_submit(q, frame_bits(arbitration_id, data), SentTag((arbitration_id, data), True, self._ctrl_sync_q))
 
-    def _ctrl_submit(self, q: int, frame: FrameBits, tag: _Sent) -> None:
+    def _ctrl_submit(self, q: int, frame: FrameBits, tag: SentTag) -> None:
         """The controller's transmit queue is first in, first out (python-can's send queue): a frame
         contends once the one sent before it has won the bus."""
         self._ctrl_fifo.append((q, frame, tag))
@@ -226,7 +228,7 @@ class TimedCanWire:
         frame = self._sync_frames.get(data)
         if frame is None:
             frame = self._sync_frames[data] = frame_bits(can_map.SYNC_COB_ID, data)
-        self._ctrl_submit(q, frame, _Sent((can_map.SYNC_COB_ID, data), True, q))
+        self._ctrl_submit(q, frame, SentTag((can_map.SYNC_COB_ID, data), True, q))
 
     def _start(self) -> None:
         self._started = True
@@ -257,12 +259,12 @@ class TimedCanWire:
                 self.scheduler.wait(timeout)
             self._untimed(self.node.poll_frames(self.scheduler.now()))
             return self._take() if self._to_master else None
-        limit = self._ctrl_now + round(timeout * 1e9) if timeout is not None else None
+        limit = self._ctrl_now + (round(timeout * 1e9) if timeout is not None else RECV_FOREVER_NS)
         self._run(limit, until_master=True)
         if self._to_master:
             return self._take()
         if timeout:  # nothing came: the time passes, the node's timers run
-            self._ctrl_now = max(self._ctrl_now, limit or 0)
+            self._ctrl_now = max(self._ctrl_now, limit)
             self.scheduler.wait(timeout)
             self._plant_frames(self.node.poll_frames(self.scheduler.now()), self._ctrl_now)
         return None
@@ -301,7 +303,7 @@ class TimedCanWire:
             frame = self._rb_frames.get(key)
             if frame is None:
                 frame = self._rb_frames[key] = m.frame(inst.k)
-            self.bus.submit(m.node, inst.time_ns, frame, _RESTBUS)
+            self.bus.submit(m.node, inst.time_ns, frame, RESTBUS_TAG)
             self._rb_next = next(it, None)
 
     def _run(self, limit: int | None, *, until_master: bool) -> None:
@@ -321,7 +323,7 @@ class TimedCanWire:
             if limit is not None and arrival > limit:
                 return
             self._in_flight = None
-            if tag is _RESTBUS:
+            if tag is RESTBUS_TAG:
                 continue
             if tag.to_plant:
                 self._deliver_to_plant(arrival, tag)
@@ -339,7 +341,7 @@ class TimedCanWire:
             self._ctrl_next()
         self._in_flight = (tx.last_bit_ns, sent.tag)
 
-    def _to_ctrl(self, arrival: int, tag: _Sent) -> None:
+    def _to_ctrl(self, arrival: int, tag: SentTag) -> None:
         """A plant frame's last bit is gone: the controller may take it (a TPDO1 judged against its deadline)."""
         late = False
         if tag.frame.arbitration_id == self._tpdo1:
@@ -351,7 +353,7 @@ class TimedCanWire:
         self._timed_for_master += 1
         self.frames_to_master += 1
 
-    def _note_to_plant(self, arrival: int, tag: _Sent) -> None:
+    def _note_to_plant(self, arrival: int, tag: SentTag) -> None:
         cob = tag.frame[0]
         if cob == can_map.SYNC_COB_ID:
             self._plant_sync_q = tag.sync_q
@@ -372,7 +374,7 @@ class TimedCanWire:
             delays = s.delays[tx.arbitration_id] = array("q")
         delays.append(tx.queuing_delay_ns)
 
-    def _deliver_to_plant(self, arrival: int, tag: _Sent) -> None:
+    def _deliver_to_plant(self, arrival: int, tag: SentTag) -> None:
         cob, data = tag.frame
         grid = self.grid_ns
         self.app.wire_arrival_ns = (arrival + grid // 2) // grid * grid
@@ -388,7 +390,7 @@ class TimedCanWire:
             if f.arbitration_id == self._heartbeat:  # beside the wire: a wall-clock timer in lockstep
                 self._untimed_one(f)
                 continue
-            self.bus.submit(PLANT, at_ns, frame_bits(f.arbitration_id, bytes(f.data)), _Sent(f, False, self._plant_sync_q))
+            self.bus.submit(PLANT, at_ns, frame_bits(f.arbitration_id, bytes(f.data)), SentTag(f, False, self._plant_sync_q))
 
     # -- figures ------------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any] | None:
@@ -415,7 +417,7 @@ class TimedCanWire:
         }
 
 
-def _grid_of(app: PlantApplication | None) -> int:
+def grid_of(app: PlantApplication | None) -> int:
     cfg = getattr(app.arm, "cfg", None) if app is not None else None
     step = getattr(cfg, "internal_step_s", None)
     return round(float(step) * 1e9) if step else DEFAULT_GRID_NS

@@ -32,7 +32,7 @@ import can
 from plant_emulator.service import PlantApplication
 from service_kit.can_wire.bits import frame_bits
 from service_kit.can_wire.restbus.traffic import Restbus
-from workbench.cosim_wire import _RESTBUS, DEFAULT_GRID_NS, PLANT, TimedCanWire, _grid_of, _Sent
+from workbench.cosim_wire import DEFAULT_GRID_NS, PLANT, RECV_FOREVER_NS, RESTBUS_TAG, SentTag, TimedCanWire, grid_of
 
 WALL_GUARD_S = 120.0
 """A station that waits this long in wall time for the other (which died) gets nothing."""
@@ -61,7 +61,7 @@ class LockstepWire(TimedCanWire):
     def bind_application(self, app: PlantApplication) -> None:
         """The plant's application: the model advances to each arrival (:attr:`PlantApplication.wire_arrival_ns`)."""
         self.app = app
-        self.grid_ns = _grid_of(app)
+        self.grid_ns = grid_of(app)
 
     # -- the controller -------------------------------------------------------------------------------
     def send_frame(self, arbitration_id: int, data: bytes) -> None:
@@ -80,7 +80,7 @@ class LockstepWire(TimedCanWire):
                 if not self._to_master:
                     self._cv.wait_for(lambda: bool(self._to_master) or self._closed, timeout)
                 return self._take() if self._to_master else None
-            limit = self._ctrl_now + round(timeout * 1e9) if timeout is not None else None
+            limit = self._ctrl_now + (round(timeout * 1e9) if timeout is not None else RECV_FOREVER_NS)
             self._ctrl_limit, self._ctrl_waiting = limit, True
             try:
                 while True:
@@ -115,7 +115,7 @@ class LockstepWire(TimedCanWire):
             if self._plant_now is None or cob == self._heartbeat:
                 self._untimed_one(msg)
             else:
-                self.bus.submit(PLANT, self._plant_now, frame_bits(cob, bytes(msg.data)), _Sent(msg, False, self._plant_sync_q))
+                self.bus.submit(PLANT, self._plant_now, frame_bits(cob, bytes(msg.data)), SentTag(msg, False, self._plant_sync_q))
             self._cv.notify_all()
 
     def plant_recv(self, timeout: float | None) -> can.Message | None:
@@ -149,7 +149,7 @@ class LockstepWire(TimedCanWire):
                 return
             if self._in_flight is not None:
                 arrival, tag = self._in_flight
-                if tag is _RESTBUS:
+                if tag is RESTBUS_TAG:
                     self._in_flight = None
                     continue
                 if tag.to_plant:
