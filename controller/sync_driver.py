@@ -37,6 +37,8 @@ class SyncDriver:
         self.lockstep, self.faults = lockstep, faults
         self._ts = sample_period_s
         self._lockstep_timeout_s = lockstep_timeout_s
+        self._late = getattr(plant.bus, "tpdo_late", None)
+        """A simulated wire's verdict on the last TPDO1 (workbench.cosim_wire): late after its deadline."""
 
     def emit(self, tick: int) -> None:
         """The SYNC of ``tick`` (fault injection may drop it on the bus)."""
@@ -54,7 +56,10 @@ class SyncDriver:
         """This tick's four TPDO1 words; None when its SYNC or it was lost."""
         if self.faults is not None:
             return self._faulted_sample(self.faults, tick)
-        return self._lockstep_sample(tick) if self.lockstep else self.plant.wait_tpdo(TPDO_WINDOW * self._ts)
+        if not self.lockstep:
+            return self.plant.wait_tpdo(TPDO_WINDOW * self._ts)
+        words = self._lockstep_sample(tick)
+        return None if self._late is not None and self._late() else words
 
     def _faulted_sample(self, faults: FaultStage, tick: int) -> tuple[int, ...] | None:
         """This tick's TPDO1 through the link faults: None when its SYNC or it was lost."""

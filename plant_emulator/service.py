@@ -191,6 +191,12 @@ class PlantApplication:
         self.lockstep = settings.clock == "lockstep"
         """Each SYNC advances the arm one sample period (else: the wall clock, ``_catch_up``)."""
         self.realtime = settings.clock == "realtime"
+        self.wire_arrival_ns: int | None = None
+        """The simulated CAN wire's time of the frame being handled (its last bit on the
+        plant's sub-step grid, ns since the model's start; docs/can-wire.md "In the simulated
+        rig"): the model advances to it before a SYNC's sample or an RPDO1's D/A. None (no
+        wire model): one sample period per SYNC, the D/A at once."""
+        self._wire_fed_ns = 0
         self._recording_truth = bool(settings.truth_record)
         self._side_channels_due = False
         self.xcp: PlantXcp | None = None
@@ -279,7 +285,9 @@ class PlantApplication:
             xcp = self.xcp
             if xcp is not None:
                 xcp.before_step()
-            if self.lockstep:
+            if self.wire_arrival_ns is not None:
+                self._advance_to_arrival(self.wire_arrival_ns)
+            elif self.lockstep:
                 self.arm.advance(self.sample_period_s)
             else:
                 self._catch_up()
@@ -321,11 +329,19 @@ class PlantApplication:
             self._side_channels_due = False
             self._publish_side_channels()
 
+    def _advance_to_arrival(self, t_ns: int) -> None:
+        """The simulated wire: the model to ``t_ns`` (never back: a frame on the same sub-step adds nothing)."""
+        if t_ns > self._wire_fed_ns:
+            self.arm.advance((t_ns - self._wire_fed_ns) / 1e9)
+            self._wire_fed_ns = t_ns
+
     def on_outputs(self, volts: npt.NDArray[np.float64]) -> None:
         if self._side_channels_due:
             self.flush_side_channels()
         if self.realtime:
             self._catch_up()
+        elif self.wire_arrival_ns is not None:
+            self._advance_to_arrival(self.wire_arrival_ns)
         if not self.held:
             faults = self.channel_faults
             if faults is not None and faults.on_outputs:
@@ -339,6 +355,8 @@ class PlantApplication:
             self.flush_side_channels()
         if self.realtime:
             self._catch_up()
+        elif self.wire_arrival_ns is not None:
+            self._advance_to_arrival(self.wire_arrival_ns)
         if not self.held:
             faults = self.channel_faults
             if faults is not None and faults.on_outputs:
@@ -652,6 +670,9 @@ def serve(
             publish_channel_truth=port.publish_channel_truth,
         )
         app.scenario_inbox = port.inbox
+        bind = getattr(bus, "bind_application", None)
+        if callable(bind):  # a simulated wire (workbench.lockstep_wire): the model advances to each arrival
+            bind(app)
         node = CanopenNode(app, node_config(settings))
         app.set_fault = node.set_fault
         app.xcp = make_plant_xcp(settings, model, app._event)

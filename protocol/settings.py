@@ -79,6 +79,10 @@ def _is_nan(value: Any) -> bool:
     return False
 
 
+CAN_BITRATES: tuple[int, ...] = (125_000, 250_000, 500_000, 1_000_000)
+"""The bit rates ``can_bitrate`` takes beside 0 (``service_kit.can_wire.timing.STANDARD_BITRATES``, tested equal)."""
+
+
 class CommonSettings(BaseSettings):
     """Settings every program reads."""
 
@@ -93,9 +97,12 @@ class CommonSettings(BaseSettings):
     can_interface: str = Field("udp_multicast", description="python-can interface: udp_multicast, virtual, socketcan, ...")
     can_channel: str = Field("239.74.163.2", description="python-can channel (multicast group, vcan0, ...)")
     can_port: int = Field(43113, ge=1, le=65535, description="UDP port of the udp_multicast interface (one per rig)")
-    can_bitrate: int = Field(0, description="ralf-hil up: the rig's CAN on a wire arbiter at this bit rate (125000, 250000, 500000, 1000000; 0: off)")
-    can_restbus: str = Field("", description="ralf-hil up: a DBC whose cyclic messages the restbus sends on the wire (with can_bitrate)")
     node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
+    can_bitrate: int = Field(
+        0,
+        description="CAN bit rate of the wire model: 0 = none (frames take no time), else 125000, 250000, 500000 or 1000000 (simulated time in co-simulation and one-process lockstep; a wire arbiter under ralf-hil up)",
+    )
+    can_restbus: str = Field("", description="DBC of the rest of the bus sent beside the rig on the wire (needs can_bitrate); empty: none")
     clock: Literal["realtime", "lockstep"] = Field("realtime", description="realtime: wall-clock SYNC; lockstep: one plant step per SYNC, as fast as possible")
     sample_rate_hz: float = Field(200.0, ge=1, le=5000, description="Control and identification sample rate")
     health_period_s: float = Field(1.0, ge=0.01, le=60, description="Period of health messages on ralf/<rig>/health/<service>")
@@ -227,6 +234,20 @@ class CommonSettings(BaseSettings):
         # Settings are dumped into recordings and run records, which users share:
         # where the credentials live is no business of theirs.
         return CREDENTIALS_FILE_MASK if value else ""
+
+    @field_validator("can_bitrate")
+    @classmethod
+    def _can_bitrate(cls, value: int) -> int:
+        if value != 0 and value not in CAN_BITRATES:
+            allowed = ", ".join(str(r) for r in CAN_BITRATES)
+            raise ValueError(f"{value} bit/s is not a CAN bit rate the wire model runs at: 0 (no wire) or one of {allowed}")
+        return value
+
+    @model_validator(mode="after")
+    def _restbus_needs_wire(self) -> CommonSettings:
+        if self.can_restbus and not self.can_bitrate:
+            raise ValueError(f"RALF_CAN_RESTBUS={self.can_restbus} needs RALF_CAN_BITRATE (a restbus takes wire time: 125000, 250000, 500000 or 1000000)")
+        return self
 
     @model_validator(mode="after")
     def _user_has_password(self) -> CommonSettings:

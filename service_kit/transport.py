@@ -165,12 +165,22 @@ def open_zenoh(settings: CommonSettings, retry_for_s: float = 30.0, sleep: Any =
                 sleep(0.5)
 
 
+WIRE_COSIM_ONLY = (
+    "RALF_CAN_BITRATE={bitrate}: a bus of one service alone carries frames in no wire time; the wire is simulated "
+    "in co-simulation and the one-process lockstep rig, and ralf-hil up --can-bitrate puts the processes on a wire arbiter (set 0)"
+)
+WIRE_INTERFACES = ("ralfhub", "ralfwire")
+"""Interfaces that give frames their wire time themselves (the arbiter, the in-process wire)."""
+
+
 def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:
     """Open the CAN bus named by the settings (udp_multicast, virtual,
     socketcan...). udp_multicast frames get the TTL ``can_udp``'s ``ttl``:
     0 (the default) keeps them on this host. With its ``own_frame_filter``
     (the default) udp_multicast is :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`,
     wire-compatible with python-can's, which does not read its own frames back."""
+    if settings.can_bitrate and settings.can_interface not in WIRE_INTERFACES:
+        raise TransportError(WIRE_COSIM_ONLY.format(bitrate=settings.can_bitrate))
     options: dict[str, Any] = {"interface": settings.can_interface, "channel": settings.can_channel}
     if settings.can_interface == "udp_multicast":
         options["port"] = settings.can_port

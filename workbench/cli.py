@@ -649,6 +649,13 @@ def _up_cosim(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) ->
     if args.record:
         summary["recording"] = {"path": args.record, "can_log": args.can_log, **(rec.recording_counts or {})}
         console.print(f"recorded into {args.record}" + (f" (CAN also in {args.can_log})" if args.can_log else ""))
+    if rec.can_bus is not None:
+        b = summary["can_bus"] = rec.can_bus
+        console.print(
+            f"CAN wire {b['bitrate'] // 1000} kbit/s: busy {b['busy_mean_pct']:.1f} % (max {b['busy_max_pct']:.1f} % per 100 ms), "
+            f"{b['frames_per_s']:.0f} frames/s, SYNC->RPDO1 p50 {b['sync_to_rpdo1_us']['p50']} us, {b['late_tpdo1']} late TPDO1",
+            highlight=False,
+        )
     add_verdict(summary)
     print_summary(summary, verbose=args.verbose)
     if args.json:

@@ -64,6 +64,8 @@ class InProcessRun:
     wall_time_s: float
     health: dict[str, Health]
     """The last health message of each service (their final one, sent on stop)."""
+    can_bus: dict[str, Any] | None = None
+    """The simulated wire's figures (``can_bitrate`` set), as :attr:`workbench.cosim.CosimRun.can_bus`."""
 
 
 def _local_session() -> zenoh.Session:
@@ -108,8 +110,9 @@ def run_in_process(
         health[msg.service] = msg
 
     health_sub = sess.declare_subscriber(Keys(cs.rig_id).health_all, keep_health)
-    plant_bus = can.Bus(interface="virtual", channel=channel)
-    ctrl_bus = can.Bus(interface="virtual", channel=channel)
+    wire = _wire(cs, ps)
+    plant_bus = wire.plant_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
+    ctrl_bus = wire.controller_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
     dsp_service = DspService(ds, sess)
     threads = [
         threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), kwargs={"owns_process": False}, name="plant", daemon=True),
@@ -125,6 +128,8 @@ def run_in_process(
             t.start()
         result = ctrl.run(stop)
     finally:
+        if wire is not None:
+            wire.shutdown()  # the end's frames (valves to zero, NMT) reach the plant before it stops
         stop.set()
         for t in threads:
             t.join(timeout=10)
@@ -137,4 +142,24 @@ def run_in_process(
         if own_session:
             sess.close()
     ctrl.finish(result)  # the run record, as the controller service writes it at its end
-    return InProcessRun(result=result, controller=ctrl, dsp=dsp_service, wall_time_s=time.monotonic() - started, health=dict(health))
+    return InProcessRun(
+        result=result,
+        controller=ctrl,
+        dsp=dsp_service,
+        wall_time_s=time.monotonic() - started,
+        health=dict(health),
+        can_bus=wire.summary() if wire is not None else None,
+    )
+
+
+def _wire(cs: ControllerSettings, ps: PlantSettings) -> Any:
+    """The simulated CAN wire between the two threads (``can_bitrate`` set; :mod:`workbench.lockstep_wire`), else None."""
+    if not cs.can_bitrate:
+        return None
+    if cs.clock != "lockstep":
+        raise ValueError(f"RALF_CAN_BITRATE={cs.can_bitrate}: the simulated CAN wire needs simulated time (clock lockstep or the co-simulation)")
+    from workbench.cosim_wire import load_restbus
+    from workbench.lockstep_wire import LockstepWire
+
+    restbus = load_restbus(cs.can_restbus, cs.can_bitrate, ps.node_id) if cs.can_restbus else None
+    return LockstepWire(node_id=ps.node_id, bitrate=cs.can_bitrate, sample_period_s=cs.sample_period_s, restbus=restbus)

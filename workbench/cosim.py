@@ -52,6 +52,7 @@ from protocol.messages import ConfigChange, Health, decode, encode
 from protocol.settings import ControllerSettings, DspSettings, PlantSettings, load_settings
 from protocol.tf_codec import encode_tf
 from service_kit.clock import SimulatedScheduler
+from workbench.cosim_wire import TimedCanWire, load_restbus
 
 
 class DirectCanWire:
@@ -193,6 +194,8 @@ class CosimRun:
     health: dict[str, Health]
     recording: dict[str, int] | None = None
     """The recorder's counters when the run was recorded (``record=``)."""
+    can_bus: dict[str, Any] | None = None
+    """The simulated wire's bus load and latencies (``can_bitrate`` set: :meth:`workbench.cosim_wire.TimedCanWire.summary`)."""
 
 
 def _plant_health(app: PlantApplication, node: CanopenNode) -> Health:
@@ -265,6 +268,7 @@ def run_cosim(
     only reads it). The controller's ``run_record`` is written at the end,
     whole, as the controller service writes it (:meth:`ControllerService.finish`)."""
     cs, ps, ds = settings_for(controller, plant, dsp, common)
+    restbus = load_restbus(cs.can_restbus, cs.can_bitrate, ps.node_id) if cs.can_restbus else None  # refused (one line) before anything runs
     model = build_plant_model(ps)  # a bad FMU is refused here (ConfigError), before anything runs
     try:
         scheduler = SimulatedScheduler()
@@ -272,7 +276,8 @@ def run_cosim(
         app = PlantApplication(ps, arm=model, clock=scheduler.now)
         node = CanopenNode(app, node_config(ps))
         app.set_fault = node.set_fault
-        wire: Any = DirectCanWire(node, scheduler)
+        timed = TimedCanWire(node, scheduler, app, bitrate=cs.can_bitrate, sample_period_s=cs.sample_period_s, restbus=restbus) if cs.can_bitrate else None
+        wire: Any = timed if timed is not None else DirectCanWire(node, scheduler)
         core = DspCore(ds)
         load_bank(core.identifier, ds)  # as the DSP service does at its start (RALF_ARX_REGIME_BANK_FILE)
         port: Any = DirectDspPort(core)
@@ -290,6 +295,8 @@ def run_cosim(
             on_start(ctrl)
         result = ctrl.run(scheduler.stop)
     finally:
+        if timed is not None:
+            timed.shutdown()  # the end's frames (valves to zero, NMT) reach the plant
         ctrl.close()
         app.flush_side_channels()  # the last SYNC's truth, if no frame after it flushed it
         if ps.truth_record:
@@ -304,11 +311,14 @@ def run_cosim(
     if ctrl_health is not None:
         health["controller"] = ctrl_health
     recorded: dict[str, int] | None = None
+    can_bus = timed.summary() if timed is not None else None
+    if recording is not None and can_bus is not None:
+        recording.bus_load(can_bus)
     if recording is not None:
         for service, message in health.items():
             recording.health(service, message)
         recorded = recording.close().as_dict()
-    return CosimRun(result=result, controller=ctrl, dsp=core, plant=app, node=node, wall_time_s=wall, health=health, recording=recorded)
+    return CosimRun(result=result, controller=ctrl, dsp=core, plant=app, node=node, wall_time_s=wall, health=health, recording=recorded, can_bus=can_bus)
 
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"

@@ -259,6 +259,10 @@ class HilRig:
             raise RigSettingError(f"unknown rig clock {self.clock!r} (cosim, lockstep, realtime)")
         if self.processes and self.clock == "cosim":
             raise RigSettingError("processes=True goes with the lockstep or realtime clock (the co-simulation is one thread)")
+        if (self.processes or self.clock == "realtime") and any(
+            str(part.get("can_bitrate", 0) or 0) != "0" for part in (self.common, self.controller, self.plant_settings)
+        ):
+            raise RigSettingError("can_bitrate (the simulated CAN wire) runs in simulated time in one process: clock='cosim', or 'lockstep' without processes")
         if self.mcap is True and self.outputs is None:
             raise RigSettingError("mcap=True records into <outputs>/<name>.mcap: give outputs (or mcap=PATH)")
         if self.mcap and self.layout == "one process":
@@ -638,6 +642,7 @@ class HilRig:
             status=_status(run.controller),
             recording_counts=getattr(run, "recording", None),
             channel_truth=list(self.plant.channel_truth),
+            can_bus=getattr(run, "can_bus", None),
             **self._identity(),
         )
 

@@ -149,6 +149,12 @@ class RunRecord:
     channel_truth: list[ChannelTruth] = field(default_factory=list)
     """The plant's channels beside their faults (true and faulted volts, the faults acting), in order: only
     while it has channel faults (docs/fault-insertion.md; a co-simulated run with ``outputs``: only when recorded)."""
+    can_bus: dict[str, Any] | None = None
+    """The simulated CAN wire's figures (co-simulation or one-process lockstep with ``can_bitrate`` set; None without the wire,
+    docs/can-wire.md "In the simulated rig"): ``bitrate``, ``restbus``, ``busy_mean_pct`` and ``busy_max_pct``
+    (busy share per 100 ms window), ``frames_per_s``, ``bits_per_s``, ``sync_to_tpdo1_us`` and ``sync_to_rpdo1_us``
+    (``min``, ``p50``, ``max``: SYNC queued to TPDO1 at the controller, to RPDO1 at the plant), ``late_tpdo1`` (after the
+    deadline: samples held), ``queuing_delay_us`` per identifier (``n``, ``min``, ``p50``, ``max``)."""
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickled light: a truth list that is only the truth columns again goes as the columns alone."""
@@ -165,7 +171,14 @@ class RunRecord:
     def summary(self) -> str:
         """One line: what the run covered and its verdict."""
         verdict = self.verdict.line() if self.verdict is not None else "not judged"
-        return f"{self.clock} run: {self.ticks} ticks ({self.sim_time_s:.2f} s simulated), {len(self.interrupts)} interrupts; {verdict}"
+        wire = ""
+        if self.can_bus is not None:
+            b = self.can_bus
+            wire = (
+                f"; CAN {b['bitrate'] // 1000} kbit/s busy {b['busy_mean_pct']:.1f} % (max {b['busy_max_pct']:.1f} %), "
+                f"{b['frames_per_s']:.0f} frames/s, {b['late_tpdo1']} late TPDO1"
+            )
+        return f"{self.clock} run: {self.ticks} ticks ({self.sim_time_s:.2f} s simulated), {len(self.interrupts)} interrupts{wire}; {verdict}"
 
     @property
     def max_abs_deflection_in(self) -> float:
@@ -233,4 +246,5 @@ class RunRecord:
             "counters": {k: counters[k] for k in FACT_COUNTERS if k in counters},
             "exit_codes": self.exit_codes,
             "record": self.record_path.name if self.record_path is not None else "",
+            **({"can_bus": self.can_bus} if self.can_bus is not None else {}),
         }

@@ -69,10 +69,12 @@ def wire_request(can_bitrate: int | None, restbus: str | None, overrides: Mappin
     if bitrate not in STANDARD_BITRATES:
         rates = ", ".join(str(r) for r in STANDARD_BITRATES)
         raise SystemExit(f"ralf-hil up: unsupported CAN bit rate {bitrate} bit/s (one of {rates}; 0: off)")
-    if clock == "cosim":
-        raise SystemExit(
-            "ralf-hil up: --can-bitrate puts the rig's processes on a real-time wire; a co-simulation has none (docs/can-wire.md: the simulated wire)"
-        )
+    if clock == "cosim":  # the co-simulation's own simulated wire (docs/can-wire.md), checked by its settings
+        for env in overrides.values():
+            env["RALF_CAN_BITRATE"] = str(bitrate)
+            if dbc:
+                env["RALF_CAN_RESTBUS"] = str(Path(dbc).absolute())
+        return None
     if dbc:
         check_restbus(dbc, bitrate)
     return WireRequest(bitrate, str(Path(dbc).absolute()) if dbc else "")

@@ -57,8 +57,9 @@ def test_the_setting_asks_for_the_wire(monkeypatch: pytest.MonkeyPatch, capsys: 
     monkeypatch.delenv("RALF_CAN_BITRATE")
     assert wire_request(None, None, {"controller": {"RALF_CAN_BITRATE": "250000"}}, "realtime") is not None
     assert wire_request(None, None, {}, "realtime") is None  # off by default
-    with pytest.raises(SystemExit, match="co-simulation"):
-        wire_request(1_000_000, None, {}, "cosim")
+    overrides: dict[str, dict[str, str]] = {"plant": {}, "controller": {}}
+    assert wire_request(1_000_000, None, overrides, "cosim") is None  # the co-simulation's own simulated wire
+    assert all(env["RALF_CAN_BITRATE"] == "1000000" for env in overrides.values())
 
 
 LIGHT_DBC = """VERSION ""

@@ -1038,6 +1038,13 @@ def bench_fmu(ctx: BenchContext, result: dict[str, Any]) -> None:
     run(ctx, result)
 
 
+def bench_can_wire(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """The simulated CAN wire's cost per frame against the same co-simulation without it (:mod:`workbench.bench.can_wire_cost`)."""
+    from workbench.bench.can_wire_cost import bench_can_wire as run
+
+    run(ctx, result)
+
+
 ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "zenoh": bench_zenoh,
     "can": bench_can,
@@ -1048,6 +1055,7 @@ ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "dsp-rigs": bench_dsp_rigs,
     "hotpath": bench_hotpath,
     "fmu": bench_fmu,
+    "can-wire": bench_can_wire,
 }
 FLOOR_ITEMS = ("zenoh", "can")
 QUICK_ITEMS = ("zenoh", "can", "realtime", "cosim", "hotpath")

@@ -165,6 +165,12 @@ class CosimRecording:
     def event(self, message: PlantEvent) -> None:
         self.recorder.on_message(self.keys.plant_events, encode(message), wall_time_s=self.epoch_s + message.sim_time_s, encoding=str(JSON))
 
+    def bus_load(self, summary: dict[str, Any]) -> None:
+        """The simulated wire's figures (``can_bitrate`` set), on ``/can/bus_load`` at the run's end."""
+        from workbench.recording.schemas import CAN_BUS_LOAD_SCHEMA, CAN_BUS_LOAD_TOPIC
+
+        self.recorder.on_record(CAN_BUS_LOAD_TOPIC, CAN_BUS_LOAD_SCHEMA, summary, wall_time_s=self.epoch_s + self.now())
+
     def health(self, service: str, message: Health) -> None:
         self.recorder.on_message(self.keys.health(service), encode(message), wall_time_s=self.epoch_s + self.now(), encoding=str(JSON))
 

@@ -93,7 +93,9 @@ class Recording:
 
     # -- messages -----------------------------------------------------------------------
     def topic(self, suffix: str) -> str:
-        return schemas.CAN_TOPIC if suffix == "can" else f"/ralf/{self.rig_id}/{suffix}"
+        if suffix in ("can", "can/bus_load"):  # the rig's own topics, outside any rig's keys
+            return schemas.CAN_TOPIC if suffix == "can" else schemas.CAN_BUS_LOAD_TOPIC
+        return f"/ralf/{self.rig_id}/{suffix}"
 
     def iter(self, *suffixes: str) -> Iterator[Recorded]:
         topics = {self.topic(s) for s in suffixes}

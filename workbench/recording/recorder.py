@@ -170,6 +170,10 @@ class Recorder:
         """A zenoh sample on ``key`` (its payload bytes, as they travelled)."""
         self._put(("msg", str(key), bytes(payload), time.time() if wall_time_s is None else wall_time_s, str(encoding)))
 
+    def on_record(self, topic: str, schema: Mapping[str, Any], record: Mapping[str, Any], *, wall_time_s: float | None = None) -> None:
+        """A JSON record of the rig's own (not a zenoh sample) on ``topic`` with ``schema``."""
+        self._put(("rec", str(topic), schema, dict(record), time.time() if wall_time_s is None else wall_time_s))
+
     def on_liveliness(self, key: str, alive: bool, *, wall_time_s: float | None = None) -> None:
         """A liveliness token ``ralf/<rig>/alive/<service>`` appeared (True) or vanished."""
         self._put(("alive", str(key), bool(alive), time.time() if wall_time_s is None else wall_time_s))
@@ -235,6 +239,9 @@ class Recorder:
             self._write_can(*item[1:])
         elif kind == "msg":
             self._write_message(*item[1:])
+        elif kind == "rec":
+            _, topic, schema, record, wall = item
+            self._emit(topic, schema, record, wall)
         elif kind == "alive":
             _, key, alive, wall = item
             rig_root = key.rsplit("/", 2)[0]

@@ -187,6 +187,22 @@ LIVELINESS_SCHEMA: Final[dict[str, Any]] = {
     "additionalProperties": False,
 }
 
+CAN_BUS_LOAD_TOPIC: Final = "/can/bus_load"
+"""The simulated CAN wire's bus load and latencies, once at the end of a run with ``can_bitrate`` set."""
+CAN_BUS_LOAD_SCHEMA: Final[dict[str, Any]] = {
+    "title": "ralf.CanBusLoad",
+    "description": "The simulated wire's figures (workbench.cosim_wire.TimedCanWire.summary; times in us)",
+    "type": "object",
+    "properties": {
+        "bitrate": {"type": "integer"},
+        "busy_mean_pct": {"type": "number"},
+        "busy_max_pct": {"type": "number"},
+        "frames_per_s": {"type": "number"},
+        "bits_per_s": {"type": "number"},
+    },
+    "required": ["bitrate", "busy_mean_pct", "busy_max_pct", "frames_per_s", "bits_per_s"],
+}
+
 RAW_SCHEMA: Final[dict[str, Any]] = {
     "title": "ralf.RawPayload",
     "description": "A zenoh payload that did not decode as its key's message (kept, never dropped silently)",
