@@ -107,7 +107,7 @@ class ErrorInjection:
         return bit
 
 
-class _Injector:
+class Injector:
     """One run's state of an :class:`ErrorInjection`: attempts matched, errors made, its random draws."""
 
     def __init__(self, spec: ErrorInjection) -> None:
@@ -214,7 +214,7 @@ def simulate(
     time (needed when errors never stop: a lone error-passive transmitter
     retries for ever); more than ``max_attempts`` attempts raise ValueError."""
     bit = bit_time_ns(bitrate)
-    injectors = [_Injector(e) for e in errors]
+    injectors = [Injector(e) for e in errors]
     all_nodes = sorted({q.node for q in frames} | set(nodes))
     counters = {n: FaultConfinement(rec_after_passive_success=rec_after_passive_success) for n in all_nodes}
     suspend_until = dict.fromkeys(all_nodes, 0)
