@@ -1,0 +1,109 @@
+"""The plant node reports its own CAN error state as CiA 301 says, seen by a
+stock canopen master (its EmcyConsumer) on a ``ralfwire`` bus in one
+process: EMCY 0x8120 on error passive, 0x8140 after bus off, the error reset
+0x0000 when error active again, and the error register's communication bit
+(bit 4) set exactly while the node is not error active. The node runs
+run_node's steps by hand on a manual wire clock, so the timeline is exact."""
+
+from __future__ import annotations
+
+import time
+import uuid
+
+import can
+import canopen
+
+from plant_emulator.canopen_node import CanopenNode, NodeConfig
+from plant_emulator.canopen_node.can_state import error_state_reader
+from service_kit.can_wire.arbitration import ErrorInjection
+from service_kit.can_wire.error_state import ErrorState
+from service_kit.can_wire.wire_bus import ManualWireClock, WireBus
+from tests.plant.support import EDS, FakeApp
+
+BITRATE = 500_000
+
+
+class Driver:
+    """run_node's loop (:mod:`plant_emulator.canopen_node.runner`) as single steps on a manual clock."""
+
+    def __init__(self, node: CanopenNode, bus: WireBus, clock: ManualWireClock) -> None:
+        self.node, self.bus, self.clock = node, bus, clock
+        self.read_state = error_state_reader(bus)
+        assert self.read_state is not None
+        self.refused = 0
+        self.registers: list[tuple[ErrorState, int]] = []
+
+    def serve(self) -> None:
+        now = self.clock.now_ns() / 1e9
+        frames = []
+        while (msg := self.bus.recv(0)) is not None:
+            frames += self.node.handle(msg, now)
+        assert self.read_state is not None
+        state = self.read_state()
+        self.node.can_error_state(state)
+        self.registers.append((state, self.node.error_register))
+        for frame in frames + self.node.poll(now):
+            try:
+                self.bus.send(frame)
+            except can.CanOperationError:
+                self.refused += 1
+
+    def run_out(self) -> None:
+        while True:
+            self.serve()
+            t = self.clock.next_event_ns()
+            if t is None:
+                return
+            self.clock.advance_to(t)
+
+
+def _wait_for(pred, timeout: float = 5.0) -> bool:  # type: ignore[no-untyped-def]
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and not pred():
+        time.sleep(0.005)
+    return bool(pred())
+
+
+def test_error_passive_and_bus_off_reported_to_a_canopen_master() -> None:
+    channel = f"can-state-{uuid.uuid4().hex}"
+    clock = ManualWireClock()
+    node = CanopenNode(FakeApp(), NodeConfig(watchdog_periods=0))
+    bus = WireBus(channel=channel, bitrate=BITRATE, clock=clock, node="plant")
+    network = canopen.Network()
+    network.connect(interface="ralfwire", channel=channel, bitrate=BITRATE, clock=clock, node="master")
+    try:
+        remote = network.add_node(1, str(EDS))
+        drive = Driver(node, bus, clock)
+        wire = bus.wire
+        # Phase 1: the boot-up fails 16 times: TEC 128, error passive; the EMCY (0x081 wins
+        # arbitration over 0x701) goes through, TEC 127: error active, the error reset follows.
+        wire.inject_errors(ErrorInjection(arbitration_id=0x701, node="plant", count=16))
+        drive.run_out()
+        assert _wait_for(lambda: len(remote.emcy.log) == 2)
+        assert [(e.code, e.register) for e in remote.emcy.log] == [(0x8120, 0x11), (0x0000, 0x00)]
+        assert (ErrorState.PASSIVE, 0x11) in drive.registers
+        # Phase 2: the SDO answer fails 17 times: from TEC 126 error passive at once, bus off
+        # at 262. Nothing is sent while bus off; 128 x 11 recessive bits later the node is
+        # error active: the held EMCY 0x8120, then 0x8140 and the error reset.
+        wire.inject_errors(ErrorInjection(node="plant", count=17))
+        network.send_message(0x601, bytes([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0]))
+        drive.run_out()
+        assert _wait_for(lambda: len(remote.emcy.log) == 5)
+        assert [(e.code, e.register) for e in remote.emcy.log[2:]] == [(0x8120, 0x11), (0x8140, 0x11), (0x0000, 0x00)]
+        assert any(s is ErrorState.BUS_OFF for s, _ in drive.registers)
+        for state, register in drive.registers:  # bit 4 (communication) exactly while not error active
+            assert bool(register & 0x10) == (state is not ErrorState.ACTIVE), (state, register)
+        assert node.error_register == 0 and bus.error_status().state is ErrorState.ACTIVE
+        assert node.od.get(0x1003, 1) & 0xFFFF in (0x8120, 0x8140)
+        assert remote.emcy.active == []
+    finally:
+        network.disconnect()
+        bus.shutdown()
+
+
+def test_a_bus_without_error_state_changes_nothing() -> None:
+    bus = can.Bus(interface="virtual", channel=f"can-state-{uuid.uuid4().hex}")
+    try:
+        assert error_state_reader(bus) is None
+    finally:
+        bus.shutdown()
