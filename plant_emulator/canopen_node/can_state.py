@@ -64,4 +64,4 @@ def error_state_reader(bus: can.BusABC) -> Callable[[], ErrorState] | None:
     ``can_error_state`` property, as :class:`service_kit.can_wire.wire_bus.WireBus`'s); else None."""
     if not isinstance(getattr(type(bus), "can_error_state", None), property):
         return None
-    return lambda: bus.can_error_state  # type: ignore[attr-defined,no-any-return]
+    return lambda: bus.can_error_state  # type: ignore[attr-defined]
