@@ -18,14 +18,14 @@ Only a bus that can tell its error state feeds this (a ``ralfwire`` bus's
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Final
-
-import can
 
 from plant_emulator.canopen_node.emcy import EmcyProducer
 from protocol.can_map import EmcyCode
 from service_kit.can_wire.error_state import ErrorState
+from service_kit.can_wire.wire_errors import error_state_reader
+
+__all__ = ["CanStateReporter", "error_state_reader"]
 
 PASSIVE: Final = int(EmcyCode.CAN_ERROR_PASSIVE)
 RECOVERED: Final = int(EmcyCode.CAN_BUS_OFF_RECOVERED)
@@ -57,11 +57,3 @@ class CanStateReporter:
             self.emcy.set_fault(RECOVERED, True)
             self.emcy.set_fault(RECOVERED, False)
         self.emcy.set_fault(PASSIVE, state is ErrorState.PASSIVE)
-
-
-def error_state_reader(bus: can.BusABC) -> Callable[[], ErrorState] | None:
-    """How to read ``bus``'s error state, if its class can tell it (a
-    ``can_error_state`` property, as :class:`service_kit.can_wire.wire_bus.WireBus`'s); else None."""
-    if not isinstance(getattr(type(bus), "can_error_state", None), property):
-        return None
-    return lambda: bus.can_error_state  # type: ignore[attr-defined]

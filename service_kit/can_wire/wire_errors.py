@@ -15,8 +15,10 @@ reached the change.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+
+import can
 
 from service_kit.can_wire.arbitration import INTERMISSION_BITS, ErrorInjection, StateChange
 from service_kit.can_wire.bits import FrameBits
@@ -112,3 +114,12 @@ def monitor_error_attempt(nodes: Sequence[WireNode], was_bus_off: set[str], atte
             done = n.fc.monitor(attempt.tail)
             if done is not None:
                 n.note(end_ns - len(attempt.tail) * bit_ns + done * bit_ns)
+
+
+def error_state_reader(bus: can.BusABC) -> Callable[[], ErrorState] | None:
+    """How to read ``bus``'s own CAN error state, if its class can tell it (a
+    ``can_error_state`` property, as :class:`service_kit.can_wire.wire_bus.WireBus`'s,
+    like a CAN controller's status register); None for any other bus."""
+    if not isinstance(getattr(type(bus), "can_error_state", None), property):
+        return None
+    return lambda: bus.can_error_state  # type: ignore[attr-defined]
