@@ -19,8 +19,11 @@ import can
 
 from controller.plant_link_counters import PlantLinkCounters
 from protocol import can_map
+from protocol.errors import ConfigError
 from service_kit.can_wire.error_state import ErrorState
+from service_kit.can_wire.scenario_errors import CanErrorsNeedWire, attach
 from service_kit.can_wire.wire_errors import error_state_reader
+from service_kit.link_faults import Scenario
 
 PASSIVE: Final = int(can_map.EmcyCode.CAN_ERROR_PASSIVE)
 RECOVERED: Final = int(can_map.EmcyCode.CAN_BUS_OFF_RECOVERED)
@@ -71,3 +74,12 @@ class CanErrorWatch:
         if own is not ErrorState.ACTIVE:
             parts.append(f"the controller's CAN controller is {own.value}")
         return "; ".join(parts) or None
+
+
+def attach_can_errors(bus: can.BusABC | None, scenario: Scenario | None) -> int:
+    """The fault scenario's ``can_errors`` on the controller's bus (a ``ralfwire`` bus:
+    every bus of its channel shares the wire); any other bus refuses them with one line."""
+    try:
+        return attach(bus, scenario)
+    except CanErrorsNeedWire as exc:
+        raise ConfigError(str(exc)) from None
