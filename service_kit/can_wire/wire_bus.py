@@ -58,7 +58,7 @@ from __future__ import annotations
 import copy
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -124,6 +124,17 @@ class ManualWireClock:
         """The earliest time at which one of the clock's wires has something to do."""
         times = [t for w in self._wires if (t := w.next_event_ns()) is not None]
         return min(times) if times else None
+
+    def run(self, each: Callable[[], None], until_ns: int | None = None) -> None:
+        """Calls ``each`` (the nodes' work: read, answer, send) now and after every
+        move of the clock from one wire event to the next, until the wires have
+        nothing left to do or the next event is past ``until_ns``."""
+        while True:
+            each()
+            t = self.next_event_ns()
+            if t is None or (until_ns is not None and t > until_ns):
+                return
+            self.advance_to(t)
 
 
 @dataclass
@@ -224,6 +235,11 @@ class Wire:
             self._seq += 1
             self._pending.append(_Pending(self.clock.now_ns(), self._seq, sender, msg, frame, node))
             self._cond.notify()
+
+    def queued_ids(self) -> list[int]:
+        """The identifiers of the frames waiting for the wire (not yet delivered), in the order they were sent."""
+        with self._cond:
+            return [p.frame.arbitration_id for p in self._pending]
 
     def status(self, node: WireNode) -> ErrorStatus:
         """``node``'s error state and counters at the clock's now."""

@@ -7,6 +7,7 @@ run_node's steps by hand on a manual wire clock, so the timeline is exact."""
 
 from __future__ import annotations
 
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -14,8 +15,10 @@ from collections.abc import Callable
 import can
 import canopen
 
-from plant_emulator.canopen_node import CanopenNode, NodeConfig
+from plant_emulator.canopen_node import CanopenNode, NodeConfig, run_node
 from plant_emulator.canopen_node.can_state import error_state_reader
+from plant_emulator.canopen_node.stepper import serve_once
+from protocol.can_map import Emergency, decode_emcy
 from service_kit.can_wire.arbitration import ErrorInjection
 from service_kit.can_wire.error_state import ErrorState
 from service_kit.can_wire.wire_bus import ManualWireClock, WireBus
@@ -25,37 +28,21 @@ BITRATE = 500_000
 
 
 class Driver:
-    """run_node's loop (:mod:`plant_emulator.canopen_node.runner`) as single steps on a manual clock."""
+    """The node served a step at a time on a manual clock (:func:`plant_emulator.canopen_node.stepper.serve_once`), its error register noted."""
 
     def __init__(self, node: CanopenNode, bus: WireBus, clock: ManualWireClock) -> None:
         self.node, self.bus, self.clock = node, bus, clock
         self.read_state = error_state_reader(bus)
         assert self.read_state is not None
-        self.refused = 0
         self.registers: list[tuple[ErrorState, int]] = []
 
     def serve(self) -> None:
-        now = self.clock.now_ns() / 1e9
-        frames = []
-        while (msg := self.bus.recv(0)) is not None:
-            frames += self.node.handle(msg, now)
+        serve_once(self.bus, self.node, self.clock.now_ns() / 1e9)
         assert self.read_state is not None
-        state = self.read_state()
-        self.node.can_error_state(state)
-        self.registers.append((state, self.node.error_register))
-        for frame in frames + self.node.poll(now):
-            try:
-                self.bus.send(frame)
-            except can.CanOperationError:
-                self.refused += 1
+        self.registers.append((self.read_state(), self.node.error_register))
 
     def run_out(self) -> None:
-        while True:
-            self.serve()
-            t = self.clock.next_event_ns()
-            if t is None:
-                return
-            self.clock.advance_to(t)
+        self.clock.run(self.serve)
 
 
 def _wait_for(pred: Callable[[], bool], timeout: float = 5.0) -> bool:
@@ -108,3 +95,42 @@ def test_a_bus_without_error_state_changes_nothing() -> None:
         assert error_state_reader(bus) is None
     finally:
         bus.shutdown()
+
+
+def test_run_node_reports_what_its_bus_tells() -> None:
+    """The node's own loop (run_node, in its thread, on its own clock) reads the
+    bus's error state: the wire's manual clock holds the node error passive until
+    the loop has queued its EMCY 0x8120; once that has gone through (TEC 127)
+    the loop sends the error reset."""
+    channel = f"can-state-{uuid.uuid4().hex}"
+    clock = ManualWireClock()
+    node = CanopenNode(FakeApp(), NodeConfig(watchdog_periods=0))
+    bus = WireBus(channel=channel, bitrate=BITRATE, clock=clock, node="plant")
+    master = WireBus(channel=channel, bitrate=BITRATE, clock=clock, node="master")
+    wire = bus.wire
+    wire.inject_errors(ErrorInjection(arbitration_id=0x701, node="plant", count=16))
+    stop = threading.Event()
+    thread = threading.Thread(target=run_node, args=(bus, node, stop), kwargs={"max_wait_s": 0.005}, daemon=True)
+    thread.start()
+    try:
+        assert _wait_for(lambda: 0x701 in wire.queued_ids())  # the boot-up
+        while bus.error_status().state is not ErrorState.PASSIVE:
+            t = clock.next_event_ns()
+            assert t is not None
+            clock.advance_to(t)
+        assert _wait_for(lambda: 0x081 in wire.queued_ids())  # the loop saw error passive: EMCY 0x8120
+        emcys: list[Emergency] = []
+
+        def delivered() -> bool:  # the wire runs on, a little idle time at a time, until the reset came
+            clock.run(lambda: None)
+            clock.advance_to(clock.now_ns() + 10 * 2000)
+            emcys.extend(decode_emcy(m.data) for m in iter(lambda: master.recv(0), None) if m.arbitration_id == 0x081)
+            return len(emcys) >= 2
+
+        assert _wait_for(delivered)
+        assert [(e.code, e.register) for e in emcys] == [(0x8120, 0x11), (0x0000, 0x00)]
+    finally:
+        stop.set()
+        thread.join(10.0)
+        bus.shutdown()
+        master.shutdown()
