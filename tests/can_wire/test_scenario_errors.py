@@ -105,3 +105,15 @@ def test_refused_on_a_bus_that_is_not_ralfwire() -> None:
         assert "\n" not in str(info.value)
     finally:
         bus.shutdown()
+
+
+def test_a_cosim_run_refuses_them_in_one_line() -> None:
+    """The co-simulation's CAN link is no wire: a scenario with can_errors is refused, not run without them."""
+    import json
+
+    from workbench.hil import HilRig, RigRunError
+
+    rig = HilRig(controller={"duration_s": 0.2, "tf_download_samples": 0, "fault_scenario": json.dumps({"can_errors": [{"count": 3}]})})
+    with pytest.raises(RigRunError, match="can_errors need the CAN bus on ralfwire") as info:
+        rig.run(0.2)
+    assert "\n" not in str(info.value)
