@@ -58,12 +58,10 @@ class WireNode:
 
     def status_at(self, t_ns: int) -> ErrorStatus:
         """The state and counters in force at ``t_ns`` (the last change at or before it)."""
-        status = ACTIVE_STATUS
-        for c in self.changes:
-            if c.time_ns > t_ns:
-                break
-            status = ErrorStatus(c.state, c.tec, c.rec)
-        return status
+        for c in reversed(self.changes):  # a node's changes are in time order; the newest is the usual answer
+            if c.time_ns <= t_ns:
+                return ErrorStatus(c.state, c.tec, c.rec)
+        return ACTIVE_STATUS
 
 
 @dataclass(frozen=True)

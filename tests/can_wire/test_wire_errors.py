@@ -82,6 +82,7 @@ def test_same_times_and_states_as_the_bus_model(spec: list[tuple[str, int, int, 
         wire_changes = sorted((c for n in wire.nodes for c in n.changes), key=lambda c: (c.time_ns, c.node))
         assert wire_changes == sorted(model.state_changes, key=lambda c: (c.time_ns, c.node))
         for n in wire.nodes:
+            assert [c.time_ns for c in n.changes] == sorted(c.time_ns for c in n.changes)  # status_at's premise
             fc = model.counters[n.name]
             assert (n.fc.tec, n.fc.rec, n.fc.state) == (fc.tec, fc.rec, fc.state)
         received = [m for _ in model.transmissions if (m := listener.recv(0)) is not None]
@@ -171,3 +172,27 @@ def test_errors_off_by_default_and_names_unique() -> None:
         assert lone.wire._users == 1
     finally:
         lone.shutdown()
+
+
+def test_each_nodes_timeline_is_in_time_order() -> None:
+    """status_at reads a node's timeline from its newest end: it must be in time order,
+    through passive, bus off and recovery of a sender and the receivers' counts."""
+    clock = ManualWireClock()
+    channel = f"wire-errors-{uuid.uuid4().hex}"
+    buses = [WireBus(channel=channel, bitrate=BITRATE, clock=clock, node=n) for n in NODES]
+    try:
+        buses[0].wire.inject_errors(ErrorInjection(node="a", count=40), ErrorInjection(node="b", probability=0.5, seed=2, count=30))
+        for k in range(30):
+            clock.advance_to(k * 300_000)
+            for bus, i in ((buses[0], 0x100), (buses[1], 0x200), (buses[2], 0x300)):
+                if bus.can_error_state is not ErrorState.BUS_OFF:
+                    bus.send(can.Message(arbitration_id=i + k, is_extended_id=False))
+        _run_out(clock)
+        states = {c.state for b in buses for c in b.node.changes}
+        assert ErrorState.BUS_OFF in states and ErrorState.PASSIVE in states
+        for b in buses:
+            times = [c.time_ns for c in b.node.changes]
+            assert times == sorted(times)
+    finally:
+        for bus in buses:
+            bus.shutdown()
