@@ -134,3 +134,31 @@ def test_run_node_reports_what_its_bus_tells() -> None:
         thread.join(10.0)
         bus.shutdown()
         master.shutdown()
+
+
+def _emcys(frames: list[can.Message]) -> list[tuple[int, int]]:
+    return [(e.code, e.register) for e in (decode_emcy(f.data) for f in frames if f.arbitration_id == 0x081)]
+
+
+def test_every_transition_and_an_nmt_reset() -> None:
+    """The reporter on its own: bus off seen without error passive before it (a loop
+    that woke too late) sends nothing until the recovery; an NMT reset while error
+    passive clears the fault, and the next look raises it again."""
+    node = CanopenNode(FakeApp(), NodeConfig(watchdog_periods=0))
+    node.poll(0.0)  # boot-up
+    node.can_error_state(ErrorState.ACTIVE)
+    assert _emcys(node.poll(0.0)) == [] and node.error_register == 0
+    node.can_error_state(ErrorState.BUS_OFF)
+    assert _emcys(node.poll(0.0)) == [] and node.error_register == 0x11
+    assert int(node.od.get(0x1003, 1)) & 0xFFFF == 0x8120  # recorded in the history, not sendable
+    node.can_error_state(ErrorState.ACTIVE)
+    assert _emcys(node.poll(0.0)) == [(0x8140, 0x11), (0x0000, 0x00)]
+    node.can_error_state(ErrorState.PASSIVE)
+    node.can_error_state(ErrorState.PASSIVE)
+    assert _emcys(node.poll(0.0)) == [(0x8120, 0x11)]  # once per entry
+    node.handle(can.Message(arbitration_id=0x000, data=bytes([0x82, 1]), is_extended_id=False), 0.0)  # NMT reset communication
+    node.poll(0.0)
+    node.can_error_state(ErrorState.PASSIVE)
+    assert _emcys(node.poll(0.0)) == [(0x8120, 0x11)]
+    node.can_error_state(ErrorState.ACTIVE)
+    assert _emcys(node.poll(0.0)) == [(0x0000, 0x00)]
