@@ -173,7 +173,8 @@ def _can_identifier(value: Any) -> Any:
 class CanErrorFault(BaseModel):
     """Error frames on the CAN wire (``ralfwire`` only, docs/can-errors.md): attempts of
     frames with ``identifier`` (or ``all``) starting in ``[from_s, to_s)`` fail, every
-    ``every``-th of them with ``probability``, at most ``count`` times; each costs an error
+    ``every``-th of them with ``probability``, at most ``count`` times (and at most
+    ``attempts_per_frame`` times per frame); each costs an error
     frame and the frame is retransmitted. Becomes a
     :class:`service_kit.can_wire.arbitration.ErrorInjection`."""
 
@@ -186,6 +187,8 @@ class CanErrorFault(BaseModel):
     from_s: Seconds = 0.0
     to_s: Seconds | None = None
     echo_bits: Annotated[int, Field(ge=0, le=6)] = 0
+    attempts_per_frame: Annotated[int, Field(ge=1, le=10**6)] | None = None
+    """Only each frame's first so many attempts can fail: each frame fails that often, then goes through."""
     note: Annotated[str, Field(max_length=200)] = ""
 
     @model_validator(mode="after")
@@ -194,8 +197,8 @@ class CanErrorFault(BaseModel):
             raise ValueError(f"identifier {self.identifier} is outside 0..0x{CAN_ID_MAX:X}")
         if self.to_s is not None and self.to_s <= self.from_s:
             raise ValueError("to_s must be after from_s")
-        if self.count is None and self.to_s is None and self.probability == 1.0 and self.every == 1:
-            raise ValueError("destroys every frame for ever: give count, to_s, a probability below 1 or every above 1")
+        if self.count is None and self.to_s is None and self.probability == 1.0 and self.every == 1 and self.attempts_per_frame is None:
+            raise ValueError("destroys every frame for ever: give count, to_s, attempts_per_frame, a probability below 1 or every above 1")
         return self
 
 

@@ -38,6 +38,7 @@ def injections(faults: Sequence[CanErrorFault], seed: int, origin_ns: int = 0) -
                 seed=(seed * 1_000_003 + i) & 0x7FFF_FFFF,
                 count=f.count,
                 echo_bits=f.echo_bits,
+                first_attempts=f.attempts_per_frame,
             )
         )
     return out

@@ -321,7 +321,7 @@ class Wire:
         tx = item.node
         self._attempts[item.seq] = self._attempts.get(item.seq, 0) + 1
         receivers = [n for n in self.nodes if n is not tx and not n.fc.bus_off]
-        injected = next((i.spec for i in self._injectors if i.fires(tx.name, frame, start)), None)
+        injected = next((i.spec for i in self._injectors if i.fires(tx.name, frame, start, self._attempts[item.seq])), None)
         ack_error = injected is None and not receivers and self.errors_on
         if injected is None and not ack_error:
             self._pending.remove(item)

@@ -34,6 +34,8 @@ def test_schema_reads_yaml_and_json() -> None:
     j = parse_scenario('{"can_errors": [{"identifier": "0x181", "count": 2}]}', yaml_ok=False)
     assert j.can_errors[0].identifier == 0x181
     assert parse_scenario("{}", yaml_ok=False).can_errors == []  # off unless given
+    per_frame = parse_scenario('{"can_errors": [{"identifier": 385, "attempts_per_frame": 2}]}', yaml_ok=False).can_errors
+    assert injections(per_frame, 0)[0].first_attempts == 2 and injections(per_frame, 0)[0].count is None
 
 
 @pytest.mark.parametrize(

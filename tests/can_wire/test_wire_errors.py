@@ -40,6 +40,7 @@ injection_strategy = st.builds(
     count=st.integers(1, 40),
     bit=st.one_of(st.none(), st.integers(0, 40)),
     echo_bits=st.integers(0, 6),
+    first_attempts=st.one_of(st.none(), st.integers(1, 4)),
 )
 
 frames_strategy = st.lists(
@@ -196,3 +197,29 @@ def test_each_nodes_timeline_is_in_time_order() -> None:
     finally:
         for bus in buses:
             bus.shutdown()
+
+
+def test_each_frame_fails_its_first_attempts() -> None:
+    """``first_attempts=2`` without a count: every frame of the identifier fails twice and
+    goes through on its third attempt, on the wire as in the bus model; others are untouched."""
+    clock = ManualWireClock()
+    channel = f"wire-errors-{uuid.uuid4().hex}"
+    errors = [ErrorInjection(arbitration_id=0x181, count=None, first_attempts=2)]
+    a = WireBus(channel=channel, bitrate=BITRATE, clock=clock, node="a", keep_log=True, can_errors=errors)
+    b = WireBus(channel=channel, bitrate=BITRATE, clock=clock, node="b")
+    try:
+        queued = []
+        for k in range(5):
+            clock.advance_to(k * 1_000_000)
+            for i in (0x080, 0x181):
+                msg = can.Message(arbitration_id=i, data=bytes([k]), is_extended_id=False)
+                a.send(msg)
+                queued.append(QueuedFrame("a", k * 1_000_000, frame_of_message(msg)))
+        _run_out(clock)
+        assert [(d.arbitration_id, d.attempts) for d in a.wire.log] == [(0x080, 1), (0x181, 3)] * 5
+        model = simulate(queued, BITRATE, nodes=["b"], errors=errors)
+        assert [(d.arbitration_id, d.start_ns, d.attempts) for d in a.wire.log] == [(t.arbitration_id, t.start_ns, t.attempts) for t in model.transmissions]
+        assert a.wire.error_frames == 10
+    finally:
+        a.shutdown()
+        b.shutdown()
