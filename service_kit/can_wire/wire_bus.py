@@ -357,6 +357,7 @@ class Wire:
         if getattr(p.sender, "_open", True):
             return True
         self.dropped += 1
+        self._attempts.pop(p.seq, None)
         return False
 
     def _deliver(self, flight: _InFlight) -> None:
