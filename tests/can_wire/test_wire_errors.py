@@ -6,6 +6,7 @@ rules (CAN 2.0 part B section 8 / ISO 11898-1)."""
 
 from __future__ import annotations
 
+import time
 import uuid
 
 import can
@@ -220,6 +221,26 @@ def test_each_frame_fails_its_first_attempts() -> None:
         model = simulate(queued, BITRATE, nodes=["b"], errors=errors)
         assert [(d.arbitration_id, d.start_ns, d.attempts) for d in a.wire.log] == [(t.arbitration_id, t.start_ns, t.attempts) for t in model.transmissions]
         assert a.wire.error_frames == 10
+    finally:
+        a.shutdown()
+        b.shutdown()
+
+
+def test_errors_on_the_real_time_clock() -> None:
+    """The wire's own thread runs the same rules: three error frames, the fourth attempt
+    delivered, the sender's TEC 3 x 8 - 1 and the receiver's REC 3 - 1."""
+    channel = f"wire-errors-{uuid.uuid4().hex}"
+    a = can.Bus(interface="ralfwire", channel=channel, bitrate=1_000_000, node="a", keep_log=True, can_errors=[ErrorInjection(arbitration_id=0x123, count=3)])
+    b = can.Bus(interface="ralfwire", channel=channel, bitrate=1_000_000, node="b")
+    try:
+        a.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+        got = b.recv(5.0)
+        assert got is not None and got.arbitration_id == 0x123
+        assert [d.attempts for d in a.wire.log] == [4] and a.wire.error_frames == 3  # type: ignore[attr-defined]
+        end = time.monotonic() + 5.0  # the counters' last change is at the end of the intermission
+        while a.error_status().tec != 23 and time.monotonic() < end:  # type: ignore[attr-defined]
+            time.sleep(0.001)
+        assert (a.error_status().tec, b.error_status().rec) == (23, 2)  # type: ignore[attr-defined]
     finally:
         a.shutdown()
         b.shutdown()
