@@ -1,4 +1,4 @@
-"""One pass of the node's I/O loop without waiting: for a bus on a clock its
+"""One turn of the node's I/O loop without waiting: for a bus on a clock its
 caller moves (``ralfwire`` with a :class:`~service_kit.can_wire.wire_bus.ManualWireClock`),
 where :func:`~plant_emulator.canopen_node.runner.run_node`'s waits would
 stall the clock. The same steps as one turn of ``run_node``: every frame
