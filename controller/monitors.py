@@ -9,7 +9,10 @@ SYNC_CONFLICT / RPDO_CONFLICT emergency, or frames forged on the plant's
 COB-IDs (a second TPDO1 per SYNC, a heartbeat or EMCY the plant disowns),
 see :mod:`controller.plant_link`; its default policy is ``stop``; and, when
 the ``input_monitors`` setting turns them on, the plausibility checks on the
-A/D inputs of :mod:`controller.input_monitors`) has a policy:
+A/D inputs of :mod:`controller.input_monitors`; ``can_error_passive``: the
+plant node reports itself CAN error passive or recovered from bus off by
+EMCY, or the controller's own bus is not error active, see
+:mod:`controller.can_errors`, default policy ``count``) has a policy:
 
 * ``count``: count it, nothing else;
 * ``warn``: count it and log a warning (once per episode);
@@ -27,6 +30,9 @@ from typing import Literal
 
 Policy = Literal["count", "warn", "degrade", "stop"]
 MONITORS = ("deadline", "stale", "dsp_lost", "overrun", "can_conflict")
+CAN_ERROR_MONITORS = ("can_error_passive",)
+"""A CAN node not error active (:mod:`controller.can_errors`): counted only in a
+run that sees one, so runs without CAN error states keep their counters."""
 INPUT_MONITORS = ("input_range", "input_stuck", "input_rate", "input_disagree")
 """The plausibility checks on the A/D inputs (:mod:`controller.input_monitors`):
 counted only in a run that turns them on (``input_monitors``)."""
@@ -48,9 +54,9 @@ class Monitors:
     last: str | None = None
 
     def __post_init__(self) -> None:
-        unknown = set(self.policies) - set(MONITORS) - set(INPUT_MONITORS)
+        unknown = set(self.policies) - set(MONITORS) - set(INPUT_MONITORS) - set(CAN_ERROR_MONITORS)
         if unknown:
-            raise ValueError(f"unknown monitors {sorted(unknown)}; known: {MONITORS + INPUT_MONITORS}")
+            raise ValueError(f"unknown monitors {sorted(unknown)}; known: {MONITORS + INPUT_MONITORS + CAN_ERROR_MONITORS}")
 
     @property
     def degraded(self) -> bool:
@@ -62,7 +68,7 @@ class Monitors:
     def fire(self, monitor: str, detail: str) -> None:
         """A new episode of ``monitor``; raises :class:`MonitorStop` under ``stop``."""
         policy = self.policies.get(monitor, "count")
-        self.episodes[monitor] += 1
+        self.episodes[monitor] = self.episodes.get(monitor, 0) + 1
         self.last = f"{monitor}: {detail}"
         if policy in ("warn", "degrade", "stop") and monitor not in self.active:
             log.warning("%s (policy %s)", self.last, policy)

@@ -67,6 +67,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.bus_watch import CONFLICT_EMCYS, ConflictLog, EchoFilter, ForeignMasters, HeldFrames
+from controller.can_errors import CanErrorWatch
 from controller.config_guard import ConfigGuard
 from controller.node_start import configure_node, enter_operational, reset_communication, wait_for_node
 from controller.plant_errors import PlantFault, StopRequested
@@ -141,6 +142,8 @@ class PlantLink:
         self._last_tpdo: can.Message | None = None
         self._held = HeldFrames(self._log, self.counters)
         self._loss_bus = self.bus if hasattr(self.bus, "kernel_drops") else None
+        self.can_errors = CanErrorWatch(self.bus, self.counters)
+        """CAN error states: the plant's EMCY 0x8120/0x8140 and this bus's own (controller.can_errors)."""
 
     def _now(self) -> float:
         return float(self.clock())  # type: ignore[operator]
@@ -289,6 +292,7 @@ class PlantLink:
                 emcy = can_map.decode_emcy(msg.data)
                 self.emergencies.append(emcy)
                 self.counters.emergencies += 1
+                self.can_errors.on_emcy(emcy)
                 self._log.log_limited(f"emcy:{emcy.code}", "plant EMCY %s (0x%04x), register 0x%02x", emcy.name, emcy.code, emcy.register)
                 if emcy.code == _COLLISION:
                     self._held.on_collision(emcy, msg)

@@ -65,6 +65,14 @@ class PlantLinkCounters:
     """EMCY CAN_ID_COLLISION from the plant: frames on its COB-IDs it did not send"""
     comm_restores: int = 0
     """SDO writes of a configured object sent back after another master's write"""
+    plant_can_error_passive: int = 0
+    """EMCY 0x8120 from the plant: its CAN controller went error passive (ralfwire with injected errors)"""
+    plant_can_bus_off_recoveries: int = 0
+    """EMCY 0x8140 from the plant: its CAN controller recovered from bus off"""
+    own_can_error_passive: int = 0
+    """times the controller's own CAN controller was seen error passive (a bus that tells its error state)"""
+    own_can_bus_off: int = 0
+    """times the controller's own CAN controller was seen bus off"""
     kernel_drops: int = 0
     """datagrams the kernel dropped for a full receive buffer (the bus's count)"""
     fd_frames_dropped: int = 0

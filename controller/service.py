@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from controller.can_errors import attach_can_errors
 from controller.config import build_trajectory, law_config, run_ticks
 from controller.dsp_link import DspLink
 from controller.dsp_port import DspPort, ZenohDspPort
@@ -155,6 +156,7 @@ class ControllerService:
         if scenario is None:
             scenario = scenario_setting(s.fault_scenario)
         self.faults = make_faults(s, scenario, self.lockstep, lambda: self.stopwatch() - self._w0)
+        attach_can_errors(getattr(plant, "bus", None), scenario)  # the scenario's can_errors on a ralfwire bus (docs/can-errors.md)
         self.injection = LoopStalls.from_scenario(scenario, s.sample_rate_hz)
         """The scenario's loop stalls (controller/fault_stage.py)."""
         self.tick = 0

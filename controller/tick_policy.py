@@ -1,5 +1,5 @@
 """What the loop checks after each tick, and what it does about it: the
-monitors' per-tick inputs (``overrun``, ``can_conflict``) and the plant's
+monitors' per-tick inputs (``overrun``, ``can_conflict``, ``can_error_passive``) and the plant's
 liveness (TPDOs missing in a row, heartbeat, NMT state), which end the run
 with :class:`controller.plant_link.PlantFault`."""
 
@@ -53,6 +53,12 @@ class TickPolicy:
             m.fire("can_conflict", f"tick {tick}: " + "; ".join(conflicts[:3]))
         elif "can_conflict" in m.active:
             m.clear("can_conflict")
+        can_error = self.plant.can_errors.condition()  # a node not error active (controller.can_errors)
+        if can_error is not None:
+            if "can_error_passive" not in m.active:
+                m.fire("can_error_passive", f"tick {tick}: {can_error}")
+        elif "can_error_passive" in m.active:
+            m.clear("can_error_passive")
 
     def check_plant(self) -> None:
         """Heartbeat lost or the node out of OPERATIONAL: a plant fault."""

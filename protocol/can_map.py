@@ -122,9 +122,15 @@ class EmcyCode(enum.IntEnum):
     """An analog input reached full scale (saturation is flagged, never wrapped)."""
     PDO_LENGTH = 0x8210
     """A PDO with the wrong length was received and ignored."""
+    CAN_ERROR_PASSIVE = 0x8120
+    """The node's CAN controller is error passive (CiA 301 "CAN in error passive mode"): raised on entry,
+    cleared (error reset) when it is error active again."""
     SYNC_TIMEOUT = 0x8130
     """No SYNC for the watchdog time: valves held at zero. CiA 301's "life guard error or heartbeat
     error": the node's monitoring of its master (here by the SYNC it consumes) timed out."""
+    CAN_BUS_OFF_RECOVERED = 0x8140
+    """The node's CAN controller has recovered from bus off (CiA 301 "recovered from bus off"),
+    followed by the error reset once it is error active."""
     CAN_ID_COLLISION = 0x8150
     """A frame on one of the node's own COB-IDs (heartbeat, EMCY, TPDO, SDO reply) that it did not
     send: another node transmits with its identifiers (CiA 301 "CAN-ID collision"). Vendor bytes:

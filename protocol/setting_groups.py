@@ -228,6 +228,9 @@ class Policies(SettingGroup):
     dsp_lost: Policy = Field("degrade", description="The DSP's liveliness token vanishing")
     overrun: Policy = Field("count", description="A tick finishing after the next was due")
     can_conflict: Policy = Field("stop", description="Another master's SYNC, NMT, RPDO1 or SDO write, or forged plant frames, on the CAN bus")
+    can_error_passive: Policy = Field(
+        "count", description="A CAN node not error active: the plant's EMCY 0x8120/0x8140 until its error reset, or the controller's own bus (ralfwire)"
+    )
 
     input_range: Policy = Field("stop", description="An input out of its sensor's range or at the converter's clip code (when input_monitors turns it on)")
     input_stuck: Policy = Field("stop", description="An input's code unchanged for stuck_samples ticks while the set-point moves (when on)")

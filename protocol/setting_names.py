@@ -227,6 +227,7 @@ RETIRED: Final[frozenset[str]] = frozenset(
         "oatf_min_confidence",
         "plant_heartbeat_timeout_s",
         "policy_can_conflict",
+        "policy_can_error_passive",
         "policy_deadline",
         "policy_dsp_lost",
         "policy_input_disagree",

@@ -14,9 +14,11 @@ the wall clock since the run began (``time_base: wall``). A fault may
   (every message of the kinds inside a burst is dropped).
 
 Beside the link faults a scenario may freeze the controller's loop
-(``stalls``: at a simulated time, for some wall-clock seconds) and slow the
-DSP board (``dsp_delay_s`` of extra compute time per batch): the one place
-every injected fault of the rig is written.
+(``stalls``: at a simulated time, for some wall-clock seconds), slow the
+DSP board (``dsp_delay_s`` of extra compute time per batch) and make error
+frames on the CAN wire (``can_errors``, :class:`CanErrorFault`; a
+``ralfwire`` bus only, docs/can-errors.md): the one place every injected
+fault of the rig is written.
 
 The engine is pure: the fate of a message is a function of the scenario's
 seed, the fault's index, the message kind and the message's own sequence
@@ -39,7 +41,7 @@ from pathlib import Path
 from statistics import NormalDist
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from protocol.bounded_parse import TooLarge, load_json, load_yaml
 from protocol.files import read_regular_text
@@ -154,6 +156,52 @@ class Stall(BaseModel):
     wall_s: Annotated[float, Field(ge=0.0, le=60.0, allow_inf_nan=False)]
 
 
+CAN_ID_MAX = 0x1FFFFFFF
+"""The largest (extended, 29-bit) CAN identifier."""
+
+
+def _can_identifier(value: Any) -> Any:
+    """``all``, an integer, or an integer written as text (``"0x181"``, as JSON has no hex literals)."""
+    if isinstance(value, str) and value != "all":
+        try:
+            return int(value, 0)
+        except ValueError:
+            raise ValueError(f"identifier {value!r} is neither 'all' nor an integer (e.g. 0x181)") from None
+    return value
+
+
+class CanErrorFault(BaseModel):
+    """Error frames on the CAN wire (``ralfwire`` only, docs/can-errors.md): attempts of
+    frames with ``identifier`` (or ``all``) starting in ``[from_s, to_s)`` fail, every
+    ``every``-th of them with ``probability``, at most ``count`` times (and at most
+    ``attempts_per_frame`` times per frame); each costs an error
+    frame and the frame is retransmitted. Becomes a
+    :class:`service_kit.can_wire.arbitration.ErrorInjection`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    identifier: Annotated[int | Literal["all"], BeforeValidator(_can_identifier)] = "all"
+    count: Annotated[int, Field(ge=1, le=10**7)] | None = None
+    probability: Probability = 1.0
+    every: Annotated[int, Field(ge=1, le=10**6)] = 1
+    from_s: Seconds = 0.0
+    to_s: Seconds | None = None
+    echo_bits: Annotated[int, Field(ge=0, le=6)] = 0
+    attempts_per_frame: Annotated[int, Field(ge=1, le=10**6)] | None = None
+    """Only each frame's first so many attempts can fail: each frame fails that often, then goes through."""
+    note: Annotated[str, Field(max_length=200)] = ""
+
+    @model_validator(mode="after")
+    def _bounded(self) -> CanErrorFault:
+        if self.identifier != "all" and not 0 <= self.identifier <= CAN_ID_MAX:
+            raise ValueError(f"identifier {self.identifier} is outside 0..0x{CAN_ID_MAX:X}")
+        if self.to_s is not None and self.to_s <= self.from_s:
+            raise ValueError("to_s must be after from_s")
+        if self.count is None and self.to_s is None and self.probability == 1.0 and self.every == 1 and self.attempts_per_frame is None:
+            raise ValueError("destroys every frame for ever: give count, to_s, attempts_per_frame, a probability below 1 or every above 1")
+        return self
+
+
 class Scenario(BaseModel):
     """A scenario file: the faults, their seed, and (for ``ralf-hil timing-test``) the run and its criteria."""
 
@@ -167,6 +215,7 @@ class Scenario(BaseModel):
     dsp_delay_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = Field(
         0.0, description="Extra compute time the DSP board takes per batch (a slowed board; 0 = none)"
     )
+    can_errors: list[CanErrorFault] = Field(default_factory=list, max_length=64, description="Error frames on the CAN wire (ralfwire only)")
     duration_s: Annotated[float, Field(gt=0.0, le=1e6)] = 10.0
     mode: Literal["cosim", "lockstep", "realtime"] = "cosim"
     settings: dict[str, dict[str, Any]] = Field(default_factory=dict, description="Per service (controller, plant, dsp): settings for the run")

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from plant_emulator.canopen_node.application import ApplicationObjects, ConfigurableApplication, NodeApplication
+from plant_emulator.canopen_node.can_state import CanStateReporter
 from plant_emulator.canopen_node.config import NodeConfig
 from plant_emulator.canopen_node.counters import NodeCounters, install_diagnostics
 from plant_emulator.canopen_node.emcy import EmcyProducer, error_register_bits
@@ -60,6 +61,7 @@ from protocol.can_map import (
     NmtState,
     cob_ids,
 )
+from service_kit.can_wire.error_state import ErrorState
 
 __all__ = [
     "COLLISION_CLEAR_S",
@@ -111,6 +113,7 @@ class CanopenNode:
         self._log = nlog = NodeLog(self.node_id, counters)
         self._nmt = nmt = NmtSlave(od, self.node_id, ids["heartbeat"], outbox, counters, nlog)
         self._emcy = emcy = EmcyProducer(od, outbox, counters, ids["emcy"], lambda: nmt.state in EMCY_STATES)
+        self._can_state = CanStateReporter(emcy)
         own_kind = {ids[k]: k for k in ("emcy", "tpdo1", "tpdo2", "tpdo3", "sdo_tx", "heartbeat")}
         self._own_ids = frozenset(own_kind)
         self._collisions = CollisionMonitor(own_kind, outbox, emcy, counters, nlog)
@@ -230,6 +233,14 @@ class CanopenNode:
             raise ValueError(f"EMCY code must be 0x0001..0xFFFF, got {code}")
         with self._lock:
             self._emcy.set_fault(int(code), active, vendor[:5])
+
+    def can_error_state(self, state: ErrorState) -> None:
+        """The node's CAN controller's error state, as its bus tells it:
+        EMCY 0x8120 on error passive, 0x8140 after bus off, the error reset
+        when error active again (:mod:`.can_state`); the frames go out with
+        the next :meth:`handle`/:meth:`poll` result."""
+        with self._lock:
+            self._can_state.update(state)
 
     @property
     def watchdog_tripped(self) -> bool:

@@ -10,6 +10,7 @@ from typing import Final
 
 import can
 
+from plant_emulator.canopen_node.can_state import error_state_reader
 from plant_emulator.canopen_node.node import CanopenNode
 from service_kit.can_udp import echoing_bus
 
@@ -55,6 +56,8 @@ def run_node(
     belongs to the caller (open and shut it there; :func:`node_can_filters`
     suits it). ``after_send`` runs after each received frame's answer is on
     the bus (the application's work that must not delay the answer).
+    On a bus that tells its CAN error state (``ralfwire``), the node reads it
+    before each wait and reports it by EMCY (:mod:`.can_state`).
     """
 
     def send(frames: list[can.Message]) -> None:
@@ -65,8 +68,11 @@ def run_node(
     counted_bus = bus if hasattr(bus, "kernel_drops") and hasattr(bus, "fd_frames_dropped") else None
     counters = node.counters
     streak = 0
+    can_state = error_state_reader(bus)  # None on a bus that cannot tell its error state
     send(node.poll(clock()))
     while not stop.is_set():
+        if can_state is not None:
+            node.can_error_state(can_state())
         now = clock()
         deadline = node.next_deadline()
         timeout = max_wait_s if deadline is None else min(max(deadline - now, 0.0), max_wait_s)

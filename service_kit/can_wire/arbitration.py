@@ -71,8 +71,10 @@ class ErrorInjection:
     errors (None: no limit). ``bit`` is the index in the frame's bits of the
     last bit sent before the error flag (default: the ACK delimiter, where a
     CRC error is signalled); ``echo_bits`` (0..6) are other nodes' flags
-    superposed on the first. The counts start afresh in every
-    :func:`simulate` call."""
+    superposed on the first. ``first_attempts``: only a frame's first so
+    many attempts can fail (None: any), so with ``count=None`` every frame
+    of the identifier fails that many times and then goes through. The
+    counts start afresh in every :func:`simulate` call."""
 
     arbitration_id: int | None = None
     node: str | None = None
@@ -84,8 +86,11 @@ class ErrorInjection:
     count: int | None = 1
     bit: int | None = None
     echo_bits: int = 0
+    first_attempts: int | None = None
 
     def __post_init__(self) -> None:
+        if self.first_attempts is not None and self.first_attempts < 1:
+            raise ValueError(f"first_attempts must be >= 1, got {self.first_attempts}")
         if self.every < 1:
             raise ValueError(f"every must be >= 1, got {self.every}")
         if not 0.0 <= self.probability <= 1.0:
@@ -107,7 +112,7 @@ class ErrorInjection:
         return bit
 
 
-class _Injector:
+class Injector:
     """One run's state of an :class:`ErrorInjection`: attempts matched, errors made, its random draws."""
 
     def __init__(self, spec: ErrorInjection) -> None:
@@ -116,9 +121,12 @@ class _Injector:
         self.fired = 0
         self.rng = random.Random(spec.seed)
 
-    def fires(self, node: str, frame: FrameBits, start_ns: int) -> bool:
+    def fires(self, node: str, frame: FrameBits, start_ns: int, attempt: int = 1) -> bool:
+        """Whether this attempt (the frame's ``attempt``-th) fails."""
         spec = self.spec
         if spec.count is not None and self.fired >= spec.count:
+            return False
+        if spec.first_attempts is not None and attempt > spec.first_attempts:
             return False
         if not spec.matches(node, frame, start_ns):
             return False
@@ -214,7 +222,7 @@ def simulate(
     time (needed when errors never stop: a lone error-passive transmitter
     retries for ever); more than ``max_attempts`` attempts raise ValueError."""
     bit = bit_time_ns(bitrate)
-    injectors = [_Injector(e) for e in errors]
+    injectors = [Injector(e) for e in errors]
     all_nodes = sorted({q.node for q in frames} | set(nodes))
     counters = {n: FaultConfinement(rec_after_passive_success=rec_after_passive_success) for n in all_nodes}
     suspend_until = dict.fromkeys(all_nodes, 0)
@@ -288,7 +296,7 @@ def simulate(
         attempts_of[winner] += 1
         if len(run.attempts) >= max_attempts:
             raise ValueError(f"more than {max_attempts} attempts on the bus: give until_ns or fewer errors")
-        injected = next((e.spec for e in injectors if e.fires(q.node, frame, start)), None)
+        injected = next((e.spec for e in injectors if e.fires(q.node, frame, start, attempts_of[winner])), None)
         ack_error = injected is None and not receivers
         if injected is None and not ack_error:
             end = start + frame.n_bits * bit

@@ -71,7 +71,7 @@ from service_kit.can_wire.arbitration import INTERMISSION_BITS
 from service_kit.can_wire.bits import FrameBits, frame_of_message
 from service_kit.can_wire.bus_load import delay_stats
 from service_kit.can_wire.timing import NS_PER_S, bit_time_ns
-from service_kit.can_wire.wire_bus import RealTimeWireClock, Wire, _InFlight
+from service_kit.can_wire.wire_bus import RealTimeWireClock, Wire, WireNode, _InFlight
 
 SYNC_ID = 0x080
 TPDO1_ID = 0x181
@@ -266,18 +266,24 @@ class Hub:
         self.stats = HubStats(bitrate, window_ns=window_ns, keep=keep, sync_id=sync_id, tpdo_id=tpdo_id)
         self._lock = threading.Lock()
         self._endpoints: list[Endpoint] = []
+        self._nodes: dict[int, WireNode] = {}
+        """Each connected bus's CAN node on the wire (its error counters and state)."""
         self.wire = make_wire(bitrate, clock if clock is not None else RealTimeWireClock(), self.stats, self._broadcast, tx_order=tx_order)
 
     def attach(self, endpoint: Endpoint) -> None:
         with self._lock:
             self._endpoints.append(endpoint)
             self.counters.connected += 1
+            self._nodes[id(endpoint)] = self.wire.add_node(f"client-{self.counters.connected}")
 
     def detach(self, endpoint: Endpoint) -> None:
         endpoint._open = False
         with self._lock:
             if endpoint in self._endpoints:
                 self._endpoints.remove(endpoint)
+            node = self._nodes.pop(id(endpoint), None)
+        if node is not None:
+            self.wire.remove_node(node)
 
     @property
     def n_clients(self) -> int:
@@ -294,8 +300,13 @@ class Hub:
         except ValueError:
             self.counters.refused_frames += 1
             return False
+        with self._lock:
+            node = self._nodes.get(id(endpoint))
+        if node is None:  # not attached, or gone
+            self.counters.refused_frames += 1
+            return False
         endpoint.in_wire += 1
-        self.wire.submit(endpoint, msg, frame)  # type: ignore[arg-type]
+        self.wire.submit(endpoint, msg, frame, node)  # type: ignore[arg-type]
         return True
 
     def _broadcast(self, sender: Endpoint, msg: can.Message, last_bit_ns: int) -> None:

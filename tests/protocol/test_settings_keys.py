@@ -162,6 +162,7 @@ def test_policies_defaults_and_one_changed(clean_env: pytest.MonkeyPatch) -> Non
         "dsp_lost": "degrade",
         "overrun": "count",
         "can_conflict": "stop",
+        "can_error_passive": "count",  # a CAN node not error active: counted, the run goes on
         "input_range": "stop",  # the input monitors' (all off unless named in input_monitors)
         "input_stuck": "stop",
         "input_rate": "stop",
