@@ -23,7 +23,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,7 +53,7 @@ def _setting(name: str, overrides: Mapping[str, Mapping[str, str]]) -> str:
     return os.environ.get(var, "")
 
 
-def wire_request(can_bitrate: int | None, restbus: str | None, overrides: Mapping[str, Mapping[str, str]], clock: str) -> WireRequest | None:
+def wire_request(can_bitrate: int | None, restbus: str | None, overrides: Mapping[str, MutableMapping[str, str]], clock: str) -> WireRequest | None:
     """The wire the user asked for (None: none), checked before anything starts; ``SystemExit``
     with one line for bad input."""
     text = str(can_bitrate) if can_bitrate is not None else _setting("can_bitrate", overrides)
