@@ -129,6 +129,9 @@ SERVICES: Final[dict[str, tuple[str, ...]]] = {
         "xcp_a2l",
         "fault_scenario",
         "stimulus",
+        "param_schedule",
+        "param_commands",
+        "param_write_roles",
     ),
     "dsp": (
         "rig_id",
