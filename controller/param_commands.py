@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, Final
 
@@ -45,6 +46,7 @@ log = logging.getLogger(__name__)
 ROLES_THAT_WRITE: Final = ("tester", "tool")
 """The roles a run may let change its parameters (``param_write_roles``)."""
 MAX_PAYLOAD: Final = 4096
+SEEN_REQUESTS: Final = 256
 
 
 def write_roles(setting: str) -> tuple[str, ...]:
@@ -64,6 +66,8 @@ class ParamCommands:
         self.malformed = 0
         self._seq = 0
         self._lock = threading.Lock()
+        self._seen: OrderedDict[str, ParamAnswer | None] = OrderedDict()
+        """Recent request ids and their answers (None: not answered yet): a resent request is taken once."""
         self._gate = query_gate("params")
         self._log = RateLimitedLog(log, 10.0)
         self._answers = session.declare_publisher(self.keys.param_answer, encoding=JSON)
@@ -85,6 +89,17 @@ class ParamCommands:
         except ProtocolError as exc:
             self.malformed += 1
             self._log.warning("param_set_malformed", "undecodable parameter change: %s", exc)
+            return
+        with self._lock:
+            repeated = cmd.request_id in self._seen
+            earlier = self._seen.get(cmd.request_id)
+            if not repeated:
+                self._seen[cmd.request_id] = None
+                while len(self._seen) > SEEN_REQUESTS:
+                    self._seen.popitem(last=False)
+        if repeated:  # a resend: its answer again if it has one, nothing taken twice
+            if earlier is not None:
+                self._put(earlier)
             return
         reason = self.take(role, cmd.name, cmd.value, cmd.request_id)
         if reason is not None:
@@ -109,6 +124,11 @@ class ParamCommands:
         with self._lock:
             answer = answer.model_copy(update={"seq": self._seq})
             self._seq += 1
+            if answer.request_id in self._seen:
+                self._seen[answer.request_id] = answer
+        self._put(answer)
+
+    def _put(self, answer: ParamAnswer) -> None:
         try:
             self._answers.put(encode(answer))
         except Exception as exc:  # noqa: BLE001 - a closing session: the answer is lost, the change is not

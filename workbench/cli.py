@@ -36,6 +36,7 @@ from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
 from workbench.log_counts import count_log_files
+from workbench.param_cli import add_param_parser
 from workbench.plant_figures import cli as plant_cli
 from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
@@ -929,6 +930,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
     add_fault_parser(sub)
+    add_param_parser(sub)
     cr = sub.add_parser("credentials", help="generate the certificates, zenoh credentials and the router's access rules for docker compose")
     cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
     cr.add_argument("--rig-id", default="default")

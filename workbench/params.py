@@ -101,8 +101,8 @@ class ParamSchedule:
         mine = [s.model_dump() for s in self.steps if s.name.partition(".")[0] == board]
         return json.dumps(own + mine) if own or mine else None
 
-    def boards(self) -> set[str]:
-        return {s.name.partition(".")[0] for s in self.steps}
+    def boards(self) -> frozenset[str]:
+        return frozenset(s.name.partition(".")[0] for s in self.steps)
 
     def __len__(self) -> int:
         return len(self.steps)
