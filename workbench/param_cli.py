@@ -110,7 +110,7 @@ def cmd_param(args: argparse.Namespace) -> int:
             if answer is None:
                 return _fail(f"{silent}; {name} not changed")
             if not answer.accepted:
-                return _fail(f"refused {name} = {value:g}: {answer.reason}")
+                return _fail(f"refused: {answer.reason}")
             print(f"{answer.name} = {answer.value:.10g} on rig {settings.rig_id!r} from {answer.sim_time_s:.3f} s (role {role})")
             return 0
         table = query_table(session, keys, args.timeout)
