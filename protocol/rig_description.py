@@ -174,7 +174,7 @@ RIG: Final[RigDescription] = RigDescription(
             ParamSet,
             ("tool",),
             ("controller",),
-            "a tool's run-time parameter change (taken only where param_write_roles names tool)",
+            "a tool's (or the live view's) run-time parameter change (taken only where param_write_roles names tool)",
         ),
         Channel("controller/param_answer", "publication", ParamAnswer, ("controller",), ("tool", "tester"), "a parameter change taken or refused"),
         Channel("controller/param_changes", "publication", ParamChanged, ("controller",), ("tool", "launcher"), "every parameter change taken, at its tick"),
