@@ -38,6 +38,7 @@ from service_kit.encodings import JSON
 from service_kit.inbox import RateLimitedLog
 from service_kit.query_gate import OVER_RATE
 from service_kit.query_gate import gate as query_gate
+from service_kit.relink import MovingOut
 
 __all__ = ["ROLES_THAT_WRITE", "ParamCommands", "write_roles"]
 
@@ -70,12 +71,10 @@ class ParamCommands:
         """Recent request ids and their answers (None: not answered yet): a resent request is taken once."""
         self._gate = query_gate("params")
         self._log = RateLimitedLog(log, 10.0)
-        self._answers = session.declare_publisher(self.keys.param_answer, encoding=JSON)
-        self._handles: list[Any] = [
-            session.declare_subscriber(self.keys.param_set, lambda s: self._on_set("tester", s)),
-            session.declare_subscriber(self.keys.param_set_tool, lambda s: self._on_set("tool", s)),
-            session.declare_queryable(self.keys.params, self._on_query),
-        ]
+        self.moves = MovingOut()
+        """The out lock; a move to a new session (service_kit/relink.py) and what was sent meanwhile, dropped."""
+        self._handles: list[Any] = []
+        self.bind(session)
         path.answer = self.send_answer
 
     # -- changes -----------------------------------------------------------------------
@@ -129,8 +128,9 @@ class ParamCommands:
         self._put(answer)
 
     def _put(self, answer: ParamAnswer) -> None:
+        payload = encode(answer)
         try:
-            self._answers.put(encode(answer))
+            self.moves.send(lambda: self.session.put(self.keys.param_answer, payload, encoding=JSON))
         except Exception as exc:  # noqa: BLE001 - a closing session: the answer is lost, the change is not
             log.debug("parameter answer not sent: %s", exc)
 
@@ -152,10 +152,31 @@ class ParamCommands:
     def counters(self) -> dict[str, int]:
         return {"param_sets_malformed": self.malformed, **self._gate.as_dict()}
 
-    def close(self) -> None:
-        for handle in [*self._handles, self._answers]:
+    # -- the session (movable: service_kit/relink.py) ------------------------------------
+    @property
+    def out_lock(self) -> threading.Lock:
+        return self.moves.lock
+
+    def bind(self, session: zenoh.Session) -> None:
+        """The subscribers and the queryable on ``session``."""
+        self.session = session
+        self._handles = [
+            session.declare_subscriber(self.keys.param_set, lambda s: self._on_set("tester", s)),
+            session.declare_subscriber(self.keys.param_set_tool, lambda s: self._on_set("tool", s)),
+            session.declare_queryable(self.keys.params, self._on_query),
+        ]
+        self.moves.bound_to_new()
+
+    def unbind(self) -> None:
+        """Everything declared, undeclared (the session may be broken: nothing raises)."""
+        self.moves.bound = False
+        for handle in self._handles:
             try:
                 handle.undeclare()
             except Exception as exc:  # noqa: BLE001 - a closed session's handles
                 log.debug("undeclare: %s", exc)
         self._handles = []
+
+    def close(self) -> None:
+        with self.moves.lock:
+            self.unbind()

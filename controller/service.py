@@ -208,8 +208,9 @@ class ControllerService:
         """The one path of run-time parameter changes (controller/params.py)."""
         self.param_commands: ParamCommands | None = None
         """``ralf-hil param``'s keys (controller/param_commands.py), with ``param_commands`` on a zenoh session."""
-        if s.param_commands and session is not None:
-            self.param_commands = ParamCommands(session, s.rig_id, self.params, write_roles(s.param_write_roles), lambda: self.tick * s.sample_period_s)
+        zsession = session if session is not None else getattr(self.port, "session", None)  # a process of its own: the port's (movable) session
+        if s.param_commands and zsession is not None:
+            self.param_commands = ParamCommands(zsession, s.rig_id, self.params, write_roles(s.param_write_roles), lambda: self.tick * s.sample_period_s)
         self.xcp: XcpLink | None = make_xcp(self, list(RECORD_COLUMNS))
         """The XCP slave (controller/xcp_link.py), or None (off: the default)."""
 
