@@ -95,3 +95,10 @@ def test_the_schedule_groups_a_ticks_steps_and_refuses_in_one_line() -> None:
         _path([{"name": "controller.kp1", "value": -5, "at_s": 1}])
     with pytest.raises(ConfigError, match=r"^param_schedule: plant\.mass at 0 s: no parameter 'plant\.mass'"):
         _path([{"name": "plant.mass", "value": 1}])
+
+
+def test_the_counters_are_the_documented_ones_and_only_in_a_run_that_uses_the_path() -> None:
+    from workbench.run_record_docs import PARAM_COUNTERS
+
+    assert tuple(_path([{"name": "controller.kp1", "value": 1}])[0].counters()) == PARAM_COUNTERS
+    assert _path()[0].counters() == {}
