@@ -30,7 +30,7 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
     from controller.dsp_port import ZenohDspPort
     from controller.plant_link import PlantLink
     from controller.service import ControllerService
-    from service_kit.relink import relinking
+    from service_kit.relink import Rebinds, relinking
     from service_kit.runtime import build_or_config_error
     from service_kit.transport import open_can_bus
     from service_kit.waits import log_waits
@@ -40,7 +40,8 @@ def control(settings: ControllerSettings, session: zenoh.Session, stop: threadin
         port = ZenohDspPort(session, settings.rig_id)
         service = build_or_config_error("controller configuration", lambda: ControllerService(settings, None, PlantLink(bus, settings.node_id), port=port))
         # a claimed zenoh id: the port moves to a new session; the loop and the CAN side go on (service_kit/relink.py)
-        with relinking(settings, session, [port]) as watch:
+        movable: list[Rebinds] = [port, *([service.param_commands] if service.param_commands is not None else [])]  # ralf-hil param's keys move too
+        with relinking(settings, session, movable) as watch:
             try:
                 log.info("controller up on rig %r: %s clock, %.0f Hz, OATF %s", settings.rig_id, settings.clock, settings.sample_rate_hz, settings.oatf_mode)
                 started = threading.Event()

@@ -63,6 +63,10 @@ class DspPort(Protocol):
         """``controller/tf``: a TF download as downloaded, binary (for recorders and viewers)."""
         ...
 
+    def publish_param_change(self, payload: bytes) -> None:
+        """``controller/param_changes``: a parameter change taken (:class:`~protocol.messages.ParamChanged`, JSON)."""
+        ...
+
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None: ...
 
     def close(self) -> None: ...
@@ -165,6 +169,9 @@ class ZenohDspPort(MovablePort):
 
     def publish_tf(self, payload: bytes) -> None:
         self._put(lambda: self._tf_pub, payload)
+
+    def publish_param_change(self, payload: bytes) -> None:
+        self.moves.send(lambda: self.session.put(self.keys.param_changes, payload, encoding=JSON))
 
     def start_health(self, period_s: float, build: Callable[[int], Health]) -> None:
         self._health_args = (period_s, build)

@@ -49,8 +49,11 @@ class ConfigChangeTaken:
 
     sim_time_s: float
     kind: str
-    """The command key's inbox kind: ``command`` (tools) or ``test_command`` (the tester's test knobs)."""
+    """The command key's inbox kind: ``command`` (tools) or ``test_command`` (the tester's test knobs);
+    a parameter change's path: ``xcp``, ``param`` or ``schedule`` (controller/params.py)."""
     fields: dict[str, Any]
+    who: str = ""
+    """Who sent a parameter change (kinds ``xcp``, ``param``, ``schedule``: docs/calibration.md); empty for the others."""
 
 
 @dataclass(frozen=True)

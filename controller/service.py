@@ -44,6 +44,8 @@ from controller.input_monitors import InputMonitorChecks
 from controller.interrupt_wait import BATCH_RESEND_S
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, STIMULUS_NAMES, ControlLaw
 from controller.monitors import Monitors, MonitorStop
+from controller.param_commands import ParamCommands, write_roles
+from controller.params import ParamPath
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from controller.run_files import make_records, save_run
 from controller.schedule import TickSchedule, WakeupMeter
@@ -56,6 +58,7 @@ from controller.timing_counters import TimingCounters
 from controller.xcp_link import XcpLink, make_xcp
 from protocol.can_map import NmtCommand
 from protocol.messages import TfSnapshot
+from protocol.param_schedule import parse_param_schedule
 from protocol.settings import ControllerSettings
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
@@ -196,6 +199,20 @@ class ControllerService:
         self.tf = TfDownloader(self.port, self.clock, self.timing, self.lockstep, s.tf_download_samples, s.timeouts.lockstep_s, BATCH_RESEND_S, keep_all)
         self.record, self.timing_record = make_records(s.run_record, keep_record, record_columns(self.law.stimulus is not None))
         self.port.connect(self.dsp.inbox.on_port_event, self.clock.now)
+        self.params = ParamPath(
+            self.law,
+            s.sample_period_s,
+            self.dsp.config_changes,
+            parse_param_schedule(s.param_schedule),
+            counted=s.param_commands,
+            publish=getattr(self.port, "publish_param_change", None),
+        )
+        """The one path of run-time parameter changes (controller/params.py)."""
+        self.param_commands: ParamCommands | None = None
+        """``ralf-hil param``'s keys (controller/param_commands.py), with ``param_commands`` on a zenoh session."""
+        zsession = session if session is not None else getattr(self.port, "session", None)  # a process of its own: the port's (movable) session
+        if s.param_commands and zsession is not None:
+            self.param_commands = ParamCommands(zsession, s.rig_id, self.params, write_roles(s.param_write_roles), lambda: self.tick * s.sample_period_s)
         self.xcp: XcpLink | None = make_xcp(self, list(RECORD_COLUMNS))
         """The XCP slave (controller/xcp_link.py), or None (off: the default)."""
 
@@ -228,9 +245,11 @@ class ControllerService:
 
     # -- the tick -----------------------------------------------------------------------
     def _tick(self, words: tuple[int, ...]) -> None:
+        tick = self.tick
+        if self.params.due(tick):  # parameter changes at the tick boundary (controller/params.py)
+            self.params.before_tick(tick)
         dsp = self.dsp
         dsp.drain()
-        tick = self.tick
         law, link = self.law, self.link
         sent = link.in_flight
         # apply_interrupts has nothing to do unless a batch's interrupt is due or one is held
@@ -304,6 +323,8 @@ class ControllerService:
                 **self.dsp.inbox.events.as_dict(),
                 **(self.faults.as_counters() if self.faults is not None else {}),
                 **(self.xcp.counters() if self.xcp is not None else {}),
+                **self.params.counters(),
+                **(self.param_commands.counters() if self.param_commands is not None else {}),
             },
             error=error,
             liveliness=self.dsp.liveliness,
@@ -426,4 +447,6 @@ class ControllerService:
         self.tf.join(timeout=3.0)
         if self.xcp is not None:
             self.xcp.close()
+        if self.param_commands is not None:
+            self.param_commands.close()
         self.port.close()

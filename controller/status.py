@@ -14,6 +14,8 @@ from controller.fault_stage import FaultStage
 from controller.hop_timing import HopTimer
 from controller.loop import ControlLaw
 from controller.monitors import Monitors
+from controller.param_commands import ParamCommands
+from controller.params import ParamPath
 from controller.plant_link import PlantLink
 from controller.timing_counters import TimingCounters
 from controller.xcp_link import XcpLink
@@ -42,6 +44,8 @@ class ControllerService(Protocol):
     hops: HopTimer
     tick: int
     xcp: XcpLink | None
+    params: ParamPath
+    param_commands: ParamCommands | None
 
     @property
     def overrun_run_max(self) -> int: ...
@@ -68,6 +72,9 @@ def build_health(svc: ControllerService, seq: int) -> Health:
         counters.update(svc.faults.as_counters())
     if svc.xcp is not None:  # the XCP slave's, when it is on (docs/xcp.md)
         counters.update(svc.xcp.counters())
+    counters.update(svc.params.counters())  # the parameter path's, when in use (docs/calibration.md)
+    if svc.param_commands is not None:
+        counters.update(svc.param_commands.counters())
     counters["deadline_miss_run_max"] = svc.link.miss_run_max
     counters["overrun_run_max"] = svc.overrun_run_max
     counters.update({f"episodes_{name}": n for name, n in svc.monitors.episodes.items()})

@@ -91,6 +91,26 @@ class Keys:
         return f"{self.root}/controller/test_command"
 
     @property
+    def params(self) -> str:
+        return f"{self.root}/controller/params"
+
+    @property
+    def param_set(self) -> str:
+        return f"{self.root}/controller/param_set"
+
+    @property
+    def param_set_tool(self) -> str:
+        return f"{self.root}/controller/param_set_tool"
+
+    @property
+    def param_answer(self) -> str:
+        return f"{self.root}/controller/param_answer"
+
+    @property
+    def param_changes(self) -> str:
+        return f"{self.root}/controller/param_changes"
+
+    @property
     def tf_downloads(self) -> str:
         return f"{self.root}/controller/tf"
 

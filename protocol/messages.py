@@ -392,6 +392,61 @@ class PlantEvent(Message):
     detail: LongText = ""
 
 
+ParamName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_]+\.[A-Za-z0-9_]+$")]
+"""A run-time parameter's name: ``BOARD.NAME`` (``controller.kp1``; docs/calibration.md)."""
+
+
+class ParamSet(Message):
+    """A request to change one run-time parameter (``ralf-hil param set``), to its physical
+    value in the parameter table's unit; the controller answers with a :class:`ParamAnswer`."""
+
+    request_id: RequestId
+    name: ParamName
+    value: FiniteFloat
+
+
+class ParamAnswer(Message):
+    """The controller's answer to a :class:`ParamSet`: refused (with the reason) at once,
+    or taken, with the physical value in effect from the tick at ``sim_time_s``."""
+
+    request_id: RequestId
+    name: ParamName
+    accepted: bool
+    reason: LongText = ""
+    value: FiniteFloat | None = None
+
+
+class ParamInfo(BaseModel):
+    """One run-time parameter as the running controller lists it (``ralf-hil param list``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: ParamName
+    unit: ShortText
+    lower: FiniteFloat
+    upper: FiniteFloat
+    value: FiniteFloat | None = Field(None, description="The physical value in effect (None: not defined in this run, e.g. the OATF's when it is off)")
+    description: LongText = ""
+
+
+class ParamTable(Message):
+    """The running controller's parameters (the answer to a query on ``controller/params``)."""
+
+    params: tuple[ParamInfo, ...] = Field((), max_length=256)
+    write_roles: tuple[ShortText, ...] = Field((), max_length=8, description="The roles whose changes this run takes")
+
+
+class ParamChanged(Message):
+    """A parameter change taken at a tick boundary (``controller/param_changes``): in effect from
+    ``tick`` (at ``sim_time_s``); ``kind`` names the path (``xcp``, ``param``: a live command,
+    ``schedule``: the run's ``param_schedule``) and ``who`` the sender."""
+
+    tick: Count
+    kind: Literal["xcp", "param", "schedule"]
+    who: ShortText = ""
+    fields: Annotated[dict[ParamName, FiniteFloat], Field(max_length=64)]
+
+
 M = TypeVar("M", bound=BaseModel)
 
 

@@ -35,6 +35,10 @@ from protocol.messages import (
     GroundTruth,
     Health,
     Interrupt,
+    ParamAnswer,
+    ParamChanged,
+    ParamSet,
+    ParamTable,
     PlantEvent,
     ScenarioCommand,
 )
@@ -160,6 +164,20 @@ RIG: Final[RigDescription] = RigDescription(
             "run-time reconfiguration with the test knobs (emulated latency; protocol.command_fields)",
             gated_by="zenoh_acl=scenarios",
         ),
+        Channel(
+            "controller/params", "queryable", ParamTable, ("controller",), ("tool", "tester"), "the run-time parameters and their values (ralf-hil param list)"
+        ),
+        Channel("controller/param_set", "publication", ParamSet, ("tester",), ("controller",), "a run-time parameter change (ralf-hil param set)"),
+        Channel(
+            "controller/param_set_tool",
+            "publication",
+            ParamSet,
+            ("tool",),
+            ("controller",),
+            "a tool's (or the live view's) run-time parameter change (taken only where param_write_roles names tool)",
+        ),
+        Channel("controller/param_answer", "publication", ParamAnswer, ("controller",), ("tool", "tester"), "a parameter change taken or refused"),
+        Channel("controller/param_changes", "publication", ParamChanged, ("controller",), ("tool", "launcher"), "every parameter change taken, at its tick"),
         Channel("health/{service}", "publication", Health, ("{service}",), ("launcher", "tool"), "counters, latencies and state of each service"),
         Channel("alive/{service}", "liveliness", "token", ("{service}",), ("launcher", "controller"), "liveliness token of each service"),
     ),

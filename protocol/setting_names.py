@@ -145,6 +145,9 @@ SERVICES: Final[dict[str, tuple[str, ...]]] = {
         "xcp_can_id_slave",
         "fault_scenario",
         "stimulus",
+        "param_schedule",
+        "param_commands",
+        "param_write_roles",
     ),
     "dsp": (
         "rig_id",

@@ -20,6 +20,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict, Settin
 from protocol.errors import ConfigError
 from protocol.files import NotARegularFile, check_regular_file
 from protocol.keys import validate_rig_id
+from protocol.param_schedule import parse_param_schedule
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.setting_groups import (
     DitherTuning,
@@ -470,12 +471,28 @@ class ControllerSettings(CommonSettings):
         '[{"input": "valve.u1", "shape": "step", "size": 2, "at_s": 1, "for_s": 0.5}] (docs/stimulus.md; empty = none)',
     )
 
+    param_schedule: str = Field(
+        "",
+        max_length=1_000_000,
+        description="Scripted parameter changes, a JSON list, e.g. "
+        '[{"name": "controller.kp1", "value": 8000, "at_s": 2}] (each at the first tick at or after at_s; docs/calibration.md; empty = none)',
+    )
+    param_commands: bool = Field(
+        False,
+        description="Answer `ralf-hil param` (list, get) and the live view's parameter panel, and take changes from param_write_roles (docs/calibration.md)",
+    )
+    param_write_roles: str = Field(
+        "tester",
+        pattern=r"^(|tester|tool|tester,tool|tool,tester)$",
+        description="With param_commands: the roles whose parameter changes are taken (tester, tool: also tools and the live view; empty = none)",
+    )
+
     @field_validator("oatf", "dither", "pi", "timeouts", "policies", "input_monitors", mode="before")
     @classmethod
     def _group_text(cls, value: Any) -> Any:
         return SettingGroup.coerce(value)
 
-    @field_validator("stimulus", mode="before")
+    @field_validator("stimulus", "param_schedule", mode="before")
     @classmethod
     def _stimulus_as_json(cls, value: Any) -> Any:
         """A list (a YAML file's, Python's) as its JSON text."""
@@ -488,6 +505,15 @@ class ControllerSettings(CommonSettings):
             parse_stimulus(value, "controller")
         except ConfigError as exc:
             raise ValueError(str(exc).removeprefix("stimulus ")) from None
+        return value
+
+    @field_validator("param_schedule")
+    @classmethod
+    def _param_steps(cls, value: str) -> str:
+        try:
+            parse_param_schedule(value)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("param_schedule").lstrip(": ")) from None
         return value
 
     @field_validator("run_record")

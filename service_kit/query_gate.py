@@ -26,6 +26,7 @@ from service_kit.inbox import Limit, RateLimitedLog, TokenBucket
 
 QUERY_LIMITS: Final[dict[str, Limit]] = {
     "tf": Limit(rate_per_s=20.0, burst=20),
+    "params": Limit(rate_per_s=20.0, burst=20),
 }
 """Per query kind: far above honest use (the controller downloads the TF every
 ``tf_download_samples`` samples, 5 s at the defaults; a viewer a few a

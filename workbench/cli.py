@@ -36,6 +36,7 @@ from workbench.hostinfo import host_info, host_line
 from workbench.launcher import START_ORDER, RigObserver, RigPlan, Supervision, plan_problems, supervise, tail
 from workbench.live import cli as live_cli
 from workbench.log_counts import count_log_files
+from workbench.param_cli import add_param_parser
 from workbench.plant_figures import cli as plant_cli
 from workbench.progress import LONG_COMMANDS, ServiceLogWatch, activity, compiling_progress, controller_progress, heartbeat_unless_terminal, status_progress
 from workbench.recording import cli as recording_cli
@@ -417,7 +418,8 @@ def _up_locked(args: argparse.Namespace, overrides: dict[str, dict[str, str]]) -
             console.print(f"[red]ralf-hil up: {line}[/red]", highlight=False, soft_wrap=True)
         return 2
     refuse_bad_settings(overrides)  # before the logs and any service
-    live_view = _start_live(args)  # before anything is created: a port in use is one line, the rig untouched
+    params = str(plan.service_env.get("controller", {}).get("RALF_PARAM_COMMANDS", "")).strip().lower() in ("1", "true", "yes", "on")
+    live_view = _start_live(args, params)  # before anything is created: a port in use is one line, the rig untouched
     access_dir = private_run_dir(f"ralf-{args.rig_id}-access-")  # may refuse (exit 2): before the logs, so a refusal leaves none
     try:
         logs = RunLogs.create(args.log_dir, args.rig_id, keep=args.keep_logs)
@@ -471,6 +473,14 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     # A closed terminal too: services stopped, credentials removed.
     stop, received = stop_on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), say=False)
     observer = RigObserver(plan)
+    panel_session = None
+    if live_view is not None and live_view.params is not None:  # the panel's changes go out as the tool's (the launcher only observes)
+        from workbench.live.params import tool_session
+
+        try:
+            panel_session = live_view.params.session = tool_session(tool_env)
+        except Exception as exc:  # noqa: BLE001 - the view goes on without its panel, said in one line
+            console.print(f"live view: no parameter panel ({' '.join(str(exc).split())})", highlight=False, soft_wrap=True)
     live = Live(status_line(observer, 0.0), console=console, refresh_per_second=4, transient=not console.is_terminal)
     said_ready = False
     startup = None if console.is_terminal else ServiceLogWatch({name: log_dir / f"{name}.log" for name in START_ORDER})  # a log sees the start-up
@@ -544,6 +554,8 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             rig_wire.stop()
         if live_view is not None:
             live_view.close()
+        if panel_session is not None:
+            panel_session.close()
         observer.close()
     summary["startup_s"] = None if sup.startup_s is None else round(sup.startup_s, 3)
     summary["control_wall_s"] = round(sup.control_s, 3)
@@ -569,16 +581,19 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
     return max(1 if (failure or bad) else 0, int(summary["verdict"]["exit_code"]))
 
 
-def _start_live(args: argparse.Namespace) -> Any:
-    """``--live [HOST:]PORT``: the live view's server (:mod:`workbench.live.view`), or None."""
+def _start_live(args: argparse.Namespace, params: bool = False) -> Any:
+    """``--live [HOST:]PORT``: the live view's server (:mod:`workbench.live.view`), or None;
+    ``params`` (the controller's ``param_commands``): with its parameter panel (docs/calibration.md)."""
     if not args.live:
         return None
+    from workbench.live.params import ParamPanel
     from workbench.live.view import LiveView, LiveViewError, parse_address
     from workbench.recording.schemas import rig_topics
 
     try:
         host, port = parse_address(args.live)
-        live = LiveView(host, port, rate_hz=args.live_rate, topics=rig_topics(args.rig_id))
+        panel = ParamPanel(args.rig_id) if params else None  # its session: the observer's, once it is open
+        live = LiveView(host, port, rate_hz=args.live_rate, topics=rig_topics(args.rig_id), params=panel)
     except LiveViewError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
     console.print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket; layout docs/foxglove-layout.json), {args.live_rate:g} Hz per topic")
@@ -975,6 +990,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--timeout", type=positive_seconds, default=5.0, help="seconds to wait for the DSP's acknowledgement (default: 5)")
     rc.set_defaults(func=cmd_reconfigure)
     add_fault_parser(sub)
+    add_param_parser(sub)
     cr = sub.add_parser("credentials", help="generate the certificates, zenoh credentials and the router's access rules for docker compose")
     cr.add_argument("--out", default="secrets", help="directory to write them to (default: secrets, which docker-compose.yml mounts)")
     cr.add_argument("--rig-id", default="default")

@@ -60,6 +60,7 @@ from protocol.setting_hints import unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
 from workbench.fiu import FaultInsertion
 from workbench.log_counts import counting_warnings
+from workbench.params import ParamSchedule
 from workbench.rig_record import Clock, Layout, RunRecord, truth_columns_of, truth_of
 from workbench.rig_spec import RigSpec
 from workbench.stimulus import Stimulus
@@ -242,6 +243,10 @@ class HilRig:
     """Stimulus profiles on the rig's inputs (:mod:`workbench.stimulus`, docs/stimulus.md), added to before the
     run (``rig.stimulus.step("valve.u1", 2.0, at_s=1.0, for_s=0.5)``): the controller's go into its ``stimulus``
     setting, the plant's into its scenario's ``stimulus`` section, both checked when the run starts."""
+    param: ParamSchedule = field(default_factory=ParamSchedule)
+    """Scripted parameter changes (:mod:`workbench.params`, docs/calibration.md), given before the run
+    (``rig.param.set("controller.kp1", 8000.0, at_s=2.0)``): into the board's ``param_schedule`` setting,
+    applied at the first tick at or after ``at_s``, listed in the record's ``config_changes``."""
 
     @classmethod
     def from_spec(cls, spec: RigSpec, *, on_progress: Callable[[float], None] | None = None) -> HilRig:
@@ -250,7 +255,7 @@ class HilRig:
             clock=spec.clock, processes=spec.processes, name=spec.name, label=spec.label,
             controller=dict(spec.controller), plant_settings=dict(spec.plant), dsp_settings=dict(spec.dsp), common=dict(spec.common),
             faults=spec.faults, outputs=spec.outputs, mcap=spec.mcap, meta=dict(spec.meta), on_progress=on_progress, timeout_s=spec.timeout_s,
-            duration_s=spec.duration_s, stimulus=Stimulus([dict(p) for p in spec.stimulus]),
+            duration_s=spec.duration_s, stimulus=Stimulus([dict(p) for p in spec.stimulus]), param=ParamSchedule(spec.params),
         )  # fmt: skip
         return rig
 
@@ -322,6 +327,9 @@ class HilRig:
             own["stimulus"] = json.dumps([*(json.loads(given) if isinstance(given, str) else given), *profiles])
         if self.faults is not None:
             own["fault_scenario"] = self.faults if isinstance(self.faults, str) else json.dumps(dict(self.faults))
+        schedule = self.param.board_schedule("controller", own.get("param_schedule"))
+        if schedule is not None:  # after the controller's own param_schedule setting, if it has one
+            own["param_schedule"] = schedule
         return own
 
     def _dsp_settings(self) -> dict[str, Any]:
@@ -391,6 +399,11 @@ class HilRig:
             self.stimulus.plans()
         except ConfigError as exc:
             raise RigSettingError(" ".join(str(exc).split())) from None
+        if self.param.boards() - {"controller"}:
+            raise RigSettingError(
+                f"rig.param: scripted changes are taken by the controller only, not by {', '.join(sorted(self.param.boards() - {'controller'}))}"
+            )
+        self.param.started = True
         if self.layout == "one process":
             self._open_test_port()
         self._thread = threading.Thread(target=self._run_guarded, args=(duration_s, expected), name="hil-rig", daemon=True)

@@ -190,6 +190,14 @@ class RunRecord:
         return np.array([t.modal_frequencies_hz[0] for t in self.truth])
 
     @property
+    def param_changes(self) -> list[dict[str, Any]]:
+        """The parameter changes the controller took (docs/calibration.md), in order: each
+        ``sim_time_s`` (of the first tick that uses it), ``kind`` (``xcp``, ``param``, ``schedule``),
+        ``who`` and ``fields`` (the physical values); from the run's ``config_changes``."""
+        changes = self.metadata.get("result", {}).get("config_changes", [])
+        return [dict(c) for c in changes if c.get("kind") in ("xcp", "param", "schedule")]
+
+    @property
     def t_s(self) -> FloatArray:
         """The controller's tick times (s)."""
         return np.asarray(self.columns["t_s"], dtype=float)

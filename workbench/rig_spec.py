@@ -44,6 +44,8 @@ class RigSpec:
     """Three processes: the wall-clock allowance (default from the expected simulated time)."""
     stimulus: tuple[Mapping[str, Any], ...] = ()
     """Stimulus profiles on the rig's inputs (:mod:`workbench.stimulus`: ``tuple(Stimulus().step(...).profiles)``)."""
+    params: tuple[Mapping[str, Any], ...] = ()
+    """Scripted parameter changes (:mod:`workbench.params`: ``rig.param.profiles()``), each ``name``, ``value``, ``at_s``."""
 
     def expected_sim_s(self) -> float:
         """Simulated seconds the run lasts (``duration_s``, the controller's, or its repeats laps)."""

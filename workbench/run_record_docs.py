@@ -102,6 +102,10 @@ def counters_table() -> str:
     lines.append(
         f"| {stage} | fault stage (`controller/fault_stage.py`), with a fault scenario | frames and messages a fault acted on at the controller's edges |"
     )
+    lines.append(
+        f"| {', '.join(f'`{n}`' for n in PARAM_COUNTERS)} | parameter path (`controller/params.py`), with `param_commands` or a `param_schedule` "
+        "| parameter changes applied, whose OATF design no longer held at their tick, and live changes refused (docs/calibration.md) |"
+    )
     return "\n".join(lines)
 
 
@@ -110,12 +114,16 @@ def run_record_tables() -> str:
     return f"`RunRecord` fields:\n\n{fields_table()}\n\n`RunRecord.counters` (name -> int):\n\n{counters_table()}"
 
 
+PARAM_COUNTERS = ("param_changes_applied", "param_changes_failed", "param_sets_refused")
+"""The parameter path's counters (:meth:`controller.params.ParamPath.counters`), in a run that uses it."""
+
+
 def is_listed(name: str) -> bool:
     """Whether a counter of a run is one the tables name (by name or by pattern)."""
     stage = {f.name for f in dataclasses.fields(StageCounters)}
     inbox = rf"in_\w+_({'|'.join(INBOX_WHATS)})"
     faults = rf"fault_({'|'.join(FAULT_ACTIONS)})_\w+"
-    return name in counter_names() or name in stage or re.fullmatch(inbox, name) is not None or re.fullmatch(faults, name) is not None
+    return name in counter_names() or name in stage or name in PARAM_COUNTERS or re.fullmatch(inbox, name) is not None or re.fullmatch(faults, name) is not None
 
 
 def write(path: str = PAGE) -> None:

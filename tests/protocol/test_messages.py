@@ -63,6 +63,10 @@ def scenario_commands(draw: st.DrawFn) -> m.ScenarioCommand:
     return m.ScenarioCommand(**{k: draw(v) for k, v in _header().items()}, kind=kind, at_sim_time_s=draw(nonneg), **values)
 
 
+request_ids = st.from_regex(r"[A-Za-z0-9_.:-]{1,64}", fullmatch=True)
+param_names = st.from_regex(r"[A-Za-z0-9_]{1,20}\.[A-Za-z0-9_]{1,20}", fullmatch=True)
+param_infos = st.builds(m.ParamInfo, name=param_names, unit=texts, lower=finite, upper=finite, value=st.none() | finite, description=texts)
+
 STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
     m.BlockFlag: st.builds(
         m.BlockFlag,
@@ -152,6 +156,25 @@ STRATEGIES: dict[type[BaseModel], st.SearchStrategy[Any]] = {
     ),
     m.ScenarioCommand: scenario_commands(),
     m.PlantEvent: st.builds(m.PlantEvent, **_header(), kind=texts, detail=texts),
+    m.ParamSet: st.builds(m.ParamSet, **_header(), request_id=request_ids, name=param_names, value=finite),
+    m.ParamAnswer: st.builds(
+        m.ParamAnswer, **_header(), request_id=request_ids, name=param_names, accepted=st.booleans(), reason=texts, value=st.none() | finite
+    ),
+    m.ParamInfo: param_infos,
+    m.ParamTable: st.builds(
+        m.ParamTable,
+        **_header(),
+        params=st.lists(param_infos, max_size=3).map(tuple),
+        write_roles=st.lists(st.sampled_from(["tester", "tool"]), max_size=2).map(tuple),
+    ),
+    m.ParamChanged: st.builds(
+        m.ParamChanged,
+        **_header(),
+        tick=counts,
+        kind=st.sampled_from(["xcp", "param", "schedule"]),
+        who=texts,
+        fields=st.dictionaries(param_names, finite, max_size=4),
+    ),
 }
 
 MODELS = sorted(STRATEGIES, key=lambda cls: cls.__name__)
@@ -271,6 +294,33 @@ VALID: dict[type[BaseModel], dict[str, Any]] = {
     },
     m.ScenarioCommand: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "kind": "seed", "seed": 7},
     m.PlantEvent: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "kind": "hard_stop"},
+    m.ParamSet: {"seq": 1, "sim_time_s": 0.5, "wall_time_s": 1.0, "request_id": "ab12", "name": "controller.kp1", "value": 8000.0},
+    m.ParamAnswer: {
+        "seq": 1,
+        "sim_time_s": 0.5,
+        "wall_time_s": 1.0,
+        "request_id": "ab12",
+        "name": "controller.kp1",
+        "accepted": False,
+        "reason": "outside its limits",
+    },
+    m.ParamInfo: {"name": "controller.kp1", "unit": "mV/rad", "lower": 0.0, "upper": 1e6, "value": 10000.0},
+    m.ParamTable: {
+        "seq": 1,
+        "sim_time_s": 0.5,
+        "wall_time_s": 1.0,
+        "params": [{"name": "controller.kp1", "unit": "mV/rad", "lower": 0.0, "upper": 1e6, "value": 10000.0}],
+        "write_roles": ["tester"],
+    },
+    m.ParamChanged: {
+        "seq": 1,
+        "sim_time_s": 0.5,
+        "wall_time_s": 1.0,
+        "tick": 100,
+        "kind": "schedule",
+        "who": "schedule",
+        "fields": {"controller.kp1": 8000.0},
+    },
 }
 
 

@@ -554,6 +554,11 @@ def test_key_expressions() -> None:
     assert keys.plant_events == "ralf/lab1/plant/events"
     assert keys.controller_status == "ralf/lab1/controller/status"
     assert keys.tf_downloads == "ralf/lab1/controller/tf"
+    assert keys.params == "ralf/lab1/controller/params"
+    assert keys.param_set == "ralf/lab1/controller/param_set"
+    assert keys.param_set_tool == "ralf/lab1/controller/param_set_tool"
+    assert keys.param_answer == "ralf/lab1/controller/param_answer"
+    assert keys.param_changes == "ralf/lab1/controller/param_changes"
     assert keys.health("dsp") == "ralf/lab1/health/dsp"
     assert keys.health_all == "ralf/lab1/health/*"
     assert keys.alive("plant") == "ralf/lab1/alive/plant"
@@ -572,7 +577,7 @@ def _all_keys(keys: Keys) -> list[str]:
 def test_keys_are_distinct_and_live_under_the_rig(rig_id: str) -> None:
     keys = Keys(rig_id)
     exprs = _all_keys(keys)
-    assert len(exprs) == len(set(exprs)) == 14 + 2 * len(SERVICES)
+    assert len(exprs) == len(set(exprs)) == 19 + 2 * len(SERVICES)
     for expr in exprs:
         assert expr.startswith(f"ralf/{rig_id}/")
         assert "*" not in expr and "//" not in expr and not expr.endswith("/")

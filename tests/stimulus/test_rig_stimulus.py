@@ -83,7 +83,12 @@ def test_a_stimulated_cosim_equals_the_one_process_lockstep_run_bit_for_bit(tmp_
         .step("payload", 1.0, at_s=1.5, end_s=3.5)
     )
     frags = stim.settings()
-    controller = {"duration_s": 5.0, "oatf_mode": "adaptive", "tf_download_samples": 500, **frags["controller"]}
+    schedule = [  # scripted parameter changes (docs/calibration.md) at tick boundaries, on and off the tick grid
+        {"name": "controller.kp1", "value": 12000.0, "at_s": 1.2},
+        {"name": "controller.ki2", "value": 2000.0, "at_s": 2.5031},
+        {"name": "controller.oatf_zeta", "value": 0.2, "at_s": 3.0},
+    ]
+    controller = {"duration_s": 5.0, "oatf_mode": "adaptive", "tf_download_samples": 500, "param_schedule": schedule, **frags["controller"]}
     records = []
     for name, runner in (("cosim", run_cosim), ("one", run_in_process)):
         record = tmp_path / name / "run"
@@ -100,6 +105,9 @@ def test_a_stimulated_cosim_equals_the_one_process_lockstep_run_bit_for_bit(tmp_
             assert np.array_equal(x[key], y[key], equal_nan=True), (name, key)
     ra, rb = load_record(a), load_record(b)
     assert ra.metadata["stimulus"] == rb.metadata["stimulus"]
+    changes = [c for c in ra.metadata["result"]["config_changes"] if c["kind"] == "schedule"]
+    assert changes == [c for c in rb.metadata["result"]["config_changes"] if c["kind"] == "schedule"]
+    assert [(round(c["sim_time_s"] / 0.005), c["fields"]) for c in changes] == [(240, {"kp1": 12000.0}), (501, {"ki2": 2000.0}), (600, {"oatf_zeta": 0.2})]
     assert len(ra) == 1000 and np.isfinite(ra["stim_u2_v"]).sum() == 600
     truth = _npz(a.parent / "run.truth.npz")
     attached = truth["payload_attached"]

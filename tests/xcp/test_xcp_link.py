@@ -12,6 +12,7 @@ import pytest
 
 from controller.config import build_trajectory, law_config
 from controller.loop import ControlLaw
+from controller.params import ParamPath
 from controller.service import RECORD_COLUMNS
 from controller.timing_counters import TimingCounters
 from controller.xcp_link import XcpLink, make_xcp
@@ -27,9 +28,11 @@ def free_udp_port() -> int:
 
 def fake_service(**settings: Any) -> Any:
     s = ControllerSettings(**settings)
+    law = ControlLaw(law_config(s), build_trajectory(s))
     return SimpleNamespace(
         settings=s,
-        law=ControlLaw(law_config(s), build_trajectory(s)),
+        law=law,
+        params=ParamPath(law, s.sample_period_s, []),
         tet=LatencyTracker(16),
         link=SimpleNamespace(counters=SimpleNamespace(deadline_misses=0)),
         timing=TimingCounters(),

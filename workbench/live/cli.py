@@ -24,6 +24,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     from protocol.errors import ConfigError
     from protocol.settings import CommonSettings, load_settings
     from service_kit.transport import open_zenoh
+    from workbench.live.params import ParamPanel
     from workbench.live.view import LiveView, LiveViewError, parse_address
     from workbench.recording.recorder import Recorder
     from workbench.recording.schemas import rig_topics
@@ -40,12 +41,15 @@ def cmd_live(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(CommonSettings, overrides)
         host, port = parse_address(address)
-        view = LiveView(host, port, rate_hz=args.rate, topics=rig_topics(settings.rig_id))
+        panel = ParamPanel(settings.rig_id) if args.params else None
+        view = LiveView(host, port, rate_hz=args.rate, topics=rig_topics(settings.rig_id), params=panel)
     except (ConfigError, LiveViewError) as exc:
         console.print(f"[red]ralf-hil live: {' '.join(str(exc).split())}[/red]", highlight=False, soft_wrap=True)
         return 2
     recorder = Recorder(None, sample_rate_hz=settings.sample_rate_hz, node_id=settings.node_id, mirror=view)
     session = open_zenoh(settings)
+    if view.params is not None:
+        view.params.session = session
     bus = open_tap_bus(settings)
     tap = Tap(recorder, settings.rig_id, session=session, bus=bus)
     stop = threading.Event()
@@ -81,4 +85,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--connect", default=None, metavar="ENDPOINT[,ENDPOINT...]", help="zenoh endpoints of the services (default: RALF_ZENOH_CONNECT)")
     p.add_argument("--can-port", type=int, default=None, help="udp_multicast port (default: RALF_CAN_PORT)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many wall-clock seconds")
+    p.add_argument(
+        "--params",
+        action="store_true",
+        help="serve the controller's parameters in Foxglove's parameter panel (a rig with controller.param_commands=true; changes as the tool role)",
+    )
     p.set_defaults(func=cmd_live)

@@ -62,6 +62,7 @@ from typing import Any
 from foxglove.websocket import ServerListener
 
 from service_kit.counters import Counters
+from workbench.live.params import ParamPanel
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +105,10 @@ class LiveStats(Counters):
     set by whoever closes the recorder."""
     can_socket_drops: int = 0
     """CAN frames the kernel dropped before the tap read them (set likewise)."""
+    param_sets_taken: int = 0
+    """Parameter changes from the view's clients the controller took (docs/calibration.md)."""
+    param_sets_refused: int = 0
+    """Parameter changes from the view's clients refused (role, limits, guards, no answer): nothing changed."""
 
 
 SUBPROTOCOL = "foxglove.sdk.v1"
@@ -222,12 +227,34 @@ def parse_address(text: str) -> tuple[str, int]:
 
 
 class _Listener(ServerListener):
-    """Counts subscriptions and clients (the SDK's ServerListener protocol)."""
+    """Counts subscriptions and clients (the SDK's ServerListener protocol); with a
+    parameter panel (:mod:`workbench.live.params`), answers Foxglove's parameter requests."""
 
-    def __init__(self, stats: LiveStats) -> None:
+    def __init__(self, stats: LiveStats, params: ParamPanel | None = None) -> None:
         self.stats = stats
+        self.params = params
         self._clients: set[int] = set()
         self._lock = threading.Lock()
+
+    def _parameters(self, names: list[str]) -> list[Any]:
+        from foxglove.websocket import Parameter
+
+        assert self.params is not None
+        return [Parameter(name, value=value) for name, value in self.params.values(names)]
+
+    def on_get_parameters(self, client: Any, param_names: list[str], request_id: str | None = None) -> list[Any]:
+        return self._parameters(list(param_names)) if self.params is not None else []
+
+    def on_set_parameters(self, client: Any, parameters: list[Any], request_id: str | None = None) -> list[Any]:
+        """Each change through the controller's path (as the tool role); the answer is the table in effect."""
+        if self.params is None:
+            return []
+        for p in parameters:
+            if self.params.set(p.name, p.get_value()) is not None:
+                self.stats.param_sets_refused += 1
+            else:
+                self.stats.param_sets_taken += 1
+        return self._parameters([p.name for p in parameters])
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
         with self._lock:
@@ -252,9 +279,11 @@ class LiveView:
         backlog: int = DEFAULT_BACKLOG,
         name: str = "ralf-hil",
         topics: Iterable[tuple[str, Mapping[str, Any]]] = (),
+        params: ParamPanel | None = None,
     ) -> None:
         """``topics``: (topic, JSON schema) of every channel to create before the server starts
-        (:func:`workbench.recording.schemas.rig_topics`; see the module doc)."""
+        (:func:`workbench.recording.schemas.rig_topics`; see the module doc). ``params``: serve
+        Foxglove's parameter capability from the controller's table (:mod:`workbench.live.params`)."""
         import foxglove
         from foxglove.websocket import Capability
 
@@ -275,8 +304,8 @@ class LiveView:
                 name=name,
                 host=host,
                 port=port,
-                capabilities=[Capability.Time],
-                server_listener=_Listener(self.stats),
+                capabilities=[Capability.Time, *([Capability.Parameters] if params is not None else [])],
+                server_listener=_Listener(self.stats, params),
                 supported_encodings=["json"],
                 context=self._context,
                 message_backlog_size=backlog,
@@ -285,6 +314,9 @@ class LiveView:
             self._sdk_log.removeHandler(self._sdk_counter)
             raise LiveViewError(f"cannot serve the live view on {host}:{port}: {str(exc).removeprefix('FoxgloveError: ')}") from None
         self.host, self.port = host, int(self.server.port)
+        self.params = params
+        if params is not None:
+            params.on_refused = self._refused
         self._last_sent: dict[str, float] = {}
         self._sim_ns = 0
         self._last_time_broadcast = -1e18
@@ -363,6 +395,13 @@ class LiveView:
             kind = str(record.get("kind", ""))
             level = StatusLevel.Warning if kind in ("hard_stop", "watchdog") else StatusLevel.Info
             self.server.publish_status(f"plant {kind} at {t}: {record.get('detail', '')}", level, f"plant:{kind}")
+            self.stats.statuses += 1
+
+    def _refused(self, reason: str) -> None:
+        from foxglove.websocket import StatusLevel
+
+        if not self._closed:
+            self.server.publish_status(f"parameter change refused: {reason}", StatusLevel.Warning, "param_refused")
             self.stats.statuses += 1
 
     def close(self) -> LiveStats:

@@ -120,6 +120,13 @@ class RecordingDspPort:
         self._put(self.keys.tf_downloads, payload, str(TF))
         self.inner.publish_tf(payload)
 
+    def publish_param_change(self, payload: bytes) -> None:
+        """A parameter change taken (controller/params.py): recorded; the co-simulation's own port has no listener."""
+        self._put(self.keys.param_changes, payload, str(JSON))
+        inner = getattr(self.inner, "publish_param_change", None)
+        if inner is not None:
+            inner(payload)
+
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
 

@@ -127,6 +127,9 @@ FIELDS: Final[dict[str, tuple[Field, ...]]] = {
         _f("seed"),
         _f("adc_bits", "bit"),
     ),
+    "ralf.ParamSet": (SEQ, _f("value")),
+    "ralf.ParamAnswer": (SEQ, _f("accepted"), _f("value")),
+    "ralf.ParamChanged": (SEQ, _f("tick"), _f("kind", states=("xcp", "param", "schedule"))),
 }
 """Schema name -> its fields (the message's own numbers; ``sim_time_s`` is the time axis)."""
 

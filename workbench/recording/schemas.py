@@ -51,8 +51,12 @@ Direction = Literal["controller->plant", "plant->controller"]
 TO_PLANT: Final[Direction] = "controller->plant"
 TO_CONTROLLER: Final[Direction] = "plant->controller"
 
-MODELS_BY_SUFFIX: Final[dict[str, type[BaseModel]]] = json_models()
-"""The JSON messages of the contract, by key below ``ralf/<rig>/`` (health/* apart)."""
+MODELS_BY_SUFFIX: Final[dict[str, type[BaseModel]]] = {
+    **json_models(),
+    **{c.suffix: c.payload for c in RIG.channels if c.kind == "queryable" and isinstance(c.payload, type)},
+}
+"""The JSON messages of the contract, by key below ``ralf/<rig>/`` (health/* apart; a JSON
+queryable's answer, ``controller/params``, too: never recorded, a tap hears no answers)."""
 
 BATCH_SUFFIX: Final[str] = "dsp/batch"
 TF_SUFFIXES: Final[tuple[str, ...]] = ("controller/tf", "dsp/tf")
