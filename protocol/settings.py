@@ -101,6 +101,8 @@ class CommonSettings(BaseSettings):
     node_id: int = Field(1, ge=1, le=127, description="CANopen node id of the plant's analog I/O module")
     can_bitrate: int = Field(
         0,
+        ge=0,
+        le=1_000_000,
         description="CAN bit rate of the wire model: 0 = none (frames take no time), else 125000, 250000, 500000 or 1000000 (simulated time in co-simulation and one-process lockstep; a wire arbiter under ralf-hil up)",
     )
     can_restbus: str = Field("", description="DBC of the rest of the bus sent beside the rig on the wire (needs can_bitrate); empty: none")
