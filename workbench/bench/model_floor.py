@@ -26,11 +26,12 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Recorded", "CallLog", "floor_report", "fmpy_inputs", "record_run", "replay_dsp", "replay_law", "replay_plant"]
+__all__ = ["Recorded", "CallLog", "floor_report", "fmpy_floor", "fmpy_inputs", "record_run", "replay_dsp", "replay_law", "replay_plant"]
 
 PLANT_CALLS = (
     "advance",
@@ -230,9 +231,9 @@ def floor_report(controller: dict[str, Any], rounds: int = 3, plant: dict[str, A
     }
 
 
-def fmpy_inputs(rec: Recorded) -> tuple[np.ndarray, float]:
+def fmpy_inputs(rec: Recorded, names: Sequence[str] = ("u1", "u2")) -> tuple[np.ndarray, float]:
     """The valve voltages the plant model received in ``rec``, as an FMPy input
-    table (``time``, ``u1``, ``u2``; each voltage held from the model time it
+    table (``time`` and the two inputs ``names``; each voltage held from the model time it
     was set at, a step at every change), and the model time the run reached."""
     t = 0.0
     rows: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)]
@@ -244,5 +245,39 @@ def fmpy_inputs(rec: Recorded) -> tuple[np.ndarray, float]:
             if (u1, u2) != rows[-1][1:]:
                 rows.append((t, *rows[-1][1:]))  # held up to t, then the step
                 rows.append((t, u1, u2))
-    table = np.array(rows, dtype=[("time", np.float64), ("u1", np.float64), ("u2", np.float64)])
+    table = np.array(rows, dtype=[("time", np.float64), (names[0], np.float64), (names[1], np.float64)])
     return table, t
+
+
+def fmpy_floor(fmu: Path, mapping_path: Path, controller: dict[str, Any], rounds: int = 2) -> dict[str, Any]:
+    """The co-simulation with the FMU plant against ``fmpy.simulate_fmu`` of the
+    same FMU over the same time with the same valve inputs (the run's, as an
+    input table), alternating round by round; the best wall time of each (s),
+    and ``ratio`` = co-simulation / FMPy. FMPy's time includes its own
+    extraction and instantiation of the FMU, as the co-simulation's includes
+    its start-up."""
+    import fmpy
+
+    from plant_emulator.fmu.mapping import load_mapping
+    from workbench.cosim import run_cosim
+
+    plant = {"model": f"fmu:{fmu}", "fmu_mapping": str(mapping_path)}
+    rec = record_run(controller, plant)
+    mapping = load_mapping(mapping_path)
+    table, stop = fmpy_inputs(rec, mapping.inputs)
+    start: dict[str, Any] = {**mapping.parameters, **mapping.start}
+    if mapping.seed_variable:
+        start[mapping.seed_variable] = rec.settings[1].seed
+    outputs = [ch.variable for ch in mapping.outputs]
+    period = rec.settings[0].sample_period_s
+    times: dict[str, list[float]] = {"cosim_s": [], "fmpy_s": []}
+    for _ in range(max(1, rounds)):
+        run = run_cosim(controller=controller, plant=plant)
+        times["cosim_s"].append(run.wall_time_s)
+        started = time.perf_counter()
+        out = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", start_values=start, input=table, output=outputs, output_interval=period, stop_time=stop)
+        times["fmpy_s"].append(time.perf_counter() - started)
+        if len(out) < 2:
+            raise RuntimeError("fmpy.simulate_fmu returned no output")
+    best = {key: min(values) for key, values in times.items()}
+    return {"ticks": rec.ticks, "sim_s": stop, **best, "ratio": best["cosim_s"] / best["fmpy_s"], "rounds": times, "input_rows": len(table)}

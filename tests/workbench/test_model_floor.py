@@ -1,0 +1,99 @@
+"""The co-simulation's floor (the models alone, replayed) and the runs-per-second
+item: they run, measure something non-empty, and the replay takes each model
+through the run's own states (no timed assertions)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from workbench.bench.entries import BenchContext, new_result
+from workbench.bench.model_floor import CallLog, floor_report, fmpy_inputs, record_run
+from workbench.bench.run_rate import one_run
+
+
+@pytest.fixture(scope="module")
+def recorded() -> object:
+    return record_run({"duration_s": 2.0})
+
+
+def test_the_record_holds_every_tick_of_every_model(recorded: object) -> None:
+    rec = recorded
+    ticks = rec.ticks  # type: ignore[attr-defined]
+    assert ticks == 400
+    assert rec.plant.count("advance") == ticks  # type: ignore[attr-defined]  # one sample period a SYNC
+    assert rec.law.count("tick_compiled") == ticks  # type: ignore[attr-defined]
+    assert rec.dsp.count("process") > 0  # type: ignore[attr-defined]
+
+
+def test_the_replayed_plant_ends_where_the_run_did(recorded: object) -> None:
+    """A fresh model fed the recorded calls returns the A/D codes the run's controller recorded, tick by tick."""
+    from plant_emulator.plant_factory import build_plant_model
+    from workbench.cosim import run_cosim
+
+    rec = recorded
+    model = build_plant_model(rec.settings[1])  # type: ignore[attr-defined]
+    codes = []
+    try:
+        for name, args, kwargs in rec.plant.calls:  # type: ignore[attr-defined]
+            out = getattr(model, name)(*args, **kwargs)
+            if name == "sample_codes":
+                codes.append(list(out[0]))
+    finally:
+        model.close()
+    run = run_cosim(controller={"duration_s": 2.0})
+    words = np.column_stack([run.controller.record.column(f"ai{i}_word") for i in (1, 2, 3, 4)]).astype(np.int64)
+    np.testing.assert_array_equal(np.array(codes, dtype=np.int64) << 4, words)
+
+
+def test_a_nested_call_is_recorded_once() -> None:
+    class Thing:
+        def outer(self, x: int) -> int:
+            return self.inner(x) + 1
+
+        def inner(self, x: int) -> int:
+            return x * 2
+
+    log = CallLog()
+    thing = log.wrap(Thing(), ("outer", "inner"))
+    assert thing.outer(3) == 7 and thing.inner(1) == 2
+    assert [name for name, _, _ in log.calls] == ["outer", "inner"]
+
+
+def test_the_floor_report_computes_its_ratio_over_a_measurement() -> None:
+    out = floor_report({"duration_s": 1.0}, rounds=1)
+    assert out["ticks"] == 200 and out["calls"]["plant"] > 0 and out["calls"]["law"] > 0
+    for key in ("cosim_us", "plant_us", "law_us", "dsp_us"):
+        assert out[key] > 0 and len(out["rounds"][key]) == 1
+    assert math.isclose(out["models_us"], out["plant_us"] + out["law_us"] + out["dsp_us"])
+    assert math.isclose(out["ratio"], out["cosim_us"] / out["models_us"])
+
+
+def test_the_input_table_holds_the_valves_as_fmpy_reads_it(recorded: object) -> None:
+    table, stop = fmpy_inputs(recorded)  # type: ignore[arg-type]
+    assert table.dtype.names == ("time", "u1", "u2")
+    assert math.isclose(stop, 2.0)
+    assert (np.diff(table["time"]) >= 0).all() and len(table) > 10  # steps: each change a repeated time
+    assert np.abs(table["u1"]).max() > 0.0
+
+
+def test_one_run_reports_its_times() -> None:
+    out = one_run(3, 0.5)
+    assert out["ticks"] == 100 and out["failed"] == 0.0
+    assert out["wall_s"] >= out["loop_s"] > 0
+
+
+def test_the_cosim_item_carries_the_floor(monkeypatch: pytest.MonkeyPatch) -> None:
+    """bench_cosim with tiny runs: the floor's measurement is present and has its ratio."""
+    from workbench.bench import cosim_parts, items, model_floor
+
+    real_floor, real_parts = model_floor.floor_report, cosim_parts.cosim_parts
+    monkeypatch.setattr(model_floor, "floor_report", lambda controller, rounds=1: real_floor({"duration_s": 0.5}, rounds=1))
+    monkeypatch.setattr(cosim_parts, "cosim_parts", lambda sim_s=1.0, controller=None: real_parts(0.5, controller))
+    result = new_result()
+    ctx = BenchContext(quick=True)
+    items._cosim_floor(ctx, result["measurements"], 0.5)
+    entry = result["measurements"]["cosim per tick vs the models alone"]
+    assert entry["floor_value"] > 0 and entry["ratio"] == pytest.approx(entry["value"] / entry["floor_value"])
