@@ -193,15 +193,19 @@ cosim_parts(1.0)
 repeats = [cosim_parts(sim_s) for _ in range(3)]
 out = min(repeats, key=lambda r: r["cpu_us_per_tick"])
 out["parts_us_per_tick"] = {k: min(r["parts_us_per_tick"].get(k, 0.0) for r in repeats) for k in out["parts_us_per_tick"]}
-profile = cProfile.Profile()
-profile.enable()
-run = run_cosim(controller={"oatf_mode": "adaptive", "duration_s": 5.0})
-profile.disable()
-out["calls_per_tick"] = pstats.Stats(profile).total_calls / max(run.result.ticks, 1)
+counts = []
+for seconds in (1.0, 6.0):
+    profile = cProfile.Profile()
+    profile.enable()
+    run = run_cosim(controller={"oatf_mode": "adaptive", "duration_s": seconds})
+    profile.disable()
+    counts.append((pstats.Stats(profile).total_calls, run.result.ticks))
+out["calls_per_tick"] = (counts[1][0] - counts[0][0]) / (counts[1][1] - counts[0][1])
 print("RESULT " + json.dumps(out))
 """
 """What each tree's child process runs: one warm-up, the parts three times (the run of least CPU time,
-each part's least time: what the host's other load added least), and the Python calls per tick (cProfile, 5 s)."""
+each part's least time: what the host's other load added least), and the Python calls per tick
+(cProfile's count of a 6 s run less a 1 s run's, over the ticks between: the start-up cancels out)."""
 
 
 def _tree_parts(tree: Path, sim_s: float) -> dict[str, Any]:
@@ -266,8 +270,9 @@ def markdown(result: dict[str, Any], command: str) -> str:
         f"load average {result['load_before'][0]:.2f} before and {result['load_after'][0]:.2f} after. Each tree's parts",
         f"(`ralf-hil measure cosim-parts`, {result['sim_s']:g} s simulated, adaptive OATF; in each process the least of three",
         f"runs) in its own process, the two trees alternating for {result['rounds']} rounds; the median of the rounds. On a shared",
-        "host the CPU time is the steadier figure. Python function calls per tick: cProfile's count over",
-        "a 5 s co-simulation (independent of the host's load). Before: the sources as they were; after: with the changes",
+        "host the CPU time is the steadier figure. Python function calls per tick: cProfile's count of a 6 s co-simulation",
+        "less a 1 s one's, per tick between (start-up cancels; the host's load does not move it). Before: the sources as",
+        "they were; after: with the changes",
         "described in [timing.md](../timing.md#where-a-co-simulated-tick-goes).",
         "",
         "| part | before µs per tick | after µs per tick | after / before |",
