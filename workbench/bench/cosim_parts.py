@@ -194,22 +194,24 @@ repeats = [cosim_parts(sim_s) for _ in range(3)]
 out = min(repeats, key=lambda r: r["cpu_us_per_tick"])
 out["parts_us_per_tick"] = {k: min(r["parts_us_per_tick"].get(k, 0.0) for r in repeats) for k in out["parts_us_per_tick"]}
 counts = []
-for seconds in (1.0, 6.0):
+for seconds in (2.0, 12.0):
     profile = cProfile.Profile()
     profile.enable()
     run = run_cosim(controller={"oatf_mode": "adaptive", "duration_s": seconds})
     profile.disable()
     stats = pstats.Stats(profile)
-    counts.append((stats.total_calls, run.result.ticks))
-out["calls_per_tick"] = (counts[1][0] - counts[0][0]) / (counts[1][1] - counts[0][1])
-ticks = counts[1][1]
-rows = sorted(stats.stats.items(), key=lambda kv: -kv[1][2])[:20]
-out["profile"] = [[f"{f.rsplit('/', 2)[-2]}/{f.rsplit('/', 1)[-1]}:{line} {name}" if "/" in f else name, nc / ticks, tt / ticks * 1e6] for (f, line, name), (cc, nc, tt, ct, callers) in rows]
+    counts.append((stats.total_calls, run.result.ticks, {k: (v[1], v[2]) for k, v in stats.stats.items()}))
+ticks = counts[1][1] - counts[0][1]
+out["calls_per_tick"] = (counts[1][0] - counts[0][0]) / ticks
+short, long = counts[0][2], counts[1][2]
+per = {k: ((nc - short.get(k, (0, 0.0))[0]) / ticks, (tt - short.get(k, (0, 0.0))[1]) / ticks * 1e6) for k, (nc, tt) in long.items()}
+rows = sorted(per.items(), key=lambda kv: -kv[1][1])[:20]
+out["profile"] = [[f"{f.rsplit('/', 2)[-2]}/{f.rsplit('/', 1)[-1]}:{line} {name}" if "/" in f else name, nc, tt] for (f, line, name), (nc, tt) in rows]
 print("RESULT " + json.dumps(out))
 """
 """What each tree's child process runs: one warm-up, the parts three times (the run of least CPU time,
-each part's least time: what the host's other load added least), and the Python calls per tick
-(cProfile's count of a 6 s run less a 1 s run's, over the ticks between: the start-up cancels out)."""
+each part's least time: what the host's other load added least), and the Python calls per tick and
+the profile per function (cProfile of a 12 s run less a 2 s run's, over the ticks between: the start-up cancels out)."""
 
 
 def _tree_parts(tree: Path, sim_s: float) -> dict[str, Any]:
@@ -275,8 +277,8 @@ def markdown(result: dict[str, Any], command: str) -> str:
         f"load average {result['load_before'][0]:.2f} before and {result['load_after'][0]:.2f} after. Each tree's parts",
         f"(`ralf-hil measure cosim-parts`, {result['sim_s']:g} s simulated, adaptive OATF; in each process the least of three",
         f"runs) in its own process, the two trees alternating for {result['rounds']} rounds; the median of the rounds. On a shared",
-        "host the CPU time is the steadier figure. Python function calls per tick: cProfile's count of a 6 s co-simulation",
-        "less a 1 s one's, per tick between (start-up cancels; the host's load does not move it). Before: the sources as",
+        "host the CPU time is the steadier figure. Python function calls per tick: cProfile's count of a 12 s co-simulation",
+        "less a 2 s one's, per tick between (start-up cancels; the host's load does not move it). Before: the sources as",
         "they were; after: with the changes",
         "described in [timing.md](../timing.md#where-a-co-simulated-tick-goes).",
         "",
@@ -297,7 +299,7 @@ def markdown(result: dict[str, Any], command: str) -> str:
             "",
             "## What holds the rest: the after tree's profile",
             "",
-            "cProfile of the 6 s co-simulation above (after), the 20 functions of most own time: calls and own time per tick.",
+            "cProfile of the co-simulations above (after; 12 s less 2 s), the 20 functions of most own time: calls and own time per tick.",
             "The profiler's cost per call inflates every row alike; the shares, not the µs, are the figure.",
             "",
             "| function | calls per tick | own µs per tick (profiled) |",
