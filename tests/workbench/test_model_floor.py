@@ -97,3 +97,38 @@ def test_the_cosim_item_carries_the_floor(monkeypatch: pytest.MonkeyPatch) -> No
     items._cosim_floor(ctx, result["measurements"], 0.5)
     entry = result["measurements"]["cosim per tick vs the models alone"]
     assert entry["floor_value"] > 0 and entry["ratio"] == pytest.approx(entry["value"] / entry["floor_value"])
+
+
+def test_compare_refuses_a_folder_without_sources(tmp_path: object, capsys: pytest.CaptureFixture[str]) -> None:
+    from workbench.cli import build_parser
+
+    args = build_parser().parse_args(["measure", "cosim-parts", "--compare", str(tmp_path)])
+    assert args.func(args) == 2
+    err = capsys.readouterr().err
+    assert "holds no ralf-hil source tree" in err and "Traceback" not in err
+
+
+def test_the_table_lists_every_part_of_both_trees() -> None:
+    """markdown() over two measured parts runs: a row per part, the totals and the calls."""
+    from workbench.bench.cosim_parts import _median_parts, cosim_parts, markdown
+
+    runs = []
+    for _ in range(2):
+        out = cosim_parts(0.5)
+        out["calls_per_tick"] = 100.0
+        runs.append(out)
+    result = {
+        "date": "d",
+        "machine": {"cpu_model": "cpu", "cpus": 2},
+        "load_before": (1.0, 1.0, 1.0),
+        "load_after": (1.0, 1.0, 1.0),
+        "sim_s": 0.5,
+        "rounds": 1,
+        "before": _median_parts(runs[:1]),
+        "after": _median_parts(runs[1:]),
+        "after_profile": [["f", 1.0, 2.0]],
+    }
+    text = markdown(result, "cmd")
+    for name in runs[1]["parts_us_per_tick"]:
+        assert f"| {name} |" in text
+    assert "| Python function calls per tick | 100.0 | 100.0 | 1.00 |" in text and "| `f` | 1.0 | 2.00 |" in text
