@@ -5,46 +5,49 @@ through the run's own states (no timed assertions)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from workbench.bench.entries import BenchContext, new_result
-from workbench.bench.model_floor import CallLog, floor_report, fmpy_inputs, record_run
+from workbench.bench.model_floor import CallLog, Recorded, floor_report, fmpy_inputs, record_run
 from workbench.bench.run_rate import one_run
 
 
 @pytest.fixture(scope="module")
-def recorded() -> object:
+def recorded() -> Recorded:
     return record_run({"duration_s": 2.0})
 
 
-def test_the_record_holds_every_tick_of_every_model(recorded: object) -> None:
+def test_the_record_holds_every_tick_of_every_model(recorded: Recorded) -> None:
     rec = recorded
-    ticks = rec.ticks  # type: ignore[attr-defined]
+    ticks = rec.ticks
     assert ticks == 400
-    assert rec.plant.count("advance") == ticks  # type: ignore[attr-defined]  # one sample period a SYNC
-    assert rec.law.count("tick_compiled") == ticks  # type: ignore[attr-defined]
-    assert rec.dsp.count("process") > 0  # type: ignore[attr-defined]
+    assert rec.plant.count("advance") == ticks  # one sample period a SYNC
+    assert rec.law.count("tick_compiled") == ticks
+    assert rec.dsp.count("process") > 0
 
 
-def test_the_replayed_plant_ends_where_the_run_did(recorded: object) -> None:
+def test_the_replayed_plant_ends_where_the_run_did(recorded: Recorded) -> None:
     """A fresh model fed the recorded calls returns the A/D codes the run's controller recorded, tick by tick."""
     from plant_emulator.plant_factory import build_plant_model
     from workbench.cosim import run_cosim
 
     rec = recorded
-    model = build_plant_model(rec.settings[1])  # type: ignore[attr-defined]
+    model = build_plant_model(rec.settings[1])
     codes = []
     try:
-        for name, args, kwargs in rec.plant.calls:  # type: ignore[attr-defined]
+        for name, args, kwargs in rec.plant.calls:
             out = getattr(model, name)(*args, **kwargs)
             if name == "sample_codes":
                 codes.append(list(out[0]))
     finally:
         model.close()
     run = run_cosim(controller={"duration_s": 2.0})
-    words = np.column_stack([run.controller.record.column(f"ai{i}_word") for i in (1, 2, 3, 4)]).astype(np.int64)
+    record: Any = run.controller.record
+    words = np.column_stack([record.column(f"ai{i}_word") for i in (1, 2, 3, 4)]).astype(np.int64)
     np.testing.assert_array_equal(np.array(codes, dtype=np.int64) << 4, words)
 
 
@@ -71,8 +74,8 @@ def test_the_floor_report_computes_its_ratio_over_a_measurement() -> None:
     assert math.isclose(out["ratio"], out["cosim_us"] / out["models_us"])
 
 
-def test_the_input_table_holds_the_valves_as_fmpy_reads_it(recorded: object) -> None:
-    table, stop = fmpy_inputs(recorded)  # type: ignore[arg-type]
+def test_the_input_table_holds_the_valves_as_fmpy_reads_it(recorded: Recorded) -> None:
+    table, stop = fmpy_inputs(recorded)
     assert table.dtype.names == ("time", "u1", "u2")
     assert math.isclose(stop, 2.0)
     assert (np.diff(table["time"]) >= 0).all() and len(table) > 10  # steps: each change a repeated time
@@ -99,7 +102,7 @@ def test_the_cosim_item_carries_the_floor(monkeypatch: pytest.MonkeyPatch) -> No
     assert entry["floor_value"] > 0 and entry["ratio"] == pytest.approx(entry["value"] / entry["floor_value"])
 
 
-def test_compare_refuses_a_folder_without_sources(tmp_path: object, capsys: pytest.CaptureFixture[str]) -> None:
+def test_compare_refuses_a_folder_without_sources(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from workbench.cli import build_parser
 
     args = build_parser().parse_args(["measure", "cosim-parts", "--compare", str(tmp_path)])
