@@ -25,6 +25,7 @@ the same bits on every host. Smoothing biases damping estimates upward
 
 from __future__ import annotations
 
+import functools
 from fractions import Fraction
 
 import numpy as np
@@ -35,7 +36,15 @@ from . import kernel
 
 def savgol_dot_coeffs(window: int, order: int, pos: int) -> NDArray[np.float64]:
     """``scipy.signal.savgol_coeffs(window, order, pos=pos, use="dot")``, each coefficient the
-    correctly rounded value of the exact one.
+    correctly rounded value of the exact one (:func:`_exact_dot_coeffs`, worked out once
+    per process for each ``(window, order, pos)``: every smoother of a run, and of every
+    run in the process, shares them); a fresh array each call."""
+    return np.array(_exact_dot_coeffs(int(window), int(order), int(pos)), dtype=np.float64)
+
+
+@functools.lru_cache(maxsize=256)
+def _exact_dot_coeffs(window: int, order: int, pos: int) -> tuple[float, ...]:
+    """The coefficients of :func:`savgol_dot_coeffs`, each the correctly rounded value of the exact one.
 
     The least-squares polynomial of degree ``order`` through ``window`` points,
     evaluated at point ``pos``: ``c_j = Σ_i z_i (j − pos)^i`` with ``(AᵀA) z = e₀``,
@@ -54,7 +63,7 @@ def savgol_dot_coeffs(window: int, order: int, pos: int) -> NDArray[np.float64]:
                 f = a[r][col]
                 a[r] = [v - f * w for v, w in zip(a[r], a[col], strict=True)]
     z = [a[r][m] for r in range(m)]
-    return np.array([float(sum(zi * Fraction(xj) ** i for i, zi in enumerate(z))) for xj in x], dtype=np.float64)
+    return tuple(float(sum(zi * Fraction(xj) ** i for i, zi in enumerate(z))) for xj in x)
 
 
 class FrequencySmoother:

@@ -352,7 +352,9 @@ class Inbox:
         return out
 
     def __len__(self) -> int:
-        return self._queue.qsize()
+        # queue.Queue.qsize() is len() of its deque under the queue's lock; a loop asks
+        # this every tick, and a deque's length is read whole under the GIL: no lock.
+        return len(self._queue.queue)
 
     # -- reporting ------------------------------------------------------------------------
     def counters(self, kind: str) -> InboxCounters:

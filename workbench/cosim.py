@@ -100,7 +100,10 @@ class DirectCanWire:
     def send_frame(self, arbitration_id: int, data: bytes) -> None:
         """:meth:`send` of a standard data frame given by its COB-ID and payload."""
         self.frames_to_node += 1
-        self._take(self.node.exchange(arbitration_id, data, self.scheduler.now()))
+        frames = self.node.exchange(arbitration_id, data, self.scheduler.now())
+        if frames:
+            self._to_master.extend(frames)
+            self.frames_to_master += len(frames)
 
     def recv(self, timeout: float | None = None) -> Frame | can.Message | None:
         waiting = self._to_master

@@ -38,6 +38,11 @@ def _hotpath(p: argparse.ArgumentParser) -> None:
 def _cosim_parts(p: argparse.ArgumentParser) -> None:
     p.add_argument("seconds", type=float, nargs="?", default=None, help="simulated seconds (default: 20; with --plant: 10)")
     p.add_argument("--plant", action="store_true", help="instead: the plant side alone, its wire calls replayed")
+    p.add_argument(
+        "--compare", default=None, metavar="TREE", help="instead: this tree against the ralf-hil sources in TREE, alternating (a before/after table)"
+    )
+    p.add_argument("--rounds", type=int, default=3, help="with --compare: rounds of the two trees (default 3)")
+    p.add_argument("--write", default=None, metavar="PATH", help="with --compare: also write the table there (docs/results/cosim-parts.md)")
 
 
 def _recording(p: argparse.ArgumentParser) -> None:

@@ -127,6 +127,8 @@ class CanopenNode:
         """No timer is due before this simulated time (see :meth:`poll_frames`)..."""
         self._quiet_generation = -1
         """...unless the object dictionary changed since (its ``generation``)."""
+        self._quiet_exact = True
+        """False after :meth:`exchange` kept an earlier quiet time than the deadlines now are (still a safe bound)."""
         install_diagnostics(od, counters)
         ApplicationObjects(od, app, config, self._tpdo.update_valid, nlog)
         self._lifecycle.boot()
@@ -173,17 +175,32 @@ class CanopenNode:
         with self._lock:
             self._outbox.now = now
             data = bytes(data)
+            watchdog = self._watchdog
+            # A SYNC or an RPDO1 only moves the armed deadlines later: before the
+            # last _timers' quiet time nothing can be due (as in poll_frames).
+            quiet = (
+                now < self._quiet_until
+                and watchdog.sync_last is not None
+                and watchdog.rpdo_last is not None
+                and not watchdog.tripped
+                and self.od.generation == self._quiet_generation
+            )
             try:
                 if cob_id == self._sync_id:  # the two frames of every tick first (_dispatch_data's order otherwise)
                     self._on_sync(cob_id, data, now)
                 elif cob_id == self._rpdo1_id:
                     self._rpdo.receive(cob_id, data, now)
                 else:
+                    quiet = False
                     self._dispatch_data(cob_id, data, now)
             except Exception:  # noqa: BLE001 - nothing on the bus may kill the node
                 self.counters.internal_errors += 1
                 log.exception("node %d: internal error handling frame 0x%03X [%s]", self.node_id, cob_id, data.hex(" "))
-            self._timers(now)
+                quiet = False
+            if not quiet or watchdog.tripped or self.od.generation != self._quiet_generation:
+                self._timers(now)
+            else:
+                self._quiet_exact = False  # an earlier bound than the deadlines now are: next_deadline works them out
             return self._outbox.take()
 
     @property
@@ -214,7 +231,7 @@ class CanopenNode:
         """The earliest time :meth:`poll` has something to do (None: nothing scheduled)."""
         with self._lock:
             pending = bool(self._outbox.frames)
-            if not pending and self._quiet_until != -math.inf and self.od.generation == self._quiet_generation:
+            if not pending and self._quiet_exact and self._quiet_until != -math.inf and self.od.generation == self._quiet_generation:
                 # what the last _timers worked out: the heartbeat and watchdog deadlines (nothing changed since)
                 quiet = self._quiet_until
                 return None if quiet == math.inf else quiet
@@ -387,3 +404,4 @@ class CanopenNode:
                 quiet = due
         self._quiet_until = quiet
         self._quiet_generation = self.od.generation
+        self._quiet_exact = True

@@ -46,7 +46,11 @@ class SyncConsumer:
             if not 1 <= counter <= overflow:
                 self.log.malformed("sync_counter", cob_id, data, f"SYNC counter {counter} outside 1..{overflow}")
                 return None
-            conflict, missed = self._follow(counter, overflow)
+            prev = self.last_counter
+            if not (
+                prev and counter == prev % SYNC_COUNTER_OVERFLOW + 1 and overflow >= 2
+            ):  # the next counter (every tick's case): _follow finds nothing lost, no conflict
+                conflict, missed = self._follow(counter, overflow)
         self.last_counter = counter
         self.counters.sync_received += 1
         if conflict or _SYNC_CONFLICT in self.emcy.faults:

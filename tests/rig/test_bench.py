@@ -30,7 +30,7 @@ def _parse(*argv: str) -> argparse.Namespace:
 
 def test_defaults_and_quick() -> None:
     full = bench.options_from_args(_parse())
-    assert full["items"] == ["zenoh", "can", "realtime", "lockstep", "cosim", "dsp", "dsp-rigs", "hotpath", "fmu", "can-wire"]
+    assert full["items"] == ["zenoh", "can", "realtime", "lockstep", "cosim", "runs", "dsp", "dsp-rigs", "hotpath", "fmu", "can-wire"]
     assert full["quick"] is False and full["duration_s"] == 10.0 and full["iterations"] == 2000
     quick = bench.options_from_args(_parse("--quick"))
     assert quick["duration_s"] < full["duration_s"] and quick["iterations"] < full["iterations"]

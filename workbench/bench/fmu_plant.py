@@ -75,6 +75,26 @@ def _plant_steps(fmu: Path, mapping: Path, n: int, warmup: int) -> tuple[dict[st
     return samples, step_stats
 
 
+def _fmpy_floor(fmu: Path, mapping: Path, sim_s: float, rounds: int, m: dict[str, Any], result: dict[str, Any]) -> None:
+    """The co-simulation with the FMU against FMPy's own simulation of it (:func:`workbench.bench.model_floor.fmpy_floor`)."""
+    from workbench.bench.model_floor import fmpy_floor
+
+    try:
+        out = fmpy_floor(fmu, mapping, {"duration_s": sim_s}, rounds)
+    except Exception as exc:  # noqa: BLE001 - reported, the item's other figures kept
+        result["errors"].append(f"fmpy floor: {type(exc).__name__}: {exc}")
+        return
+    m["cosim with the FMU vs fmpy.simulate_fmu"] = scalar(
+        out["cosim_s"],
+        "s",
+        "fmpy.simulate_fmu of the same FMU, same inputs and time",
+        out["fmpy_s"],
+        sim_s=out["sim_s"],
+        rounds=out["rounds"],
+        note="best of alternating rounds; both include their start-up (FMPy: extraction and instantiation)",
+    )
+
+
 def bench_fmu(ctx: BenchContext, result: dict[str, Any]) -> None:
     """The FMU plant's step against the built-in arm's, and the co-simulation's speed with it."""
     requires("fmpy", "yaml", "workbench.cosim")
@@ -106,6 +126,8 @@ def bench_fmu(ctx: BenchContext, result: dict[str, Any]) -> None:
                 if run.result.error:
                     result["errors"].append(f"cosim ({name}): run ended with {run.result.error}")
                 speeds[name].append(run.result.sim_time_s / run.wall_time_s)
+        ctx.say(f"  the same FMU in fmpy.simulate_fmu, {sim_s:.0f} s with the co-simulation's valve inputs, alternating with the co-simulation")
+        _fmpy_floor(fmu, mapping, sim_s, 1 if ctx.quick else 2, m, result)
     fmu_x, builtin_x = float(np.median(speeds["fmu"])), float(np.median(speeds["builtin"]))
     m["cosim sim_s/wall_s, example FMU"] = scalar(fmu_x, "x", "50x goal", COSIM_GOAL, runs=speeds["fmu"])
     m["cosim sim_s/wall_s, built-in arm"] = scalar(builtin_x, "x", "the FMU's", fmu_x, runs=speeds["builtin"])

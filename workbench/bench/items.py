@@ -906,6 +906,26 @@ def _bench_cosim(ctx: BenchContext, result: dict[str, Any], three: float | None)
     )
 
 
+def _cosim_floor(ctx: BenchContext, m: dict[str, Any], sim_s: float) -> None:
+    """The co-simulation's wall time per tick against its models alone, replayed
+    with the run's own inputs (:mod:`workbench.bench.model_floor`), in alternating rounds."""
+    from workbench.bench.model_floor import floor_report
+
+    rounds = 2 if ctx.quick else 3
+    ctx.say(f"  the models alone over the same {sim_s:.0f} s (recorded inputs replayed), {rounds} rounds alternating with the co-simulation")
+    floor = floor_report({"duration_s": sim_s}, rounds=rounds)
+    m["cosim per tick vs the models alone"] = scalar(
+        floor["cosim_us"],
+        "us",
+        "plant model + control law + DSP step, replayed alone",
+        floor["models_us"],
+        note="best of alternating rounds; the co-simulation's wall time includes its start-up",
+        rounds=floor["rounds"],
+    )
+    for key, name in (("plant_us", "plant model step"), ("law_us", "control law tick"), ("dsp_us", "DSP core, amortized per tick")):
+        m[f"  models alone: {name}"] = scalar(floor[key], "us")
+
+
 def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
     """The co-simulation alone: simulated s per wall s and per CPU s against the
     100x target, µs per tick, and where a tick goes (:mod:`workbench.bench.cosim_parts`)."""
@@ -940,6 +960,7 @@ def bench_cosim(ctx: BenchContext, result: dict[str, Any]) -> None:
     tick_budget_us = 1e6 / 200.0 / COSIM_TARGET
     m["cosim wall per tick"] = scalar(run.wall_time_s / ticks * 1e6, "us", "100x budget", tick_budget_us)
     m["cosim cpu per tick"] = scalar(cpu / ticks * 1e6, "us", "100x budget", tick_budget_us)
+    _cosim_floor(ctx, m, sim_s)
     parts = cosim_parts(5.0 if ctx.quick else 20.0)
     result["parts"] = parts
     for name, us in parts["parts_us_per_tick"].items():
@@ -1031,6 +1052,13 @@ def bench_dsp_rigs(ctx: BenchContext, result: dict[str, Any]) -> None:
     run(ctx, result)
 
 
+def bench_runs(ctx: BenchContext, result: dict[str, Any]) -> None:
+    """Co-simulated runs per second, start-up included, on one core and on the local cluster (:mod:`workbench.bench.run_rate`)."""
+    from workbench.bench.run_rate import bench_runs as run
+
+    run(ctx, result)
+
+
 def bench_fmu(ctx: BenchContext, result: dict[str, Any]) -> None:
     """The FMU plant's step against the built-in arm's, and the co-simulation's speed with it (:mod:`workbench.bench.fmu_plant`)."""
     from workbench.bench.fmu_plant import bench_fmu as run
@@ -1051,6 +1079,7 @@ ITEMS: dict[str, Callable[[BenchContext, dict[str, Any]], None]] = {
     "realtime": bench_realtime,
     "lockstep": bench_lockstep,
     "cosim": bench_cosim,
+    "runs": bench_runs,
     "dsp": bench_dsp,
     "dsp-rigs": bench_dsp_rigs,
     "hotpath": bench_hotpath,

@@ -22,3 +22,16 @@ def test_the_fmu_bench_item_measures_both_models_and_the_cosim() -> None:
     speed = m["cosim sim_s/wall_s, example FMU"]
     assert speed["floor_value"] == 50.0 and speed["value"] > 0 and speed["ratio"] > 0
     assert m["cosim sim_s/wall_s, built-in arm"]["value"] > 0
+    against = m["cosim with the FMU vs fmpy.simulate_fmu"]
+    assert against["value"] > 0 and against["floor_value"] > 0 and against["ratio"] == pytest.approx(against["value"] / against["floor_value"])
+    assert against["sim_s"] == pytest.approx(10.0)
+
+
+def test_fmpy_takes_the_cosimulation_inputs(two_mode_fmu: object) -> None:
+    """The FMPy floor runs the FMU over the run's own time with a non-empty input table."""
+    from plant_emulator.fmu.build import EXAMPLE_MAPPING
+    from workbench.bench.model_floor import fmpy_floor
+
+    out = fmpy_floor(two_mode_fmu, EXAMPLE_MAPPING, {"duration_s": 1.0}, rounds=1)  # type: ignore[arg-type]
+    assert out["ticks"] == 200 and out["sim_s"] == pytest.approx(1.0) and out["input_rows"] >= 1
+    assert out["cosim_s"] > 0 and out["fmpy_s"] > 0 and out["ratio"] == pytest.approx(out["cosim_s"] / out["fmpy_s"])
