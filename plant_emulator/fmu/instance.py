@@ -36,6 +36,7 @@ log = logging.getLogger(__name__)
 STATUS_OK = 0
 STATUS_DISCARD = 2
 STATUS_ERROR = 3
+STATUS_FATAL = 4
 STATUS_TERMINATED = 5
 """FMI status codes (FMI 2.0 and 3.0 share 0-4); 5 here: FMI 3.0's terminateSimulation."""
 
@@ -72,6 +73,8 @@ class FmuInstance:
         self.version = description.fmiMajorVersion
         self._unzip_dir = unzip_dir
         self._closed = False
+        self._fatal = False
+        """A call returned fmiFatal: FMI 2.0 and 3.0 allow no further call of the FMU."""
         self.messages: deque[str] = deque(maxlen=16)
         """The FMU's last warning and error log messages."""
         self.n_messages = 0
@@ -249,7 +252,9 @@ class FmuInstance:
                 return STATUS_TERMINATED
             self._get()
         except Exception as exc:  # noqa: BLE001 - FMPy's FMICallException carries the status
-            return int(getattr(exc, "status", STATUS_ERROR))
+            status = int(getattr(exc, "status", STATUS_ERROR))
+            self._fatal = self._fatal or status == STATUS_FATAL
+            return status
         return STATUS_OK
 
     def read(self) -> list[float]:
@@ -275,7 +280,9 @@ class FmuInstance:
             return
         self._closed = True
         fmu = getattr(self, "fmu", None)
-        if fmu is not None and fmu.component:
+        if self._fatal:  # no terminate, no free: the FMU's memory is not to be touched again (its library stays loaded)
+            log.info("%s: not terminated or freed after its fatal status (FMI: no further call)", self.path.name)
+        elif fmu is not None and fmu.component:
             if self.fmu_initialized:
                 try:
                     fmu.terminate()
