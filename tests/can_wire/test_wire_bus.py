@@ -179,13 +179,14 @@ def test_pending_frames_of_a_closed_bus_are_dropped_and_counted() -> None:
 
 
 def test_logger_on_a_notifier_records_wire_time_stamps(tmp_path: Path) -> None:
-    """python-can's Notifier and Logger on a ralfwire bus: the BLF file holds
-    each frame stamped at its last EOF bit, as the bus model places it."""
+    """python-can's Notifier and Logger on a ralfwire bus: the log file (CSV,
+    whose timestamps python-can writes with every digit) holds each frame
+    stamped at its last EOF bit, as the bus model places it."""
     clock = ManualWireClock()
     channel = _channel()
     sender = WireBus(channel=channel, bitrate=BITRATE, clock=clock)
     listener = WireBus(channel=channel, bitrate=BITRATE, clock=clock)
-    path = tmp_path / "wire.blf"
+    path = tmp_path / "wire.csv"
     logger = can.Logger(str(path))
     seen: queue.Queue[can.Message] = queue.Queue()
     notifier = can.Notifier(listener, [logger, seen.put], timeout=0.05)
@@ -206,4 +207,4 @@ def test_logger_on_a_notifier_records_wire_time_stamps(tmp_path: Path) -> None:
     logged = list(can.LogReader(str(path)))
     assert [m.arbitration_id for m in logged] == [tx.arbitration_id for tx in model.transmissions]
     for m, tx in zip(logged, model.transmissions):
-        assert abs(round(m.timestamp * 1e9) - tx.last_bit_ns) <= 1  # BLF's nanoseconds through a float
+        assert abs(round(m.timestamp * 1e9) - tx.last_bit_ns) <= 1  # nanoseconds through a float
