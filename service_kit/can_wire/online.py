@@ -126,6 +126,15 @@ class OnlineBus:
         fcs = {n: copy.copy(w.fc) if w.fc.bus_off else w.fc for n, w in self.nodes.items()}  # idle bits change bus-off nodes only
         return self._settle(fcs, None)
 
+    def settle(self) -> int | None:
+        """Runs the bus up to the next attempt's start without starting it (with errors on, bus-off
+        nodes count the idle bits and may recover: :attr:`WireNode.changes`); returns the start.
+        Frames then submitted at or before it still contend for it."""
+        if not self._pending or not self._injectors:
+            return self.next_start()
+        self.bus_free_ns = self._settle({n: w.fc for n, w in self.nodes.items()}, self.nodes)
+        return self.bus_free_ns
+
     def _ready(self, q: _Queued, bus_free: int, fcs: dict[str, FaultConfinement]) -> bool:
         return q.queued_ns <= bus_free and not fcs[q.node].bus_off and self.nodes[q.node].suspend_until_ns <= bus_free
 

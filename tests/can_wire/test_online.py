@@ -146,7 +146,9 @@ def test_errors_equal_simulate(raw: list[tuple[str, int, int, bytes, bool]], bit
     bus, sent, index_of = _run_online(frames, bitrate, errors, lazy=lazy)
     attempts = [s.attempt for s in sent]
     assert all(a is not None for a in attempts)
-    got = [(index_of[a.index], a.node, a.start_ns, a.end_ns, a.ok, a.bits, tuple(index_of[x] for x in a.losers), a.ack_error) for a in attempts if a is not None]
+    got = [
+        (index_of[a.index], a.node, a.start_ns, a.end_ns, a.ok, a.bits, tuple(index_of[x] for x in a.losers), a.ack_error) for a in attempts if a is not None
+    ]
     want = [(a.index, a.node, a.start_ns, a.end_ns, a.ok, a.bits, a.losers, a.ack_error) for a in run.attempts]
     assert got == want
     txs = [(index_of[t.index], t.start_ns, t.last_bit_ns, t.end_ns, t.attempts) for s in sent if (t := s.transmission) is not None]
