@@ -38,12 +38,12 @@ Errors (off unless injected: :meth:`TimedCanWire.inject_can_errors`, or a fault
 scenario's ``can_errors`` through
 :func:`service_kit.can_wire.scenario_errors.attach`): the bus model's error
 frames, retransmissions and fault confinement, the controller, the plant
-and each restbus node a node with its counters. The plant node is told each
-change of its error state at the change's time (its CAN controller's
-interrupt), before the wire decides its next attempt (:meth:`plant_emulator.canopen_node.node.CanopenNode.can_error_state`:
-EMCY 0x8120, 0x8140 and the error register; its frames are queued at
-that time); a
-frame it sends while bus off is refused (its ``tx_errors``), as a
+and each restbus node a node with its counters. The plant node is told
+each change of its error state at the change's time (its CAN controller's
+interrupt), before the wire decides its next attempt
+(:meth:`plant_emulator.canopen_node.node.CanopenNode.can_error_state`:
+EMCY 0x8120, 0x8140 and the error register, its frames queued at that
+time); a frame it sends while bus off is refused (its ``tx_errors``), as a
 ``ralfwire`` bus refuses it. The controller's frames wait in its transmit
 queue while it is bus off.
 
@@ -409,7 +409,6 @@ class TimedCanWire:
         grid = self.grid_ns
         self.app.wire_arrival_ns = (arrival + grid // 2) // grid * grid
         self._note_to_plant(arrival, tag)
-
         try:
             frames = self.node.exchange(cob, data, self.scheduler.now())
         finally:
