@@ -37,6 +37,9 @@ class CanErrorWatch:
         self.counters = counters
         self.plant_reports: str | None = None
         """The plant's last EMCY on its CAN error state not yet reset (None: none)."""
+        self._latched: str | None = None
+        """The plant's first such EMCY since :meth:`condition` last looked: an episode that began and
+        ended between two ticks (error passive, bus off and recovered) still turns the monitor on once."""
         self._read_own: Callable[[], ErrorState] | None = error_state_reader(bus)
         self._own = ErrorState.ACTIVE
 
@@ -45,9 +48,11 @@ class CanErrorWatch:
         if emcy.code == PASSIVE:
             self.counters.plant_can_error_passive += 1
             self.plant_reports = f"the plant node is CAN error passive (EMCY 0x{PASSIVE:04x})"
+            self._latched = self._latched or self.plant_reports
         elif emcy.code == RECOVERED:
             self.counters.plant_can_bus_off_recoveries += 1
             self.plant_reports = f"the plant node recovered from CAN bus off (EMCY 0x{RECOVERED:04x})"
+            self._latched = self._latched or self.plant_reports
         elif emcy.code == 0 and int.from_bytes(emcy.vendor[:2], "little") in COMMUNICATION_CODES:
             self.plant_reports = None
 
@@ -67,10 +72,12 @@ class CanErrorWatch:
 
     def condition(self) -> str | None:
         """What keeps the monitor on, or None when every node seen is error active."""
-        if self._read_own is None and self.plant_reports is None:
+        latched, self._latched = self._latched, None
+        if self._read_own is None and self.plant_reports is None and latched is None:
             return None  # the per-tick case on a bus without error states
         own = self.own_state()
-        parts = [self.plant_reports] if self.plant_reports is not None else []
+        plant = self.plant_reports if self.plant_reports is not None else latched
+        parts = [plant] if plant is not None else []
         if own is not ErrorState.ACTIVE:
             parts.append(f"the controller's CAN controller is {own.value}")
         return "; ".join(parts) or None

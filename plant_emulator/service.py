@@ -674,6 +674,9 @@ def serve(
         if callable(bind):  # a simulated wire (workbench.lockstep_wire): the model advances to each arrival
             bind(app)
         node = CanopenNode(app, node_config(settings))
+        bind_node = getattr(bus, "bind_node", None)
+        if callable(bind_node):  # the simulated wire tells the node its CAN error state (errors injected only)
+            bind_node(node)
         app.set_fault = node.set_fault
         app.xcp = make_plant_xcp(settings, model, app._event)
         measures = (

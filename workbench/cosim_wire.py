@@ -5,8 +5,8 @@ bit is gone (``can_bitrate`` set; docs/can-wire.md "In the simulated rig").
 :class:`TimedCanWire` replaces :class:`workbench.cosim.DirectCanWire` when a
 bit rate is set; the default path keeps the direct wire and its speed. The
 bus is :class:`service_kit.can_wire.online.OnlineBus` (the rule of
-:func:`service_kit.can_wire.arbitration.simulate`, no errors), on its own
-axis of integer nanoseconds:
+:func:`service_kit.can_wire.arbitration.simulate`; error frames only when
+injected), on its own axis of integer nanoseconds:
 
 * **The wire starts with the run's first SYNC.** The start-up before it
   (boot-up, NMT, the SDO configuration) goes through untimed, as on the
@@ -34,6 +34,19 @@ its sub-step grid (nearest step of ``internal_step_s``, 1 ms by default),
 so a SYNC samples the state there and an RPDO1's D/A applies from there
 (:attr:`plant_emulator.service.PlantApplication.wire_arrival_ns`).
 
+Errors (off unless injected: :meth:`TimedCanWire.inject_can_errors`, or a fault
+scenario's ``can_errors`` through
+:func:`service_kit.can_wire.scenario_errors.attach`): the bus model's error
+frames, retransmissions and fault confinement, the controller, the plant
+and each restbus node a node with its counters. The plant node is told
+each change of its error state at the change's time (its CAN controller's
+interrupt), before the wire decides its next attempt
+(:meth:`plant_emulator.canopen_node.node.CanopenNode.can_error_state`:
+EMCY 0x8120, 0x8140 and the error register, its frames queued at that
+time); a frame it sends while bus off is refused (its ``tx_errors``), as a
+``ralfwire`` bus refuses it. The controller's frames wait in its transmit
+queue while it is bus off.
+
 What the controller's deadline sees: a TPDO1 that arrives more than
 ``TPDO_WINDOW`` of the period after its SYNC was queued is late, as in real
 time: the tick gets no sample and holds the last one
@@ -58,8 +71,10 @@ from plant_emulator.node import CanopenNode
 from plant_emulator.service import PlantApplication
 from protocol import can_map
 from protocol.errors import ConfigError
+from service_kit.can_wire.arbitration import ErrorInjection
 from service_kit.can_wire.bits import FrameBits, frame_bits
 from service_kit.can_wire.bus_load import BusyInterval, bus_load
+from service_kit.can_wire.error_state import ErrorState
 from service_kit.can_wire.online import OnlineBus
 from service_kit.can_wire.restbus import traffic
 from service_kit.can_wire.restbus.traffic import Instance, Restbus, RestbusError
@@ -123,6 +138,8 @@ class WireStats:
     """SYNC queued to the same tick's RPDO1 delivered to the plant (the control cycle's bus latency)."""
     late_tpdos: int = 0
     first_ns: int | None = None
+    plant_refused: int = 0
+    """Frames the plant node sent while bus off (refused, with errors on)."""
 
 
 @dataclass
@@ -153,6 +170,8 @@ class TimedCanWire:
         self.app: Any = app
         self.bitrate = bitrate
         self.bus = OnlineBus(bitrate)
+        for name in (CONTROLLER, PLANT, *(m.node for m in (restbus.messages if restbus is not None else ()))):
+            self.bus.add_node(name)  # every station a node: it acknowledges and counts (with errors on)
         self.ts_ns = round(sample_period_s * 1e9)
         self.grid_ns = grid_ns if grid_ns is not None else grid_of(app)
         self.window_ns = round(TPDO_WINDOW * self.ts_ns)
@@ -180,7 +199,13 @@ class TimedCanWire:
         ids = can_map.cob_ids(node_id)
         self._tpdo1, self._rpdo1, self._heartbeat = ids["tpdo1"], ids["rpdo1"], ids["heartbeat"]
         self.frames_to_node = 0
+        self._plant_seen = 0
+        self._plant_reported = ErrorState.ACTIVE
         self.frames_to_master = 0
+
+    def inject_can_errors(self, *specs: ErrorInjection) -> None:
+        """Error frames on the wire (module docstring); times on the wire's axis (simulated, the plant model's: SYNC n at n Ts)."""
+        self.bus.inject(*specs)
 
     # -- the controller's side (python-can's BusABC as PlantLink uses it) ---------------------------------
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -317,8 +342,11 @@ class TimedCanWire:
                     return
                 if limit is None and not self._rig_pending():
                     return
+                if self.bus.errors_on and self._plant_events():
+                    continue  # the node's answers to its new state contend too
                 self._commit()
-            assert self._in_flight is not None
+            if self._in_flight is None:  # an attempt cut by an error frame: the frame contends again
+                continue
             arrival, tag = self._in_flight
             if limit is not None and arrival > limit:
                 return
@@ -336,6 +364,8 @@ class TimedCanWire:
         """The next transmission on the wire, in flight until its last bit."""
         sent = self.bus.commit()
         tx = sent.transmission
+        if tx is None:
+            return
         self._note(tx, sent.frame)
         if tx.node == CONTROLLER:
             self._ctrl_next()
@@ -385,10 +415,46 @@ class TimedCanWire:
             self.app.wire_arrival_ns = None
         self._plant_frames(frames, arrival)
 
+    def plant_state(self, at_ns: int) -> ErrorState:
+        """The plant node's CAN error state at ``at_ns`` (error active without errors)."""
+        return self.bus.status(PLANT, at_ns).state
+
+    def plant_state_changes(self) -> list[tuple[int, ErrorState]]:
+        """The plant node's changes of error state since the last call, with their times (its CAN
+        controller's interrupt). The bus first runs up to its next attempt (:meth:`OnlineBus.settle`),
+        so a recovery in the idle time before it is among them; every change is at or before that start."""
+        self.bus.settle()
+        changes = self.bus.nodes[PLANT].changes
+        out = []
+        for c in changes[self._plant_seen :]:
+            if c.state is not self._plant_reported:
+                self._plant_reported = c.state
+                out.append((c.time_ns, c.state))
+        self._plant_seen = len(changes)
+        return out
+
+    def _plant_events(self) -> bool:
+        """The plant node told each change of its error state when it happens; its frames (EMCY) queued then."""
+        events = self.plant_state_changes()
+        for t, state in events:
+            self.node.can_error_state(state)
+            self._plant_frames(self.node.poll_frames(self.scheduler.now()), t)
+        return bool(events)
+
+    def plant_refuses(self, at_ns: int) -> bool:
+        """The plant node is bus off at ``at_ns``: a frame it sends then is refused (and counted)."""
+        if self.bus.errors_on and self.plant_state(at_ns) is ErrorState.BUS_OFF:
+            self.stats.plant_refused += 1
+            return True
+        return False
+
     def _plant_frames(self, frames: list[Frame], at_ns: int) -> None:
         for f in frames:
             if f.arbitration_id == self._heartbeat:  # beside the wire: a wall-clock timer in lockstep
                 self._untimed_one(f)
+                continue
+            if self.plant_refuses(at_ns):
+                self.node.counters.tx_errors += 1  # as the node's runner counts a send its bus refused
                 continue
             self.bus.submit(PLANT, at_ns, frame_bits(f.arbitration_id, bytes(f.data)), SentTag(f, False, self._plant_sync_q))
 
@@ -414,7 +480,25 @@ class TimedCanWire:
             "sync_to_rpdo1_us": _us(s.sync_to_rpdo),
             "late_tpdo1": s.late_tpdos,
             "queuing_delay_us": {f"0x{ident:03X}": {"n": len(d), **_us(d)} for ident, d in sorted(s.delays.items())},
+            **({"errors": self.error_summary()} if self.bus.errors_on else {}),
         }
+
+    def error_summary(self) -> dict[str, Any]:
+        """With errors on: error frames, the plant's refused frames, and per node its entries into
+        error passive and bus off and its state, TEC and REC at the end."""
+        nodes = {}
+        for name, node in self.bus.nodes.items():
+            states = [c.state for c in node.changes]
+            entered = [b for a, b in zip([ErrorState.ACTIVE, *states], states, strict=False) if a is not b]
+            end = node.status_at(1 << 62)
+            nodes[name] = {
+                "error_passive": entered.count(ErrorState.PASSIVE),
+                "bus_off": entered.count(ErrorState.BUS_OFF),
+                "state": end.state.value,
+                "tec": end.tec,
+                "rec": end.rec,
+            }
+        return {"error_frames": self.bus.error_frames, "plant_refused": self.stats.plant_refused, "nodes": nodes}
 
 
 def grid_of(app: PlantApplication | None) -> int:

@@ -18,6 +18,12 @@ So the frames, their times and the plant's arrivals are those of the
 co-simulation (tested: the records are bit-identical). Frames of no fixed
 simulated time take no wire time in both: the start-up before the first
 SYNC, and the node's heartbeat (its timer runs on the wall clock in lockstep).
+
+With errors injected (a fault scenario's ``can_errors`` on the controller's
+bus) the plant node is told each change of its CAN error state at the change's
+time (a turn of its loop: its EMCY is queued then), and a frame it sends while bus off is
+refused (``can.CanOperationError``, counted by its runner), as in the
+co-simulation (:mod:`workbench.cosim_wire`).
 """
 
 from __future__ import annotations
@@ -30,7 +36,9 @@ from typing import Any
 import can
 
 from plant_emulator.service import PlantApplication
+from service_kit.can_wire.arbitration import ErrorInjection
 from service_kit.can_wire.bits import frame_bits
+from service_kit.can_wire.error_state import ErrorState
 from service_kit.can_wire.restbus.traffic import Restbus
 from workbench.cosim_wire import DEFAULT_GRID_NS, PLANT, RECV_FOREVER_NS, RESTBUS_TAG, SentTag, TimedCanWire, grid_of
 
@@ -44,12 +52,14 @@ class LockstepWire(TimedCanWire):
     def __init__(self, *, node_id: int, bitrate: int, sample_period_s: float, restbus: Restbus | None = None) -> None:
         super().__init__(None, None, None, bitrate=bitrate, sample_period_s=sample_period_s, restbus=restbus, grid_ns=DEFAULT_GRID_NS, node_id=node_id)
         self._cv = threading.Condition()
-        self._to_plant: deque[tuple[int | None, can.Message]] = deque()
+        self._to_plant: deque[tuple[int | None, Any]] = deque()
+        """Frames for the plant (their arrival, None: untimed), and changes of its CAN error state (their time)."""
         self._plant_handling = False
         self._plant_now: int | None = None
         self._ctrl_limit: int | None = None
         self._ctrl_waiting = False
         self._closed = False
+        self._plant_node: Any = None
 
     # -- the buses ------------------------------------------------------------------------------------
     def controller_bus(self) -> can.BusABC:
@@ -62,6 +72,14 @@ class LockstepWire(TimedCanWire):
         """The plant's application: the model advances to each arrival (:attr:`PlantApplication.wire_arrival_ns`)."""
         self.app = app
         self.grid_ns = grid_of(app)
+
+    def bind_node(self, node: Any) -> None:
+        """The plant's CANopen node: told its CAN error state at each arrival (with errors on)."""
+        self._plant_node = node
+
+    def inject_can_errors(self, *specs: ErrorInjection) -> None:
+        with self._cv:
+            super().inject_can_errors(*specs)
 
     # -- the controller -------------------------------------------------------------------------------
     def send_frame(self, arbitration_id: int, data: bytes) -> None:
@@ -114,11 +132,23 @@ class LockstepWire(TimedCanWire):
             cob = msg.arbitration_id
             if self._plant_now is None or cob == self._heartbeat:
                 self._untimed_one(msg)
+            elif self.plant_refuses(self._plant_now):
+                raise can.CanOperationError("the plant node is bus off on the simulated wire: it sends nothing until it has recovered")
             else:
                 self.bus.submit(PLANT, self._plant_now, frame_bits(cob, bytes(msg.data)), SentTag(msg, False, self._plant_sync_q))
             self._cv.notify_all()
 
     def plant_recv(self, timeout: float | None) -> can.Message | None:
+        """A frame for the plant; for a change of its CAN error state, None after telling the node
+        (its runner then polls: the EMCY is queued at the change's time)."""
+        item = self._plant_take(timeout)
+        if isinstance(item, ErrorState):
+            if self._plant_node is not None:  # outside the wire's lock: the node takes its own
+                self._plant_node.can_error_state(item)
+            return None
+        return item
+
+    def _plant_take(self, timeout: float | None) -> can.Message | ErrorState | None:
         with self._cv:
             self._plant_handling = False
             self._plant_now = None  # the node's timers between frames: untimed (the heartbeat)
@@ -133,8 +163,15 @@ class LockstepWire(TimedCanWire):
             self._plant_now = arrival
             if self.app is not None:
                 grid = self.grid_ns
-                self.app.wire_arrival_ns = None if arrival is None else (arrival + grid // 2) // grid * grid
+                self.app.wire_arrival_ns = None if arrival is None or isinstance(msg, ErrorState) else (arrival + grid // 2) // grid * grid
             return msg
+
+    def _plant_events(self) -> bool:
+        """Each change of the plant's CAN error state goes to its thread, at the change's time."""
+        events = self.plant_state_changes()
+        for t, state in events:
+            self._to_plant.append((t, state))
+        return bool(events)
 
     def _plant_busy(self) -> bool:
         return self._plant_handling or bool(self._to_plant)
@@ -170,6 +207,8 @@ class LockstepWire(TimedCanWire):
             start = self.bus.next_start()
             if start is None or (bound is not None and start >= bound):
                 return
+            if self.bus.errors_on and self._plant_events():
+                continue  # the plant answers its new state first
             self._commit()
 
     def shutdown(self) -> None:
@@ -199,8 +238,10 @@ class _Station(can.BusABC):
         super().__init__(channel="lockstep-wire")
         if controller:
             self.tpdo_late = wire.tpdo_late  # asked by the controller's SyncDriver
+            self.inject_can_errors = wire.inject_can_errors  # a fault scenario's can_errors (service_kit.can_wire.scenario_errors)
         else:
             self.bind_application = wire.bind_application
+            self.bind_node = wire.bind_node
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:

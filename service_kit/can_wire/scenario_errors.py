@@ -1,11 +1,12 @@
 """A fault scenario's ``can_errors`` (:class:`service_kit.link_faults.CanErrorFault`)
-on a ``ralfwire`` wire (docs/can-errors.md).
+on a ``ralfwire`` wire, or on the simulated rig's wire (docs/can-errors.md).
 
 Each entry becomes an :class:`~service_kit.can_wire.arbitration.ErrorInjection`:
 its window ``[from_s, to_s)`` in seconds from ``origin_ns`` on the wire's
 clock (simulated seconds on a :class:`~service_kit.can_wire.wire_bus.ManualWireClock`
 that starts at 0; on the real-time clock, seconds from when the errors were
-attached), its random draws seeded from the scenario's seed and the entry's
+attached; on the simulated rig's wire, simulated seconds on the plant
+model's axis), its random draws seeded from the scenario's seed and the entry's
 index, so a run on a manual clock is repeatable.
 """
 
@@ -21,7 +22,7 @@ from service_kit.link_faults import CanErrorFault, Scenario
 
 
 class CanErrorsNeedWire(ValueError):
-    """A scenario with ``can_errors`` for a bus that is not ``ralfwire``."""
+    """A scenario with ``can_errors`` for a bus that is neither ``ralfwire`` nor the simulated rig's wire."""
 
 
 def injections(faults: Sequence[CanErrorFault], seed: int, origin_ns: int = 0) -> list[ErrorInjection]:
@@ -46,13 +47,21 @@ def injections(faults: Sequence[CanErrorFault], seed: int, origin_ns: int = 0) -
 
 def attach(bus: can.BusABC | None, scenario: Scenario | None) -> int:
     """Puts ``scenario``'s ``can_errors`` on ``bus``'s wire; returns how many.
-    A scenario without them changes nothing; with them, a bus that is not
-    ``ralfwire`` raises :class:`CanErrorsNeedWire` (one line), never a silent loss."""
+    A scenario without them changes nothing; with them, a bus that is neither
+    ``ralfwire`` nor the simulated rig's wire (its ``inject_can_errors``:
+    :class:`workbench.cosim_wire.TimedCanWire`, the one-process lockstep rig's
+    controller bus) raises :class:`CanErrorsNeedWire` (one line), never a silent loss."""
     if scenario is None or not scenario.can_errors:
         return 0
+    simulated = getattr(bus, "inject_can_errors", None)
+    if callable(simulated):
+        specs = injections(scenario.can_errors, scenario.seed, 0)
+        simulated(*specs)
+        return len(specs)
     if not isinstance(bus, WireBus):
         raise CanErrorsNeedWire(
-            f"the fault scenario's can_errors need the CAN bus on ralfwire (python-can interface 'ralfwire' with a bit rate); this run's bus is {type(bus).__name__}"
+            "the fault scenario's can_errors need the CAN bus on ralfwire (python-can interface 'ralfwire' with a bit rate)"
+            f" or the simulated rig's wire (can_bitrate with clock cosim or one-process lockstep); this run's bus is {type(bus).__name__}"
         )
     wire = bus.wire
     origin = wire.clock.now_ns() if getattr(wire.clock, "realtime", True) else 0

@@ -242,3 +242,21 @@ def test_a_failing_test_stops_its_running_rig_at_teardown(pytester: pytest.Pytes
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-p", "no:randomly")
     result.assert_outcomes(passed=1, failed=1)
     result.stdout.fnmatch_lines(["*the test failed mid-run*"])
+
+
+def test_can_errors_on_the_simulated_wire_from_the_markers(pytester: pytest.Pytester) -> None:
+    """A fault scenario's can_errors through the fixture's markers, on the co-simulation's wire
+    (docs/can-errors.md "In the simulated rig"): the plant's bus off and recovery reach the record."""
+    pytester.makepyfile(
+        """
+        import pytest
+
+        @pytest.mark.rig_settings(common={"can_bitrate": 1000000}, controller={"tf_download_samples": 0})
+        @pytest.mark.rig_faults({"seed": 3, "can_errors": [{"identifier": 0x181, "from_s": 0.5, "to_s": 0.506}]})
+        def test_run(rig):
+            record = rig.run(duration_s=1.0)
+            assert record.counters["plant_can_bus_off_recoveries"] == 1
+            assert record.can_bus["errors"]["nodes"]["plant"]["bus_off"] == 1
+        """
+    )
+    pytester.runpytest_subprocess().assert_outcomes(passed=1)

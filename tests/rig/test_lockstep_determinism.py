@@ -182,3 +182,29 @@ def test_on_the_simulated_can_wire_cosim_equals_the_one_process_lockstep_run(tmp
     _worth_comparing(record)
     plain = load_record(_cosim(tmp_path, "plain", 4))
     assert not np.array_equal(record["defl1_in"], plain["defl1_in"])
+
+
+@pytest.mark.timeout(600)
+def test_with_error_frames_on_the_simulated_can_wire_cosim_equals_the_one_process_lockstep_run(tmp_path: Path) -> None:
+    """The same wire with a fault scenario's can_errors (docs/can-errors.md): random errors on every node's
+    frames, the restbus's included, and the plant's TPDO1 destroyed until the plant goes bus off and
+    recovers; every written file of the two rigs the same bit for bit, and the errors changed the run."""
+    root = Path(__file__).resolve().parents[2]
+    wire = {"can_bitrate": 500_000, "can_restbus": str(root / "examples" / "restbus" / "vehicle-50pct-500k.dbc")}
+    scenario = {
+        "seed": 11,
+        "can_errors": [
+            {"identifier": "all", "probability": 0.05, "from_s": 2.0, "to_s": 6.0, "echo_bits": 3},
+            {"identifier": 0x181, "from_s": 8.0, "to_s": 8.02},
+        ],
+    }
+    errored = {**CONTROLLER, "fault_scenario": json.dumps(scenario)}
+    a = _cosim(tmp_path, "cosim", 4, errored, common=wire)
+    b = _one_process(tmp_path, "one", 4, errored, common=wire)
+    _same(a, b)
+    record = load_record(a)
+    _worth_comparing(record)
+    counters = record.metadata["result"]["counters"]
+    assert counters["plant_can_error_passive"] >= 1 and counters["plant_can_bus_off_recoveries"] == 1
+    plain = load_record(_cosim(tmp_path, "plain", 4, common=wire))
+    assert not np.array_equal(record["defl1_in"], plain["defl1_in"])
