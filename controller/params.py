@@ -22,7 +22,7 @@ stage), wherever it comes from, takes this path:
 
 Its sources: the XCP slave (:mod:`controller.xcp_link`, kind ``xcp``), a
 ``ralf-hil param set`` or the live view's parameter panel
-(:mod:`controller.param_commands`, kind ``param``) and the run's
+(:mod:`service_kit.param_commands`, kind ``param``) and the run's
 ``param_schedule`` setting (kind ``schedule``: each step at the first tick
 at or after its ``at_s``, in simulated time, so a lockstep or co-simulated
 run with a schedule is reproducible tick for tick).

@@ -26,6 +26,17 @@ def validate_rig_id(rig_id: str) -> str:
 
 
 @dataclass(frozen=True)
+class ParamKeys:
+    """One board's parameter keys: its table (queryable), the changes by role, the answers, the changes taken."""
+
+    params: str
+    param_set: str
+    param_set_tool: str
+    param_answer: str
+    param_changes: str
+
+
+@dataclass(frozen=True)
 class Keys:
     """All key expressions of one rig."""
 
@@ -109,6 +120,34 @@ class Keys:
     @property
     def param_changes(self) -> str:
         return f"{self.root}/controller/param_changes"
+
+    @property
+    def plant_params(self) -> str:
+        return f"{self.root}/plant/params"
+
+    @property
+    def plant_param_set(self) -> str:
+        return f"{self.root}/plant/param_set"
+
+    @property
+    def plant_param_set_tool(self) -> str:
+        return f"{self.root}/plant/param_set_tool"
+
+    @property
+    def plant_param_answer(self) -> str:
+        return f"{self.root}/plant/param_answer"
+
+    @property
+    def plant_param_changes(self) -> str:
+        return f"{self.root}/plant/param_changes"
+
+    def param_keys(self, board: str) -> ParamKeys:
+        """The parameter keys of ``board`` (``controller`` or ``plant``; docs/calibration.md)."""
+        if board == "controller":
+            return ParamKeys(self.params, self.param_set, self.param_set_tool, self.param_answer, self.param_changes)
+        if board == "plant":
+            return ParamKeys(self.plant_params, self.plant_param_set, self.plant_param_set_tool, self.plant_param_answer, self.plant_param_changes)
+        raise ValueError(f"no board {board!r} serves parameters (controller, plant)")
 
     @property
     def tf_downloads(self) -> str:

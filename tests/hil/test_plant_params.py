@@ -1,0 +1,97 @@
+"""The plant's parameters on the shared parameter path (docs/calibration.md,
+"The plant's parameters"): a scripted payload change is applied before the
+first SYNC at or after its time, recorded as a ``ParamChanged`` on
+``plant/param_changes`` and listed in the run record; the co-simulation, the
+one-process and the three-process lockstep rigs take it at the same SYNC and
+give the same bits; bad changes are one line before anything runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from protocol.errors import ConfigError
+from workbench.hil import HilRig, RigRunError
+from workbench.recording.reader import Recording
+
+DSP = {"fft_width": 256}
+TS = 0.005
+CONTROLLER = {"duration_s": 1.5, "tf_download_samples": 0}
+TAKEN = [{"sim_time_s": 161 * TS, "kind": "schedule", "fields": {"payload": 1.0}, "who": "schedule"}]
+
+
+def _attached(rec: object) -> tuple[np.ndarray, np.ndarray]:
+    truth = rec.truth  # type: ignore[attr-defined]
+    return np.array([t.sim_time_s for t in truth]), np.array([t.payload_attached for t in truth])
+
+
+def _rig(tmp_path: Path, **kw: object) -> HilRig:
+    rig = HilRig(controller=dict(CONTROLLER), dsp_settings=dict(DSP), plant_settings={"truth_rate_hz": 200.0}, workdir=tmp_path, **kw)  # type: ignore[arg-type]
+    rig.param.set("plant.payload", 1.0, at_s=0.8012)  # between SYNCs 160 and 161: from SYNC 161
+    return rig
+
+
+def test_a_scheduled_payload_is_taken_at_its_first_sync_and_recorded(tmp_path: Path) -> None:
+    rec = _rig(tmp_path).run()
+    assert rec.error is None, rec.error
+    assert rec.plant_param_changes == TAKEN
+    assert rec.param_changes == []  # the controller's list: the plant's changes are the plant's
+    t, attached = _attached(rec)
+    assert not attached[t <= 161 * TS - TS / 2].any() and attached[t >= 161 * TS + TS / 2].all()  # the step of SYNC 161 has it
+    recorded = Recording.load(rec.recording, only=("plant/param_changes", "plant/events"))  # type: ignore[arg-type]
+    (event,) = recorded.data("plant/param_changes")
+    assert (event["tick"], event["sim_time_s"], event["kind"], event["who"], event["fields"]) == (161, 161 * TS, "schedule", "schedule", {"plant.payload": 1.0})
+    assert [e["detail"] for e in recorded.data("plant/events") if e["kind"] == "payload"] == ["payload attached by the parameter schedule at 0.805 s"]
+    assert rec.health["plant"].counters["param_changes_applied"] == 1
+
+
+def test_a_run_without_a_plant_schedule_publishes_nothing_new(tmp_path: Path) -> None:
+    rec = HilRig(controller={"duration_s": 0.3, "tf_download_samples": 0}, dsp_settings=dict(DSP), workdir=tmp_path).run()
+    assert rec.plant_param_changes == []
+    assert not any(k.startswith("param_") for k in rec.health["plant"].counters)
+    assert "plant/param_changes" not in " ".join(Recording.load(rec.recording).topics())  # type: ignore[arg-type]
+
+
+def test_the_cosimulation_and_the_one_process_lockstep_rig_give_the_same_bits(tmp_path: Path) -> None:
+    co = _rig(tmp_path / "co").run()
+    one = _rig(tmp_path / "one", clock="lockstep").run()
+    assert one.error is None, one.error
+    assert one.plant_param_changes == co.plant_param_changes == TAKEN
+    for name, column in co.columns.items():
+        assert np.array_equal(one.columns[name], column, equal_nan=True), name
+    assert [t.model_dump(exclude={"wall_time_s", "seq"}) for t in one.truth] == [t.model_dump(exclude={"wall_time_s", "seq"}) for t in co.truth]
+
+
+def test_bad_plant_changes_are_one_line_before_the_run(tmp_path: Path) -> None:
+    rig = HilRig(controller={"duration_s": 0.3}, workdir=tmp_path)
+    with pytest.raises(ConfigError, match=r"^plant\.payload = 2\.0 refused: outside its limits 0 \.\. 1$"):
+        rig.param.set("plant.payload", 2.0)
+    with pytest.raises(ConfigError, match=r"^plant\.payload = 0\.5 refused: not one of its whole steps$"):
+        rig.param.set("plant.payload", 0.5)
+    with pytest.raises(ConfigError, match=r"^no parameter 'plant\.mass' \(known: plant\.payload\)$"):
+        rig.param.set("plant.mass", 1.0)
+    assert len(rig.param) == 0
+    # the plant's own setting, checked by the plant when the run starts (the same path's checks)
+    bad = HilRig(controller={"duration_s": 0.3}, plant_settings={"param_schedule": '[{"name": "plant.payload", "value": 3}]'}, workdir=tmp_path)
+    with pytest.raises(RigRunError, match=r"param_schedule: plant\.payload at 0 s: plant\.payload = 3 refused: outside its limits 0 \.\. 1"):
+        bad.run()
+
+
+@pytest.mark.rig
+@pytest.mark.timeout(300)
+def test_three_processes_lockstep_take_the_plant_schedule_as_the_cosimulation_does(tmp_path: Path) -> None:
+    """The schedule travels in the plant's settings to its process: the same SYNC, the same bits."""
+    runs = []
+    for name, processes, clock in (("three", True, "lockstep"), ("co", False, "cosim")):
+        rig = _rig(tmp_path, clock=clock, processes=processes, name=name, outputs=tmp_path)
+        try:
+            runs.append(rig.run())
+        finally:
+            rig.close()
+    three, co = runs
+    assert three.error is None, three.error
+    assert three.plant_param_changes == co.plant_param_changes == TAKEN
+    for name, column in co.columns.items():
+        assert np.array_equal(three.columns[name], column, equal_nan=True), name
