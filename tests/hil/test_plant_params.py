@@ -95,3 +95,43 @@ def test_three_processes_lockstep_take_the_plant_schedule_as_the_cosimulation_do
     assert three.plant_param_changes == co.plant_param_changes == TAKEN
     for name, column in co.columns.items():
         assert np.array_equal(three.columns[name], column, equal_nan=True), name
+
+
+def test_ralf_hil_param_changes_the_payload_of_a_running_rig(tmp_path: Path) -> None:
+    """``ralf-hil param``'s functions on the plant's own keys (the rig's in-process session): the
+    table, a tester's change taken at a SYNC and in the record, refusals answered with nothing changed."""
+    from protocol.keys import Keys
+    from workbench.param_cli import query_table, send_set
+
+    rig = HilRig(
+        clock="lockstep",
+        controller={"duration_s": 3600.0, "tf_download_samples": 0},
+        plant_settings={"param_commands": True, "param_write_roles": "tester", "truth_rate_hz": 200.0},
+        dsp_settings=dict(DSP),
+        workdir=tmp_path,
+    )
+    rig.start()
+    try:
+        session, keys = rig._session, Keys(rig.rig_id).param_keys("plant")  # noqa: SLF001 - the rig's own session
+        table = query_table(session, keys, 20.0)
+        assert table is not None and [(p.name, p.lower, p.upper, p.value) for p in table.params] == [("plant.payload", 0.0, 1.0, 0.0)]
+        assert table.write_roles == ("tester",)
+        refused = send_set(session, keys, "tool", "plant.payload", 1.0, 20.0)
+        assert refused is not None and not refused.accepted and "the tool role may not change parameters" in refused.reason
+        refused = send_set(session, keys, "tester", "plant.payload", 2.0, 20.0)
+        assert refused is not None and not refused.accepted and refused.reason == "plant.payload = 2 refused: outside its limits 0 .. 1"
+        unknown = send_set(session, keys, "tester", "controller.kp1", 1.0, 20.0)  # the controller's parameter on the plant's key
+        assert unknown is not None and not unknown.accepted and "no parameter 'controller.kp1'" in unknown.reason
+        taken = send_set(session, keys, "tester", "plant.payload", 1.0, 20.0)
+        assert taken is not None and taken.accepted and taken.name == "plant.payload" and taken.value == 1.0
+        table = query_table(session, keys, 20.0)
+        assert table is not None and table.params[0].value == 1.0
+    finally:
+        rig.close()
+    rec = rig.wait(60)
+    assert [(c["kind"], c["who"], c["fields"]) for c in rec.plant_param_changes] == [("param", "tester", {"payload": 1.0})]
+    assert rec.plant_param_changes[0]["sim_time_s"] == taken.sim_time_s
+    counters = rec.health["plant"].counters
+    assert counters["param_sets_refused"] == 3 and counters["param_changes_applied"] == 1
+    t, attached = _attached(rec)
+    assert not attached[t < taken.sim_time_s].any() and attached[t >= taken.sim_time_s + TS].all()
