@@ -141,14 +141,6 @@ class Keys:
     def plant_param_changes(self) -> str:
         return f"{self.root}/plant/param_changes"
 
-    def param_keys(self, board: str) -> ParamKeys:
-        """The parameter keys of ``board`` (``controller`` or ``plant``; docs/calibration.md)."""
-        if board == "controller":
-            return ParamKeys(self.params, self.param_set, self.param_set_tool, self.param_answer, self.param_changes)
-        if board == "plant":
-            return ParamKeys(self.plant_params, self.plant_param_set, self.plant_param_set_tool, self.plant_param_answer, self.plant_param_changes)
-        raise ValueError(f"no board {board!r} serves parameters (controller, plant)")
-
     @property
     def tf_downloads(self) -> str:
         return f"{self.root}/controller/tf"
@@ -166,3 +158,12 @@ class Keys:
     @property
     def alive_all(self) -> str:
         return f"{self.root}/alive/*"
+
+
+def param_keys(keys: Keys, board: str) -> ParamKeys:
+    """The parameter keys of ``board`` (``controller`` or ``plant``; docs/calibration.md)."""
+    if board == "controller":
+        return ParamKeys(keys.params, keys.param_set, keys.param_set_tool, keys.param_answer, keys.param_changes)
+    if board == "plant":
+        return ParamKeys(keys.plant_params, keys.plant_param_set, keys.plant_param_set_tool, keys.plant_param_answer, keys.plant_param_changes)
+    raise ValueError(f"no board {board!r} serves parameters (controller, plant)")

@@ -32,7 +32,7 @@ from typing import Any, Final
 import zenoh
 
 from protocol.errors import ProtocolError
-from protocol.keys import Keys
+from protocol.keys import Keys, param_keys
 from protocol.messages import ParamAnswer, ParamSet, ParamTable, decode, encode
 from service_kit.encodings import JSON
 from service_kit.inbox import RateLimitedLog
@@ -61,7 +61,7 @@ class ParamCommands:
     """A board's parameter keys on one zenoh session (module docstring)."""
 
     def __init__(self, session: zenoh.Session, rig_id: str, path: ParamPath, roles: tuple[str, ...], sim_time: Callable[[], float]) -> None:
-        self.keys = Keys(rig_id).param_keys(path.board)
+        self.keys = param_keys(Keys(rig_id), path.board)
         self.path = path
         self.roles = roles
         self.sim_time = sim_time

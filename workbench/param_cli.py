@@ -90,7 +90,7 @@ def _value(info: Any) -> str:
 
 def cmd_param(args: argparse.Namespace) -> int:
     from protocol.errors import ConfigError
-    from protocol.keys import Keys
+    from protocol.keys import Keys, param_keys
     from protocol.settings import CommonSettings, load_settings
     from service_kit.transport import TransportError, open_zenoh
     from workbench import monitor
@@ -109,7 +109,7 @@ def cmd_param(args: argparse.Namespace) -> int:
         session = open_zenoh(settings, retry_for_s=0.0)
     except (ConfigError, TransportError) as exc:
         return _fail(" ".join(str(exc).split()), 2)
-    keys = Keys(settings.rig_id).param_keys(board)
+    keys = param_keys(Keys(settings.rig_id), board)
     role = settings.zenoh_user if settings.zenoh_user in ("tester", "tool") else "tool"
     silent = (
         f"no answer from the {board} of rig {settings.rig_id!r} within {args.timeout:g} s "

@@ -100,7 +100,7 @@ def test_three_processes_lockstep_take_the_plant_schedule_as_the_cosimulation_do
 def test_ralf_hil_param_changes_the_payload_of_a_running_rig(tmp_path: Path) -> None:
     """``ralf-hil param``'s functions on the plant's own keys (the rig's in-process session): the
     table, a tester's change taken at a SYNC and in the record, refusals answered with nothing changed."""
-    from protocol.keys import Keys
+    from protocol.keys import Keys, param_keys
     from workbench.param_cli import query_table, send_set
 
     rig = HilRig(
@@ -112,7 +112,7 @@ def test_ralf_hil_param_changes_the_payload_of_a_running_rig(tmp_path: Path) -> 
     )
     rig.start()
     try:
-        session, keys = rig._session, Keys(rig.rig_id).param_keys("plant")  # noqa: SLF001 - the rig's own session
+        session, keys = rig._session, param_keys(Keys(rig.rig_id), "plant")  # noqa: SLF001 - the rig's own session
         table = query_table(session, keys, 20.0)
         assert table is not None and [(p.name, p.lower, p.upper, p.value) for p in table.params] == [("plant.payload", 0.0, 1.0, 0.0)]
         assert table.write_roles == ("tester",)
@@ -135,3 +135,40 @@ def test_ralf_hil_param_changes_the_payload_of_a_running_rig(tmp_path: Path) -> 
     assert counters["param_sets_refused"] == 3 and counters["param_changes_applied"] == 1
     t, attached = _attached(rec)
     assert not attached[t < taken.sim_time_s].any() and attached[t >= taken.sim_time_s + TS].all()
+
+
+def test_an_xcp_write_takes_the_same_path(tmp_path: Path) -> None:
+    """A pyxcp master writes the plant's payload: applied before the next SYNC's step, listed in the
+    run record and published as a ``ParamChanged`` (kind ``xcp``) on ``plant/param_changes`` (the rig's test port
+    hears it; a one-process run is not recorded, the co-simulation's recording is checked above)."""
+    import socket
+
+    from plant_emulator.xcp_table import plant_layout
+    from tests.xcp.rig_client import free_port, master, wait_for
+
+    port = free_port(socket.SOCK_DGRAM)
+    a2l = tmp_path / "plant.a2l"
+    rig = HilRig(
+        clock="lockstep",
+        controller={"duration_s": 3600.0, "tf_download_samples": 0},
+        plant_settings={"xcp_udp_port": port, "xcp_a2l": str(a2l), "truth_rate_hz": 200.0},
+        dsp_settings=dict(DSP),
+        workdir=tmp_path,
+    )
+    rig.start()
+    try:
+        assert wait_for(a2l.exists, 120), "the plant did not come up"
+        with master(port, "UDP") as x:
+            x.shortDownload(plant_layout().by_name["payload"].address, 0, b"\x01")
+        assert wait_for(lambda: any(t.payload_attached for t in rig.plant.truth), 60)
+    finally:
+        rig.close()
+    rec = rig.wait(60)
+    ((change),) = rec.plant_param_changes
+    assert (change["kind"], change["who"], change["fields"]) == ("xcp", "xcp master", {"payload": 1.0})
+    (event,) = rig.plant.param_changes  # heard on plant/param_changes
+    assert (event.kind, event.who, event.fields, event.sim_time_s) == ("xcp", "xcp master", {"plant.payload": 1.0}, change["sim_time_s"])
+    assert event.tick * TS == change["sim_time_s"]
+    t, attached = _attached(rec)
+    assert not attached[t < change["sim_time_s"]].any() and attached[t >= change["sim_time_s"] + TS].all()
+    assert rec.health["plant"].counters["xcp_payload_writes_applied"] == 1
