@@ -247,8 +247,9 @@ class HilRig:
     setting, the plant's into its scenario's ``stimulus`` section, both checked when the run starts."""
     param: ParamSchedule = field(default_factory=ParamSchedule)
     """Scripted parameter changes (:mod:`workbench.params`, docs/calibration.md), given before the run
-    (``rig.param.set("controller.kp1", 8000.0, at_s=2.0)``): into the board's ``param_schedule`` setting,
-    applied at the first tick at or after ``at_s``, listed in the record's ``config_changes``."""
+    (``rig.param.set("controller.kp1", 8000.0, at_s=2.0)``, ``rig.param.set("plant.payload", 1.0, at_s=2.0)``):
+    into the board's ``param_schedule`` setting, applied at its first step (the controller's tick, the plant's SYNC)
+    at or after ``at_s``, listed in the record (``param_changes``, ``plant_param_changes``)."""
 
     @classmethod
     def from_spec(cls, spec: RigSpec, *, on_progress: Callable[[float], None] | None = None) -> HilRig:
