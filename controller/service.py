@@ -44,7 +44,6 @@ from controller.input_monitors import InputMonitorChecks
 from controller.interrupt_wait import BATCH_RESEND_S
 from controller.loop import ROW_DEFLECTIONS, ROW_NAMES, ROW_VOLTS, STIMULUS_NAMES, ControlLaw
 from controller.monitors import Monitors, MonitorStop
-from controller.param_commands import ParamCommands, write_roles
 from controller.params import ParamPath
 from controller.plant_link import PlantFault, PlantLink, StopRequested
 from controller.run_files import make_records, save_run
@@ -63,6 +62,7 @@ from protocol.settings import ControllerSettings
 from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.link_faults import Scenario, scenario_setting
+from service_kit.param_commands import ParamCommands, write_roles
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.runtime import LatencyTracker
 
@@ -209,7 +209,7 @@ class ControllerService:
         )
         """The one path of run-time parameter changes (controller/params.py)."""
         self.param_commands: ParamCommands | None = None
-        """``ralf-hil param``'s keys (controller/param_commands.py), with ``param_commands`` on a zenoh session."""
+        """``ralf-hil param``'s keys (service_kit/param_commands.py), with ``param_commands`` on a zenoh session."""
         zsession = session if session is not None else getattr(self.port, "session", None)  # a process of its own: the port's (movable) session
         if s.param_commands and zsession is not None:
             self.param_commands = ParamCommands(zsession, s.rig_id, self.params, write_roles(s.param_write_roles), lambda: self.tick * s.sample_period_s)

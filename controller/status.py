@@ -14,13 +14,13 @@ from controller.fault_stage import FaultStage
 from controller.hop_timing import HopTimer
 from controller.loop import ControlLaw
 from controller.monitors import Monitors
-from controller.param_commands import ParamCommands
 from controller.params import ParamPath
 from controller.plant_link import PlantLink
 from controller.timing_counters import TimingCounters
 from controller.xcp_link import XcpLink
 from protocol.messages import ControllerStatus, Health, encode
 from protocol.settings import ControllerSettings
+from service_kit.param_commands import ParamCommands
 from service_kit.realtime import RealtimeMeasures
 from service_kit.runtime import LatencyTracker
 

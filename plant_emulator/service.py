@@ -34,6 +34,7 @@ import zenoh
 
 from plant_emulator.channel_faults import ChannelFaultUnit
 from plant_emulator.node import CanopenNode, NodeConfig
+from plant_emulator.params import PlantParams
 from plant_emulator.plant_factory import build_plant_model
 from plant_emulator.plant_model import PlantModel, ReportsStepFaults, SamplesVolts
 from plant_emulator.scenario import PendingCommands
@@ -43,6 +44,7 @@ from protocol.channel_faults import ChannelFault, FaultSchedule
 from protocol.errors import ConfigError
 from protocol.keys import Keys
 from protocol.messages import ChannelTruth, GroundTruth, Health, LatencyStats, PlantEvent, ScenarioCommand, decode, encode
+from protocol.param_schedule import parse_param_schedule
 from protocol.record_paths import truth_file
 from protocol.scenario_setting import parse_channel_faults, parse_scenario, parse_scenario_stimulus
 from protocol.settings import PlantSettings
@@ -53,6 +55,7 @@ from service_kit import readiness
 from service_kit.clock import Scheduler, scheduler_for
 from service_kit.encodings import JSON
 from service_kit.inbox import LIMITS, Inbox
+from service_kit.param_commands import ParamCommands, write_roles
 from service_kit.realtime import RealtimeMeasures, apply_realtime
 from service_kit.relink import MovablePort, MovingOut, relinking
 from service_kit.runtime import HealthPublisher, LatencyTracker
@@ -201,6 +204,29 @@ class PlantApplication:
         self._side_channels_due = False
         self.xcp: PlantXcp | None = None
         """The plant's XCP slave (plant_emulator/xcp_link.py), wired by :func:`serve` when a transport is set (off by default)."""
+        self.publish_param_change: Callable[[bytes], None] | None = None
+        """Sends each change of a plant parameter taken (:class:`~protocol.messages.ParamChanged`, JSON) on ``plant/param_changes``."""
+        self.param_changes: list[dict[str, Any]] = []
+        """The changes of the plant's parameters taken: ``sim_time_s`` (of the SYNC from which), ``kind``, ``fields``, ``who``."""
+        self.params = PlantParams(
+            self.arm,
+            settings.sample_period_s,
+            self._param_taken,
+            parse_param_schedule(settings.param_schedule),
+            event=self._event,
+            counted=settings.param_commands,
+            publish=self._publish_param_change,
+        )
+        """The plant's parameter path (plant_emulator/params.py): XCP writes, ``ralf-hil param``, the schedule."""
+        self.param_commands: ParamCommands | None = None
+        """``ralf-hil param``'s plant keys (service_kit/param_commands.py), wired by :func:`serve` with ``param_commands``."""
+
+    def _param_taken(self, sim_time_s: float, kind: str, fields: dict[str, float], who: str) -> None:
+        self.param_changes.append({"sim_time_s": sim_time_s, "kind": kind, "fields": dict(fields), "who": who})
+
+    def _publish_param_change(self, payload: bytes) -> None:
+        if self.publish_param_change is not None:
+            self.publish_param_change(payload)
 
     @staticmethod
     def _fault_unit(settings: PlantSettings, arm: PlantModel) -> ChannelFaultUnit | None:
@@ -283,8 +309,8 @@ class PlantApplication:
         self._last_sync_wall = arrived
         try:
             xcp = self.xcp
-            if xcp is not None:
-                xcp.before_step()
+            if self.params.due(self.syncs):  # parameter changes before this SYNC's step (plant_emulator/params.py)
+                self.params.before_tick(self.syncs)
             if self.wire_arrival_ns is not None:
                 self._advance_to_arrival(self.wire_arrival_ns)
             elif self.lockstep:
@@ -568,6 +594,7 @@ class PlantTestPort(MovablePort):
         self._truth_pub = session.declare_publisher(self.keys.truth, encoding=JSON)
         self._channels_pub = session.declare_publisher(self.keys.channel_truth, encoding=JSON)
         self._event_pub = session.declare_publisher(self.keys.plant_events, encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK)
+        self._param_pub = session.declare_publisher(self.keys.plant_param_changes, encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK)
         self._sub = session.declare_subscriber(self.keys.scenario, self.inbox.subscriber("scenario", lambda b: decode(ScenarioCommand, b)))
         self._token = session.liveliness().declare_token(self.keys.alive("plant"))
         if self._health_args is not None:
@@ -580,7 +607,7 @@ class PlantTestPort(MovablePort):
         if self._health is not None:
             self._health.stop()
             self._health = None
-        for handle in (self._sub, self._token, self._truth_pub, self._channels_pub, self._event_pub):
+        for handle in (self._sub, self._token, self._truth_pub, self._channels_pub, self._event_pub, self._param_pub):
             try:
                 handle.undeclare()
             except Exception as exc:  # noqa: BLE001 (a closed session's handles)
@@ -604,6 +631,10 @@ class PlantTestPort(MovablePort):
     def publish_channel_truth(self, truth: ChannelTruth) -> None:
         self._put(lambda: self._channels_pub, encode(truth))
 
+    def publish_param_change(self, payload: bytes) -> None:
+        """A change of a plant parameter taken (:class:`~protocol.messages.ParamChanged`, JSON)."""
+        self._put(lambda: self._param_pub, payload)
+
     def close(self) -> None:
         with self.moves.lock:
             self.unbind()
@@ -622,6 +653,9 @@ def build_health(seq: int, app: PlantApplication, node: CanopenNode, port: Plant
     counters.update((measures or RealtimeMeasures()).as_counters())
     if app.xcp is not None:
         counters.update(app.xcp.counters())
+    counters.update(app.params.counters())  # the parameter path's, when in use (docs/calibration.md)
+    if app.param_commands is not None:
+        counters.update(app.param_commands.counters())
     model_counters, model_latencies, model_problem = app.model_health()
     counters.update(model_counters)
     latencies = {"sync_to_sample": app.sync_service.stats(), "sync_interval": app.sync_interval.stats(), **model_latencies}
@@ -678,7 +712,12 @@ def serve(
         if callable(bind_node):  # the simulated wire tells the node its CAN error state (errors injected only)
             bind_node(node)
         app.set_fault = node.set_fault
-        app.xcp = make_plant_xcp(settings, model, app._event)
+        app.xcp = make_plant_xcp(settings, model, app.params)
+        app.publish_param_change = port.publish_param_change
+        if settings.param_commands:
+            app.param_commands = ParamCommands(
+                session, settings.rig_id, app.params, write_roles(settings.param_write_roles), lambda: app.syncs * settings.sample_period_s
+            )
         measures = (
             apply_realtime(settings.realtime.priority, settings.realtime.cpus, whole_process=owns_process, cpu_latency_us=settings.realtime.cpu_latency_us)
             if settings.clock == "realtime"
@@ -692,7 +731,8 @@ def serve(
         app.xcp.start()
     try:
         readiness.mark_ready(settings.ready_file, log)  # kernels warm, node and test port up
-        with relinking(settings, session, [port]) if relink else nullcontext() as watch:
+        movable: list[Any] = [port] if app.param_commands is None else [port, app.param_commands]
+        with relinking(settings, session, movable) if relink else nullcontext() as watch:
             try:
                 run_node(bus, node, stop, clock, after_send=app.flush_side_channels)  # type: ignore[arg-type]
             finally:
@@ -703,6 +743,8 @@ def serve(
         if settings.truth_record:
             app.save_truth(settings.truth_record)
         port.close()
+        if app.param_commands is not None:
+            app.param_commands.close()
         if app.xcp is not None:
             app.xcp.close()
         app.close()

@@ -4,9 +4,10 @@ node's SYNC path without ever making it wait.
 
 On each SYNC (:class:`plant_emulator.service.PlantApplication`):
 
-1. before the step, the payload writes accepted since the last SYNC are
-   applied (a plant event ``payload``, as a scenario's command), so the step
-   of this SYNC already uses them;
+1. a write the map takes joins the plant's parameter path
+   (:mod:`plant_emulator.params`, kind ``xcp``): applied before the next
+   SYNC's step (a plant event ``payload``, as a scenario's command, and a
+   ``ParamChanged`` on ``plant/param_changes``), so that step already uses it;
 2. after the sample, the state is packed into one image and handed to each
    transport's bounded queue with its timestamp: the model's time after the
    step (simulated time in lockstep; in real time the model's time, caught
@@ -18,18 +19,16 @@ from __future__ import annotations
 import logging
 import math
 import tempfile
-import threading
-from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Final
 
+from plant_emulator.params import PlantParams
 from plant_emulator.plant_model import PlantModel
 from plant_emulator.xcp_table import A2L_MODULE, XCP_TABLE, plant_a2l, plant_layout, xcp_events
 from protocol.errors import ConfigError
 from protocol.settings import PlantSettings
-from service_kit.xcp.memory import Write, WriteRefused
-from service_kit.xcp.packets import Err
+from service_kit.xcp.memory import Write
 from service_kit.xcp.server import Server
 from service_kit.xcp.slave import Slave, SlaveInfo, Snapshot
 from service_kit.xcp.tcp import TcpServer
@@ -40,7 +39,6 @@ __all__ = ["PlantXcp", "make_plant_xcp", "xcp_ports"]
 
 log = logging.getLogger(__name__)
 
-PENDING_CAPACITY: Final = 16
 TIMESTAMP_PER_S: Final = 1_000_000
 _NAN = math.nan
 
@@ -49,24 +47,20 @@ def xcp_ports(s: PlantSettings) -> XcpPorts:
     return XcpPorts(s.xcp_udp_port, s.xcp_tcp_port, s.xcp_host, CanIds(s.xcp_can_id_master, s.xcp_can_id_slave) if s.xcp_can else None)
 
 
-def make_plant_xcp(settings: PlantSettings, arm: PlantModel, event: Callable[[str, str], None]) -> PlantXcp | None:
+def make_plant_xcp(settings: PlantSettings, arm: PlantModel, params: PlantParams) -> PlantXcp | None:
     """The plant's slave, or None when no transport is set (the default)."""
-    return PlantXcp(settings, arm, event) if xcp_ports(settings).any else None
+    return PlantXcp(settings, arm, params) if xcp_ports(settings).any else None
 
 
 class PlantXcp:
     """The plant table's map, its A2L, its transports, and the SYNC path's side of them."""
 
-    def __init__(self, settings: PlantSettings, arm: PlantModel, event: Callable[[str, str], None]) -> None:
+    def __init__(self, settings: PlantSettings, arm: PlantModel, params: PlantParams) -> None:
         s = settings
         self.arm = arm
-        self._event = event
+        self.params = params
         self.layout = plant_layout()
         self.events = xcp_events(s.sample_period_s)
-        self._pending: deque[bool] = deque()
-        self._lock = threading.Lock()
-        self.applied = 0
-        self._payload_settable = hasattr(arm, "payload_attached")
         order = [e.variable.name for e in XCP_TABLE]
         self._order = [order.index(v.name) for v in self.layout.variables]
         self.a2l_path = s.xcp_a2l or str(Path(tempfile.gettempdir()) / f"ralf-{s.rig_id}-plant.a2l")
@@ -122,18 +116,6 @@ class PlantXcp:
         return self.layout.pack([values[i] for i in self._order])
 
     # -- the SYNC path's side --------------------------------------------------------------------
-    def before_step(self) -> None:
-        """Apply the payload writes accepted since the last SYNC (effective for this SYNC's step)."""
-        if not self._pending:
-            return
-        with self._lock:
-            writes = list(self._pending)
-            self._pending.clear()
-        for attached in writes:
-            self.arm.attach_payload(attached)
-            self.applied += 1
-            self._event("payload", f"payload {'attached' if attached else 'released'} by XCP at {self.arm.time_s:.3f} s")
-
     def after_sync(self, syncs: int, codes: Sequence[int]) -> None:
         """Hand this SYNC's sample to each transport. Never blocks on the network."""
         snapshot = Snapshot(1, round(self.arm.time_s * TIMESTAMP_PER_S) & 0xFFFFFFFF, self.image(syncs, codes))
@@ -142,12 +124,8 @@ class PlantXcp:
 
     # -- the transports' side -------------------------------------------------------------------
     def _calibrate(self, changes: list[Write]) -> None:
-        if not self._payload_settable:
-            raise WriteRefused(Err.ERR_ACCESS_DENIED, "this plant model has no payload")
-        with self._lock:
-            if len(self._pending) >= PENDING_CAPACITY:
-                raise WriteRefused(Err.ERR_MEMORY_OVERFLOW, "too many writes waiting for the next SYNC")
-            self._pending.extend(bool(w.raw) for w in changes)
+        """A write the map took, onto the plant's parameter path (its guards; refused: an XCP error code)."""
+        self.params.submit(changes, "xcp", "xcp master")
 
     # -- life --------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -159,7 +137,7 @@ class PlantXcp:
             server.close()
 
     def counters(self) -> dict[str, int]:
-        out = {"xcp_payload_writes_applied": self.applied}
+        out = {"xcp_payload_writes_applied": self.params.applied["xcp"]}
         for server in self.servers:
             out.update({counter_prefix(server) + k: n for k, n in server.counters.as_dict().items()})
         return out

@@ -26,6 +26,17 @@ def validate_rig_id(rig_id: str) -> str:
 
 
 @dataclass(frozen=True)
+class ParamKeys:
+    """One board's parameter keys: its table (queryable), the changes by role, the answers, the changes taken."""
+
+    params: str
+    param_set: str
+    param_set_tool: str
+    param_answer: str
+    param_changes: str
+
+
+@dataclass(frozen=True)
 class Keys:
     """All key expressions of one rig."""
 
@@ -111,6 +122,26 @@ class Keys:
         return f"{self.root}/controller/param_changes"
 
     @property
+    def plant_params(self) -> str:
+        return f"{self.root}/plant/params"
+
+    @property
+    def plant_param_set(self) -> str:
+        return f"{self.root}/plant/param_set"
+
+    @property
+    def plant_param_set_tool(self) -> str:
+        return f"{self.root}/plant/param_set_tool"
+
+    @property
+    def plant_param_answer(self) -> str:
+        return f"{self.root}/plant/param_answer"
+
+    @property
+    def plant_param_changes(self) -> str:
+        return f"{self.root}/plant/param_changes"
+
+    @property
     def tf_downloads(self) -> str:
         return f"{self.root}/controller/tf"
 
@@ -127,3 +158,12 @@ class Keys:
     @property
     def alive_all(self) -> str:
         return f"{self.root}/alive/*"
+
+
+def param_keys(keys: Keys, board: str) -> ParamKeys:
+    """The parameter keys of ``board`` (``controller`` or ``plant``; docs/calibration.md)."""
+    if board == "controller":
+        return ParamKeys(keys.params, keys.param_set, keys.param_set_tool, keys.param_answer, keys.param_changes)
+    if board == "plant":
+        return ParamKeys(keys.plant_params, keys.plant_param_set, keys.plant_param_set_tool, keys.plant_param_answer, keys.plant_param_changes)
+    raise ValueError(f"no board {board!r} serves parameters (controller, plant)")

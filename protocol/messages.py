@@ -437,9 +437,10 @@ class ParamTable(Message):
 
 
 class ParamChanged(Message):
-    """A parameter change taken at a tick boundary (``controller/param_changes``): in effect from
-    ``tick`` (at ``sim_time_s``); ``kind`` names the path (``xcp``, ``param``: a live command,
-    ``schedule``: the run's ``param_schedule``) and ``who`` the sender."""
+    """A parameter change taken at a step boundary (``controller/param_changes``: from the
+    controller's ``tick``; ``plant/param_changes``: from the plant's SYNC of index ``tick``), at
+    ``sim_time_s``; ``kind`` names the path (``xcp``, ``param``: a live command, ``schedule``: the
+    board's ``param_schedule``) and ``who`` the sender; ``fields`` by full name (``plant.payload``)."""
 
     tick: Count
     kind: Literal["xcp", "param", "schedule"]

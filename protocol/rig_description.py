@@ -178,6 +178,27 @@ RIG: Final[RigDescription] = RigDescription(
         ),
         Channel("controller/param_answer", "publication", ParamAnswer, ("controller",), ("tool", "tester"), "a parameter change taken or refused"),
         Channel("controller/param_changes", "publication", ParamChanged, ("controller",), ("tool", "launcher"), "every parameter change taken, at its tick"),
+        Channel(
+            "plant/params", "queryable", ParamTable, ("plant",), ("tool", "tester"), "the plant's run-time parameters and their values (ralf-hil param list)"
+        ),
+        Channel("plant/param_set", "publication", ParamSet, ("tester",), ("plant",), "a change of a plant parameter (ralf-hil param set plant.NAME)"),
+        Channel(
+            "plant/param_set_tool",
+            "publication",
+            ParamSet,
+            ("tool",),
+            ("plant",),
+            "a tool's change of a plant parameter (taken only where the plant's param_write_roles names tool)",
+        ),
+        Channel("plant/param_answer", "publication", ParamAnswer, ("plant",), ("tool", "tester"), "a change of a plant parameter taken or refused"),
+        Channel(
+            "plant/param_changes",
+            "publication",
+            ParamChanged,
+            ("plant",),
+            ("tool", "launcher", "tester"),
+            "every change of a plant parameter taken, at its SYNC",
+        ),
         Channel("health/{service}", "publication", Health, ("{service}",), ("launcher", "tool"), "counters, latencies and state of each service"),
         Channel("alive/{service}", "liveliness", "token", ("{service}",), ("launcher", "controller"), "liveliness token of each service"),
     ),

@@ -90,6 +90,9 @@ SERVICES: Final[dict[str, tuple[str, ...]]] = {
         "xcp_can",
         "xcp_can_id_master",
         "xcp_can_id_slave",
+        "param_schedule",
+        "param_commands",
+        "param_write_roles",
     ),
     "controller": (
         "rig_id",

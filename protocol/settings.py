@@ -375,6 +375,36 @@ class PlantSettings(CommonSettings):
     xcp_can: bool = Field(False, description="Serve the plant over XCP on the rig's CAN bus, on xcp_can_id_master/xcp_can_id_slave")
     xcp_can_id_master: int = Field(0x7E2, ge=1, le=0x7FF, description="The plant's XCP on CAN: the master's identifier (master -> slave)")
     xcp_can_id_slave: int = Field(0x7E3, ge=1, le=0x7FF, description="The plant's XCP on CAN: the slave's identifier (slave -> master)")
+    param_schedule: str = Field(
+        "",
+        max_length=1_000_000,
+        description="Scripted changes of the plant's parameters, a JSON list, e.g. "
+        '[{"name": "plant.payload", "value": 1, "at_s": 2}] (each at the first SYNC at or after at_s; docs/calibration.md; empty = none)',
+    )
+    param_commands: bool = Field(
+        False,
+        description="Answer `ralf-hil param` (list, get) for the plant's parameters and take changes from param_write_roles (docs/calibration.md)",
+    )
+    param_write_roles: str = Field(
+        "tester",
+        pattern=r"^(|tester|tool|tester,tool|tool,tester)$",
+        description="With param_commands: the roles whose changes of the plant's parameters are taken (tester, tool; empty = none)",
+    )
+
+    @field_validator("param_schedule", mode="before")
+    @classmethod
+    def _schedule_as_json(cls, value: Any) -> Any:
+        """A list (a YAML file's, Python's) as its JSON text."""
+        return json.dumps(value) if isinstance(value, list | tuple) else value
+
+    @field_validator("param_schedule")
+    @classmethod
+    def _param_steps(cls, value: str) -> str:
+        try:
+            parse_param_schedule(value)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("param_schedule").lstrip(": ")) from None
+        return value
 
     @field_validator("model")
     @classmethod

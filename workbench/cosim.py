@@ -286,6 +286,7 @@ def run_cosim(
         port: Any = DirectDspPort(core)
         if recording is not None:
             app.publish_truth, app.publish_event, app.publish_channel_truth = recording.truth, recording.event, recording.channel_truth
+            app.publish_param_change = recording.plant_param_change
             wire, port = recording.wire(wire), recording.port(port)
         link = PlantLink(wire, cs.node_id, clock=scheduler.now)
         started = time.monotonic()

@@ -54,7 +54,7 @@ from typing import Any, Literal
 import numpy as np
 
 from protocol.errors import ConfigError
-from protocol.messages import ChannelTruth, ControllerStatus, GroundTruth, Interrupt, PlantEvent, ScenarioCommand, decode, encode
+from protocol.messages import ChannelTruth, ControllerStatus, GroundTruth, Interrupt, ParamChanged, PlantEvent, ScenarioCommand, decode, encode
 from protocol.setting_groups import Timeouts
 from protocol.setting_hints import unknown_setting
 from protocol.settings import CommonSettings, ControllerSettings, DspSettings, PlantSettings, load_settings, retired
@@ -116,6 +116,8 @@ class PlantPort:
         self.truth: list[GroundTruth] = []
         self.events: list[PlantEvent] = []
         self.channel_truth: list[ChannelTruth] = []
+        self.param_changes: list[ParamChanged] = []
+        """The changes of the plant's parameters it took (``plant/param_changes``), in order."""
 
     def command(self, kind: Literal["payload", "seed", "adc_bits"], at_s: float, **value: Any) -> ScenarioCommand:
         """A scenario command, applied by the plant at simulated ``at_s`` (at once if past):
@@ -245,8 +247,9 @@ class HilRig:
     setting, the plant's into its scenario's ``stimulus`` section, both checked when the run starts."""
     param: ParamSchedule = field(default_factory=ParamSchedule)
     """Scripted parameter changes (:mod:`workbench.params`, docs/calibration.md), given before the run
-    (``rig.param.set("controller.kp1", 8000.0, at_s=2.0)``): into the board's ``param_schedule`` setting,
-    applied at the first tick at or after ``at_s``, listed in the record's ``config_changes``."""
+    (``rig.param.set("controller.kp1", 8000.0, at_s=2.0)``, ``rig.param.set("plant.payload", 1.0, at_s=2.0)``):
+    into the board's ``param_schedule`` setting, applied at its first step (the controller's tick, the plant's SYNC)
+    at or after ``at_s``, listed in the record (``param_changes``, ``plant_param_changes``)."""
 
     @classmethod
     def from_spec(cls, spec: RigSpec, *, on_progress: Callable[[float], None] | None = None) -> HilRig:
@@ -339,11 +342,15 @@ class HilRig:
         return {**self.dsp_settings, "fault_scenario": self.faults if isinstance(self.faults, str) else json.dumps(dict(self.faults))}
 
     def _plant_with_stimulus(self) -> dict[str, Any]:
-        """The plant's settings with the channel faults (:attr:`fiu`) and the plant's stimulus profiles in its ``scenario``."""
+        """The plant's settings with the channel faults (:attr:`fiu`) and the plant's stimulus profiles in its ``scenario``,
+        and the scripted changes of its parameters (:attr:`param`) in its ``param_schedule``."""
         plant = self.fiu.merge(self.plant_settings)
         if self.stimulus.side("plant"):
             only_plant = Stimulus(self.stimulus.side("plant"))
             plant["scenario"] = json.dumps(only_plant.settings(scenario=plant.get("scenario"))["plant"]["scenario"])
+        schedule = self.param.board_schedule("plant", plant.get("param_schedule"))
+        if schedule is not None:  # after the plant's own param_schedule setting, if it has one
+            plant["param_schedule"] = schedule
         return plant
 
     def _plant_with_pending(self) -> dict[str, Any]:
@@ -399,10 +406,6 @@ class HilRig:
             self.stimulus.plans()
         except ConfigError as exc:
             raise RigSettingError(" ".join(str(exc).split())) from None
-        if self.param.boards() - {"controller"}:
-            raise RigSettingError(
-                f"rig.param: scripted changes are taken by the controller only, not by {', '.join(sorted(self.param.boards() - {'controller'}))}"
-            )
         self.param.started = True
         if self.layout == "one process":
             self._open_test_port()
@@ -504,10 +507,11 @@ class HilRig:
         if files is not None:
             run.controller.save(str(files[0]), run.result)
         if path is not None:
-            rec = Recording.load(path, only=("plant/truth", "plant/events", "dsp/interrupt", "plant/channels"))
+            rec = Recording.load(path, only=("plant/truth", "plant/events", "dsp/interrupt", "plant/channels", "plant/param_changes"))
             self.plant.truth = [GroundTruth.model_validate(d) for d in rec.data("plant/truth")]
             self.plant.events = [PlantEvent.model_validate(d) for d in rec.data("plant/events")]
             self.plant.channel_truth = [ChannelTruth.model_validate(d) for d in rec.data("plant/channels")]
+            self.plant.param_changes = [ParamChanged.model_validate(d) for d in rec.data("plant/param_changes")]
             self.dsp.interrupts = [Interrupt.model_validate(d) for d in rec.data("dsp/interrupt")]
         return self._record(run, path, files)
 
@@ -529,6 +533,7 @@ class HilRig:
             (keys.truth, keep(GroundTruth, self.plant.truth)),
             (keys.plant_events, keep(PlantEvent, self.plant.events)),
             (keys.channel_truth, keep(ChannelTruth, self.plant.channel_truth)),
+            (keys.plant_param_changes, keep(ParamChanged, self.plant.param_changes)),
             (keys.interrupt, keep(Interrupt, self.dsp.interrupts)),
         ]
 
@@ -590,6 +595,7 @@ class HilRig:
             columns=loaded[0],
             truth=list(self.plant.truth) or truth_of(loaded[3]),
             events=list(self.plant.events),
+            plant_param_changes=self._plant_param_changes(run),
             interrupts=list(self.dsp.interrupts),
             health=run.health,
             wall_time_s=run.wall_time_s,
@@ -620,6 +626,16 @@ class HilRig:
             "settings": {"controller": dict(self.controller), "plant": dict(self.plant_settings), "dsp": dict(self.dsp_settings), "common": dict(self.common)},
         }
 
+    def _plant_param_changes(self, run: Any) -> list[dict[str, Any]]:
+        """The changes of the plant's parameters: the co-simulated plant's own list, else its ``plant/param_changes`` events."""
+        app = getattr(run, "plant", None)
+        if app is not None and hasattr(app, "param_changes"):
+            return [dict(c) for c in app.param_changes]
+        return [
+            {"sim_time_s": e.sim_time_s, "kind": e.kind, "fields": {k.removeprefix("plant."): v for k, v in e.fields.items()}, "who": e.who}
+            for e in self.plant.param_changes
+        ]
+
     def _record(self, run: Any, recording: Path | None, files: tuple[Path, Path] | None) -> RunRecord:
         """The record of a run made in this process (co-simulated or one process)."""
         from controller.record import to_jsonable
@@ -641,6 +657,7 @@ class HilRig:
             columns=columns,
             truth=truth,
             events=list(self.plant.events),
+            plant_param_changes=self._plant_param_changes(run),
             interrupts=list(self.dsp.interrupts),
             health=dict(run.health),
             wall_time_s=run.wall_time_s,

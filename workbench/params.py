@@ -5,16 +5,18 @@ Each board that serves parameters has one table of
 :class:`service_kit.xcp.memory.Variable` (its XCP table: the calibration
 entries are its parameters, with their unit, limits and conversion);
 :data:`PARAM_TABLES` names them by board, and a parameter outside its board
-is ``BOARD.NAME`` (``controller.kp1``). Another board's table joins with
-one line here.
+is ``BOARD.NAME`` (``controller.kp1``, ``plant.payload``). Another board's
+table joins with one line here (and its board takes its changes on the shared
+path, :mod:`service_kit.param_path`).
 
 ::
 
     rig.param.set("controller.kp1", 8000.0, at_s=2.0)    # mV/rad, from the first tick at or after 2 s
 
 A scripted change goes into its board's ``param_schedule`` setting, which
-the board applies at the first tick at or after ``at_s`` in simulated time
-(controller/params.py), so the co-simulation and the lockstep rigs give the
+the board applies at the first step (the controller's tick, the plant's
+SYNC) at or after ``at_s`` in simulated time (controller/params.py,
+plant_emulator/params.py), so the co-simulation and the lockstep rigs give the
 same bits with it; the value is checked against the table here, before the
 run (one line, :class:`~protocol.errors.ConfigError`), and by the board again
 with its own guards when the run starts.
@@ -28,6 +30,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Final
 
 from controller.xcp_table import XCP_TABLE
+from plant_emulator.xcp_table import XCP_TABLE as PLANT_XCP_TABLE
 from protocol.errors import ConfigError
 from protocol.param_schedule import ParamStep, parse_param_schedule
 from service_kit.xcp.memory import Variable
@@ -36,6 +39,7 @@ __all__ = ["PARAM_TABLES", "ParamSchedule", "lookup", "parameters"]
 
 PARAM_TABLES: Final[dict[str, Sequence[Any]]] = {
     "controller": XCP_TABLE,
+    "plant": PLANT_XCP_TABLE,
 }
 """Board -> its table (entries with a ``variable``, or :class:`Variable` s); its calibration entries are its parameters."""
 
@@ -66,6 +70,9 @@ def check(name: str, value: float) -> tuple[str, Variable]:
     board, v = lookup(name)
     if not (isinstance(value, int | float) and math.isfinite(value) and v.lower <= value <= v.upper):
         raise ConfigError(f"{name} = {value!r} refused: outside its limits {v.lower:g} .. {v.upper:g} {v.unit}".rstrip())
+    raw = (float(value) - v.offset) / v.factor
+    if v.code in "bBhHiIqQ" and raw != round(raw):
+        raise ConfigError(f"{name} = {value!r} refused: not one of its whole steps".rstrip())
     return board, v
 
 

@@ -149,6 +149,9 @@ class RunRecord:
     channel_truth: list[ChannelTruth] = field(default_factory=list)
     """The plant's channels beside their faults (true and faulted volts, the faults acting), in order: only
     while it has channel faults (docs/fault-insertion.md; a co-simulated run with ``outputs``: only when recorded)."""
+    plant_param_changes: list[dict[str, Any]] = field(default_factory=list)
+    """The changes of the plant's parameters it took (docs/calibration.md), in order, as :attr:`param_changes`: each
+    ``sim_time_s`` (of the SYNC from which), ``kind``, ``who`` and ``fields`` (``payload``: 1 attached, 0 released)."""
     can_bus: dict[str, Any] | None = None
     """The simulated CAN wire's figures (co-simulation or one-process lockstep with ``can_bitrate`` set; None without the wire,
     docs/can-wire.md "In the simulated rig"): ``bitrate``, ``restbus``, ``busy_mean_pct`` and ``busy_max_pct``

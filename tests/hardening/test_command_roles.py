@@ -94,12 +94,15 @@ VARIANTS: dict[str, list[dict[str, Any]]] = {
             "finished": True,
         }
     ],
-    "ParamSet": [{"request_id": "r1", "name": "controller.kp1", "value": 8000.0}],
+    "ParamSet": [{"request_id": "r1", "name": "controller.kp1", "value": 8000.0}, {"request_id": "r2", "name": "plant.payload", "value": 1.0}],
     "ParamAnswer": [
         {"request_id": "r1", "name": "controller.kp1", "accepted": False, "reason": "no"},
         {"request_id": "r1", "name": "controller.kp1", "accepted": True, "value": 8000.0},
     ],
-    "ParamChanged": [{"tick": 3, "kind": "param", "who": "tester", "fields": {"controller.kp1": 8000.0}}],
+    "ParamChanged": [
+        {"tick": 3, "kind": "param", "who": "tester", "fields": {"controller.kp1": 8000.0}},
+        {"tick": 4, "kind": "schedule", "who": "schedule", "fields": {"plant.payload": 1.0}},
+    ],
 }
 """Per message kind, messages that between them set every field (checked below)."""
 

@@ -34,9 +34,11 @@ def test_every_query_kind_the_rig_answers_has_a_limit() -> None:
 
 def test_the_rig_answers_queries_only_on_its_gated_queryables() -> None:
     """Every ``declare_queryable`` of the rig's packages is the DSP's TF
-    queryable, the one queryable channel of the rig description, whose
-    answer goes through its gate; no other code of the rig answers a query
-    (liveliness and admin-space queries are zenoh's: docs/reliability.md)."""
+    queryable or a board's parameter table (``BOARD/params``,
+    service_kit/param_commands.py), the queryable channels of the rig
+    description, each answer through its gate; no other code of the rig
+    answers a query (liveliness and admin-space queries are zenoh's:
+    docs/reliability.md)."""
     import re
     from pathlib import Path
 
@@ -49,5 +51,5 @@ def test_the_rig_answers_queries_only_on_its_gated_queryables() -> None:
         for path in sorted((root / package).rglob("*.py"))
         for match in re.findall(r"declare_queryable\(([^)]*)\)", path.read_text())
     }
-    assert declared == {"dsp_service/service.py: self.keys.tf, self._on_tf_query"}, declared
-    assert [c.suffix for c in RIG.channels if c.kind == "queryable"] == ["dsp/tf"]
+    assert declared == {"dsp_service/service.py: self.keys.tf, self._on_tf_query", "service_kit/param_commands.py: self.keys.params, self._on_query"}, declared
+    assert {c.suffix for c in RIG.channels if c.kind == "queryable"} == {"dsp/tf", "controller/params", "plant/params"}

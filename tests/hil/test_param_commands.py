@@ -107,7 +107,8 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (("set", "controller.kp1", "fast"), "'fast' is not a number"),
         (("set", "controller.kp1", "nan"), "'nan' is not a finite number"),
         (("get",), "get needs a parameter name"),
-        (("list", "controller.kp1"), "list takes no name"),
+        (("list", "controller.kp1"), "list takes a board (controller, plant), not 'controller.kp1'"),
+        (("get", "dsp.x"), "no board 'dsp' serves parameters"),
     ],
 )
 def test_bad_arguments_are_one_line_and_exit_2(args: tuple[str, ...], needle: str) -> None:

@@ -90,8 +90,8 @@ def test_bad_changes_are_one_line_before_the_run() -> None:
         rig.param.set("controller.oatf_zeta", float("nan"))
     with pytest.raises(ConfigError, match=r"^no parameter 'controller\.kp3' \(known: controller\.kp1, "):
         rig.param.set("controller.kp3", 1.0)
-    with pytest.raises(ConfigError, match=r"no board 'plant' serves parameters"):
-        rig.param.set("plant.mass", 1.0)
+    with pytest.raises(ConfigError, match=r"no board 'dsp' serves parameters \(have controller, plant\)"):
+        rig.param.set("dsp.mass", 1.0)
     with pytest.raises(ConfigError, match=r"at_s must be a time at or after 0 s"):
         rig.param.set("controller.kp1", 1.0, at_s=-1.0)
     assert len(rig.param) == 0

@@ -577,7 +577,7 @@ def _all_keys(keys: Keys) -> list[str]:
 def test_keys_are_distinct_and_live_under_the_rig(rig_id: str) -> None:
     keys = Keys(rig_id)
     exprs = _all_keys(keys)
-    assert len(exprs) == len(set(exprs)) == 19 + 2 * len(SERVICES)
+    assert len(exprs) == len(set(exprs)) == 24 + 2 * len(SERVICES)
     for expr in exprs:
         assert expr.startswith(f"ralf/{rig_id}/")
         assert "*" not in expr and "//" not in expr and not expr.endswith("/")

@@ -172,6 +172,10 @@ class CosimRecording:
     def event(self, message: PlantEvent) -> None:
         self.recorder.on_message(self.keys.plant_events, encode(message), wall_time_s=self.epoch_s + message.sim_time_s, encoding=str(JSON))
 
+    def plant_param_change(self, payload: bytes) -> None:
+        """A change of a plant parameter taken (plant_emulator/params.py), at the SYNC it is taken before."""
+        self.recorder.on_message(self.keys.plant_param_changes, payload, wall_time_s=self.epoch_s + self.now(), encoding=str(JSON))
+
     def bus_load(self, summary: dict[str, Any]) -> None:
         """The simulated wire's figures (``can_bitrate`` set), on ``/can/bus_load`` at the run's end."""
         from workbench.recording.schemas import CAN_BUS_LOAD_SCHEMA, CAN_BUS_LOAD_TOPIC

@@ -250,6 +250,34 @@ def _poles(prefix: str, rows: Sequence[dict[str, Any]]) -> list[Column]:
     return [c for c in cols if c is not None]
 
 
+def _param_unit(name: str) -> str:
+    """A parameter's unit from its board's table (``workbench.params``; "" for a name no table holds)."""
+    from protocol.errors import ConfigError
+    from workbench.params import lookup
+
+    try:
+        return lookup(name)[1].unit
+    except ConfigError:
+        return ""
+
+
+def _param_values(prefix: str, rows: Sequence[dict[str, Any]]) -> list[Column]:
+    """A parameter change's names and values: ``<prefix>.name`` (the first parameter it sets, as
+    text), ``<prefix>.value`` (that parameter's value) and ``<prefix>.value.<BOARD.NAME>`` per
+    parameter, with its table's unit, invalid in the changes that leave it alone."""
+    fields = [r.get("fields") or {} for r in rows]
+    names = _keyed(rows, "fields")
+    first = [next(iter(f), None) for f in fields]
+    units = {n: _param_unit(n) for n in names}
+    first_units = {units[n] for n in first if n is not None}
+    cols: list[Column | None] = [
+        column(f"{prefix}.name", "", first, tuple(names)),
+        column(f"{prefix}.value", first_units.pop() if len(first_units) == 1 else "", [f[n] if n is not None else None for f, n in zip(fields, first)]),
+    ]
+    cols += [column(f"{prefix}.value.{n}", units[n], [f.get(n) for f in fields]) for n in names]
+    return [c for c in cols if c is not None]
+
+
 def dbc_units() -> dict[str, dict[str, str]]:
     """DBC message -> signal -> unit (``protocol/ralf.dbc``)."""
     return {m.name: {s.name: s.unit or "" for s in m.signals} for m in schemas.load_dbc().messages}
@@ -281,6 +309,8 @@ def message_groups(topic: str, schema: str, rows: Sequence[dict[str, Any]], time
         group.columns += _health(prefix, rows)
     elif schema == "ralf.Interrupt":
         group.columns += _poles(prefix, rows)
+    elif schema == "ralf.ParamChanged":
+        group.columns += _param_values(prefix, rows)
     elif schema == "ralf.SampleBatch":
         return [group, batch_samples(prefix, topic, rows)]
     elif schema == "ralf.TfSnapshot":

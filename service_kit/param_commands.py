@@ -1,21 +1,22 @@
-"""``ralf-hil param`` on the controller's side (docs/calibration.md): the
+"""``ralf-hil param`` on a board's side (docs/calibration.md): the
 parameter table answered on a query, changes taken from the roles the run
-allows, each answered once.
+allows, each answered once. The controller and the plant each have one, on
+their own keys (``BOARD/params``, ``BOARD/param_set``, ...).
 
-On ``controller/params`` (a queryable, rate-limited as every answer is:
-:mod:`service_kit.query_gate`) the controller answers a
+On ``BOARD/params`` (a queryable, rate-limited as every answer is:
+:mod:`service_kit.query_gate`) the board answers a
 :class:`~protocol.messages.ParamTable`: every parameter, its unit, limits
 and value in effect, and the roles whose changes it takes.
 
 A change (:class:`~protocol.messages.ParamSet`) arrives on the key of its
-sender's role: ``controller/param_set`` only the tester may publish,
-``controller/param_set_tool`` only a tool (the rig's access rules,
+sender's role: ``BOARD/param_set`` only the tester may publish,
+``BOARD/param_set_tool`` only a tool (the rig's access rules,
 service_kit/access.py, drop anyone else's), so the key names the role. A
 change from a role the run's ``param_write_roles`` does not name, one the
-table or the guards refuse (:mod:`controller.params`), is answered at once
-on ``controller/param_answer``, refused with the reason, and counted; an
-accepted one joins the parameter path and is answered when it is applied,
-at the tick from which it is in effect.
+table or the guards refuse (:mod:`service_kit.param_path`), is answered at
+once on ``BOARD/param_answer``, refused with the reason, and counted; an
+accepted one joins the board's parameter path and is answered when it is
+applied, at the step (tick, SYNC) from which it is in effect.
 
 Off unless ``param_commands`` is set: nothing is declared.
 """
@@ -30,12 +31,12 @@ from typing import Any, Final
 
 import zenoh
 
-from controller.params import ParamPath, ParamRefused
 from protocol.errors import ProtocolError
-from protocol.keys import Keys
+from protocol.keys import Keys, param_keys
 from protocol.messages import ParamAnswer, ParamSet, ParamTable, decode, encode
 from service_kit.encodings import JSON
 from service_kit.inbox import RateLimitedLog
+from service_kit.param_path import ParamPath, ParamRefused
 from service_kit.query_gate import OVER_RATE
 from service_kit.query_gate import gate as query_gate
 from service_kit.relink import MovingOut
@@ -57,10 +58,10 @@ def write_roles(setting: str) -> tuple[str, ...]:
 
 
 class ParamCommands:
-    """The controller's parameter keys on one zenoh session (module docstring)."""
+    """A board's parameter keys on one zenoh session (module docstring)."""
 
     def __init__(self, session: zenoh.Session, rig_id: str, path: ParamPath, roles: tuple[str, ...], sim_time: Callable[[], float]) -> None:
-        self.keys = Keys(rig_id)
+        self.keys = param_keys(Keys(rig_id), path.board)
         self.path = path
         self.roles = roles
         self.sim_time = sim_time
