@@ -15,6 +15,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+import can
+
 from service_kit.can_wire.bits import EXTENDED_ID_MAX
 
 EITHER, STANDARD_ONLY, EXTENDED_ONLY = 0, 1, 2
@@ -28,7 +30,7 @@ NEVER: Filter = (1, 0, EITHER)
 """A filter no frame passes (``identifier & 0`` is never 1)."""
 
 
-NO_FRAME: list[dict[str, Any]] = [{"can_id": EXTENDED_ID_MAX + 1, "can_mask": EXTENDED_ID_MAX + 1}]
+NO_FRAME: list[can.typechecking.CanFilter] = [{"can_id": EXTENDED_ID_MAX + 1, "can_mask": EXTENDED_ID_MAX + 1}]
 """python-can filters no frame passes (they ask for an identifier bit no frame has): a bus that only sends."""
 
 

@@ -328,7 +328,7 @@ class Hub:
     def _broadcast(self, sender: Endpoint, msg: can.Message, last_bit_ns: int) -> None:
         with self._lock:
             endpoints = [(ep, self._names.get(id(ep), "")) for ep in self._endpoints]
-        packet = proto.encode_delivery(msg, last_bit_ns, False)
+        packet: bytes | None = None  # encoded once, and only if some client takes it
         ident, extended = msg.arbitration_id, msg.is_extended_id
         for ep, name in endpoints:
             if not ep._open or (ep is sender and not ep.receive_own):
@@ -337,7 +337,12 @@ class Hub:
                 self.counters.filtered += 1
                 self.filtered_per_client[name] = self.filtered_per_client.get(name, 0) + 1
                 continue
-            ep.put(proto.encode_delivery(msg, last_bit_ns, True) if ep is sender else packet)
+            if ep is sender:
+                ep.put(proto.encode_delivery(msg, last_bit_ns, True))
+                continue
+            if packet is None:
+                packet = proto.encode_delivery(msg, last_bit_ns, False)
+            ep.put(packet)
 
     def report(self) -> dict[str, Any]:
         out = self.stats.report()
