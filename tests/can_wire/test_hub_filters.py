@@ -280,3 +280,22 @@ def test_a_stock_logger_with_filters_gets_only_its_frames_and_the_arbiter_counts
     report = json.loads(stats.read_text())
     assert report["clients"]["filtered"] == len(sent) - len(seen["filtered"])
     assert list(report["filtered_per_client"].values()) == [len(sent) - len(seen["filtered"])]
+
+
+def test_the_rig_opens_its_bus_filtered_on_the_arbiter_only(private_dir: Path) -> None:
+    from protocol.settings import CommonSettings
+    from service_kit.transport import open_can_bus
+
+    consumes: list[can.typechecking.CanFilter] = [{"can_id": 0x080, "can_mask": 0x7FF}]
+    server = HubServer(private_dir / "s", BITRATE).start()
+    try:
+        hub_bus = open_can_bus(CommonSettings(can_interface="ralfhub", can_channel=str(private_dir / "s")), consumes=consumes)
+        plain = open_can_bus(CommonSettings(can_interface="virtual", can_channel="filters-plain"), consumes=consumes)
+        try:
+            assert hub_bus.hub_filters == ((0x080, 0x7FF, 0),)  # type: ignore[attr-defined]
+            assert plain.filters is None
+        finally:
+            hub_bus.shutdown()
+            plain.shutdown()
+    finally:
+        server.close()
