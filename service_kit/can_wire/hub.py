@@ -420,6 +420,10 @@ def check_socket_path(path: Path) -> None:
         raise HubError(f"{path}: exists already (another arbiter, or a leftover)")
 
 
+MAX_READS_PER_WAKE = 64
+"""Packets read from one client before the others' turn (and new connections')."""
+
+
 class HubServer:
     """A :class:`Hub` behind a Unix ``SOCK_SEQPACKET`` socket at ``path``
     (mode 0600), served by a thread of its own (:meth:`start`)."""
@@ -477,7 +481,9 @@ class HubServer:
             self.hub.attach(client)
 
     def _read(self, client: _SocketClient) -> None:
-        while not client.gone:
+        for _ in range(MAX_READS_PER_WAKE):  # the rest on the next round: a flooding client must not starve the others
+            if client.gone:
+                return
             try:
                 packet = client.sock.recv(proto.MAX_PACKET)
             except (BlockingIOError, InterruptedError):
