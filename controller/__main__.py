@@ -28,14 +28,14 @@ log = logging.getLogger("controller")
 
 def control(settings: ControllerSettings, session: zenoh.Session, stop: threading.Event) -> int:
     from controller.dsp_port import ZenohDspPort
-    from controller.plant_link import PlantLink
+    from controller.plant_link import PlantLink, link_can_filters
     from controller.service import ControllerService
     from service_kit.relink import Rebinds, relinking
     from service_kit.runtime import build_or_config_error
     from service_kit.transport import open_can_bus
     from service_kit.waits import log_waits
 
-    bus = open_can_bus(settings)
+    bus = open_can_bus(settings, consumes=link_can_filters(settings.node_id))
     try:
         port = ZenohDspPort(session, settings.rig_id)
         service = build_or_config_error("controller configuration", lambda: ControllerService(settings, None, PlantLink(bus, settings.node_id), port=port))

@@ -92,6 +92,17 @@ log = logging.getLogger(__name__)
 MAX_RX_ERRORS_PER_POLL: Final[int] = 64
 """A bus that raises on every receive ends a poll after this many errors instead of spinning."""
 _COLLISION: Final = int(can_map.EmcyCode.CAN_ID_COLLISION)
+PLANT_FRAMES: Final = ("tpdo1", "heartbeat", "sdo_tx", "emcy")
+"""The node's frames the link reads (:func:`can_map.cob_ids` names)."""
+MASTER_FRAMES: Final = ("nmt", "sync", "rpdo1", "sdo_rx")
+"""A master's frames: the link's own, read back to see another master (:class:`ForeignMasters`)."""
+
+
+def link_can_filters(node_id: int = can_map.DEFAULT_NODE_ID) -> list[can.typechecking.CanFilter]:
+    """python-can filters for exactly the frames :class:`PlantLink` reads: the
+    node's :data:`PLANT_FRAMES` and the masters' :data:`MASTER_FRAMES`."""
+    ids = can_map.cob_ids(node_id)
+    return [{"can_id": ids[name], "can_mask": 0x7FF, "extended": False} for name in PLANT_FRAMES + MASTER_FRAMES]
 
 
 class _RxError(Exception):
@@ -125,7 +136,7 @@ class PlantLink:
         self._echoes = echoing_bus(self.bus)
         self._echo = EchoFilter((can_map.NMT_COB_ID, can_map.SYNC_COB_ID, self._rpdo1, self._sdo_rx), self._echoes)
         self._log = ConflictLog(self._now)
-        kinds = {can_map.NMT_COB_ID: "nmt", can_map.SYNC_COB_ID: "sync", self._rpdo1: "rpdo", self._sdo_rx: "sdo"}
+        kinds = {ids[name]: kind for name, kind in zip(MASTER_FRAMES, ("nmt", "sync", "rpdo", "sdo"), strict=True)}
         self._guard = ConfigGuard(lambda data: self._send(self._sdo_rx, data), lambda: self._running, self._log, self.counters)
         self._foreign = ForeignMasters(self.node_id, kinds, self._echo, self._log, self.counters, self._guard.restore)
         self._sdo = SdoClient(lambda data: self._send(self._sdo_rx, data), lambda timeout: self.poll(timeout=timeout), self._now)

@@ -22,13 +22,14 @@ log = logging.getLogger("plant")
 
 
 def serve_on_bus(settings: PlantSettings, session: zenoh.Session, stop: threading.Event) -> int:
+    from plant_emulator.canopen_node import node_can_filters
     from plant_emulator.plant_factory import build_plant_model
     from plant_emulator.service import serve
     from service_kit.transport import open_can_bus
 
     model = build_plant_model(settings)  # a bad FMU is refused (one line, exit 2) before the bus opens
     try:
-        bus = open_can_bus(settings)
+        bus = open_can_bus(settings, consumes=node_can_filters(settings.node_id))
     except BaseException:
         model.close()
         raise

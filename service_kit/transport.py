@@ -173,15 +173,26 @@ WIRE_INTERFACES = ("ralfhub", "ralfwire")
 """Interfaces that give frames their wire time themselves (the arbiter, the in-process wire)."""
 
 
-def open_can_bus(settings: CommonSettings, **kwargs: Any) -> can.BusABC:
+FILTERING_INTERFACES = ("ralfhub",)
+"""Interfaces whose acceptance filters run outside the process (the wire arbiter's, as a CAN
+controller's in hardware): there a service sets filters for the frames it consumes."""
+
+
+def open_can_bus(settings: CommonSettings, consumes: can.typechecking.CanFilters | None = None, **kwargs: Any) -> can.BusABC:
     """Open the CAN bus named by the settings (udp_multicast, virtual,
     socketcan...). udp_multicast frames get the TTL ``can_udp``'s ``ttl``:
     0 (the default) keeps them on this host. With its ``own_frame_filter``
     (the default) udp_multicast is :class:`service_kit.can_udp.LoopFreeUdpMulticastBus`,
-    wire-compatible with python-can's, which does not read its own frames back."""
+    wire-compatible with python-can's, which does not read its own frames back.
+    ``consumes``: python-can filters for every frame the service reads; set
+    as the bus's acceptance filters on :data:`FILTERING_INTERFACES`, where the
+    frames they refuse never reach the process; elsewhere the bus hands over
+    every frame, as without them."""
     if settings.can_bitrate and settings.can_interface not in WIRE_INTERFACES:
         raise TransportError(WIRE_COSIM_ONLY.format(bitrate=settings.can_bitrate))
     options: dict[str, Any] = {"interface": settings.can_interface, "channel": settings.can_channel}
+    if consumes and settings.can_interface in FILTERING_INTERFACES:
+        options["can_filters"] = list(consumes)
     if settings.can_interface == "udp_multicast":
         options["port"] = settings.can_port
         options["hop_limit"] = settings.can_udp.ttl

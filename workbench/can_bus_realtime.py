@@ -52,20 +52,21 @@ def _lat(summary: dict[str, Any], name: str) -> str:
 
 def row(label: str, summary: dict[str, Any] | None, code: int) -> str:
     if summary is None:
-        return f"| {label} | no summary (exit {code}) | | | | | | | | | |"
+        return f"| {label} | no summary (exit {code}) | | | | | | | | | | |"
     c = summary.get("controller") or {}
     wire = summary.get("can_wire") or {}
     s2t = wire.get("sync_to_tpdo1_us")
     wire_s2t = f"{s2t['min']:.0f} / {s2t['p50']:.0f} / {s2t['p99']:.0f} / {s2t['max']:.0f}" if s2t else "–"
     load = f"{wire['busy_pct']:.1f} % (peak {wire.get('peak_window_busy_pct', 0):.0f} %), {wire['frames_per_s']:.0f} frames/s" if wire else "–"
     lost = str(wire["clients"]["overruns"]) if wire else "–"
+    filtered = str(wire["clients"].get("filtered", 0)) if wire else "–"
     restbus = wire.get("restbus_sender") or "–"
     verdict = (summary.get("verdict") or {}).get("verdict", "?")
     failure = summary.get("failure") or ""
     note = f"{verdict}" + (f": {failure[:80]}" if failure else "")
     return (
         f"| {label} | {c.get('ticks', 0)} | {_lat(summary, 'tet')} | {c.get('deadline_misses', '–')} | {c.get('overruns', '–')} | "
-        f"{_lat(summary, 'hop_sync_to_tpdo')} | {wire_s2t} | {load} | {lost} | {restbus} | {note} |"
+        f"{_lat(summary, 'hop_sync_to_tpdo')} | {wire_s2t} | {load} | {lost} | {filtered} | {restbus} | {note} |"
     )
 
 
@@ -84,11 +85,12 @@ def render(results: list[tuple[str, dict[str, Any] | None, int]], duration_s: fl
         " its floor at 1 Mbit/s is the 3-bit intermission plus TPDO1's bits to EOF",
         "- bus load: the arbiter's busy share over the run (peak 100 ms window) and frames/s",
         "- deliveries overrun: frames the arbiter dropped, oldest first, for a node that did not read them in time (its outbox full);"
+        " deliveries filtered: frames the arbiter did not deliver to a node whose acceptance filters refuse them (all nodes);"
         " restbus sender: its own count (an instance more than half its cycle late is counted late)",
         "",
         "| configuration | ticks | TET ms | deadline misses | overruns | SYNC→TPDO1 ms (controller) | SYNC→TPDO1 µs (wire) | bus load "
-        "| deliveries overrun | restbus sender | verdict |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: | --- | --- |",
+        "| deliveries overrun | deliveries filtered | restbus sender | verdict |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | --- | --- |",
         *[row(label, s, code) for label, s, code in results],
     ]
     return "\n".join(lines) + "\n"

@@ -26,6 +26,12 @@ passed it is delivered, stamped with that time, to every connected client
   ``time.monotonic_ns``; delivery = wire time + the host's wake-up latency);
   a :class:`~service_kit.can_wire.wire_bus.ManualWireClock` makes it
   deterministic (tests).
+- **Acceptance filters**: a client may set python-can's filters
+  (:mod:`service_kit.can_wire.acceptance`, ``can_filters=`` or
+  ``set_filters`` on a ``ralfhub`` bus); the arbiter then delivers it only the
+  frames they accept, as a CAN controller's filters do, and counts the others
+  per client (``clients.filtered`` and ``filtered_per_client``). A client
+  without filters gets every frame.
 - **Bounded**: at most ``max_clients`` connections (more are refused and
   counted); at most ``max_pending`` frames of one client waiting for the wire
   (more are refused and counted: a CAN controller's transmit buffers are
@@ -67,6 +73,7 @@ from typing import Any, Protocol
 import can
 
 from service_kit.can_wire import hub_protocol as proto
+from service_kit.can_wire.acceptance import Filter, accepts
 from service_kit.can_wire.arbitration import INTERMISSION_BITS
 from service_kit.can_wire.bits import FrameBits, frame_of_message
 from service_kit.can_wire.bus_load import delay_stats
@@ -90,6 +97,7 @@ class Endpoint(Protocol):
     _open: bool
     in_wire: int
     receive_own: bool
+    filters: tuple[Filter, ...] | None
 
     def put(self, packet: bytes) -> None: ...
 
@@ -240,6 +248,8 @@ class HubCounters:
     """Packets that were not a frame: counted and dropped."""
     refused_frames: int = 0
     """Frames refused: the client had ``max_pending`` frames waiting, or the frame has no classical layout."""
+    filtered: int = 0
+    """Deliveries not made because the client's acceptance filters refused the frame (all clients)."""
 
 
 class Hub:
@@ -268,13 +278,18 @@ class Hub:
         self._endpoints: list[Endpoint] = []
         self._nodes: dict[int, WireNode] = {}
         """Each connected bus's CAN node on the wire (its error counters and state)."""
+        self._names: dict[int, str] = {}
+        self.filtered_per_client: dict[str, int] = {}
+        """Deliveries its filters refused, by client (``client-N``, N in connection order; only clients that filtered)."""
         self.wire = make_wire(bitrate, clock if clock is not None else RealTimeWireClock(), self.stats, self._broadcast, tx_order=tx_order)
 
     def attach(self, endpoint: Endpoint) -> None:
         with self._lock:
             self._endpoints.append(endpoint)
             self.counters.connected += 1
-            self._nodes[id(endpoint)] = self.wire.add_node(f"client-{self.counters.connected}")
+            name = f"client-{self.counters.connected}"
+            self._names[id(endpoint)] = name
+            self._nodes[id(endpoint)] = self.wire.add_node(name)
 
     def detach(self, endpoint: Endpoint) -> None:
         endpoint._open = False
@@ -282,6 +297,7 @@ class Hub:
             if endpoint in self._endpoints:
                 self._endpoints.remove(endpoint)
             node = self._nodes.pop(id(endpoint), None)
+            self._names.pop(id(endpoint), None)
         if node is not None:
             self.wire.remove_node(node)
 
@@ -311,18 +327,27 @@ class Hub:
 
     def _broadcast(self, sender: Endpoint, msg: can.Message, last_bit_ns: int) -> None:
         with self._lock:
-            endpoints = list(self._endpoints)
-        packet = proto.encode_delivery(msg, last_bit_ns, False)
-        for ep in endpoints:
+            endpoints = [(ep, self._names.get(id(ep), "")) for ep in self._endpoints]
+        packet: bytes | None = None  # encoded once, and only if some client takes it
+        ident, extended = msg.arbitration_id, msg.is_extended_id
+        for ep, name in endpoints:
+            if not ep._open or (ep is sender and not ep.receive_own):
+                continue
+            if not accepts(ep.filters, ident, extended):
+                self.counters.filtered += 1
+                self.filtered_per_client[name] = self.filtered_per_client.get(name, 0) + 1
+                continue
             if ep is sender:
-                if ep._open and ep.receive_own:
-                    ep.put(proto.encode_delivery(msg, last_bit_ns, True))
-            elif ep._open:
-                ep.put(packet)
+                ep.put(proto.encode_delivery(msg, last_bit_ns, True))
+                continue
+            if packet is None:
+                packet = proto.encode_delivery(msg, last_bit_ns, False)
+            ep.put(packet)
 
     def report(self) -> dict[str, Any]:
         out = self.stats.report()
         out["clients"] = {**self.counters.__dict__, "frames_dropped": self.wire.dropped}
+        out["filtered_per_client"] = dict(self.filtered_per_client)
         return out
 
     def close(self) -> None:
@@ -338,6 +363,8 @@ class _SocketClient:
         self._open = True
         self.in_wire = 0
         self.receive_own = True
+        self.filters: tuple[Filter, ...] | None = None
+        """Its acceptance filters (None: every frame)."""
         self.fifo = True
         """Offers the wire its oldest frame (False: its highest-priority one)."""
         self.gone = False
@@ -391,6 +418,10 @@ def check_socket_path(path: Path) -> None:
         raise HubError(f"{folder}: not a folder of this user closed to others' writes: the socket would not be private")
     if os.path.lexists(path):
         raise HubError(f"{path}: exists already (another arbiter, or a leftover)")
+
+
+MAX_READS_PER_WAKE = 64
+"""Packets read from one client before the others' turn (and new connections')."""
 
 
 class HubServer:
@@ -450,7 +481,9 @@ class HubServer:
             self.hub.attach(client)
 
     def _read(self, client: _SocketClient) -> None:
-        while not client.gone:
+        for _ in range(MAX_READS_PER_WAKE):  # the rest on the next round: a flooding client must not starve the others
+            if client.gone:
+                return
             try:
                 packet = client.sock.recv(proto.MAX_PACKET)
             except (BlockingIOError, InterruptedError):
@@ -466,6 +499,9 @@ class HubServer:
                 client.receive_own, order = options
                 if order is not None:
                     client.fifo = order == "fifo"
+                continue
+            if msg is None and (filters := proto.decode_filters(packet)) is not None:
+                client.filters = filters[0]
                 continue
             if msg is None:
                 self.hub.counters.junk += 1
@@ -554,7 +590,7 @@ def main(argv: list[str] | None = None) -> int:
     c = report["clients"]
     print(
         f"can wire hub: {report['frames']} frames, busy {report['busy_pct']:.1f} %, {c['connected']} clients, "
-        f"{c['vanished']} vanished, {c['overruns']} deliveries overrun, {c['junk']} junk packets, {c['refused_frames']} frames refused",
+        f"{c['vanished']} vanished, {c['overruns']} deliveries overrun, {c['junk']} junk packets, {c['refused_frames']} frames refused, {c['filtered']} deliveries filtered",
         flush=True,
     )
     return 0

@@ -14,6 +14,15 @@ its highest-priority one. Stock tools join as with any interface:
 interface="ralfhub", channel=SOCKET)``, ``cantools monitor``'s python-can
 options.
 
+Acceptance filters (``can_filters=`` or :meth:`~can.BusABC.set_filters`,
+python-can's rule) go to the arbiter, which then delivers only the frames
+they accept (:mod:`service_kit.can_wire.acceptance`), as a CAN controller
+filters in hardware: the process is not woken for the rest. The bus checks
+them again on receive (frames already on their way when the filters changed,
+or more than :data:`~service_kit.can_wire.hub_protocol.MAX_FILTERS` filters:
+then the arbiter is asked for every frame and the bus alone filters). A
+filter that is no filter is a ``CanOperationError``.
+
 CAN FD and error frames are refused (``CanOperationError``), as is a frame
 the arbiter would not take (more than its limit of this bus's frames waiting
 for the wire: refused there and counted). Packets that are not deliveries
@@ -31,7 +40,11 @@ from typing import Any
 import can
 
 from service_kit.can_wire import hub_protocol as proto
+from service_kit.can_wire.acceptance import Filter, FilterError, compile_filters
 from service_kit.can_wire.bits import frame_of_message
+
+FILTERS_TIMEOUT_S = 5.0
+"""How long setting filters waits for the arbiter to take them."""
 
 
 class HubBus(can.BusABC):
@@ -77,8 +90,39 @@ class HubBus(can.BusABC):
         self._sock = sock
         self.bitrate = hello
         self.channel_info = f"ralfhub {channel} at {hello} bit/s (wire arbiter)"
-        super().__init__(channel=channel, **kwargs)
+        self.hub_filters: tuple[Filter, ...] | None = None
+        """The filters the arbiter applies for this bus (None: every frame)."""
+        try:
+            super().__init__(channel=channel, **kwargs)  # applies can_filters (_apply_filters)
+        except BaseException:
+            sock.close()
+            raise
         self._is_shutdown = False
+
+    def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
+        """python-can's hardware-filter hook: the filters go to the arbiter (module docstring)."""
+        try:
+            compiled = compile_filters(filters)
+        except FilterError as exc:
+            raise can.CanOperationError(f"ralfhub: {exc}") from None
+        if compiled is not None and len(compiled) > proto.MAX_FILTERS:
+            compiled = None  # more than the arbiter holds: every frame comes, recv filters them
+        self._send_packet(proto.encode_filters(compiled), FILTERS_TIMEOUT_S)
+        self.hub_filters = compiled
+
+    def _send_packet(self, packet: bytes, timeout: float | None) -> None:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            try:
+                self._sock.send(packet)
+                return
+            except BlockingIOError:
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    raise can.CanTimeoutError("the wire arbiter does not take the packet") from None
+                select.select([], [self._sock], [], left)
+            except OSError as exc:
+                raise can.CanOperationError(f"the wire arbiter is gone: {exc.strerror or exc}") from None
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -90,19 +134,7 @@ class HubBus(can.BusABC):
             frame_of_message(msg)
         except ValueError as exc:
             raise can.CanOperationError(f"ralfhub cannot send this frame: {exc}") from exc
-        packet = proto.encode_send(msg)
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
-            try:
-                self._sock.send(packet)
-                return
-            except BlockingIOError:
-                left = None if deadline is None else deadline - time.monotonic()
-                if left is not None and left <= 0:
-                    raise can.CanTimeoutError("the wire arbiter does not take the frame") from None
-                select.select([], [self._sock], [], left)
-            except OSError as exc:
-                raise can.CanOperationError(f"the wire arbiter is gone: {exc.strerror or exc}") from None
+        self._send_packet(proto.encode_send(msg), timeout)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         deadline = None if timeout is None else time.monotonic() + timeout

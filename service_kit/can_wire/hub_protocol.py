@@ -6,6 +6,10 @@ never split or merged and junk cannot shift the next frame.
 - client -> hub, optionally: ``OPTIONS`` (magic, flags: bit 0 it wants its own
   frames back, bits 1-2 its transmit order: 0 the arbiter's default, 1 FIFO,
   2 priority; without it, it gets its own frames and the default order);
+- client -> hub, any time: ``FILTERS`` (magic, count, then per filter its
+  identifier, mask and kind: :mod:`service_kit.can_wire.acceptance`); from
+  then on the hub delivers only the frames they accept (count 0: every frame,
+  as without it);
 - client -> hub: ``SEND`` (magic, identifier, flags, DLC, 8 data bytes);
 - hub -> client: ``DELIVER`` (the frame as sent, the monotonic nanosecond of
   its last EOF bit, its python-can timestamp on ``time.time``'s axis, and
@@ -23,19 +27,25 @@ from dataclasses import dataclass
 
 import can
 
+from service_kit.can_wire.acceptance import EITHER, EXTENDED_ONLY, Filter
 from service_kit.can_wire.bits import EXTENDED_ID_MAX, STANDARD_ID_MAX
 
 HELLO = struct.Struct("<4sI")
 SEND = struct.Struct("<4sIBB8s")
 DELIVER = struct.Struct("<4sIBB8sqdB")
 OPTIONS = struct.Struct("<4sB")
+FILTERS = struct.Struct("<4sH")
+FILTER = struct.Struct("<IIB")
 HELLO_MAGIC = b"RWh1"
 SEND_MAGIC = b"RWs1"
 DELIVER_MAGIC = b"RWd1"
 OPTIONS_MAGIC = b"RWo1"
+FILTERS_MAGIC = b"RWf1"
+MAX_FILTERS = 64
+"""Filters one client may set in the hub (a CAN controller's filter banks); a bus with more filters in software."""
 EXTENDED = 1
 REMOTE = 2
-MAX_PACKET = 64
+MAX_PACKET = 1024
 """Bytes read per packet: more than any valid packet, so an oversized one is seen whole as junk."""
 
 
@@ -81,6 +91,30 @@ def decode_options(packet: bytes) -> tuple[bool, str | None] | None:
     if magic != OPTIONS_MAGIC or flags >> 1 not in orders:
         return None
     return bool(flags & 1), orders[flags >> 1]
+
+
+def encode_filters(filters: tuple[Filter, ...] | None) -> bytes:
+    """``FILTERS`` for compiled filters (None: every frame); ValueError for more than :data:`MAX_FILTERS`."""
+    filters = filters or ()
+    if len(filters) > MAX_FILTERS:
+        raise ValueError(f"{len(filters)} filters: the arbiter holds at most {MAX_FILTERS}")
+    return FILTERS.pack(FILTERS_MAGIC, len(filters)) + b"".join(FILTER.pack(*f) for f in filters)
+
+
+def decode_filters(packet: bytes) -> tuple[tuple[Filter, ...] | None] | None:
+    """``(filters,)`` (``(None,)``: every frame), or None when ``packet`` is no valid ``FILTERS``."""
+    if len(packet) < FILTERS.size:
+        return None
+    magic, count = FILTERS.unpack_from(packet)
+    if magic != FILTERS_MAGIC or count > MAX_FILTERS or len(packet) != FILTERS.size + count * FILTER.size:
+        return None
+    out: list[Filter] = []
+    for i in range(count):
+        can_id, mask, kind = FILTER.unpack_from(packet, FILTERS.size + i * FILTER.size)
+        if can_id > EXTENDED_ID_MAX or mask > EXTENDED_ID_MAX or not EITHER <= kind <= EXTENDED_ONLY:
+            return None
+        out.append((can_id, mask, kind))
+    return (tuple(out) or None,)
 
 
 def encode_send(msg: can.Message) -> bytes:

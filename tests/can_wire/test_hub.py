@@ -40,6 +40,7 @@ class Endpoint:
         self._open = True
         self.in_wire = 0
         self.receive_own = True
+        self.filters: tuple[tuple[int, int, int], ...] | None = None
         self.got: list[proto.Delivered] = []
         self.on_delivery = on_delivery
 

@@ -133,11 +133,13 @@ def _send(restbus: Restbus, args: argparse.Namespace) -> int:
     try:
         if args.rig_bus:
             from protocol.settings import CommonSettings
+            from service_kit.can_wire.acceptance import NO_FRAME
             from service_kit.transport import open_can_bus
 
             settings = CommonSettings()
-            # on the wire arbiter the restbus stands for many ECUs: each offers its highest-priority frame
-            bus = open_can_bus(settings, **({"tx_order": "priority"} if settings.can_interface == "ralfhub" else {}))
+            # on the wire arbiter the restbus stands for many ECUs: each offers its highest-priority frame;
+            # it reads nothing, so its acceptance filters take nothing (no outbox filling up unread)
+            bus = open_can_bus(settings, consumes=NO_FRAME, **({"tx_order": "priority"} if settings.can_interface == "ralfhub" else {}))
         else:
             bus = can.Bus(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
     except Exception as exc:  # python-can raises several types by interface; settings raise pydantic's
