@@ -85,10 +85,10 @@ BA_ "GenMsgCycleTime" BO_ 768 20;
 
 
 def test_a_rig_runs_on_the_wire_with_the_restbus(tmp_path: Path) -> None:
-    """Three services, the recorder's tap and the restbus on one arbiter at 1 Mbit/s."""
+    """Three services, the recorder's tap and the restbus on one arbiter at 1 Mbit/s (lockstep: no verdict on the host's timing)."""
     summary_path, record, dbc = tmp_path / "up.json", tmp_path / "run.mcap", tmp_path / "light.dbc"
     dbc.write_text(LIGHT_DBC, encoding="utf-8")
-    cmd = [sys.executable, "-m", "workbench", "up", "--duration", "2", "--rig-id", f"wire{os.getpid()}", "--can-bitrate", "1000000"]
+    cmd = [sys.executable, "-m", "workbench", "up", "--duration", "2", "--clock", "lockstep", "--rig-id", f"wire{os.getpid()}", "--can-bitrate", "1000000"]
     cmd += ["--restbus", str(dbc), "--json", str(summary_path), "--record", str(record)]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
