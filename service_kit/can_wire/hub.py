@@ -50,8 +50,10 @@ passed it is delivered, stamped with that time, to every connected client
   physical floor (the intermission after SYNC plus TPDO1's bits to EOF).
 
 ``python -m service_kit.can_wire.hub --socket PATH --bitrate 1000000
-[--stats FILE]`` runs one until SIGTERM/SIGINT (or until the launcher named
-by ``RALF_LAUNCHER_PID`` ends) and writes its figures to FILE as JSON.
+[--stats FILE] [--live FILE --live-period-s 1]`` runs one until SIGTERM/SIGINT
+(or until the launcher named by ``RALF_LAUNCHER_PID`` ends) and writes its
+figures to the stats FILE as JSON; ``--live`` rewrites its FILE with the
+figures of each period while it runs (:mod:`service_kit.can_wire.hub_live`).
 """
 
 from __future__ import annotations

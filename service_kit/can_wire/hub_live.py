@@ -2,8 +2,10 @@
 
 :class:`PeriodFigures` turns the running :class:`~service_kit.can_wire.hub.HubStats`
 of a :class:`~service_kit.can_wire.hub.Hub` into the figures of the period
-since its previous call (wire time, the arbiter's clock): busy share,
-frames/s and bits/s of the period, the busiest full load window in it,
+since its previous call (wire time, the arbiter's clock): the mean and the
+peak busy share of the load windows lying wholly in the period (the
+co-simulation's definition; the period's own share when no window fits),
+frames/s and bits/s of the period,
 SYNC→TPDO1 (p50, max, smallest margin above the wire's physical floor) of
 the pairs that ended in it, and the clients' counters (running totals:
 deliveries filtered per client, outbox overruns). The record carries the
@@ -51,8 +53,11 @@ class PeriodFigures:
         span_ns = max(0, now_ns - m.t_ns)
         frames, bits, busy_ns, pairs = st.frames, st.bits, st.busy_ns, st.sync_to_tpdo_total
         d_frames, d_bits, d_busy = frames - m.frames, bits - m.bits, busy_ns - m.busy_ns
-        busy_pct = min(100.0, 100 * d_busy / span_ns) if span_ns > 0 else 0.0
-        peak = _peak_window_pct(st, m.t_ns, now_ns)
+        windows = _full_windows(st, m.t_ns, now_ns)
+        if windows:  # as the co-simulation's: the mean and the peak of the load windows
+            busy_pct, peak_pct = 100 * sum(windows) / (len(windows) * st.window_ns), 100 * max(windows) / st.window_ns
+        else:  # a period shorter than a window, or before the first frame: the period's own share
+            busy_pct = peak_pct = min(100.0, 100 * d_busy / span_ns) if span_ns > 0 else 0.0
         self.seq += 1
         out: dict[str, Any] = {
             "seq": self.seq,
@@ -61,7 +66,7 @@ class PeriodFigures:
             "span_s": span_ns / NS_PER_S,
             "frames": d_frames,
             "busy_mean_pct": busy_pct,
-            "busy_max_pct": peak if peak is not None else busy_pct,
+            "busy_max_pct": peak_pct,
             "frames_per_s": d_frames * NS_PER_S / span_ns if span_ns > 0 else 0.0,
             "bits_per_s": d_bits * NS_PER_S / span_ns if span_ns > 0 else 0.0,
             "window_ms": st.window_ns / 1e6,
@@ -80,13 +85,14 @@ class PeriodFigures:
         return out
 
 
-def _peak_window_pct(stats: Any, t0_ns: int, t1_ns: int) -> float | None:
-    """The busiest load window lying wholly in [t0, t1) (None: no such window with a frame)."""
+def _full_windows(stats: Any, t0_ns: int, t1_ns: int) -> list[int]:
+    """Busy ns of each load window lying wholly in [t0, t1) (windows without a frame: 0; none before the first frame)."""
     if stats.first_start_ns is None:
-        return None
+        return []
     origin, w = stats.first_start_ns, stats.window_ns
-    inside = [busy for i, busy in list(stats._windows.items()) if origin + i * w >= t0_ns and origin + (i + 1) * w <= t1_ns]
-    return 100 * max(inside) / w if inside else None
+    first, end = -((origin - t0_ns) // w), (t1_ns - origin) // w  # ceil((t0 - origin) / w), floor((t1 - origin) / w)
+    busy = dict(list(stats._windows.items()))
+    return [busy.get(i, 0) for i in range(max(first, 0), end)]
 
 
 def write_atomically(path: Path, record: Mapping[str, Any]) -> None:
