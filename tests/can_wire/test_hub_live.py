@@ -105,3 +105,17 @@ def test_the_launcher_reads_each_published_period_once(tmp_path: Path) -> None:
     wire.live_path.write_text(json.dumps({**last, "seq": 4}))
     assert wire.poll_live() == {**last, "seq": 4}
     hub.close()
+
+
+def test_the_live_view_has_the_channel_before_it_serves_only_with_a_wire() -> None:
+    import argparse
+
+    from workbench.cli import _start_live
+
+    for wire, expected in ((WireRequest(BITRATE), True), (None, False)):
+        args = argparse.Namespace(live="127.0.0.1:0", live_rate=10.0, rig_id="livechan", wire=wire)
+        view = _start_live(args)
+        try:
+            assert ("/can/bus_load" in view._channels) is expected
+        finally:
+            view.close()
