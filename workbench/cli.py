@@ -493,6 +493,15 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             said_ready = True
             live.console.print(f"start-up: all services ready after {sup.startup_s:.1f} s; control starts (--duration counts from here)", soft_wrap=True)
         live.update(status_line(observer, time.monotonic() - sup.started))
+        wire_figures()
+
+    def wire_figures() -> None:
+        """The arbiter's newest period figures (workbench/rig_wire.py) into the recording and the live view."""
+        figures = rig_wire.poll_live() if rig_wire is not None and recording is not None else None
+        if figures is not None and recording is not None:
+            from workbench.recording.schemas import CAN_BUS_LOAD_SCHEMA, CAN_BUS_LOAD_TOPIC
+
+            recording.recorder.on_record(CAN_BUS_LOAD_TOPIC, CAN_BUS_LOAD_SCHEMA, figures)
 
     def progress() -> str:
         up = [name for name in START_ORDER if observer.alive.get(name)]
@@ -536,6 +545,7 @@ def _up_supervised(args: argparse.Namespace, plan: RigPlan, log_dir: Path, tool_
             time.sleep(0.2)  # let the last health messages arrive
         summary = summarize(observer, sup.exit_codes, time.monotonic() - sup.started)
         if recording is not None:
+            wire_figures()  # the last period the arbiter published
             stats = recording.close().as_dict()
             if args.record:
                 summary["recording"] = {"path": args.record, **stats}
@@ -588,12 +598,15 @@ def _start_live(args: argparse.Namespace, params: bool = False) -> Any:
         return None
     from workbench.live.params import ParamPanel
     from workbench.live.view import LiveView, LiveViewError, parse_address
-    from workbench.recording.schemas import rig_topics
+    from workbench.recording.schemas import CAN_BUS_LOAD_SCHEMA, CAN_BUS_LOAD_TOPIC, rig_topics
 
+    topics = rig_topics(args.rig_id)
+    if getattr(args, "wire", None) is not None:  # the arbiter's figures (workbench/rig_wire.py)
+        topics.append((CAN_BUS_LOAD_TOPIC, CAN_BUS_LOAD_SCHEMA))
     try:
         host, port = parse_address(args.live)
         panel = ParamPanel(args.rig_id) if params else None  # its session: the observer's, once it is open
-        live = LiveView(host, port, rate_hz=args.live_rate, topics=rig_topics(args.rig_id), params=panel)
+        live = LiveView(host, port, rate_hz=args.live_rate, topics=topics, params=panel)
     except LiveViewError as exc:
         raise SystemExit(f"ralf-hil up: {exc}") from None
     console.print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket; layout docs/foxglove-layout.json), {args.live_rate:g} Hz per topic")

@@ -13,6 +13,10 @@ a load above 100 % with the rig's own cycle, an identifier of the rig's —
 is one line and exit 2 before any process starts
 (:func:`service_kit.can_wire.restbus.traffic.check`). After the run the
 arbiter's figures (bus load, queuing delays, SYNC→TPDO1) go into the summary.
+While it runs the arbiter rewrites ``can-wire-live.json`` with the last
+second's figures (:mod:`service_kit.can_wire.hub_live`); the launcher reads
+each new one (:meth:`RigWire.poll_live`) and hands it to the recording and the
+live view on ``/can/bus_load``.
 Off by default: without a bit rate nothing here runs.
 """
 
@@ -34,6 +38,9 @@ HUB_LOG = "can-wire.log"
 RESTBUS_LOG = "restbus.log"
 SOCKET_NAME = "can-wire.sock"
 STATS_NAME = "can-wire.json"
+LIVE_NAME = "can-wire-live.json"
+LIVE_PERIOD_S = 1.0
+"""How often the arbiter publishes its figures while it runs."""
 READY_TIMEOUT_S = 30.0
 """How long the arbiter may take to listen (a loaded host's Python start-up)."""
 
@@ -122,6 +129,8 @@ class RigWire:
         self.request = request
         self.socket_path = run_dir / SOCKET_NAME
         self.stats_path = run_dir / STATS_NAME
+        self.live_path = run_dir / LIVE_NAME
+        self._live_seq = 0
         self.log_dir = log_dir
         point_plan_at(plan, self.socket_path)
         self.env = {**os.environ, **plan.common_env, "RALF_LAUNCHER_PID": str(os.getpid())}
@@ -141,7 +150,9 @@ class RigWire:
 
         check_socket_path(self.socket_path)
         self.hub = self._spawn(
-            ["service_kit.can_wire.hub", "--socket", str(self.socket_path), "--bitrate", str(self.request.bitrate), "--stats", str(self.stats_path)], HUB_LOG
+            ["service_kit.can_wire.hub", "--socket", str(self.socket_path), "--bitrate", str(self.request.bitrate), "--stats", str(self.stats_path)]
+            + ["--live", str(self.live_path), "--live-period-s", str(LIVE_PERIOD_S)],
+            HUB_LOG,
         )
         _wait_ready(self.hub, self.log_dir / HUB_LOG, self.socket_path, READY_TIMEOUT_S)
         if self.request.restbus:
@@ -151,6 +162,14 @@ class RigWire:
             time.sleep(0.2)
             if self.restbus.poll() is not None:
                 raise HubError(f"the restbus sender exited with {self.restbus.returncode}: see {self.log_dir / RESTBUS_LOG}")
+
+    def poll_live(self) -> dict[str, Any] | None:
+        """The arbiter's newest period figures, once each (None: none new, or the file not yet whole)."""
+        record = read_live(self.live_path)
+        if record is None or int(record.get("seq", 0)) <= self._live_seq:
+            return None
+        self._live_seq = int(record["seq"])
+        return record
 
     def stop(self) -> dict[str, Any] | None:
         """Stops the restbus, then the arbiter; the arbiter's figures (None if it left none)."""
@@ -169,6 +188,15 @@ class RigWire:
             lines = [ln for ln in (self.log_dir / RESTBUS_LOG).read_text(errors="replace").splitlines() if ln.startswith("restbus:")]
             report["restbus_sender"] = lines[-1].removeprefix("restbus: ") if lines else f"exit {self.restbus.returncode}"
         return report
+
+
+def read_live(path: Path) -> dict[str, Any] | None:
+    """The record in the arbiter's live file (None: none yet; it is replaced whole, never half written)."""
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
 
 
 def summary_rows(wire: Mapping[str, Any]) -> list[tuple[str, str]]:

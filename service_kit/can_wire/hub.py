@@ -50,8 +50,10 @@ passed it is delivered, stamped with that time, to every connected client
   physical floor (the intermission after SYNC plus TPDO1's bits to EOF).
 
 ``python -m service_kit.can_wire.hub --socket PATH --bitrate 1000000
-[--stats FILE]`` runs one until SIGTERM/SIGINT (or until the launcher named
-by ``RALF_LAUNCHER_PID`` ends) and writes its figures to FILE as JSON.
+[--stats FILE] [--live FILE --live-period-s 1]`` runs one until SIGTERM/SIGINT
+(or until the launcher named by ``RALF_LAUNCHER_PID`` ends) and writes its
+figures to the stats FILE as JSON; ``--live`` rewrites its FILE with the
+figures of each period while it runs (:mod:`service_kit.can_wire.hub_live`).
 """
 
 from __future__ import annotations
@@ -123,6 +125,10 @@ class HubStats:
     sync_to_tpdo_ns: deque[int] = field(default_factory=deque)
     sync_to_tpdo_floor_margin_min_ns: int | None = None
     """Smallest SYNC→TPDO1 less its physical floor (never negative on a wire)."""
+    sync_to_tpdo_margin_ns: deque[int] = field(default_factory=deque)
+    """Each of :attr:`sync_to_tpdo_ns` less its physical floor."""
+    sync_to_tpdo_total: int = 0
+    """SYNC→TPDO1 pairs over the whole run (the deques keep the last ``keep``)."""
     _last_sync_bit_ns: int | None = None
     max_windows: int = 36_000
     """Windows kept for the peak (an hour of 100 ms windows)."""
@@ -132,6 +138,7 @@ class HubStats:
     def __post_init__(self) -> None:
         self.recent = deque(maxlen=self.keep)
         self.sync_to_tpdo_ns = deque(maxlen=self.keep)
+        self.sync_to_tpdo_margin_ns = deque(maxlen=self.keep)
 
     def _add_busy(self, start_ns: int, end_ns: int) -> None:
         origin = self.first_start_ns or 0
@@ -162,6 +169,8 @@ class HubStats:
             floor = (INTERMISSION_BITS + frame.n_bits_to_eof) * bit_time_ns(self.bitrate)
             self.sync_to_tpdo_ns.append(delta)
             margin = delta - floor
+            self.sync_to_tpdo_margin_ns.append(margin)
+            self.sync_to_tpdo_total += 1
             if self.sync_to_tpdo_floor_margin_min_ns is None or margin < self.sync_to_tpdo_floor_margin_min_ns:
                 self.sync_to_tpdo_floor_margin_min_ns = margin
             self._last_sync_bit_ns = None  # one TPDO1 per SYNC
@@ -567,6 +576,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--socket", required=True, type=Path, help="the Unix socket to listen on (its folder private to this user)")
     parser.add_argument("--bitrate", required=True, type=int, help="bit/s")
     parser.add_argument("--stats", type=Path, default=None, help="write the figures to this JSON file on exit")
+    parser.add_argument("--live", type=Path, default=None, help="rewrite this JSON file with the last period's figures every period")
+    parser.add_argument("--live-period-s", type=float, default=1.0, help="the period of --live (default %(default)s s)")
     parser.add_argument("--window-ms", type=float, default=100.0, help="bus load window (default %(default)s ms)")
     parser.add_argument(
         "--tx-order", choices=TX_ORDERS, default="fifo", help="what each client offers the wire: its oldest frame (default) or its highest-priority one"
@@ -579,7 +590,15 @@ def main(argv: list[str] | None = None) -> int:
     except (HubError, ValueError) as exc:
         print(f"can wire hub: {exc}", file=sys.stderr)
         return 2
+    if args.live_period_s <= 0:
+        print(f"can wire hub: --live-period-s {args.live_period_s:g} is not a positive number of seconds", file=sys.stderr)
+        server.close()
+        return 2
     follow_launcher(int(os.environ.get("RALF_LAUNCHER_PID", "0") or 0), stop)
+    if args.live is not None:
+        from service_kit.can_wire.hub_live import publish_periodically
+
+        threading.Thread(target=publish_periodically, args=(server.hub, args.live, args.live_period_s, stop), name="can-wire-live", daemon=True).start()
     print(f"can wire hub: {args.socket} at {args.bitrate} bit/s", flush=True)
     stop.wait()
     report = server.close()

@@ -102,3 +102,40 @@ def test_a_rig_runs_on_the_wire_with_the_restbus(tmp_path: Path) -> None:
     assert "frames sent" in wire["restbus_sender"]
     assert summary["recording"]["can_frames"] > 0
     assert any(item == "CAN wire SYNC→TPDO1" for item, _ in summary_rows(wire))
+
+
+def test_the_arbiters_figures_are_recorded_while_the_rig_runs(tmp_path: Path) -> None:
+    """``up --can-bitrate --record --live``: the arbiter's period figures on ``/can/bus_load`` in the MCAP and
+    the live view (lockstep)."""
+    import jsonschema
+    from mcap.reader import make_reader
+
+    from workbench.recording.reader import Recording
+    from workbench.recording.schemas import CAN_BUS_LOAD_SCHEMA
+
+    record, summary_path = tmp_path / "x.mcap", tmp_path / "up.json"
+    cmd = [sys.executable, "-m", "workbench", "up", "--duration", "2", "--clock", "lockstep", "--rig-id", f"live{os.getpid()}", "--can-bitrate", "1000000"]
+    cmd += ["--record", str(record), "--live", "127.0.0.1:0", "--json", str(summary_path)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=400)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    live = json.loads(summary_path.read_text())["live"]
+    assert live["records"] > 0 and live["late_channels"] == 0  # /can/bus_load among the channels made before serving
+    figures = Recording.load(record, only=("can/bus_load",)).data("can/bus_load")
+    assert figures, "no /can/bus_load record"
+    for f in figures:
+        jsonschema.validate(f, CAN_BUS_LOAD_SCHEMA)
+        assert f["bitrate"] == 1_000_000 and f["source"] == "arbiter"
+        assert 0 <= f["busy_mean_pct"] <= f["busy_max_pct"] <= 100
+    assert [f["seq"] for f in figures] == sorted({f["seq"] for f in figures})  # each period once, in order
+    busy = [f for f in figures if f["frames"] > 0]
+    assert busy and all(f["frames_per_s"] > 0 and f["bits_per_s"] > 0 for f in busy)
+    paired = [f for f in figures if "sync_to_tpdo1_us" in f]
+    assert paired and all(f["sync_to_tpdo1_floor_margin_min_us"] >= 0 for f in paired)
+    with record.open("rb") as fh:  # the mcap library's own reader: the channel and its schema
+        mcap = make_reader(fh).get_summary()
+    assert mcap is not None
+    channels = [c for c in mcap.channels.values() if c.topic == "/can/bus_load"]
+    assert len(channels) == 1 and mcap.schemas[channels[0].schema_id].name == "ralf.CanBusLoad"
+    assert mcap.statistics is not None and mcap.statistics.channel_message_counts[channels[0].id] == len(figures)
+    doctor = subprocess.run([sys.executable, "-m", "workbench", "doctor", str(record)], capture_output=True, text=True, check=False, timeout=120)
+    assert doctor.returncode == 0 and ": ok (" in doctor.stdout, doctor.stdout[-2000:] + doctor.stderr[-2000:]

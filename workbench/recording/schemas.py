@@ -192,7 +192,8 @@ LIVELINESS_SCHEMA: Final[dict[str, Any]] = {
 }
 
 CAN_BUS_LOAD_TOPIC: Final = "/can/bus_load"
-"""The simulated CAN wire's bus load and latencies, once at the end of a run with ``can_bitrate`` set."""
+"""The CAN wire's bus load and latencies with ``can_bitrate`` set: the co-simulation's once at the run's end, the
+wire arbiter's of ``ralf-hil up`` once a second (:mod:`service_kit.can_wire.hub_live`)."""
 CAN_BUS_LOAD_SCHEMA: Final[dict[str, Any]] = {
     "title": "ralf.CanBusLoad",
     "description": "The simulated wire's figures (workbench.cosim_wire.TimedCanWire.summary; times in us)",
