@@ -149,7 +149,7 @@ class ParamPath(BoardParamPath):
         if name == DITHER and not self.law.config.dither.enabled:
             raise ParamRefused(Err.ERR_ACCESS_DENIED, "this run has no dither (dither.amplitude_v 0 at start)")
         if (name in INPUTS or name in RANGE) and self.inputs is None:
-            raise ParamRefused(Err.ERR_ACCESS_DENIED, "this run has no input monitors (input_monitors names none)")
+            raise ParamRefused(Err.ERR_ACCESS_DENIED, "this run has no input monitors (input_monitors turns none on)")
 
     def _input_limits(self, changes: Sequence[Write]) -> InputMonitors:
         """The input monitors' limits with ``changes`` made, as their settings take them
