@@ -163,7 +163,8 @@ def table_markdown() -> str:
     sources = {e.variable.name: e.source for e in XCP_TABLE}
     for v in controller_layout().variables:
         conversion = "identity" if (v.factor, v.offset) == (1.0, 0.0) else f"{v.factor:.9g} × raw + {v.offset:g}"
-        source = "control law" if v.kind == "calibration" else ("service" if sources[v.name] in SERVICE_SOURCES else "run record")
+        calibration = "input monitors" if v.name.startswith("input_") else "control law"
+        source = calibration if v.kind == "calibration" else ("service" if sources[v.name] in SERVICE_SOURCES else "run record")
         lines.append(
             f"| `{v.name}` | {v.kind} | 0x{v.address:X} | {v.datatype} | {v.unit or '-'} | {v.lower:.10g} .. {v.upper:.10g} | {conversion} | {source} |"
         )
