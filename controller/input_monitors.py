@@ -75,6 +75,16 @@ class InputMonitorChecks:
     def __post_init__(self) -> None:
         for name in INPUT_MONITORS:
             self.monitors.episodes.setdefault(name, 0)
+        self._rates()
+
+    def set_limits(self, limits: InputMonitors) -> None:
+        """New limits from the next tick on (the parameter path's change, checked against the
+        settings' bounds): each check reads its limit every tick; the stuck counters, the last
+        words and the monitors' episodes carry on."""
+        self.limits = limits
+        self._rates()
+
+    def _rates(self) -> None:
         lsb = WORD16_VOLTS_PER_LSB
         self._rate_words = tuple(limit * self.sample_period_s / lsb for limit in (self.limits.extension_rate_v_s,) * 2 + (self.limits.deflection_rate_v_s,) * 2)
         """The rate limits as words per tick."""

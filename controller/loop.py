@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -130,6 +130,10 @@ class ControlLaw:
         data[f.SETPOINTS : f.SETPOINTS + 2 * self.lap_ticks] = np.asarray(self.setpoints, dtype=np.float64).ravel()
         data[f.SETPOINTS + 2 * self.lap_ticks : data.size - n_stim] = dither.ravel()
         self._data = data
+        self._dither = data[f.SETPOINTS + 2 * self.lap_ticks : data.size - n_stim]
+        """The dither's table in the compiled tick's data (empty without a dither)."""
+        self.dither_amplitude_v = config.dither.amplitude_v
+        """The dither's RMS in effect (V; :meth:`set_dither_amplitude`)."""
         self.row = data[f.ROW : f.SETPOINTS]
         """The tick's row (:data:`ROW_NAMES`, the words as floats), rewritten each tick."""
         self.ints = np.zeros(f.N_INTS, dtype=np.int64)
@@ -142,6 +146,16 @@ class ControlLaw:
             self.ints[f.HEAD] = self.oatf.head_state[0]
             self.oatf.head_state = self.ints[f.HEAD : f.HEAD + 1]
         self._no_oatf = (np.zeros((1, 2)), np.zeros((1, 1), dtype=np.int64), np.ones(1))
+
+    def set_dither_amplitude(self, amplitude_v: float) -> None:
+        """The dither's RMS from the next tick on (a run started with a dither only): the same
+        multisine (band, period, seed) rescaled, its table recomputed from its settings as at
+        start, so a run taking the change at one tick is reproducible bit for bit; 0 mutes it."""
+        if not self._dither.size:
+            raise ValueError("this run has no dither (dither.amplitude_v 0 at start)")
+        config = replace(self.config.dither, amplitude_v=amplitude_v)
+        self._dither[:] = dither_table(config, self._ts).ravel()
+        self.dither_amplitude_v = amplitude_v
 
     @property
     def oatf_frequency_hz(self) -> float:

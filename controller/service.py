@@ -206,6 +206,7 @@ class ControllerService:
             parse_param_schedule(s.param_schedule),
             counted=s.param_commands,
             publish=getattr(self.port, "publish_param_change", None),
+            inputs=self.inputs,
         )
         """The one path of run-time parameter changes (controller/params.py)."""
         self.param_commands: ParamCommands | None = None

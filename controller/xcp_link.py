@@ -24,6 +24,7 @@ at which a new DSP interrupt was taken.
 from __future__ import annotations
 
 import logging
+import math
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -34,7 +35,7 @@ from controller.dsp_side import DspSide
 from controller.loop import ControlLaw
 from controller.params import PI, ParamPath
 from controller.timing_counters import TimingCounters
-from controller.xcp_table import A2L_MODULE, XCP_TABLE, controller_a2l, controller_layout, xcp_events
+from controller.xcp_table import A2L_MODULE, CALIBRATIONS, XCP_TABLE, controller_a2l, controller_layout, xcp_events
 from protocol.errors import ConfigError
 from protocol.settings import ControllerSettings
 from service_kit.runtime import LatencyTracker
@@ -139,6 +140,14 @@ class XcpLink:
             return lambda row: law.oatf.stages[0].frequency_hz if law.oatf is not None and law.oatf.stages else float("nan")
         if source == "oatf_zeta":
             return lambda row: law.oatf.stages[0].zeta if law.oatf is not None and law.oatf.stages else float("nan")
+        if source in CALIBRATIONS:  # the dither's amplitude, the input monitors' limits: as the path holds them
+            params = self.params
+
+            def held(row: list[Any]) -> float | int:
+                raw = params.value_raw(v)
+                return (int(raw) if math.isfinite(raw) else 0) if integer else raw
+
+            return held
         raise ValueError(f"XCP table entry {v.name}: no source {source!r}")
 
     def _image(self, tick: int, row: list[Any]) -> bytes:

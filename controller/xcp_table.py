@@ -10,7 +10,9 @@ from :data:`XCP_TABLE`, so they cannot drift apart.
 of the run record (:data:`controller.service.RECORD_COLUMNS`), or one of
 :data:`SERVICE_SOURCES` the service keeps. A calibration parameter's raw
 value is the one the control law holds (the PI gains in V/rad, which the
-A2L shows in the thesis's mV/rad; the OATF's first stage).
+A2L shows in the thesis's mV/rad; the OATF's first stage; the dither's
+amplitude) or the input monitors' limits in effect (their settings'
+bounds: :class:`protocol.setting_groups.InputMonitors`).
 """
 
 from __future__ import annotations
@@ -34,7 +36,23 @@ A2L_MODULE: Final = "RALF_CONTROLLER"
 BASE_ADDRESS: Final = 0x1000
 SERVICE_SOURCES: Final = frozenset({"tet_prev_s", "deadline_misses", "overruns"})
 """Measurements the service keeps outside the run record."""
-CALIBRATIONS: Final = frozenset({"kp1", "kp2", "ki1", "ki2", "oatf_frequency_hz", "oatf_zeta"})
+CALIBRATIONS: Final = frozenset(
+    {
+        "kp1",
+        "kp2",
+        "ki1",
+        "ki2",
+        "oatf_frequency_hz",
+        "oatf_zeta",
+        "dither_amplitude_v",
+        "input_extension_lo_in",
+        "input_extension_hi_in",
+        "input_stuck_samples",
+        "input_extension_rate_v_s",
+        "input_deflection_rate_v_s",
+        "input_disagree_in",
+    }
+)
 """The parameters a master may write (each has its apply step in :mod:`controller.xcp_link`)."""
 
 
@@ -49,8 +67,8 @@ def _m(name: str, unit: str, lower: float, upper: float, description: str, datat
     return XcpEntry(Variable(name, datatype, unit, lower, upper, "measurement", factor, 0.0, description), source or name)
 
 
-def _c(name: str, unit: str, lower: float, upper: float, description: str, factor: float = 1.0) -> XcpEntry:
-    return XcpEntry(Variable(name, "FLOAT64_IEEE", unit, lower, upper, "calibration", factor, 0.0, description), name)
+def _c(name: str, unit: str, lower: float, upper: float, description: str, factor: float = 1.0, datatype: str = "FLOAT64_IEEE") -> XcpEntry:
+    return XcpEntry(Variable(name, datatype, unit, lower, upper, "calibration", factor, 0.0, description), name)
 
 
 _ANGLE = 3.2
@@ -92,6 +110,13 @@ XCP_TABLE: Final[tuple[XcpEntry, ...]] = (
     _c("ki2", "mV/rad", 0, 1e6, "joint 2 integral gain, on the windowed sum of e*Ts (raw: V/rad)", 1000.0),
     _c("oatf_frequency_hz", "Hz", 0.5, 50, "the OATF first stage's design frequency [3-33] (runs with an OATF only)"),
     _c("oatf_zeta", "", 0, 0.95, "the OATF first stage's design damping ratio (runs with an OATF only)"),
+    _c("dither_amplitude_v", "V", 0, 2.0, "the dither's RMS per valve; 0 mutes it (runs with a dither only)"),
+    _c("input_extension_lo_in", "in", -100, 100, "input_range: the extensions' low end, below the high end (runs with input monitors only)"),
+    _c("input_extension_hi_in", "in", -100, 100, "input_range: the extensions' high end, above the low end (runs with input monitors only)"),
+    _c("input_stuck_samples", "", 2, 100000, "input_stuck: moving ticks with an unchanged code before it fires (runs with input monitors only)", 1.0, "ULONG"),
+    _c("input_extension_rate_v_s", "V/s", 0.1, 1e6, "input_rate: the rate limit of AI1, AI2 (runs with input monitors only)"),
+    _c("input_deflection_rate_v_s", "V/s", 0.1, 1e6, "input_rate: the rate limit of AI3, AI4 (runs with input monitors only)"),
+    _c("input_disagree_in", "in", 0.001, 10, "input_disagree: the largest |measured - implied| deflection (runs with input monitors only)"),
 )
 
 
@@ -138,7 +163,8 @@ def table_markdown() -> str:
     sources = {e.variable.name: e.source for e in XCP_TABLE}
     for v in controller_layout().variables:
         conversion = "identity" if (v.factor, v.offset) == (1.0, 0.0) else f"{v.factor:.9g} × raw + {v.offset:g}"
-        source = "control law" if v.kind == "calibration" else ("service" if sources[v.name] in SERVICE_SOURCES else "run record")
+        calibration = "input monitors" if v.name.startswith("input_") else "control law"
+        source = calibration if v.kind == "calibration" else ("service" if sources[v.name] in SERVICE_SOURCES else "run record")
         lines.append(
             f"| `{v.name}` | {v.kind} | 0x{v.address:X} | {v.datatype} | {v.unit or '-'} | {v.lower:.10g} .. {v.upper:.10g} | {conversion} | {source} |"
         )

@@ -45,7 +45,11 @@ def test_the_table_lists_every_parameter_with_its_limits_and_value(running: HilR
     table = query_table(running._session, _keys(running), 20.0)  # noqa: SLF001 - the rig's own session
     assert table is not None
     by_name = {p.name: p for p in table.params}
-    assert list(by_name) == [f"controller.{n}" for n in ("kp1", "kp2", "ki1", "ki2", "oatf_frequency_hz", "oatf_zeta")]
+    assert list(by_name) == [f"controller.{n}" for n in ("kp1", "kp2", "ki1", "ki2", "oatf_frequency_hz", "oatf_zeta", "dither_amplitude_v")] + [
+        f"controller.input_{n}" for n in ("extension_lo_in", "extension_hi_in", "stuck_samples", "extension_rate_v_s", "deflection_rate_v_s", "disagree_in")
+    ]
+    # a run without a dither or input monitors lists their parameters without a value
+    assert [n for n, p in by_name.items() if p.value is None] == list(by_name)[6:]
     kp1 = by_name["controller.kp1"]
     assert (kp1.unit, kp1.lower, kp1.upper) == ("mV/rad", 0.0, 1e6)
     assert kp1.value is not None and kp1.value > 0

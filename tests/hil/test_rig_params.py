@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from controller.record import load_record
 from protocol.errors import ConfigError
 from workbench.hil import HilRig, RigRunError, RigSpec
 from workbench.recording.reader import Recording
@@ -94,6 +95,10 @@ def test_bad_changes_are_one_line_before_the_run() -> None:
         rig.param.set("dsp.mass", 1.0)
     with pytest.raises(ConfigError, match=r"at_s must be a time at or after 0 s"):
         rig.param.set("controller.kp1", 1.0, at_s=-1.0)
+    with pytest.raises(ConfigError, match=r"^controller\.input_stuck_samples = 2\.5 refused: not one of its whole steps$"):
+        rig.param.set("controller.input_stuck_samples", 2.5)
+    with pytest.raises(ConfigError, match=r"^controller\.dither_amplitude_v = 3\.0 refused: outside its limits 0 \.\. 2 V$"):
+        rig.param.set("controller.dither_amplitude_v", 3.0)
     assert len(rig.param) == 0
     # the OATF's parameters in a run without an OATF: the controller refuses the schedule at its start
     rig.param.set("controller.oatf_frequency_hz", 3.0, at_s=0.1)
@@ -121,3 +126,81 @@ def test_three_processes_lockstep_take_the_schedule_as_the_cosimulation_does(tmp
     for name, column in co.columns.items():
         assert np.array_equal(three.columns[name], column, equal_nan=True), name
     assert _pi_is_proportional(three, 15.0)[three.columns["tick"] >= 200].all()
+
+
+def _first_difference(a: np.ndarray, b: np.ndarray) -> int:
+    differ = np.flatnonzero(a != b)
+    return int(differ[0]) if differ.size else -1
+
+
+def test_a_scheduled_dither_amplitude_reaches_the_d_a_from_its_tick(tmp_path: Path) -> None:
+    """The dither is added after the PI: from tick 201 the valve voltages differ from the same run
+    without the change, the PI outputs of tick 201 (computed before the dither) do not."""
+    runs = []
+    for name, change in (("plain", False), ("muted", True)):
+        rig = HilRig(controller={"duration_s": 1.5, "tf_download_samples": 0, "dither": "amplitude_v=0.05"}, dsp_settings=dict(DSP), workdir=tmp_path / name)
+        if change:
+            rig.param.set("controller.dither_amplitude_v", 0.0, at_s=1.0012)
+        runs.append(rig.run())
+    plain, muted = runs
+    assert plain.error is None and muted.error is None
+    ticks = muted.columns["tick"]
+    at = int(np.flatnonzero(ticks == 201)[0])
+    assert _first_difference(plain.columns["u1_v"], muted.columns["u1_v"]) == at
+    assert _first_difference(plain.columns["pi1_v"], muted.columns["pi1_v"]) > at
+    assert muted.param_changes == [{"sim_time_s": 201 * TS, "kind": "schedule", "fields": {"dither_amplitude_v": 0.0}, "who": "schedule"}]
+
+
+def test_a_scheduled_input_limit_fires_its_monitor_from_its_tick() -> None:
+    """A disagreement tolerance of 0.001 in from tick 201: ``input_disagree`` fires at that tick (policy
+    count: the loop runs on unchanged); the run without the change never fires it."""
+    from workbench.cosim import run_cosim
+
+    controller = {"duration_s": 1.5, "tf_download_samples": 0, "input_monitors": "disagree=true", "policies": "input_disagree=count"}
+    step = [{"name": "controller.input_disagree_in", "value": 0.001, "at_s": 1.0012}]
+    plain, tight = (run_cosim(controller=dict(controller), dsp=dict(DSP)), run_cosim(controller={**controller, "param_schedule": step}, dsp=dict(DSP)))
+    assert plain.result.error is None and tight.result.error is None
+    assert plain.controller.inputs.events == [] and plain.controller.inputs.limits.disagree_in == 0.3
+    (first, *_) = tight.controller.inputs.events
+    assert first[:2] == (201, "input_disagree")
+    assert tight.controller.inputs.limits.disagree_in == 0.001
+    assert plain.controller.monitors.episodes["input_disagree"] == 0 < tight.controller.monitors.episodes["input_disagree"]
+    assert np.array_equal(np.asarray(plain.controller.record.to_columns()["u1_v"]), np.asarray(tight.controller.record.to_columns()["u1_v"]))
+
+
+@pytest.mark.timeout(300)
+def test_cosim_and_the_one_process_lockstep_take_the_new_parameters_alike(tmp_path: Path) -> None:
+    """A schedule of the dither's amplitude and the input monitors' limits: the co-simulation and the
+    one-process lockstep rig keep the same records bit for bit, the monitors' firings included."""
+    from workbench.composition import run_in_process
+    from workbench.cosim import run_cosim
+
+    schedule = [
+        {"name": "controller.dither_amplitude_v", "value": 0.08, "at_s": 0.5},
+        {"name": "controller.input_extension_rate_v_s", "value": 0.5, "at_s": 0.75},
+        {"name": "controller.input_disagree_in", "value": 0.01, "at_s": 1.0},
+    ]
+    controller = {
+        "duration_s": 1.5,
+        "tf_download_samples": 0,
+        "dither": "amplitude_v=0.02",
+        "input_monitors": "rate=true,disagree=true",
+        "policies": "input_rate=count,input_disagree=count",
+        "param_schedule": schedule,
+    }
+    records, events = [], []
+    for name, run_with in (("cosim", run_cosim), ("one", run_in_process)):
+        run = run_with(controller=dict(controller))
+        assert run.result.error is None
+        path = tmp_path / name / "run"
+        path.parent.mkdir(parents=True)
+        run.controller.save(str(path), run.result)
+        records.append(load_record(path))
+        events.append(list(run.controller.inputs.events))
+        assert [c.sim_time_s for c in run.controller.dsp.config_changes] == [0.5, 0.75, 1.0], name
+    first, second = records
+    assert len(first) == len(second) == 300
+    for name in first.columns:
+        assert np.array_equal(first[name], second[name], equal_nan=True), name
+    assert events[0] == events[1]
+    assert {m for _, m, _ in events[0]} == {"input_rate", "input_disagree"}  # the limits acted: the runs did work that could differ
