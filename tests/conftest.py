@@ -31,3 +31,29 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.rig)
         if Path(str(item.fspath)).stem in _SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
+
+
+LEFT_THREAD_GRACE_S = 10.0
+"""How long the session waits, at its end, for threads a test left running to end by themselves."""
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """A thread that is not a daemon and still runs when the session ends would keep the
+    interpreter from exiting (a zenoh session or subscriber left open, a service not
+    closed): the run would stall instead of ending. Name them and end with a failure."""
+    import os
+    import sys
+    import threading
+    import time
+
+    deadline = time.monotonic() + LEFT_THREAD_GRACE_S
+    left = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
+    for t in left:
+        t.join(timeout=max(0.0, deadline - time.monotonic()))
+    left = [t for t in left if t.is_alive()]
+    if left:
+        names = ", ".join(sorted({t.name for t in left}))
+        print(f"\nthe tests left {len(left)} non-daemon thread(s) running ({names}): a session, bus or service was not closed", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(3)

@@ -109,21 +109,31 @@ def run_in_process(
         msg = decode(Health, sample.payload.to_bytes())
         health[msg.service] = msg
 
-    health_sub = sess.declare_subscriber(Keys(cs.rig_id).health_all, keep_health)
-    wire = _wire(cs, ps)
-    plant_bus = wire.plant_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
-    ctrl_bus = wire.controller_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
-    dsp_service = DspService(ds, sess)
-    threads = [
-        threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), kwargs={"owns_process": False}, name="plant", daemon=True),
-        threading.Thread(target=dsp_service.run, args=(stop,), name="dsp", daemon=True),
-    ]
-    ctrl = ControllerService(cs, sess, PlantLink(ctrl_bus, cs.node_id), keep_record=True)  # callers read controller.record
-    ctrl.owns_process = False  # the services share this process: real-time measures stay on each loop's thread
-    if at_tick is not None:
-        ctrl.injection = TickAction(ctrl.injection, *at_tick)  # type: ignore[assignment]
+    # Everything opened is closed again, also when a service refuses its settings before the run
+    # (a zenoh session or subscriber left open keeps its threads, and this process, alive).
+    health_sub: Any = None
+    wire: Any = None
+    plant_bus: can.BusABC | None = None
+    ctrl_bus: can.BusABC | None = None
+    dsp_service: DspService | None = None
+    ctrl: ControllerService | None = None
+    threads: list[threading.Thread] = []
     started = time.monotonic()
     try:
+        health_sub = sess.declare_subscriber(Keys(cs.rig_id).health_all, keep_health)
+        wire = _wire(cs, ps)
+        plant_bus = wire.plant_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
+        ctrl_bus = wire.controller_bus() if wire is not None else can.Bus(interface="virtual", channel=channel)
+        dsp_service = DspService(ds, sess)
+        threads = [
+            threading.Thread(target=serve_plant, args=(ps, sess, plant_bus, stop), kwargs={"owns_process": False}, name="plant", daemon=True),
+            threading.Thread(target=dsp_service.run, args=(stop,), name="dsp", daemon=True),
+        ]
+        ctrl = ControllerService(cs, sess, PlantLink(ctrl_bus, cs.node_id), keep_record=True)  # callers read controller.record
+        ctrl.owns_process = False  # the services share this process: real-time measures stay on each loop's thread
+        if at_tick is not None:
+            ctrl.injection = TickAction(ctrl.injection, *at_tick)  # type: ignore[assignment]
+        started = time.monotonic()
         for t in threads:
             t.start()
         result = ctrl.run(stop)
@@ -132,13 +142,18 @@ def run_in_process(
             wire.shutdown()  # the end's frames (valves to zero, NMT) reach the plant before it stops
         stop.set()
         for t in threads:
-            t.join(timeout=10)
-        ctrl.close()
-        dsp_service.close()
+            if t.ident is not None:
+                t.join(timeout=10)
+        if ctrl is not None:
+            ctrl.close()
+        if dsp_service is not None:
+            dsp_service.close()
         time.sleep(0.05)
-        health_sub.undeclare()
-        plant_bus.shutdown()
-        ctrl_bus.shutdown()
+        if health_sub is not None:
+            health_sub.undeclare()
+        for bus in (plant_bus, ctrl_bus):
+            if bus is not None:
+                bus.shutdown()
         if own_session:
             sess.close()
     ctrl.finish(result)  # the run record, as the controller service writes it at its end
