@@ -119,7 +119,7 @@ def cache_hits(modules: Iterable[Any] | None = None) -> int:
     except ImportError:
         return 0
     if modules is None:
-        modules = [m for name, m in list(sys.modules.items()) if name.split(".")[0] in PACKAGES and m is not None]
+        modules = [m for name, m in sys.modules.copy().items() if name.split(".")[0] in PACKAGES and m is not None]  # another thread may import meanwhile
     seen: set[int] = set()
     hits = 0
     for module in modules:

@@ -42,7 +42,13 @@ COPIES = 2
 
 
 def level_path(level: int, bitrate: int) -> Path:
-    return EXAMPLES / f"vehicle-{level}pct-{bitrate // 1000}k.dbc"
+    """The example DBC of ``level`` % at ``bitrate``: in the source checkout this module is in,
+    else (an installed package, which does not ship the examples) in the current folder's."""
+    name = f"vehicle-{level}pct-{bitrate // 1000}k.dbc"
+    for folder in (EXAMPLES, Path.cwd() / "examples" / "restbus"):
+        if (folder / name).is_file():
+            return folder / name
+    return EXAMPLES / name
 
 
 def level_dbc(level: int, bitrate: int, out: Path, source: Path = SOURCE) -> float:
